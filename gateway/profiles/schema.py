@@ -92,6 +92,7 @@ KNOWN_FEATURES = {
     "alphanumeric_display",  # ASCII set points (AP05 5F1Bh)
     "speed_alarm",  # speed limit alarm (MSK5000 5FFAh)
     "node_id_object",  # node id / baud rate by object + store + reset (BEI 2101h/2100h)
+    "position_indicator",  # set points in, status word out (AP05 5F16h/5F0Ch/5F19h)
 }
 
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -258,6 +259,9 @@ class Profile(_Strict):
     emcy: dict[HexInt, str] = Field(default_factory=dict)
     boot: Boot = Field(default_factory=Boot)
     notes: list[str] = Field(default_factory=list, description="manual inconsistencies and choices")
+    sim: dict[str, Any] = Field(
+        default_factory=dict, description="hints for the simulator (motion, position object...)"
+    )
 
     @model_validator(mode="after")
     def _check(self) -> Profile:
