@@ -1,0 +1,136 @@
+"""Device behaviours of the simulator: the hook API and the registry feature name -> class.
+
+The simulator core (``gateway.sim.node.SimNode``) implements DS-301 for every device. What a
+manual describes beyond DS-301 (LSS, a guarding bit, work areas, an Auto-ID procedure...) lives
+in one module per *profile feature* under this package, as a subclass of :class:`Behaviour`
+registered with :func:`register`. A node gets one instance of each behaviour whose feature
+appears in its profile's ``features:``; the feature's parameter dict (from the profile, updated
+by the node's simulator options) is ``self.params``. Behaviours are chosen by feature, never by
+device name.
+
+Hooks are called by the node in this order for a frame: ``on_frame`` (may consume it), then the
+core's handling (NMT / SYNC / SDO / RPDO / RTR), which calls the specific hooks below. Frames a
+behaviour wants to send go through ``self.node.send(cob_id, data)``; values are read and written
+with ``self.node.get(index, sub)`` / ``self.node.set(index, sub, value)`` (no access checks, no
+hooks). All hooks get ``now`` (seconds, the caller's monotonic clock) and must be deterministic
+given it: no wall clock, no sleeps, no threads.
+
+Imports: python-can types and gateway.objref only (the node is referenced for typing only).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import can
+
+from gateway.objref import ObjRef
+
+if TYPE_CHECKING:
+    from gateway.sim.node import SimNode
+
+
+class Behaviour:
+    """Base class of a device behaviour: every hook does nothing by default.
+
+    Subclasses set ``feature`` to the profile feature name they implement and override only the
+    hooks they need.
+    """
+
+    feature: ClassVar[str] = ""
+
+    def __init__(self, node: SimNode, params: dict[str, Any]) -> None:
+        self.node = node
+        self.params = params
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def on_boot(self, now: float) -> None:
+        """After power-on, reset node or reset communication, just before the boot-up message.
+
+        ``self.node.last_reset`` says which ("power", "node" or "communication"); object values
+        have already been reloaded. A behaviour resets its own state here.
+        """
+
+    def on_nmt(self, state: int, now: float) -> None:
+        """After the NMT state changed to ``state`` (4 stopped, 5 operational, 127 pre-op)."""
+
+    # -- SDO server --------------------------------------------------------------------------
+    def before_sdo_write(self, obj: ObjRef, value: Any, now: float) -> int | None:
+        """A client writes ``value`` (decoded: int, str or bytes) to ``obj``.
+
+        Called after the core's checks (existence, access, length, range). Return an SDO abort
+        code to refuse the write, or None to let the core store it.
+        """
+        return None
+
+    def after_sdo_write(self, obj: ObjRef, value: Any, now: float) -> None:
+        """After ``value`` was stored in ``obj`` by an SDO download (or an RPDO did not: see
+        ``on_rpdo``)."""
+
+    def before_sdo_read(self, obj: ObjRef, now: float) -> int | None:
+        """A client reads ``obj`` (after ``update_process``). Return an abort code to refuse."""
+        return None
+
+    # -- process data ------------------------------------------------------------------------
+    def on_rpdo(self, number: int, data: bytes, now: float) -> None:
+        """After RPDO ``number`` (1-based) wrote its mapped objects from ``data``."""
+
+    def on_sync(self, now: float) -> None:
+        """A SYNC was received (before synchronous TPDOs are built)."""
+
+    def update_process(self, now: float) -> None:
+        """Compute process objects (status words, area states...) before a TPDO is built or a
+        process object is read by SDO. The motion model has already updated position/velocity."""
+
+    # -- anything else -----------------------------------------------------------------------
+    def on_frame(self, msg: can.Message, now: float) -> bool:
+        """Every received frame, before the core sees it. Return True if consumed (e.g. LSS
+        on 0x7E5); the core then ignores it."""
+        return False
+
+    def tick(self, now: float) -> None:
+        """Called on every node tick (about every millisecond under the runner)."""
+
+    def on_fault(self, name: str, active: bool, now: float) -> bool:
+        """A fault was injected or cleared (``sensor_error``, ``battery_low``,
+        ``freeze_guarding_echo``...). Return True if this behaviour implements it."""
+        return False
+
+
+_REGISTRY: dict[str, type[Behaviour]] = {}
+
+
+def register(cls: type[Behaviour]) -> type[Behaviour]:
+    """Class decorator: make ``cls`` the behaviour of profile feature ``cls.feature``."""
+    if not cls.feature:
+        raise ValueError(f"{cls.__name__} has no feature name")
+    other = _REGISTRY.get(cls.feature)
+    if other is not None and other is not cls:
+        raise ValueError(f"feature {cls.feature!r} already implemented by {other.__name__}")
+    _REGISTRY[cls.feature] = cls
+    return cls
+
+
+def behaviour_for(feature: str) -> type[Behaviour] | None:
+    """The behaviour class of ``feature``, importing ``behaviours/<feature>.py`` on first use;
+    None if no module implements it (the core then simulates DS-301 only for that feature)."""
+    if feature not in _REGISTRY:
+        import importlib
+
+        try:
+            importlib.import_module(f"{__name__}.{feature}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{feature}":
+                raise
+            return None
+    return _REGISTRY.get(feature)
+
+
+def registered() -> dict[str, type[Behaviour]]:
+    """Features with a behaviour loaded so far (imports every module of this package first)."""
+    import importlib
+    import pkgutil
+
+    for info in pkgutil.iter_modules(__path__):
+        importlib.import_module(f"{__name__}.{info.name}")
+    return dict(_REGISTRY)
