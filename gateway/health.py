@@ -1,0 +1,240 @@
+"""Health and metrics over HTTP: ``GET /healthz``, ``GET /livez``, ``GET /metrics``.
+
+Responsible for: a minimal HTTP/1.1 server for probes and Prometheus scrapes, and the shape of
+the health document (``build_status``). It knows nothing of CAN, Modbus or Zenoh: the gateway
+hands it a ``status_fn`` returning a dict and, optionally, a metrics registry.
+
+- ``/healthz``: ``status_fn()`` as JSON; 200 when its ``"status"`` is ``"ready"``, else 503 (500
+  if ``status_fn`` raises). For readiness probes, load balancers and HEALTHCHECK.
+- ``/livez``: 200 as long as the event loop answers. For liveness probes: restarting the gateway
+  does not fix a missing router or an unplugged bus, so liveness must not depend on them.
+- ``/metrics``: ``prometheus_client.generate_latest(registry)`` in the text format.
+- anything else 404; methods other than GET/HEAD 405. One request per connection
+  (``Connection: close``).
+
+Why ``asyncio.start_server`` and not ``http.server`` in a thread: the server runs on the
+gateway's own event loop, so ``status_fn`` and the metrics collectors read the process image
+on the thread that writes it, without locks; it starts and stops with the gateway and costs no
+thread. The protocol needed is tiny (a request line, GET on three paths, a closed connection
+after each answer), so a bounded hand-written parser is simpler than a dependency (aiohttp is
+not one). Requests are bounded: 8 KiB of head, ``read_timeout_s`` to send it.
+
+Config (section ``health:`` of the gateway config): ``host`` (127.0.0.1), ``port`` (0 = off).
+Port 0 passed to ``HealthServer`` itself binds an ephemeral port (see ``.port``): the caller
+decides that 0 in the config means "do not start one".
+
+Imports: the standard library and prometheus_client only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import inspect
+import json
+import logging
+from collections.abc import Awaitable, Callable, Mapping
+from http import HTTPStatus
+from typing import Any
+
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
+
+log = logging.getLogger(__name__)
+
+StatusFn = Callable[[], Mapping[str, Any] | Awaitable[Mapping[str, Any]]]
+
+READY = "ready"
+NOT_READY = "not-ready"
+MAX_REQUEST_HEAD_BYTES = 8192
+JSON_TYPE = "application/json"
+TEXT_TYPE = "text/plain; charset=utf-8"
+
+
+def build_status(
+    *,
+    bus_open: bool,
+    modbus_up: bool | None,
+    zenoh_up: bool | None,
+    nodes: Mapping[str, Mapping[str, Any]] | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """The health document: ready when the CAN bus is open and every enabled adapter is up.
+
+    ``modbus_up`` / ``zenoh_up`` are None when that adapter is disabled in the config. Node
+    details are reported but do not decide readiness: a node that is off is a plant problem the
+    gateway must report (over Modbus, Zenoh and here), not a reason to take the gateway away.
+    ``reasons`` lists, in words, why the gateway is not ready.
+    """
+    reasons = []
+    if not bus_open:
+        reasons.append("CAN bus is not open")
+    if modbus_up is False:
+        reasons.append("Modbus TCP server is not serving")
+    if zenoh_up is False:
+        reasons.append("Zenoh session is not open")
+    return {
+        "status": NOT_READY if reasons else READY,
+        "reasons": reasons,
+        "bus_open": bus_open,
+        "modbus_up": modbus_up,
+        "zenoh_up": zenoh_up,
+        "nodes": {name: dict(detail) for name, detail in (nodes or {}).items()},
+        **extra,
+    }
+
+
+class HealthServer:
+    """HTTP endpoint for probes and scrapes on the running event loop.
+
+    Usage::
+
+        server = HealthServer("127.0.0.1", 0, status_fn, registry=metrics.registry)
+        await server.start()
+        server.port          # the bound port, an ephemeral one when 0 was asked
+        await server.stop()
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        status_fn: StatusFn,
+        registry: CollectorRegistry | None = None,
+        *,
+        read_timeout_s: float = 5.0,
+    ) -> None:
+        self.host = host
+        self.requested_port = port
+        self._status_fn = status_fn
+        self._registry = registry
+        self._read_timeout_s = read_timeout_s
+        self._server: asyncio.Server | None = None
+        self._connections: set[asyncio.Task[None]] = set()
+
+    @property
+    def port(self) -> int:
+        """The port actually bound (the ephemeral one when 0 was asked); 0 before ``start``."""
+        if self._server is None or not self._server.sockets:
+            return 0
+        return self._server.sockets[0].getsockname()[1]
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{self.port}"
+
+    async def start(self) -> None:
+        if self._server is not None:
+            raise RuntimeError("health server already started")
+        self._server = await asyncio.start_server(
+            self._on_connection, self.host, self.requested_port, limit=MAX_REQUEST_HEAD_BYTES
+        )
+        log.info("health endpoint on %s (/healthz, /livez, /metrics)", self.url)
+
+    async def stop(self) -> None:
+        """Stops listening and closes open connections; returns when they are gone."""
+        server, self._server = self._server, None
+        if server is None:
+            return
+        server.close()
+        for task in list(self._connections):
+            task.cancel()
+        if self._connections:
+            await asyncio.gather(*self._connections, return_exceptions=True)
+        await server.wait_closed()
+
+    async def _on_connection(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
+    ) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._connections.add(task)
+        try:
+            await self._serve_one(reader, writer)
+        except (ConnectionError, asyncio.IncompleteReadError):
+            pass  # the client went away; nothing to answer
+        finally:
+            self._connections.discard(task)
+            writer.close()
+            with contextlib.suppress(Exception):
+                await writer.wait_closed()
+
+    async def _serve_one(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            head = await asyncio.wait_for(
+                reader.readuntil(b"\r\n\r\n"), timeout=self._read_timeout_s
+            )
+        except TimeoutError:
+            return await self._respond(writer, HTTPStatus.REQUEST_TIMEOUT, b"", TEXT_TYPE)
+        except asyncio.LimitOverrunError:
+            return await self._respond(
+                writer, HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE, b"", TEXT_TYPE
+            )
+        request_line = head.split(b"\r\n", 1)[0].decode("latin-1")
+        parts = request_line.split()
+        if len(parts) != 3 or not parts[2].startswith("HTTP/1."):
+            return await self._respond(writer, HTTPStatus.BAD_REQUEST, b"bad request\n", TEXT_TYPE)
+        method, target, _version = parts
+        head_only = method == "HEAD"
+        if method not in ("GET", "HEAD"):
+            return await self._respond(
+                writer,
+                HTTPStatus.METHOD_NOT_ALLOWED,
+                b"GET or HEAD only\n",
+                TEXT_TYPE,
+                extra_headers={"Allow": "GET, HEAD"},
+            )
+        path = target.split("?", 1)[0]
+        if path == "/healthz":
+            status, body = await self._health()
+            return await self._respond(writer, status, body, JSON_TYPE, head_only=head_only)
+        if path == "/livez":
+            body = b'{"status": "alive"}\n'
+            return await self._respond(writer, HTTPStatus.OK, body, JSON_TYPE, head_only=head_only)
+        if path == "/metrics" and self._registry is not None:
+            body = generate_latest(self._registry)
+            return await self._respond(
+                writer, HTTPStatus.OK, body, CONTENT_TYPE_LATEST, head_only=head_only
+            )
+        return await self._respond(
+            writer, HTTPStatus.NOT_FOUND, b"not found\n", TEXT_TYPE, head_only=head_only
+        )
+
+    async def _health(self) -> tuple[HTTPStatus, bytes]:
+        try:
+            status = self._status_fn()
+            if inspect.isawaitable(status):
+                status = await status
+        except Exception as exc:
+            log.exception("health status function failed")
+            doc: Mapping[str, Any] = {"status": NOT_READY, "reasons": [f"status error: {exc!r}"]}
+            return HTTPStatus.INTERNAL_SERVER_ERROR, _json(doc)
+        code = HTTPStatus.OK if status.get("status") == READY else HTTPStatus.SERVICE_UNAVAILABLE
+        return code, _json(status)
+
+    @staticmethod
+    async def _respond(
+        writer: asyncio.StreamWriter,
+        status: HTTPStatus,
+        body: bytes,
+        content_type: str,
+        *,
+        head_only: bool = False,
+        extra_headers: Mapping[str, str] | None = None,
+    ) -> None:
+        headers = {
+            "Content-Type": content_type,
+            "Content-Length": str(len(body)),
+            "Cache-Control": "no-store",
+            "Connection": "close",
+            **(extra_headers or {}),
+        }
+        head = f"HTTP/1.1 {status.value} {status.phrase}\r\n" + "".join(
+            f"{name}: {value}\r\n" for name, value in headers.items()
+        )
+        writer.write(head.encode("latin-1") + b"\r\n" + (b"" if head_only else body))
+        await writer.drain()
+
+
+def _json(doc: Mapping[str, Any]) -> bytes:
+    return (json.dumps(doc, default=str, indent=1, sort_keys=False) + "\n").encode()
