@@ -367,3 +367,24 @@ def test_store_and_restore_signatures_are_save_and_load() -> None:
     # 4.7.2.11 / 4.7.2.12: bytes 73h 61h 76h 65h ("save"), 6Ch 6Fh 61h 64h ("load")
     p = load_profile("sgh10").profile
     assert p.features["node_id_object"]["store_signature"] == int.from_bytes(b"save", "little")
+
+
+def test_sdo_read_example_calibration_value_matches_eds_type(lp: LoadedProfile) -> None:
+    # 4.4.1.4: 601h 40 10 60 01 -> 581h 43 10 60 01 FE 01 00 00 (6010h:01 = 510d)
+    response = bytes.fromhex("43106001FE010000")
+    index, sub = struct.unpack_from("<HB", response, 1)
+    var = _var(lp, index, sub)
+    valid_bytes = 4 - ((response[0] >> 2) & 0x3)  # DS-301 expedited, bits 3-2
+    assert valid_bytes == len(var) // 8 == 4
+    assert var.decode_raw(response[4:8]) == 510
+
+
+def test_sdo_write_example_cycle_timer_matches_eds_type(lp: LoadedProfile) -> None:
+    # 4.4.1.4: 601h 2B 00 62 00 94 11 00 00 -> 581h 60 00 62 00 (6200h = 4500d)
+    request = bytes.fromhex("2B00620094110000")
+    index, sub = struct.unpack_from("<HB", request, 1)
+    var = _var(lp, index, sub)
+    valid_bytes = 4 - ((request[0] >> 2) & 0x3)
+    assert valid_bytes == len(var) // 8 == 2
+    assert var.access_type == "rw"
+    assert var.decode_raw(request[4:6]) == 4500
