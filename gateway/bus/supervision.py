@@ -1,0 +1,642 @@
+"""Node supervision as plain state machines: heartbeat consumer, node guarding master,
+guarding-bit check and external-heartbeat feed.
+
+Rule 1: everything that decides whether a node (or its process-data link) is alive lives here,
+with each transition in a table next to the manual section it implements.
+Rule 2: nothing here does I/O or knows the time by itself. The caller (the bus driver) feeds
+received frames and the current monotonic time ``now`` (seconds) in, and gets back a list of
+outputs: *actions* (a frame the caller must send, e.g. ``SendGuardRtr``) and *changes* (what
+happened, e.g. ``NodeLost``). ``next_deadline()`` tells the caller when to ``poll`` next.
+
+Timeout edges, one convention for every machine in this file: a timeout of ``T`` seconds
+measured from ``t0`` expires strictly *after* ``t0 + T``. At ``now == t0 + T`` the node is still
+alive; at the next representable instant it is lost. Scheduled sends are due *at* their time
+(``now >= due``).
+
+Imports: the standard library only. Must not import python-can, canopen, asyncio, logging or any
+other gateway module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum, StrEnum
+from typing import Literal
+
+# --------------------------------------------------------------------------- NMT states
+
+
+class NmtState(IntEnum):
+    """NMT state byte of a heartbeat / guarding answer (SGH10 manual 4.5.2, 4.5.3; DS-301)."""
+
+    BOOTUP = 0x00  # SGH10 manual 4.2.2: the boot-up message carries 00h
+    STOPPED = 0x04
+    OPERATIONAL = 0x05
+    PRE_OPERATIONAL = 0x7F  # 127
+
+
+#: States a heartbeat or a guarding answer may report (SGH10 manual 4.5.2/4.5.3: 4, 5, 127).
+_REPORTED_STATES = frozenset({NmtState.STOPPED, NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL})
+
+
+class Liveness(StrEnum):
+    """Whether a supervised node is answering."""
+
+    UNKNOWN = "unknown"  # not heard of yet (or just booted: monitoring restarts)
+    ALIVE = "alive"
+    LOST = "lost"
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+@dataclass(frozen=True)
+class SendGuardRtr:
+    """Action: send a remote frame (RTR, DLC 1) on COB-ID 700h + node id (SGH10 manual 4.5.2)."""
+
+
+@dataclass(frozen=True)
+class NodeAlive:
+    """Change: the node answers again (or for the first time), in this NMT state."""
+
+    nmt_state: NmtState
+
+
+@dataclass(frozen=True)
+class NodeLost:
+    """Change: no valid heartbeat / guarding answer within the timeout."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class NmtStateChanged:
+    """Change: the NMT state the node reports differs from the one it reported before."""
+
+    old: NmtState | None
+    new: NmtState
+
+
+@dataclass(frozen=True)
+class BootUpSeen:
+    """Change: the node sent its boot-up message (700h + node id, byte 00h)."""
+
+
+@dataclass(frozen=True)
+class InvalidStateByte:
+    """Change: a heartbeat / guarding answer carried a state value DS-301 does not define."""
+
+    byte: int
+
+
+@dataclass(frozen=True)
+class ToggleError:
+    """Change: a guarding answer repeated the previous toggle bit; the answer is not valid."""
+
+    expected: int
+    received: int
+    count: int
+
+
+@dataclass(frozen=True)
+class WrongState:
+    """Change: a guarding answer reported another NMT state than the expected one."""
+
+    expected: NmtState
+    received: NmtState
+    count: int
+
+
+Output = (
+    SendGuardRtr
+    | NodeAlive
+    | NodeLost
+    | NmtStateChanged
+    | BootUpSeen
+    | InvalidStateByte
+    | ToggleError
+    | WrongState
+)
+
+
+# --------------------------------------------------------------------------- heartbeat consumer
+
+
+class HeartbeatConsumer:
+    """Watches the heartbeat of one producer node (SGH10 manual 4.5.3, DS-301 heartbeat).
+
+    The node sends ``700h + node id`` with its NMT state every ``producer_ms`` (object 1017h).
+    The node is lost when no heartbeat arrives within ``multiple * producer_ms``.
+
+    ====================  ========================================  ========  ======================
+    state                 event                                     next      outputs
+    ====================  ========================================  ========  ======================
+    UNKNOWN               heartbeat (state s)                       ALIVE     NodeAlive(s), NmtStateChanged
+    ALIVE                 heartbeat (state s)                       ALIVE     NmtStateChanged if s changed
+    ALIVE                 poll, now > last heartbeat + timeout      LOST      NodeLost
+    LOST                  heartbeat (state s)                       ALIVE     NodeAlive(s), NmtStateChanged if changed
+    any                   boot-up (byte 00h)                        UNKNOWN   BootUpSeen, NmtStateChanged(-> PRE_OPERATIONAL)
+    any                   byte not 00h/04h/05h/7Fh                  same      InvalidStateByte (ignored)
+    ====================  ========================================  ========  ======================
+
+    Monitoring starts with the first heartbeat (DS-301) and restarts after a boot-up: a node that
+    just booted may have 1017h = 0 until the gateway configures it, so a boot-up is not treated
+    as a heartbeat (no false loss during configuration). A node that never sends anything stays
+    UNKNOWN; reporting that is the lifecycle's boot timeout.
+    """
+
+    def __init__(self, producer_ms: int, multiple: float = 1.5):
+        if producer_ms <= 0:
+            raise ValueError(
+                f"producer_ms must be > 0 (1017h = 0 disables heartbeat), got {producer_ms}"
+            )
+        if multiple < 1.0:
+            raise ValueError(f"multiple must be >= 1.0, got {multiple}")
+        self.producer_ms = producer_ms
+        self.multiple = multiple
+        self.timeout_s: float = producer_ms * multiple / 1000.0
+        self.state: Liveness = Liveness.UNKNOWN
+        self.nmt_state: NmtState | None = None
+        self.last_heartbeat_s: float | None = None
+        self.heartbeats = 0
+        self.losses = 0
+        self.bootups = 0
+        self.invalid_frames = 0
+
+    # -- queries
+    @property
+    def lost(self) -> bool:
+        return self.state is Liveness.LOST
+
+    @property
+    def alive(self) -> bool:
+        return self.state is Liveness.ALIVE
+
+    @property
+    def deadline_s(self) -> float | None:
+        """Last instant at which the node still counts as alive (None when not monitoring)."""
+        if self.state is not Liveness.ALIVE or self.last_heartbeat_s is None:
+            return None
+        return self.last_heartbeat_s + self.timeout_s
+
+    def next_deadline(self) -> float | None:
+        """When ``poll`` may next change something (None: only a received frame can)."""
+        return self.deadline_s
+
+    # -- events
+    def on_frame(self, byte: int, now: float) -> list[Output]:
+        """A frame on 700h + node id: boot-up (00h) or heartbeat (state byte)."""
+        if byte == NmtState.BOOTUP:
+            return self.on_bootup(now)
+        return self.on_heartbeat(byte, now)
+
+    def on_heartbeat(self, byte: int, now: float) -> list[Output]:
+        try:
+            new = NmtState(byte & 0x7F)  # DS-301: bit 7 of a heartbeat is reserved (0)
+        except ValueError:
+            new = None
+        if new is None or new not in _REPORTED_STATES:
+            if byte == NmtState.BOOTUP:
+                return self.on_bootup(now)
+            self.invalid_frames += 1
+            return [InvalidStateByte(byte)]
+        out: list[Output] = []
+        self.heartbeats += 1
+        self.last_heartbeat_s = now
+        if self.state is not Liveness.ALIVE:
+            self.state = Liveness.ALIVE
+            out.append(NodeAlive(new))
+        if new != self.nmt_state:
+            out.append(NmtStateChanged(self.nmt_state, new))
+            self.nmt_state = new
+        return out
+
+    def on_bootup(self, now: float) -> list[Output]:
+        self.bootups += 1
+        self.state = Liveness.UNKNOWN
+        self.last_heartbeat_s = None
+        out: list[Output] = [BootUpSeen()]
+        # SGH10 manual 4.2.1.1: after the boot-up message the device is PRE-OPERATIONAL.
+        if self.nmt_state != NmtState.PRE_OPERATIONAL:
+            out.append(NmtStateChanged(self.nmt_state, NmtState.PRE_OPERATIONAL))
+            self.nmt_state = NmtState.PRE_OPERATIONAL
+        return out
+
+    def poll(self, now: float) -> list[Output]:
+        deadline = self.deadline_s
+        if deadline is not None and now > deadline:
+            self.state = Liveness.LOST
+            self.losses += 1
+            return [NodeLost(f"no heartbeat for more than {self.timeout_s * 1000:g} ms")]
+        return []
+
+
+# --------------------------------------------------------------------------- node guarding
+
+
+class NodeGuardingMaster:
+    """The master side of node guarding (DS-301; AP05 manual 5.5.2, SGH10 manual 4.5.2).
+
+    Every guard time the master sends an RTR on ``700h + node id``; the node answers one byte:
+    bit 7 toggle, bits 6..0 NMT state (4, 5 or 127). The first answer after guarding is activated
+    has toggle 0, then the toggle alternates. Life time = guard time x life time factor (100Ch x
+    100Dh): without a valid answer for that long, the node is lost.
+
+    ===========  =================================================  ========  ==========================
+    state        event                                              next      outputs
+    ===========  =================================================  ========  ==========================
+    any          poll, now >= next RTR time                         same      SendGuardRtr (first poll activates)
+    UNKNOWN      answer, toggle ok, state ok                        ALIVE     NodeAlive, NmtStateChanged
+    ALIVE        answer, toggle ok, state ok                        ALIVE     NmtStateChanged if changed
+    LOST         answer, toggle ok, state ok                        ALIVE     NodeAlive
+    any          answer with the previous answer's toggle           same      ToggleError (answer not valid)
+    any          answer with state != expected                      same      WrongState (answer not valid)
+    UNKNOWN      poll, now > activation/boot-up + life time         LOST      NodeLost
+    ALIVE        poll, now > last valid answer + life time          LOST      NodeLost
+    any          boot-up                                            UNKNOWN   BootUpSeen (toggle restarts at 0)
+    ===========  =================================================  ========  ==========================
+
+    DS-301: "if two consecutive responses have the same value of the toggle-bit, the new
+    response should be handled as if it was not received": the expected toggle is always the
+    inverse of the last answer's, so one lost answer costs one ToggleError, not a stuck error.
+    A wrong NMT state is a node-guarding error too: the answer is not valid (it does not renew
+    the life time) but its state is still reported with NmtStateChanged. ``expected_state`` is
+    what the master commanded (None: any of 4/5/127 is accepted); the owner sets it.
+    """
+
+    def __init__(self, guard_time_ms: int, life_time_factor: int):
+        if guard_time_ms <= 0 or life_time_factor <= 0:
+            # SGH10 manual 4.5.2: guarding is deactivated if 100Ch or 100Dh is 0.
+            raise ValueError(
+                f"node guarding needs guard_time_ms > 0 and life_time_factor > 0 "
+                f"(got {guard_time_ms} ms x {life_time_factor}); 0 deactivates guarding"
+            )
+        self.guard_time_ms = guard_time_ms
+        self.life_time_factor = life_time_factor
+        self.guard_time_s: float = guard_time_ms / 1000.0
+        self.life_time_s: float = guard_time_ms * life_time_factor / 1000.0
+        self.state: Liveness = Liveness.UNKNOWN
+        self.nmt_state: NmtState | None = None
+        self.expected_state: NmtState | None = None
+        self.active = False
+        self.expected_toggle = 0  # DS-301: first answer after activation carries toggle 0
+        self.last_valid_s: float | None = None  # or activation / boot-up time
+        self.next_rtr_s: float | None = None
+        self.rtr_sent = 0
+        self.answers = 0
+        self.toggle_errors = 0
+        self.state_errors = 0
+        self.losses = 0
+        self.bootups = 0
+        self.last_answer_valid: bool | None = None
+
+    # -- queries
+    @property
+    def lost(self) -> bool:
+        return self.state is Liveness.LOST
+
+    @property
+    def alive(self) -> bool:
+        return self.state is Liveness.ALIVE
+
+    @property
+    def deadline_s(self) -> float | None:
+        """Last instant without a valid answer at which the node still counts as not lost."""
+        if not self.active or self.state is Liveness.LOST or self.last_valid_s is None:
+            return None
+        return self.last_valid_s + self.life_time_s
+
+    def next_deadline(self) -> float | None:
+        times = [t for t in (self.next_rtr_s, self.deadline_s) if t is not None]
+        return min(times) if times else None
+
+    def expect(self, state: NmtState | None) -> None:
+        """The state the node must report from now on (None: any valid state)."""
+        self.expected_state = state
+
+    # -- events
+    def poll(self, now: float) -> list[Output]:
+        out: list[Output] = []
+        if not self.active:
+            # SGH10 manual 4.5.2: guarding is enabled by the master's first RTR.
+            self.active = True
+            self.last_valid_s = now
+            self.next_rtr_s = now
+        deadline = self.deadline_s
+        if deadline is not None and now > deadline:
+            self.state = Liveness.LOST
+            self.losses += 1
+            out.append(
+                NodeLost(f"no valid guarding answer for more than {self.life_time_s * 1000:g} ms")
+            )
+        assert self.next_rtr_s is not None
+        if now >= self.next_rtr_s:
+            out.append(SendGuardRtr())
+            self.rtr_sent += 1
+            nxt = self.next_rtr_s + self.guard_time_s
+            self.next_rtr_s = nxt if nxt > now else now + self.guard_time_s
+        return out
+
+    def on_response(self, byte: int, now: float) -> list[Output]:
+        """A guarding answer (data frame on 700h + node id, byte 0)."""
+        self.answers += 1
+        toggle = (byte >> 7) & 1
+        raw_state = byte & 0x7F
+        out: list[Output] = []
+        valid = True
+        if toggle != self.expected_toggle:
+            self.toggle_errors += 1
+            out.append(ToggleError(self.expected_toggle, toggle, self.toggle_errors))
+            valid = False
+        self.expected_toggle = toggle ^ 1
+        try:
+            st = NmtState(raw_state)
+        except ValueError:
+            st = None
+        if st is None or st not in _REPORTED_STATES:
+            self.state_errors += 1
+            self.last_answer_valid = False
+            return [*out, InvalidStateByte(byte)]
+        if st != self.nmt_state:
+            out.append(NmtStateChanged(self.nmt_state, st))
+            self.nmt_state = st
+        if self.expected_state is not None and st != self.expected_state:
+            self.state_errors += 1
+            out.append(WrongState(self.expected_state, st, self.state_errors))
+            valid = False
+        self.last_answer_valid = valid
+        if valid:
+            if not self.active:
+                self.active = True
+                self.next_rtr_s = now + self.guard_time_s
+            self.last_valid_s = now
+            if self.state is not Liveness.ALIVE:
+                self.state = Liveness.ALIVE
+                out.append(NodeAlive(st))
+        return out
+
+    def on_bootup(self, now: float) -> list[Output]:
+        """The node restarted: its toggle starts again at 0, the life time runs from now."""
+        self.bootups += 1
+        self.expected_toggle = 0
+        self.state = Liveness.UNKNOWN
+        if self.active:
+            self.last_valid_s = now
+        out: list[Output] = [BootUpSeen()]
+        if self.nmt_state != NmtState.PRE_OPERATIONAL:
+            out.append(NmtStateChanged(self.nmt_state, NmtState.PRE_OPERATIONAL))
+            self.nmt_state = NmtState.PRE_OPERATIONAL
+        return out
+
+
+# --------------------------------------------------------------------------- guarding bit
+
+
+class LinkState(StrEnum):
+    UNKNOWN = "unknown"  # nothing sent yet, or no echo seen yet
+    OK = "ok"
+    FAULT = "fault"
+
+
+@dataclass(frozen=True)
+class LinkOk:
+    """Change: the device echoes the guarding bit (again)."""
+
+
+@dataclass(frozen=True)
+class LinkFault:
+    """Change: the device stopped echoing the guarding bit."""
+
+    reason: str
+
+
+class GuardingBitCheck:
+    """Process-data link check by the guarding bit (AP05 manual 5.5.5, 5.3.2, 5.3.3).
+
+    The device copies bit 8 of the control word it receives (5F0Ch, in the RPDOs) into bit 8 of
+    its status word (5F19h) and sends it with its next TPDO. The gateway toggles the bit it sends
+    and checks that the status words echo it.
+
+    One toggle is in flight at a time: ``next_bit`` toggles the bit only when the previous toggle
+    has been echoed (or nothing was sent yet) and otherwise repeats it, so every echo answers
+    exactly one toggle, whatever the RPDO and TPDO rates. The first bit sent is 1: the status
+    word starts with bit 8 = 0 after power-on (AP05 manual 5.3.1.3 example: status word 0), so an
+    echo of 0 could not be told from a device that never received anything.
+
+    ===========  ===============================================================  ========  =========
+    state        event                                                            next      outputs
+    ===========  ===============================================================  ========  =========
+    any          next_bit (RPDO sent)                                             same      (expectation recorded)
+    any          status bit 8 == bit last sent                                    OK        LinkOk if not OK before
+    UNKNOWN/OK   status bit 8 != bit last sent, more than N in a row               FAULT     LinkFault
+    UNKNOWN/OK   poll, a toggle sent at t is unechoed and now > t + T              FAULT     LinkFault
+    FAULT        status bit 8 == bit last sent                                    OK        LinkOk
+    ===========  ===============================================================  ========  =========
+
+    A status word that does not echo is a *missed echo* (the first one or two after a toggle are
+    normal: that TPDO may have left before the RPDO was processed; hence the tolerance N).
+    Status words received before anything was sent are ignored.
+    """
+
+    def __init__(self, tolerance_missed: int = 3, tolerance_s: float = 1.0):
+        if tolerance_missed < 0:
+            raise ValueError("tolerance_missed must be >= 0")
+        if tolerance_s <= 0:
+            raise ValueError("tolerance_s must be > 0")
+        self.tolerance_missed = tolerance_missed
+        self.tolerance_s = tolerance_s
+        self.state: LinkState = LinkState.UNKNOWN
+        self.bit: int | None = None  # last bit sent
+        self.pending_since_s: float | None = None  # when the unechoed toggle was first sent
+        self.consecutive_missed = 0
+        self.missed = 0
+        self.echoes = 0
+        self.sent = 0
+        self.faults = 0
+
+    @property
+    def deadline_s(self) -> float | None:
+        if self.pending_since_s is None or self.state is LinkState.FAULT:
+            return None
+        return self.pending_since_s + self.tolerance_s
+
+    def next_deadline(self) -> float | None:
+        return self.deadline_s
+
+    def next_bit(self, now: float) -> int:
+        """The guarding bit to put into the control word of the RPDO about to be sent."""
+        if self.bit is None:
+            self.bit = 1
+            self.pending_since_s = now
+        elif self.pending_since_s is None:
+            self.bit ^= 1
+            self.pending_since_s = now
+        self.sent += 1
+        return self.bit
+
+    def on_status(self, bit: int, now: float) -> list[LinkOk | LinkFault]:
+        """Bit 8 of a status word just received in a TPDO."""
+        if self.bit is None:
+            return []
+        if (bit & 1) == self.bit:
+            self.consecutive_missed = 0
+            if self.pending_since_s is not None:
+                self.echoes += 1
+                self.pending_since_s = None
+            if self.state is not LinkState.OK:
+                self.state = LinkState.OK
+                return [LinkOk()]
+            return []
+        self.missed += 1
+        self.consecutive_missed += 1
+        if self.consecutive_missed > self.tolerance_missed and self.state is not LinkState.FAULT:
+            return self._fault(
+                f"guarding bit not echoed in {self.consecutive_missed} status words in a row"
+            )
+        return []
+
+    def poll(self, now: float) -> list[LinkOk | LinkFault]:
+        deadline = self.deadline_s
+        if deadline is not None and now > deadline:
+            return self._fault(f"guarding bit not echoed for more than {self.tolerance_s:g} s")
+        return []
+
+    def reset(self) -> None:
+        """Forget the expectation (the node rebooted or was lost): state UNKNOWN."""
+        self.state = LinkState.UNKNOWN
+        self.bit = None
+        self.pending_since_s = None
+        self.consecutive_missed = 0
+
+    def _fault(self, reason: str) -> list[LinkOk | LinkFault]:
+        self.state = LinkState.FAULT
+        self.faults += 1
+        return [LinkFault(reason)]
+
+
+# --------------------------------------------------------------------------- external heartbeat
+
+ExternalHeartbeatSource = Literal["rpdo", "sync"]
+
+#: AP05 manual 5.7.2.31, 5F09h:02: 0 = timer triggered by an RPDO (set point), 1 = by a SYNC.
+EXTERNAL_HEARTBEAT_SOURCE_CODES: dict[str, int] = {"rpdo": 0, "sync": 1}
+#: AP05 manual 5.7.2.31, 5F09h:01: 0 (off) or 10 ... 65535 ms.
+EXTERNAL_HEARTBEAT_MIN_MS = 10
+EXTERNAL_HEARTBEAT_MAX_MS = 65535
+
+
+@dataclass(frozen=True)
+class SendKeepAliveRpdo:
+    """Action: re-send the last RPDO now so the device's external-heartbeat timer is fed."""
+
+    overdue_s: float
+
+
+def check_external_heartbeat(
+    interval_ms: int,
+    source: str,
+    sync_period_ms: float | None,
+    keepalive_ms: float | None,
+    *,
+    margin: float = 0.5,
+) -> str | None:
+    """A problem text for a config that would let the device's watchdog expire, else None.
+
+    AP05 manual 5.5.4 / 5.7.2.31: with 5F09h:01 = interval > 0 the device drops to
+    PRE-OPERATIONAL when no RPDO (5F09h:02 = 0) or no SYNC (= 1) arrives within the interval.
+    The gateway must feed it at least every ``interval * (1 - margin)`` (half the interval by
+    default) so one late or lost frame does not trip it.
+    """
+    if interval_ms == 0:
+        return None
+    if not EXTERNAL_HEARTBEAT_MIN_MS <= interval_ms <= EXTERNAL_HEARTBEAT_MAX_MS:
+        return (
+            f"external heartbeat interval {interval_ms} ms is not allowed: 0 (off) or "
+            f"{EXTERNAL_HEARTBEAT_MIN_MS}..{EXTERNAL_HEARTBEAT_MAX_MS} ms (AP05 manual 5F09h:01)"
+        )
+    if not 0.0 <= margin < 1.0:
+        return f"external heartbeat margin {margin} must be in 0 <= margin < 1"
+    limit_ms = interval_ms * (1.0 - margin)
+    if source == "rpdo":
+        if not keepalive_ms:
+            return (
+                f"external heartbeat source rpdo needs a keep-alive: the device expects an RPDO "
+                f"within {interval_ms} ms, set keepalive_ms <= {limit_ms:g}"
+            )
+        if keepalive_ms > limit_ms:
+            return (
+                f"external heartbeat keep-alive {keepalive_ms:g} ms is too slow for the "
+                f"{interval_ms} ms interval: send at least every {limit_ms:g} ms"
+            )
+        return None
+    if source == "sync":
+        if not sync_period_ms:
+            return (
+                f"external heartbeat source sync but the gateway produces no SYNC "
+                f"(master.sync_period_ms is 0): the device drops to PRE-OPERATIONAL after "
+                f"{interval_ms} ms"
+            )
+        if sync_period_ms > limit_ms:
+            return (
+                f"SYNC period {sync_period_ms:g} ms is too slow for the external heartbeat "
+                f"interval {interval_ms} ms: SYNC at least every {limit_ms:g} ms"
+            )
+        return None
+    return f"external heartbeat source {source!r} must be 'rpdo' or 'sync'"
+
+
+class ExternalHeartbeatFeed:
+    """Tells the driver when a keep-alive RPDO must go out (AP05 manual 5.5.4, 5F09h).
+
+    With source ``rpdo`` the device's timer is fed by every RPDO; the gateway sends RPDOs on
+    change only, so when none was sent for ``keepalive_s`` (the interval less the margin, half
+    the interval by default) ``poll`` asks for the last RPDO to be re-sent. The driver reports
+    every RPDO it actually sends with ``on_rpdo_sent`` (keep-alives included); until then
+    ``poll`` keeps asking. Nothing is asked before a first RPDO was sent: there is nothing to
+    repeat, and sending the first one after NMT start is the driver's job.
+
+    With source ``sync`` the SYNC producer feeds the device; ``poll`` never asks for anything
+    and the constructor rejects a SYNC period that would let the timer expire.
+    """
+
+    def __init__(
+        self,
+        interval_ms: int,
+        source: ExternalHeartbeatSource = "rpdo",
+        margin: float = 0.5,
+        sync_period_ms: float | None = None,
+    ):
+        keepalive_ms = interval_ms * (1.0 - margin) if 0.0 <= margin < 1.0 else None
+        problem = check_external_heartbeat(
+            interval_ms, source, sync_period_ms, keepalive_ms, margin=margin
+        )
+        if problem:
+            raise ValueError(problem)
+        if interval_ms == 0:
+            raise ValueError("external heartbeat interval 0 means off; do not create a feed")
+        self.interval_ms = interval_ms
+        self.source: ExternalHeartbeatSource = source
+        self.margin = margin
+        self.keepalive_s: float = interval_ms * (1.0 - margin) / 1000.0
+        self.last_rpdo_s: float | None = None
+        self.keepalives_asked = 0
+
+    @property
+    def due_s(self) -> float | None:
+        """When the next keep-alive RPDO is due (None: nothing to feed)."""
+        if self.source != "rpdo" or self.last_rpdo_s is None:
+            return None
+        return self.last_rpdo_s + self.keepalive_s
+
+    def next_deadline(self) -> float | None:
+        return self.due_s
+
+    def on_rpdo_sent(self, now: float) -> None:
+        self.last_rpdo_s = now
+
+    def poll(self, now: float) -> list[SendKeepAliveRpdo]:
+        due = self.due_s
+        if due is not None and now >= due:
+            self.keepalives_asked += 1
+            return [SendKeepAliveRpdo(overdue_s=now - due)]
+        return []
