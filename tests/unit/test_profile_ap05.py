@@ -9,6 +9,7 @@ Imports: gateway.profiles, canopen, struct. No I/O beyond reading the profile fi
 
 from __future__ import annotations
 
+import configparser
 import struct
 
 import canopen
@@ -137,6 +138,16 @@ MANUAL_OBJECTS: list[tuple[int, int, int, str, bool]] = [
     *[(0x650A, s, I32, "ro", False) for s in range(1, 4)],
     (0x650B, 0, U32, "ro", False),
 ]
+
+# Manual 5.7.1 table 33, "Overview of objects", in its order.
+TABLE_33 = [
+    0x1000, 0x1001, 0x1002, 0x1003, 0x1005, 0x1008, 0x1009, 0x100A, 0x100C, 0x100D, 0x1010,
+    0x1011, 0x1014, 0x1017, 0x1018, 0x1200, 0x1400, 0x1401, 0x1600, 0x1601, 0x1800, 0x1801,
+    0x1A00, 0x1A01, 0x2001, 0x2002, 0x2003, 0x2004, 0x2005, 0x5000, 0x5F09, 0x5F0A, 0x5F0B,
+    0x5F0C, 0x5F0D, 0x5F10, 0x5F11, 0x5F12, 0x5F13, 0x5F14, 0x5F15, 0x5F16, 0x5F17, 0x5F19,
+    0x5F1B, 0x5F1C, 0x5F1F, 0x5F21, 0x6000, 0x6001, 0x6002, 0x6003, 0x6004, 0x6200, 0x6500,
+    0x6501, 0x6502, 0x6503, 0x6504, 0x6505, 0x6506, 0x6507, 0x6508, 0x6509, 0x650A, 0x650B,
+]  # fmt: skip
 
 # Sub-indices the manual says do not exist ("access attempt generates error message").
 ABSENT_SUBS = [(0x1400, 4), (0x1401, 4), (0x1800, 4), (0x1800, 6), (0x1801, 4), (0x1801, 6)]
@@ -306,9 +317,36 @@ def test_every_manual_object_exists_with_its_type_access_and_pdo_mapping(
     assert var.pdo_mappable is pdo, f"0x{index:04X}:{sub:02X} PDO mapping"
 
 
+def test_the_object_descriptions_cover_exactly_the_overview_table():
+    assert len(TABLE_33) == 66  # 5.7.2.1 .. 5.7.2.66
+    assert sorted({i for i, *_ in MANUAL_OBJECTS}) == sorted(TABLE_33)
+
+
 def test_the_eds_has_no_object_the_manual_does_not_document(loaded):
-    manual = {i for i, *_ in MANUAL_OBJECTS} | {0x5F1D}  # 5F1Dh: dummy mapped by 1A00h/1A01h
+    manual = set(TABLE_33) | {0x5F1D}  # 5F1Dh: the dummy mapped by 1A00h/1A01h
     assert set(loaded.od.keys()) == manual
+
+
+def test_eds_object_lists_and_sub_numbers_are_consistent(loaded):
+    eds = configparser.ConfigParser()
+    eds.optionxform = str  # type: ignore[assignment,method-assign]
+    eds.read(loaded.eds_path, encoding="ascii")
+    lists: dict[str, list[int]] = {}
+    for section in ("MandatoryObjects", "OptionalObjects", "ManufacturerObjects"):
+        n = int(eds[section]["SupportedObjects"])
+        lists[section] = [int(eds[section][str(i)], 0) for i in range(1, n + 1)]
+    listed = [i for objs in lists.values() for i in objs]
+    assert sorted(listed) == sorted(loaded.od.keys())
+    assert lists["MandatoryObjects"] == [0x1000, 0x1001, 0x1018]
+    assert lists["ManufacturerObjects"] == [i for i in listed if 0x2000 <= i <= 0x5FFF]
+    for i in listed:
+        sec = eds[f"{i:04X}"]
+        subs = [s for s in eds.sections() if s.upper().startswith(f"{i:04X}SUB")]
+        if int(sec.get("ObjectType", "0x7"), 0) == 0x7:
+            assert not subs
+        else:
+            assert int(sec["ObjectType"], 0) in (0x8, 0x9)
+            assert int(sec["SubNumber"]) == len(subs), f"0x{i:04X}"
 
 
 @pytest.mark.parametrize(("index", "sub"), ABSENT_SUBS)
