@@ -1,0 +1,78 @@
+"""Typed errors of the command service, shared by every adapter.
+
+Each carries the words a user needs; adapters translate them into their protocol's error
+(Modbus exception code, Zenoh reply_err). Imports only the SDO abort text table.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class GatewayError(Exception):
+    """Base of every error a northbound client can receive. ``kind`` is a stable short name."""
+
+    kind = "error"
+
+
+class SdoAbort(GatewayError):
+    kind = "sdo_abort"
+
+    def __init__(self, code: int, node: str | None = None, obj: str | None = None):
+        from gateway.bus.sdo_text import abort_text
+
+        self.code = code
+        self.text = abort_text(code)
+        self.node = node
+        self.obj = obj
+        where = f" at {obj}" if obj else ""
+        on = f" on node {node}" if node else ""
+        super().__init__(f"SDO abort 0x{code:08X} ({self.text}){where}{on}")
+
+
+class SdoTimeout(GatewayError):
+    kind = "sdo_timeout"
+
+    def __init__(self, node: str, obj: str, detail: str = ""):
+        self.node, self.obj = node, obj
+        super().__init__(f"no SDO response from node {node} for {obj}" + (f" ({detail})" if detail else ""))
+
+
+class NodeNotOperational(GatewayError):
+    kind = "node_not_operational"
+
+    def __init__(self, node: str, why: str = ""):
+        self.node = node
+        super().__init__(f"node {node} is not operational" + (f": {why}" if why else ""))
+
+
+class NodeUnknown(GatewayError):
+    kind = "node_unknown"
+
+    def __init__(self, node: str, known: list[str] | None = None):
+        self.node = node
+        hint = f"; configured nodes: {', '.join(known)}" if known else ""
+        super().__init__(f"no node named {node!r}{hint}")
+
+
+class BusDown(GatewayError):
+    kind = "bus_down"
+
+    def __init__(self, detail: str = "CAN bus is down"):
+        super().__init__(detail)
+
+
+class ValueOutOfRange(GatewayError):
+    kind = "value_out_of_range"
+
+    def __init__(self, name: str, value: Any, allowed: str):
+        self.name, self.value, self.allowed = name, value, allowed
+        super().__init__(f"{name}: value {value!r} not allowed, expected {allowed}")
+
+
+class ReadOnly(GatewayError):
+    kind = "read_only"
+
+
+class Unmapped(GatewayError):
+    kind = "unmapped"
