@@ -135,8 +135,8 @@ class Signal(_Strict):
     scale: float = 1.0
     offset: float = 0.0
     length: int | None = Field(default=None, ge=1, le=255, description="bytes, for string/bytes")
-    min: float | None = None
-    max: float | None = None
+    min: float | None = Field(default=None, description="lowest engineering value (raw x scale + offset)")
+    max: float | None = Field(default=None, description="highest engineering value")
     values: dict[HexInt, str] = Field(default_factory=dict, description="value texts (enums)")
     bits: list[BitField] = Field(default_factory=list)
     description: str = ""
