@@ -1,0 +1,224 @@
+"""Builds the running gateway from a config: bus driver, master, process image, command service,
+Modbus server, Zenoh bridge, health endpoint, and (for demos/tests) simulated devices.
+
+``Gateway(cfg)`` then ``await start()`` / ``await stop()``. The only module that knows every
+part; the parts do not know each other except through the image and the command service.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from typing import Any
+
+import can
+
+from gateway import __version__
+from gateway.bus.driver import BusDriver
+from gateway.bus.master import Master
+from gateway.commands import CommandService
+from gateway.config import Config
+from gateway.image import ProcessImage
+from gateway.modbus.regmap import build_register_map
+from gateway.modbus.server import ModbusGateway
+from gateway.profiles import load_profile
+from gateway.zenoh_bridge.bridge import ZenohBridge
+
+log = logging.getLogger("gateway")
+
+
+class SimulatedBus:
+    """Simulated nodes of a config on their own connection to the configured bus."""
+
+    def __init__(self, cfg: Config, names: list[str] | None = None):
+        from gateway.sim.node import SimNode
+
+        self.cfg = cfg
+        wanted = names if names is not None else [n.name for n in cfg.simulated_nodes()]
+        self.nodes: dict[str, Any] = {}
+        for n in cfg.nodes:
+            if n.name not in wanted:
+                continue
+            lp = load_profile(n.profile, cfg.base_dir)
+            self.nodes[n.name] = SimNode(
+                lp,
+                n.node_id,
+                motion=cfg.simulate.motion.get(n.name),
+                options=cfg.simulate.options.get(n.name),
+            )
+        self.bus: can.BusABC | None = None
+        self.runner: Any = None
+
+    def start(self) -> None:
+        from gateway.sim.runner import SimRunner
+
+        if not self.nodes:
+            return
+        self.bus = can.Bus(**self.cfg.can.bus_kwargs())
+        self.runner = SimRunner(self.bus, list(self.nodes.values()))
+        self.runner.start()
+
+    def stop(self) -> None:
+        if self.runner is not None:
+            self.runner.stop()
+            self.runner = None
+        if self.bus is not None:
+            self.bus.shutdown()
+            self.bus = None
+
+
+class Gateway:
+    def __init__(self, cfg: Config, simulate: bool = True):
+        self.cfg = cfg
+        self.image = ProcessImage()
+        self.driver = BusDriver(cfg.can.bus_kwargs(), self.image, cfg.can.reopen_backoff_s)
+        self.master = Master(cfg, self.image, self.driver)
+        self.commands = CommandService(self.master)
+        self.modbus = ModbusGateway(cfg, self.image, self.commands) if cfg.modbus.enabled else None
+        self.zenoh = (
+            ZenohBridge(cfg, self.image, self.commands, self.catalog) if cfg.zenoh.enabled else None
+        )
+        self.sim = SimulatedBus(cfg) if simulate and cfg.simulated_nodes() else None
+        self.health: Any = None
+        self.started = False
+
+    def catalog(self) -> dict[str, Any]:
+        """Every node and signal: type, unit, scaling, Modbus address (for cloud discovery)."""
+        rm = self.modbus.regmap if self.modbus else build_register_map(self.cfg)
+        addr: dict[tuple[str, str], list[dict[str, Any]]] = {}
+        for p in rm.points:
+            if p.node and p.kind in ("signal", "bit"):
+                addr.setdefault((p.node, p.name), []).append(
+                    {"unit_id": p.unit, "table": p.table, "address": p.address, "count": p.count}
+                    | ({"bit": p.bit} if p.bit is not None else {})
+                )
+        nodes = {}
+        for name, rt in self.master.nodes.items():
+            sigs = {}
+            for s in rt.lp.profile.signals:
+                sigs[s.name] = {
+                    "object": str(s.object),
+                    "type": s.type,
+                    "access": s.access,
+                    "transport": s.transport,
+                    "unit": s.unit,
+                    "scale": s.scale,
+                    "offset": s.offset,
+                    "description": s.description,
+                    "bits": {b.name: b.bit for b in s.bits},
+                    "modbus": addr.get((name, s.name), []),
+                }
+            nodes[name] = {
+                "node_id": rt.node_id,
+                "profile": rt.lp.family,
+                "title": rt.lp.profile.title,
+                "signals": sigs,
+            }
+        return {"gateway": self.cfg.gateway.name, "version": __version__, "nodes": nodes}
+
+    def summary(self) -> str:
+        parts = [f"canopen-gateway {__version__} '{self.cfg.gateway.name}'"]
+        can_kw = self.cfg.can.bus_kwargs()
+        parts.append(f"CAN {can_kw.get('interface')}:{can_kw.get('channel')}")
+        if self.modbus:
+            parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
+        if self.zenoh:
+            parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
+        if self.health is not None and getattr(self.health, "port", 0):
+            parts.append(f"health http://{self.cfg.health.host}:{self.health.port}")
+        nodes = ", ".join(
+            f"{n.name}={n.profile}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
+            for n in self.cfg.nodes
+        )
+        parts.append(f"nodes: {nodes or 'none'}")
+        return " | ".join(parts)
+
+    def status(self) -> dict[str, Any]:
+        """Readiness and per-node details for /healthz."""
+        nodes = {}
+        for name, node in self.image.nodes.items():
+            h = node.health
+            age = node.data_age_s()
+            nodes[name] = {
+                "node_id": node.node_id,
+                "alive": h.alive,
+                "operational": node.operational(),
+                "nmt_state": h.nmt_state.name.lower(),
+                "lifecycle": h.lifecycle,
+                "link": h.link.name.lower(),
+                "data_age_s": None if age is None else round(age, 3),
+                "last_error": h.last_error,
+            }
+        bus_ok = self.driver.state == "ok"
+        modbus_up = self.modbus is None or self.modbus.server is not None
+        zenoh_up = self.zenoh is None or self.zenoh.up
+        return {
+            "status": "ready" if (self.started and bus_ok and modbus_up and zenoh_up) else "not-ready",
+            "ready": self.started and bus_ok and modbus_up and zenoh_up,
+            "bus": {"state": self.driver.state, "detail": self.driver.last_error},
+            "modbus": modbus_up,
+            "zenoh": zenoh_up,
+            "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
+            "nodes": nodes,
+        }
+
+    async def start(self) -> None:
+        if self.sim is not None:
+            self.sim.start()
+        await asyncio.to_thread(self.driver.open)
+        await self.master.start()
+        if self.modbus is not None:
+            await self.modbus.start()
+        if self.zenoh is not None:
+            await self.zenoh.start()
+        if self.cfg.health.port:
+            await self._start_health()
+        self.started = True
+
+    async def _start_health(self) -> None:
+        from gateway.health import HealthServer
+        from gateway.metrics import Metrics, NodeSample
+
+        self.metrics = Metrics()
+        self.metrics.set_node_source(
+            lambda: [
+                NodeSample(n.name, int(n.health.nmt_state), n.health.alive, n.data_age_s())
+                for n in self.image.nodes.values()
+            ]
+        )
+        self.health = HealthServer(
+            self.cfg.health.host, self.cfg.health.port, self.status, self.metrics.registry
+        )
+        await self.health.start()
+        self._metrics_task = asyncio.create_task(self._sync_metrics())
+
+    async def _sync_metrics(self) -> None:
+        """Copy the hot-path counters (plain ints) into the metrics once a second."""
+        c = self.metrics.counters
+        while True:
+            ic = self.image.counters
+            c.frames_in, c.frames_out, c.bus_errors = ic["frames_in"], ic["frames_out"], ic["bus_errors"]
+            if self.zenoh is not None:
+                c.zenoh_publications = self.zenoh.publications
+            if self.modbus is not None:
+                c.modbus_exceptions = {f"0x{k:02X}": v for k, v in self.modbus.store.exceptions.items()}
+                c.modbus_requests = {"all": self.modbus.store.requests}
+            for name, node in self.image.nodes.items():
+                if node.health.emcy_count:
+                    c.emcy[name] = node.health.emcy_count
+            await asyncio.sleep(1.0)
+
+    async def stop(self) -> None:
+        self.started = False
+        if self.health is not None:
+            self._metrics_task.cancel()
+            await self.health.stop()
+        if self.zenoh is not None:
+            await self.zenoh.stop()
+        if self.modbus is not None:
+            await self.modbus.stop()
+        await self.master.stop()
+        await asyncio.to_thread(self.driver.close)
+        if self.sim is not None:
+            self.sim.stop()

@@ -1,0 +1,186 @@
+"""Precompiled PDO codecs: a node's PDO mapping turned once into ``struct`` formats.
+
+The per-frame path is ``TpdoCodec.decode(data)``: one ``Struct.unpack_from`` for byte-aligned
+mappings (all of the manuals' default layouts), a bit-slicing fallback otherwise. Mapped objects
+without a profile signal (dummies such as AP05 5F1Dh, DS-301 dummy types 0002h..0007h) are
+decoded and dropped.
+
+Imports: profiles (schema), objref. Nothing northbound.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.objref import ObjRef
+from gateway.profiles import LoadedProfile
+from gateway.profiles.schema import Pdo, Signal, default_cob_id
+
+# struct codes by (bits, signed)
+_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h", (32, False): "I",
+          (32, True): "i", (64, False): "Q", (64, True): "q"}  # fmt: skip
+
+_SIGNED_OD = {0x0002, 0x0003, 0x0004, 0x0010, 0x0015}  # INTEGER8/16/32/24/64 (DS-301 table 44)
+_REAL32 = 0x0008
+
+
+@dataclass(frozen=True)
+class Field:
+    obj: ObjRef
+    bits: int
+    bit_offset: int
+    signal: str | None  # None = dummy / unnamed
+    signed: bool
+    is_float: bool
+    is_text: bool
+
+
+def _field_kind(lp: LoadedProfile, obj: ObjRef, sig: Signal | None) -> tuple[bool, bool, bool]:
+    if sig is not None:
+        t = sig.type
+        return t.startswith("int"), t == "float32", t in ("string", "bytes")
+    if obj.index < 0x1000:  # a DS-301 dummy data type entry
+        return obj.index in _SIGNED_OD, obj.index == _REAL32, False
+    var = lp.od_var(obj)
+    dt = var.data_type if var is not None else 0
+    return dt in _SIGNED_OD, dt == _REAL32, dt in (0x0009, 0x000A)
+
+
+def compile_fields(lp: LoadedProfile, pdo: Pdo) -> list[Field]:
+    out = []
+    offset = 0
+    for e in pdo.mapping:
+        sig = lp.profile.signal_for(e.object)
+        signed, is_float, is_text = _field_kind(lp, e.object, sig)
+        out.append(
+            Field(e.object, e.bits, offset, sig.name if sig else None, signed, is_float, is_text)
+        )
+        offset += e.bits
+    return out
+
+
+def _struct_format(fields: Sequence[Field]) -> str | None:
+    fmt = "<"
+    for f in fields:
+        if f.bit_offset % 8:
+            return None
+        if f.is_text:
+            fmt += f"{f.bits // 8}s"
+        elif f.is_float and f.bits == 32:
+            fmt += "f"
+        elif (f.bits, f.signed) in _CODES:
+            fmt += _CODES[(f.bits, f.signed)]
+        else:
+            return None
+    return fmt
+
+
+class TpdoCodec:
+    """Decodes one TPDO of one node into the values of its named signals."""
+
+    __slots__ = ("cob_id", "number", "length", "fields", "names", "_unpack", "_keep", "_slow")
+
+    def __init__(self, cob_id: int, number: int, fields: list[Field]):
+        self.cob_id = cob_id
+        self.number = number
+        self.fields = fields
+        self.length = (sum(f.bits for f in fields) + 7) // 8
+        self.names: tuple[str, ...] = tuple(f.signal for f in fields if f.signal)
+        keep = [i for i, f in enumerate(fields) if f.signal]
+        fmt = _struct_format(fields)
+        self._slow = fmt is None
+        self._unpack = struct.Struct(fmt).unpack_from if fmt else None
+        # when every field is named the tuple is returned as is (no re-packing per frame)
+        self._keep: tuple[int, ...] | None = None if len(keep) == len(fields) else tuple(keep)
+
+    def decode(self, data: bytes | bytearray) -> tuple[Any, ...]:
+        """Values of ``self.names`` in order. Raises ValueError on a short frame."""
+        if len(data) < self.length:
+            raise ValueError(f"PDO 0x{self.cob_id:03X} has {len(data)} bytes, mapping needs {self.length}")
+        if self._slow:
+            vals = self._decode_bits(data)
+        else:
+            vals = self._unpack(data)  # type: ignore[misc]
+        if self._keep is None:
+            return vals
+        return tuple(vals[i] for i in self._keep)
+
+    def _decode_bits(self, data: bytes | bytearray) -> tuple[Any, ...]:
+        word = int.from_bytes(bytes(data[: self.length]), "little")
+        out: list[Any] = []
+        for f in self.fields:
+            raw = (word >> f.bit_offset) & ((1 << f.bits) - 1)
+            if f.is_text:
+                out.append(raw.to_bytes(f.bits // 8, "little"))
+            elif f.is_float:
+                out.append(struct.unpack("<f", raw.to_bytes(4, "little"))[0])
+            elif f.signed and raw >> (f.bits - 1):
+                out.append(raw - (1 << f.bits))
+            else:
+                out.append(raw)
+        return tuple(out)
+
+
+class RpdoCodec:
+    """Encodes one RPDO from the current values of its mapped objects."""
+
+    def __init__(self, cob_id: int, number: int, fields: list[Field]):
+        self.cob_id = cob_id
+        self.number = number
+        self.fields = fields
+        self.length = (sum(f.bits for f in fields) + 7) // 8
+        self.values: dict[int, Any] = {i: (b"\0" * (f.bits // 8) if f.is_text else 0) for i, f in enumerate(fields)}
+        self.names = tuple(f.signal for f in fields if f.signal)
+        fmt = _struct_format(fields)
+        self._pack = struct.Struct(fmt).pack if fmt else None
+
+    def index_of(self, signal: str) -> int | None:
+        for i, f in enumerate(self.fields):
+            if f.signal == signal:
+                return i
+        return None
+
+    def set(self, signal: str, value: Any) -> None:
+        i = self.index_of(signal)
+        if i is None:
+            raise KeyError(signal)
+        self.values[i] = value
+
+    def get(self, signal: str) -> Any:
+        i = self.index_of(signal)
+        if i is None:
+            raise KeyError(signal)
+        return self.values[i]
+
+    def encode(self) -> bytes:
+        vals = [self.values[i] for i in range(len(self.fields))]
+        if self._pack is not None:
+            return self._pack(*vals)
+        word = 0
+        for f, v in zip(self.fields, vals, strict=True):
+            if f.is_text:
+                raw = int.from_bytes(v, "little")
+            elif f.is_float:
+                raw = int.from_bytes(struct.pack("<f", v), "little")
+            else:
+                raw = int(v) & ((1 << f.bits) - 1)
+            word |= raw << f.bit_offset
+        return word.to_bytes(self.length, "little")
+
+
+def pdo_cob_id(kind: str, pdo: Pdo, node_id: int) -> int:
+    base = pdo.cob_id if pdo.cob_id is not None else default_cob_id(kind, pdo.number)  # type: ignore[arg-type]
+    return base + node_id if pdo.add_node_id else base
+
+
+def compile_node(
+    lp: LoadedProfile, node_id: int, variant: int | None = None
+) -> tuple[list[TpdoCodec], list[RpdoCodec]]:
+    """Codecs for a node's TPDOs and RPDOs from its profile layout (or the chosen variant)."""
+    tpdos, rpdos = lp.profile.layout(variant)
+    t = [TpdoCodec(pdo_cob_id("tpdo", p, node_id), p.number, compile_fields(lp, p)) for p in tpdos]
+    r = [RpdoCodec(pdo_cob_id("rpdo", p, node_id), p.number, compile_fields(lp, p)) for p in rpdos]
+    return t, r

@@ -1,0 +1,586 @@
+"""The CANopen NMT master: node runtimes, boot-up configuration, supervision, SDO, NMT, SYNC.
+
+Runs on the asyncio event loop. The reader thread of ``BusDriver`` decodes process data itself
+and forwards control traffic (heartbeat / guarding answers, EMCY, boot-up) here with
+``loop.call_soon_threadsafe``. The protocol decisions are taken by the plain state machines of
+``lifecycle``, ``supervision`` and ``emcy``; this module only wires them to time and I/O.
+
+SDO transfers use canopen's SDO client (expedited and segmented) on a ``canopen.Network`` whose
+sending goes through our driver; one transfer per node at a time (an asyncio lock per node),
+several nodes in parallel (each in a worker thread).
+
+Imports: bus.*, image, profiles, errors, config. Nothing northbound.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import struct
+import time
+from collections.abc import Callable
+from typing import Any
+
+import can
+import canopen
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
+from gateway.bus.driver import BusDriver, RateLimitedLog
+from gateway.bus.emcy import EmcyHistory, decode_emcy
+from gateway.bus.lifecycle import NodeLifecycle, build_boot_steps
+from gateway.bus.supervision import GuardingBitCheck, HeartbeatConsumer, NodeGuardingMaster
+from gateway.config import Config, NodeConfig
+from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
+from gateway.image import LinkState, NmtState, NodeImage, ProcessImage
+from gateway.objref import ObjRef
+from gateway.profiles import LoadedProfile, load_profile
+
+log = logging.getLogger("gateway.master")
+
+NMT_COMMANDS = {"start": 0x01, "stop": 0x02, "preop": 0x80, "reset": 0x81, "reset-comm": 0x82}
+
+_PACK = {
+    "bool": "<B", "int8": "<b", "uint8": "<B", "int16": "<h", "uint16": "<H", "int32": "<i",
+    "uint32": "<I", "int64": "<q", "uint64": "<Q", "float32": "<f",
+}  # fmt: skip
+
+
+def encode_value(value: Any, type_: str) -> bytes:
+    """Encode a value for an SDO download by signal type name."""
+    if type_ in ("string", "bytes"):
+        return value.encode("ascii") if isinstance(value, str) else bytes(value)
+    if type_ in ("int24", "uint24"):
+        return int(value).to_bytes(3, "little", signed=type_ == "int24")
+    return struct.pack(_PACK[type_], float(value) if type_ == "float32" else int(value))
+
+
+def decode_value(data: bytes, type_: str) -> Any:
+    if type_ == "string":
+        return data.rstrip(b"\0").decode("ascii", errors="replace")
+    if type_ == "bytes":
+        return data
+    if type_ in ("int24", "uint24"):
+        return int.from_bytes(data[:3], "little", signed=type_ == "int24")
+    size = struct.calcsize(_PACK[type_])
+    return struct.unpack(_PACK[type_], data[:size].ljust(size, b"\0"))[0]
+
+
+_OD_TYPES = {
+    0x0001: "bool", 0x0002: "int8", 0x0003: "int16", 0x0004: "int32", 0x0005: "uint8",
+    0x0006: "uint16", 0x0007: "uint32", 0x0008: "float32", 0x0009: "string", 0x000A: "bytes",
+    0x0010: "int24", 0x0015: "int64", 0x0016: "uint24", 0x001B: "uint64",
+}  # fmt: skip
+
+
+class _Network(canopen.Network):
+    """A canopen Network that sends through our driver and is fed by our reader thread."""
+
+    def __init__(self, driver: BusDriver):
+        super().__init__()
+        self._driver = driver
+        self.bus = True  # canopen only checks truthiness
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        self._driver.send(can_id, bytes(data), rtr=remote)
+
+    def check(self) -> None:
+        return None
+
+
+class NodeRuntime:
+    """Everything the master knows about one configured node."""
+
+    def __init__(self, cfg: NodeConfig, lp: LoadedProfile, image: NodeImage, master: Master):
+        self.cfg = cfg
+        self.lp = lp
+        self.image = image
+        self.node_id = cfg.node_id
+        self.name = cfg.name
+        self.tpdos, self.rpdos = compile_node(lp, cfg.node_id, cfg.pdo_variant)
+        # a signal may be mapped in several RPDOs (AP05 control word 5F0Ch is in RPDO1 and 2)
+        self.rpdo_by_signal: dict[str, list[RpdoCodec]] = {}
+        for r in self.rpdos:
+            for n in r.names:
+                self.rpdo_by_signal.setdefault(n, []).append(r)
+        self.sdo_lock = asyncio.Lock()
+        self.remote = canopen.RemoteNode(cfg.node_id, lp.od)
+        self.remote.sdo.RESPONSE_TIMEOUT = master.cfg.master.sdo_timeout_s
+        self.remote.sdo.MAX_RETRIES = master.cfg.master.sdo_retries
+        supervision = cfg.supervision or lp.profile.boot.supervision
+        self.supervision = supervision
+        image.health.supervision = supervision
+        hb_ms = cfg.heartbeat_ms if cfg.heartbeat_ms is not None else lp.profile.boot.heartbeat_ms
+        gt_ms = cfg.guard_time_ms if cfg.guard_time_ms is not None else lp.profile.boot.guard_time_ms
+        ltf = (
+            cfg.life_time_factor
+            if cfg.life_time_factor is not None
+            else lp.profile.boot.life_time_factor
+        )
+        self.heartbeat_ms, self.guard_time_ms, self.life_time_factor = hb_ms, gt_ms, ltf
+        self.hb = HeartbeatConsumer(hb_ms, master.cfg.master.heartbeat_timeout_multiple)
+        self.guard = NodeGuardingMaster(gt_ms, ltf) if supervision == "guarding" else None
+        steps = build_boot_steps(lp, cfg, supervision, hb_ms, gt_ms, ltf)
+        self.lifecycle = NodeLifecycle(steps, boot_timeout_s=master.cfg.master.boot_timeout_s)
+        self.emcy = EmcyHistory()
+        gb = lp.profile.features.get("guarding_bit")
+        self.guarding_bit: dict[str, Any] | None = (
+            gb if gb is not None and cfg.guarding_bit.enabled else None
+        )
+        self.gbit = (
+            GuardingBitCheck(
+                tolerance_missed=cfg.guarding_bit.tolerance_missed,
+                tolerance_s=cfg.guarding_bit.tolerance_ms / 1000.0,
+            )
+            if self.guarding_bit
+            else None
+        )
+        if self.gbit is not None:
+            image.health.link = LinkState.UNKNOWN
+        self.last_rpdo_sent: dict[int, float] = {}
+
+
+class Master:
+    def __init__(self, cfg: Config, image: ProcessImage, driver: BusDriver):
+        self.cfg = cfg
+        self.image = image
+        self.driver = driver
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.network = _Network(driver)
+        self.nodes: dict[str, NodeRuntime] = {}
+        self.by_id: dict[int, NodeRuntime] = {}
+        self._tasks: list[asyncio.Task[Any]] = []
+        self._config_tasks: dict[str, asyncio.Task[Any]] = {}
+        self.warn = RateLimitedLog(log)
+        self.rpdo_hooks: list[Callable[[NodeRuntime, RpdoCodec], None]] = []
+        for ncfg in cfg.nodes:
+            lp = load_profile(ncfg.profile, cfg.base_dir)
+            names = [s.name for s in lp.profile.signals]
+            stale = ncfg.stale_after_ms / 1000.0 if ncfg.stale_after_ms else None
+            ni = NodeImage(ncfg.name, ncfg.node_id, lp.family, names, stale, ncfg.modbus.serve_stale)
+            image.add_node(ni)
+            rt = NodeRuntime(ncfg, lp, ni, self)
+            self.nodes[ncfg.name] = rt
+            self.by_id[ncfg.node_id] = rt
+            self.network.add_node(rt.remote)
+        self._install_handlers()
+
+    # ------------------------------------------------------------------ dispatch (reader thread)
+    def _install_handlers(self) -> None:
+        h = self.driver.handlers
+        for rt in self.nodes.values():
+            for codec in rt.tpdos:
+                h[codec.cob_id] = self._tpdo_handler(rt, codec)
+            h[0x700 + rt.node_id] = self._forward(self._on_nmt_ec, rt)
+            h[0x080 + rt.node_id] = self._forward(self._on_emcy, rt)
+            h[0x580 + rt.node_id] = self._sdo_response
+        h[0x7E4] = self._sdo_response  # LSS responses go to canopen's LSS master
+        self.driver.default_handler = self._unknown
+
+    def _tpdo_handler(self, rt: NodeRuntime, codec: TpdoCodec) -> Callable[[can.Message], None]:
+        image = self.image
+        node = rt.image
+        decode = codec.decode
+        names = codec.names
+        length = codec.length
+        update = image.update
+        gb = rt.guarding_bit
+        status_name = None
+        if gb is not None:
+            sig = rt.lp.profile.signal_for(ObjRef.parse(gb["status"]))
+            if sig is not None and sig.name in names:
+                status_name = sig.name
+        status_pos = names.index(status_name) if status_name else -1
+        status_mask = 1 << int(gb.get("status_bit", 8)) if gb else 0
+
+        def handle(msg: can.Message) -> None:
+            data = msg.data
+            if msg.is_remote_frame:
+                return
+            if len(data) < length:
+                node.health.pdo_errors += 1
+                image.counters["decode_errors"] += 1
+                self.warn.warning(
+                    ("short", codec.cob_id),
+                    "node %s: PDO 0x%03X with %d bytes, mapping needs %d; ignored",
+                    node.name,
+                    codec.cob_id,
+                    len(data),
+                    length,
+                )
+                return
+            values = decode(data)
+            update(node, names, values, msg.timestamp or time.time())
+            if status_pos >= 0 and self.loop is not None:
+                echoed = 1 if values[status_pos] & status_mask else 0
+                self.loop.call_soon_threadsafe(self._on_guarding_echo, rt, echoed)
+
+        return handle
+
+    def _forward(
+        self, fn: Callable[[NodeRuntime, can.Message], None], rt: NodeRuntime
+    ) -> Callable[[can.Message], None]:
+        def handle(msg: can.Message) -> None:
+            if self.loop is not None:
+                self.loop.call_soon_threadsafe(fn, rt, msg)
+
+        return handle
+
+    def _sdo_response(self, msg: can.Message) -> None:
+        self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+
+    def _unknown(self, msg: can.Message) -> None:
+        cob = msg.arbitration_id
+        if cob in (0x000, 0x080) or cob == 0x700 + self.cfg.master.node_id:
+            return  # NMT / SYNC from another master or our own echo
+        self.image.counters["unknown_cob_id"] += 1
+        self.warn.warning(("unknown", cob), "frame with unexpected COB-ID 0x%03X ignored", cob)
+
+    # ------------------------------------------------------------------ lifecycle
+    async def start(self) -> None:
+        self.loop = asyncio.get_running_loop()
+        self._tasks.append(asyncio.create_task(self._supervise(), name="supervise"))
+        if self.cfg.master.heartbeat_ms:
+            self._tasks.append(asyncio.create_task(self._heartbeat_producer(), name="hb-producer"))
+        if self.cfg.master.sync_period_ms:
+            self._tasks.append(asyncio.create_task(self._sync_producer(), name="sync"))
+        now = time.monotonic()
+        for rt in self.nodes.values():
+            rt.lifecycle.start(now)
+            if rt.cfg.rtr_poll_ms:
+                self._tasks.append(asyncio.create_task(self._rtr_poll(rt)))
+        if self.cfg.master.probe_at_start:
+            for rt in self.nodes.values():
+                self._tasks.append(asyncio.create_task(self._probe(rt)))
+
+    async def stop(self) -> None:
+        for t in list(self._tasks) + list(self._config_tasks.values()):
+            t.cancel()
+        for t in list(self._tasks) + list(self._config_tasks.values()):
+            try:
+                await t
+            except (asyncio.CancelledError, Exception):  # noqa: BLE001
+                pass
+        self._tasks.clear()
+        self._config_tasks.clear()
+
+    async def _probe(self, rt: NodeRuntime) -> None:
+        """Find a node that is already running (no boot-up will come) by reading 1000h."""
+        try:
+            await self.sdo_upload(rt, ObjRef(0x1000, 0), "uint32", check_state=False)
+        except Exception:  # noqa: BLE001 - not there yet: wait for its boot-up
+            return
+        if rt.lifecycle.state == "waiting":
+            log.info("node %s (id %d) found running; configuring", rt.name, rt.node_id)
+            self._booted(rt, time.monotonic())
+
+    def _booted(self, rt: NodeRuntime, now: float) -> None:
+        rt.lifecycle.on_bootup(now)
+        rt.image.health.boot_count += 1
+        rt.image.health.lifecycle = rt.lifecycle.state
+        rt.hb.on_bootup(now)
+        self.image.health_changed(rt.image, "state")
+        old = self._config_tasks.pop(rt.name, None)
+        if old is not None:
+            old.cancel()
+        if rt.cfg.configure:
+            self._config_tasks[rt.name] = asyncio.create_task(self._configure(rt))
+
+    async def _configure(self, rt: NodeRuntime) -> None:
+        """Apply the boot configuration step by step, retrying with backoff, then NMT start."""
+        lc = rt.lifecycle
+        while True:
+            action = lc.next_action(time.monotonic())
+            if action is None:
+                return
+            kind = action[0]
+            if kind == "wait":
+                await asyncio.sleep(action[1])
+                continue
+            if kind == "sdo":
+                step = action[1]
+                try:
+                    await self.sdo_download(rt, step.object, step.value, step.type, check_state=False)
+                except SdoAbort as exc:
+                    rt.image.health.last_sdo_abort = exc.code
+                    rt.image.health.last_error = f"configuring {step.object}: {exc}"
+                    log.warning("node %s: boot step %s failed: %s", rt.name, step.object, exc)
+                    lc.on_step_result(time.monotonic(), ok=False, abort_code=exc.code)
+                except (SdoTimeout, BusDown) as exc:
+                    rt.image.health.last_error = f"configuring {step.object}: {exc}"
+                    log.warning("node %s: boot step %s failed: %s", rt.name, step.object, exc)
+                    lc.on_step_result(time.monotonic(), ok=False, abort_code=None)
+                else:
+                    lc.on_step_result(time.monotonic(), ok=True)
+                continue
+            if kind == "nmt_start":
+                try:
+                    self.nmt_send(rt.node_id, "start")
+                except BusDown:
+                    await asyncio.sleep(0.5)
+                    continue
+                lc.on_started(time.monotonic())
+                rt.image.health.lifecycle = lc.state
+                rt.image.health.last_error = ""
+                log.info("node %s (id %d) configured and started", rt.name, rt.node_id)
+                self.image.health_changed(rt.image, "state")
+                return
+
+    # ------------------------------------------------------------------ control traffic (loop)
+    def _on_nmt_ec(self, rt: NodeRuntime, msg: can.Message) -> None:
+        if msg.is_remote_frame or not msg.data:
+            return
+        now = time.monotonic()
+        byte = msg.data[0]
+        if byte == 0x00:  # boot-up (DS-301 7.2.8.3.2.4)
+            log.info("node %s (id %d) boot-up", rt.name, rt.node_id)
+            rt.image.health.nmt_state = NmtState.PRE_OPERATIONAL
+            self._booted(rt, now)
+            self._set_alive(rt, True)
+            return
+        if rt.guard is not None:
+            ok = rt.guard.on_response(byte, now)
+            state = byte & 0x7F
+        else:
+            rt.hb.on_heartbeat(byte, now)
+            ok = True
+            state = byte
+        if ok:
+            self._set_nmt(rt, state)
+            self._set_alive(rt, True)
+            if rt.lifecycle.state == "waiting" and state in (0x05, 0x7F, 0x04):
+                # alive but never seen booting (e.g. the gateway restarted): configure it
+                self._booted(rt, now)
+
+    def _set_nmt(self, rt: NodeRuntime, state: int) -> None:
+        try:
+            st = NmtState(state)
+        except ValueError:
+            st = NmtState.UNKNOWN
+        if rt.image.health.nmt_state != st:
+            rt.image.health.nmt_state = st
+            log.info("node %s NMT state %s", rt.name, st.name)
+            self.image.health_changed(rt.image, "state")
+
+    def _set_alive(self, rt: NodeRuntime, alive: bool) -> None:
+        h = rt.image.health
+        if h.alive == alive:
+            return
+        h.alive = alive
+        if not alive:
+            h.loss_count += 1
+            rt.lifecycle.on_lost(time.monotonic())
+            h.lifecycle = rt.lifecycle.state
+            log.warning("node %s (id %d) lost (%s)", rt.name, rt.node_id, rt.supervision)
+        else:
+            log.info("node %s (id %d) alive", rt.name, rt.node_id)
+        self.image.health_changed(rt.image, "state")
+
+    def _on_emcy(self, rt: NodeRuntime, msg: can.Message) -> None:
+        if len(msg.data) < 3:
+            rt.image.health.pdo_errors += 1
+            return
+        rec = decode_emcy(bytes(msg.data), rt.lp.profile.emcy, msg.timestamp or time.time())
+        rt.emcy.add(rec)
+        h = rt.image.health
+        h.last_emcy = rec
+        h.emcy_count += 1
+        h.current_errors = sorted(rt.emcy.current)
+        log.warning(
+            "node %s EMCY 0x%04X (%s) register 0x%02X", rt.name, rec.code, rec.text, rec.register
+        )
+        self.image.health_changed(rt.image, "emcy")
+
+    def _on_guarding_echo(self, rt: NodeRuntime, bit: int) -> None:
+        if rt.gbit is None:
+            return
+        rt.gbit.on_status(bit, time.monotonic())
+        self._update_link(rt)
+
+    def _update_link(self, rt: NodeRuntime) -> None:
+        if rt.gbit is None:
+            return
+        state = {"ok": LinkState.OK, "fault": LinkState.FAULT}.get(rt.gbit.state, LinkState.UNKNOWN)
+        h = rt.image.health
+        if h.link != state:
+            if state == LinkState.FAULT:
+                h.link_fault_count += 1
+                log.warning("node %s: guarding-bit link FAULT (process data not echoed)", rt.name)
+            elif h.link == LinkState.FAULT:
+                log.info("node %s: guarding-bit link restored", rt.name)
+            h.link = state
+            self.image.health_changed(rt.image, "state")
+
+    # ------------------------------------------------------------------ periodic tasks
+    async def _supervise(self) -> None:
+        tick = 0.01
+        while True:
+            await asyncio.sleep(tick)
+            now = time.monotonic()
+            for rt in self.nodes.values():
+                self._poll_node(rt, now)
+
+    def _poll_node(self, rt: NodeRuntime, now: float) -> None:
+        if rt.guard is not None:
+            for action in rt.guard.poll(now):
+                if action == "send_rtr":
+                    try:
+                        self.driver.send(0x700 + rt.node_id, b"", rtr=True, dlc=1)
+                    except can.CanError:
+                        pass
+            if rt.guard.lost and rt.image.health.alive:
+                self._set_alive(rt, False)
+        elif rt.supervision == "heartbeat" and rt.heartbeat_ms:
+            rt.hb.poll(now)
+            if rt.hb.lost and rt.image.health.alive:
+                self._set_alive(rt, False)
+        if rt.lifecycle.poll_boot_timeout(now):
+            rt.image.health.last_error = (
+                f"no boot-up within {self.cfg.master.boot_timeout_s:g} s of gateway start"
+            )
+            log.warning(
+                "node %s (id %d): %s", rt.name, rt.node_id, rt.image.health.last_error
+            )
+            self.image.health_changed(rt.image, "state")
+        if rt.gbit is not None:
+            rt.gbit.poll(now)
+            self._update_link(rt)
+        if rt.cfg.external_heartbeat and rt.rpdos and rt.image.health.alive:
+            keep_ms = rt.cfg.external_heartbeat.keepalive_ms or max(
+                1, rt.cfg.external_heartbeat.interval_ms // 2
+            )
+            if rt.cfg.external_heartbeat.source == "rpdo":
+                last = max(rt.last_rpdo_sent.values(), default=0.0)
+                if now - last >= keep_ms / 1000.0:
+                    try:
+                        self.send_rpdo(rt, rt.rpdos[-1])
+                    except (BusDown, NodeNotOperational):
+                        pass
+
+    async def _heartbeat_producer(self) -> None:
+        period = self.cfg.master.heartbeat_ms / 1000.0
+        cob = 0x700 + self.cfg.master.node_id
+        while True:
+            try:
+                self.driver.send(cob, b"\x05")
+            except can.CanError:
+                pass
+            await asyncio.sleep(period)
+
+    async def _sync_producer(self) -> None:
+        period = self.cfg.master.sync_period_ms / 1000.0
+        nxt = time.monotonic()
+        while True:
+            try:
+                self.driver.send(0x080, b"")
+            except can.CanError:
+                pass
+            nxt += period
+            delay = nxt - time.monotonic()
+            if delay < 0:
+                nxt = time.monotonic()
+                delay = 0
+            await asyncio.sleep(delay)
+
+    async def _rtr_poll(self, rt: NodeRuntime) -> None:
+        assert rt.cfg.rtr_poll_ms
+        while True:
+            await asyncio.sleep(rt.cfg.rtr_poll_ms / 1000.0)
+            if rt.image.health.nmt_state != NmtState.OPERATIONAL:
+                continue
+            for codec in rt.tpdos:
+                try:
+                    self.driver.send(codec.cob_id, b"", rtr=True, dlc=codec.length)
+                except can.CanError:
+                    pass
+
+    # ------------------------------------------------------------------ services
+    def _require_bus(self) -> None:
+        if self.driver.state == "down":
+            raise BusDown(self.driver.last_error or "CAN bus is down")
+
+    def nmt_send(self, node_id: int, command: str) -> None:
+        """NMT command to a node id (0 = all nodes)."""
+        self._require_bus()
+        try:
+            self.driver.send(0x000, bytes([NMT_COMMANDS[command], node_id]))
+        except can.CanError as exc:
+            raise BusDown(str(exc)) from exc
+
+    def send_rpdo(self, rt: NodeRuntime, codec: RpdoCodec) -> None:
+        self._require_bus()
+        if rt.gbit is not None and rt.guarding_bit is not None:
+            cw_sig = rt.lp.profile.signal_for(ObjRef.parse(rt.guarding_bit["control"]))
+            if cw_sig is not None and cw_sig.name in codec.names:
+                bit = int(rt.guarding_bit.get("control_bit", 8))
+                cw = int(codec.get(cw_sig.name)) & ~(1 << bit)
+                cw |= rt.gbit.next_bit(time.monotonic()) << bit
+                codec.set(cw_sig.name, cw)
+        try:
+            self.driver.send(codec.cob_id, codec.encode())
+        except can.CanError as exc:
+            raise BusDown(str(exc)) from exc
+        rt.last_rpdo_sent[codec.number] = time.monotonic()
+        rt.image.health.rpdo_sent += 1
+        for hook in self.rpdo_hooks:
+            hook(rt, codec)
+
+    def _od_type(self, rt: NodeRuntime, obj: ObjRef) -> str | None:
+        sig = rt.lp.profile.signal_for(obj)
+        if sig is not None:
+            return sig.type
+        var = rt.lp.od_var(obj)
+        if var is None:
+            return None
+        return _OD_TYPES.get(var.data_type)
+
+    async def sdo_upload(
+        self, rt: NodeRuntime, obj: ObjRef, type_: str | None = None, check_state: bool = True
+    ) -> Any:
+        """Read an object by SDO; returns the decoded value (bytes when the type is unknown)."""
+        self._require_bus()
+        if check_state and not rt.image.health.alive:
+            raise NodeNotOperational(rt.name, "not alive")
+        async with rt.sdo_lock:
+            try:
+                data = await asyncio.to_thread(rt.remote.sdo.upload, obj.index, obj.sub)
+            except SdoAbortedError as exc:
+                rt.image.health.last_sdo_abort = exc.code
+                raise SdoAbort(exc.code, node=rt.name, obj=str(obj)) from None
+            except SdoCommunicationError as exc:
+                raise SdoTimeout(rt.name, str(obj), str(exc)) from None
+            except can.CanError as exc:
+                raise BusDown(str(exc)) from None
+        t = type_ or self._od_type(rt, obj)
+        return data if t is None else decode_value(bytes(data), t)
+
+    async def sdo_download(
+        self,
+        rt: NodeRuntime,
+        obj: ObjRef,
+        value: Any,
+        type_: str | None = None,
+        check_state: bool = True,
+    ) -> None:
+        self._require_bus()
+        if check_state and not rt.image.health.alive:
+            raise NodeNotOperational(rt.name, "not alive")
+        if isinstance(value, (bytes, bytearray)):
+            data = bytes(value)
+        else:
+            t = type_ or self._od_type(rt, obj)
+            if t is None:
+                raise ValueError(f"type of {obj} unknown; give a type")
+            if isinstance(value, str) and t not in ("string", "bytes"):
+                value = float(value) if t == "float32" else int(value, 0)
+            data = encode_value(value, t)
+        async with rt.sdo_lock:
+            try:
+                await asyncio.to_thread(rt.remote.sdo.download, obj.index, obj.sub, data)
+            except SdoAbortedError as exc:
+                rt.image.health.last_sdo_abort = exc.code
+                raise SdoAbort(exc.code, node=rt.name, obj=str(obj)) from None
+            except SdoCommunicationError as exc:
+                raise SdoTimeout(rt.name, str(obj), str(exc)) from None
+            except can.CanError as exc:
+                raise BusDown(str(exc)) from None

@@ -1,0 +1,271 @@
+"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|lss``.
+
+Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
+without a traceback. Imports everything it drives; nothing imports this module.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from gateway import __version__
+from gateway.config import Config, ConfigError, load_config
+
+EXIT_CONFIG = 2
+EXIT_FAILED = 1
+
+
+def _load(path: str) -> Config:
+    return load_config(path)
+
+
+def _setup_logging(level: str) -> None:
+    logging.basicConfig(
+        level=getattr(logging, level.upper(), logging.INFO),
+        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    for noisy in ("pymodbus", "can", "canopen", "zenoh"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+
+
+async def _run_until_signal(starter: Any, stopper: Any, ready_line: str | None = None) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, stop.set)
+        except (NotImplementedError, RuntimeError):
+            pass
+    await starter()
+    if ready_line:
+        print(ready_line() if callable(ready_line) else ready_line, flush=True)
+    try:
+        await stop.wait()
+    finally:
+        try:
+            await asyncio.wait_for(stopper(), timeout=1.8)
+        except TimeoutError:
+            logging.getLogger("gateway").warning("shutdown took too long; exiting anyway")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from gateway.app import Gateway
+
+    cfg = _load(args.config)
+    _setup_logging(args.log_level or cfg.gateway.log_level)
+    gw = Gateway(cfg, simulate=not args.no_simulate)
+    try:
+        asyncio.run(_run_until_signal(gw.start, gw.stop, gw.summary))
+    except OSError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from gateway.profiles import load_profile
+
+    cfg = _load(args.config)
+    print(f"{args.config}: OK")
+    for n in cfg.nodes:
+        lp = load_profile(n.profile, cfg.base_dir)
+        pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
+        sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
+        sim = " (simulated)" if n in cfg.simulated_nodes() else ""
+        print(
+            f"  node {n.name}: id {n.node_id}, {lp.profile.title}{sim}; "
+            f"{len(pdo_sigs)} process signals ({', '.join(pdo_sigs)}), "
+            f"{len(sdo_sigs)} configuration objects"
+        )
+    return 0
+
+
+def cmd_registers(args: argparse.Namespace) -> int:
+    from gateway.modbus.regmap import build_register_map
+
+    cfg = _load(args.config)
+    rm = build_register_map(cfg)
+    sys.stdout.write(rm.to_csv() if args.csv else rm.to_markdown())
+    return 0
+
+
+def cmd_keys(args: argparse.Namespace) -> int:
+    from gateway.zenoh_bridge.keys import all_keys
+
+    cfg = _load(args.config)
+    width = max((len(k.key) for k in all_keys(cfg)), default=10)
+    for k in all_keys(cfg):
+        print(f"{k.key:<{width}}  {k.kind:<10}  {k.description}")
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from gateway.app import SimulatedBus
+
+    cfg = _load(args.config)
+    _setup_logging(args.log_level or cfg.gateway.log_level)
+    names = args.nodes.split(",") if args.nodes else [n.name for n in cfg.simulated_nodes()]
+    if not names:
+        names = [n.name for n in cfg.nodes]
+    sim = SimulatedBus(cfg, names)
+
+    async def start() -> None:
+        sim.start()
+
+    async def stop() -> None:
+        sim.stop()
+
+    line = f"simulating {', '.join(f'{n}@{sim.nodes[n].node_id}' for n in sim.nodes)} on {cfg.can.bus_kwargs()}"
+    asyncio.run(_run_until_signal(start, stop, line))
+    return 0
+
+
+async def _with_master(cfg: Config, fn: Any) -> Any:
+    """Open the bus with a master (no Modbus/Zenoh) for one commissioning operation."""
+    from gateway.app import Gateway
+
+    cfg.modbus.enabled = False
+    cfg.zenoh.enabled = False
+    cfg.master.probe_at_start = False
+    for n in cfg.nodes:
+        n.configure = False
+    gw = Gateway(cfg, simulate=True)
+    await gw.start()
+    try:
+        for rt in gw.master.nodes.values():
+            rt.image.health.alive = True  # commissioning talks to nodes regardless of supervision
+        return await fn(gw)
+    finally:
+        await gw.stop()
+
+
+def _node_name(cfg: Config, node: str) -> str:
+    for n in cfg.nodes:
+        if n.name == node or str(n.node_id) == node:
+            return n.name
+    raise SystemExit(f"error: no node {node!r} in {cfg.source}; nodes: {', '.join(n.name for n in cfg.nodes)}")
+
+
+def cmd_sdo(args: argparse.Namespace) -> int:
+    from gateway.errors import GatewayError
+
+    cfg = _load(args.config)
+    name = _node_name(cfg, args.node)
+    cfg.master.sdo_timeout_s = args.timeout
+
+    async def op(gw: Any) -> Any:
+        if args.op == "read":
+            return await gw.commands.sdo_read(name, args.object, args.type)
+        if args.value is None:
+            raise SystemExit("error: sdo write needs a VALUE")
+        await gw.commands.sdo_write(name, args.object, args.value, args.type)
+        return "OK"
+
+    try:
+        result = asyncio.run(_with_master(cfg, op))
+    except GatewayError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    if isinstance(result, (bytes, bytearray)):
+        result = bytes(result).hex(" ")
+    print(result if not isinstance(result, int) else f"{result} (0x{result:X})")
+    return 0
+
+
+def cmd_nmt(args: argparse.Namespace) -> int:
+    cfg = _load(args.config)
+    name = "all" if args.node == "all" else _node_name(cfg, args.node)
+
+    async def op(gw: Any) -> None:
+        gw.commands.nmt(name, args.command)
+
+    asyncio.run(_with_master(cfg, op))
+    print(f"NMT {args.command} sent to {name}")
+    return 0
+
+
+def cmd_lss(args: argparse.Namespace) -> int:
+    from gateway.bus.lss_cli import run_lss
+
+    cfg = _load(args.config)
+    return run_lss(cfg, args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="canopen-gateway",
+        description="CANopen to Modbus TCP and Zenoh edge gateway.",
+    )
+    p.add_argument("--version", action="version", version=f"canopen-gateway {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
+        sp.add_argument("-c", "--config", required=True, metavar="FILE", help="configuration YAML")
+        return sp
+
+    sp = with_config(sub.add_parser("run", help="run the gateway"))
+    sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    sp.add_argument("--no-simulate", action="store_true", help="ignore the simulate: section")
+    sp.set_defaults(fn=cmd_run)
+
+    sp = with_config(sub.add_parser("check", help="validate a configuration and summarise it"))
+    sp.set_defaults(fn=cmd_check)
+
+    sp = with_config(sub.add_parser("registers", help="print the Modbus register map"))
+    sp.add_argument("--csv", action="store_true", help="CSV instead of a Markdown table")
+    sp.set_defaults(fn=cmd_registers)
+
+    sp = with_config(sub.add_parser("keys", help="print the Zenoh key expressions"))
+    sp.set_defaults(fn=cmd_keys)
+
+    sp = with_config(sub.add_parser("simulate", help="run only the simulated devices of a config"))
+    sp.add_argument("--nodes", help="comma-separated node names (default: simulate: section, else all)")
+    sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    sp.set_defaults(fn=cmd_simulate)
+
+    sp = with_config(sub.add_parser("sdo", help="read or write an object by SDO (commissioning)"))
+    sp.add_argument("op", choices=["read", "write"])
+    sp.add_argument("node", help="node name or id")
+    sp.add_argument("object", help="object, e.g. 0x6004:00")
+    sp.add_argument("value", nargs="?", help="value to write")
+    sp.add_argument("--type", help="data type (uint8, int16, uint32, string, ...); default from the EDS")
+    sp.add_argument("--timeout", type=float, default=1.0, help="SDO timeout in seconds")
+    sp.set_defaults(fn=cmd_sdo)
+
+    sp = with_config(sub.add_parser("nmt", help="send an NMT command"))
+    sp.add_argument("command", choices=["start", "stop", "preop", "reset", "reset-comm"])
+    sp.add_argument("node", help="node name, id, or 'all'")
+    sp.set_defaults(fn=cmd_nmt)
+
+    sp = with_config(sub.add_parser("lss", help="LSS commissioning (CiA 305)"))
+    sp.add_argument(
+        "action",
+        choices=["inquire", "set-node-id", "set-bitrate", "store", "switch-global", "switch-selective", "auto-id"],
+    )
+    sp.add_argument("args", nargs="*", help="action arguments (see docs/canopen.md)")
+    sp.set_defaults(fn=cmd_lss)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.fn(args))
+    except ConfigError as exc:
+        for line in exc.problems:
+            print(line, file=sys.stderr)
+        return EXIT_CONFIG
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

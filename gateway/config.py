@@ -1,0 +1,443 @@
+"""The gateway's configuration: one YAML file validated by pydantic, plus environment overrides.
+
+Every problem is reported as one line naming the file, the key path (``nodes[2].node_id``) and
+what is allowed; all problems of a file are collected before reporting. Environment variables
+``CANOPEN_GATEWAY__SECTION__KEY=value`` override single keys (list items by index:
+``CANOPEN_GATEWAY__NODES__0__NODE_ID=5``); values are parsed as YAML scalars/flow lists.
+
+Imports: pydantic, yaml, gateway.objref, gateway.profiles (to check profile names). Nothing of
+bus/, modbus/, zenoh_bridge/.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+
+from gateway.objref import ObjRef
+from gateway.profiles import ProfileError, load_profile
+from gateway.profiles.schema import HexInt, SignalType
+
+ENV_PREFIX = "CANOPEN_GATEWAY__"
+
+
+class ConfigError(Exception):
+    """One or more configuration problems, one line each."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = problems
+        super().__init__("\n".join(problems))
+
+
+def _obj(v: Any) -> ObjRef:
+    return ObjRef.parse(v)
+
+
+Obj = Annotated[ObjRef, BeforeValidator(_obj)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class GatewaySection(_Model):
+    name: str = Field(default="gateway", pattern=r"^[A-Za-z0-9_\-]+$")
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+
+class CanSection(BaseModel):
+    """Passed through to ``can.Bus(**can)``: interface, channel, bitrate and backend kwargs."""
+
+    model_config = ConfigDict(extra="allow")
+    interface: str = "virtual"
+    channel: str | int = "canopen-gateway"
+    bitrate: int | None = Field(default=None, gt=0)
+    reopen_backoff_s: float = Field(default=1.0, gt=0, le=60)
+
+    def bus_kwargs(self) -> dict[str, Any]:
+        kw = self.model_dump(exclude={"reopen_backoff_s"}, exclude_none=True)
+        return kw
+
+
+class MasterSection(_Model):
+    node_id: int = Field(default=127, ge=1, le=127, description="the gateway's own node id")
+    heartbeat_ms: int = Field(default=1000, ge=0, le=65535, description="0 = no heartbeat")
+    sync_period_ms: float = Field(default=0, ge=0, le=65535, description="0 = no SYNC")
+    sdo_timeout_s: float = Field(default=0.5, gt=0, le=30)
+    sdo_retries: int = Field(default=1, ge=0, le=10)
+    boot_timeout_s: float = Field(default=10.0, gt=0, le=3600)
+    heartbeat_timeout_multiple: float = Field(default=1.5, ge=1.0, le=10)
+    probe_at_start: bool = True
+
+
+class SdoWrite(_Model):
+    object: Obj
+    value: int | float | str
+    type: SignalType | None = None
+
+
+class SignalOverride(_Model):
+    address: int | None = Field(default=None, ge=0, le=65535, description="pin a Modbus address")
+    unit: str | None = None
+    scale: float | None = None
+    offset: float | None = None
+    word_order: Literal["big", "little"] | None = None
+    as_float: bool | None = Field(default=None, description="serve as engineering float32")
+    deadband: float = Field(default=0.0, ge=0)
+    max_rate_hz: float | None = Field(default=None, gt=0)
+    publish: Literal["change", "every", "off"] | None = None
+
+
+class GuardingBitSettings(_Model):
+    enabled: bool = True
+    tolerance_missed: int = Field(default=3, ge=1, le=1000)
+    tolerance_ms: int = Field(default=1000, ge=10, le=600000)
+
+
+class ExternalHeartbeat(_Model):
+    interval_ms: int = Field(ge=1, le=65535)
+    source: Literal["rpdo", "sync"] = "rpdo"
+    keepalive_ms: int | None = Field(default=None, ge=1, le=65535)
+
+
+class NodeModbus(_Model):
+    unit_id: int | None = Field(default=None, ge=1, le=247)
+    serve_stale: bool = False
+
+
+class NodeConfig(_Model):
+    name: str = Field(pattern=r"^[a-z][a-z0-9_\-]*$")
+    node_id: int = Field(ge=1, le=127)
+    profile: str
+    supervision: Literal["heartbeat", "guarding", "none"] | None = None
+    heartbeat_ms: int | None = Field(default=None, ge=0, le=65535)
+    guard_time_ms: int | None = Field(default=None, ge=0, le=65535)
+    life_time_factor: int | None = Field(default=None, ge=0, le=255)
+    pdo_variant: HexInt | None = None
+    rtr_poll_ms: int | None = Field(default=None, ge=1, description="poll TPDOs by RTR")
+    configure: bool = True
+    sdo: list[SdoWrite] = Field(default_factory=list)
+    signals: dict[str, SignalOverride] = Field(default_factory=dict)
+    modbus: NodeModbus = Field(default_factory=NodeModbus)
+    guarding_bit: GuardingBitSettings = Field(default_factory=GuardingBitSettings)
+    external_heartbeat: ExternalHeartbeat | None = None
+    stale_after_ms: int | None = Field(default=None, ge=1)
+
+
+class ModbusSection(_Model):
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = Field(default=5020, ge=0, le=65535)
+    layout: Literal["per_node", "flat"] = "per_node"
+    gateway_unit_id: int = Field(default=247, ge=1, le=247)
+    flat_unit_id: int = Field(default=1, ge=1, le=247)
+    flat_stride: int = Field(default=200, ge=50, le=10000)
+    word_order: Literal["big", "little"] = "big"
+    read_only: bool = False
+    allowed_networks: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
+    write_timeout_s: float = Field(default=2.0, gt=0, le=60)
+
+    @model_validator(mode="after")
+    def _nets(self) -> ModbusSection:
+        for n in self.allowed_networks:
+            try:
+                ipaddress.ip_network(n, strict=False)
+            except ValueError as exc:
+                raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+        return self
+
+
+class ZenohSection(_Model):
+    enabled: bool = True
+    mode: Literal["peer", "client"] = "peer"
+    listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    connect: list[str] = Field(default_factory=list)
+    prefix: str | None = None
+    multicast_scouting: bool = False
+    publish: Literal["change", "every"] = "change"
+    raw_pdo: bool = False
+    json5: dict[str, Any] = Field(
+        default_factory=dict, description="raw zenoh config keys, e.g. {'transport/link/tls/..': ..}"
+    )
+
+    def key_prefix(self, gateway_name: str) -> str:
+        return self.prefix if self.prefix else f"canopen/{gateway_name}"
+
+
+class HealthSection(_Model):
+    host: str = "127.0.0.1"
+    port: int = Field(default=0, ge=0, le=65535, description="0 = off")
+
+
+class SimulateSection(_Model):
+    """Nodes simulated in-process on the configured bus (demos, tests, commissioning)."""
+
+    nodes: list[str] | Literal["all"] = Field(default_factory=list)
+    motion: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="per node name: motion model (kind ramp|sine|random_walk|hold, min, max, speed...)",
+    )
+    options: dict[str, dict[str, Any]] = Field(
+        default_factory=dict, description="per node name: simulator options"
+    )
+
+
+class Config(_Model):
+    gateway: GatewaySection = Field(default_factory=GatewaySection)
+    can: CanSection = Field(default_factory=CanSection)
+    master: MasterSection = Field(default_factory=MasterSection)
+    nodes: list[NodeConfig] = Field(default_factory=list)
+    modbus: ModbusSection = Field(default_factory=ModbusSection)
+    zenoh: ZenohSection = Field(default_factory=ZenohSection)
+    health: HealthSection = Field(default_factory=HealthSection)
+    simulate: SimulateSection = Field(default_factory=SimulateSection)
+
+    #: where the file was loaded from (for resolving relative profile paths and messages)
+    source: str = Field(default="<memory>", exclude=True)
+
+    def node(self, name: str) -> NodeConfig:
+        for n in self.nodes:
+            if n.name == name:
+                return n
+        raise KeyError(name)
+
+    def simulated_nodes(self) -> list[NodeConfig]:
+        if self.simulate.nodes == "all":
+            return list(self.nodes)
+        wanted = set(self.simulate.nodes)
+        return [n for n in self.nodes if n.name in wanted]
+
+    @property
+    def base_dir(self) -> Path:
+        return Path(self.source).parent if self.source != "<memory>" else Path.cwd()
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _loc(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def _describe(err: Mapping[str, Any]) -> str:
+    t = err.get("type", "")
+    ctx = err.get("ctx") or {}
+    if t == "extra_forbidden":
+        return "unknown key (typo?)"
+    if t == "missing":
+        return "required key is missing"
+    if t == "literal_error":
+        return f"must be one of {ctx.get('expected', '')}"
+    if t in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
+        bounds = {
+            "greater_than_equal": ">=",
+            "less_than_equal": "<=",
+            "greater_than": ">",
+            "less_than": "<",
+        }
+        limit = next(iter(ctx.values()), "")
+        return f"got {err.get('input')!r}, must be {bounds[t]} {limit}"
+    if t == "string_pattern_mismatch":
+        return f"got {err.get('input')!r}, must match {ctx.get('pattern')}"
+    msg = str(err.get("msg", "invalid"))
+    return msg.removeprefix("Value error, ")
+
+
+def apply_env_overrides(raw: dict[str, Any], environ: Mapping[str, str]) -> list[str]:
+    """Apply ``CANOPEN_GATEWAY__A__B=v`` overrides in place; returns problems."""
+    problems = []
+    for key, value in sorted(environ.items()):
+        if not key.startswith(ENV_PREFIX):
+            continue
+        path = [p.lower() for p in key[len(ENV_PREFIX) :].split("__") if p]
+        if not path:
+            continue
+        try:
+            parsed = yaml.safe_load(value) if value != "" else ""
+        except yaml.YAMLError:
+            parsed = value
+        node: Any = raw
+        for i, part in enumerate(path):
+            last = i == len(path) - 1
+            if isinstance(node, list):
+                if not part.isdigit() or int(part) >= len(node):
+                    problems.append(f"environment {key}: no list item {part!r}")
+                    break
+                if last:
+                    node[int(part)] = parsed
+                else:
+                    node = node[int(part)]
+            elif isinstance(node, dict):
+                if last:
+                    node[part] = parsed
+                else:
+                    node = node.setdefault(part, {})
+            else:
+                problems.append(f"environment {key}: {'.'.join(path[:i])} is not a section")
+                break
+    return problems
+
+
+def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, str]]:
+    """Checks across entries that pydantic cannot see, run on the raw data."""
+    out: list[tuple[str, str]] = []
+    nodes = raw.get("nodes") or []
+    if not isinstance(nodes, list):
+        return out
+    seen: dict[str, dict[Any, int]] = {"node_id": {}, "name": {}, "unit_id": {}}
+    for i, n in enumerate(nodes):
+        if not isinstance(n, dict):
+            continue
+        for key in ("node_id", "name"):
+            v = n.get(key)
+            if v is None:
+                continue
+            if v in seen[key]:
+                out.append(
+                    (f"nodes[{i}].{key}", f"duplicate {key} {v!r} (also nodes[{seen[key][v]}])")
+                )
+            else:
+                seen[key][v] = i
+        mb = n.get("modbus") if isinstance(n.get("modbus"), dict) else {}
+        unit = mb.get("unit_id", n.get("node_id"))
+        if unit is not None:
+            if unit in seen["unit_id"]:
+                out.append(
+                    (
+                        f"nodes[{i}].modbus.unit_id",
+                        f"duplicate Modbus unit id {unit} (also nodes[{seen['unit_id'][unit]}])",
+                    )
+                )
+            else:
+                seen["unit_id"][unit] = i
+        prof = n.get("profile")
+        if isinstance(prof, str):
+            try:
+                lp = load_profile(prof, base_dir)
+            except ProfileError as exc:
+                out.append((f"nodes[{i}].profile", str(exc)))
+            else:
+                sigs = n.get("signals")
+                if isinstance(sigs, dict):
+                    names = {s.name for s in lp.profile.signals}
+                    for s in sigs:
+                        if s not in names:
+                            out.append(
+                                (
+                                    f"nodes[{i}].signals.{s}",
+                                    f"profile {prof} has no signal {s!r}; it has: "
+                                    + ", ".join(sorted(names)),
+                                )
+                            )
+                pv = n.get("pdo_variant")
+                if pv is not None:
+                    var = lp.profile.pdo_variants
+                    if var is None:
+                        out.append(
+                            (f"nodes[{i}].pdo_variant", f"profile {prof} has no PDO variants")
+                        )
+                    elif pv not in var.variants:
+                        out.append(
+                            (
+                                f"nodes[{i}].pdo_variant",
+                                f"got {pv!r}, profile {prof} allows {sorted(var.variants)}",
+                            )
+                        )
+    gw_unit = (raw.get("modbus") or {}).get("gateway_unit_id", 247)
+    if gw_unit in seen["unit_id"]:
+        out.append(
+            (
+                "modbus.gateway_unit_id",
+                f"unit id {gw_unit} is also used by nodes[{seen['unit_id'][gw_unit]}]",
+            )
+        )
+    sim = raw.get("simulate") or {}
+    if isinstance(sim, dict) and isinstance(sim.get("nodes"), list):
+        for j, name in enumerate(sim["nodes"]):
+            if name not in seen["name"]:
+                out.append(
+                    (f"simulate.nodes[{j}]", f"no node named {name!r} in nodes")
+                )
+    return out
+
+
+def parse_config(
+    raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None
+) -> Config:
+    """Validate an already-parsed YAML document; raise ConfigError with every problem."""
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise ConfigError([f"{source}: (top level): must be a mapping of sections"])
+    problems = [f"{source}: {p}" for p in apply_env_overrides(raw, environ or {})]
+    base_dir = Path(source).parent if source != "<memory>" else Path.cwd()
+    errors: list[tuple[str, str]] = []
+    cfg: Config | None = None
+    try:
+        cfg = Config.model_validate({**raw, "source": source})
+    except ValidationError as exc:
+        for e in exc.errors():
+            errors.append((_loc(e["loc"]), _describe(e)))
+    errors += _semantic_problems(raw, base_dir)
+    if cfg is not None and not errors:
+        errors += _compiled_problems(cfg)
+    seen: set[tuple[str, str]] = set()
+    for loc, msg in errors:
+        if (loc, msg) in seen:
+            continue
+        seen.add((loc, msg))
+        problems.append(f"{source}: {loc}: {msg}")
+    if problems:
+        raise ConfigError(problems)
+    assert cfg is not None
+    return cfg
+
+
+def _compiled_problems(cfg: Config) -> list[tuple[str, str]]:
+    """Checks that need the compiled register map and protocol rules."""
+    out: list[tuple[str, str]] = []
+    # Imported here: the register map module imports this one.
+    from gateway.modbus.regmap import RegisterMapError, build_register_map
+
+    try:
+        build_register_map(cfg)
+    except RegisterMapError as exc:
+        out.append((exc.key, str(exc)))
+    from gateway.checks import protocol_problems
+
+    out += protocol_problems(cfg)
+    return out
+
+
+def load_config(path: str | os.PathLike[str], environ: Mapping[str, str] | None = None) -> Config:
+    """Read and validate a config file; ``environ`` defaults to ``os.environ``."""
+    p = Path(path)
+    source = str(p)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError([f"{source}: file does not exist"]) from None
+    except OSError as exc:
+        raise ConfigError([f"{source}: cannot read: {exc.strerror}"]) from None
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError([f"{source}: {where}: YAML syntax error: {problem}"]) from None
+    return parse_config(raw, source, os.environ if environ is None else environ)
+
+
