@@ -1,0 +1,64 @@
+"""Shared fixtures: a gateway built from a config dict on a private virtual CAN channel, with
+Modbus and Zenoh on free loopback ports, and helpers that wait on conditions (bounded)."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import socket
+import time
+import uuid
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from gateway.config import parse_config
+
+_port_counter = itertools.count()
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def unique_channel() -> str:
+    return f"test-{uuid.uuid4().hex[:10]}"
+
+
+def make_config(nodes: list[dict[str, Any]], **sections: Any) -> Any:
+    """A validated Config for tests: private virtual bus, free ports, every node simulated."""
+    raw: dict[str, Any] = {
+        "gateway": {"name": "test"},
+        "can": {"interface": "virtual", "channel": unique_channel()},
+        "master": {"heartbeat_ms": 200, "sync_period_ms": 50, "boot_timeout_s": 5},
+        "nodes": nodes,
+        "modbus": {"port": free_port()},
+        "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port()}"]},
+        "simulate": {"nodes": "all"},
+    }
+    for k, v in sections.items():
+        if isinstance(v, dict) and isinstance(raw.get(k), dict):
+            raw[k] = {**raw[k], **v}
+        else:
+            raw[k] = v
+    return parse_config(raw, environ={})
+
+
+async def wait_until(cond: Callable[[], Any], timeout_s: float = 5.0, what: str = "condition") -> Any:
+    """Poll ``cond`` every 10 ms until truthy; fail the test after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        v = cond()
+        if v:
+            return v
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        await asyncio.sleep(0.01)
+
+
+@pytest.fixture
+def config_factory() -> Callable[..., Any]:
+    return make_config
