@@ -8,3 +8,18 @@ and runs the device behaviours of its profile's features (behaviours/). ``SimRun
 Used by tests, demos and commissioning. Imports: gateway.profiles, gateway.objref, python-can,
 canopen (EDS types only). Nothing of bus/, modbus/ or zenoh_bridge/.
 """
+
+from gateway.sim.motion import MotionConfig
+from gateway.sim.node import NmtState, SimNode
+from gateway.sim.objects import PersistentStore, SdoAbortError
+from gateway.sim.runner import SimRunner, build_sim_nodes
+
+__all__ = [
+    "MotionConfig",
+    "NmtState",
+    "PersistentStore",
+    "SdoAbortError",
+    "SimNode",
+    "SimRunner",
+    "build_sim_nodes",
+]

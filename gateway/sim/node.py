@@ -1,0 +1,750 @@
+"""A simulated CANopen device (DS-301 slave) built from a device profile: sans-I/O.
+
+``SimNode(profile, node_id)`` holds the object values of one device (EDS defaults, ``$NODEID``
+resolved, overlaid with what 1010h stored) and reacts to frames and time:
+
+- ``handle(msg, now)`` -> frames to send in answer to one received frame,
+- ``tick(now)`` -> frames due at ``now`` (heartbeat, event-timer TPDOs, queued EMCY...).
+
+``now`` is the caller's monotonic clock in seconds; the node never reads a clock, never sleeps
+and never touches a bus, so tests drive it with a fake clock. What it implements, and where the
+manuals say so (SGH10 manual 000/003 section numbers unless noted):
+
+- power-on (2.1, 4.2.2): boot-up 0x700+id data 00, then PRE-OPERATIONAL.
+- NMT (4.2.1): COB 0x000 [cs, id], id 0 = all: 01 start, 02 stop, 80 pre-op, 81 reset node
+  (reload every object from EDS default + store), 82 reset communication (reload 1000h-1FFFh,
+  adopt a node id configured by LSS/Auto-ID). STOPPED answers only NMT, heartbeat, guarding.
+- SDO server (4.4.1, see sdo.py) in PRE-OPERATIONAL and OPERATIONAL, with the abort codes of
+  4.4.1.3; 1010h "save" / 1011h "load" (4.7.2.11/12) on sub-indices 1 (all), 2 (1000h-1FFFh),
+  3 (6000h-9FFFh), 4 (2000h-5FFFh); wrong signature -> 0x08000020.
+- COB-IDs (4.1): a valid PDO's COB-ID changes only after bit 31 was set -> else 0x08000022; and,
+  with the sim hint ``cob_id_change_preop_only``, only in PRE-OPERATIONAL.
+- heartbeat producer 1017h (4.5.3); node guarding (4.5.2): RTR on 0x700+id answered with
+  toggle (0 first) | state; life guarding with 100Ch x 100Dh once the first RTR came.
+- EMCY (4.5.1, see emcy.py), only in PRE-OPERATIONAL / OPERATIONAL, COB-ID from 1014h.
+- TPDOs (4.3.1.1) from the current 180xh/1A0xh: types 254/255 on the event timer 180xh:05
+  (mirrored with 6200h where the EDS has it, 4.7.2.31), 1..240 every n-th SYNC, 0 on SYNC when
+  changed, RTR on the TPDO COB-ID (bit 30 clear); only in OPERATIONAL. RPDOs write their mapped
+  objects.
+- a motion model (motion.py) for the position / velocity objects named by the profile's
+  ``sim:`` hints, and the behaviours of the profile's features (behaviours/).
+
+Imports: python-can (Message only), gateway.profiles (LoadedProfile), gateway.objref and the
+other gateway.sim modules. Nothing of bus/, modbus/, zenoh_bridge/.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Literal
+
+import can
+
+from gateway.objref import ObjRef
+from gateway.profiles import LoadedProfile
+from gateway.sim import pdo
+from gateway.sim.behaviours import Behaviour, behaviour_for
+from gateway.sim.emcy import EmcyProducer
+from gateway.sim.hints import SimHints
+from gateway.sim.motion import Motion, MotionConfig
+from gateway.sim.objects import (
+    ABORT_NO_DATA,
+    ABORT_RANGE,
+    ABORT_STATE,
+    ABORT_STORE,
+    ObjectValues,
+    PersistentStore,
+    SdoAbortError,
+    decode,
+    resolve_default,
+)
+from gateway.sim.sdo import SdoServer
+
+log = logging.getLogger(__name__)
+
+
+class NmtState(IntEnum):
+    """NMT states as carried in heartbeat / guarding byte (SGH10 manual 4.5.2, 4.5.3)."""
+
+    INITIALISING = 0x00  # the boot-up message carries 00h (4.2.2)
+    STOPPED = 0x04
+    OPERATIONAL = 0x05
+    PRE_OPERATIONAL = 0x7F
+
+
+# NMT command specifiers (SGH10 manual 4.2.1.2, Table 3)
+NMT_START = 0x01
+NMT_STOP = 0x02
+NMT_PRE_OPERATIONAL = 0x80
+NMT_RESET_NODE = 0x81
+NMT_RESET_COMMUNICATION = 0x82
+
+# 1010h / 1011h signatures, ASCII "save" / "load" little-endian (SGH10 manual 4.7.2.11/12)
+SIGNATURE_SAVE = 0x65766173
+SIGNATURE_LOAD = 0x64616F6C
+
+COB_NMT = 0x000
+COB_SYNC_DEFAULT = 0x080
+COB_EMCY_BASE = 0x080
+COB_SDO_RX_BASE = 0x600
+COB_SDO_TX_BASE = 0x580
+COB_NMT_ERROR_BASE = 0x700  # boot-up, heartbeat and node guarding (4.2.2, 4.5.2, 4.5.3)
+
+ResetKind = Literal["power", "node", "communication"]
+
+# Due times are sums of float periods (0.2 + 0.1 > 0.3): a timer is due within this margin.
+_EPS_S = 1e-9
+
+
+@dataclass
+class _TpdoTimer:
+    next_due_s: float | None = None
+    sync_count: int = 0
+    last_data: bytes | None = None
+    last_sent_s: float | None = None
+    pending: bool = False  # held back by the inhibit time
+
+
+class SimNode:
+    """One simulated device. See the module docstring for what it implements."""
+
+    def __init__(
+        self,
+        profile: LoadedProfile,
+        node_id: int,
+        *,
+        motion: MotionConfig | dict[str, Any] | None = None,
+        store: PersistentStore | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> None:
+        if not 1 <= node_id <= 127:
+            raise ValueError(f"node id {node_id} is not 1..127")
+        self.profile = profile
+        self.configured_node_id = node_id
+        self.node_id = node_id
+        self.pending_node_id: int | None = None
+        self.store = store if store is not None else PersistentStore()
+        raw: dict[str, Any] = {**profile.profile.sim, **(options or {})}
+        if isinstance(motion, dict):
+            raw["motion"] = {**(raw.get("motion") or {}), **motion}
+        self.hints = SimHints.from_dict(raw)
+        self.values = ObjectValues(profile.od)
+        self.nmt_state = NmtState.INITIALISING
+        self.powered = False
+        self.silenced = False
+        self.last_reset: ResetKind = "power"
+        self.now = 0.0
+        self.faults: dict[str, bool] = {}
+        self.rx_count = 0
+        self.tx_count = 0
+        self._out: list[can.Message] = []
+
+        # motion model -> position / velocity objects
+        self.motion = Motion(motion if isinstance(motion, MotionConfig) else self.hints.motion)
+        self.position_obj = self.hints.position
+        self.velocity_obj = self.hints.velocity
+        self.velocity_scale = self.hints.velocity_scale
+        self.position_offset = 0  # counts added to the model (calibration / preset)
+        self._process_now: float | None = None
+
+        self.sdo = SdoServer(
+            self._sdo_read,
+            self._sdo_write,
+            timeout_s=float(raw.get("sdo_timeout_s", 1.0)),
+            segment_upload_command=self.hints.segment_upload_command,
+        )
+        self.emcy = EmcyProducer(self.values)
+        self.mirror_groups: list[tuple[ObjRef, ...]] = []
+        for group in self.hints.mirror_groups:
+            present = tuple(o for o in group if self.values.has(*o))
+            if len(present) > 1:
+                self.mirror_groups.append(present)
+        self.cob_id_change_preop_only = self.hints.cob_id_change_preop_only
+        self.require_mappable = bool(raw.get("require_mappable", False))
+
+        self.tpdos = pdo.numbers(self.values, "tpdo")
+        self.rpdos = pdo.numbers(self.values, "rpdo")
+        self._tpdo_timers: dict[int, _TpdoTimer] = {n: _TpdoTimer() for n in self.tpdos}
+        self._cob_map: dict[int, tuple[str, int]] | None = None
+
+        self._hb_next_s: float | None = None
+        self._guard_toggle = 0
+        self._guard_last_rtr_s: float | None = None
+        self.life_guarding_lost = False
+
+        self.behaviours: list[Behaviour] = []
+        feature_options = dict(raw.get("features") or {})
+        for feature, params in profile.profile.features.items():
+            cls = behaviour_for(feature)
+            if cls is not None:
+                merged = {**(params or {}), **feature_options.get(feature, {})}
+                self.behaviours.append(cls(self, merged))
+
+    # ======================================================================================
+    # API for behaviours and tests
+    # ======================================================================================
+    def get(self, index: int, sub: int = 0, default: Any = None) -> Any:
+        """Current value of an object (no access check, no hooks)."""
+        return self.values.get(index, sub, default)
+
+    def set(self, index: int, sub: int, value: Any) -> None:
+        """Set an object's value (no access check, no hooks); mirrored objects follow."""
+        self.values.set(index, sub, value)
+        self._after_value_change(ObjRef(index, sub), value)
+
+    def send(self, cob_id: int, data: bytes = b"", *, rtr: bool = False, dlc: int = 0) -> None:
+        """Queue a frame for the next return of handle()/tick() (dropped while silenced)."""
+        if self.silenced:
+            return
+        self._out.append(
+            can.Message(
+                arbitration_id=cob_id,
+                data=bytes(data),
+                is_extended_id=cob_id > 0x7FF,
+                is_remote_frame=rtr,
+                dlc=dlc if rtr else len(data),
+            )
+        )
+
+    def behaviour(self, feature: str) -> Behaviour | None:
+        for b in self.behaviours:
+            if b.feature == feature:
+                return b
+        return None
+
+    def drain(self) -> list[can.Message]:
+        """Frames queued outside handle()/tick() (fault injection between calls)."""
+        out, self._out = self._out, []
+        self.tx_count += len(out)
+        return out
+
+    # ======================================================================================
+    # Driving the node
+    # ======================================================================================
+    def power_on(self, now: float) -> list[can.Message]:
+        """Switch the device on (first call of handle()/tick() does it implicitly)."""
+        self._initialise("power", now)
+        return self.drain()
+
+    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
+        """Frames to send in answer to ``msg`` received at ``now``."""
+        self.now = now
+        if not self.powered:
+            self._initialise("power", now)
+        if self.silenced:
+            return []
+        self.rx_count += 1
+        for b in self.behaviours:
+            if b.on_frame(msg, now):
+                return self.drain()
+        if msg.is_extended_id or msg.is_error_frame:
+            return self.drain()
+        cob = msg.arbitration_id
+        if cob == COB_NMT:
+            if not msg.is_remote_frame and len(msg.data) >= 2:
+                self._on_nmt(msg.data[0], msg.data[1], now)
+            return self.drain()
+        if cob == COB_NMT_ERROR_BASE + self.node_id and msg.is_remote_frame:
+            self._on_guarding_rtr(now)
+            return self.drain()
+        if self.nmt_state == NmtState.STOPPED:
+            return self.drain()
+        target = self._cobs().get(cob)
+        if target is not None:
+            what, number = target
+            if what == "sync" and not msg.is_remote_frame:
+                self._on_sync(now)
+            elif what == "sdo" and not msg.is_remote_frame:
+                response = self.sdo.on_request(bytes(msg.data), now)
+                if response is not None:
+                    self.send(self._sdo_tx_cob(), response)
+            elif self.nmt_state == NmtState.OPERATIONAL:
+                if what == "tpdo" and msg.is_remote_frame and self.hints.tpdo_rtr:
+                    if not pdo.cob_id(self.values, "tpdo", number) & pdo.COB_NO_RTR:
+                        self._send_tpdo(number, now, force=True)
+                elif what == "rpdo" and not msg.is_remote_frame:
+                    self._on_rpdo(number, bytes(msg.data), now)
+        return self.drain()
+
+    def tick(self, now: float) -> list[can.Message]:
+        """Frames due at ``now``."""
+        self.now = now
+        if not self.powered:
+            self._initialise("power", now)
+        if self.silenced:
+            return []
+        for b in self.behaviours:
+            b.tick(now)
+        if self.nmt_state != NmtState.INITIALISING:
+            self._tick_heartbeat(now)
+            self._tick_life_guarding(now)
+        if self.nmt_state == NmtState.OPERATIONAL:
+            self._tick_tpdos(now)
+        abort = self.sdo.poll(now)
+        if abort is not None:
+            self.send(self._sdo_tx_cob(), abort)
+        self._flush_emcy(now)
+        return self.drain()
+
+    def next_deadline(self, now: float) -> float | None:
+        """Earliest time tick() has something to do (None: only on frames); a hint for
+        drivers, tick() may still be called more often."""
+        due = [t for t in (self._hb_next_s,) if t is not None]
+        if self.nmt_state == NmtState.OPERATIONAL:
+            due += [t.next_due_s for t in self._tpdo_timers.values() if t.next_due_s is not None]
+        return min(due) if due else None
+
+    # ======================================================================================
+    # Fault injection (tests, demos, commissioning drills)
+    # ======================================================================================
+    def silence(self) -> None:
+        """Leave the bus: receive nothing, send nothing (as with a cut cable)."""
+        self.silenced = True
+        self._out.clear()
+
+    def unsilence(self, now: float | None = None) -> None:
+        """Back on the bus in the same NMT state; timers continue from ``now``."""
+        self.silenced = False
+        now = self.now if now is None else now
+        if self._hb_next_s is not None and self._hb_next_s < now:
+            self._schedule_heartbeat(now)
+        for t in self._tpdo_timers.values():
+            if t.next_due_s is not None and t.next_due_s < now:
+                t.next_due_s = now
+
+    def power_cycle(self, now: float | None = None) -> list[can.Message]:
+        """Off and on again: stored configuration reloaded, boot-up sent."""
+        now = self.now if now is None else now
+        self.silenced = False
+        self._initialise("power", now)
+        return self.drain()
+
+    def raise_emcy(
+        self, code: int, register: int = 0, mfr: bytes = b"", now: float | None = None
+    ) -> None:
+        """Make an error active: 1001h, 1003h and one EMCY frame (if the state allows)."""
+        data = self.emcy.raise_error(code, register, mfr)
+        if data is not None:
+            self._emit_emcy(data, self.now if now is None else now)
+
+    def clear_emcy(self, code: int, now: float | None = None) -> None:
+        """The error went away: EMCY 0000h with the remaining error register."""
+        data = self.emcy.clear_error(code)
+        if data is not None:
+            self._emit_emcy(data, self.now if now is None else now)
+
+    def inject_fault(self, name: str, active: bool, now: float | None = None) -> bool:
+        """Turn a device fault on/off; True if one of the node's behaviours implements it.
+
+        Without a behaviour, a fault listed in the sim hint ``faults: {name: {emcy: code,
+        register: bits}}`` raises / clears that EMCY.
+        """
+        now = self.now if now is None else now
+        self.faults[name] = active
+        handled = False
+        for b in self.behaviours:
+            handled = b.on_fault(name, active, now) or handled
+        if not handled:
+            spec = self.hints.faults.get(name)
+            if spec and "emcy" in spec:
+                code = int(spec["emcy"])
+                if active:
+                    self.raise_emcy(code, int(spec.get("register", 0)), now=now)
+                else:
+                    self.clear_emcy(code, now=now)
+                handled = True
+        return handled
+
+    def sensor_error(self, active: bool = True, now: float | None = None) -> bool:
+        return self.inject_fault("sensor_error", active, now)
+
+    def battery_low(self, active: bool = True, now: float | None = None) -> bool:
+        return self.inject_fault("battery_low", active, now)
+
+    def freeze_guarding_echo(self, active: bool = True, now: float | None = None) -> bool:
+        return self.inject_fault("freeze_guarding_echo", active, now)
+
+    # ======================================================================================
+    # Initialisation and NMT
+    # ======================================================================================
+    def _initialise(self, kind: ResetKind, now: float) -> None:
+        """INITIALISATION (SGH10 manual 4.2.1.1), boot-up message, then PRE-OPERATIONAL."""
+        self.powered = True
+        self.last_reset = kind
+        self.nmt_state = NmtState.INITIALISING
+        if kind == "power":
+            self.motion.start(now)
+            self.node_id = self.store.node_id or self.configured_node_id
+            self.pending_node_id = None
+            self.values.load_defaults(self.node_id, self.store, 1)
+            self.emcy.reset()
+            self.faults.clear()
+            self.position_offset = 0
+        else:
+            if self.pending_node_id is not None:
+                self.node_id = self.pending_node_id
+                self.pending_node_id = None
+            keep = {k: self.values.get(*k) for k in self.values.keys() if k[0] in (0x1001, 0x1003)}
+            self.values.load_defaults(self.node_id, self.store, 1 if kind == "node" else 2)
+            for k, v in keep.items():
+                self.values.set(k[0], k[1], v)
+        self._cob_map = None
+        self.sdo.reset()
+        self._guard_toggle = 0
+        self._guard_last_rtr_s = None
+        self.life_guarding_lost = False
+        self._tpdo_timers = {n: _TpdoTimer() for n in self.tpdos}
+        self._process_now = None
+        for b in self.behaviours:
+            b.on_boot(now)
+        if self.silenced:
+            return
+        self.send(COB_NMT_ERROR_BASE + self.node_id, b"\x00")  # boot-up (4.2.2)
+        self.nmt_state = NmtState.PRE_OPERATIONAL
+        self._schedule_heartbeat(now)
+        for b in self.behaviours:
+            b.on_nmt(int(self.nmt_state), now)
+
+    def reset_communication(self, now: float) -> None:
+        """As NMT 82h: adopt a pending node id and boot up again."""
+        self._initialise("communication", now)
+
+    def _on_nmt(self, cs: int, target: int, now: float) -> None:
+        if target not in (0, self.node_id):
+            return
+        if cs == NMT_RESET_NODE:
+            self._initialise("node", now)
+            return
+        if cs == NMT_RESET_COMMUNICATION:
+            self._initialise("communication", now)
+            return
+        new = {
+            NMT_START: NmtState.OPERATIONAL,
+            NMT_STOP: NmtState.STOPPED,
+            NMT_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
+        }.get(cs)
+        if new is not None:
+            self.set_nmt_state(new, now)
+
+    def set_nmt_state(self, state: NmtState, now: float) -> None:
+        """Enter ``state`` (behaviours use this, e.g. external heartbeat -> PRE-OPERATIONAL)."""
+        if state == self.nmt_state:
+            return
+        old = self.nmt_state
+        self.nmt_state = state
+        if state == NmtState.OPERATIONAL and old != NmtState.OPERATIONAL:
+            for n, t in self._tpdo_timers.items():
+                t.sync_count = 0
+                t.last_data = None
+                t.next_due_s = now if pdo.event_timer_ms(self.values, n) > 0 else None
+        if old == NmtState.OPERATIONAL:
+            for t in self._tpdo_timers.values():
+                t.next_due_s = None
+        for b in self.behaviours:
+            b.on_nmt(int(state), now)
+
+    # ======================================================================================
+    # Heartbeat and node guarding
+    # ======================================================================================
+    def _schedule_heartbeat(self, now: float) -> None:
+        period_ms = int(self.values.get(0x1017, 0, 0))
+        self._hb_next_s = now + period_ms / 1000 if period_ms > 0 else None
+
+    def _tick_heartbeat(self, now: float) -> None:
+        """Heartbeat producer 1017h (SGH10 manual 4.5.3): [state] every period, any state."""
+        if self._hb_next_s is None or now + _EPS_S < self._hb_next_s:
+            return
+        period_s = int(self.values.get(0x1017, 0, 0)) / 1000
+        self.send(COB_NMT_ERROR_BASE + self.node_id, bytes([int(self.nmt_state)]))
+        if period_s <= 0:
+            self._hb_next_s = None
+            return
+        self._hb_next_s += period_s
+        if self._hb_next_s <= now:  # fell behind (e.g. a long pause): no burst
+            self._hb_next_s = now + period_s
+
+    def _on_guarding_rtr(self, now: float) -> None:
+        """Node guarding (SGH10 manual 4.5.2): toggle bit 7 (0 first) | NMT state."""
+        if int(self.values.get(0x1017, 0, 0)) and not self.hints.guarding_with_heartbeat:
+            return  # DS-301 7.2.8.3: a node uses heartbeat or guarding, not both
+        self.send(
+            COB_NMT_ERROR_BASE + self.node_id, bytes([(self._guard_toggle << 7) | self.nmt_state])
+        )
+        self._guard_toggle ^= 1
+        self._guard_last_rtr_s = now
+        if self.life_guarding_lost:
+            self.life_guarding_lost = False
+            if self.emcy.active.get(0x8130) is not None:
+                self.clear_emcy(0x8130, now)
+
+    def _tick_life_guarding(self, now: float) -> None:
+        """Life guarding: no RTR within 100Ch x 100Dh ms after the first one (4.5.2)."""
+        if self._guard_last_rtr_s is None or self.life_guarding_lost:
+            return
+        guard_ms = int(self.values.get(0x100C, 0, 0))
+        factor = int(self.values.get(0x100D, 0, 0))
+        if guard_ms == 0 or factor == 0:
+            return
+        if now - self._guard_last_rtr_s > guard_ms * factor / 1000:
+            self.life_guarding_lost = True
+            if 0x8130 in self.profile.profile.emcy:  # only if the manual lists it
+                self.raise_emcy(0x8130, 0x10, now=now)  # DS-301: life guard error, bit 4
+
+    # ======================================================================================
+    # EMCY
+    # ======================================================================================
+    def _emcy_cob(self) -> int | None:
+        if not self.values.has(0x1014, 0):
+            return COB_EMCY_BASE + self.node_id
+        cob = int(self.values.get(0x1014, 0, 0))
+        return None if cob & pdo.COB_INVALID else cob & pdo.COB_ID_MASK
+
+    def _emit_emcy(self, data: bytes, now: float) -> None:
+        """EMCY only in OPERATIONAL / PRE-OPERATIONAL (SGH10 manual 4.5.1)."""
+        if self.nmt_state not in (NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL):
+            return
+        self.emcy.queue(data)
+        self._flush_emcy(now)
+
+    def _flush_emcy(self, now: float) -> None:
+        cob = self._emcy_cob()
+        for data in self.emcy.poll(now):
+            if cob is not None:
+                self.send(cob, data)
+
+    # ======================================================================================
+    # Process data
+    # ======================================================================================
+    def update_process(self, now: float) -> None:
+        """Motion model -> position/velocity objects, then the behaviours' process update."""
+        if self._process_now == now:
+            return
+        self._process_now = now
+        pos, vel = self.motion.sample(now)
+        if self.position_obj is not None:
+            self.values.set(*self.position_obj, int(round(pos)) + self.position_offset)
+        if self.velocity_obj is not None:
+            self.values.set(*self.velocity_obj, int(round(vel * self.velocity_scale)))
+        for b in self.behaviours:
+            b.update_process(now)
+
+    def tpdo_data(self, number: int, now: float) -> bytes:
+        """The data TPDO ``number`` would carry now (current mapping)."""
+        self.update_process(now)
+        return pdo.pack(self.values, pdo.mapping(self.values, "tpdo", number))
+
+    def _send_tpdo(self, number: int, now: float, *, force: bool = False) -> bool:
+        """Send TPDO ``number`` if it is valid (and the inhibit time allows unless forced)."""
+        cob = pdo.cob_id(self.values, "tpdo", number)
+        if cob & pdo.COB_INVALID:
+            return False
+        t = self._tpdo_timers[number]
+        inhibit_s = pdo.inhibit_time_100us(self.values, number) * 100e-6
+        if not force and t.last_sent_s is not None and now < t.last_sent_s + inhibit_s:
+            t.pending = True
+            return False
+        data = self.tpdo_data(number, now)
+        self.send(cob & pdo.COB_ID_MASK, data)
+        t.last_data = data
+        t.last_sent_s = now
+        t.pending = False
+        return True
+
+    def trigger_tpdo(self, number: int, now: float) -> None:
+        """An application event for an event-driven TPDO (behaviours), in OPERATIONAL only."""
+        if self.nmt_state == NmtState.OPERATIONAL and number in self._tpdo_timers:
+            if pdo.transmission_type(self.values, "tpdo", number) >= 254:
+                self._send_tpdo(number, now)
+
+    def _tick_tpdos(self, now: float) -> None:
+        for n, t in self._tpdo_timers.items():
+            if t.pending:
+                self._send_tpdo(n, now)
+            if t.next_due_s is None or now + _EPS_S < t.next_due_s:
+                continue
+            period_s = pdo.event_timer_ms(self.values, n) / 1000
+            if pdo.transmission_type(self.values, "tpdo", n) >= 254:
+                self._send_tpdo(n, now)
+            if period_s <= 0:
+                t.next_due_s = None
+                continue
+            t.next_due_s += period_s
+            if t.next_due_s <= now:
+                t.next_due_s = now + period_s
+
+    def _on_sync(self, now: float) -> None:
+        """SYNC (SGH10 manual 4.2.3, 4.3.1.1): synchronous TPDOs in OPERATIONAL."""
+        for b in self.behaviours:
+            b.on_sync(now)
+        if self.nmt_state != NmtState.OPERATIONAL:
+            return
+        for n, t in self._tpdo_timers.items():
+            ttype = pdo.transmission_type(self.values, "tpdo", n)
+            if ttype == 0:
+                data = self.tpdo_data(n, now)
+                if data != t.last_data:
+                    self._send_tpdo(n, now, force=True)
+            elif 1 <= ttype <= 240:
+                t.sync_count += 1
+                if t.sync_count >= ttype:
+                    t.sync_count = 0
+                    self._send_tpdo(n, now, force=True)
+
+    def _on_rpdo(self, number: int, data: bytes, now: float) -> None:
+        entries = pdo.mapping(self.values, "rpdo", number)
+        if len(data) < pdo.length_bytes(entries):
+            if 0x8210 in self.profile.profile.emcy:  # DS-301: PDO not processed, length error
+                self.raise_emcy(0x8210, 0x10, now=now)
+            return
+        for obj, value in pdo.unpack(self.values, entries, data):
+            self.set(obj.index, obj.sub, value)
+        for b in self.behaviours:
+            b.on_rpdo(number, data, now)
+
+    # ======================================================================================
+    # COB-ID dispatch
+    # ======================================================================================
+    def _sdo_rx_cob(self) -> int:
+        v = self.values.get(0x1200, 1)
+        return int(v) & 0x7FF if v is not None else COB_SDO_RX_BASE + self.node_id
+
+    def _sdo_tx_cob(self) -> int:
+        v = self.values.get(0x1200, 2)
+        return int(v) & 0x7FF if v is not None else COB_SDO_TX_BASE + self.node_id
+
+    def _cobs(self) -> dict[int, tuple[str, int]]:
+        if self._cob_map is None:
+            m: dict[int, tuple[str, int]] = {}
+            for n in self.tpdos:
+                cob = pdo.cob_id(self.values, "tpdo", n)
+                if not cob & pdo.COB_INVALID:
+                    m[cob & pdo.COB_ID_MASK] = ("tpdo", n)
+            for n in self.rpdos:
+                cob = pdo.cob_id(self.values, "rpdo", n)
+                if not cob & pdo.COB_INVALID:
+                    m[cob & pdo.COB_ID_MASK] = ("rpdo", n)
+            sync = self.values.get(0x1005, 0, COB_SYNC_DEFAULT)
+            m[int(sync) & 0x7FF] = ("sync", 0)
+            m[self._sdo_rx_cob()] = ("sdo", 0)
+            self._cob_map = m
+        return self._cob_map
+
+    # ======================================================================================
+    # SDO server callbacks
+    # ======================================================================================
+    def _sdo_read(self, index: int, sub: int) -> bytes:
+        now = self.now
+        var = self.values.var(index, sub)  # 0x06020000 / 0x06090011 first
+        obj = ObjRef(index, sub)
+        if obj in self.hints.unused_objects:
+            raise SdoAbortError(self.hints.unused_abort, f"{obj} is not used by this device")
+        self.update_process(now)
+        for b in self.behaviours:
+            code = b.before_sdo_read(obj, now)
+            if code is not None:
+                raise SdoAbortError(code)
+        if index == 0x1003 and sub > 0 and var.readable:
+            if sub > int(self.values.get(0x1003, 0, 0)):
+                raise SdoAbortError(ABORT_NO_DATA, f"1003h holds fewer than {sub} errors")
+        return self.values.read_bytes(index, sub)
+
+    def _sdo_write(self, index: int, sub: int, data: bytes, size_given: bool) -> None:
+        now = self.now
+        obj = ObjRef(index, sub)
+        if obj in self.hints.unused_objects:
+            self.values.var(index, sub)
+            raise SdoAbortError(self.hints.unused_abort, f"{obj} is not used by this device")
+        var, value = self.values.check_write(index, sub, data, size_given)
+        self._check_profile_range(obj, value)
+        for b in self.behaviours:
+            code = b.before_sdo_write(obj, value, now)
+            if code is not None:
+                raise SdoAbortError(code)
+        self._core_write(obj, value, now)
+        for b in self.behaviours:
+            b.after_sdo_write(obj, value, now)
+
+    def _check_profile_range(self, obj: ObjRef, value: Any) -> None:
+        sig = self.profile.profile.signal_for(obj)
+        if sig is None or not isinstance(value, (int, float)):
+            return
+        if (sig.min is not None and value < sig.min) or (sig.max is not None and value > sig.max):
+            raise SdoAbortError(ABORT_RANGE, f"{obj} value {value} outside {sig.min}..{sig.max}")
+
+    def _check_preop(self, obj: ObjRef) -> None:
+        if self.cob_id_change_preop_only and self.nmt_state != NmtState.PRE_OPERATIONAL:
+            raise SdoAbortError(ABORT_STATE, f"{obj} is writable in PRE-OPERATIONAL only")
+
+    def _core_write(self, obj: ObjRef, value: Any, now: float) -> None:
+        """DS-301 objects with rules or side effects, then store the value."""
+        index, sub = obj
+        if index == 0x1003 and sub == 0:
+            if value != 0:  # SGH10 manual 4.7.2.4: only 0 is written, clearing the list
+                raise SdoAbortError(ABORT_RANGE, "1003h:00 accepts only 0")
+            self.emcy.clear_history()
+            return
+        if index == 0x1010 and sub >= 1:
+            if value != SIGNATURE_SAVE:
+                raise SdoAbortError(ABORT_STORE, "1010h expects the signature 'save'")
+            self.values.save(self.node_id, self.store, sub)
+            return
+        if index == 0x1011 and sub >= 1:
+            if value != SIGNATURE_LOAD:
+                raise SdoAbortError(ABORT_STORE, "1011h expects the signature 'load'")
+            self.values.restore(self.store, sub)
+            return
+        if index in (0x1005, 0x1014):
+            self._check_preop(obj)
+            old = int(self.values.get(index, 0, 0))
+            # 1005h: bit 30 set = this node generates SYNC; 1014h: bit 31 set = EMCY invalid
+            guard_bit = 1 << 30 if index == 0x1005 else pdo.COB_INVALID
+            active = bool(old & guard_bit) if index == 0x1005 else not old & guard_bit
+            if active and (old ^ int(value)) & pdo.COB_ID_MASK:
+                raise SdoAbortError(ABORT_STATE, f"{obj}: invalidate before changing the COB-ID")
+        which = pdo.pdo_of(index)
+        if which is not None:
+            _, _, is_map = which
+            if is_map or sub == 1:  # COB-ID and mapping (SGH10 manual 4.1, 4.2.1.1)
+                self._check_preop(obj)
+            pdo.check_write(self.values, index, sub, value, require_mappable=self.require_mappable)
+        self.set(index, sub, value)
+        if index == 0x1017:
+            self._schedule_heartbeat(now)
+
+    def _after_value_change(self, obj: ObjRef, value: Any) -> None:
+        changed = [obj]
+        for group in self.mirror_groups:
+            if obj in group:
+                for other in group:
+                    if other != obj:
+                        self.values.set(*other, value)
+                        changed.append(other)
+        for o in changed:
+            which = pdo.pdo_of(o.index)
+            if o.index in (0x1005, 0x1200) or which is not None:
+                self._cob_map = None
+            if which is not None and which[0] == "tpdo" and not which[2] and o.sub == 5:
+                self._on_event_timer_written(which[1])
+
+    def _on_event_timer_written(self, number: int) -> None:
+        """SGH10 manual 4.7.2.17 180xh:05: a change applies with the next timer run; a timer
+        started from 0 runs from now."""
+        t = self._tpdo_timers.get(number)
+        if t is None or self.nmt_state != NmtState.OPERATIONAL:
+            return
+        period_ms = pdo.event_timer_ms(self.values, number)
+        if period_ms <= 0:
+            t.next_due_s = None
+        elif t.next_due_s is None:
+            t.next_due_s = self.now + period_ms / 1000
+
+    def default_of(self, index: int, sub: int = 0) -> Any:
+        """EDS default of an object for the current node id."""
+        return resolve_default(self.values.var(index, sub), self.node_id)
+
+    def sdo_read_local(self, obj: ObjRef | str) -> Any:
+        """Read as an SDO client would (hooks, process update); raises SdoAbortError."""
+        o = ObjRef.parse(obj)
+        return decode(self.values.var(o.index, o.sub), self._sdo_read(o.index, o.sub))
