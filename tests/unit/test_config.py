@@ -1,0 +1,204 @@
+"""Configuration errors: one line per problem naming the file, the key path and what is allowed."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from gateway.config import ConfigError, load_config, parse_config
+
+GOOD = {
+    "gateway": {"name": "t"},
+    "can": {"interface": "virtual", "channel": "x"},
+    "nodes": [
+        {"name": "wire", "node_id": 1, "profile": "sgh10"},
+        {"name": "display", "node_id": 125, "profile": "ap05"},
+    ],
+}
+
+
+def problems(raw: dict, environ: dict | None = None) -> list[str]:
+    with pytest.raises(ConfigError) as exc:
+        parse_config(raw, "cfg.yaml", environ=environ or {})
+    return exc.value.problems
+
+
+def with_nodes(*nodes: dict, **extra: object) -> dict:
+    return {**GOOD, "nodes": list(nodes), **extra}
+
+
+def test_good_config_loads() -> None:
+    cfg = parse_config(GOOD, "cfg.yaml", environ={})
+    assert [n.name for n in cfg.nodes] == ["wire", "display"]
+    assert cfg.zenoh.key_prefix(cfg.gateway.name) == "canopen/t"
+
+
+def test_unknown_key_is_reported_with_its_path() -> None:
+    p = problems(with_nodes({"name": "wire", "node_idd": 1, "profile": "sgh10"}))
+    assert "cfg.yaml: nodes[0].node_idd: unknown key (typo?)" in p
+
+
+def test_unknown_section_is_reported() -> None:
+    p = problems({**GOOD, "modbuss": {"port": 1}})
+    assert "cfg.yaml: modbuss: unknown key (typo?)" in p
+
+
+def test_wrong_type_is_reported() -> None:
+    p = problems({**GOOD, "modbus": {"port": "five"}})
+    assert any(line.startswith("cfg.yaml: modbus.port: ") for line in p)
+
+
+def test_out_of_range_node_id_says_what_is_allowed() -> None:
+    p = problems(with_nodes({"name": "wire", "node_id": 128, "profile": "sgh10"}))
+    assert "cfg.yaml: nodes[0].node_id: got 128, must be <= 127" in p
+
+
+def test_duplicate_node_id_names_both_entries() -> None:
+    p = problems(
+        with_nodes(
+            {"name": "a", "node_id": 1, "profile": "sgh10"},
+            {"name": "b", "node_id": 1, "profile": "sgh10", "modbus": {"unit_id": 9}},
+        )
+    )
+    assert "cfg.yaml: nodes[1].node_id: duplicate node_id 1 (also nodes[0])" in p
+
+
+def test_duplicate_name_is_reported() -> None:
+    p = problems(
+        with_nodes(
+            {"name": "a", "node_id": 1, "profile": "sgh10"},
+            {"name": "a", "node_id": 2, "profile": "sgh10"},
+        )
+    )
+    assert "cfg.yaml: nodes[1].name: duplicate name 'a' (also nodes[0])" in p
+
+
+def test_duplicate_modbus_unit_id_is_reported() -> None:
+    p = problems(
+        with_nodes(
+            {"name": "a", "node_id": 1, "profile": "sgh10"},
+            {"name": "b", "node_id": 2, "profile": "sgh10", "modbus": {"unit_id": 1}},
+        )
+    )
+    assert "cfg.yaml: nodes[1].modbus.unit_id: duplicate Modbus unit id 1 (also nodes[0])" in p
+
+
+def test_unknown_profile_lists_the_built_in_ones() -> None:
+    p = problems(with_nodes({"name": "a", "node_id": 1, "profile": "sgh11"}))
+    line = next(x for x in p if x.startswith("cfg.yaml: nodes[0].profile: "))
+    assert "unknown profile 'sgh11'" in line and "sgh10" in line and "ap05" in line
+
+
+def test_missing_profile_file_is_reported(tmp_path: Path) -> None:
+    p = problems(with_nodes({"name": "a", "node_id": 1, "profile": str(tmp_path / "nope.yaml")}))
+    assert any("nodes[0].profile" in x and "does not exist" in x for x in p)
+
+
+def test_register_address_collision_is_reported() -> None:
+    p = problems(
+        with_nodes(
+            {
+                "name": "wire",
+                "node_id": 1,
+                "profile": "sgh10",
+                "signals": {"velocity": {"address": 100}},
+            }
+        )
+    )
+    assert any("used twice" in x and "position" in x and "velocity" in x for x in p), p
+
+
+def test_unknown_signal_override_is_reported() -> None:
+    p = problems(
+        with_nodes({"name": "wire", "node_id": 1, "profile": "sgh10", "signals": {"posit": {}}})
+    )
+    assert any(x.startswith("cfg.yaml: nodes[0].signals.posit: profile sgh10 has no signal") for x in p)
+
+
+def test_typo_and_duplicate_are_both_reported_at_once() -> None:
+    p = problems(
+        with_nodes(
+            {"name": "a", "node_id": 1, "profile": "sgh10", "heartbeat_msec": 100},
+            {"name": "b", "node_id": 1, "profile": "sgh10", "modbus": {"unit_id": 3}},
+        )
+    )
+    assert "cfg.yaml: nodes[0].heartbeat_msec: unknown key (typo?)" in p
+    assert "cfg.yaml: nodes[1].node_id: duplicate node_id 1 (also nodes[0])" in p
+
+
+def test_missing_file_is_reported(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as exc:
+        load_config(tmp_path / "absent.yaml", environ={})
+    assert exc.value.problems == [f"{tmp_path / 'absent.yaml'}: file does not exist"]
+
+
+def test_yaml_syntax_error_names_the_line(tmp_path: Path) -> None:
+    f = tmp_path / "bad.yaml"
+    f.write_text("gateway:\n  name: [unclosed\n")
+    with pytest.raises(ConfigError) as exc:
+        load_config(f, environ={})
+    assert "YAML syntax error" in exc.value.problems[0] and "line" in exc.value.problems[0]
+
+
+def test_environment_overrides_a_single_key() -> None:
+    cfg = parse_config(
+        {**GOOD, "nodes": [dict(n) for n in GOOD["nodes"]]},
+        "cfg.yaml",
+        environ={
+            "CANOPEN_GATEWAY__MODBUS__PORT": "502",
+            "CANOPEN_GATEWAY__NODES__0__NODE_ID": "5",
+            "CANOPEN_GATEWAY__ZENOH__CONNECT": '["tcp/router:7447"]',
+        },
+    )
+    assert cfg.modbus.port == 502
+    assert cfg.nodes[0].node_id == 5
+    assert cfg.zenoh.connect == ["tcp/router:7447"]
+
+
+def test_environment_override_to_missing_list_item_is_reported() -> None:
+    p = problems(
+        {**GOOD, "nodes": [dict(n) for n in GOOD["nodes"]]},
+        environ={"CANOPEN_GATEWAY__NODES__7__NODE_ID": "5"},
+    )
+    assert "cfg.yaml: environment CANOPEN_GATEWAY__NODES__7__NODE_ID: no list item '7'" in p
+
+
+def test_external_heartbeat_slower_sync_is_rejected() -> None:
+    p = problems(
+        with_nodes(
+            {
+                "name": "display",
+                "node_id": 125,
+                "profile": "ap05",
+                "external_heartbeat": {"interval_ms": 100, "source": "sync"},
+            },
+            master={"sync_period_ms": 200},
+        )
+    )
+    assert any(x.startswith("cfg.yaml: master.sync_period_ms: SYNC every 200 ms") for x in p), p
+
+
+def test_cli_check_prints_problems_and_exits_2(tmp_path: Path) -> None:
+    f = tmp_path / "bad.yaml"
+    f.write_text(
+        "nodes:\n"
+        "  - {name: a, node_id: 1, profile: sgh10, nodeid: 3}\n"
+        "  - {name: b, node_id: 1, profile: sgh10, modbus: {unit_id: 4}}\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-m", "gateway", "check", "-c", str(f)], capture_output=True, text=True
+    )
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert f"{f}: nodes[0].nodeid: unknown key (typo?)" in lines
+    assert f"{f}: nodes[1].node_id: duplicate node_id 1 (also nodes[0])" in lines
+
+
+def test_example_configs_pass_check() -> None:
+    root = Path(__file__).resolve().parents[2]
+    for name in ("demo.yaml", "plant-example.yaml"):
+        load_config(root / "config" / name, environ={})
