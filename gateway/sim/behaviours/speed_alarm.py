@@ -25,6 +25,7 @@ _ABORT_RANGE = 0x06090030  # manual 4.4.1.3 Table 8
 _EMCY_SPEED = 0xFF12  # manual 4.5.1 Table 9 "Manufacturer specific: Speed error"
 _REGISTER_ENCODER = 0x80  # 1001h bit 7 manufacturer-specific (encoder error), 4.6.1.2
 _SPEED_CHECK_BIT = 2  # 5122h:01 bit 2 speed check v > 5 m/s (4.6.1.23)
+_HW_LIMIT_HINT = "hardware_speed_limit_mm_s"  # profile ``sim:`` hint of that fixed limit
 
 
 def _obj(params: dict[str, Any], key: str, default: str) -> ObjRef:
@@ -50,7 +51,7 @@ class SpeedAlarm(Behaviour):
         bits = params.get("error_register_bits", [0, 7])
         self.register = sum(1 << int(b) for b in bits) & ~0x01 or _REGISTER_ENCODER
         self.abort_range = int(params.get("abort_out_of_range", _ABORT_RANGE))
-        limit = node.hints.get("hardware_speed_limit_mm_s")
+        limit = params.get("hardware_speed_limit_mm_s", node.hints.extra.get(_HW_LIMIT_HINT))
         self.hardware_limit_mm_s = float(limit) if limit is not None else None
         self.sys_register = ObjRef.parse(params.get("sys_register", "0x5122:01"))
         self.active = False
