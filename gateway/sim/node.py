@@ -533,7 +533,10 @@ class SimNode:
     def tpdo_data(self, number: int, now: float) -> bytes:
         """The data TPDO ``number`` would carry now (current mapping)."""
         self.update_process(now)
-        return pdo.pack(self.values, pdo.mapping(self.values, "tpdo", number))
+        data = pdo.pack(self.values, pdo.mapping(self.values, "tpdo", number))
+        for b in self.behaviours:
+            data = b.tpdo_data(number, data, now)
+        return data
 
     def _send_tpdo(self, number: int, now: float, *, force: bool = False) -> bool:
         """Send TPDO ``number`` if it is valid (and the inhibit time allows unless forced)."""

@@ -82,6 +82,11 @@ class Behaviour:
         """Compute process objects (status words, area states...) before a TPDO is built or a
         process object is read by SDO. The motion model has already updated position/velocity."""
 
+    def tpdo_data(self, number: int, data: bytes, now: float) -> bytes:
+        """The data TPDO ``number`` (1-based) carries: ``data`` is built from the mapping
+        objects; return other bytes for a layout they do not describe (BEI POSI+ 2005h)."""
+        return data
+
     # -- anything else -----------------------------------------------------------------------
     def on_frame(self, msg: can.Message, now: float) -> bool:
         """Every received frame, before the core sees it. Return True if consumed (e.g. LSS

@@ -33,6 +33,7 @@ from gateway.sim.behaviours import Behaviour, register
 COB_HEARTBEAT_BASE = 0x700  # DS-301 NMT error control (boot-up / heartbeat)
 DEFAULT_EMCY_CODE = 0x8130  # manual 002 ch. 4, 1003h:01: life guard error or heartbeat error
 DEFAULT_REGISTER_BITS = (0, 4)  # manual 002 ch. 4, 1001h: bit 0 generic, bit 4 communication
+_EPSILON_S = 1e-9  # float clocks: a heartbeat exactly one period late is still in time
 
 
 @dataclass
@@ -124,7 +125,7 @@ class HeartbeatConsumer(Behaviour):
         for e in self.entries.values():
             if e.lost or e.last_seen_s is None or e.time_ms <= 0 or e.producer_id == 0:
                 continue
-            if now - e.last_seen_s > e.time_ms / 1000:
+            if now - e.last_seen_s > e.time_ms / 1000 + _EPSILON_S:
                 e.lost = True
                 changed = True
         if changed:
