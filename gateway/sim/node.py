@@ -134,6 +134,7 @@ class SimNode:
         self.nmt_state = NmtState.INITIALISING
         self.powered = False
         self.silenced = False
+        self.mute_until_s: float | None = None  # off the bus for a while (LSS bit timing switch)
         self.last_reset: ResetKind = "power"
         self.now = 0.0
         self.faults: dict[str, bool] = {}
@@ -233,7 +234,7 @@ class SimNode:
         self.now = now
         if not self.powered:
             self._initialise("power", now)
-        if self.silenced:
+        if self.silenced or self._muted(now):
             return []
         self.rx_count += 1
         for b in self.behaviours:
@@ -277,6 +278,9 @@ class SimNode:
             return []
         for b in self.behaviours:
             b.tick(now)
+        if self._muted(now):
+            self._out.clear()
+            return []
         if self.nmt_state != NmtState.INITIALISING:
             self._tick_heartbeat(now)
             self._tick_life_guarding(now)
@@ -295,6 +299,20 @@ class SimNode:
         if self.nmt_state == NmtState.OPERATIONAL:
             due += [t.next_due_s for t in self._tpdo_timers.values() if t.next_due_s is not None]
         return min(due) if due else None
+
+    def mute(self, until_s: float | None) -> None:
+        """Stay off the bus until ``until_s`` (behaviours still tick; None: back now)."""
+        self.mute_until_s = until_s
+        if until_s is not None:
+            self._out.clear()
+
+    def _muted(self, now: float) -> bool:
+        if self.mute_until_s is None:
+            return False
+        if now + _EPS_S >= self.mute_until_s:
+            self.mute_until_s = None
+            return False
+        return True
 
     # ======================================================================================
     # Fault injection (tests, demos, commissioning drills)

@@ -1,0 +1,186 @@
+"""Feature ``lss_slave``: CiA 305 Layer Setting Service slave, as the SGH10 manual 4.6 shows it.
+
+Requests arrive on 7E5h and answers leave on 7E4h, always 8 bytes, command specifier in byte 0,
+unused bytes 00h (manual 4.6). The slave is in one of two LSS states:
+
+  state          request                                    -> effect / answer (7E4h)
+  any            04h mode 00h switch state global           -> waiting (no answer; a node id
+                                                               configured before applies at
+                                                               the next NMT reset comm. 82h)
+  any            04h mode 01h                               -> configuration (no answer)
+  waiting        40h vendor, 41h product, 42h revision,     -> after all four matched 1018h:01
+                 43h serial (switch state selective)           ..04 in this order:
+                                                               configuration, answer 44h
+  configuration  11h NID configure node id                  -> 11h 00h (01h..7Fh) / 11h 01h
+  configuration  13h table index configure bit timing       -> 13h 00h (table 0, index of the
+                                                               profile's list) / 13h 01h
+  configuration  15h delay activate bit timing              -> silent for 2 x delay ms, then
+                                                               boot-up at the new bit rate
+  configuration  17h store configuration                    -> 17h 00h, node id and bit rate
+                                                               stored (PersistentStore)
+  configuration  5Ah/5Bh/5Ch/5Dh inquire identity           -> same cs, 1018h:01..04 LE
+  configuration  5Eh inquire node id                        -> 5Eh NID (the active node id)
+
+Anything else on 7E5h is ignored, as are services not allowed in the current state
+(manual Table 10). Bit timing table (4.6.2.2): 0 1000, 1 800, 2 500, 3 250, 4 125, 6 50,
+7 20 kbit/s; a simulator has no physical bit rate, ``bitrate_kbps`` reports the active one.
+
+Imports: python-can (Message), gateway.objref, gateway.sim.behaviours.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+import can
+
+from gateway.sim.behaviours import Behaviour, register
+
+COB_LSS_MASTER = 0x7E5  # SGH10 manual 4.6: LSS (rx) master -> slave
+COB_LSS_SLAVE = 0x7E4  # SGH10 manual 4.6: LSS (tx) slave -> master
+
+CS_SWITCH_GLOBAL = 0x04  # 4.6.1.1
+CS_SELECTIVE_VENDOR = 0x40  # 4.6.1.2
+CS_SELECTIVE_PRODUCT = 0x41
+CS_SELECTIVE_REVISION = 0x42
+CS_SELECTIVE_SERIAL = 0x43
+CS_SELECTIVE_ANSWER = 0x44
+CS_CONFIGURE_NODE_ID = 0x11  # 4.6.2.1
+CS_CONFIGURE_BIT_TIMING = 0x13  # 4.6.2.2
+CS_ACTIVATE_BIT_TIMING = 0x15  # 4.6.2.3
+CS_STORE = 0x17  # 4.6.2.4
+CS_INQUIRE_VENDOR = 0x5A  # 4.6.3.1 .. 4.6.3.4
+CS_INQUIRE_PRODUCT = 0x5B
+CS_INQUIRE_REVISION = 0x5C
+CS_INQUIRE_SERIAL = 0x5D
+CS_INQUIRE_NODE_ID = 0x5E  # 4.6.3.5
+
+# CiA 301 bit timing table, SGH10 manual 4.6.2.2 (index 5 reserved, 8/9 not supported)
+BIT_TIMING_KBPS = {0: 1000, 1: 800, 2: 500, 3: 250, 4: 125, 6: 50, 7: 20}
+
+WAITING = "waiting"
+CONFIGURATION = "configuration"
+
+
+@register
+class LssSlave(Behaviour):
+    feature = "lss_slave"
+
+    def __init__(self, node: Any, params: dict[str, Any]) -> None:
+        super().__init__(node, params)
+        self.rx_cob = int(params.get("cob_id_master_to_slave", COB_LSS_MASTER))
+        self.tx_cob = int(params.get("cob_id_slave_to_master", COB_LSS_SLAVE))
+        self.table = int(params.get("bit_timing_table", 0))
+        self.indices = set(params.get("bit_timing_indices", BIT_TIMING_KBPS))
+        self.state = WAITING
+        self._selective = 0  # how many of 40h..43h matched in order
+        self.configured_node_id: int | None = None
+        self.configured_bitrate_index: int | None = None
+        self.active_bitrate_index: int | None = None
+        self._boot_at_s: float | None = None
+
+    @property
+    def bitrate_kbps(self) -> int | None:
+        idx = self.active_bitrate_index
+        return None if idx is None else BIT_TIMING_KBPS.get(idx)
+
+    def identity(self, sub: int) -> int:
+        """1018h:sub, with the profile's constants where it gives them (manual 4.6)."""
+        key = {1: "vendor_id", 2: "product_code", 3: "revision_number", 4: "serial_number"}[sub]
+        v = self.params.get(key)
+        if isinstance(v, int):
+            return v
+        return int(self.node.get(0x1018, sub, 0))
+
+    # -- hooks -------------------------------------------------------------------------------
+    def on_boot(self, now: float) -> None:
+        if self.node.last_reset == "power":
+            self.state = WAITING
+            self._selective = 0
+            self.configured_node_id = None
+            self.configured_bitrate_index = None
+            self.active_bitrate_index = self.node.store.bitrate_index
+
+    def tick(self, now: float) -> None:
+        if self._boot_at_s is not None and now >= self._boot_at_s:
+            # 4.6.2.3: after d2 the slave reports with the boot-up at the new bit rate
+            self._boot_at_s = None
+            self.node.mute(None)
+            self.node.send(0x700 + self.node.node_id, b"\x00")
+
+    def on_frame(self, msg: can.Message, now: float) -> bool:
+        if msg.arbitration_id != self.rx_cob or msg.is_remote_frame or msg.is_extended_id:
+            return False
+        data = bytes(msg.data).ljust(8, b"\0")
+        cs = data[0]
+        if cs == CS_SWITCH_GLOBAL:
+            self._switch_global(data[1])
+        elif CS_SELECTIVE_VENDOR <= cs <= CS_SELECTIVE_SERIAL:
+            self._selective_step(cs, struct.unpack_from("<I", data, 1)[0])
+        elif self.state == CONFIGURATION:
+            self._configuration_service(cs, data, now)
+        return True
+
+    # -- services ----------------------------------------------------------------------------
+    def _answer(self, cs: int, *payload: int) -> None:
+        self.node.send(self.tx_cob, bytes([cs, *payload]).ljust(8, b"\0"))
+
+    def _switch_global(self, mode: int) -> None:
+        if mode == 0x00:
+            if self.state == CONFIGURATION and self.configured_node_id is not None:
+                if self.configured_node_id != self.node.node_id:
+                    # 4.6.2.1: LSS waiting, then NMT reset communication activates the id
+                    self.node.pending_node_id = self.configured_node_id
+            self.state = WAITING
+        elif mode == 0x01:
+            self.state = CONFIGURATION
+        self._selective = 0
+
+    def _selective_step(self, cs: int, value: int) -> None:
+        if self.state != WAITING:
+            return  # manual Table 10: selective switching only in LSS waiting
+        step = cs - CS_SELECTIVE_VENDOR
+        if step != self._selective or value != self.identity(step + 1):
+            self._selective = 0
+            return
+        self._selective += 1
+        if self._selective == 4:
+            self._selective = 0
+            self.state = CONFIGURATION
+            self._answer(CS_SELECTIVE_ANSWER)
+
+    def _configuration_service(self, cs: int, data: bytes, now: float) -> None:
+        if cs == CS_CONFIGURE_NODE_ID:
+            nid = data[1]
+            if 0x01 <= nid <= 0x7F:
+                self.configured_node_id = nid
+                self._answer(cs, 0x00, 0x00)
+            else:
+                self._answer(cs, 0x01, 0x00)  # 01h: no valid node id
+        elif cs == CS_CONFIGURE_BIT_TIMING:
+            selector, index = data[1], data[2]
+            if selector == self.table and index in self.indices and index in BIT_TIMING_KBPS:
+                self.configured_bitrate_index = index
+                self._answer(cs, 0x00, 0x00)
+            else:
+                self._answer(cs, 0x01, 0x00)  # 01h: no valid baud rate
+        elif cs == CS_ACTIVATE_BIT_TIMING:
+            delay_ms = struct.unpack_from("<H", data, 1)[0]
+            if self.configured_bitrate_index is not None:
+                self.active_bitrate_index = self.configured_bitrate_index
+            self._boot_at_s = now + 2 * delay_ms / 1000
+            self.node.mute(self._boot_at_s)
+        elif cs == CS_STORE:
+            store = self.node.store
+            store.node_id = (
+                self.configured_node_id or self.node.pending_node_id or self.node.node_id
+            )
+            if self.configured_bitrate_index is not None:
+                store.bitrate_index = self.configured_bitrate_index
+            self._answer(cs, 0x00, 0x00)
+        elif CS_INQUIRE_VENDOR <= cs <= CS_INQUIRE_SERIAL:
+            value = self.identity(cs - CS_INQUIRE_VENDOR + 1)
+            self._answer(cs, *struct.pack("<I", value & 0xFFFFFFFF))
+        elif cs == CS_INQUIRE_NODE_ID:
+            self._answer(cs, self.node.node_id)
