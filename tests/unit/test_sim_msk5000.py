@@ -353,3 +353,17 @@ def test_manual_example_segmented_read_of_1008h() -> None:
 def test_defaults_read_by_sdo(index: int, sub: int, response: str) -> None:
     bench = Bench()
     assert bench.sdo(f"40 {index & 0xFF:02X} {index >> 8:02X} {sub:02X} 00 00 00 00") == response
+
+
+# -- 5F0Ah node id and baud rate --------------------------------------------------------------
+
+
+def test_node_id_from_5f0a_is_taken_over_after_save_and_reset_node() -> None:
+    bench = Bench()
+    assert bench.sdo("2F 0A 5F 01 05 00 00 00") == "60 0A 5F 01 00 00 00 00"  # node id 5
+    assert bench.sdo("2F 0A 5F 01 80 00 00 00") == abort(0x5F0A, 1, 0x06090030)  # 128
+    assert bench.sdo("23 10 10 01 73 61 76 65") == "60 10 10 01 00 00 00 00"  # "save"
+    boot = bench.nmt(0x81)
+    assert [(m.arbitration_id, hexs(m)) for m in boot] == [(0x705, "00")]
+    behaviour = bench.node.behaviour("node_id_object")
+    assert behaviour is not None and behaviour.bitrate_kbps == 250  # code 4 (notes)
