@@ -11,6 +11,7 @@ import asyncio
 import logging
 import signal
 import sys
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -49,10 +50,12 @@ async def _run_until_signal(starter: Any, stopper: Any, ready_line: str | None =
     try:
         await stop.wait()
     finally:
+        t0 = time.monotonic()
         try:
-            await asyncio.wait_for(stopper(), timeout=1.8)
+            await asyncio.wait_for(stopper(), timeout=1.5)
         except TimeoutError:
             logging.getLogger("gateway").warning("shutdown took too long; exiting anyway")
+        logging.getLogger("gateway").info("stopped in %.0f ms", (time.monotonic() - t0) * 1000)
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -28,8 +28,29 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.driver import BusDriver, RateLimitedLog
 from gateway.bus.emcy import EmcyHistory, decode_emcy
-from gateway.bus.lifecycle import NodeLifecycle, build_boot_steps
-from gateway.bus.supervision import GuardingBitCheck, HeartbeatConsumer, NodeGuardingMaster
+from gateway.bus.lifecycle import (
+    BootTimeout,
+    Configured,
+    LifecycleState,
+    NodeLifecycle,
+    SendNmt,
+    StateChanged,
+    StepFailed,
+    StepSkipped,
+    Wait,
+    WriteStep,
+    WrongDevice,
+    build_boot_steps,
+)
+from gateway.bus.supervision import (
+    GuardingBitCheck,
+    HeartbeatConsumer,
+    InvalidStateByte,
+    NodeGuardingMaster,
+    SendGuardRtr,
+    ToggleError,
+    WrongState,
+)
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import LinkState, NmtState, NodeImage, ProcessImage
@@ -121,7 +142,11 @@ class NodeRuntime:
         self.hb = HeartbeatConsumer(hb_ms, master.cfg.master.heartbeat_timeout_multiple)
         self.guard = NodeGuardingMaster(gt_ms, ltf) if supervision == "guarding" else None
         steps = build_boot_steps(lp, cfg, supervision, hb_ms, gt_ms, ltf)
-        self.lifecycle = NodeLifecycle(steps, boot_timeout_s=master.cfg.master.boot_timeout_s)
+        self.lifecycle = NodeLifecycle(
+            steps,
+            boot_timeout_s=master.cfg.master.boot_timeout_s,
+            expected_device_type=lp.profile.device_type,
+        )
         self.emcy = EmcyHistory()
         gb = lp.profile.features.get("guarding_bit")
         self.guarding_bit: dict[str, Any] | None = (
@@ -247,6 +272,7 @@ class Master:
         now = time.monotonic()
         for rt in self.nodes.values():
             rt.lifecycle.start(now)
+            rt.image.health.lifecycle = str(rt.lifecycle.state)
             if rt.cfg.rtr_poll_ms:
                 self._tasks.append(asyncio.create_task(self._rtr_poll(rt)))
         if self.cfg.master.probe_at_start:
@@ -267,64 +293,99 @@ class Master:
     async def _probe(self, rt: NodeRuntime) -> None:
         """Find a node that is already running (no boot-up will come) by reading 1000h."""
         try:
-            await self.sdo_upload(rt, ObjRef(0x1000, 0), "uint32", check_state=False)
+            device_type = await self.sdo_upload(rt, ObjRef(0x1000, 0), "uint32", check_state=False)
         except Exception:  # noqa: BLE001 - not there yet: wait for its boot-up
             return
-        if rt.lifecycle.state == "waiting":
+        if rt.lifecycle.state == LifecycleState.WAITING:
             log.info("node %s (id %d) found running; configuring", rt.name, rt.node_id)
-            self._booted(rt, time.monotonic())
+            self._apply_changes(rt, rt.lifecycle.on_found(time.monotonic(), device_type))
+            self._start_configuration(rt)
 
     def _booted(self, rt: NodeRuntime, now: float) -> None:
-        rt.lifecycle.on_bootup(now)
+        """A boot-up message: (re)configure the node from the first step."""
         rt.image.health.boot_count += 1
-        rt.image.health.lifecycle = rt.lifecycle.state
         rt.hb.on_bootup(now)
-        self.image.health_changed(rt.image, "state")
+        if rt.gbit is not None:
+            rt.gbit.reset()
+        rt.emcy.clear()
+        rt.image.health.current_errors = []
+        self._apply_changes(rt, rt.lifecycle.on_bootup(now))
+        self._start_configuration(rt)
+
+    def _start_configuration(self, rt: NodeRuntime) -> None:
         old = self._config_tasks.pop(rt.name, None)
         if old is not None:
             old.cancel()
         if rt.cfg.configure:
             self._config_tasks[rt.name] = asyncio.create_task(self._configure(rt))
+        elif rt.lifecycle.state != LifecycleState.OPERATIONAL:
+            # configure: false -> the gateway only starts the node
+            try:
+                self.nmt_send(rt.node_id, "start")
+            except BusDown:
+                pass
+
+    def _apply_changes(self, rt: NodeRuntime, changes: list[Any]) -> None:
+        h = rt.image.health
+        for ch in changes:
+            if isinstance(ch, StateChanged):
+                h.lifecycle = str(ch.new)
+                log.info("node %s: %s -> %s (%s)", rt.name, ch.old, ch.new, ch.reason)
+            elif isinstance(ch, StepFailed):
+                h.last_error = ch.message
+                if ch.abort_code is not None:
+                    h.last_sdo_abort = ch.abort_code
+                log.warning(
+                    "node %s: boot step %d failed: %s; retry %d in %.1f s",
+                    rt.name, ch.index, ch.message, ch.attempt, ch.retry_in_s,
+                )  # fmt: skip
+            elif isinstance(ch, StepSkipped):
+                log.info("node %s: optional boot step skipped: %s", rt.name, ch.message)
+            elif isinstance(ch, BootTimeout):
+                h.last_error = rt.lifecycle.last_error or "no boot-up"
+                log.warning("node %s (id %d): %s", rt.name, rt.node_id, h.last_error)
+            elif isinstance(ch, WrongDevice):
+                h.last_error = rt.lifecycle.last_error or "wrong device type"
+                log.error("node %s (id %d): %s", rt.name, rt.node_id, h.last_error)
+            elif isinstance(ch, Configured):
+                h.last_error = ""
+                log.info(
+                    "node %s (id %d) configured in %.0f ms and started",
+                    rt.name, rt.node_id, ch.duration_s * 1000,
+                )  # fmt: skip
+        if changes:
+            self.image.health_changed(rt.image, "state")
 
     async def _configure(self, rt: NodeRuntime) -> None:
-        """Apply the boot configuration step by step, retrying with backoff, then NMT start."""
+        """Apply the boot configuration step by step (retries with backoff), then NMT start."""
         lc = rt.lifecycle
         while True:
             action = lc.next_action(time.monotonic())
             if action is None:
                 return
-            kind = action[0]
-            if kind == "wait":
-                await asyncio.sleep(action[1])
+            if isinstance(action, Wait):
+                await asyncio.sleep(action.seconds)
                 continue
-            if kind == "sdo":
-                step = action[1]
+            if isinstance(action, WriteStep):
+                step = action.step
+                ok, code = True, None
                 try:
-                    await self.sdo_download(rt, step.object, step.value, step.type, check_state=False)
+                    await self.sdo_download(rt, step.object, step.data, check_state=False)
                 except SdoAbort as exc:
-                    rt.image.health.last_sdo_abort = exc.code
-                    rt.image.health.last_error = f"configuring {step.object}: {exc}"
-                    log.warning("node %s: boot step %s failed: %s", rt.name, step.object, exc)
-                    lc.on_step_result(time.monotonic(), ok=False, abort_code=exc.code)
-                except (SdoTimeout, BusDown) as exc:
-                    rt.image.health.last_error = f"configuring {step.object}: {exc}"
-                    log.warning("node %s: boot step %s failed: %s", rt.name, step.object, exc)
-                    lc.on_step_result(time.monotonic(), ok=False, abort_code=None)
-                else:
-                    lc.on_step_result(time.monotonic(), ok=True)
+                    ok, code = False, exc.code
+                except (SdoTimeout, BusDown):
+                    ok = False
+                self._apply_changes(
+                    rt, lc.on_step_result(time.monotonic(), ok, code, token=action.token)
+                )
                 continue
-            if kind == "nmt_start":
+            if isinstance(action, SendNmt):
                 try:
-                    self.nmt_send(rt.node_id, "start")
-                except BusDown:
+                    self.driver.send(0x000, bytes([action.command, rt.node_id]))
+                except can.CanError:
                     await asyncio.sleep(0.5)
                     continue
-                lc.on_started(time.monotonic())
-                rt.image.health.lifecycle = lc.state
-                rt.image.health.last_error = ""
-                log.info("node %s (id %d) configured and started", rt.name, rt.node_id)
-                self.image.health_changed(rt.image, "state")
-                return
+                self._apply_changes(rt, lc.on_nmt_sent(time.monotonic()))
 
     # ------------------------------------------------------------------ control traffic (loop)
     def _on_nmt_ec(self, rt: NodeRuntime, msg: can.Message) -> None:
@@ -332,25 +393,30 @@ class Master:
             return
         now = time.monotonic()
         byte = msg.data[0]
-        if byte == 0x00:  # boot-up (DS-301 7.2.8.3.2.4)
+        if byte == 0x00:  # boot-up (SGH10 manual 4.2.2)
             log.info("node %s (id %d) boot-up", rt.name, rt.node_id)
-            rt.image.health.nmt_state = NmtState.PRE_OPERATIONAL
+            self._set_nmt(rt, NmtState.PRE_OPERATIONAL)
             self._booted(rt, now)
             self._set_alive(rt, True)
             return
         if rt.guard is not None:
-            ok = rt.guard.on_response(byte, now)
+            outputs = rt.guard.on_response(byte, now)
             state = byte & 0x7F
         else:
-            rt.hb.on_heartbeat(byte, now)
-            ok = True
+            outputs = rt.hb.on_heartbeat(byte, now)
             state = byte
-        if ok:
+        bad = [o for o in outputs if isinstance(o, (ToggleError, WrongState, InvalidStateByte))]
+        for o in bad:
+            self.warn.warning(("guard", rt.name, type(o).__name__), "node %s: %s", rt.name, o)
+        if not bad:
             self._set_nmt(rt, state)
             self._set_alive(rt, True)
-            if rt.lifecycle.state == "waiting" and state in (0x05, 0x7F, 0x04):
-                # alive but never seen booting (e.g. the gateway restarted): configure it
-                self._booted(rt, now)
+            if rt.lifecycle.state == LifecycleState.WAITING and not self._probing(rt):
+                # alive but no boot-up seen (gateway restarted, node replugged): probe + configure
+                self._tasks.append(asyncio.create_task(self._probe(rt)))
+
+    def _probing(self, rt: NodeRuntime) -> bool:
+        return rt.sdo_lock.locked()
 
     def _set_nmt(self, rt: NodeRuntime, state: int) -> None:
         try:
@@ -369,8 +435,7 @@ class Master:
         h.alive = alive
         if not alive:
             h.loss_count += 1
-            rt.lifecycle.on_lost(time.monotonic())
-            h.lifecycle = rt.lifecycle.state
+            self._apply_changes(rt, rt.lifecycle.on_lost(time.monotonic()))
             log.warning("node %s (id %d) lost (%s)", rt.name, rt.node_id, rt.supervision)
         else:
             log.info("node %s (id %d) alive", rt.name, rt.node_id)
@@ -422,8 +487,8 @@ class Master:
 
     def _poll_node(self, rt: NodeRuntime, now: float) -> None:
         if rt.guard is not None:
-            for action in rt.guard.poll(now):
-                if action == "send_rtr":
+            for out in rt.guard.poll(now):
+                if isinstance(out, SendGuardRtr):
                     try:
                         self.driver.send(0x700 + rt.node_id, b"", rtr=True, dlc=1)
                     except can.CanError:
@@ -434,14 +499,9 @@ class Master:
             rt.hb.poll(now)
             if rt.hb.lost and rt.image.health.alive:
                 self._set_alive(rt, False)
-        if rt.lifecycle.poll_boot_timeout(now):
-            rt.image.health.last_error = (
-                f"no boot-up within {self.cfg.master.boot_timeout_s:g} s of gateway start"
-            )
-            log.warning(
-                "node %s (id %d): %s", rt.name, rt.node_id, rt.image.health.last_error
-            )
-            self.image.health_changed(rt.image, "state")
+        changes = rt.lifecycle.poll(now)
+        if changes:
+            self._apply_changes(rt, changes)
         if rt.gbit is not None:
             rt.gbit.poll(now)
             self._update_link(rt)

@@ -1,4 +1,4 @@
-"""Shared fixtures: a gateway built from a config dict on a private virtual CAN channel, with
+"""Test helpers: a gateway built from a config dict on a private virtual CAN channel, with
 Modbus and Zenoh on free loopback ports, and helpers that wait on conditions (bounded)."""
 
 from __future__ import annotations
@@ -10,8 +10,6 @@ import time
 import uuid
 from collections.abc import Callable
 from typing import Any
-
-import pytest
 
 from gateway.config import parse_config
 
@@ -57,8 +55,3 @@ async def wait_until(cond: Callable[[], Any], timeout_s: float = 5.0, what: str 
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
         await asyncio.sleep(0.01)
-
-
-@pytest.fixture
-def config_factory() -> Callable[..., Any]:
-    return make_config
