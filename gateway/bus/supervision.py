@@ -136,24 +136,34 @@ class HeartbeatConsumer:
     ALIVE                 poll, now > last heartbeat + timeout      LOST      NodeLost
     LOST                  heartbeat (state s)                       ALIVE     NodeAlive(s), NmtStateChanged if changed
     any                   boot-up (byte 00h)                        UNKNOWN   BootUpSeen, NmtStateChanged(-> PRE_OPERATIONAL)
+    any                   boot-up, with bootup_grace_s              ALIVE     same, and NodeAlive if not alive before
+    ALIVE (after boot)    poll, now > boot-up + bootup_grace_s      LOST      NodeLost (no heartbeat came at all)
     any                   byte not 00h/04h/05h/7Fh                  same      InvalidStateByte (ignored)
     ====================  ========================================  ========  ======================
 
     Monitoring starts with the first heartbeat (DS-301) and restarts after a boot-up: a node that
     just booted may have 1017h = 0 until the gateway configures it, so a boot-up is not treated
     as a heartbeat (no false loss during configuration). A node that never sends anything stays
-    UNKNOWN; reporting that is the lifecycle's boot timeout.
+    UNKNOWN; reporting that is the lifecycle's boot timeout. With ``bootup_grace_s`` the boot-up
+    counts as a sign of life instead, and the first heartbeat must follow within that grace
+    (long enough to configure 1017h): a node that dies during its configuration is then lost.
     """
 
-    def __init__(self, producer_ms: int, multiple: float = 1.5):
+    def __init__(
+        self, producer_ms: int, multiple: float = 1.5, bootup_grace_s: float | None = None
+    ):
         if producer_ms <= 0:
             raise ValueError(
                 f"producer_ms must be > 0 (1017h = 0 disables heartbeat), got {producer_ms}"
             )
         if multiple < 1.0:
             raise ValueError(f"multiple must be >= 1.0, got {multiple}")
+        if bootup_grace_s is not None and bootup_grace_s <= 0:
+            raise ValueError(f"bootup_grace_s must be > 0 or None, got {bootup_grace_s}")
         self.producer_ms = producer_ms
         self.multiple = multiple
+        self.bootup_grace_s = bootup_grace_s
+        self._grace_until_s: float | None = None
         self.timeout_s: float = producer_ms * multiple / 1000.0
         self.state: Liveness = Liveness.UNKNOWN
         self.nmt_state: NmtState | None = None
@@ -175,8 +185,10 @@ class HeartbeatConsumer:
     @property
     def deadline_s(self) -> float | None:
         """Last instant at which the node still counts as alive (None when not monitoring)."""
-        if self.state is not Liveness.ALIVE or self.last_heartbeat_s is None:
+        if self.state is not Liveness.ALIVE:
             return None
+        if self.last_heartbeat_s is None:
+            return self._grace_until_s
         return self.last_heartbeat_s + self.timeout_s
 
     def next_deadline(self) -> float | None:
@@ -213,10 +225,18 @@ class HeartbeatConsumer:
 
     def on_bootup(self, now: float) -> list[Output]:
         self.bootups += 1
-        self.state = Liveness.UNKNOWN
+        was_alive = self.state is Liveness.ALIVE
         self.last_heartbeat_s = None
         out: list[Output] = [BootUpSeen()]
         # SGH10 manual 4.2.1.1: after the boot-up message the device is PRE-OPERATIONAL.
+        if self.bootup_grace_s is None:
+            self.state = Liveness.UNKNOWN
+            self._grace_until_s = None
+        else:
+            self.state = Liveness.ALIVE
+            self._grace_until_s = now + self.bootup_grace_s
+            if not was_alive:
+                out.append(NodeAlive(NmtState.PRE_OPERATIONAL))
         if self.nmt_state != NmtState.PRE_OPERATIONAL:
             out.append(NmtStateChanged(self.nmt_state, NmtState.PRE_OPERATIONAL))
             self.nmt_state = NmtState.PRE_OPERATIONAL
@@ -227,6 +247,8 @@ class HeartbeatConsumer:
         if deadline is not None and now > deadline:
             self.state = Liveness.LOST
             self.losses += 1
+            if self.last_heartbeat_s is None:
+                return [NodeLost(f"no heartbeat within {self.bootup_grace_s:g} s of the boot-up")]
             return [NodeLost(f"no heartbeat for more than {self.timeout_s * 1000:g} ms")]
         return []
 

@@ -125,6 +125,26 @@ class TestHeartbeatConsumer:
         assert kinds(hb.on_heartbeat(PRE_OP, 61.0)) == [NodeAlive]
         assert hb.bootups == 1
 
+    def test_with_grace_bootup_counts_as_alive_until_first_heartbeat_is_due(self) -> None:
+        hb = HeartbeatConsumer(100, bootup_grace_s=5.0)
+        out = hb.on_bootup(10.0)
+        assert out == [
+            BootUpSeen(),
+            NodeAlive(NmtState.PRE_OPERATIONAL),
+            NmtStateChanged(None, NmtState.PRE_OPERATIONAL),
+        ]
+        assert hb.deadline_s == 15.0
+        assert hb.poll(15.0) == []
+        out = hb.poll(just_after(15.0))
+        assert kinds(out) == [NodeLost]
+        assert "within 5 s of the boot-up" in out[0].reason  # type: ignore[union-attr]
+
+    def test_with_grace_first_heartbeat_switches_to_the_normal_timeout(self) -> None:
+        hb = HeartbeatConsumer(100, bootup_grace_s=5.0)
+        hb.on_bootup(10.0)
+        assert hb.on_heartbeat(PRE_OP, 11.0) == []  # already alive, same state
+        assert hb.deadline_s == 11.0 + hb.timeout_s
+
     def test_state_byte_outside_ds301_is_reported_and_ignored(self) -> None:
         hb = HeartbeatConsumer(100)
         hb.on_heartbeat(OPERATIONAL, 0.0)
