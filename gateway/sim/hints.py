@@ -28,6 +28,15 @@ Keys read (all optional):
   tpdo_rtr                          TPDOs answer RTR (default True; bit 30 still applies)
   faults: {name: {emcy: code, register: bits}}     generic fault -> EMCY mapping
   emcy_on_position_error            EMCY code of the fault "sensor_error" (register bit 7)
+  sdo_expedited_only                refuse segmented transfers (abort 0x05040001)
+Calibration (position = direction x model + offset + application offset):
+  calibration_object                writing P makes the position P (SGH10 6010h:01)
+  calibration: {preset, trigger, trigger_value, done_value, application_offset}
+                                    writing trigger_value to trigger makes the position the
+                                    preset (+ application offset); trigger then reads done_value
+  scaling: {preset, offset, operating_parameters, direction_bit}
+  offset_objects: [obj, ...]        show model - position after a calibration (6509h)
+  direction: {object, bit}          bit set = counting direction inverted
 
 Imports: gateway.objref, gateway.sim.motion.
 """
@@ -68,6 +77,14 @@ class SimHints:
     guarding_with_heartbeat: bool = False
     tpdo_rtr: bool = True
     faults: dict[str, dict[str, int]] = field(default_factory=dict)
+    sdo_expedited_only: bool = False
+    preset: ObjRef | None = None
+    calibration_trigger: ObjRef | None = None
+    calibration_trigger_value: int = 1
+    calibration_done_value: int | None = None
+    application_offset: ObjRef | None = None
+    offset_objects: list[ObjRef] = field(default_factory=list)
+    direction: tuple[ObjRef, int] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -106,7 +123,30 @@ class SimHints:
         if d.get("emcy_on_position_error") is not None and "sensor_error" not in h.faults:
             # DS-301 1001h bit 7 manufacturer-specific (SGH10 manual 4.7.2.2: sensor error)
             h.faults["sensor_error"] = {"emcy": int(d["emcy_on_position_error"]), "register": 0x80}
+        h.sdo_expedited_only = bool(d.get("sdo_expedited_only", False))
+        _calibration(h, d)
         return h
+
+
+def _calibration(h: SimHints, d: dict[str, Any]) -> None:
+    cal = dict(d.get("calibration") or {})
+    scaling = dict(d.get("scaling") or {})
+    h.preset = _obj(_first(d, "calibration_object") or cal.get("preset") or scaling.get("preset"))
+    h.calibration_trigger = _obj(cal.get("trigger"))
+    if cal.get("trigger_value") is not None:
+        h.calibration_trigger_value = int(cal["trigger_value"])
+    if cal.get("done_value") is not None:
+        h.calibration_done_value = int(cal["done_value"])
+    h.application_offset = _obj(cal.get("application_offset") or d.get("application_offset"))
+    offsets = list(d.get("offset_objects") or [])
+    if scaling.get("offset"):
+        offsets.append(scaling["offset"])
+    h.offset_objects = [ObjRef.parse(x) for x in offsets]
+    direction = d.get("direction")
+    if isinstance(direction, dict) and direction.get("object") is not None:
+        h.direction = (ObjRef.parse(direction["object"]), int(direction.get("bit", 0)))
+    elif scaling.get("operating_parameters") and scaling.get("direction_bit") is not None:
+        h.direction = (ObjRef.parse(scaling["operating_parameters"]), int(scaling["direction_bit"]))
 
 
 def _merge(groups: list[tuple[ObjRef, ...]]) -> list[tuple[ObjRef, ...]]:

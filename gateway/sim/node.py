@@ -155,6 +155,7 @@ class SimNode:
             self._sdo_write,
             timeout_s=float(raw.get("sdo_timeout_s", 1.0)),
             segment_upload_command=self.hints.segment_upload_command,
+            expedited_only=self.hints.sdo_expedited_only,
         )
         self.emcy = EmcyProducer(self.values)
         self.mirror_groups: list[tuple[ObjRef, ...]] = []
@@ -399,7 +400,11 @@ class SimNode:
             self.values.load_defaults(self.node_id, self.store, 1)
             self.emcy.reset()
             self.faults.clear()
-            self.position_offset = 0
+            self.position_offset = self.store.position_offset or 0
+            if self.position_offset:
+                for obj in self.hints.offset_objects:
+                    if self.values.has(*obj):
+                        self.values.set(*obj, -self.position_offset)
         else:
             if self.pending_node_id is not None:
                 self.node_id = self.pending_node_id
@@ -542,11 +547,46 @@ class SimNode:
         self._process_now = now
         pos, vel = self.motion.sample(now)
         if self.position_obj is not None:
-            self.values.set(*self.position_obj, int(round(pos)) + self.position_offset)
+            self.values.set(*self.position_obj, self.position_from_model(pos))
         if self.velocity_obj is not None:
             self.values.set(*self.velocity_obj, int(round(vel * self.velocity_scale)))
         for b in self.behaviours:
             b.update_process(now)
+
+    # -- position model: direction x model + calibration offset + application offset ---------
+    def direction_sign(self) -> int:
+        """-1 when the profile's direction bit is set (e.g. 6000h bit 0, AP05 manual 5.7.2.49)."""
+        d = self.hints.direction
+        if d is None or not self.values.has(*d[0]):
+            return 1
+        return -1 if int(self.values.get(*d[0], 0)) >> d[1] & 1 else 1
+
+    def position_from_model(self, model_counts: float) -> int:
+        app = self.hints.application_offset
+        app_offset = int(self.values.get(*app, 0)) if app is not None else 0
+        return self.direction_sign() * int(round(model_counts)) + self.position_offset + app_offset
+
+    def calibrate(self, preset: int, now: float) -> None:
+        """Make the position read ``preset`` now (SGH10 manual 3.2, AP05 manual 4.4)."""
+        model, _ = self.motion.sample(now)
+        app = self.hints.application_offset
+        app_offset = int(self.values.get(*app, 0)) if app is not None else 0
+        self.position_offset = int(preset) - self.direction_sign() * int(round(model)) - app_offset
+        for obj in self.hints.offset_objects:
+            if self.values.has(*obj):
+                # SGH10 manual 4.7.2.44: 6509h = encoder value - position value
+                self.values.set(*obj, -self.position_offset)
+        self._process_now = None
+
+    def _calibration_write(self, obj: ObjRef, value: Any, now: float) -> None:
+        h = self.hints
+        if h.calibration_trigger is None and obj == h.preset:
+            self.calibrate(int(value), now)
+        elif obj == h.calibration_trigger and int(value) == h.calibration_trigger_value:
+            preset = int(self.values.get(*h.preset, 0)) if h.preset is not None else 0
+            self.calibrate(preset, now)
+            if h.calibration_done_value is not None:
+                self.values.set(*obj, h.calibration_done_value)
 
     def tpdo_data(self, number: int, now: float) -> bytes:
         """The data TPDO ``number`` would carry now (current mapping)."""
@@ -710,11 +750,15 @@ class SimNode:
             if value != SIGNATURE_SAVE:
                 raise SdoAbortError(ABORT_STORE, "1010h expects the signature 'save'")
             self.values.save(self.node_id, self.store, sub)
+            if sub in (1, 3, 4):  # the calibration belongs to the application parameters
+                self.store.position_offset = self.position_offset
             return
         if index == 0x1011 and sub >= 1:
             if value != SIGNATURE_LOAD:
                 raise SdoAbortError(ABORT_STORE, "1011h expects the signature 'load'")
             self.values.restore(self.store, sub)
+            if sub in (1, 3, 4):
+                self.store.position_offset = None
             return
         if index in (0x1005, 0x1014):
             self._check_preop(obj)
@@ -733,6 +777,12 @@ class SimNode:
         self.set(index, sub, value)
         if index == 0x1017:
             self._schedule_heartbeat(now)
+        if obj in (self.hints.preset, self.hints.calibration_trigger):
+            self._calibration_write(obj, value, now)
+        if obj == self.hints.application_offset or (
+            self.hints.direction is not None and obj == self.hints.direction[0]
+        ):
+            self._process_now = None
 
     def _after_value_change(self, obj: ObjRef, value: Any) -> None:
         changed = [obj]

@@ -161,6 +161,7 @@ class PersistentStore:
     values: dict[tuple[int, int], Any] = field(default_factory=dict)
     node_id: int | None = None
     bitrate_index: int | None = None
+    position_offset: int | None = None  # calibration (position - model) at the last save
     saves: int = 0
 
 

@@ -62,6 +62,7 @@ class SdoServer:
         *,
         timeout_s: float = 1.0,
         segment_upload_command: int | None = None,
+        expedited_only: bool = False,
     ) -> None:
         self._read = read
         self._write = write
@@ -69,6 +70,8 @@ class SdoServer:
         # A device whose manual shows a fixed command byte in every upload segment response
         # (SGH10 manual 4.4.1.4 shows 03h for the last segment of 5 bytes); None = DS-301.
         self.segment_upload_command = segment_upload_command
+        # AP05 manual 5.4.1: "exclusively via expedited Request/Response"
+        self.expedited_only = expedited_only
         self._transfer: _Transfer | None = None
 
     @property
@@ -119,6 +122,8 @@ class SdoServer:
         self._transfer = None
         expedited = bool(cmd & 0x02)
         size_given = bool(cmd & 0x01)
+        if not expedited and self.expedited_only:
+            raise SdoAbortError(ABORT_COMMAND, "segmented transfer not supported")
         if expedited:
             n = (cmd >> 2) & 0x03 if size_given else 0
             self._write(index, sub, data[4 : 8 - n], size_given)
@@ -151,6 +156,8 @@ class SdoServer:
     def _initiate_upload(self, index: int, sub: int, now: float) -> bytes:
         self._transfer = None
         value = self._read(index, sub)
+        if len(value) > 4 and self.expedited_only:
+            raise SdoAbortError(ABORT_COMMAND, "segmented transfer not supported")
         if 0 < len(value) <= 4:
             cmd = 0x43 | ((4 - len(value)) << 2)
             return struct.pack("<BHB", cmd, index, sub) + value.ljust(4, b"\0")

@@ -195,3 +195,26 @@ def test_4_6_3_inquire_identity_and_node_id(sgh10: SimNode) -> None:
     assert rx(sgh10, 0x7E5, "5C 00 00 00 00 00 00 00") == [(0x7E4, "5C FF FF FF FF 00 00 00")]
     assert rx(sgh10, 0x7E5, "5D 00 00 00 00 00 00 00") == [(0x7E4, f"5D {serial} 00 00 00")]
     assert rx(sgh10, 0x7E5, "5E 00 00 00 00 00 00 00") == [(0x7E4, "5E 01 00 00 00 00 00 00")]
+
+
+# -- 3.2 calibration, 4.7.2.28 6010h, 4.7.2.44 6509h -----------------------------------------
+def test_3_2_calibration_value_becomes_the_position_and_6509h_the_offset(sgh10: SimNode) -> None:
+    # position 1234 (held); 6010h:01 = 510 -> position 510, 6509h = 1234 - 510 = 724
+    assert rx(sgh10, 0x601, "23 10 60 01 FE 01 00 00") == [(0x581, "60 10 60 01 00 00 00 00")]
+    assert rx(sgh10, 0x601, "40 20 60 01 00 00 00 00") == [(0x581, "43 20 60 01 FE 01 00 00")]
+    assert rx(sgh10, 0x601, "40 09 65 00 00 00 00 00") == [(0x581, "43 09 65 00 D4 02 00 00")]
+    assert rx(sgh10, 0x601, "40 10 60 01 00 00 00 00") == [(0x581, "43 10 60 01 FE 01 00 00")]
+
+
+def test_calibration_survives_a_power_cycle_only_when_saved() -> None:
+    store = PersistentStore()
+    node = SimNode(load_profile("sgh10"), 1, store=store, motion={"kind": "hold", "hold": 1234})
+    node.power_on(0.0)
+    rx(node, 0x601, "23 10 60 01 00 00 00 00")  # calibrate to 0
+    node.power_cycle(2.0)
+    assert node.sdo_read_local("0x6020:01") == 1234
+    rx(node, 0x601, "23 10 60 01 00 00 00 00", now=2.1)
+    rx(node, 0x601, "23 10 10 01 73 61 76 65", now=2.2)  # 1010h:01 "save"
+    node.power_cycle(3.0)
+    assert node.sdo_read_local("0x6020:01") == 0
+    assert node.sdo_read_local("0x6509:00") == 1234
