@@ -364,6 +364,7 @@ class NodeLifecycle:
                 f"device type (1000h) is 0x{device_type:08X}, the profile expects "
                 f"0x{self.expected_device_type:08X}: not configured"
             )
+            self._boot_deadline = None  # it did appear: no "no boot-up" report on top
             return [WrongDevice(self.expected_device_type, device_type)]
         self._boot_deadline = None
         self._preop_pending = True

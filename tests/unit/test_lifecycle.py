@@ -264,6 +264,7 @@ class TestFoundRunningAndLost:
         assert out == [WrongDevice(expected=0x000A0196, found=0x00020196)]
         assert lc.state is W and lc.next_action(0.5) is None
         assert lc.last_error is not None and "0x00020196" in lc.last_error
+        assert lc.poll(100.0) == []  # it did appear: no boot timeout on top
 
     def test_found_is_ignored_unless_waiting(self) -> None:
         lc = NodeLifecycle(STEPS)
