@@ -18,6 +18,7 @@ from gateway.bus.master import NMT_COMMANDS, Master, NodeRuntime
 from gateway.errors import NodeNotOperational, NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
 from gateway.image import NmtState
 from gateway.objref import ObjRef
+from gateway.profiles.derived import TextSignal, text_signals
 from gateway.profiles.schema import TYPE_BITS, Signal
 
 log = logging.getLogger("gateway.commands")
@@ -48,6 +49,8 @@ def check_value(sig: Signal, value: Any) -> Any:
             raise ValueOutOfRange(sig.name, value, "text expected")
         if sig.length is not None and len(raw) > sig.length:
             raise ValueOutOfRange(sig.name, value, f"at most {sig.length} characters")
+        if sig.type == "string" and any(b < 0x20 or b > 0x7E for b in raw.rstrip(b"\0")):
+            raise ValueOutOfRange(sig.name, value, "printable ASCII characters only")
         return raw
     if sig.type == "float32":
         try:
@@ -87,7 +90,18 @@ class CommandService:
         try:
             return rt.lp.profile.signal(name)
         except KeyError:
-            raise Unmapped(f"node {rt.name} has no signal {name!r}") from None
+            pass
+        ts = self._text(rt, name)
+        if ts is not None:
+            return ts.as_signal(rt.lp.profile.signal(ts.head))
+        raise Unmapped(f"node {rt.name} has no signal {name!r}")
+
+    @staticmethod
+    def _text(rt: NodeRuntime, name: str) -> TextSignal | None:
+        for ts in text_signals(rt.lp.profile):
+            if ts.name == name:
+                return ts
+        return None
 
     def _require_operational(self, rt: NodeRuntime) -> None:
         h = rt.image.health
@@ -103,10 +117,41 @@ class CommandService:
         if sig.access == "ro":
             raise ReadOnly(f"{node}.{name} is read-only")
         v = check_value(sig, value)
+        ts = self._text(rt, name)
+        if ts is not None:
+            self._write_text(rt, ts, v)
+            return
         if sig.transport == "pdo" and name in rt.rpdo_by_signal:
             await self.write_signals(node, {name: value})
             return
         await self.master.sdo_download(rt, sig.object, v, sig.type)
+
+    def _write_text(self, rt: NodeRuntime, ts: TextSignal, raw: bytes) -> None:
+        """One display row as ASCII (AP05 manual 4.1.2, table 26): characters 1-4 in the set
+        point bytes 0-3, 5-6 in bytes 4-5, data identifier bit set in that RPDO's control word."""
+        self._require_operational(rt)
+        text = raw.ljust(ts.length, b" ")
+        codecs = [c for c in rt.rpdo_by_signal[ts.head] if ts.tail in c.names]
+        if not codecs:
+            raise Unmapped(f"{ts.name}: {ts.head} and {ts.tail} are not in one RPDO")
+        codec = codecs[0]
+        saved = dict(codec.values)
+        codec.set(ts.head, int.from_bytes(text[0:4], "little", signed=True))
+        codec.set(ts.tail, text[4:6])
+        codec.set(ts.control, int(codec.get(ts.control)) | (1 << ts.identifier_bit))
+        try:
+            self.master.send_rpdo(rt, codec)
+        except Exception:
+            codec.values.update(saved)
+            raise
+
+    def current_text(self, rt: NodeRuntime, ts: TextSignal) -> bytes:
+        """The row's text as last sent (empty when the row was last sent as a number)."""
+        codec = next(c for c in rt.rpdo_by_signal[ts.head] if ts.tail in c.names)
+        if not int(codec.get(ts.control)) >> ts.identifier_bit & 1:
+            return b""
+        head = int(codec.get(ts.head)).to_bytes(4, "little", signed=True)
+        return (head + bytes(codec.get(ts.tail))).rstrip(b" \0")
 
     async def write_signals(self, node: str, values: dict[str, Any]) -> None:
         """Several signals of one RPDO in one frame (e.g. set point + control word)."""
@@ -135,6 +180,11 @@ class CommandService:
             for n in pdo_names:
                 for c in rt.rpdo_by_signal[n]:
                     c.set(n, checked[n])
+            for ts in text_signals(rt.lp.profile):
+                # a number written to a row that showed text: that RPDO says "number" again
+                if ts.head in checked and ts.control not in checked:
+                    for c in rt.rpdo_by_signal[ts.head]:
+                        c.set(ts.control, int(c.get(ts.control)) & ~(1 << ts.identifier_bit))
             try:
                 for codec in sorted(send.values(), key=lambda c: c.number):
                     self.master.send_rpdo(rt, codec)
@@ -161,6 +211,9 @@ class CommandService:
 
     def current_output(self, rt: NodeRuntime, name: str) -> Any:
         """The last value sent for a writable process-data signal (None if SDO-backed)."""
+        ts = self._text(rt, name)
+        if ts is not None:
+            return self.current_text(rt, ts)
         codecs = rt.rpdo_by_signal.get(name)
         return codecs[-1].get(name) if codecs else None
 
@@ -179,6 +232,9 @@ class CommandService:
         sig = self.signal(rt, name)
         if sig.access == "wo":
             raise ReadOnly(f"{node}.{name} is write-only")
+        ts = self._text(rt, name)
+        if ts is not None:
+            return self.current_text(rt, ts)
         return await self.master.sdo_upload(rt, sig.object, sig.type)
 
     async def sdo_read(self, node: str, obj: str | ObjRef, type_: str | None = None) -> Any:

@@ -95,7 +95,12 @@ class SignalOverride(_Model):
 
 
 class GuardingBitSettings(_Model):
+    """AP05 manual 5.5.5: the gateway toggles control-word bit 8, the device echoes it."""
+
     enabled: bool = True
+    period_ms: int = Field(
+        default=500, ge=10, le=60000, description="re-send the last RPDO when none went out for this long"
+    )
     tolerance_missed: int = Field(default=3, ge=1, le=1000)
     tolerance_ms: int = Field(default=1000, ge=10, le=600000)
 

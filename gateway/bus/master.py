@@ -51,6 +51,9 @@ from gateway.bus.supervision import (
     ToggleError,
     WrongState,
 )
+from gateway.bus.supervision import (
+    NmtState as SupNmt,
+)
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import LinkState, NmtState, NodeImage, ProcessImage
@@ -163,6 +166,13 @@ class NodeRuntime:
         if self.gbit is not None:
             image.health.link = LinkState.UNKNOWN
         self.last_rpdo_sent: dict[int, float] = {}
+        periods = []
+        if self.gbit is not None:
+            periods.append(cfg.guarding_bit.period_ms / 1000.0)
+        eh = cfg.external_heartbeat
+        if eh is not None and eh.source == "rpdo":
+            periods.append((eh.keepalive_ms or max(1, eh.interval_ms // 2)) / 1000.0)
+        self.keepalive_s = min(periods) if periods else 0.0
 
 
 class Master:
@@ -305,6 +315,8 @@ class Master:
         """A boot-up message: (re)configure the node from the first step."""
         rt.image.health.boot_count += 1
         rt.hb.on_bootup(now)
+        if rt.guard is not None:
+            rt.guard.on_bootup(now)  # the toggle bit starts at 0 again (DS-301)
         if rt.gbit is not None:
             rt.gbit.reset()
         rt.emcy.clear()
@@ -349,6 +361,8 @@ class Master:
                 log.error("node %s (id %d): %s", rt.name, rt.node_id, h.last_error)
             elif isinstance(ch, Configured):
                 h.last_error = ""
+                if rt.guard is not None:
+                    rt.guard.expect(SupNmt.OPERATIONAL)
                 log.info(
                     "node %s (id %d) configured in %.0f ms and started",
                     rt.name, rt.node_id, ch.duration_s * 1000,
@@ -435,6 +449,9 @@ class Master:
         h.alive = alive
         if not alive:
             h.loss_count += 1
+            if rt.gbit is not None:
+                rt.gbit.reset()
+                self._update_link(rt)
             self._apply_changes(rt, rt.lifecycle.on_lost(time.monotonic()))
             log.warning("node %s (id %d) lost (%s)", rt.name, rt.node_id, rt.supervision)
         else:
@@ -505,17 +522,22 @@ class Master:
         if rt.gbit is not None:
             rt.gbit.poll(now)
             self._update_link(rt)
-        if rt.cfg.external_heartbeat and rt.rpdos and rt.image.health.alive:
-            keep_ms = rt.cfg.external_heartbeat.keepalive_ms or max(
-                1, rt.cfg.external_heartbeat.interval_ms // 2
-            )
-            if rt.cfg.external_heartbeat.source == "rpdo":
-                last = max(rt.last_rpdo_sent.values(), default=0.0)
-                if now - last >= keep_ms / 1000.0:
-                    try:
-                        self.send_rpdo(rt, rt.rpdos[-1])
-                    except (BusDown, NodeNotOperational):
-                        pass
+        if rt.keepalive_s and rt.rpdos and rt.image.health.alive:
+            # Keep-alive: re-send the last RPDO when none went out for keepalive_s, to feed the
+            # AP05 external heartbeat (source RPDO, manual 5.5.4) and to exercise the guarding
+            # bit (manual 5.5.5) when the PLC writes nothing. Only in OPERATIONAL (RPDOs are
+            # not processed otherwise).
+            last = max(rt.last_rpdo_sent.values(), default=0.0)
+            if (
+                now - last >= rt.keepalive_s
+                and rt.image.health.nmt_state == NmtState.OPERATIONAL
+            ):
+                number = max(rt.last_rpdo_sent, key=rt.last_rpdo_sent.get, default=None)
+                codec = next((c for c in rt.rpdos if c.number == number), rt.rpdos[-1])
+                try:
+                    self.send_rpdo(rt, codec)
+                except (BusDown, NodeNotOperational):
+                    pass
 
     async def _heartbeat_producer(self) -> None:
         period = self.cfg.master.heartbeat_ms / 1000.0
