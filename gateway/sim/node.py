@@ -451,8 +451,9 @@ class SimNode:
         if new is not None:
             self.set_nmt_state(new, now)
 
-    def set_nmt_state(self, state: NmtState, now: float) -> None:
+    def set_nmt_state(self, state: NmtState | int, now: float) -> None:
         """Enter ``state`` (behaviours use this, e.g. external heartbeat -> PRE-OPERATIONAL)."""
+        state = NmtState(state)
         if state == self.nmt_state:
             return
         old = self.nmt_state
@@ -540,6 +541,10 @@ class SimNode:
     # ======================================================================================
     # Process data
     # ======================================================================================
+    def invalidate_process(self) -> None:
+        """The next update_process() recomputes even at the same ``now``."""
+        self._process_now = None
+
     def update_process(self, now: float) -> None:
         """Motion model -> position/velocity objects, then the behaviours' process update."""
         if self._process_now == now:
