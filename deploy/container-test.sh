@@ -1,0 +1,195 @@
+#!/usr/bin/env bash
+# Builds the gateway container image with podman and checks it live.
+#
+#   bash deploy/container-test.sh               # everything below
+#   bash deploy/container-test.sh --build-only  # steps 1-3 only
+#
+# 1. Installs podman, buildah, runc and debootstrap with apt when missing (one apt-get update).
+# 2. Builds the local base image localhost/bookworm-py:latest when missing: no registry of images
+#    is reachable here, so a Debian bookworm rootfs is made with debootstrap and cached as a
+#    tarball in $BASE_CACHE (outside the repository) for the next run.
+# 3. Builds the gateway image from the Dockerfile on that base.
+# 4. Runs it with host networking and the demo config; waits (bounded) for /healthz to answer 200;
+#    runs the image's own HEALTHCHECK; reads a position input register twice over Modbus TCP and
+#    expects a change; subscribes with a Zenoh peer and expects samples; stops the container with
+#    SIGTERM and expects it gone within 2 s. The container is removed whatever happens.
+#
+# Idempotent: every step skips what is already there. Needs root (apt, rootful podman). Exits
+# non-zero with a "FAIL:" line on the first failed check. Ports 5020 (Modbus), 7447 (Zenoh) and
+# 8080 (health) are used when free; when another process holds one, a free port is taken instead
+# and handed to the gateway through CANOPEN_GATEWAY__* environment overrides.
+set -euo pipefail
+
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+
+IMAGE=${IMAGE:-localhost/canopen-gateway:test}
+BASE_IMAGE=${BASE_IMAGE:-localhost/bookworm-py:latest}
+BASE_CACHE=${BASE_CACHE:-/var/tmp/canopen-gateway-base}
+PY=${PY:-$ROOT/.venv/bin/python}
+CLI=${CLI:-$ROOT/.venv/bin/canopen-gateway}
+CONFIG=${CONFIG:-config/demo.yaml}
+CONTAINER=canopen-gateway-test-$$
+HEALTH_TIMEOUT_S=${HEALTH_TIMEOUT_S:-60}
+STOP_LIMIT_S=2
+# NOTES.md: the vfs storage driver and runc work on this machine (crun fails on its cgroups).
+PODMAN=(podman --storage-driver vfs --runtime runc)
+
+BUILD_ONLY=0
+case "${1:-}" in
+  --build-only) BUILD_ONLY=1 ;;
+  "") ;;
+  *) echo "usage: $0 [--build-only]" >&2; exit 2 ;;
+esac
+
+step() { printf '\n==> %s\n' "$*"; }
+fail() { printf '\nFAIL: %s\n' "$*" >&2; exit 1; }
+
+[[ $(id -u) -eq 0 ]] || fail "run as root (apt-get and rootful podman are needed)"
+
+# --- 1. tools -----------------------------------------------------------------------------------
+ensure_tools() {
+  local missing=() tool
+  for tool in podman buildah runc debootstrap; do
+    command -v "$tool" >/dev/null 2>&1 || missing+=("$tool")
+  done
+  if ((${#missing[@]})); then
+    step "installing ${missing[*]} with apt"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq || fail "apt-get update failed"
+    apt-get install -y -qq "${missing[@]}" >/dev/null || fail "apt-get install ${missing[*]} failed"
+  fi
+}
+
+# --- 2. local base image ------------------------------------------------------------------------
+# Bump BASE_RECIPE when the recipe below changes: an image from an older recipe is rebuilt.
+BASE_RECIPE=2
+ensure_base() {
+  local have
+  have=$("${PODMAN[@]}" image inspect --format '{{index .Labels "base-recipe"}}' "$BASE_IMAGE" \
+    2>/dev/null || true)
+  if [[ $have == "$BASE_RECIPE" ]]; then
+    return
+  fi
+  local tarball=$BASE_CACHE/bookworm-py-r$BASE_RECIPE.tar
+  if [[ ! -s $tarball ]]; then
+    step "debootstrap bookworm with python3 into $BASE_CACHE (about a minute)"
+    mkdir -p "$BASE_CACHE"
+    local rootfs=$BASE_CACHE/rootfs.partial
+    rm -rf "$rootfs"
+    # NOTES.md recipe without python3-pip: the image's venv brings its own pip (ensurepip).
+    debootstrap --variant=minbase --include=python3,python3-venv,ca-certificates \
+      bookworm "$rootfs" >"$BASE_CACHE/debootstrap.log" 2>&1 \
+      || fail "debootstrap failed, see $BASE_CACHE/debootstrap.log"
+    # Slim it like python:3.11-slim: no package caches, manuals, translations or docs (the
+    # copyright files stay).
+    rm -rf "$rootfs"/var/cache/apt/* "$rootfs"/var/lib/apt/lists/* "$rootfs"/usr/share/man/* \
+      "$rootfs"/usr/share/locale/* "$rootfs"/usr/share/info/*
+    find "$rootfs"/usr/share/doc -type f ! -name copyright -delete
+    tar -C "$rootfs" -cf "$tarball.partial" . && mv "$tarball.partial" "$tarball"
+    rm -rf "$rootfs"
+  fi
+  step "importing $tarball as $BASE_IMAGE"
+  "${PODMAN[@]}" import --change "LABEL base-recipe=$BASE_RECIPE" "$tarball" "$BASE_IMAGE" \
+    >/dev/null || fail "podman import failed"
+}
+
+# --- 3. gateway image ---------------------------------------------------------------------------
+build_image() {
+  step "building $IMAGE on $BASE_IMAGE"
+  local revision
+  revision=$(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo unknown)
+  # --format docker keeps HEALTHCHECK (the OCI image format has no field for it).
+  # pip inside the build needs the host's CA bundle (NOTES.md).
+  "${PODMAN[@]}" build --isolation chroot --format docker \
+    -v /etc/ssl/certs/ca-certificates.crt:/etc/ssl/certs/ca-certificates.crt:ro \
+    --build-arg BASE_IMAGE="$BASE_IMAGE" --build-arg REVISION="$revision" \
+    -t "$IMAGE" "$ROOT" || fail "image build failed"
+  local size_b
+  size_b=$("${PODMAN[@]}" image inspect --format '{{.Size}}' "$IMAGE")
+  printf 'image %s: %s MB\n' "$IMAGE" "$((size_b / 1000000))"
+}
+
+ensure_tools
+ensure_base
+build_image
+if ((BUILD_ONLY)); then
+  echo "build only: done"
+  exit 0
+fi
+
+# --- 4. live checks -----------------------------------------------------------------------------
+[[ -x $PY ]] || fail "$PY missing: run 'make container-test' (it installs .venv first)"
+[[ -x $CLI ]] || fail "$CLI missing: install the package into .venv"
+
+cleanup() {
+  if "${PODMAN[@]}" container exists "$CONTAINER" 2>/dev/null; then
+    "${PODMAN[@]}" rm -f -t 0 "$CONTAINER" >/dev/null 2>&1 || true
+  fi
+}
+trap cleanup EXIT
+
+show_logs_and_fail() {
+  echo "--- container logs (last 40 lines) ---" >&2
+  "${PODMAN[@]}" logs --tail 40 "$CONTAINER" >&2 2>&1 || true
+  fail "$*"
+}
+
+port_or_free() {  # the preferred port when nothing listens on it, else a free ephemeral port
+  "$PY" "$ROOT/deploy/livecheck.py" free-port "$1"
+}
+MODBUS_PORT=$(port_or_free 5020)
+ZENOH_PORT=$(port_or_free 7447)
+HEALTH_PORT=$(port_or_free 8080)
+ZENOH_ENDPOINT=tcp/127.0.0.1:$ZENOH_PORT
+echo "ports: modbus $MODBUS_PORT, zenoh $ZENOH_PORT, health $HEALTH_PORT"
+
+step "finding a position input register in '$CLI registers -c $CONFIG --csv'"
+REGISTER=$("$CLI" registers -c "$CONFIG" --csv | "$PY" "$ROOT/deploy/livecheck.py" pick-register) \
+  || fail "no position input register in the register table of $CONFIG"
+echo "register: $REGISTER"
+
+step "starting $CONTAINER"
+"${PODMAN[@]}" run -d --name "$CONTAINER" --network host \
+  --ulimit nofile=20000:20000 --ulimit nproc=4096:4096 \
+  -v "$ROOT/$CONFIG:/etc/canopen-gateway/config.yaml:ro" \
+  -e CANOPEN_GATEWAY__HEALTH__HOST=127.0.0.1 \
+  -e CANOPEN_GATEWAY__HEALTH__PORT="$HEALTH_PORT" \
+  -e CANOPEN_GATEWAY__MODBUS__PORT="$MODBUS_PORT" \
+  -e CANOPEN_GATEWAY__ZENOH__LISTEN="[\"$ZENOH_ENDPOINT\"]" \
+  "$IMAGE" >/dev/null || fail "podman run failed"
+
+step "waiting up to ${HEALTH_TIMEOUT_S}s for http://127.0.0.1:$HEALTH_PORT/healthz to answer 200"
+"$PY" "$ROOT/deploy/livecheck.py" wait-healthy "http://127.0.0.1:$HEALTH_PORT/healthz" \
+  "$HEALTH_TIMEOUT_S" || show_logs_and_fail "gateway never became ready"
+
+step "running the image's HEALTHCHECK"
+"${PODMAN[@]}" exec "$CONTAINER" python3 -c \
+  "import urllib.request; urllib.request.urlopen('http://127.0.0.1:$HEALTH_PORT/healthz', timeout=2)" \
+  || show_logs_and_fail "HEALTHCHECK command failed inside the container"
+"${PODMAN[@]}" image inspect --format '{{json .Config.Healthcheck}}' "$IMAGE" | grep -q healthz \
+  || fail "the image has no HEALTHCHECK (built without --format docker?)"
+
+step "reading input register $REGISTER over Modbus TCP on 127.0.0.1:$MODBUS_PORT"
+"$PY" "$ROOT/deploy/livecheck.py" modbus-changes 127.0.0.1 "$MODBUS_PORT" "$REGISTER" \
+  || show_logs_and_fail "Modbus check failed"
+
+step "subscribing with a Zenoh peer connected to $ZENOH_ENDPOINT"
+"$PY" "$ROOT/deploy/livecheck.py" zenoh-samples "$ZENOH_ENDPOINT" \
+  || show_logs_and_fail "Zenoh check failed"
+
+step "podman stop -t 10 (SIGTERM), expecting exit within ${STOP_LIMIT_S}s"
+t0=$(date +%s.%N)
+"${PODMAN[@]}" stop -t 10 "$CONTAINER" >/dev/null || fail "podman stop failed"
+t1=$(date +%s.%N)
+exit_code=$("${PODMAN[@]}" inspect --format '{{.State.ExitCode}}' "$CONTAINER")
+elapsed_s=$("$PY" -c "print(f'{$t1 - $t0:.2f}')")
+echo "stopped in ${elapsed_s}s, exit code $exit_code"
+"$PY" -c "import sys; sys.exit(0 if $t1 - $t0 < $STOP_LIMIT_S else 1)" \
+  || show_logs_and_fail "SIGTERM took ${elapsed_s}s (limit ${STOP_LIMIT_S}s)"
+[[ $exit_code == 0 || $exit_code == 143 ]] \
+  || show_logs_and_fail "exit code $exit_code after SIGTERM (expected 0)"
+
+cleanup
+echo
+echo "container-test: all checks passed (image $IMAGE)"

@@ -1,0 +1,233 @@
+"""Deployment files hold together: compose, Kubernetes, systemd, Zenoh router, Dockerfile, configs.
+
+Structural checks with what .venv has (YAML load, zenoh's own config parser, the gateway's
+config loader); the image itself is built and run by deploy/container-test.sh.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gateway.config import load_config
+
+ROOT = Path(__file__).resolve().parents[2]
+DEPLOY = ROOT / "deploy"
+CONFIG_PATH = "/etc/canopen-gateway/config.yaml"
+
+
+def load_yaml(path: Path) -> dict:
+    return yaml.safe_load(path.read_text(encoding="utf-8"))
+
+
+def load_yaml_all(path: Path) -> list[dict]:
+    return [doc for doc in yaml.safe_load_all(path.read_text(encoding="utf-8")) if doc]
+
+
+# --- configuration files ------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "path", ["config/demo.yaml", "deploy/config/demo-remote.yaml", "deploy/config/gateway.yaml"]
+)
+def test_shipped_configs_pass_the_gateway_config_checks(path):
+    cfg = load_config(ROOT / path, environ={})
+    assert cfg.nodes, f"{path} configures no node"
+
+
+def test_demo_remote_config_joins_the_can_bus_server_and_simulates_nothing_itself():
+    cfg = load_config(DEPLOY / "config/demo-remote.yaml", environ={})
+    assert cfg.can.bus_kwargs()["interface"] == "remote"
+    assert cfg.can.bus_kwargs()["channel"] == "ws://127.0.0.1:54701/"
+    assert cfg.simulate.nodes == []
+    demo = load_config(ROOT / "config/demo.yaml", environ={})
+    assert [(n.name, n.node_id, n.profile) for n in cfg.nodes] == [
+        (n.name, n.node_id, n.profile) for n in demo.nodes
+    ]
+
+
+def test_container_env_overrides_reach_the_health_section():
+    cfg = load_config(
+        ROOT / "config/demo.yaml",
+        environ={
+            "CANOPEN_GATEWAY__HEALTH__HOST": "0.0.0.0",
+            "CANOPEN_GATEWAY__HEALTH__PORT": "8080",
+        },
+    )
+    assert (cfg.health.host, cfg.health.port) == ("0.0.0.0", 8080)
+
+
+# --- docker compose -----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def compose() -> dict:
+    return load_yaml(DEPLOY / "docker-compose.yml")
+
+
+def test_compose_gateway_uses_host_network_restarts_and_mounts_its_config(compose):
+    gw = compose["services"]["gateway"]
+    assert gw["network_mode"] == "host"
+    assert gw["restart"] == "unless-stopped"
+    assert "profiles" not in gw
+    mounts = [v.rsplit(":", 2) for v in gw["volumes"]]
+    assert any(target == CONFIG_PATH and mode == "ro" for _source, target, mode in mounts)
+    assert gw["build"]["context"] == ".."
+    assert (DEPLOY / gw["build"]["context"] / gw["build"]["dockerfile"]).is_file()
+
+
+def test_compose_default_gateway_config_exists(compose):
+    source = compose["services"]["gateway"]["volumes"][0].rsplit(":", 2)[0]
+    default = re.fullmatch(r"\$\{GATEWAY_CONFIG:-(.+)\}", source).group(1)
+    assert (DEPLOY / default).is_file()
+
+
+def test_compose_zenoh_router_runs_the_router_config(compose):
+    router = compose["services"]["zenoh-router"]
+    assert router["image"].startswith("eclipse/zenoh")
+    source, target, _ = router["volumes"][0].split(":")
+    assert (DEPLOY / source).is_file()
+    assert router["command"] == ["-c", target]
+
+
+def test_compose_demo_profile_has_bus_server_and_simulator(compose):
+    services = compose["services"]
+    canbus, sim = services["canbus"], services["sim"]
+    assert canbus["profiles"] == ["demo"] and sim["profiles"] == ["demo"]
+    assert canbus["entrypoint"] == ["python", "-m", "can_remote"]
+    assert canbus["command"] == ["-i", "virtual", "-c", "vbus0", "-H", "0.0.0.0", "-p", "54701"]
+    assert canbus["ports"] == ["127.0.0.1:54701:54701"]  # never on the LAN
+    assert sim["command"] == ["simulate", "-c", "/etc/canopen-gateway/demo-remote.yaml"]
+    assert sim["environment"]["CANOPEN_GATEWAY__CAN__CHANNEL"] == "ws://canbus:54701/"
+
+
+def test_compose_services_all_reference_known_images(compose):
+    images = {s["image"].split(":")[0] for s in compose["services"].values()}
+    assert images == {"canopen-gateway", "eclipse/zenoh"}
+
+
+# --- Kubernetes ---------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def k8s() -> dict[str, dict]:
+    kustomization = load_yaml(DEPLOY / "k8s/kustomization.yaml")
+    docs = [
+        doc for name in kustomization["resources"] for doc in load_yaml_all(DEPLOY / "k8s" / name)
+    ]
+    return {doc["kind"]: doc for doc in docs}
+
+
+def test_k8s_deployment_uses_host_network_single_replica_recreate(k8s):
+    spec = k8s["Deployment"]["spec"]
+    assert spec["replicas"] == 1
+    assert spec["strategy"]["type"] == "Recreate"
+    pod = spec["template"]["spec"]
+    assert pod["hostNetwork"] is True
+    assert pod["dnsPolicy"] == "ClusterFirstWithHostNet"
+    assert spec["selector"]["matchLabels"].items() <= spec["template"]["metadata"]["labels"].items()
+
+
+def test_k8s_probes_hit_the_health_endpoints_on_the_health_port(k8s):
+    container = k8s["Deployment"]["spec"]["template"]["spec"]["containers"][0]
+    ports = {p["name"]: p["containerPort"] for p in container["ports"]}
+    env = {e["name"]: e["value"] for e in container["env"]}
+    assert ports["health"] == int(env["CANOPEN_GATEWAY__HEALTH__PORT"]) == 8080
+    assert env["CANOPEN_GATEWAY__HEALTH__HOST"] == "0.0.0.0"
+    assert container["readinessProbe"]["httpGet"] == {"path": "/healthz", "port": "health"}
+    assert container["livenessProbe"]["httpGet"] == {"path": "/livez", "port": "health"}
+
+
+def test_k8s_container_is_non_root_read_only_with_resources(k8s):
+    pod = k8s["Deployment"]["spec"]["template"]["spec"]
+    container = pod["containers"][0]
+    assert pod["securityContext"]["runAsNonRoot"] is True
+    assert pod["securityContext"]["runAsUser"] == 10001
+    assert container["securityContext"]["readOnlyRootFilesystem"] is True
+    assert container["securityContext"]["capabilities"]["drop"] == ["ALL"]
+    assert {"cpu", "memory"} <= container["resources"]["requests"].keys()
+    assert "memory" in container["resources"]["limits"]
+
+
+def test_k8s_config_map_is_mounted_as_the_config_file_and_matches_the_plant_config(k8s):
+    pod = k8s["Deployment"]["spec"]["template"]["spec"]
+    container = pod["containers"][0]
+    volumes = {v["name"]: v for v in pod["volumes"]}
+    mount = next(
+        m for m in container["volumeMounts"] if m["mountPath"] == str(Path(CONFIG_PATH).parent)
+    )
+    assert volumes[mount["name"]]["configMap"]["name"] == k8s["ConfigMap"]["metadata"]["name"]
+    assert container["args"] == ["run", "-c", CONFIG_PATH]
+    text = k8s["ConfigMap"]["data"][Path(CONFIG_PATH).name]
+    assert text == (DEPLOY / "config/gateway.yaml").read_text(encoding="utf-8")
+
+
+# --- systemd ------------------------------------------------------------------------------------
+def unit_settings(path: Path) -> dict[str, list[str]]:
+    settings: dict[str, list[str]] = {}
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line and not line.startswith(("#", "[")) and "=" in line:
+            key, value = line.split("=", 1)
+            settings.setdefault(key, []).append(value)
+    return settings
+
+
+def test_systemd_unit_runs_the_gateway_hardened():
+    unit = unit_settings(DEPLOY / "systemd/canopen-gateway.service")
+    assert unit["ExecStart"] == [
+        "/opt/canopen-gateway/bin/canopen-gateway run -c /etc/canopen-gateway/config.yaml"
+    ]
+    for key, value in {
+        "NoNewPrivileges": "yes",
+        "ProtectSystem": "strict",
+        "ProtectHome": "yes",
+        "PrivateTmp": "yes",
+        "DynamicUser": "yes",
+        "Restart": "on-failure",
+    }.items():
+        assert unit[key] == [value], key
+    assert "AF_CAN" in unit["RestrictAddressFamilies"][0].split()
+
+
+def test_can0_network_file_sets_the_bit_rate():
+    unit = unit_settings(DEPLOY / "systemd/80-can0.network")
+    assert unit["Name"] == ["can0"]
+    assert unit["BitRate"] == ["500K"]
+
+
+# --- Zenoh router -------------------------------------------------------------------------------
+def test_router_config_is_accepted_by_zenoh():
+    zenoh = pytest.importorskip("zenoh")
+    conf = zenoh.Config.from_file(str(DEPLOY / "zenoh/router.json5"))
+    assert conf.get_json("mode") == '"router"'
+    assert "7447" in conf.get_json("listen/endpoints")
+
+
+# --- Dockerfile ---------------------------------------------------------------------------------
+def test_dockerfile_contract():
+    text = (ROOT / "Dockerfile").read_text(encoding="utf-8")
+    assert "ARG BASE_IMAGE=python:3.11-slim" in text
+    assert "python3 -m venv" in text
+    assert re.search(r"^USER \d+:\d+$", text, re.M), "runs as a numeric non-root user"
+    assert f"COPY config/demo.yaml {CONFIG_PATH}" in text
+    assert 'ENTRYPOINT ["canopen-gateway"]' in text
+    assert f'CMD ["run", "-c", "{CONFIG_PATH}"]' in text
+    assert "CANOPEN_GATEWAY__HEALTH__PORT=8080" in text
+    assert "CANOPEN_GATEWAY__HEALTH__HOST=0.0.0.0" in text
+    healthcheck = re.search(r"^HEALTHCHECK .*\n.*$", text, re.M).group(0)
+    assert "/healthz" in healthcheck and "urllib" in healthcheck
+    assert text.count("FROM ${BASE_IMAGE}") == 2, "build and runtime stages on the same base"
+
+
+def test_dockerignore_admits_only_what_the_build_copies():
+    lines = [
+        line
+        for line in (ROOT / ".dockerignore").read_text(encoding="utf-8").splitlines()
+        if line and not line.startswith("#")
+    ]
+    assert lines[0] == "*", "everything is excluded first"
+    for needed in (
+        "!pyproject.toml",
+        "!README.md",
+        "!gateway/",
+        "!config/demo.yaml",
+        "!deploy/config/",
+    ):
+        assert needed in lines
