@@ -572,11 +572,10 @@ class SimNode:
         return self.direction_sign() * int(round(model_counts)) + self.position_offset + app_offset
 
     def calibrate(self, preset: int, now: float) -> None:
-        """Make the position read ``preset`` now (SGH10 manual 3.2, AP05 manual 4.4)."""
+        """Make the position read ``preset`` (+ the application offset) now: "Position value =
+        0 + calibration value + offset value" (SGH10 manual 3.2, AP05 manual 4.4)."""
         model, _ = self.motion.sample(now)
-        app = self.hints.application_offset
-        app_offset = int(self.values.get(*app, 0)) if app is not None else 0
-        self.position_offset = int(preset) - self.direction_sign() * int(round(model)) - app_offset
+        self.position_offset = int(preset) - self.direction_sign() * int(round(model))
         for obj in self.hints.offset_objects:
             if self.values.has(*obj):
                 # SGH10 manual 4.7.2.44: 6509h = encoder value - position value

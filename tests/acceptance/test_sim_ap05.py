@@ -248,3 +248,16 @@ def test_4_4_calibration_by_2002h_sets_the_position_to_the_preset(node: SimNode)
     rx(node, 0x601, "2F 02 20 00 01 00 00 00")  # 2002h = 1: calibrate
     assert rx(node, 0x601, "40 04 60 00 00 00 00 00") == [(0x581, "43 04 60 00 E8 03 00 00")]
     assert rx(node, 0x601, "40 02 20 00 00 00 00 00") == [(0x581, "4F 02 20 00 02 00 00 00")]
+
+
+def test_4_4_application_offset_2001h_is_added_to_the_position(node: SimNode) -> None:
+    rx(node, 0x601, "2B 01 20 00 0A 00 00 00")  # 2001h = 10
+    assert rx(node, 0x601, "40 04 60 00 00 00 00 00") == [(0x581, "43 04 60 00 04 01 00 00")]
+    rx(node, 0x601, "23 03 60 00 64 00 00 00")  # 6003h = 100
+    rx(node, 0x601, "2F 02 20 00 01 00 00 00")  # calibrate: 100 + 10
+    assert rx(node, 0x601, "40 04 60 00 00 00 00 00") == [(0x581, "43 04 60 00 6E 00 00 00")]
+
+
+def test_5_1_cob_ids_change_only_in_pre_operational(node: SimNode) -> None:
+    rx(node, 0x000, "01 01")
+    assert rx(node, 0x601, "23 00 14 01 01 02 00 80") == [(0x581, "80 00 14 01 22 00 00 08")]

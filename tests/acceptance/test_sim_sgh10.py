@@ -218,3 +218,17 @@ def test_calibration_survives_a_power_cycle_only_when_saved() -> None:
     node.power_cycle(3.0)
     assert node.sdo_read_local("0x6020:01") == 0
     assert node.sdo_read_local("0x6509:00") == 1234
+
+
+def test_4_1_cob_ids_change_only_in_pre_operational(sgh10: SimNode) -> None:
+    rx(sgh10, 0x000, "01 01")
+    assert rx(sgh10, 0x601, "23 00 18 01 81 01 00 80") == [(0x581, "80 00 18 01 22 00 00 08")]
+    assert rx(sgh10, 0x601, "23 14 10 00 81 00 00 80") == [(0x581, "80 14 10 00 22 00 00 08")]
+    rx(sgh10, 0x000, "80 01")
+    assert rx(sgh10, 0x601, "23 00 18 01 81 01 00 80") == [(0x581, "60 00 18 01 00 00 00 00")]
+
+
+def test_4_7_2_23_6000h_bit_3_counts_descending(sgh10: SimNode) -> None:
+    assert sgh10.sdo_read_local("0x6020:01") == 1234
+    rx(sgh10, 0x601, "2B 00 60 00 0C 00 00 00")  # bit 3 + scaling bit 2
+    assert sgh10.sdo_read_local("0x6020:01") == -1234
