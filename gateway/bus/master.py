@@ -166,6 +166,11 @@ class NodeRuntime:
         if self.gbit is not None:
             image.health.link = LinkState.UNKNOWN
         self.last_rpdo_sent: dict[int, float] = {}
+        self.referencing: dict[str, Any] | None = lp.profile.features.get("referencing")
+        self.reference_signal: str | None = None
+        if self.referencing is not None:
+            pos = lp.profile.signal_for(ObjRef.parse(self.referencing.get("position", "0x6004:00")))
+            self.reference_signal = pos.name if pos is not None else None
         periods = []
         if self.gbit is not None:
             periods.append(cfg.guarding_bit.period_ms / 1000.0)
@@ -321,6 +326,7 @@ class Master:
             rt.gbit.reset()
         rt.emcy.clear()
         rt.image.health.current_errors = []
+        self._set_referenced(rt, False)  # MSK5000 5115h: the reference is lost at power-on
         self._apply_changes(rt, rt.lifecycle.on_bootup(now))
         self._start_configuration(rt)
 
@@ -361,6 +367,8 @@ class Master:
                 log.error("node %s (id %d): %s", rt.name, rt.node_id, h.last_error)
             elif isinstance(ch, Configured):
                 h.last_error = ""
+                if rt.referencing is not None:
+                    self._tasks.append(asyncio.create_task(self._check_reference(rt)))
                 if rt.guard is not None:
                     rt.guard.expect(SupNmt.OPERATIONAL)
                 log.info(
@@ -429,6 +437,31 @@ class Master:
                 # alive but no boot-up seen (gateway restarted, node replugged): probe + configure
                 self._tasks.append(asyncio.create_task(self._probe(rt)))
 
+    # ------------------------------------------------------------------ referencing (feature)
+    def _set_referenced(self, rt: NodeRuntime, ok: bool) -> None:
+        """Feature ``referencing`` (MSK5000 5115h): no valid position before referencing."""
+        if rt.referencing is None or rt.reference_signal is None:
+            return
+        sig = rt.image.signals.get(rt.reference_signal)
+        if sig is not None and sig.valid != ok:
+            sig.valid = ok
+            if not ok:
+                log.warning("node %s: not referenced; %s is not valid", rt.name, rt.reference_signal)
+            else:
+                log.info("node %s: referenced; %s valid", rt.name, rt.reference_signal)
+            self.image.health_changed(rt.image, "state")
+
+    async def _check_reference(self, rt: NodeRuntime) -> None:
+        ref = rt.referencing
+        assert ref is not None
+        try:
+            value = await self.sdo_upload(rt, ObjRef.parse(ref["status"]), "uint8", check_state=False)
+        except (SdoAbort, SdoTimeout, BusDown) as exc:
+            log.warning("node %s: referencing state unreadable: %s", rt.name, exc)
+            self._set_referenced(rt, False)
+            return
+        self._set_referenced(rt, int(value) == int(ref.get("referenced_value", 1)))
+
     def _probing(self, rt: NodeRuntime) -> bool:
         return rt.sdo_lock.locked()
 
@@ -472,6 +505,8 @@ class Master:
             "node %s EMCY 0x%04X (%s) register 0x%02X", rt.name, rec.code, rec.text, rec.register
         )
         self.image.health_changed(rt.image, "emcy")
+        if rt.referencing is not None and self.loop is not None:
+            self._tasks.append(asyncio.create_task(self._check_reference(rt)))
 
     def _on_guarding_echo(self, rt: NodeRuntime, bit: int) -> None:
         if rt.gbit is None:
@@ -666,3 +701,5 @@ class Master:
                 raise SdoTimeout(rt.name, str(obj), str(exc)) from None
             except can.CanError as exc:
                 raise BusDown(str(exc)) from None
+        if rt.referencing is not None and obj == ObjRef.parse(rt.referencing["command"]):
+            self._tasks.append(asyncio.create_task(self._check_reference(rt)))
