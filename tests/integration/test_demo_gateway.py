@@ -48,25 +48,15 @@ async def test_position_changes_reach_modbus_and_zenoh() -> None:
                 return None
             return client.convert_from_registers(rr.registers, client.DATATYPE.INT32)
 
-        first = None
-
-        async def got_first() -> bool:
-            nonlocal first
-            first = await read_position()
-            return first is not None
-
-        for _ in range(300):
-            if await got_first():
-                break
-            await __import__("asyncio").sleep(0.01)
-        assert first is not None, "Modbus never served the position"
-        changed = None
-        for _ in range(300):
-            changed = await read_position()
-            if changed is not None and changed != first:
-                break
-            await __import__("asyncio").sleep(0.01)
-        assert changed != first, "position did not change over Modbus"
+        # the position is served, then changes (the simulated wire moves)
+        first = await read_position()
+        assert first is not None, "Modbus did not serve the position of an operational node"
+        seq = gw.image.nodes["wire"].signals["position"].seq
+        await wait_until(
+            lambda: gw.image.nodes["wire"].signals["position"].seq > seq + 5, 5, "new PDOs"
+        )
+        changed = await read_position()
+        assert changed is not None and changed != first, "position did not change over Modbus"
 
         values = []
         while len(values) < 2:
