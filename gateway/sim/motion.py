@@ -71,11 +71,11 @@ class Motion:
         self.frozen_at = None if position is None else (float(position), 0.0)
 
     def sample(self, now: float) -> tuple[float, float]:
+        if self._origin_s is None:
+            self._origin_s = now
         if self.frozen_at is not None:
             return self.frozen_at
         c = self.config
-        if self._origin_s is None:
-            self._origin_s = now
         t = max(0.0, now - self._origin_s)
         span = c.max - c.min
         if c.kind == "hold" or span <= 0 or c.speed <= 0:

@@ -222,3 +222,80 @@ def test_silenced_node_sends_and_answers_nothing(node: SimNode) -> None:
     assert sdo(node, "40 00 10 00 00 00 00 00") == []
     node.unsilence(0.5)
     assert frames(node.tick(0.6)) == [(0x701, "7F")]
+
+
+def test_guarding_rtr_is_not_answered_while_the_heartbeat_producer_runs(node: SimNode) -> None:
+    sdo(node, "2B 17 10 00 64 00 00 00", now=1.0)
+    assert node.handle(frame(0x701, rtr=True, dlc=1), 1.01) == []
+
+
+def test_life_guarding_event_after_guard_time_times_factor_without_rtr(node: SimNode) -> None:
+    sdo(node, "2B 0C 10 00 64 00 00 00", now=1.0)  # guard time 100 ms
+    sdo(node, "2F 0D 10 00 03 00 00 00", now=1.0)  # life time factor 3
+    node.tick(2.0)
+    assert not node.life_guarding_lost  # not active before the first RTR
+    node.handle(frame(0x701, rtr=True, dlc=1), 2.0)
+    node.tick(2.3)
+    assert not node.life_guarding_lost  # exactly the life time
+    node.tick(2.3001)
+    assert node.life_guarding_lost
+    node.handle(frame(0x701, rtr=True, dlc=1), 2.4)
+    assert not node.life_guarding_lost
+
+
+def test_life_guarding_sends_8130h_where_the_profile_lists_it() -> None:
+    n = SimNode(load_profile("posi_plus"), 1)
+    n.power_on(0.0)
+    sdo(n, "2B 0C 10 00 0A 00 00 00", now=0.1)
+    sdo(n, "2F 0D 10 00 02 00 00 00", now=0.1)
+    n.handle(frame(0x701, rtr=True, dlc=1), 0.2)
+    assert frames(n.tick(0.3)) == [(0x081, "30 81 11 00 00 00 00 00")]
+    assert frames(n.handle(frame(0x701, rtr=True, dlc=1), 0.4)) == [
+        (0x701, "FF"),
+        (0x081, "00 00 00 00 00 00 00 00"),
+    ]
+
+
+def test_read_of_a_write_only_object_aborts_06010001() -> None:
+    n = SimNode(load_profile("posi_sf"), 1)
+    n.power_on(0.0)
+    assert sdo(n, "40 00 23 00 00 00 00 00") == [(0x581, "80 00 23 00 01 00 01 06")]
+
+
+def test_unfinished_segmented_transfer_is_aborted_after_the_sdo_timeout(node: SimNode) -> None:
+    assert sdo(node, "40 08 10 00 00 00 00 00", now=1.0) == [(0x581, "41 08 10 00 05 00 00 00")]
+    assert node.tick(1.9) == []
+    assert frames(node.tick(2.01)) == [(0x581, "80 08 10 00 00 00 04 05")]
+
+
+def test_segment_request_without_a_transfer_aborts_05040001(node: SimNode) -> None:
+    assert sdo(node, "60 00 00 00 00 00 00 00") == [(0x581, "80 00 00 00 01 00 04 05")]
+
+
+def test_transmission_type_0_sends_on_sync_only_when_the_data_changed() -> None:
+    n = SimNode(load_profile("sgh10"), NODE, motion={"kind": "hold", "hold": 100})
+    n.power_on(0.0)
+    assert sdo(n, "2F 01 18 02 00 00 00 00") == [(0x581, "60 01 18 02 00 00 00 00")]
+    nmt(n, 0x01)
+    sync = frame(0x080)
+    assert len(n.handle(sync, 1.0)) == 1
+    assert n.handle(sync, 1.1) == []
+    n.motion.freeze(150)
+    assert len(n.handle(sync, 1.2)) == 1
+
+
+def test_reset_communication_keeps_application_values_reset_node_does_not(node: SimNode) -> None:
+    sdo(node, "23 01 64 01 0A 00 00 00")  # 6401h:01 = 10 (application)
+    sdo(node, "2B 17 10 00 64 00 00 00")  # 1017h = 100 (communication)
+    nmt(node, 0x82)
+    assert node.get(0x6401, 1) == 10 and node.get(0x1017, 0) == 0
+    sdo(node, "2B 17 10 00 64 00 00 00")
+    nmt(node, 0x81)
+    assert node.get(0x6401, 1) == 0 and node.get(0x1017, 0) == 0
+
+
+def test_emcy_cob_id_bit_31_disables_emcy(node: SimNode) -> None:
+    sdo(node, "23 14 10 00 81 00 00 80")
+    node.raise_emcy(0xFF05, 0x80, now=1.0)
+    assert node.drain() == []
+    assert node.get(0x1001, 0) == 0x81
