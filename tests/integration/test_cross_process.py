@@ -1,0 +1,79 @@
+"""Cross-process: simulated devices in one process (`canopen-gateway simulate`), the gateway in
+another, sharing a CAN bus through python-can-remote (as the compose demo does)."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gateway.app import Gateway
+from gateway.config import load_config
+from tests.helpers import free_port, wait_until
+
+pytest.importorskip("can_remote")
+
+
+def _wait_port(port: int, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.05)
+    raise AssertionError(f"port {port} did not open")
+
+
+async def test_gateway_serves_devices_simulated_in_another_process(tmp_path: Path) -> None:
+    port = free_port()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"xp{port}", "-H", "127.0.0.1", "-p", str(port)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    raw = {
+        "gateway": {"name": "xp"},
+        "can": {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"},
+        "master": {"heartbeat_ms": 200},
+        "nodes": [
+            {"name": "wire", "node_id": 1, "profile": "sgh10"},
+            {"name": "display", "node_id": 125, "profile": "ap05"},
+        ],
+        "modbus": {"port": free_port()},
+        "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port()}"]},
+    }
+    cfg_file = tmp_path / "xp.yaml"
+    cfg_file.write_text(yaml.safe_dump(raw))
+    sim = None
+    gw = None
+    try:
+        _wait_port(port)
+        sim = subprocess.Popen(
+            [sys.executable, "-m", "gateway", "simulate", "-c", str(cfg_file)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        assert "simulating" in (sim.stdout.readline() if sim.stdout else "")
+        gw = Gateway(load_config(cfg_file, environ={}), simulate=False)
+        await gw.start()
+        for name in ("wire", "display"):
+            await wait_until(lambda n=name: gw.image.nodes[n].operational(), 10, f"{name} operational")
+        pos = gw.image.nodes["wire"].signals["position"]
+        seq = pos.seq
+        await wait_until(lambda: pos.seq > seq + 3, 5, "positions flowing")
+    finally:
+        if gw is not None:
+            await gw.stop()
+        for p in (sim, server):
+            if p is not None:
+                p.terminate()
+                try:
+                    p.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    p.kill()
