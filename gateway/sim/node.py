@@ -358,7 +358,9 @@ class SimNode:
         """Turn a device fault on/off; True if one of the node's behaviours implements it.
 
         Without a behaviour, a fault listed in the sim hint ``faults: {name: {emcy: code,
-        register: bits}}`` raises / clears that EMCY.
+        register: bits, alarm_bit: n}}`` raises / clears that EMCY and sets / clears bit n of
+        the DS-406 alarms 6503h (default for ``sensor_error``: bit 0, position error,
+        SGH10 manual 4.7.2.38).
         """
         now = self.now if now is None else now
         self.faults[name] = active
@@ -368,6 +370,11 @@ class SimNode:
         if not handled:
             spec = self.hints.faults.get(name)
             if spec and "emcy" in spec:
+                alarm_bit = spec.get("alarm_bit", 0 if name == "sensor_error" else None)
+                if alarm_bit is not None and self.values.has(0x6503, 0):
+                    alarms = int(self.values.get(0x6503, 0, 0))
+                    mask = 1 << int(alarm_bit)
+                    self.values.set(0x6503, 0, alarms | mask if active else alarms & ~mask)
                 code = int(spec["emcy"])
                 if active:
                     self.raise_emcy(code, int(spec.get("register", 0)), now=now)

@@ -54,6 +54,7 @@ class SimRunner:
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
         self.sent = 0
+        self.send_errors = 0
         self.received = 0
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -139,7 +140,13 @@ class SimRunner:
             batch = list(self._outbox)
             self._outbox.clear()
             for source, out in batch:
-                self.bus.send(out)
+                try:
+                    self.bus.send(out)
+                except can.CanError as exc:  # e.g. a full transmit queue: drop, keep running
+                    self.send_errors += 1
+                    if self.send_errors == 1 or self.send_errors % 1000 == 0:
+                        log.warning("simulator send failed (%d so far): %s", self.send_errors, exc)
+                    continue
                 self.sent += 1
                 if len(self.nodes) > 1 and rounds < _MAX_LOOPBACK_ROUNDS:
                     self._deliver(source, out, now)

@@ -115,6 +115,7 @@ def test_work_area_1_violation_sends_ff15h_once_and_0000h_when_left() -> None:
 def test_sensor_error_sends_ff05h_with_register_bit_7(sgh10: SimNode) -> None:
     assert sgh10.sensor_error(True, now=1.0)
     assert [m.data.hex(" ").upper() for m in sgh10.drain()] == ["05 FF 81 00 00 00 00 00"]
+    assert sgh10.get(0x6503, 0) & 1  # 4.7.2.38: bit 0 position value invalid
     sgh10.sensor_error(False, now=1.1)
     assert [m.data.hex(" ").upper() for m in sgh10.drain()] == ["00 00 00 00 00 00 00 00"]
 
