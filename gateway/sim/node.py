@@ -35,7 +35,6 @@ other gateway.sim modules. Nothing of bus/, modbus/, zenoh_bridge/.
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Literal
@@ -61,8 +60,6 @@ from gateway.sim.objects import (
     resolve_default,
 )
 from gateway.sim.sdo import SdoServer
-
-log = logging.getLogger(__name__)
 
 
 class NmtState(IntEnum):
@@ -370,11 +367,7 @@ class SimNode:
         if not handled:
             spec = self.hints.faults.get(name)
             if spec and "emcy" in spec:
-                alarm_bit = spec.get("alarm_bit", 0 if name == "sensor_error" else None)
-                if alarm_bit is not None and self.values.has(0x6503, 0):
-                    alarms = int(self.values.get(0x6503, 0, 0))
-                    mask = 1 << int(alarm_bit)
-                    self.values.set(0x6503, 0, alarms | mask if active else alarms & ~mask)
+                self._hint_fault_bits(name, active)
                 code = int(spec["emcy"])
                 if active:
                     self.raise_emcy(code, int(spec.get("register", 0)), now=now)
@@ -382,6 +375,14 @@ class SimNode:
                     self.clear_emcy(code, now=now)
                 handled = True
         return handled
+
+    def _hint_fault_bits(self, name: str, active: bool) -> None:
+        spec = self.hints.faults.get(name) or {}
+        alarm_bit = spec.get("alarm_bit", 0 if name == "sensor_error" else None)
+        if alarm_bit is not None and self.values.has(0x6503, 0):
+            alarms = int(self.values.get(0x6503, 0, 0))
+            mask = 1 << int(alarm_bit)
+            self.values.set(0x6503, 0, alarms | mask if active else alarms & ~mask)
 
     def sensor_error(self, active: bool = True, now: float | None = None) -> bool:
         return self.inject_fault("sensor_error", active, now)
@@ -427,11 +428,13 @@ class SimNode:
         self.life_guarding_lost = False
         self._tpdo_timers = {n: _TpdoTimer() for n in self.tpdos}
         self._process_now = None
+        if kind != "power":  # the device still has its faults: show them again
+            for name, active in self.faults.items():
+                if active:
+                    self._hint_fault_bits(name, True)
         for b in self.behaviours:
             b.on_boot(now)
-        if self.silenced:
-            return
-        self.send(COB_NMT_ERROR_BASE + self.node_id, b"\x00")  # boot-up (4.2.2)
+        self.send(COB_NMT_ERROR_BASE + self.node_id, b"\x00")  # boot-up (4.2.2), unless silenced
         self.nmt_state = NmtState.PRE_OPERATIONAL
         self._schedule_heartbeat(now)
         for b in self.behaviours:

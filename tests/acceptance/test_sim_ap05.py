@@ -261,3 +261,11 @@ def test_4_4_application_offset_2001h_is_added_to_the_position(node: SimNode) ->
 def test_5_1_cob_ids_change_only_in_pre_operational(node: SimNode) -> None:
     rx(node, 0x000, "01 01")
     assert rx(node, 0x601, "23 00 14 01 01 02 00 80") == [(0x581, "80 00 14 01 22 00 00 08")]
+
+
+def test_an_active_battery_warning_is_shown_again_after_reset_node(node: SimNode) -> None:
+    node.battery_low(True, now=1.0)
+    node.drain()
+    rx(node, 0x000, "81 01", now=1.1)
+    assert node.get(0x5F19, 0) & (1 << 11)
+    assert node.get(0x6503, 0) & (1 << 12)

@@ -299,3 +299,12 @@ def test_emcy_cob_id_bit_31_disables_emcy(node: SimNode) -> None:
     node.raise_emcy(0xFF05, 0x80, now=1.0)
     assert node.drain() == []
     assert node.get(0x1001, 0) == 0x81
+
+
+def test_a_node_silenced_before_power_on_boots_without_a_word() -> None:
+    n = SimNode(load_profile("sgh10"), NODE)
+    n.silence()
+    assert n.tick(0.0) == []
+    assert n.nmt_state == NmtState.PRE_OPERATIONAL
+    n.unsilence(1.0)
+    assert sdo(n, "40 00 10 00 00 00 00 00", now=1.1) == [(0x581, "43 00 10 00 96 01 0A 00")]

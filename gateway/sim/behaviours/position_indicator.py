@@ -139,6 +139,8 @@ class PositionIndicator(Behaviour):
         if self.node.last_reset == "power":
             self.active_faults.clear()
             self.keys.clear()
+        for key in self.active_faults:  # reset node/comm reloaded the words: show them again
+            self._fault_bits(self.faults[key], True)
 
     def on_nmt(self, state: int, now: float) -> None:
         if state == OPERATIONAL and self.node.tpdos:
@@ -249,6 +251,18 @@ class PositionIndicator(Behaviour):
             self.active_faults.add(key)
         else:
             self.active_faults.discard(key)
+        self._fault_bits(spec, active)
+        code = spec.get("emcy")
+        if code is not None:
+            register = 1 << int(spec["error_register_bit"]) if "error_register_bit" in spec else 0
+            if active:
+                self.node.raise_emcy(int(code), register, now=now)
+            else:
+                self.node.clear_emcy(int(code), now=now)
+        return True
+
+    def _fault_bits(self, spec: dict[str, Any], active: bool) -> None:
+        """Status word, 6503h alarm and 6505h warning bits of one fault."""
         bits = list(spec.get("status_bits") or [spec["status_bit"]])
         status = self._get(self.status_obj)
         for b in bits:
@@ -261,14 +275,6 @@ class PositionIndicator(Behaviour):
         self.node.set(*self.status_obj, status)
         self._set_bit(self.alarms_obj, spec.get("alarm_bit"), active)
         self._set_bit(self.warnings_obj, spec.get("warning_bit"), active)
-        code = spec.get("emcy")
-        if code is not None:
-            register = 1 << int(spec["error_register_bit"]) if "error_register_bit" in spec else 0
-            if active:
-                self.node.raise_emcy(int(code), register, now=now)
-            else:
-                self.node.clear_emcy(int(code), now=now)
-        return True
 
     def _set_bit(self, obj: ObjRef, bit: Any, on: bool) -> None:
         if bit is None or not self.node.values.has(*obj):
