@@ -745,8 +745,16 @@ class SimNode:
         sig = self.profile.profile.signal_for(obj)
         if sig is None or not isinstance(value, (int, float)):
             return
-        if (sig.min is not None and value < sig.min) or (sig.max is not None and value > sig.max):
-            raise SdoAbortError(ABORT_RANGE, f"{obj} value {value} outside {sig.min}..{sig.max}")
+        if isinstance(value, int) and sig.type in ("int8", "int16", "int24", "int32", "int64"):
+            bits = sig.bit_length  # an EDS UNSIGNED object the profile reads as signed
+            if value >= 1 << (bits - 1):
+                value -= 1 << bits
+        eng = value * sig.scale + sig.offset  # profile min/max are engineering values
+        tol = 1e-9 * max(1.0, abs(eng))
+        if (sig.min is not None and eng < sig.min - tol) or (
+            sig.max is not None and eng > sig.max + tol
+        ):
+            raise SdoAbortError(ABORT_RANGE, f"{obj} value {eng} outside {sig.min}..{sig.max}")
 
     def _check_preop(self, obj: ObjRef) -> None:
         if self.cob_id_change_preop_only and self.nmt_state != NmtState.PRE_OPERATIONAL:
