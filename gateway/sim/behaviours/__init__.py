@@ -15,6 +15,15 @@ with ``self.node.get(index, sub)`` / ``self.node.set(index, sub, value)`` (no ac
 hooks). All hooks get ``now`` (seconds, the caller's monotonic clock) and must be deterministic
 given it: no wall clock, no sleeps, no threads.
 
+What else a behaviour may use of its node: ``node_id``, ``nmt_state``, ``last_reset``,
+``values.has(index, sub)``, ``default_of(index, sub)``, ``store`` (PersistentStore: node_id,
+bitrate_index, values), ``pending_node_id`` (adopted at the next reset communication),
+``raise_emcy(code, register, mfr, now=)`` / ``clear_emcy(code, now=)``, ``trigger_tpdo(n, now)``,
+``set_nmt_state(state, now)``, ``reset_communication(now)``, ``mute(until_s)``,
+``update_process(now)`` / ``invalidate_process()``, ``position_obj``, ``position_offset``,
+``direction_sign()``, ``calibrate(preset, now)``, ``motion``, ``hints`` (SimHints; ``extra``
+holds the profile's other ``sim:`` keys), ``behaviour(feature)``.
+
 Imports: python-can types and gateway.objref only (the node is referenced for typing only).
 """
 
@@ -64,8 +73,7 @@ class Behaviour:
         return None
 
     def after_sdo_write(self, obj: ObjRef, value: Any, now: float) -> None:
-        """After ``value`` was stored in ``obj`` by an SDO download (or an RPDO did not: see
-        ``on_rpdo``)."""
+        """After an SDO download stored ``value`` in ``obj`` (RPDO writes call ``on_rpdo``)."""
 
     def before_sdo_read(self, obj: ObjRef, now: float) -> int | None:
         """A client reads ``obj`` (after ``update_process``). Return an abort code to refuse."""
