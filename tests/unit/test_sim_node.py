@@ -308,3 +308,21 @@ def test_a_node_silenced_before_power_on_boots_without_a_word() -> None:
     assert n.nmt_state == NmtState.PRE_OPERATIONAL
     n.unsilence(1.0)
     assert sdo(n, "40 00 10 00 00 00 00 00", now=1.1) == [(0x581, "43 00 10 00 96 01 0A 00")]
+
+
+def test_every_profile_feature_has_a_behaviour() -> None:
+    from gateway.profiles.schema import KNOWN_FEATURES
+    from gateway.sim.behaviours import registered
+
+    assert set(registered()) == KNOWN_FEATURES
+
+
+@pytest.mark.parametrize("family", ["sgh10", "ap05", "msk5000", "posi_plus", "posi_sf"])
+def test_every_builtin_profile_boots_and_answers_1000h(family: str) -> None:
+    lp = load_profile(family)
+    n = SimNode(lp, 9)
+    assert frames(n.power_on(0.0)) == [(0x709, "00")]
+    (reply,) = n.handle(frame(0x609, "40 00 10 00 00 00 00 00"), 0.1)
+    assert reply.arbitration_id == 0x589 and reply.data[0] == 0x43
+    if lp.profile.device_type is not None:
+        assert int.from_bytes(reply.data[4:8], "little") == lp.profile.device_type
