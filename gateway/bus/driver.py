@@ -4,7 +4,22 @@ A reader thread receives frames and dispatches them by COB-ID through a dict:
 process data (TPDOs) is decoded and written into the process image right on this thread (the hot
 path: no event-loop hop, no logging per frame); everything else (heartbeat, EMCY, SDO, LSS) is
 handed to its handler, which for control traffic forwards to the event loop. A backend that
-raises is reported, the bus is closed and reopened with backoff; the gateway keeps running.
+raises is reported, the bus is closed and reopened with exponential backoff; the gateway keeps
+running. A bus that cannot be opened at start is retried the same way (only an interface name
+python-can does not know is fatal).
+
+Bus state (``state``, mirrored in ``image.bus_state``, with the reason in ``last_error``):
+
+=======  ===================================================================================
+ok       frames flow; the controller is error active (or nothing says otherwise)
+error    the controller reported error passive or bus off in an error frame; back to ok on an
+         "error active" / "restarted" error frame, or when frames are received and no error
+         frame came for ``error_hold_s``
+down     the backend raised or is closed; the reader reopens it with backoff
+=======  ===================================================================================
+
+Error frames are decoded by the SocketCAN layout (linux/can/error.h, also what python-can's
+other backends follow): class bits in the CAN-ID, controller status in data byte 1.
 
 Imports: python-can, image (for counters). Nothing northbound.
 """
@@ -22,6 +37,16 @@ import can
 from gateway.image import ProcessImage
 
 log = logging.getLogger("gateway.bus")
+
+# linux/can/error.h: error classes (CAN-ID bits of an error frame) and controller status bits
+CAN_ERR_CRTL = 0x00000004  # controller problems, details in data[1]
+CAN_ERR_BUSOFF = 0x00000040  # bus off
+CAN_ERR_RESTARTED = 0x00000100  # controller restarted
+CAN_ERR_CRTL_RX_PASSIVE = 0x10  # reached error passive status on receive
+CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
+CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
+
+FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface: a config error
 
 FrameHandler = Callable[[can.Message], None]
 
@@ -50,16 +75,23 @@ class RateLimitedLog:
 
 
 class BusDriver:
+    """The bus, its reader thread and sending; see the module docstring for the states."""
+
     def __init__(
         self,
         bus_kwargs: dict[str, Any],
         image: ProcessImage,
         reopen_backoff_s: float = 1.0,
         on_state: Callable[[str, str], None] | None = None,
+        *,
+        reopen_backoff_max_s: float = 30.0,
+        error_hold_s: float = 5.0,
     ):
         self.bus_kwargs = bus_kwargs
         self.image = image
         self.reopen_backoff_s = reopen_backoff_s
+        self.reopen_backoff_max_s = max(reopen_backoff_max_s, reopen_backoff_s)
+        self.error_hold_s = error_hold_s
         self.on_state = on_state  # (state, detail), called on the reader thread
         self.handlers: dict[int, FrameHandler] = {}
         self.default_handler: FrameHandler | None = None
@@ -69,13 +101,28 @@ class BusDriver:
         self._send_lock = threading.Lock()
         self.state = "down"
         self.last_error = ""
+        self.reopen_attempts = 0  # failed attempts since the bus went down
+        self.reopens = 0  # successful reopens since start
+        self.last_error_frame_s: float | None = None
         self.warn = RateLimitedLog(log)
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
-        """Open the bus once (raises if the backend refuses) and start the reader thread."""
-        self.bus = can.Bus(**self.bus_kwargs)
-        self._set_state("ok", "")
+        """Open the bus and start the reader thread.
+
+        An interface python-can does not know raises (a configuration error); any other
+        failure leaves the bus down and the reader thread retries with backoff.
+        """
+        try:
+            self.bus = can.Bus(**self.bus_kwargs)
+        except FATAL_OPEN_ERRORS:
+            raise
+        except Exception as exc:  # noqa: BLE001 - adapter unplugged, interface down, ...
+            log.error("CAN bus cannot be opened: %s; retrying with backoff", exc)
+            self.bus = None
+            self._set_state("down", str(exc))
+        else:
+            self._set_state("ok", "")
         self._running.set()
         self._thread = threading.Thread(target=self._run, name="can-reader", daemon=True)
         self._thread.start()
@@ -97,15 +144,22 @@ class BusDriver:
                 pass
 
     def _set_state(self, state: str, detail: str) -> None:
+        changed = state != self.state
         self.state = state
         self.image.bus_state = state
         if detail:
             self.last_error = detail
-        if self.on_state is not None:
+        if changed and self.on_state is not None:
             self.on_state(state, detail)
 
+    def backoff_s(self, attempt: int) -> float:
+        """Delay before reopen attempt ``attempt`` (1, 2, ...): doubling, capped."""
+        return min(self.reopen_backoff_max_s, self.reopen_backoff_s * 2 ** max(0, attempt - 1))
+
     # ------------------------------------------------------------------ sending
-    def send(self, cob_id: int, data: bytes = b"", rtr: bool = False, dlc: int | None = None) -> None:
+    def send(
+        self, cob_id: int, data: bytes = b"", rtr: bool = False, dlc: int | None = None
+    ) -> None:
         """Send one frame; raises ``can.CanError`` when the bus is down."""
         bus = self.bus
         if bus is None or self.state == "down":
@@ -140,10 +194,12 @@ class BusDriver:
             try:
                 msg = bus.recv(timeout=0.05)
             except Exception as exc:  # noqa: BLE001 - any backend failure keeps us running
+                if not self._running.is_set():
+                    break
                 counters["bus_errors"] += 1
                 log.error("CAN bus receive failed: %s; reopening", exc)
                 self._shutdown_bus()
-                self._set_state("down", str(exc))
+                self._set_state("down", f"receive failed: {exc}")
                 continue
             if msg is None:
                 continue
@@ -151,6 +207,8 @@ class BusDriver:
                 counters["bus_errors"] += 1
                 self._error_frame(msg)
                 continue
+            if self.state == "error":
+                self._maybe_recovered()
             counters["frames_in"] += 1
             h = handlers.get(msg.arbitration_id)
             try:
@@ -168,23 +226,59 @@ class BusDriver:
                 )
 
     def _error_frame(self, msg: can.Message) -> None:
-        # DS-301 / CiA 102: error passive and bus off are reported in error frames' data
-        data = bytes(msg.data)
-        if msg.arbitration_id & 0x40 or (len(data) > 1 and data[1] & 0x30):
-            self._set_state("error", "error passive / bus off reported by the controller")
+        """Controller state from an error frame (linux/can/error.h layout)."""
+        self.last_error_frame_s = time.monotonic()
+        cls = msg.arbitration_id
+        data = bytes(msg.data).ljust(8, b"\0")
+        ctrl = data[1] if cls & CAN_ERR_CRTL else 0
+        if cls & CAN_ERR_BUSOFF:
+            self._enter_error("bus off")
+        elif ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
+            side = "transmit" if ctrl & CAN_ERR_CRTL_TX_PASSIVE else "receive"
+            self._enter_error(f"error passive ({side})")
+        elif cls & CAN_ERR_RESTARTED or ctrl & CAN_ERR_CRTL_ACTIVE:
+            if self.state == "error":
+                log.info("CAN controller error active again")
+                self._set_state("ok", "")
+        else:
+            self.warn.warning(
+                ("error_frame", cls), "CAN error frame 0x%X data %s", cls, data.hex(" ")
+            )
+
+    def _enter_error(self, what: str) -> None:
+        if self.state != "error" or self.last_error != what:
+            log.warning("CAN controller reports %s", what)
+        self._set_state("error", what)
+
+    def _maybe_recovered(self) -> None:
+        last = self.last_error_frame_s
+        if last is None or time.monotonic() - last >= self.error_hold_s:
+            log.info("CAN frames flow without error frames for %.1f s: bus ok", self.error_hold_s)
+            self._set_state("ok", "")
 
     def _reopen(self) -> bool:
-        deadline = time.monotonic() + self.reopen_backoff_s
+        """One reopen attempt after the backoff delay; False if it failed or we are closing."""
+        delay = self.backoff_s(self.reopen_attempts + 1)
+        deadline = time.monotonic() + delay
         while self._running.is_set() and time.monotonic() < deadline:
-            time.sleep(0.05)
+            time.sleep(min(0.05, max(0.0, deadline - time.monotonic())))
         if not self._running.is_set():
             return False
         try:
             self.bus = can.Bus(**self.bus_kwargs)
         except Exception as exc:  # noqa: BLE001
-            self.warn.warning("reopen", "CAN bus reopen failed: %s", exc)
-            self._set_state("down", str(exc))
+            self.reopen_attempts += 1
+            self.warn.warning(
+                "reopen",
+                "CAN bus reopen failed: %s; next attempt in %.1f s",
+                exc,
+                self.backoff_s(self.reopen_attempts + 1),
+            )
+            self._set_state("down", f"reopen failed: {exc}")
             return False
+        self.reopen_attempts = 0
+        self.reopens += 1
+        self.last_error_frame_s = None
         log.info("CAN bus reopened")
         self._set_state("ok", "")
         return True

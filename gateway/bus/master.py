@@ -121,16 +121,11 @@ class NodeRuntime:
         self.image = image
         self.node_id = cfg.node_id
         self.name = cfg.name
-        self.tpdos, self.rpdos = compile_node(lp, cfg.node_id, cfg.pdo_variant)
-        # a signal may be mapped in several RPDOs (AP05 control word 5F0Ch is in RPDO1 and 2)
-        self.rpdo_by_signal: dict[str, list[RpdoCodec]] = {}
-        for r in self.rpdos:
-            for n in r.names:
-                self.rpdo_by_signal.setdefault(n, []).append(r)
         self.sdo_lock = asyncio.Lock()
         self.remote = canopen.RemoteNode(cfg.node_id, lp.od)
         self.remote.sdo.RESPONSE_TIMEOUT = master.cfg.master.sdo_timeout_s
-        self.remote.sdo.MAX_RETRIES = master.cfg.master.sdo_retries
+        # canopen counts attempts (1 = no retry); the config counts retries after the first
+        self.remote.sdo.MAX_RETRIES = master.cfg.master.sdo_retries + 1
         supervision = cfg.supervision or lp.profile.boot.supervision
         self.supervision = supervision
         image.health.supervision = supervision
@@ -142,9 +137,29 @@ class NodeRuntime:
             else lp.profile.boot.life_time_factor
         )
         self.heartbeat_ms, self.guard_time_ms, self.life_time_factor = hb_ms, gt_ms, ltf
-        self.hb = HeartbeatConsumer(hb_ms, master.cfg.master.heartbeat_timeout_multiple)
+        # With configuration, the boot-up counts as a sign of life and the first heartbeat
+        # must follow within the boot timeout (1017h is written first): a node dying during
+        # its configuration is reported lost instead of staying "alive" forever.
+        grace_s = master.cfg.master.boot_timeout_s if cfg.configure else None
+        self.hb: HeartbeatConsumer | None = (
+            HeartbeatConsumer(hb_ms, master.cfg.master.heartbeat_timeout_multiple, grace_s)
+            if hb_ms > 0
+            else None
+        )
         self.guard = NodeGuardingMaster(gt_ms, ltf) if supervision == "guarding" else None
         steps = build_boot_steps(lp, cfg, supervision, hb_ms, gt_ms, ltf)
+        self.boot_steps = steps
+        # The decoder follows the mapping the boot configuration leaves in the device (profile
+        # layout or variant, then the PDO writes of the steps in order; see codec module).
+        writes = [(st.object, st.value) for st in steps] if cfg.configure else []
+        self.tpdos, self.rpdos = compile_node(lp, cfg.node_id, cfg.pdo_variant, writes)
+        # a signal may be mapped in several RPDOs (AP05 control word 5F0Ch is in RPDO1 and 2)
+        self.rpdo_by_signal: dict[str, list[RpdoCodec]] = {}
+        for r in self.rpdos:
+            for n in r.names:
+                self.rpdo_by_signal.setdefault(n, []).append(r)
+        self.next_probe_s: float | None = None
+        self.pdo_too_long = 0
         self.lifecycle = NodeLifecycle(
             steps,
             boot_timeout_s=master.cfg.master.boot_timeout_s,
@@ -181,15 +196,24 @@ class NodeRuntime:
 
 
 class Master:
+    """The NMT master of the configured nodes (see the module docstring).
+
+    ``passive = True`` (commissioning tools: ``canopen-gateway sdo|nmt``) keeps supervision
+    and the services but takes no lifecycle action on its own: no probe, no configuration, no
+    NMT start after a boot-up.
+    """
+
     def __init__(self, cfg: Config, image: ProcessImage, driver: BusDriver):
         self.cfg = cfg
         self.image = image
         self.driver = driver
+        self.passive = False
         self.loop: asyncio.AbstractEventLoop | None = None
         self.network = _Network(driver)
         self.nodes: dict[str, NodeRuntime] = {}
         self.by_id: dict[int, NodeRuntime] = {}
         self._tasks: list[asyncio.Task[Any]] = []
+        self._probes: dict[str, asyncio.Task[Any]] = {}
         self._config_tasks: dict[str, asyncio.Task[Any]] = {}
         self.warn = RateLimitedLog(log)
         self.rpdo_hooks: list[Callable[[NodeRuntime, RpdoCodec], None]] = []
@@ -249,6 +273,17 @@ class Master:
                     length,
                 )
                 return
+            if len(data) > length:
+                # CiA 301: a PDO longer than its mapping is processed (the mapped bytes)
+                rt.pdo_too_long += 1
+                self.warn.warning(
+                    ("long", codec.cob_id),
+                    "node %s: PDO 0x%03X with %d bytes, mapping has %d; extra bytes ignored",
+                    node.name,
+                    codec.cob_id,
+                    len(data),
+                    length,
+                )
             values = decode(data)
             update(node, names, values, msg.timestamp or time.time())
             if status_pos >= 0 and self.loop is not None:
@@ -290,20 +325,34 @@ class Master:
             rt.image.health.lifecycle = str(rt.lifecycle.state)
             if rt.cfg.rtr_poll_ms:
                 self._tasks.append(asyncio.create_task(self._rtr_poll(rt)))
-        if self.cfg.master.probe_at_start:
-            for rt in self.nodes.values():
-                self._tasks.append(asyncio.create_task(self._probe(rt)))
+        for rt in self.nodes.values():
+            if self.cfg.master.probe_at_start and not self.passive:
+                self._spawn_probe(rt)
+            else:
+                rt.next_probe_s = now + self.cfg.master.boot_timeout_s
 
     async def stop(self) -> None:
-        for t in list(self._tasks) + list(self._config_tasks.values()):
+        tasks = list(self._tasks) + list(self._config_tasks.values()) + list(self._probes.values())
+        for t in tasks:
             t.cancel()
-        for t in list(self._tasks) + list(self._config_tasks.values()):
+        for t in tasks:
             try:
                 await t
             except (asyncio.CancelledError, Exception):  # noqa: BLE001
                 pass
         self._tasks.clear()
         self._config_tasks.clear()
+        self._probes.clear()
+
+    def _spawn_probe(self, rt: NodeRuntime) -> None:
+        """Probe ``rt`` unless a probe is already running; the next periodic probe is due one
+        boot timeout later."""
+        rt.next_probe_s = time.monotonic() + self.cfg.master.boot_timeout_s
+        if self.passive or rt.name in self._probes:
+            return
+        task = asyncio.create_task(self._probe(rt), name=f"probe-{rt.name}")
+        self._probes[rt.name] = task
+        task.add_done_callback(lambda _t, name=rt.name: self._probes.pop(name, None))
 
     async def _probe(self, rt: NodeRuntime) -> None:
         """Find a node that is already running (no boot-up will come) by reading 1000h."""
@@ -312,14 +361,16 @@ class Master:
         except Exception:  # noqa: BLE001 - not there yet: wait for its boot-up
             return
         if rt.lifecycle.state == LifecycleState.WAITING:
-            log.info("node %s (id %d) found running; configuring", rt.name, rt.node_id)
+            log.info("node %s (id %d) found running", rt.name, rt.node_id)
             self._apply_changes(rt, rt.lifecycle.on_found(time.monotonic(), device_type))
-            self._start_configuration(rt)
+            if rt.lifecycle.state == LifecycleState.BOOTING:  # not a wrong device type
+                self._start_configuration(rt)
 
     def _booted(self, rt: NodeRuntime, now: float) -> None:
         """A boot-up message: (re)configure the node from the first step."""
         rt.image.health.boot_count += 1
-        rt.hb.on_bootup(now)
+        if rt.hb is not None:
+            rt.hb.on_bootup(now)
         if rt.guard is not None:
             rt.guard.on_bootup(now)  # the toggle bit starts at 0 again (DS-301)
         if rt.gbit is not None:
@@ -327,6 +378,8 @@ class Master:
         rt.emcy.clear()
         rt.image.health.current_errors = []
         self._set_referenced(rt, False)  # MSK5000 5115h: the reference is lost at power-on
+        if self.passive:
+            return
         self._apply_changes(rt, rt.lifecycle.on_bootup(now))
         self._start_configuration(rt)
 
@@ -397,6 +450,9 @@ class Master:
                     ok, code = False, exc.code
                 except (SdoTimeout, BusDown):
                     ok = False
+                except Exception as exc:  # noqa: BLE001 - a failed step must not end the task
+                    log.warning("node %s: boot step %s failed: %r", rt.name, step.object, exc)
+                    ok = False
                 self._apply_changes(
                     rt, lc.on_step_result(time.monotonic(), ok, code, token=action.token)
                 )
@@ -421,21 +477,24 @@ class Master:
             self._booted(rt, now)
             self._set_alive(rt, True)
             return
+        outputs: list[Any]
         if rt.guard is not None:
             outputs = rt.guard.on_response(byte, now)
             state = byte & 0x7F
-        else:
+        elif rt.hb is not None:
             outputs = rt.hb.on_heartbeat(byte, now)
             state = byte
+        else:  # no heartbeat consumer (heartbeat_ms 0): take the state as reported
+            outputs, state = [], byte & 0x7F
         bad = [o for o in outputs if isinstance(o, (ToggleError, WrongState, InvalidStateByte))]
         for o in bad:
             self.warn.warning(("guard", rt.name, type(o).__name__), "node %s: %s", rt.name, o)
         if not bad:
             self._set_nmt(rt, state)
             self._set_alive(rt, True)
-            if rt.lifecycle.state == LifecycleState.WAITING and not self._probing(rt):
+            if rt.lifecycle.state == LifecycleState.WAITING:
                 # alive but no boot-up seen (gateway restarted, node replugged): probe + configure
-                self._tasks.append(asyncio.create_task(self._probe(rt)))
+                self._spawn_probe(rt)
 
     # ------------------------------------------------------------------ referencing (feature)
     def _set_referenced(self, rt: NodeRuntime, ok: bool) -> None:
@@ -461,9 +520,6 @@ class Master:
             self._set_referenced(rt, False)
             return
         self._set_referenced(rt, int(value) == int(ref.get("referenced_value", 1)))
-
-    def _probing(self, rt: NodeRuntime) -> bool:
-        return rt.sdo_lock.locked()
 
     def _set_nmt(self, rt: NodeRuntime, state: int) -> None:
         try:
@@ -536,6 +592,13 @@ class Master:
             now = time.monotonic()
             for rt in self.nodes.values():
                 self._poll_node(rt, now)
+                if (
+                    rt.lifecycle.state == LifecycleState.WAITING
+                    and rt.next_probe_s is not None
+                    and now >= rt.next_probe_s
+                ):
+                    # a node whose boot-up was missed and that sends no heartbeat (1017h = 0)
+                    self._spawn_probe(rt)
 
     def _poll_node(self, rt: NodeRuntime, now: float) -> None:
         if rt.guard is not None:
@@ -547,7 +610,7 @@ class Master:
                         pass
             if rt.guard.lost and rt.image.health.alive:
                 self._set_alive(rt, False)
-        elif rt.supervision == "heartbeat" and rt.heartbeat_ms:
+        elif rt.supervision == "heartbeat" and rt.hb is not None:
             rt.hb.poll(now)
             if rt.hb.lost and rt.image.health.alive:
                 self._set_alive(rt, False)
