@@ -3,20 +3,28 @@
 Layout (``modbus.layout: per_node``, the default): one unit id per node (default its node id)
 and one for the gateway itself (``modbus.gateway_unit_id``, default 247). Within a node's unit:
 
-* input registers 0..15: diagnostics (quality, NMT state, alive, data age, EMCY, losses, link)
-* input registers 100..: process data read from the node (TPDO signals), in profile order
+* input registers 0..15: diagnostics (``NODE_DIAG``: quality, NMT state, alive, data age, EMCY,
+  losses, guarding-bit link, last SDO abort)
+* input registers 100..: process data read from the node (the TPDO signals of the node's PDO
+  layout), in profile order
 * holding register 0: NMT command (write 1 start, 2 stop, 128 pre-op, 129 reset, 130 reset comm;
   reads the NMT state)
 * holding registers 100..: writable process data (RPDO signals), then configuration objects
-  served by SDO
-* discrete inputs 0..3: alive, operational, link ok, error active; 100..: bits of read-only
-  word signals, 16 (or 32) addresses per word: address = base + bit
-* coils 100..: bits of writable word signals (control words), same scheme
+  served by SDO, in profile order
+* discrete inputs 0..3: alive, operational, link ok, error active; 100..: the bits of read-only
+  word signals that name single bits, one address per bit of the word: address = start + bit
+* coils 100..: the bits of writable word signals (control words, SDO parameter words), same
+  scheme
+
+A signal of the profile sent by PDO but not mapped in the node's PDO layout (e.g. POSI+ speed
+outside PDO type 2) has no register. ``nodes[].signals.<name>`` overrides pin an address
+(relative to the node's block), serve a value as engineering float32 (``as_float``), or change
+the word order of one point.
 
 ``layout: flat`` puts everything in one unit (``flat_unit_id``): the gateway block at 0 and node
 *k* (1-based, config order) at ``k * flat_stride``, with the same offsets inside each block.
 
-Imports: config, profiles, objref. Never pymodbus, bus/, zenoh_bridge/.
+Imports: config, profiles. Never pymodbus, bus/, zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -27,21 +35,22 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from gateway.config import Config
-from gateway.profiles import load_profile
-from gateway.profiles.derived import text_signals
+from gateway.profiles import LoadedProfile, load_profile
+from gateway.profiles.schema import Signal
 
 Table = Literal["ir", "hr", "di", "co"]
 TABLE_NAMES = {"ir": "input register", "hr": "holding register", "di": "discrete input", "co": "coil"}
+TABLE_ORDER = {"ir": 0, "hr": 1, "di": 2, "co": 3}
 
 SIGNAL_BASE = 100
 NMT_REGISTER = 0
 
 #: node diagnostics in input registers: (offset, name, type, description)
 NODE_DIAG = [
-    (0, "quality", "uint16", "0 good, 1 stale, 2 bad (never received / node not operational)"),
-    (1, "nmt_state", "uint16", "NMT state: 0 boot-up, 4 stopped, 5 operational, 127 pre-op, 65535 unknown"),
+    (0, "quality", "uint16", "worst quality of the node's process data: 0 good, 1 stale (node lost, not operational, link fault or data older than stale_after_ms), 2 bad (never received or flagged invalid by the device)"),
+    (1, "nmt_state", "uint16", "NMT state: 0 boot-up, 4 stopped, 5 operational, 127 pre-operational, 65535 unknown"),
     (2, "alive", "uint16", "1 while heartbeat / node guarding is OK"),
-    (3, "lifecycle", "uint16", "0 waiting, 1 booting, 2 configuring, 3 operational, 4 lost"),
+    (3, "lifecycle", "uint16", "0 waiting (never seen, or lost: waiting for boot-up), 1 booting, 2 configuring, 3 operational"),
     (4, "data_age_ms", "uint32", "ms since the last process data frame (4294967295 = never)"),
     (6, "last_emcy_code", "uint16", "last EMCY error code (0 = none / reset)"),
     (7, "last_emcy_register", "uint16", "error register (1001h) of the last EMCY"),
@@ -49,7 +58,7 @@ NODE_DIAG = [
     (9, "loss_count", "uint16", "heartbeat / guarding losses"),
     (10, "link_state", "uint16", "guarding-bit link: 0 not used, 1 ok, 2 fault, 3 unknown"),
     (11, "link_fault_count", "uint16", "guarding-bit link faults"),
-    (12, "last_sdo_abort", "uint32", "last SDO abort code (e.g. 0x06090011)"),
+    (12, "last_sdo_abort", "uint32", "abort code of the last SDO transfer the node aborted (e.g. 0x06090011), 0 = none"),
     (14, "boot_count", "uint16", "boot-ups seen"),
     (15, "pdo_errors", "uint16", "PDOs with unexpected length"),
 ]  # fmt: skip
@@ -74,6 +83,10 @@ GATEWAY_REGS = [
     (17, "nodes_alive", "uint16", "nodes alive"),
     (18, "nodes_operational", "uint16", "nodes operational"),
 ]
+NMT_DESCRIPTION = (
+    "write 1 start, 2 stop, 128 pre-operational, 129 reset node, 130 reset communication; "
+    "reads the NMT state"
+)
 
 _REG_TYPE = {
     "bool": "uint16", "int8": "int16", "uint8": "uint16", "int16": "int16", "uint16": "uint16",
@@ -91,6 +104,8 @@ class RegisterMapError(Exception):
 
 @dataclass(frozen=True)
 class Point:
+    """One addressable item: a register value (1..n registers) or one bit."""
+
     unit: int
     table: Table
     address: int
@@ -121,6 +136,15 @@ class Point:
             return f"value x {self.scale:g} + {self.offset:g}"
         return ""
 
+    @property
+    def type_text(self) -> str:
+        if self.type == "string":
+            return f"string[{self.count * 2}]"
+        if self.count > 1:
+            first = "high" if self.word_order == "big" else "low"
+            return f"{self.type} ({first} word first)"
+        return self.type
+
 
 @dataclass
 class RegisterMap:
@@ -148,32 +172,82 @@ class RegisterMap:
     def lookup(self, unit: int, table: Table, address: int) -> Point | None:
         return self.index.get((unit, table), {}).get(address)
 
+    def node_points(self, node: str) -> list[Point]:
+        return [p for p in self.points if p.node == node]
+
     # ------------------------------------------------------------------ rendering
-    HEADER = ["unit", "table", "address", "type", "access", "node", "signal", "unit_of_measure", "scaling", "description"]  # fmt: skip
+    HEADER = ["unit_id", "table", "address", "type", "access", "node", "signal", "unit", "scaling", "description"]  # fmt: skip
+
+    def _sorted(self) -> list[Point]:
+        return sorted(self.points, key=lambda p: (p.unit, TABLE_ORDER[p.table], p.address))
+
+    @staticmethod
+    def _row(p: Point, address: str, name: str, description: str) -> list[str]:
+        return [
+            str(p.unit),
+            TABLE_NAMES[p.table],
+            address,
+            p.type_text,
+            p.access,
+            p.node or "(gateway)",
+            name,
+            p.unit_text,
+            p.scaling,
+            description,
+        ]
 
     def rows(self) -> list[list[str]]:
+        """One row per point: every register value and every single bit (the CSV)."""
         out = []
-        order = {"ir": 0, "hr": 1, "di": 2, "co": 3}
-        for p in sorted(self.points, key=lambda p: (p.unit, order[p.table], p.address)):
-            name = p.name if p.bit is None or p.kind == "diag_bit" else f"{p.name}.bit{p.bit}"
-            typ = p.type if p.type != "string" else f"string[{p.count * 2}]"
-            if p.kind in ("signal",) and p.count > 1 and p.type != "string":
-                typ += f" ({p.word_order} word first)" if p.word_order == "little" else ""
+        for p in self._sorted():
+            name = p.name if p.kind != "bit" else f"{p.name}.bit{p.bit}"
+            address = str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}"
+            out.append(self._row(p, address, name, p.description))
+        return out
+
+    def grouped_rows(self) -> list[list[str]]:
+        """Like ``rows`` but the bits of one word in one row (the Markdown table)."""
+        out: list[list[str]] = []
+        pts = self._sorted()
+        i = 0
+        while i < len(pts):
+            p = pts[i]
+            if p.kind != "bit":
+                out.append(self.rows_of(p))
+                i += 1
+                continue
+            j = i
+            while (
+                j + 1 < len(pts)
+                and pts[j + 1].kind == "bit"
+                and (pts[j + 1].unit, pts[j + 1].table, pts[j + 1].node, pts[j + 1].name)
+                == (p.unit, p.table, p.node, p.name)
+                and pts[j + 1].address == pts[j].address + 1
+            ):
+                j += 1
+            group = pts[i : j + 1]
+            named = [f"{b.bit} {b.description}" for b in group if not b.description.startswith("(bit ")]
+            desc = f"address = {p.address} + bit; " + "; ".join(named)
             out.append(
                 [
                     str(p.unit),
                     TABLE_NAMES[p.table],
-                    str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}",
-                    typ,
+                    f"{p.address}-{group[-1].address}",
+                    f"bits[{len(group)}]",
                     p.access,
                     p.node or "(gateway)",
-                    name,
-                    p.unit_text,
-                    p.scaling,
-                    p.description,
+                    p.name,
+                    "",
+                    "",
+                    desc,
                 ]
             )
+            i = j + 1
         return out
+
+    def rows_of(self, p: Point) -> list[str]:
+        address = str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}"
+        return self._row(p, address, p.name, p.description)
 
     def to_csv(self) -> str:
         buf = io.StringIO()
@@ -184,9 +258,54 @@ class RegisterMap:
 
     def to_markdown(self) -> str:
         lines = ["| " + " | ".join(self.HEADER) + " |", "|" + "---|" * len(self.HEADER)]
-        for r in self.rows():
+        for r in self.grouped_rows():
             lines.append("| " + " | ".join(c.replace("|", "\\|") for c in r) + " |")
         return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------- compiling
+def _mapped_objects(lp: LoadedProfile, variant: int | None) -> set[object]:
+    """Objects carried by the node's PDO layout (default or the configured variant)."""
+    tpdos, rpdos = lp.profile.layout(variant)
+    return {e.object for p in (*tpdos, *rpdos) for e in p.mapping}
+
+
+def _description(sig: Signal, scale: float, offset: float, engineering: bool) -> str:
+    """The profile's description, value texts and the range a client may write, in register
+    units: raw device values, or the engineering value of an ``as_float`` point."""
+    desc = " ".join(sig.description.split())
+    extra = []
+    if sig.values:
+        extra.append("Values: " + ", ".join(f"{k} {v}" for k, v in sorted(sig.values.items())) + ".")
+    if sig.access != "ro" and (sig.min is not None or sig.max is not None):
+
+        def shown(eng: float | None) -> str:
+            if eng is None:
+                return ""
+            raw = round((eng - sig.offset) / sig.scale) if sig.scale else 0
+            return f"{raw * scale + offset:g}" if engineering else str(raw)
+
+        extra.append(f"Range {shown(sig.min)}..{shown(sig.max)}.")
+    return " ".join([desc, *extra]).strip()
+
+
+def _bit_descriptions(sig: Signal) -> dict[int, str] | None:
+    """Bit number -> description for a word with single named bits; None: no bit points."""
+    single = [bf for bf in sig.bits if bf.width == 1]
+    if not single or sig.type in ("string", "bytes", "float32"):
+        return None
+    names: dict[int, list[str]] = {}
+    texts: dict[int, list[str]] = {}
+    for bf in single:
+        names.setdefault(bf.bit, []).append(bf.name)
+        if bf.description:
+            texts.setdefault(bf.bit, []).append(bf.description)
+    out = {}
+    for bit, ns in names.items():
+        label = " / ".join(ns)
+        text = " / ".join(texts.get(bit, []))
+        out[bit] = f"{label}: {text}" if text else label
+    return out
 
 
 def build_register_map(cfg: Config) -> RegisterMap:
@@ -225,11 +344,13 @@ def build_register_map(cfg: Config) -> RegisterMap:
             add(Point(unit, "ir", base + off, _REG_COUNT[typ], "diag", name, typ, "ro", n, description=desc))  # fmt: skip
         for off, name, desc in NODE_DIAG_BITS:
             add(Point(unit, "di", base + off, 1, "diag_bit", name, "bool", "ro", n, bit=off, description=desc))  # fmt: skip
-        add(Point(unit, "hr", base + NMT_REGISTER, 1, "nmt", "nmt_command", "uint16", "rw", n,
-                  description="write 1 start, 2 stop, 128 pre-op, 129 reset node, 130 reset comm; reads NMT state"))  # fmt: skip
+        add(Point(unit, "hr", base + NMT_REGISTER, 1, "nmt", "nmt_command", "uint16", "rw", n, description=NMT_DESCRIPTION))  # fmt: skip
+        mapped = _mapped_objects(lp, ncfg.pdo_variant)
         next_addr = {"ir": base + SIGNAL_BASE, "hr": base + SIGNAL_BASE}
         next_bit = {"di": base + SIGNAL_BASE, "co": base + SIGNAL_BASE}
         for sig in lp.profile.signals:
+            if sig.transport == "pdo" and sig.object not in mapped:
+                continue
             ov = ncfg.signals.get(sig.name)
             skey = f"{key}.signals.{sig.name}" if ov else key
             writable = sig.access in ("rw", "wo")
@@ -264,48 +385,33 @@ def build_register_map(cfg: Config) -> RegisterMap:
                     engineering=engineering,
                     unit_text=(ov.unit if ov and ov.unit is not None else sig.unit),
                     transport=sig.transport,
-                    description=sig.description,
+                    description=_description(sig, scale, offset, engineering),
                 ),
                 skey,
             )
-            if sig.bits and sig.type not in ("string", "bytes", "float32"):
-                btable: Table = "co" if writable and sig.transport == "pdo" else "di"
-                width = sig.bit_length
-                start = next_bit[btable]
-                next_bit[btable] = start + width
-                named = {}
-                for bf in sig.bits:
-                    for b in range(bf.bit, bf.bit + bf.width):
-                        named[b] = bf
-                for b in range(width):
-                    bf = named.get(b)
-                    desc = bf.description if bf else "(reserved)"
-                    bname = bf.name if bf else f"bit{b}"
-                    add(
-                        Point(
-                            unit,
-                            btable,
-                            start + b,
-                            1,
-                            "bit",
-                            sig.name,
-                            "bool",
-                            "rw" if btable == "co" else "ro",
-                            n,
-                            bit=b,
-                            transport=sig.transport,
-                            description=f"{bname}: {desc}" if desc else bname,
-                        ),
-                        key,
-                    )
-        for ts in text_signals(lp.profile):
-            # AP05 alpha-numeric rows as one string point each (profiles/derived.py)
-            count = (ts.length + 1) // 2
-            addr = next_addr["hr"]
-            next_addr["hr"] = addr + count
-            head = lp.profile.signal(ts.head)
-            add(
-                Point(unit, "hr", addr, count, "signal", ts.name, "string", "rw", n,
-                      transport="pdo", description=ts.as_signal(head).description)
-            )  # fmt: skip
+            bits = _bit_descriptions(sig)
+            if bits is None:
+                continue
+            btable: Table = "co" if writable else "di"
+            width = sig.bit_length
+            start = next_bit[btable]
+            next_bit[btable] = start + width
+            for b in range(width):
+                add(
+                    Point(
+                        unit,
+                        btable,
+                        start + b,
+                        1,
+                        "bit",
+                        sig.name,
+                        "bool",
+                        "rw" if writable else "ro",
+                        n,
+                        bit=b,
+                        transport=sig.transport,
+                        description=bits.get(b, f"(bit {b} not used)"),
+                    ),
+                    key,
+                )
     return rm
