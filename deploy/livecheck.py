@@ -6,11 +6,12 @@ peer) with bounded waits, prints what it saw and exits 0 on success, 1 with a re
     livecheck.py free-port 5020                   # 5020 if free on 127.0.0.1, else a free port
     livecheck.py pick-register < registers.csv    # "unit:address:count" of a position register
     livecheck.py wait-healthy URL TIMEOUT_S       # until GET URL answers 200
+    livecheck.py metrics URL                      # /metrics has counted CAN frames
     livecheck.py modbus-changes HOST PORT UNIT:ADDRESS:COUNT
     livecheck.py zenoh-samples tcp/127.0.0.1:7447 [KEYEXPR]
 
 Polling with sleeps is acceptable here: this script waits on another process in a container,
-not on code in its own process. Imports: the standard library, pymodbus and zenoh (from .venv);
+not on code in its own process. Imports: the standard library, pymodbus, zenoh and prometheus_client (from .venv);
 nothing of the gateway package, so it checks the image as a stranger would.
 """
 
@@ -49,7 +50,11 @@ def pick_register(lines: list[str]) -> str | None:
             continue
         first, _, last = row["address"].partition("-")
         count = int(last) - int(first) + 1 if last else 1
-        return f"{row['unit']}:{first}:{count}"
+        # The Modbus unit id column: "unit_id" (older tables called it "unit").
+        unit_id = row.get("unit_id") or row.get("unit", "")
+        if not unit_id.isdigit():
+            continue
+        return f"{unit_id}:{first}:{count}"
     return None
 
 
@@ -69,6 +74,23 @@ def wait_healthy(url: str, timeout_s: float) -> bool:
         time.sleep(0.5)
     print(f"{url}: not ready after {timeout_s:.0f} s, last answer: {last}")
     return False
+
+
+def metrics_count_frames(url: str) -> bool:
+    """``/metrics`` answers in the Prometheus format and has counted received CAN frames."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    with urllib.request.urlopen(url, timeout=5) as response:
+        text = response.read().decode()
+    values = {
+        sample.name: sample.value
+        for family in text_string_to_metric_families(text)
+        for sample in family.samples
+        if not sample.labels
+    }
+    frames_in = values.get("canopen_gateway_frames_in_total", 0.0)
+    print(f"metrics: {len(text.splitlines())} lines, frames_in_total {frames_in:.0f}")
+    return frames_in > 0
 
 
 async def modbus_changes(host: str, port: int, spec: str, timeout_s: float = 10.0) -> bool:
@@ -138,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("wait-healthy")
     p.add_argument("url")
     p.add_argument("timeout_s", type=float)
+    sub.add_parser("metrics").add_argument("url")
     p = sub.add_parser("modbus-changes")
     p.add_argument("host")
     p.add_argument("port", type=int)
@@ -158,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "wait-healthy":
         return 0 if wait_healthy(args.url, args.timeout_s) else 1
+    if args.command == "metrics":
+        return 0 if metrics_count_frames(args.url) else 1
     if args.command == "modbus-changes":
         return 0 if asyncio.run(modbus_changes(args.host, args.port, args.register)) else 1
     if args.command == "zenoh-samples":
