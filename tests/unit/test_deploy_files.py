@@ -96,6 +96,7 @@ def test_compose_demo_profile_has_bus_server_and_simulator(compose):
     assert canbus["entrypoint"] == ["python", "-m", "can_remote"]
     assert canbus["command"] == ["-i", "virtual", "-c", "vbus0", "-H", "0.0.0.0", "-p", "54701"]
     assert canbus["ports"] == ["127.0.0.1:54701:54701"]  # never on the LAN
+    assert canbus["init"] is True  # can_remote ignores SIGTERM as PID 1
     assert sim["command"] == ["simulate", "-c", "/etc/canopen-gateway/demo-remote.yaml"]
     assert sim["environment"]["CANOPEN_GATEWAY__CAN__CHANNEL"] == "ws://canbus:54701/"
 
