@@ -7,8 +7,9 @@ Each ``Metrics`` owns a dedicated ``CollectorRegistry`` (never the process-globa
 can build several gateways in one process.
 
 The hot path stays cheap: nothing here runs per CAN frame. Counters live in a ``Counters`` object
-of plain Python ints and dicts that the owner increments directly (``counters.frames_in += 1``,
-about 30 ns, no lock, no label lookup); a custom collector reads them only at scrape time. The
+of plain Python ints and dicts that the owner increments directly (``counters.frames_in += 1``:
+about 55 ns here, against 500 ns for a prometheus_client ``Counter.inc()``, which takes a lock);
+a custom collector reads them only at scrape time. The
 per-node gauges (NMT state, alive, data age) are not stored either: at scrape time the collector
 calls the function given to ``set_node_source`` and reads the process image through it.
 
