@@ -100,12 +100,10 @@ def cmd_registers(args: argparse.Namespace) -> int:
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
-    from gateway.zenoh_bridge.keys import all_keys
+    from gateway.zenoh_bridge.keys import render_keys
 
     cfg = _load(args.config)
-    width = max((len(k.key) for k in all_keys(cfg)), default=10)
-    for k in all_keys(cfg):
-        print(f"{k.key:<{width}}  {k.kind:<10}  {k.description}")
+    sys.stdout.write(render_keys(cfg))
     return 0
 
 

@@ -158,6 +158,18 @@ class ModbusSection(_Model):
         return self
 
 
+class ZenohTls(_Model):
+    """TLS of the Zenoh links (``tls/`` endpoints), passed to zenoh's ``transport/link/tls``."""
+
+    root_ca_certificate: str | None = Field(default=None, description="CA file to trust (PEM)")
+    listen_certificate: str | None = Field(default=None, description="our certificate (PEM)")
+    listen_private_key: str | None = Field(default=None, description="its private key (PEM)")
+    connect_certificate: str | None = Field(default=None, description="client cert for mTLS")
+    connect_private_key: str | None = Field(default=None, description="its private key (PEM)")
+    enable_mtls: bool | None = None
+    verify_name_on_connect: bool | None = None
+
+
 class ZenohSection(_Model):
     enabled: bool = True
     mode: Literal["peer", "client"] = "peer"
@@ -167,6 +179,7 @@ class ZenohSection(_Model):
     multicast_scouting: bool = False
     publish: Literal["change", "every"] = "change"
     raw_pdo: bool = False
+    tls: ZenohTls | None = None
     json5: dict[str, Any] = Field(
         default_factory=dict, description="raw zenoh config keys, e.g. {'transport/link/tls/..': ..}"
     )

@@ -1,13 +1,25 @@
-"""Zenoh bridge: publishes the process image, liveliness per node, events, and answers queries.
+"""Zenoh bridge: publishes the process image, node state and EMCY events, raw PDOs on request,
+liveliness tokens per alive node and for the gateway, and answers queries through the command
+service.
 
-Values are published from the bus reader thread (zenoh puts are thread-safe and, with
-congestion control DROP for values, never block the reader); events (state, EMCY) go out from
-the event loop with congestion control BLOCK and a higher priority, so they are never dropped.
-Query callbacks run on zenoh threads: they only hand the query to the event loop, where the
-command service answers it and the query is finalised.
+Threads:
 
-Imports: zenoh, commands, errors, image, zenoh_bridge.keys, modbus.regmap is NOT imported
-(the catalogue gets Modbus addresses through a plain function passed in by the app).
+* values are published on the CAN reader thread, right after the image was written (zenoh puts
+  are thread-safe; congestion control DROP, so a slow network never blocks the reader);
+* events (state, EMCY) are computed on the event loop when the master reports them and put by
+  one sender thread in order, with congestion control BLOCK and priority INTERACTIVE_HIGH: they
+  are never dropped and a congested network never blocks the event loop;
+* a housekeeping task on the event loop publishes held-back samples (max rate) and quality
+  changes that no frame announces (stale by age);
+* query callbacks run on zenoh threads and only hand the query to the event loop, where the
+  command service answers it and the query is finalised.
+
+The session is opened at start; in client mode, with no router reachable, the gateway starts
+anyway and the bridge keeps trying in the background. After a router restart zenoh reconnects
+by itself and re-declares publishers, queryable and liveliness tokens.
+
+Imports: zenoh, commands, errors, image, config, objref, profiles.schema, zenoh_bridge.*.
+Never modbus/ (the catalogue gets Modbus addresses through a function passed in by the app).
 """
 
 from __future__ import annotations
@@ -15,6 +27,8 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import queue
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -23,59 +37,142 @@ import zenoh
 
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.errors import GatewayError, SdoAbort
-from gateway.image import LinkState, NodeImage, ProcessImage, Quality
-from gateway.objref import ObjRef
+from gateway.errors import GatewayError
+from gateway.image import LinkState, NodeImage, ProcessImage
 from gateway.profiles.schema import Signal
 from gateway.zenoh_bridge.keys import (
     GATEWAY_TOKEN,
+    Request,
     alive_key,
+    catalog_key,
     emcy_key,
+    has_wildcard,
+    is_published,
+    is_writable,
+    nmt_key,
+    parse_key,
+    pdo_key,
     prefix_of,
+    set_key,
+    snapshot_key,
     state_key,
     value_key,
 )
+from gateway.zenoh_bridge.payloads import (
+    Scaling,
+    emcy_payload,
+    engineering,
+    error_payload,
+    nmt_command,
+    reply_value,
+    sdo_write_body,
+    set_body,
+    set_many_body,
+    state_fingerprint,
+    state_payload,
+    to_raw,
+    value_payload,
+)
+from gateway.zenoh_bridge.policy import ReportPolicy
 
 log = logging.getLogger("gateway.zenoh")
 
-QUALITY_TEXT = {Quality.GOOD: "good", Quality.STALE: "stale", Quality.BAD: "bad"}
+JSON = zenoh.Encoding.APPLICATION_JSON
+OCTETS = zenoh.Encoding.APPLICATION_OCTET_STREAM
+
+#: config keys of ``zenoh.tls`` -> zenoh's ``transport/link/tls/<key>``
+TLS_KEYS = (
+    "root_ca_certificate",
+    "listen_certificate",
+    "listen_private_key",
+    "connect_certificate",
+    "connect_private_key",
+    "enable_mtls",
+    "verify_name_on_connect",
+)
+
+CLIENT_CONNECT_TIMEOUT_MS = 1000  # one attempt to reach a router in client mode
+REOPEN_BACKOFF_S = (0.5, 1.0, 2.0, 5.0)
+HOUSEKEEPING_PERIOD_S = 0.1
 
 
 def zenoh_config(cfg: Config) -> zenoh.Config:
+    """The session configuration: our keys first, then ``zenoh.json5`` (raw keys) on top."""
     z = cfg.zenoh
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(z.mode))
-    conf.insert_json5("listen/endpoints", json.dumps(z.listen))
+    if z.mode == "peer":  # a client does not listen
+        conf.insert_json5("listen/endpoints", json.dumps(z.listen))
     conf.insert_json5("connect/endpoints", json.dumps(z.connect))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(z.multicast_scouting))
     if z.mode == "client":
-        conf.insert_json5("connect/exit_on_failure", "false")
+        conf.insert_json5("connect/timeout_ms", json.dumps(CLIENT_CONNECT_TIMEOUT_MS))
+    if z.tls is not None:
+        for key in TLS_KEYS:
+            value = getattr(z.tls, key)
+            if isinstance(value, str):  # a file: relative to the config file
+                value = str(cfg.base_dir / value)
+            if value is not None:
+                conf.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
     for key, value in z.json5.items():
         conf.insert_json5(key, json.dumps(value))
     return conf
 
 
-def engineering(sig: Signal, raw: Any, scale: float, offset: float) -> Any:
-    if isinstance(raw, (bytes, bytearray)):
-        if sig.type == "string":
-            return bytes(raw).rstrip(b"\0").decode("ascii", errors="replace")
-        return bytes(raw).hex()
-    if scale != 1.0 or offset:
-        return raw * scale + offset
-    return raw
+def _close_opened(fut: asyncio.Future[Any]) -> None:
+    if not fut.cancelled() and fut.exception() is None:
+        fut.result().close()
 
 
 class _SignalPub:
-    __slots__ = ("sig", "pub", "unit", "scale", "offset", "deadband", "min_interval", "mode",
-                 "last_value", "last_time")  # fmt: skip
+    """One published signal: its key, engineering scaling, report policy and publisher."""
 
-    def __init__(self, sig: Signal, pub: Any, unit: str, scale: float, offset: float,
-                 deadband: float, min_interval: float, mode: str):  # fmt: skip
-        self.sig, self.pub, self.unit = sig, pub, unit
-        self.scale, self.offset = scale, offset
-        self.deadband, self.min_interval, self.mode = deadband, min_interval, mode
-        self.last_value: Any = None
-        self.last_time = 0.0
+    __slots__ = ("sig", "key", "scaling", "policy", "lock", "pub")
+
+    def __init__(self, sig: Signal, key: str, scaling: Scaling, policy: ReportPolicy):
+        self.sig = sig
+        self.key = key
+        self.scaling = scaling
+        self.policy = policy
+        self.lock = threading.Lock()
+        self.pub: Any = None
+
+
+class _EventSender:
+    """Puts events in order on its own thread (BLOCK may wait; the event loop must not)."""
+
+    def __init__(self) -> None:
+        self.queue: queue.SimpleQueue[tuple[Any, bytes, Any] | None] = queue.SimpleQueue()
+        self.thread: threading.Thread | None = None
+        self.sent = 0
+        self.failed = 0
+
+    def start(self) -> None:
+        self.thread = threading.Thread(target=self._run, name="zenoh-events", daemon=True)
+        self.thread.start()
+
+    def put(self, pub: Any, payload: bytes, timestamp: Any) -> None:
+        self.queue.put((pub, payload, timestamp))
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        if self.thread is None:
+            return
+        self.queue.put(None)
+        self.thread.join(timeout_s)
+        self.thread = None
+
+    def _run(self) -> None:
+        while True:
+            item = self.queue.get()
+            if item is None:
+                return
+            pub, payload, ts = item
+            try:
+                pub.put(payload, timestamp=ts)
+                self.sent += 1
+            except zenoh.ZError as exc:
+                self.failed += 1
+                log.warning("zenoh event publication failed: %s", exc)
 
 
 class ZenohBridge:
@@ -94,172 +191,279 @@ class ZenohBridge:
         self.session: zenoh.Session | None = None
         self.loop: asyncio.AbstractEventLoop | None = None
         self.pubs: dict[tuple[str, str], _SignalPub] = {}
-        self.event_pubs: dict[str, Any] = {}
+        self.by_node: dict[str, list[_SignalPub]] = {}
+        self.state_pubs: dict[str, Any] = {}
+        self.emcy_pubs: dict[str, Any] = {}
+        self.raw_pubs: dict[tuple[str, int], Any] = {}
         self.tokens: dict[str, Any] = {}
         self.queryable: Any = None
         self.publications = 0
         self.up = False
+        self._events = _EventSender()
+        self._last_state: dict[str, tuple[Any, ...]] = {}
+        self._tasks: list[asyncio.Task[Any]] = []
+        self._answers: set[asyncio.Future[Any]] = set()
+        self._wrapped: dict[int, Callable[..., None]] = {}
+        self._plan()
+
+    # ------------------------------------------------------------------ what to publish
+    def _plan(self) -> None:
+        default_mode = self.cfg.zenoh.publish
+        for name in self.image.nodes:
+            rt = self.commands.node(name)
+            sps: list[_SignalPub] = []
+            for sig in rt.lp.profile.signals:
+                if not is_published(sig):
+                    continue
+                ov = rt.cfg.signals.get(sig.name)
+                mode = (ov.publish if ov is not None and ov.publish else None) or default_mode
+                if mode == "off":
+                    continue
+                sc = Scaling.of(sig, ov)
+                policy = ReportPolicy(
+                    mode,
+                    deadband=ov.deadband if ov is not None else 0.0,
+                    scale=sc.scale,
+                    max_rate_hz=ov.max_rate_hz if ov is not None else None,
+                )
+                sp = _SignalPub(sig, value_key(self.prefix, name, sig.name), sc, policy)
+                self.pubs[(name, sig.name)] = sp
+                sps.append(sp)
+            self.by_node[name] = sps
+
+    def scaling(self, node: str, sig: Signal) -> Scaling:
+        sp = self.pubs.get((node, sig.name))
+        if sp is not None:
+            return sp.scaling
+        return Scaling.of(sig, self.commands.node(node).cfg.signals.get(sig.name))
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
         self.loop = asyncio.get_running_loop()
-        conf = zenoh_config(self.cfg)
-        self.session = await asyncio.to_thread(zenoh.open, conf)
-        s = self.session
+        conf = zenoh_config(self.cfg)  # a bad config raises here, before anything runs
+        self.image.value_listeners.append(self._on_values)
+        self.image.health_listeners.append(self._on_health)
+        self._events.start()
+        try:
+            await self._open(conf)
+        except zenoh.ZError as exc:
+            if self.cfg.zenoh.mode != "client":
+                await self.stop()
+                raise
+            log.warning("no Zenoh router reachable (%s); retrying in the background", exc)
+            self._tasks.append(asyncio.create_task(self._reopen(), name="zenoh-open"))
+        self._tasks.append(asyncio.create_task(self._housekeeping(), name="zenoh-housekeeping"))
+
+    async def _open(self, conf: zenoh.Config) -> None:
+        opening = asyncio.get_running_loop().run_in_executor(None, zenoh.open, conf)
+        try:
+            session = await asyncio.shield(opening)
+        except asyncio.CancelledError:  # stopped while opening: close what the thread opens
+            opening.add_done_callback(_close_opened)
+            raise
+        try:
+            self._declare(session)
+        except zenoh.ZError:
+            await asyncio.to_thread(session.close)
+            raise
+        log.info(
+            "Zenoh session %s open (%s), prefix %s", session.zid(), self.cfg.zenoh.mode, self.prefix
+        )
+
+    async def _reopen(self) -> None:
+        attempt = 0
+        while self.session is None:
+            await asyncio.sleep(REOPEN_BACKOFF_S[min(attempt, len(REOPEN_BACKOFF_S) - 1)])
+            attempt += 1
+            try:
+                await self._open(zenoh_config(self.cfg))
+            except zenoh.ZError as exc:
+                if attempt in (1, 10) or attempt % 60 == 0:
+                    log.warning(
+                        "Zenoh router still unreachable after %d attempts: %s", attempt, exc
+                    )
+
+    def _declare(self, s: zenoh.Session) -> None:
+        for sp in self.pubs.values():
+            sp.pub = s.declare_publisher(
+                sp.key, encoding=JSON, congestion_control=zenoh.CongestionControl.DROP
+            )
         for name in self.image.nodes:
-            rt = self.commands.node(name)
-            ncfg = rt.cfg
-            for sig in rt.lp.profile.signals:
-                if sig.transport != "pdo":
-                    continue
-                ov = ncfg.signals.get(sig.name)
-                mode = (ov.publish if ov and ov.publish else None) or self.cfg.zenoh.publish
-                if mode == "off":
-                    continue
-                pub = s.declare_publisher(
-                    value_key(self.prefix, name, sig.name),
-                    encoding=zenoh.Encoding.APPLICATION_JSON,
-                    congestion_control=zenoh.CongestionControl.DROP,
-                )
-                self.pubs[(name, sig.name)] = _SignalPub(
-                    sig,
-                    pub,
-                    ov.unit if ov and ov.unit is not None else sig.unit,
-                    ov.scale if ov and ov.scale is not None else sig.scale,
-                    ov.offset if ov and ov.offset is not None else sig.offset,
-                    ov.deadband if ov else 0.0,
-                    1.0 / ov.max_rate_hz if ov and ov.max_rate_hz else 0.0,
-                    mode,
-                )
-            for kind, key in (("state", state_key), ("emcy", emcy_key)):
-                self.event_pubs[f"{name}/{kind}"] = s.declare_publisher(
+            for pubs, key in ((self.state_pubs, state_key), (self.emcy_pubs, emcy_key)):
+                pubs[name] = s.declare_publisher(
                     key(self.prefix, name),
-                    encoding=zenoh.Encoding.APPLICATION_JSON,
+                    encoding=JSON,
                     congestion_control=zenoh.CongestionControl.BLOCK,
                     priority=zenoh.Priority.INTERACTIVE_HIGH,
+                    reliability=zenoh.Reliability.RELIABLE,
                 )
+        if self.cfg.zenoh.raw_pdo:
+            self._declare_raw_pdo(s)
         self.tokens[GATEWAY_TOKEN] = s.liveliness().declare_token(
             alive_key(self.prefix, GATEWAY_TOKEN)
         )
         self.queryable = s.declare_queryable(f"{self.prefix}/**", self._on_query)
-        self.image.value_listeners.append(self._on_values)
-        self.image.health_listeners.append(self._on_health)
+        self.session = s
+        self.up = True
         for node in self.image.nodes.values():
             self._sync_token(node)
-        self.up = True
 
-    async def stop(self) -> None:
-        self.up = False
-        if self._on_values in self.image.value_listeners:
-            self.image.value_listeners.remove(self._on_values)
-        if self._on_health in self.image.health_listeners:
-            self.image.health_listeners.remove(self._on_health)
-        s, self.session = self.session, None
-        if s is not None:
-            await asyncio.to_thread(s.close)
-
-    # ------------------------------------------------------------------ publishing
-    def _payload(self, node: NodeImage, sp: _SignalPub, raw: Any, ts: float, seq: int) -> dict[str, Any]:
-        sig = node.signals[sp.sig.name]
-        d: dict[str, Any] = {
-            "value": engineering(sp.sig, raw, sp.scale, sp.offset),
-            "unit": sp.unit,
-            "ts": ts,
-            "quality": QUALITY_TEXT[node.quality(sig)],
-            "seq": seq,
-        }
-        if sp.sig.bits and isinstance(raw, int):
-            d["bits"] = {
-                b.name: (raw >> b.bit) & ((1 << b.width) - 1) if b.width > 1 else bool(raw >> b.bit & 1)
-                for b in sp.sig.bits
-            }
-        return d
-
-    def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
-        """Called on the bus reader thread for every decoded PDO."""
-        s = self.session
-        if s is None:
-            return
-        now = time.monotonic()
-        pubs = self.pubs
-        for name in names:
-            sp = pubs.get((node.name, name))
-            if sp is None:
-                continue
-            sig = node.signals[name]
-            raw = sig.value
-            if sp.mode == "change":
-                last = sp.last_value
-                if last is not None:
-                    if raw == last:
-                        continue
-                    if sp.deadband and isinstance(raw, (int, float)):
-                        if abs(raw - last) * abs(sp.scale) < sp.deadband:
-                            continue
-                if sp.min_interval and now - sp.last_time < sp.min_interval:
-                    continue
-            sp.last_value = raw
-            sp.last_time = now
-            try:
-                sp.pub.put(
-                    json.dumps(self._payload(node, sp, raw, ts, sig.seq)),
-                    timestamp=s.new_timestamp(),
+    def _declare_raw_pdo(self, s: zenoh.Session) -> None:
+        """Raw bytes of every TPDO received (wrapping its reader-thread handler) and every
+        RPDO sent (the master's RPDO hook), on ``<node>/pdo/<cob-id>``."""
+        master = self.commands.master
+        handlers = master.driver.handlers
+        for name in self.image.nodes:
+            rt = self.commands.node(name)
+            for codec in list(rt.tpdos) + list(rt.rpdos):
+                self.raw_pubs[(name, codec.cob_id)] = s.declare_publisher(
+                    pdo_key(self.prefix, name, codec.cob_id),
+                    encoding=OCTETS,
+                    congestion_control=zenoh.CongestionControl.DROP,
                 )
+            for codec in rt.tpdos:
+                original = handlers.get(codec.cob_id)
+                if original is not None and codec.cob_id not in self._wrapped:
+                    self._wrapped[codec.cob_id] = original
+                    handlers[codec.cob_id] = self._raw_tpdo_handler(
+                        original, self.raw_pubs[(name, codec.cob_id)]
+                    )
+        master.rpdo_hooks.append(self._on_rpdo_sent)
+
+    def _raw_tpdo_handler(self, original: Callable[[Any], None], pub: Any) -> Callable[[Any], None]:
+        def handle(msg: Any) -> None:
+            original(msg)
+            s = self.session
+            if s is None or msg.is_remote_frame:
+                return
+            try:
+                pub.put(bytes(msg.data), timestamp=s.new_timestamp())
                 self.publications += 1
             except zenoh.ZError:
                 pass
 
-    def _state_payload(self, node: NodeImage) -> dict[str, Any]:
-        h = node.health
-        return {
-            "node": node.name,
-            "node_id": node.node_id,
-            "nmt_state": h.nmt_state.name.lower(),
-            "alive": h.alive,
-            "operational": node.operational(),
-            "lifecycle": h.lifecycle,
-            "supervision": h.supervision,
-            "link": h.link.name.lower(),
-            "loss_count": h.loss_count,
-            "boot_count": h.boot_count,
-            "current_errors": [f"0x{c:04X}" for c in h.current_errors],
-            "last_error": h.last_error,
-            "ts": time.time(),
-        }
+        return handle
 
+    def _on_rpdo_sent(self, rt: Any, codec: Any) -> None:
+        s = self.session
+        pub = self.raw_pubs.get((rt.name, codec.cob_id))
+        if s is None or pub is None:
+            return
+        try:
+            pub.put(codec.encode(), timestamp=s.new_timestamp())
+            self.publications += 1
+        except zenoh.ZError:
+            pass
+
+    async def stop(self) -> None:
+        self.up = False
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            try:
+                await t
+            except (asyncio.CancelledError, Exception):  # noqa: BLE001
+                pass
+        self._tasks.clear()
+        if self._on_values in self.image.value_listeners:
+            self.image.value_listeners.remove(self._on_values)
+        if self._on_health in self.image.health_listeners:
+            self.image.health_listeners.remove(self._on_health)
+        master = self.commands.master
+        for cob_id, original in self._wrapped.items():
+            master.driver.handlers[cob_id] = original
+        self._wrapped.clear()
+        if self._on_rpdo_sent in master.rpdo_hooks:
+            master.rpdo_hooks.remove(self._on_rpdo_sent)
+        await asyncio.to_thread(self._events.stop)  # queued events go out before the close
+        s, self.session = self.session, None
+        self.tokens.clear()
+        if s is not None:
+            await asyncio.to_thread(s.close)
+
+    # ------------------------------------------------------------------ values
+    def _offer(self, node: NodeImage, sp: _SignalPub, now: float) -> None:
+        """Publish the signal's current value if its policy says so (any thread)."""
+        s = self.session
+        if s is None or sp.pub is None:
+            return
+        sv = node.signals[sp.sig.name]
+        quality = node.quality(sv, now)
+        with sp.lock:
+            value = sv.value
+            if not sp.policy.offer(value, quality, now):
+                return
+            payload = json.dumps(value_payload(sp.sig, sv, quality, sp.scaling))
+            try:
+                sp.pub.put(payload, timestamp=s.new_timestamp())
+            except zenoh.ZError:
+                return
+            sp.policy.published(value, quality, now)
+        self.publications += 1
+
+    def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
+        """Called on the bus reader thread for every decoded PDO."""
+        if self.session is None:
+            return
+        now = time.monotonic()
+        pubs = self.pubs
+        nname = node.name
+        for name in names:
+            sp = pubs.get((nname, name))
+            if sp is not None:
+                self._offer(node, sp, now)
+
+    def _refresh(self, node: NodeImage, now: float) -> None:
+        """Held-back samples whose time has come, and quality changes without a new frame."""
+        for sp in self.by_node.get(node.name, ()):
+            sv = node.signals[sp.sig.name]
+            if not sv.seq:
+                continue
+            pol = sp.policy
+            if pol.take_due(now) or (
+                pol.last_time_s is not None and node.quality(sv, now) != pol.last_quality
+            ):
+                self._offer(node, sp, now)
+
+    async def _housekeeping(self) -> None:
+        period = HOUSEKEEPING_PERIOD_S
+        rates = [sp.policy.min_interval_s for sp in self.pubs.values() if sp.policy.min_interval_s]
+        if rates:
+            period = max(0.01, min(period, min(rates) / 2))
+        while True:
+            await asyncio.sleep(period)
+            if self.session is None:
+                continue
+            now = time.monotonic()
+            for node in self.image.nodes.values():
+                self._refresh(node, now)
+
+    # ------------------------------------------------------------------ events
     def _on_health(self, node: NodeImage, what: str) -> None:
         """Called on the event loop when a node's health changes or an EMCY arrives."""
         s = self.session
         if s is None:
             return
-        try:
-            if what == "emcy" and node.health.last_emcy is not None:
-                e = node.health.last_emcy
-                payload = {
-                    "node": node.name,
-                    "code": f"0x{e.code:04X}",
-                    "register": e.register,
-                    "manufacturer": e.manufacturer.hex(),
-                    "text": e.text,
-                    "ts": e.timestamp,
-                    "count": node.health.emcy_count,
-                }
-                self.event_pubs[f"{node.name}/emcy"].put(json.dumps(payload), timestamp=s.new_timestamp())
-            else:
-                self.event_pubs[f"{node.name}/state"].put(
-                    json.dumps(self._state_payload(node)), timestamp=s.new_timestamp()
+        if what == "emcy":
+            rec = node.health.last_emcy
+            if rec is not None:
+                payload = emcy_payload(node, rec, node.health.emcy_count)
+                self._events.put(
+                    self.emcy_pubs[node.name], json.dumps(payload).encode(), s.new_timestamp()
                 )
-            self.publications += 1
-        except zenoh.ZError as exc:
-            log.warning("zenoh event publication failed: %s", exc)
+        else:
+            d = state_payload(node)
+            fp = state_fingerprint(d)
+            if self._last_state.get(node.name) != fp:
+                self._last_state[node.name] = fp
+                self._events.put(
+                    self.state_pubs[node.name], json.dumps(d).encode(), s.new_timestamp()
+                )
         self._sync_token(node)
-        if what == "state":
-            # republish values with their new quality on the next change
-            for (n, _), sp in self.pubs.items():
-                if n == node.name:
-                    sp.last_value = None
+        self._refresh(node, time.monotonic())
 
     def _sync_token(self, node: NodeImage) -> None:
+        """A token while the node is alive and its process-data link is not in fault."""
         s = self.session
         if s is None:
             return
@@ -274,132 +478,208 @@ class ZenohBridge:
             except zenoh.ZError:
                 pass
 
+    @property
+    def events_sent(self) -> int:
+        return self._events.sent
+
     # ------------------------------------------------------------------ queries
     def _on_query(self, query: zenoh.Query) -> None:
         """Zenoh thread: hand over to the event loop; never block here."""
         loop = self.loop
-        if loop is None or loop.is_closed():
+        if loop is None or loop.is_closed() or self.session is None:
             query.drop()
             return
         try:
-            loop.call_soon_threadsafe(lambda: asyncio.ensure_future(self._answer(query)))
+            loop.call_soon_threadsafe(self._spawn_answer, query)
         except RuntimeError:
             query.drop()
+
+    def _spawn_answer(self, query: zenoh.Query) -> None:
+        fut = asyncio.ensure_future(self._answer(query))
+        self._answers.add(fut)
+        fut.add_done_callback(self._answers.discard)
+
+    def _reply(self, query: zenoh.Query, key: str, result: Any) -> None:
+        s = self.session
+        query.reply(
+            key,
+            json.dumps(result),
+            encoding=JSON,
+            timestamp=s.new_timestamp() if s is not None else None,
+        )
 
     async def _answer(self, query: zenoh.Query) -> None:
         key = str(query.key_expr)
         try:
+            if has_wildcard(key):
+                self._answer_wildcard(query, key)
+                return
             payload = query.payload.to_bytes() if query.payload is not None else None
-            result = await self._dispatch(key, payload)
-            query.reply(key, json.dumps(result), encoding=zenoh.Encoding.APPLICATION_JSON)
-        except GatewayError as exc:
-            query.reply_err(json.dumps(error_json(exc)), encoding=zenoh.Encoding.APPLICATION_JSON)
-        except (ValueError, KeyError, TypeError) as exc:
-            query.reply_err(json.dumps({"error": "bad_request", "message": str(exc)}))
+            type_param = query.parameters.get("type")
+            result = await self.dispatch(key, payload, type_param)
+            self._reply(query, key, result)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
-            log.exception("zenoh query %s failed", key)
-            query.reply_err(json.dumps({"error": "internal", "message": str(exc)}))
+            if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
+                log.exception("zenoh query %s failed", key)
+            try:
+                query.reply_err(json.dumps(error_payload(exc, key)), encoding=JSON)
+            except zenoh.ZError:
+                pass
         finally:
             query.drop()
 
-    async def _dispatch(self, key: str, payload: bytes | None) -> Any:
-        if not key.startswith(self.prefix + "/"):
-            raise ValueError(f"key {key} is not under {self.prefix}")
-        parts = key[len(self.prefix) + 1 :].split("/")
-        if parts == ["catalog"]:
-            return self.catalog_fn() if self.catalog_fn else {}
-        if parts[0] == "alive":
-            raise ValueError("alive/* are liveliness tokens; use a liveliness query")
-        node = parts[0]
-        rt = self.commands.node(node)
-        rest = parts[1:]
-        if rest == ["snapshot"]:
-            return self.snapshot(rt.image)
-        if rest == ["state"]:
-            return self._state_payload(rt.image)
-        if rest == ["nmt"]:
-            cmd = _text(payload, "NMT command: start, stop, preop, reset or reset-comm")
-            self.commands.nmt(node, cmd.strip('"'))
-            return {"ok": True, "node": node, "nmt": cmd.strip('"')}
-        if len(rest) == 3 and rest[0] == "sdo":
-            obj = ObjRef(int(rest[1], 16), int(rest[2], 16))
-            if payload:
-                body = _json(payload, 'a JSON value, or {"value": v, "type": "uint16"}')
-                value, typ = (body.get("value"), body.get("type")) if isinstance(body, dict) else (body, None)
-                await self.commands.sdo_write(node, obj, value, typ)
-                return {"ok": True, "object": str(obj)}
-            typ = None
-            value = await self.commands.sdo_read(node, obj, typ)
-            if isinstance(value, (bytes, bytearray)):
-                value = bytes(value).hex()
-            return {"object": str(obj), "value": value}
-        if rest == ["set"]:
-            body = _json(payload, 'a JSON object {"signal": value, ...}')
-            if not isinstance(body, dict) or not body:
-                raise ValueError('expected a JSON object {"signal": value, ...}')
-            await self.commands.write_signals(node, body)
-            return {"ok": True, "written": sorted(body)}
-        if len(rest) == 2 and rest[0] == "set":
-            body = _json(payload, 'a JSON value or {"value": v} or {"bits": {"name": true}}')
-            sig = self.commands.signal(rt, rest[1])
-            if isinstance(body, dict) and "bits" in body:
-                bits = {}
-                names = {b.name: b.bit for b in sig.bits}
-                for bname, on in body["bits"].items():
-                    if bname not in names:
-                        raise ValueError(f"{rest[1]} has no bit {bname!r}; bits: {sorted(names)}")
-                    bits[names[bname]] = bool(on)
-                await self.commands.write_bits(node, rest[1], bits)
-            else:
-                value = body.get("value") if isinstance(body, dict) else body
-                await self.commands.write_signal(node, rest[1], value)
-            return {"ok": True, "signal": rest[1]}
-        raise ValueError(
-            f"unknown key {key}; expected {self.prefix}/<node>/(snapshot|state|nmt|set|set/<signal>|"
-            "sdo/<index hex>/<sub hex>) or catalog"
-        )
+    def _answer_wildcard(self, query: zenoh.Query, key: str) -> None:
+        """A key expression with wildcards gets the read-only answers it matches (catalogue,
+        states, snapshots, latest values); commands and SDO never run on a wildcard."""
+        ke = zenoh.KeyExpr(key)
+        p = self.prefix
+        if ke.intersects(catalog_key(p)):
+            self._reply(query, catalog_key(p), self.catalog())
+        for name, node in self.image.nodes.items():
+            if ke.intersects(state_key(p, name)):
+                self._reply(query, state_key(p, name), state_payload(node))
+            if ke.intersects(snapshot_key(p, name)):
+                self._reply(query, snapshot_key(p, name), self.snapshot(node))
+            for sp in self.by_node.get(name, ()):
+                if ke.intersects(sp.key):
+                    self._reply(query, sp.key, self._value_now(node, sp.sig))
+
+    async def dispatch(self, key: str, payload: bytes | None, type_param: str | None = None) -> Any:
+        """Answer one concrete query key (also usable without zenoh, e.g. from tests)."""
+        req = parse_key(self.prefix, key)
+        if req.kind == "catalog":
+            return self.catalog()
+        rt = self.commands.node(req.node)
+        node = rt.image
+        if req.kind == "snapshot":
+            return self.snapshot(node)
+        if req.kind == "state":
+            return state_payload(node)
+        if req.kind == "nmt":
+            cmd = nmt_command(payload)
+            self.commands.nmt(req.node, cmd)
+            return {"ok": True, "node": req.node, "nmt": cmd}
+        if req.kind == "sdo":
+            return await self._sdo(req, payload, type_param)
+        if req.kind == "value":
+            sig = self.commands.signal(rt, req.signal)
+            if sig.transport == "sdo":
+                raw = await self.commands.read_signal(req.node, req.signal)
+                sc = self.scaling(req.node, sig)
+                return {
+                    "value": engineering(sig, raw, sc),
+                    "unit": sc.unit,
+                    "ts": time.time(),
+                    "quality": "good",
+                    "seq": None,
+                    "source": "sdo",
+                }
+            return self._value_now(node, sig)
+        if req.kind == "set":
+            return await self._set(req, payload)
+        if req.kind == "set_many":
+            body = set_many_body(payload)
+            raws = {}
+            for name, value in body.items():
+                sig = self.commands.signal(rt, name)
+                raws[name] = to_raw(sig, value, self.scaling(req.node, sig))
+            await self.commands.write_signals(req.node, raws)
+            return {"ok": True, "node": req.node, "written": raws}
+        raise ValueError(f"unsupported request {req.kind}")  # pragma: no cover
+
+    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None) -> Any:
+        assert req.obj is not None
+        obj = str(req.obj)
+        if payload:
+            value, typ = sdo_write_body(payload)
+            await self.commands.sdo_write(req.node, req.obj, value, typ or type_param)
+            return {"ok": True, "node": req.node, "object": obj, "value": reply_value(value)}
+        value = await self.commands.sdo_read(req.node, req.obj, type_param)
+        return {"node": req.node, "object": obj, "value": reply_value(value)}
+
+    async def _set(self, req: Request, payload: bytes | None) -> Any:
+        rt = self.commands.node(req.node)
+        sig = self.commands.signal(rt, req.signal)
+        body = set_body(payload)
+        via = "rpdo" if sig.transport == "pdo" and req.signal in rt.rpdo_by_signal else "sdo"
+        if body.bits is not None:
+            named = {b.name: b for b in sig.bits}
+            bits: dict[int, bool] = {}
+            for bname, on in body.bits.items():
+                b = named.get(bname)
+                if b is None:
+                    raise ValueError(f"{req.signal} has no bit {bname!r}; bits: {sorted(named)}")
+                if not b.writable or b.width != 1:
+                    writable = sorted(n for n, x in named.items() if x.writable and x.width == 1)
+                    raise ValueError(
+                        f"bit {bname} of {req.signal} is not writable; writable: {writable}"
+                    )
+                bits[b.bit] = on
+            await self.commands.write_bits(req.node, req.signal, bits)
+            return {
+                "ok": True,
+                "node": req.node,
+                "signal": req.signal,
+                "bits": body.bits,
+                "via": via,
+            }
+        raw = body.value if body.raw else to_raw(sig, body.value, self.scaling(req.node, sig))
+        await self.commands.write_signal(req.node, req.signal, raw)
+        return {
+            "ok": True,
+            "node": req.node,
+            "signal": req.signal,
+            "value": body.value,
+            "raw": raw,
+            "via": via,
+        }
+
+    # ------------------------------------------------------------------ read-only answers
+    def _value_now(self, node: NodeImage, sig: Signal) -> dict[str, Any]:
+        sv = node.signals[sig.name]
+        return value_payload(sig, sv, node.quality(sv), self.scaling(node.name, sig))
 
     def snapshot(self, node: NodeImage) -> dict[str, Any]:
         rt = self.commands.node(node.name)
-        values = {}
-        for sig in rt.lp.profile.signals:
-            if sig.transport != "pdo":
+        values = {
+            sig.name: self._value_now(node, sig)
+            for sig in rt.lp.profile.signals
+            if sig.transport == "pdo"
+        }
+        return {"node": node.name, "state": state_payload(node), "values": values}
+
+    def catalog(self) -> dict[str, Any]:
+        """The app's catalogue (types, units, Modbus addresses) with this node's Zenoh keys and
+        the scaling in force (overrides applied)."""
+        cat = dict(self.catalog_fn()) if self.catalog_fn else {"nodes": {}}
+        p = self.prefix
+        cat["prefix"] = p
+        for name, n in cat.get("nodes", {}).items():
+            try:
+                rt = self.commands.node(name)
+            except GatewayError:
                 continue
-            sv = node.signals[sig.name]
-            sp = self.pubs.get((node.name, sig.name))
-            scale = sp.scale if sp else sig.scale
-            offset = sp.offset if sp else sig.offset
-            values[sig.name] = {
-                "value": engineering(sig, sv.value, scale, offset) if sv.seq else None,
-                "unit": sp.unit if sp else sig.unit,
-                "ts": sv.timestamp,
-                "quality": QUALITY_TEXT[node.quality(sv)],
-                "seq": sv.seq,
+            n["keys"] = {
+                "alive": alive_key(p, name),
+                "state": state_key(p, name),
+                "emcy": emcy_key(p, name),
+                "snapshot": snapshot_key(p, name),
+                "nmt": nmt_key(p, name),
+                "set": set_key(p, name),
             }
-        return {"node": node.name, "state": self._state_payload(node), "values": values}
-
-
-def error_json(exc: GatewayError) -> dict[str, Any]:
-    d: dict[str, Any] = {"error": exc.kind, "message": str(exc)}
-    if isinstance(exc, SdoAbort):
-        d["code"] = f"0x{exc.code:08X}"
-        d["text"] = exc.text
-    return d
-
-
-def _json(payload: bytes | None, expected: str) -> Any:
-    if not payload:
-        raise ValueError(f"payload missing: expected {expected}")
-    try:
-        return json.loads(payload)
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise ValueError(f"payload is not JSON: expected {expected}") from None
-
-
-def _text(payload: bytes | None, expected: str) -> str:
-    if not payload:
-        raise ValueError(f"payload missing: expected {expected}")
-    try:
-        return payload.decode("utf-8").strip()
-    except UnicodeDecodeError:
-        raise ValueError(f"payload is not text: expected {expected}") from None
+            for sname, s in n.get("signals", {}).items():
+                try:
+                    sig = rt.lp.profile.signal(sname)
+                except KeyError:
+                    continue
+                sc = self.scaling(name, sig)
+                s["unit"], s["scale"], s["offset"] = sc.unit, sc.scale, sc.offset
+                keys: dict[str, str] = {}
+                if (name, sname) in self.pubs:
+                    keys["value"] = value_key(p, name, sname)
+                elif sig.transport == "sdo" and sig.access != "wo":
+                    keys["get"] = value_key(p, name, sname)
+                if is_writable(sig):
+                    keys["set"] = set_key(p, name, sname)
+                s["zenoh"] = keys
+        return cat

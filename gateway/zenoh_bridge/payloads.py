@@ -1,0 +1,260 @@
+"""JSON payloads of the Zenoh bridge (pure: no zenoh import): value samples, node state and
+EMCY events, error replies, and the parsing of what clients send in queries.
+
+Values on Zenoh are engineering values (raw x scale + offset, with the node's overrides of unit,
+scale and offset); writes take engineering values too and are turned back into raw values here,
+or ``{"raw": v}`` passes a raw device value through. Everything a client may send that does not
+parse raises ``ValueError`` with a message saying what was expected.
+
+Imports: image, errors, profiles.schema, config (types only). Never zenoh, bus/, modbus/.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.config import SignalOverride
+from gateway.errors import GatewayError, SdoAbort
+from gateway.image import EmcyRecord, NodeImage, Quality, SignalValue
+from gateway.profiles.schema import Signal
+
+QUALITY_TEXT = {Quality.GOOD: "good", Quality.STALE: "stale", Quality.BAD: "bad"}
+
+#: DS-301 7.2.7.1: EMCY error code 0000h = error reset / no error
+EMCY_ERROR_RESET = 0x0000
+
+NMT_EXPECTED = 'an NMT command: start, stop, preop, reset or reset-comm (text, "start" or {"command": "start"})'
+SDO_WRITE_EXPECTED = 'a JSON value, {"value": v, "type": "uint16"} or {"hex": "0a0b"}'
+SET_EXPECTED = 'a JSON value, {"value": v}, {"raw": v} or {"bits": {"name": true}}'
+SET_MANY_EXPECTED = 'a JSON object {"signal": value, ...}'
+
+
+@dataclass(frozen=True)
+class Scaling:
+    """Engineering view of a signal on this gateway: profile values with the node's overrides."""
+
+    unit: str
+    scale: float
+    offset: float
+
+    @classmethod
+    def of(cls, sig: Signal, ov: SignalOverride | None) -> Scaling:
+        return cls(
+            ov.unit if ov is not None and ov.unit is not None else sig.unit,
+            ov.scale if ov is not None and ov.scale is not None else sig.scale,
+            ov.offset if ov is not None and ov.offset is not None else sig.offset,
+        )
+
+    @property
+    def identity(self) -> bool:
+        return self.scale == 1.0 and not self.offset
+
+
+def engineering(sig: Signal, raw: Any, sc: Scaling) -> Any:
+    """Raw device value -> JSON-able engineering value."""
+    if raw is None:
+        return None
+    if isinstance(raw, (bytes, bytearray)):
+        if sig.type == "string":
+            return bytes(raw).rstrip(b"\0").decode("ascii", errors="replace")
+        return bytes(raw).hex()
+    if sc.identity or isinstance(raw, str):
+        return raw
+    return round(raw * sc.scale + sc.offset, 9)
+
+
+def to_raw(sig: Signal, value: Any, sc: Scaling) -> Any:
+    """Engineering value from a client -> raw device value (range checks are the command
+    service's). Integer types are rounded to the nearest step."""
+    if sc.identity or sig.type in ("string", "bytes") or isinstance(value, (str, bool)):
+        return value
+    if not isinstance(value, (int, float)):
+        raise ValueError(f"{sig.name}: expected a number, got {value!r}")
+    if sc.scale == 0:
+        raise ValueError(f"{sig.name}: scale is 0, write {{'raw': value}} instead")
+    raw = (value - sc.offset) / sc.scale
+    return raw if sig.type == "float32" else round(raw)
+
+
+def bits_of(sig: Signal, raw: Any) -> dict[str, Any] | None:
+    if not sig.bits or not isinstance(raw, int):
+        return None
+    return {
+        b.name: (raw >> b.bit) & ((1 << b.width) - 1) if b.width > 1 else bool(raw >> b.bit & 1)
+        for b in sig.bits
+    }
+
+
+def value_payload(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -> dict[str, Any]:
+    """A value sample: value, unit, source timestamp (s since the epoch), quality, seq."""
+    raw = sv.value
+    d: dict[str, Any] = {
+        "value": engineering(sig, raw, sc) if sv.seq else None,
+        "unit": sc.unit,
+        "ts": sv.timestamp if sv.seq else None,
+        "quality": QUALITY_TEXT[quality],
+        "seq": sv.seq,
+    }
+    if sv.seq:
+        text = sig.values.get(raw) if isinstance(raw, int) else None
+        if text is not None:
+            d["text"] = text
+        bits = bits_of(sig, raw)
+        if bits is not None:
+            d["bits"] = bits
+    return d
+
+
+def state_payload(node: NodeImage, now_s: float | None = None) -> dict[str, Any]:
+    """The health of a node, published on ``<node>/state`` when it changes."""
+    h = node.health
+    age = node.data_age_s()
+    return {
+        "node": node.name,
+        "node_id": node.node_id,
+        "nmt_state": h.nmt_state.name.lower(),
+        "alive": h.alive,
+        "operational": node.operational(),
+        "lifecycle": h.lifecycle,
+        "supervision": h.supervision,
+        "link": h.link.name.lower(),
+        "loss_count": h.loss_count,
+        "boot_count": h.boot_count,
+        "emcy_count": h.emcy_count,
+        "current_errors": [f"0x{c:04X}" for c in h.current_errors],
+        "last_error": h.last_error,
+        "data_age_s": None if age is None else round(age, 3),
+        "ts": time.time() if now_s is None else now_s,
+    }
+
+
+def state_fingerprint(d: dict[str, Any]) -> tuple[Any, ...]:
+    """What makes two state payloads different events (not the time, not the data age)."""
+    return tuple(
+        (k, tuple(v) if isinstance(v, list) else v)
+        for k, v in d.items()
+        if k not in ("ts", "data_age_s")
+    )
+
+
+def emcy_payload(node: NodeImage, rec: EmcyRecord, count: int) -> dict[str, Any]:
+    return {
+        "node": node.name,
+        "node_id": node.node_id,
+        "code": f"0x{rec.code:04X}",
+        "register": rec.register,
+        "manufacturer": rec.manufacturer.hex(),
+        "text": rec.text,
+        "reset": rec.code == EMCY_ERROR_RESET,
+        "current_errors": [f"0x{c:04X}" for c in node.health.current_errors],
+        "ts": rec.timestamp,
+        "count": count,
+    }
+
+
+def error_payload(exc: BaseException, key: str) -> dict[str, Any]:
+    """The body of a ``reply_err``: a stable ``error`` kind and the words a user needs."""
+    if isinstance(exc, GatewayError):
+        d: dict[str, Any] = {"error": exc.kind, "message": str(exc), "key": key}
+        if isinstance(exc, SdoAbort):
+            d["code"] = f"0x{exc.code:08X}"
+            d["text"] = exc.text
+        return d
+    if isinstance(exc, (ValueError, KeyError, TypeError)):
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+        return {"error": "bad_request", "message": str(msg), "key": key}
+    return {"error": "internal", "message": f"{type(exc).__name__}: {exc}", "key": key}
+
+
+# --------------------------------------------------------------------------- parsing requests
+
+
+def json_body(payload: bytes | None, expected: str) -> Any:
+    if not payload:
+        raise ValueError(f"payload missing: expected {expected}")
+    try:
+        return json.loads(payload)
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise ValueError(f"payload is not JSON: expected {expected}") from None
+
+
+def nmt_command(payload: bytes | None) -> str:
+    if not payload:
+        raise ValueError(f"payload missing: expected {NMT_EXPECTED}")
+    try:
+        text = payload.decode("utf-8").strip()
+    except UnicodeDecodeError:
+        raise ValueError(f"payload is not text: expected {NMT_EXPECTED}") from None
+    try:
+        body = json.loads(text)
+    except json.JSONDecodeError:
+        body = text
+    if isinstance(body, dict):
+        body = body.get("command")
+    if not isinstance(body, str) or not body:
+        raise ValueError(f"expected {NMT_EXPECTED}")
+    return body
+
+
+def sdo_write_body(payload: bytes | None) -> tuple[Any, str | None]:
+    """(value, type) of an SDO download; bytes for ``{"hex": ...}``."""
+    body = json_body(payload, SDO_WRITE_EXPECTED)
+    if isinstance(body, dict):
+        if "hex" in body:
+            try:
+                return bytes.fromhex(str(body["hex"])), None
+            except ValueError:
+                raise ValueError(f"hex {body['hex']!r} is not hexadecimal bytes") from None
+        if "value" not in body:
+            raise ValueError(f"expected {SDO_WRITE_EXPECTED}")
+        typ = body.get("type")
+        if typ is not None and not isinstance(typ, str):
+            raise ValueError(f"type must be a name such as uint16; expected {SDO_WRITE_EXPECTED}")
+        return body["value"], typ
+    if isinstance(body, list) or body is None:
+        raise ValueError(f"expected {SDO_WRITE_EXPECTED}")
+    return body, None
+
+
+@dataclass(frozen=True)
+class SetRequest:
+    """A write of one signal: an engineering value, a raw value, or named bits."""
+
+    value: Any = None
+    raw: bool = False
+    bits: dict[str, bool] | None = None
+
+
+def set_body(payload: bytes | None) -> SetRequest:
+    body = json_body(payload, SET_EXPECTED)
+    if isinstance(body, dict):
+        if "bits" in body:
+            bits = body["bits"]
+            if not isinstance(bits, dict) or not bits:
+                raise ValueError('bits: expected {"bit name": true|false, ...}')
+            return SetRequest(bits={str(k): bool(v) for k, v in bits.items()})
+        if "raw" in body:
+            return SetRequest(body["raw"], raw=True)
+        if "value" in body:
+            return SetRequest(body["value"])
+        raise ValueError(f"expected {SET_EXPECTED}")
+    if isinstance(body, list) or body is None:
+        raise ValueError(f"expected {SET_EXPECTED}")
+    return SetRequest(body)
+
+
+def set_many_body(payload: bytes | None) -> dict[str, Any]:
+    body = json_body(payload, SET_MANY_EXPECTED)
+    if not isinstance(body, dict) or not body:
+        raise ValueError(f"expected {SET_MANY_EXPECTED}")
+    return body
+
+
+def reply_value(value: Any) -> Any:
+    """A value read by SDO, JSON-able (bytes as hex)."""
+    if isinstance(value, (bytes, bytearray)):
+        return bytes(value).hex()
+    return value
