@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP_RUN  := $(VENV)/.installed-run
 STAMP_TEST := $(VENV)/.installed-test
 
-.PHONY: demo test tools lint bench container-test clean
+.PHONY: demo test tools lint bench container-test deploy-lint clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -29,17 +29,20 @@ tools:
 	  echo "note: mbpoll not installed; its tests will be skipped"
 
 test: $(STAMP_TEST) tools
-	$(BIN)/ruff check gateway tests $(wildcard bench)
+	$(BIN)/ruff check gateway tests deploy $(wildcard bench)
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP_TEST)
-	$(BIN)/ruff check gateway tests $(wildcard bench)
+	$(BIN)/ruff check gateway tests deploy $(wildcard bench)
 
 bench: $(STAMP_TEST)
 	$(BIN)/python -m bench
 
 container-test: $(STAMP_TEST)
 	bash deploy/container-test.sh
+
+deploy-lint:
+	bash deploy/lint.sh
 
 clean:
 	rm -rf $(VENV) build *.egg-info
