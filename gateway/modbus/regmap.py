@@ -39,7 +39,12 @@ from gateway.profiles import LoadedProfile, load_profile
 from gateway.profiles.schema import Signal
 
 Table = Literal["ir", "hr", "di", "co"]
-TABLE_NAMES = {"ir": "input register", "hr": "holding register", "di": "discrete input", "co": "coil"}
+TABLE_NAMES = {
+    "ir": "input register",
+    "hr": "holding register",
+    "di": "discrete input",
+    "co": "coil",
+}
 TABLE_ORDER = {"ir": 0, "hr": 1, "di": 2, "co": 3}
 
 SIGNAL_BASE = 100
@@ -93,7 +98,15 @@ _REG_TYPE = {
     "int24": "int32", "uint24": "uint32", "int32": "int32", "uint32": "uint32", "int64": "int64",
     "uint64": "uint64", "float32": "float32", "string": "string", "bytes": "string",
 }  # fmt: skip
-_REG_COUNT = {"int16": 1, "uint16": 1, "int32": 2, "uint32": 2, "float32": 2, "int64": 4, "uint64": 4}
+_REG_COUNT = {
+    "int16": 1,
+    "uint16": 1,
+    "int32": 2,
+    "uint32": 2,
+    "float32": 2,
+    "int64": 4,
+    "uint64": 4,
+}
 
 
 class RegisterMapError(Exception):
@@ -226,7 +239,9 @@ class RegisterMap:
             ):
                 j += 1
             group = pts[i : j + 1]
-            named = [f"{b.bit} {b.description}" for b in group if not b.description.startswith("(bit ")]
+            named = [
+                f"{b.bit} {b.description}" for b in group if not b.description.startswith("(bit ")
+            ]
             desc = f"address = {p.address} + bit; " + "; ".join(named)
             out.append(
                 [
@@ -276,7 +291,9 @@ def _description(sig: Signal, scale: float, offset: float, engineering: bool) ->
     desc = " ".join(sig.description.split())
     extra = []
     if sig.values:
-        extra.append("Values: " + ", ".join(f"{k} {v}" for k, v in sorted(sig.values.items())) + ".")
+        extra.append(
+            "Values: " + ", ".join(f"{k} {v}" for k, v in sorted(sig.values.items())) + "."
+        )
     if sig.access != "ro" and (sig.min is not None or sig.max is not None):
 
         def shown(eng: float | None) -> str:
@@ -316,7 +333,9 @@ def build_register_map(cfg: Config) -> RegisterMap:
     rm.units[gw_unit] = None
     for off, name, typ, desc in GATEWAY_REGS:
         rm.add(
-            Point(gw_unit, "ir", off, _REG_COUNT[typ], "gateway", name, typ, "ro", description=desc),
+            Point(
+                gw_unit, "ir", off, _REG_COUNT[typ], "gateway", name, typ, "ro", description=desc
+            ),
             "modbus",
         )
     for k, ncfg in enumerate(cfg.nodes, start=1):
@@ -330,7 +349,9 @@ def build_register_map(cfg: Config) -> RegisterMap:
             rm.units[unit] = ncfg.name
         limit = base + stride if flat else 0x10000
 
-        def add(p: Point, key: str = key, base: int = base, limit: int = limit, node: str = ncfg.name) -> None:
+        def add(
+            p: Point, key: str = key, base: int = base, limit: int = limit, node: str = ncfg.name
+        ) -> None:
             if p.end > limit:
                 raise RegisterMapError(
                     "modbus.flat_stride",

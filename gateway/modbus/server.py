@@ -83,7 +83,8 @@ READ_COILS, READ_DISCRETE_INPUTS, READ_HOLDING, READ_INPUT = 0x01, 0x02, 0x03, 0
 WRITE_COIL, WRITE_REGISTER, WRITE_COILS, WRITE_REGISTERS = 0x05, 0x06, 0x0F, 0x10
 MASK_WRITE_REGISTER, READ_WRITE_REGISTERS = 0x16, 0x17
 READ_TABLE: dict[int, Table] = {READ_COILS: "co", READ_DISCRETE_INPUTS: "di", READ_HOLDING: "hr", READ_INPUT: "ir"}  # fmt: skip
-SUPPORTED = {*READ_TABLE, WRITE_COIL, WRITE_REGISTER, WRITE_COILS, WRITE_REGISTERS, MASK_WRITE_REGISTER, READ_WRITE_REGISTERS}  # fmt: skip
+WRITES = {WRITE_COIL, WRITE_REGISTER, WRITE_COILS, WRITE_REGISTERS, MASK_WRITE_REGISTER, READ_WRITE_REGISTERS}  # fmt: skip
+SUPPORTED = {*READ_TABLE, *WRITES}
 
 # Quantity limits (Modbus Application Protocol V1.1b3, 6.1-6.4, 6.11, 6.12, 6.17)
 MAX_READ_BITS = 0x07D0
@@ -221,7 +222,11 @@ def to_registers(value: Any, p: Point) -> list[int]:
     with the point's word order, engineering points as float32 of raw x scale + offset."""
     t = p.type
     if t == "string":
-        raw = value if isinstance(value, (bytes, bytearray)) else str(value).encode("ascii", "replace")
+        raw = (
+            value
+            if isinstance(value, (bytes, bytearray))
+            else str(value).encode("ascii", "replace")
+        )
         raw = bytes(raw)[: p.count * 2].ljust(p.count * 2, b"\0")
         return [(raw[i] << 8) | raw[i + 1] for i in range(0, len(raw), 2)]
     if p.engineering:
@@ -268,7 +273,9 @@ def from_registers(regs: list[int], p: Point) -> Any:
 class ImageDatastore:
     """Reads from the image, writes through the command service, by the register map."""
 
-    def __init__(self, regmap: RegisterMap, image: ProcessImage, commands: CommandService, cfg: Config):
+    def __init__(
+        self, regmap: RegisterMap, image: ProcessImage, commands: CommandService, cfg: Config
+    ):
         self.regmap = regmap
         self.image = image
         self.commands = commands
@@ -419,7 +426,9 @@ class ImageDatastore:
             return int(time.monotonic() - self.image.started_monotonic)
         if name.startswith("version_"):
             parts = (gateway.__version__.split(".") + ["0", "0"])[:3]
-            digits = "".join(ch for ch in parts[("major", "minor", "patch").index(name[8:])] if ch.isdigit())
+            digits = "".join(
+                ch for ch in parts[("major", "minor", "patch").index(name[8:])] if ch.isdigit()
+            )
             return int(digits or 0)
         nodes = self.image.nodes.values()
         if name == "nodes_configured":
@@ -484,7 +493,9 @@ class ImageDatastore:
             a += p.count
         return out
 
-    async def write_registers(self, unit: int, address: int, values: list[int], peer: str | None) -> None:
+    async def write_registers(
+        self, unit: int, address: int, values: list[int], peer: str | None
+    ) -> None:
         self.check_access(peer)
         points = self._points_for(unit, "hr", address, len(values))
         nmt: list[tuple[str, str]] = []
@@ -518,7 +529,9 @@ class ImageDatastore:
             else:
                 await self.commands.write_signals(node, vals)
 
-    async def write_coils(self, unit: int, address: int, values: list[bool], peer: str | None) -> None:
+    async def write_coils(
+        self, unit: int, address: int, values: list[bool], peer: str | None
+    ) -> None:
         self.check_access(peer)
         points = self._points_for(unit, "co", address, len(values))
         grouped: dict[tuple[str, str], dict[int, bool]] = {}
@@ -529,7 +542,9 @@ class ImageDatastore:
             transport[(p.node, p.name)] = p.transport
         await self._bounded(self._write_bits(grouped, transport))
 
-    async def _write_bits(self, grouped: dict[tuple[str, str], dict[int, bool]], transport: dict[tuple[str, str], str]) -> None:
+    async def _write_bits(
+        self, grouped: dict[tuple[str, str], dict[int, bool]], transport: dict[tuple[str, str], str]
+    ) -> None:
         for (node, name), bits in grouped.items():
             if transport[(node, name)] == "pdo":
                 await self.commands.write_bits(node, name, bits)
@@ -540,7 +555,9 @@ class ImageDatastore:
                 word = word | (1 << bit) if on else word & ~(1 << bit)
             await self.commands.write_signal(node, name, word)
 
-    async def mask_write(self, unit: int, address: int, and_mask: int, or_mask: int, peer: str | None) -> None:
+    async def mask_write(
+        self, unit: int, address: int, and_mask: int, or_mask: int, peer: str | None
+    ) -> None:
         """FC 22: result = (current AND and_mask) OR (or_mask AND NOT and_mask), 6.16."""
         self.check_access(peer)
         self._points_for(unit, "hr", address, 1)
@@ -565,7 +582,9 @@ async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None
     if code is not None:
         raise ModbusError(code, f"function code {fc}: malformed or unsupported request")
     if unit not in store.regmap.units:
-        raise ModbusError(ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured")
+        raise ModbusError(
+            ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"
+        )
     if fc in READ_TABLE:
         address, qty = struct.unpack(">HH", body)
         values = await store.read(unit, READ_TABLE[fc], address, qty)
@@ -588,7 +607,9 @@ async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None
         return bytes((fc,)) + body[:4]
     if fc == WRITE_REGISTERS:
         address, qty, byte_count = struct.unpack_from(">HHB", body)
-        await store.write_registers(unit, address, list(struct.unpack_from(f">{qty}H", body, 5)), peer)
+        await store.write_registers(
+            unit, address, list(struct.unpack_from(f">{qty}H", body, 5)), peer
+        )
         return bytes((fc,)) + body[:4]
     if fc == MASK_WRITE_REGISTER:
         address, and_mask, or_mask = struct.unpack(">HHH", body)
@@ -683,7 +704,7 @@ class _Connection(asyncio.Protocol):
         except Exception as exc:  # noqa: BLE001 - every failure becomes an exception response
             code = exception_code(exc)
             store.count_exception(code)
-            if fc in (WRITE_COIL, WRITE_REGISTER, WRITE_COILS, WRITE_REGISTERS, MASK_WRITE_REGISTER, READ_WRITE_REGISTERS):
+            if fc in WRITES:
                 if not (isinstance(exc, ModbusError) and code == ExceptionCode.ILLEGAL_FUNCTION):
                     store.warn.warning(
                         ("write", self.peer, unit, fc, int(code)),
@@ -711,7 +732,10 @@ class ModbusGateway:
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
         self.server = await loop.create_server(
-            lambda: _Connection(self), self.cfg.modbus.host, self.cfg.modbus.port, reuse_address=True
+            lambda: _Connection(self),
+            self.cfg.modbus.host,
+            self.cfg.modbus.port,
+            reuse_address=True,
         )
         if self.port == 0:
             self.port = self.server.sockets[0].getsockname()[1]
