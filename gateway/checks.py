@@ -2,17 +2,38 @@
 
 Rules a config must meet that span several sections, e.g. an AP05 external heartbeat
 (AP05 manual 5.5.4, 5F09h) that the gateway's SYNC period or RPDO keep-alive cannot feed in time.
-Pure: imports config, profiles and the supervision rules only.
+Also: the boot configuration of every configured node can be built (objects in the EDS,
+writable, values that fit) and leaves PDO mappings the gateway can decode.
+Pure: imports config, profiles, the boot step builder and the PDO codecs (no I/O).
 """
 
 from __future__ import annotations
 
+from gateway.bus.codec import compile_node
+from gateway.bus.lifecycle import build_boot_steps
 from gateway.config import Config
 from gateway.profiles import load_profile
 
 
-def protocol_problems(cfg: Config) -> list[tuple[str, str]]:
+def boot_problems(cfg: Config) -> list[tuple[str, str]]:
+    """Boot steps that cannot be built, and PDO mappings they leave that cannot be decoded."""
     out: list[tuple[str, str]] = []
+    for i, n in enumerate(cfg.nodes):
+        if not n.configure:
+            continue
+        lp = load_profile(n.profile, cfg.base_dir)
+        try:
+            steps = build_boot_steps(
+                lp, n, n.supervision, n.heartbeat_ms, n.guard_time_ms, n.life_time_factor
+            )
+            compile_node(lp, n.node_id, n.pdo_variant, [(s.object, s.value) for s in steps])
+        except (ValueError, KeyError) as exc:
+            out.append((f"nodes[{i}]", str(exc)))
+    return out
+
+
+def protocol_problems(cfg: Config) -> list[tuple[str, str]]:
+    out: list[tuple[str, str]] = boot_problems(cfg)
     for i, n in enumerate(cfg.nodes):
         key = f"nodes[{i}]"
         lp = load_profile(n.profile, cfg.base_dir)

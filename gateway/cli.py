@@ -138,6 +138,7 @@ async def _with_master(cfg: Config, fn: Any) -> Any:
     for n in cfg.nodes:
         n.configure = False
     gw = Gateway(cfg, simulate=True)
+    gw.master.passive = True  # no NMT start or configuration of its own during commissioning
     await gw.start()
     try:
         for rt in gw.master.nodes.values():

@@ -152,3 +152,24 @@ def test_remappable_tpdo_feature_names_the_pdo_objects() -> None:
     assert pdo_objects(lp, "tpdo", 1) == (0x1800, 0x1A00)
     assert pdo_objects(lp, "tpdo", 2) == (0x1801, 0x1A01)
     assert pdo_objects(lp, "rpdo", 2) == (0x1401, 0x1601)
+
+
+def test_config_with_a_remap_the_decoder_cannot_follow_is_refused_at_load() -> None:
+    from gateway.config import ConfigError
+    from tests.helpers import make_config
+
+    node = {
+        "name": "magnet",
+        "node_id": 2,
+        "profile": "msk5000",
+        "sdo": [
+            {"object": "0x1A00:00", "value": 0},
+            {"object": "0x1A00:01", "value": "0x60040020"},
+            {"object": "0x1A00:00", "value": 3},
+        ],
+    }
+    with pytest.raises(ConfigError) as err:
+        make_config([node])
+    assert err.value.problems == [
+        "<memory>: nodes[0]: TPDO1: mapping sub-index 3 is enabled but never written"
+    ]

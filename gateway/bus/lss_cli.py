@@ -1,0 +1,477 @@
+"""``canopen-gateway lss ...``: commissioning by LSS (CiA 305, SGH10 manual 4.6) and the AP05
+Auto-ID (AP05 manual 5.6.2), on an own connection to the configured bus.
+
+Actions and their arguments (``key=value`` options anywhere after the action):
+
+=================  ========================================================================
+switch-global      ``[configuration|waiting]`` (04h; no answer)
+switch-selective   ``VENDOR PRODUCT REVISION SERIAL`` (40h..43h, answer 44h)
+inquire            ``[vendor_id|product_code|revision|serial|node_id|all]`` (5Ah..5Eh)
+set-node-id        ``NODE_ID [store] [activate]`` (11h; 17h; NMT 82h to the old id)
+set-bitrate        ``KBPS [store] [activate] [delay=MS]`` (13h; 17h; 15h)
+store              (17h)
+auto-id            ``NODE_ID [node=ID] [profile=NAME] [timeout=S]`` (SDO to 5F0Ah:02)
+=================  ========================================================================
+
+Every configuration action first puts the slave in the LSS configuration state: by switch
+state selective when ``address=VENDOR:PRODUCT:REVISION:SERIAL`` is given, else by switch state
+global (then only one LSS slave may be on the bus), and switches all slaves back to waiting at
+the end (``keep`` leaves them in configuration). Other options: ``timeout=S`` (answer timeout,
+default 1 s).
+
+The LSS frames and their matching come from ``gateway.bus.lss``; this module only does the
+I/O, parses the arguments and prints. When the config simulates nodes (``simulate:``), they
+run in this process on the same bus, so the commands can be tried without hardware.
+
+Imports: python-can, gateway.bus.lss, gateway.config, gateway.profiles, gateway.objref,
+gateway.bus.sdo_text; gateway.sim only when the config simulates nodes. Nothing northbound.
+"""
+
+from __future__ import annotations
+
+import argparse
+import struct
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+import can
+
+from gateway.bus import lss
+from gateway.bus.sdo_text import abort_text
+from gateway.config import Config
+from gateway.objref import ObjRef
+from gateway.profiles import ProfileError, load_profile
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_USAGE = 2
+
+#: SGH10 manual 4.2.1.2 table 3: NMT reset communication; COB-ID 000h, [cs, node id].
+NMT_RESET_COMMUNICATION = 0x82
+#: DS-301 pre-defined connection set: SDO request 600h + id, answer 580h + id, boot-up 700h + id.
+COB_SDO_REQUEST = 0x600
+COB_SDO_ANSWER = 0x580
+COB_NMT_ERROR_CONTROL = 0x700
+#: DS-301 SDO command specifiers: expedited download of 1 byte (AP05 manual table 32: 2Fh),
+#: download answer 60h, upload request 40h, abort 80h.
+SDO_DOWNLOAD_1_BYTE = 0x2F
+SDO_DOWNLOAD_ANSWER = 0x60
+SDO_UPLOAD_REQUEST = 0x40
+SDO_ABORT = 0x80
+
+INQUIRE_ORDER = ("vendor_id", "product_code", "revision", "serial", "node_id")
+DEFAULT_SWITCH_DELAY_MS = 100  # activate bit timing: silent d1, then d2 (SGH10 manual 4.6.2.3)
+
+
+class UsageError(Exception):
+    """The arguments of an action are wrong; the message says what is expected."""
+
+
+class LssFailed(Exception):
+    """An LSS service or the Auto-ID failed (timeout, error answer)."""
+
+
+# --------------------------------------------------------------------------- arguments
+
+
+@dataclass
+class LssArgs:
+    """The action's positional words and ``key=value`` options, parsed."""
+
+    action: str
+    words: list[str] = field(default_factory=list)
+    options: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def parse(cls, action: str, tokens: list[str]) -> LssArgs:
+        out = cls(action)
+        for t in tokens:
+            if "=" in t:
+                key, value = t.split("=", 1)
+                out.options[key.strip().lower()] = value.strip()
+            else:
+                out.words.append(t.strip())
+        return out
+
+    def flag(self, name: str) -> bool:
+        if name in self.words:
+            self.words.remove(name)
+            return True
+        return False
+
+    def at_most(self, n: int) -> None:
+        if len(self.words) > n:
+            extra = " ".join(self.words[n:])
+            raise UsageError(f"unexpected argument(s): {extra}")
+
+    def number(self, key: str, default: float) -> float:
+        raw = self.options.get(key)
+        if raw is None:
+            return default
+        try:
+            return float(raw)
+        except ValueError:
+            raise UsageError(f"{key}={raw!r}: expected a number") from None
+
+    def address(self) -> tuple[int, int, int, int] | None:
+        raw = self.options.get("address")
+        if raw is None:
+            return None
+        return parse_address(raw.split(":"))
+
+
+def parse_int(text: str, what: str) -> int:
+    try:
+        return int(text.replace("_", ""), 0)
+    except ValueError:
+        raise UsageError(f"{what}: {text!r} is not a number (decimal or 0x...)") from None
+
+
+def parse_address(parts: list[str]) -> tuple[int, int, int, int]:
+    """LSS address = 1018h:01..04 vendor id, product code, revision number, serial number."""
+    if len(parts) != 4:
+        raise UsageError(
+            "an LSS address is VENDOR PRODUCT REVISION SERIAL (1018h:01..04), e.g. "
+            "address=0x195:0xFFFFFFFF:0xFFFFFFFF:12345"
+        )
+    names = ("vendor id", "product code", "revision number", "serial number")
+    values = tuple(parse_int(p, n) for p, n in zip(parts, names, strict=True))
+    for v, n in zip(values, names, strict=True):
+        if not 0 <= v <= 0xFFFFFFFF:
+            raise UsageError(f"{n} 0x{v:X} does not fit UNSIGNED32")
+    return values  # type: ignore[return-value]
+
+
+# --------------------------------------------------------------------------- bus session
+
+
+class LssSession:
+    """LSS requests on a python-can bus: frames out on 7E5h, answers matched on 7E4h."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        timeout_s: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.bus = bus
+        self.clock = clock
+        self.master = lss.LssMaster(timeout_s)
+
+    def send_frame(self, cob_id: int, data: bytes) -> None:
+        self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
+
+    def request(self, req: lss.LssRequest) -> lss.LssValue:
+        """Send ``req``; its answer (None when the service has none). Raises LssFailed."""
+        for frame in self.master.send(req, self.clock()):
+            self.send_frame(lss.COB_ID_MASTER_TO_SLAVE, frame)
+        if req.answer_cs is None:
+            return None
+        while True:
+            deadline = self.master.deadline_s
+            now = self.clock()
+            if deadline is None:
+                raise LssFailed(f"LSS {req.service}: no request pending")  # pragma: no cover
+            msg = self.bus.recv(timeout=max(0.0, deadline - now) + 0.001)
+            now = self.clock()
+            if (
+                msg is not None
+                and msg.arbitration_id == lss.COB_ID_SLAVE_TO_MASTER
+                and not msg.is_remote_frame
+                and not msg.is_error_frame
+            ):
+                for ev in self.master.on_frame(bytes(msg.data), now):
+                    if isinstance(ev, lss.LssAnswered):
+                        return ev.value
+            for ev in self.master.poll(now):
+                if isinstance(ev, lss.LssTimedOut):
+                    raise LssFailed(
+                        f"LSS {req.service}: no answer on 0x{lss.COB_ID_SLAVE_TO_MASTER:03X} "
+                        f"within {ev.timeout_s:g} s (no LSS slave in configuration state?)"
+                    )
+
+    def configure(self, req: lss.LssRequest) -> None:
+        """A configure / store service; raises LssFailed when the slave answers an error."""
+        answer = self.request(req)
+        if isinstance(answer, lss.ConfigAnswer) and not answer.ok:
+            raise LssFailed(f"LSS {req.service} refused: {answer.text}")
+
+    def wait_frame(self, cob_id: int, timeout_s: float) -> can.Message | None:
+        """The next data frame on ``cob_id`` within ``timeout_s`` (None on timeout)."""
+        deadline = self.clock() + timeout_s
+        while True:
+            left = deadline - self.clock()
+            if left <= 0:
+                return None
+            msg = self.bus.recv(timeout=left)
+            if (
+                msg is not None
+                and msg.arbitration_id == cob_id
+                and not msg.is_remote_frame
+                and not msg.is_error_frame
+            ):
+                return msg
+
+    @contextmanager
+    def configuration_state(
+        self, address: tuple[int, int, int, int] | None, keep: bool = False
+    ) -> Iterator[None]:
+        """Slave(s) in LSS configuration for the block: selective by address, else global;
+        back to waiting afterwards unless ``keep``."""
+        if address is not None:
+            self.request(lss.switch_state_selective(*address))
+        else:
+            self.request(lss.switch_state_global(True))
+        ok = False
+        try:
+            yield
+            ok = True
+        finally:
+            if not keep or not ok:
+                self.request(lss.switch_state_global(False))
+
+
+# --------------------------------------------------------------------------- actions
+
+
+def _hex(v: int) -> str:
+    return f"0x{v:08X} ({v})"
+
+
+def do_switch_global(s: LssSession, a: LssArgs, out: TextIO) -> None:
+    a.at_most(1)
+    mode = a.words[0] if a.words else "configuration"
+    if mode not in ("configuration", "waiting"):
+        raise UsageError(f"switch-global {mode!r}: expected configuration or waiting")
+    s.request(lss.switch_state_global(mode == "configuration"))
+    print(f"LSS switch state global: all slaves to {mode} (no answer expected)", file=out)
+
+
+def do_switch_selective(s: LssSession, a: LssArgs, out: TextIO) -> None:
+    address = parse_address(a.words) if a.words else a.address()
+    if address is None:
+        raise UsageError("switch-selective needs VENDOR PRODUCT REVISION SERIAL")
+    s.request(lss.switch_state_selective(*address))
+    print("LSS slave " + ":".join(f"0x{v:X}" for v in address) + " in configuration", file=out)
+
+
+def do_inquire(s: LssSession, a: LssArgs, out: TextIO) -> None:
+    keep = a.flag("keep")
+    a.at_most(1)
+    what = a.words[0] if a.words else "all"
+    items = INQUIRE_ORDER if what == "all" else (what.replace("-", "_"),)
+    for item in items:
+        if item not in INQUIRE_ORDER:
+            raise UsageError(f"inquire {what!r}: one of {', '.join(INQUIRE_ORDER)} or all")
+    with s.configuration_state(a.address(), keep=keep):
+        for item in items:
+            value = s.request(lss.inquire(item))
+            assert isinstance(value, int)
+            shown = str(value) if item == "node_id" else _hex(value)
+            print(f"{item:<13} {shown}", file=out)
+
+
+def do_set_node_id(s: LssSession, a: LssArgs, out: TextIO) -> None:
+    store, activate, keep = a.flag("store"), a.flag("activate"), a.flag("keep")
+    if len(a.words) != 1:
+        raise UsageError("set-node-id needs the new NODE_ID (1..127)")
+    node_id = parse_int(a.words[0], "node id")
+    if not 1 <= node_id <= 127:
+        raise UsageError(f"node id {node_id} out of range 1..127 (SGH10 manual 4.6.2.1)")
+    if activate and keep:
+        raise UsageError("activate switches the slave back to waiting; drop keep")
+    old: int | None = None
+    with s.configuration_state(a.address(), keep=keep):
+        if activate:
+            value = s.request(lss.inquire("node_id"))
+            old = value if isinstance(value, int) else None
+        s.configure(lss.configure_node_id(node_id))
+        print(f"node id {node_id} configured", file=out)
+        if store:
+            s.configure(lss.store_configuration())
+            print("stored (kept over power-off)", file=out)
+    if not activate:
+        print("the new node id applies at the next NMT reset communication or power-on", file=out)
+        return
+    assert old is not None
+    # SGH10 manual 4.6.2.1: back in LSS waiting, the next reset communication adopts the id
+    s.send_frame(0x000, bytes([NMT_RESET_COMMUNICATION, old]))
+    if s.wait_frame(COB_NMT_ERROR_CONTROL + node_id, max(2.0, s.master.timeout_s)) is None:
+        raise LssFailed(f"NMT reset communication sent to node {old}: no boot-up from {node_id}")
+    print(f"node {old} reset: boot-up received from node {node_id}", file=out)
+
+
+def do_set_bitrate(s: LssSession, a: LssArgs, out: TextIO) -> None:
+    store, activate, keep = a.flag("store"), a.flag("activate"), a.flag("keep")
+    if len(a.words) != 1:
+        raise UsageError("set-bitrate needs the bit rate in kbit/s, e.g. set-bitrate 250")
+    kbps = parse_int(a.words[0], "bit rate")
+    try:
+        index = lss.bit_timing_index(kbps)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    delay_ms = int(a.number("delay", DEFAULT_SWITCH_DELAY_MS))
+    with s.configuration_state(a.address(), keep=keep):
+        s.configure(lss.configure_bit_timing(index))
+        print(f"bit rate {kbps} kbit/s configured (table index {index})", file=out)
+        if store:
+            s.configure(lss.store_configuration())
+            print("stored (kept over power-off)", file=out)
+        if activate:
+            s.request(lss.activate_bit_timing(delay_ms))
+            print(
+                f"activate bit timing sent: the slaves switch after {delay_ms} ms and report "
+                f"after another {delay_ms} ms; reopen the bus at {kbps} kbit/s",
+                file=out,
+            )
+
+
+def do_store(s: LssSession, a: LssArgs, out: TextIO) -> None:
+    keep = a.flag("keep")
+    a.at_most(0)
+    with s.configuration_state(a.address(), keep=keep):
+        s.configure(lss.store_configuration())
+    print("LSS configuration stored", file=out)
+
+
+def _auto_id_feature(cfg: Config, a: LssArgs) -> dict[str, Any]:
+    name = a.options.get("profile")
+    if name is not None:
+        try:
+            lp = load_profile(name, cfg.base_dir)
+        except ProfileError as exc:
+            raise UsageError(str(exc)) from None
+        feature = lp.profile.features.get("auto_id")
+        if feature is None:
+            raise UsageError(f"profile {name} has no feature auto_id")
+        return feature
+    for n in cfg.nodes:
+        feature = load_profile(n.profile, cfg.base_dir).profile.features.get("auto_id")
+        if feature is not None:
+            return feature
+    raise UsageError(
+        "no node of the config has a profile with feature auto_id; give profile=<name>"
+    )
+
+
+def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
+    """AP05 manual 5.6.2: SDO write of the new id to 5F0Ah:02 of the devices with the factory
+    id; the one whose key is pressed answers (on 580h + old id), stores the id and boots with
+    it; then look whether another device still answers with the old id."""
+    if len(a.words) != 1:
+        raise UsageError("auto-id needs the new NODE_ID (1..127)")
+    new_id = parse_int(a.words[0], "node id")
+    if not 1 <= new_id <= 127:
+        raise UsageError(f"node id {new_id} out of range 1..127 (AP05 manual 5.7.2.32)")
+    feature = _auto_id_feature(cfg, a)
+    obj = ObjRef.parse(feature.get("object", "0x5F0A:02"))
+    old_id = parse_int(str(a.options.get("node", feature.get("factory_node_id", 125))), "node")
+    if not 1 <= old_id <= 127:
+        raise UsageError(f"node={old_id}: out of range 1..127")
+    reply_cob = int(feature.get("reply_cob_id", COB_SDO_ANSWER + old_id))
+    if "node" in a.options:
+        reply_cob = COB_SDO_ANSWER + old_id
+    timeout_s = a.number("timeout", 60.0)
+    # AP05 manual table 32: 67Dh 2Fh 0Ah 5Fh 02h <new id> x x x
+    request = bytes([SDO_DOWNLOAD_1_BYTE]) + struct.pack("<HB", obj.index, obj.sub)
+    request += bytes([new_id, 0, 0, 0])
+    s.send_frame(COB_SDO_REQUEST + old_id, request)
+    print(
+        f"Auto-ID: {obj} = {new_id} sent to node {old_id}; press the key on the device that "
+        f"shall take node id {new_id} (waiting {timeout_s:g} s)",
+        file=out,
+        flush=True,
+    )
+    answer = s.wait_frame(reply_cob, timeout_s)
+    if answer is None:
+        raise LssFailed(f"Auto-ID: no answer on 0x{reply_cob:03X} within {timeout_s:g} s")
+    data = bytes(answer.data).ljust(8, b"\0")
+    if data[0] == SDO_ABORT:
+        code = struct.unpack_from("<I", data, 4)[0]
+        raise LssFailed(f"Auto-ID refused: SDO abort 0x{code:08X} ({abort_text(code)})")
+    if data[0] != SDO_DOWNLOAD_ANSWER or struct.unpack_from("<HB", data, 1) != tuple(obj):
+        raise LssFailed(f"Auto-ID: unexpected answer {data.hex(' ')}")
+    print(f"Auto-ID: a device took node id {new_id}", file=out, flush=True)
+    if s.wait_frame(COB_NMT_ERROR_CONTROL + new_id, 5.0) is None:
+        print(f"warning: no boot-up from node {new_id} within 5 s", file=out)
+    else:
+        print(f"boot-up received from node {new_id}", file=out)
+    # Is there another device left with the old id? Read 1000h (DS-301 upload request).
+    s.send_frame(COB_SDO_REQUEST + old_id, bytes([SDO_UPLOAD_REQUEST, 0x00, 0x10, 0, 0, 0, 0, 0]))
+    if s.wait_frame(COB_SDO_ANSWER + old_id, 0.5) is not None:
+        print(f"another device still answers as node {old_id}: run auto-id for it", file=out)
+    else:
+        print(f"no device answers as node {old_id} any more", file=out)
+
+
+ACTIONS: dict[str, Callable[[LssSession, LssArgs, TextIO], None]] = {
+    "switch-global": do_switch_global,
+    "switch-selective": do_switch_selective,
+    "inquire": do_inquire,
+    "set-node-id": do_set_node_id,
+    "set-bitrate": do_set_bitrate,
+    "store": do_store,
+}
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+@contextmanager
+def _simulation(cfg: Config) -> Iterator[None]:
+    """The config's simulated nodes on their own connection to the bus (commissioning drills)."""
+    wanted = cfg.simulated_nodes()
+    if not wanted:
+        yield
+        return
+    from gateway.sim.runner import SimRunner, build_sim_nodes
+
+    specs = []
+    for n in wanted:
+        opts: dict[str, Any] = dict(cfg.simulate.options.get(n.name) or {})
+        if n.name in cfg.simulate.motion:
+            opts["motion"] = cfg.simulate.motion[n.name]
+        specs.append((load_profile(n.profile, cfg.base_dir), n.node_id, opts))
+    bus = can.Bus(**cfg.can.bus_kwargs())
+    runner = SimRunner(bus, build_sim_nodes(specs)).start()
+    try:
+        yield
+    finally:
+        runner.stop()
+        bus.shutdown()
+
+
+def run_lss(cfg: Config, args: argparse.Namespace, out: TextIO | None = None) -> int:
+    """Run ``args.action`` with ``args.args``; 0 done, 1 failed, 2 wrong arguments."""
+    out = out or sys.stdout
+    try:
+        a = LssArgs.parse(args.action, list(args.args or []))
+        timeout_s = a.number("timeout", 1.0) if args.action != "auto-id" else 1.0
+        if timeout_s <= 0:
+            raise UsageError("timeout must be > 0")
+        if args.action != "auto-id" and args.action not in ACTIONS:
+            raise UsageError(f"unknown LSS action {args.action!r}")
+        with _simulation(cfg):
+            bus = can.Bus(**cfg.can.bus_kwargs())
+            try:
+                session = LssSession(bus, timeout_s)
+                if args.action == "auto-id":
+                    do_auto_id(session, a, out, cfg)
+                else:
+                    ACTIONS[args.action](session, a, out)
+            finally:
+                bus.shutdown()
+    except UsageError as exc:
+        print(f"error: lss {args.action}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except (LssFailed, lss.LssStateError, lss.LssBusy) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except can.CanError as exc:
+        print(f"error: CAN bus: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK

@@ -1,0 +1,186 @@
+"""Node lifecycle against simulated devices on a virtual bus: found running, configured in the
+order of the boot steps, reconfigured after a power cycle, reported when it never appears or
+when a step is refused; PDO layouts chosen at boot (BEI 2005h, MSK5000 remapping) decoded."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+import can
+
+from gateway.app import Gateway
+from gateway.bus.lifecycle import LifecycleState, build_boot_steps
+from gateway.config import load_config
+from gateway.image import NmtState
+from gateway.profiles import load_profile
+from tests.helpers import make_config, wait_until
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@asynccontextmanager
+async def running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Gateway]:
+    cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        yield gw
+    finally:
+        await gw.stop()
+
+
+def operational(gw: Gateway, name: str) -> bool:
+    rt = gw.master.nodes[name]
+    return (
+        rt.lifecycle.state == LifecycleState.OPERATIONAL
+        and rt.image.health.nmt_state == NmtState.OPERATIONAL
+        and rt.image.health.alive
+    )
+
+
+async def test_node_running_before_the_gateway_is_found_by_probe_and_configured() -> None:
+    async with running([{"name": "wire", "node_id": 1, "profile": "sgh10"}]) as gw:
+        await wait_until(lambda: operational(gw, "wire"), 5, "wire operational")
+        sim = gw.sim.nodes["wire"]
+        # the boot steps reached the device: heartbeat 100 ms, TPDO1 every 10 ms (profile)
+        assert sim.get(0x1017, 0) == 100
+        assert sim.get(0x1800, 5) == 10
+        assert gw.master.nodes["wire"].lifecycle.configurations == 1
+
+
+async def test_power_cycled_node_is_reconfigured_and_started_again() -> None:
+    async with running([{"name": "wire", "node_id": 1, "profile": "sgh10"}]) as gw:
+        await wait_until(lambda: operational(gw, "wire"), 5, "wire operational")
+        rt = gw.master.nodes["wire"]
+        sim = gw.sim.nodes["wire"]
+        boots = rt.image.health.boot_count
+        # power_cycle returns the frames of the power-on (boot-up); put them on the bus
+        frames = gw.sim.runner.call(lambda now: sim.power_cycle(now))
+        bus = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
+        try:
+            for f in frames:
+                bus.send(f)
+        finally:
+            bus.shutdown()
+        # power-on reloads the EDS defaults (1017h = 0): only a new configuration brings 100 back
+        await wait_until(lambda: rt.image.health.boot_count == boots + 1, 3, "boot-up seen")
+        await wait_until(lambda: rt.lifecycle.configurations == 2, 5, "second configuration")
+        await wait_until(lambda: operational(gw, "wire"), 5, "operational again")
+        assert sim.get(0x1017, 0) == 100
+        assert int(sim.nmt_state) == 0x05
+        seq = rt.image.signals["position"].seq
+        await wait_until(lambda: rt.image.signals["position"].seq > seq + 3, 3, "TPDOs again")
+
+
+async def test_configured_node_that_never_appears_is_reported_after_the_boot_timeout() -> None:
+    async with running(
+        [{"name": "ghost", "node_id": 9, "profile": "sgh10"}],
+        simulate={"nodes": []},
+        master={"boot_timeout_s": 0.5, "sdo_timeout_s": 0.1},
+    ) as gw:
+        h = gw.image.nodes["ghost"].health
+        await wait_until(lambda: "did not appear" in h.last_error, 3, "boot timeout reported")
+        assert "0.5 s" in h.last_error
+        assert not h.alive
+        assert h.lifecycle == "waiting"
+
+
+async def test_refused_boot_step_is_reported_with_object_and_abort_code_and_retried() -> None:
+    # POSI+ 2005h accepts 00h, 02h, 20h, 22h only (manual 002 5): 11h is refused 06090030h
+    node = {
+        "name": "rotary",
+        "node_id": 3,
+        "profile": "posi_plus",
+        "sdo": [{"object": "0x2005:00", "value": 0x11}],
+    }
+    async with running([node]) as gw:
+        rt = gw.master.nodes["rotary"]
+        h = rt.image.health
+        await wait_until(lambda: rt.lifecycle.attempt >= 2, 5, "the refused step retried")
+        assert "0x2005:00" in h.last_error
+        assert "06090030" in h.last_error
+        assert h.last_sdo_abort == 0x06090030
+        assert rt.lifecycle.state == LifecycleState.CONFIGURING
+        # the backoff doubles (0.5 s, 1 s, ...): the retry is scheduled, not hammered
+        assert rt.lifecycle.retry_at_s is not None
+        assert rt.lifecycle.step_failures == rt.lifecycle.attempt
+        assert gw.sim.nodes["rotary"].nmt_state != 0x05  # never started with a bad config
+
+
+async def test_bei_pdo_type_2_is_written_at_boot_and_its_speed_decoded() -> None:
+    node = {"name": "rotary", "node_id": 3, "profile": "posi_plus", "pdo_variant": 0x22}
+    motion = {"rotary": {"kind": "ramp", "min": 0, "max": 8_000_000, "speed": 50_000}}
+    async with running([node], simulate={"nodes": "all", "motion": motion}) as gw:
+        await wait_until(lambda: operational(gw, "rotary"), 5, "rotary operational")
+        sim = gw.sim.nodes["rotary"]
+        assert sim.get(0x2005, 0) == 0x22  # the device and the decoder agree on type 2
+        steps = [str(s.object) for s in gw.master.nodes["rotary"].boot_steps]
+        assert steps.index("0x2005:00") < steps.index("0x1800:02")  # layout before the TPDOs
+        sig = gw.image.nodes["rotary"].signals["speed"]
+        await wait_until(lambda: sig.seq > 2 and sig.value, 3, "speed decoded")
+        # 2002h: counts per 5 ms; the ramp runs 50000 counts/s = 250 per 5 ms (sim hint)
+        assert 200 <= sig.value <= 300
+
+
+async def test_msk5000_tpdo_remapped_by_node_sdo_writes_is_decoded_by_the_new_mapping() -> None:
+    # MSK5000 manual 4.3.1.2 example: position, sys register 5122h:01, flag 0 register 5122h:02
+    remap = [
+        ("0x1800:01", 0x80000182),
+        ("0x1A00:00", 0),
+        ("0x1A00:01", 0x60040020),
+        ("0x1A00:02", 0x51220108),
+        ("0x1A00:03", 0x51220208),
+        ("0x1A00:00", 3),
+        ("0x1800:01", 0x182),
+    ]
+    node = {
+        "name": "magnet",
+        "node_id": 2,
+        "profile": "msk5000",
+        "sdo": [{"object": o, "value": v} for o, v in remap],
+    }
+    async with running([node], master={"sync_period_ms": 0}) as gw:
+        await wait_until(lambda: operational(gw, "magnet"), 5, "magnet operational")
+        rt = gw.master.nodes["magnet"]
+        tpdo1 = next(c for c in rt.tpdos if c.number == 1)
+        assert tpdo1.names == ("position", "sys_register", "flag0_register")
+        sim = gw.sim.nodes["magnet"]
+        assert sim.get(0x1A00, 0) == 3
+        sigs = gw.image.nodes["magnet"].signals
+        await wait_until(lambda: sigs["sys_register"].seq > 2, 3, "sys register by TPDO1")
+        # not referenced after power-on: sys register bit 1 (manual 5122h:01)
+        assert sigs["sys_register"].value == sim.get(0x5122, 1)
+        assert sigs["sys_register"].value & 0x02
+        assert sigs["flag0_register"].value == sim.get(0x5122, 2)
+        assert rt.image.health.pdo_errors == 0
+
+
+def boot_table(lp: Any, node: Any) -> str:
+    """The Markdown table docs/canopen.md shows for one node's boot configuration."""
+    sup = node.supervision or lp.profile.boot.supervision
+    steps = build_boot_steps(
+        lp, node, sup, node.heartbeat_ms, node.guard_time_ms, node.life_time_factor
+    )
+    lines = ["| object | value | type | why |", "| --- | --- | --- | --- |"]
+    for st in steps:
+        v = st.value
+        shown = f"{v} (0x{v:X})" if isinstance(v, int) and v > 9 else str(v)
+        lines.append(f"| {st.object} | {shown} | {st.type} | {st.description.replace('|', '/')} |")
+    return "\n".join(lines)
+
+
+def test_docs_list_the_boot_steps_build_boot_steps_gives_for_the_demo_nodes() -> None:
+    """docs/canopen.md shows, per demo node, the SDO writes of its boot configuration; on a
+    mismatch the message carries the current table to paste."""
+    cfg = load_config(REPO / "config" / "demo.yaml", environ={})
+    doc = (REPO / "docs" / "canopen.md").read_text(encoding="utf-8")
+    for n in cfg.nodes:
+        lp = load_profile(n.profile, cfg.base_dir)
+        table = boot_table(lp, n)
+        heading = f"### {n.name} ({lp.profile.title}, node id {n.node_id}, "
+        assert heading in doc, f"docs/canopen.md lacks the section {heading!r}"
+        section = doc.split(heading, 1)[1].split("\n### ", 1)[0]
+        assert table in section, f"docs/canopen.md, {n.name}: the boot steps are now\n{table}"

@@ -1,0 +1,176 @@
+"""Error control against simulated devices and raw frames on a virtual bus: heartbeat consumer
+timeout, node guarding (life time, toggle bit), EMCY with the profile's texts."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+import can
+
+from gateway.app import Gateway
+from gateway.bus.lifecycle import LifecycleState
+from gateway.image import NmtState
+from tests.helpers import make_config, wait_until
+
+
+@asynccontextmanager
+async def running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Gateway]:
+    cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        yield gw
+    finally:
+        await gw.stop()
+
+
+def operational(gw: Gateway, name: str) -> bool:
+    rt = gw.master.nodes[name]
+    return (
+        rt.lifecycle.state == LifecycleState.OPERATIONAL
+        and rt.image.health.nmt_state == NmtState.OPERATIONAL
+        and rt.image.health.alive
+    )
+
+
+async def _lost_after(gw: Gateway, name: str, limit_s: float) -> float:
+    """Silence the simulated node; seconds until the gateway reports it lost."""
+    sim = gw.sim.nodes[name]
+    health = gw.image.nodes[name].health
+    t0 = time.monotonic()
+    gw.sim.runner.call(lambda now: sim.silence())
+    await wait_until(lambda: not health.alive, limit_s, f"{name} lost")
+    return time.monotonic() - t0
+
+
+async def test_silent_heartbeat_node_is_lost_within_the_consumer_timeout_and_back_after() -> None:
+    # heartbeat 100 ms (profile), consumer timeout 1.5 x 100 ms
+    async with running([{"name": "wire", "node_id": 1, "profile": "sgh10"}]) as gw:
+        await wait_until(lambda: operational(gw, "wire"), 5, "wire operational")
+        health = gw.image.nodes["wire"].health
+        took_s = await _lost_after(gw, "wire", 2.0)
+        # at most 100 ms since the last heartbeat went out, then 150 ms, then a 10 ms poll tick
+        assert 0.05 <= took_s <= 0.5, took_s
+        assert health.loss_count == 1
+        assert health.lifecycle == "waiting"
+        assert gw.image.nodes["wire"].quality(gw.image.nodes["wire"].signals["position"]) == 1
+        sim = gw.sim.nodes["wire"]
+        gw.sim.runner.call(lambda now: sim.unsilence(now))
+        await wait_until(lambda: operational(gw, "wire"), 5, "wire back and operational")
+        assert health.loss_count == 1
+        assert gw.master.nodes["wire"].lifecycle.configurations == 2  # found again, reconfigured
+
+
+async def test_silent_guarded_node_is_lost_after_the_life_time_and_back_after() -> None:
+    node = {
+        "name": "rotary",
+        "node_id": 3,
+        "profile": "posi_plus",
+        "supervision": "guarding",
+        "guard_time_ms": 100,
+        "life_time_factor": 3,
+    }
+    async with running([node]) as gw:
+        await wait_until(lambda: operational(gw, "rotary"), 5, "rotary operational")
+        rt = gw.master.nodes["rotary"]
+        assert gw.sim.nodes["rotary"].get(0x1017, 0) == 0  # guarding, so no heartbeat
+        assert rt.guard is not None and rt.guard.rtr_sent > 0
+        took_s = await _lost_after(gw, "rotary", 2.0)
+        assert 0.2 <= took_s <= 0.7, took_s  # life time 100 ms x 3
+        sim = gw.sim.nodes["rotary"]
+        gw.sim.runner.call(lambda now: sim.unsilence(now))
+        await wait_until(lambda: operational(gw, "rotary"), 5, "rotary back and operational")
+        assert rt.image.health.loss_count == 1
+
+
+class StuckToggleNode:
+    """A raw-frame node 3 that answers every guarding RTR with toggle 0, OPERATIONAL (05h)."""
+
+    def __init__(self, channel: str, node_id: int = 3):
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.cob = 0x700 + node_id
+        self.answers = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> StuckToggleNode:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.bus.shutdown()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            msg = self.bus.recv(timeout=0.02)
+            if msg is not None and msg.arbitration_id == self.cob and msg.is_remote_frame:
+                self.bus.send(
+                    can.Message(arbitration_id=self.cob, data=b"\x05", is_extended_id=False)
+                )
+                self.answers += 1
+
+
+async def test_guarding_answers_that_never_toggle_make_the_node_lost() -> None:
+    node = {
+        "name": "rotary",
+        "node_id": 3,
+        "profile": "posi_plus",
+        "supervision": "guarding",
+        "guard_time_ms": 50,
+        "life_time_factor": 3,
+        "configure": False,
+    }
+    async with running([node], simulate={"nodes": []}, master={"sdo_timeout_s": 0.1}) as gw:
+        rt = gw.master.nodes["rotary"]
+        health = rt.image.health
+        with StuckToggleNode(gw.cfg.can.channel) as device:
+            # the first answer (toggle 0) is valid: alive
+            await wait_until(lambda: health.alive, 2, "first guarding answer")
+            # every later answer repeats toggle 0: not valid, the life time (150 ms) runs out
+            await wait_until(lambda: not health.alive, 2, "lost by toggle errors")
+            assert device.answers >= 3
+            assert rt.guard is not None
+            assert rt.guard.toggle_errors >= 2
+            assert health.loss_count == 1
+
+
+async def test_emcy_shows_the_profile_text_current_errors_and_0000h_clears_them() -> None:
+    async with running([{"name": "wire", "node_id": 1, "profile": "sgh10"}]) as gw:
+        await wait_until(lambda: operational(gw, "wire"), 5, "wire operational")
+        rt = gw.master.nodes["wire"]
+        h = rt.image.health
+        sim = gw.sim.nodes["wire"]
+        gw.sim.runner.call(lambda now: sim.raise_emcy(0xFF05, 0x81, now=now))
+        await wait_until(lambda: h.current_errors == [0xFF05], 2, "EMCY FF05h current")
+        assert h.last_emcy is not None
+        assert h.last_emcy.text == "Position value error"  # SGH10 manual 4.5.1 table 9
+        assert h.last_emcy.register == 0x81
+        gw.sim.runner.call(lambda now: sim.raise_emcy(0xFF15, 0x81, now=now))
+        await wait_until(lambda: h.current_errors == [0xFF05, 0xFF15], 2, "two current errors")
+        gw.sim.runner.call(lambda now: sim.clear_emcy(0xFF05, now=now))
+        gw.sim.runner.call(lambda now: sim.clear_emcy(0xFF15, now=now))
+        await wait_until(lambda: h.current_errors == [], 2, "0000h clears the current errors")
+        assert h.last_emcy.code == 0x0000
+        assert [e.code for e in rt.emcy.history][:3] == [0xFF05, 0xFF15, 0x0000]
+        assert h.emcy_count >= 3
+        assert operational(gw, "wire")  # an EMCY is not a loss
+
+
+async def test_heartbeat_consumer_timeout_is_the_configured_multiple_of_the_producer_time() -> None:
+    nodes = [{"name": "wire", "node_id": 1, "profile": "sgh10", "heartbeat_ms": 50}]
+    async with running(nodes, master={"heartbeat_timeout_multiple": 4}) as gw:
+        rt = gw.master.nodes["wire"]
+        assert rt.hb is not None
+        assert rt.hb.timeout_s == 0.2
+        await wait_until(lambda: operational(gw, "wire"), 5, "wire operational")
+        assert gw.sim.nodes["wire"].get(0x1017, 0) == 50
+        # alive over several producer periods (no false loss)
+        seen = rt.hb.heartbeats
+        await wait_until(lambda: rt.hb.heartbeats >= seen + 6, 2, "six more heartbeats")
+        assert rt.image.health.loss_count == 0
