@@ -36,6 +36,7 @@ from typing import Literal
 
 from gateway.config import Config
 from gateway.profiles import LoadedProfile, load_profile
+from gateway.profiles.derived import text_signals
 from gateway.profiles.schema import Signal
 
 Table = Literal["ir", "hr", "di", "co"]
@@ -435,4 +436,14 @@ def build_register_map(cfg: Config) -> RegisterMap:
                     ),
                     key,
                 )
+        for ts in text_signals(lp.profile):
+            # AP05 alpha-numeric rows as one string point each (profiles/derived.py)
+            count = (ts.length + 1) // 2
+            addr = next_addr["hr"]
+            next_addr["hr"] = addr + count
+            head = lp.profile.signal(ts.head)
+            add(
+                Point(unit, "hr", addr, count, "signal", ts.name, "string", "rw", n,
+                      transport="pdo", description=ts.as_signal(head).description)
+            )  # fmt: skip
     return rm
