@@ -298,7 +298,7 @@ class ImageDatastore:
     async def read(self, unit: int, table: Table, address: int, count: int) -> list[Any]:
         """Registers (ints) or bits (bools) of ``count`` consecutive addresses."""
         idx = self.regmap.index.get((unit, table), {})
-        words: dict[str, Any] = {}  # word signals read once per request (bits of one word)
+        words: dict[tuple[str, str], Any] = {}  # a word read once per request for all its bits
         out: list[Any] = []
         a, end = address, address + count
         while a < end:
@@ -358,7 +358,7 @@ class ImageDatastore:
             return 0 if v is None else v
         return await self.commands.read_signal(node, name)
 
-    async def _bit_value(self, p: Point, words: dict[str, Any]) -> int:
+    async def _bit_value(self, p: Point, words: dict[tuple[str, str], Any]) -> int:
         node = self._node(p)
         if p.kind == "diag_bit":
             h = node.health
@@ -369,12 +369,13 @@ class ImageDatastore:
                 "error_active": bool(h.current_errors),
             }[p.name]
         assert p.bit is not None
-        if p.name not in words:
+        key = (node.name, p.name)
+        if key not in words:
             if p.table == "di" and p.transport == "pdo":
-                words[p.name] = self._servable(node, p.name)
+                words[key] = self._servable(node, p.name)
             else:
-                words[p.name] = await self._output_value(node.name, p.name)
-        return (int(words[p.name]) >> p.bit) & 1
+                words[key] = await self._output_value(node.name, p.name)
+        return (int(words[key]) >> p.bit) & 1
 
     def _quality(self, node: NodeImage) -> Quality:
         names = self.process_signals.get(node.name, ())

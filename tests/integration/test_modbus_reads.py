@@ -11,6 +11,7 @@ import time
 from collections.abc import AsyncIterator
 from typing import Any
 
+import can
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
@@ -134,9 +135,22 @@ async def test_bits_of_a_parameter_word_are_read_by_sdo_once_per_request() -> No
             p for p in gw.modbus.regmap.points if p.name == "operating_status" and p.kind == "bit"
         )
         expected = gw.sim.nodes["wire"].get(0x6500, 0)
-        bits = (await client.read_discrete_inputs(status.address, count=16, device_id=1)).bits
+        spy = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
+        try:
+            bits = (await client.read_discrete_inputs(status.address, count=16, device_id=1)).bits
+            frames = []
+            while (msg := spy.recv(timeout=0)) is not None:
+                frames.append(msg)
+        finally:
+            spy.shutdown()
         assert bits[:16] == [bool(expected >> b & 1) for b in range(16)]
         assert bits[2], "6500h bit 2: scaling enabled (factory 0004h)"
+        uploads = [
+            m
+            for m in frames
+            if m.arbitration_id == 0x601 and bytes(m.data[:4]) == b"\x40\x00\x65\x00"
+        ]
+        assert len(uploads) == 1, "one SDO upload of 6500h for the 16 bits"
 
 
 async def test_node_diagnostics_and_gateway_unit_describe_health_and_bus() -> None:
@@ -204,3 +218,18 @@ async def test_several_clients_read_at_once_and_each_gets_its_answers() -> None:
         )
         assert done == [40] * 5
         assert gw.modbus.store.requests >= 200
+
+
+async def test_flat_layout_serves_every_node_in_one_unit_at_k_times_stride() -> None:
+    flat = {"layout": "flat", "flat_unit_id": 1, "flat_stride": 300}
+    async with running([WIRE, DISPLAY], HOLD, modbus=flat) as (_, client):
+        gateway_block = await client.read_input_registers(0, count=1, device_id=1)
+        assert gateway_block.registers == [1], "bus ok at address 0"
+        wire = await client.read_input_registers(300 + 100, count=2, device_id=1)
+        assert wire.registers == [0xFFFF, 0xFB2E]
+        display = await client.read_input_registers(600 + 100, count=2, device_id=1)
+        assert display.registers == [0xFFFF, 0xFFF9]
+        nmt = await client.read_input_registers(600 + 1, count=1, device_id=1)
+        assert nmt.registers == [5]
+        other_unit = await client.read_input_registers(100, count=2, device_id=125)
+        assert other_unit.isError() and other_unit.exception_code == 0x0A

@@ -5,6 +5,7 @@ download, single bits by coils, the NMT register, mask write and read/write mult
 from __future__ import annotations
 
 import contextlib
+import struct
 from collections.abc import AsyncIterator
 from typing import Any
 
@@ -168,3 +169,16 @@ async def test_read_write_multiple_writes_first_then_reads() -> None:
         )  # fmt: skip
         assert rr.registers == [0, 777]
         await wait_until(lambda: obj(gw, "display", 0x5F16, 1) == 777, 2, "5F16h:01")
+
+
+async def test_an_as_float_point_is_written_in_engineering_units_and_rounded_to_raw() -> None:
+    wire = {**WIRE, "signals": {"work_area_1_low_limit": {"as_float": True}}}
+    async with running([wire]) as (gw, client):
+        limit = find(gw, "wire", "work_area_1_low_limit")
+        regs = list(struct.unpack(">HH", struct.pack(">f", -50.52)))  # mm, step 0.1 mm
+        rr = await client.write_registers(limit.address, regs, device_id=1)
+        assert not rr.isError(), rr
+        assert obj(gw, "wire", 0x6401, 1) == -505
+        back = await client.read_holding_registers(limit.address, count=2, device_id=1)
+        value = struct.unpack(">f", struct.pack(">HH", *back.registers))[0]
+        assert abs(value - (-50.5)) < 1e-4
