@@ -72,6 +72,9 @@ async def test_bus_shut_under_the_driver_is_reopened_and_decoding_resumes() -> N
         seq = sig.seq
         await wait_until(lambda: sig.seq > seq + 3, 3, "TPDOs decoded again")
         assert gw.status()["ready"]
+        # 1.5 s without heartbeats: the node was lost, and is found and configured again
+        assert gw.image.nodes["wire"].health.loss_count == 1
+        await wait_until(lambda: operational(gw, "wire"), 5, "wire operational again")
         assert await gw.commands.sdo_read("wire", "0x1018:01") == 0x195
 
 

@@ -11,10 +11,11 @@ from typing import Any
 
 import can
 
-from gateway.app import Gateway
+from gateway.app import Gateway, SimulatedBus
 from gateway.bus.lifecycle import LifecycleState, build_boot_steps
 from gateway.config import load_config
 from gateway.image import NmtState
+from gateway.objref import ObjRef
 from gateway.profiles import load_profile
 from tests.helpers import make_config, wait_until
 
@@ -41,14 +42,47 @@ def operational(gw: Gateway, name: str) -> bool:
     )
 
 
-async def test_node_running_before_the_gateway_is_found_by_probe_and_configured() -> None:
-    async with running([{"name": "wire", "node_id": 1, "profile": "sgh10"}]) as gw:
+async def test_node_running_before_the_gateway_is_found_by_probe_and_configured_in_order() -> None:
+    cfg = make_config(
+        [{"name": "wire", "node_id": 1, "profile": "sgh10"}],
+        modbus={"enabled": False},
+        zenoh={"enabled": False},
+    )
+    sim = SimulatedBus(cfg)
+    sim.start()  # the device boots now: its boot-up is gone before the gateway listens
+    observer = can.Bus(interface="virtual", channel=cfg.can.channel)
+    gw = Gateway(cfg, simulate=False)
+    try:
+        await wait_until(lambda: sim.nodes["wire"].powered, 2, "device powered")
+        await gw.start()
         await wait_until(lambda: operational(gw, "wire"), 5, "wire operational")
-        sim = gw.sim.nodes["wire"]
-        # the boot steps reached the device: heartbeat 100 ms, TPDO1 every 10 ms (profile)
-        assert sim.get(0x1017, 0) == 100
-        assert sim.get(0x1800, 5) == 10
-        assert gw.master.nodes["wire"].lifecycle.configurations == 1
+        rt = gw.master.nodes["wire"]
+        assert rt.image.health.boot_count == 0  # found by the 1000h probe, not by a boot-up
+        frames = []
+        while (msg := observer.recv(timeout=0)) is not None:
+            frames.append(msg)
+    finally:
+        await gw.stop()
+        observer.shutdown()
+        sim.stop()
+    nmt = [bytes(m.data) for m in frames if m.arbitration_id == 0x000]
+    assert nmt == [b"\x80\x01", b"\x01\x01"]  # pre-operational first, start at the end
+    # SDO download requests (initiate, command 001x xxxx) on 601h, in the order of the steps
+    downloads = [
+        ObjRef(int.from_bytes(m.data[1:3], "little"), m.data[3])
+        for m in frames
+        if m.arbitration_id == 0x601 and m.data[0] >> 5 == 1
+    ]
+    assert downloads == [st.object for st in rt.boot_steps]
+    i_preop = next(i for i, m in enumerate(frames) if m.arbitration_id == 0x000)
+    i_first_sdo = next(
+        i for i, m in enumerate(frames) if m.arbitration_id == 0x601 and m.data[0] >> 5 == 1
+    )
+    i_start = max(i for i, m in enumerate(frames) if m.arbitration_id == 0x000)
+    i_last_answer = max(i for i, m in enumerate(frames) if m.arbitration_id == 0x581)
+    assert i_preop < i_first_sdo and i_last_answer < i_start
+    assert sim.nodes["wire"].get(0x1017, 0) == 100  # heartbeat 100 ms (profile)
+    assert sim.nodes["wire"].get(0x1800, 5) == 10  # TPDO1 every 10 ms (profile)
 
 
 async def test_power_cycled_node_is_reconfigured_and_started_again() -> None:

@@ -3,6 +3,7 @@ timeout, node guarding (life time, toggle bit), EMCY with the profile's texts.""
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections.abc import AsyncIterator
@@ -13,7 +14,7 @@ import can
 
 from gateway.app import Gateway
 from gateway.bus.lifecycle import LifecycleState
-from gateway.image import NmtState
+from gateway.image import NmtState, Quality
 from tests.helpers import make_config, wait_until
 
 
@@ -57,7 +58,8 @@ async def test_silent_heartbeat_node_is_lost_within_the_consumer_timeout_and_bac
         assert 0.05 <= took_s <= 0.5, took_s
         assert health.loss_count == 1
         assert health.lifecycle == "waiting"
-        assert gw.image.nodes["wire"].quality(gw.image.nodes["wire"].signals["position"]) == 1
+        node = gw.image.nodes["wire"]
+        assert node.quality(node.signals["position"]) == Quality.STALE
         sim = gw.sim.nodes["wire"]
         gw.sim.runner.call(lambda now: sim.unsilence(now))
         await wait_until(lambda: operational(gw, "wire"), 5, "wire back and operational")
@@ -79,12 +81,32 @@ async def test_silent_guarded_node_is_lost_after_the_life_time_and_back_after() 
         rt = gw.master.nodes["rotary"]
         assert gw.sim.nodes["rotary"].get(0x1017, 0) == 0  # guarding, so no heartbeat
         assert rt.guard is not None and rt.guard.rtr_sent > 0
+        # an RTR on 703h (DLC 1) every guard time
+        observer = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
+        try:
+            rtrs = await asyncio.to_thread(_frames, observer, 0x703, True, 4)
+        finally:
+            observer.shutdown()
+        assert all(m.dlc == 1 for m in rtrs)
+        span_s = rtrs[-1].timestamp - rtrs[0].timestamp
+        assert 0.25 <= span_s <= 0.45, span_s  # 3 guard times of 100 ms
         took_s = await _lost_after(gw, "rotary", 2.0)
         assert 0.2 <= took_s <= 0.7, took_s  # life time 100 ms x 3
         sim = gw.sim.nodes["rotary"]
         gw.sim.runner.call(lambda now: sim.unsilence(now))
         await wait_until(lambda: operational(gw, "rotary"), 5, "rotary back and operational")
         assert rt.image.health.loss_count == 1
+
+
+def _frames(bus: can.BusABC, cob: int, rtr: bool, count: int, timeout_s: float = 3.0) -> list:
+    out: list[can.Message] = []
+    deadline = time.monotonic() + timeout_s
+    while len(out) < count and time.monotonic() < deadline:
+        msg = bus.recv(timeout=0.05)
+        if msg is not None and msg.arbitration_id == cob and msg.is_remote_frame == rtr:
+            out.append(msg)
+    assert len(out) == count, f"only {len(out)} frames 0x{cob:03X}"
+    return out
 
 
 class StuckToggleNode:
