@@ -88,14 +88,15 @@ async def test_writes_to_read_only_points_answer_illegal_data_address() -> None:
 
 async def test_a_write_of_part_of_a_32_bit_value_is_refused_and_nothing_is_sent() -> None:
     async with running([DISPLAY]) as (gw, client):
-        rpdos_before = gw.image.nodes["display"].health.rpdo_sent
-        sent: list[int] = []
-        gw.master.rpdo_hooks.append(lambda rt, codec: sent.append(codec.number))
+        sent: list[bytes] = []
+        gw.master.rpdo_hooks.append(lambda rt, codec: sent.append(codec.encode()))
         assert code(await client.write_register(SET_POINT1, 7, device_id=125)) == ILLEGAL_ADDRESS
         rr = await client.write_registers(SET_POINT1 + 1, [7, 0], device_id=125)
         assert code(rr) == ILLEGAL_ADDRESS
-        assert 1 not in sent, "no RPDO1 from a refused write"
-        assert gw.image.nodes["display"].health.rpdo_sent >= rpdos_before
+        assert all(frame[:4] == bytes(4) for frame in sent), "no set point went out"
+        back = await client.read_holding_registers(SET_POINT1, count=2, device_id=125)
+        assert back.registers == [0, 0]
+        assert call(gw, lambda now: gw.sim.nodes["display"].get(0x5F16, 3)) == 0
 
 
 async def test_values_out_of_range_or_of_the_wrong_type_answer_illegal_data_value() -> None:

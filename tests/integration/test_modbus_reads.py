@@ -134,7 +134,8 @@ async def test_bits_of_a_parameter_word_are_read_by_sdo_once_per_request() -> No
         status = next(
             p for p in gw.modbus.regmap.points if p.name == "operating_status" and p.kind == "bit"
         )
-        expected = gw.sim.nodes["wire"].get(0x6500, 0)
+        sim = gw.sim.nodes["wire"]
+        expected = gw.sim.runner.call(lambda now: sim.get(0x6500, 0))
         spy = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
         try:
             bits = (await client.read_discrete_inputs(status.address, count=16, device_id=1)).bits
