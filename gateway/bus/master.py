@@ -160,8 +160,10 @@ class NodeRuntime:
                 self.rpdo_by_signal.setdefault(n, []).append(r)
         self.next_probe_s: float | None = None
         self.pdo_too_long = 0
+        # configure: false -> no SDO steps; the lifecycle only sends NMT pre-operational (when
+        # found running) and NMT start
         self.lifecycle = NodeLifecycle(
-            steps,
+            steps if cfg.configure else [],
             boot_timeout_s=master.cfg.master.boot_timeout_s,
             expected_device_type=lp.profile.device_type,
         )
@@ -362,8 +364,13 @@ class Master:
             return
         if rt.lifecycle.state == LifecycleState.WAITING:
             log.info("node %s (id %d) found running", rt.name, rt.node_id)
-            self._apply_changes(rt, rt.lifecycle.on_found(time.monotonic(), device_type))
+            now = time.monotonic()
+            self._apply_changes(rt, rt.lifecycle.on_found(now, device_type))
             if rt.lifecycle.state == LifecycleState.BOOTING:  # not a wrong device type
+                if rt.hb is not None and not rt.hb.alive:
+                    rt.hb.on_bootup(now)  # monitoring restarts as after a boot-up
+                if rt.guard is None or not rt.guard.lost:
+                    self._set_alive(rt, True)
                 self._start_configuration(rt)
 
     def _booted(self, rt: NodeRuntime, now: float) -> None:
@@ -387,14 +394,7 @@ class Master:
         old = self._config_tasks.pop(rt.name, None)
         if old is not None:
             old.cancel()
-        if rt.cfg.configure:
-            self._config_tasks[rt.name] = asyncio.create_task(self._configure(rt))
-        elif rt.lifecycle.state != LifecycleState.OPERATIONAL:
-            # configure: false -> the gateway only starts the node
-            try:
-                self.nmt_send(rt.node_id, "start")
-            except BusDown:
-                pass
+        self._config_tasks[rt.name] = asyncio.create_task(self._configure(rt))
 
     def _apply_changes(self, rt: NodeRuntime, changes: list[Any]) -> None:
         h = rt.image.health

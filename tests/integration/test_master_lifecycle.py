@@ -218,3 +218,34 @@ def test_docs_list_the_boot_steps_build_boot_steps_gives_for_the_demo_nodes() ->
         assert heading in doc, f"docs/canopen.md lacks the section {heading!r}"
         section = doc.split(heading, 1)[1].split("\n### ", 1)[0]
         assert table in section, f"docs/canopen.md, {n.name}: the boot steps are now\n{table}"
+
+
+async def test_node_with_configure_false_is_only_started() -> None:
+    cfg = make_config(
+        [{"name": "wire", "node_id": 1, "profile": "sgh10", "configure": False}],
+        modbus={"enabled": False},
+        zenoh={"enabled": False},
+    )
+    sim = SimulatedBus(cfg)
+    sim.start()
+    observer = can.Bus(interface="virtual", channel=cfg.can.channel)
+    gw = Gateway(cfg, simulate=False)
+    try:
+        await wait_until(lambda: sim.nodes["wire"].powered, 2, "device powered")
+        await gw.start()
+        rt = gw.master.nodes["wire"]
+        await wait_until(
+            lambda: rt.lifecycle.state == LifecycleState.OPERATIONAL, 5, "lifecycle operational"
+        )
+        await wait_until(lambda: int(sim.nodes["wire"].nmt_state) == 0x05, 2, "device started")
+        assert rt.image.health.alive  # it answered the probe
+        frames = []
+        while (msg := observer.recv(timeout=0)) is not None:
+            frames.append(msg)
+    finally:
+        await gw.stop()
+        observer.shutdown()
+        sim.stop()
+    assert not [m for m in frames if m.arbitration_id == 0x601 and m.data[0] >> 5 == 1]
+    assert [bytes(m.data) for m in frames if m.arbitration_id == 0x000][-1] == b"\x01\x01"
+    assert sim.nodes["wire"].get(0x1017, 0) == 0  # factory value: nothing written

@@ -32,7 +32,7 @@ async def running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator
     await gw.start()
     try:
         for name in gw.master.nodes:
-            await wait_until(lambda n=name: gw.image.nodes[n].health.alive, 5, f"{name} alive")
+            await wait_until(lambda n=name: gw.image.nodes[n].operational(), 5, f"{name} up")
         yield gw
     finally:
         await gw.stop()
