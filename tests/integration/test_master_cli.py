@@ -197,3 +197,23 @@ def test_nmt_command_goes_out_to_one_node_or_all(tmp_path: Path) -> None:
         assert main(["nmt", "-c", str(path), "reset-comm", "all"]) == 0
     nmt = lss_frames(frames, 0x000)
     assert nmt[-2:] == ["02 01", "82 00"]  # SGH10 manual 4.2.1.2 table 3
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["set-node-id", "200"], "out of range 1..127"),
+        (["set-node-id"], "needs the new NODE_ID"),
+        (["inquire", "colour"], "one of vendor_id"),
+        (["switch-selective", "1", "2", "3"], "VENDOR PRODUCT REVISION SERIAL"),
+        (["switch-global", "sleep"], "expected configuration or waiting"),
+        (["store", "now"], "unexpected argument(s): now"),
+        (["inquire", "timeout=soon"], "timeout='soon': expected a number"),
+    ],
+)
+def test_lss_wrong_arguments_exit_2_with_what_is_expected(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    path = config_file(tmp_path, [WIRE], simulate=[])
+    assert main(["lss", "-c", str(path), *args]) == 2
+    assert message in capsys.readouterr().err
