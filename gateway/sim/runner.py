@@ -94,6 +94,11 @@ class SimRunner:
         """
         with self.lock:
             result = fn(self.clock())
+            if isinstance(result, list) and any(isinstance(m, can.Message) for m in result):
+                # frames returned rather than queued (e.g. power_cycle): send them too
+                for msg in result:
+                    if isinstance(msg, can.Message):
+                        self._outbox.append((None, msg))
             for node in self.nodes:
                 for msg in node.drain():
                     self._outbox.append((node, msg))

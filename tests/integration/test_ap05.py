@@ -282,3 +282,35 @@ async def test_text_through_zenoh_and_invalid_text_gets_reply_err() -> None:
     finally:
         session.close()
         await gw.stop()
+
+
+async def test_power_cycle_through_the_runner_reconfigures_the_node() -> None:
+    cfg = make_config([AP05_SIM])
+    gw = Gateway(cfg)
+    await gw.start()
+    node = gw.image.nodes["display"]
+    try:
+        await wait_until(node.operational, 5, "operational")
+        boots = node.health.boot_count
+        gw.sim.runner.call(lambda now: gw.sim.nodes["display"].power_cycle(now))
+        await wait_until(lambda: node.health.boot_count > boots, 3, "boot-up seen")
+        await wait_until(node.operational, 5, "operational again")
+    finally:
+        await gw.stop()
+
+
+async def test_static_target_window_is_acknowledged_by_coil_from_the_plc() -> None:
+    cfg = make_config([{**AP05_SIM, "guarding_bit": {"enabled": False}}])
+    gw = Gateway(cfg)
+    await gw.start()
+    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
+    sim = gw.sim.nodes["display"]
+    try:
+        await wait_until(lambda: gw.image.nodes["display"].operational(), 5, "operational")
+        await client.connect()
+        rr = await client.write_coil(100 + 4, True, device_id=5)  # control bit 4 (table 27)
+        assert not rr.isError(), rr
+        await wait_until(lambda: sim.sdo_read_local("0x5F0C:00") & 0x10, 3, "ack bit received")
+    finally:
+        client.close()
+        await gw.stop()
