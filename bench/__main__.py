@@ -17,6 +17,7 @@ import traceback
 from collections.abc import Awaitable, Callable
 
 from bench import hotpath, ingest, latency, modbus_rps, scale, startup
+from bench.findings import findings
 from bench.machine import describe, load_average
 from bench.report import Section, render
 
@@ -59,6 +60,8 @@ def main() -> None:
             flush=True,
         )
         sections.append(sec)
+    if not args.names:
+        sections.append(findings(sections))
     machine["load average before / after"] = f"{load_before} / {load_average()}"
     machine["total run time"] = f"{time.perf_counter() - t0:.0f} s"
     preamble = [

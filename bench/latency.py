@@ -176,6 +176,7 @@ async def run(reps: int = 5, window_s: float = 2.0) -> Section:
     pooled: dict[str, list[float]] = {"gw_mb": [], "bare_mb": [], "gw_z": [], "bare_z": []}
     unseen = {"gw_mb": 0, "bare_mb": 0, "gw_z": 0, "bare_z": 0}
     polls = {"gw": 0.0, "bare": 0.0}
+    rtt: dict[str, list[float]] = {"gw_50": [], "gw_99": [], "bare_50": [], "bare_99": []}
     try:
         # make sure the subscriber is matched to both publishers before measuring
         for pipeline_inj in (inj, bare_inj):
@@ -210,6 +211,8 @@ async def run(reps: int = 5, window_s: float = 2.0) -> Section:
                     if i == idx:
                         z_seen.setdefault(round(v / POSITION_SCALE) if name == "gw" else v, t)
                 polls[name] += polled["polls"] / polled["duration_s"]
+                rtt[f"{name}_50"].append(polled["rtt_ms"][50])
+                rtt[f"{name}_99"].append(polled["rtt_ms"][99])
                 for kind, seen in (("mb", mb_seen), ("z", z_seen)):
                     lat = latencies_ms(sent, seen)
                     unseen[f"{name}_{kind}"] += len(sent) - len(lat)
@@ -237,6 +240,10 @@ async def run(reps: int = 5, window_s: float = 2.0) -> Section:
                                 ratio, "<= 1.2x bare", ratio.median <= 1.2, digits=3))  # fmt: skip
             else:
                 rows.append(Row(f"{label} {q} (ms)", s(g), "bare pipeline", s(b), ratio, digits=3))
+    for q in ("50", "99"):
+        g, b = rtt[f"gw_{q}"], rtt[f"bare_{q}"]
+        rows.append(Row(f"Modbus request round trip p{q} of the polling client (ms)", s(g),
+                        "bare pipeline", s(b), s(paired_ratios(g, b)), digits=3))  # fmt: skip
     sec.rows = rows
     for key, lat in pooled.items():
         if lat:

@@ -14,6 +14,7 @@ Imports: bench.*, gateway (through bench.rig), pymodbus.
 from __future__ import annotations
 
 import asyncio
+import os
 import pathlib
 import shutil
 import subprocess
@@ -164,16 +165,22 @@ async def run(reps: int = 5, window_s: float = 0.8) -> Section:
     else:
         sec.notes.append(f"libmodbus C client skipped: {why}.")
     res: dict[tuple[str, int, str], list[float]] = {}
+    cpu: dict[tuple[str, int, str], list[float]] = {}
     try:
         for client, n in setups:
             for _rep in range(reps):
                 for server, port in (("gw", gw.modbus.port), ("bare", bare_port)):
+                    t0, c0 = time.perf_counter(), os.times()
                     if client == "pymodbus":
                         rate = await _py_window(workers[:n], port, 1, window_s)
                     else:
                         assert exe is not None
                         rate = await _c_window(exe, port, 1, n, window_s)
+                    c1, wall = os.times(), time.perf_counter() - t0
                     res.setdefault((client, n, server), []).append(rate)
+                    # this process serves both servers; the idle one costs next to nothing
+                    used = (c1.user - c0.user) + (c1.system - c0.system)
+                    cpu.setdefault((client, n, server), []).append(used / (rate * wall) * 1e6)
     finally:
         for w in workers:
             w.close()

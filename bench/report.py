@@ -105,7 +105,9 @@ def render(machine: dict[str, str], sections: list[Section], preamble: list[str]
     out += [f"| {k} | {v} |" for k, v in machine.items()]
     out.append("")
     summary = [
-        f"| {sec.title} | {r.figure} | {fmt_summary(r.value, r.digits) if r.ratio is None else fmt_summary(r.ratio, 2) + ' x'} | {r.target} | {_met(r)} |"
+        f"| {sec.title.split(':')[0]} | {r.figure} | {fmt(r.value.median, r.digits)} | "
+        + (f"{fmt(r.ratio.median, 2)} x" if r.ratio is not None and r.ratio.valid else "")
+        + f" | {r.target} | {_met(r)} |"
         for sec in sections
         for r in sec.rows
         if r.target
@@ -114,8 +116,8 @@ def render(machine: dict[str, str], sections: list[Section], preamble: list[str]
         out += [
             "## Targets at a glance",
             "",
-            "| benchmark | figure | median (ratio where a baseline) | target | |",
-            "|---|---|---|---|---|",
+            "| benchmark | figure | gateway, median | ratio to baseline, median | target | |",
+            "|---|---|---|---|---|---|",
         ]
         out += summary
         out.append("")

@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import json
 import multiprocessing
+import os
 import struct
 import threading
 import time
@@ -163,7 +164,14 @@ class ZenohSubscriber:
                 doc = json.loads(payload)
                 value = doc if how == "json_all" else doc["value"]
             out.append((idx, value, t))
-        return {"records": out, "counts": counts, "last_arrival": self.last_arrival}
+        t = os.times()
+        return {
+            "records": out,
+            "counts": counts,
+            "last_arrival": self.last_arrival,
+            "cpu_s": t.user + t.system,  # of this process so far
+            "at": time.perf_counter(),
+        }
 
     def close(self) -> None:
         for s in self._subs:
@@ -194,11 +202,14 @@ class ModbusPoller:
         changes: list[tuple[tuple[int, ...], float]] = []
         last: tuple[int, ...] | None = None
         polls = errors = 0
+        rtts: list[float] = []
         end = clock() + duration_s
         try:
             while clock() < end:
+                t_req = clock()
                 rr = await client.read_input_registers(address, count=count, device_id=unit)
                 t = clock()
+                rtts.append(t - t_req)
                 polls += 1
                 if rr.isError():
                     errors += 1
@@ -209,7 +220,13 @@ class ModbusPoller:
                     last = regs
         finally:
             client.close()
-        return {"changes": changes, "polls": polls, "errors": errors, "duration_s": duration_s}
+        rtts.sort()
+        rtt_ms = {
+            q: rtts[min(len(rtts) - 1, int(len(rtts) * q / 100))] * 1000.0 if rtts else float("nan")
+            for q in (50, 99)
+        }
+        return {"changes": changes, "polls": polls, "errors": errors, "duration_s": duration_s,
+                "rtt_ms": rtt_ms}  # fmt: skip
 
 
 # ---------------------------------------------------------------------- Modbus load
