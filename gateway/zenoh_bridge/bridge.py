@@ -175,6 +175,54 @@ class _EventSender:
                 log.warning("zenoh event publication failed: %s", exc)
 
 
+class _ValueSender:
+    """Publishes report-by-exception values on its own thread, latest value first.
+
+    The CAN reader only marks a signal as updated (a dict assignment); this thread publishes
+    the signal's *current* value, so when frames arrive faster than JSON can be published the
+    intermediate values are coalesced instead of queued. The reader thus keeps pace with the
+    bus (heartbeats are never processed late because of publishing) and subscribers always get
+    the newest value. Signals with ``publish: every`` are published by the reader itself.
+    """
+
+    def __init__(self, offer: Callable[[NodeImage, _SignalPub, float], None]) -> None:
+        self.offer = offer
+        self.pending: dict[int, tuple[NodeImage, _SignalPub]] = {}
+        self.wake = threading.Event()
+        self.running = False
+        self.thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self.running = True
+        self.thread = threading.Thread(target=self._run, name="zenoh-values", daemon=True)
+        self.thread.start()
+
+    def mark(self, node: NodeImage, sp: _SignalPub) -> None:
+        self.pending[id(sp)] = (node, sp)
+        self.wake.set()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self.running = False
+        self.wake.set()
+        if self.thread is not None:
+            self.thread.join(timeout_s)
+            self.thread = None
+
+    def _run(self) -> None:
+        while self.running:
+            self.wake.wait(0.1)
+            self.wake.clear()
+            if not self.pending:
+                continue
+            batch, self.pending = self.pending, {}
+            now = time.monotonic()
+            for node, sp in batch.values():
+                try:
+                    self.offer(node, sp, now)
+                except Exception:  # noqa: BLE001 - a bad value must not stop publishing
+                    log.exception("publishing %s failed", sp.key)
+
+
 class ZenohBridge:
     def __init__(
         self,
@@ -200,6 +248,7 @@ class ZenohBridge:
         self.publications = 0
         self.up = False
         self._events = _EventSender()
+        self._values = _ValueSender(self._offer)
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._tasks: list[asyncio.Task[Any]] = []
         self._answers: set[asyncio.Future[Any]] = set()
@@ -244,6 +293,7 @@ class ZenohBridge:
         self.image.value_listeners.append(self._on_values)
         self.image.health_listeners.append(self._on_health)
         self._events.start()
+        self._values.start()
         try:
             await self._open(conf)
         except zenoh.ZError as exc:
@@ -375,6 +425,7 @@ class ZenohBridge:
         self._wrapped.clear()
         if self._on_rpdo_sent in master.rpdo_hooks:
             master.rpdo_hooks.remove(self._on_rpdo_sent)
+        await asyncio.to_thread(self._values.stop)
         await asyncio.to_thread(self._events.stop)  # queued events go out before the close
         s, self.session = self.session, None
         self.tokens.clear()
@@ -405,13 +456,19 @@ class ZenohBridge:
         """Called on the bus reader thread for every decoded PDO."""
         if self.session is None:
             return
-        now = time.monotonic()
         pubs = self.pubs
         nname = node.name
+        mark = self._values.mark
+        now = 0.0
         for name in names:
             sp = pubs.get((nname, name))
-            if sp is not None:
+            if sp is None:
+                continue
+            if sp.policy.mode == "every":
+                now = now or time.monotonic()
                 self._offer(node, sp, now)
+            else:
+                mark(node, sp)
 
     def _refresh(self, node: NodeImage, now: float) -> None:
         """Held-back samples whose time has come, and quality changes without a new frame."""

@@ -91,14 +91,8 @@ async def test_power_cycled_node_is_reconfigured_and_started_again() -> None:
         rt = gw.master.nodes["wire"]
         sim = gw.sim.nodes["wire"]
         boots = rt.image.health.boot_count
-        # power_cycle returns the frames of the power-on (boot-up); put them on the bus
-        frames = gw.sim.runner.call(lambda now: sim.power_cycle(now))
-        bus = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
-        try:
-            for f in frames:
-                bus.send(f)
-        finally:
-            bus.shutdown()
+        # the runner sends the power-on frames (boot-up) that power_cycle returns
+        gw.sim.runner.call(lambda now: sim.power_cycle(now))
         # power-on reloads the EDS defaults (1017h = 0): only a new configuration brings 100 back
         await wait_until(lambda: rt.image.health.boot_count == boots + 1, 3, "boot-up seen")
         await wait_until(lambda: rt.lifecycle.configurations == 2, 5, "second configuration")
