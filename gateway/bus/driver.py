@@ -105,6 +105,8 @@ class BusDriver:
         self.reopens = 0  # successful reopens since start
         self.last_error_frame_s: float | None = None
         self.warn = RateLimitedLog(log)
+        self.idle = True
+        self.last_frame_wall = 0.0
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
@@ -156,6 +158,24 @@ class BusDriver:
         """Delay before reopen attempt ``attempt`` (1, 2, ...): doubling, capped."""
         return min(self.reopen_backoff_max_s, self.reopen_backoff_s * 2 ** max(0, attempt - 1))
 
+    def bus_clock(self) -> float:
+        """Monotonic time as far as the reader has got through the bus's frames.
+
+        When the reader is behind (a backlog of received frames), supervision must judge
+        timeouts by the time of the frames it has processed, not by the wall clock: a
+        heartbeat waiting in the receive queue is not a lost node.
+        """
+        now = time.monotonic()
+        if self.idle or not self.last_frame_wall:
+            return now
+        lag = time.time() - self.last_frame_wall
+        return now - lag if 0 < lag < 3600 else now
+
+    def frame_time(self, msg: can.Message) -> float:
+        """A frame's receive time on the monotonic clock (its timestamp is wall-clock)."""
+        lag = time.time() - msg.timestamp if msg.timestamp else 0.0
+        return time.monotonic() - lag if 0 < lag < 3600 else time.monotonic()
+
     # ------------------------------------------------------------------ sending
     def send(
         self, cob_id: int, data: bytes = b"", rtr: bool = False, dlc: int | None = None
@@ -202,7 +222,10 @@ class BusDriver:
                 self._set_state("down", f"receive failed: {exc}")
                 continue
             if msg is None:
+                self.idle = True  # caught up with the bus
                 continue
+            self.idle = False
+            self.last_frame_wall = msg.timestamp
             if msg.is_error_frame:
                 counters["bus_errors"] += 1
                 self._error_frame(msg)

@@ -469,7 +469,7 @@ class Master:
     def _on_nmt_ec(self, rt: NodeRuntime, msg: can.Message) -> None:
         if msg.is_remote_frame or not msg.data:
             return
-        now = time.monotonic()
+        now = self.driver.frame_time(msg)
         byte = msg.data[0]
         if byte == 0x00:  # boot-up (SGH10 manual 4.2.2)
             log.info("node %s (id %d) boot-up", rt.name, rt.node_id)
@@ -590,8 +590,9 @@ class Master:
         while True:
             await asyncio.sleep(tick)
             now = time.monotonic()
+            bus_now = self.driver.bus_clock()  # supervision judges by the frames processed
             for rt in self.nodes.values():
-                self._poll_node(rt, now)
+                self._poll_node(rt, now, bus_now)
                 if (
                     rt.lifecycle.state == LifecycleState.WAITING
                     and rt.next_probe_s is not None
@@ -600,9 +601,10 @@ class Master:
                     # a node whose boot-up was missed and that sends no heartbeat (1017h = 0)
                     self._spawn_probe(rt)
 
-    def _poll_node(self, rt: NodeRuntime, now: float) -> None:
+    def _poll_node(self, rt: NodeRuntime, now: float, bus_now: float | None = None) -> None:
+        bus_now = now if bus_now is None else bus_now
         if rt.guard is not None:
-            for out in rt.guard.poll(now):
+            for out in rt.guard.poll(bus_now):
                 if isinstance(out, SendGuardRtr):
                     try:
                         self.driver.send(0x700 + rt.node_id, b"", rtr=True, dlc=1)
@@ -611,7 +613,7 @@ class Master:
             if rt.guard.lost and rt.image.health.alive:
                 self._set_alive(rt, False)
         elif rt.supervision == "heartbeat" and rt.hb is not None:
-            rt.hb.poll(now)
+            rt.hb.poll(bus_now)
             if rt.hb.lost and rt.image.health.alive:
                 self._set_alive(rt, False)
         changes = rt.lifecycle.poll(now)
