@@ -84,7 +84,9 @@ def findings(sections: list[Section]) -> Section:
         f"instead of {v('hotpath', '  value payload dict', '.1f')} us per sample with the same "
         "text (section 6), about a third of the bridge's share of a frame; (3) **one sample "
         "per PDO** (all its signals in one JSON document) would halve the `put`s and "
-        "encodings. (2) and (3) are changes to gateway/zenoh_bridge/ proposed here, not made."
+        "encodings. (2) is now in the bridge (`payloads.value_json`, used for plain numeric "
+        "samples); (3) is proposed, not made. Report-by-exception values are also published "
+        "from their own thread with the latest value coalesced, so the reader only marks them."
     )
     n.append(
         "**Lost updates.** Values go out with congestion control DROP (by design, so a slow "
@@ -171,10 +173,10 @@ def findings(sections: list[Section]) -> Section:
             + f" At half the rate (12,700 frames/s) {half_rate}."
         )
     n.append(
-        "Ways past, proposed (gateway/bus/, not changed here): (1) **supervise by the frame's "
-        "receive time** (`msg.timestamp`, the kernel's for SocketCAN) rather than by the time "
-        "the event loop handles it, so a backlog delays processing but does not turn into "
-        "node losses; (2) **coalesce control frames**: the reader thread calls "
+        "Ways past: (1) **supervise by the frame's receive time** — done: heartbeat and "
+        "guarding timeouts are judged by `BusDriver.bus_clock` (the receive timestamps of the "
+        "frames processed), so a backlog delays processing but does not turn into node "
+        "losses; proposed, not made: (2) **coalesce control frames**: the reader thread calls "
         "`loop.call_soon_threadsafe` for every heartbeat "
         f"({v('hotpath', 'control frame to the event loop', '.1f')} us uncontended, one "
         "self-pipe write each; 12% of the reader's samples in the scale profile, most of it "
