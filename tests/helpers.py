@@ -8,7 +8,8 @@ import itertools
 import socket
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
 from typing import Any
 
 from gateway.config import parse_config
@@ -55,3 +56,30 @@ async def wait_until(cond: Callable[[], Any], timeout_s: float = 5.0, what: str 
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
         await asyncio.sleep(0.01)
+
+
+@asynccontextmanager
+async def master_running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Any]:
+    """A Gateway with only the CANopen side (no Modbus, no Zenoh), stopped on exit."""
+    from gateway.app import Gateway
+
+    cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        yield gw
+    finally:
+        await gw.stop()
+
+
+def node_operational(gw: Any, name: str) -> bool:
+    """Configured, NMT operational and alive."""
+    from gateway.bus.lifecycle import LifecycleState
+    from gateway.image import NmtState
+
+    rt = gw.master.nodes[name]
+    return (
+        rt.lifecycle.state == LifecycleState.OPERATIONAL
+        and rt.image.health.nmt_state == NmtState.OPERATIONAL
+        and rt.image.health.alive
+    )

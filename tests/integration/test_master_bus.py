@@ -4,41 +4,18 @@ keeps running; controller error frames (error passive, bus off) surface in the h
 from __future__ import annotations
 
 import time
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
-from typing import Any
 
 import can
 import pytest
 
-from gateway.app import Gateway
 from gateway.bus.driver import BusDriver
-from gateway.bus.lifecycle import LifecycleState
 from gateway.errors import BusDown
-from gateway.image import NmtState, ProcessImage
-from tests.helpers import make_config, unique_channel, wait_until
+from gateway.image import ProcessImage
+from tests.helpers import master_running as running
+from tests.helpers import node_operational as operational
+from tests.helpers import unique_channel, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
-
-
-@asynccontextmanager
-async def running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Gateway]:
-    cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
-    gw = Gateway(cfg)
-    await gw.start()
-    try:
-        yield gw
-    finally:
-        await gw.stop()
-
-
-def operational(gw: Gateway, name: str) -> bool:
-    rt = gw.master.nodes[name]
-    return (
-        rt.lifecycle.state == LifecycleState.OPERATIONAL
-        and rt.image.health.nmt_state == NmtState.OPERATIONAL
-        and rt.image.health.alive
-    )
 
 
 def error_frame(cls: int, ctrl: int = 0) -> can.Message:

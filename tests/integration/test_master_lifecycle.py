@@ -4,8 +4,6 @@ when a step is refused; PDO layouts chosen at boot (BEI 2005h, MSK5000 remapping
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
@@ -14,32 +12,13 @@ import can
 from gateway.app import Gateway, SimulatedBus
 from gateway.bus.lifecycle import LifecycleState, build_boot_steps
 from gateway.config import load_config
-from gateway.image import NmtState
 from gateway.objref import ObjRef
 from gateway.profiles import load_profile
 from tests.helpers import make_config, wait_until
+from tests.helpers import master_running as running
+from tests.helpers import node_operational as operational
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-@asynccontextmanager
-async def running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Gateway]:
-    cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
-    gw = Gateway(cfg)
-    await gw.start()
-    try:
-        yield gw
-    finally:
-        await gw.stop()
-
-
-def operational(gw: Gateway, name: str) -> bool:
-    rt = gw.master.nodes[name]
-    return (
-        rt.lifecycle.state == LifecycleState.OPERATIONAL
-        and rt.image.health.nmt_state == NmtState.OPERATIONAL
-        and rt.image.health.alive
-    )
 
 
 async def test_node_running_before_the_gateway_is_found_by_probe_and_configured_in_order() -> None:

@@ -6,36 +6,13 @@ from __future__ import annotations
 import asyncio
 import struct
 import time
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from typing import Any
 
 import can
 
-from gateway.app import Gateway
-from gateway.bus.lifecycle import LifecycleState
-from gateway.image import NmtState
-from tests.helpers import make_config, wait_until
-
-
-@asynccontextmanager
-async def running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Gateway]:
-    cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
-    gw = Gateway(cfg)
-    await gw.start()
-    try:
-        yield gw
-    finally:
-        await gw.stop()
-
-
-def operational(gw: Gateway, name: str) -> bool:
-    rt = gw.master.nodes[name]
-    return (
-        rt.lifecycle.state == LifecycleState.OPERATIONAL
-        and rt.image.health.nmt_state == NmtState.OPERATIONAL
-        and rt.image.health.alive
-    )
+from tests.helpers import master_running as running
+from tests.helpers import node_operational as operational
+from tests.helpers import wait_until
 
 
 def collect(bus: can.BusABC, match: Any, count: int, timeout_s: float = 3.0) -> list[can.Message]:
