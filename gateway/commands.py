@@ -11,6 +11,7 @@ Imports: bus.master (for the operations), errors, image, objref. Never modbus/ o
 from __future__ import annotations
 
 import logging
+import time
 from typing import Any
 
 from gateway.bus.codec import RpdoCodec
@@ -220,8 +221,6 @@ class CommandService:
     def _mirror(self, rt: NodeRuntime, name: str, value: Any) -> None:
         sig = rt.image.signals.get(name)
         if sig is not None:
-            import time
-
             sig.value = value
             sig.timestamp = time.time()
             sig.seq += 1

@@ -131,6 +131,8 @@ class NodeImage:
 ValueListener = Callable[[NodeImage, tuple[str, ...], float], None]
 #: listener(node, what changed: "health" | "emcy" | "state") — called on the event loop
 HealthListener = Callable[[NodeImage, str], None]
+#: listener(node, COB-ID, raw bytes) for every PDO received (reader thread) or sent
+PdoListener = Callable[[NodeImage, int, bytes], None]
 
 
 class ProcessImage:
@@ -139,6 +141,7 @@ class ProcessImage:
         self.by_id: dict[int, NodeImage] = {}
         self.value_listeners: list[ValueListener] = []
         self.health_listeners: list[HealthListener] = []
+        self.pdo_listeners: list[PdoListener] = []  # raw PDO bytes (e.g. zenoh raw_pdo)
         self.started_monotonic = time.monotonic()
         self.bus_state = "down"
         self.counters: dict[str, int] = {

@@ -82,6 +82,21 @@ def encode_value(value: int | float | str | bytes, type_: str) -> bytes:
         raise ValueError(f"value {value!r} does not fit {type_}") from None
 
 
+def decode_value(data: bytes, type_: str) -> Any:
+    """The value of an SDO upload's bytes as DS-301 type ``type_`` (profile type names).
+
+    Strings are cut at the first trailing NUL (the SGH10 pads 1008h, manual 4.4.1.4)."""
+    if type_ == "string":
+        return data.rstrip(b"\0").decode("ascii", errors="replace")
+    if type_ == "bytes":
+        return data
+    if type_ in ("int24", "uint24"):
+        return int.from_bytes(data[:3], "little", signed=type_ == "int24")
+    fmt = _PACK[type_]
+    size = struct.calcsize(fmt)
+    return struct.unpack(fmt, data[:size].ljust(size, b"\0"))[0]
+
+
 @dataclass(frozen=True)
 class ConfigStep:
     """One SDO download of the boot configuration."""

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import struct
 import time
 from collections.abc import Callable
 from typing import Any
@@ -29,6 +28,7 @@ from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.driver import BusDriver, RateLimitedLog
 from gateway.bus.emcy import EmcyHistory, decode_emcy
 from gateway.bus.lifecycle import (
+    OD_TYPE_NAMES,
     BootTimeout,
     Configured,
     LifecycleState,
@@ -41,6 +41,8 @@ from gateway.bus.lifecycle import (
     WriteStep,
     WrongDevice,
     build_boot_steps,
+    decode_value,
+    encode_value,
 )
 from gateway.bus.supervision import (
     GuardingBitCheck,
@@ -63,39 +65,6 @@ from gateway.profiles import LoadedProfile, load_profile
 log = logging.getLogger("gateway.master")
 
 NMT_COMMANDS = {"start": 0x01, "stop": 0x02, "preop": 0x80, "reset": 0x81, "reset-comm": 0x82}
-
-_PACK = {
-    "bool": "<B", "int8": "<b", "uint8": "<B", "int16": "<h", "uint16": "<H", "int32": "<i",
-    "uint32": "<I", "int64": "<q", "uint64": "<Q", "float32": "<f",
-}  # fmt: skip
-
-
-def encode_value(value: Any, type_: str) -> bytes:
-    """Encode a value for an SDO download by signal type name."""
-    if type_ in ("string", "bytes"):
-        return value.encode("ascii") if isinstance(value, str) else bytes(value)
-    if type_ in ("int24", "uint24"):
-        return int(value).to_bytes(3, "little", signed=type_ == "int24")
-    return struct.pack(_PACK[type_], float(value) if type_ == "float32" else int(value))
-
-
-def decode_value(data: bytes, type_: str) -> Any:
-    if type_ == "string":
-        return data.rstrip(b"\0").decode("ascii", errors="replace")
-    if type_ == "bytes":
-        return data
-    if type_ in ("int24", "uint24"):
-        return int.from_bytes(data[:3], "little", signed=type_ == "int24")
-    size = struct.calcsize(_PACK[type_])
-    return struct.unpack(_PACK[type_], data[:size].ljust(size, b"\0"))[0]
-
-
-_OD_TYPES = {
-    0x0001: "bool", 0x0002: "int8", 0x0003: "int16", 0x0004: "int32", 0x0005: "uint8",
-    0x0006: "uint16", 0x0007: "uint32", 0x0008: "float32", 0x0009: "string", 0x000A: "bytes",
-    0x0010: "int24", 0x0015: "int64", 0x0016: "uint24", 0x001B: "uint64",
-}  # fmt: skip
-
 
 class _Network(canopen.Network):
     """A canopen Network that sends through our driver and is fed by our reader thread."""
@@ -259,6 +228,8 @@ class Master:
         status_pos = names.index(status_name) if status_name else -1
         status_mask = 1 << int(gb.get("status_bit", 8)) if gb else 0
 
+        pdo_listeners = image.pdo_listeners
+
         def handle(msg: can.Message) -> None:
             data = msg.data
             if msg.is_remote_frame:
@@ -288,6 +259,10 @@ class Master:
                 )
             values = decode(data)
             update(node, names, values, msg.timestamp or time.time())
+            if pdo_listeners:
+                raw = bytes(data)
+                for listener in pdo_listeners:
+                    listener(node, codec.cob_id, raw)
             if status_pos >= 0 and self.loop is not None:
                 echoed = 1 if values[status_pos] & status_mask else 0
                 self.loop.call_soon_threadsafe(self._on_guarding_echo, rt, echoed)
@@ -699,11 +674,14 @@ class Master:
                 cw |= rt.gbit.next_bit(time.monotonic()) << bit
                 codec.set(cw_sig.name, cw)
         try:
-            self.driver.send(codec.cob_id, codec.encode())
+            data = codec.encode()
+            self.driver.send(codec.cob_id, data)
         except can.CanError as exc:
             raise BusDown(str(exc)) from exc
         rt.last_rpdo_sent[codec.number] = time.monotonic()
         rt.image.health.rpdo_sent += 1
+        for listener in self.image.pdo_listeners:
+            listener(rt.image, codec.cob_id, data)
         for hook in self.rpdo_hooks:
             hook(rt, codec)
 
@@ -714,7 +692,7 @@ class Master:
         var = rt.lp.od_var(obj)
         if var is None:
             return None
-        return _OD_TYPES.get(var.data_type)
+        return OD_TYPE_NAMES.get(var.data_type)
 
     async def sdo_upload(
         self, rt: NodeRuntime, obj: ObjRef, type_: str | None = None, check_state: bool = True

@@ -253,7 +253,6 @@ class ZenohBridge:
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._tasks: list[asyncio.Task[Any]] = []
         self._answers: set[asyncio.Future[Any]] = set()
-        self._wrapped: dict[int, Callable[..., None]] = {}
         self._plan()
 
     # ------------------------------------------------------------------ what to publish
@@ -360,10 +359,8 @@ class ZenohBridge:
             self._sync_token(node)
 
     def _declare_raw_pdo(self, s: zenoh.Session) -> None:
-        """Raw bytes of every TPDO received (wrapping its reader-thread handler) and every
-        RPDO sent (the master's RPDO hook), on ``<node>/pdo/<cob-id>``."""
-        master = self.commands.master
-        handlers = master.driver.handlers
+        """Raw bytes of every TPDO received and every RPDO sent, on ``<node>/pdo/<cob-id>``
+        (the process image's PDO listeners: called on the reader thread for TPDOs)."""
         for name in self.image.nodes:
             rt = self.commands.node(name)
             for codec in list(rt.tpdos) + list(rt.rpdos):
@@ -372,36 +369,15 @@ class ZenohBridge:
                     encoding=OCTETS,
                     congestion_control=zenoh.CongestionControl.DROP,
                 )
-            for codec in rt.tpdos:
-                original = handlers.get(codec.cob_id)
-                if original is not None and codec.cob_id not in self._wrapped:
-                    self._wrapped[codec.cob_id] = original
-                    handlers[codec.cob_id] = self._raw_tpdo_handler(
-                        original, self.raw_pubs[(name, codec.cob_id)]
-                    )
-        master.rpdo_hooks.append(self._on_rpdo_sent)
+        self.image.pdo_listeners.append(self._on_pdo)
 
-    def _raw_tpdo_handler(self, original: Callable[[Any], None], pub: Any) -> Callable[[Any], None]:
-        def handle(msg: Any) -> None:
-            original(msg)
-            s = self.session
-            if s is None or msg.is_remote_frame:
-                return
-            try:
-                pub.put(bytes(msg.data), timestamp=s.new_timestamp())
-                self.publications += 1
-            except zenoh.ZError:
-                pass
-
-        return handle
-
-    def _on_rpdo_sent(self, rt: Any, codec: Any) -> None:
+    def _on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None:
         s = self.session
-        pub = self.raw_pubs.get((rt.name, codec.cob_id))
+        pub = self.raw_pubs.get((node.name, cob_id))
         if s is None or pub is None:
             return
         try:
-            pub.put(codec.encode(), timestamp=s.new_timestamp())
+            pub.put(data, timestamp=s.new_timestamp())
             self.publications += 1
         except zenoh.ZError:
             pass
@@ -420,12 +396,8 @@ class ZenohBridge:
             self.image.value_listeners.remove(self._on_values)
         if self._on_health in self.image.health_listeners:
             self.image.health_listeners.remove(self._on_health)
-        master = self.commands.master
-        for cob_id, original in self._wrapped.items():
-            master.driver.handlers[cob_id] = original
-        self._wrapped.clear()
-        if self._on_rpdo_sent in master.rpdo_hooks:
-            master.rpdo_hooks.remove(self._on_rpdo_sent)
+        if self._on_pdo in self.image.pdo_listeners:
+            self.image.pdo_listeners.remove(self._on_pdo)
         await asyncio.to_thread(self._values.stop)
         await asyncio.to_thread(self._events.stop)  # queued events go out before the close
         s, self.session = self.session, None
