@@ -100,7 +100,9 @@ class SimHints:
         h.velocity_scale = 1.0 if scale is None else float(scale)
         h.motion = _motion(d)
 
-        groups: list[tuple[ObjRef, ...]] = [_DS406_CYCLE_TIMER]
+        # DS-406 6200h = 1800h:05 only where the profile says so (feature ds406_cycle_timer):
+        # on a CiA 401 device 6200h is a digital output
+        groups: list[tuple[ObjRef, ...]] = [_DS406_CYCLE_TIMER] if d.get("ds406_cycle_timer") else []
         for key in ("event_timer_mirror", "operating_parameters_mirror", "serial_number_mirror"):
             if d.get(key):
                 groups.append(tuple(ObjRef.parse(x) for x in d[key]))
