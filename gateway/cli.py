@@ -16,14 +16,15 @@ from collections.abc import Sequence
 from typing import Any
 
 from gateway import __version__
-from gateway.config import Config, ConfigError, load_config
+from gateway.checks import load_checked_config
+from gateway.config import Config, ConfigError
 
 EXIT_CONFIG = 2
 EXIT_FAILED = 1
 
 
 def _load(path: str) -> Config:
-    return load_config(path)
+    return load_checked_config(path)
 
 
 def _setup_logging(level: str) -> None:

@@ -470,7 +470,9 @@ def _node_problems(cfg: Config, base_dir: Path) -> list[tuple[str, str]]:
                 out.append(
                     (
                         f"{key}.signals.{s}",
-                        f"{n.device} has no signal {s!r}; it has: " + ", ".join(sorted(names)),
+                        (f"profile {n.profile}" if n.profile else n.device)
+                        + f" has no signal {s!r}; it has: "
+                        + ", ".join(sorted(names)),
                     )
                 )
         if n.pdo_variant is not None:

@@ -60,7 +60,7 @@ from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import LinkState, NmtState, NodeImage, ProcessImage
 from gateway.objref import ObjRef
-from gateway.profiles import LoadedProfile, load_profile
+from gateway.profiles import LoadedProfile, load_node_profile
 
 log = logging.getLogger("gateway.master")
 
@@ -189,7 +189,7 @@ class Master:
         self.warn = RateLimitedLog(log)
         self.rpdo_hooks: list[Callable[[NodeRuntime, RpdoCodec], None]] = []
         for ncfg in cfg.nodes:
-            lp = load_profile(ncfg.profile, cfg.base_dir)
+            lp = load_node_profile(ncfg, cfg.base_dir)
             names = [s.name for s in lp.profile.signals]
             stale = ncfg.stale_after_ms / 1000.0 if ncfg.stale_after_ms else None
             ni = NodeImage(ncfg.name, ncfg.node_id, lp.family, names, stale, ncfg.modbus.serve_stale)

@@ -49,8 +49,6 @@ from typing import Any
 from gateway.objref import ObjRef
 from gateway.sim.motion import MotionConfig
 
-_DS406_CYCLE_TIMER = (ObjRef(0x1800, 5), ObjRef(0x6200, 0))  # SGH10 manual 4.7.2.31
-
 
 def _obj(v: Any) -> ObjRef | None:
     return None if v in (None, "") else ObjRef.parse(v)
@@ -100,9 +98,9 @@ class SimHints:
         h.velocity_scale = 1.0 if scale is None else float(scale)
         h.motion = _motion(d)
 
-        # DS-406 6200h = 1800h:05 only where the profile says so (feature ds406_cycle_timer):
-        # on a CiA 401 device 6200h is a digital output
-        groups: list[tuple[ObjRef, ...]] = [_DS406_CYCLE_TIMER] if d.get("ds406_cycle_timer") else []
+        # DS-406 6200h = 1800h:05 is the behaviour of feature ds406_cycle_timer (on a CiA 401
+        # device 6200h is a digital output)
+        groups: list[tuple[ObjRef, ...]] = []
         for key in ("event_timer_mirror", "operating_parameters_mirror", "serial_number_mirror"):
             if d.get(key):
                 groups.append(tuple(ObjRef.parse(x) for x in d[key]))

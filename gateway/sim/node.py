@@ -124,7 +124,6 @@ class SimNode:
         self.pending_node_id: int | None = None
         self.store = store if store is not None else PersistentStore()
         raw: dict[str, Any] = {**profile.profile.sim, **(options or {})}
-        raw.setdefault("ds406_cycle_timer", "ds406_cycle_timer" in profile.profile.features)
         if isinstance(motion, dict):
             raw["motion"] = {**(raw.get("motion") or {}), **motion}
         self.hints = SimHints.from_dict(raw)
