@@ -60,7 +60,8 @@ from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import LinkState, NmtState, NodeImage, ProcessImage
 from gateway.objref import ObjRef
-from gateway.profiles import LoadedProfile, load_node_profile
+from gateway.bus.verify import MappingMismatch, compare_mapping, mapping_reads
+from gateway.profiles import LoadedProfile, load_node_profile, node_verifies_mapping
 
 log = logging.getLogger("gateway.master")
 
@@ -122,6 +123,9 @@ class NodeRuntime:
         # layout or variant, then the PDO writes of the steps in order; see codec module).
         writes = [(st.object, st.value) for st in steps] if cfg.configure else []
         self.tpdos, self.rpdos = compile_node(lp, cfg.node_id, cfg.pdo_variant, writes)
+        # verify_mapping (gateway.bus.verify): read the PDO objects back after configuring
+        self.verify_mapping = cfg.configure and node_verifies_mapping(lp, cfg, cfg.eds_only)
+        self.mapping_mismatches: list[MappingMismatch] = []
         # a signal may be mapped in several RPDOs (AP05 control word 5F0Ch is in RPDO1 and 2)
         self.rpdo_by_signal: dict[str, list[RpdoCodec]] = {}
         for r in self.rpdos:
@@ -360,6 +364,8 @@ class Master:
         rt.emcy.clear()
         rt.image.health.current_errors = []
         self._set_referenced(rt, False)  # MSK5000 5115h: the reference is lost at power-on
+        if rt.verify_mapping:
+            self._set_pdo_valid(rt, False)  # until the mapping is read back and compared
         if self.passive:
             return
         self._apply_changes(rt, rt.lifecycle.on_bootup(now))
@@ -395,6 +401,8 @@ class Master:
                 log.error("node %s (id %d): %s", rt.name, rt.node_id, h.last_error)
             elif isinstance(ch, Configured):
                 h.last_error = ""
+                if rt.verify_mapping:
+                    self._tasks.append(asyncio.create_task(self._verify_mapping(rt)))
                 if rt.referencing is not None:
                     self._tasks.append(asyncio.create_task(self._check_reference(rt)))
                 if rt.guard is not None:
@@ -470,6 +478,36 @@ class Master:
             if rt.lifecycle.state == LifecycleState.WAITING:
                 # alive but no boot-up seen (gateway restarted, node replugged): probe + configure
                 self._spawn_probe(rt)
+
+    # ------------------------------------------------------------------ verify_mapping
+    def _set_pdo_valid(self, rt: NodeRuntime, ok: bool) -> None:
+        names = {n for c in (*rt.tpdos, *rt.rpdos) for n in c.names}
+        for n in names:
+            if ok and n == rt.reference_signal:
+                continue  # referencing decides about the position (feature referencing)
+            sig = rt.image.signals.get(n)
+            if sig is not None:
+                sig.valid = ok
+
+    async def _verify_mapping(self, rt: NodeRuntime) -> None:
+        """Upload the PDO objects the codecs rely on and compare (gateway.bus.verify)."""
+        reads = mapping_reads(rt.lp, rt.node_id, rt.cfg.pdo_variant)
+        held: dict[ObjRef, int | None] = {}
+        for r in reads:
+            try:
+                held[r.object] = int(await self.sdo_upload(rt, r.object, r.type, check_state=False))
+            except (SdoAbort, SdoTimeout, BusDown, ValueError, TypeError):
+                held[r.object] = None
+        rt.mapping_mismatches = compare_mapping(reads, held)
+        if rt.mapping_mismatches:
+            text = "; ".join(str(m) for m in rt.mapping_mismatches)
+            rt.image.health.last_error = f"PDO mapping mismatch, values not served: {text}"
+            self._set_pdo_valid(rt, False)
+            log.error("node %s: PDO mapping mismatch, values not served: %s", rt.name, text)
+        else:
+            self._set_pdo_valid(rt, True)
+            log.info("node %s: PDO mapping verified (%d objects read back)", rt.name, len(reads))
+        self.image.health_changed(rt.image, "state")
 
     # ------------------------------------------------------------------ referencing (feature)
     def _set_referenced(self, rt: NodeRuntime, ok: bool) -> None:

@@ -282,6 +282,14 @@ def check_text(text: str, path: str) -> EdsText:
                            "unknown section name: neither an object ([6401], [6401sub2]) nor a "
                            "CiA 306 section ([FileInfo], [DeviceInfo], [MandatoryObjects], ...)")  # fmt: skip
             )
+    dummy = sections.get("dummyusage")
+    if dummy is not None:
+        for i in range(1, 8):  # canopen reads Dummy0001..Dummy0007, each 0 or 1
+            v = dummy.get(f"Dummy{i:04X}")
+            if v is None:
+                problems.append(EdsProblem(path, dummy.line, dummy.name, f"Dummy{i:04X} is missing (0 or 1)"))  # fmt: skip
+            elif v.strip() not in ("0", "1"):
+                problems.append(EdsProblem(path, dummy.line_of(f"Dummy{i:04X}"), dummy.name, f"Dummy{i:04X}={v}: must be 0 or 1"))  # fmt: skip
     if "deviceinfo" not in sections:
         problems.append(EdsProblem(path, 1, "DeviceInfo", "section [DeviceInfo] is missing"))
     for index, sec in sorted(objects.items()):
