@@ -30,8 +30,8 @@ from typing import Any
 from gateway.bus.codec import compile_node
 from gateway.bus.lifecycle import OD_TYPE_NAMES, ConfigStep, build_boot_steps
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
-from gateway.eds.pdos import TYPE_BITS, eds_pdos, od_var, readable
 from gateway.eds.parse import DATA_TYPES
+from gateway.eds.pdos import TYPE_BITS, eds_pdos, od_var, readable
 from gateway.modbus.regmap import RegisterMapError, build_register_map
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, ProfileError, load_node_profile

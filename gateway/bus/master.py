@@ -56,11 +56,11 @@ from gateway.bus.supervision import (
 from gateway.bus.supervision import (
     NmtState as SupNmt,
 )
+from gateway.bus.verify import MappingMismatch, compare_mapping, mapping_reads
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import LinkState, NmtState, NodeImage, ProcessImage
 from gateway.objref import ObjRef
-from gateway.bus.verify import MappingMismatch, compare_mapping, mapping_reads
 from gateway.profiles import LoadedProfile, load_node_profile, node_verifies_mapping
 
 log = logging.getLogger("gateway.master")

@@ -134,7 +134,7 @@ def eds_pdos(od: canopen.ObjectDictionary, node_id: int | None, kind: Kind) -> l
         number = index - base + 1
         map_index = MAP_BASE[kind] + number - 1
 
-        def comm(sub: int) -> Any:
+        def comm(sub: int, index: int = index) -> Any:
             return default_value(od_var(od, ObjRef(index, sub)), node_id)
 
         cob = comm(1)
