@@ -61,7 +61,11 @@ def boot_problems(cfg: Config) -> list[Problem]:
             steps = _steps(lp, n)
             compile_node(lp, n.node_id, n.pdo_variant, [(s.object, s.value) for s in steps])
         except (ValueError, KeyError) as exc:
-            out.append((f"nodes[{i}]", str(exc)))
+            head, _, rest = str(exc).partition(": ")
+            if head.split(".")[0] in ("tpdo", "rpdo") and rest:
+                out.append((f"nodes[{i}].{head}", rest))
+            else:
+                out.append((f"nodes[{i}]", str(exc)))
             continue
         out += _limit_problems(lp, n, i, steps, cfg)
     return out
@@ -127,13 +131,14 @@ def eds_problems(cfg: Config) -> list[Problem]:
         eds = lp.eds_path.name
         od = lp.od
         try:
-            steps = _steps(lp, n) if n.configure else []
+            steps: list[ConfigStep] | None = _steps(lp, n) if n.configure else []
         except (ValueError, KeyError):
-            steps = []
+            steps = None  # reported by boot_problems
         tpdos, rpdos = lp.profile.layout(n.pdo_variant if lp.profile.pdo_variants else None)
         trusted = lp.profile.verify_mapping is not False  # mapping objects describe the layout
         for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
-            written = _written_pdos(lp, steps, kind)
+            settings = n.tpdo if kind == "tpdo" else n.rpdo
+            written = _written_pdos(lp, steps or [], kind) | set(settings)
             held = {p.number: p for p in eds_pdos(od, n.node_id, kind)}  # type: ignore[arg-type]
             for p in pdos:
                 where = f"{key}.{kind}.{p.number}" if p.number in (n.tpdo if kind == "tpdo" else n.rpdo) else f"{key} ({kind.upper()}{p.number})"  # fmt: skip
@@ -144,7 +149,7 @@ def eds_problems(cfg: Config) -> list[Problem]:
                 entries = [(x.object, x.bits) for x in p.mapping]
                 same = list(e.entries) == entries
                 if p.number in written:
-                    if not same and not e.mapping_writable:
+                    if not same and not e.mapping_writable and steps is not None:
                         out.append(
                             (
                                 f"{where}.mapping" if "." in where.split("]")[-1] else where,

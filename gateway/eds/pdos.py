@@ -55,6 +55,8 @@ def od_var(od: canopen.ObjectDictionary, obj: ObjRef) -> ODVariable | None:
         return None
     if isinstance(entry, ODVariable):
         return entry if obj.sub == 0 else None
+    if obj.sub not in entry.subindices:
+        return None  # canopen makes up array sub-objects on access; the EDS has not this one
     try:
         return entry[obj.sub]
     except KeyError:

@@ -387,6 +387,8 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
     names = unique_names(od, new, {s.name for s in signals})
     for o in new:
         var = od_var(od, o)
+        if var is None:
+            continue  # not in the EDS: reported by the check of the layout
         typ = signal_type(var)
         if typ is None:
             raise ProfileError(f"{base.eds_path.name}: {o} is mapped but has a data type the gateway does not serve")  # fmt: skip

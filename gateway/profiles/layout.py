@@ -22,6 +22,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, Literal, Protocol
 
+from pydantic import ValidationError
+
 from gateway.eds.pdos import (
     COB_ID_INVALID,
     COB_ID_MASK_11BIT,
@@ -29,6 +31,7 @@ from gateway.eds.pdos import (
     decode_entry,
     entry_value,
     object_bits,
+    od_var,
 )
 from gateway.objref import ObjRef
 from gateway.profiles.schema import Pdo, PdoEntry, Profile, default_cob_id
@@ -229,6 +232,13 @@ def parse_mapping_entry(text: str, od: Any, where: str) -> PdoEntry:
         obj = ObjRef.parse(s)
     except ValueError as exc:
         raise PdoMappingError(f"{where}: {exc}") from None
+    if obj.index >= 0x1000 and od_var(od, obj) is None:
+        what = (
+            f"{obj.index:04X}h has no sub-index {obj.sub:02X}h"
+            if obj.index in od
+            else "not in the EDS"
+        )
+        raise PdoMappingError(f"{where}: {obj}: {what}")
     known = object_bits(od, obj)
     if known is None:
         if obj.index < 0x1000:
@@ -299,8 +309,8 @@ def pdo_setting(
     }  # fmt: skip
     try:
         return Pdo.model_validate(fields)
-    except ValueError as exc:
-        msg = str(exc).split("\n")[-1].strip() if "validation error" in str(exc) else str(exc)
+    except ValidationError as exc:
+        msg = "; ".join(str(e["msg"]).removeprefix("Value error, ") for e in exc.errors())
         raise PdoMappingError(f"{where}: {msg}") from None
 
 

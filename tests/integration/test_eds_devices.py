@@ -196,3 +196,20 @@ async def test_device_holding_another_mapping_than_the_eds_is_detected_and_its_v
         finally:
             client.close()
         assert rr.isError() and rr.exception_code == 0x0B
+
+
+async def test_simulated_eds_only_node_runs_with_the_gateway() -> None:
+    cfg = make_config([{"name": "io", "node_id": 5, "eds": str(IO)}], zenoh={"enabled": False})
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        sigs = gw.image.nodes["io"].signals
+        await wait_until(
+            lambda: gw.image.nodes["io"].operational()
+            and gw.image.nodes["io"].quality(sigs["analogue_input_1"]) == Quality.GOOD,
+            8,
+            "simulated io node verified and sending",
+        )
+        assert gw.master.nodes["io"].mapping_mismatches == []
+    finally:
+        await gw.stop()
