@@ -23,6 +23,7 @@ from gateway.image import ProcessImage
 from gateway.modbus.regmap import build_register_map
 from gateway.modbus.server import ModbusGateway
 from gateway.profiles import load_profile
+from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
 log = logging.getLogger("gateway")
@@ -69,11 +70,14 @@ class SimulatedBus:
 
 
 class Gateway:
-    def __init__(self, cfg: Config, simulate: bool = True):
+    def __init__(self, cfg: Config, simulate: bool = True, *, passive: bool = False):
         self.cfg = cfg
         self.image = ProcessImage()
-        self.driver = BusDriver(cfg.can.bus_kwargs(), self.image, cfg.can.reopen_backoff_s)
-        self.master = Master(cfg, self.image, self.driver)
+        self.threads = ThreadRegistry()
+        self.driver = BusDriver(
+            cfg.can.bus_kwargs(), self.image, cfg.can.reopen_backoff_s, threads=self.threads
+        )
+        self.master = Master(cfg, self.image, self.driver, passive=passive)
         self.commands = CommandService(self.master)
         self.modbus = ModbusGateway(cfg, self.image, self.commands) if cfg.modbus.enabled else None
         self.zenoh = (
@@ -94,7 +98,8 @@ class Gateway:
                     | ({"bit": p.bit} if p.bit is not None else {})
                 )
         nodes = {}
-        for name, rt in self.master.nodes.items():
+        for name in self.commands.names():
+            rt = self.commands.node(name)
             sigs = {}
             for s in rt.lp.profile.signals:
                 sigs[s.name] = {
@@ -153,9 +158,12 @@ class Gateway:
         bus_ok = self.driver.state == "ok"
         modbus_up = self.modbus is None or self.modbus.server is not None
         zenoh_up = self.zenoh is None or self.zenoh.up
+        dead = self.threads.failures()
+        ready = self.started and bus_ok and modbus_up and zenoh_up and not dead
         return {
-            "status": "ready" if (self.started and bus_ok and modbus_up and zenoh_up) else "not-ready",
-            "ready": self.started and bus_ok and modbus_up and zenoh_up,
+            "status": "ready" if ready else "not-ready",
+            "ready": ready,
+            "threads": {"failed": dead},
             "bus": {"state": self.driver.state, "detail": self.driver.last_error},
             "modbus": modbus_up,
             "zenoh": zenoh_up,
@@ -199,6 +207,10 @@ class Gateway:
         while True:
             ic = self.image.counters
             c.frames_in, c.frames_out, c.bus_errors = ic["frames_in"], ic["frames_out"], ic["bus_errors"]
+            for name, node in self.image.nodes.items():
+                for reason, n in (("short", node.rx.pdo_errors), ("too_long", node.rx.pdo_too_long), ("emcy_short", node.health.emcy_errors)):
+                    if n:
+                        c.decode_errors[(name, reason)] = n
             if self.zenoh is not None:
                 c.zenoh_publications = self.zenoh.publications
             if self.modbus is not None:

@@ -13,30 +13,20 @@ measured from ``t0`` expires strictly *after* ``t0 + T``. At ``now == t0 + T`` t
 alive; at the next representable instant it is lost. Scheduled sends are due *at* their time
 (``now >= due``).
 
-Imports: the standard library only. Must not import python-can, canopen, asyncio, logging or any
-other gateway module.
+Imports: the standard library and gateway.states (the one NmtState / LinkState). Must not
+import python-can, canopen, asyncio, logging or any other gateway module.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum, StrEnum
+from enum import StrEnum
 from typing import Literal
 
+from gateway.states import REPORTED_STATES as _REPORTED_STATES
+from gateway.states import LinkState, NmtState
+
 # --------------------------------------------------------------------------- NMT states
-
-
-class NmtState(IntEnum):
-    """NMT state byte of a heartbeat / guarding answer (SGH10 manual 4.5.2, 4.5.3; DS-301)."""
-
-    BOOTUP = 0x00  # SGH10 manual 4.2.2: the boot-up message carries 00h
-    STOPPED = 0x04
-    OPERATIONAL = 0x05
-    PRE_OPERATIONAL = 0x7F  # 127
-
-
-#: States a heartbeat or a guarding answer may report (SGH10 manual 4.5.2/4.5.3: 4, 5, 127).
-_REPORTED_STATES = frozenset({NmtState.STOPPED, NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL})
 
 
 class Liveness(StrEnum):
@@ -276,6 +266,7 @@ class NodeGuardingMaster:
     UNKNOWN      poll, now > activation/boot-up + life time         LOST      NodeLost
     ALIVE        poll, now > last valid answer + life time          LOST      NodeLost
     any          boot-up                                            UNKNOWN   BootUpSeen (toggle restarts at 0)
+    not LOST     sign of life (SDO answer during configuration)     same      life time runs from now
     ===========  =================================================  ========  ==========================
 
     DS-301: "if two consecutive responses have the same value of the toggle-bit, the new
@@ -397,6 +388,12 @@ class NodeGuardingMaster:
                 out.append(NodeAlive(st))
         return out
 
+    def on_sign_of_life(self, now: float) -> None:
+        """Another frame of the node (an SDO answer while it is configured) shows it is there:
+        the life time runs from now. Guarding answers stay the only way to become ALIVE."""
+        if self.active and self.state is not Liveness.LOST and self.last_valid_s is not None:
+            self.last_valid_s = max(self.last_valid_s, now)
+
     def on_bootup(self, now: float) -> list[Output]:
         """The node restarted: its toggle starts again at 0, the life time runs from now."""
         self.bootups += 1
@@ -412,12 +409,6 @@ class NodeGuardingMaster:
 
 
 # --------------------------------------------------------------------------- guarding bit
-
-
-class LinkState(StrEnum):
-    UNKNOWN = "unknown"  # nothing sent yet, or no echo seen yet
-    OK = "ok"
-    FAULT = "fault"
 
 
 @dataclass(frozen=True)

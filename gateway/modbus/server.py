@@ -59,8 +59,10 @@ from gateway.errors import (
     Unmapped,
     ValueOutOfRange,
 )
-from gateway.image import LinkState, NmtState, NodeImage, ProcessImage, Quality
+from gateway.image import LinkState, NmtState, NodeImage, ProcessImage, Quality, SignalValue
 from gateway.modbus.regmap import TABLE_NAMES, Point, RegisterMap, Table, build_register_map
+from gateway.ratelimit import RateLimitedLog
+from gateway.states import NMT_BY_CODE
 
 log = logging.getLogger("gateway.modbus")
 
@@ -104,7 +106,6 @@ MBAP_MAX_LENGTH = 254
 MAX_IN_FLIGHT = 16
 
 LIFECYCLE_CODES = {"waiting": 0, "booting": 1, "configuring": 2, "operational": 3}
-NMT_WRITE = {1: "start", 2: "stop", 128: "preop", 129: "reset", 130: "reset-comm"}
 
 
 class ModbusError(Exception):
@@ -113,30 +114,6 @@ class ModbusError(Exception):
     def __init__(self, code: ExceptionCode, why: str):
         self.code = code
         super().__init__(why)
-
-
-class _LogLimiter:
-    """At most one log line per key and ``period_s`` (a polling PLC must not flood the log)."""
-
-    def __init__(self, period_s: float = 10.0):
-        self.period_s = period_s
-        self._last: dict[Any, float] = {}
-        self._suppressed: dict[Any, int] = {}
-
-    def warning(self, key: Any, msg: str, *args: Any) -> None:
-        now = time.monotonic()
-        last = self._last.get(key)
-        if last is not None and now - last < self.period_s:
-            self._suppressed[key] = self._suppressed.get(key, 0) + 1
-            return
-        if len(self._last) > 1000:
-            self._last.clear()
-        self._last[key] = now
-        n = self._suppressed.pop(key, 0)
-        if n:
-            log.warning(msg + " (%d similar suppressed)", *args, n)
-        else:
-            log.warning(msg, *args)
 
 
 def exception_code(exc: BaseException) -> ExceptionCode:
@@ -284,7 +261,7 @@ class ImageDatastore:
         self.write_timeout_s = cfg.modbus.write_timeout_s
         self.requests = 0
         self.exceptions: dict[int, int] = {}
-        self.warn = _LogLimiter()
+        self.warn = RateLimitedLog(log)
         #: per node, the signals its TPDOs carry (for the quality register)
         self.process_signals: dict[str, tuple[str, ...]] = {}
         for p in regmap.points:
@@ -299,6 +276,7 @@ class ImageDatastore:
         """Registers (ints) or bits (bools) of ``count`` consecutive addresses."""
         idx = self.regmap.index.get((unit, table), {})
         words: dict[tuple[str, str], Any] = {}  # a word read once per request for all its bits
+        snaps: dict[str, dict[str, SignalValue]] = {}  # one consistent view per node
         out: list[Any] = []
         a, end = address, address + count
         while a < end:
@@ -309,10 +287,10 @@ class ImageDatastore:
                     f"{TABLE_NAMES[table]} {a} of unit {unit} is not mapped",
                 )
             if table in ("di", "co"):
-                out.append(bool(await self._bit_value(p, words)))
+                out.append(bool(await self._bit_value(p, words, snaps)))
                 a += 1
                 continue
-            regs = await self._reg_value(p)
+            regs = await self._reg_value(p, snaps)
             lo = a - p.address
             take = min(p.end, end) - a
             out.extend(regs[lo : lo + take])
@@ -323,21 +301,30 @@ class ImageDatastore:
         assert p.node is not None
         return self.image.nodes[p.node]
 
-    def _servable(self, node: NodeImage, name: str) -> Any:
+    def _servable(
+        self, node: NodeImage, name: str, snaps: dict[str, dict[str, SignalValue]] | None = None
+    ) -> Any:
         """A process value if its quality allows serving it (stale only with serve_stale)."""
         if self.image.bus_state == "down":
             raise BusDown("CAN bus is down")
-        s = node.signals[name]
+        snap = None if snaps is None else snaps.get(node.name)
+        if snap is None:
+            snap = node.snapshot()
+            if snaps is not None:
+                snaps[node.name] = snap
+        s = snap[name]
         q = node.quality(s)
         if q == Quality.GOOD or (q == Quality.STALE and node.serve_stale):
             return s.value
         if s.seq == 0:
             raise NodeNotOperational(node.name, f"{name} never received")
-        if not s.valid:
+        if not node.is_valid(name):
             raise NodeNotOperational(node.name, f"{name} flagged invalid by the device")
         raise NodeNotOperational(node.name, f"{name} is stale")
 
-    async def _reg_value(self, p: Point) -> list[int]:
+    async def _reg_value(
+        self, p: Point, snaps: dict[str, dict[str, SignalValue]] | None = None
+    ) -> list[int]:
         if p.kind == "gateway":
             return to_registers(self._gateway_value(p.name), p)
         node = self._node(p)
@@ -347,18 +334,20 @@ class ImageDatastore:
             st = node.health.nmt_state
             return [0xFFFF if st == NmtState.UNKNOWN else int(st)]
         if p.table == "ir":
-            return to_registers(self._servable(node, p.name), p)
+            return to_registers(self._servable(node, p.name, snaps), p)
         return to_registers(await self._output_value(node.name, p.name), p)
 
     async def _output_value(self, node: str, name: str) -> Any:
-        """A writable point: the last value sent by RPDO, else the device's value by SDO."""
-        rt = self.commands.node(node)
-        if name in rt.rpdo_by_signal:
-            v = self.commands.current_output(rt, name)
-            return 0 if v is None else v
+        """A writable point: the last value sent by RPDO, else the device's value by SDO
+        (from the command service's cache while younger than ``master.sdo_cache_ms``)."""
         return await self.commands.read_signal(node, name)
 
-    async def _bit_value(self, p: Point, words: dict[tuple[str, str], Any]) -> int:
+    async def _bit_value(
+        self,
+        p: Point,
+        words: dict[tuple[str, str], Any],
+        snaps: dict[str, dict[str, SignalValue]] | None = None,
+    ) -> int:
         node = self._node(p)
         if p.kind == "diag_bit":
             h = node.health
@@ -372,7 +361,7 @@ class ImageDatastore:
         key = (node.name, p.name)
         if key not in words:
             if p.table == "di" and p.transport == "pdo":
-                words[key] = self._servable(node, p.name)
+                words[key] = self._servable(node, p.name, snaps)
             else:
                 words[key] = await self._output_value(node.name, p.name)
         return (int(words[key]) >> p.bit) & 1
@@ -414,7 +403,7 @@ class ImageDatastore:
         if name == "boot_count":
             return h.boot_count & 0xFFFF
         if name == "pdo_errors":
-            return h.pdo_errors & 0xFFFF
+            return node.rx.pdo_errors & 0xFFFF
         return 0
 
     def _gateway_value(self, name: str) -> int:
@@ -505,9 +494,11 @@ class ImageDatastore:
             assert p.node is not None
             regs = values[start : start + p.count]
             if p.kind == "nmt":
-                cmd = NMT_WRITE.get(regs[0])
+                cmd = NMT_BY_CODE.get(regs[0])
                 if cmd is None:
-                    raise ValueOutOfRange("nmt_command", regs[0], "1, 2, 128, 129 or 130")
+                    raise ValueOutOfRange(
+                        "nmt_command", regs[0], ", ".join(str(c) for c in NMT_BY_CODE)
+                    )
                 nmt.append((p.node, cmd))
                 continue
             value = from_registers(regs, p)
@@ -547,14 +538,8 @@ class ImageDatastore:
         self, grouped: dict[tuple[str, str], dict[int, bool]], transport: dict[tuple[str, str], str]
     ) -> None:
         for (node, name), bits in grouped.items():
-            if transport[(node, name)] == "pdo":
-                await self.commands.write_bits(node, name, bits)
-                continue
-            # a parameter word served by SDO: read-modify-write on the device
-            word = int(await self.commands.read_signal(node, name))
-            for bit, on in bits.items():
-                word = word | (1 << bit) if on else word & ~(1 << bit)
-            await self.commands.write_signal(node, name, word)
+            # read-modify-write of the word (RPDO output or SDO object) by the command service
+            await self.commands.write_bits(node, name, bits)
 
     async def mask_write(
         self, unit: int, address: int, and_mask: int, or_mask: int, peer: str | None

@@ -45,9 +45,8 @@ async def test_bus_shut_under_the_driver_is_reopened_and_decoding_resumes() -> N
         await wait_until(lambda: gw.driver.state == "ok", 3, "bus reopened")
         assert gw.driver.reopens == 1
         assert gw.image.counters["bus_errors"] >= 1
-        sig = gw.image.nodes["wire"].signals["position"]
-        seq = sig.seq
-        await wait_until(lambda: sig.seq > seq + 3, 3, "TPDOs decoded again")
+        seq = gw.image.nodes["wire"].signals["position"].seq
+        await wait_until(lambda: gw.image.nodes["wire"].signals["position"].seq > seq + 3, 3, "TPDOs decoded again")
         assert gw.status()["ready"]
         # 1.5 s without heartbeats: the node was lost, and is found and configured again
         assert gw.image.nodes["wire"].health.loss_count == 1

@@ -16,7 +16,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
 from gateway.app import Gateway
-from gateway.image import NmtState
+from gateway.image import NmtState, Quality
 from tests.helpers import make_config, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -89,7 +89,9 @@ async def test_writes_to_read_only_points_answer_illegal_data_address() -> None:
 async def test_a_write_of_part_of_a_32_bit_value_is_refused_and_nothing_is_sent() -> None:
     async with running([DISPLAY]) as (gw, client):
         sent: list[bytes] = []
-        gw.master.rpdo_hooks.append(lambda rt, codec: sent.append(codec.encode()))
+        gw.image.pdo_listeners.append(
+            lambda node, cob, data: sent.append(data) if cob >> 8 in (2, 3) else None
+        )  # RPDOs sent (2xxh, 3xxh)
         assert code(await client.write_register(SET_POINT1, 7, device_id=125)) == ILLEGAL_ADDRESS
         rr = await client.write_registers(SET_POINT1 + 1, [7, 0], device_id=125)
         assert code(rr) == ILLEGAL_ADDRESS
@@ -147,6 +149,10 @@ async def test_a_node_that_goes_silent_answers_no_response_and_serves_again_when
 
         call(gw, lambda now: wire.unsilence(now))
         await wait_until(node.operational, 3, "wire back")
+        # a loss invalidates every value: good again with the first TPDO after NMT start
+        await wait_until(
+            lambda: node.quality(node.signals["position"]) == Quality.GOOD, 3, "a fresh TPDO"
+        )
         rr = await client.read_input_registers(100, count=2, device_id=1)
         assert code(rr) is None and rr.registers == [0xFFFF, 0xFB2E]
         assert (await client.read_input_registers(0, count=1, device_id=1)).registers == [0]

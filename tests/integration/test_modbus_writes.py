@@ -72,7 +72,9 @@ async def test_set_points_written_as_two_registers_reach_the_ap05_by_rpdo() -> N
 async def test_set_point_characters_and_control_word_in_one_request_are_one_rpdo() -> None:
     async with running([DISPLAY]) as (gw, client):
         sent: list[bytes] = []
-        gw.master.rpdo_hooks.append(lambda rt, codec: sent.append(codec.encode()))
+        gw.image.pdo_listeners.append(
+            lambda node, cob, data: sent.append(data) if cob >> 8 in (2, 3) else None
+        )  # RPDOs sent (2xxh, 3xxh)
         # set point2 300, characters "AB", control word bit 9 (set point2 valid): 4 registers
         rr = await client.write_registers(SET_POINT2, [0, 300, 0x4142, 0x0200], device_id=125)
         assert not rr.isError(), rr
@@ -82,8 +84,11 @@ async def test_set_point_characters_and_control_word_in_one_request_are_one_rpdo
         await wait_until(lambda: obj(gw, "display", 0x5F16, 1) == 300, 2, "5F16h:01")
         assert obj(gw, "display", 0x5F0C, 0) & ~GUARDING_BIT == 0x0200
         # the AP05 acknowledges a valid set point2 in status bit 10 (manual 5.3.3 table 28)
-        status = gw.image.nodes["display"].signals["status_word"]
-        await wait_until(lambda: status.value & 0x0400, 2, "status bit 10 set point2 valid")
+        await wait_until(
+            lambda: gw.image.nodes["display"].signals["status_word"].value & 0x0400,
+            2,
+            "status word bit 10 set point2 valid",
+        )
 
 
 async def test_a_control_word_coil_sets_one_bit_and_the_status_word_follows() -> None:
