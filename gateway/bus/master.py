@@ -31,6 +31,7 @@ from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.driver import BusDriver
 from gateway.bus.lifecycle import ConfigStep, build_boot_steps
 from gateway.bus.node import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
+from gateway.bus.producers import Periodic
 from gateway.bus.refresh import refresh_plan
 from gateway.bus.settings import NodeSettings, resolve_node_settings
 from gateway.config import Config, NodeConfig
@@ -143,6 +144,7 @@ class Master:
         self.by_id: dict[int, NodeParts] = {}
         self.warn = RateLimitedLog(log)
         self._timers: dict[str, asyncio.TimerHandle] = {}
+        self._producers: dict[str, asyncio.TimerHandle] = {}
         self._due: dict[str, float] = {}
         self._waiting: dict[tuple[str, int], tuple[asyncio.Future[bytes], ObjRef]] = {}
         self._tasks: list[asyncio.Task[Any]] = []
@@ -315,18 +317,21 @@ class Master:
     # ------------------------------------------------------------------ start / stop
     async def start(self) -> None:
         self.loop = asyncio.get_running_loop()
+        t0 = self.loop.time()
         if self.cfg.master.heartbeat_ms:
-            self._tasks.append(asyncio.create_task(self._heartbeat_producer(), name="hb-producer"))
+            hb = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
+            self._produce("heartbeat", hb, 0x700 + self.cfg.master.node_id, b"\x05")
         if self.cfg.master.sync_period_ms:
-            self._tasks.append(asyncio.create_task(self._sync_producer(), name="sync"))
+            self._produce("sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), 0x080, b"")
         self._tasks.append(asyncio.create_task(self._housekeeping(), name="housekeeping"))
         now = self.clock()
         for p in self.nodes.values():
             self._execute(p, p.node.start(now, probe=self.cfg.master.probe_at_start))
 
     async def stop(self) -> None:
-        for t in self._timers.values():
+        for t in [*self._timers.values(), *self._producers.values()]:
             t.cancel()
+        self._producers.clear()
         self._timers.clear()
         self._due.clear()
         for t in self._tasks:
@@ -342,29 +347,19 @@ class Master:
                 fut.set_exception(BusDown("gateway stopping"))
         self._waiting.clear()
 
-    async def _heartbeat_producer(self) -> None:
-        period = self.cfg.master.heartbeat_ms / 1000.0
-        cob = 0x700 + self.cfg.master.node_id
-        while True:
+    def _produce(self, name: str, periodic: Periodic, cob_id: int, data: bytes) -> None:
+        """SYNC / master heartbeat: send when due, then sleep until the next one."""
+        loop = self.loop
+        if loop is None:
+            return
+        if periodic.due(loop.time()):
             try:
-                self.driver.send(cob, b"\x05")
+                self.driver.send(cob_id, data)
             except can.CanError:
                 pass
-            await asyncio.sleep(period)
-
-    async def _sync_producer(self) -> None:
-        period = self.cfg.master.sync_period_ms / 1000.0
-        loop = asyncio.get_running_loop()
-        nxt = loop.time()
-        while True:
-            try:
-                self.driver.send(0x080, b"")
-            except can.CanError:
-                pass
-            nxt += period
-            if nxt < loop.time():
-                nxt = loop.time()
-            await asyncio.sleep(nxt - loop.time())
+        self._producers[name] = loop.call_at(
+            periodic.next_deadline(), self._produce, name, periodic, cob_id, data
+        )
 
     async def _housekeeping(self) -> None:
         while True:

@@ -264,6 +264,10 @@ class Node:
         assert idx is not None
         return self.outputs[codec.number][idx]
 
+    def sdo_busy(self) -> bool:
+        """A transfer is running or waiting."""
+        return self._active is not None or bool(self._jobs)
+
     def is_output(self, name: str) -> bool:
         return name in self.by_signal
 

@@ -104,6 +104,7 @@ class SdoTransfer:
         self._toggle = 0
         self._buf = bytearray()
         self._sent = 0  # bytes of a segmented download sent so far
+        self._size: int | None = None  # size a segmented upload announced
 
     # -- queries
     @property
@@ -158,6 +159,7 @@ class SdoTransfer:
                 return self._succeed(data[4 : 4 + size])
             self.phase = SdoPhase.UP_SEG
             self._toggle = 0
+            self._size = struct.unpack_from("<I", data, 4)[0] if cmd & 0x01 else None
             return self._send(bytes([_CCS_UPLOAD_SEGMENT]) + b"\0" * 7, now)
         if self.phase is SdoPhase.UP_SEG:
             if scs != _SCS_UPLOAD_SEGMENT:
@@ -166,8 +168,9 @@ class SdoTransfer:
                 return self._abort(ABORT_TOGGLE)
             size = 7 - ((cmd >> 1) & 0x07)
             self._buf += data[1 : 1 + size]
-            if cmd & 0x01:  # c: no more segments
-                return self._succeed(bytes(self._buf))
+            if cmd & 0x01:  # c: no more segments; the size indicated at initiate wins
+                size_ok = self._buf if self._size is None else self._buf[: self._size]
+                return self._succeed(bytes(size_ok))
             self._toggle ^= 1
             return self._send(bytes([_CCS_UPLOAD_SEGMENT | (self._toggle << 4)]) + b"\0" * 7, now)
         if self.phase is SdoPhase.DOWN_INIT:

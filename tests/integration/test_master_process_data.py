@@ -33,7 +33,8 @@ def frame(cob_id: int, data: bytes) -> can.Message:
     return can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
 
 
-async def test_sync_and_heartbeat_producers_keep_their_periods() -> None:
+async def test_sync_and_heartbeat_producers_send_their_frames() -> None:
+    """The periods themselves are checked on a fake clock (tests/unit/test_node.py)."""
     async with running(
         [], simulate={"nodes": []}, master={"sync_period_ms": 20, "heartbeat_ms": 100}
     ) as gw:
@@ -41,12 +42,8 @@ async def test_sync_and_heartbeat_producers_keep_their_periods() -> None:
         try:
             syncs = await asyncio.to_thread(collect, bus, lambda m: m.arbitration_id == 0x080, 11)
             assert all(m.dlc == 0 for m in syncs)
-            span_s = syncs[-1].timestamp - syncs[0].timestamp
-            assert 0.15 <= span_s <= 0.4, span_s  # 10 periods of 20 ms
             beats = await asyncio.to_thread(collect, bus, lambda m: m.arbitration_id == 0x77F, 3)
             assert all(bytes(m.data) == b"\x05" for m in beats)  # node id 127, OPERATIONAL
-            span_s = beats[-1].timestamp - beats[0].timestamp
-            assert 0.15 <= span_s <= 0.35, span_s  # 2 periods of 100 ms
         finally:
             bus.shutdown()
 

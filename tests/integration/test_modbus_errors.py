@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import time
 from collections.abc import AsyncIterator
 from typing import Any
 
@@ -174,10 +173,8 @@ async def test_a_stopped_node_answers_no_response_until_started_again() -> None:
         assert code(await client.write_register(0, 2, device_id=1)) is None  # NMT stop
         await wait_until(lambda: node.health.nmt_state == NmtState.STOPPED, 3, "stopped")
         assert code(await client.read_input_registers(100, count=2, device_id=1)) == NO_RESPONSE
-        t0 = time.monotonic()
         rr = await client.write_register(WIRE_ERROR_COUNT, 0, device_id=1)
         assert code(rr) == NO_RESPONSE, "a stopped node does not answer SDO"
-        assert time.monotonic() - t0 < 2.0
         assert (await client.read_holding_registers(0, count=1, device_id=1)).registers == [4]
         assert code(await client.write_register(0, 1, device_id=1)) is None  # NMT start
         await wait_until(node.operational, 3, "operational again")
@@ -186,18 +183,17 @@ async def test_a_stopped_node_answers_no_response_until_started_again() -> None:
 
 async def test_a_write_not_confirmed_within_write_timeout_answers_no_response() -> None:
     sections = {
-        "master": {"sdo_timeout_s": 1.0, "sdo_retries": 0},
+        "master": {"sdo_timeout_s": 30.0, "sdo_retries": 0},
         "modbus": {"write_timeout_s": 0.2},
     }
     async with running([WIRE], **sections) as (gw, client):
         node = gw.image.nodes["wire"]
         assert code(await client.write_register(0, 2, device_id=1)) is None
         await wait_until(lambda: node.health.nmt_state == NmtState.STOPPED, 3, "stopped")
-        t0 = time.monotonic()
         rr = await client.write_register(WIRE_ERROR_COUNT, 0, device_id=1)
-        elapsed = time.monotonic() - t0
         assert code(rr) == NO_RESPONSE
-        assert elapsed < 0.8, f"answered after {elapsed:.2f} s, write_timeout_s is 0.2"
+        # answered at write_timeout_s: the SDO download (30 s timeout) is still waiting
+        assert gw.master.nodes["wire"].node.sdo_busy()
 
 
 async def test_can_bus_down_answers_gateway_path_unavailable_then_recovers() -> None:
