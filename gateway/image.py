@@ -76,10 +76,10 @@ class NodeHealth:
 class RxCounters:
     """Counters of the CAN reader thread (written by that thread only)."""
 
-    __slots__ = ("pdo_errors", "pdo_too_long", "last_rx_monotonic")
+    __slots__ = ("pdo_too_short", "pdo_too_long", "last_rx_monotonic")
 
     def __init__(self) -> None:
-        self.pdo_errors = 0  # PDOs shorter than their mapping (not decoded)
+        self.pdo_too_short = 0  # PDOs shorter than their mapping (not decoded)
         self.pdo_too_long = 0  # PDOs longer than their mapping (mapped bytes decoded)
         self.last_rx_monotonic = 0.0
 

@@ -247,7 +247,8 @@ class BusDriver:
             if self.state == "error":
                 self._maybe_recovered()
             counters["frames_in"] += 1
-            h = handlers.get(msg.arbitration_id)
+            # CANopen (CiA 301) uses 11-bit identifiers: a 29-bit frame is never ours
+            h = None if msg.is_extended_id else handlers.get(msg.arbitration_id)
             try:
                 if h is not None:
                     h(msg)

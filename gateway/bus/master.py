@@ -148,6 +148,8 @@ class Master:
         self._due: dict[str, float] = {}
         self._waiting: dict[tuple[str, int], tuple[asyncio.Future[bytes], ObjRef]] = {}
         self._tasks: list[asyncio.Task[Any]] = []
+        #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
+        self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
         for ncfg in cfg.nodes:
             lp = load_profile(ncfg.profile, cfg.base_dir)
             names = [s.name for s in lp.profile.signals]
@@ -206,7 +208,7 @@ class Master:
                 return
             n = len(data)
             if n < length:
-                rx.pdo_errors += 1
+                rx.pdo_too_short += 1
                 counters["decode_errors"] += 1
                 warn.warning("short_pdo", "node %s: PDO 0x%03X with %d bytes, mapping needs %d; ignored", node.name, codec.cob_id, n, length)
                 return
@@ -401,10 +403,20 @@ class Master:
             raise NodeNotOperational(name, "not alive")
         assert self.loop is not None
         fut: asyncio.Future[bytes] = self.loop.create_future()
+        t0 = self.loop.time()
         token, outs = p.node.request_sdo(obj, data, self.clock())
         self._waiting[(name, token)] = (fut, obj)
         self._execute(p, outs)
-        return await fut
+        op = "read" if data is None else "write"
+        try:
+            result = await fut
+        except SdoAbort as exc:
+            if self.on_sdo is not None:
+                self.on_sdo(name, op, self.loop.time() - t0, exc.code)
+            raise
+        if self.on_sdo is not None:
+            self.on_sdo(name, op, self.loop.time() - t0, None)
+        return result
 
     def _sdo_done(self, p: NodeParts, done: SdoDone) -> None:
         entry = self._waiting.pop((p.name, done.token), None)

@@ -260,6 +260,7 @@ class ImageDatastore:
         self.allowed = [ipaddress.ip_network(n, strict=False) for n in cfg.modbus.allowed_networks]
         self.write_timeout_s = cfg.modbus.write_timeout_s
         self.requests = 0
+        self.by_function: dict[int, int] = {}  # requests by function code
         self.exceptions: dict[int, int] = {}
         self.warn = RateLimitedLog(log)
         #: per node, the signals its TPDOs carry (for the quality register)
@@ -403,7 +404,7 @@ class ImageDatastore:
         if name == "boot_count":
             return h.boot_count & 0xFFFF
         if name == "pdo_errors":
-            return node.rx.pdo_errors & 0xFFFF
+            return (node.rx.pdo_too_short + node.rx.pdo_too_long) & 0xFFFF
         return 0
 
     def _gateway_value(self, name: str) -> int:
@@ -685,6 +686,7 @@ class _Connection(asyncio.Protocol):
         store = self.store
         store.requests += 1
         fc = pdu[0]
+        store.by_function[fc] = store.by_function.get(fc, 0) + 1
         try:
             response = await execute(store, unit, pdu, self.peer)
         except Exception as exc:  # noqa: BLE001 - every failure becomes an exception response

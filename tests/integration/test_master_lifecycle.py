@@ -161,7 +161,7 @@ async def test_msk5000_tpdo_remapped_by_node_sdo_writes_is_decoded_by_the_new_ma
         assert sigs["sys_register"].value == sim.get(0x5122, 1)
         assert sigs["sys_register"].value & 0x02
         assert sigs["flag0_register"].value == sim.get(0x5122, 2)
-        assert rt.image.rx.pdo_errors == 0
+        assert rt.image.rx.pdo_too_short == 0
 
 
 def boot_table(lp: Any, node: Any) -> str:

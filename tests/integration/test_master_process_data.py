@@ -106,7 +106,7 @@ async def test_unknown_cob_id_short_and_long_pdos_are_counted_and_never_fatal() 
             await wait_until(lambda: pos().value == 1234, 2, "a good TPDO1")
             # short: 2 bytes for a 6-byte mapping -> ignored, counted
             bus.send(frame(0x181, b"\x01\x02"))
-            await wait_until(lambda: rt.image.rx.pdo_errors == 1, 2, "short PDO counted")
+            await wait_until(lambda: rt.image.rx.pdo_too_short == 1, 2, "short PDO counted")
             assert img.counters["decode_errors"] == 1
             assert pos().value == 1234
             # long: 8 bytes -> the mapped 6 bytes are used (CiA 301), counted apart
