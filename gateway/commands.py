@@ -249,25 +249,29 @@ class CommandService:
             )
 
     async def write_bits(self, node: str, name: str, bits: dict[int, bool]) -> None:
-        """Set or clear bits of a word signal (read-modify-write of the current value)."""
+        """Set or clear bits of a word signal (read-modify-write of the current value). A bit
+        the profile does not mark writable may only be "written" with the value it has."""
         p = self._part(node)
         sig = self.signal(node, name)
         if sig.access == "ro":
             raise ReadOnly(f"{node}.{name} is read-only")
+        if any(not 0 <= b < TYPE_BITS.get(sig.type, 64) for b in bits):
+            raise Unmapped(f"{node}.{name} has no bit {sorted(bits)}")
         allowed = writable_mask(sig) if sig.bits else 0
-        bad = [b for b in bits if not (0 <= b < 64 and allowed >> b & 1)]
-        if bad:
-            raise ReadOnly(
-                f"{node}.{name}: {bit_names(sig, sum(1 << b for b in bad if 0 <= b < 64)) or bad} "
-                f"not writable; writable: {bit_names(sig, allowed) or 'none'}"
-            )
         async with self._word_lock(node, name):
             if p.node.is_output(name):
-                word = int(p.node.output(name) or 0)
+                current = int(p.node.output(name) or 0)
             else:
-                word = int(await self._sdo_value(p, sig))
+                current = int(await self._sdo_value(p, sig))
+            word = current
             for bit, on in bits.items():
                 word = word | (1 << bit) if on else word & ~(1 << bit)
+            changed = (word ^ current) & ~allowed
+            if changed:
+                raise ReadOnly(
+                    f"{node}.{name}: {bit_names(sig, changed)} not writable; "
+                    f"writable: {bit_names(sig, allowed) or 'none'}"
+                )
             if p.node.is_output(name):
                 self.master.write_outputs(node, {None: {name: word}})
                 self._mirror(p, {name: word})

@@ -174,8 +174,8 @@ async def test_the_liveliness_token_means_values_usable() -> None:
         assert node.operational()
 
 
-@pytest.mark.parametrize("bit", [0, 2])
-async def test_a_bit_not_marked_writable_is_refused_and_nothing_is_written(bit: int) -> None:
+@pytest.mark.parametrize(("bit", "on"), [(0, True), (2, False)])
+async def test_a_bit_not_marked_writable_is_refused_and_nothing_is_written(bit: int, on: bool) -> None:
     # SGH10 6000h (4.7.2.23): bit 0 not used, bit 2 scaling (always 1); only bit 3 writable
     async with gateway() as (gw, dev, client, z):
         dev.boot()
@@ -185,7 +185,7 @@ async def test_a_bit_not_marked_writable_is_refused_and_nothing_is_written(bit: 
             p for p in gw.modbus.regmap.points
             if p.node == "wire" and p.name == "operating_parameters" and p.table == "co" and p.bit == bit
         )  # fmt: skip
-        rr = await client.write_coil(point.address, True, device_id=1)
+        rr = await client.write_coil(point.address, on, device_id=1)
         assert code(rr) == 0x02
         assert dev.local.sdo[0x6000].raw == 0x0004
 
