@@ -222,7 +222,9 @@ class CommandService:
                 if ts.head in pdo and ts.control not in pdo:
                     for c in p.node.by_signal[ts.head]:
                         ctrl = int(p.node.output(ts.control, c.number))
-                        per_pdo.setdefault(c.number, {})[ts.control] = ctrl & ~(1 << ts.identifier_bit)
+                        per_pdo.setdefault(c.number, {})[ts.control] = ctrl & ~(
+                            1 << ts.identifier_bit
+                        )
             self.master.write_outputs(node, per_pdo)
             self._mirror(p, pdo)
         for n, v in sdo.items():
@@ -293,7 +295,13 @@ class CommandService:
         ctrl = int(p.node.output(ts.control, n)) | (1 << ts.identifier_bit)
         self.master.write_outputs(
             p.name,
-            {n: {ts.head: int.from_bytes(text[0:4], "little", signed=True), ts.tail: text[4:6], ts.control: ctrl}},
+            {
+                n: {
+                    ts.head: int.from_bytes(text[0:4], "little", signed=True),
+                    ts.tail: text[4:6],
+                    ts.control: ctrl,
+                }
+            },
         )
 
     def current_text(self, p: NodeParts, ts: TextSignal) -> bytes:

@@ -211,7 +211,10 @@ class ProcessImage:
         mono = time.monotonic()
         sigs = node.signals
         node.signals.update(
-            {n: SignalValue(n, v, ts, mono, sigs[n].seq + 1) for n, v in zip(names, values, strict=False)}
+            {
+                n: SignalValue(n, v, ts, mono, sigs[n].seq + 1)
+                for n, v in zip(names, values, strict=False)
+            }
         )
         node.rx.last_rx_monotonic = mono
         for listener in self.value_listeners:

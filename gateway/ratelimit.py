@@ -76,4 +76,6 @@ class RateLimitedLog:
                     due.append((kind, n, last_msg))
                     self.lines += 1
         for _kind, n, last_msg in due:
-            self.logger.warning("%d more like this in the last %.0f s, the last: %s", n, self.period_s, last_msg)
+            self.logger.warning(
+                "%d more like this in the last %.0f s, the last: %s", n, self.period_s, last_msg
+            )

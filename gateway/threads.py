@@ -39,5 +39,3 @@ class ThreadRegistry:
     def failures(self) -> dict[str, str]:
         with self._lock:
             return dict(self._failed)
-
-

@@ -88,14 +88,27 @@ class NodeParts:
         return self.node.emcy
 
 
-def build_node(master_cfg: Any, ncfg: NodeConfig, lp: LoadedProfile, image: NodeImage, passive: bool = False) -> NodeParts:
+def build_node(
+    master_cfg: Any, ncfg: NodeConfig, lp: LoadedProfile, image: NodeImage, passive: bool = False
+) -> NodeParts:
     """One node's parts from its config entry and profile (settings resolved once)."""
     settings = resolve_node_settings(master_cfg, ncfg, lp.profile)
-    steps = build_boot_steps(lp, ncfg, settings.supervision, settings.heartbeat_ms, settings.guard_time_ms, settings.life_time_factor)
+    steps = build_boot_steps(
+        lp,
+        ncfg,
+        settings.supervision,
+        settings.heartbeat_ms,
+        settings.guard_time_ms,
+        settings.life_time_factor,
+    )
     # The decoder follows the mapping the boot configuration leaves in the device.
     writes = [(st.object, st.value) for st in steps] if ncfg.configure else []
     tpdos, rpdos = compile_node(lp, ncfg.node_id, ncfg.pdo_variant, writes)
-    plan = refresh_plan(lp, ncfg.node_id, ncfg.pdo_variant, tpdos, writes) if settings.refresh_on_start else []
+    plan = (
+        refresh_plan(lp, ncfg.node_id, ncfg.pdo_variant, tpdos, writes)
+        if settings.refresh_on_start
+        else []
+    )
     control = status = None
     if settings.guarding_bit is not None:
         cs = lp.profile.signal_for(settings.guarding_bit.control)
@@ -133,7 +146,9 @@ class Master:
     services only; no probe, no configuration, no NMT start of its own, SDO to any node.
     """
 
-    def __init__(self, cfg: Config, image: ProcessImage, driver: BusDriver, *, passive: bool = False):
+    def __init__(
+        self, cfg: Config, image: ProcessImage, driver: BusDriver, *, passive: bool = False
+    ):
         self.cfg = cfg
         self.image = image
         self.driver = driver
@@ -154,7 +169,9 @@ class Master:
             lp = load_profile(ncfg.profile, cfg.base_dir)
             names = [s.name for s in lp.profile.signals]
             stale = ncfg.stale_after_ms / 1000.0 if ncfg.stale_after_ms else None
-            ni = NodeImage(ncfg.name, ncfg.node_id, lp.family, names, stale, ncfg.modbus.serve_stale)
+            ni = NodeImage(
+                ncfg.name, ncfg.node_id, lp.family, names, stale, ncfg.modbus.serve_stale
+            )
             image.add_node(ni)
             parts = build_node(cfg.master, ncfg, lp, ni, passive)
             self.nodes[ncfg.name] = parts
@@ -198,7 +215,9 @@ class Master:
         pdo_listeners = image.pdo_listeners
         warn = self.warn
         gb = p.settings.guarding_bit
-        status_pos = names.index(p.node.status_signal) if gb and p.node.status_signal in names else -1
+        status_pos = (
+            names.index(p.node.status_signal) if gb and p.node.status_signal in names else -1
+        )
         status_mask = 1 << gb.status_bit if gb else 0
         frame_time, post, echo = self.driver.frame_time, self._post, self._on_echo
 
@@ -210,13 +229,27 @@ class Master:
             if n < length:
                 rx.pdo_too_short += 1
                 counters["decode_errors"] += 1
-                warn.warning("short_pdo", "node %s: PDO 0x%03X with %d bytes, mapping needs %d; ignored", node.name, codec.cob_id, n, length)
+                warn.warning(
+                    "short_pdo",
+                    "node %s: PDO 0x%03X with %d bytes, mapping needs %d; ignored",
+                    node.name,
+                    codec.cob_id,
+                    n,
+                    length,
+                )
                 return
             if n > length:
                 # CiA 301: a PDO longer than its mapping is processed (the mapped bytes)
                 rx.pdo_too_long += 1
                 counters["pdo_too_long"] += 1
-                warn.warning("long_pdo", "node %s: PDO 0x%03X with %d bytes, mapping has %d; extra bytes ignored", node.name, codec.cob_id, n, length)
+                warn.warning(
+                    "long_pdo",
+                    "node %s: PDO 0x%03X with %d bytes, mapping has %d; extra bytes ignored",
+                    node.name,
+                    codec.cob_id,
+                    n,
+                    length,
+                )
             values = decode(data)
             update(node, names, values, msg.timestamp or time.time())
             if pdo_listeners:
@@ -395,7 +428,9 @@ class Master:
         p = self.nodes[name]
         self._execute(p, p.node.write_outputs(per_pdo, self.clock()))
 
-    async def sdo(self, name: str, obj: ObjRef, data: bytes | None, *, check_state: bool = True) -> bytes:
+    async def sdo(
+        self, name: str, obj: ObjRef, data: bytes | None, *, check_state: bool = True
+    ) -> bytes:
         """One SDO upload (``data`` None; returns the bytes) or download; typed errors."""
         self.require_bus()
         p = self.nodes[name]
@@ -432,4 +467,6 @@ class Master:
         elif done.timed_out:
             fut.set_exception(SdoTimeout(p.name, str(obj), "no SDO answer"))
         else:
-            fut.set_exception(SdoTimeout(p.name, str(obj), f"transfer ended (0x{done.abort_code or 0:08X})"))
+            fut.set_exception(
+                SdoTimeout(p.name, str(obj), f"transfer ended (0x{done.abort_code or 0:08X})")
+            )

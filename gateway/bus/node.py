@@ -29,13 +29,12 @@ image, states, objref. Never python-can, asyncio, logging or a northbound module
 from __future__ import annotations
 
 import logging
-from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from gateway.bus.codec import RpdoCodec, TpdoCodec
 from gateway.bus.emcy import EmcyHistory, decode_emcy
+from gateway.bus.events import HealthChanged, Note, Output, Refresh, SdoDone, Send, ValuesRead
 from gateway.bus.lifecycle import (
     BootTimeout,
     ConfigStep,
@@ -51,111 +50,22 @@ from gateway.bus.lifecycle import (
     WrongDevice,
     decode_value,
 )
+from gateway.bus.outputs import OutputImage
+from gateway.bus.sdo_channel import SdoChannel, SdoJob
 from gateway.bus.sdo_client import SdoTransfer
 from gateway.bus.settings import NodeSettings
 from gateway.bus.supervision import (
     GuardingBitCheck,
-    HeartbeatConsumer,
-    InvalidStateByte,
     LinkFault,
     LinkOk,
-    NodeGuardingMaster,
-    NodeLost,
-    SendGuardRtr,
-    ToggleError,
-    WrongState,
 )
-from gateway.errors import NodeNotOperational, Unmapped
+from gateway.bus.watchdog import Watchdog
+from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth
 from gateway.objref import ObjRef
-from gateway.states import REPORTED_STATES, LinkState, NmtState
-
-# --------------------------------------------------------------------------- outputs
-
-
-@dataclass(frozen=True)
-class Send:
-    """Action: send this frame. ``rpdo`` marks process data sent (for the raw-PDO listeners)."""
-
-    cob_id: int
-    data: bytes = b""
-    rtr: bool = False
-    dlc: int | None = None
-    rpdo: bool = False
-
-
-@dataclass(frozen=True)
-class SdoDone:
-    """Result of a ``request_sdo``: ``data`` (upload bytes, b"" for a download) or an error."""
-
-    token: int
-    data: bytes | None
-    abort_code: int | None = None
-    timed_out: bool = False
-    by_server: bool = False
-
-
-@dataclass(frozen=True)
-class ValuesRead:
-    """Values read by SDO (refresh after NMT start): write them into the process image."""
-
-    names: tuple[str, ...]
-    values: tuple[Any, ...]
-
-
-@dataclass(frozen=True)
-class HealthChanged:
-    what: str  # "state" | "emcy"
-
-
-@dataclass(frozen=True)
-class Note:
-    """A line for the log (the driver writes it)."""
-
-    level: int
-    text: str
-    kind: Any = None  # set: rate-limited per kind
-
-
-Output = Send | SdoDone | ValuesRead | HealthChanged | Note
-
-#: What a node-guarding answer must report in each lifecycle state (DS-301 node guarding: a
-#: wrong state is an error). None = any valid state.
-GUARD_EXPECTS: dict[LifecycleState, NmtState | None] = {
-    LifecycleState.WAITING: None,  # not configured by us yet: whatever it reports
-    LifecycleState.BOOTING: None,  # found running: NMT pre-operational is on its way
-    LifecycleState.CONFIGURING: NmtState.PRE_OPERATIONAL,  # SGH10 manual 4.2.1.1
-    LifecycleState.OPERATIONAL: NmtState.OPERATIONAL,  # after our NMT start
-}
-
-#: The state a node is meant to be in after an NMT command (None: it reboots, boot-up follows).
-NMT_EXPECTS: dict[str, NmtState | None] = {
-    "start": NmtState.OPERATIONAL,
-    "stop": NmtState.STOPPED,
-    "preop": NmtState.PRE_OPERATIONAL,
-    "reset": None,
-    "reset-comm": None,
-}
+from gateway.states import LinkState, NmtState
 
 OBJ_DEVICE_TYPE = ObjRef(0x1000, 0x00)
-
-
-@dataclass
-class _SdoJob:
-    token: int
-    obj: ObjRef
-    data: bytes | None
-    purpose: str  # "boot" | "probe" | "refresh" | "reference" | "user"
-    arg: Any = None
-
-
-@dataclass(frozen=True)
-class Refresh:
-    """How a change-only TPDO is read after NMT start: ``rtr`` or one SDO upload per object."""
-
-    codec: TpdoCodec
-    how: str  # "rtr" | "sdo"
-    objects: tuple[tuple[str, ObjRef, str], ...] = ()  # (signal, object, type) for "sdo"
 
 
 class Node:
@@ -195,17 +105,8 @@ class Node:
             boot_timeout_s=settings.boot_timeout_s,
             expected_device_type=expected_device_type,
         )
-        grace = settings.boot_timeout_s if configure else None
-        self.hb: HeartbeatConsumer | None = (
-            HeartbeatConsumer(settings.heartbeat_ms, settings.heartbeat_multiple, grace)
-            if settings.heartbeat_ms > 0 and settings.supervision == "heartbeat"
-            else None
-        )
-        self.guard: NodeGuardingMaster | None = (
-            NodeGuardingMaster(settings.guard_time_ms, settings.life_time_factor)
-            if settings.supervision == "guarding"
-            else None
-        )
+        self.watch = Watchdog(settings, configure, active=not passive)
+        self.hb, self.guard = self.watch.hb, self.watch.guard  # read-only views
         gb = settings.guarding_bit
         self.gbit: GuardingBitCheck | None = (
             GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0) if gb else None
@@ -216,18 +117,15 @@ class Node:
         self.emcy = EmcyHistory()
         self.referencing = referencing
         self.reference_signal = reference_signal
-        # output image: per RPDO number, the values of its mapped fields in mapping order
-        self.outputs: dict[int, list[Any]] = {r.number: r.initial_values() for r in self.rpdos}
-        self.by_signal: dict[str, list[RpdoCodec]] = {}
-        for r in self.rpdos:
-            for n in r.names:
-                self.by_signal.setdefault(n, []).append(r)
-        self.last_rpdo_s: dict[int, float] = {}
-        self.keepalive_s = settings.keepalive_ms / 1000.0
-        # SDO channel
-        self._jobs: deque[_SdoJob] = deque()
-        self._active: tuple[_SdoJob, SdoTransfer] | None = None
-        self._tokens = 0
+        control = (
+            (self.control_signal, gb.control_bit)
+            if gb is not None and self.control_signal
+            else None
+        )
+        self.outputs = OutputImage(
+            name, self.rpdos, settings.keepalive_ms / 1000.0, self.gbit, control
+        )
+        self.sdo = SdoChannel(node_id, settings.sdo_timeout_s, settings.sdo_retries)
         self.next_probe_s: float | None = None
         self._last_probe_end_s: float | None = None
         self._wait_until: float | None = None
@@ -241,35 +139,30 @@ class Node:
     def next_deadline(self) -> float | None:
         times = [
             self.lifecycle.next_deadline(),
-            self.hb.next_deadline() if self.hb else None,
-            self.guard.next_deadline() if self.guard else None,
+            self.watch.next_deadline(),
             self.gbit.next_deadline() if self.gbit else None,
-            self._active[1].next_deadline() if self._active else None,
+            self.sdo.next_deadline(),
             self.next_probe_s if self.lifecycle.state is LifecycleState.WAITING else None,
             self._keepalive_due(),
             self._wait_until,
             self._rtr_due_s,
         ]
-        if self.guard is not None and not self.guard.active and not self.passive:
-            return 0.0  # the first poll activates guarding (its first RTR)
         return min((t for t in times if t is not None), default=None)
 
     def output(self, name: str, pdo: int | None = None) -> Any:
         """The last value sent for signal ``name`` (in RPDO ``pdo``, default: the last one)."""
-        codecs = self.by_signal.get(name)
-        if not codecs:
-            raise Unmapped(f"node {self.name}: {name} is not in an RPDO")
-        codec = next((c for c in codecs if c.number == pdo), codecs[-1])
-        idx = codec.index_of(name)
-        assert idx is not None
-        return self.outputs[codec.number][idx]
+        return self.outputs.get(name, pdo)
+
+    def is_output(self, name: str) -> bool:
+        return self.outputs.is_output(name)
+
+    @property
+    def by_signal(self) -> dict[str, list[RpdoCodec]]:
+        return self.outputs.by_signal
 
     def sdo_busy(self) -> bool:
         """A transfer is running or waiting."""
-        return self._active is not None or bool(self._jobs)
-
-    def is_output(self, name: str) -> bool:
-        return name in self.by_signal
+        return self.sdo.busy
 
     # ================================================================== events
     def start(self, now: float, probe: bool = True) -> list[Output]:
@@ -283,21 +176,15 @@ class Node:
     def tick(self, now: float) -> list[Output]:
         """Time has passed: timeouts, retries, scheduled frames."""
         out: list[Output] = []
-        if self._active is not None:
-            job, tr = self._active
-            out += self._sdo_frames(tr.poll(now))
-            if tr.done:
-                out += self._sdo_finished(now)
-        if self.guard is not None and not self.passive:
-            for o in self.guard.poll(now):
-                if isinstance(o, SendGuardRtr):
-                    out.append(Send(0x700 + self.node_id, b"", rtr=True, dlc=1))
-                elif isinstance(o, NodeLost):
-                    out += self._lost(now, o.reason)
-        if self.hb is not None:
-            for o in self.hb.poll(now):
-                if isinstance(o, NodeLost):
-                    out += self._lost(now, o.reason)
+        frames, finished = self.sdo.poll(now)
+        out += frames
+        if finished is not None:
+            out += self._sdo_finished(finished, now)
+        rtr, lost = self.watch.poll(now)
+        if rtr:
+            out.append(Send(0x700 + self.node_id, b"", rtr=True, dlc=1))
+        if lost is not None:
+            out += self._lost(now, lost)
         out += self._lifecycle_changes(self.lifecycle.poll(now), now)
         if self.gbit is not None:
             out += self._link(self.gbit.poll(now))
@@ -321,28 +208,21 @@ class Node:
         """A frame on 700h + node id: boot-up (00h), heartbeat, or node-guarding answer."""
         if byte == NmtState.BOOTUP:
             return self._bootup(now)
-        if self.guard is not None:
-            outs = self.guard.on_response(byte, now)
-            state = byte & 0x7F
-        elif self.hb is not None:
-            outs = self.hb.on_heartbeat(byte, now)
-            state = byte & 0x7F
-        else:
-            outs, state = [], byte & 0x7F
-        out: list[Output] = []
-        bad = [o for o in outs if isinstance(o, (ToggleError, WrongState, InvalidStateByte))]
-        for o in bad:
-            out.append(Note(logging.WARNING, f"node {self.name}: {o}", ("guard", self.name, type(o).__name__)))
-        if bad or state not in REPORTED_STATES:
+        state, problems = self.watch.answer(byte, now)
+        out: list[Output] = [
+            Note(logging.WARNING, f"node {self.name}: {p}", ("guard", self.name, p.split(":")[0]))
+            for p in problems
+        ]
+        if state is None:
             return out
-        out += self._set_nmt(NmtState(state))
-        sup = self.guard or self.hb
-        if sup is None or sup.alive:
+        out += self._set_nmt(state)
+        if self.watch.alive:
             out += self._set_alive(True, now)
         if self.lifecycle.state is LifecycleState.WAITING and not self.passive:
             # alive but no boot-up seen (gateway restarted, node replugged): probe soon
             if self._probe_in_flight() is None and (
-                self._last_probe_end_s is None or now - self._last_probe_end_s >= min(1.0, self.s.probe_period_s)
+                self._last_probe_end_s is None
+                or now - self._last_probe_end_s >= min(1.0, self.s.probe_period_s)
             ):
                 out += self._probe(now)
                 out += self._drive(now)
@@ -352,7 +232,13 @@ class Node:
         h = self.health
         if len(data) < 3:
             h.emcy_errors += 1
-            return [Note(logging.WARNING, f"node {self.name}: EMCY with {len(data)} bytes ignored", ("emcy_short", self.name))]
+            return [
+                Note(
+                    logging.WARNING,
+                    f"node {self.name}: EMCY with {len(data)} bytes ignored",
+                    ("emcy_short", self.name),
+                )
+            ]
         rec = decode_emcy(bytes(data), self.emcy_texts, wall_ts)
         self.emcy.add(rec)
         h.last_emcy = rec  # type: ignore[assignment]
@@ -360,7 +246,10 @@ class Node:
         h.emcy_history = tuple(self.emcy.history)
         h.current_errors = sorted(self.emcy.current)
         out: list[Output] = [
-            Note(logging.WARNING, f"node {self.name} EMCY 0x{rec.code:04X} ({rec.text}) register 0x{rec.register:02X}"),
+            Note(
+                logging.WARNING,
+                f"node {self.name} EMCY 0x{rec.code:04X} ({rec.text}) register 0x{rec.register:02X}",
+            ),
             HealthChanged("emcy"),
         ]
         if self.referencing is not None and not self.passive:
@@ -374,33 +263,35 @@ class Node:
         return self._link(self.gbit.on_status(bit, now))
 
     def on_sdo_response(self, data: bytes, now: float) -> list[Output]:
-        if self._active is None:
-            return []
-        _job, tr = self._active
-        out = self._sdo_frames(tr.on_response(data, now))
-        if tr.done:
-            out += self._sdo_finished(now)
-        if self.guard is not None and self.lifecycle.state in (LifecycleState.BOOTING, LifecycleState.CONFIGURING):
-            self.guard.on_sign_of_life(now)  # a node answering its configuration is not lost
+        out: list[Output] = []
+        frames, finished = self.sdo.on_response(data, now)
+        out += frames
+        if finished is not None:
+            out += self._sdo_finished(finished, now)
+        self.watch.on_sign_of_life(now, self.lifecycle.state)
         return out
 
     def on_bus_down(self, now: float) -> list[Output]:
         """The bus is down: the node's state is not known any more."""
         return self._set_nmt(NmtState.UNKNOWN)
 
-    def request_sdo(self, obj: ObjRef, data: bytes | None, now: float, purpose: str = "user", arg: Any = None) -> tuple[int, list[Output]]:
+    def request_sdo(
+        self, obj: ObjRef, data: bytes | None, now: float, purpose: str = "user", arg: Any = None
+    ) -> tuple[int, list[Output]]:
         """Queue an SDO upload (``data`` None) or download; ``SdoDone(token)`` reports it."""
-        self._tokens += 1
-        token = self._tokens
-        self._jobs.append(_SdoJob(token, obj, data, purpose, arg))
+        token = self.sdo.queue(obj, data, purpose, arg)
         return token, self._drive(now)
 
     def on_nmt_command(self, command: str) -> None:
         """An NMT command a client sent to this node: the state guarding expects follows it."""
-        if self.guard is not None:
-            self.guard.expect(NMT_EXPECTS[command])
+        self.watch.on_nmt_command(command)
 
-    def write_outputs(self, per_pdo: dict[int | None, dict[str, Any]], now: float, send: Sequence[int] | None = None) -> list[Output]:
+    def write_outputs(
+        self,
+        per_pdo: dict[int | None, dict[str, Any]],
+        now: float,
+        send: Sequence[int] | None = None,
+    ) -> list[Output]:
         """Set output values and send the RPDOs that carry them (one frame per RPDO).
 
         ``per_pdo[None]`` applies to every RPDO mapping the signal, ``per_pdo[n]`` to RPDO n
@@ -409,30 +300,11 @@ class Node:
         last of them. Raises NodeNotOperational (nothing changed) when the node is not
         operational."""
         self.require_operational()
-        names = [n for vals in per_pdo.values() for n in vals]
-        for n in names:
-            if n not in self.by_signal:
-                raise Unmapped(f"node {self.name}: {n} is not in an RPDO")
-        numbers: list[int] = list(send or [])
-        if not numbers:
-            for pdo, vals in per_pdo.items():
-                for n in vals:
-                    cs = self.by_signal[n]
-                    if pdo is not None:
-                        numbers.append(pdo)
-                    elif len(cs) == 1:
-                        numbers.append(cs[0].number)
-            if not numbers:
-                numbers.append(self.by_signal[names[0]][-1].number)
-        for pdo, vals in per_pdo.items():
-            for n, v in vals.items():
-                for c in self.by_signal[n]:
-                    if pdo is None or c.number == pdo:
-                        self.outputs[c.number][c.index_of(n)] = v  # type: ignore[index]
-        out: list[Output] = []
-        for number in sorted(set(numbers)):
-            out += self._send_rpdo(number, now)
-        return out
+        numbers = list(send) if send else self.outputs.set(per_pdo)
+        if send:
+            self.outputs.set(per_pdo)
+        self.health.rpdo_sent += len(numbers)
+        return [self.outputs.frame(n, now) for n in numbers]
 
     def require_operational(self) -> None:
         h = self.health
@@ -447,10 +319,7 @@ class Node:
         h.boot_count += 1
         out: list[Output] = [Note(logging.INFO, f"node {self.name} (id {self.node_id}) boot-up")]
         self._invalidate()
-        if self.hb is not None:
-            self.hb.on_bootup(now)
-        if self.guard is not None:
-            self.guard.on_bootup(now)  # the toggle bit starts at 0 again (DS-301)
+        self.watch.on_bootup(now)
         if self.gbit is not None:
             self.gbit.reset()
             out += self._set_link(LinkState.UNKNOWN)
@@ -460,8 +329,10 @@ class Node:
         out += self._set_nmt(NmtState.PRE_OPERATIONAL)
         out += self._set_alive(True, now)
         # a boot-up ends whatever transfer was running: the device forgot it
-        out += self._cancel_active(now, "the node rebooted during the transfer")
-        self._jobs = deque(j for j in self._jobs if j.purpose == "user")
+        cancelled = self.sdo.cancel_active()
+        if cancelled is not None and cancelled.purpose == "user":
+            out.append(SdoDone(cancelled.token, None, None, timed_out=True))
+        self.sdo.drop(lambda j: j.purpose == "user")
         if self.passive:
             return out
         out += self._lifecycle_changes(self.lifecycle.on_bootup(now), now)
@@ -487,7 +358,12 @@ class Node:
             if self.gbit is not None:
                 self.gbit.reset()
                 out += self._set_link(LinkState.UNKNOWN)
-            out.append(Note(logging.WARNING, f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})"))
+            out.append(
+                Note(
+                    logging.WARNING,
+                    f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})",
+                )
+            )
             if not self.passive:
                 out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
                 self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss
@@ -506,27 +382,46 @@ class Node:
         for ch in changes:
             if isinstance(ch, StateChanged):
                 h.lifecycle = str(ch.new)
-                out.append(Note(logging.INFO, f"node {self.name}: {ch.old} -> {ch.new} ({ch.reason})"))
-                if self.guard is not None:
-                    self.guard.expect(GUARD_EXPECTS[ch.new])
+                out.append(
+                    Note(logging.INFO, f"node {self.name}: {ch.old} -> {ch.new} ({ch.reason})")
+                )
+                self.watch.on_lifecycle(ch.new)
             elif isinstance(ch, StepFailed):
                 h.last_error = ch.message
                 if ch.abort_code is not None:
                     h.last_sdo_abort = ch.abort_code
                 self._wait_until = now + ch.retry_in_s
-                out.append(Note(logging.WARNING, f"node {self.name}: boot step {ch.index} failed: {ch.message}; retry {ch.attempt} in {ch.retry_in_s:.1f} s"))
+                out.append(
+                    Note(
+                        logging.WARNING,
+                        f"node {self.name}: boot step {ch.index} failed: {ch.message}; retry {ch.attempt} in {ch.retry_in_s:.1f} s",
+                    )
+                )
             elif isinstance(ch, StepSkipped):
-                out.append(Note(logging.INFO, f"node {self.name}: optional boot step skipped: {ch.message}"))
+                out.append(
+                    Note(
+                        logging.INFO, f"node {self.name}: optional boot step skipped: {ch.message}"
+                    )
+                )
             elif isinstance(ch, BootTimeout):
                 h.last_error = self.lifecycle.last_error or "no boot-up"
-                out.append(Note(logging.WARNING, f"node {self.name} (id {self.node_id}): {h.last_error}"))
+                out.append(
+                    Note(logging.WARNING, f"node {self.name} (id {self.node_id}): {h.last_error}")
+                )
             elif isinstance(ch, WrongDevice):
                 h.last_error = self.lifecycle.last_error or "wrong device type"
-                out.append(Note(logging.ERROR, f"node {self.name} (id {self.node_id}): {h.last_error}"))
+                out.append(
+                    Note(logging.ERROR, f"node {self.name} (id {self.node_id}): {h.last_error}")
+                )
             elif isinstance(ch, Configured):
                 h.last_error = ""
                 h.fresh_since = now  # values are good again when received from now on
-                out.append(Note(logging.INFO, f"node {self.name} (id {self.node_id}) configured in {ch.duration_s * 1000:.0f} ms and started"))
+                out.append(
+                    Note(
+                        logging.INFO,
+                        f"node {self.name} (id {self.node_id}) configured in {ch.duration_s * 1000:.0f} ms and started",
+                    )
+                )
                 out += self._set_nmt_expected(NmtState.OPERATIONAL)
                 out += self._refresh(now)
                 if self.referencing is not None:
@@ -539,14 +434,14 @@ class Node:
 
     def _set_nmt_expected(self, state: NmtState) -> list[Output]:
         """After our NMT start the node is operational (its next heartbeat confirms it)."""
-        if self.hb is None and self.guard is None:
+        if self.watch.hb is None and self.watch.guard is None:
             return self._set_nmt(state)
         return []
 
     def _drive(self, now: float) -> list[Output]:
         """Start the next SDO transfer / NMT command when the channel is free."""
         out: list[Output] = []
-        while self._active is None and not self.passive:
+        while self.sdo.idle and not self.passive:
             action = self.lifecycle.next_action(now)
             if isinstance(action, SendNmt):
                 out.append(Send(0x000, bytes([action.command, self.node_id])))
@@ -554,43 +449,23 @@ class Node:
                 continue
             if isinstance(action, WriteStep):
                 step = action.step
-                out += self._start(_SdoJob(action.token, step.object, step.data, "boot", action), now)
+                out += self.sdo.start(
+                    SdoJob(action.token, step.object, step.data, "boot", action), now
+                )
                 break
             if isinstance(action, Wait):
                 self._wait_until = now + action.seconds
             break
-        if self._active is None and self._jobs:
-            out += self._start(self._jobs.popleft(), now)
+        if self.sdo.idle:
+            out += self.sdo.start_next(now)
         return out
 
     # ================================================================== internals: SDO
-    def _start(self, job: _SdoJob, now: float) -> list[Output]:
-        tr = SdoTransfer(job.obj.index, job.obj.sub, job.data, timeout_s=self.s.sdo_timeout_s, retries=self.s.sdo_retries)
-        self._active = (job, tr)
-        return self._sdo_frames(tr.start(now))
+    def _probe_in_flight(self) -> SdoJob | None:
+        return self.sdo.find("probe")
 
-    def _sdo_frames(self, frames: list[bytes]) -> list[Output]:
-        return [Send(0x600 + self.node_id, f) for f in frames]
-
-    def _cancel_active(self, now: float, why: str) -> list[Output]:
-        if self._active is None:
-            return []
-        job, tr = self._active
-        tr.cancel(send_abort=False)
-        self._active = None
-        if job.purpose == "user":
-            return [SdoDone(job.token, None, None, timed_out=True)]
-        return []
-
-    def _probe_in_flight(self) -> _SdoJob | None:
-        if self._active is not None and self._active[0].purpose == "probe":
-            return self._active[0]
-        return next((j for j in self._jobs if j.purpose == "probe"), None)
-
-    def _sdo_finished(self, now: float) -> list[Output]:
-        assert self._active is not None
-        job, tr = self._active
-        self._active = None
+    def _sdo_finished(self, finished: tuple[SdoJob, SdoTransfer], now: float) -> list[Output]:
+        job, tr = finished
         out: list[Output] = []
         if tr.abort_code is not None and tr.aborted_by_server:
             self.health.last_sdo_abort = tr.abort_code
@@ -598,26 +473,29 @@ class Node:
         out += self._drive(now)
         return out
 
-    def _boot_done(self, job: _SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+    def _boot_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         ok = tr.result is not None
         code = tr.abort_code if tr.aborted_by_server else None
-        return self._lifecycle_changes(self.lifecycle.on_step_result(now, ok, code, token=job.arg.token), now)
+        return self._lifecycle_changes(
+            self.lifecycle.on_step_result(now, ok, code, token=job.arg.token), now
+        )
 
-    def _probe_done(self, job: _SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+    def _probe_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         self._last_probe_end_s = now
         if tr.result is None or self.lifecycle.state is not LifecycleState.WAITING:
             return []
         device_type = int.from_bytes(tr.result[:4].ljust(4, b"\0"), "little")
-        out: list[Output] = [Note(logging.INFO, f"node {self.name} (id {self.node_id}) found running")]
+        out: list[Output] = [
+            Note(logging.INFO, f"node {self.name} (id {self.node_id}) found running")
+        ]
         out += self._lifecycle_changes(self.lifecycle.on_found(now, device_type), now)
         if self.lifecycle.state is LifecycleState.BOOTING:  # not a wrong device type
-            if self.hb is not None and not self.hb.alive:
-                self.hb.on_bootup(now)  # monitoring restarts as after a boot-up
-            if self.guard is None or not self.guard.lost:
+            self.watch.on_found(now)
+            if not self.watch.guard_lost:
                 out += self._set_alive(True, now)
         return out
 
-    def _refresh_done(self, job: _SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+    def _refresh_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         if tr.result is None or self.health.fresh_since is None:
             return []
         name, _obj, type_ = job.arg
@@ -627,21 +505,33 @@ class Node:
             return []
         return [ValuesRead((name,), (value,))]
 
-    def _reference_done(self, job: _SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+    def _reference_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         ref = self.referencing
         assert ref is not None
         if tr.result is None:
-            return [Note(logging.WARNING, f"node {self.name}: referencing state unreadable (SDO abort 0x{tr.abort_code or 0:08X})"), *self._set_referenced(False)]
+            return [
+                Note(
+                    logging.WARNING,
+                    f"node {self.name}: referencing state unreadable (SDO abort 0x{tr.abort_code or 0:08X})",
+                ),
+                *self._set_referenced(False),
+            ]
         value = int.from_bytes(tr.result[:1], "little")
         return self._set_referenced(value == int(ref.get("referenced_value", 1)))
 
-    def _user_done(self, job: _SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        out: list[Output] = [SdoDone(job.token, tr.result, tr.abort_code, tr.timed_out, tr.aborted_by_server)]
-        if self.referencing is not None and job.data is not None and job.obj == ObjRef.parse(self.referencing["command"]):
+    def _user_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+        out: list[Output] = [
+            SdoDone(job.token, tr.result, tr.abort_code, tr.timed_out, tr.aborted_by_server)
+        ]
+        if (
+            self.referencing is not None
+            and job.data is not None
+            and job.obj == ObjRef.parse(self.referencing["command"])
+        ):
             out += self._check_reference(now)
         return out
 
-    _SDO_DONE: dict[str, Callable[[Node, _SdoJob, SdoTransfer, float], list[Output]]] = {
+    _SDO_DONE: dict[str, Callable[[Node, SdoJob, SdoTransfer, float], list[Output]]] = {
         "boot": _boot_done,
         "probe": _probe_done,
         "refresh": _refresh_done,
@@ -654,8 +544,7 @@ class Node:
         self.next_probe_s = now + self.s.probe_period_s
         if self._probe_in_flight() is not None:
             return []
-        self._tokens += 1
-        self._jobs.append(_SdoJob(self._tokens, OBJ_DEVICE_TYPE, None, "probe"))
+        self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe")
         return []
 
     def _refresh(self, now: float) -> list[Output]:
@@ -666,16 +555,14 @@ class Node:
                 out.append(Send(r.codec.cob_id, b"", rtr=True, dlc=r.codec.length))
             else:
                 for name, obj, type_ in r.objects:
-                    self._tokens += 1
-                    self._jobs.append(_SdoJob(self._tokens, obj, None, "refresh", (name, obj, type_)))
+                    self.sdo.queue(obj, None, "refresh", (name, obj, type_))
         return out
 
     # ================================================================== internals: features
     def _check_reference(self, now: float) -> list[Output]:
         """Feature ``referencing`` (MSK5000 5115h): read whether the position is referenced."""
         assert self.referencing is not None
-        self._tokens += 1
-        self._jobs.append(_SdoJob(self._tokens, ObjRef.parse(self.referencing["status"]), None, "reference"))
+        self.sdo.queue(ObjRef.parse(self.referencing["status"]), None, "reference")
         return []
 
     def _set_referenced(self, ok: bool) -> list[Output]:
@@ -685,15 +572,26 @@ class Node:
         invalid = self.reference_signal in h.invalid_signals
         if invalid == (not ok):
             return []
-        h.invalid_signals = (h.invalid_signals - {self.reference_signal}) if ok else (h.invalid_signals | {self.reference_signal})
-        text = f"node {self.name}: referenced; {self.reference_signal} valid" if ok else f"node {self.name}: not referenced; {self.reference_signal} is not valid"
+        h.invalid_signals = (
+            (h.invalid_signals - {self.reference_signal})
+            if ok
+            else (h.invalid_signals | {self.reference_signal})
+        )
+        text = (
+            f"node {self.name}: referenced; {self.reference_signal} valid"
+            if ok
+            else f"node {self.name}: not referenced; {self.reference_signal} is not valid"
+        )
         return [Note(logging.INFO if ok else logging.WARNING, text), HealthChanged("state")]
 
     def _set_nmt(self, state: NmtState) -> list[Output]:
         if self.health.nmt_state == state:
             return []
         self.health.nmt_state = state
-        return [Note(logging.INFO, f"node {self.name} NMT state {state.name}"), HealthChanged("state")]
+        return [
+            Note(logging.INFO, f"node {self.name} NMT state {state.name}"),
+            HealthChanged("state"),
+        ]
 
     # -- guarding bit and keep-alive
     def _link(self, changes: list[LinkOk | LinkFault]) -> list[Output]:
@@ -709,38 +607,28 @@ class Node:
         out: list[Output] = []
         if state == LinkState.FAULT:
             h.link_fault_count += 1
-            out.append(Note(logging.WARNING, f"node {self.name}: guarding-bit link FAULT (process data not echoed)"))
+            out.append(
+                Note(
+                    logging.WARNING,
+                    f"node {self.name}: guarding-bit link FAULT (process data not echoed)",
+                )
+            )
         elif h.link == LinkState.FAULT:
             out.append(Note(logging.INFO, f"node {self.name}: guarding-bit link restored"))
         h.link = state
         out.append(HealthChanged("state"))
         return out
 
-    def _send_rpdo(self, number: int, now: float) -> list[Output]:
-        codec = next(c for c in self.rpdos if c.number == number)
-        values = self.outputs[number]
-        if self.gbit is not None and self.control_signal is not None and self.s.guarding_bit is not None:
-            i = codec.index_of(self.control_signal)
-            if i is not None:
-                bit = self.s.guarding_bit.control_bit
-                values[i] = (int(values[i]) & ~(1 << bit)) | (self.gbit.next_bit(now) << bit)
-        data = codec.encode(values)
-        self.last_rpdo_s[number] = now
-        self.health.rpdo_sent += 1
-        return [Send(codec.cob_id, data, rpdo=True)]
-
     def _keepalive_due(self) -> float | None:
-        if not self.keepalive_s or not self.rpdos or not self.health.alive or self.health.nmt_state != NmtState.OPERATIONAL:
+        """Keep-alive RPDOs only in OPERATIONAL (RPDOs are not processed otherwise)."""
+        h = self.health
+        if not h.alive or h.nmt_state != NmtState.OPERATIONAL:
             return None
-        last = max(self.last_rpdo_s.values(), default=None)
-        return (last + self.keepalive_s) if last is not None else (self.health.fresh_since or 0.0)
+        return self.outputs.keepalive_due(h.fresh_since)
 
     def _keepalive(self, now: float) -> list[Output]:
-        """Re-send the last RPDO when none went out for keepalive_s: feeds the AP05 external
-        heartbeat (source RPDO, manual 5.5.4) and exercises the guarding bit (manual 5.5.5)
-        when the PLC writes nothing. Only in OPERATIONAL (RPDOs are not processed otherwise)."""
-        number = max(self.last_rpdo_s, key=self.last_rpdo_s.__getitem__, default=self.rpdos[-1].number)
-        return self._send_rpdo(number, now)
+        self.health.rpdo_sent += 1
+        return [self.outputs.keepalive(now)]
 
     def _rtr_poll(self, now: float) -> list[Output]:
         assert self.s.rtr_poll_ms

@@ -57,7 +57,11 @@ def refresh_plan(
     for codec in tpdos:
         comm, _mapping = pdo_objects(lp, "tpdo", codec.number)
         base = layout.get(codec.number)
-        tt = base.transmission_type if base is not None else _od_default(lp, ObjRef(comm, 2), node_id)
+        tt = (
+            base.transmission_type
+            if base is not None
+            else _od_default(lp, ObjRef(comm, 2), node_id)
+        )
         et = base.event_timer_ms if base is not None else None
         if et is None:
             et = _od_default(lp, ObjRef(comm, 5), node_id)

@@ -115,11 +115,16 @@ def settings_problems(master: Any, node: Any, profile: Any) -> list[tuple[str, s
     eh = node.external_heartbeat
     if eh is not None:
         if "external_heartbeat" not in profile.features:
-            out.append(("external_heartbeat", f"profile {profile.family} has no external heartbeat"))
+            out.append(
+                ("external_heartbeat", f"profile {profile.family} has no external heartbeat")
+            )
         else:
             keep = external_keepalive_ms(eh.interval_ms, eh.keepalive_ms)
             problem = check_external_heartbeat(
-                eh.interval_ms, eh.source, master.sync_period_ms, keep if eh.source == "rpdo" else None
+                eh.interval_ms,
+                eh.source,
+                master.sync_period_ms,
+                keep if eh.source == "rpdo" else None,
             )
             if problem:
                 key = "external_heartbeat." + (

@@ -68,7 +68,9 @@ async def test_every_documented_metric_and_diagnostics_register_counts() -> None
         # an EMCY the device raises: emcy_total, IR 6-8, error_active bit
         gw.sim.runner.call(lambda now: sim.raise_emcy(0xFF05, 0x81, now=now))
         await wait_until(lambda: img.health.emcy_count == 1, 3, "EMCY counted")
-        await wait_until(lambda: img.rx.pdo_too_long == 1 and img.health.emcy_errors == 1, 3, "bad frames")
+        await wait_until(
+            lambda: img.rx.pdo_too_long == 1 and img.health.emcy_errors == 1, 3, "bad frames"
+        )
         diag = (await client.read_input_registers(0, count=16, device_id=1)).registers
         assert (diag[6], diag[7], diag[8]) == (0xFF05, 0x81, 1)
         assert diag[15] == 2, "one short and one long PDO (EMCY counted apart)"

@@ -66,7 +66,9 @@ class RawSgh10:
 
 
 @asynccontextmanager
-async def gateway(node: dict[str, Any] | None = None) -> AsyncIterator[tuple[Gateway, RawSgh10, AsyncModbusTcpClient, ZClient]]:
+async def gateway(
+    node: dict[str, Any] | None = None,
+) -> AsyncIterator[tuple[Gateway, RawSgh10, AsyncModbusTcpClient, ZClient]]:
     cfg = make_config(
         [{"name": "wire", "node_id": 1, "profile": "sgh10", **(node or {})}],
         simulate={"nodes": []},
@@ -135,7 +137,9 @@ async def test_a_change_only_tpdo_is_asked_by_rtr_after_nmt_start() -> None:
         watch = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
         try:
             dev.boot()
-            rtr = await asyncio.to_thread(_recv, watch, lambda m: m.arbitration_id == 0x181 and m.is_remote_frame)
+            rtr = await asyncio.to_thread(
+                _recv, watch, lambda m: m.arbitration_id == 0x181 and m.is_remote_frame
+            )
             assert rtr.dlc == 6
             assert dev.nmt_seen.is_set(), "the RTR follows NMT start"
         finally:
@@ -175,7 +179,9 @@ async def test_the_liveliness_token_means_values_usable() -> None:
 
 
 @pytest.mark.parametrize(("bit", "on"), [(0, True), (2, False)])
-async def test_a_bit_not_marked_writable_is_refused_and_nothing_is_written(bit: int, on: bool) -> None:
+async def test_a_bit_not_marked_writable_is_refused_and_nothing_is_written(
+    bit: int, on: bool
+) -> None:
     # SGH10 6000h (4.7.2.23): bit 0 not used, bit 2 scaling (always 1); only bit 3 writable
     async with gateway() as (gw, dev, client, z):
         dev.boot()

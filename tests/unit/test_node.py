@@ -39,9 +39,11 @@ class Device:
         if not self.powered:
             return []
         if s.cob_id == 0x000 and s.data[1] in (0, self.node_id):
-            self.state = {0x01: NmtState.OPERATIONAL, 0x02: NmtState.STOPPED, 0x80: NmtState.PRE_OPERATIONAL}.get(
-                s.data[0], self.state
-            )
+            self.state = {
+                0x01: NmtState.OPERATIONAL,
+                0x02: NmtState.STOPPED,
+                0x80: NmtState.PRE_OPERATIONAL,
+            }.get(s.data[0], self.state)
             return []
         if s.cob_id == 0x700 + self.node_id and s.rtr:
             byte = self.toggle << 7 | int(self.state)
@@ -52,11 +54,23 @@ class Device:
             if cmd & 0xE0 == 0x20:  # initiate download (expedited)
                 size = 4 - (cmd >> 2 & 3)
                 self.downloads.append((index, sub, bytes(s.data[4 : 4 + size])))
-                return [(self.sdo_delay_s, 0x580 + self.node_id, bytes([0x60]) + s.data[1:4] + b"\0" * 4)]
+                return [
+                    (
+                        self.sdo_delay_s,
+                        0x580 + self.node_id,
+                        bytes([0x60]) + s.data[1:4] + b"\0" * 4,
+                    )
+                ]
             if cmd == 0x40:
                 self.uploads.append((index, sub))
                 value = self.device_type if (index, sub) == (0x1000, 0) else 0x1234
-                return [(self.sdo_delay_s, 0x580 + self.node_id, bytes([0x43]) + s.data[1:4] + struct.pack("<I", value))]
+                return [
+                    (
+                        self.sdo_delay_s,
+                        0x580 + self.node_id,
+                        bytes([0x43]) + s.data[1:4] + struct.pack("<I", value),
+                    )
+                ]
         return []
 
     def boot(self) -> None:
@@ -68,7 +82,9 @@ class Device:
 class Harness:
     """The node, the device and a fake clock; events happen in time order."""
 
-    def __init__(self, profile: str, node_id: int = 3, master: dict[str, Any] | None = None, **node: Any):
+    def __init__(
+        self, profile: str, node_id: int = 3, master: dict[str, Any] | None = None, **node: Any
+    ):
         cfg = make_config(
             [{"name": "n", "node_id": node_id, "profile": profile, **node}],
             master={"boot_timeout_s": 5, **(master or {})},
@@ -232,7 +248,9 @@ def test_a_boot_up_cancels_a_probe_in_flight_and_configuration_starts_at_once() 
 
 
 def test_a_guarded_node_reconfigured_slowly_after_a_reboot_is_never_lost() -> None:
-    h = Harness("posi_plus", node_id=3, supervision="guarding", guard_time_ms=120, life_time_factor=4)
+    h = Harness(
+        "posi_plus", node_id=3, supervision="guarding", guard_time_ms=120, life_time_factor=4
+    )
     h.start()
     h.bootup(0.5)
     h.run_until(3.0)
@@ -250,7 +268,9 @@ def test_a_guarded_node_reconfigured_slowly_after_a_reboot_is_never_lost() -> No
 
 
 def test_nmt_commands_move_the_state_guarding_expects() -> None:
-    h = Harness("posi_plus", node_id=3, supervision="guarding", guard_time_ms=100, life_time_factor=3)
+    h = Harness(
+        "posi_plus", node_id=3, supervision="guarding", guard_time_ms=100, life_time_factor=3
+    )
     h.start()
     h.bootup(0.5)
     h.run_until(2.0)
@@ -276,13 +296,17 @@ def test_a_change_only_tpdo_is_asked_by_rtr_right_after_nmt_start() -> None:
 
 def test_a_change_only_tpdo_without_rtr_is_read_by_sdo_object_by_object() -> None:
     # COB-ID bit 30 set: no RTR allowed on TPDO1 (DS-301 1800h:01)
-    h = sgh10(sdo=[{"object": "0x1800:05", "value": 0}, {"object": "0x1800:01", "value": 0x40000181}])
+    h = sgh10(
+        sdo=[{"object": "0x1800:05", "value": 0}, {"object": "0x1800:01", "value": 0x40000181}]
+    )
     h.start()
     h.bootup(1.0)
     h.run_until(1.5)
     started = h.nmt_start_time()
     assert not [s for t, s in h.frames(0x181) if s.rtr]
-    uploads = [(t, s.data[1:4]) for t, s in h.frames(0x601, after=started - 1e-9) if s.data[0] == 0x40]
+    uploads = [
+        (t, s.data[1:4]) for t, s in h.frames(0x601, after=started - 1e-9) if s.data[0] == 0x40
+    ]
     tpdo1 = next(c for c in h.parts.tpdos if c.number == 1)
     expected = [struct.pack("<HB", f.obj.index, f.obj.sub) for f in tpdo1.fields if f.signal]
     assert [u for _, u in uploads] == expected  # one upload per mapped object, in order
