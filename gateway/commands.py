@@ -226,7 +226,6 @@ class CommandService:
                             1 << ts.identifier_bit
                         )
             self.master.write_outputs(node, per_pdo)
-            self._mirror(p, pdo)
         for n, v in sdo.items():
             sig = self.signal(node, n)
             if sig.bits:
@@ -276,7 +275,6 @@ class CommandService:
                 )
             if p.node.is_output(name):
                 self.master.write_outputs(node, {None: {name: word}})
-                self._mirror(p, {name: word})
             else:
                 await self._sdo_write_signal(p, sig, check_value(sig, word))
 
@@ -322,13 +320,6 @@ class CommandService:
             raise Unmapped(f"{node}.{name} is not sent in an RPDO")
         v = p.node.output(name)
         return 0 if v is None else v
-
-    def _mirror(self, p: NodeParts, values: dict[str, Any]) -> None:
-        """Outputs sent are also the image's value of those signals (quality follows the
-        node's). Written on the event loop, for signals the reader thread never writes."""
-        names = tuple(n for n in values if n in p.image.signals)
-        if names:
-            self.master.image.update(p.image, names, tuple(values[n] for n in names), time.time())
 
     # ------------------------------------------------------------------ reads
     async def read_signal(self, node: str, name: str) -> Any:

@@ -36,7 +36,8 @@ class SdoDone:
 
 @dataclass(frozen=True)
 class ValuesRead:
-    """Values read by SDO (refresh after NMT start): write them into the process image."""
+    """Values for the process image that did not come in a TPDO: read by SDO (refresh after
+    NMT start), or outputs just sent. Names not in the image are ignored."""
 
     names: tuple[str, ...]
     values: tuple[Any, ...]

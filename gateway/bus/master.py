@@ -316,7 +316,11 @@ class Master:
             elif isinstance(o, SdoDone):
                 self._sdo_done(p, o)
             elif isinstance(o, ValuesRead):
-                self.image.update(p.image, o.names, o.values, time.time())
+                sigs = p.image.signals
+                keep = [i for i, n in enumerate(o.names) if n in sigs]
+                if keep:
+                    names = tuple(o.names[i] for i in keep)
+                    self.image.update(p.image, names, tuple(o.values[i] for i in keep), time.time())
             elif isinstance(o, Note):
                 if o.kind is not None:
                     self.warn.log(o.level, o.kind, "%s", o.text)

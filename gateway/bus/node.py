@@ -35,6 +35,7 @@ from typing import Any
 from gateway.bus.codec import RpdoCodec, TpdoCodec
 from gateway.bus.emcy import EmcyHistory, decode_emcy
 from gateway.bus.events import HealthChanged, Note, Output, Refresh, SdoDone, Send, ValuesRead
+from gateway.bus.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
 from gateway.bus.lifecycle import (
     BootTimeout,
     ConfigStep,
@@ -54,11 +55,6 @@ from gateway.bus.outputs import OutputImage
 from gateway.bus.sdo_channel import SdoChannel, SdoJob
 from gateway.bus.sdo_client import SdoTransfer
 from gateway.bus.settings import NodeSettings
-from gateway.bus.supervision import (
-    GuardingBitCheck,
-    LinkFault,
-    LinkOk,
-)
 from gateway.bus.watchdog import Watchdog
 from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth
@@ -294,8 +290,8 @@ class Node:
     ) -> list[Output]:
         """Set output values and send the RPDOs that carry them (one frame per RPDO).
 
-        ``per_pdo[None]`` applies to every RPDO mapping the signal, ``per_pdo[n]`` to RPDO n
-        only. Which RPDOs go out (unless ``send`` says): those carrying a signal mapped only
+        ``per_pdo[None]`` applies to every RPDO mapping the signal (and becomes the image's
+        value of those signals), ``per_pdo[n]`` to RPDO n only. Which RPDOs go out (unless ``send`` says): those carrying a signal mapped only
         there; a signal mapped in several RPDOs (a shared control word) alone goes out in the
         last of them. Raises NodeNotOperational (nothing changed) when the node is not
         operational."""
@@ -304,7 +300,11 @@ class Node:
         if send:
             self.outputs.set(per_pdo)
         self.health.rpdo_sent += len(numbers)
-        return [self.outputs.frame(n, now) for n in numbers]
+        out: list[Output] = [self.outputs.frame(n, now) for n in numbers]
+        shared = per_pdo.get(None)
+        if shared:  # outputs sent are also the image's value of those signals
+            out.append(ValuesRead(tuple(shared), tuple(shared.values())))
+        return out
 
     def require_operational(self) -> None:
         h = self.health

@@ -17,7 +17,7 @@ from typing import Any
 
 from gateway.bus.codec import RpdoCodec
 from gateway.bus.events import Send
-from gateway.bus.supervision import GuardingBitCheck
+from gateway.bus.guarding_bit import GuardingBitCheck
 from gateway.errors import Unmapped
 
 

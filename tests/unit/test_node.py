@@ -11,6 +11,8 @@ import struct
 from collections.abc import Callable
 from typing import Any
 
+import pytest
+
 from gateway.bus.master import NodeParts, build_node
 from gateway.bus.node import Send, ValuesRead
 from gateway.image import NodeImage, Quality, SignalValue
@@ -374,3 +376,19 @@ def test_sync_and_heartbeat_producers_are_due_every_period_and_catch_up_once() -
     assert p.due(101.05) and abs(p.next_deadline() - 101.07) < 1e-12
     assert not p.due(101.06)
     assert p.sent == 3
+
+
+def test_every_rpdo_sent_pushes_the_keepalive_back() -> None:
+    """AP05 manual 5.5.4: any RPDO feeds the external heartbeat; the keep-alive re-sends the
+    last RPDO only when none went out for keepalive_s."""
+    from gateway.bus.outputs import OutputImage
+
+    h = Harness("ap05", node_id=1, guarding_bit={"enabled": False}, external_heartbeat={"interval_ms": 100})
+    out = OutputImage("n", h.parts.rpdos, keepalive_s=0.05)
+    assert out.keepalive_due(since=2.0) == 2.0  # nothing sent yet: due at once
+    out.set({None: {"set_point2": 1}})
+    out.frame(2, 2.0)
+    out.frame(2, 2.04)
+    assert out.keepalive_due(since=2.0) == pytest.approx(2.09)
+    frame = out.keepalive(2.09)
+    assert frame.cob_id == 0x301 and frame.rpdo  # the last RPDO sent, again
