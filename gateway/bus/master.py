@@ -162,7 +162,6 @@ class Master:
         self._producers: dict[str, asyncio.TimerHandle] = {}
         self._due: dict[str, float] = {}
         self._waiting: dict[tuple[str, int], tuple[asyncio.Future[bytes], ObjRef]] = {}
-        self._tasks: list[asyncio.Task[Any]] = []
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
         for ncfg in cfg.nodes:
@@ -362,7 +361,9 @@ class Master:
             self._produce("heartbeat", hb, 0x700 + self.cfg.master.node_id, b"\x05")
         if self.cfg.master.sync_period_ms:
             self._produce("sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), 0x080, b"")
-        self._tasks.append(asyncio.create_task(self._housekeeping(), name="housekeeping"))
+        self._producers["housekeeping"] = self.loop.call_later(
+            self.warn.period_s, self._housekeeping
+        )
         now = self.clock()
         for p in self.nodes.values():
             self._execute(p, p.node.start(now, probe=self.cfg.master.probe_at_start))
@@ -373,14 +374,6 @@ class Master:
         self._producers.clear()
         self._timers.clear()
         self._due.clear()
-        for t in self._tasks:
-            t.cancel()
-        for t in self._tasks:
-            try:
-                await t
-            except (asyncio.CancelledError, Exception):  # noqa: BLE001
-                pass
-        self._tasks.clear()
         for fut, _obj in self._waiting.values():
             if not fut.done():
                 fut.set_exception(BusDown("gateway stopping"))
@@ -400,11 +393,14 @@ class Master:
             periodic.next_deadline(), self._produce, name, periodic, cob_id, data
         )
 
-    async def _housekeeping(self) -> None:
-        while True:
-            await asyncio.sleep(self.warn.period_s)
-            self.warn.flush()
-            self.driver.warn.flush()
+    def _housekeeping(self) -> None:
+        """Summary lines of the rate-limited logs, once per period."""
+        self.warn.flush()
+        self.driver.warn.flush()
+        assert self.loop is not None
+        self._producers["housekeeping"] = self.loop.call_later(
+            self.warn.period_s, self._housekeeping
+        )
 
     # ------------------------------------------------------------------ services
     def part(self, name: str) -> NodeParts:
