@@ -3,7 +3,7 @@
 Every signal has a value, a source timestamp and a quality (good / stale / bad); every node has
 its health (NMT state, supervision, guarding-bit link, last EMCY, data age). The bus side writes
 here; Modbus and Zenoh read here and are told of changes through listeners. Values of one PDO are
-written together (one dict update of immutable values), so a reader never sees half an update.
+written together (one immutable record, one assignment), so a reader never sees half an update.
 
 Imports: gateway.states only; nothing of bus/, modbus/, zenoh_bridge/ (they import this).
 """
@@ -11,7 +11,7 @@ Imports: gateway.states only; nothing of bus/, modbus/, zenoh_bridge/ (they impo
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any, NamedTuple
@@ -84,16 +84,60 @@ class RxCounters:
         self.last_rx_monotonic = 0.0
 
 
+#: One frame's values: (values in mapping order, source timestamp, receive time, frames so far)
+Record = tuple[tuple[Any, ...], float, float, int]
+
+
+class SignalView(Mapping[str, SignalValue]):
+    """``node.signals``: signal name -> its latest ``SignalValue``, computed from the records.
+
+    A signal may live in several records (SGH10 TPDO1 and TPDO2 carry the same values; a value
+    read by SDO): the most recently received wins, and ``seq`` counts all of them."""
+
+    __slots__ = ("_records", "_where")
+
+    def __init__(self, records: dict[Any, Record], where: dict[str, tuple[tuple[Any, int], ...]]):
+        self._records = records
+        self._where = where
+
+    def __getitem__(self, name: str) -> SignalValue:
+        slots = self._where[name]
+        best: Record | None = None
+        index = 0
+        seq = 0
+        records = self._records
+        for key, i in slots:
+            r = records.get(key)
+            if r is not None:
+                seq += r[3]
+                if best is None or r[2] >= best[2]:
+                    best, index = r, i
+        if best is None:
+            return SignalValue(name)
+        return SignalValue(name, best[0][index], best[1], best[2], seq)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._where)
+
+    def __len__(self) -> int:
+        return len(self._where)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._where
+
+
 class NodeImage:
     """Signals and health of one node.
 
-    ``signals`` maps a signal name to its immutable ``SignalValue``; the values of one PDO are
-    put in with one ``dict.update`` (atomic for other Python threads), so a reader never sees
-    half a PDO. ``snapshot()`` is a consistent copy for a request that reads several signals.
+    Values are kept as one immutable record per PDO (``records``, keyed by the tuple of the
+    signal names it carries): the reader thread puts a whole frame in with one assignment, so a
+    reader sees one frame or the other, never a mix. ``signals`` is the per-signal view of the
+    records; ``snapshot()`` is a consistent view for a request that reads several signals.
     """
 
     __slots__ = (
-        "name", "node_id", "family", "signals", "health", "rx", "stale_after_s", "serve_stale",
+        "name", "node_id", "family", "records", "where", "signals", "health", "rx",
+        "stale_after_s", "serve_stale",
     )  # fmt: skip
 
     def __init__(
@@ -108,14 +152,38 @@ class NodeImage:
         self.name = name
         self.node_id = node_id
         self.family = family
-        self.signals: dict[str, SignalValue] = {n: SignalValue(n) for n in signal_names}
+        self.records: dict[Any, Record] = {}
+        self.where: dict[str, tuple[tuple[Any, int], ...]] = {n: () for n in signal_names}
+        self.signals = SignalView(self.records, self.where)
         self.health = NodeHealth()
         self.rx = RxCounters()
         self.stale_after_s = stale_after_s
         self.serve_stale = serve_stale
 
-    def snapshot(self) -> dict[str, SignalValue]:
-        return dict(self.signals)
+    def bind(self, names: tuple[str, ...]) -> None:
+        """Make the record keyed ``names`` a source of those signals (once per layout)."""
+        where = self.where
+        for i, n in enumerate(names):
+            slots = where.get(n, ())
+            if (names, i) not in slots:
+                where[n] = (*slots, (names, i))  # one assignment: readers see old or new
+
+    def put(self, names: tuple[str, ...], values: tuple[Any, ...], ts: float, mono: float) -> None:
+        """Values of one frame (or of one SDO read), in one assignment."""
+        records = self.records
+        old = records.get(names)
+        records[names] = (values, ts, mono, old[3] + 1 if old is not None else 1)
+        if old is None:
+            self.bind(names)
+
+    def snapshot(self) -> SignalView:
+        return SignalView(dict(self.records), self.where)
+
+    def set_value(self, sv: SignalValue) -> None:
+        """Put one signal's value as given (tests and tools)."""
+        key = (sv.name,)
+        self.records[key] = ((sv.value,), sv.timestamp, sv.monotonic, sv.seq)
+        self.bind(key)
 
     def operational(self) -> bool:
         h = self.health
@@ -205,17 +273,11 @@ class ProcessImage:
     def update(
         self, node: NodeImage, names: tuple[str, ...], values: tuple[Any, ...], ts: float
     ) -> None:
-        """Write the values of one PDO (hot path, one ``dict.update``) and tell the value
+        """Write the values of one PDO (hot path: one record, one assignment) and tell the value
         listeners. Called by one writer at a time per node (the reader thread; SDO refreshes
         on the event loop only while the node's TPDOs are silent)."""
         mono = time.monotonic()
-        sigs = node.signals
-        node.signals.update(
-            {
-                n: SignalValue(n, v, ts, mono, sigs[n].seq + 1)
-                for n, v in zip(names, values, strict=False)
-            }
-        )
+        node.put(names, values, ts, mono)
         node.rx.last_rx_monotonic = mono
         for listener in self.value_listeners:
             listener(node, names, ts)

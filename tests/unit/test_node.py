@@ -183,9 +183,9 @@ def test_values_of_the_previous_boot_are_stale_until_a_frame_after_nmt_start() -
     started = h.nmt_start_time()
     assert h.image.health.fresh_since == started
     node = h.image
-    node.signals["position"] = SignalValue("position", 7, 0.0, started - 0.5, 1)  # before
+    node.set_value(SignalValue("position", 7, 0.0, started - 0.5, 1))  # before
     assert node.quality(node.signals["position"], started + 0.1) == Quality.STALE
-    node.signals["position"] = SignalValue("position", 8, 0.0, started + 0.01, 2)  # after
+    node.set_value(SignalValue("position", 8, 0.0, started + 0.01, 2))  # after
     assert node.quality(node.signals["position"], started + 0.1) == Quality.GOOD
     # a second boot-up invalidates everything again, before any reconfiguration
     h.bootup(2.5)
