@@ -6,7 +6,7 @@ gateway would wait forever for values it may serve as good. So right after NMT s
 by RTR when the PDO allows remote requests (COB-ID bit 30 = 0), else by one SDO upload per
 mapped object. Types 252/253 (on RTR only) are asked by RTR. Cyclic and SYNC PDOs need nothing.
 
-Imports: bus.codec, bus.node (the plan's record), profiles, objref. No I/O.
+Imports: bus.codec, bus.events (the plan's record), objref. No I/O.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from gateway.bus.codec import TpdoCodec, pdo_objects
-from gateway.bus.node import Refresh
+from gateway.bus.events import Refresh
 from gateway.objref import ObjRef
 
 #: DS-301 7.5.2.35: COB-ID bit 30 = 1: no RTR allowed on this PDO.
