@@ -84,6 +84,8 @@ class RxCounters:
         self.last_rx_monotonic = 0.0
 
 
+_new = tuple.__new__  # a NamedTuple without its Python-level __new__ (hot path)
+
 #: One frame's values: (values in mapping order, source timestamp, receive time, frames so far)
 Record = tuple[tuple[Any, ...], float, float, int]
 
@@ -102,10 +104,16 @@ class SignalView(Mapping[str, SignalValue]):
 
     def __getitem__(self, name: str) -> SignalValue:
         slots = self._where[name]
+        records = self._records
+        if len(slots) == 1:  # the common case: the signal is in one PDO
+            key, index = slots[0]
+            r = records.get(key)
+            if r is None:
+                return SignalValue(name)
+            return _new(SignalValue, (name, r[0][index], r[1], r[2], r[3]))
         best: Record | None = None
         index = 0
         seq = 0
-        records = self._records
         for key, i in slots:
             r = records.get(key)
             if r is not None:
@@ -114,7 +122,7 @@ class SignalView(Mapping[str, SignalValue]):
                     best, index = r, i
         if best is None:
             return SignalValue(name)
-        return SignalValue(name, best[0][index], best[1], best[2], seq)
+        return _new(SignalValue, (name, best[0][index], best[1], best[2], seq))
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._where)
@@ -199,9 +207,16 @@ class NodeImage:
 
     def quality(self, sig: SignalValue, now_monotonic: float | None = None) -> Quality:
         h = self.health
-        if sig.seq == 0 or sig.name in h.invalid_signals:
+        if sig.seq == 0 or (h.invalid_signals and sig.name in h.invalid_signals):
             return Quality.BAD
-        if not self.operational() or h.fresh_since is None or sig.monotonic < h.fresh_since:
+        fresh = h.fresh_since
+        if (
+            fresh is None
+            or sig.monotonic < fresh
+            or not h.alive
+            or h.nmt_state is not NmtState.OPERATIONAL
+            or h.link is LinkState.FAULT
+        ):
             return Quality.STALE
         if self.stale_after_s is not None:
             now = time.monotonic() if now_monotonic is None else now_monotonic
