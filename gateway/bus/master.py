@@ -4,8 +4,9 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
 
 * **Reader thread -> event loop, in one place** (``_post``): the reader decodes process data
   itself (precompiled codecs, into the process image) and hands every control frame (boot-up,
-  heartbeat, guarding answer, EMCY, SDO answer, guarding-bit echo) to the loop with
-  ``loop.call_soon_threadsafe``, stamped with its bus-clock time.
+  heartbeat, guarding answer, EMCY, SDO answer, guarding-bit echo) to the loop through one
+  inbox, stamped with its bus-clock time; one ``loop.call_soon_threadsafe`` wakes the loop per
+  burst, not per frame.
 * **Event loop**: each event goes to its node, which returns what to do; ``_execute`` does it
   (frames to the sender thread, SDO results to the waiting command, values read by SDO into
   the image, health changes to the image's listeners, log lines). Then the node's timer is set
@@ -21,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -158,6 +160,8 @@ class Master:
         self.nodes: dict[str, NodeParts] = {}
         self.by_id: dict[int, NodeParts] = {}
         self.warn = RateLimitedLog(log)
+        self._inbox: deque[tuple[Callable[..., None], tuple[Any, ...]]] = deque()
+        self._drain_pending = False
         self._timers: dict[str, asyncio.TimerHandle] = {}
         self._producers: dict[str, asyncio.TimerHandle] = {}
         self._due: dict[str, float] = {}
@@ -190,10 +194,28 @@ class Master:
         self.driver.on_state = self._bus_state
 
     def _post(self, fn: Callable[..., None], *args: Any) -> None:
-        """The one hand-off from the reader thread to the event loop."""
-        loop = self.loop
-        if loop is not None and not loop.is_closed():
-            loop.call_soon_threadsafe(fn, *args)
+        """The one hand-off from the reader thread to the event loop.
+
+        Events go into an inbox; the loop is woken (``call_soon_threadsafe``) only when no
+        drain is pending, so a burst of control frames costs one wake-up, not one per frame.
+        The flag is cleared before the drain empties the inbox: an event put in after that
+        schedules a new drain, none is left behind."""
+        self._inbox.append((fn, args))
+        if not self._drain_pending:
+            loop = self.loop
+            if loop is not None and not loop.is_closed():
+                self._drain_pending = True
+                loop.call_soon_threadsafe(self._drain)
+
+    def _drain(self) -> None:
+        self._drain_pending = False
+        inbox = self._inbox
+        while inbox:
+            fn, args = inbox.popleft()
+            try:
+                fn(*args)
+            except Exception:  # noqa: BLE001 - one bad event must not stop the others
+                log.exception("event %s failed", getattr(fn, "__name__", fn))
 
     def _control(self, p: NodeParts, kind: str) -> Callable[[can.Message], None]:
         frame_time = self.driver.frame_time
