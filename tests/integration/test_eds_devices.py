@@ -7,6 +7,7 @@ another mapping than the EDS detected by verify_mapping (values bad, Modbus 0x0B
 from __future__ import annotations
 
 import struct
+import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -55,6 +56,23 @@ def local_node(eds: Path, node_id: int, channel: str) -> tuple[canopen.Network, 
     return net, node
 
 
+_STATE = {"INITIALISING": 0x00, "PRE-OPERATIONAL": 0x7F, "OPERATIONAL": 0x05, "STOPPED": 0x04}
+
+
+class Heartbeat(threading.Thread):
+    """The device's heartbeat sent by the test (state from the LocalNode's NMT slave)."""
+
+    def __init__(self, bus: can.BusABC, node: canopen.LocalNode) -> None:
+        super().__init__(daemon=True)
+        self.bus, self.node, self.stop = bus, node, threading.Event()
+
+    def run(self) -> None:
+        while not self.stop.wait(0.05):
+            state = _STATE.get(self.node.nmt.state, 0x7F)
+            msg = can.Message(arbitration_id=0x700 + self.node.id, data=[state], is_extended_id=False)
+            self.bus.send(msg)
+
+
 def boot(node: canopen.LocalNode) -> None:
     """Power-on as CiA 301 7.3.2: boot-up 0x700+id [00], then PRE-OPERATIONAL."""
     node.nmt.send_command(0x81)  # INITIALISING: the LocalNode sends the boot-up frame
@@ -67,7 +85,8 @@ async def gateway_with(
     device_od: dict[tuple[int, int], int] | None = None,
 ) -> AsyncIterator[tuple[Gateway, canopen.LocalNode, can.BusABC, SdoLog]]:  # fmt: skip
     cfg = make_config(
-        [{"name": name, "node_id": node_id, "eds": str(eds), **(node_extra or {})}],
+        # heartbeat 300 ms: the LocalNode's heartbeat is a python-can software timer
+        [{"name": name, "node_id": node_id, "eds": str(eds), "heartbeat_ms": 300, **(node_extra or {})}],
         simulate={"nodes": []},
         master={"probe_at_start": False},
     )
@@ -80,8 +99,10 @@ async def gateway_with(
     notifier = can.Notifier(sniffer, [log])
     gw = Gateway(cfg)
     await gw.start()
+    hb = Heartbeat(sniffer, node)
     try:
         boot(node)
+        hb.start()
         await wait_until(
             lambda: gw.master.nodes[name].lifecycle.state == "operational"
             and gw.image.nodes[name].operational(),
@@ -90,6 +111,9 @@ async def gateway_with(
         )
         yield gw, node, sniffer, log
     finally:
+        hb.stop.set()
+        if hb.is_alive():
+            hb.join()
         await gw.stop()
         notifier.stop()
         sniffer.shutdown()
@@ -101,7 +125,7 @@ async def test_io_module_from_its_eds_alone_serves_its_pdo_values_over_modbus_an
     async with gateway_with(IO, 5, "io") as (gw, _node, bus, log):
         rt = gw.master.nodes["io"]
         # verify_mapping (on for EDS-only nodes) read 1800h../1A00h../1400h../1600h.. back
-        await wait_until(lambda: rt.image.signals["read_input_1h_to_8h"].valid, 5, "mapping verified")
+        await wait_until(lambda: gw.image.nodes["io"].is_valid("read_input_1h_to_8h"), 5, "mapping verified")
         assert rt.mapping_mismatches == []
         # TPDO1 (CiA 401 6000h:01/02 8 bit, 6100h:01 16 bit), TPDO2 (6100h:02, 6401h:01 INTEGER16)
         bus.send(can.Message(arbitration_id=0x185, data=bytes([0xA5, 0x01, 0x34, 0x12]), is_extended_id=False))  # fmt: skip
@@ -135,7 +159,7 @@ async def test_measuring_device_real32_values_and_utf8_name() -> None:
     async with gateway_with(FLOW, 6, "flow") as (gw, _node, bus, _):
         bus.send(can.Message(arbitration_id=0x186, data=struct.pack("<ff", 21.5, -3.25), is_extended_id=False))  # fmt: skip
         sigs = gw.image.nodes["flow"].signals
-        await wait_until(lambda: sigs["temperatur"].seq > 0 and sigs["temperatur"].valid, 5, "TPDO1 decoded, mapping verified")  # fmt: skip
+        await wait_until(lambda: sigs["temperatur"].seq > 0 and gw.image.nodes["flow"].is_valid("temperatur"), 5, "TPDO1 decoded, mapping verified")  # fmt: skip
         client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
         await client.connect()
         try:
@@ -168,7 +192,7 @@ async def test_config_remap_goes_out_in_cia301_order_and_the_new_layout_is_decod
             (0x1800, 1, 0x185),  # PDO valid
         ]
         rt = gw.master.nodes["io"]
-        await wait_until(lambda: rt.image.signals["analogue_input_1"].valid and not rt.mapping_mismatches, 5, "remap verified")  # fmt: skip
+        await wait_until(lambda: gw.image.nodes["io"].is_valid("analogue_input_1") and not rt.mapping_mismatches, 5, "remap verified")  # fmt: skip
         bus.send(can.Message(arbitration_id=0x185, data=struct.pack("<hB", -7, 0x3C), is_extended_id=False))  # fmt: skip
         sigs = gw.image.nodes["io"].signals
         await wait_until(lambda: sigs["read_input_1h_to_8h"].value == 0x3C, 5, "remapped TPDO1 decoded")
@@ -185,10 +209,11 @@ async def test_device_holding_another_mapping_than_the_eds_is_detected_and_its_v
         assert text.startswith("TPDO1: expected COB-ID 0x185, [0x6000:01/8, 0x6000:02/8, 0x6100:01/16]")
         assert "device holds COB-ID 0x185, [0x6100:01/16, 0x6000:01/8, 0x6000:02/8]" in text
         assert "TPDO1" in gw.image.nodes["io"].health.last_error
+        await wait_until(lambda: gw.image.nodes["io"].operational(), 5, "io operational")
         bus.send(can.Message(arbitration_id=0x185, data=bytes([1, 2, 3, 4]), is_extended_id=False))
-        sig = gw.image.nodes["io"].signals["read_input_1h_to_8h"]
-        await wait_until(lambda: sig.seq > 0, 5, "frame received")
-        assert gw.image.nodes["io"].quality(sig) == Quality.BAD
+        io = gw.image.nodes["io"]
+        await wait_until(lambda: io.signals["read_input_1h_to_8h"].seq > 0, 5, "frame received")
+        assert io.quality(io.signals["read_input_1h_to_8h"]) == Quality.BAD
         client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
         await client.connect()
         try:
