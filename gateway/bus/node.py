@@ -23,7 +23,7 @@ gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on ch
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
 Imports: bus.lifecycle, bus.supervision, bus.sdo_client, bus.emcy, bus.settings, bus.codec,
-image, states, objref. Never python-can, asyncio, logging or a northbound module.
+bus.verify, image, states, objref. Never python-can, asyncio, logging or a northbound module.
 """
 
 from __future__ import annotations
