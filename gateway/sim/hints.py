@@ -29,6 +29,8 @@ Keys read (all optional):
   faults: {name: {emcy: code, register: bits}}     generic fault -> EMCY mapping
   emcy_on_position_error            EMCY code of the fault "sensor_error" (register bit 7)
   sdo_expedited_only                refuse segmented transfers (abort 0x05040001)
+  tpdo_on_operational               send event-driven TPDOs without timer once on entering
+                                    OPERATIONAL (default: only for profiles without sim hints)
 Calibration (position = direction x model + offset + application offset):
   calibration_object                writing P makes the position P (SGH10 6010h:01)
   calibration: {preset, trigger, trigger_value, done_value, application_offset}

@@ -160,6 +160,10 @@ class SimNode:
 
         # a device known only from its EDS (no sim hints): its numeric TPDO-mapped inputs follow
         # the motion model, each offset by its position in the list
+        # event-driven TPDOs without timer sent once on entering OPERATIONAL (sim option
+        # tpdo_on_operational; default for devices known only from their EDS, as most do; the
+        # manual devices keep what their manuals describe)
+        self.tpdo_on_operational = bool(raw.get("tpdo_on_operational", not profile.profile.sim))
         self.auto_inputs: list[ObjRef] = []
         if self.position_obj is None and self.velocity_obj is None and not profile.profile.sim:
             self.auto_inputs = self._mapped_inputs(node_id)
@@ -473,7 +477,11 @@ class SimNode:
                 t.sync_count = 0
                 t.last_data = None
                 t.next_due_s = now if pdo.event_timer_ms(self.values, n) > 0 else None
-                if t.next_due_s is None and pdo.transmission_type(self.values, "tpdo", n) >= 254:
+                if (
+                    self.tpdo_on_operational
+                    and t.next_due_s is None
+                    and pdo.transmission_type(self.values, "tpdo", n) >= 254
+                ):
                     # an event-driven TPDO without timer is sent once on entering OPERATIONAL
                     # (its current values), then on events (CiA 301 7.3.2)
                     t.next_due_s = now
