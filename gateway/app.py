@@ -17,13 +17,14 @@ import can
 from gateway import __version__
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
+from gateway.checks import check_config
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label
 from gateway.modbus.regmap import build_register_map
 from gateway.modbus.server import ModbusGateway
-from gateway.profiles import load_profile
+from gateway.profiles import load_node_profile
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
@@ -42,7 +43,7 @@ class SimulatedBus:
         for n in cfg.nodes:
             if n.name not in wanted:
                 continue
-            lp = load_profile(n.profile, cfg.base_dir)
+            lp = load_node_profile(n, cfg.base_dir)
             self.nodes[n.name] = SimNode(
                 lp,
                 n.node_id,
@@ -72,6 +73,7 @@ class SimulatedBus:
 
 class Gateway:
     def __init__(self, cfg: Config, simulate: bool = True, *, passive: bool = False):
+        check_config(cfg)  # the cross-checks of `canopen-gateway check` (ConfigError)
         self.cfg = cfg
         self.image = ProcessImage()
         self.threads = ThreadRegistry()
@@ -134,7 +136,7 @@ class Gateway:
         if self.health is not None and getattr(self.health, "port", 0):
             parts.append(f"health http://{self.cfg.health.host}:{self.health.port}")
         nodes = ", ".join(
-            f"{n.name}={n.profile}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
+            f"{n.name}={n.device}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
             for n in self.cfg.nodes
         )
         parts.append(f"nodes: {nodes or 'none'}")

@@ -1,46 +1,267 @@
-"""Protocol feasibility checks of a config (``canopen-gateway check`` and config loading).
+"""Checks across the config, the profiles / EDS files and the register map
+(``canopen-gateway check``, and every start of the gateway).
 
-Rules a config must meet that span several sections, e.g. an AP05 external heartbeat
-(AP05 manual 5.5.4, 5F09h) that the gateway's SYNC period or RPDO keep-alive cannot feed in time.
-Also: the boot configuration of every configured node can be built (objects in the EDS,
-writable, values that fit) and leaves PDO mappings the gateway can decode.
-Pure: imports config, profiles, the boot step builder and the PDO codecs (no I/O).
+``config_problems(cfg)`` returns one ``(key path, what is allowed)`` per problem:
+
+* the register map compiles (no address used twice, blocks fit);
+* protocol feasibility, e.g. an AP05 external heartbeat (AP05 manual 5.5.4, 5F09h) that the
+  SYNC period or the RPDO keep-alive cannot feed in time, node guarding without times;
+* the boot configuration of every node can be built (objects in the EDS, writable, values that
+  fit their type) and each value it writes lies within the EDS LowLimit/HighLimit and the
+  profile's ``constraints`` (e.g. 1017h "0 or 10..65535");
+* every PDO of the node's layout against its EDS (CiA 301 7.5.2.36/38): each mapped object and
+  sub-index exists, the entry's bit length is the object's, TPDO entries are readable and
+  PDO-mappable, RPDO entries writable and PDO-mappable, at most 64 bits; a PDO that is not
+  written at boot has the EDS mapping; a PDO written at boot differs from the EDS only where
+  the EDS mapping objects are writable;
+* a signal's declared type is the EDS DataType; a signal declared as a PDO signal is in a PDO.
+
+``load_checked_config`` / ``parse_checked_config`` are ``gateway.config``'s loaders plus these
+checks, raising ConfigError with every line. Pure: imports config, profiles, eds, the boot step
+builder, the codecs and the register map (no I/O but reading the files they name).
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping
+from typing import Any
+
 from gateway.bus.codec import compile_node
-from gateway.bus.lifecycle import build_boot_steps
-from gateway.config import Config
-from gateway.profiles import load_profile
+from gateway.bus.lifecycle import OD_TYPE_NAMES, ConfigStep, build_boot_steps
+from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
+from gateway.eds.parse import DATA_TYPES
+from gateway.eds.pdos import TYPE_BITS, eds_pdos, od_var, readable
+from gateway.modbus.regmap import RegisterMapError, build_register_map
+from gateway.objref import ObjRef
+from gateway.profiles import LoadedProfile, ProfileError, load_node_profile
+from gateway.profiles.layout import pdo_objects
+from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS
+from gateway.profiles.schema import Pdo
+
+Problem = tuple[str, str]
 
 
-def boot_problems(cfg: Config) -> list[tuple[str, str]]:
-    """Boot steps that cannot be built, and PDO mappings they leave that cannot be decoded."""
-    out: list[tuple[str, str]] = []
+def _steps(lp: LoadedProfile, n: NodeConfig) -> list[ConfigStep]:
+    return build_boot_steps(lp, n, n.supervision, n.heartbeat_ms, n.guard_time_ms, n.life_time_factor)
+
+
+def boot_problems(cfg: Config) -> list[Problem]:
+    """Boot steps that cannot be built, values outside the EDS limits or the profile's
+    constraints, and PDO mappings they leave that cannot be decoded."""
+    out: list[Problem] = []
     for i, n in enumerate(cfg.nodes):
         if not n.configure:
             continue
-        lp = load_profile(n.profile, cfg.base_dir)
         try:
-            steps = build_boot_steps(
-                lp, n, n.supervision, n.heartbeat_ms, n.guard_time_ms, n.life_time_factor
-            )
+            lp = load_node_profile(n, cfg.base_dir)
+        except ProfileError:
+            continue  # reported by the config loader
+        try:
+            steps = _steps(lp, n)
             compile_node(lp, n.node_id, n.pdo_variant, [(s.object, s.value) for s in steps])
         except (ValueError, KeyError) as exc:
-            out.append((f"nodes[{i}]", str(exc)))
+            head, _, rest = str(exc).partition(": ")
+            if head.split(".")[0] in ("tpdo", "rpdo") and rest:
+                out.append((f"nodes[{i}].{head}", rest))
+            else:
+                out.append((f"nodes[{i}]", str(exc)))
+            continue
+        out += _limit_problems(lp, n, i, steps, cfg)
     return out
 
 
-def protocol_problems(cfg: Config) -> list[tuple[str, str]]:
-    out: list[tuple[str, str]] = boot_problems(cfg)
+def _limit_problems(
+    lp: LoadedProfile, n: NodeConfig, i: int, steps: list[ConfigStep], cfg: Config
+) -> list[Problem]:
+    out: list[Problem] = []
+    constraints = lp.profile.constraints
+    for s in steps:
+        if not isinstance(s.value, int) or isinstance(s.value, bool):
+            continue
+        var = lp.od_var(s.object)
+        key = f"nodes[{i}].{s.source}" if s.source else f"profile {lp.profile.family} boot ({s.object})"
+        lo = getattr(var, "min", None)
+        hi = getattr(var, "max", None)
+        if lo is not None and hi is not None and lo > hi:
+            lo = hi = None  # an EDS with LowLimit > HighLimit (e.g. 0/0 placeholders) says nothing
+        if lo is not None and hi is not None and lo == hi == 0:
+            lo = hi = None
+        if (lo is not None and s.value < lo) or (hi is not None and s.value > hi):
+            out.append(
+                (
+                    key,
+                    f"{s.value} for {s.object} ({s.description}) is outside "
+                    f"{lo if lo is not None else ''}..{hi if hi is not None else ''} "
+                    f"(LowLimit/HighLimit in {lp.eds_path.name})",
+                )
+            )
+        c = constraints.get(s.object)
+        if c is not None and not c.admits(s.value):
+            note = f"; {c.note}" if c.note else ""
+            out.append(
+                (
+                    key,
+                    f"{s.value} for {s.object} ({s.description}) is not allowed: "
+                    f"{c.allowed} (profile {lp.profile.family}){note}",
+                )
+            )
+    return out
+
+
+def _written_pdos(lp: LoadedProfile, steps: list[ConfigStep], kind: str) -> set[int]:
+    """Numbers of the PDOs whose mapping the boot steps write."""
+    out = set()
+    for number in range(1, 513):
+        _, mapping = pdo_objects(lp.profile, kind, number)  # type: ignore[arg-type]
+        if any(s.object.index == mapping for s in steps):
+            out.add(number)
+    return out
+
+
+def eds_problems(cfg: Config) -> list[Problem]:
+    """Every PDO of each node's layout and every signal against the node's EDS."""
+    out: list[Problem] = []
+    for i, n in enumerate(cfg.nodes):
+        try:
+            lp = load_node_profile(n, cfg.base_dir)
+        except ProfileError:
+            continue
+        key = f"nodes[{i}]"
+        eds = lp.eds_path.name
+        od = lp.od
+        try:
+            steps: list[ConfigStep] | None = _steps(lp, n) if n.configure else []
+        except (ValueError, KeyError):
+            steps = None  # reported by boot_problems
+        tpdos, rpdos = lp.profile.layout(n.pdo_variant if lp.profile.pdo_variants else None)
+        trusted = lp.profile.verify_mapping is not False  # mapping objects describe the layout
+        for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
+            settings = n.tpdo if kind == "tpdo" else n.rpdo
+            written = _written_pdos(lp, steps or [], kind) | set(settings)
+            held = {p.number: p for p in eds_pdos(od, n.node_id, kind)}  # type: ignore[arg-type]
+            for p in pdos:
+                where = f"{key}.{kind}.{p.number}" if p.number in (n.tpdo if kind == "tpdo" else n.rpdo) else f"{key} ({kind.upper()}{p.number})"  # fmt: skip
+                out += _pdo_entry_problems(lp, kind, p, where, eds)
+                e = held.get(p.number)
+                if e is None or not trusted:
+                    continue
+                entries = [(x.object, x.bits) for x in p.mapping]
+                same = list(e.entries) == entries
+                if p.number in written:
+                    if not same and not e.mapping_writable and steps is not None:
+                        out.append(
+                            (
+                                f"{where}.mapping" if "." in where.split("]")[-1] else where,
+                                f"{kind.upper()}{p.number} mapping {_fmt(entries)} differs from the "
+                                f"EDS {_fmt(list(e.entries))}, and {e.map_index:04X}h is read-only "
+                                f"in {eds}: the device cannot be remapped",
+                            )
+                        )
+                elif not same and p.origin != "eds":
+                    out.append(
+                        (
+                            where,
+                            f"{kind.upper()}{p.number} layout {_fmt(entries)} is not the EDS "
+                            f"mapping {_fmt(list(e.entries))} and is not written at boot: "
+                            "it would be decoded with the wrong layout",
+                        )
+                    )
+        # signals
+        all_pdo_objs = {x.object for p in (*tpdos, *rpdos) for x in p.mapping}
+        prof = lp.profile
+        if prof.pdo_variants:
+            for v in prof.pdo_variants.variants.values():
+                all_pdo_objs |= {x.object for p in (*v.tpdos, *v.rpdos) for x in p.mapping}
+        for s in prof.signals:
+            var = od_var(od, s.object)
+            if var is None:
+                continue
+            eds_type = OD_TYPE_NAMES.get(var.data_type)
+            eds_bits = TYPE_BITS.get(var.data_type)
+            if s.type not in ("string", "bytes") and eds_type is not None and s.type != eds_type:
+                # a signed reading of an unsigned object of the same size is a profile's choice
+                # (AP05 positions are UNSIGNED32 in the manual, negative in practice)
+                if SIGNAL_BITS.get(s.type or "") != eds_bits:
+                    out.append(
+                        (
+                            f"{key} ({prof.family} signal {s.name})",
+                            f"type {s.type} but {s.object} is {DATA_TYPES.get(var.data_type, '?')} "
+                            f"in {eds}: must be {eds_type} (or another {eds_bits}-bit type)",
+                        )
+                    )
+            if s.transport == "pdo" and s.object not in all_pdo_objs:
+                out.append(
+                    (
+                        f"{key} ({prof.family} signal {s.name})",
+                        f"declared as a PDO signal, but {s.object} is in no PDO of the layout",
+                    )
+                )
+    return out
+
+
+def _fmt(entries: list[tuple[ObjRef, int]]) -> str:
+    return "[" + ", ".join(f"{o}/{b}" for o, b in entries) + "]"
+
+
+def _pdo_entry_problems(lp: LoadedProfile, kind: str, p: Pdo, where: str, eds: str) -> list[Problem]:
+    out: list[Problem] = []
+    total = 0
+    for j, e in enumerate(p.mapping):
+        total += e.bits
+        w = f"{where}.mapping[{j}]" if "." in where.split("]")[-1] else where
+        if e.object.index < 0x1000:
+            bits = TYPE_BITS.get(e.object.index)
+            if bits is None or bits != e.bits:
+                out.append((w, f"dummy entry {e.object}/{e.bits}: data type {e.object.index:04X}h is "
+                               f"{bits if bits else 'not a dummy type'} bit"))  # fmt: skip
+            continue
+        var = od_var(lp.od, e.object)
+        if var is None:
+            entry = lp.od.get(e.object.index)
+            what = (
+                f"{e.object.index:04X}h has no sub-index {e.object.sub:02X}h"
+                if entry is not None
+                else f"{e.object} is not in {eds}"
+            )
+            out.append((w, f"{kind.upper()}{p.number} entry {e.object}: {what}"))
+            continue
+        bits = TYPE_BITS.get(var.data_type)
+        if bits is not None and bits != e.bits:
+            out.append(
+                (
+                    w,
+                    f"{kind.upper()}{p.number} entry {e.object}/{e.bits}: the object is "
+                    f"{DATA_TYPES.get(var.data_type, '?')} ({bits} bit) in {eds}; must be /{bits}",
+                )
+            )
+        if not var.pdo_mappable:
+            out.append((w, f"{kind.upper()}{p.number} entry {e.object}: not PDO-mappable (PDOMapping=0) in {eds}"))  # fmt: skip
+        if kind == "tpdo" and not readable(var):
+            out.append((w, f"TPDO{p.number} entry {e.object}: not readable ({var.access_type}) in {eds}"))  # fmt: skip
+        if (
+            kind == "rpdo"
+            and var.access_type not in ("rw", "wo", "rww", "rwr")
+            and e.object not in lp.profile.rpdo_only_writable
+        ):
+            out.append((w, f"RPDO{p.number} entry {e.object}: not writable ({var.access_type}) in {eds}"))  # fmt: skip
+    if total > 64:
+        out.append((where, f"{kind.upper()}{p.number} maps {total} bits; a PDO carries at most 64"))
+    return out
+
+
+def protocol_problems(cfg: Config) -> list[Problem]:
+    out: list[Problem] = boot_problems(cfg)
     for i, n in enumerate(cfg.nodes):
         key = f"nodes[{i}]"
-        lp = load_profile(n.profile, cfg.base_dir)
+        try:
+            lp = load_node_profile(n, cfg.base_dir)
+        except ProfileError:
+            continue
         if n.external_heartbeat is not None:
             if "external_heartbeat" not in lp.profile.features:
                 out.append(
-                    (f"{key}.external_heartbeat", f"profile {n.profile} has no external heartbeat")
+                    (f"{key}.external_heartbeat", f"{n.device} has no external heartbeat")
                 )
                 continue
             eh = n.external_heartbeat
@@ -84,3 +305,53 @@ def protocol_problems(cfg: Config) -> list[tuple[str, str]]:
                     (f"{key}.guard_time_ms", "node guarding needs guard_time_ms and life_time_factor > 0")
                 )
     return out
+
+
+def config_problems(cfg: Config) -> list[Problem]:
+    """Every cross-check (see the module docstring), in a stable order."""
+    out: list[Problem] = []
+    try:
+        build_register_map(cfg)
+    except RegisterMapError as exc:
+        out.append((exc.key, str(exc)))
+    out += protocol_problems(cfg)
+    out += eds_problems(cfg)
+    seen: set[Problem] = set()
+    unique = []
+    for p in out:
+        if p not in seen:
+            seen.add(p)
+            unique.append(p)
+    return unique
+
+
+def check_config(cfg: Config) -> Config:
+    """Raise ConfigError (one line per problem: file, key path, what is allowed)."""
+    problems = config_problems(cfg)
+    if problems:
+        raise ConfigError([f"{cfg.source}: {k}: {m}" for k, m in problems])
+    return cfg
+
+
+def parse_checked_config(
+    raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None
+) -> Config:
+    return check_config(parse_config(raw, source, environ))
+
+
+def load_checked_config(
+    path: str | os.PathLike[str], environ: Mapping[str, str] | None = None
+) -> Config:
+    return check_config(load_config(path, environ))
+
+
+__all__ = [
+    "SIGNAL_BITS",
+    "boot_problems",
+    "check_config",
+    "config_problems",
+    "eds_problems",
+    "load_checked_config",
+    "parse_checked_config",
+    "protocol_problems",
+]

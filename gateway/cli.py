@@ -1,4 +1,4 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|lss``.
+"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|lss|eds|profile``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback. Imports everything it drives; nothing imports this module.
@@ -16,14 +16,15 @@ from collections.abc import Sequence
 from typing import Any
 
 from gateway import __version__
-from gateway.config import Config, ConfigError, load_config
+from gateway.checks import load_checked_config
+from gateway.config import Config, ConfigError
 
 EXIT_CONFIG = 2
 EXIT_FAILED = 1
 
 
 def _load(path: str) -> Config:
-    return load_config(path)
+    return load_checked_config(path)
 
 
 def _setup_logging(level: str) -> None:
@@ -73,17 +74,17 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from gateway.profiles import load_profile
+    from gateway.profiles import load_node_profile
 
     cfg = _load(args.config)
     print(f"{args.config}: OK")
     for n in cfg.nodes:
-        lp = load_profile(n.profile, cfg.base_dir)
+        lp = load_node_profile(n, cfg.base_dir)
         pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
         sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
         sim = " (simulated)" if n in cfg.simulated_nodes() else ""
         print(
-            f"  node {n.name}: id {n.node_id}, {lp.profile.title}{sim}; "
+            f"  node {n.name}: id {n.node_id}, {lp.profile.title or n.device}{sim}; "
             f"{len(pdo_sigs)} process signals ({', '.join(pdo_sigs)}), "
             f"{len(sdo_sigs)} configuration objects"
         )
@@ -192,6 +193,44 @@ def cmd_nmt(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eds_show(args: argparse.Namespace) -> int:
+    from gateway.eds import EdsError, load_eds
+    from gateway.eds.show import render
+
+    try:
+        eds = load_eds(args.file)
+    except EdsError as exc:
+        raise ConfigError(exc.problems) from None
+    sys.stdout.write(render(eds, args.node_id))
+    return 0
+
+
+def cmd_profile_init(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from gateway.eds import EdsError, load_eds
+    from gateway.eds.show import overlay_profile
+
+    try:
+        eds = load_eds(args.eds)
+    except EdsError as exc:
+        raise ConfigError(exc.problems) from None
+    if args.output:
+        out = Path(args.output)
+        if out.exists() and not args.force:
+            print(f"error: {out} exists (use --force to overwrite)", file=sys.stderr)
+            return EXIT_FAILED
+        try:
+            ref = str(eds.path.relative_to(out.resolve().parent))
+        except ValueError:
+            ref = str(eds.path)
+        out.write_text(overlay_profile(eds, ref), encoding="utf-8")
+        print(f"wrote {out}")
+    else:
+        sys.stdout.write(overlay_profile(eds, args.eds))
+    return 0
+
+
 def cmd_lss(args: argparse.Namespace) -> int:
     from gateway.bus.lss_cli import run_lss
 
@@ -244,6 +283,21 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("command", choices=["start", "stop", "preop", "reset", "reset-comm"])
     sp.add_argument("node", help="node name, id, or 'all'")
     sp.set_defaults(fn=cmd_nmt)
+
+    sp = sub.add_parser("eds", help="inspect an EDS or DCF (checked as when loaded)")
+    eds_sub = sp.add_subparsers(dest="eds_command", required=True, metavar="ACTION")
+    show = eds_sub.add_parser("show", help="print the objects and the PDO mappings as tables")
+    show.add_argument("file", metavar="FILE", help="EDS or DCF file")
+    show.add_argument("--node-id", type=int, help="resolve $NODEID for this node id")
+    show.set_defaults(fn=cmd_eds_show)
+
+    sp = sub.add_parser("profile", help="device profiles (overlays on an EDS)")
+    prof_sub = sp.add_subparsers(dest="profile_command", required=True, metavar="ACTION")
+    init = prof_sub.add_parser("init", help="write an editable overlay profile from an EDS")
+    init.add_argument("--eds", required=True, metavar="FILE", help="EDS or DCF file")
+    init.add_argument("-o", "--output", metavar="FILE", help="profile .yaml to write (default: stdout)")
+    init.add_argument("--force", action="store_true", help="overwrite an existing file")
+    init.set_defaults(fn=cmd_profile_init)
 
     sp = with_config(sub.add_parser("lss", help="LSS commissioning (CiA 305)"))
     sp.add_argument(

@@ -5,8 +5,13 @@ what is allowed; all problems of a file are collected before reporting. Environm
 ``CANOPEN_GATEWAY__SECTION__KEY=value`` override single keys (list items by index:
 ``CANOPEN_GATEWAY__NODES__0__NODE_ID=5``); values are parsed as YAML scalars/flow lists.
 
-Imports: pydantic, yaml, gateway.objref, gateway.profiles (to check profile names). Nothing of
-bus/, modbus/, zenoh_bridge/.
+This module checks what one file can say about itself (schema, duplicates, profile and EDS names,
+the node's PDO settings against its EDS). The checks across the config, the profiles/EDS and the
+compiled register map (``canopen-gateway check``) live in ``gateway.checks``, which imports this
+module; this module imports neither it nor modbus/.
+
+Imports: pydantic, yaml, gateway.objref, gateway.profiles. Nothing of bus/, modbus/,
+zenoh_bridge/, checks.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
 from gateway.objref import ObjRef
-from gateway.profiles import ProfileError, load_profile
+from gateway.profiles import ProfileError, load_node_profile
 from gateway.profiles.schema import HexInt, SignalType
 
 ENV_PREFIX = "CANOPEN_GATEWAY__"
@@ -122,10 +127,50 @@ class NodeModbus(_Model):
     serve_stale: bool = False
 
 
+class PdoSetting(_Model):
+    """One PDO of a node (``tpdo:``/``rpdo:``, keyed by PDO number), written at boot with the
+    CiA 301 sequence: COB-ID bit 31 set, parameters, mapping sub 0 = 0, entries, sub 0 = n,
+    COB-ID valid."""
+
+    enabled: bool = True
+    cob_id: HexInt | None = Field(default=None, ge=1, le=0x7FF, description="default: EDS / CiA 301")
+    transmission: int | None = Field(default=None, ge=0, le=255, description="transmission type")
+    event_timer_ms: int | None = Field(default=None, ge=0, le=65535)
+    inhibit_ms: float | None = Field(default=None, ge=0, le=6553.5, description="0.1 ms steps")
+    sync_start: int | None = Field(default=None, ge=0, le=240)
+    mapping: list[str] | None = Field(
+        default=None, description='["0x6000:01", "0x6401:01/16", "0x0005:00" (dummy 8 bit), ...]'
+    )
+
+
+def _pdo_numbers(v: Any) -> Any:
+    if isinstance(v, dict):
+        out = {}
+        for k, val in v.items():
+            try:
+                n = int(k)
+            except (TypeError, ValueError):
+                raise ValueError(f"PDO number {k!r} is not a number 1..512") from None
+            if not 1 <= n <= 512:
+                raise ValueError(f"PDO number {n} is not 1..512")
+            out[n] = {} if val is None else val
+        return out
+    return v
+
+
+PdoSettings = Annotated[dict[int, PdoSetting], BeforeValidator(_pdo_numbers)]
+
+
 class NodeConfig(_Model):
     name: str = Field(pattern=r"^[a-z][a-z0-9_\-]*$")
     node_id: int = Field(ge=1, le=127)
-    profile: str
+    profile: str | None = Field(default=None, description="built-in name or profile .yaml")
+    eds: str | None = Field(default=None, description="the device's EDS or DCF (path)")
+    tpdo: PdoSettings = Field(default_factory=dict)
+    rpdo: PdoSettings = Field(default_factory=dict)
+    verify_mapping: bool | None = Field(
+        default=None, description="read 1800h../1A00h.. back after configuring (default: EDS-only nodes)"
+    )
     supervision: Literal["heartbeat", "guarding", "none"] | None = None
     heartbeat_ms: int | None = Field(default=None, ge=0, le=65535)
     guard_time_ms: int | None = Field(default=None, ge=0, le=65535)
@@ -143,6 +188,21 @@ class NodeConfig(_Model):
         default=True,
         description="read TPDOs that send only on change right after NMT start (RTR or SDO)",
     )
+
+    @model_validator(mode="after")
+    def _device(self) -> NodeConfig:
+        if not self.profile and not self.eds:
+            raise ValueError("a node needs a profile, an eds (path to the device's EDS/DCF), or both")
+        return self
+
+    @property
+    def eds_only(self) -> bool:
+        return not self.profile
+
+    @property
+    def device(self) -> str:
+        """What the node is, for listings: the profile name, else the EDS file name."""
+        return self.profile or Path(self.eds or "").name
 
 
 class ModbusSection(_Model):
@@ -350,39 +410,6 @@ def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, s
                 )
             else:
                 seen["unit_id"][unit] = i
-        prof = n.get("profile")
-        if isinstance(prof, str):
-            try:
-                lp = load_profile(prof, base_dir)
-            except ProfileError as exc:
-                out.append((f"nodes[{i}].profile", str(exc)))
-            else:
-                sigs = n.get("signals")
-                if isinstance(sigs, dict):
-                    names = {s.name for s in lp.profile.signals}
-                    for s in sigs:
-                        if s not in names:
-                            out.append(
-                                (
-                                    f"nodes[{i}].signals.{s}",
-                                    f"profile {prof} has no signal {s!r}; it has: "
-                                    + ", ".join(sorted(names)),
-                                )
-                            )
-                pv = n.get("pdo_variant")
-                if pv is not None:
-                    var = lp.profile.pdo_variants
-                    if var is None:
-                        out.append(
-                            (f"nodes[{i}].pdo_variant", f"profile {prof} has no PDO variants")
-                        )
-                    elif pv not in var.variants:
-                        out.append(
-                            (
-                                f"nodes[{i}].pdo_variant",
-                                f"got {pv!r}, profile {prof} allows {sorted(var.variants)}",
-                            )
-                        )
     gw_unit = (raw.get("modbus") or {}).get("gateway_unit_id", 247)
     if gw_unit in seen["unit_id"]:
         out.append(
@@ -419,8 +446,8 @@ def parse_config(
         for e in exc.errors():
             errors.append((_loc(e["loc"]), _describe(e)))
     errors += _semantic_problems(raw, base_dir)
-    if cfg is not None and not errors:
-        errors += _compiled_problems(cfg)
+    if cfg is not None:
+        errors += _node_problems(cfg, base_dir)
     seen: set[tuple[str, str]] = set()
     for loc, msg in errors:
         if (loc, msg) in seen:
@@ -433,19 +460,50 @@ def parse_config(
     return cfg
 
 
-def _compiled_problems(cfg: Config) -> list[tuple[str, str]]:
-    """Checks that need the compiled register map and protocol rules."""
+def _node_problems(cfg: Config, base_dir: Path) -> list[tuple[str, str]]:
+    """Each node's profile / EDS loads, and its signal overrides and variant exist."""
     out: list[tuple[str, str]] = []
-    # Imported here: the register map module imports this one.
-    from gateway.modbus.regmap import RegisterMapError, build_register_map
-
-    try:
-        build_register_map(cfg)
-    except RegisterMapError as exc:
-        out.append((exc.key, str(exc)))
-    from gateway.checks import protocol_problems
-
-    out += protocol_problems(cfg)
+    for i, n in enumerate(cfg.nodes):
+        key = f"nodes[{i}]"
+        try:
+            lp = load_node_profile(n, base_dir)
+        except ProfileError as exc:
+            if exc.key is not None:
+                out.append((f"{key}.{exc.key}" if exc.key else key, str(exc)))
+                continue
+            for line in str(exc).splitlines():
+                out.append((f"{key}.{'eds' if n.eds else 'profile'}", line))
+            continue
+        names = {s.name for s in lp.profile.signals}
+        for s in n.signals:
+            if s not in names:
+                out.append(
+                    (
+                        f"{key}.signals.{s}",
+                        (f"profile {n.profile}" if n.profile else n.device)
+                        + f" has no signal {s!r}; it has: "
+                        + ", ".join(sorted(names)),
+                    )
+                )
+        if n.pdo_variant is not None:
+            var = lp.profile.pdo_variants
+            if var is None:
+                out.append((f"{key}.pdo_variant", f"profile {n.profile} has no PDO variants"))
+            elif n.pdo_variant not in var.variants:
+                out.append(
+                    (
+                        f"{key}.pdo_variant",
+                        f"got {n.pdo_variant!r}, profile {n.profile} allows {sorted(var.variants)}",
+                    )
+                )
+        if n.verify_mapping and lp.profile.verify_mapping is False:
+            out.append(
+                (
+                    f"{key}.verify_mapping",
+                    f"profile {n.profile}: its mapping objects do not describe the layout in use; "
+                    "must be false",
+                )
+            )
     return out
 
 

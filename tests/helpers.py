@@ -12,7 +12,7 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
-from gateway.config import parse_config
+from gateway.checks import parse_checked_config as parse_config
 
 _port_counter = itertools.count()
 

@@ -5,12 +5,14 @@ mappings (all of the manuals' default layouts), a bit-slicing fallback otherwise
 without a profile signal (dummies such as AP05 5F1Dh, DS-301 dummy types 0002h..0007h) are
 decoded and dropped.
 
-Which mapping: the profile's layout (or the chosen ``pdo_variants`` layout), then every SDO
-write of the node's boot configuration to a PDO's communication (COB-ID, 1400h/1800h sub 01h)
-or mapping object (1600h/1A00h) applied in order, as the device applies them. So a remap given
-as node ``sdo:`` writes (MSK5000 manual 4.3.1.2) is decoded exactly as the device will send it,
-without reading 1A0xh back (a read-back would be wrong for devices whose mapping objects do not
-show the layout in use, such as the POSI+ with its PDO type object 2005h, manual 002 5).
+Which mapping: the node's layout as ``gateway.profiles.load_node_profile`` resolved it (profile
+or EDS layout, the node's ``tpdo:``/``rpdo:`` settings, its PDO writes replayed in order; see
+``gateway.profiles.layout``), the one result the boot-step builder also writes from. Writes
+given here are replayed on top once more (idempotent for the node's own boot steps). So a remap
+(MSK5000 manual 4.3.1.2) is decoded exactly as the device will send it, without trusting a
+read-back alone (wrong for devices whose mapping objects do not show the layout in use, such
+as the POSI+ with its PDO type object 2005h, manual 002 5; ``verify_mapping`` compares where
+the mapping objects do describe it).
 
 Imports: profiles (schema), objref. Nothing northbound.
 """
@@ -18,13 +20,19 @@ Imports: profiles (schema), objref. Nothing northbound.
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
-from gateway.profiles.schema import Pdo, PdoEntry, Signal, default_cob_id
+from gateway.profiles.layout import PdoMappingError, pdo_cob_id
+from gateway.profiles.layout import apply_pdo_writes as _apply_pdo_writes
+from gateway.profiles.layout import pdo_objects as _pdo_objects
+from gateway.profiles.schema import Pdo, Signal
+
+__all__ = ["PdoMappingError", "RpdoCodec", "TpdoCodec", "apply_pdo_writes", "compile_node",
+           "pdo_cob_id", "pdo_objects"]  # fmt: skip
 
 # struct codes by (bits, signed)
 _CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h", (32, False): "I",
@@ -171,61 +179,14 @@ class RpdoCodec:
         return word.to_bytes(self.length, "little")
 
 
-def pdo_cob_id(kind: str, pdo: Pdo, node_id: int) -> int:
-    base = pdo.cob_id if pdo.cob_id is not None else default_cob_id(kind, pdo.number)  # type: ignore[arg-type]
-    return base + node_id if pdo.add_node_id else base
-
-
 #: DS-301: COB-ID bit 31 = PDO not valid (MSK5000 manual 4.3.1.2 step 2); bits 0..10 the CAN-ID.
 COB_ID_INVALID = 0x80000000
 COB_ID_MASK_11BIT = 0x7FF
 
 
-class PdoMappingError(ValueError):
-    """The boot writes leave a PDO with a mapping the gateway cannot decode."""
-
-
 def pdo_objects(lp: LoadedProfile, kind: Literal["tpdo", "rpdo"], number: int) -> tuple[int, int]:
-    """(communication index, mapping index) of PDO ``number``: DS-301 1400h/1600h (RPDO),
-    1800h/1A00h (TPDO) + number - 1, or what the ``remappable_tpdo`` feature names."""
-    if kind == "tpdo":
-        spec = (lp.profile.features.get("remappable_tpdo") or {}).get("tpdos") or {}
-        objs = spec.get(number) or spec.get(str(number)) or {}
-        comm = ObjRef.parse(objs.get("communication", 0x1800 + number - 1)).index
-        mapping = ObjRef.parse(objs.get("mapping", 0x1A00 + number - 1)).index
-        return comm, mapping
-    return 0x1400 + number - 1, 0x1600 + number - 1
-
-
-def _pdo_index_lookup(
-    lp: LoadedProfile, kind: Literal["tpdo", "rpdo"]
-) -> tuple[Callable[[int], int | None], Callable[[int], int | None]]:
-    """Functions index -> PDO number for communication and mapping objects (DS-301 ranges
-    1400h-15FFh / 1600h-17FFh for RPDOs, 1800h-19FFh / 1A00h-1BFFh for TPDOs, unless the
-    ``remappable_tpdo`` feature names other objects)."""
-    comm_base, map_base = (0x1800, 0x1A00) if kind == "tpdo" else (0x1400, 0x1600)
-    comm_named: dict[int, int] = {}
-    map_named: dict[int, int] = {}
-    if kind == "tpdo":
-        spec = (lp.profile.features.get("remappable_tpdo") or {}).get("tpdos") or {}
-        for n in spec:
-            comm_named[pdo_objects(lp, kind, int(n))[0]] = int(n)
-            map_named[pdo_objects(lp, kind, int(n))[1]] = int(n)
-
-    def lookup(named: dict[int, int], base: int) -> Callable[[int], int | None]:
-        def number(index: int) -> int | None:
-            if index in named:
-                return named[index]
-            return index - base + 1 if base <= index < base + 0x200 else None
-
-        return number
-
-    return lookup(comm_named, comm_base), lookup(map_named, map_base)
-
-
-def _entry_value(e: PdoEntry) -> int:
-    """DS-301 mapping entry: index << 16 | sub << 8 | length in bits (MSK5000 manual 4.3.1.2)."""
-    return (e.object.index << 16) | (e.object.sub << 8) | e.bits
+    """(communication index, mapping index) of PDO ``number`` (see profiles.layout)."""
+    return _pdo_objects(lp.profile, kind, number)
 
 
 def apply_pdo_writes(
@@ -235,86 +196,8 @@ def apply_pdo_writes(
     node_id: int,
     writes: Iterable[tuple[ObjRef, Any]],
 ) -> list[Pdo]:
-    """The PDOs as the device has them after ``writes`` (SDO downloads, in order).
-
-    Starts from ``pdos`` (the profile layout) and replays the writes to each PDO's COB-ID
-    (sub 01h) and mapping (sub 00h = number of entries, 01h.. = entries). A PDO left with
-    COB-ID bit 31 set or no entries is dropped (the device does not send it); a PDO number
-    outside the layout is added when the writes give it both a valid COB-ID and a mapping.
-    Raises PdoMappingError for a mapping longer than 8 bytes.
-    """
-    state: dict[int, dict[str, Any]] = {}
-    for p in pdos:
-        entries = {i: _entry_value(e) for i, e in enumerate(p.mapping, start=1)}
-        state[p.number] = {
-            "pdo": p,
-            "cob": pdo_cob_id(kind, p, node_id),
-            "count": len(p.mapping),
-            "entries": entries,
-            "cob_written": False,
-            "map_written": False,
-        }
-    by_comm, by_map = _pdo_index_lookup(lp, kind)
-    for obj, value in writes:
-        number = by_comm(obj.index) if obj.sub == 0x01 else None
-        is_map = False
-        if number is None:
-            number = by_map(obj.index)
-            is_map = number is not None
-        if number is None:
-            continue
-        st = state.setdefault(
-            number,
-            {"pdo": None, "cob": COB_ID_INVALID, "count": 0, "entries": {},
-             "cob_written": False, "map_written": False},
-        )  # fmt: skip
-        v = int(value)
-        if not is_map:
-            st["cob"] = v
-            st["cob_written"] = True
-        elif obj.sub == 0:
-            st["count"] = v
-            st["map_written"] = True
-        else:
-            st["entries"][obj.sub] = v
-            st["map_written"] = True
-    out: list[Pdo] = []
-    for number in sorted(state):
-        st = state[number]
-        base: Pdo | None = st["pdo"]
-        if base is None and not (st["cob_written"] and st["map_written"]):
-            continue
-        if st["cob"] & COB_ID_INVALID or st["count"] == 0:
-            continue
-        if base is not None and not st["cob_written"] and not st["map_written"]:
-            out.append(base)
-            continue
-        mapping = []
-        for i in range(1, st["count"] + 1):
-            raw = st["entries"].get(i)
-            if raw is None:
-                raise PdoMappingError(
-                    f"{kind.upper()}{number}: mapping sub-index {i} is enabled but never written"
-                )
-            mapping.append({"object": ObjRef(raw >> 16, (raw >> 8) & 0xFF), "bits": raw & 0xFF})
-        fields: dict[str, Any] = {
-            "number": number,
-            "cob_id": st["cob"] & COB_ID_MASK_11BIT,
-            "add_node_id": False,
-            "mapping": mapping,
-        }
-        if base is not None:
-            fields.update(
-                transmission_type=base.transmission_type,
-                event_timer_ms=base.event_timer_ms,
-                inhibit_time_100us=base.inhibit_time_100us,
-                description=base.description,
-            )
-        try:
-            out.append(Pdo.model_validate(fields))
-        except ValueError as exc:
-            raise PdoMappingError(f"{kind.upper()}{number}: {exc}") from None
-    return out
+    """The PDOs as the device has them after ``writes`` (see profiles.layout)."""
+    return _apply_pdo_writes(lp.profile, kind, pdos, node_id, writes)
 
 
 def compile_node(

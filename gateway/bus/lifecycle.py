@@ -25,7 +25,9 @@ from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, Protocol
 
 from gateway.bus.sdo_text import abort_text
+from gateway.eds.pdos import default_value
 from gateway.objref import ObjRef
+from gateway.profiles.layout import pdo_cob_id, pdo_objects
 from gateway.profiles.schema import Pdo, default_cob_id
 
 if TYPE_CHECKING:
@@ -106,6 +108,8 @@ class ConfigStep:
     type: str  # profile type name: uint8, uint16, uint32, int32, string, ...
     description: str = ""
     optional: bool = False  # a refusal (SDO abort) is reported and the step skipped
+    #: the node config key it comes from, e.g. "heartbeat_ms", "tpdo.1.mapping" (for messages)
+    source: str = field(default="", compare=False)
 
     @property
     def data(self) -> bytes:
@@ -522,6 +526,7 @@ class _Builder:
         where: str,
         *,
         derived: bool = False,
+        source: str = "",
     ) -> None:
         """Add a write computed by the builder, checked against the EDS."""
         type_name, var = self.od_type(obj, where)
@@ -535,9 +540,9 @@ class _Builder:
             )
         if derived:
             self.derived.add(len(self.steps))
-        self.steps.append(ConfigStep(obj, value, type_name, description))
+        self.steps.append(ConfigStep(obj, value, type_name, description, source=source))
 
-    def add_explicit(self, w: Any, where: str) -> None:
+    def add_explicit(self, w: Any, where: str, source: str = "") -> None:
         """A write from the profile's boot.sdo or the node's sdo list."""
         obj = ObjRef.parse(w.object)
         od_type, var = self.od_type(obj, where)
@@ -548,7 +553,7 @@ class _Builder:
         type_name = w.type or od_type
         value = _coerce(w.value, type_name, f"{where} ({obj})")
         note = getattr(w, "note", "") or ""
-        self.steps.append(ConfigStep(obj, value, type_name, note or where))
+        self.steps.append(ConfigStep(obj, value, type_name, note or where, source=source))
 
     def result(self) -> list[ConfigStep]:
         """Steps, dropping derived plain writes that an explicit write sets again later."""
@@ -589,14 +594,52 @@ def _coerce(value: Any, type_name: str, where: str) -> int | float | str:
     return int(value)
 
 
-def _pdo_cob_id(pdo: Pdo, node_id: int) -> int:
-    base = pdo.cob_id if pdo.cob_id is not None else default_cob_id("tpdo", pdo.number)
-    return base + node_id if pdo.add_node_id else base
-
-
 def _mapping_entry(obj: ObjRef, bits: int) -> int:
     """DS-301 mapping entry: index << 16 | sub << 8 | length in bits (MSK5000 manual 4.3.1.2)."""
     return (obj.index << 16) | (obj.sub << 8) | bits
+
+
+def _pdo_sequence(
+    b: _Builder,
+    kind: Literal["tpdo", "rpdo"],
+    pdo: Pdo,
+    comm: int,
+    mapping: int,
+    node_id: int,
+    where: str,
+    *,
+    params: Sequence[tuple[int, int, str, str]] = (),
+    remap: bool = True,
+) -> None:
+    """The CiA 301 sequence that (re)configures one PDO in PRE-OPERATIONAL (CiA 301 7.5.2.35 ..
+    7.5.2.38; MSK5000 manual 4.3.1.2 steps 2-6): COB-ID with bit 31 set (PDO not valid), the
+    communication ``params`` (sub, value, description, config key), mapping sub 00h = 0,
+    the entries 01h.., sub 00h = n, COB-ID with bit 31 clear. The one builder of this sequence:
+    the remappable_tpdo feature and the nodes' ``tpdo:``/``rpdo:`` settings both use it.
+    """
+    name = f"{kind.upper()}{pdo.number}"
+    cob_id = pdo_cob_id(kind, pdo, node_id)
+    b.add(ObjRef(comm, 0x01), cob_id | COB_ID_INVALID, f"{name} off (COB-ID bit 31 = 1)", where, source=f"{where}.cob_id")  # fmt: skip
+    for sub, value, text, key in params:
+        b.add(ObjRef(comm, sub), value, f"{name} {text}", where, source=key)
+    if remap:
+        b.add(ObjRef(mapping, 0x00), 0, f"{name} mapping off", where, source=f"{where}.mapping")
+        for i, e in enumerate(pdo.mapping, start=1):
+            b.add(
+                ObjRef(mapping, i),
+                _mapping_entry(e.object, e.bits),
+                f"{name} entry {i}: {e.object}, {e.bits} bit",
+                where,
+                source=f"{where}.mapping[{i - 1}]",
+            )
+        b.add(
+            ObjRef(mapping, 0x00),
+            len(pdo.mapping),
+            f"{name} mapping on, {len(pdo.mapping)} entries",
+            where,
+            source=f"{where}.mapping",
+        )
+    b.add(ObjRef(comm, 0x01), cob_id, f"{name} on (COB-ID bit 31 = 0)", where, source=f"{where}.cob_id")  # fmt: skip
 
 
 def build_boot_steps(
@@ -614,10 +657,14 @@ def build_boot_steps(
     2. the external heartbeat objects when the node config asks for it (feature
        ``external_heartbeat``, AP05 manual 5.5.4, 5F09h: source, then interval);
     3. the PDO layout selector when a variant is chosen (feature ``pdo_type_selector``);
-    4. per TPDO of the layout: transmission type 180xh:02 and event timer 180xh:05; then, when
-       the profile has ``remappable_tpdo`` (or a non-default inhibit time), the MSK5000 manual
-       4.3.1.2 sequence: COB-ID 180xh:01 with bit 31 set, [inhibit time 180xh:03], 1A0xh:00 = 0,
-       the mapping entries 1A0xh:01.., 1A0xh:00 = n, COB-ID with bit 31 clear;
+    4. per PDO the node's ``tpdo:``/``rpdo:`` settings name: the CiA 301 sequence
+       (``_pdo_sequence``): COB-ID with bit 31 set, the parameters given (transmission type,
+       inhibit time, event timer, SYNC start), mapping sub 00h = 0, the entries, sub 00h = n,
+       COB-ID with bit 31 clear; or only the COB-ID with bit 31 set for ``enabled: false``.
+       Per TPDO of the profile's own layout: transmission type 180xh:02 and event timer
+       180xh:05; then, when the profile has ``remappable_tpdo`` (or a non-default inhibit
+       time), the same sequence (MSK5000 manual 4.3.1.2). PDOs taken from the EDS as they are
+       need no writes;
     5. the profile's ``boot.sdo`` writes;
     6. the node config's ``sdo`` writes.
 
@@ -637,8 +684,9 @@ def build_boot_steps(
     # 1. supervision
     if supervision == "heartbeat":
         b.add(
-            OBJ_HEARTBEAT_PRODUCER, hb_ms, "producer heartbeat time (ms)", "heartbeat", derived=True
-        )
+            OBJ_HEARTBEAT_PRODUCER, hb_ms, "producer heartbeat time (ms)", "heartbeat", derived=True,
+            source="heartbeat_ms" if heartbeat_ms is not None else "",
+        )  # fmt: skip
     elif supervision == "guarding":
         if lp.od_var(OBJ_HEARTBEAT_PRODUCER) is not None:
             b.add(
@@ -648,8 +696,10 @@ def build_boot_steps(
                 "guarding",
                 derived=True,
             )
-        b.add(OBJ_GUARD_TIME, gt_ms, "guard time (ms)", "guarding", derived=True)
-        b.add(OBJ_LIFE_TIME_FACTOR, ltf, "life time factor", "guarding", derived=True)
+        b.add(OBJ_GUARD_TIME, gt_ms, "guard time (ms)", "guarding", derived=True,
+              source="guard_time_ms" if guard_time_ms is not None else "")  # fmt: skip
+        b.add(OBJ_LIFE_TIME_FACTOR, ltf, "life time factor", "guarding", derived=True,
+              source="life_time_factor" if life_time_factor is not None else "")  # fmt: skip
 
     # 2. external heartbeat (AP05 manual 5.5.4 / 5.7.2.31)
     ext = getattr(node, "external_heartbeat", None)
@@ -670,6 +720,7 @@ def build_boot_steps(
             f"external heartbeat source = {ext.source}",
             "external_heartbeat",
             derived=True,
+            source="external_heartbeat.source",
         )
         b.add(
             ObjRef.parse(feat["interval"]),
@@ -677,6 +728,7 @@ def build_boot_steps(
             "external heartbeat interval (ms)",
             "external_heartbeat",
             derived=True,
+            source="external_heartbeat.interval_ms",
         )
 
     # 3. PDO layout selector (BEI 2005h)
@@ -688,73 +740,90 @@ def build_boot_steps(
             f"PDO layout variant {variant}",
             "pdo_variant",
             derived=True,
+            source="pdo_variant",
         )
 
-    # 4. TPDO communication and mapping
-    tpdos, _rpdos = p.layout(variant)
+    # 4. PDOs. The node's tpdo:/rpdo: settings: the CiA 301 sequence from the node's layout
+    #    (gateway.profiles.layout resolved it; the codecs are compiled from the same layout).
+    #    The profile's own TPDOs: transmission type and event timer, and the same sequence when
+    #    the profile has remappable_tpdo (or a non-default inhibit time).
+    tpdos, rpdos = p.layout(variant)
     remap = p.features.get("remappable_tpdo")
-    remap_objs = (remap or {}).get("tpdos") or {}
-    for pdo in tpdos:
-        objs = remap_objs.get(pdo.number) or remap_objs.get(str(pdo.number)) or {}
-        comm = int(ObjRef.parse(objs.get("communication", 0x1800 + pdo.number - 1)).index)
-        mapping = int(ObjRef.parse(objs.get("mapping", 0x1A00 + pdo.number - 1)).index)
-        where = f"tpdos[{pdo.number}]"
-        b.add(
-            ObjRef(comm, 0x02),
-            pdo.transmission_type,
-            f"TPDO{pdo.number} transmission type",
-            where,
-            derived=True,
-        )
-        if pdo.event_timer_ms is not None:
+    settings: dict[str, Any] = {
+        "tpdo": getattr(node, "tpdo", None) or {},
+        "rpdo": getattr(node, "rpdo", None) or {},
+    }
+    for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
+        k: Literal["tpdo", "rpdo"] = kind  # type: ignore[assignment]
+        by_number = {x.number: x for x in pdos}
+        for number in sorted(set(by_number) | set(settings[k])):
+            pdo = by_number.get(number)
+            setting = settings[k].get(number)
+            comm, mapping = pdo_objects(p, k, number)
+            if setting is not None:
+                where = f"{k}.{number}"
+                if pdo is None:  # enabled: false
+                    held = default_value(lp.od_var(ObjRef(comm, 0x01)), node_id)
+                    if held is None:
+                        held = default_cob_id(k, number) + node_id if number <= 4 else 0
+                    b.add(
+                        ObjRef(comm, 0x01),
+                        int(held) | COB_ID_INVALID,
+                        f"{k.upper()}{number} disabled (COB-ID bit 31 = 1)",
+                        where,
+                        source=f"{where}.enabled",
+                    )
+                    continue
+                params: list[tuple[int, int, str, str]] = []
+                if setting.transmission is not None:
+                    params.append((0x02, pdo.transmission_type, "transmission type", f"{where}.transmission"))  # fmt: skip
+                if k == "tpdo" and setting.inhibit_ms is not None:
+                    params.append((0x03, pdo.inhibit_time_100us or 0, "inhibit time (100 us)", f"{where}.inhibit_ms"))  # fmt: skip
+                if setting.event_timer_ms is not None:
+                    params.append((0x05, pdo.event_timer_ms or 0, "event timer (ms)", f"{where}.event_timer_ms"))  # fmt: skip
+                if k == "tpdo" and setting.sync_start is not None:
+                    params.append((0x06, pdo.sync_start or 0, "SYNC start value", f"{where}.sync_start"))  # fmt: skip
+                _pdo_sequence(b, k, pdo, comm, mapping, node_id, where, params=params,
+                              remap=setting.mapping is not None or pdo.origin == "config")  # fmt: skip
+                continue
+            if k != "tpdo" or pdo is None or pdo.origin != "profile":
+                continue  # an EDS PDO as the device holds it: nothing to write
+            where = f"tpdos[{pdo.number}]"
             b.add(
-                ObjRef(comm, 0x05),
-                pdo.event_timer_ms,
-                f"TPDO{pdo.number} event timer (ms)",
+                ObjRef(comm, 0x02),
+                pdo.transmission_type,
+                f"TPDO{pdo.number} transmission type",
                 where,
                 derived=True,
             )
-        inhibit = pdo.inhibit_time_100us
-        inhibit_var = lp.od_var(ObjRef(comm, 0x03)) if inhibit is not None else None
-        write_inhibit = (
-            inhibit is not None
-            and inhibit_var is not None
-            and not (inhibit_var.default is not None and int(inhibit_var.default) == inhibit)
-        )
-        if inhibit is not None and inhibit_var is None and inhibit != 0:
-            raise ValueError(f"{where}: {ObjRef(comm, 0x03)} is not in {lp.eds_path.name}")
-        if not (remap is not None or write_inhibit):
-            continue
-        cob_id = _pdo_cob_id(pdo, node_id)
-        b.add(
-            ObjRef(comm, 0x01),
-            cob_id | COB_ID_INVALID,
-            f"TPDO{pdo.number} off (COB-ID bit 31 = 1)",
-            where,
-        )
-        if write_inhibit:
-            assert inhibit is not None
-            b.add(ObjRef(comm, 0x03), inhibit, f"TPDO{pdo.number} inhibit time (100 us)", where)
-        if remap is not None:
-            b.add(ObjRef(mapping, 0x00), 0, f"TPDO{pdo.number} mapping off", where)
-            for i, e in enumerate(pdo.mapping, start=1):
+            if pdo.event_timer_ms is not None:
                 b.add(
-                    ObjRef(mapping, i),
-                    _mapping_entry(e.object, e.bits),
-                    f"TPDO{pdo.number} entry {i}: {e.object}, {e.bits} bit",
+                    ObjRef(comm, 0x05),
+                    pdo.event_timer_ms,
+                    f"TPDO{pdo.number} event timer (ms)",
                     where,
+                    derived=True,
                 )
-            b.add(
-                ObjRef(mapping, 0x00),
-                len(pdo.mapping),
-                f"TPDO{pdo.number} mapping on, {len(pdo.mapping)} entries",
-                where,
+            inhibit = pdo.inhibit_time_100us
+            inhibit_var = lp.od_var(ObjRef(comm, 0x03)) if inhibit is not None else None
+            write_inhibit = (
+                inhibit is not None
+                and inhibit_var is not None
+                and not (inhibit_var.default is not None and int(inhibit_var.default) == inhibit)
             )
-        b.add(ObjRef(comm, 0x01), cob_id, f"TPDO{pdo.number} on (COB-ID bit 31 = 0)", where)
+            if inhibit is not None and inhibit_var is None and inhibit != 0:
+                raise ValueError(f"{where}: {ObjRef(comm, 0x03)} is not in {lp.eds_path.name}")
+            if not (remap is not None or write_inhibit):
+                continue
+            inhibit_param = (
+                [(0x03, int(inhibit), "inhibit time (100 us)", where)] if write_inhibit else []  # type: ignore[arg-type]
+            )
+            _pdo_sequence(b, k, pdo, comm, mapping, node_id, where, params=inhibit_param,
+                          remap=remap is not None)  # fmt: skip
 
     # 5. the profile's boot writes, 6. the node's own writes
     for i, w in enumerate(p.boot.sdo):
         b.add_explicit(w, f"profile {p.family} boot.sdo[{i}]")
     for i, w in enumerate(getattr(node, "sdo", ()) or ()):
-        b.add_explicit(w, f"node sdo[{i}]")
+        b.add_explicit(w, f"node sdo[{i}]", source=f"sdo[{i}]")
     return b.result()

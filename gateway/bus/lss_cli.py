@@ -44,7 +44,7 @@ from gateway.bus import lss
 from gateway.bus.sdo_text import abort_text
 from gateway.config import Config
 from gateway.objref import ObjRef
-from gateway.profiles import ProfileError, load_profile
+from gateway.profiles import ProfileError, load_node_profile, load_profile
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -350,7 +350,7 @@ def _auto_id_feature(cfg: Config, a: LssArgs) -> dict[str, Any]:
             raise UsageError(f"profile {name} has no feature auto_id")
         return feature
     for n in cfg.nodes:
-        feature = load_profile(n.profile, cfg.base_dir).profile.features.get("auto_id")
+        feature = load_node_profile(n, cfg.base_dir).profile.features.get("auto_id")
         if feature is not None:
             return feature
     raise UsageError(
@@ -435,7 +435,7 @@ def _simulation(cfg: Config) -> Iterator[None]:
         opts: dict[str, Any] = dict(cfg.simulate.options.get(n.name) or {})
         if n.name in cfg.simulate.motion:
             opts["motion"] = cfg.simulate.motion[n.name]
-        specs.append((load_profile(n.profile, cfg.base_dir), n.node_id, opts))
+        specs.append((load_node_profile(n, cfg.base_dir), n.node_id, opts))
     bus = can.Bus(**cfg.can.bus_kwargs())
     runner = SimRunner(bus, build_sim_nodes(specs)).start()
     try:

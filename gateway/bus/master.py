@@ -36,11 +36,12 @@ from gateway.bus.node import HealthChanged, Node, Note, SdoDone, Send, ValuesRea
 from gateway.bus.producers import Periodic
 from gateway.bus.refresh import refresh_plan
 from gateway.bus.settings import NodeSettings, resolve_node_settings
+from gateway.bus.verify import MappingMismatch, mapping_reads
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage
 from gateway.objref import ObjRef
-from gateway.profiles import LoadedProfile, load_profile
+from gateway.profiles import LoadedProfile, load_node_profile, node_verifies_mapping
 from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_COMMANDS
 
@@ -88,6 +89,10 @@ class NodeParts:
     @property
     def emcy(self) -> Any:
         return self.node.emcy
+
+    @property
+    def mapping_mismatches(self) -> list[MappingMismatch]:
+        return self.node.mapping_mismatches
 
 
 def build_node(
@@ -137,6 +142,11 @@ def build_node(
         referencing=ref,
         reference_signal=ref_signal,
         passive=passive,
+        verify=(
+            mapping_reads(lp, ncfg.node_id, ncfg.pdo_variant)
+            if ncfg.configure and node_verifies_mapping(lp, ncfg, ncfg.eds_only)
+            else ()
+        ),
     )
     return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)
 
@@ -169,7 +179,7 @@ class Master:
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
         for ncfg in cfg.nodes:
-            lp = load_profile(ncfg.profile, cfg.base_dir)
+            lp = load_node_profile(ncfg, cfg.base_dir)
             names = [s.name for s in lp.profile.signals]
             stale = ncfg.stale_after_ms / 1000.0 if ncfg.stale_after_ms else None
             ni = NodeImage(

@@ -23,7 +23,7 @@ gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on ch
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
 Imports: bus.lifecycle, bus.supervision, bus.sdo_client, bus.emcy, bus.settings, bus.codec,
-image, states, objref. Never python-can, asyncio, logging or a northbound module.
+bus.verify, image, states, objref. Never python-can, asyncio, logging or a northbound module.
 """
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ from gateway.bus.referencing import Referencing
 from gateway.bus.sdo_channel import SdoChannel, SdoJob
 from gateway.bus.sdo_client import SdoTransfer
 from gateway.bus.settings import NodeSettings
+from gateway.bus.verify import MappingMismatch, MappingRead, compare_mapping
 from gateway.bus.watchdog import Watchdog
 from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth
@@ -86,6 +87,7 @@ class Node:
         referencing: dict[str, Any] | None = None,
         reference_signal: str | None = None,
         passive: bool = False,
+        verify: Sequence[MappingRead] = (),
     ):
         self.name = name
         self.node_id = node_id
@@ -126,6 +128,11 @@ class Node:
         self._last_probe_end_s: float | None = None
         self._wait_until: float | None = None
         self._rtr_due_s: float | None = None
+        # verify_mapping (bus/verify.py): PDO objects read back after configuring
+        self.verify_reads = list(verify)
+        self._verify_held: dict[ObjRef, int | None] = {}
+        self.mapping_mismatches: list[MappingMismatch] = []
+        self._pdo_names = frozenset(n for c in (*self.tpdos, *self.rpdos) for n in c.names)
 
     # ================================================================== queries
     @property
@@ -326,6 +333,8 @@ class Node:
         self.emcy.clear()
         h.current_errors = []
         out += self._set_referenced(False)  # MSK5000 5115h: the reference is lost at power-on
+        if self.verify_reads:  # not trusted until the mapping is read back and compared
+            h.invalid_signals = h.invalid_signals | self._pdo_names
         out += self._set_nmt(NmtState.PRE_OPERATIONAL)
         out += self._set_alive(True, now)
         # a boot-up ends whatever transfer was running: the device forgot it
@@ -426,6 +435,10 @@ class Node:
                 out += self._refresh(now)
                 if self.ref is not None:
                     out += self._check_reference(now)
+                if self.verify_reads:
+                    self._verify_held = {}
+                    for r in self.verify_reads:
+                        self.sdo.queue(r.object, None, "verify", r)
                 if self.s.rtr_poll_ms:
                     self._rtr_due_s = now + self.s.rtr_poll_ms / 1000.0
         if changes:
@@ -520,12 +533,33 @@ class Node:
             out += self._check_reference(now)
         return out
 
+    def _verify_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+        """verify_mapping: collect the uploads; when all are in, compare (bus/verify.py)."""
+        r: MappingRead = job.arg
+        raw = tr.result
+        self._verify_held[r.object] = int.from_bytes(raw[:4], "little") if raw else None
+        if len(self._verify_held) < len(self.verify_reads):
+            return []
+        h = self.health
+        self.mapping_mismatches = compare_mapping(self.verify_reads, self._verify_held)
+        if self.mapping_mismatches:
+            text = "; ".join(str(m) for m in self.mapping_mismatches)
+            h.last_error = f"PDO mapping mismatch, values not served: {text}"
+            h.invalid_signals = h.invalid_signals | self._pdo_names
+            note = Note(logging.ERROR, f"node {self.name}: {h.last_error}")
+        else:
+            keep = {self.ref.signal} & h.invalid_signals if self.ref is not None else set()
+            h.invalid_signals = (h.invalid_signals - self._pdo_names) | keep
+            note = Note(logging.INFO, f"node {self.name}: PDO mapping verified ({len(self.verify_reads)} objects read back)")  # fmt: skip
+        return [note, HealthChanged("state")]
+
     _SDO_DONE: dict[str, Callable[[Node, SdoJob, SdoTransfer, float], list[Output]]] = {
         "boot": _boot_done,
         "probe": _probe_done,
         "refresh": _refresh_done,
         "reference": _reference_done,
         "user": _user_done,
+        "verify": _verify_done,
     }
 
     def _probe(self, now: float) -> list[Output]:

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from gateway.config import Config
-from gateway.profiles import LoadedProfile, load_profile
+from gateway.profiles import LoadedProfile, load_node_profile
 from gateway.profiles.derived import text_signals
 from gateway.profiles.schema import Signal
 
@@ -341,7 +341,7 @@ def build_register_map(cfg: Config) -> RegisterMap:
         )
     for k, ncfg in enumerate(cfg.nodes, start=1):
         key = f"nodes[{k - 1}]"
-        lp = load_profile(ncfg.profile, cfg.base_dir)
+        lp = load_node_profile(ncfg, cfg.base_dir)
         if flat:
             unit, base = cfg.modbus.flat_unit_id, k * stride
         else:

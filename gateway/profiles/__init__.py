@@ -1,32 +1,67 @@
-"""Built-in device profiles and the loader for profile + EDS pairs.
+"""Device profiles (overlays on an EDS) and the loader that makes a node's complete profile.
 
 ``load_profile("sgh10")`` finds ``gateway/profiles/sgh10.yaml``; a path to a ``.yaml`` file loads
-a user's own profile, its ``eds:`` resolved next to it. The EDS is parsed with canopen's
-``import_od``; every object the profile names must exist in it.
+a user's own profile, its ``eds:`` resolved next to it. The EDS is checked and read by
+``gateway.eds.load_eds``; every object the profile names must exist in it; signal types,
+access and transport the profile leaves out are taken from the EDS and the PDO layout.
 
-Imports: schema, objref, canopen, yaml. Nothing of bus/, modbus/, zenoh_bridge/.
+``load_node_profile(node, base_dir)`` is what the rest of the gateway uses for a configured
+node: the profile (or none: an EDS-only node) on the node's EDS or DCF, its PDO layout after the
+node's ``tpdo:``/``rpdo:`` settings and PDO writes (``layout``), and a signal for every mapped
+object (derived from the EDS where the profile names none). One result, used by the boot-step
+builder, the codecs, the register map, the Zenoh keys and the simulator.
+
+Imports: schema, layout, gateway.eds, objref, canopen, yaml. Nothing of bus/, modbus/,
+zenoh_bridge/, config.
 """
 
 from __future__ import annotations
 
 import functools
-import logging
-import warnings
+import json
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 import canopen
 import yaml
 from pydantic import ValidationError
 
+from gateway.eds import EdsError, load_eds
+from gateway.eds.parse import read_text
+from gateway.eds.pdos import (
+    access_of,
+    eds_pdos,
+    object_name,
+    od_var,
+    signal_type,
+    slug,
+    unique_names,
+)
 from gateway.objref import ObjRef
-from gateway.profiles.schema import Profile
+from gateway.profiles.layout import (
+    PdoMappingError,
+    PdoSettingLike,
+    apply_pdo_writes,
+    apply_settings,
+    is_pdo_object,
+    pdo_from_eds,
+)
+from gateway.profiles.schema import Pdo, Profile, Signal
 
 PROFILE_DIR = Path(__file__).parent
 
 
 class ProfileError(Exception):
-    """A profile or its EDS cannot be used; the message names the file and the problem."""
+    """A profile or its EDS cannot be used; the message names the file and the problem.
+
+    ``key``: where in a node's config the problem lies ("" the node as a whole, e.g.
+    ``tpdo.1.mapping[0]``), None when it is in the profile or EDS file itself."""
+
+    def __init__(self, message: str, key: str | None = None):
+        super().__init__(message)
+        self.key = key
 
 
 @dataclass(frozen=True)
@@ -41,16 +76,7 @@ class LoadedProfile:
         return self.profile.family
 
     def od_var(self, obj: ObjRef) -> canopen.objectdictionary.ODVariable | None:
-        try:
-            entry = self.od[obj.index]
-        except KeyError:
-            return None
-        if isinstance(entry, canopen.objectdictionary.ODVariable):
-            return entry if obj.sub == 0 else None
-        try:
-            return entry[obj.sub]
-        except KeyError:
-            return None
+        return od_var(self.od, obj)
 
 
 def builtin_profiles() -> list[str]:
@@ -75,29 +101,75 @@ def resolve_profile_path(name_or_path: str, base_dir: Path | None = None) -> Pat
 
 
 def import_eds(path: Path, node_id: int | None = None) -> canopen.ObjectDictionary:
-    """Parse an EDS with canopen, turning its warnings into a ProfileError."""
-    log = logging.getLogger("canopen.objectdictionary.eds")
-    records: list[str] = []
+    """Check an EDS and parse it with canopen for ``node_id``; problems are a ProfileError."""
+    from gateway.eds import import_od_strict
 
-    class _Catch(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            if record.levelno >= logging.WARNING:
-                records.append(record.getMessage())
-
-    h = _Catch()
-    log.addHandler(h)
     try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            od = canopen.import_od(str(path), node_id)
-    except Exception as exc:  # canopen raises many kinds on a bad file
-        raise ProfileError(f"{path}: EDS cannot be parsed: {exc}") from exc
-    finally:
-        log.removeHandler(h)
-    problems = records + [str(w.message) for w in caught]
-    if problems:
-        raise ProfileError(f"{path}: EDS warnings: {'; '.join(problems)}")
-    return od
+        load_eds(path)
+        return import_od_strict(read_text(Path(path)), Path(path), node_id)
+    except EdsError as exc:
+        raise ProfileError(str(exc)) from None
+
+
+def _eds(path: Path) -> Any:
+    try:
+        return load_eds(path)
+    except EdsError as exc:
+        raise ProfileError(str(exc)) from None
+
+
+# --------------------------------------------------------------------------- completion
+
+
+def _layout_objects(profile: Profile) -> tuple[set[ObjRef], set[ObjRef]]:
+    """Objects in the TPDOs / RPDOs of every layout the profile gives (all variants)."""
+    t: set[ObjRef] = set()
+    r: set[ObjRef] = set()
+    pdos = [(p, t) for p in profile.tpdos] + [(p, r) for p in profile.rpdos]
+    if profile.pdo_variants:
+        for v in profile.pdo_variants.variants.values():
+            pdos += [(p, t) for p in v.tpdos] + [(p, r) for p in v.rpdos]
+    for p, into in pdos:
+        into.update(e.object for e in p.mapping)
+    return t, r
+
+
+def _eds_layout(od: canopen.ObjectDictionary, node_id: int | None) -> tuple[list[Pdo], list[Pdo]]:
+    return (
+        [pdo_from_eds(p) for p in eds_pdos(od, node_id, "tpdo") if p.enabled],
+        [pdo_from_eds(p) for p in eds_pdos(od, node_id, "rpdo") if p.enabled],
+    )
+
+
+def _complete(
+    sig: Signal, od: canopen.ObjectDictionary, tpdo_objs: set[ObjRef], rpdo_objs: set[ObjRef], where: str
+) -> Signal:
+    """Fill what a signal leaves to the EDS: type, access, transport, string length."""
+    var = od_var(od, sig.object)
+    upd: dict[str, Any] = {}
+    if sig.type is None:
+        t = signal_type(var)
+        if t is None:
+            raise ProfileError(
+                f"{where}: signals[{sig.name}]: {sig.object} has no type the gateway serves; give type"
+            )
+        upd["type"] = t
+    typ = upd.get("type", sig.type)
+    if typ in ("string", "bytes") and sig.length is None:
+        default = var.default if var is not None else None
+        if not default:
+            raise ProfileError(f"{where}: signals[{sig.name}]: type {typ} needs a length in bytes")
+        upd["length"] = len(default if isinstance(default, bytes) else str(default).encode("utf-8"))
+    transport = sig.transport
+    if transport is None:
+        transport = "pdo" if sig.object in tpdo_objs or sig.object in rpdo_objs else "sdo"
+        upd["transport"] = transport
+    if sig.access is None:
+        if transport == "pdo":
+            upd["access"] = "rw" if sig.object in rpdo_objs else "ro"
+        else:
+            upd["access"] = access_of(var)
+    return sig.model_copy(update=upd) if upd else sig
 
 
 @functools.lru_cache(maxsize=64)
@@ -114,13 +186,26 @@ def _load(path: Path) -> LoadedProfile:
             loc = ".".join(str(p) for p in e["loc"])
             lines.append(f"{path}: {loc}: {e['msg']}")
         raise ProfileError("\n".join(lines)) from None
+    if profile.eds is None:
+        # an overlay without its own EDS: completed per node (load_node_profile)
+        return LoadedProfile(profile, path, path, canopen.ObjectDictionary())
     eds_path = (path.parent / profile.eds).resolve()
     if not eds_path.exists():
         raise ProfileError(f"{path}: eds: file {eds_path} does not exist")
-    od = import_eds(eds_path)
+    eds = _eds(eds_path)
+    return _with_eds(profile, path, eds_path, eds.od)
+
+
+def _with_eds(profile: Profile, path: Path, eds_path: Path, od: canopen.ObjectDictionary) -> LoadedProfile:
+    t, r = _layout_objects(profile)
+    if not (profile.tpdos or profile.rpdos or profile.pdo_variants):
+        et, er = _eds_layout(od, None)
+        t |= {e.object for p in et for e in p.mapping}
+        r |= {e.object for p in er for e in p.mapping}
     lp = LoadedProfile(profile, path, eds_path, od)
     _check_objects(lp)
-    return lp
+    signals = [_complete(s, od, t, r, str(path)) for s in profile.signals]
+    return LoadedProfile(profile.model_copy(update={"signals": signals}), path, eds_path, od)
 
 
 def _check_objects(lp: LoadedProfile) -> None:
@@ -146,3 +231,194 @@ def _check_objects(lp: LoadedProfile) -> None:
 
 def load_profile(name_or_path: str, base_dir: Path | None = None) -> LoadedProfile:
     return _load(resolve_profile_path(name_or_path, base_dir).resolve())
+
+
+# --------------------------------------------------------------------------- one node
+
+
+class NodeLike(Protocol):
+    """What the loader reads of a node's configuration (``gateway.config.NodeConfig``)."""
+
+    @property
+    def node_id(self) -> int: ...
+    @property
+    def profile(self) -> str | None: ...
+    @property
+    def eds(self) -> str | None: ...
+    @property
+    def pdo_variant(self) -> int | None: ...
+    @property
+    def configure(self) -> bool: ...
+    @property
+    def sdo(self) -> Sequence[Any]: ...
+    @property
+    def tpdo(self) -> Mapping[int, PdoSettingLike]: ...
+    @property
+    def rpdo(self) -> Mapping[int, PdoSettingLike]: ...
+
+
+def _node_key(node: NodeLike, base_dir: Path | None) -> str:
+    def dump(v: Any) -> Any:
+        return v.model_dump(mode="json") if hasattr(v, "model_dump") else str(v)
+
+    return json.dumps(
+        {
+            "profile": node.profile,
+            "eds": node.eds,
+            "node_id": node.node_id,
+            "variant": node.pdo_variant,
+            "configure": node.configure,
+            "sdo": [dump(w) for w in node.sdo],
+            "tpdo": {str(k): dump(v) for k, v in (node.tpdo or {}).items()},
+            "rpdo": {str(k): dump(v) for k, v in (node.rpdo or {}).items()},
+            "base": str(base_dir),
+        },
+        sort_keys=True,
+        default=str,
+    )
+
+
+def resolve_eds_path(eds: str, base_dir: Path | None) -> Path:
+    p = Path(eds)
+    if not p.is_absolute() and base_dir is not None:
+        p = base_dir / p
+    return p.resolve()
+
+
+def load_node_profile(node: NodeLike, base_dir: Path | None = None) -> LoadedProfile:
+    """The complete profile of one configured node (see the module docstring)."""
+    return _load_node(_node_key(node, base_dir), node, base_dir)
+
+
+_NODE_CACHE: dict[str, LoadedProfile] = {}
+
+
+def _load_node(key: str, node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+    hit = _NODE_CACHE.get(key)
+    if hit is not None:
+        return hit
+    lp = _resolve_node(node, base_dir)
+    if len(_NODE_CACHE) > 512:
+        _NODE_CACHE.clear()
+    _NODE_CACHE[key] = lp
+    return lp
+
+
+def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+    if node.profile:
+        base = load_profile(node.profile, base_dir)
+        if node.eds:
+            eds_path = resolve_eds_path(node.eds, base_dir)
+            eds = _eds(eds_path)
+            base = _with_eds(base.profile, base.path, eds_path, eds.od)
+        elif base.profile.eds is None:
+            raise ProfileError(f"{base.path}: names no eds; give the node's eds")
+        # a DCF carries the values the device holds: read its ParameterValues
+    else:
+        if not node.eds:
+            raise ProfileError("a node needs a profile, an eds, or both")
+        eds_path = resolve_eds_path(node.eds, base_dir)
+        eds = _eds(eds_path)
+        profile = Profile(
+            family=slug(eds_path.stem) or "device",
+            title=eds.product_name,
+            eds=eds_path.name,
+            signals=[],
+        )
+        base = _with_eds(profile, eds_path, eds_path, eds.od)
+    prof = base.profile
+    od = base.od
+    node_id = node.node_id
+    explicit = bool(prof.tpdos or prof.rpdos or prof.pdo_variants)
+    if explicit:
+        variant = node.pdo_variant
+        if prof.pdo_variants is None or variant not in prof.pdo_variants.variants:
+            variant = None  # an unknown variant is reported by the config check
+        tpdos, rpdos = prof.layout(variant)
+    else:
+        tpdos, rpdos = _eds_layout(od, node_id)
+    if node.configure:
+        if (node.tpdo or node.rpdo) and prof.pdo_variants is not None:
+            raise ProfileError(
+                f"profile {prof.family} chooses its PDO layout by {prof.pdo_variants.selector} "
+                "(pdo_variant); tpdo:/rpdo: cannot remap it"
+            )
+        for kind, settings in (("tpdo", node.tpdo), ("rpdo", node.rpdo)):
+            try:
+                new = apply_settings(kind, tpdos if kind == "tpdo" else rpdos, settings or {},  # type: ignore[arg-type]
+                                     eds_pdos(od, node_id, kind), od, node_id, kind)  # type: ignore[arg-type]  # fmt: skip
+            except PdoMappingError as exc:
+                head, _, rest = str(exc).partition(": ")
+                raise ProfileError(rest or str(exc), key=head) from None
+            if kind == "tpdo":
+                tpdos = new
+            else:
+                rpdos = new
+        try:
+            writes = [
+                (ObjRef.parse(w.object), w.value)
+                for w in [*prof.boot.sdo, *node.sdo]
+                if is_pdo_object(ObjRef.parse(w.object))
+            ]
+            if writes:
+                tpdos = apply_pdo_writes(prof, "tpdo", tpdos, node_id, writes)
+                rpdos = apply_pdo_writes(prof, "rpdo", rpdos, node_id, writes)
+        except PdoMappingError as exc:
+            raise ProfileError(str(exc), key="") from None
+    own_t, own_r = _layout_objects(prof)
+    t_objs = {e.object for p in tpdos for e in p.mapping if e.object.index >= 0x1000}
+    r_objs = {e.object for p in rpdos for e in p.mapping if e.object.index >= 0x1000}
+    signals: list[Signal] = []
+    for s in prof.signals:
+        if s.transport == "sdo" and (s.object in t_objs or s.object in r_objs) and not (
+            s.object in own_t or s.object in own_r
+        ):
+            # mapped by the node's configuration (e.g. MSK5000 5122h:01 by the 4.3.1.2 remap)
+            s = s.model_copy(update={"transport": "pdo"})
+        signals.append(s)
+    named = {s.object for s in signals}
+    new: list[ObjRef] = []
+    for p in [*tpdos, *rpdos]:
+        if explicit and p.origin == "profile":
+            continue  # the profile's own layout: unnamed entries stay unnamed (dummies)
+        for e in p.mapping:
+            if e.object.index >= 0x1000 and e.object not in named and e.object not in new:
+                new.append(e.object)
+    names = unique_names(od, new, {s.name for s in signals})
+    for o in new:
+        var = od_var(od, o)
+        if var is None:
+            continue  # not in the EDS: reported by the check of the layout
+        typ = signal_type(var)
+        if typ is None:
+            raise ProfileError(f"{base.eds_path.name}: {o} is mapped but has a data type the gateway does not serve")  # fmt: skip
+        length = None
+        if typ in ("string", "bytes"):
+            bits = next(e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o)
+            length = max(1, bits // 8)
+        signals.append(
+            Signal(
+                name=names[o],
+                object=o,
+                type=typ,  # type: ignore[arg-type]
+                access="rw" if o in r_objs else "ro",
+                transport="pdo",
+                length=length,
+                description=f"{object_name(od, o)} ({o})",
+            )
+        )
+    update: dict[str, Any] = {"signals": signals}
+    if prof.pdo_variants is None:
+        update.update(tpdos=tpdos, rpdos=rpdos)
+    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od)
+
+
+def node_verifies_mapping(lp: LoadedProfile, node: Any, eds_only: bool) -> bool:
+    """``verify_mapping``: the node's setting, else on for EDS-only nodes and for profiles
+    that ask for it; never for a profile whose mapping objects do not describe the layout."""
+    setting = getattr(node, "verify_mapping", None)
+    if lp.profile.verify_mapping is False:
+        return False
+    if setting is not None:
+        return bool(setting)
+    return eds_only or bool(lp.profile.verify_mapping)

@@ -1,9 +1,13 @@
 """Schema of a device profile file (``gateway/profiles/<family>.yaml``).
 
-A device family is an EDS file (the complete object dictionary from its manual) plus this profile:
-named signals with units and scaling, default PDO layouts and their documented variants, EMCY
-texts, factory settings, what the gateway configures at boot, and the *features* code may key
-behaviour on. Adding a device needs a new pair of files, no code.
+A profile is an *overlay* on a device's EDS (the complete object dictionary): names, units,
+scaling, bit names and value texts of signals, PDO layouts where the EDS mapping objects do not
+describe them (and their documented variants), EMCY texts, factory settings, what the gateway
+configures at boot, value constraints the EDS cannot express, and the *features* code may key
+behaviour on. What the EDS already says is not repeated: a signal's ``type``, ``access`` and
+``transport`` default to what the EDS and the PDO layout say (filled in by the loader), and a
+profile without ``tpdos``/``rpdos`` takes the PDO layout of the EDS. Adding a device needs no
+code; an EDS alone is enough (``nodes[].eds``), a profile adds names and behaviour.
 
 This module knows the shape of a profile only; it imports nothing from the rest of the gateway
 but ``gateway.objref``.
@@ -93,6 +97,7 @@ KNOWN_FEATURES = {
     "speed_alarm",  # speed limit alarm (MSK5000 5FFAh)
     "node_id_object",  # node id / baud rate by object + store + reset (BEI 2101h/2100h)
     "position_indicator",  # set points in, status word out (AP05 5F16h/5F0Ch/5F19h)
+    "ds406_cycle_timer",  # DS-406: 6200h cyclic timer is 1800h:05 (SGH10 manual 4.7.2.31)
 }
 
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -128,9 +133,13 @@ class Signal(_Strict):
 
     name: str
     object: Obj
-    type: SignalType
-    access: Literal["ro", "rw", "wo"] = "ro"
-    transport: Literal["pdo", "sdo"] = "pdo"
+    type: SignalType | None = Field(default=None, description="default: the EDS DataType")
+    access: Literal["ro", "rw", "wo"] | None = Field(
+        default=None, description="default: rw when in an RPDO, ro in a TPDO, else the EDS AccessType"
+    )
+    transport: Literal["pdo", "sdo"] | None = Field(
+        default=None, description="default: pdo when in a PDO layout, else sdo"
+    )
     unit: str = ""
     scale: float = 1.0
     offset: float = 0.0
@@ -145,15 +154,13 @@ class Signal(_Strict):
     def _check(self) -> Signal:
         if not _NAME_RE.match(self.name):
             raise ValueError(f"signal name {self.name!r} must be snake_case")
-        if self.type in ("string", "bytes") and self.length is None:
-            raise ValueError(f"signal {self.name}: type {self.type} needs a length in bytes")
         return self
 
     @property
     def bit_length(self) -> int:
         if self.type in ("string", "bytes"):
             return 8 * (self.length or 0)
-        return TYPE_BITS[self.type]
+        return TYPE_BITS.get(self.type or "", 0)
 
 
 class PdoEntry(_Strict):
@@ -182,8 +189,12 @@ class Pdo(_Strict):
     transmission_type: int = Field(default=254, ge=0, le=255)
     event_timer_ms: int | None = Field(default=None, ge=0, le=65535)
     inhibit_time_100us: int | None = Field(default=None, ge=0, le=65535)
+    sync_start: int | None = Field(default=None, ge=0, le=240)
     mapping: list[Annotated[PdoEntry, BeforeValidator(_parse_entry)]]
     description: str = ""
+    origin: Literal["profile", "eds", "config"] = Field(
+        default="profile", description="set by the loader: where this layout comes from"
+    )
 
     @model_validator(mode="after")
     def _fits(self) -> Pdo:
@@ -241,16 +252,76 @@ class Factory(_Strict):
     bitrate_kbps: int | Literal["auto"]
 
 
+_RANGE_RE = re.compile(r"^\s*(-?(?:0x[0-9a-f]+|\d+))\s*(?:\.\.\s*(-?(?:0x[0-9a-f]+|\d+)))?\s*$", re.I)
+
+
+def parse_allowed(text: str) -> list[tuple[int, int]]:
+    """``"0 or 10..65535"`` / ``"0, 10..65535"`` -> [(0, 0), (10, 65535)]."""
+    out = []
+    for part in re.split(r",|\bor\b", str(text)):
+        if not part.strip():
+            continue
+        m = _RANGE_RE.match(part)
+        if not m:
+            raise ValueError(f"{text!r}: expected values and ranges like '0 or 10..65535'")
+        lo = int(m.group(1), 0)
+        hi = int(m.group(2), 0) if m.group(2) else lo
+        if hi < lo:
+            raise ValueError(f"{text!r}: range {lo}..{hi} is empty")
+        out.append((lo, hi))
+    if not out:
+        raise ValueError(f"{text!r}: no values")
+    return out
+
+
+class Constraint(_Strict):
+    """Values an object accepts beyond the EDS LowLimit/HighLimit, e.g. AP05 1017h "0 or
+    10..65535" (a heartbeat time of 1..9 ms is refused by the device)."""
+
+    allowed: str
+    note: str = ""
+
+    @model_validator(mode="after")
+    def _parse(self) -> Constraint:
+        parse_allowed(self.allowed)
+        return self
+
+    @property
+    def ranges(self) -> list[tuple[int, int]]:
+        return parse_allowed(self.allowed)
+
+    def admits(self, value: int) -> bool:
+        return any(lo <= value <= hi for lo, hi in self.ranges)
+
+
+def _constraint(v: Any) -> Any:
+    return {"allowed": str(v)} if isinstance(v, (str, int)) else v
+
+
 class Profile(_Strict):
-    """A device family's profile file."""
+    """A device profile file: an overlay on the device's EDS."""
 
     family: str
-    title: str
-    manual: str = Field(description="which manual(s) in the seeds this follows, e.g. '000, 003'")
-    eds: str = Field(description="EDS file name, relative to the profile file")
+    title: str = ""
+    manual: str = Field(default="", description="the manual(s) this follows, e.g. '000, 003'")
+    eds: str | None = Field(
+        default=None, description="EDS file name, relative to the profile file (or nodes[].eds)"
+    )
     vendor: str = ""
     device_type: HexInt | None = Field(default=None, description="expected 1000h value")
-    factory: Factory
+    factory: Factory | None = None
+    verify_mapping: bool | None = Field(
+        default=None,
+        description="false: the mapping objects do not describe the layout in use (never "
+        "verified); true: verified at boot by default; unset: per node",
+    )
+    rpdo_only_writable: list[Obj] = Field(
+        default_factory=list,
+        description="objects the EDS marks ro (SDO writes refused) that the device takes from an RPDO",
+    )
+    constraints: dict[Obj, Annotated[Constraint, BeforeValidator(_constraint)]] = Field(
+        default_factory=dict, description="values objects accept beyond the EDS limits"
+    )
     features: dict[str, dict[str, Any]] = Field(default_factory=dict)
     signals: list[Signal]
     tpdos: list[Pdo] = Field(default_factory=list)

@@ -29,6 +29,8 @@ Keys read (all optional):
   faults: {name: {emcy: code, register: bits}}     generic fault -> EMCY mapping
   emcy_on_position_error            EMCY code of the fault "sensor_error" (register bit 7)
   sdo_expedited_only                refuse segmented transfers (abort 0x05040001)
+  tpdo_on_operational               send event-driven TPDOs without timer once on entering
+                                    OPERATIONAL (default: only for profiles without sim hints)
 Calibration (position = direction x model + offset + application offset):
   calibration_object                writing P makes the position P (SGH10 6010h:01)
   calibration: {preset, trigger, trigger_value, done_value, application_offset}
@@ -48,8 +50,6 @@ from typing import Any
 
 from gateway.objref import ObjRef
 from gateway.sim.motion import MotionConfig
-
-_DS406_CYCLE_TIMER = (ObjRef(0x1800, 5), ObjRef(0x6200, 0))  # SGH10 manual 4.7.2.31
 
 
 def _obj(v: Any) -> ObjRef | None:
@@ -100,7 +100,9 @@ class SimHints:
         h.velocity_scale = 1.0 if scale is None else float(scale)
         h.motion = _motion(d)
 
-        groups: list[tuple[ObjRef, ...]] = [_DS406_CYCLE_TIMER]
+        # DS-406 6200h = 1800h:05 is the behaviour of feature ds406_cycle_timer (on a CiA 401
+        # device 6200h is a digital output)
+        groups: list[tuple[ObjRef, ...]] = []
         for key in ("event_timer_mirror", "operating_parameters_mirror", "serial_number_mirror"):
             if d.get(key):
                 groups.append(tuple(ObjRef.parse(x) for x in d[key]))

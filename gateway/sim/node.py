@@ -81,6 +81,11 @@ COB_NMT_ERROR_BASE = 0x700  # boot-up, heartbeat and node guarding (4.2.2, 4.5.2
 
 ResetKind = Literal["power", "node", "communication"]
 
+#: numeric data types the default motion drives, with their bits (CiA 301 table 44)
+_NUMERIC_TYPES = {0x0001: 1, 0x0002: 8, 0x0003: 16, 0x0004: 32, 0x0005: 8, 0x0006: 16,
+                  0x0007: 32, 0x0008: 32, 0x0010: 24, 0x0011: 64, 0x0015: 64, 0x0016: 24,
+                  0x001B: 64}  # fmt: skip
+
 # Due times are sums of float periods (0.2 + 0.1 > 0.3): a timer is due within this margin.
 _EPS_S = 1e-9
 
@@ -153,6 +158,15 @@ class SimNode:
         self.cob_id_change_preop_only = self.hints.cob_id_change_preop_only
         self.require_mappable = bool(raw.get("require_mappable", False))
 
+        # a device known only from its EDS (no sim hints): its numeric TPDO-mapped inputs follow
+        # the motion model, each offset by its position in the list
+        # event-driven TPDOs without timer sent once on entering OPERATIONAL (sim option
+        # tpdo_on_operational; default for devices known only from their EDS, as most do; the
+        # manual devices keep what their manuals describe)
+        self.tpdo_on_operational = bool(raw.get("tpdo_on_operational", not profile.profile.sim))
+        self.auto_inputs: list[ObjRef] = []
+        if self.position_obj is None and self.velocity_obj is None and not profile.profile.sim:
+            self.auto_inputs = self._mapped_inputs(node_id)
         self.tpdos = pdo.numbers(self.values, "tpdo")
         self.rpdos = pdo.numbers(self.values, "rpdo")
         self._tpdo_timers: dict[int, _TpdoTimer] = {n: _TpdoTimer() for n in self.tpdos}
@@ -463,6 +477,14 @@ class SimNode:
                 t.sync_count = 0
                 t.last_data = None
                 t.next_due_s = now if pdo.event_timer_ms(self.values, n) > 0 else None
+                if (
+                    self.tpdo_on_operational
+                    and t.next_due_s is None
+                    and pdo.transmission_type(self.values, "tpdo", n) >= 254
+                ):
+                    # an event-driven TPDO without timer is sent once on entering OPERATIONAL
+                    # (its current values), then on events (CiA 301 7.3.2)
+                    t.next_due_s = now
         if old == NmtState.OPERATIONAL:
             for t in self._tpdo_timers.values():
                 t.next_due_s = None
@@ -551,12 +573,41 @@ class SimNode:
             return
         self._process_now = now
         pos, vel = self.motion.sample(now)
+        for i, obj in enumerate(self.auto_inputs):
+            self.values.set(*obj, self._auto_value(obj, pos + 7 * i))
         if self.position_obj is not None:
             self.values.set(*self.position_obj, self.position_from_model(pos))
         if self.velocity_obj is not None:
             self.values.set(*self.velocity_obj, int(round(vel * self.velocity_scale)))
         for b in self.behaviours:
             b.update_process(now)
+
+    def _mapped_inputs(self, node_id: int) -> list[ObjRef]:
+        """Numeric objects of the EDS's TPDO mappings (defaults, ``$NODEID`` resolved)."""
+        self.values.load_defaults(node_id, self.store, 1)
+        out: list[ObjRef] = []
+        for n in pdo.numbers(self.values, "tpdo"):
+            for e in pdo.mapping(self.values, "tpdo", n):
+                obj = ObjRef(e.index, e.sub)
+                var = self.values.vars.get((e.index, e.sub)) if e.index >= 0x1000 else None
+                if var is None or obj in out or e.index < 0x2000:
+                    continue
+                if var.data_type in _NUMERIC_TYPES:
+                    out.append(obj)
+        return out
+
+    def _auto_value(self, obj: ObjRef, model: float) -> Any:
+        var = self.values.vars[(obj.index, obj.sub)]
+        if var.data_type in (0x0008, 0x0011):  # REAL32 / REAL64
+            return round(model / 100.0, 3)
+        bits = _NUMERIC_TYPES[var.data_type]
+        if var.data_type == 0x0001:
+            return int(model) // 1000 % 2
+        signed = var.data_type in (0x0002, 0x0003, 0x0004, 0x0010, 0x0015)
+        v = int(model) % (1 << bits) if bits < 32 else int(model)
+        if signed and v >= 1 << (bits - 1):
+            v -= 1 << bits
+        return v
 
     # -- position model: direction x model + calibration offset + application offset ---------
     def direction_sign(self) -> int:

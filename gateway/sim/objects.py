@@ -95,11 +95,12 @@ def is_signed(var: od.ODVariable) -> bool:
 def encode(var: od.ODVariable, value: Any) -> bytes:
     """Little-endian bytes of ``value`` as the type of ``var``."""
     if var.data_type == dt.VISIBLE_STRING:
-        return value.encode("ascii") if isinstance(value, str) else bytes(value)
+        # UTF-8: device names in EDS files are often not ASCII ("Größe")
+        return value.encode("utf-8") if isinstance(value, str) else bytes(value)
     if var.data_type == dt.UNICODE_STRING:
         return value.encode("utf_16_le") if isinstance(value, str) else bytes(value)
     if var.data_type in (dt.OCTET_STRING, dt.DOMAIN):
-        return value.encode("ascii") if isinstance(value, str) else bytes(value)
+        return value.encode("utf-8") if isinstance(value, str) else bytes(value)
     if var.data_type == dt.BOOLEAN:
         return b"\x01" if value else b"\x00"
     st = od.ODVariable.STRUCT_TYPES[var.data_type]
@@ -117,7 +118,7 @@ def encode(var: od.ODVariable, value: Any) -> bytes:
 def decode(var: od.ODVariable, data: bytes) -> Any:
     """The value of ``data`` (exactly the type's size for fixed-size types)."""
     if var.data_type == dt.VISIBLE_STRING:
-        return data.decode("ascii", errors="replace")
+        return data.decode("utf-8", errors="replace")
     if var.data_type == dt.UNICODE_STRING:
         return data.decode("utf_16_le", errors="replace")
     if var.data_type in (dt.OCTET_STRING, dt.DOMAIN):

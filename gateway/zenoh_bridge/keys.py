@@ -29,7 +29,7 @@ from typing import Literal
 
 from gateway.config import Config
 from gateway.objref import ObjRef
-from gateway.profiles import load_profile
+from gateway.profiles import load_node_profile
 from gateway.profiles.schema import Signal
 
 #: the liveliness token of the gateway itself, ``<prefix>/alive/_gateway``
@@ -205,7 +205,7 @@ def all_keys(cfg: Config) -> list[KeyInfo]:
         KeyInfo(catalog_key(p), "query", "every node and signal: type, unit, scaling, Modbus"),
     ]
     for n in cfg.nodes:
-        lp = load_profile(n.profile, cfg.base_dir)
+        lp = load_node_profile(n, cfg.base_dir)
         name = n.name
 
         def add(key: str, kind: str, text: str, _name: str = name) -> None:
@@ -247,6 +247,6 @@ def render_keys(cfg: Config) -> str:
             n = nodes.get(k.node)
             if n is not None:
                 lines.append("")
-                lines.append(f"# node {n.name}: {n.profile}, node id {n.node_id}")
+                lines.append(f"# node {n.name}: {n.device}, node id {n.node_id}")
         lines.append(f"{k.key:<{width}}  {k.kind:<10}  {k.description}")
     return "\n".join(lines) + "\n"

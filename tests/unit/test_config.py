@@ -8,7 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from gateway.config import ConfigError, load_config, parse_config
+from gateway.checks import load_checked_config as load_config
+from gateway.checks import parse_checked_config as parse_config
+from gateway.config import ConfigError
 
 GOOD = {
     "gateway": {"name": "t"},

@@ -10,7 +10,9 @@ from typing import Any
 
 import pytest
 
-from gateway.config import ConfigError, load_config, parse_config
+from gateway.checks import load_checked_config as load_config
+from gateway.checks import parse_checked_config as parse_config
+from gateway.config import ConfigError
 from gateway.modbus.protocol import from_registers, to_registers
 from gateway.modbus.regmap import NODE_DIAG, Point, RegisterMap, build_register_map
 

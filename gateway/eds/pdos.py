@@ -1,0 +1,232 @@
+"""The PDOs an EDS describes, and signal names and types derived from its dictionary.
+
+CiA 301 7.5.2.35-7.5.2.38: RPDO *n* has its communication parameter at 1400h + n - 1 and its
+mapping at 1600h + n - 1, TPDO *n* at 1800h / 1A00h + n - 1. Communication sub 01h is the
+COB-ID (bit 31 = PDO not valid, ``$NODEID`` resolved for the node), 02h the transmission type,
+03h the inhibit time (100 us), 05h the event timer (ms), 06h the SYNC start value. Mapping
+sub 00h is the number of entries, each entry ``index << 16 | sub << 8 | bits``.
+
+Names: the ParameterName of the object (of the sub-object for ARRAY/RECORD entries, prefixed by
+the object's name when the sub-object's name alone says little) as a snake_case slug; slugs
+that two objects of a node share, or that are empty, fall back to ``<slug>_<index>_<sub>``.
+
+Imports: canopen (dictionary types), gateway.objref, gateway.eds.parse.
+"""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import canopen
+from canopen.objectdictionary import ODArray, ODRecord, ODVariable
+
+from gateway.objref import ObjRef
+
+Kind = Literal["tpdo", "rpdo"]
+
+#: CiA 301: bit 31 of a PDO COB-ID = PDO not valid.
+COB_ID_INVALID = 0x80000000
+COB_ID_MASK_11BIT = 0x7FF
+COMM_BASE: dict[str, int] = {"rpdo": 0x1400, "tpdo": 0x1800}
+MAP_BASE: dict[str, int] = {"rpdo": 0x1600, "tpdo": 0x1A00}
+
+#: CiA 301 data type codes -> the gateway's signal type names.
+SIGNAL_TYPES: dict[int, str] = {
+    0x0001: "bool", 0x0002: "int8", 0x0003: "int16", 0x0004: "int32", 0x0005: "uint8",
+    0x0006: "uint16", 0x0007: "uint32", 0x0008: "float32", 0x0009: "string", 0x000A: "bytes",
+    0x0010: "int24", 0x0015: "int64", 0x0016: "uint24", 0x001B: "uint64",
+}  # fmt: skip
+#: bits of the fixed-size types (CiA 301 table 44); dummy entries 0001h..0007h map these too.
+TYPE_BITS: dict[int, int] = {
+    0x0001: 1, 0x0002: 8, 0x0003: 16, 0x0004: 32, 0x0005: 8, 0x0006: 16, 0x0007: 32,
+    0x0008: 32, 0x0010: 24, 0x0011: 64, 0x0012: 40, 0x0013: 48, 0x0014: 56, 0x0015: 64,
+    0x0016: 24, 0x0018: 40, 0x0019: 48, 0x001A: 56, 0x001B: 64,
+}  # fmt: skip
+_NODEID_RE = re.compile(r"\$NODEID", re.IGNORECASE)
+
+
+def od_var(od: canopen.ObjectDictionary, obj: ObjRef) -> ODVariable | None:
+    try:
+        entry = od[obj.index]
+    except KeyError:
+        return None
+    if isinstance(entry, ODVariable):
+        return entry if obj.sub == 0 else None
+    if obj.sub not in entry.subindices:
+        return None  # canopen makes up array sub-objects on access; the EDS has not this one
+    try:
+        return entry[obj.sub]
+    except KeyError:
+        return None
+
+
+def default_value(var: ODVariable | None, node_id: int | None) -> Any:
+    """The EDS default (a DCF's ParameterValue first) with ``$NODEID`` resolved; None if none."""
+    if var is None:
+        return None
+    raw = getattr(var, "value_raw", None) or getattr(var, "default_raw", None)
+    if isinstance(raw, str) and _NODEID_RE.search(raw):
+        total = 0
+        for term in _NODEID_RE.sub(str(node_id or 0), raw.replace(" ", "")).split("+"):
+            if term:
+                total += int(term, 0)
+        return total
+    value = getattr(var, "value", None)
+    return value if value is not None else var.default
+
+
+def entry_value(obj: ObjRef, bits: int) -> int:
+    """CiA 301 mapping entry: index << 16 | sub << 8 | length in bits."""
+    return (obj.index << 16) | (obj.sub << 8) | bits
+
+
+def decode_entry(raw: int) -> tuple[ObjRef, int]:
+    return ObjRef((raw >> 16) & 0xFFFF, (raw >> 8) & 0xFF), raw & 0xFF
+
+
+def object_bits(od: canopen.ObjectDictionary, obj: ObjRef) -> int | None:
+    """Bit length of a mappable object (a dummy data type entry 0001h..0007h too); None for
+    strings and unknown objects."""
+    if obj.index < 0x1000:
+        return TYPE_BITS.get(obj.index)
+    var = od_var(od, obj)
+    if var is None:
+        return None
+    return TYPE_BITS.get(var.data_type)
+
+
+@dataclass(frozen=True)
+class EdsPdo:
+    """One PDO as the EDS (or DCF) describes it, for one node id."""
+
+    kind: Kind
+    number: int
+    comm_index: int
+    map_index: int
+    cob_id: int  # as held, bit 31 = not valid
+    transmission_type: int | None
+    inhibit_time_100us: int | None
+    event_timer_ms: int | None
+    sync_start: int | None
+    entries: tuple[tuple[ObjRef, int], ...]
+    mapping_writable: bool
+    comm_writable: bool
+
+    @property
+    def enabled(self) -> bool:
+        return not self.cob_id & COB_ID_INVALID and bool(self.entries)
+
+    @property
+    def bits(self) -> int:
+        return sum(b for _, b in self.entries)
+
+
+def _writable(var: ODVariable | None) -> bool:
+    return var is not None and var.access_type in ("rw", "wo", "rww", "rwr")
+
+
+def eds_pdos(od: canopen.ObjectDictionary, node_id: int | None, kind: Kind) -> list[EdsPdo]:
+    """Every PDO of ``kind`` whose communication parameter is in the dictionary."""
+    out = []
+    base = COMM_BASE[kind]
+    for index in sorted(i for i in od.indices if base <= i < base + 0x200):
+        number = index - base + 1
+        map_index = MAP_BASE[kind] + number - 1
+
+        def comm(sub: int, index: int = index) -> Any:
+            return default_value(od_var(od, ObjRef(index, sub)), node_id)
+
+        cob = comm(1)
+        entries: list[tuple[ObjRef, int]] = []
+        count = default_value(od_var(od, ObjRef(map_index, 0)), node_id) or 0
+        for s in range(1, int(count) + 1):
+            raw = default_value(od_var(od, ObjRef(map_index, s)), node_id)
+            if raw:
+                entries.append(decode_entry(int(raw)))
+        out.append(
+            EdsPdo(
+                kind=kind,
+                number=number,
+                comm_index=index,
+                map_index=map_index,
+                cob_id=int(cob) if cob is not None else COB_ID_INVALID,
+                transmission_type=comm(2),
+                inhibit_time_100us=comm(3) if kind == "tpdo" else None,
+                event_timer_ms=comm(5),
+                sync_start=comm(6) if kind == "tpdo" else None,
+                entries=tuple(entries),
+                mapping_writable=_writable(od_var(od, ObjRef(map_index, 0))),
+                comm_writable=_writable(od_var(od, ObjRef(index, 1))),
+            )
+        )
+    return out
+
+
+# ------------------------------------------------------------------------ names
+
+
+def slug(text: str) -> str:
+    """``"Read Input 8-Bit (1h..8h)"`` -> ``read_input_8_bit_1h_8h``; ASCII, snake_case."""
+    ascii_text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode()
+    s = re.sub(r"[^a-z0-9]+", "_", ascii_text.lower()).strip("_")
+    if s and not s[0].isalpha():
+        s = f"o_{s}"
+    return s
+
+
+_GENERIC_SUB = re.compile(r"^(sub[- _]?index|sub|entry|value|channel|input|output)?[ _-]*\d+h?$", re.I)
+
+
+def object_name(od: canopen.ObjectDictionary, obj: ObjRef) -> str:
+    """ParameterName of the object; for a sub-object its own name, prefixed with the object's
+    name when the sub-object's name is only a number or a generic word and number."""
+    entry = od.get(obj.index)
+    if entry is None:
+        return ""
+    if isinstance(entry, ODVariable):
+        return entry.name
+    var = od_var(od, obj)
+    sub_name = var.name if var is not None else ""
+    if isinstance(entry, (ODArray, ODRecord)) and (not sub_name or _GENERIC_SUB.match(sub_name)):
+        return f"{entry.name} {sub_name or obj.sub}"
+    return sub_name
+
+
+def unique_names(od: canopen.ObjectDictionary, objs: list[ObjRef], taken: set[str]) -> dict[ObjRef, str]:
+    """A signal name per object: its slug; shared or empty slugs (also with ``taken`` names of
+    the profile) get ``_<index>_<sub>`` appended."""
+    slugs = {o: slug(object_name(od, o)) for o in objs}
+    counts: dict[str, int] = {}
+    for s in slugs.values():
+        counts[s] = counts.get(s, 0) + 1
+    out: dict[ObjRef, str] = {}
+    for o, s in slugs.items():
+        if not s:
+            out[o] = f"obj_{o.index:04x}_{o.sub:02x}"
+        elif counts[s] > 1 or s in taken:
+            out[o] = f"{s}_{o.index:04x}_{o.sub:02x}"
+        else:
+            out[o] = s
+    return out
+
+
+def signal_type(var: ODVariable | None) -> str | None:
+    return SIGNAL_TYPES.get(var.data_type) if var is not None else None
+
+
+def access_of(var: ODVariable | None) -> Literal["ro", "rw", "wo"]:
+    if var is None:
+        return "ro"
+    a = var.access_type
+    if a in ("rw", "rww", "rwr"):
+        return "rw"
+    if a == "wo":
+        return "wo"
+    return "ro"
+
+
+def readable(var: ODVariable | None) -> bool:
+    return var is not None and var.access_type in ("ro", "rw", "rwr", "rww", "const")
