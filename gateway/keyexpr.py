@@ -34,7 +34,13 @@ def problem(expr: str) -> str | None:
         if c in ("*", "**"):
             if c == "**" and i > 0 and chunks[i - 1] == "**":
                 return f"{expr!r}: '**/**' is not canonical, write '**'"
+            if c == "*" and i > 0 and chunks[i - 1] == "**":
+                return f"{expr!r}: '**/*' is not canonical, write '*/**'"
             continue
+        if c == "$*":
+            return f"{expr!r}: a chunk '$*' alone is written '*'"
+        if c.startswith("@") and "*" in c:
+            return f"{expr!r}: a verbatim chunk ({c!r}) has no wildcard"
         if "**" in c:
             return f"{expr!r}: '**' must be a whole chunk"
         if "*" in c.replace("$*", ""):
