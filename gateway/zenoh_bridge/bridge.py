@@ -186,7 +186,7 @@ def _close_opened(fut: asyncio.Future[Any]) -> None:
 class _SignalPub:
     """One published signal: its key, engineering scaling, report policy and publisher."""
 
-    __slots__ = ("sig", "key", "scaling", "policy", "lock", "pub")
+    __slots__ = ("sig", "key", "scaling", "policy", "lock", "pub", "last_seq")
 
     def __init__(self, sig: Signal, key: str, scaling: Scaling, policy: ReportPolicy):
         self.sig = sig
@@ -195,6 +195,7 @@ class _SignalPub:
         self.policy = policy
         self.lock = threading.Lock()
         self.pub: Any = None
+        self.last_seq = 0  # seq of the last sample published
 
 
 class _EventSender:
@@ -600,6 +601,7 @@ class ZenohBridge:
             except zenoh.ZError:
                 return
             sp.policy.published(value, quality, now)
+            sp.last_seq = sv.seq
         self.publications += 1
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
