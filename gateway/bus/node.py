@@ -52,6 +52,7 @@ from gateway.bus.lifecycle import (
     decode_value,
 )
 from gateway.bus.outputs import OutputImage
+from gateway.bus.referencing import Referencing
 from gateway.bus.sdo_channel import SdoChannel, SdoJob
 from gateway.bus.sdo_client import SdoTransfer
 from gateway.bus.settings import NodeSettings
@@ -111,8 +112,7 @@ class Node:
         health.supervision = settings.supervision
         health.link = LinkState.UNKNOWN if self.gbit is not None else LinkState.NOT_USED
         self.emcy = EmcyHistory()
-        self.referencing = referencing
-        self.reference_signal = reference_signal
+        self.ref = Referencing(referencing, reference_signal) if referencing else None
         control = (
             (self.control_signal, gb.control_bit)
             if gb is not None and self.control_signal
@@ -248,7 +248,7 @@ class Node:
             ),
             HealthChanged("emcy"),
         ]
-        if self.referencing is not None and not self.passive:
+        if self.ref is not None and not self.passive:
             out += self._check_reference(now)
         return out
 
@@ -424,7 +424,7 @@ class Node:
                 )
                 out += self._set_nmt_expected(NmtState.OPERATIONAL)
                 out += self._refresh(now)
-                if self.referencing is not None:
+                if self.ref is not None:
                     out += self._check_reference(now)
                 if self.s.rtr_poll_ms:
                     self._rtr_due_s = now + self.s.rtr_poll_ms / 1000.0
@@ -506,28 +506,17 @@ class Node:
         return [ValuesRead((name,), (value,))]
 
     def _reference_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        ref = self.referencing
-        assert ref is not None
+        assert self.ref is not None
         if tr.result is None:
-            return [
-                Note(
-                    logging.WARNING,
-                    f"node {self.name}: referencing state unreadable (SDO abort 0x{tr.abort_code or 0:08X})",
-                ),
-                *self._set_referenced(False),
-            ]
-        value = int.from_bytes(tr.result[:1], "little")
-        return self._set_referenced(value == int(ref.get("referenced_value", 1)))
+            note = f"node {self.name}: referencing state unreadable (0x{tr.abort_code or 0:08X})"
+            return [Note(logging.WARNING, note), *self._set_referenced(False)]
+        return self._set_referenced(self.ref.referenced(tr.result))
 
     def _user_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         out: list[Output] = [
             SdoDone(job.token, tr.result, tr.abort_code, tr.timed_out, tr.aborted_by_server)
         ]
-        if (
-            self.referencing is not None
-            and job.data is not None
-            and job.obj == ObjRef.parse(self.referencing["command"])
-        ):
+        if self.ref is not None and self.ref.is_command(job.obj, job.data):
             out += self._check_reference(now)
         return out
 
@@ -560,29 +549,17 @@ class Node:
 
     # ================================================================== internals: features
     def _check_reference(self, now: float) -> list[Output]:
-        """Feature ``referencing`` (MSK5000 5115h): read whether the position is referenced."""
-        assert self.referencing is not None
-        self.sdo.queue(ObjRef.parse(self.referencing["status"]), None, "reference")
+        """Feature ``referencing``: read whether the position is referenced."""
+        assert self.ref is not None
+        self.sdo.queue(self.ref.status, None, "reference")
         return []
 
     def _set_referenced(self, ok: bool) -> list[Output]:
-        if self.referencing is None or self.reference_signal is None:
+        text = self.ref.apply(self.health, ok) if self.ref is not None else None
+        if text is None:
             return []
-        h = self.health
-        invalid = self.reference_signal in h.invalid_signals
-        if invalid == (not ok):
-            return []
-        h.invalid_signals = (
-            (h.invalid_signals - {self.reference_signal})
-            if ok
-            else (h.invalid_signals | {self.reference_signal})
-        )
-        text = (
-            f"node {self.name}: referenced; {self.reference_signal} valid"
-            if ok
-            else f"node {self.name}: not referenced; {self.reference_signal} is not valid"
-        )
-        return [Note(logging.INFO if ok else logging.WARNING, text), HealthChanged("state")]
+        level = logging.INFO if ok else logging.WARNING
+        return [Note(level, f"node {self.name}: {text}"), HealthChanged("state")]
 
     def _set_nmt(self, state: NmtState) -> list[Output]:
         if self.health.nmt_state == state:

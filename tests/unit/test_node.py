@@ -12,6 +12,8 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gateway.bus.master import NodeParts, build_node
 from gateway.bus.node import Send, ValuesRead
@@ -392,3 +394,40 @@ def test_every_rpdo_sent_pushes_the_keepalive_back() -> None:
     assert out.keepalive_due(since=2.0) == pytest.approx(2.09)
     frame = out.keepalive(2.09)
     assert frame.cob_id == 0x301 and frame.rpdo  # the last RPDO sent, again
+
+
+# --------------------------------------------------------------------------- robustness
+
+_events = st.lists(
+    st.one_of(
+        st.tuples(st.just("nmt_ec"), st.integers(0, 255)),
+        st.tuples(st.just("sdo"), st.binary(min_size=0, max_size=8)),
+        st.tuples(st.just("emcy"), st.binary(min_size=0, max_size=8)),
+        st.tuples(st.just("echo"), st.integers(0, 1)),
+        st.tuples(st.just("tick"), st.floats(0.0, 2.0)),
+    ),
+    max_size=60,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(_events)
+def test_no_sequence_of_frames_a_device_sends_makes_the_node_raise(events: list) -> None:
+    for profile, extra in (("ap05", {}), ("posi_plus", {"supervision": "guarding"})):
+        h = Harness(profile, node_id=1, **extra)
+        h.start(probe=True)
+        now = 0.0
+        for kind, arg in events:
+            if kind == "nmt_ec":
+                h.node.on_nmt_ec(arg, now)
+            elif kind == "sdo":
+                h.node.on_sdo_response(arg, now)
+            elif kind == "emcy":
+                h.node.on_emcy(arg, 0.0, now)
+            elif kind == "echo":
+                h.node.on_echo(arg, now)
+            else:
+                now += arg
+                h.node.tick(now)
+        deadline = h.node.next_deadline()
+        assert deadline is None or deadline >= 0.0
