@@ -23,6 +23,8 @@ echo "== hadolint Dockerfile"
 "$bin/hadolint" --failure-threshold info Dockerfile
 echo "== compose schema: deploy/docker-compose.yml"
 "$bin/check-jsonschema" --builtin-schema vendor.compose-spec deploy/docker-compose.yml
+echo "== compose schema: deploy/docker-compose.fleet.yml"
+"$bin/check-jsonschema" --builtin-schema vendor.compose-spec deploy/docker-compose.fleet.yml
 echo "== kubernetes schemas: deploy/k8s"
 "$bin/kubernetes-validate" --strict --quiet deploy/k8s/deployment.yaml deploy/k8s/configmap.yaml
 echo "ok -- kubernetes manifests"

@@ -84,7 +84,9 @@ class Gateway:
         self.commands = CommandService(self.master)
         self.modbus = ModbusGateway(cfg, self.image, self.commands) if cfg.modbus.enabled else None
         self.zenoh = (
-            ZenohBridge(cfg, self.image, self.commands, self.catalog) if cfg.zenoh.enabled else None
+            ZenohBridge(cfg, self.image, self.commands, self.catalog, threads=self.threads)
+            if cfg.zenoh.enabled
+            else None
         )
         self.sim = SimulatedBus(cfg) if simulate and cfg.simulated_nodes() else None
         self.health: Any = None
@@ -175,6 +177,9 @@ class Gateway:
         }
 
     async def start(self) -> None:
+        if self.zenoh is not None:
+            # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
+            await self.zenoh.open()
         if self.sim is not None:
             self.sim.start()
         await asyncio.to_thread(self.driver.open)
@@ -229,6 +234,7 @@ class Gateway:
                 c.emcy[name] = node.health.emcy_count
         if self.zenoh is not None:
             c.zenoh_publications = self.zenoh.publications
+            c.zenoh_refused = dict(self.zenoh.refused)
         if self.modbus is not None:
             store = self.modbus.store
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}

@@ -64,9 +64,14 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     cfg = _load(args.config)
     _setup_logging(args.log_level or cfg.gateway.log_level)
+    from gateway.zenoh_bridge.bridge import PrefixInUse
+
     gw = Gateway(cfg, simulate=not args.no_simulate)
     try:
         asyncio.run(_run_until_signal(gw.start, gw.stop, gw.summary))
+    except PrefixInUse as exc:  # a configuration problem: two gateways under one prefix
+        print(f"error: {args.config}: zenoh.prefix: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
     except OSError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_FAILED

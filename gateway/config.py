@@ -6,12 +6,12 @@ what is allowed; all problems of a file are collected before reporting. Environm
 ``CANOPEN_GATEWAY__NODES__0__NODE_ID=5``); values are parsed as YAML scalars/flow lists.
 
 This module checks what one file can say about itself (schema, duplicates, profile and EDS names,
-the node's PDO settings against its EDS). The checks across the config, the profiles/EDS and the
-compiled register map (``canopen-gateway check``) live in ``gateway.checks``, which imports this
-module; this module imports neither it nor modbus/.
+the node's PDO settings against its EDS, key expressions). The checks across the config, the
+profiles/EDS and the compiled register map (``canopen-gateway check``) live in ``gateway.checks``,
+which imports this module; this module imports neither it nor modbus/.
 
-Imports: pydantic, yaml, gateway.objref, gateway.profiles. Nothing of bus/, modbus/,
-zenoh_bridge/, checks.
+Imports: pydantic, yaml, gateway.objref, gateway.keyexpr, gateway.profiles. Nothing of bus/,
+modbus/, zenoh_bridge/, checks.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
+from gateway import keyexpr
 from gateway.objref import ObjRef
 from gateway.profiles import ProfileError, load_node_profile
 from gateway.profiles.schema import HexInt, SignalType
@@ -240,6 +241,66 @@ class ZenohTls(_Model):
     verify_name_on_connect: bool | None = None
 
 
+#: what a Zenoh client may be allowed to do south (``zenoh.write_allow[].operations``)
+ZENOH_WRITE_OPERATIONS = ("set", "sdo_write", "nmt")
+ZenohWriteOperation = Literal["set", "sdo_write", "nmt"]
+
+
+class ZenohWriteRule(_Model):
+    """One allow rule of ``zenoh.write_allow``: a write is allowed when it matches every list
+    given (an empty list matches everything)."""
+
+    operations: list[ZenohWriteOperation] = Field(
+        default_factory=lambda: list(ZENOH_WRITE_OPERATIONS),
+        description="set (set/<signal>, set), sdo_write (SDO download), nmt",
+    )
+    nodes: list[str] = Field(default_factory=list, description="node names; empty = every node")
+    keys: list[str] = Field(
+        default_factory=list, description="key expressions the query key must be in; empty = any"
+    )
+
+    @model_validator(mode="after")
+    def _keys(self) -> ZenohWriteRule:
+        for k in self.keys:
+            why = keyexpr.problem(k)
+            if why:
+                raise ValueError(f"keys: {why}")
+        return self
+
+
+class ZenohAuth(_Model):
+    """Zenoh user/password authentication (zenoh's ``transport/auth/usrpwd``)."""
+
+    user: str | None = Field(default=None, description="the name this gateway logs in with")
+    password: str | None = Field(default=None, description="its password (or password_file)")
+    password_file: str | None = Field(default=None, description="file holding the password")
+    dictionary_file: str | None = Field(
+        default=None, description="user:password lines: who may connect to this gateway (peer)"
+    )
+
+    @model_validator(mode="after")
+    def _pairs(self) -> ZenohAuth:
+        if self.password is not None and self.password_file is not None:
+            raise ValueError("password and password_file: give one, not both")
+        has_pw = self.password is not None or self.password_file is not None
+        if self.user is None and has_pw:
+            raise ValueError("user is missing (a password needs a user)")
+        if self.user is not None and not has_pw:
+            raise ValueError(f"user {self.user!r} has no password (password or password_file)")
+        if self.user is None and self.dictionary_file is None:
+            raise ValueError("empty: give user and password, or dictionary_file, or remove auth")
+        return self
+
+
+class ZenohHistory(_Model):
+    """What the advanced publishers keep for subscribers that missed samples (router down, WAN
+    link lost, late joiners): samples per key, and the heartbeat that lets them see a miss."""
+
+    events: int = Field(default=1000, ge=0, le=1_000_000, description="per state/EMCY key; 0 = none")
+    values: int = Field(default=1, ge=0, le=10_000, description="per value key; 0 = none")
+    heartbeat_ms: int = Field(default=500, ge=0, le=60_000, description="0 = no miss detection")
+
+
 class ZenohSection(_Model):
     enabled: bool = True
     mode: Literal["peer", "client"] = "peer"
@@ -250,9 +311,31 @@ class ZenohSection(_Model):
     publish: Literal["change", "every"] = "change"
     raw_pdo: bool = False
     tls: ZenohTls | None = None
+    writes: bool = Field(default=False, description="off: every set, SDO download, NMT refused")
+    write_allow: list[ZenohWriteRule] = Field(
+        default_factory=list, description="with writes on: only what a rule allows; empty = all"
+    )
+    auth: ZenohAuth | None = None
+    access_control: dict[str, Any] | None = Field(
+        default=None, description="zenoh's access_control section (rules, subjects, policies)"
+    )
+    history: ZenohHistory = Field(default_factory=ZenohHistory)
+    refuse_duplicate_prefix: bool = Field(
+        default=True, description="refuse to start when a gateway already runs under our prefix"
+    )
     json5: dict[str, Any] = Field(
         default_factory=dict, description="raw zenoh config keys, e.g. {'transport/link/tls/..': ..}"
     )
+
+    @model_validator(mode="after")
+    def _writes(self) -> ZenohSection:
+        if self.write_allow and not self.writes:
+            raise ValueError("write_allow has no effect while writes is off: set writes: on")
+        if self.prefix is not None:
+            why = keyexpr.problem(self.prefix.rstrip("/"))
+            if why or "*" in self.prefix or "$" in self.prefix:
+                raise ValueError(f"prefix: {why or 'no wildcards in a prefix'}")
+        return self
 
     def key_prefix(self, gateway_name: str) -> str:
         return self.prefix if self.prefix else f"canopen/{gateway_name}"
@@ -418,6 +501,20 @@ def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, s
                 f"unit id {gw_unit} is also used by nodes[{seen['unit_id'][gw_unit]}]",
             )
         )
+    zen = raw.get("zenoh") if isinstance(raw.get("zenoh"), dict) else {}
+    rules = zen.get("write_allow")
+    if isinstance(rules, list):
+        for i, rule in enumerate(rules):
+            wanted = rule.get("nodes") if isinstance(rule, dict) else None
+            for j, name in enumerate(wanted if isinstance(wanted, list) else []):
+                if name not in seen["name"]:
+                    out.append(
+                        (
+                            f"zenoh.write_allow[{i}].nodes[{j}]",
+                            f"no node named {name!r} in nodes; nodes: "
+                            + ", ".join(sorted(map(str, seen["name"]))),
+                        )
+                    )
     sim = raw.get("simulate") or {}
     if isinstance(sim, dict) and isinstance(sim.get("nodes"), list):
         for j, name in enumerate(sim["nodes"]):

@@ -76,3 +76,9 @@ class ReadOnly(GatewayError):
 
 class Unmapped(GatewayError):
     kind = "unmapped"
+
+
+class Forbidden(GatewayError):
+    """A write the configuration does not allow for this client (e.g. ``zenoh.writes: off``)."""
+
+    kind = "forbidden"

@@ -25,6 +25,7 @@ Metric names carry the prefix ``canopen_gateway_``:
     decode_errors_total{node,reason}, emcy_total{node}
     sdo_requests_total{node,op}, sdo_aborts_total{node,code}, sdo_latency_seconds{node}
     modbus_requests_total{function}, modbus_exceptions_total{code}
+    zenoh_refused_total{operation}
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
     plus process_* (CPU, memory, open files) of this process.
 
@@ -140,6 +141,7 @@ class Counters:
     sdo_aborts: dict[tuple[str, str], int] = field(default_factory=dict)
     modbus_requests: dict[str, int] = field(default_factory=dict)
     modbus_exceptions: dict[str, int] = field(default_factory=dict)
+    zenoh_refused: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -258,6 +260,7 @@ class Metrics:
                 sdo_aborts=c.sdo_aborts.copy(),
                 modbus_requests=c.modbus_requests.copy(),
                 modbus_exceptions=c.modbus_exceptions.copy(),
+                zenoh_refused=c.zenoh_refused.copy(),
             )
 
     def _node_samples(self) -> list[NodeSample]:
@@ -331,6 +334,13 @@ class _GatewayCollector:
             "Modbus exception responses sent, by exception code.",
             ["code"],
             c.modbus_exceptions,
+        )
+        yield labelled(
+            "zenoh_refused_total",
+            "Zenoh writes refused by zenoh.writes / zenoh.write_allow, by operation "
+            "(set, sdo_write, nmt).",
+            ["operation"],
+            c.zenoh_refused,
         )
 
         state = GaugeMetricFamily(

@@ -1,25 +1,41 @@
 """Zenoh bridge: publishes the process image, node state and EMCY events, raw PDOs on request,
-liveliness tokens per alive node and for the gateway, and answers queries through the command
+liveliness tokens per usable node and for the gateway, and answers queries through the command
 service.
 
-Threads:
+Threads (started through the gateway's ``ThreadRegistry``: a thread that dies is reported and
+turns /healthz not-ready, never silently):
 
-* values are published on the CAN reader thread, right after the image was written (zenoh puts
-  are thread-safe; congestion control DROP, so a slow network never blocks the reader);
+* values are marked on the CAN reader thread right after the image was written; the
+  ``zenoh-values`` thread publishes the *current* value of every marked signal (coalescing),
+  except ``publish: every`` signals, which the reader publishes itself;
 * events (state, EMCY) are computed on the event loop when the master reports them and put by
-  one sender thread in order, with congestion control BLOCK and priority INTERACTIVE_HIGH: they
-  are never dropped and a congested network never blocks the event loop;
+  the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
+  INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop;
 * a housekeeping task on the event loop publishes held-back samples (max rate) and quality
   changes that no frame announces (stale by age);
 * query callbacks run on zenoh threads and only hand the query to the event loop, where the
   command service answers it and the query is finalised.
 
-The session is opened at start; in client mode, with no router reachable, the gateway starts
-anyway and the bridge keeps trying in the background. After a router restart zenoh reconnects
-by itself and re-declares publishers, queryable and liveliness tokens.
+Values and events go out through zenoh-ext advanced publishers (``zenoh.history``): each keeps
+the last samples of its key (1,000 per event key, the last value per value key by default),
+sends heartbeats with its last sequence number and announces itself, so an
+``AdvancedSubscriber`` with history and recovery gets what it missed while a router or a WAN
+link was down. Our payloads carry their own ``seq`` too, so a plain subscriber sees a gap.
 
-Imports: zenoh, commands, errors, image, config, objref, profiles.schema, zenoh_bridge.*.
-Never modbus/ (the catalogue gets Modbus addresses through a function passed in by the app).
+Writes (``set``, SDO download, ``nmt``) pass ``zenoh.writes`` / ``zenoh.write_allow`` first
+(``access.WriteGate``); a refused one is answered ``forbidden``, counted and logged
+(rate-limited), and nothing goes on the bus.
+
+The session is opened before the bus (``open``): when a gateway with the same prefix is
+already announced on the Zenoh network (its ``<prefix>/alive/_gateway`` token), ``open``
+raises ``PrefixInUse`` and the gateway does not start. In client mode, with no router
+reachable, the gateway starts anyway and the bridge retries in the background (attempts start
+0.5 s, 1 s, 2 s, then every 5 s apart). After a router restart zenoh reconnects by itself and
+re-declares publishers, queryable and liveliness tokens.
+
+Imports: zenoh, commands, errors, image, config, ratelimit, threads, profiles.schema,
+zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a function passed in
+by the app) and nothing of bus/ (nodes are known through the command service).
 """
 
 from __future__ import annotations
@@ -34,12 +50,17 @@ from collections.abc import Callable
 from typing import Any
 
 import zenoh
+import zenoh.ext
 
+from gateway import __version__
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.errors import GatewayError
+from gateway.errors import Forbidden, GatewayError
 from gateway.image import NodeImage, ProcessImage
 from gateway.profiles.schema import Signal
+from gateway.ratelimit import RateLimitedLog
+from gateway.threads import ThreadRegistry
+from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.keys import (
     GATEWAY_TOKEN,
     Request,
@@ -93,8 +114,30 @@ TLS_KEYS = (
 )
 
 CLIENT_CONNECT_TIMEOUT_MS = 1000  # one attempt to reach a router in client mode
-REOPEN_BACKOFF_S = (0.5, 1.0, 2.0, 5.0)
+#: time between the starts of two attempts to open a client session (the last one repeats)
+REOPEN_SCHEDULE_S = (0.5, 1.0, 2.0, 5.0)
 HOUSEKEEPING_PERIOD_S = 0.1
+#: how long ``open`` waits for a connection to a configured router before asking it whether
+#: our prefix is taken (peer mode connects in the background)
+CONNECT_WAIT_S = 2.0
+#: how long the liveliness get of the duplicate check may take
+DUPLICATE_CHECK_TIMEOUT_S = 2.0
+REFUSAL_LOG_PERIOD_S = 10.0
+
+
+class PrefixInUse(RuntimeError):
+    """Another gateway is announced under our prefix: two gateways must not share one."""
+
+
+def write_operation(req: Request, payload: bytes | None) -> str | None:
+    """The write a request is (``zenoh.write_allow`` operations), or None for a read."""
+    if req.kind in ("set", "set_many"):
+        return "set"
+    if req.kind == "nmt":
+        return "nmt"
+    if req.kind == "sdo" and payload:
+        return "sdo_write"
+    return None
 
 
 def zenoh_config(cfg: Config) -> zenoh.Config:
@@ -115,6 +158,21 @@ def zenoh_config(cfg: Config) -> zenoh.Config:
                 value = str(cfg.base_dir / value)
             if value is not None:
                 conf.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
+    if z.auth is not None:
+        a = z.auth
+        if a.user is not None:
+            password = a.password
+            if a.password_file is not None:
+                password = (cfg.base_dir / a.password_file).read_text(encoding="utf-8").strip()
+            conf.insert_json5("transport/auth/usrpwd/user", json.dumps(a.user))
+            conf.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
+        if a.dictionary_file is not None:
+            conf.insert_json5(
+                "transport/auth/usrpwd/dictionary_file",
+                json.dumps(str(cfg.base_dir / a.dictionary_file)),
+            )
+    if z.access_control is not None:
+        conf.insert_json5("access_control", json.dumps(z.access_control))
     for key, value in z.json5.items():
         conf.insert_json5(key, json.dumps(value))
     return conf
@@ -128,7 +186,7 @@ def _close_opened(fut: asyncio.Future[Any]) -> None:
 class _SignalPub:
     """One published signal: its key, engineering scaling, report policy and publisher."""
 
-    __slots__ = ("sig", "key", "scaling", "policy", "lock", "pub")
+    __slots__ = ("sig", "key", "scaling", "policy", "lock", "pub", "last_seq")
 
     def __init__(self, sig: Signal, key: str, scaling: Scaling, policy: ReportPolicy):
         self.sig = sig
@@ -137,20 +195,21 @@ class _SignalPub:
         self.policy = policy
         self.lock = threading.Lock()
         self.pub: Any = None
+        self.last_seq = 0  # seq of the last sample published
 
 
 class _EventSender:
     """Puts events in order on its own thread (BLOCK may wait; the event loop must not)."""
 
-    def __init__(self) -> None:
+    def __init__(self, threads: ThreadRegistry) -> None:
+        self.threads = threads
         self.queue: queue.SimpleQueue[tuple[Any, bytes, Any] | None] = queue.SimpleQueue()
         self.thread: threading.Thread | None = None
         self.sent = 0
         self.failed = 0
 
     def start(self) -> None:
-        self.thread = threading.Thread(target=self._run, name="zenoh-events", daemon=True)
-        self.thread.start()
+        self.thread = self.threads.start("zenoh-events", self._run)
 
     def put(self, pub: Any, payload: bytes, timestamp: Any) -> None:
         self.queue.put((pub, payload, timestamp))
@@ -171,35 +230,44 @@ class _EventSender:
             try:
                 pub.put(payload, timestamp=ts)
                 self.sent += 1
-            except zenoh.ZError as exc:
+            except Exception as exc:  # noqa: BLE001 - one failed put must not stop the events
                 self.failed += 1
-                log.warning("zenoh event publication failed: %s", exc)
+                log.warning("zenoh event publication failed: %r", exc)
 
 
 class _ValueSender:
     """Publishes report-by-exception values on its own thread, latest value first.
 
-    The CAN reader only marks a signal as updated (a dict assignment); this thread publishes
-    the signal's *current* value, so when frames arrive faster than JSON can be published the
-    intermediate values are coalesced instead of queued. The reader thus keeps pace with the
-    bus (heartbeats are never processed late because of publishing) and subscribers always get
-    the newest value. Signals with ``publish: every`` are published by the reader itself.
+    The CAN reader only marks a signal as updated (a dict assignment under a lock); this thread
+    takes the marks and publishes each signal's *current* value, so when frames arrive faster
+    than JSON can be published the intermediate values are coalesced instead of queued. The
+    reader thus keeps pace with the bus and subscribers always get the newest value.
+
+    No update is lost: the marks are taken under the same lock the reader marks under, so a
+    mark lands either in the batch being published or in the next one; and the value published
+    is read after the mark was taken, so it is at least as new as the frame that marked it.
     """
 
-    def __init__(self, offer: Callable[[NodeImage, _SignalPub, float], None]) -> None:
+    def __init__(
+        self, offer: Callable[[NodeImage, _SignalPub, float], None], threads: ThreadRegistry
+    ) -> None:
         self.offer = offer
+        self.threads = threads
+        self.lock = threading.Lock()
         self.pending: dict[int, tuple[NodeImage, _SignalPub]] = {}
         self.wake = threading.Event()
         self.running = False
         self.thread: threading.Thread | None = None
+        self.errors = 0
+        self._errlog = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
 
     def start(self) -> None:
         self.running = True
-        self.thread = threading.Thread(target=self._run, name="zenoh-values", daemon=True)
-        self.thread.start()
+        self.thread = self.threads.start("zenoh-values", self._run)
 
     def mark(self, node: NodeImage, sp: _SignalPub) -> None:
-        self.pending[id(sp)] = (node, sp)
+        with self.lock:
+            self.pending[id(sp)] = (node, sp)
         self.wake.set()
 
     def stop(self, timeout_s: float = 2.0) -> None:
@@ -209,19 +277,29 @@ class _ValueSender:
             self.thread.join(timeout_s)
             self.thread = None
 
+    def take(self) -> list[tuple[NodeImage, _SignalPub]]:
+        """The marked signals, unmarked (the next marks go to the next batch)."""
+        with self.lock:
+            batch, self.pending = self.pending, {}
+        return list(batch.values())
+
+    def publish_pending(self) -> None:
+        batch = self.take()
+        if not batch:
+            return
+        now = time.monotonic()
+        for node, sp in batch:
+            try:
+                self.offer(node, sp, now)
+            except Exception as exc:  # noqa: BLE001 - a bad value must not stop publishing
+                self.errors += 1
+                self._errlog.warning(("publish", sp.key), "publishing %s failed: %r", sp.key, exc)
+
     def _run(self) -> None:
         while self.running:
             self.wake.wait(0.1)
             self.wake.clear()
-            if not self.pending:
-                continue
-            batch, self.pending = self.pending, {}
-            now = time.monotonic()
-            for node, sp in batch.values():
-                try:
-                    self.offer(node, sp, now)
-                except Exception:  # noqa: BLE001 - a bad value must not stop publishing
-                    log.exception("publishing %s failed", sp.key)
+            self.publish_pending()
 
 
 class ZenohBridge:
@@ -231,12 +309,15 @@ class ZenohBridge:
         image: ProcessImage,
         commands: CommandService,
         catalog_fn: Callable[[], dict[str, Any]] | None = None,
+        threads: ThreadRegistry | None = None,
     ):
         self.cfg = cfg
         self.image = image
         self.commands = commands
         self.catalog_fn = catalog_fn
+        self.threads = threads if threads is not None else ThreadRegistry()
         self.prefix = prefix_of(cfg)
+        self.gate = WriteGate(cfg.zenoh)
         self.session: zenoh.Session | None = None
         self.loop: asyncio.AbstractEventLoop | None = None
         self.pubs: dict[tuple[str, str], _SignalPub] = {}
@@ -248,9 +329,18 @@ class ZenohBridge:
         self.queryable: Any = None
         self.publications = 0
         self.up = False
-        self._events = _EventSender()
-        self._values = _ValueSender(self._offer)
+        #: refused writes by operation (``zenoh_refused_total{operation}``)
+        self.refused: dict[str, int] = {}
+        self._refusal_log = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
+        self._events = _EventSender(self.threads)
+        self._values = _ValueSender(self._offer, self.threads)
         self._last_state: dict[str, tuple[Any, ...]] = {}
+        self._event_seq: dict[str, int] = {}
+        self._opened: zenoh.Session | None = None  # open, checked, not declared yet
+        self._open_failed: zenoh.ZError | None = None
+        self._last_attempt_s = 0.0
+        self._clock: Callable[[], float] = time.monotonic
+        self._sleep: Callable[[float], Any] = asyncio.sleep
         self._tasks: list[asyncio.Task[Any]] = []
         self._answers: set[asyncio.Future[Any]] = set()
         self._plan()
@@ -287,24 +377,50 @@ class ZenohBridge:
         return Scaling.of(sig, self.commands.node(node).cfg.signals.get(sig.name))
 
     # ------------------------------------------------------------------ lifecycle
-    async def start(self) -> None:
+    async def open(self) -> None:
+        """Open the session and make sure no other gateway runs under our prefix; called by the
+        app before the bus starts. Raises ``PrefixInUse`` (the session is closed then) or, in
+        peer mode, zenoh.ZError when the session cannot be opened at all."""
         self.loop = asyncio.get_running_loop()
         conf = zenoh_config(self.cfg)  # a bad config raises here, before anything runs
+        self._last_attempt_s = self._clock()
+        try:
+            self._opened = await self._open_checked(conf)
+        except zenoh.ZError as exc:
+            if self.cfg.zenoh.mode != "client":
+                raise
+            self._open_failed = exc
+
+    async def start(self) -> None:
+        if self.loop is None:
+            await self.open()
         self.image.value_listeners.append(self._on_values)
         self.image.health_listeners.append(self._on_health)
         self._events.start()
         self._values.start()
-        try:
-            await self._open(conf)
-        except zenoh.ZError as exc:
-            if self.cfg.zenoh.mode != "client":
+        opened, self._opened = self._opened, None
+        if opened is not None:
+            try:
+                self._declare(opened)
+            except zenoh.ZError:
+                await asyncio.to_thread(opened.close)
                 await self.stop()
                 raise
-            log.warning("no Zenoh router reachable (%s); retrying in the background", exc)
+            log.info(
+                "Zenoh session %s open (%s), prefix %s",
+                opened.zid(),
+                self.cfg.zenoh.mode,
+                self.prefix,
+            )
+        else:
+            log.warning(
+                "no Zenoh router reachable (%s); retrying in the background", self._open_failed
+            )
             self._tasks.append(asyncio.create_task(self._reopen(), name="zenoh-open"))
         self._tasks.append(asyncio.create_task(self._housekeeping(), name="zenoh-housekeeping"))
 
-    async def _open(self, conf: zenoh.Config) -> None:
+    async def _open_checked(self, conf: zenoh.Config) -> zenoh.Session:
+        """A new session, once no other gateway is announced under our prefix."""
         opening = asyncio.get_running_loop().run_in_executor(None, zenoh.open, conf)
         try:
             session = await asyncio.shield(opening)
@@ -312,37 +428,97 @@ class ZenohBridge:
             opening.add_done_callback(_close_opened)
             raise
         try:
-            self._declare(session)
-        except zenoh.ZError:
+            if self.cfg.zenoh.refuse_duplicate_prefix:
+                other = await asyncio.to_thread(self._other_gateway, session)
+                if other:
+                    raise PrefixInUse(
+                        f"another gateway already runs under Zenoh prefix {self.prefix} "
+                        f"(token {other} is present): give this gateway its own gateway.name "
+                        "or zenoh.prefix, or stop the other one"
+                    )
+        except BaseException:
             await asyncio.to_thread(session.close)
             raise
-        log.info(
-            "Zenoh session %s open (%s), prefix %s", session.zid(), self.cfg.zenoh.mode, self.prefix
-        )
+        return session
+
+    def _other_gateway(self, session: zenoh.Session) -> str | None:
+        """Worker thread: the key of a gateway token under our prefix, if one is announced."""
+        z = self.cfg.zenoh
+        if z.connect:  # wait (bounded) for the configured router(s) to be connected
+            deadline = time.monotonic() + CONNECT_WAIT_S
+            while time.monotonic() < deadline:
+                info = session.info
+                if list(info.routers_zid()) or list(info.peers_zid()):
+                    break
+                time.sleep(0.02)
+        key = alive_key(self.prefix, GATEWAY_TOKEN)
+        for r in session.liveliness().get(key, timeout=DUPLICATE_CHECK_TIMEOUT_S):
+            if r.ok is not None:
+                return str(r.ok.key_expr)
+        return None
 
     async def _reopen(self) -> None:
+        """Client mode: open the session in the background; attempts *start* on the schedule
+        (an attempt itself takes up to the connect timeout)."""
         attempt = 0
         while self.session is None:
-            await asyncio.sleep(REOPEN_BACKOFF_S[min(attempt, len(REOPEN_BACKOFF_S) - 1)])
+            period = REOPEN_SCHEDULE_S[min(attempt, len(REOPEN_SCHEDULE_S) - 1)]
+            await self._sleep(max(0.0, self._last_attempt_s + period - self._clock()))
             attempt += 1
+            self._last_attempt_s = self._clock()
             try:
-                await self._open(zenoh_config(self.cfg))
+                session = await self._try_open()
             except zenoh.ZError as exc:
                 if attempt in (1, 10) or attempt % 60 == 0:
                     log.warning(
                         "Zenoh router still unreachable after %d attempts: %s", attempt, exc
                     )
+                continue
+            except PrefixInUse as exc:
+                if attempt in (1, 10) or attempt % 60 == 0:
+                    log.error("%s; retrying", exc)
+                continue
+            try:
+                self._declare(session)
+            except zenoh.ZError as exc:
+                log.warning("Zenoh declarations failed: %s", exc)
+                await asyncio.to_thread(session.close)
+                continue
+            log.info("Zenoh session %s open (client), prefix %s", session.zid(), self.prefix)
+
+    async def _try_open(self) -> zenoh.Session:
+        return await self._open_checked(zenoh_config(self.cfg))
+
+    def _publisher(self, s: zenoh.Session, key: str, cache: int, **qos: Any) -> Any:
+        """An advanced publisher (cache, miss detection, publisher detection), or a plain one
+        when the cache size is 0."""
+        if cache <= 0:
+            return s.declare_publisher(key, encoding=JSON, **qos)
+        hb_ms = self.cfg.zenoh.history.heartbeat_ms
+        return zenoh.ext.declare_advanced_publisher(
+            s,
+            key,
+            encoding=JSON,
+            cache=zenoh.ext.CacheConfig(cache),
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=hb_ms / 1000.0)
+            if hb_ms
+            else None,
+            publisher_detection=True,
+            **qos,
+        )
 
     def _declare(self, s: zenoh.Session) -> None:
+        hist = self.cfg.zenoh.history
         for sp in self.pubs.values():
-            sp.pub = s.declare_publisher(
-                sp.key, encoding=JSON, congestion_control=zenoh.CongestionControl.DROP
+            sp.pub = self._publisher(
+                s, sp.key, hist.values, congestion_control=zenoh.CongestionControl.DROP
             )
         for name in self.image.nodes:
             for pubs, key in ((self.state_pubs, state_key), (self.emcy_pubs, emcy_key)):
-                pubs[name] = s.declare_publisher(
+                pubs[name] = self._publisher(
+                    s,
                     key(self.prefix, name),
-                    encoding=JSON,
+                    hist.events,
                     congestion_control=zenoh.CongestionControl.BLOCK,
                     priority=zenoh.Priority.INTERACTIVE_HIGH,
                     reliability=zenoh.Reliability.RELIABLE,
@@ -401,9 +577,11 @@ class ZenohBridge:
         await asyncio.to_thread(self._values.stop)
         await asyncio.to_thread(self._events.stop)  # queued events go out before the close
         s, self.session = self.session, None
+        opened, self._opened = self._opened, None
         self.tokens.clear()
-        if s is not None:
-            await asyncio.to_thread(s.close)
+        for sess in (s, opened):
+            if sess is not None:
+                await asyncio.to_thread(sess.close)
 
     # ------------------------------------------------------------------ values
     def _offer(self, node: NodeImage, sp: _SignalPub, now: float) -> None:
@@ -423,6 +601,7 @@ class ZenohBridge:
             except zenoh.ZError:
                 return
             sp.policy.published(value, quality, now)
+            sp.last_seq = sv.seq
         self.publications += 1
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
@@ -478,19 +657,25 @@ class ZenohBridge:
             rec = node.health.last_emcy
             if rec is not None:
                 payload = emcy_payload(node, rec, node.health.emcy_count)
-                self._events.put(
-                    self.emcy_pubs[node.name], json.dumps(payload).encode(), s.new_timestamp()
+                self._put_event(
+                    s, self.emcy_pubs[node.name], emcy_key(self.prefix, node.name), payload
                 )
         else:
             d = state_payload(node)
             fp = state_fingerprint(d)
             if self._last_state.get(node.name) != fp:
                 self._last_state[node.name] = fp
-                self._events.put(
-                    self.state_pubs[node.name], json.dumps(d).encode(), s.new_timestamp()
-                )
+                self._put_event(s, self.state_pubs[node.name], state_key(self.prefix, node.name), d)
         self._sync_token(node)
         self._refresh(node, time.monotonic())
+
+    def _put_event(self, s: zenoh.Session, pub: Any, key: str, payload: dict[str, Any]) -> None:
+        """Queue an event with the next ``seq`` of its key (1, 2, 3... since the gateway
+        started: a subscriber that sees a gap missed an event)."""
+        seq = self._event_seq.get(key, 0) + 1
+        self._event_seq[key] = seq
+        payload["seq"] = seq
+        self._events.put(pub, json.dumps(payload).encode(), s.new_timestamp())
 
     def _sync_token(self, node: NodeImage) -> None:
         """A token while the node's values are usable: operational, guarding-bit link OK."""
@@ -577,6 +762,9 @@ class ZenohBridge:
     async def dispatch(self, key: str, payload: bytes | None, type_param: str | None = None) -> Any:
         """Answer one concrete query key (also usable without zenoh, e.g. from tests)."""
         req = parse_key(self.prefix, key)
+        op = write_operation(req, payload)
+        if op is not None:
+            self._authorize(op, req.node, key)
         if req.kind == "catalog":
             return self.catalog()
         rt = self.commands.node(req.node)
@@ -616,6 +804,23 @@ class ZenohBridge:
             await self.commands.write_signals(req.node, raws)
             return {"ok": True, "node": req.node, "written": raws}
         raise ValueError(f"unsupported request {req.kind}")  # pragma: no cover
+
+    def _authorize(self, operation: str, node: str, key: str) -> None:
+        """Raise ``Forbidden`` (counted, logged at most once per period per operation) unless
+        the configuration allows this write."""
+        why = self.gate.refusal(operation, node, key)
+        if why is None:
+            return
+        self.refused[operation] = self.refused.get(operation, 0) + 1
+        self._refusal_log.warning(
+            ("zenoh_refused", operation),
+            "Zenoh %s refused on %s: %s (refused so far: %d)",
+            operation,
+            key,
+            why,
+            self.refused[operation],
+        )
+        raise Forbidden(why)
 
     async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None) -> Any:
         assert req.obj is not None
@@ -683,7 +888,14 @@ class ZenohBridge:
         the scaling in force (overrides applied)."""
         cat = dict(self.catalog_fn()) if self.catalog_fn else {"nodes": {}}
         p = self.prefix
+        cat.setdefault("gateway", self.cfg.gateway.name)
+        cat.setdefault("version", __version__)
         cat["prefix"] = p
+        can_kw = self.cfg.can.bus_kwargs()
+        cat["can"] = {
+            k: can_kw[k] for k in ("interface", "channel", "bitrate") if can_kw.get(k) is not None
+        }
+        cat["writes"] = self.cfg.zenoh.writes
         for name, n in cat.get("nodes", {}).items():
             try:
                 rt = self.commands.node(name)

@@ -6,7 +6,7 @@ scale and offset); writes take engineering values too and are turned back into r
 or ``{"raw": v}`` passes a raw device value through. Everything a client may send that does not
 parse raises ``ValueError`` with a message saying what was expected.
 
-Imports: image, errors, profiles.schema, config (types only). Never zenoh, bus/, modbus/.
+Imports: image, errors, states, profiles.schema, config (types only). Never zenoh, bus/, modbus/.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from gateway.config import SignalOverride
 from gateway.errors import GatewayError, SdoAbort
 from gateway.image import EmcyRecord, NodeImage, Quality, SignalValue
 from gateway.profiles.schema import Signal
+from gateway.states import NMT_COMMANDS
 
 QUALITY_TEXT = {Quality.GOOD: "good", Quality.STALE: "stale", Quality.BAD: "bad"}
 
@@ -223,6 +224,8 @@ def nmt_command(payload: bytes | None) -> str:
         body = body.get("command")
     if not isinstance(body, str) or not body:
         raise ValueError(f"expected {NMT_EXPECTED}")
+    if body not in NMT_COMMANDS:
+        raise ValueError(f"unknown NMT command {body!r}: expected {NMT_EXPECTED}")
     return body
 
 

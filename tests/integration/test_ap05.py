@@ -261,7 +261,7 @@ async def test_alphanumeric_text_round_trip_and_invalid_text_refused() -> None:
 
 async def test_text_through_zenoh_and_invalid_text_gets_reply_err() -> None:
     node = {**AP05_SIM, "sdo": [{"object": "0x5F1B:02", "value": 3}]}
-    cfg = make_config([node])
+    cfg = make_config([node], zenoh={"writes": True})
     gw = Gateway(cfg)
     await gw.start()
     conf = zenoh.Config()

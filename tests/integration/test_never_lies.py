@@ -73,6 +73,7 @@ async def gateway(
         [{"name": "wire", "node_id": 1, "profile": "sgh10", **(node or {})}],
         simulate={"nodes": []},
         master={"probe_at_start": False, "sync_period_ms": 0},
+        zenoh={"writes": True},
     )
     dev = RawSgh10(cfg.can.channel)
     gw = Gateway(cfg)

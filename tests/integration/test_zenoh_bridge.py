@@ -29,7 +29,9 @@ P = "canopen/test"
 async def running(
     nodes: list[dict[str, Any]], motion: dict[str, Any] | None = None, **sections: Any
 ) -> AsyncIterator[tuple[Gateway, ZClient]]:
-    """A started gateway (every node simulated) and a Zenoh peer connected to it."""
+    """A started gateway (every node simulated) and a Zenoh peer connected to it; Zenoh writes
+    are on unless ``zenoh={"writes": False}`` is given."""
+    sections["zenoh"] = {"writes": True, **sections.get("zenoh", {})}
     cfg = make_config(nodes, simulate={"nodes": "all", "motion": motion or RAMP}, **sections)
     gw = Gateway(cfg)
     await gw.start()
@@ -273,7 +275,7 @@ async def test_malformed_payloads_and_unknown_keys_get_reply_err_saying_what_was
         ),
         (f"{P}/display/set", '"x"', "bad_request", '{"signal": value'),
         (f"{P}/wire/nmt", None, "bad_request", "start, stop, preop"),
-        (f"{P}/wire/nmt", "jump", "value_out_of_range", "one of start"),
+        (f"{P}/wire/nmt", "jump", "bad_request", "unknown NMT command 'jump'"),
         (f"{P}/alive/wire", None, "bad_request", "liveliness"),
         (f"{P}/wire/emcy", None, "bad_request", "subscribe"),
     ]

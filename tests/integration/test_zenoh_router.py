@@ -22,7 +22,7 @@ def through_router(router_endpoint: str, mode: str = "peer") -> Any:
     return make_config(
         [WIRE],
         simulate={"nodes": "all", "motion": RAMP},
-        zenoh={"mode": mode, "listen": [], "connect": [router_endpoint]},
+        zenoh={"mode": mode, "listen": [], "connect": [router_endpoint], "writes": True},
     )
 
 

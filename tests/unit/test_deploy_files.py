@@ -29,7 +29,14 @@ def load_yaml_all(path: Path) -> list[dict]:
 
 # --- configuration files ------------------------------------------------------------------------
 @pytest.mark.parametrize(
-    "path", ["config/demo.yaml", "deploy/config/demo-remote.yaml", "deploy/config/gateway.yaml"]
+    "path",
+    [
+        "config/demo.yaml",
+        "deploy/config/demo-remote.yaml",
+        "deploy/config/gateway.yaml",
+        "deploy/config/fleet-line1.yaml",
+        "deploy/config/fleet-line2.yaml",
+    ],
 )
 def test_shipped_configs_pass_the_gateway_config_checks(path):
     cfg = load_config(ROOT / path, environ={})
@@ -199,6 +206,31 @@ def test_router_config_is_accepted_by_zenoh():
     conf = zenoh.Config.from_file(str(DEPLOY / "zenoh/router.json5"))
     assert conf.get_json("mode") == '"router"'
     assert "7447" in conf.get_json("listen/endpoints")
+
+
+def test_secure_router_config_is_accepted_by_zenoh():
+    zenoh = pytest.importorskip("zenoh")
+    conf = zenoh.Config.from_file(str(DEPLOY / "zenoh/router-secure.json5"))
+    assert '"dictionary_file"' in conf.get_json("transport/auth/usrpwd")
+    assert conf.get_json("access_control/enabled") == "true"
+
+
+# --- fleet --------------------------------------------------------------------------------------
+def test_fleet_compose_runs_a_router_and_two_gateways_under_their_own_prefixes():
+    compose = load_yaml(DEPLOY / "docker-compose.fleet.yml")
+    services = compose["services"]
+    assert "demo" not in services["zenoh-router"].get("profiles", [])
+    gateways = {n: s for n, s in services.items() if n.startswith("gateway-")}
+    assert len(gateways) == 2
+    prefixes = set()
+    for svc in gateways.values():
+        assert svc["profiles"] == ["demo"]
+        (mount,) = [v for v in svc["volumes"] if v.endswith(f":{CONFIG_PATH}:ro")]
+        cfg = load_config(DEPLOY / mount.split(":")[0], environ={})
+        assert cfg.zenoh.mode == "client" and cfg.zenoh.connect == ["tcp/zenoh-router:7447"]
+        assert cfg.simulated_nodes() == cfg.nodes  # demo: every device simulated
+        prefixes.add(cfg.zenoh.key_prefix(cfg.gateway.name))
+    assert prefixes == {"canopen/line1", "canopen/line2"}
 
 
 # --- Dockerfile ---------------------------------------------------------------------------------

@@ -1,0 +1,52 @@
+"""Who may write south through Zenoh (pure: no zenoh import): ``zenoh.writes`` and the allow
+rules of ``zenoh.write_allow``.
+
+Three operations change something on the bus: ``set`` (``<node>/set/<signal>`` and
+``<node>/set``), ``sdo_write`` (an SDO download: ``<node>/sdo/<index>/<sub>`` with a payload)
+and ``nmt``. Reads (values, state, snapshot, catalogue, SDO upload) are not decided here.
+
+=================  ===========================================================================
+writes             a write is
+=================  ===========================================================================
+off (default)      refused, whatever the rules
+on, no rules       allowed
+on, rules          allowed when one rule matches: its ``operations``, ``nodes`` and ``keys``
+                   (key expressions the query key must be included in) all match; an empty
+                   list matches everything
+=================  ===========================================================================
+
+Who the client is (user name, certificate) is not visible to the gateway in a query: that is
+decided by Zenoh itself (``auth`` and ``access_control`` on the gateway or the router).
+
+Imports: config (types), keyexpr. Never zenoh, bus/, modbus/.
+"""
+
+from __future__ import annotations
+
+from gateway import keyexpr
+from gateway.config import ZenohSection, ZenohWriteRule
+
+
+class WriteGate:
+    def __init__(self, section: ZenohSection):
+        self.writes = section.writes
+        self.rules: list[ZenohWriteRule] = list(section.write_allow)
+
+    def refusal(self, operation: str, node: str, key: str) -> str | None:
+        """None when the write is allowed, else the words the client gets."""
+        if not self.writes:
+            return (
+                f"Zenoh writes are off on this gateway: {operation} refused "
+                "(zenoh.writes: on in the gateway's configuration allows them)"
+            )
+        if not self.rules:
+            return None
+        for r in self.rules:
+            if r.operations and operation not in r.operations:
+                continue
+            if r.nodes and node not in r.nodes:
+                continue
+            if r.keys and not any(keyexpr.includes(k, key) for k in r.keys):
+                continue
+            return None
+        return f"{operation} on node {node} ({key}) is not allowed by zenoh.write_allow"

@@ -1,0 +1,157 @@
+"""No event lost across an outage: events and values go out through zenoh-ext advanced
+publishers, so an AdvancedSubscriber (history + recovery) gets what it missed while the router
+was down, in order, and a late joiner gets the cached events and the last value of every
+signal. Every payload keeps its own ``seq`` for plain subscribers. (The timed 10 s / 100 events
+measurement is bench/zenoh_outage.py; here every wait is on an event, bounded.)"""
+
+from __future__ import annotations
+
+import json
+import queue
+from typing import Any
+
+import zenoh
+import zenoh.ext
+
+from gateway.app import Gateway
+from tests.helpers import free_port, make_config, wait_until
+from tests.zenoh_client import open_router, session_config
+
+P = "canopen/test"
+WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
+
+
+class AdvancedClient:
+    """A client session with one AdvancedSubscriber (the recipe of docs/zenoh.md)."""
+
+    def __init__(self, endpoint: str, key: str) -> None:
+        self.session = zenoh.open(session_config("client", connect=[endpoint]))
+        self.samples: queue.Queue[tuple[str, Any]] = queue.Queue()
+        self.sub = zenoh.ext.declare_advanced_subscriber(
+            self.session,
+            key,
+            lambda s: self.samples.put((str(s.key_expr), json.loads(s.payload.to_bytes()))),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+            recovery=zenoh.ext.RecoveryConfig(heartbeat=True),
+            subscriber_detection=True,
+        )
+
+    async def take(self, n: int, timeout_s: float = 15.0) -> list[tuple[str, Any]]:
+        got: list[tuple[str, Any]] = []
+
+        def more() -> bool:
+            while True:
+                try:
+                    got.append(self.samples.get_nowait())
+                except queue.Empty:
+                    return len(got) >= n
+
+        await wait_until(more, timeout_s, f"{n} samples")
+        return got
+
+    def close(self) -> None:
+        self.sub.undeclare()
+        self.session.close()
+
+
+def raise_and_clear(gw: Gateway, rounds: int) -> None:
+    assert gw.sim is not None
+    sim = gw.sim.nodes["wire"]
+
+    def burst(now: float) -> None:
+        for _ in range(rounds):
+            sim.raise_emcy(0xFF05, 0x80, now=now)  # SGH10 manual 4.5.1: manufacturer error
+            sim.clear_emcy(0xFF05, now=now)
+
+    gw.sim.runner.call(burst)
+
+
+async def test_emcy_events_raised_while_the_router_is_down_arrive_in_order_afterwards() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_router(endpoint)
+    cfg = make_config(
+        [WIRE],
+        simulate={"nodes": "all", "motion": {"wire": {"kind": "hold"}}},
+        zenoh={"listen": [], "connect": [endpoint]},
+    )
+    gw = Gateway(cfg)
+    await gw.start()
+    sub = AdvancedClient(endpoint, f"{P}/wire/emcy")
+    late: AdvancedClient | None = None
+    try:
+        assert gw.zenoh is not None
+        await wait_until(lambda: gw.image.nodes["wire"].usable(), 8, "wire usable")
+        raise_and_clear(gw, 2)
+        before = [b for _, b in await sub.take(4)]
+        assert [b["seq"] for b in before] == [1, 2, 3, 4]
+
+        router.close()
+        sent0 = gw.zenoh.events_sent
+        raise_and_clear(gw, 10)  # 20 events while nobody can receive them
+        await wait_until(lambda: gw.zenoh.events_sent >= sent0 + 20, 5, "20 events put")
+        router = open_router(endpoint)
+
+        after = [b for _, b in await sub.take(20)]
+        assert [b["seq"] for b in after] == list(range(5, 25))
+        assert [b["code"] for b in after] == ["0xFF05", "0x0000"] * 10
+
+        # a subscriber that joins now gets the cached events (up to zenoh.history.events)
+        late = AdvancedClient(endpoint, f"{P}/wire/emcy")
+        history = [b for _, b in await late.take(24)]
+        assert [b["seq"] for b in history] == list(range(1, 25))
+    finally:
+        sub.close()
+        if late is not None:
+            late.close()
+        await gw.stop()
+        router.close()
+
+
+async def test_a_late_subscriber_gets_the_last_value_of_every_signal_and_the_state() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_router(endpoint)
+    cfg = make_config(
+        [WIRE],
+        simulate={"nodes": "all", "motion": {"wire": {"kind": "hold"}}},
+        zenoh={"listen": [], "connect": [endpoint]},
+    )
+    gw = Gateway(cfg)
+    await gw.start()
+    late: AdvancedClient | None = None
+    try:
+        assert gw.zenoh is not None
+        await wait_until(lambda: gw.image.nodes["wire"].usable(), 8, "wire usable")
+        await wait_until(
+            lambda: all(sp.policy.last_quality is not None for sp in gw.zenoh.pubs.values()),
+            5,
+            "every value published once",
+        )
+        pubs = list(gw.zenoh.pubs.values())
+        # a held value is published once; a subscriber that comes later still gets it
+        late = AdvancedClient(endpoint, f"{P}/wire/**")
+        want = {sp.key for sp in pubs} | {f"{P}/wire/state"}
+
+        def seen(got: list[tuple[str, Any]]) -> set[str]:
+            return {k for k, _ in got}
+
+        got: list[tuple[str, Any]] = []
+
+        def complete() -> bool:
+            while True:
+                try:
+                    got.append(late.samples.get_nowait())
+                except queue.Empty:
+                    return want <= seen(got)
+
+        await wait_until(complete, 10, f"history of {sorted(want)}")
+        states = [b for k, b in got if k.endswith("/state")]
+        assert states and all(isinstance(b["seq"], int) for b in states)
+        assert states[-1]["nmt_state"] == "operational"
+        for k, b in got:
+            if "/value/" in k:
+                assert b["quality"] == "good" and isinstance(b["seq"], int)
+    finally:
+        if late is not None:
+            late.close()
+        await gw.stop()
+        router.close()
