@@ -22,7 +22,7 @@ from gateway.bus.emcy import register_bits
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, Quality
-from gateway.modbus.regmap import TABLE_NAMES, RegisterMap, build_register_map
+from gateway.modbus.regmap import RegisterMap, build_register_map
 from gateway.profiles.schema import Signal
 from gateway.states import LinkState, NmtState
 from gateway.zenoh_bridge.keys import is_published, is_writable, prefix_of, set_key, value_key
@@ -47,6 +47,9 @@ LINK_WORDS = {
     LinkState.UNKNOWN: "unknown",
 }
 
+#: Modbus tables as the node page abbreviates them (its caption spells them out)
+TABLE_SHORT = {"ir": "IR", "hr": "HR", "di": "DI", "co": "coil"}
+
 OverviewFn = Callable[[], dict[str, Any]]
 
 
@@ -57,7 +60,7 @@ class SignalMeta:
     sig: Signal
     scaling: Scaling
     source: str  # "TPDO" | "RPDO" | "SDO"
-    modbus: str  # "unit 1, input registers 100-101" or ""
+    modbus: str  # "IR 100-101 @ unit 1" or ""
     zenoh: tuple[str, ...]  # keys: value (publication or SDO read), set
 
     def doc(self) -> dict[str, Any]:
@@ -122,9 +125,7 @@ class ConsoleModel:
         for p in self.regmap.node_points(name):
             if p.kind == "signal":
                 span = str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}"
-                where.setdefault(p.name, []).append(
-                    f"unit {p.unit}, {TABLE_NAMES[p.table]} {span}"
-                )
+                where.setdefault(p.name, []).append(f"{TABLE_SHORT[p.table]} {span} @ unit {p.unit}")
         out = {}
         for s in info.lp.profile.signals:
             ov = info.cfg.signals.get(s.name) if info.cfg is not None else None

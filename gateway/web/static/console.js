@@ -252,7 +252,7 @@ function renderSignals(signals) {
       el("td", { "data-col": "age", class: "num" }, ""),
       el("td", { "data-col": "source" }, s.source + (s.writable ? " (writable)" : "")),
       el("td", { "data-col": "object", class: "code" }, s.object),
-      el("td", { "data-col": "modbus" }, s.modbus || el("span", { class: "muted" }, "not mapped")),
+      el("td", { "data-col": "modbus", class: "nowrap" }, s.modbus || el("span", { class: "muted" }, "not mapped")),
       el("td", { "data-col": "zenoh", class: "code" }, s.zenoh.join("\n")));
     tbody.append(tr);
   }
