@@ -177,7 +177,11 @@ class HealthServer:
         self._server = await asyncio.start_server(
             self._on_connection, self.host, self.requested_port, limit=MAX_REQUEST_HEAD_BYTES
         )
-        log.info("health endpoint on %s (/healthz, /livez, /metrics)", self.url)
+        log.info(
+            "health endpoint on %s (/healthz, /livez, /metrics%s)",
+            self.url,
+            ", web console /" if self._app is not None else "",
+        )
 
     async def stop(self) -> None:
         """Stops listening and closes open connections; returns when they are gone."""
@@ -201,6 +205,11 @@ class HealthServer:
             await self._serve_one(reader, writer)
         except (ConnectionError, asyncio.IncompleteReadError):
             pass  # the client went away; nothing to answer
+        except asyncio.CancelledError:
+            # ``stop()`` ends open connections (e.g. event streams): end quietly, asyncio's
+            # server would log a cancelled connection task as an error
+            if self._server is not None:
+                raise
         finally:
             self._connections.discard(task)
             writer.close()

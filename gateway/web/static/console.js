@@ -316,7 +316,7 @@ function showResult(id, res) {
     else box.textContent = "done: " + JSON.stringify(d);
   } else {
     let t = `refused (HTTP ${res.status}): ${res.doc.message || ""}`;
-    if (res.doc.abort_code) t += `\nSDO abort ${res.doc.abort_code}: ${res.doc.abort_text}`;
+    if (res.doc.abort_code && !t.includes(res.doc.abort_code)) t += `\nSDO abort ${res.doc.abort_code}: ${res.doc.abort_text}`;
     box.textContent = t;
     if (res.status === 401 || res.status === 403) showLocked("The token was refused; unlock again.");
   }
