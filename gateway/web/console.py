@@ -127,6 +127,8 @@ class WebConsole:
                 return self._not_found(f"no node named {name!r}")
             return _json(HTTPStatus.OK, self.model.node_detail(name))
         if path == "/api/stream":
+            if request.method == "HEAD":
+                return Response(HTTPStatus.OK, b"", "text/event-stream")
             return self._stream(request)
         return None
 

@@ -139,18 +139,24 @@ class ConsoleModel:
                 source = "TPDO (not in this PDO layout)"
             keys = []
             publish_off = ov is not None and ov.publish == "off"
-            if (is_published(s) and not publish_off) or (s.transport == "sdo" and s.access != "wo"):
-                keys.append(value_key(self.prefix, name, s.name))
-            if is_writable(s):
-                keys.append(set_key(self.prefix, name, s.name))
-            out[s.name] = SignalMeta(
-                s, Scaling.of(s, ov), source, "; ".join(where.get(s.name, [])), tuple(keys)
-            )
+            if not self.cfg.zenoh.enabled:
+                keys.append("Zenoh off")
+            else:
+                if (is_published(s) and not publish_off) or (
+                    s.transport == "sdo" and s.access != "wo"
+                ):
+                    keys.append(value_key(self.prefix, name, s.name))
+                if is_writable(s):
+                    keys.append(set_key(self.prefix, name, s.name))
+            modbus = "; ".join(where.get(s.name, [])) if self.cfg.modbus.enabled else "Modbus off"
+            out[s.name] = SignalMeta(s, Scaling.of(s, ov), source, modbus, tuple(keys))
         return out
 
     def register_rows(self, name: str) -> list[dict[str, str]]:
         """The node's rows of the register map (bits of one word grouped), as in
         ``canopen-gateway registers``."""
+        if not self.cfg.modbus.enabled:
+            return []
         header = self.regmap.HEADER
         return [
             dict(zip(header, row, strict=True))

@@ -41,8 +41,6 @@ async def gateway(writes: bool = False) -> AsyncIterator[tuple[Gateway, str]]:
             {"name": "wire", "node_id": 1, "profile": "sgh10"},
             {"name": "display", "node_id": 125, "profile": "ap05"},
         ],
-        modbus={"enabled": False},
-        zenoh={"enabled": False},
         health={"port": free_port()},
         web={"writes": True, "token": TOKEN} if writes else {},
     )

@@ -23,15 +23,14 @@ TIMEOUT_S = 5.0
 
 
 @asynccontextmanager
-async def console(writes: bool, **sections: Any) -> AsyncIterator[tuple[Gateway, str]]:
+async def console(writes: bool, northbound: bool = False) -> AsyncIterator[tuple[Gateway, str]]:
     web = {"writes": True, "token": TOKEN} if writes else {}
+    off = {} if northbound else {"modbus": {"enabled": False}, "zenoh": {"enabled": False}}
     cfg = make_config(
         [{"name": "wire", "node_id": 1, "profile": "sgh10"}],
-        modbus={"enabled": False},
-        zenoh={"enabled": False},
         health={"port": free_port()},
         web=web,
-        **sections,
+        **off,
     )
     gw = Gateway(cfg)
     await gw.start()
@@ -72,7 +71,7 @@ async def post(base: str, op: str, body: Any, token: str | None = TOKEN) -> tupl
 
 
 async def test_pages_static_files_and_api_are_served_on_the_health_port() -> None:
-    async with console(writes=False) as (gw, base):
+    async with console(writes=False, northbound=True) as (gw, base):
         code, headers, body = await http(base + "/")
         assert code == 200 and headers["Content-Type"].startswith("text/html")
         assert b"/static/console.js" in body
@@ -96,6 +95,17 @@ async def test_pages_static_files_and_api_are_served_on_the_health_port() -> Non
         assert position["unit"] == "mm"
         assert detail["values"]["position"]["quality"] == "good"
         assert any(r["signal"] == "position" for r in detail["registers"])
+        assert doc["overview"]["modbus"]["serving"] is True
+        assert doc["overview"]["zenoh"]["up"] is True
+
+
+async def test_without_modbus_and_zenoh_the_node_page_says_they_are_off() -> None:
+    async with console(writes=False) as (_, base):
+        detail = json.loads((await http(base + "/api/node/wire"))[2])
+        position = next(s for s in detail["signals"] if s["name"] == "position")
+        assert position["modbus"] == "Modbus off" and position["zenoh"] == ["Zenoh off"]
+        assert detail["registers"] == []
+        assert (await http(base + "/api/stream", method="HEAD"))[0] == 200
 
 
 async def test_unknown_nodes_and_paths_answer_404() -> None:
