@@ -3,14 +3,15 @@
     python -m tests.browser.screenshot config/demo.yaml docs/images
 
 runs the gateway of the config in this process (its simulated nodes included; the Modbus,
-Zenoh and health ports moved to free ones so a running demo is not disturbed, commissioning
-switched on with a throw-away token), waits until every node is operational and the page
+Zenoh and health ports of the config, or free ones when a running demo holds them;
+commissioning switched on with a throw-away token), waits until every node is operational and the page
 shows it live, and writes ``web-overview.png``, ``web-node.png`` and ``web-commissioning.png``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import socket
 import sys
 from pathlib import Path
 from typing import Any
@@ -58,11 +59,23 @@ def _shoot(base: str, out: Path, node: str) -> None:
         d.save_screenshot(str(out / "web-commissioning.png"))
 
 
+def _port_or_free(port: int) -> int:
+    """``port`` when nothing listens on it (the picture then shows the config's ports)."""
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return free_port()
+    return port
+
+
 async def main(config: str, out_dir: str, node: str = "display") -> None:
+    cfg = load_config(config, environ={})
+    zenoh_port = _port_or_free(int(cfg.zenoh.listen[0].rsplit(":", 1)[1]))
     environ = {
-        "CANOPEN_GATEWAY__MODBUS__PORT": str(free_port()),
-        "CANOPEN_GATEWAY__ZENOH__LISTEN": f"['tcp/127.0.0.1:{free_port()}']",
-        "CANOPEN_GATEWAY__HEALTH__PORT": str(free_port()),
+        "CANOPEN_GATEWAY__MODBUS__PORT": str(_port_or_free(cfg.modbus.port)),
+        "CANOPEN_GATEWAY__ZENOH__LISTEN": f"['tcp/127.0.0.1:{zenoh_port}']",
+        "CANOPEN_GATEWAY__HEALTH__PORT": str(_port_or_free(cfg.health.port)),
         "CANOPEN_GATEWAY__WEB__WRITES": "true",
         "CANOPEN_GATEWAY__WEB__TOKEN": TOKEN,
     }
