@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP_RUN  := $(VENV)/.installed-run
 STAMP_TEST := $(VENV)/.installed-test
 
-.PHONY: demo test tools lint bench container-test deploy-lint clean
+.PHONY: demo test tools lint bench container-test deploy-lint clean screenshots
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -22,11 +22,20 @@ $(STAMP_TEST): pyproject.toml | $(BIN)/python
 demo: $(STAMP_RUN)
 	$(BIN)/canopen-gateway run -c config/demo.yaml
 
-# Real Modbus client for the tests (Debian's mbpoll); best effort, the tests say when it is missing.
+# The screenshots of docs/web.md (headless Chromium against the demo config).
+screenshots: $(STAMP_TEST) tools
+	$(BIN)/python -m tests.browser.screenshot config/demo.yaml docs/images
+
+# Real clients for the tests: Debian's mbpoll (Modbus) and chromium + chromium-driver (the web
+# console in a browser, driven by selenium); best effort, the tests say when one is missing.
 tools:
 	@command -v mbpoll >/dev/null 2>&1 || { command -v apt-get >/dev/null 2>&1 && \
 	  (apt-get update -qq && apt-get install -y -qq mbpoll) >/dev/null 2>&1; } || \
 	  echo "note: mbpoll not installed; its tests will be skipped"
+	@{ command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; } || \
+	  { command -v apt-get >/dev/null 2>&1 && \
+	  (apt-get update -qq && apt-get install -y -qq chromium chromium-driver) >/dev/null 2>&1; } || \
+	  echo "note: chromium / chromium-driver not installed; the browser tests will be skipped"
 
 test: $(STAMP_TEST) tools
 	$(BIN)/ruff check gateway tests deploy $(wildcard bench)

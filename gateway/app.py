@@ -90,6 +90,7 @@ class Gateway:
         )
         self.sim = SimulatedBus(cfg) if simulate and cfg.simulated_nodes() else None
         self.health: Any = None
+        self.web: Any = None
         self.started = False
 
     def catalog(self) -> dict[str, Any]:
@@ -136,7 +137,8 @@ class Gateway:
         if self.zenoh:
             parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
         if self.health is not None and getattr(self.health, "port", 0):
-            parts.append(f"health http://{self.cfg.health.host}:{self.health.port}")
+            url = f"http://{self.cfg.health.host}:{self.health.port}"
+            parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
         nodes = ", ".join(
             f"{n.name}={n.device}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
             for n in self.cfg.nodes
@@ -176,6 +178,53 @@ class Gateway:
             "nodes": nodes,
         }
 
+    def overview(self) -> dict[str, Any]:
+        """Gateway-wide figures for the web console's overview (counters become rates there)."""
+        can_kw = self.cfg.can.bus_kwargs()
+        doc: dict[str, Any] = {
+            "can": {
+                "interface": can_kw.get("interface"),
+                "channel": str(can_kw.get("channel")),
+                "bitrate": self.cfg.can.bitrate,
+                "state": self.driver.state,
+                "detail": self.driver.last_error,
+                "reopens": self.driver.reopens,
+            },
+            "threads_failed": self.threads.failures(),
+            "counters": {},
+        }
+        if self.modbus is not None:
+            store = self.modbus.store
+            doc["modbus"] = {
+                "listen": f"{self.cfg.modbus.host}:{self.modbus.port}",
+                "serving": self.modbus.server is not None,
+                "clients": len(self.modbus.connections),
+                "requests": store.requests,
+                "exceptions": sum(store.exceptions.values()),
+                "read_only": self.cfg.modbus.read_only,
+            }
+            doc["counters"]["modbus_requests"] = store.requests
+        if self.zenoh is not None:
+            session = self.zenoh.session
+            routers = peers = 0
+            if session is not None:
+                try:
+                    routers = len(list(session.info.routers_zid()))
+                    peers = len(list(session.info.peers_zid()))
+                except Exception:  # a closing session: report none
+                    pass
+            doc["zenoh"] = {
+                "mode": self.cfg.zenoh.mode,
+                "up": self.zenoh.up,
+                "prefix": self.zenoh.prefix,
+                "endpoints": self.cfg.zenoh.listen + self.cfg.zenoh.connect,
+                "routers": routers,
+                "peers": peers,
+                "publications": self.zenoh.publications,
+            }
+            doc["counters"]["zenoh_publications"] = self.zenoh.publications
+        return doc
+
     async def start(self) -> None:
         if self.zenoh is not None:
             # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
@@ -211,8 +260,24 @@ class Gateway:
                 for n in self.image.nodes.values()
             ]
         )
+        self.web = None
+        if self.cfg.web.enabled:
+            from gateway.web.console import WebConsole
+
+            self.web = WebConsole(
+                self.cfg,
+                self.image,
+                self.commands,
+                self.overview,
+                regmap=self.modbus.regmap if self.modbus is not None else None,
+            )
+            self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(
-            self.cfg.health.host, self.cfg.health.port, self.status, self.metrics.registry
+            self.cfg.health.host,
+            self.cfg.health.port,
+            self.status,
+            self.metrics.registry,
+            app=self.web,
         )
         await self.health.start()
         self.metrics.set_refresh(self._copy_counters)
@@ -244,6 +309,8 @@ class Gateway:
         self.started = False
         if self.health is not None:
             await self.health.stop()
+            if self.web is not None:
+                self.web.stop()
         if self.zenoh is not None:
             await self.zenoh.stop()
         if self.modbus is not None:

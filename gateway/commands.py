@@ -165,6 +165,19 @@ class CommandService:
     def names(self) -> list[str]:
         return list(self.master.nodes)
 
+    def supervision(self, node: str) -> dict[str, Any]:
+        """Read-only: the node's error control as resolved from config and profile (the web
+        console shows it next to the node's state)."""
+        st = self._part(node).settings
+        return {
+            "kind": st.supervision,
+            "heartbeat_ms": st.heartbeat_ms,
+            "heartbeat_timeout_ms": round(st.heartbeat_ms * st.heartbeat_multiple),
+            "guard_time_ms": st.guard_time_ms,
+            "life_time_factor": st.life_time_factor,
+            "life_time_ms": st.life_time_ms,
+        }
+
     def signal(self, node: NodeInfo | str, name: str) -> Signal:
         info = self.node(node) if isinstance(node, str) else node
         profile = info.lp.profile

@@ -346,6 +346,34 @@ class HealthSection(_Model):
     port: int = Field(default=0, ge=0, le=65535, description="0 = off")
 
 
+#: the smallest web token accepted: guessing one must not be a matter of minutes
+WEB_TOKEN_MIN_LENGTH = 12
+
+
+class WebSection(_Model):
+    """The web console on the health HTTP server (``health.port``; off when that is 0)."""
+
+    enabled: bool = Field(default=True, description="serve the console next to /healthz")
+    writes: bool = Field(
+        default=False, description="the commissioning page (SDO, NMT, set points, LSS)"
+    )
+    token: str | None = Field(
+        default=None,
+        description="password of the commissioning page; or CANOPEN_GATEWAY__WEB__TOKEN",
+    )
+
+    @model_validator(mode="after")
+    def _token(self) -> WebSection:
+        if self.writes and not self.token:
+            raise ValueError(
+                "writes: true needs a token (web.token, or the environment variable "
+                "CANOPEN_GATEWAY__WEB__TOKEN)"
+            )
+        if self.token is not None and len(self.token) < WEB_TOKEN_MIN_LENGTH:
+            raise ValueError(f"token: at least {WEB_TOKEN_MIN_LENGTH} characters")
+        return self
+
+
 class SimulateSection(_Model):
     """Nodes simulated in-process on the configured bus (demos, tests, commissioning)."""
 
@@ -367,6 +395,7 @@ class Config(_Model):
     modbus: ModbusSection = Field(default_factory=ModbusSection)
     zenoh: ZenohSection = Field(default_factory=ZenohSection)
     health: HealthSection = Field(default_factory=HealthSection)
+    web: WebSection = Field(default_factory=WebSection)
     simulate: SimulateSection = Field(default_factory=SimulateSection)
 
     #: where the file was loaded from (for resolving relative profile paths and messages)

@@ -19,6 +19,12 @@ thread. The protocol needed is tiny (a request line, GET on three paths, a close
 after each answer), so a bounded hand-written parser is simpler than a dependency (aiohttp is
 not one). Requests are bounded: 8 KiB of head, ``read_timeout_s`` to send it.
 
+Other paths go to an optional ``app`` (the web console, ``gateway.web``): it gets a parsed
+``Request`` (method, path, query, lower-case headers, a body of at most 64 KiB given by
+Content-Length) and returns a ``Response``, a ``Stream`` (written until the stream ends or the
+client goes away: server-sent events) or None (404). Without an app, or for the three paths
+above, methods other than GET/HEAD are answered 405.
+
 Config (section ``health:`` of the gateway config): ``host`` (127.0.0.1), ``port`` (0 = off).
 Port 0 passed to ``HealthServer`` itself binds an ephemeral port (see ``.port``): the caller
 decides that 0 in the config means "do not start one".
@@ -33,7 +39,9 @@ import contextlib
 import inspect
 import json
 import logging
+import urllib.parse
 from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
 from http import HTTPStatus
 from typing import Any
 
@@ -46,8 +54,46 @@ StatusFn = Callable[[], Mapping[str, Any] | Awaitable[Mapping[str, Any]]]
 READY = "ready"
 NOT_READY = "not-ready"
 MAX_REQUEST_HEAD_BYTES = 8192
+MAX_REQUEST_BODY_BYTES = 65536
 JSON_TYPE = "application/json"
 TEXT_TYPE = "text/plain; charset=utf-8"
+HEALTH_PATHS = ("/healthz", "/livez", "/metrics")
+
+
+@dataclass(frozen=True)
+class Request:
+    """One parsed request for an ``app``: header names lower-case, the first value of each
+    query parameter."""
+
+    method: str
+    path: str
+    query: Mapping[str, str] = field(default_factory=dict)
+    headers: Mapping[str, str] = field(default_factory=dict)
+    body: bytes = b""
+
+
+@dataclass(frozen=True)
+class Response:
+    status: HTTPStatus
+    body: bytes = b""
+    content_type: str = TEXT_TYPE
+    headers: Mapping[str, str] = field(default_factory=dict)
+
+
+StreamBody = Callable[[asyncio.StreamReader, asyncio.StreamWriter], Awaitable[None]]
+
+
+@dataclass(frozen=True)
+class Stream:
+    """An answer without a length: the headers, then ``body(reader, writer)`` writes until it
+    returns (e.g. the client went away); the connection is closed after."""
+
+    content_type: str
+    body: StreamBody
+    headers: Mapping[str, str] = field(default_factory=dict)
+
+
+App = Callable[[Request], Awaitable[Response | Stream | None]]
 
 
 def build_status(
@@ -102,11 +148,13 @@ class HealthServer:
         registry: CollectorRegistry | None = None,
         *,
         read_timeout_s: float = 5.0,
+        app: App | None = None,
     ) -> None:
         self.host = host
         self.requested_port = port
         self._status_fn = status_fn
         self._registry = registry
+        self._app = app
         self._read_timeout_s = read_timeout_s
         self._server: asyncio.Server | None = None
         self._connections: set[asyncio.Task[None]] = set()
@@ -129,7 +177,11 @@ class HealthServer:
         self._server = await asyncio.start_server(
             self._on_connection, self.host, self.requested_port, limit=MAX_REQUEST_HEAD_BYTES
         )
-        log.info("health endpoint on %s (/healthz, /livez, /metrics)", self.url)
+        log.info(
+            "health endpoint on %s (/healthz, /livez, /metrics%s)",
+            self.url,
+            ", web console /" if self._app is not None else "",
+        )
 
     async def stop(self) -> None:
         """Stops listening and closes open connections; returns when they are gone."""
@@ -153,6 +205,11 @@ class HealthServer:
             await self._serve_one(reader, writer)
         except (ConnectionError, asyncio.IncompleteReadError):
             pass  # the client went away; nothing to answer
+        except asyncio.CancelledError:
+            # ``stop()`` ends open connections (e.g. event streams): end quietly, asyncio's
+            # server would log a cancelled connection task as an error
+            if self._server is not None:
+                raise
         finally:
             self._connections.discard(task)
             writer.close()
@@ -170,12 +227,15 @@ class HealthServer:
             return await self._respond(
                 writer, HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE, b"", TEXT_TYPE
             )
-        request_line = head.split(b"\r\n", 1)[0].decode("latin-1")
-        parts = request_line.split()
+        lines = head.decode("latin-1").split("\r\n")
+        parts = lines[0].split()
         if len(parts) != 3 or not parts[2].startswith("HTTP/1."):
             return await self._respond(writer, HTTPStatus.BAD_REQUEST, b"bad request\n", TEXT_TYPE)
         method, target, _version = parts
+        path, _, query = target.partition("?")
         head_only = method == "HEAD"
+        if self._app is not None and path not in HEALTH_PATHS:
+            return await self._serve_app(reader, writer, method, path, query, lines[1:])
         if method not in ("GET", "HEAD"):
             return await self._respond(
                 writer,
@@ -184,7 +244,6 @@ class HealthServer:
                 TEXT_TYPE,
                 extra_headers={"Allow": "GET, HEAD"},
             )
-        path = target.split("?", 1)[0]
         if path == "/healthz":
             status, body = await self._health()
             return await self._respond(writer, status, body, JSON_TYPE, head_only=head_only)
@@ -198,6 +257,77 @@ class HealthServer:
             )
         return await self._respond(
             writer, HTTPStatus.NOT_FOUND, b"not found\n", TEXT_TYPE, head_only=head_only
+        )
+
+    async def _serve_app(
+        self,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        method: str,
+        path: str,
+        query: str,
+        header_lines: list[str],
+    ) -> None:
+        assert self._app is not None
+        headers: dict[str, str] = {}
+        for line in header_lines:
+            name, sep, value = line.partition(":")
+            if sep:
+                headers[name.strip().lower()] = value.strip()
+        if "transfer-encoding" in headers:
+            return await self._respond(
+                writer, HTTPStatus.LENGTH_REQUIRED, b"send a Content-Length body\n", TEXT_TYPE
+            )
+        length_text = headers.get("content-length", "0")
+        if not length_text.isdigit():
+            return await self._respond(
+                writer, HTTPStatus.BAD_REQUEST, b"bad Content-Length\n", TEXT_TYPE
+            )
+        length = int(length_text)
+        if length > MAX_REQUEST_BODY_BYTES:
+            return await self._respond(
+                writer,
+                HTTPStatus.REQUEST_ENTITY_TOO_LARGE,
+                f"body larger than {MAX_REQUEST_BODY_BYTES} bytes\n".encode(),
+                TEXT_TYPE,
+            )
+        try:
+            body = await asyncio.wait_for(reader.readexactly(length), self._read_timeout_s)
+        except TimeoutError:
+            return await self._respond(writer, HTTPStatus.REQUEST_TIMEOUT, b"", TEXT_TYPE)
+        request = Request(
+            method=method,
+            path=urllib.parse.unquote(path),
+            query={k: v[0] for k, v in urllib.parse.parse_qs(query).items()},
+            headers=headers,
+            body=body,
+        )
+        try:
+            answer = await self._app(request)
+        except Exception:
+            log.exception("web request %s %s failed", method, path)
+            answer = Response(HTTPStatus.INTERNAL_SERVER_ERROR, b"internal error (see the log)\n")
+        if answer is None:
+            answer = Response(HTTPStatus.NOT_FOUND, b"not found\n")
+        if isinstance(answer, Stream):
+            head = (
+                "HTTP/1.1 200 OK\r\n"
+                f"Content-Type: {answer.content_type}\r\n"
+                "Cache-Control: no-store\r\nConnection: close\r\n"
+                + "".join(f"{k}: {v}\r\n" for k, v in answer.headers.items())
+                + "\r\n"
+            )
+            writer.write(head.encode("latin-1"))
+            await writer.drain()
+            await answer.body(reader, writer)
+            return
+        await self._respond(
+            writer,
+            answer.status,
+            answer.body,
+            answer.content_type,
+            head_only=method == "HEAD",
+            extra_headers=answer.headers,
         )
 
     async def _health(self) -> tuple[HTTPStatus, bytes]:

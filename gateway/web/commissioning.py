@@ -1,0 +1,253 @@
+"""The commissioning operations of the web console: SDO read and write of any object, NMT
+commands, set-point writes, LSS inquiry. Present only with ``web.writes: true``; the console
+checks the token before calling anything here.
+
+Every device operation goes through the command service, so a write from a browser gets the
+same checks as one from Modbus or Zenoh (type, range, writable bits, node operational) and the
+same typed errors; here they become an HTTP status and a JSON body with the words a technician
+needs (an SDO abort with its code and its DS-301 text).
+
+LSS (CiA 305) runs on a second connection to the configured bus, in a worker thread, one
+inquiry at a time: the gateway's own connection stays with the master. That works on SocketCAN
+(several sockets per interface), python-can's ``virtual`` and ``remote`` buses; a backend that
+allows one connection per channel (some USB adapters) refuses the second one, and the page says
+so: then stop the gateway and use ``canopen-gateway lss``. LSS inquiry switches every LSS slave
+(or the one at ``address``) to the LSS configuration state and back to waiting; it does not
+change NMT states or node ids.
+
+Imports: commands, errors, objref, config, profiles.schema, zenoh_bridge.payloads (scaling),
+bus.lss and bus.lss_cli (LSS frames and session), python-can.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from http import HTTPStatus
+from typing import Any
+
+import can
+
+from gateway.bus import lss
+from gateway.bus.lss_cli import INQUIRE_ORDER, LssFailed, LssSession
+from gateway.commands import CommandService
+from gateway.config import Config
+from gateway.errors import (
+    BusDown,
+    GatewayError,
+    NodeNotOperational,
+    NodeUnknown,
+    SdoAbort,
+    SdoTimeout,
+)
+from gateway.objref import ObjRef
+from gateway.profiles.schema import TYPE_BITS
+from gateway.states import NMT_COMMANDS
+from gateway.zenoh_bridge.payloads import Scaling, to_raw
+
+log = logging.getLogger("gateway.web")
+
+SDO_TYPES = (*TYPE_BITS, "string", "bytes")
+
+#: typed errors of the command service -> HTTP status
+STATUS_OF: dict[type[GatewayError], HTTPStatus] = {
+    NodeUnknown: HTTPStatus.NOT_FOUND,
+    NodeNotOperational: HTTPStatus.CONFLICT,
+    BusDown: HTTPStatus.SERVICE_UNAVAILABLE,
+    SdoAbort: HTTPStatus.BAD_GATEWAY,  # the device refused
+    SdoTimeout: HTTPStatus.GATEWAY_TIMEOUT,  # the device did not answer
+}
+
+
+class BadInput(ValueError):
+    """A request body that does not say what is needed; the message says what is expected."""
+
+
+def error_doc(exc: BaseException) -> tuple[HTTPStatus, dict[str, Any]]:
+    if isinstance(exc, GatewayError):
+        status = STATUS_OF.get(type(exc), HTTPStatus.BAD_REQUEST)
+        doc: dict[str, Any] = {"error": exc.kind, "message": str(exc)}
+        if isinstance(exc, SdoAbort):
+            doc["abort_code"] = f"0x{exc.code:08X}"
+            doc["abort_text"] = exc.text
+        return status, doc
+    if isinstance(exc, (BadInput, ValueError, TypeError, KeyError)):
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+        return HTTPStatus.BAD_REQUEST, {"error": "bad_request", "message": str(msg)}
+    if isinstance(exc, LssFailed):
+        return HTTPStatus.GATEWAY_TIMEOUT, {"error": "lss_failed", "message": str(exc)}
+    if isinstance(exc, (lss.LssStateError, lss.LssBusy)):
+        return HTTPStatus.CONFLICT, {"error": "lss_state", "message": str(exc)}
+    return HTTPStatus.INTERNAL_SERVER_ERROR, {
+        "error": "internal",
+        "message": f"{type(exc).__name__}: {exc}",
+    }
+
+
+def parse_body(body: bytes) -> dict[str, Any]:
+    try:
+        doc = json.loads(body.decode("utf-8")) if body else None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise BadInput(f"the body is not JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise BadInput('expected a JSON object, e.g. {"node": "wire", ...}')
+    return doc
+
+
+def _text(doc: dict[str, Any], key: str, what: str) -> str:
+    v = doc.get(key)
+    if not isinstance(v, str) or not v:
+        raise BadInput(f"{key}: expected {what}")
+    return v
+
+
+def _obj(doc: dict[str, Any]) -> ObjRef:
+    text = _text(doc, "object", "an object address like 0x6004:00")
+    try:
+        return ObjRef.parse(text)
+    except ValueError as exc:
+        raise BadInput(f"object: {exc}") from None
+
+
+def _type(doc: dict[str, Any]) -> str | None:
+    t = doc.get("type")
+    if t in (None, ""):
+        return None
+    if t not in SDO_TYPES:
+        raise BadInput(f"type: {t!r} is not one of {', '.join(SDO_TYPES)}")
+    return str(t)
+
+
+def shown(value: Any) -> Any:
+    """A value as JSON: bytes as hex."""
+    if isinstance(value, (bytes, bytearray)):
+        return bytes(value).hex(" ")
+    return value
+
+
+class Commissioning:
+    """The write operations, by name: ``await run(op, body)`` -> JSON-able result."""
+
+    OPS = ("sdo-read", "sdo-write", "nmt", "set", "lss-inquire")
+
+    def __init__(self, cfg: Config, commands: CommandService, *, lss_timeout_s: float = 0.5):
+        self.cfg = cfg
+        self.commands = commands
+        self.lss_timeout_s = lss_timeout_s
+        self._lss_lock = asyncio.Lock()
+
+    async def run(self, op: str, body: bytes) -> dict[str, Any]:
+        doc = parse_body(body)
+        if op == "sdo-read":
+            return await self.sdo_read(doc)
+        if op == "sdo-write":
+            return await self.sdo_write(doc)
+        if op == "nmt":
+            return self.nmt(doc)
+        if op == "set":
+            return await self.set(doc)
+        if op == "lss-inquire":
+            return await self.lss_inquire(doc)
+        raise BadInput(f"unknown operation {op!r}; one of {', '.join(self.OPS)}")
+
+    def _node(self, doc: dict[str, Any]) -> str:
+        name = _text(doc, "node", "a node name")
+        self.commands.node(name)  # NodeUnknown names the configured nodes
+        return name
+
+    async def sdo_read(self, doc: dict[str, Any]) -> dict[str, Any]:
+        node, obj, typ = self._node(doc), _obj(doc), _type(doc)
+        value = await self.commands.sdo_read(node, obj, typ)
+        return {"ok": True, "node": node, "object": str(obj), "value": shown(value)}
+
+    async def sdo_write(self, doc: dict[str, Any]) -> dict[str, Any]:
+        node, obj, typ = self._node(doc), _obj(doc), _type(doc)
+        if "value" not in doc:
+            raise BadInput("value: expected a number or a text (hex bytes with type bytes)")
+        value = doc["value"]
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            raise BadInput(f"value: expected a number or a text, got {value!r}")
+        if typ == "bytes" and isinstance(value, str):
+            try:
+                value = bytes.fromhex(value)
+            except ValueError:
+                raise BadInput(f"value: {value!r} is not hex bytes (e.g. 0a 0b)") from None
+        await self.commands.sdo_write(node, obj, value, typ)
+        return {"ok": True, "node": node, "object": str(obj), "value": shown(value)}
+
+    def nmt(self, doc: dict[str, Any]) -> dict[str, Any]:
+        node = _text(doc, "node", "a node name or all")
+        if node != "all":
+            self.commands.node(node)
+        command = _text(doc, "command", "one of " + ", ".join(NMT_COMMANDS))
+        self.commands.nmt(node, command)
+        return {"ok": True, "node": node, "command": command}
+
+    async def set(self, doc: dict[str, Any]) -> dict[str, Any]:
+        """A signal's value in engineering units (``value``) or raw (``raw``), through the
+        command service like a Modbus or Zenoh write."""
+        node = self._node(doc)
+        name = _text(doc, "signal", "a signal name")
+        sig = self.commands.signal(node, name)
+        info = self.commands.node(node)
+        if "raw" in doc:
+            raw = doc["raw"]
+        elif "value" in doc:
+            ov = info.cfg.signals.get(name) if info.cfg is not None else None
+            value = doc["value"]
+            if isinstance(value, str) and sig.type not in ("string", "bytes"):
+                try:
+                    value = float(value) if "." in value or "e" in value.lower() else int(value, 0)
+                except ValueError:
+                    raise BadInput(f"value: {value!r} is not a number") from None
+            raw = to_raw(sig, value, Scaling.of(sig, ov))
+        else:
+            raise BadInput("value (engineering) or raw: expected one of them")
+        await self.commands.write_signal(node, name, raw)
+        return {"ok": True, "node": node, "signal": name, "raw": shown(raw)}
+
+    async def lss_inquire(self, doc: dict[str, Any]) -> dict[str, Any]:
+        """LSS inquire vendor, product, revision, serial and node id (CiA 305; SGH10 manual
+        4.6.3) of the one LSS slave on the bus, or of the slave at ``address``
+        (``VENDOR:PRODUCT:REVISION:SERIAL``, switch state selective)."""
+        address = None
+        text = doc.get("address")
+        if text not in (None, ""):
+            if not isinstance(text, str):
+                raise BadInput("address: expected VENDOR:PRODUCT:REVISION:SERIAL")
+            parts = text.replace(" ", "").split(":")
+            try:
+                address = tuple(int(p, 0) for p in parts)
+            except ValueError:
+                address = None
+            if address is None or len(address) != 4 or not all(0 <= v < 1 << 32 for v in address):
+                raise BadInput(
+                    f"address: {text!r} is not VENDOR:PRODUCT:REVISION:SERIAL "
+                    "(four numbers, e.g. 0x1A2:0x3:0x1:12345)"
+                )
+        if self._lss_lock.locked():
+            raise lss.LssBusy("another LSS inquiry is running")
+        async with self._lss_lock:
+            result = await asyncio.to_thread(self._inquire, address)
+        return {"ok": True, **result}
+
+    def _inquire(self, address: tuple[int, ...] | None) -> dict[str, Any]:
+        """Worker thread: a second connection to the bus for the inquiry."""
+        try:
+            bus = can.Bus(**self.cfg.can.bus_kwargs())
+        except (can.CanError, OSError, ValueError) as exc:
+            raise LssFailed(
+                f"cannot open a second connection to the CAN bus for LSS ({exc}); this "
+                "interface allows one connection: stop the gateway and use canopen-gateway lss"
+            ) from None
+        try:
+            session = LssSession(bus, self.lss_timeout_s)
+            out: dict[str, Any] = {}
+            with session.configuration_state(address):  # type: ignore[arg-type]
+                for item in INQUIRE_ORDER:
+                    value = session.request(lss.inquire(item))
+                    out[item] = value if item == "node_id" else f"0x{int(value or 0):08X}"
+            return out
+        finally:
+            bus.shutdown()

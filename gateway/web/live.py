@@ -1,0 +1,225 @@
+"""Live updates of the web console: from the process image to each browser, coalesced.
+
+Rule 1: the console's one hand-off from the CAN reader thread to the event loop is
+``LiveHub._on_values``. The reader adds the names of the updated signals to a pending dict
+under a lock and calls ``loop.call_soon_threadsafe`` only when no hand-off is armed; the loop
+takes the whole batch and stays armed for ``HANDOFF_PERIOD_S``, taking what came meanwhile, and
+disarms when a period brought nothing. So a bus at 10,000 frames/s costs the reader a set update
+per frame and the loop at most ``1 / HANDOFF_PERIOD_S`` wake-ups a second. Nobody watching a
+node costs the reader one set lookup per frame.
+
+Rule 2: a client is a set of dirty keys, never a queue of values. What is sent is the image's
+current value when the client's turn comes, at most ``MAX_UPDATES_PER_S`` times a second, and a
+full refresh every ``FULL_REFRESH_S`` (ages, rates). A client whose socket does not drain (more
+than ``MAX_BUFFERED_BYTES`` waiting in the transport) is skipped, its dirty set waiting (bounded
+by the number of signals and nodes), and dropped after ``SLOW_CLIENT_LIMIT_S``. Nothing the
+gateway does ever waits for a browser.
+
+Rule 3: everything here runs on the event loop, except ``_on_values`` (the reader thread).
+Health listeners are called on the event loop by the image's writer.
+
+Imports: image only (the rendering is given as a function by the console).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from gateway.image import NodeImage, ProcessImage
+
+log = logging.getLogger("gateway.web")
+
+MAX_UPDATES_PER_S = 10
+MIN_SEND_INTERVAL_S = 1.0 / MAX_UPDATES_PER_S
+FULL_REFRESH_S = 1.0
+HANDOFF_PERIOD_S = 0.05
+MAX_BUFFERED_BYTES = 256 * 1024
+SLOW_CLIENT_LIMIT_S = 30.0
+MAX_CLIENTS = 64
+#: EventSource reconnects after this many ms when the stream ends (gateway restart)
+RETRY_MS = 2000
+
+
+class Subscriber:
+    """One browser's stream: which node it watches (None: the overview and nodes table) and
+    what changed since its last update."""
+
+    __slots__ = ("node", "dirty_values", "dirty_health", "wake", "sent", "skipped")
+
+    def __init__(self, node: str | None):
+        self.node = node
+        self.dirty_values: set[str] = set()
+        self.dirty_health: set[str] = set()
+        self.wake = asyncio.Event()
+        self.sent = 0  # updates written
+        self.skipped = 0  # turns skipped because the socket did not drain
+
+
+#: render(subscriber, full) -> [(event name, JSON-able data)]; clears what it has rendered
+Render = Callable[[Subscriber, bool], list[tuple[str, Any]]]
+
+
+def sse(event: str, data: Any) -> bytes:
+    """One server-sent event (HTML Living Standard 9.2): ``event:`` and one ``data:`` line."""
+    return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'), default=str)}\n\n".encode()
+
+
+class TooManyClients(Exception):
+    pass
+
+
+class LiveHub:
+    """Subscribers and the hand-off from the image's listeners (see the module docstring)."""
+
+    def __init__(self, image: ProcessImage, *, max_clients: int = MAX_CLIENTS):
+        self.image = image
+        self.max_clients = max_clients
+        self.subscribers: set[Subscriber] = set()
+        self._watched: frozenset[str] = frozenset()  # read by the reader thread
+        self._lock = threading.Lock()
+        self._pending: dict[str, set[str]] = {}
+        self._armed = False
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.handoffs = 0  # call_soon_threadsafe calls made by the reader thread
+        self.batches = 0  # batches taken on the loop
+
+    # ------------------------------------------------------------------ lifecycle
+    def attach(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self.image.value_listeners.append(self._on_values)
+        self.image.health_listeners.append(self._on_health)
+
+    def detach(self) -> None:
+        if self._on_values in self.image.value_listeners:
+            self.image.value_listeners.remove(self._on_values)
+        if self._on_health in self.image.health_listeners:
+            self.image.health_listeners.remove(self._on_health)
+        self._watched = frozenset()
+        self._loop = None
+
+    def subscribe(self, node: str | None) -> Subscriber:
+        if len(self.subscribers) >= self.max_clients:
+            raise TooManyClients(f"at most {self.max_clients} live pages at a time")
+        sub = Subscriber(node)
+        self.subscribers.add(sub)
+        self._rewatch()
+        return sub
+
+    def unsubscribe(self, sub: Subscriber) -> None:
+        self.subscribers.discard(sub)
+        self._rewatch()
+
+    def _rewatch(self) -> None:
+        # one assignment: the reader thread sees the old set or the new one
+        self._watched = frozenset(s.node for s in self.subscribers if s.node is not None)
+
+    # ------------------------------------------------------------------ hand-off
+    def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
+        """Value listener: CAN reader thread (or the loop for SDO-read values)."""
+        if node.name not in self._watched:
+            return
+        with self._lock:
+            pending = self._pending.get(node.name)
+            if pending is None:
+                self._pending[node.name] = set(names)
+            else:
+                pending.update(names)
+            if self._armed:
+                return
+            self._armed = True
+        loop = self._loop
+        if loop is None:
+            return
+        self.handoffs += 1
+        try:
+            loop.call_soon_threadsafe(self._take)
+        except RuntimeError:  # the loop is closed: the gateway is stopping
+            pass
+
+    def _take(self) -> None:
+        """On the loop: take the pending batch; stay armed one period while values flow."""
+        with self._lock:
+            batch, self._pending = self._pending, {}
+            if not batch:
+                self._armed = False
+                return
+        self.batches += 1
+        for sub in self.subscribers:
+            names = batch.get(sub.node) if sub.node is not None else None
+            if names:
+                sub.dirty_values |= names
+                sub.wake.set()
+        if self._loop is not None:
+            self._loop.call_later(HANDOFF_PERIOD_S, self._take)
+        else:
+            with self._lock:
+                self._armed = False
+
+    def _on_health(self, node: NodeImage, what: str) -> None:
+        """Health listener: on the event loop."""
+        for sub in self.subscribers:
+            if sub.node is None or sub.node == node.name:
+                sub.dirty_health.add(node.name)
+                sub.wake.set()
+
+    # ------------------------------------------------------------------ one client
+    async def pump(
+        self,
+        sub: Subscriber,
+        render: Render,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        *,
+        slow_limit_s: float = SLOW_CLIENT_LIMIT_S,
+        max_buffered: int = MAX_BUFFERED_BYTES,
+    ) -> None:
+        """Write ``sub``'s updates to ``writer`` until the client goes away (or is too slow)."""
+        loop = asyncio.get_running_loop()
+        transport = writer.transport
+        gone = asyncio.ensure_future(reader.read(1))  # the browser sends nothing: EOF = gone
+        last_full = -FULL_REFRESH_S
+        last_send = -MIN_SEND_INTERVAL_S
+        slow_since: float | None = None
+        try:
+            writer.write(f"retry: {RETRY_MS}\n\n".encode())
+            while not gone.done() and not transport.is_closing():
+                now = loop.time()
+                wait_s = max(0.0, last_full + FULL_REFRESH_S - now)
+                if not sub.wake.is_set() and wait_s > 0:
+                    woken = asyncio.ensure_future(sub.wake.wait())
+                    await asyncio.wait({woken, gone}, timeout=wait_s, return_when="FIRST_COMPLETED")
+                    woken.cancel()
+                    if gone.done():
+                        break
+                # at most MAX_UPDATES_PER_S: what changes meanwhile joins this update
+                gap = last_send + MIN_SEND_INTERVAL_S - loop.time()
+                if gap > 0:
+                    await asyncio.sleep(gap)
+                now = loop.time()
+                if transport.get_write_buffer_size() > max_buffered:
+                    sub.skipped += 1
+                    if slow_since is None:
+                        slow_since = now
+                    elif now - slow_since > slow_limit_s:
+                        log.info("web console client dropped: it has not read for %.0f s", slow_limit_s)
+                        break
+                    last_send = now  # try again one interval later
+                    continue
+                slow_since = None
+                sub.wake.clear()
+                full = now - last_full >= FULL_REFRESH_S
+                events = render(sub, full)
+                if full:
+                    last_full = now
+                if events:
+                    writer.write(b"".join(sse(name, data) for name, data in events))
+                    sub.sent += 1
+                    last_send = now
+        finally:
+            gone.cancel()
+            self.unsubscribe(sub)

@@ -1,0 +1,416 @@
+// canopen-gateway web console: plain JavaScript, no framework, no build step.
+// Pages: index (overview + nodes table), node (one node, live), commission (writes, token).
+"use strict";
+
+const page = document.body.dataset.page;
+
+// ------------------------------------------------------------------ small helpers
+function el(tag, attrs, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (v === null || v === undefined) continue;
+    if (k === "class") e.className = v;
+    else if (k.startsWith("data-")) e.setAttribute(k, v);
+    else e[k] = v;
+  }
+  for (const c of children) {
+    if (c === null || c === undefined) continue;
+    e.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  }
+  return e;
+}
+
+function fmtNumber(v) {
+  if (typeof v !== "number") return v === null || v === undefined ? "" : String(v);
+  if (Number.isInteger(v)) return String(v);
+  return String(Number(v.toPrecision(7)));
+}
+
+function fmtAge(s) {
+  if (s === null || s === undefined) return "never";
+  if (s < 10) return s.toFixed(2) + " s";
+  if (s < 120) return s.toFixed(1) + " s";
+  if (s < 7200) return (s / 60).toFixed(1) + " min";
+  return (s / 3600).toFixed(1) + " h";
+}
+
+function fmtTime(ts) {
+  if (!ts) return "";
+  const d = new Date(ts * 1000);
+  return d.toLocaleString(undefined, { hour12: false });
+}
+
+function fmtUptime(s) {
+  const d = Math.floor(s / 86400), h = Math.floor((s % 86400) / 3600);
+  const m = Math.floor((s % 3600) / 60), sec = Math.floor(s % 60);
+  return (d ? d + " d " : "") + (d || h ? h + " h " : "") + m + " min " + sec + " s";
+}
+
+// Quality is always written in words; the colour only repeats it.
+const QUALITY_CLASS = { good: "good", stale: "stale", bad: "bad" };
+function badge(word, kind) {
+  return el("span", { class: "badge " + (kind || QUALITY_CLASS[word] || "info") }, word);
+}
+
+function setFacts(dl, pairs) {
+  dl.replaceChildren();
+  for (const [k, v] of pairs) {
+    dl.append(el("dt", {}, k), el("dd", {}, v));
+  }
+}
+
+async function getJSON(path) {
+  const r = await fetch(path, { cache: "no-store" });
+  if (!r.ok) throw new Error(path + ": HTTP " + r.status);
+  return r.json();
+}
+
+function setConn(text) {
+  const c = document.getElementById("conn");
+  if (c) c.textContent = text;
+}
+
+function liveStream(url, handlers) {
+  const es = new EventSource(url);
+  es.onopen = () => setConn("live");
+  es.onerror = () => setConn("reconnecting");
+  for (const [name, fn] of Object.entries(handlers)) {
+    es.addEventListener(name, (ev) => fn(JSON.parse(ev.data)));
+  }
+  return es;
+}
+
+function header(doc) {
+  document.getElementById("gw-name").textContent = doc.gateway + " " + doc.version;
+  const nav = document.getElementById("nav-commission");
+  if (nav) nav.hidden = !doc.writes;
+  if (nav && !doc.writes) nav.remove();
+}
+
+// ------------------------------------------------------------------ overview + nodes
+function renderOverview(o) {
+  const can = o.can || {};
+  const rates = o.rates || {};
+  const state = can.state === "ok" ? badge("ok", "good") : can.state === "error" ? badge("error", "stale") : badge(can.state || "down", "bad");
+  setFacts(document.getElementById("ov-gateway"), [
+    ["Uptime", fmtUptime(o.uptime_s || 0)],
+    ["Nodes", `${o.nodes_usable} of ${o.nodes} usable`],
+    ["Threads", Object.keys(o.threads_failed || {}).length ? "failed: " + Object.keys(o.threads_failed).join(", ") : "all running"],
+  ]);
+  const load = o.bus_load_percent === null || o.bus_load_percent === undefined
+    ? "bit rate not configured" : `about ${o.bus_load_percent} % of ${o.bitrate / 1000} kbit/s`;
+  setFacts(document.getElementById("ov-bus"), [
+    ["Interface", `${can.interface} ${can.channel}`],
+    ["State", el("span", {}, state, can.detail ? " " + can.detail : "")],
+    ["Frames in", `${fmtNumber(rates.frames_in || 0)} /s (${o.frames_in} total)`],
+    ["Frames out", `${fmtNumber(rates.frames_out || 0)} /s (${o.frames_out} total)`],
+    ["Bus load", load],
+    ["Error frames", String(o.bus_errors)],
+    ["Reopens", String(can.reopens || 0)],
+    ["Undecodable", `${o.decode_errors} frames, ${o.unknown_cob_id} unknown COB-IDs`],
+  ]);
+  const mb = o.modbus;
+  setFacts(document.getElementById("ov-modbus"), mb ? [
+    ["Listening", mb.listen + (mb.read_only ? " (read only)" : "")],
+    ["Serving", mb.serving ? badge("yes", "good") : badge("no", "bad")],
+    ["Clients", String(mb.clients)],
+    ["Requests", `${fmtNumber(rates.modbus_requests || 0)} /s (${mb.requests} total)`],
+    ["Exceptions", String(mb.exceptions)],
+  ] : [["Modbus TCP", "disabled"]]);
+  const z = o.zenoh;
+  setFacts(document.getElementById("ov-zenoh"), z ? [
+    ["Mode", z.mode],
+    ["Session", z.up ? badge("open", "good") : badge("not open", "bad")],
+    ["Routers", z.mode === "client" ? (z.routers ? badge(String(z.routers) + " connected", "good") : badge("none connected", "bad")) : String(z.routers)],
+    ["Peers", String(z.peers)],
+    ["Publications", `${fmtNumber(rates.zenoh_publications || 0)} /s (${z.publications} total)`],
+    ["Key prefix", el("span", { class: "code" }, z.prefix)],
+  ] : [["Zenoh", "disabled"]]);
+}
+
+function presenceBadge(r) {
+  return r.presence === "alive" ? badge("alive", "good") : badge(r.presence, r.presence === "lost" ? "bad" : "stale");
+}
+
+function linkBadge(word) {
+  if (word === "ok") return badge("ok", "good");
+  if (word === "fault") return badge("fault", "bad");
+  if (word === "unknown") return badge("unknown", "stale");
+  return el("span", { class: "muted" }, word);
+}
+
+function renderNodes(rows) {
+  const tbody = document.querySelector("#nodes tbody");
+  const seen = new Set();
+  for (const r of rows) {
+    seen.add(r.name);
+    let tr = tbody.querySelector(`tr[data-node="${CSS.escape(r.name)}"]`);
+    if (!tr) {
+      tr = el("tr", { "data-node": r.name });
+      tbody.append(tr);
+    }
+    const emcy = r.last_emcy ? el("span", {}, el("span", { class: "code" }, r.last_emcy.code), " " + r.last_emcy.text) : el("span", { class: "muted" }, "none");
+    const cells = [
+      ["name", el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name)],
+      ["node_id", String(r.node_id), "num"],
+      ["profile", el("span", { title: r.title }, r.profile)],
+      ["quality", badge(r.quality)],
+      ["presence", presenceBadge(r)],
+      ["nmt_state", r.nmt_state],
+      ["lifecycle", r.lifecycle],
+      ["supervision", r.supervision_timing],
+      ["link", linkBadge(r.link)],
+      ["last_emcy", emcy],
+      ["boots", String(r.boots), "num"],
+      ["losses", String(r.losses), "num"],
+      ["data_age", fmtAge(r.data_age_s), "num"],
+    ];
+    tr.replaceChildren(...cells.map(([col, v, cls]) => el("td", { "data-col": col, class: cls || null }, v)));
+  }
+  for (const tr of [...tbody.querySelectorAll("tr")]) {
+    if (!seen.has(tr.dataset.node)) tr.remove();
+  }
+}
+
+async function initIndex() {
+  const doc = await getJSON("/api/overview");
+  header(doc);
+  renderOverview(doc.overview);
+  renderNodes(doc.nodes);
+  liveStream("/api/stream", { overview: renderOverview, nodes: renderNodes });
+}
+
+// ------------------------------------------------------------------ node page
+let nodeSignals = {};
+
+function renderNodeRow(r) {
+  document.getElementById("node-title").textContent = `Node ${r.name} (id ${r.node_id}, ${r.profile})`;
+  document.title = `canopen-gateway: ${r.name}`;
+  setFacts(document.getElementById("node-state"), [
+    ["Status", badge(r.quality)],
+    ["Presence", presenceBadge(r)],
+    ["NMT state", r.nmt_state],
+    ["Lifecycle", r.lifecycle],
+    ["Guarding-bit link", linkBadge(r.link)],
+    ["Data age", fmtAge(r.data_age_s)],
+    ["Device", r.title],
+  ]);
+  setFacts(document.getElementById("node-counts"), [
+    ["Supervision", r.supervision_timing],
+    ["Boots", String(r.boots)],
+    ["Losses", String(r.losses)],
+    ["Link faults", String(r.link_faults)],
+    ["EMCY received", String(r.emcy_count)],
+    ["Last SDO abort", r.last_sdo_abort || "none"],
+    ["Last problem", r.last_error || "none"],
+  ]);
+}
+
+function renderEmcy(e) {
+  const box = document.getElementById("node-errors");
+  if (!e.current.length) {
+    box.replaceChildren(el("p", {}, badge("no error active", "good")));
+  } else {
+    box.replaceChildren(el("ul", {}, ...e.current.map((c) => el("li", {}, badge("active", "bad"), " ", el("span", { class: "code" }, c.code), " " + c.text))));
+  }
+  const tbody = document.querySelector("#emcy tbody");
+  tbody.replaceChildren(...(e.history.length ? e.history.map((h) => el("tr", {},
+    el("td", {}, fmtTime(h.ts)), el("td", { class: "code" }, h.code), el("td", {}, h.text),
+    el("td", { class: "code" }, h.register + (h.register_bits.length ? " (" + h.register_bits.join(", ") + ")" : "")),
+    el("td", { class: "code" }, h.manufacturer))) : [el("tr", {}, el("td", { colSpan: 5, class: "muted" }, "no EMCY received since the gateway started"))]));
+}
+
+function valueText(sig, v) {
+  if (v.value === null || v.value === undefined) {
+    return v.quality === "on request" ? "read by SDO on request" : "no value yet";
+  }
+  let t = typeof v.value === "number" ? fmtNumber(v.value) : String(v.value);
+  if (v.text) t += " (" + v.text + ")";
+  if (v.bits) {
+    const on = Object.entries(v.bits).filter(([, b]) => b === true).map(([n]) => n);
+    if (on.length) t += " [" + on.join(", ") + "]";
+  }
+  return t;
+}
+
+function qualityCell(q) {
+  if (q === "good" || q === "stale" || q === "bad") return badge(q);
+  return el("span", { class: "muted" }, q);
+}
+
+function renderSignals(signals) {
+  const tbody = document.querySelector("#signals tbody");
+  tbody.replaceChildren();
+  nodeSignals = {};
+  for (const s of signals) {
+    nodeSignals[s.name] = s;
+    const tr = el("tr", { "data-signal": s.name },
+      el("th", { scope: "row", title: s.description }, s.name),
+      el("td", { "data-col": "value", class: "num" }, ""),
+      el("td", { "data-col": "unit" }, s.unit),
+      el("td", { "data-col": "quality" }, ""),
+      el("td", { "data-col": "age", class: "num" }, ""),
+      el("td", { "data-col": "source" }, s.source + (s.writable ? " (writable)" : "")),
+      el("td", { "data-col": "object", class: "code" }, s.object),
+      el("td", { "data-col": "modbus", class: "nowrap" }, s.modbus || el("span", { class: "muted" }, "not mapped")),
+      el("td", { "data-col": "zenoh", class: "code" }, s.zenoh.join("\n")));
+    tbody.append(tr);
+  }
+}
+
+function renderValues(values) {
+  for (const [name, v] of Object.entries(values)) {
+    const tr = document.querySelector(`#signals tr[data-signal="${CSS.escape(name)}"]`);
+    if (!tr) continue;
+    tr.querySelector('[data-col="value"]').textContent = valueText(nodeSignals[name], v);
+    tr.querySelector('[data-col="quality"]').replaceChildren(qualityCell(v.quality));
+    tr.querySelector('[data-col="age"]').textContent = v.quality === "output" || v.quality === "on request" ? "" : fmtAge(v.age_s);
+  }
+}
+
+function renderRegisters(rows) {
+  const tbody = document.querySelector("#registers tbody");
+  tbody.replaceChildren(...rows.map((r) => el("tr", {},
+    el("td", { class: "num" }, r.unit_id), el("td", {}, r.table), el("td", { class: "num" }, r.address),
+    el("td", {}, r.type), el("td", {}, r.access), el("td", { class: "code" }, r.signal),
+    el("td", {}, r.unit), el("td", {}, r.scaling), el("td", {}, r.description))));
+}
+
+async function initNode() {
+  const name = decodeURIComponent(location.pathname.replace(/^\/node\//, ""));
+  const [ov, doc] = await Promise.all([getJSON("/api/overview"), getJSON("/api/node/" + encodeURIComponent(name))]);
+  header(ov);
+  renderNodeRow(doc.row);
+  renderSignals(doc.signals);
+  renderValues(doc.values);
+  renderEmcy(doc.emcy);
+  renderRegisters(doc.registers);
+  liveStream("/api/stream?node=" + encodeURIComponent(name), {
+    node: (d) => { renderNodeRow(d.row); renderEmcy(d.emcy); },
+    values: renderValues,
+  });
+}
+
+// ------------------------------------------------------------------ commissioning
+const TOKEN_KEY = "canopen-gateway-token";
+const SDO_TYPES = ["", "bool", "int8", "uint8", "int16", "uint16", "int24", "uint24", "int32", "uint32", "int64", "uint64", "float32", "string", "bytes"];
+
+async function commission(op, body) {
+  const r = await fetch("/api/commission/" + op, {
+    method: "POST",
+    headers: { "Content-Type": "application/json", "Authorization": "Bearer " + (sessionStorage.getItem(TOKEN_KEY) || "") },
+    body: JSON.stringify(body),
+  });
+  let doc;
+  try { doc = await r.json(); } catch (e) { doc = { message: "HTTP " + r.status }; }
+  return { ok: r.ok, status: r.status, doc };
+}
+
+function showResult(id, res) {
+  const box = document.getElementById("result-" + id);
+  box.className = "result " + (res.ok ? "ok" : "err");
+  if (res.ok) {
+    const d = res.doc;
+    if (id === "sdo-read") box.textContent = `${d.node} ${d.object} = ${d.value}`;
+    else if (id === "lss-inquire") box.textContent = ["vendor_id", "product_code", "revision", "serial", "node_id"].map((k) => `${k}: ${d[k]}`).join("\n");
+    else box.textContent = "done: " + JSON.stringify(d);
+  } else {
+    let t = `refused (HTTP ${res.status}): ${res.doc.message || ""}`;
+    if (res.doc.abort_code && !t.includes(res.doc.abort_code)) t += `\nSDO abort ${res.doc.abort_code}: ${res.doc.abort_text}`;
+    box.textContent = t;
+    if (res.status === 401 || res.status === 403) showLocked("The token was refused; unlock again.");
+  }
+}
+
+function showLocked(message) {
+  document.getElementById("ops").hidden = true;
+  const box = document.getElementById("result-login");
+  box.className = "result " + (message ? "err" : "");
+  box.textContent = message || "Locked.";
+}
+
+function formValues(form) {
+  const out = {};
+  for (const [k, v] of new FormData(form).entries()) if (v !== "") out[k] = v;
+  return out;
+}
+
+function numberOrText(v) {
+  const t = v.trim();
+  if (/^[-+]?\d+$/.test(t)) return parseInt(t, 10);
+  if (/^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$/.test(t)) return parseFloat(t);
+  return t;
+}
+
+async function initCommission() {
+  const ov = await getJSON("/api/overview");
+  header(ov);
+  const names = ov.nodes.map((r) => r.name);
+  for (const sel of document.querySelectorAll(".node-select")) {
+    const opts = (sel.dataset.all ? ["all"] : []).concat(names);
+    sel.replaceChildren(...opts.map((n) => el("option", { value: n }, n)));
+  }
+  for (const sel of document.querySelectorAll(".type-select")) {
+    sel.replaceChildren(...SDO_TYPES.map((t) => el("option", { value: t }, t || "from the EDS")));
+  }
+  const details = {};
+  async function loadSignals() {
+    const node = document.getElementById("set-node").value;
+    if (!node) return;
+    details[node] = details[node] || await getJSON("/api/node/" + encodeURIComponent(node));
+    const writable = details[node].signals.filter((s) => s.writable);
+    const sel = document.getElementById("set-signal");
+    sel.replaceChildren(...writable.map((s) => el("option", { value: s.name }, s.name + (s.unit ? " [" + s.unit + "]" : ""))));
+    hint();
+  }
+  function hint() {
+    const node = document.getElementById("set-node").value;
+    const s = (details[node] ? details[node].signals : []).find((x) => x.name === document.getElementById("set-signal").value);
+    document.getElementById("set-hint").textContent = s ? `${s.type} via ${s.source} ${s.object}` + (s.min !== null || s.max !== null ? `, range ${s.min ?? "-"} to ${s.max ?? "-"} ${s.unit}` : "") : "this node has no writable signal";
+  }
+  document.getElementById("set-node").addEventListener("change", loadSignals);
+  document.getElementById("set-signal").addEventListener("change", hint);
+
+  document.getElementById("form-login").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    sessionStorage.setItem(TOKEN_KEY, document.getElementById("token").value);
+    const res = await commission("login", {});
+    if (res.ok) {
+      document.getElementById("ops").hidden = false;
+      const box = document.getElementById("result-login");
+      box.className = "result ok";
+      box.textContent = "Unlocked.";
+      document.getElementById("token").value = "";
+      loadSignals();
+    } else {
+      sessionStorage.removeItem(TOKEN_KEY);
+      showLocked(res.status === 403 ? "Wrong token." : res.doc.message);
+    }
+  });
+  document.getElementById("lock").addEventListener("click", () => { sessionStorage.removeItem(TOKEN_KEY); showLocked(""); });
+
+  const ops = { "sdo-read": (v) => v, "sdo-write": (v) => ({ ...v, value: v.type === "string" || v.type === "bytes" ? v.value : numberOrText(v.value || "") }),
+    "nmt": (v) => v, "set": (v) => ({ ...v, value: numberOrText(v.value || "") }), "lss-inquire": (v) => v };
+  for (const [op, shape] of Object.entries(ops)) {
+    document.getElementById("form-" + op).addEventListener("submit", async (ev) => {
+      ev.preventDefault();
+      const box = document.getElementById("result-" + op);
+      box.className = "result";
+      box.textContent = "working";
+      showResult(op, await commission(op, shape(formValues(ev.target))));
+    });
+  }
+  if (sessionStorage.getItem(TOKEN_KEY)) {
+    const res = await commission("login", {});
+    if (res.ok) { document.getElementById("ops").hidden = false; loadSignals(); }
+  }
+  setConn("");
+}
+
+// ------------------------------------------------------------------ start
+const INIT = { index: initIndex, node: initNode, commission: initCommission };
+INIT[page]().catch((err) => {
+  setConn("error");
+  const main = document.querySelector("main");
+  main.prepend(el("p", { class: "banner bad", role: "alert" }, "The console could not load: " + err.message));
+});
