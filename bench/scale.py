@@ -544,7 +544,7 @@ async def run(
         f"TPDO2 on SYNC every {PERIOD_MS} ms, heartbeat {HEARTBEAT_MS} ms) reached "
         f"{simrate['fps']:,.0f} frames/s using {simrate['cpu'] * 100:.0f}% of a core"
         + (f" (runner error: {simrate['error']})" if simrate["error"] else "")
-        + ": its thread ticks all 127 nodes every millisecond in Python under one lock, so "
-        "the raw generator above stands in for it."
+        + " (the target is 127 x 2 TPDO / 10 ms + heartbeats = 26,670 frames/s; the count "
+        "includes python-can's virtual bus copying each frame to the counting Bus)."
     )
     return sec
