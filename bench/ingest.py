@@ -166,10 +166,9 @@ class GatewayUnderTest:
         self.gw = await start_gateway(self.cfg, self.inj, [1])
         assert self.gw.zenoh is not None and self.gw.modbus is not None
         node = self.gw.image.nodes["n1"]
-        pos = node.signals["position"]
 
         def last_frame_seen(n: Any, names: tuple[str, ...], ts: float) -> None:
-            if n is node and pos.value == self.target:
+            if n is node and node.signals["position"].value == self.target:
                 self.done_at = time.perf_counter()
                 self.done.set()
 

@@ -20,9 +20,11 @@ from gateway.bus.master import Master
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import ProcessImage
+from gateway.metrics import modbus_function_label
 from gateway.modbus.regmap import build_register_map
 from gateway.modbus.server import ModbusGateway
 from gateway.profiles import load_profile
+from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
 log = logging.getLogger("gateway")
@@ -69,11 +71,14 @@ class SimulatedBus:
 
 
 class Gateway:
-    def __init__(self, cfg: Config, simulate: bool = True):
+    def __init__(self, cfg: Config, simulate: bool = True, *, passive: bool = False):
         self.cfg = cfg
         self.image = ProcessImage()
-        self.driver = BusDriver(cfg.can.bus_kwargs(), self.image, cfg.can.reopen_backoff_s)
-        self.master = Master(cfg, self.image, self.driver)
+        self.threads = ThreadRegistry()
+        self.driver = BusDriver(
+            cfg.can.bus_kwargs(), self.image, cfg.can.reopen_backoff_s, threads=self.threads
+        )
+        self.master = Master(cfg, self.image, self.driver, passive=passive)
         self.commands = CommandService(self.master)
         self.modbus = ModbusGateway(cfg, self.image, self.commands) if cfg.modbus.enabled else None
         self.zenoh = (
@@ -94,7 +99,8 @@ class Gateway:
                     | ({"bit": p.bit} if p.bit is not None else {})
                 )
         nodes = {}
-        for name, rt in self.master.nodes.items():
+        for name in self.commands.names():
+            rt = self.commands.node(name)
             sigs = {}
             for s in rt.lp.profile.signals:
                 sigs[s.name] = {
@@ -153,9 +159,12 @@ class Gateway:
         bus_ok = self.driver.state == "ok"
         modbus_up = self.modbus is None or self.modbus.server is not None
         zenoh_up = self.zenoh is None or self.zenoh.up
+        dead = self.threads.failures()
+        ready = self.started and bus_ok and modbus_up and zenoh_up and not dead
         return {
-            "status": "ready" if (self.started and bus_ok and modbus_up and zenoh_up) else "not-ready",
-            "ready": self.started and bus_ok and modbus_up and zenoh_up,
+            "status": "ready" if ready else "not-ready",
+            "ready": ready,
+            "threads": {"failed": dead},
             "bus": {"state": self.driver.state, "detail": self.driver.last_error},
             "modbus": modbus_up,
             "zenoh": zenoh_up,
@@ -181,6 +190,14 @@ class Gateway:
         from gateway.metrics import Metrics, NodeSample
 
         self.metrics = Metrics()
+
+        def on_sdo(node: str, op: str, latency_s: float, abort: int | None) -> None:
+            self.metrics.sdo_request(node, op)
+            self.metrics.observe_sdo_latency(node, latency_s)
+            if abort is not None:
+                self.metrics.sdo_abort(node, abort)
+
+        self.master.on_sdo = on_sdo
         self.metrics.set_node_source(
             lambda: [
                 NodeSample(n.name, int(n.health.nmt_state), n.health.alive, n.data_age_s())
@@ -191,28 +208,33 @@ class Gateway:
             self.cfg.health.host, self.cfg.health.port, self.status, self.metrics.registry
         )
         await self.health.start()
-        self._metrics_task = asyncio.create_task(self._sync_metrics())
+        self.metrics.set_refresh(self._copy_counters)
 
-    async def _sync_metrics(self) -> None:
-        """Copy the hot-path counters (plain ints) into the metrics once a second."""
+    def _copy_counters(self) -> None:
+        """Copy the gateway's plain counters into the metrics (at every scrape)."""
         c = self.metrics.counters
-        while True:
-            ic = self.image.counters
-            c.frames_in, c.frames_out, c.bus_errors = ic["frames_in"], ic["frames_out"], ic["bus_errors"]
-            if self.zenoh is not None:
-                c.zenoh_publications = self.zenoh.publications
-            if self.modbus is not None:
-                c.modbus_exceptions = {f"0x{k:02X}": v for k, v in self.modbus.store.exceptions.items()}
-                c.modbus_requests = {"all": self.modbus.store.requests}
-            for name, node in self.image.nodes.items():
-                if node.health.emcy_count:
-                    c.emcy[name] = node.health.emcy_count
-            await asyncio.sleep(1.0)
+        ic = self.image.counters
+        c.frames_in, c.frames_out, c.bus_errors = ic["frames_in"], ic["frames_out"], ic["bus_errors"]
+        for name, node in self.image.nodes.items():
+            for reason, n in (
+                ("short", node.rx.pdo_too_short),
+                ("too_long", node.rx.pdo_too_long),
+                ("emcy_short", node.health.emcy_errors),
+            ):
+                if n:
+                    c.decode_errors[(name, reason)] = n
+            if node.health.emcy_count:
+                c.emcy[name] = node.health.emcy_count
+        if self.zenoh is not None:
+            c.zenoh_publications = self.zenoh.publications
+        if self.modbus is not None:
+            store = self.modbus.store
+            c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}
+            c.modbus_requests = {modbus_function_label(fc): n for fc, n in store.by_function.items()}
 
     async def stop(self) -> None:
         self.started = False
         if self.health is not None:
-            self._metrics_task.cancel()
             await self.health.stop()
         if self.zenoh is not None:
             await self.zenoh.stop()

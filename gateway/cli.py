@@ -151,12 +151,11 @@ async def _with_master(cfg: Config, fn: Any) -> Any:
     cfg.master.probe_at_start = False
     for n in cfg.nodes:
         n.configure = False
-    gw = Gateway(cfg, simulate=True)
-    gw.master.passive = True  # no NMT start or configuration of its own during commissioning
+    cfg.health.port = 0  # a commissioning command opens no server
+    # passive: no NMT start or configuration of its own; SDO to nodes regardless of supervision
+    gw = Gateway(cfg, simulate=True, passive=True)
     await gw.start()
     try:
-        for rt in gw.master.nodes.values():
-            rt.image.health.alive = True  # commissioning talks to nodes regardless of supervision
         return await fn(gw)
     finally:
         await gw.stop()

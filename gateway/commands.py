@@ -1,26 +1,44 @@
-"""The command service: the one way south.
+"""The command service: the one way south, and the only writer of device values.
 
-Modbus and Zenoh call the same operations (write a signal, write bits of a word, SDO read/write,
-NMT) and get the same typed results and errors (``gateway.errors``), which each adapter
-translates into its own protocol's error. Values here are raw device values; engineering
-scaling is the adapters' business.
+Modbus and Zenoh (and the web console) call the same operations — write a signal, write bits
+of a word, read a signal, SDO read/write, NMT — by node and signal *name*, and get the same
+typed results and errors (``gateway.errors``), which each adapter translates into its own
+protocol's error. Values here are raw device values; engineering scaling is the adapters'
+business.
 
-Imports: bus.master (for the operations), errors, image, objref. Never modbus/ or zenoh_bridge/.
+Rules held here, once:
+* a value is checked against its type and the profile's range before anything is sent;
+* bits: a bit write (Modbus coil, Zenoh ``{"bits": ...}``) is allowed only on bits the profile
+  marks ``writable``; a whole-word write must leave every other bit as it is (the last value
+  sent for an RPDO word, the device's value for an SDO word), else it is refused with
+  ``ValueOutOfRange`` naming the bits. A bit the gateway manages itself (the AP05 guarding
+  bit) is ignored in a whole-word write. Bits of RPDO and SDO words alike are written by
+  read-modify-write, one writer at a time per word;
+* SDO-backed values read north come from a cache (``master.sdo_cache_ms``, default 1000 ms):
+  a read younger than that is served from it, concurrent reads share one upload, a write
+  through the gateway updates it, and a boot-up or loss of the node empties it.
+
+Imports: bus.master (the operations), bus.lifecycle (value codecs), errors, image, objref,
+profiles, states. Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
+from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.codec import RpdoCodec
-from gateway.bus.master import NMT_COMMANDS, Master, NodeRuntime
-from gateway.errors import NodeNotOperational, NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
-from gateway.image import NmtState
+from gateway.bus.lifecycle import OD_TYPE_NAMES, decode_value, encode_value
+from gateway.bus.master import Master, NodeParts
+from gateway.errors import NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
+from gateway.image import NodeImage
 from gateway.objref import ObjRef
+from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import TextSignal, text_signals
 from gateway.profiles.schema import TYPE_BITS, Signal
+from gateway.states import NMT_COMMANDS
 
 log = logging.getLogger("gateway.commands")
 
@@ -77,179 +95,326 @@ def check_value(sig: Signal, value: Any) -> Any:
     return v
 
 
+def writable_mask(sig: Signal) -> int:
+    """Bits of a word signal a client may set or clear (the profile's ``writable`` bits)."""
+    mask = 0
+    for b in sig.bits:
+        if b.writable:
+            mask |= ((1 << b.width) - 1) << b.bit
+    return mask
+
+
+def bit_names(sig: Signal, mask: int) -> str:
+    names = []
+    for bit in range(64):
+        if mask >> bit & 1:
+            named = next((b.name for b in sig.bits if b.bit <= bit < b.bit + b.width), None)
+            names.append(f"bit {bit}" + (f" ({named})" if named else ""))
+    return ", ".join(names)
+
+
+@dataclass(frozen=True)
+class NodeInfo:
+    """What an adapter may know of a node: names, profile (read-only), overrides, image."""
+
+    name: str
+    node_id: int
+    lp: LoadedProfile
+    cfg: Any  # the node's config entry (signal overrides for scaling and publishing)
+    image: NodeImage
+    pdo_cob_ids: tuple[int, ...]
+    outputs: frozenset[str]  # signals sent in RPDOs
+
+    def is_output(self, name: str) -> bool:
+        return name in self.outputs
+
+
 class CommandService:
     def __init__(self, master: Master):
         self.master = master
+        cache_ms = getattr(master.cfg.master, "sdo_cache_ms", 1000)
+        self.sdo_cache_s = cache_ms / 1000.0
+        self._cache: dict[tuple[str, str], tuple[Any, float, tuple[int, int]]] = {}
+        self._reading: dict[tuple[str, str], asyncio.Future[Any]] = {}
+        self._word_locks: dict[tuple[str, str], asyncio.Lock] = {}
+        self._infos: dict[str, NodeInfo] = {}
 
-    def node(self, name: str) -> NodeRuntime:
-        rt = self.master.nodes.get(name)
-        if rt is None:
+    # ------------------------------------------------------------------ lookups
+    def _part(self, name: str) -> NodeParts:
+        p = self.master.nodes.get(name)
+        if p is None:
             raise NodeUnknown(name, sorted(self.master.nodes))
-        return rt
+        return p
 
-    def signal(self, rt: NodeRuntime, name: str) -> Signal:
+    def node(self, name: str) -> NodeInfo:
+        info = self._infos.get(name)
+        if info is None:
+            p = self._part(name)
+            info = NodeInfo(
+                p.name,
+                p.node_id,
+                p.lp,
+                p.cfg,
+                p.image,
+                tuple(c.cob_id for c in p.tpdos) + tuple(c.cob_id for c in p.rpdos),
+                frozenset(p.node.by_signal) | frozenset(t.name for t in text_signals(p.lp.profile)),
+            )
+            self._infos[name] = info
+        return info
+
+    def names(self) -> list[str]:
+        return list(self.master.nodes)
+
+    def signal(self, node: NodeInfo | str, name: str) -> Signal:
+        info = self.node(node) if isinstance(node, str) else node
+        profile = info.lp.profile
         try:
-            return rt.lp.profile.signal(name)
+            return profile.signal(name)
         except KeyError:
             pass
-        ts = self._text(rt, name)
+        ts = self._text(info.lp, name)
         if ts is not None:
-            return ts.as_signal(rt.lp.profile.signal(ts.head))
-        raise Unmapped(f"node {rt.name} has no signal {name!r}")
+            return ts.as_signal(profile.signal(ts.head))
+        raise Unmapped(f"node {info.name} has no signal {name!r}")
 
     @staticmethod
-    def _text(rt: NodeRuntime, name: str) -> TextSignal | None:
-        for ts in text_signals(rt.lp.profile):
+    def _text(lp: LoadedProfile, name: str) -> TextSignal | None:
+        for ts in text_signals(lp.profile):
             if ts.name == name:
                 return ts
         return None
 
-    def _require_operational(self, rt: NodeRuntime) -> None:
-        h = rt.image.health
-        if not h.alive:
-            raise NodeNotOperational(rt.name, "not alive (lost or never booted)")
-        if h.nmt_state != NmtState.OPERATIONAL:
-            raise NodeNotOperational(rt.name, f"NMT state {h.nmt_state.name}")
+    def _managed_mask(self, p: NodeParts, name: str) -> int:
+        gb = p.settings.guarding_bit
+        if gb is not None and p.node.control_signal == name:
+            return 1 << gb.control_bit
+        return 0
 
+    # ------------------------------------------------------------------ writes
     async def write_signal(self, node: str, name: str, value: Any) -> None:
         """Write a writable signal: an RPDO for process data, an SDO download otherwise."""
-        rt = self.node(node)
-        sig = self.signal(rt, name)
-        if sig.access == "ro":
-            raise ReadOnly(f"{node}.{name} is read-only")
-        v = check_value(sig, value)
-        ts = self._text(rt, name)
-        if ts is not None:
-            self._write_text(rt, ts, v)
-            return
-        if sig.transport == "pdo" and name in rt.rpdo_by_signal:
-            await self.write_signals(node, {name: value})
-            return
-        await self.master.sdo_download(rt, sig.object, v, sig.type)
-
-    def _write_text(self, rt: NodeRuntime, ts: TextSignal, raw: bytes) -> None:
-        """One display row as ASCII (AP05 manual 4.1.2, table 26): characters 1-4 in the set
-        point bytes 0-3, 5-6 in bytes 4-5, data identifier bit set in that RPDO's control word."""
-        self._require_operational(rt)
-        text = raw.ljust(ts.length, b" ")
-        codecs = [c for c in rt.rpdo_by_signal[ts.head] if ts.tail in c.names]
-        if not codecs:
-            raise Unmapped(f"{ts.name}: {ts.head} and {ts.tail} are not in one RPDO")
-        codec = codecs[0]
-        saved = dict(codec.values)
-        codec.set(ts.head, int.from_bytes(text[0:4], "little", signed=True))
-        codec.set(ts.tail, text[4:6])
-        codec.set(ts.control, int(codec.get(ts.control)) | (1 << ts.identifier_bit))
-        try:
-            self.master.send_rpdo(rt, codec)
-        except Exception:
-            codec.values.update(saved)
-            raise
-
-    def current_text(self, rt: NodeRuntime, ts: TextSignal) -> bytes:
-        """The row's text as last sent (empty when the row was last sent as a number)."""
-        codec = next(c for c in rt.rpdo_by_signal[ts.head] if ts.tail in c.names)
-        if not int(codec.get(ts.control)) >> ts.identifier_bit & 1:
-            return b""
-        head = int(codec.get(ts.head)).to_bytes(4, "little", signed=True)
-        return (head + bytes(codec.get(ts.tail))).rstrip(b" \0")
+        await self.write_signals(node, {name: value})
 
     async def write_signals(self, node: str, values: dict[str, Any]) -> None:
-        """Several signals of one RPDO in one frame (e.g. set point + control word)."""
-        rt = self.node(node)
-        checked = {}
+        """Several signals; those of RPDOs go out together (e.g. set point + control word)."""
+        p = self._part(node)
+        checked: dict[str, Any] = {}
         for name, value in values.items():
-            sig = self.signal(rt, name)
+            sig = self.signal(node, name)
             if sig.access == "ro":
                 raise ReadOnly(f"{node}.{name} is read-only")
             checked[name] = check_value(sig, value)
-        pdo_names = [n for n in checked if n in rt.rpdo_by_signal]
-        sdo_names = [n for n in checked if n not in rt.rpdo_by_signal]
-        if pdo_names:
-            self._require_operational(rt)
-            # Which RPDOs go out: those carrying a signal mapped only there; a signal mapped in
-            # several RPDOs (a shared control word) alone goes out in the last of them.
-            send: dict[int, RpdoCodec] = {}
-            for n in pdo_names:
-                cs = rt.rpdo_by_signal[n]
-                if len(cs) == 1:
-                    send[cs[0].number] = cs[0]
-            if not send:
-                last = rt.rpdo_by_signal[pdo_names[0]][-1]
-                send[last.number] = last
-            saved = {c.number: dict(c.values) for cs in rt.rpdo_by_signal.values() for c in cs}
-            for n in pdo_names:
-                for c in rt.rpdo_by_signal[n]:
-                    c.set(n, checked[n])
-            for ts in text_signals(rt.lp.profile):
+        texts = {n: ts for n in checked if (ts := self._text(p.lp, n)) is not None}
+        if texts:
+            if len(checked) != 1:
+                raise ValueOutOfRange(next(iter(texts)), values, "a text row is written alone")
+            ((name, ts),) = texts.items()
+            self._write_text(p, ts, checked[name])
+            return
+        pdo = {n: v for n, v in checked.items() if p.node.is_output(n)}
+        sdo = {n: v for n, v in checked.items() if n not in pdo}
+        for n, v in pdo.items():
+            self._check_word(p, self.signal(node, n), v, p.node.output(n))
+        if pdo:
+            per_pdo: dict[int | None, dict[str, Any]] = {None: pdo}
+            for ts in text_signals(p.lp.profile):
                 # a number written to a row that showed text: that RPDO says "number" again
-                if ts.head in checked and ts.control not in checked:
-                    for c in rt.rpdo_by_signal[ts.head]:
-                        c.set(ts.control, int(c.get(ts.control)) & ~(1 << ts.identifier_bit))
-            try:
-                for codec in sorted(send.values(), key=lambda c: c.number):
-                    self.master.send_rpdo(rt, codec)
-            except Exception:
-                for c in rt.rpdos:
-                    c.values.update(saved.get(c.number, {}))
-                raise
-            for n in pdo_names:
-                self._mirror(rt, n, checked[n])
-        for n in sdo_names:
-            sig = self.signal(rt, n)
-            await self.master.sdo_download(rt, sig.object, checked[n], sig.type)
+                if ts.head in pdo and ts.control not in pdo:
+                    for c in p.node.by_signal[ts.head]:
+                        ctrl = int(p.node.output(ts.control, c.number))
+                        per_pdo.setdefault(c.number, {})[ts.control] = ctrl & ~(
+                            1 << ts.identifier_bit
+                        )
+            self.master.write_outputs(node, per_pdo)
+        for n, v in sdo.items():
+            sig = self.signal(node, n)
+            if sig.bits:
+                async with self._word_lock(node, n):
+                    current = await self._sdo_value(p, sig)
+                    self._check_word(p, sig, v, current)
+                    await self._sdo_write_signal(p, sig, v)
+            else:
+                await self._sdo_write_signal(p, sig, v)
+
+    def _check_word(self, p: NodeParts, sig: Signal, new: Any, current: Any) -> None:
+        if not sig.bits or not isinstance(new, int):
+            return
+        fixed = ~(writable_mask(sig) | self._managed_mask(p, sig.name))
+        changed = (int(new) ^ int(current or 0)) & fixed & ((1 << TYPE_BITS.get(sig.type, 64)) - 1)
+        if changed:
+            raise ValueOutOfRange(
+                sig.name,
+                new,
+                f"{bit_names(sig, changed)} not writable: keep as {int(current or 0) & changed:#x}"
+                f" on those bits; writable: {bit_names(sig, writable_mask(sig)) or 'none'}",
+            )
 
     async def write_bits(self, node: str, name: str, bits: dict[int, bool]) -> None:
-        """Set or clear bits of a writable word signal (read-modify-write of the last value)."""
-        rt = self.node(node)
-        sig = self.signal(rt, name)
+        """Set or clear bits of a word signal (read-modify-write of the current value). A bit
+        the profile does not mark writable may only be "written" with the value it has."""
+        p = self._part(node)
+        sig = self.signal(node, name)
         if sig.access == "ro":
             raise ReadOnly(f"{node}.{name} is read-only")
-        current = int(self.current_output(rt, name) or 0)
-        for bit, on in bits.items():
-            current = current | (1 << bit) if on else current & ~(1 << bit)
-        await self.write_signal(node, name, current)
+        if any(not 0 <= b < TYPE_BITS.get(sig.type, 64) for b in bits):
+            raise Unmapped(f"{node}.{name} has no bit {sorted(bits)}")
+        allowed = writable_mask(sig) if sig.bits else 0
+        async with self._word_lock(node, name):
+            if p.node.is_output(name):
+                current = int(p.node.output(name) or 0)
+            else:
+                current = int(await self._sdo_value(p, sig))
+            word = current
+            for bit, on in bits.items():
+                word = word | (1 << bit) if on else word & ~(1 << bit)
+            changed = (word ^ current) & ~allowed
+            if changed:
+                raise ReadOnly(
+                    f"{node}.{name}: {bit_names(sig, changed)} not writable; "
+                    f"writable: {bit_names(sig, allowed) or 'none'}"
+                )
+            if p.node.is_output(name):
+                self.master.write_outputs(node, {None: {name: word}})
+            else:
+                await self._sdo_write_signal(p, sig, check_value(sig, word))
 
-    def current_output(self, rt: NodeRuntime, name: str) -> Any:
-        """The last value sent for a writable process-data signal (None if SDO-backed)."""
-        ts = self._text(rt, name)
+    def _word_lock(self, node: str, name: str) -> asyncio.Lock:
+        return self._word_locks.setdefault((node, name), asyncio.Lock())
+
+    def _write_text(self, p: NodeParts, ts: TextSignal, raw: bytes) -> None:
+        """One display row as ASCII (AP05 manual 4.1.2, table 26): characters 1-4 in the set
+        point bytes 0-3, 5-6 in bytes 4-5, data identifier bit set in that RPDO's control word."""
+        p.node.require_operational()
+        text = raw.ljust(ts.length, b" ")
+        codecs = [c for c in p.node.by_signal.get(ts.head, []) if c.index_of(ts.tail) is not None]
+        if not codecs:
+            raise Unmapped(f"{ts.name}: {ts.head} and {ts.tail} are not in one RPDO")
+        n = codecs[0].number
+        ctrl = int(p.node.output(ts.control, n)) | (1 << ts.identifier_bit)
+        self.master.write_outputs(
+            p.name,
+            {
+                n: {
+                    ts.head: int.from_bytes(text[0:4], "little", signed=True),
+                    ts.tail: text[4:6],
+                    ts.control: ctrl,
+                }
+            },
+        )
+
+    def current_text(self, p: NodeParts, ts: TextSignal) -> bytes:
+        """The row's text as last sent (empty when the row was last sent as a number)."""
+        codec = next(c for c in p.node.by_signal[ts.head] if c.index_of(ts.tail) is not None)
+        if not int(p.node.output(ts.control, codec.number)) >> ts.identifier_bit & 1:
+            return b""
+        head = int(p.node.output(ts.head, codec.number)).to_bytes(4, "little", signed=True)
+        return (head + bytes(p.node.output(ts.tail, codec.number))).rstrip(b" \0")
+
+    def output_value(self, node: str, name: str) -> Any:
+        """The last value sent for an RPDO signal or text row (0 before anything was sent)."""
+        p = self._part(node)
+        ts = self._text(p.lp, name)
         if ts is not None:
-            return self.current_text(rt, ts)
-        codecs = rt.rpdo_by_signal.get(name)
-        return codecs[-1].get(name) if codecs else None
+            return self.current_text(p, ts)
+        if not p.node.is_output(name):
+            raise Unmapped(f"{node}.{name} is not sent in an RPDO")
+        v = p.node.output(name)
+        return 0 if v is None else v
 
-    def _mirror(self, rt: NodeRuntime, name: str, value: Any) -> None:
-        sig = rt.image.signals.get(name)
-        if sig is not None:
-            sig.value = value
-            sig.timestamp = time.time()
-            sig.seq += 1
-
+    # ------------------------------------------------------------------ reads
     async def read_signal(self, node: str, name: str) -> Any:
-        """Read an SDO-backed signal from the device (process data comes from the image)."""
-        rt = self.node(node)
-        sig = self.signal(rt, name)
+        """A signal's value north: the last output sent for RPDO signals, else the device's
+        value by SDO (served from the cache while younger than ``sdo_cache_ms``)."""
+        p = self._part(node)
+        sig = self.signal(node, name)
         if sig.access == "wo":
             raise ReadOnly(f"{node}.{name} is write-only")
-        ts = self._text(rt, name)
-        if ts is not None:
-            return self.current_text(rt, ts)
-        return await self.master.sdo_upload(rt, sig.object, sig.type)
+        if self._text(p.lp, name) is not None or p.node.is_output(name):
+            return self.output_value(node, name)
+        return await self._sdo_value(p, sig, cached=True)
+
+    def _epoch(self, p: NodeParts) -> tuple[int, int]:
+        h = p.image.health
+        return h.boot_count, h.loss_count
+
+    async def _sdo_value(self, p: NodeParts, sig: Signal, cached: bool = False) -> Any:
+        key = (p.name, sig.name)
+        now = time.monotonic()
+        if cached:
+            hit = self._cache.get(key)
+            if hit is not None and now - hit[1] <= self.sdo_cache_s and hit[2] == self._epoch(p):
+                return hit[0]
+            pending = self._reading.get(key)
+            if pending is not None:
+                return await asyncio.shield(pending)
+        fut: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        self._reading[key] = fut
+        try:
+            epoch = self._epoch(p)
+            data = await self.master.sdo(p.name, sig.object, None)
+            value = decode_value(bytes(data), sig.type)
+            self._cache[key] = (value, time.monotonic(), epoch)
+            fut.set_result(value)
+            return value
+        except BaseException as exc:
+            fut.set_exception(exc)
+            fut.exception()  # retrieved: no "never retrieved" warning when nobody shares it
+            raise
+        finally:
+            if self._reading.get(key) is fut:
+                del self._reading[key]
+
+    async def _sdo_write_signal(self, p: NodeParts, sig: Signal, value: Any) -> None:
+        await self.master.sdo(p.name, sig.object, encode_value(value, sig.type))
+        self._cache[(p.name, sig.name)] = (value, time.monotonic(), self._epoch(p))
+
+    # ------------------------------------------------------------------ SDO and NMT
+    def _od_type(self, p: NodeParts, obj: ObjRef) -> str | None:
+        sig = p.lp.profile.signal_for(obj)
+        if sig is not None:
+            return sig.type
+        var = p.lp.od_var(obj)
+        return None if var is None else OD_TYPE_NAMES.get(var.data_type)
 
     async def sdo_read(self, node: str, obj: str | ObjRef, type_: str | None = None) -> Any:
-        rt = self.node(node)
-        return await self.master.sdo_upload(rt, ObjRef.parse(obj), type_)
+        """Upload any object; the value decoded by ``type_`` or the dictionary's type (bytes
+        when unknown)."""
+        p = self._part(node)
+        o = ObjRef.parse(obj)
+        data = await self.master.sdo(node, o, None)
+        t = type_ or self._od_type(p, o)
+        return bytes(data) if t is None else decode_value(bytes(data), t)
 
     async def sdo_write(
         self, node: str, obj: str | ObjRef, value: Any, type_: str | None = None
     ) -> None:
-        rt = self.node(node)
-        await self.master.sdo_download(rt, ObjRef.parse(obj), value, type_)
+        p = self._part(node)
+        o = ObjRef.parse(obj)
+        if isinstance(value, (bytes, bytearray)):
+            data = bytes(value)
+        else:
+            t = type_ or self._od_type(p, o)
+            if t is None:
+                raise ValueOutOfRange(str(o), value, "a type (the object is not in the EDS)")
+            if isinstance(value, str) and t not in ("string", "bytes"):
+                try:
+                    value = float(value) if t == "float32" else int(value, 0)
+                except ValueError:
+                    raise ValueOutOfRange(str(o), value, f"a number ({t})") from None
+            try:
+                data = encode_value(value, t)
+            except ValueError as exc:
+                raise ValueOutOfRange(str(o), value, str(exc)) from None
+        await self.master.sdo(node, o, data)
+        sig = p.lp.profile.signal_for(o)
+        if sig is not None:
+            self._cache.pop((node, sig.name), None)
 
     def nmt(self, node: str, command: str) -> None:
         """NMT command to one node by name, or to all nodes with ``all``."""
         if command not in NMT_COMMANDS:
             raise ValueOutOfRange("nmt", command, "one of " + ", ".join(NMT_COMMANDS))
-        node_id = 0 if node == "all" else self.node(node).node_id
-        self.master.nmt_send(node_id, command)
+        if node != "all":
+            self._part(node)
+        self.master.nmt(node, command)
         log.info("NMT %s sent to %s", command, node)

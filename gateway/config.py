@@ -74,6 +74,12 @@ class MasterSection(_Model):
     boot_timeout_s: float = Field(default=10.0, gt=0, le=3600)
     heartbeat_timeout_multiple: float = Field(default=1.5, ge=1.0, le=10)
     probe_at_start: bool = True
+    sdo_cache_ms: int = Field(
+        default=1000,
+        ge=0,
+        le=3_600_000,
+        description="SDO-backed values read north are served from a cache this young (0 = always read)",
+    )
 
 
 class SdoWrite(_Model):
@@ -140,6 +146,10 @@ class NodeConfig(_Model):
     guarding_bit: GuardingBitSettings = Field(default_factory=GuardingBitSettings)
     external_heartbeat: ExternalHeartbeat | None = None
     stale_after_ms: int | None = Field(default=None, ge=1)
+    refresh_on_start: bool = Field(
+        default=True,
+        description="read TPDOs that send only on change right after NMT start (RTR or SDO)",
+    )
 
 
 class ModbusSection(_Model):

@@ -3,55 +3,38 @@
 Every signal has a value, a source timestamp and a quality (good / stale / bad); every node has
 its health (NMT state, supervision, guarding-bit link, last EMCY, data age). The bus side writes
 here; Modbus and Zenoh read here and are told of changes through listeners. Values of one PDO are
-written together (one tuple assignment), so a reader never sees half an update.
+written together (one immutable record, one assignment), so a reader never sees half an update.
 
-Imports: nothing of bus/, modbus/, zenoh_bridge/ (they import this).
+Imports: gateway.states only; nothing of bus/, modbus/, zenoh_bridge/ (they import this).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Any
+from typing import Any, NamedTuple
+
+from gateway.states import LinkState, NmtState
 
 
 class Quality(IntEnum):
     GOOD = 0
-    STALE = 1  # last known value, the node is not delivering (lost, stopped, stale age)
+    STALE = 1  # last known value: the node is not delivering (lost, rebooted, stopped, aged)
     BAD = 2  # never received, or the device said the value is invalid
 
 
-class NmtState(IntEnum):
-    """DS-301 NMT states as carried by heartbeat / node guarding."""
+class SignalValue(NamedTuple):
+    """Latest value of one signal, immutable: a reader holds one frame's value or another's.
 
-    UNKNOWN = -1
-    BOOTUP = 0
-    STOPPED = 4
-    OPERATIONAL = 5
-    PRE_OPERATIONAL = 127
-
-
-class LinkState(IntEnum):
-    """Process-data link by the guarding bit (AP05 manual 5.5.5)."""
-
-    NOT_USED = 0
-    OK = 1
-    FAULT = 2
-    UNKNOWN = 3
-
-
-@dataclass
-class SignalValue:
-    """Latest value of one signal. ``value`` is the raw device value (int, float, str, bytes)."""
+    ``value`` is the raw device value (int, float, str, bytes)."""
 
     name: str
     value: Any = None
     timestamp: float = 0.0  # source timestamp (wall clock, seconds) of the frame
-    monotonic: float = 0.0  # receive time, monotonic clock, for data age
-    seq: int = 0
-    valid: bool = True  # device-side validity (e.g. MSK5000 not referenced)
+    monotonic: float = 0.0  # receive time, monotonic clock, for data age and freshness
+    seq: int = 0  # values received for this signal (0 = never)
 
 
 @dataclass
@@ -65,6 +48,9 @@ class EmcyRecord:
 
 @dataclass
 class NodeHealth:
+    """A node's health. Written by the node's owner only (``bus.node.Node``, on the event
+    loop); read by everyone."""
+
     nmt_state: NmtState = NmtState.UNKNOWN
     lifecycle: str = "waiting"
     alive: bool = False
@@ -75,18 +61,92 @@ class NodeHealth:
     link_fault_count: int = 0
     last_emcy: EmcyRecord | None = None
     emcy_count: int = 0
+    emcy_errors: int = 0  # EMCY frames too short to decode
+    emcy_history: tuple[Any, ...] = ()
     current_errors: list[int] = field(default_factory=list)
     last_sdo_abort: int = 0
     last_error: str = ""
-    last_rx_monotonic: float = 0.0
-    pdo_errors: int = 0
     rpdo_sent: int = 0
+    # Values received before this instant (monotonic) are stale; None = none is good (the node
+    # booted or was lost and has not been started by the gateway since).
+    fresh_since: float | None = None
+    invalid_signals: frozenset[str] = frozenset()  # flagged invalid (MSK5000 not referenced)
+
+
+class RxCounters:
+    """Counters of the CAN reader thread (written by that thread only)."""
+
+    __slots__ = ("pdo_too_short", "pdo_too_long", "last_rx_monotonic")
+
+    def __init__(self) -> None:
+        self.pdo_too_short = 0  # PDOs shorter than their mapping (not decoded)
+        self.pdo_too_long = 0  # PDOs longer than their mapping (mapped bytes decoded)
+        self.last_rx_monotonic = 0.0
+
+
+_new = tuple.__new__  # a NamedTuple without its Python-level __new__ (hot path)
+
+#: One frame's values: (values in mapping order, source timestamp, receive time, frames so far)
+Record = tuple[tuple[Any, ...], float, float, int]
+
+
+class SignalView(Mapping[str, SignalValue]):
+    """``node.signals``: signal name -> its latest ``SignalValue``, computed from the records.
+
+    A signal may live in several records (SGH10 TPDO1 and TPDO2 carry the same values; a value
+    read by SDO): the most recently received wins, and ``seq`` counts all of them."""
+
+    __slots__ = ("_records", "_where")
+
+    def __init__(self, records: dict[Any, Record], where: dict[str, tuple[tuple[Any, int], ...]]):
+        self._records = records
+        self._where = where
+
+    def __getitem__(self, name: str) -> SignalValue:
+        slots = self._where[name]
+        records = self._records
+        if len(slots) == 1:  # the common case: the signal is in one PDO
+            key, index = slots[0]
+            r = records.get(key)
+            if r is None:
+                return SignalValue(name)
+            return _new(SignalValue, (name, r[0][index], r[1], r[2], r[3]))
+        best: Record | None = None
+        index = 0
+        seq = 0
+        for key, i in slots:
+            r = records.get(key)
+            if r is not None:
+                seq += r[3]
+                if best is None or r[2] >= best[2]:
+                    best, index = r, i
+        if best is None:
+            return SignalValue(name)
+        return _new(SignalValue, (name, best[0][index], best[1], best[2], seq))
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._where)
+
+    def __len__(self) -> int:
+        return len(self._where)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._where
 
 
 class NodeImage:
-    """Signals and health of one node."""
+    """Signals and health of one node.
 
-    __slots__ = ("name", "node_id", "family", "signals", "health", "stale_after_s", "serve_stale")
+    Values are kept as one immutable record per PDO (``records``, keyed by the tuple of the
+    signal names it carries): the reader thread puts a whole frame in with one assignment, so a
+    reader sees one frame or the other, never a mix. ``signals`` is the per-signal view of the
+    records; ``snapshot()`` is a consistent view for a request that reads several signals.
+    """
+
+    __slots__ = (
+        "name", "node_id", "family", "records", "where", "signals", "health", "rx",
+        "stale_after_s", "serve_stale",
+    )  # fmt: skip
 
     def __init__(
         self,
@@ -100,19 +160,63 @@ class NodeImage:
         self.name = name
         self.node_id = node_id
         self.family = family
-        self.signals: dict[str, SignalValue] = {n: SignalValue(n) for n in signal_names}
+        self.records: dict[Any, Record] = {}
+        self.where: dict[str, tuple[tuple[Any, int], ...]] = {n: () for n in signal_names}
+        self.signals = SignalView(self.records, self.where)
         self.health = NodeHealth()
+        self.rx = RxCounters()
         self.stale_after_s = stale_after_s
         self.serve_stale = serve_stale
+
+    def bind(self, names: tuple[str, ...]) -> None:
+        """Make the record keyed ``names`` a source of those signals (once per layout)."""
+        where = self.where
+        for i, n in enumerate(names):
+            slots = where.get(n, ())
+            if (names, i) not in slots:
+                where[n] = (*slots, (names, i))  # one assignment: readers see old or new
+
+    def put(self, names: tuple[str, ...], values: tuple[Any, ...], ts: float, mono: float) -> None:
+        """Values of one frame (or of one SDO read), in one assignment."""
+        records = self.records
+        old = records.get(names)
+        records[names] = (values, ts, mono, old[3] + 1 if old is not None else 1)
+        if old is None:
+            self.bind(names)
+
+    def snapshot(self) -> SignalView:
+        return SignalView(dict(self.records), self.where)
+
+    def set_value(self, sv: SignalValue) -> None:
+        """Put one signal's value as given (tests and tools)."""
+        key = (sv.name,)
+        self.records[key] = ((sv.value,), sv.timestamp, sv.monotonic, sv.seq)
+        self.bind(key)
 
     def operational(self) -> bool:
         h = self.health
         return h.alive and h.nmt_state == NmtState.OPERATIONAL and h.link != LinkState.FAULT
 
+    def usable(self) -> bool:
+        """Values usable: operational and its guarding-bit link (if any) confirmed OK. The
+        Zenoh liveliness token ``alive/<node>`` follows this."""
+        return self.operational() and self.health.link in (LinkState.OK, LinkState.NOT_USED)
+
+    def is_valid(self, name: str) -> bool:
+        return name not in self.health.invalid_signals
+
     def quality(self, sig: SignalValue, now_monotonic: float | None = None) -> Quality:
-        if sig.seq == 0 or not sig.valid:
+        h = self.health
+        if sig.seq == 0 or (h.invalid_signals and sig.name in h.invalid_signals):
             return Quality.BAD
-        if not self.operational():
+        fresh = h.fresh_since
+        if (
+            fresh is None
+            or sig.monotonic < fresh
+            or not h.alive
+            or h.nmt_state is not NmtState.OPERATIONAL
+            or h.link is LinkState.FAULT
+        ):
             return Quality.STALE
         if self.stale_after_s is not None:
             now = time.monotonic() if now_monotonic is None else now_monotonic
@@ -121,7 +225,7 @@ class NodeImage:
         return Quality.GOOD
 
     def data_age_s(self, now_monotonic: float | None = None) -> float | None:
-        last = self.health.last_rx_monotonic
+        last = self.rx.last_rx_monotonic
         if not last:
             return None
         return (time.monotonic() if now_monotonic is None else now_monotonic) - last
@@ -135,6 +239,32 @@ HealthListener = Callable[[NodeImage, str], None]
 PdoListener = Callable[[NodeImage, int, bytes], None]
 
 
+class Counters:
+    """Event counters, exact under threads: each thread counts in its own ``CounterSet``
+    (``image.counter_set()``) and readers sum them."""
+
+    NAMES = ("frames_in", "frames_out", "decode_errors", "unknown_cob_id", "bus_errors",
+             "pdo_too_long", "emcy_errors")  # fmt: skip
+
+    def __init__(self) -> None:
+        self._sets: list[dict[str, int]] = []
+
+    def counter_set(self) -> dict[str, int]:
+        """A dict of counters for one thread only (never shared)."""
+        d = dict.fromkeys(self.NAMES, 0)
+        self._sets.append(d)
+        return d
+
+    def __getitem__(self, name: str) -> int:
+        return sum(d.get(name, 0) for d in list(self._sets))
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.NAMES
+
+    def snapshot(self) -> dict[str, int]:
+        return {n: self[n] for n in self.NAMES}
+
+
 class ProcessImage:
     def __init__(self) -> None:
         self.nodes: dict[str, NodeImage] = {}
@@ -144,13 +274,12 @@ class ProcessImage:
         self.pdo_listeners: list[PdoListener] = []  # raw PDO bytes (e.g. zenoh raw_pdo)
         self.started_monotonic = time.monotonic()
         self.bus_state = "down"
-        self.counters: dict[str, int] = {
-            "frames_in": 0,
-            "frames_out": 0,
-            "decode_errors": 0,
-            "unknown_cob_id": 0,
-            "bus_errors": 0,
-        }
+        self.counters = Counters()
+        self._loop_counters = self.counters.counter_set()  # counted on the event loop
+
+    def count(self, name: str, n: int = 1) -> None:
+        """Count on the event loop (other threads use their own ``counters.counter_set()``)."""
+        self._loop_counters[name] = self._loop_counters.get(name, 0) + n
 
     def add_node(self, node: NodeImage) -> None:
         self.nodes[node.name] = node
@@ -159,21 +288,14 @@ class ProcessImage:
     def update(
         self, node: NodeImage, names: tuple[str, ...], values: tuple[Any, ...], ts: float
     ) -> None:
-        """Write the values of one PDO (hot path) and tell the value listeners."""
+        """Write the values of one PDO (hot path: one record, one assignment) and tell the value
+        listeners. Called by one writer at a time per node (the reader thread; SDO refreshes
+        on the event loop only while the node's TPDOs are silent)."""
         mono = time.monotonic()
-        sigs = node.signals
-        for name, value in zip(names, values, strict=False):
-            s = sigs[name]
-            s.value = value
-            s.timestamp = ts
-            s.monotonic = mono
-            s.seq += 1
-        node.health.last_rx_monotonic = mono
+        node.put(names, values, ts, mono)
+        node.rx.last_rx_monotonic = mono
         for listener in self.value_listeners:
             listener(node, names, ts)
-
-    def set_valid(self, node: NodeImage, name: str, valid: bool) -> None:
-        node.signals[name].valid = valid
 
     def health_changed(self, node: NodeImage, what: str = "health") -> None:
         for listener in self.health_listeners:

@@ -233,7 +233,18 @@ class Metrics:
         """The Prometheus text exposition format (``CONTENT_TYPE``) of every metric."""
         return generate_latest(self.registry)
 
+    def set_refresh(self, refresh: Callable[[], None] | None) -> None:
+        """``refresh()`` is called at every scrape, before the counters are read (the owner
+        copies its plain counters in)."""
+        self._refresh = refresh
+
     def _snapshot(self) -> Counters:
+        refresh = getattr(self, "_refresh", None)
+        if refresh is not None:
+            try:
+                refresh()
+            except Exception:  # a broken source must not take /metrics down with it
+                log.exception("metrics refresh failed")
         c = self.counters
         with self._lock:
             return Counters(

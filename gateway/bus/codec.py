@@ -134,44 +134,33 @@ class TpdoCodec:
 
 
 class RpdoCodec:
-    """Encodes one RPDO from the current values of its mapped objects."""
+    """Encodes one RPDO from the values of its mapped fields (stateless: the values are the
+    node's output image, owned by ``bus.node.Node``)."""
+
+    __slots__ = ("cob_id", "number", "fields", "length", "names", "_pack", "_index")
 
     def __init__(self, cob_id: int, number: int, fields: list[Field]):
         self.cob_id = cob_id
         self.number = number
         self.fields = fields
         self.length = (sum(f.bits for f in fields) + 7) // 8
-        self.values: dict[int, Any] = {
-            i: (b"\0" * (f.bits // 8) if f.is_text else 0) for i, f in enumerate(fields)
-        }
         self.names = tuple(f.signal for f in fields if f.signal)
+        self._index = {f.signal: i for i, f in enumerate(fields) if f.signal}
         fmt = _struct_format(fields)
         self._pack = struct.Struct(fmt).pack if fmt else None
 
+    def initial_values(self) -> list[Any]:
+        """Zero (or NUL text) for every field, in mapping order."""
+        return [b"\0" * (f.bits // 8) if f.is_text else 0 for f in self.fields]
+
     def index_of(self, signal: str) -> int | None:
-        for i, f in enumerate(self.fields):
-            if f.signal == signal:
-                return i
-        return None
+        return self._index.get(signal)
 
-    def set(self, signal: str, value: Any) -> None:
-        i = self.index_of(signal)
-        if i is None:
-            raise KeyError(signal)
-        self.values[i] = value
-
-    def get(self, signal: str) -> Any:
-        i = self.index_of(signal)
-        if i is None:
-            raise KeyError(signal)
-        return self.values[i]
-
-    def encode(self) -> bytes:
-        vals = [self.values[i] for i in range(len(self.fields))]
+    def encode(self, values: Sequence[Any]) -> bytes:
         if self._pack is not None:
-            return self._pack(*vals)
+            return self._pack(*values)
         word = 0
-        for f, v in zip(self.fields, vals, strict=True):
+        for f, v in zip(self.fields, values, strict=True):
             if f.is_text:
                 raw = int.from_bytes(v, "little")
             elif f.is_float:

@@ -21,12 +21,19 @@ down     the backend raised or is closed; the reader reopens it with backoff
 Error frames are decoded by the SocketCAN layout (linux/can/error.h, also what python-can's
 other backends follow): class bits in the CAN-ID, controller status in data byte 1.
 
-Imports: python-can, image (for counters). Nothing northbound.
+Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
+event loop sends is queued to it, so a blocking backend never blocks the loop). Both are
+supervised (``gateway.threads``); each counts in its own counter set.
+
+Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock).
+
+Imports: python-can, image (for counters), ratelimit, threads. Nothing northbound.
 """
 
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections.abc import Callable
@@ -35,6 +42,8 @@ from typing import Any
 import can
 
 from gateway.image import ProcessImage
+from gateway.ratelimit import RateLimitedLog
+from gateway.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.bus")
 
@@ -51,29 +60,6 @@ FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface:
 FrameHandler = Callable[[can.Message], None]
 
 
-class RateLimitedLog:
-    """Log a recurring problem at most once per ``period_s`` per key, with a count."""
-
-    def __init__(self, logger: logging.Logger, period_s: float = 10.0):
-        self.logger = logger
-        self.period_s = period_s
-        self._last: dict[Any, float] = {}
-        self._suppressed: dict[Any, int] = {}
-
-    def warning(self, key: Any, msg: str, *args: Any) -> None:
-        now = time.monotonic()
-        last = self._last.get(key)
-        if last is not None and now - last < self.period_s:
-            self._suppressed[key] = self._suppressed.get(key, 0) + 1
-            return
-        n = self._suppressed.pop(key, 0)
-        self._last[key] = now
-        if n:
-            self.logger.warning(msg + " (%d more suppressed)", *args, n)
-        else:
-            self.logger.warning(msg, *args)
-
-
 class BusDriver:
     """The bus, its reader thread and sending; see the module docstring for the states."""
 
@@ -86,6 +72,9 @@ class BusDriver:
         *,
         reopen_backoff_max_s: float = 30.0,
         error_hold_s: float = 5.0,
+        threads: ThreadRegistry | None = None,
+        mono: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = time.time,
     ):
         self.bus_kwargs = bus_kwargs
         self.image = image
@@ -107,6 +96,13 @@ class BusDriver:
         self.warn = RateLimitedLog(log)
         self.idle = True
         self.last_frame_wall = 0.0
+        self.threads = threads or ThreadRegistry()
+        self.mono = mono
+        self.wall = wall
+        self.rx_counters = image.counters.counter_set()  # reader thread only
+        self.tx_counters = image.counters.counter_set()  # sender thread only
+        self._tx: queue.SimpleQueue[can.Message | None] = queue.SimpleQueue()
+        self._sender: threading.Thread | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
@@ -126,14 +122,16 @@ class BusDriver:
         else:
             self._set_state("ok", "")
         self._running.set()
-        self._thread = threading.Thread(target=self._run, name="can-reader", daemon=True)
-        self._thread.start()
+        self._thread = self.threads.start("can-reader", self._run)
+        self._sender = self.threads.start("can-sender", self._send_loop)
 
     def close(self) -> None:
         self._running.clear()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._tx.put(None)
+        for t in (self._thread, self._sender):
+            if t is not None:
+                t.join(timeout=2.0)
+        self._thread = self._sender = None
         self._shutdown_bus()
         self._set_state("down", "closed")
 
@@ -165,44 +163,60 @@ class BusDriver:
         timeouts by the time of the frames it has processed, not by the wall clock: a
         heartbeat waiting in the receive queue is not a lost node.
         """
-        now = time.monotonic()
+        now = self.mono()
         if self.idle or not self.last_frame_wall:
             return now
-        lag = time.time() - self.last_frame_wall
+        lag = self.wall() - self.last_frame_wall
         return now - lag if 0 < lag < 3600 else now
 
     def frame_time(self, msg: can.Message) -> float:
         """A frame's receive time on the monotonic clock (its timestamp is wall-clock)."""
-        lag = time.time() - msg.timestamp if msg.timestamp else 0.0
-        return time.monotonic() - lag if 0 < lag < 3600 else time.monotonic()
+        lag = self.wall() - msg.timestamp if msg.timestamp else 0.0
+        return self.mono() - lag if 0 < lag < 3600 else self.mono()
 
     # ------------------------------------------------------------------ sending
     def send(
         self, cob_id: int, data: bytes = b"", rtr: bool = False, dlc: int | None = None
     ) -> None:
-        """Send one frame; raises ``can.CanError`` when the bus is down."""
-        bus = self.bus
-        if bus is None or self.state == "down":
+        """Queue one frame for the sender thread (never blocks); raises ``can.CanError`` when
+        the bus is down. A frame the backend then refuses is counted and logged."""
+        if self.bus is None or self.state == "down":
             raise can.CanOperationError("CAN bus is down")
-        msg = can.Message(
-            arbitration_id=cob_id,
-            data=data,
-            is_extended_id=False,
-            is_remote_frame=rtr,
-            dlc=dlc if dlc is not None else len(data),
+        self._tx.put(
+            can.Message(
+                arbitration_id=cob_id,
+                data=data,
+                is_extended_id=False,
+                is_remote_frame=rtr,
+                dlc=dlc if dlc is not None else len(data),
+                check=False,
+            )
         )
-        try:
-            with self._send_lock:
-                bus.send(msg)
-        except can.CanError as exc:
-            self.image.counters["bus_errors"] += 1
-            self.warn.warning("send", "CAN send failed: %s", exc)
-            raise
-        self.image.counters["frames_out"] += 1
+
+    def _send_loop(self) -> None:
+        counters = self.tx_counters
+        while True:
+            msg = self._tx.get()
+            if msg is None:
+                if not self._running.is_set():
+                    return
+                continue
+            bus = self.bus
+            if bus is None:
+                counters["bus_errors"] += 1
+                continue
+            try:
+                with self._send_lock:
+                    bus.send(msg)
+            except Exception as exc:  # noqa: BLE001 - a refused frame must not end the sender
+                counters["bus_errors"] += 1
+                self.warn.warning("send", "CAN send failed: %s", exc)
+                continue
+            counters["frames_out"] += 1
 
     # ------------------------------------------------------------------ reading
     def _run(self) -> None:
-        counters = self.image.counters
+        counters = self.rx_counters
         handlers = self.handlers
         while self._running.is_set():
             bus = self.bus
@@ -233,7 +247,8 @@ class BusDriver:
             if self.state == "error":
                 self._maybe_recovered()
             counters["frames_in"] += 1
-            h = handlers.get(msg.arbitration_id)
+            # CANopen (CiA 301) uses 11-bit identifiers: a 29-bit frame is never ours
+            h = None if msg.is_extended_id else handlers.get(msg.arbitration_id)
             try:
                 if h is not None:
                     h(msg)
@@ -242,15 +257,12 @@ class BusDriver:
             except Exception as exc:  # noqa: BLE001 - a bad frame must never stop the reader
                 counters["decode_errors"] += 1
                 self.warn.warning(
-                    ("handler", msg.arbitration_id),
-                    "frame 0x%03X could not be handled: %s",
-                    msg.arbitration_id,
-                    exc,
+                    "handler", "frame 0x%03X could not be handled: %s", msg.arbitration_id, exc
                 )
 
     def _error_frame(self, msg: can.Message) -> None:
         """Controller state from an error frame (linux/can/error.h layout)."""
-        self.last_error_frame_s = time.monotonic()
+        self.last_error_frame_s = self.mono()
         cls = msg.arbitration_id
         data = bytes(msg.data).ljust(8, b"\0")
         ctrl = data[1] if cls & CAN_ERR_CRTL else 0
@@ -264,9 +276,7 @@ class BusDriver:
                 log.info("CAN controller error active again")
                 self._set_state("ok", "")
         else:
-            self.warn.warning(
-                ("error_frame", cls), "CAN error frame 0x%X data %s", cls, data.hex(" ")
-            )
+            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", cls, data.hex(" "))
 
     def _enter_error(self, what: str) -> None:
         if self.state != "error" or self.last_error != what:
@@ -275,7 +285,7 @@ class BusDriver:
 
     def _maybe_recovered(self) -> None:
         last = self.last_error_frame_s
-        if last is None or time.monotonic() - last >= self.error_hold_s:
+        if last is None or self.mono() - last >= self.error_hold_s:
             log.info("CAN frames flow without error frames for %.1f s: bus ok", self.error_hold_s)
             self._set_state("ok", "")
 

@@ -1,5 +1,5 @@
-"""Node supervision as plain state machines: heartbeat consumer, node guarding master,
-guarding-bit check and external-heartbeat feed.
+"""Node supervision as plain state machines: heartbeat consumer and node guarding master
+(the guarding-bit check of process data is in ``bus.guarding_bit``).
 
 Rule 1: everything that decides whether a node (or its process-data link) is alive lives here,
 with each transition in a table next to the manual section it implements.
@@ -13,30 +13,19 @@ measured from ``t0`` expires strictly *after* ``t0 + T``. At ``now == t0 + T`` t
 alive; at the next representable instant it is lost. Scheduled sends are due *at* their time
 (``now >= due``).
 
-Imports: the standard library only. Must not import python-can, canopen, asyncio, logging or any
-other gateway module.
+Imports: the standard library and gateway.states (the one NmtState / LinkState). Must not
+import python-can, canopen, asyncio, logging or any other gateway module.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum, StrEnum
-from typing import Literal
+from enum import StrEnum
+
+from gateway.states import REPORTED_STATES as _REPORTED_STATES
+from gateway.states import NmtState
 
 # --------------------------------------------------------------------------- NMT states
-
-
-class NmtState(IntEnum):
-    """NMT state byte of a heartbeat / guarding answer (SGH10 manual 4.5.2, 4.5.3; DS-301)."""
-
-    BOOTUP = 0x00  # SGH10 manual 4.2.2: the boot-up message carries 00h
-    STOPPED = 0x04
-    OPERATIONAL = 0x05
-    PRE_OPERATIONAL = 0x7F  # 127
-
-
-#: States a heartbeat or a guarding answer may report (SGH10 manual 4.5.2/4.5.3: 4, 5, 127).
-_REPORTED_STATES = frozenset({NmtState.STOPPED, NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL})
 
 
 class Liveness(StrEnum):
@@ -276,6 +265,7 @@ class NodeGuardingMaster:
     UNKNOWN      poll, now > activation/boot-up + life time         LOST      NodeLost
     ALIVE        poll, now > last valid answer + life time          LOST      NodeLost
     any          boot-up                                            UNKNOWN   BootUpSeen (toggle restarts at 0)
+    not LOST     sign of life (SDO answer during configuration)     same      life time runs from now
     ===========  =================================================  ========  ==========================
 
     DS-301: "if two consecutive responses have the same value of the toggle-bit, the new
@@ -397,6 +387,12 @@ class NodeGuardingMaster:
                 out.append(NodeAlive(st))
         return out
 
+    def on_sign_of_life(self, now: float) -> None:
+        """Another frame of the node (an SDO answer while it is configured) shows it is there:
+        the life time runs from now. Guarding answers stay the only way to become ALIVE."""
+        if self.active and self.state is not Liveness.LOST and self.last_valid_s is not None:
+            self.last_valid_s = max(self.last_valid_s, now)
+
     def on_bootup(self, now: float) -> list[Output]:
         """The node restarted: its toggle starts again at 0, the life time runs from now."""
         self.bootups += 1
@@ -409,256 +405,3 @@ class NodeGuardingMaster:
             out.append(NmtStateChanged(self.nmt_state, NmtState.PRE_OPERATIONAL))
             self.nmt_state = NmtState.PRE_OPERATIONAL
         return out
-
-
-# --------------------------------------------------------------------------- guarding bit
-
-
-class LinkState(StrEnum):
-    UNKNOWN = "unknown"  # nothing sent yet, or no echo seen yet
-    OK = "ok"
-    FAULT = "fault"
-
-
-@dataclass(frozen=True)
-class LinkOk:
-    """Change: the device echoes the guarding bit (again)."""
-
-
-@dataclass(frozen=True)
-class LinkFault:
-    """Change: the device stopped echoing the guarding bit."""
-
-    reason: str
-
-
-class GuardingBitCheck:
-    """Process-data link check by the guarding bit (AP05 manual 5.5.5, 5.3.2, 5.3.3).
-
-    The device copies bit 8 of the control word it receives (5F0Ch, in the RPDOs) into bit 8 of
-    its status word (5F19h) and sends it with its next TPDO. The gateway toggles the bit it sends
-    and checks that the status words echo it.
-
-    One toggle is in flight at a time: ``next_bit`` toggles the bit only when the previous toggle
-    has been echoed (or nothing was sent yet) and otherwise repeats it, so every echo answers
-    exactly one toggle, whatever the RPDO and TPDO rates. The first bit sent is 1: the status
-    word starts with bit 8 = 0 after power-on (AP05 manual 5.3.1.3 example: status word 0), so an
-    echo of 0 could not be told from a device that never received anything.
-
-    ===========  ===============================================================  ========  =========
-    state        event                                                            next      outputs
-    ===========  ===============================================================  ========  =========
-    any          next_bit (RPDO sent)                                             same      (expectation recorded)
-    any          status bit 8 == bit last sent                                    OK        LinkOk if not OK before
-    UNKNOWN/OK   status bit 8 != bit last sent, more than N in a row               FAULT     LinkFault
-    UNKNOWN/OK   poll, a toggle sent at t is unechoed and now > t + T              FAULT     LinkFault
-    FAULT        status bit 8 == bit last sent                                    OK        LinkOk
-    ===========  ===============================================================  ========  =========
-
-    A status word that does not echo is a *missed echo* (the first one or two after a toggle are
-    normal: that TPDO may have left before the RPDO was processed; hence the tolerance N).
-    Status words received before anything was sent are ignored.
-    """
-
-    def __init__(self, tolerance_missed: int = 3, tolerance_s: float = 1.0):
-        if tolerance_missed < 0:
-            raise ValueError("tolerance_missed must be >= 0")
-        if tolerance_s <= 0:
-            raise ValueError("tolerance_s must be > 0")
-        self.tolerance_missed = tolerance_missed
-        self.tolerance_s = tolerance_s
-        self.state: LinkState = LinkState.UNKNOWN
-        self.bit: int | None = None  # last bit sent
-        self.pending_since_s: float | None = None  # when the unechoed toggle was first sent
-        self.consecutive_missed = 0
-        self.missed = 0
-        self.echoes = 0
-        self.sent = 0
-        self.faults = 0
-
-    @property
-    def deadline_s(self) -> float | None:
-        if self.pending_since_s is None or self.state is LinkState.FAULT:
-            return None
-        return self.pending_since_s + self.tolerance_s
-
-    def next_deadline(self) -> float | None:
-        return self.deadline_s
-
-    def next_bit(self, now: float) -> int:
-        """The guarding bit to put into the control word of the RPDO about to be sent."""
-        if self.bit is None:
-            self.bit = 1
-            self.pending_since_s = now
-        elif self.pending_since_s is None:
-            self.bit ^= 1
-            self.pending_since_s = now
-        self.sent += 1
-        return self.bit
-
-    def on_status(self, bit: int, now: float) -> list[LinkOk | LinkFault]:
-        """Bit 8 of a status word just received in a TPDO."""
-        if self.bit is None:
-            return []
-        if (bit & 1) == self.bit:
-            self.consecutive_missed = 0
-            if self.pending_since_s is not None:
-                self.echoes += 1
-                self.pending_since_s = None
-            if self.state is not LinkState.OK:
-                self.state = LinkState.OK
-                return [LinkOk()]
-            return []
-        self.missed += 1
-        self.consecutive_missed += 1
-        if self.consecutive_missed > self.tolerance_missed and self.state is not LinkState.FAULT:
-            return self._fault(
-                f"guarding bit not echoed in {self.consecutive_missed} status words in a row"
-            )
-        return []
-
-    def poll(self, now: float) -> list[LinkOk | LinkFault]:
-        deadline = self.deadline_s
-        if deadline is not None and now > deadline:
-            return self._fault(f"guarding bit not echoed for more than {self.tolerance_s:g} s")
-        return []
-
-    def reset(self) -> None:
-        """Forget the expectation (the node rebooted or was lost): state UNKNOWN."""
-        self.state = LinkState.UNKNOWN
-        self.bit = None
-        self.pending_since_s = None
-        self.consecutive_missed = 0
-
-    def _fault(self, reason: str) -> list[LinkOk | LinkFault]:
-        self.state = LinkState.FAULT
-        self.faults += 1
-        return [LinkFault(reason)]
-
-
-# --------------------------------------------------------------------------- external heartbeat
-
-ExternalHeartbeatSource = Literal["rpdo", "sync"]
-
-#: AP05 manual 5.7.2.31, 5F09h:02: 0 = timer triggered by an RPDO (set point), 1 = by a SYNC.
-EXTERNAL_HEARTBEAT_SOURCE_CODES: dict[str, int] = {"rpdo": 0, "sync": 1}
-#: AP05 manual 5.7.2.31, 5F09h:01: 0 (off) or 10 ... 65535 ms.
-EXTERNAL_HEARTBEAT_MIN_MS = 10
-EXTERNAL_HEARTBEAT_MAX_MS = 65535
-
-
-@dataclass(frozen=True)
-class SendKeepAliveRpdo:
-    """Action: re-send the last RPDO now so the device's external-heartbeat timer is fed."""
-
-    overdue_s: float
-
-
-def check_external_heartbeat(
-    interval_ms: int,
-    source: str,
-    sync_period_ms: float | None,
-    keepalive_ms: float | None,
-    *,
-    margin: float = 0.5,
-) -> str | None:
-    """A problem text for a config that would let the device's watchdog expire, else None.
-
-    AP05 manual 5.5.4 / 5.7.2.31: with 5F09h:01 = interval > 0 the device drops to
-    PRE-OPERATIONAL when no RPDO (5F09h:02 = 0) or no SYNC (= 1) arrives within the interval.
-    The gateway must feed it at least every ``interval * (1 - margin)`` (half the interval by
-    default) so one late or lost frame does not trip it.
-    """
-    if interval_ms == 0:
-        return None
-    if not EXTERNAL_HEARTBEAT_MIN_MS <= interval_ms <= EXTERNAL_HEARTBEAT_MAX_MS:
-        return (
-            f"external heartbeat interval {interval_ms} ms is not allowed: 0 (off) or "
-            f"{EXTERNAL_HEARTBEAT_MIN_MS}..{EXTERNAL_HEARTBEAT_MAX_MS} ms (AP05 manual 5F09h:01)"
-        )
-    if not 0.0 <= margin < 1.0:
-        return f"external heartbeat margin {margin} must be in 0 <= margin < 1"
-    limit_ms = interval_ms * (1.0 - margin)
-    if source == "rpdo":
-        if not keepalive_ms:
-            return (
-                f"external heartbeat source rpdo needs a keep-alive: the device expects an RPDO "
-                f"within {interval_ms} ms, set keepalive_ms <= {limit_ms:g}"
-            )
-        if keepalive_ms > limit_ms:
-            return (
-                f"external heartbeat keep-alive {keepalive_ms:g} ms is too slow for the "
-                f"{interval_ms} ms interval: send at least every {limit_ms:g} ms"
-            )
-        return None
-    if source == "sync":
-        if not sync_period_ms:
-            return (
-                f"external heartbeat source sync but the gateway produces no SYNC "
-                f"(master.sync_period_ms is 0): the device drops to PRE-OPERATIONAL after "
-                f"{interval_ms} ms"
-            )
-        if sync_period_ms > limit_ms:
-            return (
-                f"SYNC period {sync_period_ms:g} ms is too slow for the external heartbeat "
-                f"interval {interval_ms} ms: SYNC at least every {limit_ms:g} ms"
-            )
-        return None
-    return f"external heartbeat source {source!r} must be 'rpdo' or 'sync'"
-
-
-class ExternalHeartbeatFeed:
-    """Tells the driver when a keep-alive RPDO must go out (AP05 manual 5.5.4, 5F09h).
-
-    With source ``rpdo`` the device's timer is fed by every RPDO; the gateway sends RPDOs on
-    change only, so when none was sent for ``keepalive_s`` (the interval less the margin, half
-    the interval by default) ``poll`` asks for the last RPDO to be re-sent. The driver reports
-    every RPDO it actually sends with ``on_rpdo_sent`` (keep-alives included); until then
-    ``poll`` keeps asking. Nothing is asked before a first RPDO was sent: there is nothing to
-    repeat, and sending the first one after NMT start is the driver's job.
-
-    With source ``sync`` the SYNC producer feeds the device; ``poll`` never asks for anything
-    and the constructor rejects a SYNC period that would let the timer expire.
-    """
-
-    def __init__(
-        self,
-        interval_ms: int,
-        source: ExternalHeartbeatSource = "rpdo",
-        margin: float = 0.5,
-        sync_period_ms: float | None = None,
-    ):
-        keepalive_ms = interval_ms * (1.0 - margin) if 0.0 <= margin < 1.0 else None
-        problem = check_external_heartbeat(
-            interval_ms, source, sync_period_ms, keepalive_ms, margin=margin
-        )
-        if problem:
-            raise ValueError(problem)
-        if interval_ms == 0:
-            raise ValueError("external heartbeat interval 0 means off; do not create a feed")
-        self.interval_ms = interval_ms
-        self.source: ExternalHeartbeatSource = source
-        self.margin = margin
-        self.keepalive_s: float = interval_ms * (1.0 - margin) / 1000.0
-        self.last_rpdo_s: float | None = None
-        self.keepalives_asked = 0
-
-    @property
-    def due_s(self) -> float | None:
-        """When the next keep-alive RPDO is due (None: nothing to feed)."""
-        if self.source != "rpdo" or self.last_rpdo_s is None:
-            return None
-        return self.last_rpdo_s + self.keepalive_s
-
-    def next_deadline(self) -> float | None:
-        return self.due_s
-
-    def on_rpdo_sent(self, now: float) -> None:
-        self.last_rpdo_s = now
-
-    def poll(self, now: float) -> list[SendKeepAliveRpdo]:
-        due = self.due_s
-        if due is not None and now >= due:
-            self.keepalives_asked += 1
-            return [SendKeepAliveRpdo(overdue_s=now - due)]
-        return []

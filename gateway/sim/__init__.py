@@ -6,13 +6,31 @@ and runs the device behaviours of its profile's features (behaviours/). ``SimRun
 (runner.py) drives nodes on a python-can bus in a background thread.
 
 Used by tests, demos and commissioning. Imports: gateway.profiles, gateway.objref, python-can,
-canopen (EDS types only). Nothing of bus/, modbus/ or zenoh_bridge/.
+canopen (EDS types only), gateway.states. Nothing of bus/, modbus/ or zenoh_bridge/.
 """
 
-from gateway.sim.motion import MotionConfig
-from gateway.sim.node import NmtState, SimNode
-from gateway.sim.objects import PersistentStore, SdoAbortError
-from gateway.sim.runner import SimRunner, build_sim_nodes
+from typing import Any
+
+from gateway.states import NmtState
+
+_EXPORTS = {
+    "MotionConfig": "gateway.sim.motion",
+    "PersistentStore": "gateway.sim.objects",
+    "SdoAbortError": "gateway.sim.objects",
+    "SimNode": "gateway.sim.node",
+    "SimRunner": "gateway.sim.runner",
+    "build_sim_nodes": "gateway.sim.runner",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """The package's names, imported when first used (the submodules import this package)."""
+    import importlib
+
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(name)
+
 
 __all__ = [
     "MotionConfig",

@@ -37,14 +37,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import Any, Literal
 
 import can
 
+import gateway.sim.pdo as pdo
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
-from gateway.sim import pdo
 from gateway.sim.behaviours import Behaviour, behaviour_for
 from gateway.sim.emcy import EmcyProducer
 from gateway.sim.hints import SimHints
@@ -61,16 +60,7 @@ from gateway.sim.objects import (
     resolve_default,
 )
 from gateway.sim.sdo import SdoServer
-
-
-class NmtState(IntEnum):
-    """NMT states as carried in heartbeat / guarding byte (SGH10 manual 4.5.2, 4.5.3)."""
-
-    INITIALISING = 0x00  # the boot-up message carries 00h (4.2.2)
-    STOPPED = 0x04
-    OPERATIONAL = 0x05
-    PRE_OPERATIONAL = 0x7F
-
+from gateway.states import NmtState
 
 # NMT command specifiers (SGH10 manual 4.2.1.2, Table 3)
 NMT_START = 0x01
@@ -129,7 +119,7 @@ class SimNode:
             raw["motion"] = {**(raw.get("motion") or {}), **motion}
         self.hints = SimHints.from_dict(raw)
         self.values = ObjectValues(profile.od)
-        self.nmt_state = NmtState.INITIALISING
+        self.nmt_state = NmtState.BOOTUP
         self.powered = False
         self.silenced = False
         self.mute_until_s: float | None = None  # off the bus for a while (LSS bit timing switch)
@@ -284,7 +274,7 @@ class SimNode:
         if self._muted(now):
             self._out.clear()
             return []
-        if self.nmt_state != NmtState.INITIALISING:
+        if self.nmt_state != NmtState.BOOTUP:
             self._tick_heartbeat(now)
             self._tick_life_guarding(now)
         if self.nmt_state == NmtState.OPERATIONAL:
@@ -405,7 +395,7 @@ class SimNode:
         """INITIALISATION (SGH10 manual 4.2.1.1), boot-up message, then PRE-OPERATIONAL."""
         self.powered = True
         self.last_reset = kind
-        self.nmt_state = NmtState.INITIALISING
+        self.nmt_state = NmtState.BOOTUP
         if kind == "power":
             self.motion.start(now)
             self.node_id = self.store.node_id or self.configured_node_id

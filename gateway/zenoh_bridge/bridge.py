@@ -38,7 +38,7 @@ import zenoh
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import GatewayError
-from gateway.image import LinkState, NodeImage, ProcessImage
+from gateway.image import NodeImage, ProcessImage
 from gateway.profiles.schema import Signal
 from gateway.zenoh_bridge.keys import (
     GATEWAY_TOKEN,
@@ -363,9 +363,9 @@ class ZenohBridge:
         (the process image's PDO listeners: called on the reader thread for TPDOs)."""
         for name in self.image.nodes:
             rt = self.commands.node(name)
-            for codec in list(rt.tpdos) + list(rt.rpdos):
-                self.raw_pubs[(name, codec.cob_id)] = s.declare_publisher(
-                    pdo_key(self.prefix, name, codec.cob_id),
+            for cob_id in rt.pdo_cob_ids:
+                self.raw_pubs[(name, cob_id)] = s.declare_publisher(
+                    pdo_key(self.prefix, name, cob_id),
                     encoding=OCTETS,
                     congestion_control=zenoh.CongestionControl.DROP,
                 )
@@ -493,11 +493,11 @@ class ZenohBridge:
         self._refresh(node, time.monotonic())
 
     def _sync_token(self, node: NodeImage) -> None:
-        """A token while the node is alive and its process-data link is not in fault."""
+        """A token while the node's values are usable: operational, guarding-bit link OK."""
         s = self.session
         if s is None:
             return
-        alive = node.health.alive and node.health.link != LinkState.FAULT
+        alive = node.usable()
         tok = self.tokens.get(node.name)
         if alive and tok is None:
             self.tokens[node.name] = s.liveliness().declare_token(alive_key(self.prefix, node.name))
@@ -631,7 +631,7 @@ class ZenohBridge:
         rt = self.commands.node(req.node)
         sig = self.commands.signal(rt, req.signal)
         body = set_body(payload)
-        via = "rpdo" if sig.transport == "pdo" and req.signal in rt.rpdo_by_signal else "sdo"
+        via = "rpdo" if rt.is_output(req.signal) else "sdo"
         if body.bits is not None:
             named = {b.name: b for b in sig.bits}
             bits: dict[int, bool] = {}

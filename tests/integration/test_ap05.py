@@ -42,6 +42,9 @@ async def _raw_gateway(nodes: list[dict], **sections: object) -> tuple[Gateway, 
 
 
 def _operational_by_heartbeat(bus: can.BusABC, node_id: int) -> None:
+    """Boot-up (the gateway answers with NMT start: values are fresh from then on), then an
+    operational heartbeat, as a device sends them."""
+    bus.send(can.Message(arbitration_id=0x700 + node_id, data=b"\x00", is_extended_id=False))
     bus.send(can.Message(arbitration_id=0x700 + node_id, data=b"\x05", is_extended_id=False))
 
 

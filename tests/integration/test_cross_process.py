@@ -64,9 +64,8 @@ async def test_gateway_serves_devices_simulated_in_another_process(tmp_path: Pat
         await gw.start()
         for name in ("wire", "display"):
             await wait_until(lambda n=name: gw.image.nodes[n].operational(), 10, f"{name} operational")
-        pos = gw.image.nodes["wire"].signals["position"]
-        seq = pos.seq
-        await wait_until(lambda: pos.seq > seq + 3, 5, "positions flowing")
+        seq = gw.image.nodes["wire"].signals["position"].seq
+        await wait_until(lambda: gw.image.nodes["wire"].signals["position"].seq > seq + 3, 5, "positions flowing")
     finally:
         if gw is not None:
             await gw.stop()

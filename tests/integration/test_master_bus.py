@@ -3,8 +3,6 @@ keeps running; controller error frames (error passive, bus off) surface in the h
 
 from __future__ import annotations
 
-import time
-
 import can
 import pytest
 
@@ -45,9 +43,8 @@ async def test_bus_shut_under_the_driver_is_reopened_and_decoding_resumes() -> N
         await wait_until(lambda: gw.driver.state == "ok", 3, "bus reopened")
         assert gw.driver.reopens == 1
         assert gw.image.counters["bus_errors"] >= 1
-        sig = gw.image.nodes["wire"].signals["position"]
-        seq = sig.seq
-        await wait_until(lambda: sig.seq > seq + 3, 3, "TPDOs decoded again")
+        seq = gw.image.nodes["wire"].signals["position"].seq
+        await wait_until(lambda: gw.image.nodes["wire"].signals["position"].seq > seq + 3, 3, "TPDOs decoded again")
         assert gw.status()["ready"]
         # 1.5 s without heartbeats: the node was lost, and is found and configured again
         assert gw.image.nodes["wire"].health.loss_count == 1
@@ -84,9 +81,8 @@ async def test_error_state_clears_when_frames_flow_without_error_frames_for_the_
         try:
             bus.send(error_frame(0x04, 0x10))  # RX passive; no "active" frame will follow
             await wait_until(lambda: gw.driver.state == "error", 2, "error passive")
-            t0 = time.monotonic()
+            # the hold time itself is checked on a fake clock (tests/unit/test_bus_clock.py)
             await wait_until(lambda: gw.driver.state == "ok", 2, "ok again (hold time)")
-            assert time.monotonic() - t0 >= 0.15
         finally:
             bus.shutdown()
 

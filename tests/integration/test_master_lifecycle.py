@@ -126,10 +126,9 @@ async def test_bei_pdo_type_2_is_written_at_boot_and_its_speed_decoded() -> None
         assert sim.get(0x2005, 0) == 0x22  # the device and the decoder agree on type 2
         steps = [str(s.object) for s in gw.master.nodes["rotary"].boot_steps]
         assert steps.index("0x2005:00") < steps.index("0x1800:02")  # layout before the TPDOs
-        sig = gw.image.nodes["rotary"].signals["speed"]
-        await wait_until(lambda: sig.seq > 2 and sig.value, 3, "speed decoded")
+        await wait_until(lambda: gw.image.nodes["rotary"].signals["speed"].seq > 2 and gw.image.nodes["rotary"].signals["speed"].value, 3, "speed decoded")
         # 2002h: counts per 5 ms; the ramp runs 50000 counts/s = 250 per 5 ms (sim hint)
-        assert 200 <= sig.value <= 300
+        assert 200 <= gw.image.nodes["rotary"].signals["speed"].value <= 300
 
 
 async def test_msk5000_tpdo_remapped_by_node_sdo_writes_is_decoded_by_the_new_mapping() -> None:
@@ -162,7 +161,7 @@ async def test_msk5000_tpdo_remapped_by_node_sdo_writes_is_decoded_by_the_new_ma
         assert sigs["sys_register"].value == sim.get(0x5122, 1)
         assert sigs["sys_register"].value & 0x02
         assert sigs["flag0_register"].value == sim.get(0x5122, 2)
-        assert rt.image.health.pdo_errors == 0
+        assert rt.image.rx.pdo_too_short == 0
 
 
 def boot_table(lp: Any, node: Any) -> str:

@@ -33,7 +33,8 @@ def frame(cob_id: int, data: bytes) -> can.Message:
     return can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
 
 
-async def test_sync_and_heartbeat_producers_keep_their_periods() -> None:
+async def test_sync_and_heartbeat_producers_send_their_frames() -> None:
+    """The periods themselves are checked on a fake clock (tests/unit/test_node.py)."""
     async with running(
         [], simulate={"nodes": []}, master={"sync_period_ms": 20, "heartbeat_ms": 100}
     ) as gw:
@@ -41,12 +42,8 @@ async def test_sync_and_heartbeat_producers_keep_their_periods() -> None:
         try:
             syncs = await asyncio.to_thread(collect, bus, lambda m: m.arbitration_id == 0x080, 11)
             assert all(m.dlc == 0 for m in syncs)
-            span_s = syncs[-1].timestamp - syncs[0].timestamp
-            assert 0.15 <= span_s <= 0.4, span_s  # 10 periods of 20 ms
             beats = await asyncio.to_thread(collect, bus, lambda m: m.arbitration_id == 0x77F, 3)
             assert all(bytes(m.data) == b"\x05" for m in beats)  # node id 127, OPERATIONAL
-            span_s = beats[-1].timestamp - beats[0].timestamp
-            assert 0.15 <= span_s <= 0.35, span_s  # 2 periods of 100 ms
         finally:
             bus.shutdown()
 
@@ -71,9 +68,10 @@ async def test_rtr_polling_fetches_tpdos_of_a_node_that_sends_none_by_itself() -
             assert rtrs[0].dlc == 6  # the mapping's length: position 4 + velocity 2
         finally:
             bus.shutdown()
-        sig = gw.image.nodes["wire"].signals["position"]
-        seq = sig.seq
-        await wait_until(lambda: sig.seq >= seq + 4, 2, "TPDOs answered to RTR")
+        seq = gw.image.nodes["wire"].signals["position"].seq
+        await wait_until(
+            lambda: gw.image.nodes["wire"].signals["position"].seq >= seq + 4, 2, "TPDOs answered to RTR"
+        )
 
 
 async def test_rpdo_carries_the_written_signals_in_the_mapped_layout() -> None:
@@ -98,20 +96,24 @@ async def test_unknown_cob_id_short_and_long_pdos_are_counted_and_never_fatal() 
     async with running([node], simulate={"nodes": []}, master={"sync_period_ms": 0}) as gw:
         rt = gw.master.nodes["wire"]
         img = gw.image
-        pos = img.nodes["wire"].signals["position"]
+
+        def pos() -> Any:
+            return img.nodes["wire"].signals["position"]
+
         bus = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
         try:
             bus.send(frame(0x181, struct.pack("<ih", 1234, 5)))
-            await wait_until(lambda: pos.value == 1234, 2, "a good TPDO1")
+            await wait_until(lambda: pos().value == 1234, 2, "a good TPDO1")
             # short: 2 bytes for a 6-byte mapping -> ignored, counted
             bus.send(frame(0x181, b"\x01\x02"))
-            await wait_until(lambda: rt.image.health.pdo_errors == 1, 2, "short PDO counted")
+            await wait_until(lambda: rt.image.rx.pdo_too_short == 1, 2, "short PDO counted")
             assert img.counters["decode_errors"] == 1
-            assert pos.value == 1234
+            assert pos().value == 1234
             # long: 8 bytes -> the mapped 6 bytes are used (CiA 301), counted apart
             bus.send(frame(0x181, struct.pack("<ih", -7, 9) + b"\xff\xff"))
-            await wait_until(lambda: pos.value == -7, 2, "long PDO decoded")
-            assert rt.pdo_too_long == 1
+            await wait_until(lambda: pos().value == -7, 2, "long PDO decoded")
+            assert rt.image.rx.pdo_too_long == 1
+            assert img.counters["pdo_too_long"] == 1
             # a COB-ID nobody configured
             before = img.counters["unknown_cob_id"]
             bus.send(frame(0x3F0, b"\x00"))
@@ -119,7 +121,7 @@ async def test_unknown_cob_id_short_and_long_pdos_are_counted_and_never_fatal() 
             await wait_until(lambda: img.counters["unknown_cob_id"] == before + 2, 2, "unknown")
             # still decoding
             bus.send(frame(0x181, struct.pack("<ih", 42, 0)))
-            await wait_until(lambda: pos.value == 42, 2, "decoding goes on")
+            await wait_until(lambda: pos().value == 42, 2, "decoding goes on")
             assert gw.driver.state == "ok"
         finally:
             bus.shutdown()

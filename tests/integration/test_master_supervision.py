@@ -17,14 +17,14 @@ from tests.helpers import node_operational as operational
 from tests.helpers import wait_until
 
 
-async def _lost_after(gw: Gateway, name: str, limit_s: float) -> float:
-    """Silence the simulated node; seconds until the gateway reports it lost."""
+async def _lost_after(gw: Gateway, name: str, limit_s: float) -> None:
+    """Silence the simulated node and wait until the gateway reports it lost (the timeout
+    edges themselves are checked on a fake clock in tests/unit/test_supervision.py and
+    tests/unit/test_node.py)."""
     sim = gw.sim.nodes[name]
     health = gw.image.nodes[name].health
-    t0 = time.monotonic()
     gw.sim.runner.call(lambda now: sim.silence())
     await wait_until(lambda: not health.alive, limit_s, f"{name} lost")
-    return time.monotonic() - t0
 
 
 async def test_silent_heartbeat_node_is_lost_within_the_consumer_timeout_and_back_after() -> None:
@@ -32,9 +32,7 @@ async def test_silent_heartbeat_node_is_lost_within_the_consumer_timeout_and_bac
     async with running([{"name": "wire", "node_id": 1, "profile": "sgh10"}]) as gw:
         await wait_until(lambda: operational(gw, "wire"), 5, "wire operational")
         health = gw.image.nodes["wire"].health
-        took_s = await _lost_after(gw, "wire", 2.0)
-        # at most 100 ms since the last heartbeat went out, then 150 ms, then a 10 ms poll tick
-        assert 0.05 <= took_s <= 0.5, took_s
+        await _lost_after(gw, "wire", 2.0)
         assert health.loss_count == 1
         assert health.lifecycle == "waiting"
         node = gw.image.nodes["wire"]
@@ -67,10 +65,7 @@ async def test_silent_guarded_node_is_lost_after_the_life_time_and_back_after() 
         finally:
             observer.shutdown()
         assert all(m.dlc == 1 for m in rtrs)
-        span_s = rtrs[-1].timestamp - rtrs[0].timestamp
-        assert 0.25 <= span_s <= 0.45, span_s  # 3 guard times of 100 ms
-        took_s = await _lost_after(gw, "rotary", 2.0)
-        assert 0.2 <= took_s <= 0.7, took_s  # life time 100 ms x 3
+        await _lost_after(gw, "rotary", 2.0)
         sim = gw.sim.nodes["rotary"]
         gw.sim.runner.call(lambda now: sim.unsilence(now))
         await wait_until(lambda: operational(gw, "rotary"), 5, "rotary back and operational")

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import time
 from collections.abc import AsyncIterator
 from typing import Any
 
@@ -16,7 +15,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
 from gateway.app import Gateway
-from gateway.image import NmtState
+from gateway.image import NmtState, Quality
 from tests.helpers import make_config, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -89,7 +88,9 @@ async def test_writes_to_read_only_points_answer_illegal_data_address() -> None:
 async def test_a_write_of_part_of_a_32_bit_value_is_refused_and_nothing_is_sent() -> None:
     async with running([DISPLAY]) as (gw, client):
         sent: list[bytes] = []
-        gw.master.rpdo_hooks.append(lambda rt, codec: sent.append(codec.encode()))
+        gw.image.pdo_listeners.append(
+            lambda node, cob, data: sent.append(data) if cob >> 8 in (2, 3) else None
+        )  # RPDOs sent (2xxh, 3xxh)
         assert code(await client.write_register(SET_POINT1, 7, device_id=125)) == ILLEGAL_ADDRESS
         rr = await client.write_registers(SET_POINT1 + 1, [7, 0], device_id=125)
         assert code(rr) == ILLEGAL_ADDRESS
@@ -147,6 +148,10 @@ async def test_a_node_that_goes_silent_answers_no_response_and_serves_again_when
 
         call(gw, lambda now: wire.unsilence(now))
         await wait_until(node.operational, 3, "wire back")
+        # a loss invalidates every value: good again with the first TPDO after NMT start
+        await wait_until(
+            lambda: node.quality(node.signals["position"]) == Quality.GOOD, 3, "a fresh TPDO"
+        )
         rr = await client.read_input_registers(100, count=2, device_id=1)
         assert code(rr) is None and rr.registers == [0xFFFF, 0xFB2E]
         assert (await client.read_input_registers(0, count=1, device_id=1)).registers == [0]
@@ -168,10 +173,8 @@ async def test_a_stopped_node_answers_no_response_until_started_again() -> None:
         assert code(await client.write_register(0, 2, device_id=1)) is None  # NMT stop
         await wait_until(lambda: node.health.nmt_state == NmtState.STOPPED, 3, "stopped")
         assert code(await client.read_input_registers(100, count=2, device_id=1)) == NO_RESPONSE
-        t0 = time.monotonic()
         rr = await client.write_register(WIRE_ERROR_COUNT, 0, device_id=1)
         assert code(rr) == NO_RESPONSE, "a stopped node does not answer SDO"
-        assert time.monotonic() - t0 < 2.0
         assert (await client.read_holding_registers(0, count=1, device_id=1)).registers == [4]
         assert code(await client.write_register(0, 1, device_id=1)) is None  # NMT start
         await wait_until(node.operational, 3, "operational again")
@@ -180,18 +183,17 @@ async def test_a_stopped_node_answers_no_response_until_started_again() -> None:
 
 async def test_a_write_not_confirmed_within_write_timeout_answers_no_response() -> None:
     sections = {
-        "master": {"sdo_timeout_s": 1.0, "sdo_retries": 0},
+        "master": {"sdo_timeout_s": 30.0, "sdo_retries": 0},
         "modbus": {"write_timeout_s": 0.2},
     }
     async with running([WIRE], **sections) as (gw, client):
         node = gw.image.nodes["wire"]
         assert code(await client.write_register(0, 2, device_id=1)) is None
         await wait_until(lambda: node.health.nmt_state == NmtState.STOPPED, 3, "stopped")
-        t0 = time.monotonic()
         rr = await client.write_register(WIRE_ERROR_COUNT, 0, device_id=1)
-        elapsed = time.monotonic() - t0
         assert code(rr) == NO_RESPONSE
-        assert elapsed < 0.8, f"answered after {elapsed:.2f} s, write_timeout_s is 0.2"
+        # answered at write_timeout_s: the SDO download (30 s timeout) is still waiting
+        assert gw.master.nodes["wire"].node.sdo_busy()
 
 
 async def test_can_bus_down_answers_gateway_path_unavailable_then_recovers() -> None:
@@ -212,8 +214,9 @@ async def test_can_bus_down_answers_gateway_path_unavailable_then_recovers() -> 
         await wait_until(lambda: gw.image.bus_state == "ok", 5, "bus reopened")
         node = gw.image.nodes["wire"]
         await wait_until(node.operational, 5, "wire operational after the reopen")
+        # the loss invalidated the values: good again with a TPDO after the new NMT start
         await wait_until(
-            lambda: node.data_age_s() is not None and node.data_age_s() < 0.5, 3, "data"
+            lambda: node.quality(node.signals["position"]) == Quality.GOOD, 3, "a fresh TPDO"
         )
         assert code(await client.read_input_registers(100, count=2, device_id=1)) is None
 

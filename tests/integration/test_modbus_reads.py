@@ -182,17 +182,16 @@ async def test_a_32_bit_value_read_in_one_request_is_never_torn() -> None:
     value read must lie between the image values seen before and after the request."""
     motion = {"wire": {"kind": "ramp", "min": -8000, "max": 30000, "speed": 20000}}
     async with running([WIRE], motion) as (gw, client):
-        pos = gw.image.nodes["wire"].signals["position"]
-        assert pos.value < 0, "the ramp must start below zero"
+        assert gw.image.nodes["wire"].signals["position"].value < 0, "the ramp must start below zero"
         seen = 0
         deadline = time.monotonic() + 3
-        while pos.value < 2000 and time.monotonic() < deadline:
-            before = pos.value
+        while gw.image.nodes["wire"].signals["position"].value < 2000 and time.monotonic() < deadline:
+            before = gw.image.nodes["wire"].signals["position"].value
             regs = (await client.read_input_registers(100, count=2, device_id=1)).registers
-            after = pos.value
+            after = gw.image.nodes["wire"].signals["position"].value
             assert before <= s32(regs) <= after, (before, regs, after)
             seen += 1
-        assert pos.value >= 2000, "the ramp did not cross zero in time"
+        assert gw.image.nodes["wire"].signals["position"].value >= 2000, "the ramp did not cross zero in time"
         assert seen > 10
 
 

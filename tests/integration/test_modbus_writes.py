@@ -72,7 +72,9 @@ async def test_set_points_written_as_two_registers_reach_the_ap05_by_rpdo() -> N
 async def test_set_point_characters_and_control_word_in_one_request_are_one_rpdo() -> None:
     async with running([DISPLAY]) as (gw, client):
         sent: list[bytes] = []
-        gw.master.rpdo_hooks.append(lambda rt, codec: sent.append(codec.encode()))
+        gw.image.pdo_listeners.append(
+            lambda node, cob, data: sent.append(data) if cob >> 8 in (2, 3) else None
+        )  # RPDOs sent (2xxh, 3xxh)
         # set point2 300, characters "AB", control word bit 9 (set point2 valid): 4 registers
         rr = await client.write_registers(SET_POINT2, [0, 300, 0x4142, 0x0200], device_id=125)
         assert not rr.isError(), rr
@@ -82,8 +84,11 @@ async def test_set_point_characters_and_control_word_in_one_request_are_one_rpdo
         await wait_until(lambda: obj(gw, "display", 0x5F16, 1) == 300, 2, "5F16h:01")
         assert obj(gw, "display", 0x5F0C, 0) & ~GUARDING_BIT == 0x0200
         # the AP05 acknowledges a valid set point2 in status bit 10 (manual 5.3.3 table 28)
-        status = gw.image.nodes["display"].signals["status_word"]
-        await wait_until(lambda: status.value & 0x0400, 2, "status bit 10 set point2 valid")
+        await wait_until(
+            lambda: gw.image.nodes["display"].signals["status_word"].value & 0x0400,
+            2,
+            "status word bit 10 set point2 valid",
+        )
 
 
 async def test_a_control_word_coil_sets_one_bit_and_the_status_word_follows() -> None:
@@ -182,3 +187,24 @@ async def test_an_as_float_point_is_written_in_engineering_units_and_rounded_to_
         back = await client.read_holding_registers(limit.address, count=2, device_id=1)
         value = struct.unpack(">f", struct.pack(">HH", *back.registers))[0]
         assert abs(value - (-50.5)) < 1e-4
+
+
+async def test_reserved_control_bits_are_refused_by_coil_and_by_whole_word_writes() -> None:
+    """AP05 manual 004 table 27: control bits 0, 1 and 5 are reserved, always 0."""
+    async with running([DISPLAY]) as (gw, client):
+        sent: list[bytes] = []
+        gw.image.pdo_listeners.append(
+            lambda node, cob, data: sent.append(data) if cob >> 8 in (2, 3) else None
+        )  # RPDOs sent
+        coil = find(gw, "display", "control_word", "bit").address  # bit 0 of 5F0Ch
+        for bit in (0, 1, 5):
+            rr = await client.write_coil(coil + bit, True, device_id=125)
+            assert rr.isError() and rr.exception_code == 0x02, bit
+        rr = await client.write_register(CONTROL_WORD, 0x0201, device_id=125)
+        assert rr.isError() and rr.exception_code == 0x03
+        assert all(int.from_bytes(f[6:8], "little") & 0x0023 == 0 for f in sent)
+        # writable bits and the gateway's own guarding bit (ignored) are accepted
+        rr = await client.write_register(CONTROL_WORD, 0x0200 | GUARDING_BIT, device_id=125)
+        assert not rr.isError(), rr
+        await wait_until(lambda: obj(gw, "display", 0x5F0C, 0) & 0x0200, 2, "bit 9 set")
+        assert obj(gw, "display", 0x5F0C, 0) & 0x0023 == 0

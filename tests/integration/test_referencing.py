@@ -17,18 +17,17 @@ async def test_unreferenced_position_is_bad_until_referenced() -> None:
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
     node = gw.image.nodes["magnet"]
-    pos = node.signals["position"]
     try:
-        await wait_until(lambda: node.operational() and pos.seq > 0, 5, "position received")
-        await wait_until(lambda: not pos.valid, 3, "position marked not valid")
-        assert node.quality(pos) == Quality.BAD
+        await wait_until(lambda: node.operational() and node.signals["position"].seq > 0, 5, "position received")
+        await wait_until(lambda: not node.is_valid("position"), 3, "position marked not valid")
+        assert node.quality(node.signals["position"]) == Quality.BAD
         await client.connect()
         rr = await client.read_input_registers(100, count=2, device_id=2)
         assert isinstance(rr, ExceptionResponse) and rr.exception_code == 0x0B
 
         await gw.commands.sdo_write("magnet", "0x5115:00", 1)
-        await wait_until(lambda: pos.valid, 3, "position valid after referencing")
-        assert node.quality(pos) == Quality.GOOD
+        await wait_until(lambda: node.is_valid("position"), 3, "position valid after referencing")
+        assert node.quality(node.signals["position"]) == Quality.GOOD
         rr = await client.read_input_registers(100, count=2, device_id=2)
         assert not rr.isError()
     finally:

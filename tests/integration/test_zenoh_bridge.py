@@ -79,9 +79,8 @@ async def test_a_value_that_does_not_change_is_published_once_not_per_frame() ->
     async with running([WIRE], HOLD) as (gw, z):
         await operational(gw, "wire")
         q = z.subscribe(f"{P}/wire/value/position")
-        sig = gw.image.nodes["wire"].signals["position"]
-        seq0 = sig.seq
-        await wait_until(lambda: sig.seq >= seq0 + 10, 5, "10 more position frames")
+        seq0 = gw.image.nodes["wire"].signals["position"].seq
+        await wait_until(lambda: gw.image.nodes["wire"].signals["position"].seq >= seq0 + 10, 5, "10 more position frames")
         samples = drain(q)
         assert samples == [], "an unchanged value was republished"
         # a zenoh get still answers the current value
@@ -98,11 +97,10 @@ async def test_publish_every_sends_each_frame_and_max_rate_caps_the_rate() -> No
         await operational(gw, "wire")
         pos = z.subscribe(f"{P}/wire/value/position")
         vel = z.subscribe(f"{P}/wire/value/velocity")
-        sig = gw.image.nodes["wire"].signals["position"]
         await sample_where(pos, lambda s: s.body["quality"] == "good", what="a position sample")
-        seq0 = sig.seq
+        seq0 = gw.image.nodes["wire"].signals["position"].seq
         t0 = time.monotonic()
-        await wait_until(lambda: sig.seq >= seq0 + 20, 5, "20 more frames")
+        await wait_until(lambda: gw.image.nodes["wire"].signals["position"].seq >= seq0 + 20, 5, "20 more frames")
         elapsed_s = time.monotonic() - t0
         await asyncio.sleep(0.05)
         got = [s.body["seq"] for s in drain(pos)]

@@ -1,9 +1,7 @@
 """Supervision judges timeouts by the frames the reader has processed: a backlog in the receive
-queue must not turn a healthy node into a lost one."""
+queue must not turn a healthy node into a lost one. Fake monotonic and wall clocks."""
 
 from __future__ import annotations
-
-import time
 
 import can
 
@@ -11,23 +9,72 @@ from gateway.bus.driver import BusDriver
 from gateway.image import ProcessImage
 
 
-def test_bus_clock_is_real_time_when_the_reader_is_idle() -> None:
-    d = BusDriver({"interface": "virtual", "channel": "unused"}, ProcessImage())
+class Clocks:
+    def __init__(self) -> None:
+        self.mono = 1000.0
+        self.wall = 1_700_000_000.0
+
+
+def driver(c: Clocks) -> BusDriver:
+    return BusDriver(
+        {"interface": "virtual", "channel": "unused"},
+        ProcessImage(),
+        mono=lambda: c.mono,
+        wall=lambda: c.wall,
+    )
+
+
+def test_bus_clock_is_the_monotonic_clock_when_the_reader_is_idle() -> None:
+    c = Clocks()
+    d = driver(c)
     d.idle = True
-    before = time.monotonic()
-    assert before <= d.bus_clock() <= time.monotonic()
+    assert d.bus_clock() == 1000.0
 
 
 def test_bus_clock_lags_by_the_age_of_the_last_processed_frame() -> None:
-    d = BusDriver({"interface": "virtual", "channel": "unused"}, ProcessImage())
+    c = Clocks()
+    d = driver(c)
     d.idle = False
-    d.last_frame_wall = time.time() - 2.0  # the reader is 2 s behind the bus
-    lag = time.monotonic() - d.bus_clock()
-    assert 1.9 < lag < 2.1
+    d.last_frame_wall = c.wall - 2.0  # the reader is 2 s behind the bus
+    assert d.bus_clock() == 998.0
+
+
+def test_a_paused_gateway_judges_by_the_frames_not_by_the_pause() -> None:
+    # SIGSTOP for 1 s: on resume the frames of that second are still queued; the one being
+    # processed was received 1 s ago, so the bus clock is 1 s behind the monotonic clock
+    c = Clocks()
+    d = driver(c)
+    d.idle = False
+    d.last_frame_wall = c.wall
+    c.mono += 1.0
+    c.wall += 1.0
+    assert d.bus_clock() == 1000.0
 
 
 def test_frame_time_maps_a_wall_clock_timestamp_to_monotonic() -> None:
-    d = BusDriver({"interface": "virtual", "channel": "unused"}, ProcessImage())
-    msg = can.Message(arbitration_id=0x701, data=b"\x05", timestamp=time.time() - 0.5)
-    age = time.monotonic() - d.frame_time(msg)
-    assert 0.45 < age < 0.55
+    c = Clocks()
+    d = driver(c)
+    msg = can.Message(arbitration_id=0x701, data=b"\x05", timestamp=c.wall - 0.5)
+    assert d.frame_time(msg) == 999.5
+
+
+def test_an_absurd_timestamp_falls_back_to_the_monotonic_clock() -> None:
+    c = Clocks()
+    d = driver(c)
+    msg = can.Message(arbitration_id=0x701, data=b"\x05", timestamp=c.wall + 5.0)  # future
+    assert d.frame_time(msg) == 1000.0
+
+
+def test_error_passive_clears_only_after_the_hold_time_without_error_frames() -> None:
+    c = Clocks()
+    d = driver(c)
+    d.error_hold_s = 0.2
+    d.state = "ok"
+    d._error_frame(can.Message(arbitration_id=0x04, data=bytes([0, 0x10]), is_error_frame=True))
+    assert d.state == "error"
+    c.mono += 0.19
+    d._maybe_recovered()  # frames flow, but within the hold time
+    assert d.state == "error"
+    c.mono += 0.01
+    d._maybe_recovered()
+    assert d.state == "ok"

@@ -43,9 +43,10 @@ def test_ap05_rpdo2_of_the_manual_example_encodes_set_point_and_control_word() -
     _, rpdos = compile_node(load_profile("ap05"), 1)
     rpdo2 = next(c for c in rpdos if c.number == 2)
     assert rpdo2.cob_id == 0x301
-    rpdo2.set("set_point2", 300)
-    rpdo2.set("control_word", 0x0200)
-    assert rpdo2.encode() == AP05_RPDO2_NODE1
+    values = rpdo2.initial_values()
+    values[rpdo2.index_of("set_point2")] = 300
+    values[rpdo2.index_of("control_word")] = 0x0200
+    assert rpdo2.encode(values) == AP05_RPDO2_NODE1
 
 
 def test_unnamed_dummy_entries_are_decoded_and_dropped() -> None:
@@ -142,9 +143,10 @@ def test_rpdo_mapping_writes_change_the_encoder() -> None:
     )  # fmt: skip
     _, rpdos = compile_node(lp, 1, None, writes)
     rpdo2 = next(c for c in rpdos if c.number == 2)
-    rpdo2.set("control_word", 0x0200)
-    rpdo2.set("set_point2", 300)
-    assert rpdo2.encode() == bytes.fromhex("00022C010000")
+    values = rpdo2.initial_values()
+    values[rpdo2.index_of("control_word")] = 0x0200
+    values[rpdo2.index_of("set_point2")] = 300
+    assert rpdo2.encode(values) == bytes.fromhex("00022C010000")
 
 
 def test_remappable_tpdo_feature_names_the_pdo_objects() -> None:

@@ -11,8 +11,8 @@ from typing import Any
 import pytest
 
 from gateway.config import ConfigError, load_config, parse_config
+from gateway.modbus.protocol import from_registers, to_registers
 from gateway.modbus.regmap import NODE_DIAG, Point, RegisterMap, build_register_map
-from gateway.modbus.server import from_registers, to_registers
 
 ROOT = Path(__file__).resolve().parents[2]
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

@@ -9,27 +9,22 @@ import math
 
 import pytest
 
+from gateway.bus.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
+from gateway.bus.settings import check_external_heartbeat
 from gateway.bus.supervision import (
     BootUpSeen,
-    ExternalHeartbeatFeed,
-    GuardingBitCheck,
     HeartbeatConsumer,
     InvalidStateByte,
-    LinkFault,
-    LinkOk,
-    LinkState,
     Liveness,
-    NmtState,
     NmtStateChanged,
     NodeAlive,
     NodeGuardingMaster,
     NodeLost,
     SendGuardRtr,
-    SendKeepAliveRpdo,
     ToggleError,
     WrongState,
-    check_external_heartbeat,
 )
+from gateway.states import LinkState, NmtState
 
 PRE_OP = 0x7F  # SGH10 manual 4.5.3: 127 = PRE-OPERATIONAL
 OPERATIONAL = 0x05
@@ -385,44 +380,6 @@ class TestGuardingBitCheck:
 
 
 class TestExternalHeartbeat:
-    def test_keepalive_due_at_half_the_interval_after_last_rpdo(self) -> None:
-        feed = ExternalHeartbeatFeed(200, "rpdo")
-        assert feed.keepalive_s == pytest.approx(0.100)
-        assert feed.poll(5.0) == []  # nothing sent yet: nothing to repeat
-        feed.on_rpdo_sent(1.0)
-        due = feed.due_s
-        assert due == 1.0 + feed.keepalive_s
-        assert feed.poll(math.nextafter(due, 0.0)) == []
-        assert feed.poll(due) == [SendKeepAliveRpdo(overdue_s=0.0)]
-
-    def test_every_rpdo_sent_pushes_the_keepalive_back(self) -> None:
-        feed = ExternalHeartbeatFeed(100, "rpdo", margin=0.5)
-        feed.on_rpdo_sent(0.0)
-        feed.on_rpdo_sent(0.04)
-        assert feed.poll(0.06) == []
-        assert feed.next_deadline() == pytest.approx(0.09)
-
-    def test_keepalive_asked_again_until_driver_reports_it_sent(self) -> None:
-        feed = ExternalHeartbeatFeed(100, "rpdo")
-        feed.on_rpdo_sent(0.0)
-        assert len(feed.poll(0.06)) == 1
-        assert len(feed.poll(0.07)) == 1
-        feed.on_rpdo_sent(0.07)
-        assert feed.poll(0.08) == []
-
-    def test_margin_sets_the_keepalive_period(self) -> None:
-        feed = ExternalHeartbeatFeed(1000, "rpdo", margin=0.25)
-        assert feed.keepalive_s == pytest.approx(0.750)
-
-    def test_sync_source_never_asks_for_rpdos(self) -> None:
-        feed = ExternalHeartbeatFeed(100, "sync", sync_period_ms=20)
-        feed.on_rpdo_sent(0.0)
-        assert feed.poll(10.0) == []
-
-    def test_sync_source_with_slow_sync_is_rejected(self) -> None:
-        with pytest.raises(ValueError, match="SYNC period 80 ms is too slow"):
-            ExternalHeartbeatFeed(100, "sync", sync_period_ms=80)
-
     def test_check_accepts_sound_configs(self) -> None:
         assert check_external_heartbeat(0, "rpdo", None, None) is None  # off
         assert check_external_heartbeat(100, "rpdo", None, 50) is None

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import gateway.sim.pdo as pdo
 from gateway.objref import ObjRef
-from gateway.sim import pdo
 from gateway.sim.behaviours import Behaviour, register
 from gateway.sim.objects import ABORT_RANGE
 

@@ -1,0 +1,69 @@
+"""What a node machine (``bus.node.Node``) returns to its driver: the outputs of every event.
+
+Imports: bus.codec (the TPDO codec a refresh names), objref. No I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.bus.codec import TpdoCodec
+from gateway.objref import ObjRef
+
+
+@dataclass(frozen=True)
+class Send:
+    """Action: send this frame. ``rpdo`` marks process data sent (for the raw-PDO listeners)."""
+
+    cob_id: int
+    data: bytes = b""
+    rtr: bool = False
+    dlc: int | None = None
+    rpdo: bool = False
+
+
+@dataclass(frozen=True)
+class SdoDone:
+    """Result of a ``request_sdo``: ``data`` (upload bytes, b"" for a download) or an error."""
+
+    token: int
+    data: bytes | None
+    abort_code: int | None = None
+    timed_out: bool = False
+    by_server: bool = False
+
+
+@dataclass(frozen=True)
+class ValuesRead:
+    """Values for the process image that did not come in a TPDO: read by SDO (refresh after
+    NMT start), or outputs just sent. Names not in the image are ignored."""
+
+    names: tuple[str, ...]
+    values: tuple[Any, ...]
+
+
+@dataclass(frozen=True)
+class HealthChanged:
+    what: str  # "state" | "emcy"
+
+
+@dataclass(frozen=True)
+class Note:
+    """A line for the log (the driver writes it)."""
+
+    level: int
+    text: str
+    kind: Any = None  # set: rate-limited per kind
+
+
+Output = Send | SdoDone | ValuesRead | HealthChanged | Note
+
+
+@dataclass(frozen=True)
+class Refresh:
+    """How a change-only TPDO is read after NMT start: ``rtr`` or one SDO upload per object."""
+
+    codec: TpdoCodec
+    how: str  # "rtr" | "sdo"
+    objects: tuple[tuple[str, ObjRef, str], ...] = ()  # (signal, object, type) for "sdo"

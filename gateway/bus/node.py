@@ -1,0 +1,615 @@
+"""One CANopen device as the master sees it: the single owner of the node's state.
+
+Rule 1: everything the gateway decides about one node lives here, in ``Node``: its lifecycle
+(boot-up, configuration, NMT start, probing), its supervision (heartbeat consumer or node
+guarding, the guarding-bit check, the RPDO keep-alive that feeds an external heartbeat), its
+SDO channel (one transfer at a time: boot steps, probes, value refreshes, commands), its output
+image (the last values sent in each RPDO, bits included) and its health in the process image
+(``NodeHealth``: only this class writes it).
+Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the time ``now``
+(the bus clock: the time of the frames processed, seconds) — ``on_nmt_ec``, ``on_emcy``,
+``on_echo``, ``on_sdo_response``, ``tick``, ``request_sdo``, ``write_outputs``, ``nmt`` — and
+executes what they return: ``Send`` frames, ``SdoDone`` results, ``ValuesRead``,
+``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when ``tick`` is next due;
+the driver sleeps until the earliest deadline of all nodes.
+
+The decisions are tables below: what the node-guarding master expects in each lifecycle state
+(``GUARD_EXPECTS``), what an NMT command makes the node's expected state (``NMT_EXPECTS``), what
+a finished SDO transfer means by its purpose (``Node._SDO_DONE``).
+
+Truthfulness (docs/architecture.md, "Never lies"): a boot-up and a loss invalidate every value
+of the node (``health.fresh_since = None``); values are good again only when received after the
+gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
+right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
+
+Imports: bus.lifecycle, bus.supervision, bus.sdo_client, bus.emcy, bus.settings, bus.codec,
+image, states, objref. Never python-can, asyncio, logging or a northbound module.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from gateway.bus.codec import RpdoCodec, TpdoCodec
+from gateway.bus.emcy import EmcyHistory, decode_emcy
+from gateway.bus.events import HealthChanged, Note, Output, Refresh, SdoDone, Send, ValuesRead
+from gateway.bus.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
+from gateway.bus.lifecycle import (
+    BootTimeout,
+    ConfigStep,
+    Configured,
+    LifecycleState,
+    NodeLifecycle,
+    SendNmt,
+    StateChanged,
+    StepFailed,
+    StepSkipped,
+    Wait,
+    WriteStep,
+    WrongDevice,
+    decode_value,
+)
+from gateway.bus.outputs import OutputImage
+from gateway.bus.referencing import Referencing
+from gateway.bus.sdo_channel import SdoChannel, SdoJob
+from gateway.bus.sdo_client import SdoTransfer
+from gateway.bus.settings import NodeSettings
+from gateway.bus.watchdog import Watchdog
+from gateway.errors import NodeNotOperational
+from gateway.image import NodeHealth
+from gateway.objref import ObjRef
+from gateway.states import LinkState, NmtState
+
+OBJ_DEVICE_TYPE = ObjRef(0x1000, 0x00)
+
+
+class Node:
+    """The state of one node (see the module docstring)."""
+
+    def __init__(
+        self,
+        name: str,
+        node_id: int,
+        settings: NodeSettings,
+        health: NodeHealth,
+        *,
+        boot_steps: Sequence[ConfigStep] = (),
+        configure: bool = True,
+        tpdos: Sequence[TpdoCodec] = (),
+        rpdos: Sequence[RpdoCodec] = (),
+        refresh: Sequence[Refresh] = (),
+        expected_device_type: int | None = None,
+        emcy_texts: dict[int, str] | None = None,
+        guard_names: tuple[str | None, str | None] = (None, None),
+        referencing: dict[str, Any] | None = None,
+        reference_signal: str | None = None,
+        passive: bool = False,
+    ):
+        self.name = name
+        self.node_id = node_id
+        self.s = settings
+        self.health = health
+        self.passive = passive
+        self.tpdos = list(tpdos)
+        self.rpdos = list(rpdos)
+        self.refresh_plan = list(refresh)
+        self.emcy_texts = emcy_texts or {}
+        self.boot_steps = tuple(boot_steps)
+        self.lifecycle = NodeLifecycle(
+            self.boot_steps if configure else [],
+            boot_timeout_s=settings.boot_timeout_s,
+            expected_device_type=expected_device_type,
+        )
+        self.watch = Watchdog(settings, configure, active=not passive)
+        self.hb, self.guard = self.watch.hb, self.watch.guard  # read-only views
+        gb = settings.guarding_bit
+        self.gbit: GuardingBitCheck | None = (
+            GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0) if gb else None
+        )
+        self.control_signal, self.status_signal = guard_names
+        health.supervision = settings.supervision
+        health.link = LinkState.UNKNOWN if self.gbit is not None else LinkState.NOT_USED
+        self.emcy = EmcyHistory()
+        self.ref = Referencing(referencing, reference_signal) if referencing else None
+        control = (
+            (self.control_signal, gb.control_bit)
+            if gb is not None and self.control_signal
+            else None
+        )
+        self.outputs = OutputImage(
+            name, self.rpdos, settings.keepalive_ms / 1000.0, self.gbit, control
+        )
+        self.sdo = SdoChannel(node_id, settings.sdo_timeout_s, settings.sdo_retries)
+        self.next_probe_s: float | None = None
+        self._last_probe_end_s: float | None = None
+        self._wait_until: float | None = None
+        self._rtr_due_s: float | None = None
+
+    # ================================================================== queries
+    @property
+    def alive(self) -> bool:
+        return self.health.alive
+
+    def next_deadline(self) -> float | None:
+        times = [
+            self.lifecycle.next_deadline(),
+            self.watch.next_deadline(),
+            self.gbit.next_deadline() if self.gbit else None,
+            self.sdo.next_deadline(),
+            self.next_probe_s if self.lifecycle.state is LifecycleState.WAITING else None,
+            self._keepalive_due(),
+            self._wait_until,
+            self._rtr_due_s,
+        ]
+        return min((t for t in times if t is not None), default=None)
+
+    def output(self, name: str, pdo: int | None = None) -> Any:
+        """The last value sent for signal ``name`` (in RPDO ``pdo``, default: the last one)."""
+        return self.outputs.get(name, pdo)
+
+    def is_output(self, name: str) -> bool:
+        return self.outputs.is_output(name)
+
+    @property
+    def by_signal(self) -> dict[str, list[RpdoCodec]]:
+        return self.outputs.by_signal
+
+    def sdo_busy(self) -> bool:
+        """A transfer is running or waiting."""
+        return self.sdo.busy
+
+    # ================================================================== events
+    def start(self, now: float, probe: bool = True) -> list[Output]:
+        self.lifecycle.start(now)
+        self.health.lifecycle = str(self.lifecycle.state)
+        if self.passive:
+            return []
+        self.next_probe_s = now if probe else now + self.s.probe_period_s
+        return self.tick(now)
+
+    def tick(self, now: float) -> list[Output]:
+        """Time has passed: timeouts, retries, scheduled frames."""
+        out: list[Output] = []
+        frames, finished = self.sdo.poll(now)
+        out += frames
+        if finished is not None:
+            out += self._sdo_finished(finished, now)
+        rtr, lost = self.watch.poll(now)
+        if rtr:
+            out.append(Send(0x700 + self.node_id, b"", rtr=True, dlc=1))
+        if lost is not None:
+            out += self._lost(now, lost)
+        out += self._lifecycle_changes(self.lifecycle.poll(now), now)
+        if self.gbit is not None:
+            out += self._link(self.gbit.poll(now))
+        if self._wait_until is not None and now >= self._wait_until:
+            self._wait_until = None
+        due = self._keepalive_due()
+        if due is not None and now >= due:
+            out += self._keepalive(now)
+        if self._rtr_due_s is not None and now >= self._rtr_due_s:
+            out += self._rtr_poll(now)
+        if (
+            self.lifecycle.state is LifecycleState.WAITING
+            and self.next_probe_s is not None
+            and now >= self.next_probe_s
+        ):
+            out += self._probe(now)
+        out += self._drive(now)
+        return out
+
+    def on_nmt_ec(self, byte: int, now: float) -> list[Output]:
+        """A frame on 700h + node id: boot-up (00h), heartbeat, or node-guarding answer."""
+        if byte == NmtState.BOOTUP:
+            return self._bootup(now)
+        state, problems = self.watch.answer(byte, now)
+        out: list[Output] = [
+            Note(logging.WARNING, f"node {self.name}: {p}", ("guard", self.name, p.split(":")[0]))
+            for p in problems
+        ]
+        if state is None:
+            return out
+        out += self._set_nmt(state)
+        if self.watch.alive:
+            out += self._set_alive(True, now)
+        if self.lifecycle.state is LifecycleState.WAITING and not self.passive:
+            # alive but no boot-up seen (gateway restarted, node replugged): probe soon
+            if self._probe_in_flight() is None and (
+                self._last_probe_end_s is None
+                or now - self._last_probe_end_s >= min(1.0, self.s.probe_period_s)
+            ):
+                out += self._probe(now)
+                out += self._drive(now)
+        return out
+
+    def on_emcy(self, data: bytes, wall_ts: float, now: float) -> list[Output]:
+        h = self.health
+        if len(data) < 3:
+            h.emcy_errors += 1
+            return [
+                Note(
+                    logging.WARNING,
+                    f"node {self.name}: EMCY with {len(data)} bytes ignored",
+                    ("emcy_short", self.name),
+                )
+            ]
+        rec = decode_emcy(bytes(data), self.emcy_texts, wall_ts)
+        self.emcy.add(rec)
+        h.last_emcy = rec  # type: ignore[assignment]
+        h.emcy_count += 1
+        h.emcy_history = tuple(self.emcy.history)
+        h.current_errors = sorted(self.emcy.current)
+        out: list[Output] = [
+            Note(
+                logging.WARNING,
+                f"node {self.name} EMCY 0x{rec.code:04X} ({rec.text}) register 0x{rec.register:02X}",
+            ),
+            HealthChanged("emcy"),
+        ]
+        if self.ref is not None and not self.passive:
+            out += self._check_reference(now)
+        return out
+
+    def on_echo(self, bit: int, now: float) -> list[Output]:
+        """The guarding bit of a status word just received in a TPDO (AP05 manual 5.5.5)."""
+        if self.gbit is None:
+            return []
+        return self._link(self.gbit.on_status(bit, now))
+
+    def on_sdo_response(self, data: bytes, now: float) -> list[Output]:
+        out: list[Output] = []
+        frames, finished = self.sdo.on_response(data, now)
+        out += frames
+        if finished is not None:
+            out += self._sdo_finished(finished, now)
+        self.watch.on_sign_of_life(now, self.lifecycle.state)
+        return out
+
+    def on_bus_down(self, now: float) -> list[Output]:
+        """The bus is down: the node's state is not known any more."""
+        return self._set_nmt(NmtState.UNKNOWN)
+
+    def request_sdo(
+        self, obj: ObjRef, data: bytes | None, now: float, purpose: str = "user", arg: Any = None
+    ) -> tuple[int, list[Output]]:
+        """Queue an SDO upload (``data`` None) or download; ``SdoDone(token)`` reports it."""
+        token = self.sdo.queue(obj, data, purpose, arg)
+        return token, self._drive(now)
+
+    def on_nmt_command(self, command: str) -> None:
+        """An NMT command a client sent to this node: the state guarding expects follows it."""
+        self.watch.on_nmt_command(command)
+
+    def write_outputs(
+        self,
+        per_pdo: dict[int | None, dict[str, Any]],
+        now: float,
+        send: Sequence[int] | None = None,
+    ) -> list[Output]:
+        """Set output values and send the RPDOs that carry them (one frame per RPDO).
+
+        ``per_pdo[None]`` applies to every RPDO mapping the signal (and becomes the image's
+        value of those signals), ``per_pdo[n]`` to RPDO n only. Which RPDOs go out (unless ``send`` says): those carrying a signal mapped only
+        there; a signal mapped in several RPDOs (a shared control word) alone goes out in the
+        last of them. Raises NodeNotOperational (nothing changed) when the node is not
+        operational."""
+        self.require_operational()
+        numbers = list(send) if send else self.outputs.set(per_pdo)
+        if send:
+            self.outputs.set(per_pdo)
+        self.health.rpdo_sent += len(numbers)
+        out: list[Output] = [self.outputs.frame(n, now) for n in numbers]
+        shared = per_pdo.get(None)
+        if shared:  # outputs sent are also the image's value of those signals
+            out.append(ValuesRead(tuple(shared), tuple(shared.values())))
+        return out
+
+    def require_operational(self) -> None:
+        h = self.health
+        if not h.alive:
+            raise NodeNotOperational(self.name, "not alive (lost or never booted)")
+        if h.nmt_state != NmtState.OPERATIONAL:
+            raise NodeNotOperational(self.name, f"NMT state {h.nmt_state.name}")
+
+    # ================================================================== internals: lifecycle
+    def _bootup(self, now: float) -> list[Output]:
+        h = self.health
+        h.boot_count += 1
+        out: list[Output] = [Note(logging.INFO, f"node {self.name} (id {self.node_id}) boot-up")]
+        self._invalidate()
+        self.watch.on_bootup(now)
+        if self.gbit is not None:
+            self.gbit.reset()
+            out += self._set_link(LinkState.UNKNOWN)
+        self.emcy.clear()
+        h.current_errors = []
+        out += self._set_referenced(False)  # MSK5000 5115h: the reference is lost at power-on
+        out += self._set_nmt(NmtState.PRE_OPERATIONAL)
+        out += self._set_alive(True, now)
+        # a boot-up ends whatever transfer was running: the device forgot it
+        cancelled = self.sdo.cancel_active()
+        if cancelled is not None and cancelled.purpose == "user":
+            out.append(SdoDone(cancelled.token, None, None, timed_out=True))
+        self.sdo.drop(lambda j: j.purpose == "user")
+        if self.passive:
+            return out
+        out += self._lifecycle_changes(self.lifecycle.on_bootup(now), now)
+        out += self._drive(now)
+        return out
+
+    def _lost(self, now: float, reason: str) -> list[Output]:
+        if not self.health.alive:
+            return []
+        out = self._set_alive(False, now, reason)
+        return out
+
+    def _set_alive(self, alive: bool, now: float, reason: str = "") -> list[Output]:
+        h = self.health
+        if h.alive == alive:
+            return []
+        h.alive = alive
+        out: list[Output] = []
+        if not alive:
+            h.loss_count += 1
+            self._invalidate()
+            out += self._set_nmt(NmtState.UNKNOWN)
+            if self.gbit is not None:
+                self.gbit.reset()
+                out += self._set_link(LinkState.UNKNOWN)
+            out.append(
+                Note(
+                    logging.WARNING,
+                    f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})",
+                )
+            )
+            if not self.passive:
+                out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
+                self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss
+        else:
+            out.append(Note(logging.INFO, f"node {self.name} (id {self.node_id}) alive"))
+        out.append(HealthChanged("state"))
+        return out
+
+    def _invalidate(self) -> None:
+        self.health.fresh_since = None
+        self._rtr_due_s = None
+
+    def _lifecycle_changes(self, changes: list[Any], now: float) -> list[Output]:
+        h = self.health
+        out: list[Output] = []
+        for ch in changes:
+            if isinstance(ch, StateChanged):
+                h.lifecycle = str(ch.new)
+                out.append(
+                    Note(logging.INFO, f"node {self.name}: {ch.old} -> {ch.new} ({ch.reason})")
+                )
+                self.watch.on_lifecycle(ch.new)
+            elif isinstance(ch, StepFailed):
+                h.last_error = ch.message
+                if ch.abort_code is not None:
+                    h.last_sdo_abort = ch.abort_code
+                self._wait_until = now + ch.retry_in_s
+                out.append(
+                    Note(
+                        logging.WARNING,
+                        f"node {self.name}: boot step {ch.index} failed: {ch.message}; retry {ch.attempt} in {ch.retry_in_s:.1f} s",
+                    )
+                )
+            elif isinstance(ch, StepSkipped):
+                out.append(
+                    Note(
+                        logging.INFO, f"node {self.name}: optional boot step skipped: {ch.message}"
+                    )
+                )
+            elif isinstance(ch, BootTimeout):
+                h.last_error = self.lifecycle.last_error or "no boot-up"
+                out.append(
+                    Note(logging.WARNING, f"node {self.name} (id {self.node_id}): {h.last_error}")
+                )
+            elif isinstance(ch, WrongDevice):
+                h.last_error = self.lifecycle.last_error or "wrong device type"
+                out.append(
+                    Note(logging.ERROR, f"node {self.name} (id {self.node_id}): {h.last_error}")
+                )
+            elif isinstance(ch, Configured):
+                h.last_error = ""
+                h.fresh_since = now  # values are good again when received from now on
+                out.append(
+                    Note(
+                        logging.INFO,
+                        f"node {self.name} (id {self.node_id}) configured in {ch.duration_s * 1000:.0f} ms and started",
+                    )
+                )
+                out += self._set_nmt_expected(NmtState.OPERATIONAL)
+                out += self._refresh(now)
+                if self.ref is not None:
+                    out += self._check_reference(now)
+                if self.s.rtr_poll_ms:
+                    self._rtr_due_s = now + self.s.rtr_poll_ms / 1000.0
+        if changes:
+            out.append(HealthChanged("state"))
+        return out
+
+    def _set_nmt_expected(self, state: NmtState) -> list[Output]:
+        """After our NMT start the node is operational (its next heartbeat confirms it)."""
+        if self.watch.hb is None and self.watch.guard is None:
+            return self._set_nmt(state)
+        return []
+
+    def _drive(self, now: float) -> list[Output]:
+        """Start the next SDO transfer / NMT command when the channel is free."""
+        out: list[Output] = []
+        while self.sdo.idle and not self.passive:
+            action = self.lifecycle.next_action(now)
+            if isinstance(action, SendNmt):
+                out.append(Send(0x000, bytes([action.command, self.node_id])))
+                out += self._lifecycle_changes(self.lifecycle.on_nmt_sent(now), now)
+                continue
+            if isinstance(action, WriteStep):
+                step = action.step
+                out += self.sdo.start(
+                    SdoJob(action.token, step.object, step.data, "boot", action), now
+                )
+                break
+            if isinstance(action, Wait):
+                self._wait_until = now + action.seconds
+            break
+        if self.sdo.idle:
+            out += self.sdo.start_next(now)
+        return out
+
+    # ================================================================== internals: SDO
+    def _probe_in_flight(self) -> SdoJob | None:
+        return self.sdo.find("probe")
+
+    def _sdo_finished(self, finished: tuple[SdoJob, SdoTransfer], now: float) -> list[Output]:
+        job, tr = finished
+        out: list[Output] = []
+        if tr.abort_code is not None and tr.aborted_by_server:
+            self.health.last_sdo_abort = tr.abort_code
+        out += self._SDO_DONE[job.purpose](self, job, tr, now)
+        out += self._drive(now)
+        return out
+
+    def _boot_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+        ok = tr.result is not None
+        code = tr.abort_code if tr.aborted_by_server else None
+        return self._lifecycle_changes(
+            self.lifecycle.on_step_result(now, ok, code, token=job.arg.token), now
+        )
+
+    def _probe_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+        self._last_probe_end_s = now
+        if tr.result is None or self.lifecycle.state is not LifecycleState.WAITING:
+            return []
+        device_type = int.from_bytes(tr.result[:4].ljust(4, b"\0"), "little")
+        out: list[Output] = [
+            Note(logging.INFO, f"node {self.name} (id {self.node_id}) found running")
+        ]
+        out += self._lifecycle_changes(self.lifecycle.on_found(now, device_type), now)
+        if self.lifecycle.state is LifecycleState.BOOTING:  # not a wrong device type
+            self.watch.on_found(now)
+            if not self.watch.guard_lost:
+                out += self._set_alive(True, now)
+        return out
+
+    def _refresh_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+        if tr.result is None or self.health.fresh_since is None:
+            return []
+        name, _obj, type_ = job.arg
+        try:
+            value = decode_value(tr.result, type_)
+        except Exception:  # noqa: BLE001 - a short answer: the value stays stale
+            return []
+        return [ValuesRead((name,), (value,))]
+
+    def _reference_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+        assert self.ref is not None
+        if tr.result is None:
+            note = f"node {self.name}: referencing state unreadable (0x{tr.abort_code or 0:08X})"
+            return [Note(logging.WARNING, note), *self._set_referenced(False)]
+        return self._set_referenced(self.ref.referenced(tr.result))
+
+    def _user_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+        out: list[Output] = [
+            SdoDone(job.token, tr.result, tr.abort_code, tr.timed_out, tr.aborted_by_server)
+        ]
+        if self.ref is not None and self.ref.is_command(job.obj, job.data):
+            out += self._check_reference(now)
+        return out
+
+    _SDO_DONE: dict[str, Callable[[Node, SdoJob, SdoTransfer, float], list[Output]]] = {
+        "boot": _boot_done,
+        "probe": _probe_done,
+        "refresh": _refresh_done,
+        "reference": _reference_done,
+        "user": _user_done,
+    }
+
+    def _probe(self, now: float) -> list[Output]:
+        """Find a node that is already running (no boot-up will come) by reading 1000h."""
+        self.next_probe_s = now + self.s.probe_period_s
+        if self._probe_in_flight() is not None:
+            return []
+        self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe")
+        return []
+
+    def _refresh(self, now: float) -> list[Output]:
+        """Read change-only TPDOs right after NMT start (module docstring)."""
+        out: list[Output] = []
+        for r in self.refresh_plan:
+            if r.how == "rtr":
+                out.append(Send(r.codec.cob_id, b"", rtr=True, dlc=r.codec.length))
+            else:
+                for name, obj, type_ in r.objects:
+                    self.sdo.queue(obj, None, "refresh", (name, obj, type_))
+        return out
+
+    # ================================================================== internals: features
+    def _check_reference(self, now: float) -> list[Output]:
+        """Feature ``referencing``: read whether the position is referenced."""
+        assert self.ref is not None
+        self.sdo.queue(self.ref.status, None, "reference")
+        return []
+
+    def _set_referenced(self, ok: bool) -> list[Output]:
+        text = self.ref.apply(self.health, ok) if self.ref is not None else None
+        if text is None:
+            return []
+        level = logging.INFO if ok else logging.WARNING
+        return [Note(level, f"node {self.name}: {text}"), HealthChanged("state")]
+
+    def _set_nmt(self, state: NmtState) -> list[Output]:
+        if self.health.nmt_state == state:
+            return []
+        self.health.nmt_state = state
+        return [
+            Note(logging.INFO, f"node {self.name} NMT state {state.name}"),
+            HealthChanged("state"),
+        ]
+
+    # -- guarding bit and keep-alive
+    def _link(self, changes: list[LinkOk | LinkFault]) -> list[Output]:
+        out: list[Output] = []
+        for ch in changes:
+            out += self._set_link(LinkState.OK if isinstance(ch, LinkOk) else LinkState.FAULT)
+        return out
+
+    def _set_link(self, state: LinkState) -> list[Output]:
+        h = self.health
+        if h.link == state:
+            return []
+        out: list[Output] = []
+        if state == LinkState.FAULT:
+            h.link_fault_count += 1
+            out.append(
+                Note(
+                    logging.WARNING,
+                    f"node {self.name}: guarding-bit link FAULT (process data not echoed)",
+                )
+            )
+        elif h.link == LinkState.FAULT:
+            out.append(Note(logging.INFO, f"node {self.name}: guarding-bit link restored"))
+        h.link = state
+        out.append(HealthChanged("state"))
+        return out
+
+    def _keepalive_due(self) -> float | None:
+        """Keep-alive RPDOs only in OPERATIONAL (RPDOs are not processed otherwise)."""
+        h = self.health
+        if not h.alive or h.nmt_state != NmtState.OPERATIONAL:
+            return None
+        return self.outputs.keepalive_due(h.fresh_since)
+
+    def _keepalive(self, now: float) -> list[Output]:
+        self.health.rpdo_sent += 1
+        return [self.outputs.keepalive(now)]
+
+    def _rtr_poll(self, now: float) -> list[Output]:
+        assert self.s.rtr_poll_ms
+        self._rtr_due_s = now + self.s.rtr_poll_ms / 1000.0
+        if self.health.nmt_state != NmtState.OPERATIONAL:
+            return []
+        return [Send(c.cob_id, b"", rtr=True, dlc=c.length) for c in self.tpdos]

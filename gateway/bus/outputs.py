@@ -1,0 +1,107 @@
+"""A node's output image: the last values sent in each RPDO, bits included, and the frames
+that carry them.
+
+The only place output values live. ``set`` changes values (all RPDOs mapping a signal, or one
+RPDO); ``frame`` encodes an RPDO, with the guarding bit the link check asks for (AP05 manual
+5.5.5: control-word bit 8 toggles only when the previous toggle was echoed); the keep-alive
+re-sends the last RPDO when none went out for ``keepalive_s`` (AP05 manual 5.5.4 external
+heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes nothing).
+
+Imports: bus.codec, bus.events, bus.supervision (the guarding-bit check), errors. No I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from gateway.bus.codec import RpdoCodec
+from gateway.bus.events import Send
+from gateway.bus.guarding_bit import GuardingBitCheck
+from gateway.errors import Unmapped
+
+
+class OutputImage:
+    def __init__(
+        self,
+        node: str,
+        rpdos: Sequence[RpdoCodec],
+        keepalive_s: float = 0.0,
+        gbit: GuardingBitCheck | None = None,
+        control: tuple[str, int] | None = None,  # (control word signal, guarding bit number)
+    ):
+        self.node = node
+        self.rpdos = list(rpdos)
+        self.values: dict[int, list[Any]] = {r.number: r.initial_values() for r in self.rpdos}
+        self.by_signal: dict[str, list[RpdoCodec]] = {}
+        for r in self.rpdos:
+            for n in r.names:
+                self.by_signal.setdefault(n, []).append(r)
+        self.keepalive_s = keepalive_s
+        self.gbit = gbit
+        self.control = control
+        self.last_sent_s: dict[int, float] = {}
+        self.sent = 0
+
+    def is_output(self, name: str) -> bool:
+        return name in self.by_signal
+
+    def get(self, name: str, pdo: int | None = None) -> Any:
+        """The last value sent for ``name`` (in RPDO ``pdo``, default: the last one)."""
+        codecs = self.by_signal.get(name)
+        if not codecs:
+            raise Unmapped(f"node {self.node}: {name} is not in an RPDO")
+        codec = next((c for c in codecs if c.number == pdo), codecs[-1])
+        return self.values[codec.number][codec.index_of(name)]  # type: ignore[index]
+
+    def set(self, per_pdo: dict[int | None, dict[str, Any]]) -> list[int]:
+        """Change values; returns the RPDO numbers to send.
+
+        ``per_pdo[None]`` applies to every RPDO mapping the signal, ``per_pdo[n]`` to RPDO n
+        only. The RPDOs to send: those carrying a signal mapped only there (or named by n); a
+        signal mapped in several RPDOs (a shared control word) alone goes out in the last."""
+        names = [n for vals in per_pdo.values() for n in vals]
+        for n in names:
+            if n not in self.by_signal:
+                raise Unmapped(f"node {self.node}: {n} is not in an RPDO")
+        numbers: list[int] = []
+        for pdo, vals in per_pdo.items():
+            for n in vals:
+                cs = self.by_signal[n]
+                if pdo is not None:
+                    numbers.append(pdo)
+                elif len(cs) == 1:
+                    numbers.append(cs[0].number)
+        if not numbers and names:
+            numbers.append(self.by_signal[names[0]][-1].number)
+        for pdo, vals in per_pdo.items():
+            for n, v in vals.items():
+                for c in self.by_signal[n]:
+                    if pdo is None or c.number == pdo:
+                        self.values[c.number][c.index_of(n)] = v  # type: ignore[index]
+        return sorted(set(numbers))
+
+    def frame(self, number: int, now: float) -> Send:
+        """RPDO ``number`` as it goes out now (guarding bit applied)."""
+        codec = next(c for c in self.rpdos if c.number == number)
+        values = self.values[number]
+        if self.gbit is not None and self.control is not None:
+            i = codec.index_of(self.control[0])
+            if i is not None:
+                bit = self.control[1]
+                values[i] = (int(values[i]) & ~(1 << bit)) | (self.gbit.next_bit(now) << bit)
+        self.last_sent_s[number] = now
+        self.sent += 1
+        return Send(codec.cob_id, codec.encode(values), rpdo=True)
+
+    def keepalive_due(self, since: float | None) -> float | None:
+        """When the keep-alive RPDO is due (``since``: when sending became possible)."""
+        if not self.keepalive_s or not self.rpdos:
+            return None
+        last = max(self.last_sent_s.values(), default=None)
+        return last + self.keepalive_s if last is not None else (since or 0.0)
+
+    def keepalive(self, now: float) -> Send:
+        last = self.last_sent_s
+        number = max(last, key=last.__getitem__) if last else self.rpdos[-1].number
+        return self.frame(number, now)

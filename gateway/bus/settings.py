@@ -1,0 +1,199 @@
+"""A node's supervision and boot settings, resolved once from the config and its profile.
+
+The one place that decides which value wins (the node's config entry, else the profile's boot
+defaults, else the master's): ``check``, the boot-step builder and the master all call
+``resolve_node_settings`` and read the same ``NodeSettings``.
+
+Also the external-heartbeat rule (AP05 manual 5.5.4): how often the gateway must feed the
+device's watchdog, checked once here for ``check`` and for the running gateway.
+
+Imports: objref. Nothing northbound, no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.objref import ObjRef
+
+
+@dataclass(frozen=True)
+class GuardingBit:
+    """The guarding-bit check of a node (feature ``guarding_bit``, AP05 manual 5.5.5)."""
+
+    control: ObjRef  # control word object carrying the bit the gateway toggles (5F0Ch)
+    control_bit: int  # AP05 manual 5.3.2: bit 8
+    status: ObjRef  # status word object echoing it (5F19h)
+    status_bit: int  # AP05 manual 5.3.3: bit 8
+    period_ms: int  # keep-alive RPDO when the PLC writes nothing
+    tolerance_missed: int  # status words (TPDOs) without the echo before a fault
+    tolerance_ms: int  # time without the echo before a fault
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    supervision: str  # "heartbeat" | "guarding" | "none"
+    heartbeat_ms: int  # producer heartbeat time written to 1017h (0 = off)
+    guard_time_ms: int
+    life_time_factor: int
+    heartbeat_multiple: float  # heartbeat consumer timeout = multiple x heartbeat_ms
+    boot_timeout_s: float
+    probe_period_s: float  # probe cadence of a node not seen (counted from the loss / start)
+    sdo_timeout_s: float
+    sdo_retries: int
+    guarding_bit: GuardingBit | None
+    external_heartbeat_ms: int  # 5F09h:01, 0 = off
+    external_heartbeat_source: str  # "rpdo" | "sync"
+    keepalive_ms: float  # re-send the last RPDO when none went out for this long (0 = never)
+    refresh_on_start: bool  # read change-only TPDO values right after NMT start
+    rtr_poll_ms: int | None
+
+    @property
+    def life_time_ms(self) -> int:
+        return self.guard_time_ms * self.life_time_factor
+
+
+#: AP05 manual 5.7.2.31, 5F09h:02: 0 = timer triggered by an RPDO (set point), 1 = by a SYNC.
+EXTERNAL_HEARTBEAT_SOURCE_CODES: dict[str, int] = {"rpdo": 0, "sync": 1}
+#: AP05 manual 5.7.2.31, 5F09h:01: 0 (off) or 10 ... 65535 ms.
+EXTERNAL_HEARTBEAT_MIN_MS = 10
+EXTERNAL_HEARTBEAT_MAX_MS = 65535
+
+
+def check_external_heartbeat(
+    interval_ms: int,
+    source: str,
+    sync_period_ms: float | None,
+    keepalive_ms: float | None,
+    *,
+    margin: float = 0.5,
+) -> str | None:
+    """A problem text for a config that would let the device's watchdog expire, else None.
+
+    AP05 manual 5.5.4 / 5.7.2.31: with 5F09h:01 = interval > 0 the device drops to
+    PRE-OPERATIONAL when no RPDO (5F09h:02 = 0) or no SYNC (= 1) arrives within the interval.
+    The gateway must feed it at least every ``interval * (1 - margin)`` (half the interval by
+    default) so one late or lost frame does not trip it.
+    """
+    if interval_ms == 0:
+        return None
+    if not EXTERNAL_HEARTBEAT_MIN_MS <= interval_ms <= EXTERNAL_HEARTBEAT_MAX_MS:
+        return (
+            f"external heartbeat interval {interval_ms} ms is not allowed: 0 (off) or "
+            f"{EXTERNAL_HEARTBEAT_MIN_MS}..{EXTERNAL_HEARTBEAT_MAX_MS} ms (AP05 manual 5F09h:01)"
+        )
+    if not 0.0 <= margin < 1.0:
+        return f"external heartbeat margin {margin} must be in 0 <= margin < 1"
+    limit_ms = interval_ms * (1.0 - margin)
+    if source == "rpdo":
+        if not keepalive_ms:
+            return (
+                f"external heartbeat source rpdo needs a keep-alive: the device expects an RPDO "
+                f"within {interval_ms} ms, set keepalive_ms <= {limit_ms:g}"
+            )
+        if keepalive_ms > limit_ms:
+            return (
+                f"external heartbeat keep-alive {keepalive_ms:g} ms is too slow for the "
+                f"{interval_ms} ms interval: send at least every {limit_ms:g} ms"
+            )
+        return None
+    if source == "sync":
+        if not sync_period_ms:
+            return (
+                f"external heartbeat source sync but the gateway produces no SYNC "
+                f"(master.sync_period_ms is 0): the device drops to PRE-OPERATIONAL after "
+                f"{interval_ms} ms"
+            )
+        if sync_period_ms > limit_ms:
+            return (
+                f"SYNC period {sync_period_ms:g} ms is too slow for the external heartbeat "
+                f"interval {interval_ms} ms: SYNC at least every {limit_ms:g} ms"
+            )
+        return None
+    return f"external heartbeat source {source!r} must be 'rpdo' or 'sync'"
+
+
+def resolve_node_settings(master: Any, node: Any, profile: Any) -> NodeSettings:
+    """Settings of ``node`` (a NodeConfig) with profile ``profile`` under ``master``
+    (the MasterSection). Raises ValueError for a combination that cannot run."""
+    boot = profile.boot
+    supervision = node.supervision or boot.supervision
+    hb_ms = node.heartbeat_ms if node.heartbeat_ms is not None else boot.heartbeat_ms
+    gt_ms = node.guard_time_ms if node.guard_time_ms is not None else boot.guard_time_ms
+    ltf = node.life_time_factor if node.life_time_factor is not None else boot.life_time_factor
+    gb = None
+    feat = profile.features.get("guarding_bit")
+    if feat is not None and node.guarding_bit.enabled:
+        gb = GuardingBit(
+            control=ObjRef.parse(feat["control"]),
+            control_bit=int(feat.get("control_bit", 8)),
+            status=ObjRef.parse(feat["status"]),
+            status_bit=int(feat.get("status_bit", 8)),
+            period_ms=node.guarding_bit.period_ms,
+            tolerance_missed=node.guarding_bit.tolerance_missed,
+            tolerance_ms=node.guarding_bit.tolerance_ms,
+        )
+    eh = node.external_heartbeat
+    eh_ms = eh.interval_ms if eh is not None else 0
+    eh_source = eh.source if eh is not None else "rpdo"
+    periods: list[float] = []
+    if gb is not None:
+        periods.append(float(gb.period_ms))
+    if eh is not None and eh.source == "rpdo":
+        periods.append(float(external_keepalive_ms(eh.interval_ms, eh.keepalive_ms)))
+    return NodeSettings(
+        supervision=supervision,
+        heartbeat_ms=hb_ms,
+        guard_time_ms=gt_ms,
+        life_time_factor=ltf,
+        heartbeat_multiple=master.heartbeat_timeout_multiple,
+        boot_timeout_s=master.boot_timeout_s,
+        probe_period_s=master.boot_timeout_s,
+        sdo_timeout_s=master.sdo_timeout_s,
+        sdo_retries=master.sdo_retries,
+        guarding_bit=gb,
+        external_heartbeat_ms=eh_ms,
+        external_heartbeat_source=eh_source,
+        keepalive_ms=min(periods) if periods else 0.0,
+        refresh_on_start=getattr(node, "refresh_on_start", True),
+        rtr_poll_ms=node.rtr_poll_ms,
+    )
+
+
+def external_keepalive_ms(interval_ms: int, keepalive_ms: int | None) -> int:
+    """The RPDO keep-alive period for an external heartbeat: the configured one, else half the
+    interval (the rule of ``check_external_heartbeat``)."""
+    return keepalive_ms or max(1, interval_ms // 2)
+
+
+def settings_problems(master: Any, node: Any, profile: Any) -> list[tuple[str, str]]:
+    """(key path below the node, problem) for settings the device or the gateway cannot run."""
+    out: list[tuple[str, str]] = []
+    s = resolve_node_settings(master, node, profile)
+    if s.supervision == "guarding" and (not s.guard_time_ms or not s.life_time_factor):
+        out.append(("guard_time_ms", "node guarding needs guard_time_ms and life_time_factor > 0"))
+    eh = node.external_heartbeat
+    if eh is not None:
+        if "external_heartbeat" not in profile.features:
+            out.append(
+                ("external_heartbeat", f"profile {profile.family} has no external heartbeat")
+            )
+        else:
+            keep = external_keepalive_ms(eh.interval_ms, eh.keepalive_ms)
+            problem = check_external_heartbeat(
+                eh.interval_ms,
+                eh.source,
+                master.sync_period_ms,
+                keep if eh.source == "rpdo" else None,
+            )
+            if problem:
+                key = "external_heartbeat." + (
+                    "interval_ms"
+                    if "not allowed" in problem
+                    else "keepalive_ms"
+                    if eh.source == "rpdo"
+                    else "source"
+                )
+                out.append((key, problem))
+    return out

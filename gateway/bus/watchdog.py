@@ -1,0 +1,132 @@
+"""A node's error control, as the node's owner uses it: heartbeat consumer or node-guarding
+master (``bus.supervision``), with what each lifecycle step and each NMT command makes the node
+expected to report.
+
+Rule: the tables below are the code. Node guarding treats a valid answer with another state
+than the expected one as an error (DS-301), so the expectation must follow the node's life: a
+node being configured after its boot-up answers PRE-OPERATIONAL, which is right, not a fault.
+
+Imports: bus.supervision, bus.lifecycle (its states), bus.settings, states. No I/O, no clock.
+"""
+
+from __future__ import annotations
+
+from gateway.bus.lifecycle import LifecycleState
+from gateway.bus.settings import NodeSettings
+from gateway.bus.supervision import (
+    HeartbeatConsumer,
+    InvalidStateByte,
+    NodeGuardingMaster,
+    NodeLost,
+    SendGuardRtr,
+    ToggleError,
+    WrongState,
+)
+from gateway.states import REPORTED_STATES, NmtState
+
+#: What a node-guarding answer must report in each lifecycle state. None = any valid state.
+GUARD_EXPECTS: dict[LifecycleState, NmtState | None] = {
+    LifecycleState.WAITING: None,  # not configured by us yet: whatever it reports
+    LifecycleState.BOOTING: None,  # found running: NMT pre-operational is on its way
+    LifecycleState.CONFIGURING: NmtState.PRE_OPERATIONAL,  # SGH10 manual 4.2.1.1
+    LifecycleState.OPERATIONAL: NmtState.OPERATIONAL,  # after our NMT start
+}
+
+#: The state a node is meant to be in after an NMT command (None: it reboots, boot-up follows).
+NMT_EXPECTS: dict[str, NmtState | None] = {
+    "start": NmtState.OPERATIONAL,
+    "stop": NmtState.STOPPED,
+    "preop": NmtState.PRE_OPERATIONAL,
+    "reset": None,
+    "reset-comm": None,
+}
+
+
+class Watchdog:
+    """Heartbeat consumer, node-guarding master, or nothing (``supervision: none``)."""
+
+    def __init__(self, s: NodeSettings, configure: bool = True, active: bool = True):
+        grace = s.boot_timeout_s if configure else None
+        self.hb: HeartbeatConsumer | None = (
+            HeartbeatConsumer(s.heartbeat_ms, s.heartbeat_multiple, grace)
+            if s.heartbeat_ms > 0 and s.supervision == "heartbeat"
+            else None
+        )
+        self.guard: NodeGuardingMaster | None = (
+            NodeGuardingMaster(s.guard_time_ms, s.life_time_factor)
+            if s.supervision == "guarding"
+            else None
+        )
+        self.active = active  # False: a passive master sends no guarding RTR
+
+    @property
+    def alive(self) -> bool:
+        """Whether supervision counts the node alive (always, without supervision)."""
+        sup = self.guard or self.hb
+        return sup is None or sup.alive
+
+    def next_deadline(self) -> float | None:
+        if self.guard is not None and self.active:
+            if not self.guard.active:
+                return 0.0  # the first poll activates guarding (its first RTR)
+            return self.guard.next_deadline()
+        return self.hb.next_deadline() if self.hb is not None else None
+
+    def answer(self, byte: int, now: float) -> tuple[NmtState | None, list[str]]:
+        """A heartbeat or guarding answer: the NMT state it validly reports (None: not valid)
+        and the problems it shows (toggle, wrong state, undefined byte)."""
+        if self.guard is not None:
+            outs = self.guard.on_response(byte, now)
+        elif self.hb is not None:
+            outs = self.hb.on_heartbeat(byte, now)
+        else:
+            outs = []
+        bad = [o for o in outs if isinstance(o, (ToggleError, WrongState, InvalidStateByte))]
+        state = byte & 0x7F
+        if bad or state not in REPORTED_STATES:
+            return None, [f"{type(o).__name__}: {o}" for o in bad] or [f"state byte 0x{byte:02X}"]
+        return NmtState(state), []
+
+    def poll(self, now: float) -> tuple[bool, str | None]:
+        """(send a guarding RTR now, reason if the node was just lost)."""
+        rtr, lost = False, None
+        if self.guard is not None and self.active:
+            for o in self.guard.poll(now):
+                if isinstance(o, SendGuardRtr):
+                    rtr = True
+                elif isinstance(o, NodeLost):
+                    lost = o.reason
+        if self.hb is not None:
+            for o in self.hb.poll(now):
+                if isinstance(o, NodeLost):
+                    lost = o.reason
+        return rtr, lost
+
+    def on_bootup(self, now: float) -> None:
+        if self.hb is not None:
+            self.hb.on_bootup(now)
+        if self.guard is not None:
+            self.guard.on_bootup(now)  # the toggle bit starts at 0 again (DS-301)
+
+    def on_found(self, now: float) -> None:
+        """Found running by a probe: heartbeat monitoring restarts as after a boot-up."""
+        if self.hb is not None and not self.hb.alive:
+            self.hb.on_bootup(now)
+
+    @property
+    def guard_lost(self) -> bool:
+        return self.guard is not None and self.guard.lost
+
+    def on_lifecycle(self, state: LifecycleState) -> None:
+        if self.guard is not None:
+            self.guard.expect(GUARD_EXPECTS[state])
+
+    def on_nmt_command(self, command: str) -> None:
+        if self.guard is not None:
+            self.guard.expect(NMT_EXPECTS[command])
+
+    def on_sign_of_life(self, now: float, state: LifecycleState) -> None:
+        """Another frame of the node (an SDO answer) while it is being configured: a node
+        answering its configuration is not lost, however long the configuration takes."""
+        if self.guard is not None and state in (LifecycleState.BOOTING, LifecycleState.CONFIGURING):
+            self.guard.on_sign_of_life(now)

@@ -1,0 +1,416 @@
+"""The Modbus view of the process image and the command service: one request PDU in, one
+response PDU out (``execute``).
+
+Reads are computed from the process image at the moment of the request (all registers of one
+request from one snapshot per node: a 32-bit value read in one request comes from one PDO,
+never torn); writes go through the command service and are answered when the RPDO was queued
+or the device confirmed the SDO. Write protection (``read_only``, ``allowed_networks``) and the
+write timeout live here.
+
+Imports: commands, config, errors, image, modbus.protocol, modbus.regmap, ratelimit, states.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import logging
+import struct
+import time
+from collections.abc import Awaitable
+from typing import Any
+
+import gateway
+from gateway.commands import CommandService
+from gateway.config import Config
+from gateway.errors import BusDown, NodeNotOperational, ValueOutOfRange
+from gateway.image import LinkState, NmtState, NodeImage, ProcessImage, Quality, SignalValue
+from gateway.modbus.protocol import (
+    COIL_ON,
+    LIFECYCLE_CODES,
+    MASK_WRITE_REGISTER,
+    READ_COILS,
+    READ_DISCRETE_INPUTS,
+    READ_TABLE,
+    WRITE_COIL,
+    WRITE_COILS,
+    WRITE_REGISTER,
+    WRITE_REGISTERS,
+    ExceptionCode,
+    ModbusError,
+    T,
+    check_request,
+    from_registers,
+    pack_bits,
+    to_registers,
+    unpack_bits,
+)
+from gateway.modbus.regmap import TABLE_NAMES, Point, RegisterMap, Table
+from gateway.ratelimit import RateLimitedLog
+from gateway.states import NMT_BY_CODE
+
+log = logging.getLogger("gateway.modbus")
+
+
+# ---------------------------------------------------------------------- the datastore
+class ImageDatastore:
+    """Reads from the image, writes through the command service, by the register map."""
+
+    def __init__(
+        self, regmap: RegisterMap, image: ProcessImage, commands: CommandService, cfg: Config
+    ):
+        self.regmap = regmap
+        self.image = image
+        self.commands = commands
+        self.read_only = cfg.modbus.read_only
+        self.allowed = [ipaddress.ip_network(n, strict=False) for n in cfg.modbus.allowed_networks]
+        self.write_timeout_s = cfg.modbus.write_timeout_s
+        self.requests = 0
+        self.by_function: dict[int, int] = {}  # requests by function code
+        self.exceptions: dict[int, int] = {}
+        self.warn = RateLimitedLog(log)
+        #: per node, the signals its TPDOs carry (for the quality register)
+        self.process_signals: dict[str, tuple[str, ...]] = {}
+        for p in regmap.points:
+            if p.node and p.kind == "signal" and p.table == "ir":
+                self.process_signals[p.node] = (*self.process_signals.get(p.node, ()), p.name)
+
+    def count_exception(self, code: ExceptionCode) -> None:
+        self.exceptions[int(code)] = self.exceptions.get(int(code), 0) + 1
+
+    # ------------------------------------------------------------------ reads
+    async def read(self, unit: int, table: Table, address: int, count: int) -> list[Any]:
+        """Registers (ints) or bits (bools) of ``count`` consecutive addresses."""
+        idx = self.regmap.index.get((unit, table), {})
+        words: dict[tuple[str, str], Any] = {}  # a word read once per request for all its bits
+        snaps: dict[str, dict[str, SignalValue]] = {}  # one consistent view per node
+        out: list[Any] = []
+        a, end = address, address + count
+        while a < end:
+            p = idx.get(a)
+            if p is None:
+                raise ModbusError(
+                    ExceptionCode.ILLEGAL_DATA_ADDRESS,
+                    f"{TABLE_NAMES[table]} {a} of unit {unit} is not mapped",
+                )
+            if table in ("di", "co"):
+                out.append(bool(await self._bit_value(p, words, snaps)))
+                a += 1
+                continue
+            regs = await self._reg_value(p, snaps)
+            lo = a - p.address
+            take = min(p.end, end) - a
+            out.extend(regs[lo : lo + take])
+            a += take
+        return out
+
+    def _node(self, p: Point) -> NodeImage:
+        assert p.node is not None
+        return self.image.nodes[p.node]
+
+    def _servable(
+        self, node: NodeImage, name: str, snaps: dict[str, dict[str, SignalValue]] | None = None
+    ) -> Any:
+        """A process value if its quality allows serving it (stale only with serve_stale)."""
+        if self.image.bus_state == "down":
+            raise BusDown("CAN bus is down")
+        snap = None if snaps is None else snaps.get(node.name)
+        if snap is None:
+            snap = node.snapshot()
+            if snaps is not None:
+                snaps[node.name] = snap
+        s = snap[name]
+        q = node.quality(s)
+        if q == Quality.GOOD or (q == Quality.STALE and node.serve_stale):
+            return s.value
+        if s.seq == 0:
+            raise NodeNotOperational(node.name, f"{name} never received")
+        if not node.is_valid(name):
+            raise NodeNotOperational(node.name, f"{name} flagged invalid by the device")
+        raise NodeNotOperational(node.name, f"{name} is stale")
+
+    async def _reg_value(
+        self, p: Point, snaps: dict[str, dict[str, SignalValue]] | None = None
+    ) -> list[int]:
+        if p.kind == "gateway":
+            return to_registers(self._gateway_value(p.name), p)
+        node = self._node(p)
+        if p.kind == "diag":
+            return to_registers(self._diag_value(node, p.name), p)
+        if p.kind == "nmt":
+            st = node.health.nmt_state
+            return [0xFFFF if st == NmtState.UNKNOWN else int(st)]
+        if p.table == "ir":
+            return to_registers(self._servable(node, p.name, snaps), p)
+        return to_registers(await self._output_value(node.name, p.name), p)
+
+    async def _output_value(self, node: str, name: str) -> Any:
+        """A writable point: the last value sent by RPDO, else the device's value by SDO
+        (from the command service's cache while younger than ``master.sdo_cache_ms``)."""
+        return await self.commands.read_signal(node, name)
+
+    async def _bit_value(
+        self,
+        p: Point,
+        words: dict[tuple[str, str], Any],
+        snaps: dict[str, dict[str, SignalValue]] | None = None,
+    ) -> int:
+        node = self._node(p)
+        if p.kind == "diag_bit":
+            h = node.health
+            return {
+                "alive": h.alive,
+                "operational": node.operational(),
+                "link_ok": h.link in (LinkState.OK, LinkState.NOT_USED),
+                "error_active": bool(h.current_errors),
+            }[p.name]
+        assert p.bit is not None
+        key = (node.name, p.name)
+        if key not in words:
+            if p.table == "di" and p.transport == "pdo":
+                words[key] = self._servable(node, p.name, snaps)
+            else:
+                words[key] = await self._output_value(node.name, p.name)
+        return (int(words[key]) >> p.bit) & 1
+
+    def _quality(self, node: NodeImage) -> Quality:
+        names = self.process_signals.get(node.name, ())
+        if not names:
+            return Quality.GOOD if node.operational() else Quality.STALE
+        now = time.monotonic()
+        return max(node.quality(node.signals[n], now) for n in names)
+
+    def _diag_value(self, node: NodeImage, name: str) -> int:
+        h = node.health
+        if name == "quality":
+            return int(self._quality(node))
+        if name == "nmt_state":
+            return 0xFFFF if h.nmt_state == NmtState.UNKNOWN else int(h.nmt_state)
+        if name == "alive":
+            return int(h.alive)
+        if name == "lifecycle":
+            return LIFECYCLE_CODES.get(h.lifecycle, 0)
+        if name == "data_age_ms":
+            age = node.data_age_s()
+            return 0xFFFFFFFF if age is None else min(int(age * 1000), 0xFFFFFFFE)
+        if name == "last_emcy_code":
+            return h.last_emcy.code if h.last_emcy else 0
+        if name == "last_emcy_register":
+            return h.last_emcy.register if h.last_emcy else 0
+        if name == "emcy_count":
+            return h.emcy_count & 0xFFFF
+        if name == "loss_count":
+            return h.loss_count & 0xFFFF
+        if name == "link_state":
+            return int(h.link)
+        if name == "link_fault_count":
+            return h.link_fault_count & 0xFFFF
+        if name == "last_sdo_abort":
+            return h.last_sdo_abort & 0xFFFFFFFF
+        if name == "boot_count":
+            return h.boot_count & 0xFFFF
+        if name == "pdo_errors":
+            return (node.rx.pdo_too_short + node.rx.pdo_too_long) & 0xFFFF
+        return 0
+
+    def _gateway_value(self, name: str) -> int:
+        c = self.image.counters
+        if name == "bus_state":
+            return {"down": 0, "ok": 1, "error": 2}.get(self.image.bus_state, 0)
+        if name in c:
+            return c[name] & 0xFFFFFFFF
+        if name == "uptime_s":
+            return int(time.monotonic() - self.image.started_monotonic)
+        if name.startswith("version_"):
+            parts = (gateway.__version__.split(".") + ["0", "0"])[:3]
+            digits = "".join(
+                ch for ch in parts[("major", "minor", "patch").index(name[8:])] if ch.isdigit()
+            )
+            return int(digits or 0)
+        nodes = self.image.nodes.values()
+        if name == "nodes_configured":
+            return len(self.image.nodes)
+        if name == "nodes_alive":
+            return sum(1 for n in nodes if n.health.alive)
+        if name == "nodes_operational":
+            return sum(1 for n in nodes if n.operational())
+        return 0
+
+    # ------------------------------------------------------------------ writes
+    def check_access(self, peer: str | None) -> None:
+        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged)."""
+        why = None
+        if self.read_only:
+            why = "the gateway is read-only (modbus.read_only)"
+        elif peer is not None:
+            try:
+                ip = ipaddress.ip_address(peer.split("%", 1)[0])
+            except ValueError:
+                why = f"client address {peer!r} not understood"
+            else:
+                if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+                    ip = ip.ipv4_mapped
+                if not any(ip in net for net in self.allowed):
+                    why = f"client {peer} is not in modbus.allowed_networks"
+        if why is not None:
+            self.warn.warning(("refused", peer, why), "Modbus write from %s refused: %s", peer, why)
+            raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
+
+    async def _bounded(self, op: Awaitable[T]) -> T:
+        """Wait for the device at most ``write_timeout_s``; the operation itself is never cut
+        short (an SDO transfer in flight completes, its late result is only logged)."""
+        task = asyncio.ensure_future(op)
+        done, _ = await asyncio.wait({task}, timeout=self.write_timeout_s)
+        if not done:
+            task.add_done_callback(_log_late_result)
+            raise TimeoutError(f"write not confirmed within {self.write_timeout_s:g} s")
+        return task.result()
+
+    def _points_for(self, unit: int, table: Table, address: int, n: int) -> list[tuple[Point, int]]:
+        """Whole writable points covered by a write of ``n`` addresses: (point, index)."""
+        idx = self.regmap.index.get((unit, table), {})
+        out = []
+        a = address
+        while a < address + n:
+            p = idx.get(a)
+            if p is None:
+                raise ModbusError(
+                    ExceptionCode.ILLEGAL_DATA_ADDRESS,
+                    f"{TABLE_NAMES[table]} {a} of unit {unit} is not mapped",
+                )
+            if p.access != "rw":
+                where = f"{p.node}.{p.name}" if p.node else p.name
+                raise ModbusError(ExceptionCode.ILLEGAL_DATA_ADDRESS, f"{where} is read-only")
+            if p.address != a or p.end > address + n:
+                raise ModbusError(
+                    ExceptionCode.ILLEGAL_DATA_ADDRESS,
+                    f"a write must cover all {p.count} registers {p.address}-{p.end - 1} of {p.node}.{p.name}",
+                )
+            out.append((p, a - address))
+            a += p.count
+        return out
+
+    async def write_registers(
+        self, unit: int, address: int, values: list[int], peer: str | None
+    ) -> None:
+        self.check_access(peer)
+        points = self._points_for(unit, "hr", address, len(values))
+        nmt: list[tuple[str, str]] = []
+        by_node: dict[str, dict[str, Any]] = {}
+        for p, start in points:
+            assert p.node is not None
+            regs = values[start : start + p.count]
+            if p.kind == "nmt":
+                cmd = NMT_BY_CODE.get(regs[0])
+                if cmd is None:
+                    raise ValueOutOfRange(
+                        "nmt_command", regs[0], ", ".join(str(c) for c in NMT_BY_CODE)
+                    )
+                nmt.append((p.node, cmd))
+                continue
+            value = from_registers(regs, p)
+            if p.type == "string":
+                try:
+                    value = value.decode("ascii")
+                except UnicodeDecodeError:
+                    raise ValueOutOfRange(p.name, value, "ASCII text") from None
+            by_node.setdefault(p.node, {})[p.name] = value
+        for node, cmd in nmt:
+            self.commands.nmt(node, cmd)
+        if by_node:
+            await self._bounded(self._write_signals(by_node))
+
+    async def _write_signals(self, by_node: dict[str, dict[str, Any]]) -> None:
+        for node, vals in by_node.items():
+            if len(vals) == 1:
+                ((name, v),) = vals.items()
+                await self.commands.write_signal(node, name, v)
+            else:
+                await self.commands.write_signals(node, vals)
+
+    async def write_coils(
+        self, unit: int, address: int, values: list[bool], peer: str | None
+    ) -> None:
+        self.check_access(peer)
+        points = self._points_for(unit, "co", address, len(values))
+        grouped: dict[tuple[str, str], dict[int, bool]] = {}
+        transport: dict[tuple[str, str], str] = {}
+        for p, start in points:
+            assert p.node is not None and p.bit is not None
+            grouped.setdefault((p.node, p.name), {})[p.bit] = values[start]
+            transport[(p.node, p.name)] = p.transport
+        await self._bounded(self._write_bits(grouped, transport))
+
+    async def _write_bits(
+        self, grouped: dict[tuple[str, str], dict[int, bool]], transport: dict[tuple[str, str], str]
+    ) -> None:
+        for (node, name), bits in grouped.items():
+            # read-modify-write of the word (RPDO output or SDO object) by the command service
+            await self.commands.write_bits(node, name, bits)
+
+    async def mask_write(
+        self, unit: int, address: int, and_mask: int, or_mask: int, peer: str | None
+    ) -> None:
+        """FC 22: result = (current AND and_mask) OR (or_mask AND NOT and_mask), 6.16."""
+        self.check_access(peer)
+        self._points_for(unit, "hr", address, 1)
+        current = (await self.read(unit, "hr", address, 1))[0]
+        value = (current & and_mask) | (or_mask & ~and_mask & 0xFFFF)
+        await self.write_registers(unit, address, [value], peer)
+
+
+def _log_late_result(task: asyncio.Future[Any]) -> None:
+    if task.cancelled():
+        return
+    exc = task.exception()
+    if exc is not None:
+        log.warning("Modbus write completed after its timeout with an error: %s", exc)
+
+
+# ---------------------------------------------------------------------- one request
+async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None) -> bytes:
+    """Serve one request PDU; returns the response PDU (raises ModbusError / GatewayError)."""
+    fc, body = pdu[0], pdu[1:]
+    code = check_request(fc, body)
+    if code is not None:
+        raise ModbusError(code, f"function code {fc}: malformed or unsupported request")
+    if unit not in store.regmap.units:
+        raise ModbusError(
+            ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"
+        )
+    if fc in READ_TABLE:
+        address, qty = struct.unpack(">HH", body)
+        values = await store.read(unit, READ_TABLE[fc], address, qty)
+        if fc in (READ_COILS, READ_DISCRETE_INPUTS):
+            data = pack_bits(values)
+        else:
+            data = struct.pack(f">{len(values)}H", *values)
+        return bytes((fc, len(data))) + data
+    if fc == WRITE_COIL:
+        address, value = struct.unpack(">HH", body)
+        await store.write_coils(unit, address, [value == COIL_ON], peer)
+        return pdu  # the normal response is an echo of the request (6.5)
+    if fc == WRITE_REGISTER:
+        address, value = struct.unpack(">HH", body)
+        await store.write_registers(unit, address, [value], peer)
+        return pdu  # echo (6.6)
+    if fc == WRITE_COILS:
+        address, qty, byte_count = struct.unpack_from(">HHB", body)
+        await store.write_coils(unit, address, unpack_bits(body[5:], qty), peer)
+        return bytes((fc,)) + body[:4]
+    if fc == WRITE_REGISTERS:
+        address, qty, byte_count = struct.unpack_from(">HHB", body)
+        await store.write_registers(
+            unit, address, list(struct.unpack_from(f">{qty}H", body, 5)), peer
+        )
+        return bytes((fc,)) + body[:4]
+    if fc == MASK_WRITE_REGISTER:
+        address, and_mask, or_mask = struct.unpack(">HHH", body)
+        await store.mask_write(unit, address, and_mask, or_mask, peer)
+        return pdu  # echo (6.16)
+    # READ_WRITE_REGISTERS: the write is performed before the read (6.17)
+    r_addr, r_qty, w_addr, w_qty, _ = struct.unpack_from(">HHHHB", body)
+    await store.write_registers(unit, w_addr, list(struct.unpack_from(f">{w_qty}H", body, 9)), peer)
+    values = await store.read(unit, "hr", r_addr, r_qty)
+    data = struct.pack(f">{len(values)}H", *values)
+    return bytes((fc, len(data))) + data

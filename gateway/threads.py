@@ -1,0 +1,41 @@
+"""Threads the gateway starts, supervised: the one way to start one.
+
+A supervised thread runs its target; an exception that escapes it is logged with its traceback
+and recorded, and the gateway's readiness (/healthz) turns not-ready with the thread's name and
+the error: no thread dies silently. ``ThreadRegistry.failures()`` lists the dead ones.
+
+Imports: the standard library only.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+
+log = logging.getLogger("gateway.threads")
+
+
+class ThreadRegistry:
+    """The gateway's threads and how they ended."""
+
+    def __init__(self) -> None:
+        self._failed: dict[str, str] = {}
+        self._lock = threading.Lock()
+
+    def start(self, name: str, target: Callable[[], None]) -> threading.Thread:
+        def run() -> None:
+            try:
+                target()
+            except BaseException as exc:  # noqa: BLE001 - recorded and reported, never silent
+                log.exception("thread %s died: %r", name, exc)
+                with self._lock:
+                    self._failed[name] = f"{type(exc).__name__}: {exc}"
+
+        t = threading.Thread(target=run, name=name, daemon=True)
+        t.start()
+        return t
+
+    def failures(self) -> dict[str, str]:
+        with self._lock:
+            return dict(self._failed)
