@@ -18,9 +18,10 @@ ENV PIP_NO_CACHE_DIR=1 \
 RUN python3 -m venv /opt/venv
 WORKDIR /src
 # Dependencies first, read from pyproject.toml, so that a code change does not reinstall them.
-# EXTRAS: optional dependency groups of pyproject.toml, comma separated. "sim" adds
-# python-can-remote (under 1 MB): the demo's CAN bus server and `can: {interface: remote}`.
-ARG EXTRAS=sim
+# EXTRAS: optional dependency groups of pyproject.toml, comma separated (none by default;
+# python-can-remote, for `can: {interface: remote}` and the demo's CAN bus server, is a main
+# dependency).
+ARG EXTRAS=
 COPY pyproject.toml README.md ./
 RUN /opt/venv/bin/python -c "import os, tomllib; \
 p = tomllib.load(open('pyproject.toml', 'rb'))['project']; \

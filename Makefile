@@ -45,6 +45,7 @@ lint: $(STAMP_TEST)
 	$(BIN)/ruff check gateway tests deploy $(wildcard bench)
 
 bench: $(STAMP_TEST)
+	$(BIN)/pip install -q -e '.[test,bench]'
 	$(BIN)/python -m bench
 
 container-test: $(STAMP_TEST)

@@ -1,6 +1,6 @@
 """``python -m bench [name ...]``: run the benchmarks (all by default) and write RESULTS.md.
 
-Names: ingest, latency, modbus, scale, startup, hotpath, outage. Running a subset prints its sections
+Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate. Running a subset prints its sections
 and leaves RESULTS.md as it is.
 
 Imports: bench.*.
@@ -16,7 +16,7 @@ import time
 import traceback
 from collections.abc import Awaitable, Callable
 
-from bench import hotpath, ingest, latency, modbus_rps, scale, startup, zenoh_outage
+from bench import hotpath, ingest, latency, linerate, modbus_rps, scale, startup, zenoh_outage
 from bench.findings import findings
 from bench.machine import describe, load_average
 from bench.report import Section, render
@@ -29,6 +29,7 @@ BENCHES: dict[str, Callable[[], Awaitable[Section]]] = {
     "startup": startup.run,
     "hotpath": hotpath.run,
     "outage": zenoh_outage.run,
+    "linerate": linerate.run,
 }
 HERE = pathlib.Path(__file__).resolve().parent
 

@@ -289,17 +289,23 @@ class SimRate:
     def measure(self, n_nodes: int, duration_s: float) -> dict[str, float]:
         from gateway.profiles import load_profile
         from gateway.sim.node import SimNode
+        from gateway.sim.objects import PersistentStore
         from gateway.sim.runner import SimRunner
 
         channel = unique_channel("simrate")
         lp = load_profile("sgh10")
         nodes = []
         for i in range(1, n_nodes + 1):
-            node = SimNode(lp, i)
-            node.set(0x1800, 5, PERIOD_MS)  # TPDO1 event timer (SGH10 manual 4.7.2.13)
-            node.set(0x6200, 0, PERIOD_MS)  # its mirror (4.7.2.31)
-            node.set(0x1017, 0, HEARTBEAT_MS)
-            nodes.append(node)
+            # stored ("save" 1010h), so that power-on loads them (a node.set() before power-on
+            # is overwritten by the EDS defaults)
+            store = PersistentStore(
+                values={
+                    (0x1800, 5): PERIOD_MS,  # TPDO1 event timer (SGH10 manual 4.7.2.13)
+                    (0x6200, 0): PERIOD_MS,  # its mirror (4.7.2.31)
+                    (0x1017, 0): HEARTBEAT_MS,
+                }
+            )
+            nodes.append(SimNode(lp, i, store=store))
         sim_bus = can.Bus(interface="virtual", channel=channel)
         runner = SimRunner(sim_bus, nodes)
         master = can.Bus(interface="virtual", channel=channel)
@@ -538,7 +544,7 @@ async def run(
         f"TPDO2 on SYNC every {PERIOD_MS} ms, heartbeat {HEARTBEAT_MS} ms) reached "
         f"{simrate['fps']:,.0f} frames/s using {simrate['cpu'] * 100:.0f}% of a core"
         + (f" (runner error: {simrate['error']})" if simrate["error"] else "")
-        + ": its thread ticks all 127 nodes every millisecond in Python under one lock, so "
-        "the raw generator above stands in for it."
+        + " (the target is 127 x 2 TPDO / 10 ms + heartbeats = 26,670 frames/s; the count "
+        "includes python-can's virtual bus copying each frame to the counting Bus)."
     )
     return sec

@@ -27,6 +27,18 @@ def _load(path: str) -> Config:
     return load_checked_config(path)
 
 
+def _load_for_bus(path: str) -> Config:
+    """The config of a command that opens the CAN bus: also refuses an interface python-can
+    cannot load (unknown name, plug-in not installed), in one line, before anything starts."""
+    from gateway.bus.can_backend import interface_problem
+
+    cfg = load_config(path)
+    problem = interface_problem(cfg.can.interface)
+    if problem is not None:
+        raise ConfigError([f"{cfg.source}: can.interface: {problem}"])
+    return cfg
+
+
 def _setup_logging(level: str) -> None:
     logging.basicConfig(
         level=getattr(logging, level.upper(), logging.INFO),
@@ -62,7 +74,7 @@ async def _run_until_signal(starter: Any, stopper: Any, ready_line: str | None =
 def cmd_run(args: argparse.Namespace) -> int:
     from gateway.app import Gateway
 
-    cfg = _load(args.config)
+    cfg = _load_for_bus(args.config)
     _setup_logging(args.log_level or cfg.gateway.log_level)
     from gateway.zenoh_bridge.bridge import PrefixInUse
 
@@ -81,7 +93,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     from gateway.profiles import load_node_profile
 
-    cfg = _load(args.config)
+    cfg = _load_for_bus(args.config)
     print(f"{args.config}: OK")
     for n in cfg.nodes:
         lp = load_node_profile(n, cfg.base_dir)
@@ -135,11 +147,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 async def _with_master(cfg: Config, fn: Any) -> Any:
-    """Open the bus with a master (no Modbus/Zenoh) for one commissioning operation."""
+    """Open the bus with a master for one commissioning operation. Opens no server (no Modbus,
+    Zenoh or health endpoint), so it runs beside a gateway that serves the same config."""
     from gateway.app import Gateway
 
     cfg.modbus.enabled = False
     cfg.zenoh.enabled = False
+    cfg.health.port = 0
     cfg.master.probe_at_start = False
     for n in cfg.nodes:
         n.configure = False
@@ -163,7 +177,7 @@ def _node_name(cfg: Config, node: str) -> str:
 def cmd_sdo(args: argparse.Namespace) -> int:
     from gateway.errors import GatewayError
 
-    cfg = _load(args.config)
+    cfg = _load_for_bus(args.config)
     name = _node_name(cfg, args.node)
     cfg.master.sdo_timeout_s = args.timeout
 
@@ -182,12 +196,47 @@ def cmd_sdo(args: argparse.Namespace) -> int:
         return EXIT_FAILED
     if isinstance(result, (bytes, bytearray)):
         result = bytes(result).hex(" ")
-    print(result if not isinstance(result, int) else f"{result} (0x{result:X})")
+    if isinstance(result, int) and not isinstance(result, bool):
+        result = format_sdo_int(result, args.type or _sdo_type(cfg, name, args.object))
+    print(result)
     return 0
 
 
+#: Width in bits of the integer types (profile type names, DS-301 basic types).
+_INT_BITS = {"int8": 8, "int16": 16, "int24": 24, "int32": 32, "int64": 64}
+_INT_BITS |= {f"u{k}": v for k, v in _INT_BITS.items()} | {"bool": 8}
+
+
+def format_sdo_int(value: int, type_: str | None) -> str:
+    """``-677 (0xFFFFFD5B)``: the value, then its bytes as the object's width in hex (two's
+    complement for negative values); the width is the smallest that holds the value when the
+    type is not known."""
+    bits = _INT_BITS.get(type_ or "")
+    if bits is None:
+        bits = 8
+        while not -(1 << (bits - 1)) <= value < (1 << bits) and bits < 64:
+            bits *= 2
+    return f"{value} (0x{value & ((1 << bits) - 1):0{bits // 4}X})"
+
+
+def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
+    """The type of ``obj`` on node ``name``: the profile signal's, else the EDS's."""
+    from gateway.bus.lifecycle import OD_TYPE_NAMES
+    from gateway.objref import ObjRef
+    from gateway.profiles import load_profile
+
+    node = next(n for n in cfg.nodes if n.name == name)
+    lp = load_profile(node.profile, cfg.base_dir)
+    ref = ObjRef.parse(obj)
+    sig = lp.profile.signal_for(ref)
+    if sig is not None:
+        return sig.type
+    var = lp.od_var(ref)
+    return None if var is None else OD_TYPE_NAMES.get(var.data_type)
+
+
 def cmd_nmt(args: argparse.Namespace) -> int:
-    cfg = _load(args.config)
+    cfg = _load_for_bus(args.config)
     name = "all" if args.node == "all" else _node_name(cfg, args.node)
 
     async def op(gw: Any) -> None:

@@ -113,8 +113,15 @@ class GuardingBitSettings(_Model):
     period_ms: int = Field(
         default=500, ge=10, le=60000, description="re-send the last RPDO when none went out for this long"
     )
-    tolerance_missed: int = Field(default=3, ge=1, le=1000)
-    tolerance_ms: int = Field(default=1000, ge=10, le=600000)
+    tolerance_missed: int = Field(
+        default=3,
+        ge=1,
+        le=1000,
+        description="fault after more than this many status words (TPDOs) in a row without the echo",
+    )
+    tolerance_ms: int = Field(
+        default=1000, ge=10, le=600000, description="fault when a toggle is not echoed for this long"
+    )
 
 
 class ExternalHeartbeat(_Model):

@@ -326,6 +326,11 @@ class LssMaster:
     def next_deadline(self) -> float | None:
         return self.deadline_s
 
+    def resume(self, mode: LssMode) -> None:
+        """The slaves are already in ``mode``: a previous session left them there (the CLI
+        keeps what each command leaves behind, see ``gateway.bus.lss_cli``)."""
+        self.mode = mode
+
     def send(self, request: LssRequest, now: float) -> list[bytes]:
         """The frames to send on 7E5h for ``request``, in order."""
         if self.pending is not None:

@@ -13,11 +13,18 @@ store              (17h)
 auto-id            ``NODE_ID [node=ID] [profile=NAME] [timeout=S]`` (SDO to 5F0Ah:02)
 =================  ========================================================================
 
-Every configuration action first puts the slave in the LSS configuration state: by switch
-state selective when ``address=VENDOR:PRODUCT:REVISION:SERIAL`` is given, else by switch state
-global (then only one LSS slave may be on the bus), and switches all slaves back to waiting at
-the end (``keep`` leaves them in configuration). Other options: ``timeout=S`` (answer timeout,
-default 1 s).
+Every configuration action first puts the slave in the LSS configuration state: with
+``address=VENDOR:PRODUCT:REVISION:SERIAL`` by switch state global to waiting, then switch state
+selective (a slave already in configuration ignores the selective switch, manual 4.6 Table 10);
+without an address it continues with the slave a previous ``keep`` or ``switch-selective``
+left in configuration, else switches all slaves by switch state global (then only one LSS slave
+may be on the bus). At the end it switches all slaves back to waiting (``keep`` leaves them in
+configuration). What a command leaves the slaves in is kept per bus in
+``$XDG_STATE_HOME/canopen-gateway/lss-state.json`` (default ``~/.local/state``) for the next
+command. An answer from several slaves to a service meant for one is reported. A bit rate the
+profile of the config's LSS slaves does not support is refused before anything is sent. Other
+options: ``timeout=S`` (answer timeout, default 1 s), ``profile=NAME`` (the LSS slave's profile
+for the bit rate check).
 
 The LSS frames and their matching come from ``gateway.bus.lss``; this module only does the
 I/O, parses the arguments and prints. When the config simulates nodes (``simulate:``), they
@@ -30,12 +37,15 @@ gateway.bus.sdo_text; gateway.sim only when the config simulates nodes. Nothing 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import struct
 import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, TextIO
 
 import can
@@ -64,6 +74,10 @@ SDO_UPLOAD_REQUEST = 0x40
 SDO_ABORT = 0x80
 
 INQUIRE_ORDER = ("vendor_id", "product_code", "revision", "serial", "node_id")
+#: After the first answer, how long to listen for more slaves answering the same request.
+ANSWER_SETTLE_S = 0.05
+#: Buses remembered in the state file (the oldest are dropped).
+STATE_FILE_BUSES = 32
 DEFAULT_SWITCH_DELAY_MS = 100  # activate bit timing: silent d1, then d2 (SGH10 manual 4.6.2.3)
 
 
@@ -146,6 +160,74 @@ def parse_address(parts: list[str]) -> tuple[int, int, int, int]:
     return values  # type: ignore[return-value]
 
 
+# --------------------------------------------------------------------------- state left behind
+
+
+@dataclass(frozen=True)
+class LeftState:
+    """The LSS state a command left the slaves of one bus in (manual 4.6 Table 10)."""
+
+    mode: lss.LssMode = lss.LssMode.WAITING
+    #: the one slave switched selectively; None: all slaves (switch state global)
+    address: tuple[int, int, int, int] | None = None
+
+    def describe(self) -> str:
+        if self.address is None:
+            return f"all slaves in {self.mode}"
+        return f"slave {format_address(self.address)} in {self.mode}"
+
+
+class LssStateFile:
+    """Per bus, the state the last ``lss`` command left the slaves in, so the next command (a
+    new process) continues from it. A missing or unreadable file means: all slaves waiting."""
+
+    def __init__(self, path: Path, bus_key: str):
+        self.path = path
+        self.bus_key = bus_key
+
+    @classmethod
+    def for_bus(cls, bus_kwargs: dict[str, Any]) -> LssStateFile:
+        base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+        parts = [f"{k}={bus_kwargs[k]}" for k in ("interface", "channel", "host", "port") if k in bus_kwargs]
+        return cls(Path(base) / "canopen-gateway" / "lss-state.json", " ".join(parts))
+
+    def _read_all(self) -> dict[str, Any]:
+        try:
+            data = json.loads(self.path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+        return data if isinstance(data, dict) else {}
+
+    def load(self) -> LeftState:
+        entry = self._read_all().get(self.bus_key)
+        try:
+            mode = lss.LssMode(entry["mode"])
+            address = entry.get("address")
+            return LeftState(mode, tuple(int(v) for v in address) if address else None)  # type: ignore[arg-type]
+        except (TypeError, KeyError, ValueError):
+            return LeftState()
+
+    def save(self, state: LeftState) -> None:
+        data = self._read_all()
+        data.pop(self.bus_key, None)
+        data[self.bus_key] = {
+            "mode": str(state.mode),
+            "address": list(state.address) if state.address else None,
+        }
+        data = dict(list(data.items())[-STATE_FILE_BUSES:])
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
+            tmp.replace(self.path)
+        except OSError:
+            pass  # a read-only home: the next command starts from "all waiting"
+
+
+def format_address(address: tuple[int, int, int, int]) -> str:
+    return ":".join(f"0x{v:X}" for v in address)
+
+
 # --------------------------------------------------------------------------- bus session
 
 
@@ -157,10 +239,20 @@ class LssSession:
         bus: can.BusABC,
         timeout_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
+        left: LeftState | None = None,
+        settle_s: float = ANSWER_SETTLE_S,
     ):
         self.bus = bus
         self.clock = clock
         self.master = lss.LssMaster(timeout_s)
+        self.settle_s = settle_s
+        #: what the slaves are in now (what the previous command left, then what we did)
+        self.left = left or LeftState()
+        #: every answer to the last request (more than one: several slaves answered)
+        self.answers: list[lss.LssValue] = []
+        #: set while continuing with a slave a previous command left in configuration
+        self.resumed: tuple[int, int, int, int] | None = None
+        self.warnings: list[str] = []
 
     def send_frame(self, cob_id: int, data: bytes) -> None:
         self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
@@ -169,6 +261,10 @@ class LssSession:
         """Send ``req``; its answer (None when the service has none). Raises LssFailed."""
         for frame in self.master.send(req, self.clock()):
             self.send_frame(lss.COB_ID_MASTER_TO_SLAVE, frame)
+        if req.frames[0][0] == lss.CS_SWITCH_GLOBAL:
+            self.left = LeftState(self.master.mode, None)
+            self.resumed = None
+        self.answers = []
         if req.answer_cs is None:
             return None
         while True:
@@ -186,17 +282,53 @@ class LssSession:
             ):
                 for ev in self.master.on_frame(bytes(msg.data), now):
                     if isinstance(ev, lss.LssAnswered):
+                        self.answers = [ev.value, *self._more_answers(req.answer_cs)]
                         return ev.value
             for ev in self.master.poll(now):
                 if isinstance(ev, lss.LssTimedOut):
+                    if self.resumed is not None:
+                        hint = (
+                            f"the slave {format_address(self.resumed)} the previous command "
+                            "left in configuration does not answer (reset or powered off "
+                            "since?); give address=VENDOR:PRODUCT:REVISION:SERIAL"
+                        )
+                        self.left = LeftState()
+                    else:
+                        hint = "no LSS slave in configuration state?"
                     raise LssFailed(
                         f"LSS {req.service}: no answer on 0x{lss.COB_ID_SLAVE_TO_MASTER:03X} "
-                        f"within {ev.timeout_s:g} s (no LSS slave in configuration state?)"
+                        f"within {ev.timeout_s:g} s ({hint})"
                     )
+
+    def _more_answers(self, cs: int) -> list[lss.LssValue]:
+        """Further answers with ``cs`` within ``settle_s``: other slaves in configuration."""
+        more: list[lss.LssValue] = []
+        deadline = self.clock() + self.settle_s
+        while (left := deadline - self.clock()) > 0:
+            msg = self.bus.recv(timeout=left)
+            if (
+                msg is not None
+                and msg.arbitration_id == lss.COB_ID_SLAVE_TO_MASTER
+                and not msg.is_remote_frame
+                and not msg.is_error_frame
+                and len(msg.data) > 0
+                and msg.data[0] == cs
+            ):
+                try:
+                    more.append(lss.decode_answer(bytes(msg.data))[1])
+                except ValueError:
+                    continue
+        return more
 
     def configure(self, req: lss.LssRequest) -> None:
         """A configure / store service; raises LssFailed when the slave answers an error."""
         answer = self.request(req)
+        if len(self.answers) > 1:
+            self.warnings.append(
+                f"warning: {len(self.answers)} LSS slaves answered {req.service}: more than one "
+                "is in the LSS configuration state and each of them took it; address one with "
+                "address=VENDOR:PRODUCT:REVISION:SERIAL"
+            )
         if isinstance(answer, lss.ConfigAnswer) and not answer.ok:
             raise LssFailed(f"LSS {req.service} refused: {answer.text}")
 
@@ -220,10 +352,15 @@ class LssSession:
     def configuration_state(
         self, address: tuple[int, int, int, int] | None, keep: bool = False
     ) -> Iterator[None]:
-        """Slave(s) in LSS configuration for the block: selective by address, else global;
-        back to waiting afterwards unless ``keep``."""
+        """Slave(s) in LSS configuration for the block; back to waiting afterwards unless
+        ``keep``. By address: all to waiting, then switch state selective (Table 10: a slave
+        already in configuration ignores the selective switch). Without: the slave a previous
+        command left in configuration, else all slaves by switch state global."""
         if address is not None:
-            self.request(lss.switch_state_selective(*address))
+            self.select(address)
+        elif self.left.mode is lss.LssMode.CONFIGURATION and self.left.address is not None:
+            self.master.resume(lss.LssMode.CONFIGURATION)
+            self.resumed = self.left.address
         else:
             self.request(lss.switch_state_global(True))
         ok = False
@@ -233,6 +370,12 @@ class LssSession:
         finally:
             if not keep or not ok:
                 self.request(lss.switch_state_global(False))
+
+    def select(self, address: tuple[int, int, int, int]) -> None:
+        """Only the slave with ``address`` in configuration (04h 00h, then 40h..43h)."""
+        self.request(lss.switch_state_global(False))
+        self.request(lss.switch_state_selective(*address))
+        self.left = LeftState(lss.LssMode.CONFIGURATION, address)
 
 
 # --------------------------------------------------------------------------- actions
@@ -255,8 +398,8 @@ def do_switch_selective(s: LssSession, a: LssArgs, out: TextIO) -> None:
     address = parse_address(a.words) if a.words else a.address()
     if address is None:
         raise UsageError("switch-selective needs VENDOR PRODUCT REVISION SERIAL")
-    s.request(lss.switch_state_selective(*address))
-    print("LSS slave " + ":".join(f"0x{v:X}" for v in address) + " in configuration", file=out)
+    s.select(address)
+    print(f"LSS slave {format_address(address)} in configuration", file=out)
 
 
 def do_inquire(s: LssSession, a: LssArgs, out: TextIO) -> None:
@@ -267,12 +410,23 @@ def do_inquire(s: LssSession, a: LssArgs, out: TextIO) -> None:
     for item in items:
         if item not in INQUIRE_ORDER:
             raise UsageError(f"inquire {what!r}: one of {', '.join(INQUIRE_ORDER)} or all")
+    several = 0
     with s.configuration_state(a.address(), keep=keep):
         for item in items:
-            value = s.request(lss.inquire(item))
-            assert isinstance(value, int)
-            shown = str(value) if item == "node_id" else _hex(value)
-            print(f"{item:<13} {shown}", file=out)
+            s.request(lss.inquire(item))
+            values = [v for v in s.answers if isinstance(v, int)]
+            shown = [str(v) if item == "node_id" else _hex(v) for v in values]
+            if len(values) > 1:
+                several = max(several, len(values))
+                print(f"{item:<13} {len(values)} slaves answered: {', '.join(shown)}", file=out)
+            else:
+                print(f"{item:<13} {shown[0]}", file=out)
+    if several:
+        raise LssFailed(
+            f"{several} LSS slaves answered: more than one is in the LSS configuration state "
+            "(switch state global reaches every slave); address one with "
+            "address=VENDOR:PRODUCT:REVISION:SERIAL"
+        )
 
 
 def do_set_node_id(s: LssSession, a: LssArgs, out: TextIO) -> None:
@@ -305,15 +459,51 @@ def do_set_node_id(s: LssSession, a: LssArgs, out: TextIO) -> None:
     print(f"node {old} reset: boot-up received from node {node_id}", file=out)
 
 
-def do_set_bitrate(s: LssSession, a: LssArgs, out: TextIO) -> None:
-    store, activate, keep = a.flag("store"), a.flag("activate"), a.flag("keep")
-    if len(a.words) != 1:
+def bitrate_argument(a: LssArgs) -> tuple[int, int]:
+    """(kbit/s, DS-301 table index) of ``set-bitrate KBPS`` (flags already taken)."""
+    words = [w for w in a.words if w not in ("store", "activate", "keep")]
+    if len(words) != 1:
         raise UsageError("set-bitrate needs the bit rate in kbit/s, e.g. set-bitrate 250")
-    kbps = parse_int(a.words[0], "bit rate")
+    kbps = parse_int(words[0], "bit rate")
     try:
-        index = lss.bit_timing_index(kbps)
+        return kbps, lss.bit_timing_index(kbps)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+
+
+def check_bitrate_supported(cfg: Config, a: LssArgs) -> None:
+    """Refuse a bit rate an LSS slave's profile does not list (``bit_timing_indices``), e.g.
+    10 kbit/s on the SGH10 (manual 4.6.2.2: "supports only ... table index 0 until 7"). The
+    profiles are ``profile=NAME``, else those of the config's nodes with feature lss_slave."""
+    kbps, index = bitrate_argument(a)
+    name = a.options.get("profile")
+    if name is not None:
+        try:
+            lps = {name: (load_profile(name, cfg.base_dir), [])}
+        except ProfileError as exc:
+            raise UsageError(str(exc)) from None
+    else:
+        lps = {}
+        for n in cfg.nodes:
+            lp = load_profile(n.profile, cfg.base_dir)
+            if "lss_slave" in lp.profile.features:
+                lps.setdefault(n.profile, (lp, []))[1].append(n.name)
+    for profile, (lp, nodes) in lps.items():
+        feature = lp.profile.features.get("lss_slave") or {}
+        indices = feature.get("bit_timing_indices")
+        if indices is None or index in indices:
+            continue
+        rates = ", ".join(str(lss.BIT_TIMING_KBPS[i]) for i in indices if i in lss.BIT_TIMING_KBPS)
+        who = f" (nodes {', '.join(nodes)})" if nodes else ""
+        raise UsageError(
+            f"{kbps} kbit/s (table index {index}) is not supported by profile {profile}{who}; "
+            f"it supports {rates} kbit/s; nothing was sent"
+        )
+
+
+def do_set_bitrate(s: LssSession, a: LssArgs, out: TextIO) -> None:
+    store, activate, keep = a.flag("store"), a.flag("activate"), a.flag("keep")
+    kbps, index = bitrate_argument(a)
     delay_ms = int(a.number("delay", DEFAULT_SWITCH_DELAY_MS))
     with s.configuration_state(a.address(), keep=keep):
         s.configure(lss.configure_bit_timing(index))
@@ -323,6 +513,7 @@ def do_set_bitrate(s: LssSession, a: LssArgs, out: TextIO) -> None:
             print("stored (kept over power-off)", file=out)
         if activate:
             s.request(lss.activate_bit_timing(delay_ms))
+            s.left = LeftState()  # the slaves switch, boot and start in LSS waiting (4.6.2.3)
             print(
                 f"activate bit timing sent: the slaves switch after {delay_ms} ms and report "
                 f"after another {delay_ms} ms; reopen the bus at {kbps} kbit/s",
@@ -455,16 +646,22 @@ def run_lss(cfg: Config, args: argparse.Namespace, out: TextIO | None = None) ->
             raise UsageError("timeout must be > 0")
         if args.action != "auto-id" and args.action not in ACTIONS:
             raise UsageError(f"unknown LSS action {args.action!r}")
+        if args.action == "set-bitrate":
+            check_bitrate_supported(cfg, a)
+        state = LssStateFile.for_bus(cfg.can.bus_kwargs())
         with _simulation(cfg):
             bus = can.Bus(**cfg.can.bus_kwargs())
+            session = LssSession(bus, timeout_s, left=state.load())
             try:
-                session = LssSession(bus, timeout_s)
                 if args.action == "auto-id":
                     do_auto_id(session, a, out, cfg)
                 else:
                     ACTIONS[args.action](session, a, out)
             finally:
                 bus.shutdown()
+                state.save(session.left)
+                for line in session.warnings:
+                    print(line, file=sys.stderr)
     except UsageError as exc:
         print(f"error: lss {args.action}: {exc}", file=sys.stderr)
         return EXIT_USAGE

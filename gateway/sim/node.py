@@ -35,6 +35,7 @@ other gateway.sim modules. Nothing of bus/, modbus/, zenoh_bridge/.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -133,6 +134,8 @@ class SimNode:
         self.rx_count = 0
         self.tx_count = 0
         self._out: list[can.Message] = []
+        #: called when the frames the node acts on may have changed (see ``listening``)
+        self.on_listening_changed: Callable[[], None] | None = None
 
         # motion model -> position / velocity objects
         self.motion = Motion(motion if isinstance(motion, MotionConfig) else self.hints.motion)
@@ -155,6 +158,7 @@ class SimNode:
             present = tuple(o for o in group if self.values.has(*o))
             if len(present) > 1:
                 self.mirror_groups.append(present)
+        self._mirrored = frozenset(o for group in self.mirror_groups for o in group)
         self.cob_id_change_preop_only = self.hints.cob_id_change_preop_only
         self.require_mappable = bool(raw.get("require_mappable", False))
 
@@ -171,6 +175,7 @@ class SimNode:
         self.rpdos = pdo.numbers(self.values, "rpdo")
         self._tpdo_timers: dict[int, _TpdoTimer] = {n: _TpdoTimer() for n in self.tpdos}
         self._cob_map: dict[int, tuple[str, int]] | None = None
+        self._tpdo_params: dict[int, pdo.TpdoParams] = {}  # dropped when a PDO object changes
 
         self._hb_next_s: float | None = None
         self._guard_toggle = 0
@@ -425,7 +430,7 @@ class SimNode:
             self.values.load_defaults(self.node_id, self.store, 1 if kind == "node" else 2)
             for k, v in keep.items():
                 self.values.set(k[0], k[1], v)
-        self._cob_map = None
+        self._listening_changed()
         self.sdo.reset()
         self._guard_toggle = 0
         self._guard_last_rtr_s = None
@@ -643,21 +648,30 @@ class SimNode:
             if h.calibration_done_value is not None:
                 self.values.set(*obj, h.calibration_done_value)
 
+    def tpdo(self, number: int) -> pdo.TpdoParams:
+        """TPDO ``number``'s current parameters and compiled mapping (cached until a PDO
+        parameter object changes)."""
+        p = self._tpdo_params.get(number)
+        if p is None:
+            p = self._tpdo_params[number] = pdo.tpdo_params(self.values, number)
+        return p
+
     def tpdo_data(self, number: int, now: float) -> bytes:
         """The data TPDO ``number`` would carry now (current mapping)."""
         self.update_process(now)
-        data = pdo.pack(self.values, pdo.mapping(self.values, "tpdo", number))
+        data = pdo.pack_compiled(self.values, self.tpdo(number).plan)
         for b in self.behaviours:
             data = b.tpdo_data(number, data, now)
         return data
 
     def _send_tpdo(self, number: int, now: float, *, force: bool = False) -> bool:
         """Send TPDO ``number`` if it is valid (and the inhibit time allows unless forced)."""
-        cob = pdo.cob_id(self.values, "tpdo", number)
+        params = self.tpdo(number)
+        cob = params.cob_id
         if cob & pdo.COB_INVALID:
             return False
         t = self._tpdo_timers[number]
-        inhibit_s = pdo.inhibit_time_100us(self.values, number) * 100e-6
+        inhibit_s = params.inhibit_s
         if not force and t.last_sent_s is not None and now < t.last_sent_s + inhibit_s:
             t.pending = True
             return False
@@ -671,7 +685,7 @@ class SimNode:
     def trigger_tpdo(self, number: int, now: float) -> None:
         """An application event for an event-driven TPDO (behaviours), in OPERATIONAL only."""
         if self.nmt_state == NmtState.OPERATIONAL and number in self._tpdo_timers:
-            if pdo.transmission_type(self.values, "tpdo", number) >= 254:
+            if self.tpdo(number).transmission_type >= 254:
                 self._send_tpdo(number, now)
 
     def _tick_tpdos(self, now: float) -> None:
@@ -680,8 +694,9 @@ class SimNode:
                 self._send_tpdo(n, now)
             if t.next_due_s is None or now + _EPS_S < t.next_due_s:
                 continue
-            period_s = pdo.event_timer_ms(self.values, n) / 1000
-            if pdo.transmission_type(self.values, "tpdo", n) >= 254:
+            params = self.tpdo(n)
+            period_s = params.event_timer_ms / 1000
+            if params.transmission_type >= 254:
                 self._send_tpdo(n, now)
             if period_s <= 0:
                 t.next_due_s = None
@@ -697,7 +712,7 @@ class SimNode:
         if self.nmt_state != NmtState.OPERATIONAL:
             return
         for n, t in self._tpdo_timers.items():
-            ttype = pdo.transmission_type(self.values, "tpdo", n)
+            ttype = self.tpdo(n).transmission_type
             if ttype == 0:
                 data = self.tpdo_data(n, now)
                 if data != t.last_data:
@@ -729,6 +744,28 @@ class SimNode:
     def _sdo_tx_cob(self) -> int:
         v = self.values.get(0x1200, 2)
         return int(v) & 0x7FF if v is not None else COB_SDO_TX_BASE + self.node_id
+
+    def listening(self) -> frozenset[int] | None:
+        """The 11-bit COB-IDs of the frames ``handle`` acts on: NMT, its guarding RTR, SYNC,
+        SDO, its PDOs and what the behaviours look at. A runner may hand the node only those
+        standard frames (every extended or error frame still goes to every node). None: every
+        frame (not powered yet, or a behaviour that looks at all of them)."""
+        if not self.powered:
+            return None
+        cobs = {COB_NMT, COB_NMT_ERROR_BASE + self.node_id, *self._cobs()}
+        for b in self.behaviours:
+            ids = b.frame_cob_ids()
+            if ids is None:
+                return None
+            cobs.update(ids)
+        return frozenset(cobs)
+
+    def _listening_changed(self) -> None:
+        """A COB-ID, PDO parameter or the node id may have changed: drop what was derived."""
+        self._cob_map = None
+        self._tpdo_params.clear()
+        if self.on_listening_changed is not None:
+            self.on_listening_changed()
 
     def _cobs(self) -> dict[int, tuple[str, int]]:
         if self._cob_map is None:
@@ -848,6 +885,9 @@ class SimNode:
             self._process_now = None
 
     def _after_value_change(self, obj: ObjRef, value: Any) -> None:
+        index = obj.index
+        if obj not in self._mirrored and not (0x1400 <= index < 0x1C00 or index in (0x1005, 0x1200)):
+            return  # the common case (process objects): no mirror, no PDO parameter
         changed = [obj]
         for group in self.mirror_groups:
             if obj in group:
@@ -858,7 +898,7 @@ class SimNode:
         for o in changed:
             which = pdo.pdo_of(o.index)
             if o.index in (0x1005, 0x1200) or which is not None:
-                self._cob_map = None
+                self._listening_changed()
             if which is not None and which[0] == "tpdo" and not which[2] and o.sub == 5:
                 self._on_event_timer_written(which[1])
 

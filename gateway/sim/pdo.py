@@ -115,6 +115,44 @@ def pack(values: ObjectValues, entries: list[MapEntry]) -> bytes:
     return acc.to_bytes((shift + 7) // 8, "little")
 
 
+@dataclass(frozen=True)
+class TpdoParams:
+    """TPDO ``number``'s communication parameters and mapping as they are now, with the mapping
+    compiled to (object key, variable or None for a dummy, bits) for ``pack_compiled``. Valid
+    until a PDO parameter object changes (the node drops it then)."""
+
+    cob_id: int
+    transmission_type: int
+    inhibit_s: float
+    event_timer_ms: int
+    plan: tuple[tuple[tuple[int, int], Any, int], ...]
+
+
+def tpdo_params(values: ObjectValues, number: int) -> TpdoParams:
+    plan = tuple(
+        ((e.index, e.sub), values.vars.get((e.index, e.sub)) if e.index >= 0x1000 else None, e.bits)
+        for e in mapping(values, "tpdo", number)
+    )
+    return TpdoParams(
+        cob_id(values, "tpdo", number),
+        transmission_type(values, "tpdo", number),
+        inhibit_time_100us(values, number) * 100e-6,
+        event_timer_ms(values, number),
+        plan,
+    )
+
+
+def pack_compiled(values: ObjectValues, plan: tuple[tuple[tuple[int, int], Any, int], ...]) -> bytes:
+    """:func:`pack` with a mapping compiled by :func:`tpdo_params` (same bytes)."""
+    acc = 0
+    shift = 0
+    get = values.values.get
+    for key, var, bits in plan:
+        acc |= to_bits(var, get(key, 0), bits) << shift
+        shift += bits
+    return acc.to_bytes((shift + 7) // 8, "little")
+
+
 def unpack(values: ObjectValues, entries: list[MapEntry], data: bytes) -> list[tuple[ObjRef, Any]]:
     """(object, value) pairs an RPDO carries; dummy entries are skipped."""
     acc = int.from_bytes(data, "little")

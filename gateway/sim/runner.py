@@ -1,9 +1,11 @@
 """Drives simulated nodes on a python-can bus in a background thread.
 
 ``SimRunner(bus, nodes)`` owns the I/O the nodes do not: it receives frames with a short
-timeout, hands each to every node, ticks the nodes about every millisecond with the real
-monotonic clock, and sends what they return. Frames one node sends are also given to the other
-nodes of the same runner (on a real bus every node sees every frame). ``call(fn)`` runs
+timeout, hands each to the nodes that act on its COB-ID (``SimNode.listening``: a dispatch
+table rebuilt when a node's node id or COB-IDs change; extended and error frames go to every
+node), ticks the nodes about every millisecond with the real monotonic clock, and sends what
+they return. Frames one node sends are also given to the other nodes of the same runner (on a
+real bus every node sees every frame). ``call(fn)`` runs
 ``fn(now)`` under the runner's lock, so tests and demos can inject faults from any thread; the
 frames it causes go out on the runner thread. The thread is usable from sync and async code
 alike (nothing here blocks an event loop except ``stop()``, which joins within ``timeout_s``).
@@ -56,6 +58,11 @@ class SimRunner:
         self.sent = 0
         self.send_errors = 0
         self.received = 0
+        # COB-ID -> the nodes acting on it, in runner order; None: rebuild before the next frame
+        self._dispatch: dict[int, tuple[SimNode, ...]] | None = None
+        self._every: tuple[SimNode, ...] = ()  # nodes that take every frame
+        for node in self.nodes:
+            node.on_listening_changed = self._listening_changed
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> SimRunner:
@@ -132,12 +139,34 @@ class SimRunner:
             self.error = exc
             log.exception("simulator thread failed")
 
+    def _listening_changed(self) -> None:
+        self._dispatch = None
+
+    def _build_dispatch(self) -> dict[int, tuple[SimNode, ...]]:
+        sets = [(node, node.listening()) for node in self.nodes]
+        self._every = tuple(node for node, cobs in sets if cobs is None)
+        all_cobs = set().union(*(cobs for _, cobs in sets if cobs is not None))
+        dispatch = {
+            cob: tuple(node for node, cobs in sets if cobs is None or cob in cobs)
+            for cob in all_cobs
+        }
+        self._dispatch = dispatch
+        return dispatch
+
     def _deliver(self, source: SimNode | None, msg: can.Message, now: float) -> None:
-        for node in self.nodes:
+        if msg.is_extended_id or msg.is_error_frame:
+            targets: tuple[SimNode, ...] | list[SimNode] = self.nodes
+        else:
+            dispatch = self._dispatch
+            if dispatch is None:
+                dispatch = self._build_dispatch()
+            targets = dispatch.get(msg.arbitration_id, self._every)
+        outbox = self._outbox
+        for node in targets:
             if node is source:
                 continue
             for out in node.handle(msg, now):
-                self._outbox.append((node, out))
+                outbox.append((node, out))
 
     def _flush(self, now: float) -> None:
         rounds = 0

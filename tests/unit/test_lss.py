@@ -203,6 +203,14 @@ class TestLssMaster:
         assert m.on_frame(hx("44 00 00 00 00 00 00 00"), 0.05) == [LssAnswered(req, None)]
         assert m.mode is LssMode.CONFIGURATION
 
+    def test_resumed_configuration_state_allows_the_configuration_services(self) -> None:
+        m = LssMaster()
+        m.resume(LssMode.CONFIGURATION)  # a previous session left the slave in configuration
+        assert m.send(store_configuration(), 0.0) == [hx("17 00 00 00 00 00 00 00")]
+        assert m.on_frame(hx("17 00 00 00 00 00 00 00"), 0.01)[0] == LssAnswered(
+            store_configuration(), ConfigAnswer(0x17, 0, 0)
+        )
+
     def test_unmatched_selective_switch_times_out_and_stays_waiting(self) -> None:
         m = LssMaster(timeout_s=0.2)
         m.send(switch_state_selective(1, 2, 3, 4), 0.0)

@@ -77,3 +77,61 @@ def test_call_injects_a_fault_from_another_thread(channel: str) -> None:
     finally:
         client.shutdown()
         sim_bus.shutdown()
+
+
+def test_node_listens_to_its_cob_ids_and_says_when_they_change() -> None:
+    """The runner hands a node only the standard frames of ``listening()``; it must follow
+    COB-ID changes (DS-301: bit 31 first) and a node not yet powered takes every frame."""
+    (node,) = build_sim_nodes([(load_profile("sgh10"), 3, None)])
+    assert node.listening() is None  # not powered yet
+    changes: list[int] = []
+    node.on_listening_changed = lambda: changes.append(1)
+    node.power_on(0.0)
+    cobs = node.listening()
+    assert cobs is not None and changes
+    # NMT, guarding RTR, SYNC, SDO request, TPDO RTR, LSS (SGH10 manual 4.6)
+    assert {0x000, 0x703, 0x080, 0x603, 0x183, 0x283, 0x7E5} <= cobs
+    assert not {0x604, 0x583, 0x704, 0x184} & cobs
+    changes.clear()
+    node.set(0x1800, 1, 0x80000183)
+    node.set(0x1800, 1, 0x00000190)
+    assert changes
+    cobs = node.listening()
+    assert cobs is not None and 0x190 in cobs and 0x183 not in cobs
+
+
+def test_runner_dispatch_answers_only_the_addressed_node_and_follows_a_cob_change(
+    channel: str,
+) -> None:
+    profile = load_profile("sgh10")
+    nodes = build_sim_nodes([(profile, i, None) for i in (3, 4, 5)])
+    sim_bus = can.Bus(interface="virtual", channel=channel)
+    client = can.Bus(interface="virtual", channel=channel)
+    runner = SimRunner(sim_bus, nodes)
+    try:
+        runner.start()
+        for i in (3, 4, 5):
+            _recv_until(client, 0x700 + i)  # boot-ups
+        upload_1000 = bytes([0x40, 0x00, 0x10, 0, 0, 0, 0, 0])
+        client.send(can.Message(arbitration_id=0x604, data=upload_1000, is_extended_id=False))
+        answers = []
+        while (msg := client.recv(timeout=2.0)) is not None:
+            answers.append(msg.arbitration_id)
+            if msg.arbitration_id == 0x584:
+                break
+        assert 0x584 in answers and not {0x583, 0x585} & set(answers)
+        # TPDO1 of node 5 to 0x1F5 (bit 31 first), then an RTR on it in OPERATIONAL
+        for value in (0x80000185, 0x000001F5):
+            req = bytes([0x23, 0x00, 0x18, 0x01]) + value.to_bytes(4, "little")
+            client.send(can.Message(arbitration_id=0x605, data=req, is_extended_id=False))
+            assert _recv_until(client, 0x585).data[0] == 0x60
+        client.send(can.Message(arbitration_id=0, data=b"\x01\x05", is_extended_id=False))
+        client.send(
+            can.Message(arbitration_id=0x1F5, is_remote_frame=True, dlc=6, is_extended_id=False)
+        )
+        assert len(_recv_until(client, 0x1F5).data) == 6
+    finally:
+        runner.stop(timeout_s=1.0)
+        assert runner.error is None
+        client.shutdown()
+        sim_bus.shutdown()

@@ -29,6 +29,7 @@ Imports: python-can types and gateway.objref only (the node is referenced for ty
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import can
@@ -100,6 +101,15 @@ class Behaviour:
         """Every received frame, before the core sees it. Return True if consumed (e.g. LSS
         on 0x7E5); the core then ignores it."""
         return False
+
+    def frame_cob_ids(self) -> Iterable[int] | None:
+        """The 11-bit COB-IDs of the frames ``on_frame`` acts on, so that a runner can hand
+        the node only those (see ``SimNode.listening``); None: every frame. Default: none when
+        ``on_frame`` is not overridden, else every frame. Asked again whenever the node's
+        node id or COB-ID objects change."""
+        if type(self).on_frame is Behaviour.on_frame:
+            return ()
+        return None
 
     def tick(self, now: float) -> None:
         """Called on every node tick (about every millisecond under the runner)."""

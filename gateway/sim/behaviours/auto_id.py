@@ -49,6 +49,9 @@ class AutoId(Behaviour):
         self.requested_id = None
         self._reboot = False
 
+    def frame_cob_ids(self) -> tuple[int, ...]:
+        return (0x600 + self.node.node_id,)  # SDO request of the current node id
+
     def on_frame(self, msg: can.Message, now: float) -> bool:
         node = self.node
         if node.node_id != self.factory_node_id or node.nmt_state == STOPPED:

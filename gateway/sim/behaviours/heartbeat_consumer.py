@@ -103,6 +103,9 @@ class HeartbeatConsumer(Behaviour):
         self.entries[obj.sub] = self._load(obj.sub)
         self._update_error(now)
 
+    def frame_cob_ids(self) -> range:
+        return range(COB_HEARTBEAT_BASE + 1, COB_HEARTBEAT_BASE + 128)  # any producer 1..127
+
     def on_frame(self, msg: can.Message, now: float) -> bool:
         if msg.is_remote_frame or msg.is_extended_id or len(msg.data) < 1:
             return False

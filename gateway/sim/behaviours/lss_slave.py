@@ -109,6 +109,9 @@ class LssSlave(Behaviour):
             self.node.mute(None)
             self.node.send(0x700 + self.node.node_id, b"\x00")
 
+    def frame_cob_ids(self) -> tuple[int, ...]:
+        return (self.rx_cob,)
+
     def on_frame(self, msg: can.Message, now: float) -> bool:
         if msg.arbitration_id != self.rx_cob or msg.is_remote_frame or msg.is_extended_id:
             return False

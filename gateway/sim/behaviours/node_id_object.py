@@ -95,6 +95,9 @@ class NodeIdObject(Behaviour):
             if not self._stored(self.bitrate_obj):
                 self._set_all(self.bitrate_obj, self.bitrate_aliases, self.bitrate_code)
 
+    def frame_cob_ids(self) -> tuple[int, ...]:
+        return (0x000,)  # NMT
+
     def on_frame(self, msg: can.Message, now: float) -> bool:
         """NMT reset node: the stored node id is adopted by the core's reset."""
         if msg.arbitration_id != 0 or msg.is_remote_frame or len(msg.data) < 2:

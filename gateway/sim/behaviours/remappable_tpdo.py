@@ -149,6 +149,9 @@ class RemappableTpdo(Behaviour):
         error = self._entry_error(int(value))
         return self._abort(error) if error is not None else None
 
+    def frame_cob_ids(self) -> tuple[int, ...]:
+        return (int(self.node.get(0x1200, 1, 0x600 + self.node.node_id)) & 0x7FF,)
+
     def on_frame(self, msg: can.Message, now: float) -> bool:
         """Accept the manual's 23h (4-byte) downloads to the 8/16-bit PDO parameters.
 

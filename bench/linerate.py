@@ -1,0 +1,661 @@
+"""Benchmark 8, line rate: 60 SGH10 nodes on a saturated 1 Mbit/s bus, reaching a gateway
+*process* (``canopen-gateway run``) through python-can's ``socketcand`` interface.
+
+The device side is a small socketcand server in this process (its ASCII protocol over TCP on
+127.0.0.1: ``< hi >``, ``< open CH >`` / ``< ok >``, ``< rawmode >`` / ``< ok >``, then
+``< frame ID SEC.USEC DATA >`` to the client and ``< send ID LEN B0 B1 .. >`` from it). A
+generator thread sends what 60 SGH10 would: TPDO1 and TPDO2 (the same position and velocity,
+SGH10 manual 4.3.1.1 Table 5) of every node every 13.5 ms, spread over 0.5 ms slots, and every
+node's heartbeat every 100 ms: about 9,500 frames/s, a saturated 1 Mbit/s bus. The position of
+every node moves every cycle.
+
+Two phases in the same run, each ``phase_s`` long, same frames, same transport:
+- **bare**: a python-can socketcand Bus in a process of its own that receives the frames and
+  unpacks them with ``struct`` into a dict (what any listener must at least do);
+- **gateway**: ``canopen-gateway run`` with a config (default ``publish: change``, every node
+  supervised by its 100 ms heartbeat) in a process of its own; a PLC-like Modbus client reads
+  20 input registers of 6 nodes every 10 ms, a Modbus poller reads node 1's position in a
+  tight loop (latency), and a Zenoh subscriber in another process takes every value.
+
+Measured: CPU of each process from /proc/PID/stat, the gateway's CPU per thread
+(/proc/PID/task/*/stat, named by a py-spy dump), latency of node 1's positions from the frame
+leaving the server to the Modbus poller and to the Zenoh subscriber (p50/p99), frames sent
+against ``frames_in`` of the gateway's metrics, nodes not alive (health endpoint, every
+second), RSS; then, after the measurement, a py-spy profile of the gateway under the same load
+(top functions per thread) when py-spy is installed. Everything listens on 127.0.0.1 and stops
+by itself.
+
+Imports: bench.*, python-can, the standard library; the gateway only as a process.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import json
+import os
+import pathlib
+import re
+import shutil
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+from typing import Any
+
+import yaml
+
+from bench.machine import rss_kib
+from bench.report import Row, Section
+from bench.rig import free_port
+from bench.stats import Summary, percentile
+from bench.workers import Worker, start_poller, start_subscriber
+
+N_NODES = 60
+PERIOD_S = 0.0135  # TPDO1 + TPDO2 of every node
+SLOT_S = 0.0005
+HEARTBEAT_S = 0.100  # SGH10 profile default (boot.heartbeat_ms)
+PLC_NODES = 6
+#: every input register of an SGH10 node: diagnostics 0-15, position 100-101, velocity 102
+PLC_BLOCKS = [(0, 16), (100, 3)]
+PLC_REGISTERS = sum(n for _, n in PLC_BLOCKS)
+PLC_PERIOD_S = 0.010
+CHANNEL = "can0"
+POSITION_SCALE = 0.1
+SGH10_TPDO = struct.Struct("<ih")  # position int32, velocity int16 (SGH10 manual 4.3.1.1)
+REPO = pathlib.Path(__file__).resolve().parents[1]
+_CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+# ---------------------------------------------------------------------- device side
+class SocketcandServer:
+    """One client at a time; frames to it from the generator, frames from it counted."""
+
+    def __init__(self) -> None:
+        self.listener = socket.socket()
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.listener.bind(("127.0.0.1", 0))
+        self.listener.listen(1)
+        self.port = int(self.listener.getsockname()[1])
+        self.conn: socket.socket | None = None
+        self.connected = threading.Event()
+        self.from_client: collections.Counter[int] = collections.Counter()
+        self._threads: list[threading.Thread] = []
+
+    def serve_one(self) -> None:
+        """Accept the next client in a thread (handshake, then a reader)."""
+        t = threading.Thread(target=self._accept, name="socketcand-accept", daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def _accept(self) -> None:
+        self.listener.settimeout(60)
+        conn, _ = self.listener.accept()
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        buf = b""
+
+        def expect(word: bytes) -> None:
+            nonlocal buf
+            while b">" not in buf:
+                chunk = conn.recv(256)
+                if not chunk:
+                    raise ConnectionError("client left during the handshake")
+                buf += chunk
+            msg, _, buf = buf.partition(b">")
+            if word not in msg:
+                raise ConnectionError(f"expected {word!r}, got {msg!r}")
+
+        conn.sendall(b"< hi >")
+        expect(b"open")
+        conn.sendall(b"< ok >")
+        expect(b"rawmode")
+        conn.sendall(b"< ok >")
+        self.conn = conn
+        self.connected.set()
+        reader = threading.Thread(target=self._read, args=(conn,), name="socketcand-rx", daemon=True)
+        reader.start()
+
+    def _read(self, conn: socket.socket) -> None:
+        buf = b""
+        while True:
+            try:
+                chunk = conn.recv(65536)
+            except OSError:
+                return
+            if not chunk:
+                return
+            buf += chunk
+            *msgs, buf = buf.split(b">")
+            for m in msgs:
+                parts = m.split()
+                if len(parts) >= 3 and parts[1] == b"send":
+                    self.from_client[int(parts[2], 16)] += 1
+
+    def send(self, payload: bytes) -> None:
+        if self.conn is not None:
+            self.conn.sendall(payload)
+
+    def drop_client(self) -> None:
+        conn, self.conn = self.conn, None
+        self.connected.clear()
+        if conn is not None:
+            try:
+                conn.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            conn.close()
+
+    def close(self) -> None:
+        self.drop_client()
+        self.listener.close()
+
+
+class Generator:
+    """60 SGH10 on a saturated bus: the frames of each 0.5 ms slot in one TCP write."""
+
+    def __init__(self, server: SocketcandServer):
+        self.server = server
+        self.stop = threading.Event()
+        self.sent = {"tpdo": 0, "heartbeat": 0, "bootup": 0}
+        self.probe: list[tuple[int, float]] = []  # (position of node 1, perf_counter at send)
+        self.max_lag_s = 0.0
+        self.cpu_s = 0.0
+        self.thread = threading.Thread(target=self._run, name="generator", daemon=True)
+
+    def start(self) -> Generator:
+        self.thread.start()
+        return self
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5)
+
+    def _run(self) -> None:
+        c0 = time.thread_time()
+        slots_per_period = round(PERIOD_S / SLOT_S)  # 27
+        slots_per_hb = round(HEARTBEAT_S / SLOT_S)  # 200
+        ids = range(1, N_NODES + 1)
+        tpdo1 = collections.defaultdict(list)
+        tpdo2 = collections.defaultdict(list)
+        hb = collections.defaultdict(list)
+        for i in ids:
+            k = (i - 1) * slots_per_period // N_NODES
+            tpdo1[k].append(i)
+            tpdo2[(k + slots_per_period // 2) % slots_per_period].append(i)
+            hb[(i - 1) * slots_per_hb // N_NODES].append(i)
+        clock = time.perf_counter
+        pack = SGH10_TPDO.pack
+        send = self.server.send
+        boot = "".join(f"< frame {0x700 + i:03X} {time.time():.6f} 00 >" for i in ids)
+        send(boot.encode())
+        self.sent["bootup"] += N_NODES
+        slot = 0
+        nxt = clock()
+        while not self.stop.is_set():
+            k = slot % slots_per_period
+            cycle = slot // slots_per_period
+            ts = f"{time.time():.6f}"
+            parts = []
+            for i in hb[slot % slots_per_hb]:
+                parts.append(f"< frame {0x700 + i:03X} {ts} 05 >")
+            self.sent["heartbeat"] += len(hb[slot % slots_per_hb])
+            probe = None
+            for base, nodes in ((0x180, tpdo1[k]), (0x280, tpdo2[k])):
+                for i in nodes:
+                    value = cycle * 8 + i  # every node's position moves every cycle
+                    parts.append(f"< frame {base + i:03X} {ts} {pack(value, 7).hex()} >")
+                    if i == 1 and (not self.probe or self.probe[-1][0] != value):
+                        probe = value
+                self.sent["tpdo"] += len(nodes)
+            if parts:
+                if probe is not None:
+                    self.probe.append((probe, clock()))
+                try:
+                    send("".join(parts).encode())
+                except OSError:
+                    return
+            slot += 1
+            nxt += SLOT_S
+            delay = nxt - clock()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                self.max_lag_s = max(self.max_lag_s, -delay)
+            self.cpu_s = time.thread_time() - c0
+
+
+# ---------------------------------------------------------------------- client processes
+class BareListener:
+    """python-can socketcand Bus, ``recv`` + ``struct.unpack_from`` into a dict."""
+
+    info = None
+
+    def run(self, port: int, duration_s: float) -> dict[str, Any]:
+        import logging
+
+        import can
+
+        # python-can logs a warning whenever a TCP read ends inside a frame; the gateway logs
+        # them as `canopen-gateway run` does (warnings, to its log file)
+        logging.getLogger("can").setLevel(logging.ERROR)
+        bus = can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel=CHANNEL)
+        values: dict[int, tuple[int, int]] = {}
+        unpack = SGH10_TPDO.unpack_from
+        n = 0
+        end = time.perf_counter() + duration_s
+        try:
+            while time.perf_counter() < end:
+                msg = bus.recv(0.1)
+                if msg is None:
+                    continue
+                n += 1
+                if len(msg.data) == 6:
+                    values[msg.arbitration_id] = unpack(msg.data)
+        finally:
+            bus.shutdown()
+        return {"frames": n, "ids": len(values)}
+
+
+class PlcClient:
+    """A PLC: every ``period_s`` reads each of ``blocks`` (address, count) of input registers
+    of each of ``units``."""
+
+    info = None
+
+    def run(
+        self,
+        port: int,
+        units: list[int],
+        blocks: list[tuple[int, int]],
+        period_s: float,
+        duration_s: float,
+    ) -> dict[str, Any]:
+        from pymodbus.client import ModbusTcpClient
+
+        c = ModbusTcpClient("127.0.0.1", port=port, timeout=2)
+        if not c.connect():
+            raise ConnectionError(f"cannot connect to 127.0.0.1:{port}")
+        n = errors = 0
+        clock = time.perf_counter
+        nxt = clock()
+        end = nxt + duration_s
+        try:
+            while clock() < end:
+                for u in units:
+                    for address, count in blocks:
+                        if c.read_input_registers(address, count=count, device_id=u).isError():
+                            errors += 1
+                        n += 1
+                nxt += period_s
+                time.sleep(max(0.0, nxt - clock()))
+        finally:
+            c.close()
+        return {"requests": n, "errors": errors}
+
+
+# ---------------------------------------------------------------------- /proc helpers
+def proc_cpu_s(pid: int) -> float:
+    with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as f:
+        stat = f.read()
+    fields = stat[stat.rindex(")") + 2 :].split()
+    return (int(fields[11]) + int(fields[12])) / _CLK_TCK
+
+
+def thread_cpu_s(pid: int) -> dict[int, float]:
+    out = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            out[int(tid)] = _task_cpu(pid, tid)
+        except OSError:
+            continue  # the thread ended meanwhile
+    return out
+
+
+def _task_cpu(pid: int, tid: str) -> float:
+    with open(f"/proc/{pid}/task/{tid}/stat", encoding="ascii", errors="replace") as f:
+        stat = f.read()
+    fields = stat[stat.rindex(")") + 2 :].split()
+    return (int(fields[11]) + int(fields[12])) / _CLK_TCK
+
+
+def thread_comm(pid: int, tid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/task/{tid}/comm", encoding="ascii", errors="replace") as f:
+            return f.read().strip()
+    except OSError:
+        return "?"
+
+
+def pyspy() -> str | None:
+    found = shutil.which("py-spy")
+    if found:
+        return found
+    beside = pathlib.Path(sys.executable).with_name("py-spy")
+    return str(beside) if beside.exists() else None
+
+
+#: leaf frames where a thread waits (left out of the busy samples)
+_WAITING = re.compile(r"^(select|.*\.select|.*\.wait|wait|_wait_for_tstate_lock|sleep|.*\.poll) ")
+
+
+def profile_threads(pid: int, duration_s: float, top: int = 8) -> dict[str, Any]:
+    """``py-spy record --threads --format raw``: per Python thread (native id, name), the leaf
+    functions of its busy samples (waits left out), as shares of those samples."""
+    exe = pyspy()
+    if exe is None:
+        return {}
+    with tempfile.NamedTemporaryFile(suffix=".txt", delete=False) as f:
+        out = f.name
+    try:
+        subprocess.run(
+            [exe, "record", "--pid", str(pid), "--duration", str(int(duration_s)), "--rate", "250",
+             "--threads", "--format", "raw", "--output", out],
+            capture_output=True, text=True, timeout=duration_s + 60,
+        )  # fmt: skip
+        text = pathlib.Path(out).read_text(encoding="utf-8", errors="replace")
+    finally:
+        os.unlink(out)
+    per_thread: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
+    names: dict[int, str] = {}
+    for line in text.splitlines():
+        stack, _, count = line.rpartition(" ")
+        if not stack or not count.isdigit():
+            continue
+        frames = stack.split(";")
+        m = re.match(r"thread \((\d+)\)(?:: (.*))?", frames[0])
+        if m is None:
+            continue
+        names[int(m.group(1))] = m.group(2) or m.group(1)
+        leaf = frames[-1]
+        if len(frames) < 2 or _WAITING.match(leaf):
+            continue
+        per_thread[m.group(2) or m.group(1)][leaf] += int(count)
+    top_by_thread = {}
+    rate = 250
+    for thread, counter in sorted(per_thread.items(), key=lambda kv: -sum(kv[1].values())):
+        total = sum(counter.values())
+        top_by_thread[f"{thread} ({total} busy samples, {total / rate / duration_s:.0%} busy)"] = [
+            (fn, c / total) for fn, c in counter.most_common(top)
+        ]
+    return {"names": names, "top": top_by_thread}
+
+
+def http_json(url: str) -> Any:
+    with urllib.request.urlopen(url, timeout=2) as r:
+        return json.loads(r.read())
+
+
+def metric(url: str, name: str) -> float:
+    with urllib.request.urlopen(url, timeout=2) as r:
+        for line in r.read().decode().splitlines():
+            if line.startswith(name + " ") or line.startswith(name + "{"):
+                return float(line.rsplit(" ", 1)[1])
+    return math_nan()
+
+
+def math_nan() -> float:
+    return float("nan")
+
+
+
+# ---------------------------------------------------------------------- phases
+async def _bare_phase(phase_s: float) -> dict[str, Any]:
+    server = SocketcandServer()
+    server.serve_one()
+    bare = Worker(BareListener, name="bare-listener")
+    gen: Generator | None = None
+    try:
+        call = asyncio.ensure_future(bare.acall("run", server.port, phase_s + 2.0,
+                                                timeout_s=phase_s + 60))  # fmt: skip
+        await asyncio.to_thread(server.connected.wait, 30)
+        gen = Generator(server).start()
+        await asyncio.sleep(1.0)
+        pid = bare.proc.pid
+        assert pid is not None
+        c0, s0, t0 = proc_cpu_s(pid), dict(gen.sent), time.perf_counter()
+        await asyncio.sleep(phase_s)
+        c1, s1, t1 = proc_cpu_s(pid), dict(gen.sent), time.perf_counter()
+        result = await call
+    finally:
+        if gen is not None:
+            gen.close()
+        server.close()
+        bare.close()
+    wall = t1 - t0
+    frames = (s1["tpdo"] + s1["heartbeat"]) - (s0["tpdo"] + s0["heartbeat"])
+    return {"cpu": (c1 - c0) / wall, "fps": frames / wall, "received": result["frames"],
+            "lag_ms": gen.max_lag_s * 1000 if gen else math_nan()}  # fmt: skip
+
+
+def _gateway_config(path: pathlib.Path, can_port: int) -> dict[str, Any]:
+    cfg = {
+        "gateway": {"name": "linerate", "log_level": "warning"},
+        "can": {"interface": "socketcand", "host": "127.0.0.1", "port": can_port,
+                "channel": CHANNEL, "tcp_tune": True},
+        "master": {"heartbeat_ms": 1000, "sync_period_ms": 0, "probe_at_start": False},
+        "nodes": [
+            {"name": f"n{i}", "node_id": i, "profile": "sgh10", "configure": False,
+             "supervision": "heartbeat", "heartbeat_ms": 100}
+            for i in range(1, N_NODES + 1)
+        ],
+        "modbus": {"host": "127.0.0.1", "port": free_port()},
+        "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{free_port()}"]},
+        "health": {"host": "127.0.0.1", "port": free_port()},
+    }  # fmt: skip
+    path.write_text(yaml.safe_dump(cfg), encoding="utf-8")
+    return cfg
+
+
+async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
+    server = SocketcandServer()
+    server.serve_one()
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix="bench-linerate-"))
+    cfg = _gateway_config(tmp / "gateway.yaml", server.port)
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    log = open(tmp / "gateway.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gateway", "run", "-c", str(tmp / "gateway.yaml")],
+        cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    gen: Generator | None = None
+    workers: list[Worker] = []
+    health = f"http://127.0.0.1:{cfg['health']['port']}"
+    try:
+        await asyncio.to_thread(server.connected.wait, 60)
+        if not server.connected.is_set():
+            raise RuntimeError("the gateway did not connect to the socketcand server")
+        gen = Generator(server).start()
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                st = http_json(health + "/healthz")
+                if all(n["operational"] for n in st["nodes"].values()) and st["ready"]:
+                    break
+            except OSError:
+                pass
+            if time.monotonic() > deadline or proc.poll() is not None:
+                raise RuntimeError("gateway not ready with every node operational within 60 s")
+            await asyncio.sleep(0.1)
+        endpoint = cfg["zenoh"]["listen"][0]
+        prefix = "canopen/linerate"
+        probe_key = f"{prefix}/n1/value/position"
+        sub = start_subscriber([endpoint], [(f"{prefix}/**", "count")], probe_key)
+        workers.append(sub)
+        for _ in range(200):  # the subscriber is matched once it sees node 1 move
+            if await sub.acall("wait", 1, 0.05, 0.05):
+                break
+        sub0 = await sub.acall("take", ["json"])
+        poller = start_poller()
+        workers.append(poller)
+        plc = Worker(PlcClient, name="plc")
+        workers.append(plc)
+        mb_port = cfg["modbus"]["port"]
+        latency_s = phase_s / 2
+        plc_s = phase_s + latency_s + 1.5
+        plc_call = asyncio.ensure_future(plc.acall(
+            "run", mb_port, list(range(1, PLC_NODES + 1)), PLC_BLOCKS, PLC_PERIOD_S, plc_s,
+            timeout_s=plc_s + 60))  # fmt: skip
+        await asyncio.sleep(0.5)
+        not_alive = 0
+
+        async def window(duration_s: float) -> tuple[float, dict[int, float], float]:
+            nonlocal not_alive
+            c0, th0, t0 = proc_cpu_s(proc.pid), thread_cpu_s(proc.pid), time.perf_counter()
+            end = t0 + duration_s
+            while time.perf_counter() < end:
+                await asyncio.sleep(min(1.0, max(0.0, end - time.perf_counter())))
+                st = http_json(health + "/healthz")
+                not_alive = max(not_alive, sum(1 for n in st["nodes"].values() if not n["alive"]))
+            c1, th1, t1 = proc_cpu_s(proc.pid), thread_cpu_s(proc.pid), time.perf_counter()
+            wall = t1 - t0
+            return (c1 - c0) / wall, {t: (c - th0.get(t, 0.0)) / wall for t, c in th1.items()}, t0
+
+        sent0, tw0 = dict(gen.sent), time.perf_counter()
+        cpu, threads_cpu, _ = await window(phase_s)  # PLC + Zenoh: the load of the issue
+        sent1, tw1 = dict(gen.sent), time.perf_counter()
+        comms = {tid: thread_comm(proc.pid, tid) for tid in threads_cpu}
+        rss = rss_kib(proc.pid)
+        # latency: a Modbus poller in a tight loop on node 1's position meanwhile
+        poll_call = asyncio.ensure_future(poller.acall(
+            "poll", "127.0.0.1", mb_port, 1, 100, 2, latency_s, timeout_s=latency_s + 60))  # fmt: skip
+        cpu_polled, _, t0 = await window(latency_s - 0.2)
+        t1 = time.perf_counter()
+        polled = await poll_call
+        profile = await asyncio.to_thread(profile_threads, proc.pid, profile_s) if profile_s else {}
+        plc_result = await plc_call
+        gen.close()
+        await asyncio.sleep(1.5)  # the gateway copies its counters into the metrics every second
+        frames_in = metric(health + "/metrics", "canopen_gateway_frames_in_total")
+        z = await sub.acall("take", ["json"])
+    finally:
+        if gen is not None:
+            gen.close()
+        for w in workers:
+            w.close()
+        proc.terminate()
+        try:
+            await asyncio.to_thread(proc.wait, 10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+        server.close()
+    frames_sent_total = sum(gen.sent.values())
+    names = profile.get("names", {}) if profile else {}
+    per_thread = [
+        (names.get(tid) or comms.get(tid) or str(tid), tid, c) for tid, c in threads_cpu.items()
+    ]
+    per_thread.sort(key=lambda x: -x[2])
+    probe = [(v, t) for v, t in gen.probe if t0 <= t < t1]
+    mb_seen: dict[int, float] = {}
+    for regs, t in polled["changes"]:
+        v = (regs[0] << 16) | regs[1]
+        mb_seen.setdefault(v - (1 << 32) if v >= 1 << 31 else v, t)
+    z_seen: dict[int, float] = {}
+    for _, v, t in z["records"]:
+        z_seen.setdefault(round(v / POSITION_SCALE), t)
+    mb_lat = [(mb_seen[v] - t) * 1000 for v, t in probe if v in mb_seen]
+    z_lat = [(z_seen[v] - t) * 1000 for v, t in probe if v in z_seen]
+    value_samples = sum(c for k, c in z["counts"].items() if "/value/" in k)
+    return {
+        "cpu": cpu,
+        "cpu_polled": cpu_polled,
+        "fps": ((sent1["tpdo"] + sent1["heartbeat"]) - (sent0["tpdo"] + sent0["heartbeat"]))
+        / (tw1 - tw0),
+        "frames_sent": frames_sent_total,
+        "frames_in": frames_in,
+        "not_alive": not_alive,
+        "rss_mib": rss.get("VmRSS", 0) / 1024,
+        "hwm_mib": rss.get("VmHWM", 0) / 1024,
+        "threads": per_thread,
+        "mb_p50": percentile(mb_lat, 50), "mb_p99": percentile(mb_lat, 99),
+        "z_p50": percentile(z_lat, 50), "z_p99": percentile(z_lat, 99),
+        "probes": len(probe), "mb_seen": len(mb_lat), "z_seen": len(z_lat),
+        "plc_rps": plc_result["requests"] / plc_s,
+        "poller_rps": polled["polls"] / latency_s,
+        "plc_requests": plc_result["requests"], "plc_errors": plc_result["errors"],
+        "poller_polls": polled["polls"],
+        "value_samples_per_s": value_samples / max(1e-9, z["at"] - sub0["at"]),
+        "sub_cpu": (z["cpu_s"] - sub0["cpu_s"]) / max(1e-9, z["at"] - sub0["at"]),
+        "lag_ms": gen.max_lag_s * 1000 if gen else math_nan(),
+        "gen_cpu": gen.cpu_s,
+        "profile": profile,
+        "from_gateway": dict(server.from_client),
+    }  # fmt: skip
+
+
+async def run(phase_s: float = 20.0, profile_s: float = 8.0) -> Section:
+    sec = Section(
+        key="linerate",
+        title=f"8. Line rate: {N_NODES} SGH10 on a saturated 1 Mbit/s bus through socketcand",
+        method=(
+            f"{N_NODES} SGH10 nodes played by a socketcand server in the bench process (ASCII "
+            "protocol over TCP, 127.0.0.1): TPDO1 + TPDO2 of every node every "
+            f"{PERIOD_S * 1000:g} ms in {SLOT_S * 1000:g} ms slots, heartbeats every "
+            f"{HEARTBEAT_S * 1000:g} ms, every position moving each cycle (about 9,500 frames/s). "
+            f"Phase **bare** ({phase_s:g} s): a python-can `socketcand` Bus in its own process "
+            "receives the frames and unpacks them with `struct`. Phase **gateway** "
+            f"({phase_s:g} s): `canopen-gateway run` (default `publish: change`, heartbeat "
+            f"supervision) in its own process, a PLC-like client reading {PLC_REGISTERS} input "
+            f"registers of {PLC_NODES} nodes (0-15, 100-102: two requests per node) every "
+            f"{PLC_PERIOD_S * 1000:g} ms (CPU measured with this load), then for half as long "
+            "also a Modbus poller "
+            "reading node 1's position in a tight loop, a Zenoh subscriber on every value, each "
+            "a process of its own. CPU from /proc/PID/stat (and per thread from "
+            "/proc/PID/task); latency of node 1's positions from the frame leaving the server "
+            f"to the poller and to the subscriber; then a {profile_s:g} s py-spy profile "
+            "(`record --threads --format raw`, 250 Hz) of the gateway under the "
+            "same load."
+        ),
+    )
+    bare = await _bare_phase(phase_s)
+    gw = await _gateway_phase(phase_s, profile_s)
+    s = Summary.of
+    ratio = gw["cpu"] / bare["cpu"] if bare["cpu"] else math_nan()
+    lost = gw["frames_sent"] - gw["frames_in"]
+    sec.rows += [
+        Row("frames/s sent by the device side (bare phase / gateway phase)", s([gw["fps"]]),
+            "bare phase", s([bare["fps"]])),
+        Row("CPU, PLC + Zenoh load, % of one core", s([gw["cpu"] * 100]), "bare listener", s([bare["cpu"] * 100]),
+            s([ratio]), "<= 2.5x bare", ratio <= 2.5, digits=1),
+        Row("gateway CPU, % of one core", s([gw["cpu"] * 100]), target="<= 30%",
+            met=gw["cpu"] <= 0.30, digits=1),
+        Row("gateway CPU with the latency poller added (tight loop), %", s([gw["cpu_polled"] * 100]),
+            digits=1),
+        Row("latency frame -> Modbus poller p50 (ms)", s([gw["mb_p50"]]), digits=3),
+        Row("latency frame -> Modbus poller p99 (ms)", s([gw["mb_p99"]]), target="<= 1 ms",
+            met=gw["mb_p99"] <= 1.0, digits=3),
+        Row("latency frame -> Zenoh subscriber p50 (ms)", s([gw["z_p50"]]), digits=3),
+        Row("latency frame -> Zenoh subscriber p99 (ms)", s([gw["z_p99"]]), target="<= 1 ms",
+            met=gw["z_p99"] <= 1.0, digits=3),
+        Row("frames sent but not received by the gateway (frames_in)", s([lost]), target="0",
+            met=lost == 0),
+        Row("nodes not alive (worst 1 s sample)", s([gw["not_alive"]]), target="0",
+            met=gw["not_alive"] == 0),
+        Row("gateway RSS (MiB)", s([gw["rss_mib"]]), target="<= 100 MiB",
+            met=gw["rss_mib"] <= 100, digits=1),
+    ]  # fmt: skip
+    threads = ", ".join(
+        f"{name} {cpu * 100:.1f}%" for name, _tid, cpu in gw["threads"] if cpu >= 0.005
+    )
+    sec.notes.append(
+        f"Gateway CPU by thread (% of one core, PLC + Zenoh load): {threads}. Modbus: the PLC "
+        f"{gw['plc_rps']:,.0f} requests/s ({gw['plc_requests']:,} reads, {gw['plc_errors']} "
+        f"errors), the latency poller {gw['poller_rps']:,.0f} requests/s while it ran; Zenoh: {gw['value_samples_per_s']:,.0f} value "
+        f"samples/s at the subscriber (its CPU {gw['sub_cpu'] * 100:.0f}%); node 1 positions "
+        f"sent {gw['probes']:,}, seen by the poller {gw['mb_seen']:,}, by the subscriber "
+        f"{gw['z_seen']:,}. Generator: worst lag behind its slots {gw['lag_ms']:.1f} ms "
+        f"(bare phase {bare['lag_ms']:.1f} ms). Frames the gateway sent to the bus: "
+        + ", ".join(f"0x{k:03X} x{v}" for k, v in sorted(gw["from_gateway"].items())[:6])
+        + (" ..." if len(gw["from_gateway"]) > 6 else "")
+        + f". Peak RSS (VmHWM) {gw['hwm_mib']:.1f} MiB."
+    )
+    for thread, top in (gw["profile"] or {}).get("top", {}).items():
+        sec.notes.append(
+            f"py-spy, {thread}: "
+            + "; ".join(f"{fn} {share * 100:.0f}%" for fn, share in top)
+        )
+    return sec
