@@ -32,7 +32,7 @@ def _load_for_bus(path: str) -> Config:
     cannot load (unknown name, plug-in not installed), in one line, before anything starts."""
     from gateway.bus.can_backend import interface_problem
 
-    cfg = load_config(path)
+    cfg = _load(path)
     problem = interface_problem(cfg.can.interface)
     if problem is not None:
         raise ConfigError([f"{cfg.source}: can.interface: {problem}"])

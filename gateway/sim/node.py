@@ -158,7 +158,6 @@ class SimNode:
             present = tuple(o for o in group if self.values.has(*o))
             if len(present) > 1:
                 self.mirror_groups.append(present)
-        self._mirrored = frozenset(o for group in self.mirror_groups for o in group)
         self.cob_id_change_preop_only = self.hints.cob_id_change_preop_only
         self.require_mappable = bool(raw.get("require_mappable", False))
 
@@ -189,6 +188,8 @@ class SimNode:
             if cls is not None:
                 merged = {**(params or {}), **feature_options.get(feature, {})}
                 self.behaviours.append(cls(self, merged))
+        # after the behaviours: a feature may add a mirror group (ds406_cycle_timer)
+        self._mirrored = frozenset(o for group in self.mirror_groups for o in group)
 
     # ======================================================================================
     # API for behaviours and tests
