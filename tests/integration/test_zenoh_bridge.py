@@ -138,8 +138,13 @@ async def test_node_token_goes_away_when_the_node_is_silenced_and_comes_back() -
     async with running([WIRE, DISPLAY]) as (gw, z):
         await operational(gw, "wire", "display")
         tokens = z.watch_liveliness(f"{P}/alive/**")
+        # the display's token comes once its guarding-bit link is OK (first echo): wait for both
+        seen: set[str] = set()
         await sample_where(
-            tokens, lambda s: s.key == f"{P}/alive/wire" and s.kind == "PUT", what="wire token"
+            tokens,
+            lambda s: s.kind == "PUT"
+            and (seen.add(s.key) or {f"{P}/alive/wire", f"{P}/alive/display"} <= seen),
+            what="wire and display tokens",
         )
         assert await z.alive_tokens(f"{P}/alive/**") == {
             f"{P}/alive/_gateway",
