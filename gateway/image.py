@@ -272,6 +272,10 @@ class ProcessImage:
         self.value_listeners: list[ValueListener] = []
         self.health_listeners: list[HealthListener] = []
         self.pdo_listeners: list[PdoListener] = []  # raw PDO bytes (e.g. zenoh raw_pdo)
+        #: called by a writer after a batch of ``update`` calls (the reader thread once per
+        #: burst of frames; the event loop after values read by SDO): a listener that hands
+        #: work to another thread wakes it here, once per batch instead of once per value
+        self.batch_listeners: list[Callable[[], None]] = []
         self.started_monotonic = time.monotonic()
         self.bus_state = "down"
         self.counters = Counters()
@@ -296,6 +300,11 @@ class ProcessImage:
         node.rx.last_rx_monotonic = mono
         for listener in self.value_listeners:
             listener(node, names, ts)
+
+    def end_batch(self) -> None:
+        """A writer finished a batch of updates (see ``batch_listeners``)."""
+        for listener in self.batch_listeners:
+            listener()
 
     def health_changed(self, node: NodeImage, what: str = "health") -> None:
         for listener in self.health_listeners:

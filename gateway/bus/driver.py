@@ -3,7 +3,10 @@
 A reader thread receives frames and dispatches them by COB-ID through a dict:
 process data (TPDOs) is decoded and written into the process image right on this thread (the hot
 path: no event-loop hop, no logging per frame); everything else (heartbeat, EMCY, SDO, LSS) is
-handed to its handler, which for control traffic forwards to the event loop. A backend that
+handed to its handler, which for control traffic forwards to the event loop. The reader takes
+frames in bursts: after a frame it asks the backend for the next one without waiting, and only
+when none is buffered does it call the ``burst_listeners`` (once per burst: consumers that hand
+work to another thread wake it there, not once per frame) and then block. A backend that
 raises is reported, the bus is closed and reopened with exponential backoff; the gateway keeps
 running. A bus that cannot be opened at start is retried the same way (only an interface name
 python-can does not know is fatal).
@@ -84,6 +87,8 @@ class BusDriver:
         self.on_state = on_state  # (state, detail), called on the reader thread
         self.handlers: dict[int, FrameHandler] = {}
         self.default_handler: FrameHandler | None = None
+        #: called on the reader thread after a burst, when no received frame is left buffered
+        self.burst_listeners: list[Callable[[], None]] = []
         self.bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
@@ -218,6 +223,7 @@ class BusDriver:
     def _run(self) -> None:
         counters = self.rx_counters
         handlers = self.handlers
+        in_burst = False  # frames handled since the burst listeners were last called
         while self._running.is_set():
             bus = self.bus
             if bus is None:
@@ -226,7 +232,8 @@ class BusDriver:
                 bus = self.bus
                 assert bus is not None
             try:
-                msg = bus.recv(timeout=0.05)
+                # within a burst: only what is already buffered; between bursts: wait
+                msg = bus.recv(timeout=0.0 if in_burst else 0.05)
             except Exception as exc:  # noqa: BLE001 - any backend failure keeps us running
                 if not self._running.is_set():
                     break
@@ -236,8 +243,14 @@ class BusDriver:
                 self._set_state("down", f"receive failed: {exc}")
                 continue
             if msg is None:
-                self.idle = True  # caught up with the bus
+                if in_burst:
+                    in_burst = False
+                    self.idle = True  # nothing left buffered: caught up with the bus
+                    self._end_burst()
+                else:
+                    self.idle = True  # caught up with the bus
                 continue
+            in_burst = True
             self.idle = False
             self.last_frame_wall = msg.timestamp
             if msg.is_error_frame:
@@ -259,6 +272,13 @@ class BusDriver:
                 self.warn.warning(
                     "handler", "frame 0x%03X could not be handled: %s", msg.arbitration_id, exc
                 )
+
+    def _end_burst(self) -> None:
+        for listener in self.burst_listeners:
+            try:
+                listener()
+            except Exception as exc:  # noqa: BLE001 - a listener must never stop the reader
+                self.warn.warning("burst", "burst listener %r failed: %s", listener, exc)
 
     def _error_frame(self, msg: can.Message) -> None:
         """Controller state from an error frame (linux/can/error.h layout)."""

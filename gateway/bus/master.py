@@ -201,6 +201,8 @@ class Master:
             h[0x080 + p.node_id] = self._control(p, "emcy")
             h[0x580 + p.node_id] = self._control(p, "sdo")
         self.driver.default_handler = self._unknown
+        if self.image.end_batch not in self.driver.burst_listeners:
+            self.driver.burst_listeners.append(self.image.end_batch)
         self.driver.on_state = self._bus_state
 
     def _post(self, fn: Callable[..., None], *args: Any) -> None:
@@ -352,6 +354,7 @@ class Master:
                 if keep:
                     names = tuple(o.names[i] for i in keep)
                     self.image.update(p.image, names, tuple(o.values[i] for i in keep), time.time())
+                    self.image.end_batch()
             elif isinstance(o, Note):
                 if o.kind is not None:
                     self.warn.log(o.level, o.kind, "%s", o.text)

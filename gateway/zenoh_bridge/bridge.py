@@ -238,7 +238,8 @@ class _EventSender:
 class _ValueSender:
     """Publishes report-by-exception values on its own thread, latest value first.
 
-    The CAN reader only marks a signal as updated (a dict assignment under a lock); this thread
+    The CAN reader only marks a signal as updated (a dict assignment under a lock) and wakes this
+    thread once per burst of frames (the image's batch listener), not once per value; the thread
     takes the marks and publishes each signal's *current* value, so when frames arrive faster
     than JSON can be published the intermediate values are coalesced instead of queued. The
     reader thus keeps pace with the bus and subscribers always get the newest value.
@@ -266,9 +267,14 @@ class _ValueSender:
         self.thread = self.threads.start("zenoh-values", self._run)
 
     def mark(self, node: NodeImage, sp: _SignalPub) -> None:
+        """Mark a signal updated (the image's writer); ``flush`` wakes the thread."""
         with self.lock:
             self.pending[id(sp)] = (node, sp)
-        self.wake.set()
+
+    def flush(self) -> None:
+        """End of a batch of marks (the image's batch listener): wake the thread once."""
+        if self.pending and not self.wake.is_set():
+            self.wake.set()
 
     def stop(self, timeout_s: float = 2.0) -> None:
         self.running = False
@@ -395,6 +401,7 @@ class ZenohBridge:
         if self.loop is None:
             await self.open()
         self.image.value_listeners.append(self._on_values)
+        self.image.batch_listeners.append(self._values.flush)
         self.image.health_listeners.append(self._on_health)
         self._events.start()
         self._values.start()
@@ -572,6 +579,8 @@ class ZenohBridge:
             self.image.value_listeners.remove(self._on_values)
         if self._on_health in self.image.health_listeners:
             self.image.health_listeners.remove(self._on_health)
+        if self._values.flush in self.image.batch_listeners:
+            self.image.batch_listeners.remove(self._values.flush)
         if self._on_pdo in self.image.pdo_listeners:
             self.image.pdo_listeners.remove(self._on_pdo)
         await asyncio.to_thread(self._values.stop)

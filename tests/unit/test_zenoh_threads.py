@@ -45,6 +45,18 @@ def test_a_mark_made_while_a_batch_is_published_goes_out_in_the_next_batch() -> 
     assert offered == ["a", "b"]
 
 
+def test_marks_wake_the_sender_once_per_burst_not_once_per_value() -> None:
+    sender = _ValueSender(lambda node, sp, now: None, ThreadRegistry())  # type: ignore[arg-type]
+    sender.flush()
+    assert not sender.wake.is_set()  # nothing marked: nothing to wake for
+    for key in ("a", "b", "c"):
+        sender.mark(None, Sp(key))  # type: ignore[arg-type]
+        assert not sender.wake.is_set()  # the reader's burst is not over yet
+    sender.flush()
+    assert sender.wake.is_set()
+    assert [sp.key for _, sp in sender.take()] == ["a", "b", "c"]
+
+
 def test_marks_from_a_concurrent_reader_are_all_published() -> None:
     sps = [Sp(f"s{i}") for i in range(50)]
     latest: dict[str, int] = {}
@@ -63,6 +75,7 @@ def test_marks_from_a_concurrent_reader_are_all_published() -> None:
                 for sp in sps:
                     latest[sp.key] = round_  # the image is written, then the signal marked
                     sender.mark(None, sp)  # type: ignore[arg-type]
+                sender.flush()  # end of the reader's burst
             done.set()
 
         t = threading.Thread(target=reader)
@@ -70,7 +83,7 @@ def test_marks_from_a_concurrent_reader_are_all_published() -> None:
         t.join(30)
         assert done.is_set()
         deadline = threading.Event()
-        for _ in range(500):  # bounded: the sender wakes on each mark
+        for _ in range(500):  # bounded: the sender wakes on each flush
             if published == latest:
                 break
             deadline.wait(0.01)

@@ -1,0 +1,59 @@
+"""The reader takes frames in bursts: the burst listeners run once after every frame already
+received has been handled, not once per frame (python-can virtual bus, real reader thread)."""
+
+from __future__ import annotations
+
+import threading
+import uuid
+
+import can
+
+from gateway.bus.driver import BusDriver
+from gateway.image import ProcessImage
+
+WAIT_S = 5.0
+
+
+def test_burst_listeners_run_once_per_burst_after_every_buffered_frame() -> None:
+    channel = f"burst-{uuid.uuid4().hex}"
+    d = BusDriver({"interface": "virtual", "channel": channel}, ProcessImage())
+    handled: list[int] = []
+    bursts: list[int] = []
+    entered, go, burst_seen = threading.Event(), threading.Event(), threading.Event()
+
+    def handle(msg: can.Message) -> None:
+        if not handled:
+            entered.set()
+            assert go.wait(WAIT_S)  # hold the reader while the rest of the burst is queued
+        handled.append(msg.data[0])
+
+    def failing() -> None:
+        raise RuntimeError("a broken listener")
+
+    def on_burst() -> None:
+        bursts.append(len(handled))
+        burst_seen.set()
+
+    d.handlers[0x181] = handle
+    d.burst_listeners += [failing, on_burst]
+    d.open()
+    device = can.Bus(interface="virtual", channel=channel)
+    try:
+        device.send(can.Message(arbitration_id=0x181, data=[0], is_extended_id=False))
+        assert entered.wait(WAIT_S)
+        for i in range(1, 20):
+            device.send(can.Message(arbitration_id=0x181, data=[i], is_extended_id=False))
+        go.set()
+        assert burst_seen.wait(WAIT_S)
+        assert bursts == [20]  # one call, after all 20 frames
+        assert handled == list(range(20))
+        assert d.idle  # nothing left buffered: the bus clock is the monotonic clock
+
+        burst_seen.clear()
+        device.send(can.Message(arbitration_id=0x181, data=[20], is_extended_id=False))
+        assert burst_seen.wait(WAIT_S)  # a failing listener does not stop the others
+        assert bursts == [20, 21]
+        assert d.threads.failures() == {}
+    finally:
+        device.shutdown()
+        d.close()
