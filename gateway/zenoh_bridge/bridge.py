@@ -5,9 +5,10 @@ service.
 Threads (started through the gateway's ``ThreadRegistry``: a thread that dies is reported and
 turns /healthz not-ready, never silently):
 
-* values are marked on the CAN reader thread right after the image was written; the
-  ``zenoh-values`` thread publishes the *current* value of every marked signal (coalescing),
-  except ``publish: every`` signals, which the reader publishes itself;
+* values are marked on the CAN reader thread right after the image was written, and the reader
+  publishes the *current* value of every marked signal once per burst of frames, when it has
+  handled every frame already received (the image's batch listener; coalescing when it is
+  behind); ``publish: every`` signals are published by the reader for every frame;
 * events (state, EMCY) are computed on the event loop when the master reports them and put by
   the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
   INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop;
@@ -235,53 +236,33 @@ class _EventSender:
                 log.warning("zenoh event publication failed: %r", exc)
 
 
-class _ValueSender:
-    """Publishes report-by-exception values on its own thread, latest value first.
+class _ValueBatch:
+    """Report-by-exception values, published once per batch of frames, latest value first.
 
-    The CAN reader only marks a signal as updated (a dict assignment under a lock) and wakes this
-    thread once per burst of frames (the image's batch listener), not once per value; the thread
-    takes the marks and publishes each signal's *current* value, so when frames arrive faster
-    than JSON can be published the intermediate values are coalesced instead of queued. The
-    reader thus keeps pace with the bus and subscribers always get the newest value.
+    The image's writer marks a signal as updated (a dict assignment under a lock) for every
+    decoded PDO, and at the end of its batch (the image's batch listener: the CAN reader once
+    it has handled every frame already received, the event loop after values read by SDO) it
+    publishes the *current* value of every marked signal on its own thread. While the reader is
+    behind, its bursts grow and the marks of one signal coalesce into one sample: the work per
+    batch is bounded by the number of signals, not by the number of frames, and subscribers
+    always get the newest value. No thread hand-off, no wake-up per value.
 
-    No update is lost: the marks are taken under the same lock the reader marks under, so a
-    mark lands either in the batch being published or in the next one; and the value published
-    is read after the mark was taken, so it is at least as new as the frame that marked it.
+    No update is lost: the marks are taken under the lock they are made under, so a mark lands
+    either in the batch being published or in the next one; and the value published is read
+    after the mark was taken, so it is at least as new as the frame that marked it.
     """
 
-    def __init__(
-        self, offer: Callable[[NodeImage, _SignalPub, float], None], threads: ThreadRegistry
-    ) -> None:
+    def __init__(self, offer: Callable[[NodeImage, _SignalPub, float], None]) -> None:
         self.offer = offer
-        self.threads = threads
         self.lock = threading.Lock()
         self.pending: dict[int, tuple[NodeImage, _SignalPub]] = {}
-        self.wake = threading.Event()
-        self.running = False
-        self.thread: threading.Thread | None = None
         self.errors = 0
         self._errlog = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
 
-    def start(self) -> None:
-        self.running = True
-        self.thread = self.threads.start("zenoh-values", self._run)
-
     def mark(self, node: NodeImage, sp: _SignalPub) -> None:
-        """Mark a signal updated (the image's writer); ``flush`` wakes the thread."""
+        """Mark a signal updated (the image's writer, for every decoded PDO)."""
         with self.lock:
             self.pending[id(sp)] = (node, sp)
-
-    def flush(self) -> None:
-        """End of a batch of marks (the image's batch listener): wake the thread once."""
-        if self.pending and not self.wake.is_set():
-            self.wake.set()
-
-    def stop(self, timeout_s: float = 2.0) -> None:
-        self.running = False
-        self.wake.set()
-        if self.thread is not None:
-            self.thread.join(timeout_s)
-            self.thread = None
 
     def take(self) -> list[tuple[NodeImage, _SignalPub]]:
         """The marked signals, unmarked (the next marks go to the next batch)."""
@@ -289,10 +270,11 @@ class _ValueSender:
             batch, self.pending = self.pending, {}
         return list(batch.values())
 
-    def publish_pending(self) -> None:
-        batch = self.take()
-        if not batch:
+    def flush(self) -> None:
+        """End of the writer's batch: publish every marked signal's current value."""
+        if not self.pending:
             return
+        batch = self.take()
         now = time.monotonic()
         for node, sp in batch:
             try:
@@ -300,12 +282,6 @@ class _ValueSender:
             except Exception as exc:  # noqa: BLE001 - a bad value must not stop publishing
                 self.errors += 1
                 self._errlog.warning(("publish", sp.key), "publishing %s failed: %r", sp.key, exc)
-
-    def _run(self) -> None:
-        while self.running:
-            self.wake.wait(0.1)
-            self.wake.clear()
-            self.publish_pending()
 
 
 class ZenohBridge:
@@ -339,7 +315,7 @@ class ZenohBridge:
         self.refused: dict[str, int] = {}
         self._refusal_log = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
         self._events = _EventSender(self.threads)
-        self._values = _ValueSender(self._offer, self.threads)
+        self._values = _ValueBatch(self._offer)
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}
         self._opened: zenoh.Session | None = None  # open, checked, not declared yet
@@ -404,7 +380,6 @@ class ZenohBridge:
         self.image.batch_listeners.append(self._values.flush)
         self.image.health_listeners.append(self._on_health)
         self._events.start()
-        self._values.start()
         opened, self._opened = self._opened, None
         if opened is not None:
             try:
@@ -583,7 +558,6 @@ class ZenohBridge:
             self.image.batch_listeners.remove(self._values.flush)
         if self._on_pdo in self.image.pdo_listeners:
             self.image.pdo_listeners.remove(self._on_pdo)
-        await asyncio.to_thread(self._values.stop)
         await asyncio.to_thread(self._events.stop)  # queued events go out before the close
         s, self.session = self.session, None
         opened, self._opened = self._opened, None

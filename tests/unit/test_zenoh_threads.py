@@ -1,5 +1,5 @@
-"""The Zenoh bridge's own threads and retries, without a network: the value hand-off never
-loses a mark, an exception in publishing is logged and the thread goes on, a thread that dies
+"""The Zenoh bridge's value batches, threads and retries, without a network: a batch never
+loses a mark, an exception in publishing is logged and publishing goes on, a thread that dies
 turns the gateway not-ready, and client-mode attempts start on the documented schedule."""
 
 from __future__ import annotations
@@ -11,8 +11,7 @@ import pytest
 import zenoh
 
 from gateway.app import Gateway
-from gateway.threads import ThreadRegistry
-from gateway.zenoh_bridge.bridge import REOPEN_SCHEDULE_S, _ValueSender
+from gateway.zenoh_bridge.bridge import REOPEN_SCHEDULE_S, _ValueBatch
 from tests.helpers import make_config, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -28,36 +27,41 @@ def test_a_mark_made_while_a_batch_is_published_goes_out_in_the_next_batch() -> 
     not land in the batch already taken, nor be lost."""
     a, b = Sp("a"), Sp("b")
     offered: list[str] = []
-    sender: _ValueSender
+    sender: _ValueBatch
 
     def offer(node: Any, sp: Any, now: float) -> None:
         offered.append(sp.key)
         if sp is a and offered.count("a") == 1:
             sender.mark(None, b)  # the CAN reader marks b meanwhile  # type: ignore[arg-type]
 
-    sender = _ValueSender(offer, ThreadRegistry())  # type: ignore[arg-type]
+    sender = _ValueBatch(offer)  # type: ignore[arg-type]
     sender.mark(None, a)  # type: ignore[arg-type]
-    sender.publish_pending()
+    sender.flush()
     assert offered == ["a"]
-    sender.publish_pending()
-    assert offered == ["a", "b"]
-    sender.publish_pending()
-    assert offered == ["a", "b"]
-
-
-def test_marks_wake_the_sender_once_per_burst_not_once_per_value() -> None:
-    sender = _ValueSender(lambda node, sp, now: None, ThreadRegistry())  # type: ignore[arg-type]
     sender.flush()
-    assert not sender.wake.is_set()  # nothing marked: nothing to wake for
-    for key in ("a", "b", "c"):
-        sender.mark(None, Sp(key))  # type: ignore[arg-type]
-        assert not sender.wake.is_set()  # the reader's burst is not over yet
+    assert offered == ["a", "b"]
     sender.flush()
-    assert sender.wake.is_set()
-    assert [sp.key for _, sp in sender.take()] == ["a", "b", "c"]
+    assert offered == ["a", "b"]
 
 
-def test_marks_from_a_concurrent_reader_are_all_published() -> None:
+def test_marks_are_published_at_the_end_of_the_batch_once_per_signal() -> None:
+    offered: list[str] = []
+    batch = _ValueBatch(lambda node, sp, now: offered.append(sp.key))  # type: ignore[arg-type]
+    batch.flush()
+    assert offered == []  # nothing marked: nothing published
+    a, b = Sp("a"), Sp("b")
+    for sp in (a, b, a, a):  # a burst: a's three frames coalesce into one sample
+        batch.mark(None, sp)  # type: ignore[arg-type]
+    assert offered == []  # the reader's burst is not over yet
+    batch.flush()
+    assert offered == ["a", "b"]
+    batch.flush()
+    assert offered == ["a", "b"]
+
+
+def test_marks_from_a_reader_flushed_concurrently_by_another_writer_are_all_published() -> None:
+    """The reader marks and flushes its bursts while the event loop flushes its own batches
+    (values read by SDO) at the same time: every signal's last value goes out."""
     sps = [Sp(f"s{i}") for i in range(50)]
     latest: dict[str, int] = {}
     published: dict[str, int] = {}
@@ -66,33 +70,31 @@ def test_marks_from_a_concurrent_reader_are_all_published() -> None:
     def offer(node: Any, sp: Any, now: float) -> None:
         published[sp.key] = latest[sp.key]
 
-    sender = _ValueSender(offer, ThreadRegistry())  # type: ignore[arg-type]
-    sender.start()
-    try:
+    batch = _ValueBatch(offer)  # type: ignore[arg-type]
 
-        def reader() -> None:
-            for round_ in range(200):
-                for sp in sps:
-                    latest[sp.key] = round_  # the image is written, then the signal marked
-                    sender.mark(None, sp)  # type: ignore[arg-type]
-                sender.flush()  # end of the reader's burst
-            done.set()
+    def reader() -> None:
+        for round_ in range(200):
+            for sp in sps:
+                latest[sp.key] = round_  # the image is written, then the signal marked
+                batch.mark(None, sp)  # type: ignore[arg-type]
+            batch.flush()  # end of the reader's burst
+        done.set()
 
-        t = threading.Thread(target=reader)
+    def other_writer() -> None:
+        while not done.is_set():
+            batch.flush()
+
+    threads = [threading.Thread(target=reader), threading.Thread(target=other_writer)]
+    for t in threads:
         t.start()
+    for t in threads:
         t.join(30)
-        assert done.is_set()
-        deadline = threading.Event()
-        for _ in range(500):  # bounded: the sender wakes on each flush
-            if published == latest:
-                break
-            deadline.wait(0.01)
-        assert published == latest  # the last value of every signal went out
-    finally:
-        sender.stop()
+    assert done.is_set()
+    assert published == latest  # the last value of every signal went out
+    assert batch.pending == {}
 
 
-def test_an_exception_while_publishing_is_logged_and_the_thread_goes_on(caplog: Any) -> None:
+def test_an_exception_while_publishing_is_logged_and_publishing_goes_on(caplog: Any) -> None:
     bad, good = Sp("bad"), Sp("good")
     offered: list[str] = []
 
@@ -101,11 +103,11 @@ def test_an_exception_while_publishing_is_logged_and_the_thread_goes_on(caplog: 
             raise ValueError("cannot encode")
         offered.append(sp.key)
 
-    sender = _ValueSender(offer, ThreadRegistry())  # type: ignore[arg-type]
+    sender = _ValueBatch(offer)  # type: ignore[arg-type]
     sender.mark(None, bad)  # type: ignore[arg-type]
-    sender.publish_pending()
+    sender.flush()
     sender.mark(None, good)  # type: ignore[arg-type]
-    sender.publish_pending()
+    sender.flush()
     assert offered == ["good"] and sender.errors == 1
     assert any("publishing bad failed" in r.getMessage() for r in caplog.records)
 
@@ -117,14 +119,15 @@ async def test_a_dead_zenoh_thread_turns_the_gateway_not_ready() -> None:
         await wait_until(lambda: gw.status()["ready"], 8, "ready")
         assert gw.zenoh is not None
 
-        def die(node: Any, sp: Any, now: float) -> None:
-            raise SystemExit("simulated death")  # not an Exception: escapes the thread's loop
+        class Dying:
+            def put(self, payload: bytes, timestamp: Any = None) -> None:
+                raise SystemExit("simulated death")  # not an Exception: escapes the loop
 
-        gw.zenoh._values.offer = die
+        gw.zenoh._events.put(Dying(), b"{}", None)
         await wait_until(lambda: not gw.status()["ready"], 8, "not ready")
         st = gw.status()
-        assert "zenoh-values" in st["threads"]["failed"]
-        assert "simulated death" in st["threads"]["failed"]["zenoh-values"]
+        assert "zenoh-events" in st["threads"]["failed"]
+        assert "simulated death" in st["threads"]["failed"]["zenoh-events"]
     finally:
         await gw.stop()
 
