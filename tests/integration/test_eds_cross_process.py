@@ -1,0 +1,164 @@
+"""A device known only from its EDS, across processes: the gateway runs as its own process
+(``canopen-gateway run``), the device is python canopen's LocalNode built from the same EDS in
+the test process, and the two share a CAN bus through python-can-remote. The test sends the
+boot-up, the heartbeat and the TPDOs; values arrive over Modbus (pymodbus) and Zenoh, and a
+holding-register write comes back as the RPDO the EDS maps."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import can
+import canopen
+import pytest
+import yaml
+from pymodbus.client import AsyncModbusTcpClient
+
+from gateway.image import Quality
+from tests.helpers import free_port, wait_until
+from tests.integration.test_eds_devices import IO, Heartbeat, boot
+from tests.zenoh_client import ZClient, sample_where
+
+pytest.importorskip("can_remote")
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class Frames(can.Listener):
+    def __init__(self) -> None:
+        self.seen: list[tuple[int, bytes]] = []
+        self.event = threading.Event()
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.seen.append((msg.arbitration_id, bytes(msg.data)))
+        self.event.set()
+
+
+def _wait_port(port: int, proc: subprocess.Popen[bytes]) -> None:
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and proc.poll() is None:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.05)
+    raise AssertionError(f"CAN server on port {port} did not open")
+
+
+async def test_eds_only_node_served_by_a_gateway_process_over_python_can_remote(
+    tmp_path: Path,
+) -> None:
+    can_port, zenoh_port = free_port(), free_port()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"eds{can_port}",
+         "-H", "127.0.0.1", "-p", str(can_port)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    channel = f"ws://127.0.0.1:{can_port}/"
+    raw = {
+        "gateway": {"name": "edsxp"},
+        "can": {"interface": "remote", "channel": channel},
+        "master": {"heartbeat_ms": 200, "probe_at_start": False},
+        "nodes": [{"name": "io", "node_id": 5, "eds": str(IO), "heartbeat_ms": 300}],
+        "modbus": {"port": free_port()},
+        "zenoh": {"listen": [f"tcp/127.0.0.1:{zenoh_port}"]},
+    }
+    cfg = tmp_path / "edsxp.yaml"
+    cfg.write_text(yaml.safe_dump(raw))
+    gw: subprocess.Popen[str] | None = None
+    net: canopen.Network | None = None
+    hb: Heartbeat | None = None
+    z: ZClient | None = None
+    try:
+        _wait_port(can_port, server)  # type: ignore[arg-type]
+        gw = subprocess.Popen(
+            [sys.executable, "-m", "gateway", "run", "-c", str(cfg)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONPATH": str(ROOT)},
+            cwd=ROOT,
+        )
+        assert gw.stdout is not None
+        line = gw.stdout.readline()
+        assert "canopen-gateway" in line, f"gateway did not start: {line!r}"
+
+        with IO.open(encoding="utf-8") as fp:
+            od = canopen.import_od(fp, 5)
+        net = canopen.Network()
+        net.connect(interface="remote", channel=channel)
+        node = canopen.LocalNode(5, od)
+        net.add_node(node)
+        frames = Frames()
+        net.notifier.add_listener(frames)
+        z = ZClient([f"tcp/127.0.0.1:{zenoh_port}"])
+        tokens = z.watch_liveliness("canopen/edsxp/alive/io")
+        assert net.bus is not None
+        hb = Heartbeat(net.bus, node)
+        boot(node)
+        hb.start()
+        # configured (SDO over the remote bus), started, change-only TPDOs refreshed by SDO
+        await sample_where(tokens, lambda s: s.kind == "PUT", timeout_s=15, what="io token")
+        assert node.nmt.state == "OPERATIONAL"
+
+        net.bus.send(can.Message(arbitration_id=0x185, data=bytes([0x5A, 0x02, 0x78, 0x56]), is_extended_id=False))  # fmt: skip
+        net.bus.send(can.Message(arbitration_id=0x285, data=struct.pack("<Hh", 0x1234, -2), is_extended_id=False))  # fmt: skip
+        client = AsyncModbusTcpClient("127.0.0.1", port=raw["modbus"]["port"], timeout=3)  # type: ignore[index]
+        await client.connect()
+        try:
+
+            async def inputs() -> list[int]:
+                return (await client.read_input_registers(100, count=5, device_id=5)).registers
+
+            want = [0x5A, 0x02, 0x5678, 0x1234, 0xFFFE]
+            regs: list[int] = []
+
+            async def arrived() -> bool:
+                nonlocal regs
+                regs = await inputs()
+                return regs == want
+
+            deadline = time.monotonic() + 10
+            while not await arrived():
+                assert time.monotonic() < deadline, f"TPDO values not served: {regs}"
+                await asyncio.sleep(0.01)
+            quality = (await client.read_input_registers(0, count=1, device_id=5)).registers
+            assert quality == [int(Quality.GOOD)]
+            frames.event.clear()
+            await client.write_register(103, 0xFFF6, device_id=5)  # RPDO2 6411h:01 = -10
+            await wait_until(lambda: (0x305, bytes.fromhex("0000F6FF")) in frames.seen, 10, "RPDO2")
+        finally:
+            client.close()
+        r = await z.get_one("canopen/edsxp/io/value/analogue_input_1")
+        assert r.ok and r.body["value"] == -2 and r.body["quality"] == "good"
+    finally:
+        if z is not None:
+            z.close()
+        if hb is not None:
+            hb.stop.set()
+            if hb.is_alive():
+                hb.join()
+        if net is not None:
+            net.disconnect()
+        if gw is not None:
+            if gw.poll() is None:
+                gw.send_signal(signal.SIGTERM)
+            try:
+                gw.communicate(timeout=10)
+            except subprocess.TimeoutExpired:
+                gw.kill()
+                gw.communicate()
+        server.terminate()
+        try:
+            server.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            server.kill()
