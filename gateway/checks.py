@@ -27,8 +27,9 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
+from gateway.bus.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.codec import compile_node
-from gateway.bus.lifecycle import OD_TYPE_NAMES, ConfigStep, build_boot_steps
+from gateway.bus.sdo_values import OD_TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import TYPE_BITS, eds_pdos, od_var, readable

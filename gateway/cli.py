@@ -221,7 +221,7 @@ def format_sdo_int(value: int, type_: str | None) -> str:
 
 def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
     """The type of ``obj`` on node ``name``: the profile signal's, else the EDS's."""
-    from gateway.bus.lifecycle import OD_TYPE_NAMES
+    from gateway.bus.sdo_values import OD_TYPE_NAMES
     from gateway.objref import ObjRef
     from gateway.profiles import load_profile
 

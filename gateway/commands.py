@@ -18,7 +18,7 @@ Rules held here, once:
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it.
 
-Imports: bus.master (the operations), bus.lifecycle (value codecs), errors, image, objref,
+Imports: bus.master (the operations), bus.sdo_values (value codecs), errors, image, objref,
 profiles, states. Never modbus/ or zenoh_bridge/.
 """
 
@@ -30,8 +30,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.lifecycle import OD_TYPE_NAMES, decode_value, encode_value
 from gateway.bus.master import Master, NodeParts
+from gateway.bus.sdo_values import OD_TYPE_NAMES, decode_value, encode_value
 from gateway.errors import NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
 from gateway.image import NodeImage
 from gateway.objref import ObjRef

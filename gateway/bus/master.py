@@ -29,9 +29,9 @@ from typing import Any
 
 import can
 
+from gateway.bus.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.driver import BusDriver
-from gateway.bus.lifecycle import ConfigStep, build_boot_steps
 from gateway.bus.node import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
 from gateway.bus.producers import Periodic
 from gateway.bus.refresh import refresh_plan

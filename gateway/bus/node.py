@@ -22,8 +22,8 @@ of the node (``health.fresh_since = None``); values are good again only when rec
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
-Imports: bus.lifecycle, bus.supervision, bus.sdo_client, bus.emcy, bus.settings, bus.codec,
-bus.verify, image, states, objref. Never python-can, asyncio, logging or a northbound module.
+Imports: bus.lifecycle, bus.boot_steps, bus.sdo_values, bus.supervision, bus.sdo_client,
+bus.emcy, bus.settings, bus.codec, bus.verify, image, states, objref. Never python-can, asyncio, logging or a northbound module.
 """
 
 from __future__ import annotations
@@ -32,13 +32,13 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from gateway.bus.boot_steps import ConfigStep
 from gateway.bus.codec import RpdoCodec, TpdoCodec
 from gateway.bus.emcy import EmcyHistory, decode_emcy
 from gateway.bus.events import HealthChanged, Note, Output, Refresh, SdoDone, Send, ValuesRead
 from gateway.bus.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
 from gateway.bus.lifecycle import (
     BootTimeout,
-    ConfigStep,
     Configured,
     LifecycleState,
     NodeLifecycle,
@@ -49,12 +49,12 @@ from gateway.bus.lifecycle import (
     Wait,
     WriteStep,
     WrongDevice,
-    decode_value,
 )
 from gateway.bus.outputs import OutputImage
 from gateway.bus.referencing import Referencing
 from gateway.bus.sdo_channel import SdoChannel, SdoJob
 from gateway.bus.sdo_client import SdoTransfer
+from gateway.bus.sdo_values import decode_value
 from gateway.bus.settings import NodeSettings
 from gateway.bus.verify import MappingMismatch, MappingRead, compare_mapping
 from gateway.bus.watchdog import Watchdog

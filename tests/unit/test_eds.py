@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.lifecycle import build_boot_steps
+from gateway.bus.boot_steps import build_boot_steps
 from gateway.bus.verify import MappingRead, compare_mapping, mapping_reads
 from gateway.checks import parse_checked_config
 from gateway.cli import main

@@ -12,10 +12,10 @@ from types import SimpleNamespace
 
 import pytest
 
+from gateway.bus.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.lifecycle import (
     Backoff,
     BootTimeout,
-    ConfigStep,
     Configured,
     LifecycleState,
     NodeLifecycle,
@@ -26,10 +26,9 @@ from gateway.bus.lifecycle import (
     Wait,
     WriteStep,
     WrongDevice,
-    build_boot_steps,
-    encode_value,
 )
 from gateway.bus.sdo_text import SDO_ABORT_TEXTS, abort_text
+from gateway.bus.sdo_values import encode_value
 from gateway.errors import SdoAbort
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, load_profile

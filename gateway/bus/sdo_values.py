@@ -1,0 +1,75 @@
+"""SDO values: DS-301 type names and the bytes of a value in an SDO transfer.
+
+The one encoding of values for SDO downloads and decoding of uploads, used by the boot steps,
+the command service and the CLI.
+
+Imports: the standard library.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+_PACK: dict[str, str] = {
+    "bool": "<B",  # DS-301 BOOLEAN travels as one byte in an SDO
+    "int8": "<b",
+    "uint8": "<B",
+    "int16": "<h",
+    "uint16": "<H",
+    "int32": "<i",
+    "uint32": "<I",
+    "int64": "<q",
+    "uint64": "<Q",
+    "float32": "<f",
+}
+
+#: canopen / DS-301 data type codes -> profile type names.
+OD_TYPE_NAMES: dict[int, str] = {
+    0x0001: "bool",
+    0x0002: "int8",
+    0x0003: "int16",
+    0x0004: "int32",
+    0x0005: "uint8",
+    0x0006: "uint16",
+    0x0007: "uint32",
+    0x0008: "float32",
+    0x0009: "string",
+    0x000A: "bytes",
+    0x0010: "int24",
+    0x0015: "int64",
+    0x0016: "uint24",
+    0x001B: "uint64",
+}
+
+
+def encode_value(value: int | float | str | bytes, type_: str) -> bytes:
+    """Little-endian bytes of ``value`` as DS-301 type ``type_`` (profile type names)."""
+    if isinstance(value, bytes):
+        return value
+    if type_ in ("string", "bytes"):
+        return str(value).encode("ascii")
+    if type_ in ("int24", "uint24"):
+        return int(value).to_bytes(3, "little", signed=type_ == "int24")
+    fmt = _PACK.get(type_)
+    if fmt is None:
+        raise ValueError(f"unknown type {type_!r}")
+    try:
+        return struct.pack(fmt, float(value) if type_ == "float32" else int(value))
+    except struct.error:
+        raise ValueError(f"value {value!r} does not fit {type_}") from None
+
+
+def decode_value(data: bytes, type_: str) -> Any:
+    """The value of an SDO upload's bytes as DS-301 type ``type_`` (profile type names).
+
+    Strings are cut at the first trailing NUL (the SGH10 pads 1008h, manual 4.4.1.4)."""
+    if type_ == "string":
+        return data.rstrip(b"\0").decode("ascii", errors="replace")
+    if type_ == "bytes":
+        return data
+    if type_ in ("int24", "uint24"):
+        return int.from_bytes(data[:3], "little", signed=type_ == "int24")
+    fmt = _PACK[type_]
+    size = struct.calcsize(fmt)
+    return struct.unpack(fmt, data[:size].ljust(size, b"\0"))[0]
