@@ -211,7 +211,7 @@ def all_keys(cfg: Config) -> list[KeyInfo]:
         def add(key: str, kind: str, text: str, _name: str = name) -> None:
             out.append(KeyInfo(key, kind, text, _name))
 
-        add(alive_key(p, name), "liveliness", "alive: supervision OK and process-data link OK")
+        add(alive_key(p, name), "liveliness", "values usable: operational, supervision and process-data link OK")
         add(state_key(p, name), "event", "NMT state, supervision, link, errors (get: current)")
         add(emcy_key(p, name), "event", "EMCY: code, register, text")
         for s in lp.profile.signals:
