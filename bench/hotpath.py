@@ -4,8 +4,10 @@ Each stage is called directly in a loop on prebuilt frames (one thread, no conte
 calls per repetition) inside a started gateway with one SGH10 node: python-can ``recv`` of a
 queued frame, the codec's ``decode``, the TPDO handler without listeners (decode + process
 image), the Zenoh bridge's share for one frame with ``publish: every`` (2 signals), its parts
-(payload + JSON, ``put`` with and without a zenoh timestamp), and the hop of a control frame
-(heartbeat, EMCY) to the event loop by ``call_soon_threadsafe``. The bare listener's
+(payload + JSON, the template ``payloads.value_json``, ``put`` with and without a zenoh
+timestamp), and the hop of a control frame (heartbeat, EMCY) to the event loop: one
+``call_soon_threadsafe`` per frame, and the master's inbox (``Master._post``) when frames come
+while the loop is busy. The bare listener's
 ``struct.unpack_from`` into a dict is the baseline of the decode stages. The sampled profiles
 (py-spy) behind the findings are described in RESULTS.md, not taken here.
 
@@ -26,49 +28,9 @@ import can
 from bench.report import Row, Section
 from bench.rig import SGH10_TPDO, Injector, bench_config, bench_node, start_gateway, tpdo_frames
 from bench.stats import Summary, paired_ratios
-from gateway.zenoh_bridge.payloads import QUALITY_TEXT, value_payload
+from gateway.zenoh_bridge.payloads import value_json, value_payload
 
 N_CALLS = 20_000
-
-
-def template_json(sig: Any, sv: Any, quality: Any, sc: Any, unit_json: str) -> str:
-    """A proposal measured here, not used by the gateway: a value sample of a plain integer
-    signal (no bits, no value texts) rendered with one f-string instead of a dict and the JSON
-    encoder; the text is the same as ``json.dumps(value_payload(...))``."""
-    raw = sv.value
-    value = raw if sc.identity else round(raw * sc.scale + sc.offset, 9)
-    q = QUALITY_TEXT[quality]
-    return (
-        f'{{"value": {value!r}, "unit": {unit_json}, "ts": {sv.timestamp!r}, '
-        f'"quality": "{q}", "seq": {sv.seq}}}'
-    )
-
-
-class CoalescedHop:
-    """A proposal measured here, not used by the gateway: control frames handed to the event
-    loop through a list, with one ``call_soon_threadsafe`` (one self-pipe write) per batch
-    instead of one per frame."""
-
-    def __init__(self, loop: asyncio.AbstractEventLoop):
-        self.loop = loop
-        self.lock = threading.Lock()
-        self.pending: list[tuple[Callable[[Any], None], Any]] = []
-        self.scheduled = False
-
-    def put(self, fn: Callable[[Any], None], arg: Any) -> None:
-        with self.lock:
-            self.pending.append((fn, arg))
-            if self.scheduled:
-                return
-            self.scheduled = True
-        self.loop.call_soon_threadsafe(self.drain)
-
-    def drain(self) -> None:
-        with self.lock:
-            items, self.pending = self.pending, []
-            self.scheduled = False
-        for fn, arg in items:
-            fn(arg)
 
 
 def per_call_us(fn: Callable[[int], Any], n: int = N_CALLS) -> float:
@@ -127,8 +89,7 @@ async def run(reps: int = 5) -> Section:
     sv = node.signals["position"]
     quality = node.quality(sv)
     payload = json.dumps(value_payload(sp.sig, sv, quality, sp.scaling))
-    unit_json = json.dumps(sp.scaling.unit)
-    same_text = template_json(sp.sig, sv, quality, sp.scaling, unit_json) == payload
+    same_text = value_json(sp.sig, sv, quality, sp.scaling) == payload
     try:
         for _rep in range(reps):
             for m in frames:
@@ -151,8 +112,8 @@ async def run(reps: int = 5) -> Section:
             add("  of which the Zenoh bridge", full - no_pub)
             add("  value payload dict + `json.dumps`, per signal",
                 per_call_us(lambda i: json.dumps(value_payload(sp.sig, sv, quality, sp.scaling))))  # fmt: skip
-            add("  proposal: the same sample by one f-string template, per signal",
-                per_call_us(lambda i: template_json(sp.sig, sv, quality, sp.scaling, unit_json)))  # fmt: skip
+            add("  the same sample by `payloads.value_json` (one f-string template), per signal",
+                per_call_us(lambda i: value_json(sp.sig, sv, quality, sp.scaling)))  # fmt: skip
             add("  zenoh `put` with `timestamp=session.new_timestamp()`, per signal",
                 per_call_us(lambda i: sp.pub.put(payload, timestamp=session.new_timestamp())))  # fmt: skip
             add(
@@ -162,16 +123,16 @@ async def run(reps: int = 5) -> Section:
             add("control frame to the event loop: `call_soon_threadsafe`",
                 from_thread(lambda: per_call_us(lambda i: loop.call_soon_threadsafe(noop), 5000)))  # fmt: skip
             await asyncio.sleep(0.05)  # let the loop run the callbacks
-            put = CoalescedHop(loop).put
-            add("  proposal: coalesced hop, frames arriving while the loop is busy",
-                from_thread(lambda put=put: per_call_us(lambda i: put(noop1, i), 5000)))  # fmt: skip
+            post: Any = gw.master._post
+            add("  coalesced hop (`Master._post`), frames arriving while the loop is busy",
+                from_thread(lambda post=post: per_call_us(lambda i: post(noop1, i), 5000)))  # fmt: skip
             await asyncio.sleep(0.05)
     finally:
         recv_bus.shutdown()
         await gw.stop()
         inj.close()
     sec.notes.append(
-        "The template proposal gives the same text as the JSON encoder for this sample: "
+        "`payloads.value_json` gives the same text as the JSON encoder for this sample: "
         + ("yes" if same_text else "NO")
         + f" (`{payload}`)."
     )
