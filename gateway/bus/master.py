@@ -32,6 +32,7 @@ import can
 from gateway.bus.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.driver import BusDriver
+from gateway.bus.lifecycle import LifecycleState
 from gateway.bus.node import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
 from gateway.bus.producers import Periodic
 from gateway.bus.refresh import refresh_plan
@@ -47,6 +48,10 @@ from gateway.states import NMT_COMMANDS
 
 log = logging.getLogger("gateway.master")
 
+#: queued events that wake the loop even when none asked for it (a bound, never reached while
+#: every quiet event's node has a deadline timer)
+QUIET_LIMIT = 1024
+
 
 @dataclass
 class NodeParts:
@@ -60,6 +65,11 @@ class NodeParts:
     tpdos: list[TpdoCodec]
     rpdos: list[RpdoCodec]
     node: Node
+    #: written by the event loop only (after every event of the node), read by the reader
+    #: thread: the node is heartbeat-supervised, alive and operational, so a heartbeat
+    #: repeating the previous one changes nothing before its deadline and needs no wake-up of
+    #: the loop (see ``_control``)
+    steady: bool = False
 
     @property
     def name(self) -> str:
@@ -205,15 +215,18 @@ class Master:
             self.driver.burst_listeners.append(self.image.end_batch)
         self.driver.on_state = self._bus_state
 
-    def _post(self, fn: Callable[..., None], *args: Any) -> None:
+    def _post(self, fn: Callable[..., None], *args: Any, wake: bool = True) -> None:
         """The one hand-off from the reader thread to the event loop.
 
         Events go into an inbox; the loop is woken (``call_soon_threadsafe``) only when no
         drain is pending, so a burst of control frames costs one wake-up, not one per frame.
         The flag is cleared before the drain empties the inbox: an event put in after that
-        schedules a new drain, none is left behind."""
-        self._inbox.append((fn, args))
-        if not self._drain_pending:
+        schedules a new drain, none is left behind. ``wake=False`` queues an event that
+        changes nothing before a deadline (a steady node's repeated heartbeat): it is drained
+        at the next wake-up, at the latest by the node's deadline timer (``_tick``)."""
+        inbox = self._inbox
+        inbox.append((fn, args))
+        if (wake or len(inbox) >= QUIET_LIMIT) and not self._drain_pending:
             loop = self.loop
             if loop is not None and not loop.is_closed():
                 self._drain_pending = True
@@ -233,11 +246,20 @@ class Master:
         frame_time = self.driver.frame_time
         post = self._post
         dispatch = self._on_control
+        last: list[bytes | None] = [None]  # the reader's own: the node's previous 700h frame
 
         def handle(msg: can.Message) -> None:
             if msg.is_remote_frame:
                 return
-            post(dispatch, p, kind, bytes(msg.data), msg.timestamp or time.time(), frame_time(msg))
+            data = bytes(msg.data)
+            # a heartbeat repeating the previous one of a steady node changes nothing before
+            # the node's deadline: no wake-up of the loop for it
+            quiet = kind == "nmt_ec" and p.steady and data == last[0]
+            last[0] = data
+            post(
+                dispatch, p, kind, data, msg.timestamp or time.time(), frame_time(msg),
+                wake=not quiet,
+            )  # fmt: skip
 
         return handle
 
@@ -329,6 +351,8 @@ class Master:
     def _tick(self, p: NodeParts) -> None:
         self._timers.pop(p.name, None)
         self._due.pop(p.name, None)
+        if self._inbox:
+            self._drain()  # heartbeats queued without a wake-up count before any timeout
         self._execute(p, p.node.tick(self.clock()))
 
     def _execute(self, p: NodeParts, outs: list[Any]) -> None:
@@ -362,6 +386,12 @@ class Master:
                     log.log(o.level, "%s", o.text)
         if health:
             self.image.health_changed(p.image, "state")
+        node = p.node
+        p.steady = (
+            p.settings.supervision == "heartbeat"  # a deadline timer drains what is queued
+            and node.alive
+            and node.lifecycle.state is LifecycleState.OPERATIONAL
+        )
         self._schedule(p)
 
     def _schedule(self, p: NodeParts) -> None:

@@ -12,6 +12,7 @@ import can
 
 from gateway.app import Gateway
 from gateway.image import Quality
+from gateway.states import NmtState
 from tests.helpers import master_running as running
 from tests.helpers import node_operational as operational
 from tests.helpers import wait_until
@@ -170,3 +171,38 @@ async def test_heartbeat_consumer_timeout_is_the_configured_multiple_of_the_prod
         seen = rt.hb.heartbeats
         await wait_until(lambda: rt.hb.heartbeats >= seen + 6, 2, "six more heartbeats")
         assert rt.image.health.loss_count == 0
+
+
+class _CountingLoop:
+    """The master's loop with its cross-thread wake-ups counted."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop):
+        self._loop = loop
+        self.wakeups = 0
+
+    def call_soon_threadsafe(self, *args: Any) -> Any:
+        self.wakeups += 1
+        return self._loop.call_soon_threadsafe(*args)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._loop, name)
+
+
+async def test_repeated_heartbeats_of_a_steady_node_do_not_wake_the_loop_but_keep_it_alive() -> None:
+    """A heartbeat that repeats the previous one of an alive, operational node changes nothing
+    before its deadline: it is queued without a wake-up and drained by the node's deadline timer
+    before any timeout is judged. A heartbeat that says something new wakes the loop at once."""
+    nodes = [{"name": "wire", "node_id": 1, "profile": "sgh10", "heartbeat_ms": 50}]
+    async with running(nodes, master={"sync_period_ms": 0}) as gw:
+        rt = gw.master.nodes["wire"]
+        await wait_until(lambda: operational(gw, "wire") and rt.steady, 5, "wire steady")
+        counting = _CountingLoop(gw.master.loop)
+        gw.master.loop = counting  # type: ignore[assignment]
+        seen = rt.hb.heartbeats
+        await wait_until(lambda: rt.hb.heartbeats >= seen + 10, 3, "ten more heartbeats")
+        assert counting.wakeups == 0  # every one drained by the node's own timer
+        assert rt.image.health.alive and rt.image.health.loss_count == 0
+        # NMT stop: the device's next heartbeat says STOPPED and wakes the loop
+        gw.master.nmt("wire", "stop")
+        await wait_until(lambda: rt.image.health.nmt_state == NmtState.STOPPED, 2, "stopped seen")
+        assert counting.wakeups >= 1

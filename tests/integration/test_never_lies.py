@@ -138,11 +138,17 @@ async def test_a_change_only_tpdo_is_asked_by_rtr_after_nmt_start() -> None:
         watch = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
         try:
             dev.boot()
-            rtr = await asyncio.to_thread(
-                _recv, watch, lambda m: m.arbitration_id == 0x181 and m.is_remote_frame
-            )
+            seen: list[can.Message] = []
+
+            def until_rtr(m: can.Message) -> bool:
+                seen.append(m)
+                return m.arbitration_id == 0x181 and m.is_remote_frame
+
+            rtr = await asyncio.to_thread(_recv, watch, until_rtr)
             assert rtr.dlc == 6
-            assert dev.nmt_seen.is_set(), "the RTR follows NMT start"
+            # on the bus, in order: NMT start of node 1, then the RTR
+            starts = [m for m in seen if m.arbitration_id == 0x000 and bytes(m.data) == b"\x01\x01"]
+            assert starts, "the RTR follows NMT start"
         finally:
             watch.shutdown()
         dev.tpdo1(77)  # the device answers the RTR
