@@ -315,6 +315,26 @@ def thread_cpu_s(pid: int) -> dict[int, float]:
     return out
 
 
+def thread_detail(pid: int) -> dict[int, tuple[float, int, int]]:
+    """Per thread: system CPU seconds, voluntary and involuntary context switches so far."""
+    out = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat", encoding="ascii", errors="replace") as f:
+                stat = f.read()
+            with open(f"/proc/{pid}/task/{tid}/status", encoding="ascii", errors="replace") as f:
+                status = dict(line.split(":", 1) for line in f.read().splitlines() if ":" in line)
+        except OSError:
+            continue  # the thread ended meanwhile
+        sys_s = int(stat[stat.rindex(")") + 2 :].split()[12]) / _CLK_TCK
+        out[int(tid)] = (
+            sys_s,
+            int(status["voluntary_ctxt_switches"]),
+            int(status["nonvoluntary_ctxt_switches"]),
+        )
+    return out
+
+
 def _task_cpu(pid: int, tid: str) -> float:
     with open(f"/proc/{pid}/task/{tid}/stat", encoding="ascii", errors="replace") as f:
         stat = f.read()
@@ -417,7 +437,9 @@ async def _bare_phase(phase_s: float) -> dict[str, Any]:
         pid = bare.proc.pid
         assert pid is not None
         c0, s0, t0 = proc_cpu_s(pid), dict(gen.sent), time.perf_counter()
+        d0 = thread_detail(pid)
         await asyncio.sleep(phase_s)
+        d1 = thread_detail(pid)
         c1, s1, t1 = proc_cpu_s(pid), dict(gen.sent), time.perf_counter()
         result = await call
     finally:
@@ -427,8 +449,10 @@ async def _bare_phase(phase_s: float) -> dict[str, Any]:
         bare.close()
     wall = t1 - t0
     frames = (s1["tpdo"] + s1["heartbeat"]) - (s0["tpdo"] + s0["heartbeat"])
+    d = [sum(d1[t][i] - d0[t][i] for t in d1 if t in d0) for i in range(3)]
     return {"cpu": (c1 - c0) / wall, "fps": frames / wall, "received": result["frames"],
-            "lag_ms": gen.max_lag_s * 1000 if gen else math_nan()}  # fmt: skip
+            "lag_ms": gen.max_lag_s * 1000 if gen else math_nan(),
+            "sys": d[0] / wall, "switches_per_frame": (d[1] + d[2]) / frames}  # fmt: skip
 
 
 def _gateway_config(path: pathlib.Path, can_port: int) -> dict[str, Any]:
@@ -515,7 +539,9 @@ async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
             return (c1 - c0) / wall, {t: (c - th0.get(t, 0.0)) / wall for t, c in th1.items()}, t0
 
         sent0, tw0 = dict(gen.sent), time.perf_counter()
+        detail0 = thread_detail(proc.pid)
         cpu, threads_cpu, _ = await window(phase_s)  # PLC + Zenoh: the load of the issue
+        detail1 = thread_detail(proc.pid)
         sent1, tw1 = dict(gen.sent), time.perf_counter()
         comms = {tid: thread_comm(proc.pid, tid) for tid in threads_cpu}
         rss = rss_kib(proc.pid)
@@ -571,6 +597,15 @@ async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
         "rss_mib": rss.get("VmRSS", 0) / 1024,
         "hwm_mib": rss.get("VmHWM", 0) / 1024,
         "threads": per_thread,
+        "switches": {
+            name: (
+                (detail1[tid][0] - detail0[tid][0]) / (tw1 - tw0),
+                (detail1[tid][1] - detail0[tid][1]) / (tw1 - tw0),
+                (detail1[tid][2] - detail0[tid][2]) / (tw1 - tw0),
+            )
+            for name, tid, _c in per_thread
+            if tid in detail0 and tid in detail1
+        },
         "mb_p50": percentile(mb_lat, 50), "mb_p99": percentile(mb_lat, 99),
         "z_p50": percentile(z_lat, 50), "z_p99": percentile(z_lat, 99),
         "probes": len(probe), "mb_seen": len(mb_lat), "z_seen": len(z_lat),
@@ -640,6 +675,18 @@ async def run(phase_s: float = 20.0, profile_s: float = 8.0) -> Section:
     ]  # fmt: skip
     threads = ", ".join(
         f"{name} {cpu * 100:.1f}%" for name, _tid, cpu in gw["threads"] if cpu >= 0.005
+    )
+    fps_gw = gw["fps"]
+    switches = "; ".join(
+        f"{name} {sys_s * 100:.1f}% system, {vol:,.0f} voluntary + {invol:,.0f} involuntary/s "
+        f"({(vol + invol) / fps_gw:.2f} per frame)"
+        for name, (sys_s, vol, invol) in gw["switches"].items()
+        if vol + invol >= 100
+    )
+    sec.notes.append(
+        "System time and context switches by thread (/proc/PID/task/*/stat and status, same "
+        f"window): {switches}. The bare listener: {bare['sys'] * 100:.1f}% system, "
+        f"{bare['switches_per_frame']:.2f} context switches per frame in all."
     )
     sec.notes.append(
         f"Gateway CPU by thread (% of one core, PLC + Zenoh load): {threads}. Modbus: the PLC "
