@@ -127,6 +127,23 @@ def test_signals_of_an_eds_only_node_come_from_its_enabled_pdos() -> None:
     assert [(p.number, p.cob_id, p.event_timer_ms) for p in lp.profile.tpdos] == [(1, 0x185, 100), (2, 0x285, 100)]  # fmt: skip
 
 
+def test_a_dcf_is_read_like_its_eds_with_the_parameter_values_of_the_commissioning(
+    tmp_path: Path,
+) -> None:
+    text = IO.read_text(encoding="utf-8")
+    head, rest = text.split("[1800sub5]", 1)
+    section, tail = rest.split("\n\n", 1)
+    dcf = tmp_path / "io401.dcf"
+    dcf.write_text(
+        head + "[1800sub5]" + section + "\nParameterValue=250\n\n" + tail
+        + "\n[DeviceComissioning]\nNodeID=5\nNodeName=io\nBaudrate=250\n",
+        encoding="utf-8",
+    )  # fmt: skip
+    assert load_eds(dcf).is_dcf
+    lp = load_node_profile(Node(eds=str(dcf)).cfg)
+    assert [(p.number, p.event_timer_ms) for p in lp.profile.tpdos] == [(1, 250), (2, 100)]
+
+
 def test_a_disabled_pdo_enabled_by_the_config_is_served() -> None:
     lp = load_node_profile(Node(eds=str(IO), tpdo={3: {"enabled": True}}).cfg)
     assert [p.number for p in lp.profile.tpdos] == [1, 2, 3]
