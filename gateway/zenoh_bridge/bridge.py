@@ -1,6 +1,6 @@
-"""Zenoh bridge: publishes the process image, node state and EMCY events, raw PDOs on request,
-liveliness tokens per usable node and for the gateway, and answers queries through the command
-service.
+"""Zenoh bridge: owns the session; publishes the process image, node state and EMCY events, raw
+PDOs on request, liveliness tokens per usable node and for the gateway, and declares the
+queryable whose answers live in ``queries.py`` (``QueryService``).
 
 Threads (started through the gateway's ``ThreadRegistry``: a thread that dies is reported and
 turns /healthz not-ready, never silently):
@@ -14,8 +14,8 @@ turns /healthz not-ready, never silently):
   INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop;
 * a housekeeping task on the event loop publishes held-back samples (max rate) and quality
   changes that no frame announces (stale by age);
-* query callbacks run on zenoh threads and only hand the query to the event loop, where the
-  command service answers it and the query is finalised.
+* query callbacks run on zenoh threads and only hand the query to the event loop, where
+  ``QueryService`` answers it through the command service and finalises it.
 
 Values and events go out through zenoh-ext advanced publishers (``zenoh.history``): each keeps
 the last samples of its key (1,000 per event key, the last value per value key by default),
@@ -24,8 +24,8 @@ sends heartbeats with its last sequence number and announces itself, so an
 link was down. Our payloads carry their own ``seq`` too, so a plain subscriber sees a gap.
 
 Writes (``set``, SDO download, ``nmt``) pass ``zenoh.writes`` / ``zenoh.write_allow`` first
-(``access.WriteGate``); a refused one is answered ``forbidden``, counted and logged
-(rate-limited), and nothing goes on the bus.
+(``access.WriteGate``, in ``queries.py``); a refused one is answered ``forbidden``, counted and
+logged (rate-limited), and nothing goes on the bus.
 
 The session is opened before the bus (``open``): when a gateway with the same prefix is
 already announced on the Zenoh network (its ``<prefix>/alive/_gateway`` token), ``open``
@@ -34,8 +34,7 @@ reachable, the gateway starts anyway and the bridge retries in the background (a
 0.5 s, 1 s, 2 s, then every 5 s apart). After a router restart zenoh reconnects by itself and
 re-declares publishers, queryable and liveliness tokens.
 
-Imports: zenoh, commands, errors, image, config, ratelimit, threads, profiles.schema,
-zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a function passed in
+Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a function passed in
 by the app) and nothing of bus/ (nodes are known through the command service).
 """
 
@@ -53,50 +52,31 @@ from typing import Any
 import zenoh
 import zenoh.ext
 
-from gateway import __version__
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.errors import Forbidden, GatewayError
 from gateway.image import NodeImage, ProcessImage
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadRegistry
-from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.keys import (
     GATEWAY_TOKEN,
-    Request,
     alive_key,
-    catalog_key,
     emcy_key,
-    has_wildcard,
     is_published,
-    is_writable,
-    nmt_key,
-    parse_key,
     pdo_key,
     prefix_of,
-    set_key,
-    snapshot_key,
     state_key,
     value_key,
 )
 from gateway.zenoh_bridge.payloads import (
     Scaling,
     emcy_payload,
-    engineering,
-    error_payload,
-    nmt_command,
-    reply_value,
-    sdo_write_body,
-    set_body,
-    set_many_body,
     state_fingerprint,
     state_payload,
-    to_raw,
     value_json,
-    value_payload,
 )
 from gateway.zenoh_bridge.policy import ReportPolicy
+from gateway.zenoh_bridge.queries import QueryService
 
 log = logging.getLogger("gateway.zenoh")
 
@@ -114,6 +94,7 @@ TLS_KEYS = (
     "verify_name_on_connect",
 )
 
+ERROR_LOG_PERIOD_S = 10.0  # a failing publication is logged at most once per period and key
 CLIENT_CONNECT_TIMEOUT_MS = 1000  # one attempt to reach a router in client mode
 #: time between the starts of two attempts to open a client session (the last one repeats)
 REOPEN_SCHEDULE_S = (0.5, 1.0, 2.0, 5.0)
@@ -123,22 +104,10 @@ HOUSEKEEPING_PERIOD_S = 0.1
 CONNECT_WAIT_S = 2.0
 #: how long the liveliness get of the duplicate check may take
 DUPLICATE_CHECK_TIMEOUT_S = 2.0
-REFUSAL_LOG_PERIOD_S = 10.0
 
 
 class PrefixInUse(RuntimeError):
     """Another gateway is announced under our prefix: two gateways must not share one."""
-
-
-def write_operation(req: Request, payload: bytes | None) -> str | None:
-    """The write a request is (``zenoh.write_allow`` operations), or None for a read."""
-    if req.kind in ("set", "set_many"):
-        return "set"
-    if req.kind == "nmt":
-        return "nmt"
-    if req.kind == "sdo" and payload:
-        return "sdo_write"
-    return None
 
 
 def zenoh_config(cfg: Config) -> zenoh.Config:
@@ -257,7 +226,7 @@ class _ValueBatch:
         self.lock = threading.Lock()
         self.pending: dict[int, tuple[NodeImage, _SignalPub]] = {}
         self.errors = 0
-        self._errlog = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
+        self._errlog = RateLimitedLog(log, ERROR_LOG_PERIOD_S)
 
     def mark(self, node: NodeImage, sp: _SignalPub) -> None:
         """Mark a signal updated (the image's writer, for every decoded PDO)."""
@@ -299,7 +268,6 @@ class ZenohBridge:
         self.catalog_fn = catalog_fn
         self.threads = threads if threads is not None else ThreadRegistry()
         self.prefix = prefix_of(cfg)
-        self.gate = WriteGate(cfg.zenoh)
         self.session: zenoh.Session | None = None
         self.loop: asyncio.AbstractEventLoop | None = None
         self.pubs: dict[tuple[str, str], _SignalPub] = {}
@@ -311,9 +279,6 @@ class ZenohBridge:
         self.queryable: Any = None
         self.publications = 0
         self.up = False
-        #: refused writes by operation (``zenoh_refused_total{operation}``)
-        self.refused: dict[str, int] = {}
-        self._refusal_log = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
         self._events = _EventSender(self.threads)
         self._values = _ValueBatch(self._offer)
         self._last_state: dict[str, tuple[Any, ...]] = {}
@@ -324,8 +289,17 @@ class ZenohBridge:
         self._clock: Callable[[], float] = time.monotonic
         self._sleep: Callable[[float], Any] = asyncio.sleep
         self._tasks: list[asyncio.Task[Any]] = []
-        self._answers: set[asyncio.Future[Any]] = set()
         self._plan()
+        self.queries = QueryService(
+            cfg,
+            image,
+            commands,
+            self.prefix,
+            session=lambda: self.session,
+            scaling=self.scaling,
+            value_keys={n: [(sp.key, sp.sig) for sp in sps] for n, sps in self.by_node.items()},
+            catalog_fn=catalog_fn,
+        )
 
     # ------------------------------------------------------------------ what to publish
     def _plan(self) -> None:
@@ -363,7 +337,7 @@ class ZenohBridge:
         """Open the session and make sure no other gateway runs under our prefix; called by the
         app before the bus starts. Raises ``PrefixInUse`` (the session is closed then) or, in
         peer mode, zenoh.ZError when the session cannot be opened at all."""
-        self.loop = asyncio.get_running_loop()
+        self.loop = self.queries.loop = asyncio.get_running_loop()
         conf = zenoh_config(self.cfg)  # a bad config raises here, before anything runs
         self._last_attempt_s = self._clock()
         try:
@@ -510,7 +484,7 @@ class ZenohBridge:
         self.tokens[GATEWAY_TOKEN] = s.liveliness().declare_token(
             alive_key(self.prefix, GATEWAY_TOKEN)
         )
-        self.queryable = s.declare_queryable(f"{self.prefix}/**", self._on_query)
+        self.queryable = s.declare_queryable(f"{self.prefix}/**", self.queries.on_query)
         self.session = s
         self.up = True
         for node in self.image.nodes.values():
@@ -680,231 +654,18 @@ class ZenohBridge:
     def events_sent(self) -> int:
         return self._events.sent
 
-    # ------------------------------------------------------------------ queries
-    def _on_query(self, query: zenoh.Query) -> None:
-        """Zenoh thread: hand over to the event loop; never block here."""
-        loop = self.loop
-        if loop is None or loop.is_closed() or self.session is None:
-            query.drop()
-            return
-        try:
-            loop.call_soon_threadsafe(self._spawn_answer, query)
-        except RuntimeError:
-            query.drop()
-
-    def _spawn_answer(self, query: zenoh.Query) -> None:
-        fut = asyncio.ensure_future(self._answer(query))
-        self._answers.add(fut)
-        fut.add_done_callback(self._answers.discard)
-
-    def _reply(self, query: zenoh.Query, key: str, result: Any) -> None:
-        s = self.session
-        query.reply(
-            key,
-            json.dumps(result),
-            encoding=JSON,
-            timestamp=s.new_timestamp() if s is not None else None,
-        )
-
-    async def _answer(self, query: zenoh.Query) -> None:
-        key = str(query.key_expr)
-        try:
-            if has_wildcard(key):
-                self._answer_wildcard(query, key)
-                return
-            payload = query.payload.to_bytes() if query.payload is not None else None
-            type_param = query.parameters.get("type")
-            result = await self.dispatch(key, payload, type_param)
-            self._reply(query, key, result)
-        except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
-            if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
-                log.exception("zenoh query %s failed", key)
-            try:
-                query.reply_err(json.dumps(error_payload(exc, key)), encoding=JSON)
-            except zenoh.ZError:
-                pass
-        finally:
-            query.drop()
-
-    def _answer_wildcard(self, query: zenoh.Query, key: str) -> None:
-        """A key expression with wildcards gets the read-only answers it matches (catalogue,
-        states, snapshots, latest values); commands and SDO never run on a wildcard."""
-        ke = zenoh.KeyExpr(key)
-        p = self.prefix
-        if ke.intersects(catalog_key(p)):
-            self._reply(query, catalog_key(p), self.catalog())
-        for name, node in self.image.nodes.items():
-            if ke.intersects(state_key(p, name)):
-                self._reply(query, state_key(p, name), state_payload(node))
-            if ke.intersects(snapshot_key(p, name)):
-                self._reply(query, snapshot_key(p, name), self.snapshot(node))
-            for sp in self.by_node.get(name, ()):
-                if ke.intersects(sp.key):
-                    self._reply(query, sp.key, self._value_now(node, sp.sig))
+    # ------------------------------------------------------------------ queries (queries.py)
+    @property
+    def refused(self) -> dict[str, int]:
+        """Refused Zenoh writes by operation (``zenoh_refused_total{operation}``)."""
+        return self.queries.refused
 
     async def dispatch(self, key: str, payload: bytes | None, type_param: str | None = None) -> Any:
-        """Answer one concrete query key (also usable without zenoh, e.g. from tests)."""
-        req = parse_key(self.prefix, key)
-        op = write_operation(req, payload)
-        if op is not None:
-            self._authorize(op, req.node, key)
-        if req.kind == "catalog":
-            return self.catalog()
-        rt = self.commands.node(req.node)
-        node = rt.image
-        if req.kind == "snapshot":
-            return self.snapshot(node)
-        if req.kind == "state":
-            return state_payload(node)
-        if req.kind == "nmt":
-            cmd = nmt_command(payload)
-            self.commands.nmt(req.node, cmd)
-            return {"ok": True, "node": req.node, "nmt": cmd}
-        if req.kind == "sdo":
-            return await self._sdo(req, payload, type_param)
-        if req.kind == "value":
-            sig = self.commands.signal(rt, req.signal)
-            if sig.transport == "sdo":
-                raw = await self.commands.read_signal(req.node, req.signal)
-                sc = self.scaling(req.node, sig)
-                return {
-                    "value": engineering(sig, raw, sc),
-                    "unit": sc.unit,
-                    "ts": time.time(),
-                    "quality": "good",
-                    "seq": None,
-                    "source": "sdo",
-                }
-            return self._value_now(node, sig)
-        if req.kind == "set":
-            return await self._set(req, payload)
-        if req.kind == "set_many":
-            body = set_many_body(payload)
-            raws = {}
-            for name, value in body.items():
-                sig = self.commands.signal(rt, name)
-                raws[name] = to_raw(sig, value, self.scaling(req.node, sig))
-            await self.commands.write_signals(req.node, raws)
-            return {"ok": True, "node": req.node, "written": raws}
-        raise ValueError(f"unsupported request {req.kind}")  # pragma: no cover
-
-    def _authorize(self, operation: str, node: str, key: str) -> None:
-        """Raise ``Forbidden`` (counted, logged at most once per period per operation) unless
-        the configuration allows this write."""
-        why = self.gate.refusal(operation, node, key)
-        if why is None:
-            return
-        self.refused[operation] = self.refused.get(operation, 0) + 1
-        self._refusal_log.warning(
-            ("zenoh_refused", operation),
-            "Zenoh %s refused on %s: %s (refused so far: %d)",
-            operation,
-            key,
-            why,
-            self.refused[operation],
-        )
-        raise Forbidden(why)
-
-    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None) -> Any:
-        assert req.obj is not None
-        obj = str(req.obj)
-        if payload:
-            value, typ = sdo_write_body(payload)
-            await self.commands.sdo_write(req.node, req.obj, value, typ or type_param)
-            return {"ok": True, "node": req.node, "object": obj, "value": reply_value(value)}
-        value = await self.commands.sdo_read(req.node, req.obj, type_param)
-        return {"node": req.node, "object": obj, "value": reply_value(value)}
-
-    async def _set(self, req: Request, payload: bytes | None) -> Any:
-        rt = self.commands.node(req.node)
-        sig = self.commands.signal(rt, req.signal)
-        body = set_body(payload)
-        via = "rpdo" if rt.is_output(req.signal) else "sdo"
-        if body.bits is not None:
-            named = {b.name: b for b in sig.bits}
-            bits: dict[int, bool] = {}
-            for bname, on in body.bits.items():
-                b = named.get(bname)
-                if b is None:
-                    raise ValueError(f"{req.signal} has no bit {bname!r}; bits: {sorted(named)}")
-                if not b.writable or b.width != 1:
-                    writable = sorted(n for n, x in named.items() if x.writable and x.width == 1)
-                    raise ValueError(
-                        f"bit {bname} of {req.signal} is not writable; writable: {writable}"
-                    )
-                bits[b.bit] = on
-            await self.commands.write_bits(req.node, req.signal, bits)
-            return {
-                "ok": True,
-                "node": req.node,
-                "signal": req.signal,
-                "bits": body.bits,
-                "via": via,
-            }
-        raw = body.value if body.raw else to_raw(sig, body.value, self.scaling(req.node, sig))
-        await self.commands.write_signal(req.node, req.signal, raw)
-        return {
-            "ok": True,
-            "node": req.node,
-            "signal": req.signal,
-            "value": body.value,
-            "raw": raw,
-            "via": via,
-        }
-
-    # ------------------------------------------------------------------ read-only answers
-    def _value_now(self, node: NodeImage, sig: Signal) -> dict[str, Any]:
-        sv = node.signals[sig.name]
-        return value_payload(sig, sv, node.quality(sv), self.scaling(node.name, sig))
+        """Answer one concrete query key (see ``QueryService.dispatch``)."""
+        return await self.queries.dispatch(key, payload, type_param)
 
     def snapshot(self, node: NodeImage) -> dict[str, Any]:
-        rt = self.commands.node(node.name)
-        values = {
-            sig.name: self._value_now(node, sig)
-            for sig in rt.lp.profile.signals
-            if sig.transport == "pdo"
-        }
-        return {"node": node.name, "state": state_payload(node), "values": values}
+        return self.queries.snapshot(node)
 
     def catalog(self) -> dict[str, Any]:
-        """The app's catalogue (types, units, Modbus addresses) with this node's Zenoh keys and
-        the scaling in force (overrides applied)."""
-        cat = dict(self.catalog_fn()) if self.catalog_fn else {"nodes": {}}
-        p = self.prefix
-        cat.setdefault("gateway", self.cfg.gateway.name)
-        cat.setdefault("version", __version__)
-        cat["prefix"] = p
-        can_kw = self.cfg.can.bus_kwargs()
-        cat["can"] = {
-            k: can_kw[k] for k in ("interface", "channel", "bitrate") if can_kw.get(k) is not None
-        }
-        cat["writes"] = self.cfg.zenoh.writes
-        for name, n in cat.get("nodes", {}).items():
-            try:
-                rt = self.commands.node(name)
-            except GatewayError:
-                continue
-            n["keys"] = {
-                "alive": alive_key(p, name),
-                "state": state_key(p, name),
-                "emcy": emcy_key(p, name),
-                "snapshot": snapshot_key(p, name),
-                "nmt": nmt_key(p, name),
-                "set": set_key(p, name),
-            }
-            for sname, s in n.get("signals", {}).items():
-                try:
-                    sig = rt.lp.profile.signal(sname)
-                except KeyError:
-                    continue
-                sc = self.scaling(name, sig)
-                s["unit"], s["scale"], s["offset"] = sc.unit, sc.scale, sc.offset
-                keys: dict[str, str] = {}
-                if (name, sname) in self.pubs:
-                    keys["value"] = value_key(p, name, sname)
-                elif sig.transport == "sdo" and sig.access != "wo":
-                    keys["get"] = value_key(p, name, sname)
-                if is_writable(sig):
-                    keys["set"] = set_key(p, name, sname)
-                s["zenoh"] = keys
-        return cat
+        return self.queries.catalog()

@@ -1,0 +1,344 @@
+"""Zenoh queries: every answer of the gateway's queryable on ``<prefix>/**``.
+
+The zenoh callback only hands the query to the event loop (``on_query``); there the command
+service answers it (SDO, set points, NMT), or the process image does (state, snapshot, latest
+value, catalogue), and the query is finalised with a reply or a ``reply_err``. Nothing a client
+sends may crash the gateway: a bad request is answered with its error kind. Writes (``set``,
+SDO download, ``nmt``) pass the write gate first (``zenoh.writes``, ``zenoh.write_allow``); a
+refused one is answered ``forbidden``, counted in ``refused`` (``zenoh_refused_total``) and
+logged at most once per period per operation. A key expression with wildcards gets the
+read-only answers it matches, never a command.
+
+The publishing side (``bridge.py``) owns the session and the publishers; this side reads the
+session through a function and knows the published value keys and their scaling as given at
+construction.
+
+Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, zenoh_bridge.keys,
+payloads, access. Nothing of bus/ or modbus/.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from collections.abc import Callable, Collection, Mapping, Sequence
+from typing import Any
+
+import zenoh
+
+from gateway import __version__
+from gateway.commands import CommandService
+from gateway.config import Config
+from gateway.errors import Forbidden, GatewayError
+from gateway.image import NodeImage, ProcessImage
+from gateway.profiles.schema import Signal
+from gateway.ratelimit import RateLimitedLog
+from gateway.zenoh_bridge.access import WriteGate
+from gateway.zenoh_bridge.keys import (
+    Request,
+    alive_key,
+    catalog_key,
+    emcy_key,
+    has_wildcard,
+    is_writable,
+    nmt_key,
+    parse_key,
+    set_key,
+    snapshot_key,
+    state_key,
+    value_key,
+)
+from gateway.zenoh_bridge.payloads import (
+    Scaling,
+    engineering,
+    error_payload,
+    nmt_command,
+    reply_value,
+    sdo_write_body,
+    set_body,
+    set_many_body,
+    state_payload,
+    to_raw,
+    value_payload,
+)
+
+log = logging.getLogger("gateway.zenoh")
+
+JSON = zenoh.Encoding.APPLICATION_JSON
+REFUSAL_LOG_PERIOD_S = 10.0
+
+
+def write_operation(req: Request, payload: bytes | None) -> str | None:
+    """The write a request is (``zenoh.write_allow`` operations), or None for a read."""
+    if req.kind in ("set", "set_many"):
+        return "set"
+    if req.kind == "nmt":
+        return "nmt"
+    if req.kind == "sdo" and payload:
+        return "sdo_write"
+    return None
+
+
+class QueryService:
+    """The answers of the queryable (see the module docstring)."""
+
+    def __init__(
+        self,
+        cfg: Config,
+        image: ProcessImage,
+        commands: CommandService,
+        prefix: str,
+        *,
+        session: Callable[[], zenoh.Session | None],
+        scaling: Callable[[str, Signal], Scaling],
+        value_keys: Mapping[str, Sequence[tuple[str, Signal]]],
+        catalog_fn: Callable[[], dict[str, Any]] | None = None,
+    ):
+        self.cfg = cfg
+        self.image = image
+        self.commands = commands
+        self.prefix = prefix
+        self.session = session
+        self.scaling = scaling
+        #: per node, the published value keys and their signals (the publishing side's plan)
+        self.value_keys = value_keys
+        self.published: Collection[tuple[str, str]] = frozenset(
+            (node, sig.name) for node, keys in value_keys.items() for _key, sig in keys
+        )
+        self.catalog_fn = catalog_fn
+        self.gate = WriteGate(cfg.zenoh)
+        self.loop: asyncio.AbstractEventLoop | None = None  # set when the bridge starts
+        #: refused writes by operation (``zenoh_refused_total{operation}``)
+        self.refused: dict[str, int] = {}
+        self._refusal_log = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
+        self._answers: set[asyncio.Future[Any]] = set()
+
+    def on_query(self, query: zenoh.Query) -> None:
+        """Zenoh thread: hand over to the event loop; never block here."""
+        loop = self.loop
+        if loop is None or loop.is_closed() or self.session() is None:
+            query.drop()
+            return
+        try:
+            loop.call_soon_threadsafe(self._spawn_answer, query)
+        except RuntimeError:
+            query.drop()
+
+    def _spawn_answer(self, query: zenoh.Query) -> None:
+        fut = asyncio.ensure_future(self._answer(query))
+        self._answers.add(fut)
+        fut.add_done_callback(self._answers.discard)
+
+    def _reply(self, query: zenoh.Query, key: str, result: Any) -> None:
+        s = self.session()
+        query.reply(
+            key,
+            json.dumps(result),
+            encoding=JSON,
+            timestamp=s.new_timestamp() if s is not None else None,
+        )
+
+    async def _answer(self, query: zenoh.Query) -> None:
+        key = str(query.key_expr)
+        try:
+            if has_wildcard(key):
+                self._answer_wildcard(query, key)
+                return
+            payload = query.payload.to_bytes() if query.payload is not None else None
+            type_param = query.parameters.get("type")
+            result = await self.dispatch(key, payload, type_param)
+            self._reply(query, key, result)
+        except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
+            if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
+                log.exception("zenoh query %s failed", key)
+            try:
+                query.reply_err(json.dumps(error_payload(exc, key)), encoding=JSON)
+            except zenoh.ZError:
+                pass
+        finally:
+            query.drop()
+
+    def _answer_wildcard(self, query: zenoh.Query, key: str) -> None:
+        """A key expression with wildcards gets the read-only answers it matches (catalogue,
+        states, snapshots, latest values); commands and SDO never run on a wildcard."""
+        ke = zenoh.KeyExpr(key)
+        p = self.prefix
+        if ke.intersects(catalog_key(p)):
+            self._reply(query, catalog_key(p), self.catalog())
+        for name, node in self.image.nodes.items():
+            if ke.intersects(state_key(p, name)):
+                self._reply(query, state_key(p, name), state_payload(node))
+            if ke.intersects(snapshot_key(p, name)):
+                self._reply(query, snapshot_key(p, name), self.snapshot(node))
+            for vkey, sig in self.value_keys.get(name, ()):
+                if ke.intersects(vkey):
+                    self._reply(query, vkey, self._value_now(node, sig))
+
+    async def dispatch(self, key: str, payload: bytes | None, type_param: str | None = None) -> Any:
+        """Answer one concrete query key (also usable without zenoh, e.g. from tests)."""
+        req = parse_key(self.prefix, key)
+        op = write_operation(req, payload)
+        if op is not None:
+            self._authorize(op, req.node, key)
+        if req.kind == "catalog":
+            return self.catalog()
+        rt = self.commands.node(req.node)
+        node = rt.image
+        if req.kind == "snapshot":
+            return self.snapshot(node)
+        if req.kind == "state":
+            return state_payload(node)
+        if req.kind == "nmt":
+            cmd = nmt_command(payload)
+            self.commands.nmt(req.node, cmd)
+            return {"ok": True, "node": req.node, "nmt": cmd}
+        if req.kind == "sdo":
+            return await self._sdo(req, payload, type_param)
+        if req.kind == "value":
+            sig = self.commands.signal(rt, req.signal)
+            if sig.transport == "sdo":
+                raw = await self.commands.read_signal(req.node, req.signal)
+                sc = self.scaling(req.node, sig)
+                return {
+                    "value": engineering(sig, raw, sc),
+                    "unit": sc.unit,
+                    "ts": time.time(),
+                    "quality": "good",
+                    "seq": None,
+                    "source": "sdo",
+                }
+            return self._value_now(node, sig)
+        if req.kind == "set":
+            return await self._set(req, payload)
+        if req.kind == "set_many":
+            body = set_many_body(payload)
+            raws = {}
+            for name, value in body.items():
+                sig = self.commands.signal(rt, name)
+                raws[name] = to_raw(sig, value, self.scaling(req.node, sig))
+            await self.commands.write_signals(req.node, raws)
+            return {"ok": True, "node": req.node, "written": raws}
+        raise ValueError(f"unsupported request {req.kind}")  # pragma: no cover
+
+    def _authorize(self, operation: str, node: str, key: str) -> None:
+        """Raise ``Forbidden`` (counted, logged at most once per period per operation) unless
+        the configuration allows this write."""
+        why = self.gate.refusal(operation, node, key)
+        if why is None:
+            return
+        self.refused[operation] = self.refused.get(operation, 0) + 1
+        self._refusal_log.warning(
+            ("zenoh_refused", operation),
+            "Zenoh %s refused on %s: %s (refused so far: %d)",
+            operation,
+            key,
+            why,
+            self.refused[operation],
+        )
+        raise Forbidden(why)
+
+    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None) -> Any:
+        assert req.obj is not None
+        obj = str(req.obj)
+        if payload:
+            value, typ = sdo_write_body(payload)
+            await self.commands.sdo_write(req.node, req.obj, value, typ or type_param)
+            return {"ok": True, "node": req.node, "object": obj, "value": reply_value(value)}
+        value = await self.commands.sdo_read(req.node, req.obj, type_param)
+        return {"node": req.node, "object": obj, "value": reply_value(value)}
+
+    async def _set(self, req: Request, payload: bytes | None) -> Any:
+        rt = self.commands.node(req.node)
+        sig = self.commands.signal(rt, req.signal)
+        body = set_body(payload)
+        via = "rpdo" if rt.is_output(req.signal) else "sdo"
+        if body.bits is not None:
+            named = {b.name: b for b in sig.bits}
+            bits: dict[int, bool] = {}
+            for bname, on in body.bits.items():
+                b = named.get(bname)
+                if b is None:
+                    raise ValueError(f"{req.signal} has no bit {bname!r}; bits: {sorted(named)}")
+                if not b.writable or b.width != 1:
+                    writable = sorted(n for n, x in named.items() if x.writable and x.width == 1)
+                    raise ValueError(
+                        f"bit {bname} of {req.signal} is not writable; writable: {writable}"
+                    )
+                bits[b.bit] = on
+            await self.commands.write_bits(req.node, req.signal, bits)
+            return {
+                "ok": True,
+                "node": req.node,
+                "signal": req.signal,
+                "bits": body.bits,
+                "via": via,
+            }
+        raw = body.value if body.raw else to_raw(sig, body.value, self.scaling(req.node, sig))
+        await self.commands.write_signal(req.node, req.signal, raw)
+        return {
+            "ok": True,
+            "node": req.node,
+            "signal": req.signal,
+            "value": body.value,
+            "raw": raw,
+            "via": via,
+        }
+
+    # ------------------------------------------------------------------ read-only answers
+    def _value_now(self, node: NodeImage, sig: Signal) -> dict[str, Any]:
+        sv = node.signals[sig.name]
+        return value_payload(sig, sv, node.quality(sv), self.scaling(node.name, sig))
+
+    def snapshot(self, node: NodeImage) -> dict[str, Any]:
+        rt = self.commands.node(node.name)
+        values = {
+            sig.name: self._value_now(node, sig)
+            for sig in rt.lp.profile.signals
+            if sig.transport == "pdo"
+        }
+        return {"node": node.name, "state": state_payload(node), "values": values}
+
+    def catalog(self) -> dict[str, Any]:
+        """The app's catalogue (types, units, Modbus addresses) with this node's Zenoh keys and
+        the scaling in force (overrides applied)."""
+        cat = dict(self.catalog_fn()) if self.catalog_fn else {"nodes": {}}
+        p = self.prefix
+        cat.setdefault("gateway", self.cfg.gateway.name)
+        cat.setdefault("version", __version__)
+        cat["prefix"] = p
+        can_kw = self.cfg.can.bus_kwargs()
+        cat["can"] = {
+            k: can_kw[k] for k in ("interface", "channel", "bitrate") if can_kw.get(k) is not None
+        }
+        cat["writes"] = self.cfg.zenoh.writes
+        for name, n in cat.get("nodes", {}).items():
+            try:
+                rt = self.commands.node(name)
+            except GatewayError:
+                continue
+            n["keys"] = {
+                "alive": alive_key(p, name),
+                "state": state_key(p, name),
+                "emcy": emcy_key(p, name),
+                "snapshot": snapshot_key(p, name),
+                "nmt": nmt_key(p, name),
+                "set": set_key(p, name),
+            }
+            for sname, s in n.get("signals", {}).items():
+                try:
+                    sig = rt.lp.profile.signal(sname)
+                except KeyError:
+                    continue
+                sc = self.scaling(name, sig)
+                s["unit"], s["scale"], s["offset"] = sc.unit, sc.scale, sc.offset
+                keys: dict[str, str] = {}
+                if (name, sname) in self.published:
+                    keys["value"] = value_key(p, name, sname)
+                elif sig.transport == "sdo" and sig.access != "wo":
+                    keys["get"] = value_key(p, name, sname)
+                if is_writable(sig):
+                    keys["set"] = set_key(p, name, sname)
+                s["zenoh"] = keys
+        return cat
