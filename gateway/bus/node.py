@@ -12,6 +12,10 @@ Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the t
 executes what they return: ``Send`` frames, ``SdoDone`` results, ``ValuesRead``,
 ``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when ``tick`` is next due;
 the driver sleeps until the earliest deadline of all nodes.
+Rule 3: queued work never waits for an unrelated timer. A handler that queues SDO work starts it
+when the channel is free (``_drive``), and while work is queued with no transfer running the
+channel's deadline is the moment it was queued (``SdoChannel.next_deadline``), so the driver
+ticks the node at once even on a path that forgot to drive.
 
 The decisions are tables below: what the node-guarding master expects in each lifecycle state
 (``GUARD_EXPECTS``), what an NMT command makes the node's expected state (``NMT_EXPECTS``), what
@@ -257,6 +261,7 @@ class Node:
         ]
         if self.ref is not None and not self.passive:
             out += self._check_reference(now)
+            out += self._drive(now)  # start it now if the channel is free
         return out
 
     def on_echo(self, bit: int, now: float) -> list[Output]:
@@ -282,7 +287,7 @@ class Node:
         self, obj: ObjRef, data: bytes | None, now: float, purpose: str = "user", arg: Any = None
     ) -> tuple[int, list[Output]]:
         """Queue an SDO upload (``data`` None) or download; ``SdoDone(token)`` reports it."""
-        token = self.sdo.queue(obj, data, purpose, arg)
+        token = self.sdo.queue(obj, data, purpose, now, arg)
         return token, self._drive(now)
 
     def on_nmt_command(self, command: str) -> None:
@@ -338,7 +343,7 @@ class Node:
         out += self._set_nmt(NmtState.PRE_OPERATIONAL)
         out += self._set_alive(True, now)
         # a boot-up ends whatever transfer was running: the device forgot it
-        cancelled = self.sdo.cancel_active()
+        cancelled = self.sdo.cancel_active(now)
         if cancelled is not None and cancelled.purpose == "user":
             out.append(SdoDone(cancelled.token, None, None, timed_out=True))
         self.sdo.drop(lambda j: j.purpose == "user")
@@ -438,7 +443,7 @@ class Node:
                 if self.verify_reads:
                     self._verify_held = {}
                     for r in self.verify_reads:
-                        self.sdo.queue(r.object, None, "verify", r)
+                        self.sdo.queue(r.object, None, "verify", now, r)
                 if self.s.rtr_poll_ms:
                     self._rtr_due_s = now + self.s.rtr_poll_ms / 1000.0
         if changes:
@@ -567,7 +572,7 @@ class Node:
         self.next_probe_s = now + self.s.probe_period_s
         if self._probe_in_flight() is not None:
             return []
-        self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe")
+        self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe", now)
         return []
 
     def _refresh(self, now: float) -> list[Output]:
@@ -578,14 +583,14 @@ class Node:
                 out.append(Send(r.codec.cob_id, b"", rtr=True, dlc=r.codec.length))
             else:
                 for name, obj, type_ in r.objects:
-                    self.sdo.queue(obj, None, "refresh", (name, obj, type_))
+                    self.sdo.queue(obj, None, "refresh", now, (name, obj, type_))
         return out
 
     # ================================================================== internals: features
     def _check_reference(self, now: float) -> list[Output]:
         """Feature ``referencing``: read whether the position is referenced."""
         assert self.ref is not None
-        self.sdo.queue(self.ref.status, None, "reference")
+        self.sdo.queue(self.ref.status, None, "reference", now)
         return []
 
     def _set_referenced(self, ok: bool) -> list[Output]:

@@ -40,6 +40,9 @@ class SdoChannel:
         self.jobs: deque[SdoJob] = deque()
         self.active: Finished | None = None
         self._tokens = 0
+        # when work waiting in ``jobs`` became startable (nothing running): the owner's next
+        # deadline, so queued work never waits for an unrelated timer (None: nothing waits)
+        self._ready_since: float | None = None
 
     # -- queries
     @property
@@ -51,7 +54,11 @@ class SdoChannel:
         return self.active is not None or bool(self.jobs)
 
     def next_deadline(self) -> float | None:
-        return self.active[1].next_deadline() if self.active else None
+        """The running transfer's timeout; with none running and work queued, the moment the
+        work was queued (i.e. due now): queued work is started by the owner's next tick."""
+        if self.active is not None:
+            return self.active[1].next_deadline()
+        return self._ready_since if self.jobs else None
 
     def find(self, purpose: str) -> SdoJob | None:
         if self.active is not None and self.active[0].purpose == purpose:
@@ -63,13 +70,20 @@ class SdoChannel:
         self._tokens += 1
         return self._tokens
 
-    def queue(self, obj: ObjRef, data: bytes | None, purpose: str, arg: Any = None) -> int:
+    def queue(
+        self, obj: ObjRef, data: bytes | None, purpose: str, now: float, arg: Any = None
+    ) -> int:
+        """Queue a transfer at ``now``; the owner starts it when the channel is free."""
         token = self.token()
         self.jobs.append(SdoJob(token, obj, data, purpose, arg))
+        if self.active is None and self._ready_since is None:
+            self._ready_since = now
         return token
 
     def drop(self, keep: Callable[[SdoJob], bool]) -> None:
         self.jobs = deque(j for j in self.jobs if keep(j))
+        if not self.jobs:
+            self._ready_since = None
 
     # -- transfers
     def start(self, job: SdoJob, now: float) -> list[Send]:
@@ -78,6 +92,7 @@ class SdoChannel:
             job.obj.index, job.obj.sub, job.data, timeout_s=self.timeout_s, retries=self.retries
         )
         self.active = (job, tr)
+        self._ready_since = None
         return self._frames(tr.start(now))
 
     def start_next(self, now: float) -> list[Send]:
@@ -88,27 +103,31 @@ class SdoChannel:
     def on_response(self, data: bytes, now: float) -> tuple[list[Send], Finished | None]:
         if self.active is None:
             return [], None
-        return self._step(self.active[1].on_response(data, now))
+        return self._step(self.active[1].on_response(data, now), now)
 
     def poll(self, now: float) -> tuple[list[Send], Finished | None]:
         if self.active is None:
             return [], None
-        return self._step(self.active[1].poll(now))
+        return self._step(self.active[1].poll(now), now)
 
-    def cancel_active(self) -> SdoJob | None:
+    def cancel_active(self, now: float) -> SdoJob | None:
         """End the running transfer without an abort frame (the device rebooted)."""
         if self.active is None:
             return None
         job, tr = self.active
         tr.cancel(send_abort=False)
         self.active = None
+        if self.jobs:
+            self._ready_since = now
         return job
 
-    def _step(self, frames: list[bytes]) -> tuple[list[Send], Finished | None]:
+    def _step(self, frames: list[bytes], now: float) -> tuple[list[Send], Finished | None]:
         assert self.active is not None
         out = self._frames(frames)
         if self.active[1].done:
             finished, self.active = self.active, None
+            if self.jobs:  # the next one is startable from now
+                self._ready_since = now
             return out, finished
         return out, None
 

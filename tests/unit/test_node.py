@@ -37,6 +37,7 @@ class Device:
         self.answer_sdo = True
         self.downloads: list[tuple[int, int, bytes]] = []
         self.uploads: list[tuple[int, int]] = []
+        self.objects: dict[tuple[int, int], int] = {}  # upload answers other than 0x1234
 
     def on_frame(self, s: Send) -> list[tuple[float, int, bytes]]:
         """(delay, COB-ID, data) the device sends in answer to a frame of the gateway."""
@@ -68,6 +69,7 @@ class Device:
             if cmd == 0x40:
                 self.uploads.append((index, sub))
                 value = self.device_type if (index, sub) == (0x1000, 0) else 0x1234
+                value = self.objects.get((index, sub), value)
                 return [
                     (
                         self.sdo_delay_s,
@@ -431,3 +433,85 @@ def test_no_sequence_of_frames_a_device_sends_makes_the_node_raise(events: list)
                 h.node.tick(now)
         deadline = h.node.next_deadline()
         assert deadline is None or deadline >= 0.0
+
+
+# --------------------------------------------------------------------------- queued work runs
+
+
+def test_an_emcy_starts_the_referencing_read_at_once_between_heartbeats() -> None:
+    """MSK5000 (manual 001, 5115h; EMCY FF10h): after an EMCY the reference state is read at
+    once, not when an unrelated timer fires. Heartbeats every 200 ms keep pushing the node's
+    supervision deadline on, so a queued read that waited for a tick would never start."""
+    h = Harness("msk5000", node_id=37, heartbeat_ms=200)
+    h.device.objects[(0x5115, 0)] = 1  # referenced
+    h.start()
+    h.bootup(1.0)
+    h.heartbeats(1.05, 8.05, period=0.2)
+    h.run_until(3.0)
+    assert "position" not in h.image.health.invalid_signals  # referenced after configuration
+
+    def reference_lost() -> list[Any]:
+        h.device.objects[(0x5115, 0)] = 0
+        return h.node.on_emcy(bytes([0x10, 0xFF, 0x81, 0, 0, 0, 0, 0]), 0.0, h.now)
+
+    h.at(3.05, reference_lost)
+    h.run_until(8.05)
+    reads = [(t, s) for t, s in h.frames(0x625, after=3.0) if s.data[:4] == b"\x40\x15\x51\x00"]
+    assert reads and reads[0][0] == 3.05  # the upload of 5115h goes out with the EMCY
+    assert "position" in h.image.health.invalid_signals  # and the position is not valid
+    assert not h.node.sdo.busy
+
+
+def _queued_work_waits(node: Any, now: float) -> bool:
+    """An SDO job is queued, none runs, and the node would not be ticked before ``later``."""
+    if not node.sdo.jobs or not node.sdo.idle:
+        return False
+    deadline = node.next_deadline()
+    return deadline is None or deadline > now
+
+
+_work_events = st.lists(
+    st.one_of(
+        st.tuples(st.just("hb"), st.sampled_from([0x00, 0x05, 0x7F, 0x04])),
+        st.tuples(st.just("emcy"), st.sampled_from([b"\x10\xff\x81\0\0\0\0\0", b"\0\0\0"])),
+        st.tuples(st.just("sdo_answer"), st.integers(0, 1)),
+        st.tuples(st.just("sdo_req"), st.integers(0, 1)),
+        st.tuples(st.just("tick"), st.floats(0.0, 0.5)),
+        st.tuples(st.just("wait"), st.floats(0.0, 0.5)),
+    ),
+    max_size=50,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(_work_events)
+def test_queued_sdo_work_is_never_left_waiting_for_an_unrelated_deadline(events: list) -> None:
+    """After any sequence of events: if an SDO job is queued and no transfer runs, the node's
+    next deadline is not later than now (the driver ticks it at once)."""
+    for profile, extra in (("msk5000", {"node_id": 37}), ("posi_plus", {"supervision": "guarding"})):
+        h = Harness(profile, **extra)
+        h.start(probe=True)
+        now = 0.0
+        for kind, arg in events:
+            if kind == "hb":
+                h.node.on_nmt_ec(arg, now)
+            elif kind == "emcy":
+                h.node.on_emcy(arg, 0.0, now)
+            elif kind == "sdo_answer" and h.node.sdo.active is not None:
+                job, _tr = h.node.sdo.active
+                cmd = 0x60 if job.data is not None else 0x4F
+                raw = bytes([cmd]) + job.obj.index.to_bytes(2, "little") + bytes([job.obj.sub])
+                h.node.on_sdo_response(raw + bytes([arg, 0, 0, 0]), now)
+            elif kind == "sdo_req":
+                from gateway.objref import ObjRef
+
+                h.node.request_sdo(ObjRef(0x1018, 1), None if arg else b"\x01", now)
+            elif kind == "tick":
+                now += arg
+                h.node.tick(now)
+            else:
+                now += arg  # time passes without a tick
+                dl = h.node.next_deadline()
+                if dl is not None and dl <= now:
+                    h.node.tick(now)
+            assert not _queued_work_waits(h.node, now), (kind, arg, now)
