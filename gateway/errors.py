@@ -19,7 +19,7 @@ class SdoAbort(GatewayError):
     kind = "sdo_abort"
 
     def __init__(self, code: int, node: str | None = None, obj: str | None = None):
-        from gateway.bus.sdo_text import abort_text
+        from gateway.cia301 import abort_text
 
         self.code = code
         self.text = abort_text(code)

@@ -4,12 +4,14 @@ NMT command table.
 Every part of the gateway (the master and its supervision machines, the process image, Modbus,
 Zenoh, the simulator) uses these enums; none defines its own.
 
-Imports: the standard library only.
+Imports: cia301 (the NMT command specifiers) and the standard library.
 """
 
 from __future__ import annotations
 
 from enum import IntEnum
+
+from gateway import cia301
 
 
 class NmtState(IntEnum):
@@ -42,14 +44,7 @@ class LinkState(IntEnum):
         return self.name.lower()
 
 
-#: NMT command names and command specifiers (SGH10 manual 4.2.1.2 table 3; AP05 5.2.1.2
-#: table 23). The one table: the CLI, Modbus (HR 0 codes are these specifiers), Zenoh and the
-#: master all read it.
-NMT_COMMANDS: dict[str, int] = {
-    "start": 0x01,
-    "stop": 0x02,
-    "preop": 0x80,
-    "reset": 0x81,
-    "reset-comm": 0x82,
-}
-NMT_BY_CODE: dict[int, str] = {v: k for k, v in NMT_COMMANDS.items()}
+#: NMT command names and command specifiers: defined in cia301, named here for the modules
+#: that speak of node states (the CLI, Modbus HR 0, Zenoh and the master read it).
+NMT_COMMANDS = cia301.NMT_COMMANDS
+NMT_BY_CODE = cia301.NMT_BY_CODE

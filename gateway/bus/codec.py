@@ -14,7 +14,7 @@ read-back alone (wrong for devices whose mapping objects do not show the layout 
 as the POSI+ with its PDO type object 2005h, manual 002 5; ``verify_mapping`` compares where
 the mapping objects do describe it).
 
-Imports: profiles (schema), objref. Nothing northbound.
+Imports: cia301, profiles (schema), objref. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -24,6 +24,12 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from gateway.cia301 import (
+    OCTET_STRING,
+    REAL32,
+    SIGNED_TYPES,
+    VISIBLE_STRING,
+)
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import PdoMappingError, pdo_cob_id
@@ -38,8 +44,6 @@ __all__ = ["PdoMappingError", "RpdoCodec", "TpdoCodec", "apply_pdo_writes", "com
 _CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h", (32, False): "I",
           (32, True): "i", (64, False): "Q", (64, True): "q"}  # fmt: skip
 
-_SIGNED_OD = {0x0002, 0x0003, 0x0004, 0x0010, 0x0015}  # INTEGER8/16/32/24/64 (DS-301 table 44)
-_REAL32 = 0x0008
 
 
 @dataclass(frozen=True)
@@ -58,10 +62,10 @@ def _field_kind(lp: LoadedProfile, obj: ObjRef, sig: Signal | None) -> tuple[boo
         t = sig.type
         return t.startswith("int"), t == "float32", t in ("string", "bytes")
     if obj.index < 0x1000:  # a DS-301 dummy data type entry
-        return obj.index in _SIGNED_OD, obj.index == _REAL32, False
+        return obj.index in SIGNED_TYPES, obj.index == REAL32, False
     var = lp.od_var(obj)
     dt = var.data_type if var is not None else 0
-    return dt in _SIGNED_OD, dt == _REAL32, dt in (0x0009, 0x000A)
+    return dt in SIGNED_TYPES, dt == REAL32, dt in (VISIBLE_STRING, OCTET_STRING)
 
 
 def compile_fields(lp: LoadedProfile, pdo: Pdo) -> list[Field]:
@@ -179,9 +183,6 @@ class RpdoCodec:
         return word.to_bytes(self.length, "little")
 
 
-#: DS-301: COB-ID bit 31 = PDO not valid (MSK5000 manual 4.3.1.2 step 2); bits 0..10 the CAN-ID.
-COB_ID_INVALID = 0x80000000
-COB_ID_MASK_11BIT = 0x7FF
 
 
 def pdo_objects(lp: LoadedProfile, kind: Literal["tpdo", "rpdo"], number: int) -> tuple[int, int]:

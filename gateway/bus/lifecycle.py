@@ -10,7 +10,7 @@ returns the list of changes it caused.
 
 The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/boot_steps.py``.
 
-Imports: gateway.bus.boot_steps (the step type), gateway.bus.sdo_text and the standard library.
+Imports: gateway.bus.boot_steps (the step type), gateway.cia301 and the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
 
@@ -22,7 +22,11 @@ from enum import StrEnum
 from typing import Literal, NamedTuple
 
 from gateway.bus.boot_steps import ConfigStep
-from gateway.bus.sdo_text import abort_text
+from gateway.cia301 import (
+    NMT_ENTER_PRE_OPERATIONAL,
+    NMT_START,
+    abort_text,
+)
 
 # --------------------------------------------------------------------------- machine
 
@@ -76,12 +80,6 @@ class SendNmt(NamedTuple):
 
 Action = Wait | WriteStep | SendNmt
 
-#: SGH10 manual 4.2.1.2 table 3 / AP05 manual 5.2.1.2 table 23: NMT command specifiers.
-NMT_START = 0x01
-NMT_STOP = 0x02
-NMT_ENTER_PRE_OPERATIONAL = 0x80
-NMT_RESET_NODE = 0x81
-NMT_RESET_COMMUNICATION = 0x82
 
 # -- changes (what happened)
 

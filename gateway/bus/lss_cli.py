@@ -31,7 +31,7 @@ I/O, parses the arguments and prints. When the config simulates nodes (``simulat
 run in this process on the same bus, so the commands can be tried without hardware.
 
 Imports: python-can, gateway.bus.lss, gateway.config, gateway.profiles, gateway.objref,
-gateway.bus.sdo_text; gateway.sim only when the config simulates nodes. Nothing northbound.
+gateway.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ from typing import Any, TextIO
 import can
 
 from gateway.bus import lss
-from gateway.bus.sdo_text import abort_text
+from gateway.cia301 import abort_text
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles import ProfileError, load_node_profile, load_profile

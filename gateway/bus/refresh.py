@@ -6,7 +6,7 @@ gateway would wait forever for values it may serve as good. So right after NMT s
 by RTR when the PDO allows remote requests (COB-ID bit 30 = 0), else by one SDO upload per
 mapped object. Types 252/253 (on RTR only) are asked by RTR. Cyclic and SYNC PDOs need nothing.
 
-Imports: bus.codec, bus.events (the plan's record), objref. No I/O.
+Imports: bus.codec, bus.events (the plan's record), cia301, objref. No I/O.
 """
 
 from __future__ import annotations
@@ -16,12 +16,11 @@ from typing import Any
 
 from gateway.bus.codec import TpdoCodec, pdo_objects
 from gateway.bus.events import Refresh
+from gateway.cia301 import COB_ID_NO_RTR, TRANSMISSION_EVENT, TRANSMISSION_RTR_ONLY
 from gateway.objref import ObjRef
 
-#: DS-301 7.5.2.35: COB-ID bit 30 = 1: no RTR allowed on this PDO.
-COB_ID_NO_RTR = 0x40000000
-CHANGE_ONLY = (254, 255)
-RTR_ONLY = (252, 253)
+CHANGE_ONLY = TRANSMISSION_EVENT
+RTR_ONLY = TRANSMISSION_RTR_ONLY
 
 
 def _od_default(lp: Any, obj: ObjRef, node_id: int) -> int | None:

@@ -3,13 +3,15 @@
 The one encoding of values for SDO downloads and decoding of uploads, used by the boot steps,
 the command service and the CLI.
 
-Imports: the standard library.
+Imports: cia301 (the data type codes) and the standard library.
 """
 
 from __future__ import annotations
 
 import struct
 from typing import Any
+
+from gateway.cia301 import TYPE_NAMES
 
 _PACK: dict[str, str] = {
     "bool": "<B",  # DS-301 BOOLEAN travels as one byte in an SDO
@@ -25,22 +27,7 @@ _PACK: dict[str, str] = {
 }
 
 #: canopen / DS-301 data type codes -> profile type names.
-OD_TYPE_NAMES: dict[int, str] = {
-    0x0001: "bool",
-    0x0002: "int8",
-    0x0003: "int16",
-    0x0004: "int32",
-    0x0005: "uint8",
-    0x0006: "uint16",
-    0x0007: "uint32",
-    0x0008: "float32",
-    0x0009: "string",
-    0x000A: "bytes",
-    0x0010: "int24",
-    0x0015: "int64",
-    0x0016: "uint24",
-    0x001B: "uint64",
-}
+OD_TYPE_NAMES = TYPE_NAMES
 
 
 def encode_value(value: int | float | str | bytes, type_: str) -> bytes:

@@ -29,7 +29,7 @@ manuals say so (SGH10 manual 000/003 section numbers unless noted):
 - a motion model (motion.py) for the position / velocity objects named by the profile's
   ``sim:`` hints, and the behaviours of the profile's features (behaviours/).
 
-Imports: python-can (Message only), gateway.profiles (LoadedProfile), gateway.objref and the
+Imports: python-can (Message only), gateway.cia301, gateway.profiles (LoadedProfile), gateway.objref and the
 other gateway.sim modules. Nothing of bus/, modbus/, zenoh_bridge/.
 """
 
@@ -42,6 +42,28 @@ from typing import Any, Literal
 import can
 
 import gateway.sim.pdo as pdo
+from gateway.cia301 import (
+    BOOLEAN,
+    COB_EMCY,
+    COB_ID_INVALID,
+    COB_ID_MASK_29BIT,
+    COB_ID_NO_RTR,
+    COB_NMT,
+    COB_NMT_EC,
+    COB_SDO_RX,
+    COB_SDO_TX,
+    COB_SYNC,
+    NMT_ENTER_PRE_OPERATIONAL,
+    NMT_RESET_COMMUNICATION,
+    NMT_RESET_NODE,
+    NMT_START,
+    NMT_STOP,
+    NUMERIC_TYPES,
+    REAL32,
+    REAL64,
+    SIGNED_TYPES,
+    TYPE_BITS,
+)
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.sim.behaviours import Behaviour, behaviour_for
@@ -62,30 +84,18 @@ from gateway.sim.objects import (
 from gateway.sim.sdo import SdoServer
 from gateway.states import NmtState
 
-# NMT command specifiers (SGH10 manual 4.2.1.2, Table 3)
-NMT_START = 0x01
-NMT_STOP = 0x02
-NMT_PRE_OPERATIONAL = 0x80
-NMT_RESET_NODE = 0x81
-NMT_RESET_COMMUNICATION = 0x82
-
 # 1010h / 1011h signatures, ASCII "save" / "load" little-endian (SGH10 manual 4.7.2.11/12)
 SIGNATURE_SAVE = 0x65766173
 SIGNATURE_LOAD = 0x64616F6C
 
-COB_NMT = 0x000
-COB_SYNC_DEFAULT = 0x080
-COB_EMCY_BASE = 0x080
-COB_SDO_RX_BASE = 0x600
-COB_SDO_TX_BASE = 0x580
-COB_NMT_ERROR_BASE = 0x700  # boot-up, heartbeat and node guarding (4.2.2, 4.5.2, 4.5.3)
 
 ResetKind = Literal["power", "node", "communication"]
 
-#: numeric data types the default motion drives, with their bits (CiA 301 table 44)
-_NUMERIC_TYPES = {0x0001: 1, 0x0002: 8, 0x0003: 16, 0x0004: 32, 0x0005: 8, 0x0006: 16,
-                  0x0007: 32, 0x0008: 32, 0x0010: 24, 0x0011: 64, 0x0015: 64, 0x0016: 24,
-                  0x001B: 64}  # fmt: skip
+#: CiA 301 7.5.2.5 (1005h): bit 30 = 1, this node generates SYNC
+SYNC_GENERATOR = 1 << 30
+
+#: numeric data types the default motion drives (REAL64 too: the simulator writes it)
+_MOTION_TYPES = NUMERIC_TYPES | {REAL64}
 
 # Due times are sums of float periods (0.2 + 0.1 > 0.3): a timer is due within this margin.
 _EPS_S = 1e-9
@@ -255,7 +265,7 @@ class SimNode:
             if not msg.is_remote_frame and len(msg.data) >= 2:
                 self._on_nmt(msg.data[0], msg.data[1], now)
             return self.drain()
-        if cob == COB_NMT_ERROR_BASE + self.node_id and msg.is_remote_frame:
+        if cob == COB_NMT_EC + self.node_id and msg.is_remote_frame:
             self._on_guarding_rtr(now)
             return self.drain()
         if self.nmt_state == NmtState.STOPPED:
@@ -271,7 +281,7 @@ class SimNode:
                     self.send(self._sdo_tx_cob(), response)
             elif self.nmt_state == NmtState.OPERATIONAL:
                 if what == "tpdo" and msg.is_remote_frame and self.hints.tpdo_rtr:
-                    if not pdo.cob_id(self.values, "tpdo", number) & pdo.COB_NO_RTR:
+                    if not pdo.cob_id(self.values, "tpdo", number) & COB_ID_NO_RTR:
                         self._send_tpdo(number, now, force=True)
                 elif what == "rpdo" and not msg.is_remote_frame:
                     self._on_rpdo(number, bytes(msg.data), now)
@@ -444,7 +454,7 @@ class SimNode:
                     self._hint_fault_bits(name, True)
         for b in self.behaviours:
             b.on_boot(now)
-        self.send(COB_NMT_ERROR_BASE + self.node_id, b"\x00")  # boot-up (4.2.2), unless silenced
+        self.send(COB_NMT_EC + self.node_id, b"\x00")  # boot-up (4.2.2), unless silenced
         self.nmt_state = NmtState.PRE_OPERATIONAL
         self._schedule_heartbeat(now)
         for b in self.behaviours:
@@ -466,7 +476,7 @@ class SimNode:
         new = {
             NMT_START: NmtState.OPERATIONAL,
             NMT_STOP: NmtState.STOPPED,
-            NMT_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
+            NMT_ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
         }.get(cs)
         if new is not None:
             self.set_nmt_state(new, now)
@@ -509,7 +519,7 @@ class SimNode:
         if self._hb_next_s is None or now + _EPS_S < self._hb_next_s:
             return
         period_s = int(self.values.get(0x1017, 0, 0)) / 1000
-        self.send(COB_NMT_ERROR_BASE + self.node_id, bytes([int(self.nmt_state)]))
+        self.send(COB_NMT_EC + self.node_id, bytes([int(self.nmt_state)]))
         if period_s <= 0:
             self._hb_next_s = None
             return
@@ -522,7 +532,7 @@ class SimNode:
         if int(self.values.get(0x1017, 0, 0)) and not self.hints.guarding_with_heartbeat:
             return  # DS-301 7.2.8.3: a node uses heartbeat or guarding, not both
         self.send(
-            COB_NMT_ERROR_BASE + self.node_id, bytes([(self._guard_toggle << 7) | self.nmt_state])
+            COB_NMT_EC + self.node_id, bytes([(self._guard_toggle << 7) | self.nmt_state])
         )
         self._guard_toggle ^= 1
         self._guard_last_rtr_s = now
@@ -549,9 +559,9 @@ class SimNode:
     # ======================================================================================
     def _emcy_cob(self) -> int | None:
         if not self.values.has(0x1014, 0):
-            return COB_EMCY_BASE + self.node_id
+            return COB_EMCY + self.node_id
         cob = int(self.values.get(0x1014, 0, 0))
-        return None if cob & pdo.COB_INVALID else cob & pdo.COB_ID_MASK
+        return None if cob & COB_ID_INVALID else cob & COB_ID_MASK_29BIT
 
     def _emit_emcy(self, data: bytes, now: float) -> None:
         """EMCY only in OPERATIONAL / PRE-OPERATIONAL (SGH10 manual 4.5.1)."""
@@ -598,18 +608,18 @@ class SimNode:
                 var = self.values.vars.get((e.index, e.sub)) if e.index >= 0x1000 else None
                 if var is None or obj in out or e.index < 0x2000:
                     continue
-                if var.data_type in _NUMERIC_TYPES:
+                if var.data_type in _MOTION_TYPES:
                     out.append(obj)
         return out
 
     def _auto_value(self, obj: ObjRef, model: float) -> Any:
         var = self.values.vars[(obj.index, obj.sub)]
-        if var.data_type in (0x0008, 0x0011):  # REAL32 / REAL64
+        if var.data_type in (REAL32, REAL64):
             return round(model / 100.0, 3)
-        bits = _NUMERIC_TYPES[var.data_type]
-        if var.data_type == 0x0001:
+        bits = TYPE_BITS[var.data_type]
+        if var.data_type == BOOLEAN:
             return int(model) // 1000 % 2
-        signed = var.data_type in (0x0002, 0x0003, 0x0004, 0x0010, 0x0015)
+        signed = var.data_type in SIGNED_TYPES
         v = int(model) % (1 << bits) if bits < 32 else int(model)
         if signed and v >= 1 << (bits - 1):
             v -= 1 << bits
@@ -669,7 +679,7 @@ class SimNode:
         """Send TPDO ``number`` if it is valid (and the inhibit time allows unless forced)."""
         params = self.tpdo(number)
         cob = params.cob_id
-        if cob & pdo.COB_INVALID:
+        if cob & COB_ID_INVALID:
             return False
         t = self._tpdo_timers[number]
         inhibit_s = params.inhibit_s
@@ -677,7 +687,7 @@ class SimNode:
             t.pending = True
             return False
         data = self.tpdo_data(number, now)
-        self.send(cob & pdo.COB_ID_MASK, data)
+        self.send(cob & COB_ID_MASK_29BIT, data)
         t.last_data = data
         t.last_sent_s = now
         t.pending = False
@@ -740,11 +750,11 @@ class SimNode:
     # ======================================================================================
     def _sdo_rx_cob(self) -> int:
         v = self.values.get(0x1200, 1)
-        return int(v) & 0x7FF if v is not None else COB_SDO_RX_BASE + self.node_id
+        return int(v) & 0x7FF if v is not None else COB_SDO_RX + self.node_id
 
     def _sdo_tx_cob(self) -> int:
         v = self.values.get(0x1200, 2)
-        return int(v) & 0x7FF if v is not None else COB_SDO_TX_BASE + self.node_id
+        return int(v) & 0x7FF if v is not None else COB_SDO_TX + self.node_id
 
     def listening(self) -> frozenset[int] | None:
         """The 11-bit COB-IDs of the frames ``handle`` acts on: NMT, its guarding RTR, SYNC,
@@ -753,7 +763,7 @@ class SimNode:
         frame (not powered yet, or a behaviour that looks at all of them)."""
         if not self.powered:
             return None
-        cobs = {COB_NMT, COB_NMT_ERROR_BASE + self.node_id, *self._cobs()}
+        cobs = {COB_NMT, COB_NMT_EC + self.node_id, *self._cobs()}
         for b in self.behaviours:
             ids = b.frame_cob_ids()
             if ids is None:
@@ -773,13 +783,13 @@ class SimNode:
             m: dict[int, tuple[str, int]] = {}
             for n in self.tpdos:
                 cob = pdo.cob_id(self.values, "tpdo", n)
-                if not cob & pdo.COB_INVALID:
-                    m[cob & pdo.COB_ID_MASK] = ("tpdo", n)
+                if not cob & COB_ID_INVALID:
+                    m[cob & COB_ID_MASK_29BIT] = ("tpdo", n)
             for n in self.rpdos:
                 cob = pdo.cob_id(self.values, "rpdo", n)
-                if not cob & pdo.COB_INVALID:
-                    m[cob & pdo.COB_ID_MASK] = ("rpdo", n)
-            sync = self.values.get(0x1005, 0, COB_SYNC_DEFAULT)
+                if not cob & COB_ID_INVALID:
+                    m[cob & COB_ID_MASK_29BIT] = ("rpdo", n)
+            sync = self.values.get(0x1005, 0, COB_SYNC)
             m[int(sync) & 0x7FF] = ("sync", 0)
             m[self._sdo_rx_cob()] = ("sdo", 0)
             self._cob_map = m
@@ -865,9 +875,9 @@ class SimNode:
             self._check_preop(obj)
             old = int(self.values.get(index, 0, 0))
             # 1005h: bit 30 set = this node generates SYNC; 1014h: bit 31 set = EMCY invalid
-            guard_bit = 1 << 30 if index == 0x1005 else pdo.COB_INVALID
+            guard_bit = SYNC_GENERATOR if index == 0x1005 else COB_ID_INVALID
             active = bool(old & guard_bit) if index == 0x1005 else not old & guard_bit
-            if active and (old ^ int(value)) & pdo.COB_ID_MASK:
+            if active and (old ^ int(value)) & COB_ID_MASK_29BIT:
                 raise SdoAbortError(ABORT_STATE, f"{obj}: invalidate before changing the COB-ID")
         which = pdo.pdo_of(index)
         if which is not None:

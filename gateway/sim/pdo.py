@@ -6,7 +6,7 @@ unpacks RPDO data into them, and checks writes to these objects against the DS-3
 (a COB-ID is changed only while the PDO is invalid, bit 31; a mapping only while the PDO is
 invalid and sub-index 0 is 0). It sends nothing and keeps no timers (node.py does).
 
-Imports: gateway.sim.objects, gateway.objref.
+Imports: gateway.cia301, gateway.sim.objects, gateway.objref.
 """
 
 from __future__ import annotations
@@ -14,6 +14,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from gateway.cia301 import (
+    COB_ID_EXTENDED,
+    COB_ID_INVALID,
+    COB_ID_MASK_29BIT,
+    PDO_COMM_BASE,
+    PDO_MAP_BASE,
+)
 from gateway.objref import ObjRef
 from gateway.sim.objects import (
     ABORT_NOT_MAPPABLE,
@@ -28,37 +35,29 @@ from gateway.sim.objects import (
 
 Kind = Literal["rpdo", "tpdo"]
 
-COB_INVALID = 1 << 31  # DS-301: bit 31 = 1, PDO does not exist / is not valid
-COB_NO_RTR = 1 << 30  # DS-301: bit 30 = 1, no RTR allowed on this PDO
-COB_EXTENDED = 1 << 29  # 29-bit identifier
-COB_ID_MASK = 0x1FFFFFFF
-
-_COMM_BASE = {"rpdo": 0x1400, "tpdo": 0x1800}
-_MAP_BASE = {"rpdo": 0x1600, "tpdo": 0x1A00}
-
 
 def comm_index(kind: Kind, number: int) -> int:
-    return _COMM_BASE[kind] + number - 1
+    return PDO_COMM_BASE[kind] + number - 1
 
 
 def map_index(kind: Kind, number: int) -> int:
-    return _MAP_BASE[kind] + number - 1
+    return PDO_MAP_BASE[kind] + number - 1
 
 
 def pdo_of(index: int) -> tuple[Kind, int, bool] | None:
     """(kind, number, is_mapping) for a PDO parameter index, else None."""
     for kind in ("rpdo", "tpdo"):
         k: Kind = kind  # type: ignore[assignment]
-        if _COMM_BASE[k] <= index < _COMM_BASE[k] + 0x200:
-            return k, index - _COMM_BASE[k] + 1, False
-        if _MAP_BASE[k] <= index < _MAP_BASE[k] + 0x200:
-            return k, index - _MAP_BASE[k] + 1, True
+        if PDO_COMM_BASE[k] <= index < PDO_COMM_BASE[k] + 0x200:
+            return k, index - PDO_COMM_BASE[k] + 1, False
+        if PDO_MAP_BASE[k] <= index < PDO_MAP_BASE[k] + 0x200:
+            return k, index - PDO_MAP_BASE[k] + 1, True
     return None
 
 
 def numbers(values: ObjectValues, kind: Kind) -> list[int]:
     """PDO numbers (1-based) whose communication parameter exists in the EDS."""
-    base = _COMM_BASE[kind]
+    base = PDO_COMM_BASE[kind]
     return sorted(i - base + 1 for i in values.od.indices if base <= i < base + 0x200)
 
 
@@ -74,11 +73,11 @@ class MapEntry:
 
 
 def cob_id(values: ObjectValues, kind: Kind, number: int) -> int:
-    return int(values.get(comm_index(kind, number), 1, COB_INVALID))
+    return int(values.get(comm_index(kind, number), 1, COB_ID_INVALID))
 
 
 def is_valid(values: ObjectValues, kind: Kind, number: int) -> bool:
-    return not cob_id(values, kind, number) & COB_INVALID
+    return not cob_id(values, kind, number) & COB_ID_INVALID
 
 
 def transmission_type(values: ObjectValues, kind: Kind, number: int) -> int:
@@ -203,8 +202,8 @@ def check_write(
         if sub == 1:
             old = cob_id(values, kind, number)
             new = int(value)
-            if not old & COB_INVALID and not new & COB_INVALID:
-                if (old ^ new) & (COB_ID_MASK | COB_EXTENDED):
+            if not old & COB_ID_INVALID and not new & COB_ID_INVALID:
+                if (old ^ new) & (COB_ID_MASK_29BIT | COB_ID_EXTENDED):
                     raise SdoAbortError(
                         ABORT_STATE, f"{ObjRef(index, 1)}: set bit 31 before changing the COB-ID"
                     )

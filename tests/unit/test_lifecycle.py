@@ -27,8 +27,8 @@ from gateway.bus.lifecycle import (
     WriteStep,
     WrongDevice,
 )
-from gateway.bus.sdo_text import SDO_ABORT_TEXTS, abort_text
 from gateway.bus.sdo_values import encode_value
+from gateway.cia301 import SDO_ABORT_TEXTS, abort_text
 from gateway.errors import SdoAbort
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, load_profile

@@ -24,7 +24,7 @@ As a table of (event -> effect):
 The node id object always reads the node id in effect after a reset, unless a new value was
 written since. A simulator has no physical bit rate: the effective one is ``bitrate_kbps``.
 
-Imports: python-can (Message), gateway.sim.behaviours, gateway.sim.objects, gateway.objref.
+Imports: python-can (Message), gateway.cia301, gateway.sim.behaviours, gateway.sim.objects, gateway.objref.
 """
 
 from __future__ import annotations
@@ -33,11 +33,11 @@ from typing import Any
 
 import can
 
+from gateway.cia301 import NMT_RESET_NODE
 from gateway.objref import ObjRef
 from gateway.sim.behaviours import Behaviour, register
 from gateway.sim.objects import ABORT_RANGE
 
-NMT_RESET_NODE = 0x81  # manual 002 ch. 3: NMT Reset Remote Node
 SIGNATURE_SAVE = 0x65766173  # manual 002 1010h: "save", bytes 73 61 76 65
 SIGNATURE_LOAD = 0x64616F6C  # manual 002 1011h: "load", bytes 6C 6F 61 64
 

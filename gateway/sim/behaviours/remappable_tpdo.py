@@ -20,7 +20,7 @@ The node builds each TPDO from the current 1A0xh values, so a reactivated PDO ca
 layout from its next transmission. This module keeps no state of its own: the step reached is
 what the objects say (see :meth:`RemappableTpdo.state`).
 
-Imports: python-can (Message), gateway.objref, gateway.sim.behaviours, gateway.sim.objects.
+Imports: python-can (Message), gateway.cia301, gateway.objref, gateway.sim.behaviours, gateway.sim.objects.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from typing import Any
 
 import can
 
+from gateway.cia301 import COB_ID_INVALID
 from gateway.objref import ObjRef
 from gateway.sim.behaviours import Behaviour, register
 from gateway.sim.objects import bit_size, type_size
@@ -38,7 +39,6 @@ from gateway.sim.objects import bit_size, type_size
 _PRE_OPERATIONAL = 0x7F
 _STOPPED = 0x04
 # CiA 301: COB-ID bit 31 = 1 -> PDO does not exist / is not valid (manual 4.1)
-_COB_INVALID = 1 << 31
 _COB_ID_BITS = 0x3FFFFFFF  # bits 0..29: the CAN-ID and the 29-bit frame flag
 # Defaults when the profile gives no code (manual 4.4.1.3 Table 8)
 _DEFAULT_ABORTS = {
@@ -82,7 +82,7 @@ class RemappableTpdo(Behaviour):
 
     def _pdo_valid(self, number: int) -> bool:
         comm, _ = self.pdos[number]
-        return not int(self.node.get(comm, 1, _COB_INVALID)) & _COB_INVALID
+        return not int(self.node.get(comm, 1, COB_ID_INVALID)) & COB_ID_INVALID
 
     def state(self, number: int) -> str:
         """Where TPDO ``number`` stands in the procedure, as its objects say: ``"valid"``
@@ -116,9 +116,9 @@ class RemappableTpdo(Behaviour):
             return self._abort("abort_wrong_nmt_state")
         if index in self._by_comm:
             # steps 2 and 6: the CAN-ID changes only while the PDO is deactivated
-            old = int(self.node.get(index, 1, _COB_INVALID))
+            old = int(self.node.get(index, 1, COB_ID_INVALID))
             new = int(value)
-            if not old & _COB_INVALID and not new & _COB_INVALID:
+            if not old & COB_ID_INVALID and not new & COB_ID_INVALID:
                 if (old ^ new) & _COB_ID_BITS:
                     return self._abort("abort_cob_id_change_while_valid")
             return None

@@ -1,0 +1,168 @@
+"""CANopen facts (CiA 301 V4.2) in one place: function codes of the pre-defined connection set,
+PDO COB-ID bits, NMT command specifiers, data type codes with their sizes, SDO abort codes and
+their texts.
+
+Rule: a number that CiA 301 defines is written here once, named, with the section it comes from;
+every other module imports it from here (the device manuals repeat these tables: SGH10 manual
+4.2.1.2 table 3 and AP05 manual 5.2.1.2 table 23 for NMT, SGH10 manual 4.4.1.3 table 8 for the
+abort codes). Device-specific numbers stay with the device's profile.
+
+Imports: canopen.objectdictionary.datatypes (the data type codes). Nothing of the gateway.
+"""
+
+from __future__ import annotations
+
+from canopen.objectdictionary import datatypes as dt
+
+# --------------------------------------------------------------------------- function codes
+# CiA 301 7.3.3 pre-defined connection set (11-bit CAN-ID = function code + node id)
+COB_NMT = 0x000
+COB_SYNC = 0x080  # default SYNC COB-ID (1005h)
+COB_EMCY = 0x080  # + node id
+COB_TIME = 0x100
+COB_TPDO = (0x180, 0x280, 0x380, 0x480)  # TPDO1..4 + node id
+COB_RPDO = (0x200, 0x300, 0x400, 0x500)  # RPDO1..4 + node id
+COB_SDO_TX = 0x580  # + node id: server -> client (the device's answer)
+COB_SDO_RX = 0x600  # + node id: client -> server (our request)
+COB_NMT_EC = 0x700  # + node id: boot-up, heartbeat, node-guarding answer
+COB_LSS_SLAVE = 0x7E4  # CiA 305: LSS slave -> master
+COB_LSS_MASTER = 0x7E5  # CiA 305: LSS master -> slave
+
+# --------------------------------------------------------------------------- PDO COB-ID bits
+# CiA 301 7.5.2.35 / 7.5.2.37 (1400h.., 1800h.. sub-index 01h)
+COB_ID_INVALID = 1 << 31  # bit 31 = 1: PDO does not exist / is not valid
+COB_ID_NO_RTR = 1 << 30  # bit 30 = 1: no RTR allowed on this PDO
+COB_ID_EXTENDED = 1 << 29  # bit 29 = 1: 29-bit CAN-ID
+COB_ID_MASK_11BIT = 0x7FF
+COB_ID_MASK_29BIT = 0x1FFFFFFF
+#: PDO communication and mapping parameter base indices (CiA 301 7.5.2.35..38)
+PDO_COMM_BASE: dict[str, int] = {"rpdo": 0x1400, "tpdo": 0x1800}
+PDO_MAP_BASE: dict[str, int] = {"rpdo": 0x1600, "tpdo": 0x1A00}
+#: transmission types (CiA 301 7.5.2.35 table 71)
+TRANSMISSION_RTR_ONLY = (252, 253)
+TRANSMISSION_EVENT = (254, 255)
+
+# --------------------------------------------------------------------------- NMT
+# CiA 301 7.2.8.3.1 (SGH10 manual 4.2.1.2 table 3; AP05 manual 5.2.1.2 table 23)
+NMT_START = 0x01
+NMT_STOP = 0x02
+NMT_ENTER_PRE_OPERATIONAL = 0x80
+NMT_RESET_NODE = 0x81
+NMT_RESET_COMMUNICATION = 0x82
+#: command names as the CLI, Modbus HR 0, Zenoh and the web console spell them
+NMT_COMMANDS: dict[str, int] = {
+    "start": NMT_START,
+    "stop": NMT_STOP,
+    "preop": NMT_ENTER_PRE_OPERATIONAL,
+    "reset": NMT_RESET_NODE,
+    "reset-comm": NMT_RESET_COMMUNICATION,
+}
+NMT_BY_CODE: dict[int, str] = {v: k for k, v in NMT_COMMANDS.items()}
+
+# --------------------------------------------------------------------------- data types
+# CiA 301 7.4.7.1 table 44 (the codes are python canopen's ``datatypes``)
+BOOLEAN = dt.BOOLEAN
+REAL32 = dt.REAL32
+REAL64 = dt.REAL64
+VISIBLE_STRING = dt.VISIBLE_STRING
+OCTET_STRING = dt.OCTET_STRING
+UNICODE_STRING = dt.UNICODE_STRING
+DOMAIN = dt.DOMAIN
+
+#: data type code -> the gateway's signal type name (the types it serves)
+TYPE_NAMES: dict[int, str] = {
+    dt.BOOLEAN: "bool",
+    dt.INTEGER8: "int8",
+    dt.INTEGER16: "int16",
+    dt.INTEGER32: "int32",
+    dt.UNSIGNED8: "uint8",
+    dt.UNSIGNED16: "uint16",
+    dt.UNSIGNED32: "uint32",
+    dt.REAL32: "float32",
+    dt.VISIBLE_STRING: "string",
+    dt.OCTET_STRING: "bytes",
+    dt.INTEGER24: "int24",
+    dt.INTEGER64: "int64",
+    dt.UNSIGNED24: "uint24",
+    dt.UNSIGNED64: "uint64",
+}
+#: bits of the fixed-size types; dummy entries 0001h..0007h of a PDO mapping map these too
+TYPE_BITS: dict[int, int] = {
+    dt.BOOLEAN: 1,
+    dt.INTEGER8: 8,
+    dt.INTEGER16: 16,
+    dt.INTEGER32: 32,
+    dt.UNSIGNED8: 8,
+    dt.UNSIGNED16: 16,
+    dt.UNSIGNED32: 32,
+    dt.REAL32: 32,
+    dt.INTEGER24: 24,
+    dt.REAL64: 64,
+    dt.INTEGER40: 40,
+    dt.INTEGER48: 48,
+    dt.INTEGER56: 56,
+    dt.INTEGER64: 64,
+    dt.UNSIGNED24: 24,
+    dt.UNSIGNED40: 40,
+    dt.UNSIGNED48: 48,
+    dt.UNSIGNED56: 56,
+    dt.UNSIGNED64: 64,
+}
+#: the signed integer types
+SIGNED_TYPES: frozenset[int] = frozenset(dt.SIGNED_TYPES)
+#: the numeric types the gateway decodes (integers of 8..64 bits, BOOLEAN, REAL32)
+NUMERIC_TYPES: frozenset[int] = frozenset(
+    code for code, name in TYPE_NAMES.items() if name not in ("string", "bytes")
+)
+
+# --------------------------------------------------------------------------- SDO abort codes
+#: CiA 301 7.2.4.3.17 table 22, 0503 0000h .. 0800 0024h
+SDO_ABORT_TEXTS: dict[int, str] = {
+    0x05030000: "Toggle bit not alternated",
+    0x05040000: "SDO protocol timed out",
+    0x05040001: "Client/server command specifier not valid or unknown",
+    0x05040002: "Invalid block size (block mode only)",
+    0x05040003: "Invalid sequence number (block mode only)",
+    0x05040004: "CRC error (block mode only)",
+    0x05040005: "Out of memory",
+    0x06010000: "Unsupported access to an object",
+    0x06010001: "Attempt to read a write only object",
+    0x06010002: "Attempt to write a read only object",
+    0x06020000: "Object does not exist in the object dictionary",
+    0x06040041: "Object cannot be mapped to the PDO",
+    0x06040042: "The number and length of the objects to be mapped would exceed PDO length",
+    0x06040043: "General parameter incompatibility reason",
+    0x06040047: "General internal incompatibility in the device",
+    0x06060000: "Access failed due to a hardware error",
+    0x06070010: "Data type does not match, length of service parameter does not match",
+    0x06070012: "Data type does not match, length of service parameter too high",
+    0x06070013: "Data type does not match, length of service parameter too low",
+    0x06090011: "Sub-index does not exist",
+    0x06090030: "Invalid value for parameter (download only)",
+    0x06090031: "Value of parameter written too high (download only)",
+    0x06090032: "Value of parameter written too low (download only)",
+    0x06090036: "Maximum value is less than minimum value",
+    0x060A0023: "Resource not available: SDO connection",
+    0x08000000: "General error",
+    0x08000020: "Data cannot be transferred or stored to the application",
+    0x08000021: (
+        "Data cannot be transferred or stored to the application because of local control"
+    ),
+    0x08000022: (
+        "Data cannot be transferred or stored to the application because of the present "
+        "device state"
+    ),
+    0x08000023: "Object dictionary dynamic generation fails or no object dictionary is present",
+    0x08000024: "No data available",
+}
+SDO_ABORT_TIMEOUT = 0x05040000
+SDO_ABORT_NO_OBJECT = 0x06020000
+SDO_ABORT_NO_SUBINDEX = 0x06090011
+
+
+def abort_text(code: int) -> str:
+    """The CiA 301 text of an abort code, or a text saying it is not a CiA 301 code."""
+    text = SDO_ABORT_TEXTS.get(code)
+    if text is not None:
+        return text
+    return f"not a DS-301 abort code (manufacturer-specific 0x{code:08X}?)"
