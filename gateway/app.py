@@ -161,6 +161,7 @@ class Gateway:
                 "link": h.link.name.lower(),
                 "data_age_s": None if age is None else round(age, 3),
                 "last_error": h.last_error,
+                "outputs": h.outputs,
             }
         bus_ok = self.driver.state == "ok"
         modbus_up = self.modbus is None or self.modbus.server is not None
@@ -176,7 +177,13 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": nodes,
-        }
+        } | self._watchdog_status()
+
+    def _watchdog_status(self) -> dict[str, Any]:
+        if self.modbus is None or not self.modbus.watchdog.enabled:
+            return {}
+        wd = self.modbus.watchdog
+        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}}
 
     def overview(self) -> dict[str, Any]:
         """Gateway-wide figures for the web console's overview (counters become rates there)."""
@@ -304,6 +311,7 @@ class Gateway:
             store = self.modbus.store
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}
             c.modbus_requests = {modbus_function_label(fc): n for fc, n in store.by_function.items()}
+            c.modbus_watchdog_trips = dict(self.modbus.watchdog.trips)
 
     async def stop(self) -> None:
         self.started = False

@@ -196,6 +196,11 @@ class NodeConfig(_Model):
         default=True,
         description="read TPDOs that send only on change right after NMT start (RTR or SDO)",
     )
+    safe_outputs: dict[str, Any] = Field(
+        default_factory=dict,
+        description="RPDO signal -> raw value written when the Modbus watchdog trips "
+        "(overrides the profile's safe_value)",
+    )
 
     @model_validator(mode="after")
     def _device(self) -> NodeConfig:
@@ -225,6 +230,12 @@ class ModbusSection(_Model):
     read_only: bool = False
     allowed_networks: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
     write_timeout_s: float = Field(default=2.0, gt=0, le=60)
+    watchdog_ms: int = Field(
+        default=0, ge=0, le=3_600_000, description="no request for this long: safe outputs; 0 = off"
+    )
+    watchdog_on_disconnect: bool = Field(
+        default=False, description="safe outputs at once when the last Modbus client disconnects"
+    )
 
     @model_validator(mode="after")
     def _nets(self) -> ModbusSection:

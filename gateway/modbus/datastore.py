@@ -7,7 +7,8 @@ never torn); writes go through the command service and are answered when the RPD
 or the device confirmed the SDO. Write protection (``read_only``, ``allowed_networks``) and the
 write timeout live here.
 
-Imports: commands, config, errors, image, modbus.protocol, modbus.regmap, ratelimit, states.
+Imports: commands, config, errors, image, modbus.protocol, modbus.regmap, modbus.watchdog,
+ratelimit, states.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from gateway.modbus.protocol import (
     unpack_bits,
 )
 from gateway.modbus.regmap import TABLE_NAMES, Point, RegisterMap, Table
+from gateway.modbus.watchdog import OutputWatchdog
 from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_BY_CODE
 
@@ -69,6 +71,7 @@ class ImageDatastore:
         self.by_function: dict[int, int] = {}  # requests by function code
         self.exceptions: dict[int, int] = {}
         self.warn = RateLimitedLog(log)
+        self.watchdog: OutputWatchdog | None = None  # set by the server that feeds it
         #: per node, the signals its TPDOs carry (for the quality register)
         self.process_signals: dict[str, tuple[str, ...]] = {}
         for p in regmap.points:
@@ -163,6 +166,7 @@ class ImageDatastore:
                 "operational": node.operational(),
                 "link_ok": h.link in (LinkState.OK, LinkState.NOT_USED),
                 "error_active": bool(h.current_errors),
+                "outputs_safe": h.outputs == "safe",
             }[p.name]
         assert p.bit is not None
         key = (node.name, p.name)
@@ -227,6 +231,8 @@ class ImageDatastore:
                 ch for ch in parts[("major", "minor", "patch").index(name[8:])] if ch.isdigit()
             )
             return int(digits or 0)
+        if name == "watchdog_trips":
+            return 0 if self.watchdog is None else sum(self.watchdog.trips.values()) & 0xFFFFFFFF
         nodes = self.image.nodes.values()
         if name == "nodes_configured":
             return len(self.image.nodes)
