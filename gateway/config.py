@@ -218,8 +218,38 @@ class NodeConfig(_Model):
         return self.profile or Path(self.eds or "").name
 
 
+class ModbusTls(_Model):
+    """Modbus/TCP Security (TLS, mutual X.509 authentication, roles): a second listener."""
+
+    host: str | None = Field(default=None, description="default: modbus.host")
+    port: int = Field(default=802, ge=0, le=65535, description="802 is the standard's port")
+    cert: str = Field(description="our certificate (PEM, chain allowed)")
+    key: str = Field(description="its private key (PEM)")
+    ca: str | None = Field(default=None, description="CA certificates (PEM) that sign clients")
+    require_client_cert: bool = True
+    roles: dict[str, Literal["read", "write"]] = Field(
+        default_factory=lambda: {"Operator": "write", "Viewer": "read"},
+        description="role (certificate extension 1.3.6.1.4.1.50316.802.1) -> read or write",
+    )
+    default_role: str | None = Field(
+        default=None, description="role of a client whose certificate has none; none: refused"
+    )
+
+    @model_validator(mode="after")
+    def _roles(self) -> ModbusTls:
+        if self.require_client_cert and not self.ca:
+            raise ValueError("require_client_cert: true needs ca (the CA file that signs clients)")
+        if self.default_role is not None and self.default_role not in self.roles:
+            raise ValueError(
+                f"default_role: {self.default_role!r} is not in roles ({', '.join(self.roles)})"
+            )
+        return self
+
+
 class ModbusSection(_Model):
     enabled: bool = True
+    plain: bool = Field(default=True, description="plain Modbus TCP on host:port (false: TLS only)")
+    tls: ModbusTls | None = None
     host: str = "127.0.0.1"
     port: int = Field(default=5020, ge=0, le=65535)
     layout: Literal["per_node", "flat"] = "per_node"
@@ -239,6 +269,8 @@ class ModbusSection(_Model):
 
     @model_validator(mode="after")
     def _nets(self) -> ModbusSection:
+        if not self.plain and self.tls is None:
+            raise ValueError("plain: false needs tls (nothing would serve Modbus)")
         for n in self.allowed_networks:
             try:
                 ipaddress.ip_network(n, strict=False)
