@@ -133,7 +133,10 @@ class Gateway:
         can_kw = self.cfg.can.bus_kwargs()
         parts.append(f"CAN {can_kw.get('interface')}:{can_kw.get('channel')}")
         if self.modbus:
-            parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
+            if self.cfg.modbus.plain:
+                parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
+            if self.modbus.tls_server is not None:
+                parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
             parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
         if self.health is not None and getattr(self.health, "port", 0):

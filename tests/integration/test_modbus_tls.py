@@ -10,7 +10,9 @@ from __future__ import annotations
 import asyncio
 import datetime as dt
 import logging
+import shutil
 import ssl
+import subprocess
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -193,6 +195,8 @@ async def test_plain_tcp_stays_beside_tls_or_is_turned_off(pki: dict[str, Any]) 
         _, w = await asyncio.open_connection("127.0.0.1", gw.modbus.port)
         w.close()
     async with secure_gateway(pki, plain=False) as gw:
+        assert f"Modbus/TLS 127.0.0.1:{gw.modbus.tls_port}" in gw.summary()
+        assert "Modbus TCP" not in gw.summary()
         with pytest.raises(OSError):
             await asyncio.open_connection("127.0.0.1", gw.cfg.modbus.port)
         operator = client_for(gw, pki, "operator")
@@ -266,3 +270,21 @@ def test_a_missing_certificate_file_is_a_config_error_naming_the_key(pki: dict[s
     with pytest.raises(ConfigError) as err:
         Gateway(cfg)
     assert "modbus.tls.cert: file /nonexistent/gw.pem does not exist" in str(err.value)
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl command not installed")
+def test_role_made_by_openssl_is_read(tmp_path: Path) -> None:
+    """The role extension as OpenSSL's config syntax writes it (an independent encoder)."""
+    (tmp_path / "ext.cnf").write_text(
+        "[req]\ndistinguished_name = dn\n[dn]\n[v3]\n"
+        "1.3.6.1.4.1.50316.802.1 = ASN1:UTF8String:Operator\n"
+    )
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256",
+         "-nodes", "-keyout", str(tmp_path / "k.pem"), "-out", str(tmp_path / "c.pem"),
+         "-subj", "/CN=plc", "-days", "2", "-extensions", "v3",
+         "-config", str(tmp_path / "ext.cnf")],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    cert = x509.load_pem_x509_certificate((tmp_path / "c.pem").read_bytes())
+    assert certificate_role(cert.public_bytes(serialization.Encoding.DER)) == "Operator"
