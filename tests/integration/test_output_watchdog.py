@@ -169,3 +169,29 @@ def test_check_names_a_safe_value_out_of_range() -> None:
         )
     (line,) = [p for p in err.value.problems if "safe_outputs" in p]
     assert "nodes[0].safe_outputs.write_output_1h_to_8h: value 300 not allowed" in line
+
+
+async def test_simulated_ap05_set_point_falls_back_to_its_safe_value() -> None:
+    """Our own simulator on the device side: the AP05's set point 1 (5F16h:03) as the device
+    holds it, written by the PLC, then by the watchdog."""
+    display = {"name": "display", "node_id": 125, "profile": "ap05", "safe_outputs": {"set_point1": 0}}
+    cfg = make_config([display], zenoh={"enabled": False}, modbus={"watchdog_ms": 200})
+    gw = Gateway(cfg)
+    await gw.start()
+    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+    try:
+        await wait_until(gw.image.nodes["display"].operational, 5, "display operational")
+        sim = gw.sim.nodes["display"]
+
+        def set_point1() -> int:
+            return gw.sim.runner.call(lambda now: sim.get(0x5F16, 3))
+
+        await client.connect()
+        rr = await client.write_registers(100, [0, 4321], device_id=125)
+        assert not rr.isError(), rr
+        await wait_until(lambda: set_point1() == 4321, 3, "the PLC's set point on the device")
+        await wait_until(lambda: set_point1() == 0, 5, "the safe set point on the device")
+        assert gw.image.nodes["display"].health.outputs == "safe"
+    finally:
+        client.close()
+        await gw.stop()
