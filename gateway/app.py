@@ -133,7 +133,10 @@ class Gateway:
         can_kw = self.cfg.can.bus_kwargs()
         parts.append(f"CAN {can_kw.get('interface')}:{can_kw.get('channel')}")
         if self.modbus:
-            parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
+            if self.cfg.modbus.plain:
+                parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
+            if self.modbus.tls_server is not None:
+                parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
             parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
         if self.health is not None and getattr(self.health, "port", 0):
@@ -161,6 +164,7 @@ class Gateway:
                 "link": h.link.name.lower(),
                 "data_age_s": None if age is None else round(age, 3),
                 "last_error": h.last_error,
+                "outputs": h.outputs,
             }
         bus_ok = self.driver.state == "ok"
         modbus_up = self.modbus is None or self.modbus.server is not None
@@ -176,7 +180,13 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": nodes,
-        }
+        } | self._watchdog_status()
+
+    def _watchdog_status(self) -> dict[str, Any]:
+        if self.modbus is None or not self.modbus.watchdog.enabled:
+            return {}
+        wd = self.modbus.watchdog
+        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}}
 
     def overview(self) -> dict[str, Any]:
         """Gateway-wide figures for the web console's overview (counters become rates there)."""
@@ -304,6 +314,7 @@ class Gateway:
             store = self.modbus.store
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}
             c.modbus_requests = {modbus_function_label(fc): n for fc, n in store.by_function.items()}
+            c.modbus_watchdog_trips = dict(self.modbus.watchdog.trips)
 
     async def stop(self) -> None:
         self.started = False

@@ -14,7 +14,9 @@
   PDO-mappable, RPDO entries writable and PDO-mappable, at most 64 bits; a PDO that is not
   written at boot has the EDS mapping; a PDO written at boot differs from the EDS only where
   the EDS mapping objects are writable;
-* a signal's declared type is the EDS DataType; a signal declared as a PDO signal is in a PDO.
+* a signal's declared type is the EDS DataType; a signal declared as a PDO signal is in a PDO;
+* every safe output value (``safe_value``, ``nodes[].safe_outputs``) names an RPDO output of its
+  node and fits its type and range (``gateway.safe_outputs``).
 
 ``load_checked_config`` / ``parse_checked_config`` are ``gateway.config``'s loaders plus these
 checks, raising ConfigError with every line. Pure: imports config, profiles, eds, the boot step
@@ -39,6 +41,7 @@ from gateway.profiles import LoadedProfile, ProfileError, load_node_profile
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS
 from gateway.profiles.schema import Pdo
+from gateway.safe_outputs import safe_output_problems
 
 Problem = tuple[str, str]
 
@@ -317,6 +320,7 @@ def config_problems(cfg: Config) -> list[Problem]:
         out.append((exc.key, str(exc)))
     out += protocol_problems(cfg)
     out += eds_problems(cfg)
+    out += safe_output_problems(cfg)
     seen: set[Problem] = set()
     unique = []
     for p in out:

@@ -32,7 +32,7 @@ from typing import Any
 
 from gateway.bus.master import Master, NodeParts
 from gateway.bus.sdo_values import OD_TYPE_NAMES, decode_value, encode_value
-from gateway.errors import NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
+from gateway.errors import GatewayError, NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
 from gateway.image import NodeImage
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
@@ -208,8 +208,9 @@ class CommandService:
         """Write a writable signal: an RPDO for process data, an SDO download otherwise."""
         await self.write_signals(node, {name: value})
 
-    async def write_signals(self, node: str, values: dict[str, Any]) -> None:
-        """Several signals; those of RPDOs go out together (e.g. set point + control word)."""
+    async def write_signals(self, node: str, values: dict[str, Any], *, safe: bool = False) -> None:
+        """Several signals; those of RPDOs go out together (e.g. set point + control word).
+        ``safe``: the safe values of the output watchdog (see ``write_safe_outputs``)."""
         p = self._part(node)
         checked: dict[str, Any] = {}
         for name, value in values.items():
@@ -238,7 +239,7 @@ class CommandService:
                         per_pdo.setdefault(c.number, {})[ts.control] = ctrl & ~(
                             1 << ts.identifier_bit
                         )
-            self.master.write_outputs(node, per_pdo)
+            self.master.write_outputs(node, per_pdo, safe=safe)
         for n, v in sdo.items():
             sig = self.signal(node, n)
             if sig.bits:
@@ -248,6 +249,25 @@ class CommandService:
                     await self._sdo_write_signal(p, sig, v)
             else:
                 await self._sdo_write_signal(p, sig, v)
+
+    async def write_safe_outputs(self, plan: dict[str, dict[str, Any]]) -> dict[str, str]:
+        """The output watchdog tripped: write each node's safe values (``plan``: node -> RPDO
+        signal -> raw value) once, through the same checks as any write. Returns, per node,
+        ``"safe"`` or why it could not be done (node not operational, bus down...); one
+        node's failure does not stop the others."""
+        done: dict[str, str] = {}
+        for node, values in plan.items():
+            if not values:
+                continue
+            try:
+                await self.write_signals(node, values, safe=True)
+            except GatewayError as exc:
+                done[node] = str(exc)
+                log.warning("safe outputs of %s not written: %s", node, exc)
+            else:
+                done[node] = "safe"
+                log.warning("safe outputs written to %s: %s", node, values)
+        return done
 
     def _check_word(self, p: NodeParts, sig: Signal, new: Any, current: Any) -> None:
         if not sig.bits or not isinstance(new, int):

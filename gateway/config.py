@@ -196,6 +196,11 @@ class NodeConfig(_Model):
         default=True,
         description="read TPDOs that send only on change right after NMT start (RTR or SDO)",
     )
+    safe_outputs: dict[str, Any] = Field(
+        default_factory=dict,
+        description="RPDO signal -> raw value written when the Modbus watchdog trips "
+        "(overrides the profile's safe_value)",
+    )
 
     @model_validator(mode="after")
     def _device(self) -> NodeConfig:
@@ -213,8 +218,38 @@ class NodeConfig(_Model):
         return self.profile or Path(self.eds or "").name
 
 
+class ModbusTls(_Model):
+    """Modbus/TCP Security (TLS, mutual X.509 authentication, roles): a second listener."""
+
+    host: str | None = Field(default=None, description="default: modbus.host")
+    port: int = Field(default=802, ge=0, le=65535, description="802 is the standard's port")
+    cert: str = Field(description="our certificate (PEM, chain allowed)")
+    key: str = Field(description="its private key (PEM)")
+    ca: str | None = Field(default=None, description="CA certificates (PEM) that sign clients")
+    require_client_cert: bool = True
+    roles: dict[str, Literal["read", "write"]] = Field(
+        default_factory=lambda: {"Operator": "write", "Viewer": "read"},
+        description="role (certificate extension 1.3.6.1.4.1.50316.802.1) -> read or write",
+    )
+    default_role: str | None = Field(
+        default=None, description="role of a client whose certificate has none; none: refused"
+    )
+
+    @model_validator(mode="after")
+    def _roles(self) -> ModbusTls:
+        if self.require_client_cert and not self.ca:
+            raise ValueError("require_client_cert: true needs ca (the CA file that signs clients)")
+        if self.default_role is not None and self.default_role not in self.roles:
+            raise ValueError(
+                f"default_role: {self.default_role!r} is not in roles ({', '.join(self.roles)})"
+            )
+        return self
+
+
 class ModbusSection(_Model):
     enabled: bool = True
+    plain: bool = Field(default=True, description="plain Modbus TCP on host:port (false: TLS only)")
+    tls: ModbusTls | None = None
     host: str = "127.0.0.1"
     port: int = Field(default=5020, ge=0, le=65535)
     layout: Literal["per_node", "flat"] = "per_node"
@@ -225,9 +260,17 @@ class ModbusSection(_Model):
     read_only: bool = False
     allowed_networks: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
     write_timeout_s: float = Field(default=2.0, gt=0, le=60)
+    watchdog_ms: int = Field(
+        default=0, ge=0, le=3_600_000, description="no request for this long: safe outputs; 0 = off"
+    )
+    watchdog_on_disconnect: bool = Field(
+        default=False, description="safe outputs at once when the last Modbus client disconnects"
+    )
 
     @model_validator(mode="after")
     def _nets(self) -> ModbusSection:
+        if not self.plain and self.tls is None:
+            raise ValueError("plain: false needs tls (nothing would serve Modbus)")
         for n in self.allowed_networks:
             try:
                 ipaddress.ip_network(n, strict=False)

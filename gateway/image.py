@@ -71,6 +71,8 @@ class NodeHealth:
     # booted or was lost and has not been started by the gateway since).
     fresh_since: float | None = None
     invalid_signals: frozenset[str] = frozenset()  # flagged invalid (MSK5000 not referenced)
+    # "safe" from the output watchdog's write of the safe values until the next client write
+    outputs: str = "normal"
 
 
 class RxCounters:

@@ -25,7 +25,7 @@ Metric names carry the prefix ``canopen_gateway_``:
     decode_errors_total{node,reason}, emcy_total{node}
     sdo_requests_total{node,op}, sdo_aborts_total{node,code}, sdo_latency_seconds{node}
     modbus_requests_total{function}, modbus_exceptions_total{code}
-    zenoh_refused_total{operation}
+    zenoh_refused_total{operation}, modbus_watchdog_trips_total{reason}
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
     plus process_* (CPU, memory, open files) of this process.
 
@@ -142,6 +142,7 @@ class Counters:
     modbus_requests: dict[str, int] = field(default_factory=dict)
     modbus_exceptions: dict[str, int] = field(default_factory=dict)
     zenoh_refused: dict[str, int] = field(default_factory=dict)
+    modbus_watchdog_trips: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -261,6 +262,7 @@ class Metrics:
                 modbus_requests=c.modbus_requests.copy(),
                 modbus_exceptions=c.modbus_exceptions.copy(),
                 zenoh_refused=c.zenoh_refused.copy(),
+                modbus_watchdog_trips=c.modbus_watchdog_trips.copy(),
             )
 
     def _node_samples(self) -> list[NodeSample]:
@@ -341,6 +343,12 @@ class _GatewayCollector:
             "(set, sdo_write, nmt).",
             ["operation"],
             c.zenoh_refused,
+        )
+        yield labelled(
+            "modbus_watchdog_trips_total",
+            "Modbus output watchdog trips (safe outputs written), by reason (timeout, disconnect).",
+            ["reason"],
+            c.modbus_watchdog_trips,
         )
 
         state = GaugeMetricFamily(

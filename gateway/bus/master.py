@@ -487,11 +487,13 @@ class Master:
         for p in targets:
             p.node.on_nmt_command(command)
 
-    def write_outputs(self, name: str, per_pdo: dict[int | None, dict[str, Any]]) -> None:
+    def write_outputs(
+        self, name: str, per_pdo: dict[int | None, dict[str, Any]], *, safe: bool = False
+    ) -> None:
         """Set outputs of a node and send its RPDOs now (see ``Node.write_outputs``)."""
         self.require_bus()
         p = self.nodes[name]
-        self._execute(p, p.node.write_outputs(per_pdo, self.clock()))
+        self._execute(p, p.node.write_outputs(per_pdo, self.clock(), safe=safe))
 
     async def sdo(
         self, name: str, obj: ObjRef, data: bytes | None, *, check_state: bool = True

@@ -299,6 +299,7 @@ class Node:
         per_pdo: dict[int | None, dict[str, Any]],
         now: float,
         send: Sequence[int] | None = None,
+        safe: bool = False,
     ) -> list[Output]:
         """Set output values and send the RPDOs that carry them (one frame per RPDO).
 
@@ -306,13 +307,18 @@ class Node:
         value of those signals), ``per_pdo[n]`` to RPDO n only. Which RPDOs go out (unless ``send`` says): those carrying a signal mapped only
         there; a signal mapped in several RPDOs (a shared control word) alone goes out in the
         last of them. Raises NodeNotOperational (nothing changed) when the node is not
-        operational."""
+        operational. ``safe``: these are the safe values of the output watchdog (the node's
+        ``outputs`` health says ``safe`` until the next write)."""
         self.require_operational()
         numbers = list(send) if send else self.outputs.set(per_pdo)
         if send:
             self.outputs.set(per_pdo)
         self.health.rpdo_sent += len(numbers)
         out: list[Output] = [self.outputs.frame(n, now) for n in numbers]
+        mode = "safe" if safe else "normal"
+        if self.health.outputs != mode:
+            self.health.outputs = mode
+            out.append(HealthChanged("state"))
         shared = per_pdo.get(None)
         if shared:  # outputs sent are also the image's value of those signals
             out.append(ValuesRead(tuple(shared), tuple(shared.values())))

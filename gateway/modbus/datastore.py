@@ -7,7 +7,12 @@ never torn); writes go through the command service and are answered when the RPD
 or the device confirmed the SDO. Write protection (``read_only``, ``allowed_networks``) and the
 write timeout live here.
 
-Imports: commands, config, errors, image, modbus.protocol, modbus.regmap, ratelimit, states.
+Read Device Identification (function 43/14) answers from ``modbus.identity`` with the
+identity objects read here from each device once per boot, through the command service.
+
+Imports: commands, config, errors, image, modbus.identity, modbus.protocol, modbus.regmap,
+modbus.watchdog,
+ratelimit, states.
 """
 
 from __future__ import annotations
@@ -23,10 +28,14 @@ from typing import Any
 import gateway
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.errors import BusDown, NodeNotOperational, ValueOutOfRange
+from gateway.errors import BusDown, GatewayError, NodeNotOperational, SdoAbort, ValueOutOfRange
 from gateway.image import LinkState, NmtState, NodeImage, ProcessImage, Quality, SignalValue
+from gateway.modbus.identity import IDENTITY_OBJECTS, gateway_objects, node_objects
+from gateway.modbus.identity import parse_request as parse_identification
+from gateway.modbus.identity import respond as identification_response
 from gateway.modbus.protocol import (
     COIL_ON,
+    ENCAPSULATED_INTERFACE,
     LIFECYCLE_CODES,
     MASK_WRITE_REGISTER,
     READ_COILS,
@@ -46,6 +55,7 @@ from gateway.modbus.protocol import (
     unpack_bits,
 )
 from gateway.modbus.regmap import TABLE_NAMES, Point, RegisterMap, Table
+from gateway.modbus.watchdog import OutputWatchdog
 from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_BY_CODE
 
@@ -69,6 +79,10 @@ class ImageDatastore:
         self.by_function: dict[int, int] = {}  # requests by function code
         self.exceptions: dict[int, int] = {}
         self.warn = RateLimitedLog(log)
+        self.watchdog: OutputWatchdog | None = None  # set by the server that feeds it
+        self.gateway_name = cfg.gateway.name
+        #: per node: (boot epoch, identity objects read from the device in that epoch)
+        self._identity: dict[str, tuple[tuple[int, int], dict[str, Any]]] = {}
         #: per node, the signals its TPDOs carry (for the quality register)
         self.process_signals: dict[str, tuple[str, ...]] = {}
         for p in regmap.points:
@@ -163,6 +177,7 @@ class ImageDatastore:
                 "operational": node.operational(),
                 "link_ok": h.link in (LinkState.OK, LinkState.NOT_USED),
                 "error_active": bool(h.current_errors),
+                "outputs_safe": h.outputs == "safe",
             }[p.name]
         assert p.bit is not None
         key = (node.name, p.name)
@@ -227,6 +242,8 @@ class ImageDatastore:
                 ch for ch in parts[("major", "minor", "patch").index(name[8:])] if ch.isdigit()
             )
             return int(digits or 0)
+        if name == "watchdog_trips":
+            return 0 if self.watchdog is None else sum(self.watchdog.trips.values()) & 0xFFFFFFFF
         nodes = self.image.nodes.values()
         if name == "nodes_configured":
             return len(self.image.nodes)
@@ -235,6 +252,41 @@ class ImageDatastore:
         if name == "nodes_operational":
             return sum(1 for n in nodes if n.operational())
         return 0
+
+    # ------------------------------------------------------------------ identification
+    async def identification(self, unit: int) -> dict[int, bytes]:
+        """The Read Device Identification objects of a unit (``modbus.identity``)."""
+        node = self.regmap.units.get(unit)
+        if node is None:
+            return gateway_objects(gateway.__version__, self.gateway_name)
+        info = self.commands.node(node)
+        return node_objects(info.lp, node, info.node_id, await self._identity_read(node))
+
+    async def _identity_read(self, node: str) -> dict[str, Any]:
+        """1018h, 1008h, 1009h, 100Ah as read from the device once per boot (on the first
+        identification request after it): objects it aborts are left out; a node that is
+        not alive or does not answer gives none (the EDS / profile values are served)."""
+        image = self.image.nodes[node]
+        h = image.health
+        epoch = (h.boot_count, h.loss_count)
+        hit = self._identity.get(node)
+        if hit is not None and hit[0] == epoch:
+            return hit[1]
+        if not h.alive:
+            return {}
+        read: dict[str, Any] = {}
+        for key, obj in IDENTITY_OBJECTS.items():
+            try:
+                read[key] = await self.commands.sdo_read(node, obj)
+            except SdoAbort:
+                continue  # the device does not have it
+            except (GatewayError, TimeoutError) as exc:
+                self.warn.warning(
+                    ("identity", node), "identification of %s: %s not read: %s", node, obj, exc
+                )
+                return read  # not cached: tried again on the next request
+        self._identity[node] = (epoch, read)
+        return read
 
     # ------------------------------------------------------------------ writes
     def check_access(self, peer: str | None) -> None:
@@ -378,6 +430,9 @@ async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None
         raise ModbusError(
             ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"
         )
+    if fc == ENCAPSULATED_INTERFACE:
+        code, object_id = parse_identification(body)
+        return identification_response(await store.identification(unit), code, object_id)
     if fc in READ_TABLE:
         address, qty = struct.unpack(">HH", body)
         values = await store.read(unit, READ_TABLE[fc], address, qty)

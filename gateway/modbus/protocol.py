@@ -45,9 +45,10 @@ class ExceptionCode(IntEnum):
 READ_COILS, READ_DISCRETE_INPUTS, READ_HOLDING, READ_INPUT = 0x01, 0x02, 0x03, 0x04
 WRITE_COIL, WRITE_REGISTER, WRITE_COILS, WRITE_REGISTERS = 0x05, 0x06, 0x0F, 0x10
 MASK_WRITE_REGISTER, READ_WRITE_REGISTERS = 0x16, 0x17
+ENCAPSULATED_INTERFACE = 0x2B  # 6.19-6.21; MEI type 14 Read Device Identification (identity.py)
 READ_TABLE: dict[int, Table] = {READ_COILS: "co", READ_DISCRETE_INPUTS: "di", READ_HOLDING: "hr", READ_INPUT: "ir"}  # fmt: skip
 WRITES = {WRITE_COIL, WRITE_REGISTER, WRITE_COILS, WRITE_REGISTERS, MASK_WRITE_REGISTER, READ_WRITE_REGISTERS}  # fmt: skip
-SUPPORTED = {*READ_TABLE, *WRITES}
+SUPPORTED = {*READ_TABLE, *WRITES, ENCAPSULATED_INTERFACE}
 
 # Quantity limits (Modbus Application Protocol V1.1b3, 6.1-6.4, 6.11, 6.12, 6.17)
 MAX_READ_BITS = 0x07D0
@@ -115,6 +116,8 @@ def check_request(fc: int, body: bytes) -> ExceptionCode | None:
         return None if value in (COIL_ON, COIL_OFF) else ExceptionCode.ILLEGAL_DATA_VALUE
     if fc == WRITE_REGISTER:
         return None if n == 4 else ExceptionCode.ILLEGAL_DATA_VALUE
+    if fc == ENCAPSULATED_INTERFACE:  # MEI type, ReadDevId code, object id (6.21)
+        return None if n == 3 else ExceptionCode.ILLEGAL_DATA_VALUE
     if fc == MASK_WRITE_REGISTER:
         return None if n == 6 else ExceptionCode.ILLEGAL_DATA_VALUE
     if fc in (WRITE_COILS, WRITE_REGISTERS):

@@ -11,7 +11,7 @@ and one for the gateway itself (``modbus.gateway_unit_id``, default 247). Within
   reads the NMT state)
 * holding registers 100..: writable process data (RPDO signals), then configuration objects
   served by SDO, in profile order
-* discrete inputs 0..3: alive, operational, link ok, error active; 100..: the bits of read-only
+* discrete inputs 0..4: alive, operational, link ok, error active, outputs safe; 100..: the bits of read-only
   word signals that name single bits, one address per bit of the word: address = start + bit
 * coils 100..: the bits of writable word signals (control words, SDO parameter words), same
   scheme
@@ -73,6 +73,7 @@ NODE_DIAG_BITS = [
     (1, "operational", "alive, NMT operational and process-data link OK"),
     (2, "link_ok", "guarding-bit link OK (or not used)"),
     (3, "error_active", "an EMCY error is active"),
+    (4, "outputs_safe", "the node's outputs hold the safe values of the output watchdog"),
 ]
 GATEWAY_REGS = [
     (0, "bus_state", "uint16", "CAN bus: 0 down, 1 ok, 2 error passive / bus off"),
@@ -88,6 +89,7 @@ GATEWAY_REGS = [
     (16, "nodes_configured", "uint16", "nodes in the configuration"),
     (17, "nodes_alive", "uint16", "nodes alive"),
     (18, "nodes_operational", "uint16", "nodes operational"),
+    (19, "watchdog_trips", "uint32", "output watchdog trips (safe outputs written)"),
 ]
 NMT_DESCRIPTION = (
     "write 1 start, 2 stop, 128 pre-operational, 129 reset node, 130 reset communication; "

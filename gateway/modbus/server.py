@@ -29,7 +29,17 @@ A frame whose MBAP header is invalid (protocol id not 0, length outside 2..254) 
 resynchronised in a TCP stream: it is dropped and that connection closed; other clients are not
 affected.
 
-Imports: commands, config, errors, image, modbus.regmap. Never zenoh_bridge/ or bus/ directly
+The output watchdog (``modbus.watchdog_ms``, ``watchdog_on_disconnect``) is fed here: every
+request and every disconnection; its machine is ``modbus.watchdog.OutputWatchdog``, its timer a
+``loop.call_at`` at the machine's next deadline, and a trip writes the nodes' safe outputs
+(``gateway.safe_outputs``) through the command service.
+
+Modbus/TCP Security (``modbus.tls``): a second listener with TLS; each of its connections gets
+the rights of its certificate's role (``modbus.security``), checked here before a request is
+served: a refused request is answered 0x01 and logged once per period.
+
+Imports: commands, config, errors, image, modbus.regmap, modbus.security, modbus.watchdog,
+profiles, safe_outputs. Never zenoh_bridge/ or bus/ directly
 (the bus is reached through the command service only); no pymodbus (its server loses pipelined
 requests: it clears its receive buffer on every send).
 """
@@ -38,6 +48,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from typing import Any
 
 from gateway.commands import CommandService
 from gateway.config import Config
@@ -55,6 +66,10 @@ from gateway.modbus.protocol import (
     exception_code,
 )
 from gateway.modbus.regmap import build_register_map
+from gateway.modbus.security import Access, access_of, tls_context
+from gateway.modbus.watchdog import OutputWatchdog
+from gateway.profiles import load_node_profile
+from gateway.safe_outputs import safe_outputs
 
 log = logging.getLogger("gateway.modbus")
 
@@ -63,9 +78,12 @@ log = logging.getLogger("gateway.modbus")
 class _Connection(asyncio.Protocol):
     """One client: MBAP framing, requests served concurrently, answers by transaction id."""
 
-    def __init__(self, owner: ModbusGateway):
+    def __init__(self, owner: ModbusGateway, tls: bool = False):
         self.owner = owner
         self.store = owner.store
+        self.tls = tls
+        self.role: str | None = None
+        self.access: Access | None = None  # a TLS client's rights; None: plain TCP
         self.transport: asyncio.Transport | None = None
         self.peer: str | None = None
         self.buf = bytearray()
@@ -79,13 +97,35 @@ class _Connection(asyncio.Protocol):
         info = transport.get_extra_info("peername")
         self.peer = str(info[0]) if info else None
         self.owner.connections.add(self)
+        self.owner.watchdog.on_connect(asyncio.get_running_loop().time())
+        if self.tls and self.owner.cfg.modbus.tls is not None:
+            ssl_object = transport.get_extra_info("ssl_object")
+            der = ssl_object.getpeercert(binary_form=True) if ssl_object is not None else None
+            self.role, self.access = access_of(self.owner.cfg.modbus.tls, der)
+            log.info(
+                "Modbus/TLS client %s connected, role %s: %s",
+                self.peer, self.role or "none", self.access,
+            )  # fmt: skip
         log.debug("Modbus client %s connected", self.peer)
+
+    def _authorise(self, fc: int) -> None:
+        """A TLS client's role: ``read`` may not write, ``none`` may do nothing (0x01)."""
+        access = self.access
+        if access is None or access == "write" or (access == "read" and fc not in WRITES):
+            return
+        what = "a write" if fc in WRITES else "a request"
+        why = f"{what} (function {fc}) needs a role with write access; role {self.role or 'none'} has {access}"
+        self.store.warn.warning(
+            ("role", self.peer, self.role, access), "Modbus/TLS client %s refused: %s", self.peer, why
+        )
+        raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.owner.connections.discard(self)
         self.transport = None
         self.buf.clear()
         log.debug("Modbus client %s disconnected", self.peer)
+        self.owner.client_gone()
 
     def data_received(self, data: bytes) -> None:
         self.buf += data
@@ -134,9 +174,11 @@ class _Connection(asyncio.Protocol):
     async def _serve(self, tid: int, unit: int, pdu: bytes) -> None:
         store = self.store
         store.requests += 1
+        self.owner.request_seen()
         fc = pdu[0]
         store.by_function[fc] = store.by_function.get(fc, 0) + 1
         try:
+            self._authorise(fc)
             response = await execute(store, unit, pdu, self.peer)
         except Exception as exc:  # noqa: BLE001 - every failure becomes an exception response
             code = exception_code(exc)
@@ -151,6 +193,7 @@ class _Connection(asyncio.Protocol):
             elif not isinstance(exc, (ModbusError, GatewayError, ValueError)):
                 store.warn.warning(("error", type(exc).__name__), "error serving Modbus: %r", exc)
             response = bytes(((fc | 0x80) & 0xFF, int(code)))
+        self.owner.request_seen()  # again when answered: a slow write is no silence
         if self.transport is not None and not self.transport.is_closing():
             self.transport.write(MBAP.pack(tid, 0, len(response) + 1, unit) + response)
 
@@ -160,28 +203,117 @@ class ModbusGateway:
 
     def __init__(self, cfg: Config, image: ProcessImage, commands: CommandService):
         self.cfg = cfg
+        self.commands = commands
         self.regmap = build_register_map(cfg)
         self.store = ImageDatastore(self.regmap, image, commands, cfg)
-        self.server: asyncio.Server | None = None
+        self.server: asyncio.Server | None = None  # the plain one, else the TLS one
         self.port = cfg.modbus.port
+        # Modbus/TCP Security: a second listener (its context built now: a bad file stops here)
+        self.tls_context = tls_context(cfg) if cfg.modbus.tls is not None else None
+        self.tls_server: asyncio.Server | None = None
+        self.tls_port = cfg.modbus.tls.port if cfg.modbus.tls is not None else 0
         self.connections: set[_Connection] = set()
+        # the output watchdog: its machine, the safe values it writes, its timer and task
+        self.watchdog = OutputWatchdog(
+            cfg.modbus.watchdog_ms / 1000.0, cfg.modbus.watchdog_on_disconnect
+        )
+        self.safe_plan: dict[str, dict[str, Any]] = {}
+        if self.watchdog.enabled:
+            for n in cfg.nodes:
+                values = safe_outputs(load_node_profile(n, cfg.base_dir), n)
+                if values:
+                    self.safe_plan[n.name] = values
+        self.store.watchdog = self.watchdog
+        self.last_safe: dict[str, str] = {}  # per node: "safe" or why not, at the last trip
+        self._wd_timer: asyncio.TimerHandle | None = None
+        self._wd_tasks: set[asyncio.Task[None]] = set()
+        self._stopping = False
+
+    # ------------------------------------------------------------------ output watchdog
+    def request_seen(self) -> None:
+        """Every request (any unit, any function, any outcome) feeds the watchdog."""
+        wd = self.watchdog
+        if not wd.enabled:
+            return
+        wd.on_request(asyncio.get_running_loop().time())
+        if self._wd_timer is None:
+            self._wd_schedule()
+
+    def client_gone(self) -> None:
+        if self._stopping:
+            return  # the gateway stops: its clients did not go away
+        reason = self.watchdog.on_disconnect(asyncio.get_running_loop().time())
+        if reason is not None:
+            self._trip(reason)
+
+    def _wd_schedule(self) -> None:
+        deadline = self.watchdog.next_deadline()
+        if deadline is not None and self.server is not None:
+            self._wd_timer = asyncio.get_running_loop().call_at(deadline, self._wd_tick)
+
+    def _wd_tick(self) -> None:
+        self._wd_timer = None
+        reason = self.watchdog.tick(asyncio.get_running_loop().time())
+        if reason is not None:
+            self._trip(reason)
+        else:
+            self._wd_schedule()  # a request came since: the deadline moved
+
+    def _trip(self, reason: str) -> None:
+        why = (
+            f"no request for {self.cfg.modbus.watchdog_ms} ms"
+            if reason == "timeout"
+            else "the last client disconnected"
+        )
+        log.warning(
+            "Modbus output watchdog tripped (%s): writing the safe outputs of %s",
+            why,
+            ", ".join(self.safe_plan) or "no node (none has a safe value)",
+        )
+        task = asyncio.get_running_loop().create_task(self._write_safe())
+        self._wd_tasks.add(task)
+        task.add_done_callback(self._wd_tasks.discard)
+
+    async def _write_safe(self) -> None:
+        self.last_safe = await self.commands.write_safe_outputs(self.safe_plan)
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
-        self.server = await loop.create_server(
-            lambda: _Connection(self),
-            self.cfg.modbus.host,
-            self.cfg.modbus.port,
-            reuse_address=True,
-        )
-        if self.port == 0:
-            self.port = self.server.sockets[0].getsockname()[1]
-        log.info("Modbus TCP listening on %s:%d", self.cfg.modbus.host, self.port)
+        if self.cfg.modbus.plain:
+            self.server = await loop.create_server(
+                lambda: _Connection(self),
+                self.cfg.modbus.host,
+                self.cfg.modbus.port,
+                reuse_address=True,
+            )
+            if self.port == 0:
+                self.port = self.server.sockets[0].getsockname()[1]
+            log.info("Modbus TCP listening on %s:%d", self.cfg.modbus.host, self.port)
+        tls = self.cfg.modbus.tls
+        if tls is not None:
+            host = tls.host or self.cfg.modbus.host
+            self.tls_server = await loop.create_server(
+                lambda: _Connection(self, tls=True),
+                host,
+                tls.port,
+                ssl=self.tls_context,
+                reuse_address=True,
+            )
+            self.tls_port = self.tls_server.sockets[0].getsockname()[1]
+            if self.server is None:
+                self.server = self.tls_server
+            log.info("Modbus/TCP Security (TLS) listening on %s:%d", host, self.tls_port)
 
     async def stop(self) -> None:
         if self.server is None:
             return
+        self._stopping = True
+        if self._wd_timer is not None:
+            self._wd_timer.cancel()
+            self._wd_timer = None
         self.server.close()
+        if self.tls_server is not None and self.tls_server is not self.server:
+            self.tls_server.close()
         tasks = [t for c in self.connections for t in c.tasks]
         for c in list(self.connections):
             if c.transport is not None:
@@ -191,4 +323,7 @@ class ModbusGateway:
         if tasks:
             await asyncio.gather(*tasks, return_exceptions=True)
         await self.server.wait_closed()
+        if self.tls_server is not None and self.tls_server is not self.server:
+            await self.tls_server.wait_closed()
         self.server = None
+        self.tls_server = None

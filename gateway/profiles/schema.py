@@ -149,6 +149,10 @@ class Signal(_Strict):
     values: dict[HexInt, str] = Field(default_factory=dict, description="value texts (enums)")
     bits: list[BitField] = Field(default_factory=list)
     description: str = ""
+    safe_value: float | int | str | None = Field(
+        default=None,
+        description="raw value an RPDO output falls back to when the PLC is gone (modbus.watchdog_ms)",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> Signal:

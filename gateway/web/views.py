@@ -256,6 +256,7 @@ class ConsoleModel:
             "data_age_s": None if age is None else round(age, 3),
             "last_sdo_abort": f"0x{h.last_sdo_abort:08X}" if h.last_sdo_abort else "",
             "last_error": h.last_error,
+            "outputs": h.outputs,
         }
 
     def node_rows(self) -> list[dict[str, Any]]:

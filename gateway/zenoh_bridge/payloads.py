@@ -154,6 +154,7 @@ def state_payload(node: NodeImage, now_s: float | None = None) -> dict[str, Any]
         "emcy_count": h.emcy_count,
         "current_errors": [f"0x{c:04X}" for c in h.current_errors],
         "last_error": h.last_error,
+        "outputs": h.outputs,
         "data_age_s": None if age is None else round(age, 3),
         "ts": time.time() if now_s is None else now_s,
     }

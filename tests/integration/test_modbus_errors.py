@@ -69,7 +69,7 @@ async def test_unmapped_addresses_answer_illegal_data_address() -> None:
         assert code(await client.read_input_registers(50, count=1, device_id=1)) == ILLEGAL_ADDRESS
         # diagnostics 0-15 and process data 100.. with a gap between: one request fails whole
         assert code(await client.read_input_registers(0, count=101, device_id=1)) == ILLEGAL_ADDRESS
-        assert code(await client.read_discrete_inputs(4, count=1, device_id=1)) == ILLEGAL_ADDRESS
+        assert code(await client.read_discrete_inputs(5, count=1, device_id=1)) == ILLEGAL_ADDRESS
         assert code(await client.write_register(99, 1, device_id=1)) == ILLEGAL_ADDRESS
         assert code(await client.write_coil(0, True, device_id=1)) == ILLEGAL_ADDRESS
         assert code(await client.read_input_registers(0, count=1, device_id=1)) is None

@@ -157,7 +157,7 @@ function renderNodes(rows) {
       ["quality", badge(r.quality)],
       ["presence", presenceBadge(r)],
       ["nmt_state", r.nmt_state],
-      ["lifecycle", r.lifecycle],
+      ["lifecycle", r.outputs === "safe" ? el("span", {}, r.lifecycle + " ", badge("outputs: safe", "stale")) : r.lifecycle],
       ["supervision", r.supervision_timing],
       ["link", linkBadge(r.link)],
       ["last_emcy", emcy],
@@ -192,6 +192,7 @@ function renderNodeRow(r) {
     ["NMT state", r.nmt_state],
     ["Lifecycle", r.lifecycle],
     ["Guarding-bit link", linkBadge(r.link)],
+    ["Outputs", r.outputs === "safe" ? badge("outputs: safe", "stale") : "normal (as the last write set them)"],
     ["Data age", fmtAge(r.data_age_s)],
     ["Device", r.title],
   ]);

@@ -1,0 +1,197 @@
+"""The Modbus output watchdog end to end: a CiA 401 I/O module known from its EDS alone, played
+by python canopen's LocalNode on a virtual bus (boot-up and heartbeat sent by the test), a real
+pymodbus client as the PLC. When the PLC falls silent (or its connection goes), the RPDOs with
+the safe values are seen on the bus, outputs without a safe value keep theirs, the node says
+``outputs: safe`` in /healthz, Modbus, Zenoh and the console's view, the trip is counted, and
+the PLC's next write takes over again."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import urllib.request
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+import can
+import pytest
+from pymodbus.client import AsyncModbusTcpClient
+
+from gateway.app import Gateway
+from gateway.checks import check_config
+from gateway.config import ConfigError
+from tests.helpers import free_port, make_config, wait_until
+from tests.integration.test_eds_devices import IO, Heartbeat, SdoLog, boot, local_node
+from tests.zenoh_client import ZClient, sample_where
+
+UNIT = 5
+OUT_1_8, OUT_9_10, OUT_1_10, ANALOGUE_1 = 100, 101, 102, 103  # holding registers (RPDO signals)
+OUTPUTS_SAFE = 4  # discrete input of the node's diagnostics
+RPDO1, RPDO2 = 0x205, 0x305  # 6200h:01, 6200h:02 | 6300h:01, 6411h:01
+SAFE = {"write_output_1h_to_8h": 0, "analogue_output_1": -1}
+
+
+@asynccontextmanager
+async def io_gateway(modbus: dict[str, Any], **sections: Any) -> AsyncIterator[tuple[Gateway, SdoLog]]:
+    cfg = make_config(
+        [{"name": "io", "node_id": UNIT, "eds": str(IO), "heartbeat_ms": 300, "safe_outputs": SAFE}],
+        simulate={"nodes": []},
+        master={"probe_at_start": False},
+        modbus=modbus,
+        **sections,
+    )
+    net, node = local_node(IO, UNIT, cfg.can.channel)
+    sniffer = can.Bus(interface="virtual", channel=cfg.can.channel)
+    frames = SdoLog(UNIT)  # records every frame on the bus
+    notifier = can.Notifier(sniffer, [frames])
+    gw = Gateway(cfg)
+    await gw.start()
+    hb = Heartbeat(sniffer, node)
+    try:
+        boot(node)
+        hb.start()
+        await wait_until(lambda: gw.image.nodes["io"].operational(), 8, "io operational")
+        yield gw, frames
+    finally:
+        hb.stop.set()
+        if hb.is_alive():
+            hb.join()
+        await gw.stop()
+        notifier.stop()
+        sniffer.shutdown()
+        node.nmt.stop_heartbeat()
+        net.disconnect()
+
+
+def sent(frames: SdoLog, cob_id: int) -> list[bytes]:
+    return [data for cob, data in list(frames.frames) if cob == cob_id]
+
+
+async def plc_writes(client: AsyncModbusTcpClient) -> None:
+    """The PLC sets every output: RPDO1 [FF 03], RPDO2 [34 12 | F4 01]."""
+    for address, value in ((OUT_1_8, 0xFF), (OUT_9_10, 0x03), (OUT_1_10, 0x1234), (ANALOGUE_1, 500)):
+        rr = await client.write_register(address, value, device_id=UNIT)
+        assert not rr.isError(), rr
+
+
+async def test_silent_plc_gets_safe_outputs_once_and_its_next_write_takes_over() -> None:
+    async with io_gateway({"watchdog_ms": 300}) as (gw, frames):
+        client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+        await client.connect()
+        z = ZClient(gw.cfg.zenoh.listen)
+        states = z.subscribe("canopen/test/io/state")
+        try:
+            await plc_writes(client)
+            await wait_until(lambda: bytes.fromhex("3412f401") in sent(frames, RPDO2), 5, "PLC's RPDO2")
+            assert gw.image.nodes["io"].health.outputs == "normal"
+            # the PLC falls silent (connected, no request): after 300 ms the safe values go out
+            await wait_until(lambda: bytes.fromhex("3412ffff") in sent(frames, RPDO2), 5, "safe RPDO2")
+            # 6200h:01 safe 0; 6200h:02 has no safe value: keeps 03; 6300h:01 keeps 1234h
+            assert bytes.fromhex("0003") in sent(frames, RPDO1)
+            assert gw.image.nodes["io"].health.outputs == "safe"
+            assert gw.modbus.watchdog.trips == {"timeout": 1, "disconnect": 0}
+            assert gw.status()["nodes"]["io"]["outputs"] == "safe"
+            assert gw.status()["modbus_watchdog"]["trips"]["timeout"] == 1
+            sample = await sample_where(states, lambda s: s.body.get("outputs") == "safe", 5)
+            assert sample.body["node"] == "io"
+            # written once: no further RPDO while silent (the trip happened; the machine
+            # has no deadline until the next request)
+            assert gw.modbus.watchdog.next_deadline() is None
+            # Modbus: the node's outputs_safe bit, the gateway's trip counter, the values read back
+            bits = await client.read_discrete_inputs(OUTPUTS_SAFE, count=1, device_id=UNIT)
+            assert bits.bits[0] is True
+            trips = await client.read_input_registers(19, count=2, device_id=247)
+            assert trips.registers == [0, 1]
+            back = await client.read_holding_registers(OUT_1_8, count=4, device_id=UNIT)
+            assert back.registers == [0, 0x03, 0x1234, 0xFFFF]
+            # the PLC writes again: that write goes out and the node is back to normal
+            rr = await client.write_register(OUT_1_8, 0x0F, device_id=UNIT)
+            assert not rr.isError(), rr
+            await wait_until(lambda: bytes.fromhex("0f03") in sent(frames, RPDO1), 5, "PLC's RPDO1")
+            assert gw.image.nodes["io"].health.outputs == "normal"
+            bits = await client.read_discrete_inputs(OUTPUTS_SAFE, count=1, device_id=UNIT)
+            assert bits.bits[0] is False
+            await sample_where(states, lambda s: s.body.get("outputs") == "normal", 5)
+        finally:
+            z.close()
+            client.close()
+
+
+async def test_last_client_disconnecting_writes_the_safe_outputs_at_once() -> None:
+    health = free_port()
+    async with io_gateway(
+        {"watchdog_on_disconnect": True}, health={"port": health}
+    ) as (gw, frames):
+        client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+        await client.connect()
+        await plc_writes(client)
+        await wait_until(lambda: bytes.fromhex("3412f401") in sent(frames, RPDO2), 5, "PLC's RPDO2")
+        assert gw.modbus.watchdog.next_deadline() is None, "no timeout configured"
+        client.close()  # the cable is pulled
+        await wait_until(lambda: bytes.fromhex("3412ffff") in sent(frames, RPDO2), 5, "safe RPDO2")
+        assert gw.modbus.watchdog.trips == {"timeout": 0, "disconnect": 1}
+
+        def get(path: str) -> str:
+            with urllib.request.urlopen(f"http://127.0.0.1:{health}{path}", timeout=5) as r:
+                return r.read().decode()
+
+        status = json.loads(await asyncio.to_thread(get, "/healthz"))
+        assert status["nodes"]["io"]["outputs"] == "safe"
+        assert status["modbus_watchdog"] == {
+            "state": "tripped",
+            "trips": {"timeout": 0, "disconnect": 1},
+        }
+        metrics = await asyncio.to_thread(get, "/metrics")
+        assert 'canopen_gateway_modbus_watchdog_trips_total{reason="disconnect"} 1.0' in metrics
+        row = json.loads(await asyncio.to_thread(get, "/api/node/io"))
+        assert row["row"]["outputs"] == "safe"
+
+
+def test_check_names_a_safe_output_that_is_no_rpdo_output() -> None:
+    with pytest.raises(ConfigError) as err:
+        check_config(
+            make_config(
+                [{"name": "io", "node_id": 5, "eds": str(IO), "safe_outputs": {"read_input_1h_to_8h": 0}}]
+            )
+        )
+    (line,) = [p for p in err.value.problems if "safe_outputs" in p]
+    assert "nodes[0].safe_outputs.read_input_1h_to_8h: not an RPDO output of node io" in line
+    assert "write_output_1h_to_8h" in line, "names what is allowed"
+
+
+def test_check_names_a_safe_value_out_of_range() -> None:
+    with pytest.raises(ConfigError) as err:
+        check_config(
+            make_config(
+                [{"name": "io", "node_id": 5, "eds": str(IO), "safe_outputs": {"write_output_1h_to_8h": 300}}]
+            )
+        )
+    (line,) = [p for p in err.value.problems if "safe_outputs" in p]
+    assert "nodes[0].safe_outputs.write_output_1h_to_8h: value 300 not allowed" in line
+
+
+async def test_simulated_ap05_set_point_falls_back_to_its_safe_value() -> None:
+    """Our own simulator on the device side: the AP05's set point 1 (5F16h:03) as the device
+    holds it, written by the PLC, then by the watchdog."""
+    display = {"name": "display", "node_id": 125, "profile": "ap05", "safe_outputs": {"set_point1": 0}}
+    cfg = make_config([display], zenoh={"enabled": False}, modbus={"watchdog_ms": 200})
+    gw = Gateway(cfg)
+    await gw.start()
+    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+    try:
+        await wait_until(gw.image.nodes["display"].operational, 5, "display operational")
+        sim = gw.sim.nodes["display"]
+
+        def set_point1() -> int:
+            return gw.sim.runner.call(lambda now: sim.get(0x5F16, 3))
+
+        await client.connect()
+        rr = await client.write_registers(100, [0, 4321], device_id=125)
+        assert not rr.isError(), rr
+        await wait_until(lambda: set_point1() == 4321, 3, "the PLC's set point on the device")
+        await wait_until(lambda: set_point1() == 0, 5, "the safe set point on the device")
+        assert gw.image.nodes["display"].health.outputs == "safe"
+    finally:
+        client.close()
+        await gw.stop()
