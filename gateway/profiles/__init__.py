@@ -28,11 +28,11 @@ import canopen
 import yaml
 from pydantic import ValidationError
 
-from gateway.eds import EdsError, load_eds
-from gateway.eds.parse import read_text
+from gateway.eds import EdsError, EdsFile, dictionary_for_node, load_eds
 from gateway.eds.pdos import (
     access_of,
     eds_pdos,
+    mapping_findings,
     object_name,
     od_var,
     signal_type,
@@ -70,6 +70,8 @@ class LoadedProfile:
     path: Path
     eds_path: Path
     od: canopen.ObjectDictionary
+    #: what the gateway skips or reads leniently for this node (file:line: [section]: ...)
+    warnings: tuple[str, ...] = ()
 
     @property
     def family(self) -> str:
@@ -101,12 +103,10 @@ def resolve_profile_path(name_or_path: str, base_dir: Path | None = None) -> Pat
 
 
 def import_eds(path: Path, node_id: int | None = None) -> canopen.ObjectDictionary:
-    """Check an EDS and parse it with canopen for ``node_id``; problems are a ProfileError."""
-    from gateway.eds import import_od_strict
-
+    """The dictionary of an EDS with ``$NODEID`` resolved for ``node_id``; an unreadable file
+    is a ProfileError."""
     try:
-        load_eds(path)
-        return import_od_strict(read_text(Path(path)), Path(path), node_id)
+        return dictionary_for_node(path, node_id)
     except EdsError as exc:
         raise ProfileError(str(exc)) from None
 
@@ -134,11 +134,32 @@ def _layout_objects(profile: Profile) -> tuple[set[ObjRef], set[ObjRef]]:
     return t, r
 
 
-def _eds_layout(od: canopen.ObjectDictionary, node_id: int | None) -> tuple[list[Pdo], list[Pdo]]:
-    return (
-        [pdo_from_eds(p) for p in eds_pdos(od, node_id, "tpdo") if p.enabled],
-        [pdo_from_eds(p) for p in eds_pdos(od, node_id, "rpdo") if p.enabled],
-    )
+@dataclass(frozen=True)
+class _EdsLayout:
+    tpdos: list[Pdo]
+    rpdos: list[Pdo]
+    refused: dict[tuple[str, int], str]  # (kind, number) -> why the gateway cannot decode it
+    warnings: dict[tuple[str, int], list[str]]
+
+
+def _eds_layout(od: canopen.ObjectDictionary, node_id: int | None, eds_path: Path | None = None) -> _EdsLayout:
+    """The enabled PDOs of the file; one the gateway would decode wrongly is left out and
+    named in ``refused`` (file, line, section, PDO, object in one line)."""
+    eds_file = _eds_file(eds_path) if eds_path is not None else None
+    out = _EdsLayout([], [], {}, {})
+    for kind, into in (("tpdo", out.tpdos), ("rpdo", out.rpdos)):
+        for p in eds_pdos(od, node_id, kind):  # type: ignore[arg-type]
+            if p.cob_id & 0x80000000 or not (p.entries or p.gaps):
+                continue
+            found = mapping_findings(od, p.kind, p.number, p.map_index, p.entries, p.gaps, p.count)
+            lines = [str(eds_file.problem(f.obj, f.message)) if eds_file else f"{eds_path}: {f.message}" for f in found]  # fmt: skip
+            fatal = [line for f, line in zip(found, lines, strict=True) if f.fatal]
+            if fatal:
+                out.refused[(kind, p.number)] = fatal[0]
+                continue
+            out.warnings[(kind, p.number)] = lines
+            into.append(pdo_from_eds(p))
+    return out
 
 
 def _complete(
@@ -199,7 +220,8 @@ def _load(path: Path) -> LoadedProfile:
 def _with_eds(profile: Profile, path: Path, eds_path: Path, od: canopen.ObjectDictionary) -> LoadedProfile:
     t, r = _layout_objects(profile)
     if not (profile.tpdos or profile.rpdos or profile.pdo_variants):
-        et, er = _eds_layout(od, None)
+        lay = _eds_layout(od, None)
+        et, er = lay.tpdos, lay.rpdos
         t |= {e.object for p in et for e in p.mapping}
         r |= {e.object for p in er for e in p.mapping}
     lp = LoadedProfile(profile, path, eds_path, od)
@@ -335,8 +357,13 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
         if prof.pdo_variants is None or variant not in prof.pdo_variants.variants:
             variant = None  # an unknown variant is reported by the config check
         tpdos, rpdos = prof.layout(variant)
+        lay = _EdsLayout([], [], {}, {})
     else:
-        tpdos, rpdos = _eds_layout(od, node_id)
+        lay = _eds_layout(od, node_id, base.eds_path)
+        tpdos, rpdos = lay.tpdos, lay.rpdos
+    for (kind, number), why in lay.refused.items():
+        if number not in ((node.tpdo if kind == "tpdo" else node.rpdo) or {}):
+            raise ProfileError(why)  # unless the node's tpdo:/rpdo: settings remap or disable it
     if node.configure:
         if (node.tpdo or node.rpdo) and prof.pdo_variants is not None:
             raise ProfileError(
@@ -384,6 +411,11 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
         for e in p.mapping:
             if e.object.index >= 0x1000 and e.object not in named and e.object not in new:
                 new.append(e.object)
+    warnings: list[str] = []
+    for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
+        for p in pdos:
+            if p.origin == "eds":  # a layout of the profile or the config is checked with its key
+                warnings += lay.warnings.get((kind, p.number), [])
     names = unique_names(od, new, {s.name for s in signals})
     for o in new:
         var = od_var(od, o)
@@ -391,7 +423,7 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
             continue  # not in the EDS: reported by the check of the layout
         typ = signal_type(var)
         if typ is None:
-            raise ProfileError(f"{base.eds_path.name}: {o} is mapped but has a data type the gateway does not serve")  # fmt: skip
+            continue  # REAL64, DOMAIN...: decoded at its offset and dropped (warned above)
         length = None
         if typ in ("string", "bytes"):
             bits = next(e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o)
@@ -410,7 +442,14 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
     update: dict[str, Any] = {"signals": signals}
     if prof.pdo_variants is None:
         update.update(tpdos=tpdos, rpdos=rpdos)
-    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od)
+    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od, tuple(warnings))
+
+
+def _eds_file(path: Path) -> EdsFile | None:
+    try:
+        return load_eds(path)
+    except EdsError:
+        return None
 
 
 def node_verifies_mapping(lp: LoadedProfile, node: Any, eds_only: bool) -> bool:
