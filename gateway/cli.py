@@ -105,6 +105,8 @@ def cmd_check(args: argparse.Namespace) -> int:
             f"{len(pdo_sigs)} process signals ({', '.join(pdo_sigs)}), "
             f"{len(sdo_sigs)} configuration objects"
         )
+        for note in lp.notes:
+            print(f"  warning: node {n.name}: {note}")
     _print_eds_warnings(cfg)
     return 0
 

@@ -191,7 +191,8 @@ class Master:
         for ncfg in cfg.nodes:
             lp = load_node_profile(ncfg, cfg.base_dir)
             names = [s.name for s in lp.profile.signals]
-            stale = ncfg.stale_after_ms / 1000.0 if ncfg.stale_after_ms else None
+            stale_ms = ncfg.stale_after_ms or lp.stale_after_ms  # derived: EDS-only, no supervision
+            stale = stale_ms / 1000.0 if stale_ms else None
             ni = NodeImage(
                 ncfg.name, ncfg.node_id, lp.family, names, stale, ncfg.modbus.serve_stale
             )

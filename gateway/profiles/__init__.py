@@ -48,7 +48,7 @@ from gateway.profiles.layout import (
     is_pdo_object,
     pdo_from_eds,
 )
-from gateway.profiles.schema import Pdo, Profile, Signal
+from gateway.profiles.schema import Boot, Pdo, Profile, Signal
 
 PROFILE_DIR = Path(__file__).parent
 
@@ -72,6 +72,10 @@ class LoadedProfile:
     od: canopen.ObjectDictionary
     #: what the gateway skips or reads leniently for this node (file:line: [section]: ...)
     warnings: tuple[str, ...] = ()
+    #: an EDS-only node without supervision: the data age after which its values are stale
+    stale_after_ms: int | None = None
+    #: advice for ``check`` about the node (e.g. a loss that cannot be detected)
+    notes: tuple[str, ...] = ()
 
     @property
     def family(self) -> str:
@@ -346,6 +350,7 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
             title=eds.product_name,
             eds=eds_path.name,
             signals=[],
+            boot=device_supervision(eds.od),
         )
         base = _with_eds(profile, eds_path, eds_path, eds.od)
     prof = base.profile
@@ -442,7 +447,48 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
     update: dict[str, Any] = {"signals": signals}
     if prof.pdo_variants is None:
         update.update(tpdos=tpdos, rpdos=rpdos)
-    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od, tuple(warnings))
+    stale_ms: int | None = None
+    notes: list[str] = []
+    if not node.profile and getattr(node, "supervision", None) is None and prof.boot.supervision == "none":
+        stale_ms = stale_after_from_event_timers(tpdos)
+        age = (
+            f"its values go stale {stale_ms} ms after their last TPDO "
+            f"({STALE_EVENT_TIMER_MULTIPLE} x the longest TPDO event timer)"
+            if stale_ms
+            else "no TPDO has an event timer, so its values never go stale by age"
+        )
+        notes.append(
+            f"{base.eds_path.name} has neither 1017h (heartbeat) nor 100Ch/100Dh (node guarding): "
+            f"a lost device cannot be detected otherwise; {age}"
+        )
+    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od, tuple(warnings),
+                         stale_ms, tuple(notes))  # fmt: skip
+
+
+#: an EDS-only node without supervision: values are stale after this many event timer periods
+STALE_EVENT_TIMER_MULTIPLE = 3
+
+
+def stale_after_from_event_timers(tpdos: Sequence[Pdo]) -> int | None:
+    """``stale_after_ms`` of a node the gateway cannot supervise: 3 x the longest event timer
+    of its TPDOs (None when no TPDO has one)."""
+    timers = [p.event_timer_ms for p in tpdos if p.event_timer_ms]
+    return STALE_EVENT_TIMER_MULTIPLE * max(timers) if timers else None
+
+
+def device_supervision(od: canopen.ObjectDictionary) -> Boot:
+    """How an EDS-only node is supervised when its config does not say: heartbeat when the
+    device has 1017h (CiA 301 7.5.2.25), else node guarding when it has 100Ch and 100Dh (guard
+    time and life time factor from the file when not 0), else none."""
+    if 0x1017 in od:
+        return Boot()
+    if 0x100C in od and 0x100D in od:
+        gt = od_var(od, ObjRef(0x100C, 0))
+        ltf = od_var(od, ObjRef(0x100D, 0))
+        gt_ms = gt.default if gt is not None and isinstance(gt.default, int) and 0 < gt.default <= 65535 else 100
+        lt = ltf.default if ltf is not None and isinstance(ltf.default, int) and 0 < ltf.default <= 255 else 3
+        return Boot(supervision="guarding", guard_time_ms=gt_ms, life_time_factor=lt)
+    return Boot(supervision="none")
 
 
 def _eds_file(path: Path) -> EdsFile | None:
