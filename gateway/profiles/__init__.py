@@ -478,13 +478,22 @@ def stale_after_from_event_timers(tpdos: Sequence[Pdo]) -> int | None:
 
 def device_supervision(od: canopen.ObjectDictionary) -> Boot:
     """How an EDS-only node is supervised when its config does not say: heartbeat when the
-    device has 1017h (CiA 301 7.5.2.25), else node guarding when it has 100Ch and 100Dh (guard
-    time and life time factor from the file when not 0), else none."""
-    if 0x1017 in od:
+    device has a writable 1017h (CiA 301 7.5.2.25), else node guarding when it has writable
+    100Ch and 100Dh and no 1017h (guard time and life time factor from the file when not 0;
+    else 100 ms and 3), else none."""
+    def settable(obj: ObjRef) -> canopen.objectdictionary.ODVariable | None:
+        var = od_var(od, obj)  # an integer the gateway can write (a damaged entry is not)
+        ok = var is not None and var.data_type in (0x5, 0x6, 0x7) and var.access_type in ("rw", "wo", "rww", "rwr")
+        return var if ok else None
+
+    hb = settable(ObjRef(0x1017, 0))
+    if hb is not None:
+        lo, hi = hb.min, hb.max  # a file whose limits exclude 100 ms: the nearest allowed time
+        if isinstance(lo, int) and isinstance(hi, int) and 0 < hi and lo <= hi and not lo <= 100 <= hi:
+            return Boot(heartbeat_ms=min(max(100, lo, 1), hi, 65535))
         return Boot()
-    if 0x100C in od and 0x100D in od:
-        gt = od_var(od, ObjRef(0x100C, 0))
-        ltf = od_var(od, ObjRef(0x100D, 0))
+    gt, ltf = settable(ObjRef(0x100C, 0)), settable(ObjRef(0x100D, 0))
+    if gt is not None and ltf is not None and (0x1017 not in od or od_var(od, ObjRef(0x1017, 0)) is None):
         gt_ms = gt.default if gt is not None and isinstance(gt.default, int) and 0 < gt.default <= 65535 else 100
         lt = ltf.default if ltf is not None and isinstance(ltf.default, int) and 0 < ltf.default <= 255 else 3
         return Boot(supervision="guarding", guard_time_ms=gt_ms, life_time_factor=lt)
