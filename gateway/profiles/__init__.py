@@ -507,6 +507,27 @@ def _eds_file(path: Path) -> EdsFile | None:
         return None
 
 
+#: CiA 306 placeholders: a VendorNumber / ProductNumber of 0 or all ones says nothing
+_NOT_GIVEN = (0, 0xFFFFFFFF)
+
+
+def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
+    """What the device at this node must hold in 1018h (CiA 301 7.5.2.20), as its EDS/DCF
+    says: sub 01h = VendorNumber and 02h = ProductNumber of [DeviceInfo] when the file gives
+    both, and for a DCF sub 04h = the ParameterValue of 1018h:04 (the serial number of the
+    commissioned device). Empty when the file gives no identity."""
+    info = lp.od.device_information
+    vendor, product = info.vendor_number, info.product_number
+    if vendor in (None, *_NOT_GIVEN) or product in (None, *_NOT_GIVEN):
+        return ()
+    out = [(ObjRef(0x1018, 1), int(vendor)), (ObjRef(0x1018, 2), int(product))]  # type: ignore[arg-type]
+    serial = od_var(lp.od, ObjRef(0x1018, 4))
+    held = getattr(serial, "value", None)
+    if lp.eds_path.suffix.lower() == ".dcf" and isinstance(held, int) and held not in _NOT_GIVEN:
+        out.append((ObjRef(0x1018, 4), held))
+    return tuple(out)
+
+
 def node_verifies_mapping(lp: LoadedProfile, node: Any, eds_only: bool) -> bool:
     """``verify_mapping``: the node's setting, else on for EDS-only nodes and for profiles
     that ask for it; never for a profile whose mapping objects do not describe the layout."""

@@ -6,6 +6,7 @@ guarding is chosen for a device whose EDS has only 100Ch/100Dh."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 import struct
 from pathlib import Path
@@ -151,4 +152,73 @@ async def test_an_unsupervised_device_runs_and_its_values_go_stale_by_data_age(t
     finally:
         await gw.stop()
         sender.shutdown()
+        net.disconnect()
+
+
+# --------------------------------------------------------------------------- identity (1018h)
+
+
+async def test_a_device_whose_1018h_differs_from_its_eds_is_refused_at_boot_and_never_served() -> None:
+    import json
+    import urllib.request
+
+    from tests.helpers import free_port
+    from tests.zenoh_client import ZClient
+
+    cfg = make_config([{"name": "io", "node_id": 5, "eds": str(IO)}], simulate={"nodes": []},
+                      master={"probe_at_start": False}, health={"port": free_port()})  # fmt: skip
+    net, node = local_node(IO, 5, cfg.can.channel)
+    node.set_data(0x1018, 2, struct.pack("<I", 0x999))  # another product of the same vendor
+    sender = can.Bus(interface="virtual", channel=cfg.can.channel)
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        boot(node)
+        io = gw.image.nodes["io"]
+        await wait_until(lambda: io.health.last_error.startswith("wrong device"), 8, "identity refused")
+        assert io.health.last_error == (
+            "wrong device: vendor 0xABC product 0x999, expected vendor 0xABC product 0x401 "
+            "(1018h against the EDS): not configured"
+        )
+        rt = gw.master.nodes["io"]
+        assert rt.lifecycle.state == "waiting" and rt.lifecycle.configurations == 0
+        # the device sends its TPDO anyway: never served
+        sender.send(can.Message(arbitration_id=0x285, data=struct.pack("<Hh", 7, -5), is_extended_id=False))
+        await wait_until(lambda: io.signals["analogue_input_1"].seq > 0, 5, "frame seen")
+        client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+        await client.connect()
+        try:
+            rr = await client.read_input_registers(100, count=1, device_id=5)
+            diag = (await client.read_input_registers(0, count=4, device_id=5)).registers
+        finally:
+            client.close()
+        assert rr.isError() and rr.exception_code == 0x0B
+        assert diag[0] == int(Quality.BAD) and diag[3] == 0  # quality bad, lifecycle waiting
+        z = ZClient(gw.cfg.zenoh.listen)
+        try:
+            r = await z.get_one("canopen/test/io/value/analogue_input_1")
+            assert not r.ok or r.body.get("quality") != "good"
+        finally:
+            z.close()
+        url = f"http://127.0.0.1:{cfg.health.port}/healthz"
+        body = await asyncio.to_thread(lambda: urllib.request.urlopen(url, timeout=3).read())  # noqa: S310
+        assert json.loads(body)["nodes"]["io"]["last_error"].startswith("wrong device: vendor 0xABC product 0x999")
+    finally:
+        await gw.stop()
+        sender.shutdown()
+        net.disconnect()
+
+
+async def test_identity_check_false_configures_any_device() -> None:
+    cfg = make_config([{"name": "io", "node_id": 5, "eds": str(IO), "identity_check": False}],
+                      simulate={"nodes": []}, master={"probe_at_start": False})  # fmt: skip
+    net, node = local_node(IO, 5, cfg.can.channel)
+    node.set_data(0x1018, 2, struct.pack("<I", 0x999))
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        boot(node)
+        await wait_until(lambda: gw.master.nodes["io"].lifecycle.state == "operational", 8, "configured")
+    finally:
+        await gw.stop()
         net.disconnect()

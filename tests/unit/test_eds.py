@@ -397,3 +397,19 @@ def test_simulator_answers_a_utf8_device_name_by_sdo() -> None:
     sim = SimNode(load_node_profile(Node(eds=str(FLOW)).cfg), 6)
     sim.power_on(0.0)
     assert sim.sdo_read_local("0x1008:00") == "Durchflussmesser Größe 3 – µ"
+
+
+def test_expected_identity_is_vendor_and_product_and_a_dcf_serial(tmp_path: Path) -> None:
+    from gateway.profiles import expected_identity
+
+    lp = load_node_profile(Node(eds=str(IO)).cfg)
+    assert expected_identity(lp) == ((ObjRef(0x1018, 1), 0xABC), (ObjRef(0x1018, 2), 0x401))
+    text = IO.read_text(encoding="utf-8")
+    head, rest = text.split("[1018sub4]", 1)
+    section, tail = rest.split("\n\n", 1)
+    dcf = tmp_path / "io.dcf"
+    dcf.write_text(head + "[1018sub4]" + section + "\nParameterValue=0x00C0FFEE\n\n" + tail, encoding="utf-8")
+    lp = load_node_profile(Node(eds=str(dcf)).cfg)
+    assert expected_identity(lp)[-1] == (ObjRef(0x1018, 4), 0xC0FFEE)
+    anonymous = broken(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=", "anon.eds")
+    assert expected_identity(load_node_profile(Node(eds=str(anonymous)).cfg)) == ()
