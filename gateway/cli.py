@@ -308,10 +308,12 @@ def cmd_eds_lint(args: argparse.Namespace) -> int:
             print(line)
         return 2
     result = lint(eds)
+    shown = args.file  # the file as the user named it
     for kind, problems in (("error", result.errors), ("warning", result.warnings)):
         for p in problems:
-            print(f"{p.path}:{p.line}: [{p.section}]: {kind}: {p.message}")
-    print(f"{eds.path}: {len(result.errors)} errors, {len(result.warnings)} warnings")
+            where = f"[{p.section}]" if p.section else "(no section)"
+            print(f"{shown}:{p.line}: {where}: {kind}: {p.message}")
+    print(f"{shown}: {len(result.errors)} errors, {len(result.warnings)} warnings")
     return result.exit_code
 
 

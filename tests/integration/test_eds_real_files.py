@@ -203,6 +203,15 @@ async def test_a_device_whose_1018h_differs_from_its_eds_is_refused_at_boot_and_
         url = f"http://127.0.0.1:{cfg.health.port}/healthz"
         body = await asyncio.to_thread(lambda: urllib.request.urlopen(url, timeout=3).read())  # noqa: S310
         assert json.loads(body)["nodes"]["io"]["last_error"].startswith("wrong device: vendor 0xABC product 0x999")
+        url = f"http://127.0.0.1:{cfg.health.port}/api/node/io"  # the web console's node page
+        body = await asyncio.to_thread(lambda: urllib.request.urlopen(url, timeout=3).read())  # noqa: S310
+        assert "wrong device: vendor 0xABC product 0x999" in body.decode()
+        z = ZClient(gw.cfg.zenoh.listen)
+        try:
+            r = await z.get_one("canopen/test/io/snapshot")
+            assert "wrong device: vendor 0xABC product 0x999" in json.dumps(r.body)
+        finally:
+            z.close()
     finally:
         await gw.stop()
         sender.shutdown()
