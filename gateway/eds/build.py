@@ -23,6 +23,7 @@ empty values            ``VendorNumber=``, ``DefaultValue=``: absent
 ``[DummyUsage]``        a missing ``DummyNNNN`` is 0
 unknown sections        ignored (warning); ``[Comments]``, ``[Tools]``, module sections known
 object lists            ``SupportedObjects`` and the entries are compared (warning only)
+identity                ``VendorNumber`` / ``ProductNumber`` other than 1018h:01/02 (warning)
 =====================  ===================================================================
 
 Imports: canopen (dictionary types), gateway.eds.parse and the standard library.
@@ -292,6 +293,22 @@ def _object_lists(ctx: _Ctx, sections: dict[str, Section], objects: dict[int, Se
                 ctx.warn(sec, None, "object is not listed in [MandatoryObjects], [OptionalObjects] or [ManufacturerObjects]")  # fmt: skip
 
 
+def _identity_agrees(ctx: _Ctx, od: canopen.ObjectDictionary, sections: dict[str, Section]) -> None:
+    """[DeviceInfo] VendorNumber / ProductNumber against 1018h:01 / 02 (a DCF's ParameterValue,
+    else the DefaultValue): the identity check at boot expects the [DeviceInfo] numbers."""
+    info = sections.get("deviceinfo")
+    ident = od.get(0x1018)
+    if info is None or ident is None or isinstance(ident, ODVariable):
+        return
+    for key, sub, given in (("VendorNumber", 1, od.device_information.vendor_number),
+                            ("ProductNumber", 2, od.device_information.product_number)):  # fmt: skip
+        var = ident.subindices.get(sub)
+        held = getattr(var, "value", None) if getattr(var, "value", None) is not None else getattr(var, "default", None)  # fmt: skip
+        what = "ParameterValue" if getattr(var, "value", None) is not None else "DefaultValue"
+        if isinstance(given, int) and isinstance(held, int) and given != held:
+            ctx.warn(info, key, f"{key}=0x{given:X} but 1018h:{sub:02X} {what}=0x{held:X}: the identity check at boot expects 0x{given:X}")  # fmt: skip
+
+
 def build_dictionary(
     sections: dict[str, Section], path: str, node_id: int | None = None
 ) -> tuple[canopen.ObjectDictionary, list[EdsProblem]]:
@@ -367,5 +384,6 @@ def build_dictionary(
             for _, s in lst:
                 ctx.warn(s, None, f"sub-section without its object [{index:04X}]; ignored")
     _object_lists(ctx, sections, objects)
+    _identity_agrees(ctx, od, sections)
     ctx.warnings.sort(key=lambda p: p.line)
     return od, ctx.warnings

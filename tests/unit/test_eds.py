@@ -413,3 +413,9 @@ def test_expected_identity_is_vendor_and_product_and_a_dcf_serial(tmp_path: Path
     assert expected_identity(lp)[-1] == (ObjRef(0x1018, 4), 0xC0FFEE)
     anonymous = broken(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=", "anon.eds")
     assert expected_identity(load_node_profile(Node(eds=str(anonymous)).cfg)) == ()
+
+
+def test_device_info_other_than_1018h_is_a_warning(tmp_path: Path) -> None:
+    p = broken(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=0x00000ABD")
+    _, warnings = lint_of(p)
+    assert warnings == [f"{p}:{line_of(p, 'VendorNumber=0x00000ABD')}: [DeviceInfo]: VendorNumber=0xABD but 1018h:01 DefaultValue=0xABC: the identity check at boot expects 0xABD"]  # fmt: skip
