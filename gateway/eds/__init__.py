@@ -7,7 +7,7 @@ section (``EdsFile.warnings``). ``lint(eds)`` adds what the file's own enabled P
 in the gateway (``pdos.mapping_findings``): an error where the gateway would decode a PDO
 wrongly (an object the file does not define, more than 64 bits), a warning where a signal is
 skipped. ``pdos.eds_pdos`` lists the TPDOs and RPDOs of the dictionary (communication and
-mapping objects 1400h-1BFFh, ``$NODEID`` resolved), ``pdos.derived_signals`` names the mapped
+mapping objects 1400h-1BFFh, ``$NODEID`` resolved), ``pdos.unique_names`` names the mapped
 objects (ParameterName slugs, unique per node), ``show.render`` prints a dictionary and its PDOs.
 
 Imports: canopen, gateway.objref and the standard library. Nothing else of the gateway (the
