@@ -146,7 +146,8 @@ def eds_problems(cfg: Config) -> list[Problem]:
             held = {p.number: p for p in eds_pdos(od, n.node_id, kind)}  # type: ignore[arg-type]
             for p in pdos:
                 where = f"{key}.{kind}.{p.number}" if p.number in (n.tpdo if kind == "tpdo" else n.rpdo) else f"{key} ({kind.upper()}{p.number})"  # fmt: skip
-                out += _pdo_entry_problems(lp, kind, p, where, eds)
+                if p.origin != "eds":  # the file's own PDOs: checked when loaded (warnings)
+                    out += _pdo_entry_problems(lp, kind, p, where, eds)
                 e = held.get(p.number)
                 if e is None or not trusted:
                     continue

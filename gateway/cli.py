@@ -105,7 +105,29 @@ def cmd_check(args: argparse.Namespace) -> int:
             f"{len(pdo_sigs)} process signals ({', '.join(pdo_sigs)}), "
             f"{len(sdo_sigs)} configuration objects"
         )
+        for note in lp.notes:
+            print(f"  warning: node {n.name}: {note}")
+    _print_eds_warnings(cfg)
     return 0
+
+
+def _print_eds_warnings(cfg: Any) -> None:
+    """One line per EDS/DCF of the config with its number of warnings."""
+    from gateway.eds import EdsError, lint, load_eds
+    from gateway.profiles import load_node_profile
+
+    seen: list[Any] = []
+    for n in cfg.nodes:
+        path = load_node_profile(n, cfg.base_dir).eds_path
+        if path in seen:
+            continue
+        seen.append(path)
+        try:
+            count = len(lint(load_eds(path)).warnings)
+        except EdsError:
+            continue
+        more = f" (canopen-gateway eds lint {path})" if count else ""
+        print(f"  {path}: {count} warnings{more}")
 
 
 def cmd_registers(args: argparse.Namespace) -> int:
@@ -255,8 +277,44 @@ def cmd_eds_show(args: argparse.Namespace) -> int:
         eds = load_eds(args.file)
     except EdsError as exc:
         raise ConfigError(exc.problems) from None
+    if args.strict:
+        return cmd_eds_lint(args)
     sys.stdout.write(render(eds, args.node_id))
+    return _eds_summary(eds)
+
+
+def _eds_summary(eds: Any) -> int:
+    """Errors of ``eds`` on stderr (exit 2), else the number of warnings (exit 0)."""
+    from gateway.eds import lint
+
+    result = lint(eds)
+    for p in result.errors:
+        print(f"{p.path}:{p.line}: [{p.section}]: error: {p.message}", file=sys.stderr)
+    if result.errors:
+        return 2
+    if result.warnings:
+        print(f"{eds.path}: {len(result.warnings)} warnings (canopen-gateway eds lint {eds.path})", file=sys.stderr)  # fmt: skip
     return 0
+
+
+def cmd_eds_lint(args: argparse.Namespace) -> int:
+    """Every deviation with file:line: [section]; exit 0 clean, 1 warnings, 2 unusable."""
+    from gateway.eds import EdsError, lint, load_eds
+
+    try:
+        eds = load_eds(args.file)
+    except EdsError as exc:
+        for line in exc.problems:
+            print(line)
+        return 2
+    result = lint(eds)
+    shown = args.file  # the file as the user named it
+    for kind, problems in (("error", result.errors), ("warning", result.warnings)):
+        for p in problems:
+            where = f"[{p.section}]" if p.section else "(no section)"
+            print(f"{shown}:{p.line}: {where}: {kind}: {p.message}")
+    print(f"{shown}: {len(result.errors)} errors, {len(result.warnings)} warnings")
+    return result.exit_code
 
 
 def cmd_profile_init(args: argparse.Namespace) -> int:
@@ -343,7 +401,11 @@ def build_parser() -> argparse.ArgumentParser:
     show = eds_sub.add_parser("show", help="print the objects and the PDO mappings as tables")
     show.add_argument("file", metavar="FILE", help="EDS or DCF file")
     show.add_argument("--node-id", type=int, help="resolve $NODEID for this node id")
+    show.add_argument("--strict", action="store_true", help="list the warnings instead (as eds lint)")
     show.set_defaults(fn=cmd_eds_show)
+    lint = eds_sub.add_parser("lint", help="list every deviation from CiA 306 (exit 1 warnings, 2 unusable)")
+    lint.add_argument("file", metavar="FILE", help="EDS or DCF file")
+    lint.set_defaults(fn=cmd_eds_lint)
 
     sp = sub.add_parser("profile", help="device profiles (overlays on an EDS)")
     prof_sub = sp.add_subparsers(dest="profile_command", required=True, metavar="ACTION")

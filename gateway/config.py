@@ -179,6 +179,9 @@ class NodeConfig(_Model):
     verify_mapping: bool | None = Field(
         default=None, description="read 1800h../1A00h.. back after configuring (default: EDS-only nodes)"
     )
+    identity_check: bool = Field(
+        default=True, description="read 1018h:01/02 (:04 for a DCF) at boot and refuse another device"
+    )
     supervision: Literal["heartbeat", "guarding", "none"] | None = None
     heartbeat_ms: int | None = Field(default=None, ge=0, le=65535)
     guard_time_ms: int | None = Field(default=None, ge=0, le=65535)

@@ -10,7 +10,8 @@ returns the list of changes it caused.
 
 The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/boot_steps.py``.
 
-Imports: gateway.bus.boot_steps (the step type), gateway.cia301 and the standard library.
+Imports: gateway.bus.boot_steps (the step type), gateway.cia301, gateway.objref and the
+standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
 
@@ -27,6 +28,7 @@ from gateway.cia301 import (
     NMT_START,
     abort_text,
 )
+from gateway.objref import ObjRef
 
 # --------------------------------------------------------------------------- machine
 
@@ -78,7 +80,18 @@ class SendNmt(NamedTuple):
     command: int
 
 
-Action = Wait | WriteStep | SendNmt
+class ReadIdentity(NamedTuple):
+    """Upload ``object`` (1018h:01/02/04) and report with ``on_identity_result``."""
+
+    kind: Literal["identity"]
+    object: ObjRef
+    token: int
+
+
+Action = Wait | WriteStep | SendNmt | ReadIdentity
+
+#: CiA 301 7.5.2.20 identity object 1018h: the sub-indices compared, and their words.
+IDENTITY_NAMES = {0x01: "vendor", 0x02: "product", 0x03: "revision", 0x04: "serial"}
 
 
 # -- changes (what happened)
@@ -155,8 +168,12 @@ class NodeLifecycle:
     WAITING      poll, now > armed + boot timeout              WAITING      BootTimeout (once)
     WAITING      found running (probe of 1000h / supervision)  BOOTING      action: NMT pre-operational
     WAITING      found, 1000h != expected device type          WAITING      WrongDevice
-    BOOTING      NMT pre-operational sent                      CONFIGURING  action: step 0
-    any          boot-up                                       CONFIGURING  (via BOOTING) action: step 0
+    BOOTING      NMT pre-operational sent                      CONFIGURING  action: identity 0 (or step 0)
+    any          boot-up                                       CONFIGURING  (via BOOTING) action: identity 0 (or step 0)
+    CONFIGURING  identity read i ok, more to read              CONFIGURING  action: identity i + 1
+    CONFIGURING  identity read i: no answer                    CONFIGURING  StepFailed; action: Wait, then read i again
+    CONFIGURING  last identity read, all as expected           CONFIGURING  action: step 0
+    CONFIGURING  last identity read, one differs / refused     WAITING      WrongDevice (not configured)
     CONFIGURING  step i ok                                     CONFIGURING  action: step i + 1
     CONFIGURING  step i failed (abort / timeout)               CONFIGURING  StepFailed; action: Wait, then step i again
     CONFIGURING  optional step i refused (abort)               CONFIGURING  StepSkipped; action: step i + 1
@@ -171,6 +188,11 @@ class NodeLifecycle:
     any state restarts the configuration from step 0; an SDO answer still in flight from before
     carries an old token and is ignored. Failed steps are retried with exponential backoff,
     without a limit: ``last_error`` says what fails.
+
+    ``expected_identity`` (CiA 302-2 1F85h..1F88h style, from the EDS/DCF): the 1018h
+    sub-indices and values the device must hold. They are read before the first step; a device
+    that holds other values (or refuses the read) is a wrong device: it is not configured and
+    not started (``last_error``: "wrong device: vendor V product P, expected ...").
     """
 
     def __init__(
@@ -180,8 +202,12 @@ class NodeLifecycle:
         boot_timeout_s: float = 10.0,
         backoff: Backoff | None = None,
         expected_device_type: int | None = None,
+        expected_identity: Sequence[tuple[ObjRef, int]] = (),
     ):
         self.steps: tuple[ConfigStep, ...] = tuple(steps)
+        self.expected_identity = tuple(expected_identity)
+        self._identity_index = 0
+        self._identity_found: dict[ObjRef, int | None] = {}
         self.boot_timeout_s = boot_timeout_s
         self.backoff = backoff or Backoff()
         self.expected_device_type = expected_device_type
@@ -225,6 +251,12 @@ class NodeLifecycle:
             if now < self._retry_at:
                 return Wait("wait", self._retry_at - now)
             self._retry_at = None
+        if self._identity_index < len(self.expected_identity):
+            if self._in_flight is None:
+                self._token += 1
+                self._in_flight = self._token
+            obj = self.expected_identity[self._identity_index][0]
+            return ReadIdentity("identity", obj, self._in_flight)
         if self.step_index >= len(self.steps):
             return SendNmt("nmt_start", NMT_START)
         if self._in_flight is None:
@@ -338,12 +370,56 @@ class NodeLifecycle:
         self.last_error = message
         return [StepFailed(index, step, abort_code, self.attempt, delay, message)]
 
+    def on_identity_result(
+        self, now: float, value: int | None, abort_code: int | None = None, token: int | None = None
+    ) -> list[Change]:
+        """Outcome of the last ``ReadIdentity``: the value read, or None with the abort code
+        (a refusal) or without (no answer: retried with backoff)."""
+        if self.state is not LifecycleState.CONFIGURING or self._in_flight is None:
+            return []
+        if token is not None and token != self._in_flight:
+            return []
+        self._in_flight = None
+        obj, _ = self.expected_identity[self._identity_index]
+        if value is None and abort_code is None:
+            self.attempt += 1
+            delay = self.backoff.delay_s(self.attempt)
+            self._retry_at = now + delay
+            step = ConfigStep(obj, 0, "uint32", "identity")
+            self.last_error = f"{obj} (identity): no SDO answer"
+            return [StepFailed(-1, step, None, self.attempt, delay, self.last_error)]
+        self.attempt = 0
+        self._identity_found[obj] = value
+        self._identity_index += 1
+        if self._identity_index < len(self.expected_identity):
+            return []
+        if all(self._identity_found.get(o) == v for o, v in self.expected_identity):
+            return []
+
+        def words(values: dict[ObjRef, int | None]) -> str:
+            return " ".join(
+                f"{IDENTITY_NAMES.get(o.sub, str(o))} {'(unreadable)' if v is None else f'0x{v:X}'}"
+                for o, v in values.items()
+            )
+
+        found = {o: self._identity_found.get(o) for o, _ in self.expected_identity}
+        self.last_error = (
+            f"wrong device: {words(found)}, expected {words(dict(self.expected_identity))} "
+            "(1018h against the EDS): not configured"
+        )
+        self._reset_progress()
+        changed = self._to(LifecycleState.WAITING, "wrong device (1018h)")
+        vendor = next((v for o, v in self.expected_identity if o.sub == 1), 0)
+        return [changed, WrongDevice(vendor, found.get(ObjRef(0x1018, 1)) or 0)]
+
     # -- internals
     def _to(self, new: LifecycleState, reason: str) -> StateChanged:
         old, self.state = self.state, new
         return StateChanged(old, new, reason)
 
     def _reset_progress(self) -> None:
+        self._identity_index = 0
+        self._identity_found = {}
         self.step_index = 0
         self.attempt = 0
         self._in_flight = None

@@ -42,7 +42,12 @@ from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage
 from gateway.objref import ObjRef
-from gateway.profiles import LoadedProfile, load_node_profile, node_verifies_mapping
+from gateway.profiles import (
+    LoadedProfile,
+    expected_identity,
+    load_node_profile,
+    node_verifies_mapping,
+)
 from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_COMMANDS
 
@@ -147,6 +152,7 @@ def build_node(
         rpdos=rpdos,
         refresh=plan,
         expected_device_type=lp.profile.device_type,
+        expected_identity=expected_identity(lp) if ncfg.identity_check else (),
         emcy_texts=dict(lp.profile.emcy),
         guard_names=(control, status),
         referencing=ref,
@@ -191,7 +197,8 @@ class Master:
         for ncfg in cfg.nodes:
             lp = load_node_profile(ncfg, cfg.base_dir)
             names = [s.name for s in lp.profile.signals]
-            stale = ncfg.stale_after_ms / 1000.0 if ncfg.stale_after_ms else None
+            stale_ms = ncfg.stale_after_ms or lp.stale_after_ms  # derived: EDS-only, no supervision
+            stale = stale_ms / 1000.0 if stale_ms else None
             ni = NodeImage(
                 ncfg.name, ncfg.node_id, lp.family, names, stale, ncfg.modbus.serve_stale
             )

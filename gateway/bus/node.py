@@ -46,6 +46,7 @@ from gateway.bus.lifecycle import (
     Configured,
     LifecycleState,
     NodeLifecycle,
+    ReadIdentity,
     SendNmt,
     StateChanged,
     StepFailed,
@@ -86,6 +87,7 @@ class Node:
         rpdos: Sequence[RpdoCodec] = (),
         refresh: Sequence[Refresh] = (),
         expected_device_type: int | None = None,
+        expected_identity: Sequence[tuple[ObjRef, int]] = (),
         emcy_texts: dict[int, str] | None = None,
         guard_names: tuple[str | None, str | None] = (None, None),
         referencing: dict[str, Any] | None = None,
@@ -107,6 +109,7 @@ class Node:
             self.boot_steps if configure else [],
             boot_timeout_s=settings.boot_timeout_s,
             expected_device_type=expected_device_type,
+            expected_identity=expected_identity,
         )
         self.watch = Watchdog(settings, configure, active=not passive)
         self.hb, self.guard = self.watch.hb, self.watch.guard  # read-only views
@@ -477,6 +480,9 @@ class Node:
                     SdoJob(action.token, step.object, step.data, "boot", action), now
                 )
                 break
+            if isinstance(action, ReadIdentity):
+                out += self.sdo.start(SdoJob(action.token, action.object, None, "identity", action), now)
+                break
             if isinstance(action, Wait):
                 self._wait_until = now + action.seconds
             break
@@ -518,6 +524,12 @@ class Node:
             if not self.watch.guard_lost:
                 out += self._set_alive(True, now)
         return out
+
+    def _identity_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+        value = int.from_bytes(tr.result[:4].ljust(4, b"\0"), "little") if tr.result is not None else None
+        code = None if value is not None or tr.timed_out else (tr.abort_code or 0x08000000)
+        changes = self.lifecycle.on_identity_result(now, value, code, token=job.arg.token)
+        return self._lifecycle_changes(changes, now)
 
     def _refresh_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         if tr.result is None or self.health.fresh_since is None:
@@ -567,6 +579,7 @@ class Node:
     _SDO_DONE: dict[str, Callable[[Node, SdoJob, SdoTransfer, float], list[Output]]] = {
         "boot": _boot_done,
         "probe": _probe_done,
+        "identity": _identity_done,
         "refresh": _refresh_done,
         "reference": _reference_done,
         "user": _user_done,

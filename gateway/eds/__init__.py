@@ -1,11 +1,14 @@
-"""EDS / DCF knowledge: a strict loader, the PDOs an EDS describes, and signals derived from it.
+"""EDS / DCF knowledge: a tolerant loader, its lint, the PDOs an EDS describes, derived signals.
 
-``load_eds(path)`` checks the file (``parse.check_text``: every problem with file, line and
-section, in the spirit of Lely's ``dcfchk``), then reads it with canopen's ``import_od``; a
-warning of canopen is an error too. ``pdos.eds_pdos`` lists the TPDOs and RPDOs of the
-dictionary (communication and mapping objects 1400h-1BFFh, ``$NODEID`` resolved),
-``pdos.derived_signals`` names the mapped objects (ParameterName slugs, unique per node),
-``show.render`` prints a dictionary and its PDOs as tables.
+``load_eds(path)`` reads a file as CiA 306 and the common tools do (``parse`` splits the text,
+``build`` makes canopen's ``ObjectDictionary`` with the standard's defaults): it refuses only a
+file it cannot read at all. Every deviation from CiA 306 is a warning with file, line and
+section (``EdsFile.warnings``). ``lint(eds)`` adds what the file's own enabled PDOs would do
+in the gateway (``pdos.mapping_findings``): an error where the gateway would decode a PDO
+wrongly (an object the file does not define, more than 64 bits), a warning where a signal is
+skipped. ``pdos.eds_pdos`` lists the TPDOs and RPDOs of the dictionary (communication and
+mapping objects 1400h-1BFFh, ``$NODEID`` resolved), ``pdos.unique_names`` names the mapped
+objects (ParameterName slugs, unique per node), ``show.render`` prints a dictionary and its PDOs.
 
 Imports: canopen, gateway.objref and the standard library. Nothing else of the gateway (the
 profile loader imports this package, not the other way round).
@@ -14,27 +17,28 @@ profile loader imports this package, not the other way round).
 from __future__ import annotations
 
 import functools
-import io
-import logging
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import canopen
 
-from gateway.eds.parse import EdsError, EdsProblem, EdsText, check_text, read_text
+from gateway.eds.build import build_dictionary
+from gateway.eds.parse import EdsError, EdsProblem, EdsText, read_sections, read_text
+from gateway.eds.pdos import PdoFinding, eds_pdo_findings
 from gateway.objref import ObjRef
 
-__all__ = ["EdsError", "EdsFile", "EdsProblem", "import_od_strict", "load_eds"]
+__all__ = ["EdsError", "EdsFile", "EdsProblem", "Lint", "dictionary_for_node", "lint", "load_eds"]
 
 
 @dataclass(frozen=True)
 class EdsFile:
-    """A checked EDS/DCF: its path, its sections with their lines, canopen's dictionary."""
+    """A loaded EDS/DCF: its path, its sections with their lines, canopen's dictionary and the
+    warnings of reading it (deviations from CiA 306, each with file, line and section)."""
 
     path: Path
     text: EdsText
     od: canopen.ObjectDictionary
+    warnings: tuple[EdsProblem, ...] = ()
 
     @property
     def is_dcf(self) -> bool:
@@ -48,6 +52,14 @@ class EdsFile:
         if isinstance(entry, canopen.objectdictionary.ODVariable):
             return self.text.line_of(obj.index)
         return self.text.line_of(obj.index, obj.sub) or self.text.line_of(obj.index)
+
+    def problem(self, obj: ObjRef, message: str) -> EdsProblem:
+        """``message`` at the section of ``obj`` (the object's when it has no sub-section)."""
+        line = self.text.line_of(obj.index, obj.sub)
+        if line:
+            return EdsProblem(str(self.path), line, self.text.section_name(obj.index, obj.sub), message)
+        line = self.text.line_of(obj.index)
+        return EdsProblem(str(self.path), line, self.text.section_name(obj.index) if line else "", message)
 
     @property
     def product_name(self) -> str:
@@ -63,58 +75,61 @@ def od_var(od: canopen.ObjectDictionary, obj: ObjRef) -> canopen.objectdictionar
         return None
     if isinstance(entry, canopen.objectdictionary.ODVariable):
         return entry if obj.sub == 0 else None
-    try:
-        return entry[obj.sub]
-    except KeyError:
-        return None
-
-
-def import_od_strict(text: str, path: Path, node_id: int | None = None) -> canopen.ObjectDictionary:
-    """canopen's ``import_od`` on already checked text; its warnings become an EdsError."""
-    log = logging.getLogger("canopen.objectdictionary.eds")
-    records: list[str] = []
-
-    class _Catch(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            if record.levelno >= logging.WARNING:
-                records.append(record.getMessage())
-
-    h = _Catch()
-    log.addHandler(h)
-    fp = io.StringIO(text)
-    fp.name = str(path)  # type: ignore[attr-defined]  # import_od picks the format by suffix
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            od = canopen.import_od(fp, node_id)
-    except Exception as exc:  # canopen raises many kinds on a bad file
-        raise EdsError([f"{path}: cannot be parsed: {exc}"]) from exc
-    finally:
-        log.removeHandler(h)
-    problems = records + [str(w.message) for w in caught]
-    if problems:
-        raise EdsError([f"{path}: {p}" for p in problems])
-    return od
+    return entry.subindices.get(obj.sub)
 
 
 @functools.lru_cache(maxsize=64)
-def _load(path: Path, _mtime: float) -> EdsFile:
+def _load(path: Path, _mtime: float, _size: int) -> EdsFile:
     try:
         text = read_text(path)
     except OSError as exc:
         raise EdsError([f"{path}: cannot read: {exc.strerror or exc}"]) from None
-    checked = check_text(text, str(path))
-    od = import_od_strict(text, path)
-    return EdsFile(path, checked, od)
+    sections, warnings = read_sections(text, str(path))
+    od, more = build_dictionary(sections, str(path))
+    return EdsFile(path, EdsText(str(path), sections), od, tuple(sorted(warnings + more, key=lambda p: p.line)))
 
 
 def load_eds(path: str | Path) -> EdsFile:
-    """Check and read an EDS or DCF (cached per file and modification time)."""
+    """Read an EDS or DCF (cached per file, modification time and size); raises EdsError only
+    for a file that cannot be read."""
     p = Path(path).resolve()
     if p.suffix.lower() not in (".eds", ".dcf"):
         raise EdsError([f"{p}: an EDS must end in .eds (a DCF in .dcf)"])
     try:
-        mtime = p.stat().st_mtime
+        st = p.stat()
     except OSError:
         raise EdsError([f"{p}: file does not exist"]) from None
-    return _load(p, mtime)
+    if not p.is_file():
+        raise EdsError([f"{p}: not a file"])
+    return _load(p, st.st_mtime, st.st_size)
+
+
+def dictionary_for_node(path: str | Path, node_id: int | None) -> canopen.ObjectDictionary:
+    """The dictionary of a file with ``$NODEID`` values resolved for ``node_id``."""
+    eds = load_eds(path)
+    od, _ = build_dictionary(eds.text.sections, str(eds.path), node_id)
+    return od
+
+
+@dataclass(frozen=True)
+class Lint:
+    """``eds lint``: errors (the gateway cannot use the file as it stands) and warnings."""
+
+    errors: tuple[EdsProblem, ...]
+    warnings: tuple[EdsProblem, ...]
+
+    @property
+    def exit_code(self) -> int:
+        return 2 if self.errors else 1 if self.warnings else 0
+
+
+def finding_problem(eds: EdsFile, f: PdoFinding) -> EdsProblem:
+    return eds.problem(f.obj, f.message)
+
+
+def lint(eds: EdsFile) -> Lint:
+    """The file's warnings plus the findings of its enabled PDOs (see the module docstring)."""
+    findings = eds_pdo_findings(eds.od)
+    errors = tuple(finding_problem(eds, f) for f in findings if f.fatal)
+    pdo_warnings = [finding_problem(eds, f) for f in findings if not f.fatal]
+    return Lint(errors, tuple(sorted([*eds.warnings, *pdo_warnings], key=lambda p: p.line)))

@@ -23,6 +23,7 @@ from typing import Any, Literal
 import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 
+from gateway.eds.parse import DATA_TYPES
 from gateway.objref import ObjRef
 
 Kind = Literal["tpdo", "rpdo"]
@@ -30,6 +31,8 @@ Kind = Literal["tpdo", "rpdo"]
 #: CiA 301: bit 31 of a PDO COB-ID = PDO not valid.
 COB_ID_INVALID = 0x80000000
 COB_ID_MASK_11BIT = 0x7FF
+#: CiA 301 7.5.2.36: a mapping object has at most 64 entries (sub 01h..40h).
+MAX_ENTRIES = 0x40
 COMM_BASE: dict[str, int] = {"rpdo": 0x1400, "tpdo": 0x1800}
 MAP_BASE: dict[str, int] = {"rpdo": 0x1600, "tpdo": 0x1A00}
 
@@ -114,6 +117,8 @@ class EdsPdo:
     entries: tuple[tuple[ObjRef, int], ...]
     mapping_writable: bool
     comm_writable: bool
+    count: int = 0  # mapping sub 00h as the file gives it
+    gaps: tuple[int, ...] = ()  # mapping sub-indices 01h..count without a value in the file
 
     @property
     def enabled(self) -> bool:
@@ -122,6 +127,15 @@ class EdsPdo:
     @property
     def bits(self) -> int:
         return sum(b for _, b in self.entries)
+
+
+def _as_int(v: Any, top: int | None = None) -> int | None:
+    """An integer value of the file (None for text, bytes, floats or out of ``0..top``)."""
+    if isinstance(v, bool) or not isinstance(v, int):
+        return None
+    if v < 0 or (top is not None and v > top):
+        return None
+    return v
 
 
 def _writable(var: ODVariable | None) -> bool:
@@ -139,25 +153,30 @@ def eds_pdos(od: canopen.ObjectDictionary, node_id: int | None, kind: Kind) -> l
         def comm(sub: int, index: int = index) -> Any:
             return default_value(od_var(od, ObjRef(index, sub)), node_id)
 
-        cob = comm(1)
+        cob = _as_int(comm(1))
         entries: list[tuple[ObjRef, int]] = []
-        count = default_value(od_var(od, ObjRef(map_index, 0)), node_id) or 0
-        for s in range(1, int(count) + 1):
-            raw = default_value(od_var(od, ObjRef(map_index, s)), node_id)
+        gaps: list[int] = []
+        count = _as_int(default_value(od_var(od, ObjRef(map_index, 0)), node_id)) or 0
+        for s in range(1, min(count, MAX_ENTRIES) + 1):
+            raw = _as_int(default_value(od_var(od, ObjRef(map_index, s)), node_id))
             if raw:
-                entries.append(decode_entry(int(raw)))
+                entries.append(decode_entry(raw))
+            else:
+                gaps.append(s)
         out.append(
             EdsPdo(
                 kind=kind,
                 number=number,
                 comm_index=index,
                 map_index=map_index,
-                cob_id=int(cob) if cob is not None else COB_ID_INVALID,
-                transmission_type=comm(2),
-                inhibit_time_100us=comm(3) if kind == "tpdo" else None,
-                event_timer_ms=comm(5),
-                sync_start=comm(6) if kind == "tpdo" else None,
+                cob_id=cob if cob is not None else COB_ID_INVALID,
+                transmission_type=_as_int(comm(2), 0xFF),
+                inhibit_time_100us=_as_int(comm(3), 0xFFFF) if kind == "tpdo" else None,
+                event_timer_ms=_as_int(comm(5), 0xFFFF),
+                sync_start=_as_int(comm(6), 0xF0) if kind == "tpdo" else None,
                 entries=tuple(entries),
+                count=count,
+                gaps=tuple(gaps),
                 mapping_writable=_writable(od_var(od, ObjRef(map_index, 0))),
                 comm_writable=_writable(od_var(od, ObjRef(index, 1))),
             )
@@ -230,3 +249,91 @@ def access_of(var: ODVariable | None) -> Literal["ro", "rw", "wo"]:
 
 def readable(var: ODVariable | None) -> bool:
     return var is not None and var.access_type in ("ro", "rw", "rwr", "rww", "const")
+
+
+# ------------------------------------------------------------------------ what a PDO can carry
+
+
+@dataclass(frozen=True)
+class PdoFinding:
+    """A problem of one mapping entry of one PDO: ``fatal`` when the gateway would decode the
+    PDO wrongly (the node is refused), else a warning (the entry is decoded and dropped, or
+    served with the bit length the device sends)."""
+
+    fatal: bool
+    pdo: str  # "TPDO4"
+    obj: ObjRef  # the mapping sub-object (1A03h:02), or the mapping object (1A03h:00)
+    message: str
+
+
+def mapping_findings(
+    od: canopen.ObjectDictionary,
+    kind: Kind,
+    number: int,
+    map_index: int,
+    entries: tuple[tuple[ObjRef, int], ...] | list[tuple[ObjRef, int]],
+    gaps: tuple[int, ...] = (),
+    count: int | None = None,
+) -> list[PdoFinding]:
+    """What the gateway can and cannot do with one enabled PDO mapping (CiA 301 7.5.2.36/38).
+
+    Fatal (the offsets or the frame length would be wrong): more than 64 entries, an entry
+    counted in sub 00h without a value, an entry naming an index below 1000h that is not a
+    dummy data type, a zero length, more than 64 bits in all. Warnings (the entry is decoded at
+    its offset by the length the mapping gives): an object the dictionary does not define or of
+    a type the gateway does not serve (REAL64, DOMAIN, 40-/48-/56-bit integers, time types) is
+    skipped; a length other than the type's; an object marked not PDO-mappable, not readable
+    (TPDO) or not writable (RPDO)."""
+    pdo = f"{kind.upper()}{number}"
+    out: list[PdoFinding] = []
+    if count is not None and count > MAX_ENTRIES:
+        out.append(PdoFinding(True, pdo, ObjRef(map_index, 0), f"{pdo}: {map_index:04X}h:00 = {count} entries; a mapping has at most 64"))  # fmt: skip
+    for sub in gaps:
+        out.append(PdoFinding(True, pdo, ObjRef(map_index, sub), f"{pdo}: {map_index:04X}h:00 counts entry {sub:02X}h, which has no value"))  # fmt: skip
+    total = 0
+    for i, (obj, bits) in enumerate(entries, start=1):
+        at = ObjRef(map_index, i)
+        total += bits
+        if bits == 0:
+            out.append(PdoFinding(True, pdo, at, f"{pdo} entry {obj}/0: a length of 0 bits"))
+            continue
+        if obj.index < 0x1000:
+            if obj.index not in TYPE_BITS:
+                out.append(PdoFinding(True, pdo, at, f"{pdo} maps {obj}: not a dummy data type (0001h..0007h and the like)"))  # fmt: skip
+            continue
+        var = od_var(od, obj)
+        if var is None:
+            what = f"{obj.index:04X}h has no sub-index {obj.sub:02X}h" if obj.index in od else "the file does not define it"  # fmt: skip
+            out.append(PdoFinding(False, pdo, at, f"{pdo} maps {obj}/{bits}, but {what}: its type is unknown, so it is skipped; the other signals of {pdo} are served"))  # fmt: skip
+            continue
+        type_name = DATA_TYPES.get(var.data_type, f"0x{var.data_type or 0:04X}")
+        served = signal_type(var)
+        if served is None:
+            out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}/{bits} ({type_name}) is not a type the gateway serves: skipped, the other signals of {pdo} are served"))  # fmt: skip
+            continue
+        want = TYPE_BITS.get(var.data_type)
+        if want is not None and want != bits:
+            out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}/{bits}: the object is {type_name} ({want} bit); served with the {bits} bits the device sends"))  # fmt: skip
+        if served in ("string", "bytes") and bits % 8:
+            out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}/{bits}: a {type_name} of whole bytes; the last {bits % 8} bits are dropped"))  # fmt: skip
+        if not var.pdo_mappable:
+            out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}: PDOMapping=0 in the file"))
+        if kind == "tpdo" and not readable(var):
+            out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}: not readable ({var.access_type}) in the file"))  # fmt: skip
+        if kind == "rpdo" and var.access_type not in ("rw", "wo", "rww", "rwr"):
+            out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}: not writable ({var.access_type}) in the file"))  # fmt: skip
+    if total > 64:
+        out.append(PdoFinding(True, pdo, ObjRef(map_index, 0), f"{pdo} maps {total} bits; a PDO carries at most 64"))  # fmt: skip
+    return out
+
+
+def eds_pdo_findings(od: canopen.ObjectDictionary, node_id: int | None = None) -> list[PdoFinding]:
+    """``mapping_findings`` of every enabled PDO the file describes."""
+    out: list[PdoFinding] = []
+    for kind in ("tpdo", "rpdo"):
+        for p in eds_pdos(od, node_id, kind):  # type: ignore[arg-type]
+            if p.cob_id & COB_ID_INVALID or not (p.entries or p.gaps):
+                continue
+            out += mapping_findings(od, p.kind, p.number, p.map_index, p.entries, p.gaps, p.count)
+    return out
+

@@ -28,11 +28,11 @@ import canopen
 import yaml
 from pydantic import ValidationError
 
-from gateway.eds import EdsError, load_eds
-from gateway.eds.parse import read_text
+from gateway.eds import EdsError, EdsFile, dictionary_for_node, load_eds
 from gateway.eds.pdos import (
     access_of,
     eds_pdos,
+    mapping_findings,
     object_name,
     od_var,
     signal_type,
@@ -48,7 +48,7 @@ from gateway.profiles.layout import (
     is_pdo_object,
     pdo_from_eds,
 )
-from gateway.profiles.schema import Pdo, Profile, Signal
+from gateway.profiles.schema import Boot, Pdo, Profile, Signal
 
 PROFILE_DIR = Path(__file__).parent
 
@@ -70,6 +70,12 @@ class LoadedProfile:
     path: Path
     eds_path: Path
     od: canopen.ObjectDictionary
+    #: what the gateway skips or reads leniently for this node (file:line: [section]: ...)
+    warnings: tuple[str, ...] = ()
+    #: an EDS-only node without supervision: the data age after which its values are stale
+    stale_after_ms: int | None = None
+    #: advice for ``check`` about the node (e.g. a loss that cannot be detected)
+    notes: tuple[str, ...] = ()
 
     @property
     def family(self) -> str:
@@ -101,12 +107,10 @@ def resolve_profile_path(name_or_path: str, base_dir: Path | None = None) -> Pat
 
 
 def import_eds(path: Path, node_id: int | None = None) -> canopen.ObjectDictionary:
-    """Check an EDS and parse it with canopen for ``node_id``; problems are a ProfileError."""
-    from gateway.eds import import_od_strict
-
+    """The dictionary of an EDS with ``$NODEID`` resolved for ``node_id``; an unreadable file
+    is a ProfileError."""
     try:
-        load_eds(path)
-        return import_od_strict(read_text(Path(path)), Path(path), node_id)
+        return dictionary_for_node(path, node_id)
     except EdsError as exc:
         raise ProfileError(str(exc)) from None
 
@@ -134,11 +138,32 @@ def _layout_objects(profile: Profile) -> tuple[set[ObjRef], set[ObjRef]]:
     return t, r
 
 
-def _eds_layout(od: canopen.ObjectDictionary, node_id: int | None) -> tuple[list[Pdo], list[Pdo]]:
-    return (
-        [pdo_from_eds(p) for p in eds_pdos(od, node_id, "tpdo") if p.enabled],
-        [pdo_from_eds(p) for p in eds_pdos(od, node_id, "rpdo") if p.enabled],
-    )
+@dataclass(frozen=True)
+class _EdsLayout:
+    tpdos: list[Pdo]
+    rpdos: list[Pdo]
+    refused: dict[tuple[str, int], str]  # (kind, number) -> why the gateway cannot decode it
+    warnings: dict[tuple[str, int], list[str]]
+
+
+def _eds_layout(od: canopen.ObjectDictionary, node_id: int | None, eds_path: Path | None = None) -> _EdsLayout:
+    """The enabled PDOs of the file; one the gateway would decode wrongly is left out and
+    named in ``refused`` (file, line, section, PDO, object in one line)."""
+    eds_file = _eds_file(eds_path) if eds_path is not None else None
+    out = _EdsLayout([], [], {}, {})
+    for kind, into in (("tpdo", out.tpdos), ("rpdo", out.rpdos)):
+        for p in eds_pdos(od, node_id, kind):  # type: ignore[arg-type]
+            if p.cob_id & 0x80000000 or not (p.entries or p.gaps):
+                continue
+            found = mapping_findings(od, p.kind, p.number, p.map_index, p.entries, p.gaps, p.count)
+            lines = [str(eds_file.problem(f.obj, f.message)) if eds_file else f"{eds_path}: {f.message}" for f in found]  # fmt: skip
+            fatal = [line for f, line in zip(found, lines, strict=True) if f.fatal]
+            if fatal:
+                out.refused[(kind, p.number)] = fatal[0]
+                continue
+            out.warnings[(kind, p.number)] = lines
+            into.append(pdo_from_eds(p))
+    return out
 
 
 def _complete(
@@ -199,7 +224,8 @@ def _load(path: Path) -> LoadedProfile:
 def _with_eds(profile: Profile, path: Path, eds_path: Path, od: canopen.ObjectDictionary) -> LoadedProfile:
     t, r = _layout_objects(profile)
     if not (profile.tpdos or profile.rpdos or profile.pdo_variants):
-        et, er = _eds_layout(od, None)
+        lay = _eds_layout(od, None)
+        et, er = lay.tpdos, lay.rpdos
         t |= {e.object for p in et for e in p.mapping}
         r |= {e.object for p in er for e in p.mapping}
     lp = LoadedProfile(profile, path, eds_path, od)
@@ -324,6 +350,7 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
             title=eds.product_name,
             eds=eds_path.name,
             signals=[],
+            boot=device_supervision(eds.od),
         )
         base = _with_eds(profile, eds_path, eds_path, eds.od)
     prof = base.profile
@@ -335,8 +362,13 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
         if prof.pdo_variants is None or variant not in prof.pdo_variants.variants:
             variant = None  # an unknown variant is reported by the config check
         tpdos, rpdos = prof.layout(variant)
+        lay = _EdsLayout([], [], {}, {})
     else:
-        tpdos, rpdos = _eds_layout(od, node_id)
+        lay = _eds_layout(od, node_id, base.eds_path)
+        tpdos, rpdos = lay.tpdos, lay.rpdos
+    for (kind, number), why in lay.refused.items():
+        if number not in ((node.tpdo if kind == "tpdo" else node.rpdo) or {}):
+            raise ProfileError(why)  # unless the node's tpdo:/rpdo: settings remap or disable it
     if node.configure:
         if (node.tpdo or node.rpdo) and prof.pdo_variants is not None:
             raise ProfileError(
@@ -384,6 +416,11 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
         for e in p.mapping:
             if e.object.index >= 0x1000 and e.object not in named and e.object not in new:
                 new.append(e.object)
+    warnings: list[str] = []
+    for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
+        for p in pdos:
+            if p.origin == "eds":  # a layout of the profile or the config is checked with its key
+                warnings += lay.warnings.get((kind, p.number), [])
     names = unique_names(od, new, {s.name for s in signals})
     for o in new:
         var = od_var(od, o)
@@ -391,7 +428,7 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
             continue  # not in the EDS: reported by the check of the layout
         typ = signal_type(var)
         if typ is None:
-            raise ProfileError(f"{base.eds_path.name}: {o} is mapped but has a data type the gateway does not serve")  # fmt: skip
+            continue  # REAL64, DOMAIN...: decoded at its offset and dropped (warned above)
         length = None
         if typ in ("string", "bytes"):
             bits = next(e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o)
@@ -410,7 +447,95 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
     update: dict[str, Any] = {"signals": signals}
     if prof.pdo_variants is None:
         update.update(tpdos=tpdos, rpdos=rpdos)
-    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od)
+    stale_ms: int | None = None
+    notes: list[str] = []
+    if not node.profile and getattr(node, "supervision", None) is None and prof.boot.supervision == "none":
+        stale_ms = stale_after_from_event_timers(tpdos)
+        age = (
+            f"its values go stale {stale_ms} ms after their last TPDO "
+            f"({STALE_EVENT_TIMER_MULTIPLE} x the longest TPDO event timer)"
+            if stale_ms
+            else "no TPDO has an event timer, so its values never go stale by age"
+        )
+        notes.append(
+            f"{base.eds_path.name} has neither 1017h (heartbeat) nor 100Ch/100Dh (node guarding): "
+            f"a lost device cannot be detected otherwise; {age}"
+        )
+    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od, tuple(warnings),
+                         stale_ms, tuple(notes))  # fmt: skip
+
+
+#: an EDS-only node without supervision: values are stale after this many event timer periods
+STALE_EVENT_TIMER_MULTIPLE = 3
+
+
+def stale_after_from_event_timers(tpdos: Sequence[Pdo]) -> int | None:
+    """``stale_after_ms`` of a node the gateway cannot supervise: 3 x the longest event timer
+    of its TPDOs (None when no TPDO has one)."""
+    timers = [p.event_timer_ms for p in tpdos if p.event_timer_ms]
+    return STALE_EVENT_TIMER_MULTIPLE * max(timers) if timers else None
+
+
+def device_supervision(od: canopen.ObjectDictionary) -> Boot:
+    """How an EDS-only node is supervised when its config does not say: heartbeat when the
+    device has a writable 1017h (CiA 301 7.5.2.25), else node guarding when it has writable
+    100Ch and 100Dh and no 1017h (guard time and life time factor from the file when not 0;
+    else 100 ms and 3), else none."""
+    def settable(obj: ObjRef) -> canopen.objectdictionary.ODVariable | None:
+        var = od_var(od, obj)  # an integer the gateway can write (a damaged entry is not)
+        ok = var is not None and var.data_type in (0x5, 0x6, 0x7) and var.access_type in ("rw", "wo", "rww", "rwr")
+        return var if ok else None
+
+    hb = settable(ObjRef(0x1017, 0))
+    if hb is not None:
+        lo, hi = hb.min, hb.max  # a file whose limits exclude 100 ms: the nearest allowed time
+        if isinstance(lo, int) and isinstance(hi, int) and 0 < hi and lo <= hi and not lo <= 100 <= hi:
+            return Boot(heartbeat_ms=min(max(100, lo, 1), hi, 65535))
+        return Boot()
+    gt, ltf = settable(ObjRef(0x100C, 0)), settable(ObjRef(0x100D, 0))
+    if gt is not None and ltf is not None and (0x1017 not in od or od_var(od, ObjRef(0x1017, 0)) is None):
+        gt_ms = gt.default if gt is not None and isinstance(gt.default, int) and 0 < gt.default <= 65535 else 100
+        lt = ltf.default if ltf is not None and isinstance(ltf.default, int) and 0 < ltf.default <= 255 else 3
+        return Boot(supervision="guarding", guard_time_ms=gt_ms, life_time_factor=lt)
+    return Boot(supervision="none")
+
+
+def _eds_file(path: Path) -> EdsFile | None:
+    try:
+        return load_eds(path)
+    except EdsError:
+        return None
+
+
+#: CiA 306 placeholders: a VendorNumber / ProductNumber of 0 or all ones says nothing
+_NOT_GIVEN = (0, 0xFFFFFFFF)
+
+
+def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
+    """What the device at this node must hold in 1018h (CiA 301 7.5.2.20), as its EDS/DCF
+    says: sub 01h = VendorNumber and 02h = ProductNumber of [DeviceInfo] when the file gives
+    both, and for a DCF sub 04h = the ParameterValue of 1018h:04 (the serial number of the
+    commissioned device). Empty when the file gives no identity. A number the file contradicts
+    itself on ([DeviceInfo] and the value of 1018h differ; ``eds lint`` warns) is not compared:
+    the file does not say which device it describes, and a right device must not be refused."""
+    info = lp.od.device_information
+    vendor, product = info.vendor_number, info.product_number
+    if vendor in (None, *_NOT_GIVEN) or product in (None, *_NOT_GIVEN):
+        return ()
+    out = []
+    for sub, given in ((1, int(vendor)), (2, int(product))):  # type: ignore[arg-type]
+        var = od_var(lp.od, ObjRef(0x1018, sub))
+        held = getattr(var, "value", None)
+        if held is None:
+            held = getattr(var, "default", None)
+        if isinstance(held, int) and held not in _NOT_GIVEN and held != given:
+            continue
+        out.append((ObjRef(0x1018, sub), given))
+    serial = od_var(lp.od, ObjRef(0x1018, 4))
+    held = getattr(serial, "value", None)
+    if lp.eds_path.suffix.lower() == ".dcf" and isinstance(held, int) and held not in _NOT_GIVEN:
+        out.append((ObjRef(0x1018, 4), held))
+    return tuple(out)
 
 
 def node_verifies_mapping(lp: LoadedProfile, node: Any, eds_only: bool) -> bool:

@@ -13,10 +13,10 @@ from gateway.bus.verify import MappingRead, compare_mapping, mapping_reads
 from gateway.checks import parse_checked_config
 from gateway.cli import main
 from gateway.config import ConfigError
-from gateway.eds import EdsError, load_eds
+from gateway.eds import lint, load_eds
 from gateway.modbus.regmap import build_register_map
 from gateway.objref import ObjRef
-from gateway.profiles import load_node_profile
+from gateway.profiles import ProfileError, load_node_profile
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
 IO = DATA / "io401.eds"
@@ -38,55 +38,111 @@ def line_of(path: Path, text: str) -> int:
     raise AssertionError(text)
 
 
-def eds_error(path: Path) -> list[str]:
-    with pytest.raises(EdsError) as err:
-        load_eds(path)
-    return err.value.problems
+def lint_of(path: Path) -> tuple[list[str], list[str]]:
+    result = lint(load_eds(path))
+    return [str(p) for p in result.errors], [str(p) for p in result.warnings]
 
 
-# --------------------------------------------------------------------------- loader errors
+# --------------------------------------------------------------------------- load is not lint
 
 
 @pytest.mark.parametrize(
     ("old", "new", "section", "message"),
     [
-        ("DefaultValue=0x64010110", "DefaultValue=0x6401011O", "1A01sub2", "DefaultValue=0x6401011O: '0x6401011O' is not a number"),  # fmt: skip
-        ("[6401sub2]", "[6401sbu2]", "6401sbu2", "unknown section name"),
-        ("[6401]\nParameterName=Read analogue input 16-bit\nObjectType=0x8\nSubNumber=3", "[6401]\nParameterName=Read analogue input 16-bit\nObjectType=0x8\nSubNumber=0x1l", "6401", "SubNumber: '0x1l' is not a number"),  # fmt: skip
+        ("[6401sub2]", "[6401sbu2]", "6401sbu2", "unknown section"),
+        ("[6401]\nParameterName=Read analogue input 16-bit\nObjectType=0x8\nSubNumber=3", "[6401]\nParameterName=Read analogue input 16-bit\nObjectType=0x8\nSubNumber=0x1l", "6401", "SubNumber=0x1l: '0x1l' is not a number"),  # fmt: skip
         ("[6401]\nParameterName=Read analogue input 16-bit\nObjectType=0x8\nSubNumber=3", "[6401]\nParameterName=Read analogue input 16-bit\nObjectType=0x8\nSubNumber=4", "6401", "SubNumber=4 but 3 sub-sections follow"),  # fmt: skip
-        ("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\n", "[1017]\nParameterName=Producer heartbeat time\n", "1017", "ObjectType is missing"),  # fmt: skip
-        ("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\n", "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x3\n", "1017", "ObjectType=0x3: must be one of"),  # fmt: skip
-        ("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006", "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x000E", "1017", "DataType=0x000E is not a CiA 301 data type"),  # fmt: skip
-        ("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rw", "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rx", "1017", "AccessType=rx: must be one of"),  # fmt: skip
+        ("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\n", "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x3\n", "1017", "ObjectType=0x3 is not a CiA 306 object type: read as VAR"),  # fmt: skip
+        ("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006", "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x000E", "1017", "DataType=0x000E is not a CiA 301 basic data type: read as DOMAIN"),  # fmt: skip
+        ("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rw", "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rx", "1017", "AccessType=rx: not one of"),  # fmt: skip
         ("[1017]\nParameterName=Producer heartbeat time\n", "[1017]\n", "1017", "ParameterName is missing or empty"),  # fmt: skip
         ("[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\n", "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\n", "1017", "DataType is missing"),  # fmt: skip
     ],
 )
-def test_broken_eds_is_refused_with_file_line_and_section(
+def test_a_deviation_is_a_warning_with_file_line_and_section_and_the_file_loads(
     tmp_path: Path, old: str, new: str, section: str, message: str
 ) -> None:
     p = broken(tmp_path, IO, old, new)
-    problems = eds_error(p)
-    match = [x for x in problems if f"[{section}]" in x and message in x]
-    assert match, problems
+    errors, warnings = lint_of(p)
+    assert errors == []
+    match = [x for x in warnings if f"[{section}]" in x and message in x]
+    assert match, warnings
     path, line, _ = match[0].split(":", 2)
     assert path == str(p)
     sec_line = line_of(p, f"[{section}]")
     assert sec_line <= int(line) <= sec_line + 10
+    assert load_node_profile(Node(eds=str(p)).cfg).profile.signal("analogue_input_1") is not None
 
 
-def test_a_line_that_is_not_key_value_is_an_error_with_its_line(tmp_path: Path) -> None:
+def test_cia306_defaults_missing_object_type_any_number_notation_hex_reals(tmp_path: Path) -> None:
+    text = IO.read_text(encoding="utf-8")
+    text = text.replace("ObjectType=0x7\n", "")  # CiA 306 4.6.3.2: missing means VAR
+    text = text.replace("PDOMapping=1", "PDOMapping=0x1").replace("PDOMapping=0\n", "PDOMapping=0x0\n")
+    text += (
+        "\n[2000]\nParameterName=Gain\nDataType=0x0008\nAccessType=rw\nDefaultValue=0x40490FDB\n"
+        "HighLimit=0x457a0000\n\n[2001]\nParameterName=Mode\nDataType=0x0005\nAccessType=RW\n"
+        "DefaultValue=010\n\n[2002]\nParameterName=Blob\nObjectType=0x2\nDataType=0x000F\n"
+        "AccessType=rw\n\n[2003]\nParameterName=Vendor type\nDataType=0x0040\nAccessType=ro\n"
+        "\n[VirtualDeviceDefinitions]\nVD0=abc\n"
+    )
+    text = text.replace("[DeviceInfo]\n", "[DeviceInfo]\nVendorNumber=\n")
+    p = tmp_path / "defaults.eds"
+    p.write_text(text, encoding="utf-8")
+    eds = load_eds(p)
+    od = eds.od
+    assert od[0x1017].data_type == 0x0006 and od[0x6000][1].pdo_mappable
+    assert abs(od[0x2000].default - 3.1415927) < 1e-6 and od[0x2000].max == 4000.0
+    assert od[0x2001].default == 8 and od[0x2001].access_type == "rw"  # octal, CiA 306 4.6.3
+    assert od[0x2002].data_type == 0x000F and od[0x2003].data_type == 0x000F
+    assert od.device_information.vendor_number is None
+    warnings = [str(w) for w in eds.warnings]
+    assert [w for w in warnings if "[VirtualDeviceDefinitions]" in w and "unknown section" in w]
+    assert [w for w in warnings if "[2003]" in w and "DataType=0x0040" in w]
+    assert not [w for w in warnings if "ObjectType" in w or "PDOMapping" in w]
+
+
+def test_an_enabled_pdo_the_gateway_would_decode_wrongly_is_refused_in_one_line(tmp_path: Path) -> None:
+    p = broken(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x6401011O")
+    errors, _ = lint_of(p)
+    line = line_of(p, "[1A01sub2]")
+    assert errors == [f"{p}:{line}: [1A01sub2]: TPDO2: 1A01h:00 counts entry 02h, which has no value"]
+    with pytest.raises(ProfileError) as err:
+        load_node_profile(Node(eds=str(p)).cfg)
+    assert str(err.value) == errors[0]
+    # the node's own settings may disable that PDO: then the file serves the rest
+    lp = load_node_profile(Node(eds=str(p), tpdo={2: {"enabled": False}}).cfg)
+    assert [x.number for x in lp.profile.tpdos] == [1]
+    long = broken(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x64010140", "long.eds")
+    errors, _ = lint_of(long)
+    assert errors == [f"{long}:{line_of(long, '[1A01sub0]')}: [1A01sub0]: TPDO2 maps 80 bits; a PDO carries at most 64"]
+
+
+def test_a_line_that_is_not_key_value_is_a_warning_with_its_line(tmp_path: Path) -> None:
     p = broken(tmp_path, IO, "PDOMapping=0\n\n[1018]", "PDOMapping=0\nthis is no key\n\n[1018]")
-    problems = eds_error(p)
-    assert problems == [f"{p}:{line_of(p, 'this is no key')}: [1017]: line 'this is no key' is not 'key=value'"]  # fmt: skip
+    errors, warnings = lint_of(p)
+    assert errors == []
+    assert warnings == [f"{p}:{line_of(p, 'this is no key')}: [1017]: line 'this is no key' is not 'key=value': ignored"]  # fmt: skip
 
 
-def test_listed_object_without_section_and_unlisted_object_are_errors(tmp_path: Path) -> None:
-    p = broken(tmp_path, IO, "[OptionalObjects]\nSupportedObjects=18\n", "[OptionalObjects]\nSupportedObjects=18\n")
-    p = broken(tmp_path, p, "18=0x6411", "18=0x6412", "b2.eds")
-    problems = eds_error(p)
-    assert any("object 0x6412 is listed but has no section [6412]" in x for x in problems)
-    assert any("[6411]: object is not listed" in x for x in problems)
+def test_listed_object_without_section_and_unlisted_object_are_warnings(tmp_path: Path) -> None:
+    p = broken(tmp_path, IO, "18=0x6411", "18=0x6412")
+    _, warnings = lint_of(p)
+    assert any("object 0x6412 is listed but has no section [6412]" in x for x in warnings)
+    assert any("[6411]: object is not listed" in x for x in warnings)
+
+
+def test_eds_lint_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["eds", "lint", str(IO)]) == 0
+    assert capsys.readouterr().out.strip() == f"{IO}: 0 errors, 0 warnings"
+    warn = broken(tmp_path, IO, "[6401sub2]", "[6401sbu2]")
+    assert main(["eds", "lint", str(warn)]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert any(x.startswith(f"{warn}:{line_of(warn, '[6401sbu2]')}: [6401sbu2]: warning: unknown section") for x in out)
+    assert main(["eds", "show", "--strict", str(warn)]) == 1
+    capsys.readouterr()
+    bad = broken(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x6401011O", "bad.eds")
+    assert main(["eds", "lint", str(bad)]) == 2
+    assert ": [1A01sub2]: error: TPDO2: 1A01h:00 counts entry 02h" in capsys.readouterr().out
 
 
 def test_the_builtin_and_test_eds_files_pass_the_checker() -> None:
@@ -301,8 +357,8 @@ def test_eds_show_and_profile_init(tmp_path: Path, capsys: pytest.CaptureFixture
     lp = load_node_profile(cfg.nodes[0], cfg.base_dir)
     assert [s.name for s in lp.profile.signals] == ["temperatur", "durchfluss", "status", "zahler", "sollwert"]
     bad = broken(tmp_path, IO, "[6401sub2]", "[6401sbu2]")
-    assert main(["eds", "show", str(bad)]) == 2
-    assert "[6401sbu2]: unknown section name" in capsys.readouterr().err
+    assert main(["eds", "show", str(bad)]) == 0
+    assert capsys.readouterr().err == f"{bad}: 2 warnings (canopen-gateway eds lint {bad})\n"
 
 
 # --------------------------------------------------------------------------- simulator
@@ -341,3 +397,29 @@ def test_simulator_answers_a_utf8_device_name_by_sdo() -> None:
     sim = SimNode(load_node_profile(Node(eds=str(FLOW)).cfg), 6)
     sim.power_on(0.0)
     assert sim.sdo_read_local("0x1008:00") == "Durchflussmesser Größe 3 – µ"
+
+
+def test_expected_identity_is_vendor_and_product_and_a_dcf_serial(tmp_path: Path) -> None:
+    from gateway.profiles import expected_identity
+
+    lp = load_node_profile(Node(eds=str(IO)).cfg)
+    assert expected_identity(lp) == ((ObjRef(0x1018, 1), 0xABC), (ObjRef(0x1018, 2), 0x401))
+    text = IO.read_text(encoding="utf-8")
+    head, rest = text.split("[1018sub4]", 1)
+    section, tail = rest.split("\n\n", 1)
+    dcf = tmp_path / "io.dcf"
+    dcf.write_text(head + "[1018sub4]" + section + "\nParameterValue=0x00C0FFEE\n\n" + tail, encoding="utf-8")
+    lp = load_node_profile(Node(eds=str(dcf)).cfg)
+    assert expected_identity(lp)[-1] == (ObjRef(0x1018, 4), 0xC0FFEE)
+    anonymous = broken(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=", "anon.eds")
+    assert expected_identity(load_node_profile(Node(eds=str(anonymous)).cfg)) == ()
+
+
+def test_device_info_other_than_1018h_is_a_warning_and_that_number_is_not_compared(tmp_path: Path) -> None:
+    from gateway.profiles import expected_identity
+
+    p = broken(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=0x00000ABD")
+    # the file contradicts itself on the vendor: only the product is checked at boot
+    assert expected_identity(load_node_profile(Node(eds=str(p)).cfg)) == ((ObjRef(0x1018, 2), 0x401),)
+    _, warnings = lint_of(p)
+    assert warnings == [f"{p}:{line_of(p, 'VendorNumber=0x00000ABD')}: [DeviceInfo]: VendorNumber=0xABD but 1018h:01 DefaultValue=0xABC: the identity check at boot does not compare it"]  # fmt: skip

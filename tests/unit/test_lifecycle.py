@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import struct
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 
@@ -592,3 +593,56 @@ class TestSdoAbortTexts:
         e = SdoAbort(0x06090011, node=3, obj=ObjRef(0x6004, 5))
         assert str(e) == "SDO abort 0x06090011 (Sub-index does not exist) at 0x6004:05 on node 3"
         assert (e.code, e.text) == (0x06090011, "Sub-index does not exist")
+
+
+# --------------------------------------------------------------------------- identity (1018h)
+
+IDENTITY = ((ObjRef(0x1018, 1), 0x195), (ObjRef(0x1018, 2), 0x401))
+
+
+def _read(lc: NodeLifecycle, now: float) -> Any:
+    from gateway.bus.lifecycle import ReadIdentity
+
+    a = lc.next_action(now)
+    assert isinstance(a, ReadIdentity), a
+    return a
+
+
+def test_identity_is_read_before_the_first_step_and_a_match_configures() -> None:
+    step = ConfigStep(ObjRef(0x1017, 0), 100, "uint16", "heartbeat")
+    lc = NodeLifecycle([step], expected_identity=IDENTITY)
+    lc.on_bootup(0.0)
+    a = _read(lc, 0.0)
+    assert a.object == ObjRef(0x1018, 1)
+    assert lc.on_identity_result(0.0, 0x195, token=a.token) == []
+    a = _read(lc, 0.0)
+    assert a.object == ObjRef(0x1018, 2)
+    assert lc.on_identity_result(0.0, 0x401, token=a.token) == []
+    assert isinstance(lc.next_action(0.0), WriteStep)
+
+
+def test_another_device_is_not_configured_and_says_what_it_is() -> None:
+    lc = NodeLifecycle([ConfigStep(ObjRef(0x1017, 0), 100, "uint16")], expected_identity=IDENTITY)
+    lc.on_bootup(0.0)
+    a = _read(lc, 0.0)
+    lc.on_identity_result(0.0, 0x195, token=a.token)
+    a = _read(lc, 0.0)
+    changes = lc.on_identity_result(0.0, 0x999, token=a.token)
+    assert changes == [StateChanged(C, W, "wrong device (1018h)"), WrongDevice(0x195, 0x195)]
+    assert lc.state is W and lc.next_action(1.0) is None
+    assert lc.last_error == "wrong device: vendor 0x195 product 0x999, expected vendor 0x195 product 0x401 (1018h against the EDS): not configured"  # fmt: skip
+
+
+def test_an_identity_read_without_answer_is_retried_and_a_refusal_is_a_wrong_device() -> None:
+    lc = NodeLifecycle([], expected_identity=IDENTITY, backoff=Backoff(initial_s=0.5))
+    lc.on_bootup(0.0)
+    a = _read(lc, 0.0)
+    (failed,) = lc.on_identity_result(0.0, None, token=a.token)
+    assert isinstance(failed, StepFailed) and failed.retry_in_s == 0.5
+    assert lc.next_action(0.25) == Wait("wait", 0.25)
+    a = _read(lc, 0.5)
+    assert a.object == ObjRef(0x1018, 1)
+    lc.on_identity_result(0.5, 0x195, token=a.token)
+    a = _read(lc, 0.5)
+    lc.on_identity_result(0.5, None, abort_code=0x06020000, token=a.token)
+    assert lc.state is W and "product (unreadable)" in (lc.last_error or "")

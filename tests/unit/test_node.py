@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from gateway.bus.master import NodeParts, build_node
 from gateway.bus.node import Send, ValuesRead
 from gateway.image import NodeImage, Quality, SignalValue
-from gateway.profiles import load_profile
+from gateway.profiles import expected_identity, load_profile
 from gateway.states import LinkState, NmtState
 from tests.helpers import make_config
 
@@ -27,9 +27,13 @@ class Device:
     """A scripted device: SDO server answering every request after ``sdo_delay_s``, NMT
     state machine, node-guarding answers with the DS-301 toggle."""
 
-    def __init__(self, node_id: int, device_type: int, sdo_delay_s: float = 0.001):
+    def __init__(
+        self, node_id: int, device_type: int, sdo_delay_s: float = 0.001,
+        identity: dict[tuple[int, int], int] | None = None,
+    ):  # fmt: skip
         self.node_id = node_id
         self.device_type = device_type
+        self.identity = identity or {}  # 1018h sub-indices: the product it is
         self.sdo_delay_s = sdo_delay_s
         self.state = NmtState.PRE_OPERATIONAL
         self.toggle = 0
@@ -68,7 +72,7 @@ class Device:
                 ]
             if cmd == 0x40:
                 self.uploads.append((index, sub))
-                value = self.device_type if (index, sub) == (0x1000, 0) else 0x1234
+                value = self.device_type if (index, sub) == (0x1000, 0) else self.identity.get((index, sub), 0x1234)
                 value = self.objects.get((index, sub), value)
                 return [
                     (
@@ -99,7 +103,8 @@ class Harness:
         self.image = NodeImage("n", node_id, lp.family, [s.name for s in lp.profile.signals])
         self.parts: NodeParts = build_node(cfg.master, cfg.nodes[0], lp, self.image)
         self.node = self.parts.node
-        self.device = Device(node_id, lp.profile.device_type or 0)
+        ident = {(o.index, o.sub): v for o, v in expected_identity(lp)}
+        self.device = Device(node_id, lp.profile.device_type or 0, identity=ident)
         self.now = 0.0
         self.sent: list[tuple[float, Send]] = []
         self.read: list[ValuesRead] = []

@@ -1,0 +1,233 @@
+"""What real device files bring, end to end: a mapped object of a type the gateway does not
+serve is skipped and the other signals of its PDO decode at their bit offsets (a frame from the
+test, python canopen's LocalNode answering SDO from the same file); a device with neither
+heartbeat nor node guarding in its EDS runs unsupervised and its values go stale by data age;
+guarding is chosen for a device whose EDS has only 100Ch/100Dh."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import struct
+from pathlib import Path
+
+import can
+import pytest
+from pymodbus.client import AsyncModbusTcpClient
+
+from gateway.app import Gateway
+from gateway.bus.settings import resolve_node_settings
+from gateway.cli import main
+from gateway.config import ConfigError, NodeConfig
+from gateway.image import Quality
+from gateway.profiles import load_node_profile
+from tests.helpers import make_config, wait_until
+from tests.integration.test_eds_devices import boot, gateway_with, local_node
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
+IO = DATA / "io401.eds"
+CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eds-corpus"
+
+DOMAIN_2002 = (
+    "\n[2002]\nParameterName=Raw status\nObjectType=0x2\nDataType=0x000F\nAccessType=ro\nPDOMapping=1\n"
+)
+
+
+def io_variant(tmp_path: Path, name: str, *, domain_in_tpdo2: bool = False, drop: tuple[str, ...] = ()) -> Path:
+    """io401.eds with TPDO2 = [6100h:02/16, 2002h DOMAIN/32, 6401h:01/16], or without the
+    sections ``drop`` (e.g. 1017h)."""
+    text = IO.read_text(encoding="utf-8")
+    if domain_in_tpdo2:
+        text = text.replace("DefaultValue=2\nPDOMapping=0\n\n[1A01sub1]", "DefaultValue=3\nPDOMapping=0\n\n[1A01sub1]")
+        text = text.replace("DefaultValue=0x64010110\nPDOMapping=0\n\n[1A01sub3]", "DefaultValue=0x20020020\nPDOMapping=0\n\n[1A01sub3]")  # fmt: skip
+        sub3 = "[1A01sub3]\nParameterName=Mapped object 3\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue="  # fmt: skip
+        text = text.replace(sub3 + "0x00000000", sub3 + "0x64010110")
+        text += DOMAIN_2002
+        text = text.replace("[ManufacturerObjects]\nSupportedObjects=0", "[ManufacturerObjects]\nSupportedObjects=1\n1=0x2002")  # fmt: skip
+    for index in drop:
+        head, rest = text.split(f"[{index}]\n", 1)
+        _, tail = rest.split("\n\n", 1)
+        text = head + tail
+    p = tmp_path / name
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+async def test_an_unserved_object_is_skipped_and_the_other_signals_decode_at_their_offsets(tmp_path: Path) -> None:
+    eds = io_variant(tmp_path, "io_domain.eds", domain_in_tpdo2=True)
+    lp = load_node_profile(NodeConfig.model_validate({"name": "io", "node_id": 5, "eds": str(eds)}))
+    assert [(str(e.object), e.bits) for e in lp.profile.tpdos[1].mapping] == [("0x6100:02", 16), ("0x2002:00", 32), ("0x6401:01", 16)]  # fmt: skip
+    assert "0x2002:00" not in {str(s.object) for s in lp.profile.signals}
+    assert any("[1A01sub2]: TPDO2 entry 0x2002:00/32 (DOMAIN) is not a type the gateway serves: skipped" in w for w in lp.warnings), lp.warnings  # fmt: skip
+    async with gateway_with(eds, 5, "io") as (gw, _node, bus, _):
+        io = gw.image.nodes["io"]
+        await wait_until(lambda: io.is_valid("analogue_input_1"), 5, "mapping verified")
+        bus.send(can.Message(arbitration_id=0x285, data=struct.pack("<HIh", 0xBEEF, 0xDEADBEEF, -300), is_extended_id=False))  # fmt: skip
+        await wait_until(lambda: io.signals["analogue_input_1"].seq > 0, 5, "TPDO2 decoded")
+        assert io.signals["read_input_11h_to_20h"].value == 0xBEEF
+        assert io.signals["analogue_input_1"].value == -300
+        client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+        await client.connect()
+        try:
+            regs = (await client.read_input_registers(103, count=2, device_id=5)).registers
+        finally:
+            client.close()
+        assert regs[0] == 0xBEEF and struct.unpack(">h", struct.pack(">H", regs[1]))[0] == -300
+
+
+@pytest.mark.skipif(not CORPUS.is_dir(), reason="no EDS corpus")
+def test_a_mapped_real64_is_named_in_a_warning_and_the_node_is_served(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    eds = CORPUS / "jinr-greenlab__canopen__Test.eds"
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: dev, node_id: 5, eds: '{eds}'}}\n")  # fmt: skip
+    assert main(["check", "-c", str(cfg)]) == 0
+    assert "10 process signals" in capsys.readouterr().out
+    assert main(["eds", "lint", str(eds)]) == 1
+    out = capsys.readouterr().out
+    assert "[1A03sub1]: warning: TPDO4 entry 0x2001:06/64 (REAL64) is not a type the gateway serves: skipped" in out
+
+
+def test_supervision_follows_the_device(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    def settings(eds: Path, **kw: object) -> tuple[str, int | None, list[str]]:
+        n = NodeConfig.model_validate({"name": "io", "node_id": 5, "eds": str(eds), **kw})
+        lp = load_node_profile(n)
+        cfg = make_config([{"name": "io", "node_id": 5, "eds": str(eds), **kw}])
+        s = resolve_node_settings(cfg.master, n, lp.profile)
+        return s.supervision, lp.stale_after_ms, list(lp.notes)
+
+    assert settings(IO) == ("heartbeat", None, [])
+    guarded = io_variant(tmp_path, "guarded.eds", drop=("1017",))
+    text = guarded.read_text(encoding="utf-8") + (
+        "\n[100C]\nParameterName=Guard time\nDataType=0x0006\nAccessType=rw\nDefaultValue=200\n"
+        "\n[100D]\nParameterName=Life time factor\nDataType=0x0005\nAccessType=rw\nDefaultValue=2\n"
+    )
+    guarded.write_text(text, encoding="utf-8")
+    n = NodeConfig.model_validate({"name": "io", "node_id": 5, "eds": str(guarded)})
+    boot_cfg = load_node_profile(n).profile.boot
+    assert (boot_cfg.supervision, boot_cfg.guard_time_ms, boot_cfg.life_time_factor) == ("guarding", 200, 2)
+    bare = io_variant(tmp_path, "bare.eds", drop=("1017",))
+    sup, stale_ms, notes = settings(bare)
+    assert (sup, stale_ms) == ("none", 300)  # 3 x the longest TPDO event timer (100 ms)
+    assert notes == ["bare.eds has neither 1017h (heartbeat) nor 100Ch/100Dh (node guarding): a lost device cannot be detected otherwise; its values go stale 300 ms after their last TPDO (3 x the longest TPDO event timer)"]  # fmt: skip
+    with pytest.raises(ConfigError) as err:  # an explicit supervision wins, and is checked
+        settings(bare, supervision="heartbeat")
+    assert err.value.problems == ["<memory>: nodes[0]: heartbeat: 0x1017:00 is not in bare.eds"]
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: io, node_id: 5, eds: '{bare}'}}\n")
+    assert main(["check", "-c", str(cfg)]) == 0
+    assert f"  warning: node io: {notes[0]}" in capsys.readouterr().out.splitlines()
+
+
+@pytest.mark.skipif(not CORPUS.is_dir(), reason="no EDS corpus")
+def test_faulhaber_with_node_guarding_only_is_accepted_with_the_one_line_node_entry(tmp_path: Path) -> None:
+    eds = CORPUS / "KITmedical__kacanopen__605.3150.51-V-EK-2-60.eds"
+    lp = load_node_profile(NodeConfig.model_validate({"name": "motor", "node_id": 5, "eds": str(eds)}))
+    assert lp.profile.boot.supervision == "guarding"
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: motor, node_id: 5, eds: '{eds}'}}\n")  # fmt: skip
+    assert main(["check", "-c", str(cfg)]) == 0
+
+
+async def test_an_unsupervised_device_runs_and_its_values_go_stale_by_data_age(tmp_path: Path) -> None:
+    eds = io_variant(tmp_path, "bare.eds", drop=("1017",))
+    cfg = make_config([{"name": "io", "node_id": 5, "eds": str(eds)}], simulate={"nodes": []},
+                      master={"probe_at_start": False})  # fmt: skip
+    net, node = local_node(IO, 5, cfg.can.channel)  # its 1017h is 0: no heartbeat on the bus
+    sender = can.Bus(interface="virtual", channel=cfg.can.channel)
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        assert gw.master.nodes["io"].settings.supervision == "none"
+        boot(node)
+        io = gw.image.nodes["io"]
+        await wait_until(lambda: io.operational() and io.is_valid("analogue_input_1"), 8, "io configured and started")
+        sender.send(can.Message(arbitration_id=0x285, data=struct.pack("<Hh", 7, -5), is_extended_id=False))
+        await wait_until(lambda: io.signals["analogue_input_1"].seq > 0, 5, "TPDO2 decoded")
+        sig = io.signals["analogue_input_1"]
+        assert sig.value == -5
+        assert io.stale_after_s == 0.3
+        limit = sig.monotonic + 0.3
+        assert io.quality(sig, now_monotonic=limit) == Quality.GOOD
+        assert io.quality(sig, now_monotonic=math.nextafter(limit, math.inf)) == Quality.STALE
+    finally:
+        await gw.stop()
+        sender.shutdown()
+        net.disconnect()
+
+
+# --------------------------------------------------------------------------- identity (1018h)
+
+
+async def test_a_device_whose_1018h_differs_from_its_eds_is_refused_at_boot_and_never_served() -> None:
+    import json
+    import urllib.request
+
+    from tests.helpers import free_port
+    from tests.zenoh_client import ZClient
+
+    cfg = make_config([{"name": "io", "node_id": 5, "eds": str(IO)}], simulate={"nodes": []},
+                      master={"probe_at_start": False}, health={"port": free_port()})  # fmt: skip
+    net, node = local_node(IO, 5, cfg.can.channel)
+    node.set_data(0x1018, 2, struct.pack("<I", 0x999))  # another product of the same vendor
+    sender = can.Bus(interface="virtual", channel=cfg.can.channel)
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        boot(node)
+        io = gw.image.nodes["io"]
+        await wait_until(lambda: io.health.last_error.startswith("wrong device"), 8, "identity refused")
+        assert io.health.last_error == (
+            "wrong device: vendor 0xABC product 0x999, expected vendor 0xABC product 0x401 "
+            "(1018h against the EDS): not configured"
+        )
+        rt = gw.master.nodes["io"]
+        assert rt.lifecycle.state == "waiting" and rt.lifecycle.configurations == 0
+        # the device sends its TPDO anyway: never served
+        sender.send(can.Message(arbitration_id=0x285, data=struct.pack("<Hh", 7, -5), is_extended_id=False))
+        await wait_until(lambda: io.signals["analogue_input_1"].seq > 0, 5, "frame seen")
+        client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+        await client.connect()
+        try:
+            rr = await client.read_input_registers(100, count=1, device_id=5)
+            diag = (await client.read_input_registers(0, count=4, device_id=5)).registers
+        finally:
+            client.close()
+        assert rr.isError() and rr.exception_code == 0x0B
+        assert diag[0] == int(Quality.BAD) and diag[3] == 0  # quality bad, lifecycle waiting
+        z = ZClient(gw.cfg.zenoh.listen)
+        try:
+            r = await z.get_one("canopen/test/io/value/analogue_input_1")
+            assert not r.ok or r.body.get("quality") != "good"
+        finally:
+            z.close()
+        url = f"http://127.0.0.1:{cfg.health.port}/healthz"
+        body = await asyncio.to_thread(lambda: urllib.request.urlopen(url, timeout=3).read())  # noqa: S310
+        assert json.loads(body)["nodes"]["io"]["last_error"].startswith("wrong device: vendor 0xABC product 0x999")
+        url = f"http://127.0.0.1:{cfg.health.port}/api/node/io"  # the web console's node page
+        body = await asyncio.to_thread(lambda: urllib.request.urlopen(url, timeout=3).read())  # noqa: S310
+        assert "wrong device: vendor 0xABC product 0x999" in body.decode()
+        z = ZClient(gw.cfg.zenoh.listen)
+        try:
+            r = await z.get_one("canopen/test/io/snapshot")
+            assert "wrong device: vendor 0xABC product 0x999" in json.dumps(r.body)
+        finally:
+            z.close()
+    finally:
+        await gw.stop()
+        sender.shutdown()
+        net.disconnect()
+
+
+async def test_identity_check_false_configures_any_device() -> None:
+    cfg = make_config([{"name": "io", "node_id": 5, "eds": str(IO), "identity_check": False}],
+                      simulate={"nodes": []}, master={"probe_at_start": False})  # fmt: skip
+    net, node = local_node(IO, 5, cfg.can.channel)
+    node.set_data(0x1018, 2, struct.pack("<I", 0x999))
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        boot(node)
+        await wait_until(lambda: gw.master.nodes["io"].lifecycle.state == "operational", 8, "configured")
+    finally:
+        await gw.stop()
+        net.disconnect()
