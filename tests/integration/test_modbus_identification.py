@@ -17,7 +17,7 @@ from tests.integration.test_modbus_frames import ask, running
 
 DEVICE_OD = {
     (0x1018, 1): 0x00000ABC,  # the EDS VendorNumber
-    (0x1018, 2): 0x00401008,
+    (0x1018, 2): 0x00000401,  # the EDS ProductNumber (the identity check at boot compares both)
     (0x1018, 3): 0x00020011,  # revision 2.17
     (0x1018, 4): 0xCAFE0001,
 }
@@ -38,7 +38,7 @@ async def test_io_module_identifies_itself_with_its_eds_and_what_it_answered() -
             assert basic.conformity == 0x83
             assert basic.information == {
                 0x00: b"Example Automation GmbH",  # EDS VendorName, vendor id 0xABC as read
-                0x01: b"0x00401008",  # 1018h:02 as read
+                0x01: b"0x00000401",  # 1018h:02 as read
                 0x02: b"2.17",  # 1018h:03 as read
             }
             regular = await client.read_device_information(read_code=2, device_id=5)
@@ -58,7 +58,8 @@ async def test_io_module_identifies_itself_with_its_eds_and_what_it_answered() -
 
 async def test_another_vendor_id_than_the_eds_is_not_given_the_eds_vendor_name() -> None:
     od = {**DEVICE_OD, (0x1018, 1): 0x00000123}
-    async with gateway_with(IO, 5, "io", device_od=od) as (gw, _node, _bus, _log):
+    # another vendor than the EDS says: served only with the identity check off
+    async with gateway_with(IO, 5, "io", {"identity_check": False}, device_od=od) as (gw, _node, _bus, _log):
         client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
         await client.connect()
         try:
