@@ -57,7 +57,7 @@ from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadRegistry
+from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.keys import (
     GATEWAY_TOKEN,
     alive_key,
@@ -277,7 +277,7 @@ class ZenohBridge:
         self.raw_pubs: dict[tuple[str, int], Any] = {}
         self.tokens: dict[str, Any] = {}
         self.queryable: Any = None
-        self.publications = 0
+        self._publications = ThreadCount()  # counted on the reader thread and the loop
         self.up = False
         self._events = _EventSender(self.threads)
         self._values = _ValueBatch(self._offer)
@@ -510,7 +510,7 @@ class ZenohBridge:
             return
         try:
             pub.put(data, timestamp=s.new_timestamp())
-            self.publications += 1
+            self._publications.add()
         except zenoh.ZError:
             pass
 
@@ -542,13 +542,18 @@ class ZenohBridge:
 
     # ------------------------------------------------------------------ values
     def _offer(self, node: NodeImage, sp: _SignalPub, now: float) -> None:
-        """Publish the signal's current value if its policy says so (any thread)."""
+        """Publish the signal's current value if its policy says so (any thread: the reader's
+        burst and the event loop may flush at the same time). Value and quality are read
+        under the signal's lock, so a publication carries the latest value at its turn; one
+        older than the last published (a lower ``seq``) is never published after it."""
         s = self.session
         if s is None or sp.pub is None:
             return
-        sv = node.signals[sp.sig.name]
-        quality = node.quality(sv, now)
         with sp.lock:
+            sv = node.signals[sp.sig.name]
+            if sv.seq < sp.last_seq:
+                return
+            quality = node.quality(sv, now)
             value = sv.value
             if not sp.policy.offer(value, quality, now):
                 return
@@ -559,7 +564,7 @@ class ZenohBridge:
                 return
             sp.policy.published(value, quality, now)
             sp.last_seq = sv.seq
-        self.publications += 1
+        self._publications.add()
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
@@ -649,6 +654,11 @@ class ZenohBridge:
                 tok.undeclare()
             except zenoh.ZError:
                 pass
+
+    @property
+    def publications(self) -> int:
+        """Samples published (values and raw PDOs), summed over the publishing threads."""
+        return self._publications.value
 
     @property
     def events_sent(self) -> int:
