@@ -221,8 +221,13 @@ class _ValueBatch:
     after the mark was taken, so it is at least as new as the frame that marked it.
     """
 
-    def __init__(self, offer: Callable[[NodeImage, _SignalPub, float], None]) -> None:
+    def __init__(
+        self,
+        offer: Callable[[NodeImage, _SignalPub, float], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.offer = offer
+        self.clock = clock
         self.lock = threading.Lock()
         self.pending: dict[int, tuple[NodeImage, _SignalPub]] = {}
         self.errors = 0
@@ -244,7 +249,7 @@ class _ValueBatch:
         if not self.pending:
             return
         batch = self.take()
-        now = time.monotonic()
+        now = self.clock()
         for node, sp in batch:
             try:
                 self.offer(node, sp, now)
@@ -280,12 +285,13 @@ class ZenohBridge:
         self._publications = ThreadCount()  # counted on the reader thread and the loop
         self.up = False
         self._events = _EventSender(self.threads)
-        self._values = _ValueBatch(self._offer)
+        self._values = _ValueBatch(self._offer, lambda: self._clock())
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}
         self._opened: zenoh.Session | None = None  # open, checked, not declared yet
         self._open_failed: zenoh.ZError | None = None
         self._last_attempt_s = 0.0
+        #: the bridge's monotonic clock (injectable): publication policy, retries, waits
         self._clock: Callable[[], float] = time.monotonic
         self._sleep: Callable[[float], Any] = asyncio.sleep
         self._tasks: list[asyncio.Task[Any]] = []
@@ -401,8 +407,8 @@ class ZenohBridge:
         """Worker thread: the key of a gateway token under our prefix, if one is announced."""
         z = self.cfg.zenoh
         if z.connect:  # wait (bounded) for the configured router(s) to be connected
-            deadline = time.monotonic() + CONNECT_WAIT_S
-            while time.monotonic() < deadline:
+            deadline = self._clock() + CONNECT_WAIT_S
+            while self._clock() < deadline:
                 info = session.info
                 if list(info.routers_zid()) or list(info.peers_zid()):
                     break
@@ -579,7 +585,7 @@ class ZenohBridge:
             if sp is None:
                 continue
             if sp.policy.mode == "every":
-                now = now or time.monotonic()
+                now = now or self._clock()
                 self._offer(node, sp, now)
             else:
                 mark(node, sp)
@@ -605,7 +611,7 @@ class ZenohBridge:
             await asyncio.sleep(period)
             if self.session is None:
                 continue
-            now = time.monotonic()
+            now = self._clock()
             for node in self.image.nodes.values():
                 self._refresh(node, now)
 
@@ -629,7 +635,7 @@ class ZenohBridge:
                 self._last_state[node.name] = fp
                 self._put_event(s, self.state_pubs[node.name], state_key(self.prefix, node.name), d)
         self._sync_token(node)
-        self._refresh(node, time.monotonic())
+        self._refresh(node, self._clock())
 
     def _put_event(self, s: zenoh.Session, pub: Any, key: str, payload: dict[str, Any]) -> None:
         """Queue an event with the next ``seq`` of its key (1, 2, 3... since the gateway

@@ -139,7 +139,9 @@ class TimedMessage(can.Message):  # type: ignore[misc]
         self._ts = value
 
 
-def test_the_bus_clock_never_jumps_back_by_the_idle_gap_when_a_frame_arrives() -> None:
+def test_the_bus_clock_never_jumps_back_by_the_idle_gap_when_a_frame_arrives(
+    can_frame: Callable[..., can.Message],
+) -> None:
     """The reader was idle for 10 s; a frame arrives. The event loop reads the bus clock
     exactly while the reader takes the frame (when it reads the frame's timestamp): the clock
     must be the monotonic time, not 10 s in the past (which delays a loss by that gap)."""
@@ -162,7 +164,7 @@ def test_the_bus_clock_never_jumps_back_by_the_idle_gap_when_a_frame_arrives() -
         if len(handled) == 1:
             c.mono += 10.0  # an idle gap of 10 s, then the next frame
             c.wall += 10.0
-            device.send(can.Message(arbitration_id=0x701, data=[5], is_extended_id=False))
+            device.send(can_frame(0x701, "05"))  # heartbeat: operational
 
     def handle(msg: can.Message) -> None:
         handled.append(msg.arbitration_id)
@@ -184,7 +186,7 @@ def test_the_bus_clock_never_jumps_back_by_the_idle_gap_when_a_frame_arrives() -
     d.bus.recv = recv  # type: ignore[method-assign]
     try:
         d.clock_state = (True, 0.0)
-        device.send(can.Message(arbitration_id=0x701, data=[5], is_extended_id=False))
+        device.send(can_frame(0x701, "05"))  # heartbeat: operational
         d._running.set()
         d._run()  # the reader's loop, on this thread, frame by frame
     finally:
