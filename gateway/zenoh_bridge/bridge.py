@@ -8,7 +8,10 @@ turns /healthz not-ready, never silently):
 * values are marked on the CAN reader thread right after the image was written, and the reader
   publishes the *current* value of every marked signal once per burst of frames, when it has
   handled every frame already received (the image's batch listener; coalescing when it is
-  behind); ``publish: every`` signals are published by the reader for every frame;
+  behind); ``publish: every`` signals are published by the reader for every frame; a signal's
+  value, quality and policy are read and written under its own lock, whichever thread
+  publishes, and a sample never follows a newer one; the count of publications is kept per
+  thread (``threads.ThreadCount``);
 * events (state, EMCY) are computed on the event loop when the master reports them and put by
   the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
   INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop;
@@ -597,9 +600,11 @@ class ZenohBridge:
             if not sv.seq:
                 continue
             pol = sp.policy
-            if pol.take_due(now) or (
-                pol.last_time_s is not None and node.quality(sv, now) != pol.last_quality
-            ):
+            with sp.lock:  # the policy is the publishing thread's, under the signal's lock
+                due = pol.take_due(now) or (
+                    pol.last_time_s is not None and node.quality(sv, now) != pol.last_quality
+                )
+            if due:
                 self._offer(node, sp, now)
 
     async def _housekeeping(self) -> None:
