@@ -310,7 +310,8 @@ class NodeImage:
         return (time.monotonic() if now_monotonic is None else now_monotonic) - last
 
 
-#: listener(node, signal names updated, timestamp) — called on the bus reader thread
+#: listener(node, signal names updated, timestamp) — called on the bus reader thread (TPDOs) or
+#: the event loop (values read by SDO, outputs written)
 ValueListener = Callable[[NodeImage, tuple[str, ...], float], None]
 #: listener(node, what changed: "health" | "emcy" | "state") — called on the event loop
 HealthListener = Callable[[NodeImage, str], None]
@@ -383,6 +384,14 @@ class ProcessImage:
         mono = time.monotonic()
         node.put(names, values, ts, mono)
         (rx or node.rx.cell()).last_rx_monotonic = mono
+        for listener in self.value_listeners:
+            listener(node, names, ts)
+
+    def outputs_written(self, node: NodeImage, names: tuple[str, ...]) -> None:
+        """The node's outputs ``names`` were written (event loop, after ``Node`` replaced
+        ``node.outputs``): the value listeners hear of it as of new values (the web console's
+        live pages show the outputs)."""
+        ts = node.outputs.timestamp
         for listener in self.value_listeners:
             listener(node, names, ts)
 

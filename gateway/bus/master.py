@@ -513,6 +513,7 @@ class Master:
         self.require_bus()
         p = self.nodes[name]
         self._execute(p, p.node.write_outputs(per_pdo, self.clock(), wall=time.time()))
+        self.image.outputs_written(p.image, tuple({n: 0 for v in per_pdo.values() for n in v}))
 
     async def sdo(
         self, name: str, obj: ObjRef, data: bytes | None, *, check_state: bool = True

@@ -19,7 +19,7 @@ from pymodbus.pdu import ExceptionResponse
 
 from gateway.app import Gateway, SimulatedBus
 from gateway.image import LinkState, NmtState
-from tests.helpers import make_config, operational, wait_until
+from tests.helpers import free_port, make_config, operational, wait_until
 from tests.zenoh_client import ZClient
 
 # register map of an AP05 unit (see docs/modbus.md): holding registers
@@ -355,4 +355,26 @@ async def test_static_target_window_is_acknowledged_by_coil_from_the_plc() -> No
         await wait_until(lambda: sim.sdo_read_local("0x5F0C:00") & 0x10, 3, "ack bit received")
     finally:
         client.close()
+        await gw.stop()
+
+
+async def test_an_output_written_reaches_the_live_web_page_as_its_value() -> None:
+    """Outputs are not echoed into the received values; writing them tells the image's value
+    listeners all the same, so a browser watching the node sees the set point it was sent."""
+    cfg = make_config([AP05_SIM], health={"port": free_port()}, zenoh={"enabled": False})
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        await wait_until(gw.image.nodes["display"].operational, 5, "operational")
+        assert gw.web is not None
+        page = gw.web.hub.subscribe("display")
+        page.dirty_values.clear()
+        page.wake.clear()
+        await gw.commands.write_signal("display", "set_point2", 4321)
+        await asyncio.wait_for(page.wake.wait(), 5)
+        assert "set_point2" in page.dirty_values
+        row = gw.web.model.values("display", {"set_point2"})["set_point2"]
+        assert row == {"value": 4321, "quality": "output"}
+        gw.web.hub.unsubscribe(page)
+    finally:
         await gw.stop()
