@@ -71,7 +71,7 @@ class NodeParts:
     #: the loop (see ``_control``)
     steady: bool = False
     #: the event loop's cell of the node's receive counters (values read by SDO)
-    loop_rx: RxCell = field(default_factory=RxCell)
+    loop_rx: RxCell = field(init=False)
 
     def __post_init__(self) -> None:
         self.loop_rx = self.image.rx.new_cell()
