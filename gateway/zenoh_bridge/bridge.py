@@ -10,8 +10,8 @@ turns /healthz not-ready, never silently):
   handled every frame already received (the image's batch listener; coalescing when it is
   behind); ``publish: every`` signals are published by the reader for every frame; a signal's
   value, quality and policy are read and written under its own lock, whichever thread
-  publishes, and a sample never follows a newer one; the count of publications is kept per
-  thread (``threads.ThreadCount``);
+  publishes, and a sample never follows a newer one; publications are counted per signal under
+  that lock (raw PDOs per thread, ``threads.ThreadCount``) and summed when read;
 * events (state, EMCY) are computed on the event loop when the master reports them and put by
   the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
   INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop;
@@ -285,7 +285,9 @@ class ZenohBridge:
         self.raw_pubs: dict[tuple[str, int], Any] = {}
         self.tokens: dict[str, Any] = {}
         self.queryable: Any = None
-        self._publications = ThreadCount()  # counted on the reader thread and the loop
+        #: raw PDOs published: the reader thread (TPDOs) and the loop (RPDOs) count each in
+        #: its own cell; values are counted by their policies, under each signal's lock
+        self._raw_publications = ThreadCount()
         self.up = False
         self._events = _EventSender(self.threads)
         self._values = _ValueBatch(self._offer, lambda: self._clock())
@@ -519,7 +521,7 @@ class ZenohBridge:
             return
         try:
             pub.put(data, timestamp=s.new_timestamp())
-            self._publications.add()
+            self._raw_publications.add()
         except zenoh.ZError:
             pass
 
@@ -571,9 +573,8 @@ class ZenohBridge:
                 sp.pub.put(payload, timestamp=s.new_timestamp())
             except zenoh.ZError:
                 return
-            sp.policy.published(value, quality, now)
+            sp.policy.published(value, quality, now)  # counts it, under the lock
             sp.last_seq = sv.seq
-        self._publications.add()
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
@@ -668,8 +669,10 @@ class ZenohBridge:
 
     @property
     def publications(self) -> int:
-        """Samples published (values and raw PDOs), summed over the publishing threads."""
-        return self._publications.value
+        """Samples published: values (each signal's count, kept under its lock, whichever
+        thread published) and raw PDOs (per thread), summed when read."""
+        values = sum(sp.policy.published_count for sp in list(self.pubs.values()))
+        return values + self._raw_publications.value
 
     @property
     def events_sent(self) -> int:
