@@ -33,7 +33,7 @@ from typing import Any
 from gateway.bus.master import Master, NodeParts
 from gateway.bus.sdo_values import OD_TYPE_NAMES, decode_value, encode_value
 from gateway.errors import GatewayError, NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
-from gateway.image import NodeImage
+from gateway.image import NodeImage, SentOutputs, SignalValue
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import TextSignal, text_signals
@@ -228,14 +228,14 @@ class CommandService:
         pdo = {n: v for n, v in checked.items() if p.node.is_output(n)}
         sdo = {n: v for n, v in checked.items() if n not in pdo}
         for n, v in pdo.items():
-            self._check_word(p, self.signal(node, n), v, p.node.output(n))
+            self._check_word(p, self.signal(node, n), v, p.image.output(n))
         if pdo:
             per_pdo: dict[int | None, dict[str, Any]] = {None: pdo}
             for ts in text_signals(p.lp.profile):
                 # a number written to a row that showed text: that RPDO says "number" again
                 if ts.head in pdo and ts.control not in pdo:
                     for c in p.node.by_signal[ts.head]:
-                        ctrl = int(p.node.output(ts.control, c.number))
+                        ctrl = int(p.image.output(ts.control, c.number))
                         per_pdo.setdefault(c.number, {})[ts.control] = ctrl & ~(
                             1 << ts.identifier_bit
                         )
@@ -294,7 +294,7 @@ class CommandService:
         allowed = writable_mask(sig) if sig.bits else 0
         async with self._word_lock(node, name):
             if p.node.is_output(name):
-                current = int(p.node.output(name) or 0)
+                current = int(p.image.output(name) or 0)
             else:
                 current = int(await self._sdo_value(p, sig))
             word = current
@@ -323,7 +323,7 @@ class CommandService:
         if not codecs:
             raise Unmapped(f"{ts.name}: {ts.head} and {ts.tail} are not in one RPDO")
         n = codecs[0].number
-        ctrl = int(p.node.output(ts.control, n)) | (1 << ts.identifier_bit)
+        ctrl = int(p.image.output(ts.control, n)) | (1 << ts.identifier_bit)
         self.master.write_outputs(
             p.name,
             {
@@ -335,24 +335,36 @@ class CommandService:
             },
         )
 
-    def current_text(self, p: NodeParts, ts: TextSignal) -> bytes:
-        """The row's text as last sent (empty when the row was last sent as a number)."""
+    def current_text(self, p: NodeParts, ts: TextSignal, sent: SentOutputs | None = None) -> bytes:
+        """The row's text as last sent (empty when the row was last sent as a number), from
+        the image's output section (``sent``: one record of it, default the current one)."""
+        img = p.image
+        sent = img.outputs if sent is None else sent
         codec = next(c for c in p.node.by_signal[ts.head] if c.index_of(ts.tail) is not None)
-        if not int(p.node.output(ts.control, codec.number)) >> ts.identifier_bit & 1:
+        n = codec.number
+        if not int(img.output(ts.control, n, sent) or 0) >> ts.identifier_bit & 1:
             return b""
-        head = int(p.node.output(ts.head, codec.number)).to_bytes(4, "little", signed=True)
-        return (head + bytes(p.node.output(ts.tail, codec.number))).rstrip(b" \0")
+        head = int(img.output(ts.head, n, sent) or 0).to_bytes(4, "little", signed=True)
+        return (head + bytes(img.output(ts.tail, n, sent) or b"")).rstrip(b" \0")
 
     def output_value(self, node: str, name: str) -> Any:
         """The last value sent for an RPDO signal or text row (0 before anything was sent)."""
+        return self.output_sample(node, name).value
+
+    def output_sample(self, node: str, name: str) -> SignalValue:
+        """An RPDO signal or text row as last written, from the image's output section:
+        value (0 before anything was sent), time of the write, writes so far (``seq``)."""
         p = self._part(node)
+        sent = p.image.outputs
         ts = self._text(p.lp, name)
         if ts is not None:
-            return self.current_text(p, ts)
-        if not p.node.is_output(name):
+            value: Any = self.current_text(p, ts, sent)
+        elif p.node.is_output(name):
+            v = p.image.output(name, None, sent)
+            value = 0 if v is None else v
+        else:
             raise Unmapped(f"{node}.{name} is not sent in an RPDO")
-        v = p.node.output(name)
-        return 0 if v is None else v
+        return SignalValue(name, value, sent.timestamp, sent.monotonic, sent.seq)
 
     # ------------------------------------------------------------------ reads
     async def read_signal(self, node: str, name: str) -> Any:

@@ -10,6 +10,7 @@ Imports: gateway.states only; nothing of bus/, modbus/, zenoh_bridge/ (they impo
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -75,8 +76,8 @@ class NodeHealth:
     outputs: str = "normal"
 
 
-class RxCounters:
-    """Counters of the CAN reader thread (written by that thread only)."""
+class RxCell:
+    """One thread's share of a node's receive counters (written by that thread only)."""
 
     __slots__ = ("pdo_too_short", "pdo_too_long", "last_rx_monotonic")
 
@@ -84,6 +85,57 @@ class RxCounters:
         self.pdo_too_short = 0  # PDOs shorter than their mapping (not decoded)
         self.pdo_too_long = 0  # PDOs longer than their mapping (mapped bytes decoded)
         self.last_rx_monotonic = 0.0
+
+
+class RxCounters:
+    """A node's receive counters, exact under threads: each writing thread writes its own
+    ``RxCell`` (the reader thread for TPDOs, the event loop for values read by SDO); readers
+    sum the counts and take the latest receive time."""
+
+    __slots__ = ("_cells", "_local")
+
+    def __init__(self) -> None:
+        self._cells: list[RxCell] = []
+        self._local = threading.local()
+
+    def new_cell(self) -> RxCell:
+        """A cell for one thread only (e.g. made for the reader thread when its handler is
+        built); never written by another thread."""
+        cell = RxCell()
+        self._cells.append(cell)  # one append: a reader sums the old list or the new one
+        return cell
+
+    def cell(self) -> RxCell:
+        """The calling thread's own cell."""
+        cell: RxCell | None = getattr(self._local, "cell", None)
+        if cell is None:
+            cell = self._local.cell = self.new_cell()
+        return cell
+
+    @property
+    def pdo_too_short(self) -> int:
+        return sum(c.pdo_too_short for c in self._cells)
+
+    @property
+    def pdo_too_long(self) -> int:
+        return sum(c.pdo_too_long for c in self._cells)
+
+    @property
+    def last_rx_monotonic(self) -> float:
+        return max((c.last_rx_monotonic for c in self._cells), default=0.0)
+
+
+class SentOutputs(NamedTuple):
+    """The node's output image as the gateway last set it: the values each RPDO carries (as
+    last sent, or as set for its next frame when a write changed a signal that RPDO shares
+    with the one sent). One immutable record, written by ``bus.node.Node`` in one assignment
+    on the event loop; readers (the command service for Modbus, Zenoh and the web console)
+    see one write or the next, never a mix."""
+
+    rpdos: Mapping[int, tuple[Any, ...]]  # RPDO number -> values in mapping order
+    timestamp: float = 0.0  # wall clock of the last write (seconds since the epoch)
+    monotonic: float = 0.0  # bus-clock time of the last write
+    seq: int = 0  # writes so far (0 = nothing written yet)
 
 
 _new = tuple.__new__  # a NamedTuple without its Python-level __new__ (hot path)
@@ -137,17 +189,22 @@ class SignalView(Mapping[str, SignalValue]):
 
 
 class NodeImage:
-    """Signals and health of one node.
+    """Signals, outputs and health of one node.
 
     Values are kept as one immutable record per PDO (``records``, keyed by the tuple of the
     signal names it carries): the reader thread puts a whole frame in with one assignment, so a
     reader sees one frame or the other, never a mix. ``signals`` is the per-signal view of the
     records; ``snapshot()`` is a consistent view for a request that reads several signals.
+    Which records feed which signal (``where``) is bound when the node is built (``bind``),
+    before any thread writes a record: a write never changes it.
+
+    ``outputs`` is the output image (``SentOutputs``), its own section: the values last set
+    for the node's RPDOs, replaced whole by the node's owner on the event loop.
     """
 
     __slots__ = (
         "name", "node_id", "family", "records", "where", "signals", "health", "rx",
-        "stale_after_s", "serve_stale",
+        "stale_after_s", "serve_stale", "outputs", "output_slots",
     )  # fmt: skip
 
     def __init__(
@@ -169,31 +226,53 @@ class NodeImage:
         self.rx = RxCounters()
         self.stale_after_s = stale_after_s
         self.serve_stale = serve_stale
+        self.outputs = SentOutputs({})
+        #: signal -> (RPDO number, index in its values) of every RPDO carrying it, in order
+        self.output_slots: dict[str, tuple[tuple[int, int], ...]] = {}
 
     def bind(self, names: tuple[str, ...]) -> None:
-        """Make the record keyed ``names`` a source of those signals (once per layout)."""
+        """Make the record keyed ``names`` a source of those signals. Called while the node
+        is built (``bus.master.build_node``: every TPDO, every value read by SDO), before the
+        reader thread runs; ``put`` never binds."""
         where = self.where
         for i, n in enumerate(names):
             slots = where.get(n, ())
             if (names, i) not in slots:
                 where[n] = (*slots, (names, i))  # one assignment: readers see old or new
 
+    def is_bound(self, names: tuple[str, ...]) -> bool:
+        """Is the record keyed ``names`` a source of each of its signals?"""
+        where = self.where
+        return all((names, i) in where.get(n, ()) for i, n in enumerate(names))
+
+    def bind_output(self, number: int, names: tuple[str, ...]) -> None:
+        """RPDO ``number`` carries ``names`` (while the node is built, like ``bind``)."""
+        slots = self.output_slots
+        for i, n in enumerate(names):
+            slots[n] = (*slots.get(n, ()), (number, i))
+
     def put(self, names: tuple[str, ...], values: tuple[Any, ...], ts: float, mono: float) -> None:
-        """Values of one frame (or of one SDO read), in one assignment."""
+        """Values of one frame (or of one SDO read), in one assignment. The key is bound."""
         records = self.records
         old = records.get(names)
         records[names] = (values, ts, mono, old[3] + 1 if old is not None else 1)
-        if old is None:
-            self.bind(names)
 
     def snapshot(self) -> SignalView:
         return SignalView(dict(self.records), self.where)
 
     def set_value(self, sv: SignalValue) -> None:
-        """Put one signal's value as given (tests and tools)."""
+        """Put one signal's value as given (tests and tools, on one thread, nothing running)."""
         key = (sv.name,)
-        self.records[key] = ((sv.value,), sv.timestamp, sv.monotonic, sv.seq)
         self.bind(key)
+        self.records[key] = ((sv.value,), sv.timestamp, sv.monotonic, sv.seq)
+
+    def output(self, name: str, pdo: int | None = None, sent: SentOutputs | None = None) -> Any:
+        """The value of output ``name`` in RPDO ``pdo`` (default: the last RPDO carrying it)
+        in ``sent`` (default: the current output image). KeyError when no RPDO carries it."""
+        slots = self.output_slots[name]
+        number, index = next((s for s in slots if s[0] == pdo), slots[-1])
+        values = (self.outputs if sent is None else sent).rpdos.get(number)
+        return None if values is None else values[index]
 
     def operational(self) -> bool:
         h = self.health
@@ -233,7 +312,8 @@ class NodeImage:
         return (time.monotonic() if now_monotonic is None else now_monotonic) - last
 
 
-#: listener(node, signal names updated, timestamp) — called on the bus reader thread
+#: listener(node, signal names updated, timestamp) — called on the bus reader thread (TPDOs) or
+#: the event loop (values read by SDO, outputs written)
 ValueListener = Callable[[NodeImage, tuple[str, ...], float], None]
 #: listener(node, what changed: "health" | "emcy" | "state") — called on the event loop
 HealthListener = Callable[[NodeImage, str], None]
@@ -292,14 +372,28 @@ class ProcessImage:
         self.by_id[node.node_id] = node
 
     def update(
-        self, node: NodeImage, names: tuple[str, ...], values: tuple[Any, ...], ts: float
+        self,
+        node: NodeImage,
+        names: tuple[str, ...],
+        values: tuple[Any, ...],
+        ts: float,
+        rx: RxCell | None = None,
     ) -> None:
         """Write the values of one PDO (hot path: one record, one assignment) and tell the value
-        listeners. Called by one writer at a time per node (the reader thread; SDO refreshes
-        on the event loop only while the node's TPDOs are silent)."""
+        listeners. ``names`` is a bound key (``NodeImage.bind``); ``rx`` is the calling
+        thread's cell of the node's counters (default: looked up). Each record has one writer:
+        a TPDO's is the reader thread, a value read by SDO's is the event loop."""
         mono = time.monotonic()
         node.put(names, values, ts, mono)
-        node.rx.last_rx_monotonic = mono
+        (rx or node.rx.cell()).last_rx_monotonic = mono
+        for listener in self.value_listeners:
+            listener(node, names, ts)
+
+    def outputs_written(self, node: NodeImage, names: tuple[str, ...]) -> None:
+        """The node's outputs ``names`` were written (event loop, after ``Node`` replaced
+        ``node.outputs``): the value listeners hear of it as of new values (the web console's
+        live pages show the outputs)."""
+        ts = node.outputs.timestamp
         for listener in self.value_listeners:
             listener(node, names, ts)
 

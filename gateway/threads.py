@@ -3,6 +3,7 @@
 A supervised thread runs its target; an exception that escapes it is logged with its traceback
 and recorded, and the gateway's readiness (/healthz) turns not-ready with the thread's name and
 the error: no thread dies silently. ``ThreadRegistry.failures()`` lists the dead ones.
+``ThreadCount`` is a counter several threads increment, each in its own cell.
 
 Imports: the standard library only.
 """
@@ -39,3 +40,26 @@ class ThreadRegistry:
     def failures(self) -> dict[str, str]:
         with self._lock:
             return dict(self._failed)
+
+
+class ThreadCount:
+    """A count incremented on several threads, exact without a lock: each thread adds to its
+    own cell (``add``), a reader sums the cells (``value``)."""
+
+    __slots__ = ("_cells", "_local")
+
+    def __init__(self) -> None:
+        self._cells: list[list[int]] = []
+        self._local = threading.local()
+
+    def add(self, n: int = 1) -> None:
+        try:
+            cell: list[int] = self._local.cell
+        except AttributeError:
+            cell = self._local.cell = [0]
+            self._cells.append(cell)  # one append: a reader sums the old list or the new one
+        cell[0] += n
+
+    @property
+    def value(self) -> int:
+        return sum(c[0] for c in list(self._cells))

@@ -1,5 +1,7 @@
 """Test helpers: a gateway built from a config dict on a private virtual CAN channel, with
-Modbus and Zenoh on free loopback ports, and helpers that wait on conditions (bounded)."""
+Modbus and Zenoh on free loopback ports (``modbus_gateway``: started, with a connected Modbus
+client), CAN frames (``frame``), and helpers that wait on conditions (bounded). The fixtures
+of ``tests/conftest.py`` hand out the same."""
 
 from __future__ import annotations
 
@@ -8,9 +10,11 @@ import itertools
 import socket
 import time
 import uuid
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterable
 from contextlib import asynccontextmanager
 from typing import Any
+
+import can
 
 from gateway.checks import parse_checked_config as parse_config
 
@@ -72,6 +76,21 @@ async def master_running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncI
         await gw.stop()
 
 
+def operational(name: str) -> Callable[[Any], bool]:
+    """Condition for ``modbus_gateway``: node ``name`` is operational."""
+    return lambda gw: gw.image.nodes[name].operational()
+
+
+def with_position(name: str) -> Callable[[Any], bool]:
+    """Condition for ``modbus_gateway``: node ``name`` is operational and sent a position."""
+
+    def cond(gw: Any) -> bool:
+        node = gw.image.nodes[name]
+        return bool(node.operational() and node.signals["position"].seq > 0)
+
+    return cond
+
+
 def node_operational(gw: Any, name: str) -> bool:
     """Configured, NMT operational and alive."""
     from gateway.bus.lifecycle import LifecycleState
@@ -83,3 +102,43 @@ def node_operational(gw: Any, name: str) -> bool:
         and rt.image.health.nmt_state == NmtState.OPERATIONAL
         and rt.image.health.alive
     )
+
+
+def frame(
+    cob_id: int, data: bytes | str = b"", *, rtr: bool = False, dlc: int = 0, **kw: Any
+) -> can.Message:
+    """A standard (11-bit) CAN frame; ``data`` as bytes or as hex text (``"05 00"``); a remote
+    frame (``rtr``) asks for ``dlc`` bytes."""
+    raw = bytes.fromhex(data) if isinstance(data, str) else bytes(data)
+    return can.Message(
+        arbitration_id=cob_id,
+        data=raw,
+        is_extended_id=False,
+        is_remote_frame=rtr,
+        dlc=dlc if rtr else len(raw),
+        **kw,
+    )
+
+
+@asynccontextmanager
+async def modbus_gateway(
+    cfg: Any, ready: Iterable[tuple[Callable[[Any], Any], str]] = ()
+) -> AsyncIterator[tuple[Any, Any]]:
+    """A started gateway of ``cfg`` and a pymodbus client connected to its Modbus server; each
+    ``(condition(gateway), what)`` of ``ready`` is waited for (5 s each) before the body runs.
+    Both are stopped on exit."""
+    from pymodbus.client import AsyncModbusTcpClient
+
+    from gateway.app import Gateway
+
+    gw = Gateway(cfg)
+    await gw.start()
+    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+    try:
+        await client.connect()
+        for cond, what in ready:
+            await wait_until(lambda cond=cond: cond(gw), 5, what)
+        yield gw, client
+    finally:
+        client.close()
+        await gw.stop()

@@ -28,7 +28,8 @@ Threads: the reader thread (receives and dispatches) and the sender thread (ever
 event loop sends is queued to it, so a blocking backend never blocks the loop). Both are
 supervised (``gateway.threads``); each counts in its own counter set.
 
-Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock).
+Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
+reopen backoff read only those.
 
 Imports: python-can, image (for counters), ratelimit, threads. Nothing northbound.
 """
@@ -92,6 +93,7 @@ class BusDriver:
         self.bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
+        self._closing = threading.Event()  # set by close(): wakes a reopen backoff at once
         self._send_lock = threading.Lock()
         self.state = "down"
         self.last_error = ""
@@ -99,8 +101,10 @@ class BusDriver:
         self.reopens = 0  # successful reopens since start
         self.last_error_frame_s: float | None = None
         self.warn = RateLimitedLog(log)
-        self.idle = True
-        self.last_frame_wall = 0.0
+        #: (idle, wall-clock timestamp of the frame being processed): the bus clock's state,
+        #: written by the reader thread only, always as one tuple (``bus_clock`` reads it on
+        #: the event loop and must never see "busy" with the previous burst's timestamp)
+        self.clock_state: tuple[bool, float] = (True, 0.0)
         self.threads = threads or ThreadRegistry()
         self.mono = mono
         self.wall = wall
@@ -127,11 +131,13 @@ class BusDriver:
         else:
             self._set_state("ok", "")
         self._running.set()
+        self._closing.clear()
         self._thread = self.threads.start("can-reader", self._run)
         self._sender = self.threads.start("can-sender", self._send_loop)
 
     def close(self) -> None:
         self._running.clear()
+        self._closing.set()
         self._tx.put(None)
         for t in (self._thread, self._sender):
             if t is not None:
@@ -168,11 +174,22 @@ class BusDriver:
         timeouts by the time of the frames it has processed, not by the wall clock: a
         heartbeat waiting in the receive queue is not a lost node.
         """
+        idle, last_frame_wall = self.clock_state  # one read of the reader's one assignment
         now = self.mono()
-        if self.idle or not self.last_frame_wall:
+        if idle or not last_frame_wall:
             return now
-        lag = self.wall() - self.last_frame_wall
+        lag = self.wall() - last_frame_wall
         return now - lag if 0 < lag < 3600 else now
+
+    @property
+    def idle(self) -> bool:
+        """The reader has caught up with the bus (nothing left buffered)."""
+        return self.clock_state[0]
+
+    @property
+    def last_frame_wall(self) -> float:
+        """Wall-clock timestamp of the last frame the reader took."""
+        return self.clock_state[1]
 
     def frame_time(self, msg: can.Message) -> float:
         """A frame's receive time on the monotonic clock (its timestamp is wall-clock)."""
@@ -243,16 +260,14 @@ class BusDriver:
                 self._set_state("down", f"receive failed: {exc}")
                 continue
             if msg is None:
+                # nothing left buffered: caught up with the bus
+                self.clock_state = (True, self.clock_state[1])
                 if in_burst:
                     in_burst = False
-                    self.idle = True  # nothing left buffered: caught up with the bus
                     self._end_burst()
-                else:
-                    self.idle = True  # caught up with the bus
                 continue
             in_burst = True
-            self.idle = False
-            self.last_frame_wall = msg.timestamp
+            self.clock_state = (False, msg.timestamp)  # one assignment (see __init__)
             if msg.is_error_frame:
                 counters["bus_errors"] += 1
                 self._error_frame(msg)
@@ -312,9 +327,10 @@ class BusDriver:
     def _reopen(self) -> bool:
         """One reopen attempt after the backoff delay; False if it failed or we are closing."""
         delay = self.backoff_s(self.reopen_attempts + 1)
-        deadline = time.monotonic() + delay
-        while self._running.is_set() and time.monotonic() < deadline:
-            time.sleep(min(0.05, max(0.0, deadline - time.monotonic())))
+        deadline = self.mono() + delay
+        while self._running.is_set() and self.mono() < deadline:
+            # woken at once by close(); the deadline is judged on the injectable clock
+            self._closing.wait(min(0.05, max(0.0, deadline - self.mono())))
         if not self._running.is_set():
             return False
         try:

@@ -24,7 +24,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import can
@@ -40,7 +40,7 @@ from gateway.bus.settings import NodeSettings, resolve_node_settings
 from gateway.bus.verify import MappingMismatch, mapping_reads
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
-from gateway.image import NodeImage, ProcessImage
+from gateway.image import NodeImage, ProcessImage, RxCell
 from gateway.objref import ObjRef
 from gateway.profiles import (
     LoadedProfile,
@@ -75,6 +75,11 @@ class NodeParts:
     #: repeating the previous one changes nothing before its deadline and needs no wake-up of
     #: the loop (see ``_control``)
     steady: bool = False
+    #: the event loop's cell of the node's receive counters (values read by SDO)
+    loop_rx: RxCell = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.loop_rx = self.image.rx.new_cell()
 
     @property
     def name(self) -> str:
@@ -141,11 +146,21 @@ def build_node(
     if ref is not None:
         pos = lp.profile.signal_for(ObjRef.parse(ref.get("position", "0x6004:00")))
         ref_signal = pos.name if pos is not None else None
+    # The image's record keys are bound now, before any thread writes a record: each TPDO,
+    # and each value read by SDO after NMT start (refresh), is a source of its signals.
+    for codec in tpdos:
+        image.bind(codec.names)
+    for r in plan:
+        for name, _obj, _type in r.objects:
+            image.bind((name,))
+    for rc in rpdos:
+        image.bind_output(rc.number, tuple(rc.names))
     node = Node(
         ncfg.name,
         ncfg.node_id,
         settings,
         image.health,
+        image=image,
         boot_steps=steps,
         configure=ncfg.configure,
         tpdos=tpdos,
@@ -271,7 +286,8 @@ class Master:
         return handle
 
     def _tpdo_handler(self, p: NodeParts, codec: TpdoCodec) -> Callable[[can.Message], None]:
-        image, node, rx = self.image, p.image, p.image.rx
+        image, node = self.image, p.image
+        rx = node.rx.new_cell()  # this handler's: written on the reader thread only
         decode, names, length, update = codec.decode, codec.names, codec.length, image.update
         counters = self.driver.rx_counters
         pdo_listeners = image.pdo_listeners
@@ -313,7 +329,7 @@ class Master:
                     length,
                 )
             values = decode(data)
-            update(node, names, values, msg.timestamp or time.time())
+            update(node, names, values, msg.timestamp or time.time(), rx)
             if pdo_listeners:
                 raw = bytes(data)
                 for listener in pdo_listeners:
@@ -380,12 +396,17 @@ class Master:
             elif isinstance(o, SdoDone):
                 self._sdo_done(p, o)
             elif isinstance(o, ValuesRead):
-                sigs = p.image.signals
-                keep = [i for i, n in enumerate(o.names) if n in sigs]
-                if keep:
-                    names = tuple(o.names[i] for i in keep)
-                    self.image.update(p.image, names, tuple(o.values[i] for i in keep), time.time())
+                if p.image.is_bound(o.names):  # bound by build_node: the refresh plan
+                    self.image.update(p.image, o.names, o.values, time.time(), p.loop_rx)
                     self.image.end_batch()
+                else:
+                    self.warn.log(
+                        logging.ERROR,
+                        ("unbound", p.name),
+                        "node %s: values %s read but not a source in the image; dropped",
+                        p.name,
+                        o.names,
+                    )
             elif isinstance(o, Note):
                 if o.kind is not None:
                     self.warn.log(o.level, o.kind, "%s", o.text)
@@ -500,7 +521,8 @@ class Master:
         """Set outputs of a node and send its RPDOs now (see ``Node.write_outputs``)."""
         self.require_bus()
         p = self.nodes[name]
-        self._execute(p, p.node.write_outputs(per_pdo, self.clock(), safe=safe))
+        self._execute(p, p.node.write_outputs(per_pdo, self.clock(), wall=time.time(), safe=safe))
+        self.image.outputs_written(p.image, tuple({n: 0 for v in per_pdo.values() for n in v}))
 
     async def sdo(
         self, name: str, obj: ObjRef, data: bytes | None, *, check_state: bool = True

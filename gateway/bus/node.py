@@ -5,7 +5,9 @@ Rule 1: everything the gateway decides about one node lives here, in ``Node``: i
 guarding, the guarding-bit check, the RPDO keep-alive that feeds an external heartbeat), its
 SDO channel (one transfer at a time: boot steps, probes, value refreshes, commands), its output
 image (the last values sent in each RPDO, bits included) and its health in the process image
-(``NodeHealth``: only this class writes it).
+(``NodeHealth``: only this class writes it). It writes the image's output section
+(``NodeImage.outputs``) too, in one assignment after each write or keep-alive: the one copy of
+the outputs that Modbus, Zenoh and the web console read.
 Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the time ``now``
 (the bus clock: the time of the frames processed, seconds) — ``on_nmt_ec``, ``on_emcy``,
 ``on_echo``, ``on_sdo_response``, ``tick``, ``request_sdo``, ``write_outputs``, ``nmt`` — and
@@ -64,7 +66,7 @@ from gateway.bus.settings import NodeSettings
 from gateway.bus.verify import MappingMismatch, MappingRead, compare_mapping
 from gateway.bus.watchdog import Watchdog
 from gateway.errors import NodeNotOperational
-from gateway.image import NodeHealth
+from gateway.image import NodeHealth, NodeImage, SentOutputs
 from gateway.objref import ObjRef
 from gateway.states import LinkState, NmtState
 
@@ -94,6 +96,7 @@ class Node:
         reference_signal: str | None = None,
         passive: bool = False,
         verify: Sequence[MappingRead] = (),
+        image: NodeImage | None = None,
     ):
         self.name = name
         self.node_id = node_id
@@ -130,6 +133,9 @@ class Node:
         self.outputs = OutputImage(
             name, self.rpdos, settings.keepalive_ms / 1000.0, self.gbit, control
         )
+        self.image = image  # its ``outputs`` section is written here only
+        self._sent = SentOutputs({})
+        self._publish_outputs()
         self.sdo = SdoChannel(node_id, settings.sdo_timeout_s, settings.sdo_retries)
         self.next_probe_s: float | None = None
         self._last_probe_end_s: float | None = None
@@ -302,16 +308,20 @@ class Node:
         per_pdo: dict[int | None, dict[str, Any]],
         now: float,
         send: Sequence[int] | None = None,
+        *,
+        wall: float = 0.0,
         safe: bool = False,
     ) -> list[Output]:
         """Set output values and send the RPDOs that carry them (one frame per RPDO).
 
-        ``per_pdo[None]`` applies to every RPDO mapping the signal (and becomes the image's
-        value of those signals), ``per_pdo[n]`` to RPDO n only. Which RPDOs go out (unless ``send`` says): those carrying a signal mapped only
-        there; a signal mapped in several RPDOs (a shared control word) alone goes out in the
-        last of them. Raises NodeNotOperational (nothing changed) when the node is not
-        operational. ``safe``: these are the safe values of the output watchdog (the node's
-        ``outputs`` health says ``safe`` until the next write)."""
+        ``per_pdo[None]`` applies to every RPDO mapping the signal, ``per_pdo[n]`` to RPDO n
+        only (an AP05 text row). Which RPDOs go out (unless ``send`` says): those carrying a
+        signal mapped only there; a signal mapped in several RPDOs (a shared control word)
+        alone goes out in the last of them. The image's output section then holds the new
+        values (one assignment; ``wall`` is the write's wall-clock time). Raises
+        NodeNotOperational (nothing changed) when the node is not operational. ``safe``: these
+        are the safe values of the output watchdog (the node's ``outputs`` health says ``safe``
+        until the next write)."""
         self.require_operational()
         numbers = list(send) if send else self.outputs.set(per_pdo)
         if send:
@@ -322,10 +332,15 @@ class Node:
         if self.health.outputs != mode:
             self.health.outputs = mode
             out.append(HealthChanged("state"))
-        shared = per_pdo.get(None)
-        if shared:  # outputs sent are also the image's value of those signals
-            out.append(ValuesRead(tuple(shared), tuple(shared.values())))
+        self._sent = SentOutputs({}, wall, now, self._sent.seq + 1)
+        self._publish_outputs()
         return out
+
+    def _publish_outputs(self) -> None:
+        """The output image as set now into the process image, in one assignment."""
+        sent = self._sent = self._sent._replace(rpdos=self.outputs.snapshot())
+        if self.image is not None:
+            self.image.outputs = sent
 
     def require_operational(self) -> None:
         h = self.health
@@ -663,7 +678,9 @@ class Node:
 
     def _keepalive(self, now: float) -> list[Output]:
         self.health.rpdo_sent += 1
-        return [self.outputs.keepalive(now)]
+        out: list[Output] = [self.outputs.keepalive(now)]
+        self._publish_outputs()  # the guarding bit of the control word as sent
+        return out
 
     def _rtr_poll(self, now: float) -> list[Output]:
         assert self.s.rtr_poll_ms

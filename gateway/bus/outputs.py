@@ -1,11 +1,12 @@
 """A node's output image: the last values sent in each RPDO, bits included, and the frames
 that carry them.
 
-The only place output values live. ``set`` changes values (all RPDOs mapping a signal, or one
-RPDO); ``frame`` encodes an RPDO, with the guarding bit the link check asks for (AP05 manual
-5.5.5: control-word bit 8 toggles only when the previous toggle was echoed); the keep-alive
-re-sends the last RPDO when none went out for ``keepalive_s`` (AP05 manual 5.5.4 external
-heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes nothing).
+The node's working copy of its output values (the process image's output section is the copy
+``Node`` makes after each change, read north). ``set`` changes values (all RPDOs mapping a
+signal, or one RPDO); ``frame`` encodes an RPDO, with the guarding bit the link check asks for
+(AP05 manual 5.5.5: control-word bit 8 toggles only when the previous toggle was echoed); the
+keep-alive re-sends the last RPDO when none went out for ``keepalive_s`` (AP05 manual 5.5.4
+external heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes nothing).
 
 Imports: bus.codec, bus.events, bus.supervision (the guarding-bit check), errors. No I/O.
 """
@@ -80,6 +81,10 @@ class OutputImage:
                     if pdo is None or c.number == pdo:
                         self.values[c.number][c.index_of(n)] = v  # type: ignore[index]
         return sorted(set(numbers))
+
+    def snapshot(self) -> dict[int, tuple[Any, ...]]:
+        """The values of every RPDO, immutable (for the process image's output section)."""
+        return {n: tuple(v) for n, v in self.values.items()}
 
     def frame(self, number: int, now: float) -> Send:
         """RPDO ``number`` as it goes out now (guarding bit applied)."""

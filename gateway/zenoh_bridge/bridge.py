@@ -8,7 +8,10 @@ turns /healthz not-ready, never silently):
 * values are marked on the CAN reader thread right after the image was written, and the reader
   publishes the *current* value of every marked signal once per burst of frames, when it has
   handled every frame already received (the image's batch listener; coalescing when it is
-  behind); ``publish: every`` signals are published by the reader for every frame;
+  behind); ``publish: every`` signals are published by the reader for every frame; a signal's
+  value, quality and policy are read and written under its own lock, whichever thread
+  publishes, and a sample never follows a newer one; publications are counted per signal under
+  that lock (raw PDOs per thread, ``threads.ThreadCount``) and summed when read;
 * events (state, EMCY) are computed on the event loop when the master reports them and put by
   the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
   INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop;
@@ -57,7 +60,7 @@ from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadRegistry
+from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.keys import (
     GATEWAY_TOKEN,
     alive_key,
@@ -221,8 +224,13 @@ class _ValueBatch:
     after the mark was taken, so it is at least as new as the frame that marked it.
     """
 
-    def __init__(self, offer: Callable[[NodeImage, _SignalPub, float], None]) -> None:
+    def __init__(
+        self,
+        offer: Callable[[NodeImage, _SignalPub, float], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.offer = offer
+        self.clock = clock
         self.lock = threading.Lock()
         self.pending: dict[int, tuple[NodeImage, _SignalPub]] = {}
         self.errors = 0
@@ -244,7 +252,7 @@ class _ValueBatch:
         if not self.pending:
             return
         batch = self.take()
-        now = time.monotonic()
+        now = self.clock()
         for node, sp in batch:
             try:
                 self.offer(node, sp, now)
@@ -277,15 +285,18 @@ class ZenohBridge:
         self.raw_pubs: dict[tuple[str, int], Any] = {}
         self.tokens: dict[str, Any] = {}
         self.queryable: Any = None
-        self.publications = 0
+        #: raw PDOs published: the reader thread (TPDOs) and the loop (RPDOs) count each in
+        #: its own cell; values are counted by their policies, under each signal's lock
+        self._raw_publications = ThreadCount()
         self.up = False
         self._events = _EventSender(self.threads)
-        self._values = _ValueBatch(self._offer)
+        self._values = _ValueBatch(self._offer, lambda: self._clock())
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}
         self._opened: zenoh.Session | None = None  # open, checked, not declared yet
         self._open_failed: zenoh.ZError | None = None
         self._last_attempt_s = 0.0
+        #: the bridge's monotonic clock (injectable): publication policy, retries, waits
         self._clock: Callable[[], float] = time.monotonic
         self._sleep: Callable[[float], Any] = asyncio.sleep
         self._tasks: list[asyncio.Task[Any]] = []
@@ -401,8 +412,8 @@ class ZenohBridge:
         """Worker thread: the key of a gateway token under our prefix, if one is announced."""
         z = self.cfg.zenoh
         if z.connect:  # wait (bounded) for the configured router(s) to be connected
-            deadline = time.monotonic() + CONNECT_WAIT_S
-            while time.monotonic() < deadline:
+            deadline = self._clock() + CONNECT_WAIT_S
+            while self._clock() < deadline:
                 info = session.info
                 if list(info.routers_zid()) or list(info.peers_zid()):
                     break
@@ -510,7 +521,7 @@ class ZenohBridge:
             return
         try:
             pub.put(data, timestamp=s.new_timestamp())
-            self.publications += 1
+            self._raw_publications.add()
         except zenoh.ZError:
             pass
 
@@ -542,13 +553,18 @@ class ZenohBridge:
 
     # ------------------------------------------------------------------ values
     def _offer(self, node: NodeImage, sp: _SignalPub, now: float) -> None:
-        """Publish the signal's current value if its policy says so (any thread)."""
+        """Publish the signal's current value if its policy says so (any thread: the reader's
+        burst and the event loop may flush at the same time). Value and quality are read
+        under the signal's lock, so a publication carries the latest value at its turn; one
+        older than the last published (a lower ``seq``) is never published after it."""
         s = self.session
         if s is None or sp.pub is None:
             return
-        sv = node.signals[sp.sig.name]
-        quality = node.quality(sv, now)
         with sp.lock:
+            sv = node.signals[sp.sig.name]
+            if sv.seq < sp.last_seq:
+                return
+            quality = node.quality(sv, now)
             value = sv.value
             if not sp.policy.offer(value, quality, now):
                 return
@@ -557,9 +573,8 @@ class ZenohBridge:
                 sp.pub.put(payload, timestamp=s.new_timestamp())
             except zenoh.ZError:
                 return
-            sp.policy.published(value, quality, now)
+            sp.policy.published(value, quality, now)  # counts it, under the lock
             sp.last_seq = sv.seq
-        self.publications += 1
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
@@ -574,7 +589,7 @@ class ZenohBridge:
             if sp is None:
                 continue
             if sp.policy.mode == "every":
-                now = now or time.monotonic()
+                now = now or self._clock()
                 self._offer(node, sp, now)
             else:
                 mark(node, sp)
@@ -586,9 +601,11 @@ class ZenohBridge:
             if not sv.seq:
                 continue
             pol = sp.policy
-            if pol.take_due(now) or (
-                pol.last_time_s is not None and node.quality(sv, now) != pol.last_quality
-            ):
+            with sp.lock:  # the policy is the publishing thread's, under the signal's lock
+                due = pol.take_due(now) or (
+                    pol.last_time_s is not None and node.quality(sv, now) != pol.last_quality
+                )
+            if due:
                 self._offer(node, sp, now)
 
     async def _housekeeping(self) -> None:
@@ -600,7 +617,7 @@ class ZenohBridge:
             await asyncio.sleep(period)
             if self.session is None:
                 continue
-            now = time.monotonic()
+            now = self._clock()
             for node in self.image.nodes.values():
                 self._refresh(node, now)
 
@@ -624,7 +641,7 @@ class ZenohBridge:
                 self._last_state[node.name] = fp
                 self._put_event(s, self.state_pubs[node.name], state_key(self.prefix, node.name), d)
         self._sync_token(node)
-        self._refresh(node, time.monotonic())
+        self._refresh(node, self._clock())
 
     def _put_event(self, s: zenoh.Session, pub: Any, key: str, payload: dict[str, Any]) -> None:
         """Queue an event with the next ``seq`` of its key (1, 2, 3... since the gateway
@@ -649,6 +666,13 @@ class ZenohBridge:
                 tok.undeclare()
             except zenoh.ZError:
                 pass
+
+    @property
+    def publications(self) -> int:
+        """Samples published: values (each signal's count, kept under its lock, whichever
+        thread published) and raw PDOs (per thread), summed when read."""
+        values = sum(sp.policy.published_count for sp in list(self.pubs.values()))
+        return values + self._raw_publications.value
 
     @property
     def events_sent(self) -> int:

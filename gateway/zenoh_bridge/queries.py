@@ -288,16 +288,19 @@ class QueryService:
 
     # ------------------------------------------------------------------ read-only answers
     def _value_now(self, node: NodeImage, sig: Signal) -> dict[str, Any]:
-        sv = node.signals[sig.name]
+        """A TPDO value from the image's records; an RPDO output or text row from its output
+        section (as last written)."""
+        if self.commands.node(node.name).is_output(sig.name):
+            sv = self.commands.output_sample(node.name, sig.name)
+        else:
+            sv = node.signals[sig.name]
         return value_payload(sig, sv, node.quality(sv), self.scaling(node.name, sig))
 
     def snapshot(self, node: NodeImage) -> dict[str, Any]:
         rt = self.commands.node(node.name)
-        values = {
-            sig.name: self._value_now(node, sig)
-            for sig in rt.lp.profile.signals
-            if sig.transport == "pdo"
-        }
+        names = [sig.name for sig in rt.lp.profile.signals if sig.transport == "pdo"]
+        names += sorted(n for n in rt.outputs if n not in names)  # text rows
+        values = {n: self._value_now(node, self.commands.signal(rt, n)) for n in names}
         return {"node": node.name, "state": state_payload(node), "values": values}
 
     def catalog(self) -> dict[str, Any]:

@@ -11,17 +11,7 @@ import pytest
 from gateway.profiles import load_profile
 from gateway.sim.node import NmtState, SimNode
 from gateway.sim.objects import PersistentStore
-
-
-def frame(cob: int, hexdata: str = "", *, rtr: bool = False, dlc: int = 0) -> can.Message:
-    data = bytes.fromhex(hexdata)
-    return can.Message(
-        arbitration_id=cob,
-        data=data,
-        is_extended_id=False,
-        is_remote_frame=rtr,
-        dlc=dlc if rtr else len(data),
-    )
+from tests.helpers import frame
 
 
 def hexframes(msgs: list[can.Message]) -> list[tuple[int, str]]:

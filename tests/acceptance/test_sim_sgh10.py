@@ -3,23 +3,12 @@ edition 003), byte for byte. Frames are raw python-can messages; the clock is a 
 
 from __future__ import annotations
 
-import can
 import pytest
 
 from gateway.profiles import load_profile
 from gateway.sim.node import NmtState, SimNode
 from gateway.sim.objects import PersistentStore
-
-
-def frame(cob: int, hexdata: str = "", *, rtr: bool = False, dlc: int = 0) -> can.Message:
-    data = bytes.fromhex(hexdata)
-    return can.Message(
-        arbitration_id=cob,
-        data=data,
-        is_extended_id=False,
-        is_remote_frame=rtr,
-        dlc=dlc if rtr else len(data),
-    )
+from tests.helpers import frame
 
 
 def rx(node: SimNode, cob: int, hexdata: str, now: float = 1.0) -> list[tuple[int, str]]:

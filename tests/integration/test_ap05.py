@@ -8,6 +8,8 @@ import asyncio
 import json
 import queue
 import struct
+from collections.abc import Callable
+from typing import Any
 
 import can
 import pytest
@@ -17,7 +19,8 @@ from pymodbus.pdu import ExceptionResponse
 
 from gateway.app import Gateway, SimulatedBus
 from gateway.image import LinkState, NmtState
-from tests.helpers import make_config, wait_until
+from tests.helpers import free_port, make_config, operational, wait_until
+from tests.zenoh_client import ZClient
 
 # register map of an AP05 unit (see docs/modbus.md): holding registers
 SET_POINT2 = 103  # int32, 103-104
@@ -27,6 +30,7 @@ POSITION = 100  # input registers 100-101
 STATUS_WORD = 102
 TEXT1 = 169  # string[6] 169-171
 TEXT2 = 172
+P = "canopen/test"
 
 
 def raw_ap05(**node: object) -> dict:
@@ -227,16 +231,13 @@ async def test_gateway_stopped_device_drops_to_pre_operational() -> None:
         sim.stop()
 
 
-async def test_alphanumeric_text_round_trip_and_invalid_text_refused() -> None:
+async def test_alphanumeric_text_round_trip_and_invalid_text_refused(
+    modbus_gateway: Callable[..., Any],
+) -> None:
     node = {**AP05_SIM, "sdo": [{"object": "0x5F1B:02", "value": 3}]}
     cfg = make_config([node])
-    gw = Gateway(cfg)
-    await gw.start()
-    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
-    sim = gw.sim.nodes["display"]
-    try:
-        await wait_until(lambda: gw.image.nodes["display"].operational(), 5, "operational")
-        await client.connect()
+    async with modbus_gateway(cfg, [(operational("display"), "operational")]) as (gw, client):
+        sim = gw.sim.nodes["display"]
         regs = [ord("H") << 8 | ord("E"), ord("L") << 8 | ord("L"), ord("O") << 8 | ord("!")]
         rr = await client.write_registers(TEXT1, regs, device_id=5)
         assert not rr.isError(), rr
@@ -254,9 +255,6 @@ async def test_alphanumeric_text_round_trip_and_invalid_text_refused() -> None:
         with pytest.raises(Exception) as exc:
             await gw.commands.write_signal("display", "set_point2_text", "TOOLONG")
         assert "at most 6" in str(exc.value)
-    finally:
-        client.close()
-        await gw.stop()
 
 
 async def test_text_through_zenoh_and_invalid_text_gets_reply_err() -> None:
@@ -285,6 +283,47 @@ async def test_text_through_zenoh_and_invalid_text_gets_reply_err() -> None:
     finally:
         session.close()
         await gw.stop()
+
+
+async def test_text_written_is_read_back_by_modbus_and_zenoh_from_the_image_outputs(
+    modbus_gateway: Callable[..., Any],
+) -> None:
+    """The outputs are the image's own section, written by the node in one assignment: a text
+    row (AP05 manual 4.1.2, sent in one RPDO with the data identifier bit) reads back through
+    Modbus and Zenoh (value and snapshot) as written, and no output is echoed into the records
+    of received values."""
+    node = {**AP05_SIM, "sdo": [{"object": "0x5F1B:02", "value": 3}]}
+    cfg = make_config([node], zenoh={"writes": True})
+    async with modbus_gateway(cfg, [(operational("display"), "operational")]) as (gw, client):
+        image = gw.image.nodes["display"]
+        sim = gw.sim.nodes["display"]
+        z = ZClient(cfg.zenoh.listen)
+        try:
+            writes = image.outputs.seq
+            regs = [ord("H") << 8 | ord("E"), ord("L") << 8 | ord("L"), ord("O") << 8 | ord("!")]
+            rr = await client.write_registers(TEXT1, regs, device_id=5)
+            assert not rr.isError(), rr
+            assert image.outputs.seq == writes + 1  # one write, one record
+            ok = await z.get_one(f"{P}/display/set/set_point2_text", payload='"AB 12"')
+            assert ok.ok, ok.body
+            await wait_until(lambda: sim.sdo_read_local("0x5F16:01") != 0, 3, "row 2 received")
+
+            back = await client.read_holding_registers(TEXT1, count=3, device_id=5)
+            assert back.registers == regs
+            row2 = await client.read_holding_registers(TEXT2, count=3, device_id=5)
+            assert b"".join(r.to_bytes(2, "big") for r in row2.registers).rstrip(b" \0") == b"AB 12"
+            v1 = await z.get_one(f"{P}/display/value/set_point1_text")
+            assert v1.ok and v1.body["value"] == "HELLO!", v1.body
+            assert v1.body["seq"] == image.outputs.seq
+            snap = await z.get_one(f"{P}/display/snapshot")
+            assert snap.ok
+            assert snap.body["values"]["set_point1_text"]["value"] == "HELLO!"
+            assert snap.body["values"]["set_point2_text"]["value"] == "AB 12"
+            # outputs live in their own section only: the records hold what the device sent
+            outputs = set(gw.commands.node("display").outputs)
+            assert not [k for k in image.records if outputs & set(k)]
+        finally:
+            z.close()
 
 
 async def test_power_cycle_through_the_runner_reconfigures_the_node() -> None:
@@ -316,4 +355,26 @@ async def test_static_target_window_is_acknowledged_by_coil_from_the_plc() -> No
         await wait_until(lambda: sim.sdo_read_local("0x5F0C:00") & 0x10, 3, "ack bit received")
     finally:
         client.close()
+        await gw.stop()
+
+
+async def test_an_output_written_reaches_the_live_web_page_as_its_value() -> None:
+    """Outputs are not echoed into the received values; writing them tells the image's value
+    listeners all the same, so a browser watching the node sees the set point it was sent."""
+    cfg = make_config([AP05_SIM], health={"port": free_port()}, zenoh={"enabled": False})
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        await wait_until(gw.image.nodes["display"].operational, 5, "operational")
+        assert gw.web is not None
+        page = gw.web.hub.subscribe("display")
+        page.dirty_values.clear()
+        page.wake.clear()
+        await gw.commands.write_signal("display", "set_point2", 4321)
+        await asyncio.wait_for(page.wake.wait(), 5)
+        assert "set_point2" in page.dirty_values
+        row = gw.web.model.values("display", {"set_point2"})["set_point2"]
+        assert row == {"value": 4321, "quality": "output"}
+        gw.web.hub.unsubscribe(page)
+    finally:
         await gw.stop()

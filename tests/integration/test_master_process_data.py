@@ -10,9 +10,9 @@ from typing import Any
 
 import can
 
+from tests.helpers import frame, wait_until
 from tests.helpers import master_running as running
 from tests.helpers import node_operational as operational
-from tests.helpers import wait_until
 
 
 def collect(bus: can.BusABC, match: Any, count: int, timeout_s: float = 3.0) -> list[can.Message]:
@@ -27,10 +27,6 @@ def collect(bus: can.BusABC, match: Any, count: int, timeout_s: float = 3.0) -> 
         if msg is not None and match(msg):
             out.append(msg)
     return out
-
-
-def frame(cob_id: int, data: bytes) -> can.Message:
-    return can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
 
 
 async def test_sync_and_heartbeat_producers_send_their_frames() -> None:

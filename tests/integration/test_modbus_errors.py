@@ -5,9 +5,8 @@ unknown unit ids, serve_stale, and write protection."""
 
 from __future__ import annotations
 
-import contextlib
 import logging
-from collections.abc import AsyncIterator
+from contextlib import AbstractAsyncContextManager
 from typing import Any
 
 import pytest
@@ -16,7 +15,7 @@ from pymodbus.pdu import ExceptionResponse
 
 from gateway.app import Gateway
 from gateway.image import NmtState, Quality
-from tests.helpers import make_config, wait_until
+from tests.helpers import make_config, modbus_gateway, wait_until, with_position
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 DISPLAY = {"name": "display", "node_id": 125, "profile": "ap05"}
@@ -30,29 +29,13 @@ WIRE_ERROR_COUNT, WIRE_LAST_ERROR, WIRE_CALIBRATION = 111, 112, 116
 SET_POINT1, CHARS1, CONTROL_WORD, AP05_ERROR_REGISTER, OPERATING_MODE = 100, 102, 106, 107, 120
 
 
-@contextlib.asynccontextmanager
-async def running(
+def running(
     nodes: list[dict[str, Any]], simulated: list[str] | None = None, **sections: Any
-) -> AsyncIterator[tuple[Gateway, AsyncModbusTcpClient]]:
+) -> AbstractAsyncContextManager[tuple[Gateway, AsyncModbusTcpClient]]:
     names = [n["name"] for n in nodes] if simulated is None else simulated
     simulate = {"nodes": names, "motion": {n: HOLD for n in names}}
     cfg = make_config(nodes, zenoh={"enabled": False}, simulate=simulate, **sections)
-    gw = Gateway(cfg)
-    await gw.start()
-    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
-    try:
-        await client.connect()
-        for name in names:
-            node = gw.image.nodes[name]
-            await wait_until(
-                lambda node=node: node.operational() and node.signals["position"].seq > 0,
-                5,
-                f"{name} operational",
-            )
-        yield gw, client
-    finally:
-        client.close()
-        await gw.stop()
+    return modbus_gateway(cfg, [(with_position(name), f"{name} operational") for name in names])
 
 
 def code(rr: Any) -> int | None:

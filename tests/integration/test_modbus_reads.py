@@ -5,10 +5,9 @@ unit, never-torn 32-bit values, several clients at once."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import struct
 import time
-from collections.abc import AsyncIterator
+from contextlib import AbstractAsyncContextManager
 from typing import Any
 
 import can
@@ -16,7 +15,7 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
 from gateway.image import LinkState
-from tests.helpers import make_config, wait_until
+from tests.helpers import make_config, modbus_gateway, wait_until, with_position
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}  # SGH10: position int32, velocity int16
 ROTARY = {"name": "rotary", "node_id": 3, "profile": "posi_plus"}  # POSI+: position uint32
@@ -29,10 +28,9 @@ HOLD = {
 }
 
 
-@contextlib.asynccontextmanager
-async def running(
+def running(
     nodes: list[dict[str, Any]], motion: dict[str, Any] | None = None, **sections: Any
-) -> AsyncIterator[tuple[Gateway, AsyncModbusTcpClient]]:
+) -> AbstractAsyncContextManager[tuple[Gateway, AsyncModbusTcpClient]]:
     """A gateway with simulated nodes, operational and with process data, and a connected client."""
     cfg = make_config(
         nodes,
@@ -40,22 +38,9 @@ async def running(
         simulate={"nodes": "all", "motion": motion or {}},
         **sections,
     )
-    gw = Gateway(cfg)
-    await gw.start()
-    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
-    try:
-        await client.connect()
-        for n in nodes:
-            node = gw.image.nodes[n["name"]]
-            await wait_until(
-                lambda node=node: node.operational() and node.signals["position"].seq > 0,
-                5,
-                f"{n['name']} operational with a position",
-            )
-        yield gw, client
-    finally:
-        client.close()
-        await gw.stop()
+    return modbus_gateway(
+        cfg, [(with_position(n["name"]), f"{n['name']} operational with a position") for n in nodes]
+    )
 
 
 def s32(regs: list[int], little: bool = False) -> int:

@@ -4,16 +4,15 @@ download, single bits by coils, the NMT register, mask write and read/write mult
 
 from __future__ import annotations
 
-import contextlib
 import struct
-from collections.abc import AsyncIterator
+from contextlib import AbstractAsyncContextManager
 from typing import Any
 
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
 from gateway.modbus.regmap import Point
-from tests.helpers import make_config, wait_until
+from tests.helpers import make_config, modbus_gateway, operational, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 DISPLAY = {"name": "display", "node_id": 125, "profile": "ap05"}
@@ -23,23 +22,11 @@ SET_POINT1, CHARS1, SET_POINT2, CHARS2, CONTROL_WORD = 100, 102, 103, 105, 106
 GUARDING_BIT = 0x0100  # AP05 manual 5.5.5: control bit 8 is the gateway's, not the PLC's
 
 
-@contextlib.asynccontextmanager
-async def running(
+def running(
     nodes: list[dict[str, Any]], **sections: Any
-) -> AsyncIterator[tuple[Gateway, AsyncModbusTcpClient]]:
+) -> AbstractAsyncContextManager[tuple[Gateway, AsyncModbusTcpClient]]:
     cfg = make_config(nodes, zenoh={"enabled": False}, **sections)
-    gw = Gateway(cfg)
-    await gw.start()
-    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
-    try:
-        await client.connect()
-        for n in nodes:
-            node = gw.image.nodes[n["name"]]
-            await wait_until(node.operational, 5, f"{n['name']} operational")
-        yield gw, client
-    finally:
-        client.close()
-        await gw.stop()
+    return modbus_gateway(cfg, [(operational(n["name"]), f"{n['name']} operational") for n in nodes])
 
 
 def find(gw: Gateway, node: str, name: str, kind: str = "signal") -> Point:

@@ -27,15 +27,14 @@ def driver(c: Clocks) -> BusDriver:
 def test_bus_clock_is_the_monotonic_clock_when_the_reader_is_idle() -> None:
     c = Clocks()
     d = driver(c)
-    d.idle = True
+    d.clock_state = (True, c.wall - 2.0)
     assert d.bus_clock() == 1000.0
 
 
 def test_bus_clock_lags_by_the_age_of_the_last_processed_frame() -> None:
     c = Clocks()
     d = driver(c)
-    d.idle = False
-    d.last_frame_wall = c.wall - 2.0  # the reader is 2 s behind the bus
+    d.clock_state = (False, c.wall - 2.0)  # the reader is 2 s behind the bus
     assert d.bus_clock() == 998.0
 
 
@@ -44,8 +43,7 @@ def test_a_paused_gateway_judges_by_the_frames_not_by_the_pause() -> None:
     # processed was received 1 s ago, so the bus clock is 1 s behind the monotonic clock
     c = Clocks()
     d = driver(c)
-    d.idle = False
-    d.last_frame_wall = c.wall
+    d.clock_state = (False, c.wall)
     c.mono += 1.0
     c.wall += 1.0
     assert d.bus_clock() == 1000.0

@@ -11,6 +11,7 @@ from gateway.states import LinkState, NmtState
 
 def node() -> NodeImage:
     n = NodeImage("n", 1, "sgh10", ["a", "b"])
+    n.bind(("a", "b"))  # one PDO carries both (bound when the node is built)
     n.health.alive = True
     n.health.nmt_state = NmtState.OPERATIONAL
     return n

@@ -369,6 +369,41 @@ def test_outputs_are_refused_and_unchanged_when_the_node_is_not_operational() ->
     with pytest.raises(NodeNotOperational):
         h.node.write_outputs({None: {"set_point2": 5}}, 0.0)
     assert h.node.output("set_point2") == 0
+    assert h.image.outputs.seq == 0 and h.image.output("set_point2") == 0
+
+
+def test_the_image_outputs_are_what_the_rpdos_carry_set_by_the_node_in_one_record() -> None:
+    h = Harness("ap05", node_id=1)
+    h.start()
+    h.bootup(1.0)
+    h.heartbeats(1.01, 5.0)
+    h.run_until(1.2)
+    control = h.node.control_signal
+    assert control is not None
+    before = h.image.outputs
+    codec = next(c for c in h.parts.rpdos if c.index_of("set_point1") is not None)
+    n = codec.number
+    outs = h.node.write_outputs(
+        {None: {"set_point2": 5}, n: {"set_point1": 0x4C4C4548}}, h.now, wall=1234.5
+    )
+    assert not [o for o in outs if isinstance(o, ValuesRead)]  # no echo into the records
+    after = h.image.outputs
+    assert after is not before and before.seq == after.seq - 1  # one new record per write
+    assert (after.timestamp, after.monotonic) == (1234.5, h.now)
+    assert h.image.output("set_point2") == 5 and h.image.output("set_point1", n) == 0x4C4C4548
+    for s in (o for o in outs if isinstance(o, Send)):  # the image holds what went out
+        sent = next(c for c in h.parts.rpdos if c.cob_id == s.cob_id)
+        assert sent.encode(after.rpdos[sent.number]) == s.data
+    # the keep-alive toggles the guarding bit of the control word: the image follows it
+    h._take(h.node.on_echo(1, h.now))
+    period = h.parts.settings.keepalive_ms / 1000.0
+    written = len([s for t, s in h.sent if s.rpdo])
+    h.run_until(h.now + period)
+    assert len([s for t, s in h.sent if s.rpdo]) > written  # a keep-alive went out
+    last = [s for t, s in h.sent if s.rpdo][-1]
+    sent = next(c for c in h.parts.rpdos if c.cob_id == last.cob_id)
+    assert sent.encode(h.image.outputs.rpdos[sent.number]) == last.data
+    assert h.image.outputs.seq == after.seq  # a keep-alive is not a write
 
 
 # --------------------------------------------------------------------------- producers

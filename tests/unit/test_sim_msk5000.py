@@ -15,15 +15,12 @@ import pytest
 from gateway.profiles import load_profile
 from gateway.sim.behaviours import behaviour_for
 from gateway.sim.node import SimNode
+from tests.helpers import frame
 
 NODE = 1
 SDO_RX, SDO_TX = 0x600 + NODE, 0x580 + NODE
 EMCY = 0x080 + NODE
 TPDO1, TPDO2 = 0x180 + NODE, 0x280 + NODE
-
-
-def frame(cob_id: int, hex_bytes: str) -> can.Message:
-    return can.Message(arbitration_id=cob_id, data=bytes.fromhex(hex_bytes), is_extended_id=False)
 
 
 def hexs(msg: can.Message) -> str:

@@ -9,19 +9,9 @@ import pytest
 from gateway.profiles import load_profile
 from gateway.sim.node import NmtState, SimNode
 from gateway.sim.objects import PersistentStore
+from tests.helpers import frame
 
 NODE = 1
-
-
-def frame(cob: int, hexdata: str = "", *, rtr: bool = False, dlc: int = 0) -> can.Message:
-    data = bytes.fromhex(hexdata)
-    return can.Message(
-        arbitration_id=cob,
-        data=data,
-        is_extended_id=False,
-        is_remote_frame=rtr,
-        dlc=dlc if rtr else len(data),
-    )
 
 
 def frames(msgs: list[can.Message]) -> list[tuple[int, str]]:

@@ -16,12 +16,14 @@ import pytest
 from gateway.profiles import load_profile
 from gateway.sim.node import SimNode
 from gateway.sim.objects import PersistentStore
+from tests.helpers import frame as can_frame
 
 POSITION = 0x0012D687  # an arbitrary held position, bytes 87 D6 12 00
 
 
 def frame(cob_id: int, *data: int) -> can.Message:
-    return can.Message(arbitration_id=cob_id, data=bytes(data), is_extended_id=False)
+    """The manuals' byte lists as they are written: ``frame(0x601, 0x40, 0x04, 0x60, ...)``."""
+    return can_frame(cob_id, bytes(data))
 
 
 def make(

@@ -1,16 +1,20 @@
 """The Zenoh bridge's value batches, threads and retries, without a network: a batch never
 loses a mark, an exception in publishing is logged and publishing goes on, a thread that dies
-turns the gateway not-ready, and client-mode attempts start on the documented schedule."""
+turns the gateway not-ready, client-mode attempts start on the documented schedule, and two
+flushes at once never publish an older value after a newer one."""
 
 from __future__ import annotations
 
+import json
 import threading
+import time
 from typing import Any
 
 import pytest
 import zenoh
 
 from gateway.app import Gateway
+from gateway.image import SignalView
 from gateway.zenoh_bridge.bridge import REOPEN_SCHEDULE_S, _ValueBatch
 from tests.helpers import make_config, wait_until
 
@@ -163,3 +167,77 @@ async def test_client_mode_attempts_start_on_the_documented_schedule() -> None:
     # from then on attempts start 1 s, 2 s, then 5 s apart, whatever they last
     assert starts == pytest.approx([1.0, 2.0, 4.0, 9.0, 14.0, 19.0])
     bridge.session = None
+
+
+class WatchedLock:
+    """A signal's lock that says when a given thread starts waiting for it."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.watched: threading.Thread | None = None
+        self.settled = threading.Event()  # the watched thread waits for the lock, or is done
+
+    def __enter__(self) -> WatchedLock:
+        if threading.current_thread() is self.watched:
+            self.settled.set()
+        self._lock.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._lock.release()
+
+
+async def test_two_flushes_at_once_never_publish_an_older_value_after_a_newer_one() -> None:
+    """The event loop flushes a signal (A) and the reader's burst flushes it too (B). A reads
+    the value (seq 1); exactly then a new frame lands (seq 2) and B publishes. A sample of
+    seq 1 after the one of seq 2 would stay the latest under report by exception."""
+    gw = Gateway(make_config([WIRE], simulate={"nodes": []}, modbus={"enabled": False}))
+    await gw.start()
+    try:
+        bridge = gw.zenoh
+        assert bridge is not None
+        await wait_until(lambda: bridge.session is not None, 5, "zenoh session")
+        image, node = gw.image, gw.image.nodes["wire"]
+        tpdo = next(c for c in gw.master.nodes["wire"].tpdos if "position" in c.names)
+        sp = bridge.pubs[("wire", "position")]
+        published: list[int] = []
+        real_pub = sp.pub
+
+        class Recording:
+            def put(self, payload: str, timestamp: Any = None) -> None:
+                published.append(json.loads(payload)["seq"])
+                real_pub.put(payload, timestamp=timestamp)
+
+        lock = WatchedLock()
+        sp.pub, sp.lock = Recording(), lock  # type: ignore[assignment]
+        frame = {1: tuple(1 if n == "position" else 0 for n in tpdo.names),
+                 2: tuple(2 if n == "position" else 0 for n in tpdo.names)}  # fmt: skip
+
+        def flush_b() -> None:
+            try:
+                bridge._offer(node, sp, time.monotonic())
+            finally:
+                lock.settled.set()
+
+        class ViewThatLetsBIn(SignalView):
+            fired = False
+
+            def __getitem__(self, name: str) -> Any:
+                sv = super().__getitem__(name)  # A has read seq 1 ...
+                if name == "position" and not ViewThatLetsBIn.fired:
+                    ViewThatLetsBIn.fired = True
+                    image.update(node, tpdo.names, frame[2], time.time())  # ... a frame lands
+                    lock.watched = threading.Thread(target=flush_b)
+                    lock.watched.start()
+                    assert lock.settled.wait(5)  # B published, or waits for the lock
+                return sv
+
+        image.update(node, tpdo.names, frame[1], time.time())
+        node.signals = ViewThatLetsBIn(node.records, node.where)
+        bridge._offer(node, sp, time.monotonic())  # A
+        assert lock.watched is not None
+        lock.watched.join(5)
+        assert published == sorted(published) and published[-1] == 2, published
+        assert sp.last_seq == 2
+    finally:
+        await gw.stop()
