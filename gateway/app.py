@@ -89,6 +89,7 @@ class Gateway:
             else None
         )
         self.sim = SimulatedBus(cfg) if simulate and cfg.simulated_nodes() else None
+        self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
         self.health: Any = None
         self.web: Any = None
         self.started = False
@@ -136,6 +137,8 @@ class Gateway:
             parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
         if self.zenoh:
             parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
+        if self.ascii is not None:
+            parts.append(f"CiA 309-3 ASCII {self.ascii.section.host}:{self.ascii.port}")
         if self.health is not None and getattr(self.health, "port", 0):
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
@@ -237,6 +240,11 @@ class Gateway:
             await self.modbus.start()
         if self.zenoh is not None:
             await self.zenoh.start()
+        if self.cfg.ascii is not None and self.cfg.ascii.enabled:
+            from gateway.ascii.server import AsciiGateway
+
+            self.ascii = AsciiGateway(self.cfg, self.image, self.commands)
+            await self.ascii.start()
         if self.cfg.health.port:
             await self._start_health()
         self.started = True
@@ -307,6 +315,8 @@ class Gateway:
 
     async def stop(self) -> None:
         self.started = False
+        if self.ascii is not None:
+            await self.ascii.stop()
         if self.health is not None:
             await self.health.stop()
             if self.web is not None:
