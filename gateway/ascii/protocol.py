@@ -311,15 +311,17 @@ class HealthSample:
     boot_count: int
     emcy_count: int
     supervision: str  # "heartbeat" | "guarding" | "none"
+    loss_count: int = 0
 
 
 class EventTracker:
     """Event lines from successive health samples of each node (one owner: the event loop).
 
     A boot-up counted since the last sample gives ``BOOT_UP``; a new EMCY gives ``EMCY`` (the
-    caller passes the record); alive -> not alive gives ``ERROR 203`` (heartbeat) or
-    ``ERROR 200`` (node guarding); not alive -> alive without a boot-up gives ``ERROR 202``
-    (heartbeat) only."""
+    caller passes the record); a loss counted gives ``ERROR 203`` (heartbeat) or ``ERROR 200``
+    (node guarding); alive again without a boot-up gives ``ERROR 202`` (heartbeat) only. The
+    counters, not only ``alive``, are compared: a loss and its end reported in one health
+    change still give both lines."""
 
     def __init__(self) -> None:
         self._last: dict[int, HealthSample] = {}
@@ -337,13 +339,15 @@ class EventTracker:
             out.append(event_boot_up(node_id))
         if now.emcy_count != before.emcy_count and emcy is not None:
             out.append(event_emcy(node_id, *emcy))
-        if before.alive and not now.alive:
+        lost = now.loss_count != before.loss_count or (before.alive and not now.alive)
+        if lost:
             if now.supervision == "heartbeat":
                 out.append(event_error(node_id, Iec.HEARTBEAT_LOST))
             elif now.supervision == "guarding":
                 out.append(event_error(node_id, Iec.LOST_GUARDING))
-        elif not before.alive and now.alive and not booted and now.supervision == "heartbeat":
-            out.append(event_error(node_id, Iec.HEARTBEAT_STARTED))
+        if now.alive and (lost or not before.alive) and not booted:
+            if now.supervision == "heartbeat":
+                out.append(event_error(node_id, Iec.HEARTBEAT_STARTED))
         return out
 
 

@@ -143,7 +143,7 @@ class AsciiGateway:
 
 def _sample(node: NodeImage) -> HealthSample:
     h = node.health
-    return HealthSample(h.alive, h.boot_count, h.emcy_count, h.supervision)
+    return HealthSample(h.alive, h.boot_count, h.emcy_count, h.supervision, h.loss_count)
 
 
 class _Connection(asyncio.Protocol):
