@@ -181,8 +181,9 @@ class _Connection(asyncio.Protocol):
             self.transport.pause_reading()
 
     def eof_received(self) -> bool | None:
+        """The client sent everything (e.g. ``nc -N``): answer what came, then close."""
         self.lines.put_nowait(None)
-        return None
+        return True  # keep the transport open for the answers
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.lines.put_nowait(None)

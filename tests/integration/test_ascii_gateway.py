@@ -208,6 +208,16 @@ async def test_two_clients_at_once_each_with_its_own_session_and_a_client_leavin
         await b.close()
 
 
+async def test_a_client_that_sends_its_requests_and_half_closes_gets_every_answer() -> None:
+    async with sim_gateway() as (gw, _s, _b):
+        c = await Client.connect(gw.ascii.port)
+        c.writer.write(b"[1] 1 r 0x1018 1 u32\r\n[2] 1 r 0x1008 0 vs\r\n[3] set node 2\r\n")
+        c.writer.write_eof()  # as `nc -N` does at the end of its input
+        data = await asyncio.wait_for(c.reader.read(), LINE_BOUND_S)  # up to the gateway's close
+        assert data == b"[1] 405\r\n[2] SGH10\r\n[3] ERROR:107\r\n"
+        await c.close()
+
+
 async def test_help_info_version_and_set_commands_answer_on_the_running_gateway() -> None:
     async with sim_gateway() as (gw, _s, _b):
         c = await Client.connect(gw.ascii.port)
