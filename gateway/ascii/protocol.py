@@ -719,6 +719,7 @@ class Session:
         self.default_net: int | None = NET  # one network: the default is set from the start
         self.default_node: int | None = None
         self.sdo_timeout_ms: int | None = None  # None: the gateway's own SDO time-out
+        self.refused = 0  # writes and NMT commands refused by the write gate
 
     def handle(self, line: str | Overlong) -> list[str] | Call:
         if isinstance(line, Overlong):
@@ -759,11 +760,13 @@ class Session:
         if isinstance(req, Write):
             node = self._node(seq, req.net, req.node, all_ok=False)
             if not self.writes:
+                self.refused += 1
                 raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
             return SdoDownload(seq, node, req.index, req.sub, req.data, self.sdo_timeout_ms)
         if isinstance(req, Nmt):
             node = self._node(seq, req.net, req.node, all_ok=True)
             if not self.writes:
+                self.refused += 1
                 raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
             return NmtCommand(seq, node, req.command)
         if isinstance(req, SetNetwork):

@@ -73,8 +73,9 @@ class AsciiGateway:
         self.tasks: set[asyncio.Task[None]] = set()  # one per connection, until it ends
         self.tracker = EventTracker()
         self.warn = RateLimitedLog(log)
-        self.requests = 0
-        self.errors = 0
+        self.requests = 0  # SDO and NMT requests performed
+        self.errors = 0  # of those, answered with an error
+        self.refused = 0  # writes and NMT commands refused by ``ascii.writes``
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -151,14 +152,14 @@ class _Connection(asyncio.Protocol):
 
     def __init__(self, gw: AsciiGateway) -> None:
         self.gw = gw
-        self.session = Session(
-            gw.by_id, writes=gw.section.writes, version=__version__
-        )
+        self.session = Session(gw.by_id, writes=gw.section.writes, version=__version__)
         self.splitter = LineSplitter()
         self.lines: asyncio.Queue[str | Overlong | None] = asyncio.Queue()
         self.transport: asyncio.Transport | None = None
         self.task: asyncio.Task[None] | None = None
         self.paused = False
+        self.writable = asyncio.Event()  # cleared while the transport's write buffer is full
+        self.writable.set()
         self.peer = "?"
 
     # ---------------------------------------------------------------- asyncio.Protocol
@@ -185,28 +186,48 @@ class _Connection(asyncio.Protocol):
         self.lines.put_nowait(None)
         return True  # keep the transport open for the answers
 
+    def pause_writing(self) -> None:
+        self.writable.clear()
+
+    def resume_writing(self) -> None:
+        self.writable.set()
+
     def connection_lost(self, exc: Exception | None) -> None:
         self.lines.put_nowait(None)
+        self.writable.set()
         self.gw.connections.discard(self)
         self.transport = None
         log.debug("ASCII client %s disconnected", self.peer)
 
     # ---------------------------------------------------------------- answers
     async def _serve(self) -> None:
+        """Answer the lines in order; a client that does not read its answers is not read
+        either (its socket fills, then the line queue, then reading pauses)."""
         while True:
+            await self.writable.wait()
             item = await self.lines.get()
             if item is None:
                 break
-            result = self.session.handle(item)
-            if isinstance(result, list):
-                answers = result
-            else:
-                answers = [await self.gw.perform(result)]
+            answers = await self._answer(item)
             self._write(answers)
             if self.paused and self.lines.qsize() < MAX_PENDING_LINES // 2 and self.transport:
                 self.paused = False
                 self.transport.resume_reading()
         self.close()
+
+    async def _answer(self, item: str | Overlong) -> list[str]:
+        refused = self.session.refused
+        try:
+            result = self.session.handle(item)
+        except Exception as exc:  # a bug of ours must not end the connection silently
+            self.gw.warn.warning(("ascii_internal", type(exc).__name__), "ASCII line not handled: %r", exc)  # fmt: skip
+            return [answer_for_error(None, exc)]
+        if self.session.refused != refused:
+            self.gw.refused += 1
+            self.gw.warn.warning("ascii_refused", "ASCII client %s: write or NMT refused (ascii.writes is false)", self.peer)  # fmt: skip
+        if isinstance(result, list):
+            return result
+        return [await self.gw.perform(result)]
 
     def _write(self, lines: list[str]) -> None:
         if lines and self.transport is not None and not self.transport.is_closing():
@@ -217,7 +238,7 @@ class _Connection(asyncio.Protocol):
         if t is None or t.is_closing():
             return
         if t.get_write_buffer_size() > EVENT_BACKLOG_BYTES:
-            self.gw.warn.warning(("ascii_backlog", self.peer), "ASCII client %s does not read: event lines dropped", self.peer)  # fmt: skip
+            self.gw.warn.warning("ascii_backlog", "ASCII client %s does not read: event lines dropped", self.peer)  # fmt: skip
             return
         t.write(f"{line}\r\n".encode("ascii"))
 
