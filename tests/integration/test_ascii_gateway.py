@@ -320,6 +320,18 @@ async def test_local_node_read_of_1018h_01_and_a_write_it_stores() -> None:
         await c.close()
 
 
+async def test_local_node_obeys_nmt_stop_and_start_sent_through_the_ascii_gateway() -> None:
+    async with local_gateway(writes=True) as (gw, _net, node, _bus, _hb):
+        c = await Client.connect(gw.ascii.port)
+        assert await c.ask("[1] 5 stop") == "[1] OK"
+        await wait_until(lambda: node.nmt.state == "STOPPED", 5, "the LocalNode stopped")
+        assert await c.ask("[2] 5 start") == "[2] OK"
+        await wait_until(lambda: node.nmt.state == "OPERATIONAL", 5, "the LocalNode started")
+        assert await c.ask("[3] 5 preop") == "[3] OK"
+        await wait_until(lambda: node.nmt.state == "PRE-OPERATIONAL", 5, "the LocalNode pre-op")
+        await c.close()
+
+
 async def test_local_node_write_refused_with_writes_off() -> None:
     async with local_gateway(writes=False) as (gw, _net, node, _bus, _hb):
         c = await Client.connect(gw.ascii.port)
