@@ -362,6 +362,14 @@ async def test_local_node_events_boot_up_emcy_heartbeat_lost_and_started() -> No
         assert await c.event("1 5 BOOT_UP") == "1 5 BOOT_UP"
         bus.send(can.Message(arbitration_id=0x085, data=[0x10, 0x42, 0x05, 0, 0, 0, 0, 9], is_extended_id=False))
         assert await c.event("1 5 EMCY") == "1 5 EMCY 4210 05 0 0 0 0 9"
+        # configured again after the reboot: its boot steps (1017h) are written, so canopen's
+        # own heartbeat producer stays off once stopped
+        await wait_until(
+            lambda: gw.master.nodes["io"].lifecycle.state == "operational"
+            and gw.image.nodes["io"].operational(),
+            8,
+            "io configured again",
+        )
         hb.stop.set()
         hb.join()
         node.nmt.stop_heartbeat()  # canopen's own producer too (1017h was written at boot)
