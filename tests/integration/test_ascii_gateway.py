@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import random
 import re
+import socket
 import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -16,10 +17,12 @@ from typing import Any
 
 import can
 import canopen
+import yaml
 
 from gateway.app import Gateway
+from gateway.cli import main
 from gateway.states import NmtState
-from tests.helpers import free_port, make_config, wait_until
+from tests.helpers import free_port, make_config, unique_channel, wait_until
 
 EDS = Path(__file__).resolve().parents[1] / "data" / "eds" / "io401.eds"
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -246,6 +249,34 @@ async def test_a_reset_node_brings_a_boot_up_event_line_to_every_client() -> Non
         assert await a.event("1 1 EMCY") == "1 1 EMCY 8130 11 1 2 3 4 5"
         await a.close()
         await b.close()
+
+
+async def test_the_start_line_names_the_ascii_address() -> None:
+    async with sim_gateway() as (gw, _s, _b):
+        assert f"CiA 309-3 ASCII 127.0.0.1:{gw.ascii.port} |" in gw.summary()
+
+
+def test_check_prints_the_ascii_line_and_commissioning_commands_leave_its_port_alone(
+    tmp_path: Path, capsys: Any
+) -> None:
+    with socket.socket() as taken:  # the port a serving gateway would hold
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        raw = {
+            "can": {"interface": "virtual", "channel": unique_channel()},
+            "nodes": [WIRE],
+            "modbus": {"port": free_port()},
+            "zenoh": {"enabled": False},
+            "simulate": {"nodes": "all"},
+            "ascii": {"port": port, "writes": True},
+        }
+        path = tmp_path / "gw.yaml"
+        path.write_text(yaml.safe_dump(raw))
+        assert main(["check", "-c", str(path)]) == 0
+        assert f"  CiA 309-3 ASCII gateway: 127.0.0.1:{port}, reads, writes and NMT" in capsys.readouterr().out
+        assert main(["sdo", "read", "-c", str(path), "wire", "0x1018:01"]) == 0
+        assert "405" in capsys.readouterr().out
 
 
 # --------------------------------------------------------------------------- LocalNode
