@@ -251,6 +251,27 @@ async def test_a_reset_node_brings_a_boot_up_event_line_to_every_client() -> Non
         await b.close()
 
 
+async def test_a_configured_node_that_was_never_heard_is_answered_102_without_an_sdo() -> None:
+    cfg = make_config(
+        [WIRE], simulate={"nodes": []}, modbus={"enabled": False}, zenoh={"enabled": False},
+        master={"probe_at_start": False}, ascii={"port": free_port()},
+    )  # fmt: skip
+    bus = can.Bus(interface="virtual", channel=cfg.can.channel)
+    sniffer = Sniffer()
+    notifier = can.Notifier(bus, [sniffer])
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        c = await Client.connect(gw.ascii.port)
+        assert await c.ask("[1] 1 r 0x1018 1 u32") == "[1] ERROR:102"
+        assert not [f for f in sniffer.frames if f[0] == 0x601]
+        await c.close()
+    finally:
+        await gw.stop()
+        notifier.stop()
+        bus.shutdown()
+
+
 async def test_the_start_line_names_the_ascii_address() -> None:
     async with sim_gateway() as (gw, _s, _b):
         assert f"CiA 309-3 ASCII 127.0.0.1:{gw.ascii.port} |" in gw.summary()
