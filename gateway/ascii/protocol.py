@@ -8,16 +8,17 @@ download, NMT) or into an immediate answer, and formats what the caller got back
 
 Grammar (CiA 309-3; the syntax of CANopenNode's ``CO_gateway_ascii`` and Lely's ``coctl``)::
 
-    ["[" seq "]"] [[net] node] r[ead]  index sub [type]        SDO upload
-    ["[" seq "]"] [[net] node] w[rite] index sub type value    SDO download
-    ["[" seq "]"] [[net] node] start | stop | preop[erational]
-    ["[" seq "]"] [[net] node] reset node | reset comm[unication]
-    ["[" seq "]"] [net] set node N | set sdo_timeout MS
-    ["[" seq "]"] set network N
-    ["[" seq "]"] help [datatype] | info version
+    "[" seq "]" [[net] node] r[ead]  index sub [type]        SDO upload
+    "[" seq "]" [[net] node] w[rite] index sub type value    SDO download
+    "[" seq "]" [[net] node] start | stop | preop[erational]
+    "[" seq "]" [[net] node] reset node | reset comm[unication]
+    "[" seq "]" [net] set node N | set sdo_timeout MS
+    "[" seq "]" set network N
+    "[" seq "]" help [datatype] | info version
 
 Answers: ``[seq] OK``, ``[seq] <value>``, ``[seq] ERROR:0x<abort code>`` (SDO abort, 8 hex
-digits) or ``[seq] ERROR:<code>`` (``Iec``). A request without ``[seq]`` is answered without it.
+digits) or ``[seq] ERROR:<code>`` (``Iec``). The sequence number is mandatory (as in
+CANopenNode and Lely): a line without it is answered ``ERROR:101``, without a sequence.
 Lines end CR LF (LF alone is accepted); ``#`` starts a comment where a token may start; an
 empty or comment-only line gets no answer. Numbers are decimal or ``0x`` hexadecimal.
 
@@ -564,13 +565,11 @@ def parse_request(line: str) -> Request | None:
         raise RequestError(seq, Iec.SYNTAX, str(exc)) from None
     if not tokens:
         return None
-    seq = None
-    if tokens[0].startswith("["):
-        m = re.fullmatch(r"\[([0-9]{1,10})\]", tokens[0])
-        if m is None or int(m.group(1)) > 0xFFFFFFFF:
-            raise RequestError(None, Iec.SYNTAX, "sequence: [0..4294967295]")
-        seq = int(m.group(1))
-        tokens = tokens[1:]
+    m = re.fullmatch(r"\[([0-9]{1,10})\]", tokens[0])
+    if m is None or int(m.group(1)) > 0xFFFFFFFF:
+        raise RequestError(None, Iec.SYNTAX, "a request starts with [sequence 0..4294967295]")
+    seq = int(m.group(1))
+    tokens = tokens[1:]
     numbers: list[int] = []
     while tokens and tokens[0][:1].isdigit():
         numbers.append(_number(tokens.pop(0), 0, 0xFFFFFFFF, seq, "net/node"))

@@ -127,7 +127,7 @@ async def test_read_the_vendor_id_of_1018h_01_as_u32_x32_and_by_its_eds_type() -
         assert await c.ask("[4] 1 r 0x1008 0 vs") == "[4] SGH10"  # segmented upload
         assert await c.ask("[5] 1 r 0x6FFF 0 u32") == "[5] ERROR:0x06020000"  # the device's abort
         assert await c.ask("[6] 1 r 0x1018 1 u8") == "[6] ERROR:0x06070010"  # 4 bytes, not 1
-        assert await c.ask("1 r 0x1018 1 u32") == "405"  # no sequence: none in the answer
+        assert await c.ask("1 r 0x1018 1 u32") == "ERROR:101"  # the sequence is mandatory
         await c.close()
 
 

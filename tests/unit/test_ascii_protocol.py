@@ -132,8 +132,8 @@ def test_tokens_split_on_blanks_quotes_keep_blanks_and_a_hash_starts_a_comment()
 def test_prefix_numbers_are_node_or_net_and_node() -> None:
     r = parse_request("[7] 1 5 read 0x1018 0x01 u32")
     assert (r.seq, r.net, r.node, r.index, r.sub, r.dtype.name) == (7, 1, 5, 0x1018, 1, "u32")
-    r = parse_request("5 r 4120 1")
-    assert (r.seq, r.net, r.node, r.dtype) == (None, None, 5, None)
+    r = parse_request("[0] 5 r 4120 1")
+    assert (r.seq, r.net, r.node, r.dtype) == (0, None, 5, None)
     r = parse_request("[1] 1 set node 5")  # one number before a network-level command: the net
     assert (r.net, r.value) == (1, 5)
 
@@ -177,9 +177,10 @@ def test_malformed_requests_get_their_error_code_with_their_sequence(line: str, 
     assert (err.value.seq, err.value.code) == (1, code)
 
 
-def test_a_bad_sequence_token_is_a_syntax_error_without_sequence() -> None:
+@pytest.mark.parametrize("line", ["[x] r 1 1", "5 r 1 1", "[4294967296] info version", "[1]r 1 1", "hello"])
+def test_a_missing_or_bad_sequence_is_a_syntax_error_without_sequence(line: str) -> None:
     with pytest.raises(RequestError) as err:
-        parse_request("[x] r 1 1")
+        parse_request(line)
     assert (err.value.seq, err.value.code) == (None, Iec.SYNTAX)
 
 
@@ -245,12 +246,14 @@ def test_help_is_comment_lines_then_ok_and_info_version_names_the_protocol() -> 
     assert s.handle("[12] info version") == ["[12] 0 0 1.2 0 3 3.0 1.2"]
 
 
-def test_an_empty_or_comment_line_gets_no_answer_and_a_request_without_sequence_none() -> None:
+def test_an_empty_or_comment_line_gets_no_answer_and_a_line_without_sequence_101() -> None:
     s = session()
     assert s.handle("") == []
     assert s.handle("   # nothing") == []
-    assert s.handle("set node 5") == ["OK"]
-    assert s.handle("garbage") == ["ERROR:100"]
+    assert s.handle("set node 5") == ["ERROR:101"]
+    assert s.default_node is None
+    assert s.handle("garbage") == ["ERROR:101"]
+    assert s.handle("[1] garbage") == ["[1] ERROR:100"]  # an unknown command
 
 
 def test_an_overlong_line_is_a_syntax_error_with_the_sequence_it_started_with() -> None:
