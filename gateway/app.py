@@ -89,6 +89,7 @@ class Gateway:
             else None
         )
         self.sim = SimulatedBus(cfg) if simulate and cfg.simulated_nodes() else None
+        self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
         self.health: Any = None
         self.web: Any = None
         self.started = False
@@ -139,6 +140,8 @@ class Gateway:
                 parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
             parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
+        if self.ascii is not None:
+            parts.append(f"CiA 309-3 ASCII {self.ascii.section.host}:{self.ascii.port}")
         if self.health is not None and getattr(self.health, "port", 0):
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
@@ -247,6 +250,11 @@ class Gateway:
             await self.modbus.start()
         if self.zenoh is not None:
             await self.zenoh.start()
+        if self.cfg.ascii is not None and self.cfg.ascii.enabled:
+            from gateway.ascii.server import AsciiGateway
+
+            self.ascii = AsciiGateway(self.cfg, self.image, self.commands)
+            await self.ascii.start()
         if self.cfg.health.port:
             await self._start_health()
         self.started = True
@@ -318,6 +326,8 @@ class Gateway:
 
     async def stop(self) -> None:
         self.started = False
+        if self.ascii is not None:
+            await self.ascii.stop()
         if self.health is not None:
             await self.health.stop()
             if self.web is not None:

@@ -95,6 +95,9 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     cfg = _load_for_bus(args.config)
     print(f"{args.config}: OK")
+    if cfg.ascii is not None and cfg.ascii.enabled:
+        gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
+        print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
     for n in cfg.nodes:
         lp = load_node_profile(n, cfg.base_dir)
         pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
@@ -175,6 +178,7 @@ async def _with_master(cfg: Config, fn: Any) -> Any:
 
     cfg.modbus.enabled = False
     cfg.zenoh.enabled = False
+    cfg.ascii = None
     cfg.health.port = 0
     cfg.master.probe_at_start = False
     for n in cfg.nodes:

@@ -394,6 +394,19 @@ class ZenohSection(_Model):
         return self.prefix if self.prefix else f"canopen/{gateway_name}"
 
 
+class AsciiSection(_Model):
+    """The CiA 309-3 ASCII gateway on TCP (``gateway/ascii``). Off unless the section is given;
+    ``enabled: false`` turns a given section off."""
+
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = Field(default=60000, ge=0, le=65535, description="0 = any free port")
+    writes: bool = Field(default=False, description="SDO downloads and NMT commands allowed")
+    events: bool = Field(
+        default=False, description="event lines (BOOT_UP, EMCY, heartbeat) to every client"
+    )
+
+
 class HealthSection(_Model):
     host: str = "127.0.0.1"
     port: int = Field(default=0, ge=0, le=65535, description="0 = off")
@@ -449,6 +462,7 @@ class Config(_Model):
     zenoh: ZenohSection = Field(default_factory=ZenohSection)
     health: HealthSection = Field(default_factory=HealthSection)
     web: WebSection = Field(default_factory=WebSection)
+    ascii: AsciiSection | None = None  # CiA 309-3 ASCII gateway: off unless given
     simulate: SimulateSection = Field(default_factory=SimulateSection)
 
     #: where the file was loaded from (for resolving relative profile paths and messages)

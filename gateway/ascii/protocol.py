@@ -1,0 +1,794 @@
+"""The CiA 309-3 ASCII mapping, sans-I/O: text lines in, requests and answer lines out.
+
+Rule 1: everything about the command language lives here: the grammar, the data types and their
+text form, the internal error codes, the answer and event lines, and one client's session state
+(default net and node, SDO time-out, the write gate). Rule 2: this module does no I/O and does
+not know the command service: it turns a line into a resolved ``Call`` (SDO upload, SDO
+download, NMT) or into an immediate answer, and formats what the caller got back.
+
+Grammar (CiA 309-3; the syntax of CANopenNode's ``CO_gateway_ascii`` and Lely's ``coctl``)::
+
+    "[" seq "]" [[net] node] r[ead]  index sub [type]        SDO upload
+    "[" seq "]" [[net] node] w[rite] index sub type value    SDO download
+    "[" seq "]" [[net] node] start | stop | preop[erational]
+    "[" seq "]" [[net] node] reset node | reset comm[unication]
+    "[" seq "]" [net] set node N | set sdo_timeout MS
+    "[" seq "]" set network N
+    "[" seq "]" help [datatype] | info version
+
+Answers: ``[seq] OK``, ``[seq] <value>``, ``[seq] ERROR:0x<abort code>`` (SDO abort, 8 hex
+digits) or ``[seq] ERROR:<code>`` (``Iec``). The sequence number is mandatory (as in
+CANopenNode and Lely): a line without it is answered ``ERROR:101``, without a sequence.
+Lines end CR LF (LF alone is accepted); ``#`` starts a comment where a token may start; an
+empty or comment-only line gets no answer. Numbers are decimal or ``0x`` hexadecimal.
+
+Events (not answers, no sequence): ``<net> <node> BOOT_UP``,
+``<net> <node> EMCY <code> <register> <b0> .. <b4>`` (code and register in hex, manufacturer
+bytes in decimal) and ``<net> <node> ERROR <code> (<text>)`` for the error control codes
+(200 lost guarding message, 202 heartbeat started, 203 heartbeat lost), as Lely's gateway
+prints them.
+
+Imports: the standard library, gateway.errors, gateway.states. Nothing of bus/, commands or a
+transport.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import math
+import re
+import struct
+from collections.abc import Collection
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any
+
+from gateway.errors import (
+    BusDown,
+    Forbidden,
+    GatewayError,
+    NodeNotOperational,
+    NodeUnknown,
+    SdoAbort,
+    SdoTimeout,
+    ValueOutOfRange,
+)
+
+#: the one CAN network of this gateway, as CiA 309-3 numbers networks (1..65535)
+NET = 1
+#: a request line longer than this (without its line end) is refused with ERROR:101
+MAX_LINE_BYTES = 1024
+#: CiA 301 SDO abort code "SDO protocol timed out": the answer to an SDO without a reply
+SDO_TIMEOUT_ABORT = 0x05040000
+#: CiA 301 "Data type does not match, length of service parameter does not match"
+TYPE_LENGTH_ABORT = 0x06070010
+
+
+class Iec(IntEnum):
+    """CiA 309-3 internal error codes (the answer ``ERROR:<code>``; 2xx also in events)."""
+
+    REQUEST_NOT_SUPPORTED = 100
+    SYNTAX = 101
+    INTERNAL_STATE = 102  # request not processed due to internal state
+    TIMEOUT = 103
+    NO_DEFAULT_NET = 104
+    NO_DEFAULT_NODE = 105
+    UNSUPPORTED_NET = 106
+    UNSUPPORTED_NODE = 107
+    LOST_GUARDING = 200
+    LOST_CONNECTION = 201
+    HEARTBEAT_STARTED = 202
+    HEARTBEAT_LOST = 203
+    WRONG_NMT_STATE = 204
+    BOOT_UP = 205
+
+
+IEC_TEXT: dict[Iec, str] = {
+    Iec.REQUEST_NOT_SUPPORTED: "Request not supported",
+    Iec.SYNTAX: "Syntax error",
+    Iec.INTERNAL_STATE: "Request not processed due to internal state",
+    Iec.TIMEOUT: "Time-out",
+    Iec.NO_DEFAULT_NET: "No default net set",
+    Iec.NO_DEFAULT_NODE: "No default node set",
+    Iec.UNSUPPORTED_NET: "Unsupported net",
+    Iec.UNSUPPORTED_NODE: "Unsupported node",
+    Iec.LOST_GUARDING: "Lost guarding message",
+    Iec.LOST_CONNECTION: "Lost connection",
+    Iec.HEARTBEAT_STARTED: "Heartbeat started",
+    Iec.HEARTBEAT_LOST: "Heartbeat lost",
+    Iec.WRONG_NMT_STATE: "Wrong NMT state",
+    Iec.BOOT_UP: "Boot-up",
+}
+
+
+# --------------------------------------------------------------------------- data types
+@dataclass(frozen=True)
+class DataType:
+    """A CiA 309-3 data type: its name, its ``struct`` format (None: variable length) and how
+    its value is written as text."""
+
+    name: str
+    fmt: str | None
+    kind: str  # "bool" | "int" | "hex" | "real" | "vs" | "b64"
+
+    @property
+    def size(self) -> int | None:
+        return None if self.fmt is None else struct.calcsize(self.fmt)
+
+
+#: The data types of CiA 309-3 this gateway speaks (``x8``..``x64``: unsigned, hex text).
+DATA_TYPES: dict[str, DataType] = {
+    t.name: t
+    for t in (
+        DataType("b", "<B", "bool"),
+        DataType("i8", "<b", "int"),
+        DataType("i16", "<h", "int"),
+        DataType("i32", "<i", "int"),
+        DataType("i64", "<q", "int"),
+        DataType("u8", "<B", "int"),
+        DataType("u16", "<H", "int"),
+        DataType("u32", "<I", "int"),
+        DataType("u64", "<Q", "int"),
+        DataType("x8", "<B", "hex"),
+        DataType("x16", "<H", "hex"),
+        DataType("x32", "<I", "hex"),
+        DataType("x64", "<Q", "hex"),
+        DataType("r32", "<f", "real"),
+        DataType("r64", "<d", "real"),
+        DataType("vs", None, "vs"),
+        DataType("os", None, "b64"),
+        DataType("d", None, "b64"),
+    )
+}
+#: Types of CiA 309-3 this gateway does not speak: ERROR:100, not a syntax error.
+UNSUPPORTED_TYPES = frozenset({"t", "td", "us"})
+
+
+class LengthMismatch(ValueError):
+    """The device's bytes do not have the length of the requested data type."""
+
+
+_INT_RE = re.compile(r"^[+-]?(0[xX][0-9A-Fa-f]+|[0-9]+)$")
+
+
+def parse_int(text: str) -> int:
+    """A decimal or ``0x`` hexadecimal integer (leading zeros allowed); ValueError otherwise."""
+    if not _INT_RE.match(text):
+        raise ValueError(f"not a number: {text!r}")
+    sign = -1 if text.startswith("-") else 1
+    body = text.lstrip("+-")
+    return sign * (int(body, 16) if body[:2].lower() == "0x" else int(body, 10))
+
+
+def encode_value(dtype: DataType, text: str) -> bytes:
+    """The bytes of an SDO download for ``text`` written as ``dtype``; ValueError when the text
+    is not a value of that type (answered ERROR:101)."""
+    if dtype.kind in ("bool", "int", "hex"):
+        v = parse_int(text)
+        if dtype.kind == "bool" and v not in (0, 1):
+            raise ValueError("a boolean is 0 or 1")
+        try:
+            return struct.pack(dtype.fmt or "", v)
+        except struct.error:
+            raise ValueError(f"{text} does not fit {dtype.name}") from None
+    if dtype.kind == "real":
+        try:
+            f = float(text)
+        except ValueError:
+            raise ValueError(f"not a number: {text!r}") from None
+        try:
+            return struct.pack(dtype.fmt or "", f)
+        except (struct.error, OverflowError):
+            raise ValueError(f"{text} does not fit {dtype.name}") from None
+    if dtype.kind == "vs":
+        if not text:
+            raise ValueError("an empty string cannot be downloaded")
+        if any(not 0x20 <= ord(c) <= 0x7E for c in text):
+            raise ValueError("a visible string holds printable ASCII characters only")
+        return text.encode("ascii")
+    # os, d: MIME base64 (RFC 2045) on one line
+    try:
+        data = base64.b64decode(text.encode("ascii"), validate=True)
+    except (binascii.Error, UnicodeEncodeError):
+        raise ValueError("not base64") from None
+    if not data:
+        raise ValueError("an empty value cannot be downloaded")
+    return data
+
+
+def _shortest_float(v: float, fmt: str) -> str:
+    """The shortest decimal text that packs back to the same bytes as ``v``."""
+    if math.isnan(v) or math.isinf(v):
+        return repr(v)
+    packed = struct.pack(fmt, v)
+    for digits in range(1, 18):
+        text = f"{v:.{digits}g}"
+        if struct.pack(fmt, float(text)) == packed:
+            return text
+    return repr(v)
+
+
+def quote_vs(text: str) -> str:
+    """A visible string as a token: bare when it is one word, else in double quotes (a quote
+    inside doubled)."""
+    if text and not any(c in text for c in ' \t"#') and not text.startswith("["):
+        return text
+    return '"' + text.replace('"', '""') + '"'
+
+
+def format_value(dtype: DataType, data: bytes) -> str:
+    """The text of an SDO upload's bytes as ``dtype`` (raises LengthMismatch)."""
+    size = dtype.size
+    if size is not None:
+        if len(data) < size or any(data[size:]):
+            raise LengthMismatch(f"{len(data)} bytes for {dtype.name}")
+        data = data[:size]  # an expedited upload without size indication is 4 bytes long
+        (v,) = struct.unpack(dtype.fmt or "", data)
+        if dtype.kind == "hex":
+            return f"0x{v:0{2 * size}X}"
+        if dtype.kind == "real":
+            return _shortest_float(v, dtype.fmt or "")
+        return str(v)
+    if dtype.kind == "vs":
+        text = data.rstrip(b"\0").decode("ascii", errors="replace").replace("\ufffd", "?")
+        return quote_vs("".join(c if 0x20 <= ord(c) <= 0x7E else "?" for c in text))
+    return base64.b64encode(data).decode("ascii")
+
+
+def format_plain(value: Any) -> str:
+    """A value decoded by the command service from the object's EDS type (a read without a
+    type): integers in decimal, reals, visible strings, anything else as base64."""
+    if isinstance(value, bool):
+        return str(int(value))
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return _shortest_float(value, "<f")
+    if isinstance(value, str):
+        return quote_vs("".join(c if 0x20 <= ord(c) <= 0x7E else "?" for c in value))
+    return base64.b64encode(bytes(value)).decode("ascii")
+
+
+# --------------------------------------------------------------------------- answers
+def _prefix(seq: int | None) -> str:
+    return "" if seq is None else f"[{seq}] "
+
+
+def answer_ok(seq: int | None) -> str:
+    return f"{_prefix(seq)}OK"
+
+
+def answer_value(seq: int | None, text: str) -> str:
+    return f"{_prefix(seq)}{text}"
+
+
+def answer_error(seq: int | None, code: Iec) -> str:
+    return f"{_prefix(seq)}ERROR:{int(code)}"
+
+
+def answer_abort(seq: int | None, abort_code: int) -> str:
+    return f"{_prefix(seq)}ERROR:0x{abort_code:08X}"
+
+
+def answer_for_error(seq: int | None, exc: BaseException) -> str:
+    """The answer to a request the command service (or the wait for it) failed with."""
+    if isinstance(exc, SdoAbort):
+        return answer_abort(seq, exc.code)
+    if isinstance(exc, (SdoTimeout, TimeoutError)):
+        return answer_abort(seq, SDO_TIMEOUT_ABORT)
+    if isinstance(exc, LengthMismatch):
+        return answer_abort(seq, TYPE_LENGTH_ABORT)
+    if isinstance(exc, NodeUnknown):
+        return answer_error(seq, Iec.UNSUPPORTED_NODE)
+    if isinstance(exc, Forbidden):
+        return answer_error(seq, Iec.REQUEST_NOT_SUPPORTED)
+    if isinstance(exc, ValueOutOfRange):
+        return answer_error(seq, Iec.SYNTAX)
+    if isinstance(exc, (NodeNotOperational, BusDown, GatewayError)):
+        return answer_error(seq, Iec.INTERNAL_STATE)
+    return answer_error(seq, Iec.INTERNAL_STATE)
+
+
+# --------------------------------------------------------------------------- events
+def event_boot_up(node_id: int) -> str:
+    return f"{NET} {node_id} BOOT_UP"
+
+
+def event_emcy(node_id: int, code: int, register: int, manufacturer: bytes) -> str:
+    msef = " ".join(str(b) for b in bytes(manufacturer[:5]).ljust(5, b"\0"))
+    return f"{NET} {node_id} EMCY {code:04X} {register:02X} {msef}"
+
+
+def event_error(node_id: int, code: Iec) -> str:
+    return f"{NET} {node_id} ERROR {int(code)} ({IEC_TEXT[code]})"
+
+
+@dataclass(frozen=True)
+class HealthSample:
+    """What the event lines are derived from: a node's health as the process image has it."""
+
+    alive: bool
+    boot_count: int
+    emcy_count: int
+    supervision: str  # "heartbeat" | "guarding" | "none"
+    loss_count: int = 0
+
+
+class EventTracker:
+    """Event lines from successive health samples of each node (one owner: the event loop).
+
+    A boot-up counted since the last sample gives ``BOOT_UP``; a new EMCY gives ``EMCY`` (the
+    caller passes the record); a loss counted gives ``ERROR 203`` (heartbeat) or ``ERROR 200``
+    (node guarding); alive again without a boot-up gives ``ERROR 202`` (heartbeat) only. The
+    counters, not only ``alive``, are compared: a loss and its end reported in one health
+    change still give both lines."""
+
+    def __init__(self) -> None:
+        self._last: dict[int, HealthSample] = {}
+
+    def update(
+        self, node_id: int, now: HealthSample, emcy: tuple[int, int, bytes] | None = None
+    ) -> list[str]:
+        before = self._last.get(node_id)
+        self._last[node_id] = now
+        if before is None:
+            return []
+        out: list[str] = []
+        booted = now.boot_count != before.boot_count
+        if booted:
+            out.append(event_boot_up(node_id))
+        if now.emcy_count != before.emcy_count and emcy is not None:
+            out.append(event_emcy(node_id, *emcy))
+        lost = now.loss_count != before.loss_count or (before.alive and not now.alive)
+        if lost:
+            if now.supervision == "heartbeat":
+                out.append(event_error(node_id, Iec.HEARTBEAT_LOST))
+            elif now.supervision == "guarding":
+                out.append(event_error(node_id, Iec.LOST_GUARDING))
+        if now.alive and (lost or not before.alive) and not booted:
+            if now.supervision == "heartbeat":
+                out.append(event_error(node_id, Iec.HEARTBEAT_STARTED))
+        return out
+
+
+# --------------------------------------------------------------------------- lines
+class LineSplitter:
+    """Bytes of a TCP stream -> request lines (str, CR LF or LF removed).
+
+    A line longer than ``MAX_LINE_BYTES`` yields one ``Overlong`` (with the sequence number its
+    start carried, if any) and the rest of it up to the next LF is discarded: the connection
+    goes on with the next line. Bytes that are not ASCII are kept as U+FFFD (a syntax error)."""
+
+    def __init__(self, max_bytes: int = MAX_LINE_BYTES) -> None:
+        self.max_bytes = max_bytes
+        self._buf = bytearray()
+        self._discarding = False
+
+    def feed(self, data: bytes) -> list[str | Overlong]:
+        out: list[str | Overlong] = []
+        self._buf += data
+        while True:
+            nl = self._buf.find(b"\n")
+            if self._discarding:
+                if nl < 0:
+                    self._buf.clear()
+                    return out
+                del self._buf[: nl + 1]
+                self._discarding = False
+                continue
+            if nl < 0:
+                if len(self._buf) > self.max_bytes:
+                    out.append(Overlong(_peek_seq(self._buf)))
+                    self._buf.clear()
+                    self._discarding = True
+                return out
+            line = bytes(self._buf[:nl])
+            del self._buf[: nl + 1]
+            if line.endswith(b"\r"):
+                line = line[:-1]
+            if len(line) > self.max_bytes:
+                out.append(Overlong(_peek_seq(line)))
+                continue
+            out.append(line.decode("ascii", errors="replace"))
+
+
+@dataclass(frozen=True)
+class Overlong:
+    """A request line longer than ``MAX_LINE_BYTES``."""
+
+    seq: int | None
+
+
+_SEQ_RE = re.compile(rb"^\s*\[([0-9]{1,10})\]")
+
+
+def _peek_seq(line: bytes | bytearray | str) -> int | None:
+    raw = line.encode("ascii", errors="replace") if isinstance(line, str) else bytes(line)
+    m = _SEQ_RE.match(raw)
+    if m is None:
+        return None
+    v = int(m.group(1))
+    return v if v <= 0xFFFFFFFF else None
+
+
+class RequestError(Exception):
+    """A request answered with an internal error code."""
+
+    def __init__(self, seq: int | None, code: Iec, why: str = ""):
+        self.seq, self.code, self.why = seq, code, why
+        super().__init__(f"{int(code)} {IEC_TEXT[code]}" + (f": {why}" if why else ""))
+
+
+def tokenize(line: str) -> list[str]:
+    """Split on blanks; a token starting with ``"`` runs to the closing quote (``""`` inside is
+    one quote); ``#`` where a token starts begins a comment. ValueError when a quote is open."""
+    tokens: list[str] = []
+    i, n = 0, len(line)
+    while i < n:
+        c = line[i]
+        if c in " \t":
+            i += 1
+            continue
+        if c == "#":
+            break
+        if c == '"':
+            i += 1
+            buf: list[str] = []
+            while True:
+                if i >= n:
+                    raise ValueError("unterminated quote")
+                if line[i] == '"':
+                    if i + 1 < n and line[i + 1] == '"':
+                        buf.append('"')
+                        i += 2
+                        continue
+                    i += 1
+                    break
+                buf.append(line[i])
+                i += 1
+            if i < n and line[i] not in " \t":
+                raise ValueError("a quoted token must end with a blank")
+            tokens.append("".join(buf))
+            continue
+        j = i
+        while j < n and line[j] not in " \t":
+            j += 1
+        tokens.append(line[i:j])
+        i = j
+    return tokens
+
+
+# --------------------------------------------------------------------------- requests
+@dataclass(frozen=True)
+class Read:
+    seq: int | None
+    net: int | None
+    node: int | None
+    index: int
+    sub: int
+    dtype: DataType | None
+
+
+@dataclass(frozen=True)
+class Write:
+    seq: int | None
+    net: int | None
+    node: int | None
+    index: int
+    sub: int
+    dtype: DataType
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Nmt:
+    seq: int | None
+    net: int | None
+    node: int | None
+    command: str  # a key of gateway.states.NMT_COMMANDS
+
+
+@dataclass(frozen=True)
+class SetNode:
+    seq: int | None
+    net: int | None
+    value: int
+
+
+@dataclass(frozen=True)
+class SetNetwork:
+    seq: int | None
+    value: int
+
+
+@dataclass(frozen=True)
+class SetSdoTimeout:
+    seq: int | None
+    net: int | None
+    value_ms: int
+
+
+@dataclass(frozen=True)
+class Help:
+    seq: int | None
+    topic: str
+
+
+@dataclass(frozen=True)
+class InfoVersion:
+    seq: int | None
+
+
+Request = Read | Write | Nmt | SetNode | SetNetwork | SetSdoTimeout | Help | InfoVersion
+
+_NMT_WORDS = {"start": "start", "stop": "stop", "preop": "preop", "preoperational": "preop"}
+_RESET_WORDS = {"node": "reset", "comm": "reset-comm", "communication": "reset-comm"}
+#: commands of CiA 309-3 (or of canopend/coctl) this gateway does not offer: ERROR:100
+_NOT_SUPPORTED = frozenset(
+    {"led", "log", "init", "enable", "disable", "lss_switch_glob", "lss_switch_sel",
+     "lss_set_node", "lss_conf_bitrate", "lss_activate_bitrate", "lss_store",
+     "lss_inquire_addr", "lss_get_node", "_lss_fastscan", "lss_allnodes", "set_rpdo",
+     "set_tpdo", "read_pdo", "write_pdo"}
+)  # fmt: skip
+
+
+def _number(text: str, lo: int, hi: int, seq: int | None, what: str) -> int:
+    try:
+        v = parse_int(text)
+    except ValueError:
+        raise RequestError(seq, Iec.SYNTAX, f"{what}: not a number") from None
+    if not lo <= v <= hi:
+        raise RequestError(seq, Iec.SYNTAX, f"{what}: {lo}..{hi}")
+    return v
+
+
+def _dtype(word: str, seq: int | None) -> DataType:
+    w = word.lower()
+    if w in UNSUPPORTED_TYPES:
+        raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, f"data type {word}")
+    t = DATA_TYPES.get(w)
+    if t is None:
+        raise RequestError(seq, Iec.SYNTAX, f"unknown data type {word!r}")
+    return t
+
+
+def parse_request(line: str) -> Request | None:
+    """One request line -> a request (None for an empty or comment line); RequestError for
+    a request answered with an internal error code at once."""
+    seq = _peek_seq(line)
+    if any(not 0x20 <= ord(c) <= 0x7E and c != "\t" for c in line):
+        raise RequestError(seq, Iec.SYNTAX, "a request is printable ASCII")
+    try:
+        tokens = tokenize(line)
+    except ValueError as exc:
+        raise RequestError(seq, Iec.SYNTAX, str(exc)) from None
+    if not tokens:
+        return None
+    m = re.fullmatch(r"\[([0-9]{1,10})\]", tokens[0])
+    if m is None or int(m.group(1)) > 0xFFFFFFFF:
+        raise RequestError(None, Iec.SYNTAX, "a request starts with [sequence 0..4294967295]")
+    seq = int(m.group(1))
+    tokens = tokens[1:]
+    numbers: list[int] = []
+    while tokens and tokens[0][:1].isdigit():
+        numbers.append(_number(tokens.pop(0), 0, 0xFFFFFFFF, seq, "net/node"))
+    if len(numbers) > 2:
+        raise RequestError(seq, Iec.SYNTAX, "at most a net and a node before the command")
+    if not tokens:
+        raise RequestError(seq, Iec.SYNTAX, "no command")
+    cmd, args = tokens[0].lower(), tokens[1:]
+    net, node = (None, None)
+    if len(numbers) == 2:
+        net, node = numbers
+    elif len(numbers) == 1:
+        node = numbers[0]
+
+    def need(count: int | tuple[int, ...]) -> None:
+        counts = (count,) if isinstance(count, int) else count
+        if len(args) not in counts:
+            raise RequestError(seq, Iec.SYNTAX, f"{cmd}: {' or '.join(map(str, counts))} arguments")
+
+    if cmd in ("r", "read"):
+        need((2, 3))
+        index = _number(args[0], 0, 0xFFFF, seq, "index")
+        sub = _number(args[1], 0, 0xFF, seq, "sub-index")
+        dtype = _dtype(args[2], seq) if len(args) == 3 else None
+        return Read(seq, net, node, index, sub, dtype)
+    if cmd in ("w", "write"):
+        need(4)
+        index = _number(args[0], 0, 0xFFFF, seq, "index")
+        sub = _number(args[1], 0, 0xFF, seq, "sub-index")
+        dtype = _dtype(args[2], seq)
+        try:
+            data = encode_value(dtype, args[3])
+        except ValueError as exc:
+            raise RequestError(seq, Iec.SYNTAX, str(exc)) from None
+        return Write(seq, net, node, index, sub, dtype, data)
+    if cmd in _NMT_WORDS:
+        need(0)
+        return Nmt(seq, net, node, _NMT_WORDS[cmd])
+    if cmd == "reset":
+        need(1)
+        what = _RESET_WORDS.get(args[0].lower())
+        if what is None:
+            raise RequestError(seq, Iec.SYNTAX, "reset node | reset comm[unication]")
+        return Nmt(seq, net, node, what)
+    if cmd == "set":
+        if not args:
+            raise RequestError(seq, Iec.SYNTAX, "set what?")
+        what, args = args[0].lower(), args[1:]
+        # a single number before a network-level command is the net (Lely's rule)
+        if net is not None:
+            raise RequestError(seq, Iec.SYNTAX, "a node before a network-level command")
+        net = node
+        if what == "network":
+            need(1)
+            if net is not None:
+                raise RequestError(seq, Iec.SYNTAX, "set network takes no net before it")
+            return SetNetwork(seq, _number(args[0], 1, 0xFFFF, seq, "network"))
+        if what == "node":
+            need(1)
+            return SetNode(seq, net, _number(args[0], 1, 127, seq, "node"))
+        if what == "sdo_timeout":
+            need(1)
+            return SetSdoTimeout(seq, net, _number(args[0], 1, 0xFFFF, seq, "sdo_timeout"))
+        raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, f"set {what}")
+    if cmd == "help":
+        if numbers or len(args) > 1:
+            raise RequestError(seq, Iec.SYNTAX, "help [datatype]")
+        return Help(seq, args[0].lower() if args else "")
+    if cmd == "info":
+        if numbers:
+            raise RequestError(seq, Iec.SYNTAX, "info is a gateway-level command")
+        if args and args[0].lower() == "version" and len(args) == 1:
+            return InfoVersion(seq)
+        raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "info version only")
+    if cmd in _NOT_SUPPORTED:
+        raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, cmd)
+    raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, f"unknown command {cmd!r}")
+
+
+# --------------------------------------------------------------------------- session
+@dataclass(frozen=True)
+class SdoUpload:
+    """Read ``index:sub`` of a node (``dtype`` None: decoded by the object's EDS type)."""
+
+    seq: int | None
+    node_id: int
+    index: int
+    sub: int
+    dtype: DataType | None
+    timeout_ms: int | None
+
+
+@dataclass(frozen=True)
+class SdoDownload:
+    seq: int | None
+    node_id: int
+    index: int
+    sub: int
+    data: bytes
+    timeout_ms: int | None
+
+
+@dataclass(frozen=True)
+class NmtCommand:
+    """An NMT command to a node (``node_id`` 0: every configured node)."""
+
+    seq: int | None
+    node_id: int
+    command: str
+
+
+Call = SdoUpload | SdoDownload | NmtCommand
+
+HELP_TEXT = """\
+[seq] [[net] node] r[ead] <index> <sub> [<type>]       SDO upload
+[seq] [[net] node] w[rite] <index> <sub> <type> <value> SDO download (ascii.writes)
+[seq] [[net] node] start | stop | preop[erational]     NMT (ascii.writes; node 0 = all)
+[seq] [[net] node] reset node | reset comm[unication]  NMT (ascii.writes; node 0 = all)
+[seq] [net] set node <1..127>                          default node
+[seq] set network 1                                    default net (this gateway: net 1)
+[seq] [net] set sdo_timeout <ms>                       longest wait for an SDO answer
+[seq] help [datatype]
+[seq] info version
+answers: [seq] OK | <value> | ERROR:0x<abort code> | ERROR:<code>"""
+
+HELP_DATATYPES = """\
+b                  boolean (0 or 1)
+i8 i16 i32 i64     signed integers
+u8 u16 u32 u64     unsigned integers
+x8 x16 x32 x64     unsigned integers shown in hexadecimal
+r32 r64            reals
+vs                 visible string (in double quotes when it has blanks)
+os d               octet string, domain (base64, RFC 2045, one line)"""
+
+
+class Session:
+    """One client's session: default net and node, SDO time-out and the write gate.
+
+    ``handle(line)`` returns the answer lines to send at once, or a ``Call`` for the caller to
+    perform (then ``answer_*`` formats what it got), or nothing for an empty line."""
+
+    def __init__(self, node_ids: Collection[int], *, writes: bool, version: str) -> None:
+        self.node_ids = frozenset(node_ids)
+        self.writes = writes
+        self.version = version
+        self.default_net: int | None = NET  # one network: the default is set from the start
+        self.default_node: int | None = None
+        self.sdo_timeout_ms: int | None = None  # None: the gateway's own SDO time-out
+        self.refused = 0  # writes and NMT commands refused by the write gate
+
+    def handle(self, line: str | Overlong) -> list[str] | Call:
+        if isinstance(line, Overlong):
+            return [answer_error(line.seq, Iec.SYNTAX)]
+        try:
+            req = parse_request(line)
+            if req is None:
+                return []
+            return self._resolve(req)
+        except RequestError as exc:
+            return [answer_error(exc.seq, exc.code)]
+
+    def _net(self, seq: int | None, net: int | None) -> None:
+        if net is None:
+            if self.default_net is None:
+                raise RequestError(seq, Iec.NO_DEFAULT_NET)
+            net = self.default_net
+        if net != NET:
+            raise RequestError(seq, Iec.UNSUPPORTED_NET)
+
+    def _node(self, seq: int | None, net: int | None, node: int | None, *, all_ok: bool) -> int:
+        self._net(seq, net)
+        if node is None:
+            if self.default_node is None:
+                raise RequestError(seq, Iec.NO_DEFAULT_NODE)
+            node = self.default_node
+        if node == 0 and all_ok:
+            return 0
+        if node not in self.node_ids:
+            raise RequestError(seq, Iec.UNSUPPORTED_NODE)
+        return node
+
+    def _resolve(self, req: Request) -> list[str] | Call:
+        seq = req.seq
+        if isinstance(req, Read):
+            node = self._node(seq, req.net, req.node, all_ok=False)
+            return SdoUpload(seq, node, req.index, req.sub, req.dtype, self.sdo_timeout_ms)
+        if isinstance(req, Write):
+            node = self._node(seq, req.net, req.node, all_ok=False)
+            if not self.writes:
+                self.refused += 1
+                raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+            return SdoDownload(seq, node, req.index, req.sub, req.data, self.sdo_timeout_ms)
+        if isinstance(req, Nmt):
+            node = self._node(seq, req.net, req.node, all_ok=True)
+            if not self.writes:
+                self.refused += 1
+                raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+            return NmtCommand(seq, node, req.command)
+        if isinstance(req, SetNetwork):
+            if req.value != NET:
+                raise RequestError(seq, Iec.UNSUPPORTED_NET)
+            self.default_net = req.value
+            return [answer_ok(seq)]
+        if isinstance(req, SetNode):
+            self._net(seq, req.net)
+            if req.value not in self.node_ids:
+                raise RequestError(seq, Iec.UNSUPPORTED_NODE)
+            self.default_node = req.value
+            return [answer_ok(seq)]
+        if isinstance(req, SetSdoTimeout):
+            self._net(seq, req.net)
+            self.sdo_timeout_ms = req.value_ms
+            return [answer_ok(seq)]
+        if isinstance(req, Help):
+            if req.topic not in ("", "datatype"):
+                raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, f"help {req.topic}")
+            text = HELP_DATATYPES if req.topic == "datatype" else HELP_TEXT
+            return [f"# {t}" for t in text.splitlines()] + [answer_ok(seq)]
+        # InfoVersion: vendor-id, product code, revision, serial number, gateway class (3: the
+        # gateway is the NMT master), protocol version, implementation version (Lely's order)
+        major_minor = ".".join(self.version.split(".")[:2])
+        return [answer_value(seq, f"0 0 {major_minor} 0 3 3.0 {major_minor}")]
