@@ -146,7 +146,12 @@ async def test_an_unsupervised_device_runs_and_its_values_go_stale_by_data_age(t
         sig = io.signals["analogue_input_1"]
         assert sig.value == -5
         assert io.stale_after_s == 0.3
+        # the last instant at which the value is 0.3 s old or less (float sums round either way)
         limit = sig.monotonic + 0.3
+        while limit - sig.monotonic > 0.3:
+            limit = math.nextafter(limit, -math.inf)
+        while math.nextafter(limit, math.inf) - sig.monotonic <= 0.3:
+            limit = math.nextafter(limit, math.inf)
         assert io.quality(sig, now_monotonic=limit) == Quality.GOOD
         assert io.quality(sig, now_monotonic=math.nextafter(limit, math.inf)) == Quality.STALE
     finally:
