@@ -94,5 +94,5 @@ def run_fault(cfg: Config, node: str | None, action: str | None, url: str | None
             message = "the gateway at " + base + " simulates no node (fault injection is off)"
         print(f"error: {message}", file=sys.stderr)
         return 1
-    print(f"{node}: {action} done ({ACTIONS[action]})")
+    print(f"{node}: {action} done: {ACTIONS[action]}")
     return 0

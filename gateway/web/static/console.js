@@ -551,7 +551,7 @@ async function initFaults(node) {
       let d;
       try { d = await r.json(); } catch (e) { d = { message: "HTTP " + r.status }; }
       result.className = "result " + (r.ok ? "ok" : "err");
-      result.textContent = r.ok ? `${action}: done (${text})` : `refused (HTTP ${r.status}): ${d.message || ""}` + (r.status === 401 ? " (unlock on the Commissioning page first)" : "");
+      result.textContent = r.ok ? `${action}: done: ${text}` : `refused (HTTP ${r.status}): ${d.message || ""}` + (r.status === 401 ? " (unlock on the Commissioning page first)" : "");
       if (r.ok) show(d.state);
     });
     box.append(b);
