@@ -72,6 +72,11 @@ async def test_trends_turn_stale_when_the_fault_buttons_unplug_the_node_and_good
             assert browser.find_elements(By.CSS_SELECTOR, 'figure.trend[data-signal="position"] canvas')
             good, stale, points = browser.execute_script(LAST_JS, "position")
             assert good is not None and stale is None and points >= 1
+            # every sample once, in time order (the stream may repeat what the page fetched)
+            wait_for(browser, lambda d: d.execute_script(
+                "return trendCharts.position.t.length") >= 4, "a few samples")
+            times = browser.execute_script("return trendCharts.position.t")
+            assert times == sorted(set(times))
             # the trends and the fault buttons come before the signals table
             order = browser.execute_script(
                 "return [...document.querySelectorAll('main > section')].map(s => s.id || s.getAttribute('aria-labelledby'))"

@@ -462,7 +462,9 @@ function addTrend(doc) {
   doc.signals.forEach((s, i) => {
     const c = trendCharts[s.name];
     if (!c) return;
+    const lastT = c.t.length ? c.t[c.t.length - 1] : -Infinity;
     doc.t.forEach((t, k) => {
+      if (t <= lastT) return; // already shown (the stream's first update repeats the ring)
       const v = doc.values[i][k], q = doc.quality[i][k];
       c.t.push(t);
       c.quality.push(q);
