@@ -17,8 +17,10 @@ host and port: pages and static files, a small JSON API, server-sent events, and
                                        wrong one; 400 with a message for a bad body
 ``GET /events``                        event log page (``static/events.html``)
 ``GET /api/registers.csv``             the register map as ``canopen-gateway registers --csv``
-``GET /api/trend/<name>[?after=<seq>]``  the node's trend samples (``gateway.web.trends``)
-``GET /api/events[?node=&kind=&after=]``  recent events (``gateway.web.events``)
+``GET /api/trend/<name>``              the node's trend samples (``gateway.web.trends``);
+                                       ``?after=<seq>``: only newer ones
+``GET /api/events``                    recent events (``gateway.web.events``); filters
+                                       ``?node=``, ``?kind=emcy,state,...``, ``?after=<seq>``
 ``POST /api/read/<name>/<signal>``     SDO upload of one configuration object of the node's
                                        profile (a read, so no ``web.writes`` needed); needs
                                        ``Content-Type: application/json``; ``READS_PER_S`` per
