@@ -280,6 +280,7 @@ class Gateway:
         )
         self.web = None
         if self.cfg.web.enabled:
+            from gateway.sim.faults import FaultInjector
             from gateway.web.console import WebConsole
 
             self.web = WebConsole(
@@ -288,6 +289,7 @@ class Gateway:
                 self.commands,
                 self.overview,
                 regmap=self.modbus.regmap if self.modbus is not None else None,
+                faults=FaultInjector(self.sim) if self.sim is not None else None,
             )
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(

@@ -347,6 +347,16 @@ def cmd_profile_init(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fault(args: argparse.Namespace) -> int:
+    from gateway.sim.faults_client import run_fault
+
+    cfg = _load(args.config)
+    if args.node is not None and args.action is None:
+        print("error: fault NODE ACTION: give an action too (or neither, to list)", file=sys.stderr)
+        return EXIT_CONFIG
+    return run_fault(cfg, args.node, args.action, args.url)
+
+
 def cmd_lss(args: argparse.Namespace) -> int:
     from gateway.bus.lss_cli import run_lss
 
@@ -385,6 +395,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--nodes", help="comma-separated node names (default: simulate: section, else all)")
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
     sp.set_defaults(fn=cmd_simulate)
+
+    sp = with_config(
+        sub.add_parser("fault", help="inject a fault into a running gateway's simulated node")
+    )
+    sp.add_argument("node", nargs="?", help="simulated node name (none: list nodes and actions)")
+    sp.add_argument("action", nargs="?", help="unplug, plug, heartbeat-off, heartbeat-on, emcy, emcy-clear")
+    sp.add_argument("--url", help="the running gateway's web address (default: from health: of the config)")
+    sp.set_defaults(fn=cmd_fault)
 
     sp = with_config(sub.add_parser("sdo", help="read or write an object by SDO (commissioning)"))
     sp.add_argument("op", choices=["read", "write"])

@@ -70,6 +70,7 @@ class Request:
     query: Mapping[str, str] = field(default_factory=dict)
     headers: Mapping[str, str] = field(default_factory=dict)
     body: bytes = b""
+    client: str = ""  # the peer's address (per-client limits of the app)
 
 
 @dataclass(frozen=True)
@@ -301,6 +302,7 @@ class HealthServer:
             query={k: v[0] for k, v in urllib.parse.parse_qs(query).items()},
             headers=headers,
             body=body,
+            client=_peer(writer),
         )
         try:
             answer = await self._app(request)
@@ -364,6 +366,11 @@ class HealthServer:
         )
         writer.write(head.encode("latin-1") + b"\r\n" + (b"" if head_only else body))
         await writer.drain()
+
+
+def _peer(writer: asyncio.StreamWriter) -> str:
+    peer = writer.get_extra_info("peername")
+    return str(peer[0]) if isinstance(peer, tuple) and peer else ""
 
 
 def _json(doc: Mapping[str, Any]) -> bytes:

@@ -137,6 +137,7 @@ class SimNode:
         self.nmt_state = NmtState.BOOTUP
         self.powered = False
         self.silenced = False
+        self.error_control_off = False  # heartbeat and guarding answers stopped (fault)
         self.mute_until_s: float | None = None  # off the bus for a while (LSS bit timing switch)
         self.last_reset: ResetKind = "power"
         self.now = 0.0
@@ -350,10 +351,21 @@ class SimNode:
             if t.next_due_s is not None and t.next_due_s < now:
                 t.next_due_s = now
 
+    def stop_error_control(self) -> None:
+        """Stop the heartbeat and the answers to node guarding; process data continue."""
+        self.error_control_off = True
+
+    def resume_error_control(self, now: float | None = None) -> None:
+        """Heartbeat (next one now) and guarding answers again."""
+        self.error_control_off = False
+        if self._hb_next_s is not None:
+            self._hb_next_s = self.now if now is None else now
+
     def power_cycle(self, now: float | None = None) -> list[can.Message]:
         """Off and on again: stored configuration reloaded, boot-up sent."""
         now = self.now if now is None else now
         self.silenced = False
+        self.error_control_off = False
         self._initialise("power", now)
         return self.drain()
 
@@ -516,7 +528,7 @@ class SimNode:
 
     def _tick_heartbeat(self, now: float) -> None:
         """Heartbeat producer 1017h (SGH10 manual 4.5.3): [state] every period, any state."""
-        if self._hb_next_s is None or now + _EPS_S < self._hb_next_s:
+        if self._hb_next_s is None or now + _EPS_S < self._hb_next_s or self.error_control_off:
             return
         period_s = int(self.values.get(0x1017, 0, 0)) / 1000
         self.send(COB_NMT_EC + self.node_id, bytes([int(self.nmt_state)]))
@@ -531,6 +543,8 @@ class SimNode:
         """Node guarding (SGH10 manual 4.5.2): toggle bit 7 (0 first) | NMT state."""
         if int(self.values.get(0x1017, 0, 0)) and not self.hints.guarding_with_heartbeat:
             return  # DS-301 7.2.8.3: a node uses heartbeat or guarding, not both
+        if self.error_control_off:
+            return
         self.send(
             COB_NMT_EC + self.node_id, bytes([(self._guard_toggle << 7) | self.nmt_state])
         )

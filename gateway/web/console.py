@@ -15,19 +15,44 @@ host and port: pages and static files, a small JSON API, server-sent events, and
                                        ``lss-inquire`` (JSON body); 404 unless writes are on;
                                        401 without ``Authorization: Bearer <token>``, 403 with a
                                        wrong one; 400 with a message for a bad body
+``GET /events``                        event log page (``static/events.html``)
+``GET /api/registers.csv``             the register map as ``canopen-gateway registers --csv``
+``GET /api/trend/<name>``              the node's trend samples (``gateway.web.trends``);
+                                       ``?after=<seq>``: only newer ones
+``GET /api/events``                    recent events (``gateway.web.events``); filters
+                                       ``?node=``, ``?kind=emcy,state,...``, ``?after=<seq>``
+``POST /api/read/<name>/<signal>``     SDO upload of one configuration object of the node's
+                                       profile (a read, so no ``web.writes`` needed); needs
+                                       ``Content-Type: application/json``; ``READS_PER_S`` per
+                                       client (burst ``READ_BURST``), else 429 + ``Retry-After``
+``GET /api/sim``                       simulated nodes, their faults and who may inject them
+``POST /api/sim/<name>/<action>``      fault injection into a node simulated in this process
+                                       (``gateway.sim.faults``); see ``fault_rule``
 =====================================  ==========================================================
+
+Fault injection rule (``fault_rule``): only nodes simulated inside this process; on the
+``virtual`` bus (in-process: nothing leaves the process, as in the demo) without a token; on any
+other bus (a simulated node there sends real frames) only with ``web.writes: true`` and the token.
+
+The node page's stream also carries ``trend`` events (new samples, once a second) and the
+overview stream ``events`` events (new entries of the event log).
 
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
-Imports: health (request/response types), web.live, web.views, web.commissioning, config,
-image, commands (types). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
+Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
+web.events, web.limits, config, image, commands (types), sim.faults (names and errors; the
+injector itself is given by the application). Never bus/ internals, modbus/ or zenoh_bridge/
+modules with I/O.
 """
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 import json
 import logging
+import math
+import time
 from http import HTTPStatus
 from importlib import resources
 from typing import Any
@@ -38,9 +63,13 @@ from gateway.config import Config
 from gateway.health import JSON_TYPE, Request, Response, Stream
 from gateway.image import ProcessImage
 from gateway.ratelimit import RateLimitedLog
-from gateway.web.commissioning import Commissioning, error_doc
+from gateway.web.commissioning import Commissioning, error_doc, shown
+from gateway.web.events import KINDS, EventLog, EventLogHandler
+from gateway.web.limits import ClientBudget
 from gateway.web.live import LiveHub, Subscriber, TooManyClients
+from gateway.web.trends import TREND_PERIOD_S, TrendStore
 from gateway.web.views import ConsoleModel, OverviewFn
+from gateway.zenoh_bridge.payloads import engineering
 
 log = logging.getLogger("gateway.web")
 
@@ -51,6 +80,9 @@ CONTENT_TYPES = {
     ".png": "image/png",
     ".svg": "image/svg+xml",
 }
+#: SDO reads of configuration objects from the node page, per client address
+READS_PER_S = 2.0
+READ_BURST = 5
 #: no script, style or connection from anywhere but this server (works without internet)
 SECURITY_HEADERS = {
     "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
@@ -83,8 +115,11 @@ class WebConsole:
         overview_fn: OverviewFn | None = None,
         *,
         regmap: Any = None,
+        faults: Any = None,
     ):
         self.cfg = cfg
+        self.image = image
+        self.commands = commands
         self.writes = cfg.web.writes
         self._token = (cfg.web.token or "").encode()
         self.model = ConsoleModel(cfg, image, commands, overview_fn, regmap=regmap)
@@ -92,18 +127,52 @@ class WebConsole:
         self.commissioning = Commissioning(cfg, commands) if self.writes else None
         self.static = _load_static()
         self.warn = RateLimitedLog(log)
+        self.trends = TrendStore(image, self.model.meta)
+        self.events = EventLog(commands.names())
+        self._log_handler = EventLogHandler(self.events)
+        self.read_budget = ClientBudget(READS_PER_S, READ_BURST)
+        #: ``gateway.sim.faults.FaultInjector`` when nodes are simulated in this process
+        self.faults = faults
+        self._sampler: Any = None
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)
+        for node in self.image.nodes.values():
+            self.events.watch(node)
+        self.image.health_listeners.append(self.events.on_health)
+        logging.getLogger("gateway").addHandler(self._log_handler)
+        self._sampler = loop.create_task(self._sample_trends(), name="web-trends")
 
     def stop(self) -> None:
         self.hub.detach()
+        if self.events.on_health in self.image.health_listeners:
+            self.image.health_listeners.remove(self.events.on_health)
+        logging.getLogger("gateway").removeHandler(self._log_handler)
+        if self._sampler is not None:
+            self._sampler.cancel()
+            self._sampler = None
+
+    async def _sample_trends(self) -> None:
+        """The trend store's one writer: a sample every ``TREND_PERIOD_S`` on the loop."""
+        loop = asyncio.get_running_loop()
+        next_at = loop.time()
+        while True:
+            try:
+                self.trends.sample(time.monotonic(), time.time())
+            except Exception as exc:  # keep sampling; say what broke (rate-limited)
+                self.warn.warning("trend", "web console: a trend sample failed: %r", exc)
+            next_at += TREND_PERIOD_S
+            await asyncio.sleep(max(0.0, next_at - loop.time()))
 
     # ------------------------------------------------------------------ routing
     async def __call__(self, request: Request) -> Response | Stream | None:
         path = request.path
         if path.startswith("/api/commission/"):
             return await self._commission(request, path.removeprefix("/api/commission/"))
+        if path.startswith("/api/read/"):
+            return await self._read(request, path.removeprefix("/api/read/"))
+        if path.startswith("/api/sim/"):
+            return self._sim(request, path.removeprefix("/api/sim/"))
         if request.method not in ("GET", "HEAD"):
             return Response(
                 HTTPStatus.METHOD_NOT_ALLOWED, b"GET or HEAD only\n", headers={"Allow": "GET, HEAD"}
@@ -130,6 +199,16 @@ class WebConsole:
             if request.method == "HEAD":
                 return Response(HTTPStatus.OK, b"", "text/event-stream")
             return self._stream(request)
+        if path == "/events":
+            return self._file("events.html")
+        if path == "/api/registers.csv":
+            return self._registers_csv()
+        if path.startswith("/api/trend/"):
+            return self._trend(request, path.removeprefix("/api/trend/"))
+        if path == "/api/events":
+            return self._events(request)
+        if path == "/api/sim":
+            return _json(HTTPStatus.OK, self._sim_doc())
         return None
 
     def _not_found(self, message: str) -> Response:
@@ -176,6 +255,7 @@ class WebConsole:
                 events.append(("overview", self.model.overview()))
             if full or health:
                 events.append(("nodes", self.model.node_rows()))
+            self._render_more(sub, full, events)
             return events
         if full or health:
             events.append(
@@ -183,6 +263,7 @@ class WebConsole:
             )
         if full or values:
             events.append(("values", self.model.values(sub.node, None if full else values)))
+        self._render_more(sub, full, events)
         return events
 
     # ------------------------------------------------------------------ commissioning
@@ -228,4 +309,176 @@ class WebConsole:
                 log.info("web commissioning %s refused: %s", op, doc["message"])
             return _json(status, doc)
         log.info("web commissioning %s: %s", op, result)
+        return _json(HTTPStatus.OK, result)
+
+    # ------------------------------------------------------------------ first hour
+    def _render_more(self, sub: Subscriber, full: bool, events: list[tuple[str, Any]]) -> None:
+        """Once a second (``full``): new trend samples for a node page, new log events for the
+        overview stream."""
+        if not full:
+            return
+        if sub.node is not None:
+            if self.trends.seq > sub.trend_seq and sub.node in self.trends.rings:
+                events.append(("trend", self.trends.since(sub.node, sub.trend_seq)))
+            sub.trend_seq = self.trends.seq
+        else:
+            new = self.events.since(sub.event_seq)
+            if new:
+                events.append(("events", {"events": [e.doc() for e in new]}))
+                sub.event_seq = new[-1].seq
+
+    def _registers_csv(self) -> Response:
+        body = self.model.regmap.to_csv().encode()
+        name = f"{self.cfg.gateway.name}-registers.csv".replace('"', "")
+        return Response(
+            HTTPStatus.OK,
+            body,
+            "text/csv; charset=utf-8",
+            headers={**SECURITY_HEADERS, "Content-Disposition": f'attachment; filename="{name}"'},
+        )
+
+    @staticmethod
+    def _after(request: Request) -> int | Response:
+        text = request.query.get("after", "0")
+        if not text.isdigit():
+            return _json(
+                HTTPStatus.BAD_REQUEST,
+                {"error": "bad_request", "message": f"after: expected a sequence number, got {text!r}"},
+            )
+        return int(text)
+
+    def _trend(self, request: Request, name: str) -> Response:
+        if name not in self.model.meta:
+            return self._not_found(f"no node named {name!r}")
+        after = self._after(request)
+        if isinstance(after, Response):
+            return after
+        return _json(HTTPStatus.OK, self.trends.since(name, after))
+
+    def _events(self, request: Request) -> Response:
+        after = self._after(request)
+        if isinstance(after, Response):
+            return after
+        node = request.query.get("node") or None
+        if node is not None and node not in self.model.meta:
+            return self._not_found(f"no node named {node!r}")
+        kinds = None
+        if request.query.get("kind"):
+            kinds = request.query["kind"].split(",")
+            wrong = [k for k in kinds if k not in KINDS]
+            if wrong:
+                return _json(
+                    HTTPStatus.BAD_REQUEST,
+                    {"error": "bad_request", "message": f"kind: {', '.join(wrong)} is not one of {', '.join(KINDS)}"},
+                )
+        found = self.events.since(after, node, kinds)
+        return _json(
+            HTTPStatus.OK,
+            {"seq": self.events.seq, "kinds": list(KINDS), "events": [e.doc() for e in found]},
+        )
+
+    async def _read(self, request: Request, rest: str) -> Response:
+        """SDO upload of one configuration object (see the module docstring)."""
+        if request.method != "POST":
+            return Response(HTTPStatus.METHOD_NOT_ALLOWED, b"POST only\n", headers={"Allow": "POST"})
+        if not request.headers.get("content-type", "").startswith("application/json"):
+            return _json(
+                HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
+                {"error": "bad_request", "message": "send Content-Type: application/json"},
+            )
+        node, _, signal = rest.partition("/")
+        metas = self.model.meta.get(node)
+        if metas is None:
+            return self._not_found(f"no node named {node!r}")
+        meta = metas.get(signal)
+        if meta is None or meta.source != "SDO" or meta.sig.access == "wo":
+            readable = [n for n, m in metas.items() if m.source == "SDO" and m.sig.access != "wo"]
+            return self._not_found(
+                f"{node} has no configuration object named {signal!r}; "
+                f"readable: {', '.join(readable) or 'none'}"
+            )
+        wait_s = self.read_budget.take(request.client)
+        if wait_s > 0:
+            retry = max(1, math.ceil(wait_s))
+            body = {
+                "error": "rate_limited",
+                "message": f"at most {READS_PER_S:g} SDO reads a second per client (bursts of "
+                f"{READ_BURST}); try again in {wait_s:.1f} s",
+                "retry_after_s": round(wait_s, 3),
+            }
+            resp = _json(HTTPStatus.TOO_MANY_REQUESTS, body)
+            return Response(resp.status, resp.body, resp.content_type, {"Retry-After": str(retry)})
+        sig = meta.sig
+        try:
+            raw = await self.commands.sdo_read(node, sig.object, sig.type)
+        except Exception as exc:  # every failure becomes an answer with words
+            status, doc = error_doc(exc)
+            if status == HTTPStatus.INTERNAL_SERVER_ERROR:
+                log.exception("web read %s.%s failed", node, signal)
+            return _json(status, doc)
+        doc = {
+            "ok": True,
+            "node": node,
+            "signal": signal,
+            "object": str(sig.object),
+            "raw": shown(raw),
+            "value": shown(engineering(sig, raw, meta.scaling)),
+            "unit": meta.scaling.unit,
+            "ts": time.time(),
+        }
+        text = sig.values.get(raw) if isinstance(raw, int) else None
+        if text is not None:
+            doc["text"] = text
+        return _json(HTTPStatus.OK, doc)
+
+    # ------------------------------------------------------------------ fault injection
+    def fault_rule(self) -> str:
+        """Who may inject faults: "none" (no simulated node), "open" or "token"."""
+        if self.faults is None or not self.faults.names():
+            return "none"
+        if self.cfg.can.bus_kwargs().get("interface") == "virtual":
+            return "open"
+        return "token" if self.writes else "none"
+
+    def _sim_doc(self) -> dict[str, Any]:
+        from gateway.sim.faults import ACTIONS
+
+        rule = self.fault_rule()
+        names = self.faults.names() if self.faults is not None else []
+        return {
+            "rule": rule,
+            "rule_text": {
+                "open": "the bus is the in-process virtual bus: faults need no token",
+                "token": "a simulated node on a real bus: faults need the commissioning token",
+                "none": "no node is simulated in this gateway"
+                if not names
+                else "simulated nodes on a real bus: faults need web.writes: true and the token",
+            }[rule],
+            "actions": ACTIONS if rule != "none" else {},
+            "nodes": {n: self.faults.state(n) for n in names} if rule != "none" else {},
+        }
+
+    def _sim(self, request: Request, rest: str) -> Response | None:
+        from gateway.sim.faults import UnknownFault
+
+        rule = self.fault_rule()
+        if rule == "none":
+            return None  # absent: 404, as if it did not exist
+        if request.method != "POST":
+            return Response(HTTPStatus.METHOD_NOT_ALLOWED, b"POST only\n", headers={"Allow": "POST"})
+        if not request.headers.get("content-type", "").startswith("application/json"):
+            return _json(
+                HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
+                {"error": "bad_request", "message": "send Content-Type: application/json"},
+            )
+        if rule == "token":
+            refused = self._authorised(request)
+            if refused is not None:
+                return refused
+        node, _, action = rest.partition("/")
+        try:
+            result = self.faults.apply(node, action)
+        except UnknownFault as exc:
+            return self._not_found(str(exc))
+        log.warning("simulated fault: %s %s (from the web console)", node, action)
         return _json(HTTPStatus.OK, result)

@@ -49,7 +49,8 @@ class Subscriber:
     """One browser's stream: which node it watches (None: the overview and nodes table) and
     what changed since its last update."""
 
-    __slots__ = ("node", "dirty_values", "dirty_health", "wake", "sent", "skipped")
+    __slots__ = ("node", "dirty_values", "dirty_health", "wake", "sent", "skipped",
+                 "trend_seq", "event_seq")  # fmt: skip
 
     def __init__(self, node: str | None):
         self.node = node
@@ -58,6 +59,8 @@ class Subscriber:
         self.wake = asyncio.Event()
         self.sent = 0  # updates written
         self.skipped = 0  # turns skipped because the socket did not drain
+        self.trend_seq = 0  # the last trend sample sent (node pages)
+        self.event_seq = 0  # the last event of the event log sent (overview stream)
 
 
 #: render(subscriber, full) -> [(event name, JSON-able data)]; clears what it has rendered

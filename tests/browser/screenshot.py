@@ -5,7 +5,8 @@
 runs the gateway of the config in this process (its simulated nodes included; the Modbus,
 Zenoh and health ports of the config, or free ones when a running demo holds them;
 commissioning switched on with a throw-away token), waits until every node is operational and the page
-shows it live, and writes ``web-overview.png``, ``web-node.png`` and ``web-commissioning.png``.
+shows it live, and writes ``web-overview.png``, ``web-node.png``, ``web-commissioning.png``, ``web-trends.png``
+and ``web-events.png``.
 """
 
 from __future__ import annotations
@@ -59,6 +60,32 @@ def _shoot(base: str, out: Path, node: str) -> None:
         d.save_screenshot(str(out / "web-commissioning.png"))
 
 
+def _shoot_first_hour(base: str, out: Path, node: str = "wire") -> None:
+    """``web-trends.png``: the node page's trends, good for a while, then stale after the page's
+    fault button unplugged the simulated node; ``web-events.png``: the event log after it."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    with chromium(1280, 1000) as d:
+        d.get(f"{base}/node/{node}")
+        WebDriverWait(d, 30).until(
+            lambda d: d.execute_script("return trendCharts.position ? trendCharts.position.t.length : 0") >= 30
+        )
+        d.find_element(By.CSS_SELECTOR, '#fault-buttons button[data-fault="unplug"]').click()
+        WebDriverWait(d, 30).until(
+            lambda d: d.execute_script(
+                "const c = trendCharts.position; return c.stale.filter(v => v !== null).length"
+            ) >= 12
+        )
+        d.execute_script("document.getElementById('h-faults').scrollIntoView()")
+        d.save_screenshot(str(out / "web-trends.png"))
+        d.find_element(By.CSS_SELECTOR, '#fault-buttons button[data-fault="plug"]').click()
+        d.get(base + "/events")
+        WebDriverWait(d, 30).until(lambda d: d.find_elements(By.CSS_SELECTOR, "#events tbody tr[data-kind]"))
+        WebDriverWait(d, 30).until(lambda d: "lost -> alive" in d.find_element(By.ID, "events").text)
+        d.save_screenshot(str(out / "web-events.png"))
+
+
 def _port_or_free(port: int) -> int:
     """``port`` when nothing listens on it (the picture then shows the config's ports)."""
     with socket.socket() as s:
@@ -88,6 +115,7 @@ async def main(config: str, out_dir: str, node: str = "display") -> None:
         for n in cfg.nodes:
             await wait_until(lambda n=n: node_operational(gw, n.name), 15, f"{n.name} operational")
         await asyncio.to_thread(_shoot, f"http://127.0.0.1:{gw.health.port}", out, node)
+        await asyncio.to_thread(_shoot_first_hour, f"http://127.0.0.1:{gw.health.port}", out)
     finally:
         await gw.stop()
 

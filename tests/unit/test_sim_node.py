@@ -316,3 +316,23 @@ def test_every_builtin_profile_boots_and_answers_1000h(family: str) -> None:
     assert reply.arbitration_id == 0x589 and reply.data[0] == 0x43
     if lp.profile.device_type is not None:
         assert int.from_bytes(reply.data[4:8], "little") == lp.profile.device_type
+
+
+def test_a_stopped_error_control_sends_no_heartbeat_and_answers_no_guarding(node: SimNode) -> None:
+    sdo(node, "2B 17 10 00 64 00 00 00", now=1.0)  # heartbeat 100 ms
+    nmt(node, 0x01, now=1.0)
+    sdo(node, "2B 00 18 05 32 00 00 00", now=1.0)  # TPDO1 every 50 ms
+    node.stop_error_control()
+    sent = frames(node.tick(1.1)) + frames(node.tick(1.15))
+    assert (0x701, "05") not in sent and any(cob == 0x181 for cob, _ in sent)  # PDOs go on
+    node.resume_error_control(1.2)
+    assert (0x701, "05") in frames(node.tick(1.2))  # the next heartbeat at once
+    sdo(node, "2B 17 10 00 00 00 00 00", now=1.3)  # heartbeat off: node guarding instead
+    rtr = frame(0x701, rtr=True, dlc=1)
+    node.stop_error_control()
+    assert frames(node.handle(rtr, 1.4)) == []
+    node.resume_error_control(1.5)
+    assert frames(node.handle(rtr, 1.5)) == [(0x701, "05")]
+    node.stop_error_control()
+    node.power_cycle(2.0)  # a restart brings the heartbeat back
+    assert not node.error_control_off

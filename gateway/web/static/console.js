@@ -286,10 +286,11 @@ async function initNode() {
   renderValues(doc.values);
   renderEmcy(doc.emcy);
   renderRegisters(doc.registers);
-  liveStream("/api/stream?node=" + encodeURIComponent(name), {
+  const es = liveStream("/api/stream?node=" + encodeURIComponent(name), {
     node: (d) => { renderNodeRow(d.row); renderEmcy(d.emcy); },
     values: renderValues,
   });
+  await initNodeFirstHour(name, doc, es);
 }
 
 // ------------------------------------------------------------------ commissioning
@@ -408,8 +409,219 @@ async function initCommission() {
   setConn("");
 }
 
+// ------------------------------------------------------------------ node page: trends, read, faults
+// Trends: samples come from the gateway (GET /api/trend/<node>, then "trend" events on the node's
+// stream once a second). Each sample has a quality: good values are drawn solid, stale ones
+// (last known value) grey and dashed, bad ones not at all (a gap).
+const QUALITY_WORDS = ["good", "stale", "bad"];
+const trendCharts = {}; // signal name -> { plot, t, good, stale, quality, unit, box }
+let trendWindowS = 300;
+
+function trendSize(box) {
+  return { width: Math.max(240, box.clientWidth - 4), height: 150 };
+}
+
+function trendLast(c) {
+  const n = c.t.length;
+  if (!n) return "no sample yet";
+  const q = QUALITY_WORDS[c.quality[n - 1]];
+  const v = q === "good" ? c.good[n - 1] : q === "stale" ? c.stale[n - 1] : null;
+  return (v === null ? "no valid value" : fmtNumber(v) + (c.unit ? " " + c.unit : "")) + " (" + q + ")";
+}
+
+function buildTrends(doc) {
+  const box = document.getElementById("trends");
+  box.replaceChildren();
+  if (!doc.signals.length) {
+    box.append(el("p", { class: "muted" }, "This node has no numeric process value to plot."));
+    return;
+  }
+  trendWindowS = doc.window_s || trendWindowS;
+  for (const s of doc.signals) {
+    const last = el("span", { class: "trend-last", "data-col": "last" }, "");
+    const plotBox = el("div", { class: "trend-plot" });
+    const fig = el("figure", { class: "trend", "data-signal": s.name },
+      el("figcaption", {}, el("span", { class: "code" }, s.name), s.unit ? " [" + s.unit + "]" : "", " ", last),
+      plotBox);
+    box.append(fig);
+    const c = { t: [], good: [], stale: [], quality: [], unit: s.unit, last, plot: null, box: plotBox };
+    const size = trendSize(plotBox);
+    c.plot = new uPlot({
+      width: size.width, height: size.height, legend: { show: false },
+      cursor: { drag: { x: false, y: false } },
+      scales: { x: { time: true } },
+      axes: [{ stroke: "#4d5560" }, { stroke: "#4d5560", size: 60 }],
+      series: [{}, { label: "good", stroke: "#0a57a4", width: 2, spanGaps: false },
+        { label: "stale", stroke: "#6b7580", width: 2, dash: [6, 4], spanGaps: false }],
+    }, [c.t, c.good, c.stale], plotBox);
+    trendCharts[s.name] = c;
+  }
+}
+
+function addTrend(doc) {
+  doc.signals.forEach((s, i) => {
+    const c = trendCharts[s.name];
+    if (!c) return;
+    const lastT = c.t.length ? c.t[c.t.length - 1] : -Infinity;
+    doc.t.forEach((t, k) => {
+      if (t <= lastT) return; // already shown (the stream's first update repeats the ring)
+      const v = doc.values[i][k], q = doc.quality[i][k];
+      c.t.push(t);
+      c.quality.push(q);
+      c.good.push(q === 0 ? v : null);
+      c.stale.push(q === 1 ? v : null);
+    });
+    const oldest = (doc.t.length ? doc.t[doc.t.length - 1] : Date.now() / 1000) - trendWindowS;
+    let drop = 0;
+    while (drop < c.t.length && c.t[drop] < oldest) drop++;
+    if (drop) for (const a of [c.t, c.good, c.stale, c.quality]) a.splice(0, drop);
+    c.plot.setData([c.t, c.good, c.stale]);
+    c.last.textContent = trendLast(c);
+  });
+}
+
+// Read buttons: configuration objects (source SDO) are read on request, through the gateway's
+// command service. The result stays in the value cell until the next read.
+const readResults = {};
+
+function showReads() {
+  for (const [name, text] of Object.entries(readResults)) {
+    const td = document.querySelector(`#signals tr[data-signal="${CSS.escape(name)}"] [data-col="value"]`);
+    if (td) td.textContent = text;
+  }
+}
+
+function addReadButtons(node) {
+  for (const [name, s] of Object.entries(nodeSignals)) {
+    if (s.source !== "SDO" || s.access === "wo") continue;
+    const td = document.querySelector(`#signals tr[data-signal="${CSS.escape(name)}"] [data-col="source"]`);
+    if (!td || td.querySelector("button")) continue;
+    const b = el("button", { type: "button", class: "read secondary", "data-read": name, title: "read " + s.object + " by SDO now" }, "Read");
+    b.setAttribute("aria-label", "Read " + name);
+    b.addEventListener("click", () => readObject(node, name, b));
+    td.append(" ", b);
+  }
+}
+
+async function readObject(node, name, button) {
+  button.disabled = true;
+  try {
+    const r = await fetch(`/api/read/${encodeURIComponent(node)}/${encodeURIComponent(name)}`, {
+      method: "POST", headers: { "Content-Type": "application/json" }, body: "{}",
+    });
+    let d;
+    try { d = await r.json(); } catch (e) { d = { message: "HTTP " + r.status }; }
+    if (r.ok) {
+      let t = (typeof d.value === "number" ? fmtNumber(d.value) : String(d.value)) + (d.unit ? " " + d.unit : "");
+      if (d.text) t += " (" + d.text + ")";
+      readResults[name] = t + " — read " + fmtTime(d.ts).split(" ").pop();
+    } else if (d.abort_code) {
+      readResults[name] = `SDO abort ${d.abort_code}: ${d.abort_text}`;
+    } else if (r.status === 429) {
+      readResults[name] = "too many reads: " + d.message;
+    } else {
+      readResults[name] = `not read (HTTP ${r.status}): ${d.message || ""}`;
+    }
+  } finally {
+    button.disabled = false;
+  }
+  showReads();
+}
+
+// Simulated faults (nodes simulated inside the gateway only; see GET /api/sim for the rule).
+async function initFaults(node) {
+  let sim;
+  try { sim = await getJSON("/api/sim"); } catch (e) { return; }
+  if (!sim.nodes || !sim.nodes[node]) return;
+  const sec = document.getElementById("sec-faults");
+  sec.hidden = false;
+  document.getElementById("fault-rule").textContent = "This node is simulated by the gateway: these buttons change what the simulated device does (" + sim.rule_text + "). Watch Modbus, Zenoh and this page follow.";
+  const box = document.getElementById("fault-buttons");
+  const result = document.getElementById("fault-result");
+  const show = (state) => {
+    box.dataset.unplugged = state.unplugged;
+    const words = [state.unplugged ? "unplugged" : "plugged in", state.heartbeat ? "heartbeat on" : "heartbeat off", state.emcy ? "EMCY " + state.emcy + " raised" : "no EMCY raised"];
+    document.getElementById("fault-state").textContent = "Simulated device: " + words.join(", ") + ".";
+  };
+  box.replaceChildren(el("p", { id: "fault-state" }, ""));
+  for (const [action, text] of Object.entries(sim.actions)) {
+    const b = el("button", { type: "button", class: "secondary", "data-fault": action, title: text }, action);
+    b.addEventListener("click", async () => {
+      const headers = { "Content-Type": "application/json" };
+      if (sim.rule === "token") headers["Authorization"] = "Bearer " + (sessionStorage.getItem(TOKEN_KEY) || "");
+      const r = await fetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
+      let d;
+      try { d = await r.json(); } catch (e) { d = { message: "HTTP " + r.status }; }
+      result.className = "result " + (r.ok ? "ok" : "err");
+      result.textContent = r.ok ? `${action}: done: ${text}` : `refused (HTTP ${r.status}): ${d.message || ""}` + (r.status === 401 ? " (unlock on the Commissioning page first)" : "");
+      if (r.ok) show(d.state);
+    });
+    box.append(b);
+  }
+  show(sim.nodes[node]);
+}
+
+async function initNodeFirstHour(name, doc, es) {
+  // trends and faults come before the signals table on the page
+  const signals = document.querySelector('section[aria-labelledby="h-signals"]');
+  signals.before(document.getElementById("sec-faults"), document.getElementById("sec-trends"));
+  addReadButtons(name);
+  es.addEventListener("values", showReads);
+  const trend = await getJSON("/api/trend/" + encodeURIComponent(name));
+  buildTrends(trend);
+  addTrend(trend);
+  es.addEventListener("trend", (ev) => addTrend(JSON.parse(ev.data)));
+  window.addEventListener("resize", () => {
+    for (const c of Object.values(trendCharts)) c.plot.setSize(trendSize(c.box));
+  });
+  await initFaults(name);
+}
+
+// ------------------------------------------------------------------ events page
+const events = []; // newest last; bounded like the gateway's ring
+const MAX_EVENTS_SHOWN = 500;
+
+function eventFilter() {
+  const node = document.getElementById("ev-node").value;
+  const kinds = new Set([...document.querySelectorAll('input[name="kind"]:checked')].map((i) => i.value));
+  return (e) => (!node || e.node === node) && kinds.has(e.kind);
+}
+
+const KIND_BADGE = { emcy: ["EMCY", "bad"], state: ["state", "info"], warning: ["warning", "stale"], error: ["error", "bad"] };
+
+function renderEvents() {
+  const keep = eventFilter();
+  const shown = events.filter(keep).reverse();
+  const tbody = document.querySelector("#events tbody");
+  tbody.replaceChildren(...(shown.length ? shown.map((e) => el("tr", { "data-kind": e.kind, "data-seq": String(e.seq) },
+    el("td", { class: "nowrap" }, fmtTime(e.ts)),
+    el("td", {}, badge(...(KIND_BADGE[e.kind] || [e.kind, "info"]))),
+    el("td", {}, e.node ? el("a", { href: "/node/" + encodeURIComponent(e.node) }, e.node) : el("span", { class: "muted" }, "gateway")),
+    el("td", { class: "event-text" }, e.text))) : [el("tr", {}, el("td", { colSpan: 4, class: "muted" }, "no event of these kinds yet"))]));
+  document.getElementById("ev-count").textContent = `${shown.length} of ${events.length} events shown`;
+}
+
+function addEvents(list) {
+  const last = events.length ? events[events.length - 1].seq : 0;
+  for (const e of list) if (e.seq > last) events.push(e);
+  if (events.length > MAX_EVENTS_SHOWN) events.splice(0, events.length - MAX_EVENTS_SHOWN);
+  renderEvents();
+}
+
+async function initEvents() {
+  const [ov, doc] = await Promise.all([getJSON("/api/overview"), getJSON("/api/events")]);
+  header(ov);
+  const sel = document.getElementById("ev-node");
+  const wanted = new URLSearchParams(location.search).get("node");
+  for (const r of ov.nodes) sel.append(el("option", { value: r.name, selected: r.name === wanted }, r.name));
+  sel.addEventListener("change", renderEvents);
+  for (const i of document.querySelectorAll('input[name="kind"]')) i.addEventListener("change", renderEvents);
+  addEvents(doc.events);
+  liveStream("/api/stream", { events: (d) => addEvents(d.events) });
+}
+
 // ------------------------------------------------------------------ start
-const INIT = { index: initIndex, node: initNode, commission: initCommission };
+const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents };
 INIT[page]().catch((err) => {
   setConn("error");
   const main = document.querySelector("main");

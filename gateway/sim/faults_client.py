@@ -1,0 +1,98 @@
+"""``canopen-gateway fault``: fault injection into a running gateway's simulated nodes from the
+command line, through the gateway's web API (``POST /api/sim/<node>/<action>`` on the health
+port; ``gateway.web.console``). The simulated nodes live inside the running gateway's process,
+so the request must reach that process; this command opens no CAN bus of its own.
+
+Exit codes: 0 done, 1 the gateway refused or could not be reached (the reason is printed),
+2 usage (as for every command).
+
+Imports: the standard library, config (types), sim.faults (the action names).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import urllib.error
+import urllib.request
+from typing import Any
+
+from gateway.config import Config
+from gateway.sim.faults import ACTIONS
+
+TIMEOUT_S = 5.0
+
+
+def base_url(cfg: Config, url: str | None) -> str:
+    if url:
+        return url.rstrip("/")
+    host = cfg.health.host
+    if host in ("0.0.0.0", "::", ""):
+        host = "127.0.0.1"
+    if ":" in host:
+        host = f"[{host}]"
+    return f"http://{host}:{cfg.health.port}"
+
+
+def _call(url: str, token: str | None, post: bool) -> tuple[int, dict[str, Any]]:
+    req = urllib.request.Request(url, data=b"{}" if post else None, method="POST" if post else "GET")
+    req.add_header("Content-Type", "application/json")
+    if token:
+        req.add_header("Authorization", f"Bearer {token}")
+    try:
+        with urllib.request.urlopen(req, timeout=TIMEOUT_S) as r:
+            return r.status, json.loads(r.read() or b"{}")
+    except urllib.error.HTTPError as e:
+        body = e.read()
+        try:
+            doc = json.loads(body)
+        except ValueError:
+            doc = {"message": body.decode("utf-8", "replace").strip() or e.reason}
+        return e.code, doc
+
+
+def run_fault(cfg: Config, node: str | None, action: str | None, url: str | None) -> int:
+    if cfg.health.port == 0 and not url:
+        print(
+            f"error: {cfg.source}: health.port is 0, so the running gateway serves no web API; "
+            "set health.port or pass --url",
+            file=sys.stderr,
+        )
+        return 1
+    base = base_url(cfg, url)
+    try:
+        if node is None:
+            code, doc = _call(base + "/api/sim", None, post=False)
+            if code == 404:
+                print(f"error: {base} has no fault injection (an older gateway?)", file=sys.stderr)
+                return 1
+            print(doc.get("rule_text", ""))
+            for name, state in (doc.get("nodes") or {}).items():
+                words = [
+                    "unplugged" if state["unplugged"] else "plugged",
+                    "heartbeat on" if state["heartbeat"] else "heartbeat off",
+                    f"EMCY {state['emcy']}" if state["emcy"] else "no EMCY raised",
+                ]
+                print(f"{name}: {', '.join(words)}")
+            print("actions: " + ", ".join(ACTIONS))
+            return 0
+        if action not in ACTIONS:
+            print(f"error: no fault {action!r}; one of {', '.join(ACTIONS)}", file=sys.stderr)
+            return 2
+        code, doc = _call(f"{base}/api/sim/{node}/{action}", cfg.web.token, post=True)
+    except (urllib.error.URLError, OSError) as exc:
+        reason = getattr(exc, "reason", exc)
+        print(
+            f"error: no gateway answers at {base} ({reason}); start it with this config "
+            f"(canopen-gateway run -c {cfg.source}) or pass --url",
+            file=sys.stderr,
+        )
+        return 1
+    if code != 200:
+        message = doc.get("message") or f"HTTP {code}"
+        if code == 404 and "not simulated" not in message and "no fault" not in message:
+            message = "the gateway at " + base + " simulates no node (fault injection is off)"
+        print(f"error: {message}", file=sys.stderr)
+        return 1
+    print(f"{node}: {action} done: {ACTIONS[action]}")
+    return 0
