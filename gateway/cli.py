@@ -1,4 +1,4 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|lss|eds|profile``.
+"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|lss|eds|profile|fault``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback. Imports everything it drives; nothing imports this module.
