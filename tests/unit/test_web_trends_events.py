@@ -26,6 +26,7 @@ def _meta(name: str, source: str = "TPDO") -> SignalMeta:
 def _store(samples: int = 600) -> tuple[TrendStore, NodeImage]:
     image = ProcessImage()
     node = NodeImage("wire", 1, "sgh10", ["position", "velocity", "alarms"])
+    node.bind(("position", "velocity"))  # as the master binds a TPDO's record when it builds the node
     image.add_node(node)
     metas = {n: _meta(n) for n in ("position", "velocity", "alarms")}
     return TrendStore(image, {"wire": metas}, samples=samples), node
