@@ -169,12 +169,15 @@ async def test_a_32_bit_value_read_in_one_request_is_never_torn() -> None:
     async with running([WIRE], motion) as (gw, client):
         assert gw.image.nodes["wire"].signals["position"].value < 0, "the ramp must start below zero"
         seen = 0
-        deadline = time.monotonic() + 3
+        deadline = time.monotonic() + 10  # a bound on a stuck ramp, not a measure of speed
         while gw.image.nodes["wire"].signals["position"].value < 2000 and time.monotonic() < deadline:
             before = gw.image.nodes["wire"].signals["position"].value
-            regs = (await client.read_input_registers(100, count=2, device_id=1)).registers
+            rr = await client.read_input_registers(100, count=2, device_id=1)
             after = gw.image.nodes["wire"].signals["position"].value
-            assert before <= s32(regs) <= after, (before, regs, after)
+            if rr.isError():  # a starved machine may see the node stale for a moment: said so
+                assert rr.exception_code == 0x0B, rr
+                continue
+            assert before <= s32(rr.registers) <= after, (before, rr.registers, after)
             seen += 1
         assert gw.image.nodes["wire"].signals["position"].value >= 2000, "the ramp did not cross zero in time"
         assert seen > 10
