@@ -25,6 +25,7 @@ from gateway.metrics import modbus_function_label
 from gateway.modbus.regmap import build_register_map
 from gateway.modbus.server import ModbusGateway
 from gateway.profiles import load_node_profile
+from gateway.startup import startup_step
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
@@ -226,19 +227,42 @@ class Gateway:
         return doc
 
     async def start(self) -> None:
+        """Start every part; on a failure, stop what started and raise ``StartupError`` (the
+        setting and its value), so the process can exit with nothing left open."""
+        try:
+            await self._start()
+        except BaseException:
+            await self.stop()
+            raise
+
+    async def _start(self) -> None:
+        cfg = self.cfg
         if self.zenoh is not None:
+            z = cfg.zenoh
+            key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)
+            files = {
+                f"zenoh.{section}.{k}": v
+                for section in ("tls", "auth")
+                for k, v in (getattr(z, section).model_dump() if getattr(z, section) else {}).items()
+                if isinstance(v, str) and k.endswith(("_file", "certificate", "key"))
+            }
             # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
-            await self.zenoh.open()
+            with startup_step(key, ", ".join(where), files):
+                await self.zenoh.open()
         if self.sim is not None:
-            self.sim.start()
-        await asyncio.to_thread(self.driver.open)
+            with startup_step("can.channel", cfg.can.channel):
+                self.sim.start()
+        with startup_step("can.interface", cfg.can.interface):
+            await asyncio.to_thread(self.driver.open)
         await self.master.start()
         if self.modbus is not None:
-            await self.modbus.start()
+            with startup_step("modbus.port", f"{cfg.modbus.port} on {cfg.modbus.host}"):
+                await self.modbus.start()
         if self.zenoh is not None:
             await self.zenoh.start()
-        if self.cfg.health.port:
-            await self._start_health()
+        if cfg.health.port:
+            with startup_step("health.port", f"{cfg.health.port} on {cfg.health.host}"):
+                await self._start_health()
         self.started = True
 
     async def _start_health(self) -> None:

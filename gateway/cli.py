@@ -76,11 +76,15 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     cfg = _load_for_bus(args.config)
     _setup_logging(args.log_level or cfg.gateway.log_level)
+    from gateway.startup import StartupError
     from gateway.zenoh_bridge.bridge import PrefixInUse
 
     gw = Gateway(cfg, simulate=not args.no_simulate)
     try:
         asyncio.run(_run_until_signal(gw.start, gw.stop, gw.summary))
+    except StartupError as exc:  # a port in use, a file missing: one line, everything closed
+        print(exc.line(args.config), file=sys.stderr)
+        return EXIT_CONFIG
     except PrefixInUse as exc:  # a configuration problem: two gateways under one prefix
         print(f"error: {args.config}: zenoh.prefix: {exc}", file=sys.stderr)
         return EXIT_CONFIG
