@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import sys
 import time
@@ -30,12 +31,17 @@ def _load(path: str) -> Config:
 def _load_for_bus(path: str) -> Config:
     """The config of a command that opens the CAN bus: also refuses an interface python-can
     cannot load (unknown name, plug-in not installed), in one line, before anything starts."""
-    from gateway.bus.can_backend import interface_problem
+    from gateway.bus.can_backend import can_section_problems, driver_problem, interface_problem
+    from gateway.config import blame, env_keys
 
     cfg = _load(path)
-    problem = interface_problem(cfg.can.interface)
+    from_env = env_keys(os.environ)
+    problem = interface_problem(cfg.can.interface) or driver_problem(cfg.can.interface)
     if problem is not None:
-        raise ConfigError([f"{cfg.source}: can.interface: {problem}"])
+        raise ConfigError([f"{blame('can.interface', cfg.source, from_env)}: can.interface: {problem}"])
+    problems = can_section_problems(cfg.can.model_dump(exclude_none=True))
+    if problems:
+        raise ConfigError([f"{blame(k, cfg.source, from_env)}: {k}: {why}" for k, why in problems])
     return cfg
 
 
