@@ -173,6 +173,7 @@ class Gateway:
             "ready": ready,
             "threads": {"failed": dead},
             "bus": {"state": self.driver.state, "detail": self.driver.last_error},
+            "bus_peers": self.master.peers.doc(),
             "modbus": modbus_up,
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
@@ -192,6 +193,7 @@ class Gateway:
                 "reopens": self.driver.reopens,
             },
             "threads_failed": self.threads.failures(),
+            "peers": self.master.peers.doc(),
             "counters": {},
         }
         if self.modbus is not None:
@@ -311,6 +313,9 @@ class Gateway:
         c = self.metrics.counters
         ic = self.image.counters
         c.frames_in, c.frames_out, c.bus_errors = ic["frames_in"], ic["frames_out"], ic["bus_errors"]
+        peers = self.master.peers
+        c.other_master = {kind: s.count for kind, s in peers.other_master.items()}
+        c.other_sdo_client = {node: s.count for node, s in peers.sdo_clients.items()}
         for name, node in self.image.nodes.items():
             for reason, n in (
                 ("short", node.rx.pdo_too_short),

@@ -88,6 +88,15 @@ function header(doc) {
 }
 
 // ------------------------------------------------------------------ overview + nodes
+// Another master (NMT we did not send, our heartbeat COB-ID from elsewhere) or another SDO
+// client: what was seen last and how often; "none seen" otherwise.
+function peerFacts(seen, kind) {
+  const entries = Object.entries(seen || {});
+  if (!entries.length) return "none seen";
+  return el("span", { class: "peers" }, ...entries.map(([k, v]) =>
+    el("span", {}, badge(k, kind), ` ${v.detail} (${v.count}×) `)));
+}
+
 function renderOverview(o) {
   const can = o.can || {};
   const rates = o.rates || {};
@@ -108,6 +117,9 @@ function renderOverview(o) {
     ["Error frames", String(o.bus_errors)],
     ["Reopens", String(can.reopens || 0)],
     ["Undecodable", `${o.decode_errors} frames, ${o.unknown_cob_id} unknown COB-IDs`],
+    ["Other masters", peerFacts((o.peers || {}).other_master, "bad")],
+    ["Other SDO clients", peerFacts((o.peers || {}).other_sdo_clients, "info")],
+    ["Unconfigured ids", ((o.peers || {}).unconfigured_node_ids || []).join(", ") || "none"],
   ]);
   const mb = o.modbus;
   setFacts(document.getElementById("ov-modbus"), mb ? [
