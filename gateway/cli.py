@@ -112,10 +112,15 @@ def cmd_check(args: argparse.Namespace) -> int:
         sim = " (simulated)" if n in cfg.simulated_nodes() else ""
         print(
             f"  node {n.name}: id {n.node_id}, {lp.profile.title or n.device}{sim}; "
-            f"{len(pdo_sigs)} process signals ({', '.join(pdo_sigs)}), "
-            f"{len(sdo_sigs)} configuration objects"
+            f"{_count(len(pdo_sigs), 'process signal')} ({', '.join(pdo_sigs)}), "
+            f"{_count(len(sdo_sigs), 'configuration object')}"
         )
     return 0
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 process signal``, ``2 process signals``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def cmd_registers(args: argparse.Namespace) -> int:
@@ -181,7 +186,9 @@ def _node_name(cfg: Config, node: str) -> str:
     for n in cfg.nodes:
         if n.name == node or str(n.node_id) == node:
             return n.name
-    raise SystemExit(f"error: no node {node!r} in {cfg.source}; nodes: {', '.join(n.name for n in cfg.nodes)}")
+    nodes = ", ".join(f"{n.name} (id {n.node_id})" for n in cfg.nodes)
+    print(f"error: no node {node!r} in {cfg.source}; nodes: {nodes}", file=sys.stderr)
+    raise SystemExit(EXIT_CONFIG)  # an argument error, like argparse's
 
 
 def cmd_sdo(args: argparse.Namespace) -> int:
@@ -195,7 +202,8 @@ def cmd_sdo(args: argparse.Namespace) -> int:
         if args.op == "read":
             return await gw.commands.sdo_read(name, args.object, args.type)
         if args.value is None:
-            raise SystemExit("error: sdo write needs a VALUE")
+            print("error: sdo write needs a VALUE", file=sys.stderr)
+            raise SystemExit(EXIT_CONFIG)
         await gw.commands.sdo_write(name, args.object, args.value, args.type)
         return "OK"
 

@@ -23,7 +23,15 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from gateway import keyexpr
 from gateway.objref import ObjRef
@@ -31,6 +39,9 @@ from gateway.profiles import ProfileError, load_node_profile
 from gateway.profiles.schema import HexInt, SignalType
 
 ENV_PREFIX = "CANOPEN_GATEWAY__"
+#: keys whose environment values are taken as written, never as YAML numbers (a token of
+#: digits, "0123...", must keep its leading zero)
+ENV_TEXT_KEYS = frozenset({"token", "password"})
 
 
 class ConfigError(Exception):
@@ -369,6 +380,16 @@ class WebSection(_Model):
         description="password of the commissioning page; or CANOPEN_GATEWAY__WEB__TOKEN",
     )
 
+    @field_validator("token", mode="before")
+    @classmethod
+    def _token_text(cls, v: Any) -> Any:
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            raise ValueError(
+                "YAML read a number here; a token is text: put it in quotes "
+                "(token: \"0123456789012\")"
+            )
+        return v
+
     @model_validator(mode="after")
     def _token(self) -> WebSection:
         if self.writes and not self.token:
@@ -533,6 +554,8 @@ def apply_env_overrides(raw: dict[str, Any], environ: Mapping[str, str]) -> list
         try:
             parsed = yaml.safe_load(value) if value != "" else ""
         except yaml.YAMLError:
+            parsed = value
+        if path[-1] in ENV_TEXT_KEYS:
             parsed = value
         node: Any = raw
         for i, part in enumerate(path):
