@@ -170,6 +170,10 @@ async def _with_master(cfg: Config, fn: Any) -> Any:
     cfg.zenoh.enabled = False
     cfg.health.port = 0
     cfg.master.probe_at_start = False
+    # no heartbeat and no SYNC of its own: beside a gateway they would be a second master's
+    # (the gateway warns about a heartbeat on its COB-ID; a second SYNC doubles sync TPDOs)
+    cfg.master.heartbeat_ms = 0
+    cfg.master.sync_period_ms = 0
     for n in cfg.nodes:
         n.configure = False
     cfg.health.port = 0  # a commissioning command opens no server
@@ -191,19 +195,62 @@ def _node_name(cfg: Config, node: str) -> str:
     raise SystemExit(EXIT_CONFIG)  # an argument error, like argparse's
 
 
+def _beside(cfg: Config, command: str) -> Any:
+    """A running gateway to go through (its Zenoh API), when the bus is in-process; exits 2
+    with one line when a gateway runs that cannot be reached (see gateway.tools.beside)."""
+    from gateway.tools import beside
+
+    if not beside.in_process_bus(cfg):
+        return None
+    running = beside.find_running_gateway(cfg)
+    if running is not None:
+        return running
+    line = beside.refusal(cfg, command) if cfg.simulated_nodes() else None
+    if line is not None:
+        print(line, file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+    if cfg.simulated_nodes():
+        print(beside.private_note(cfg), file=sys.stderr)
+    return None
+
+
+def _through(running: Any, fn: Any) -> tuple[int, Any]:
+    """Run ``fn(running)`` against a running gateway; errors as one line (exit 1)."""
+    from gateway.tools.beside import RemoteError
+
+    try:
+        return 0, fn(running)
+    except RemoteError as exc:
+        print(f"error: {exc} (through the running gateway at {running.endpoint})", file=sys.stderr)
+        return EXIT_FAILED, None
+    finally:
+        running.close()
+
+
 def cmd_sdo(args: argparse.Namespace) -> int:
     from gateway.errors import GatewayError
 
     cfg = _load_for_bus(args.config)
     name = _node_name(cfg, args.node)
     cfg.master.sdo_timeout_s = args.timeout
+    if args.op == "write" and args.value is None:
+        print("error: sdo write needs a VALUE", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+    running = _beside(cfg, f"sdo {args.op}")
+    if running is not None:
+        if args.op == "read":
+            code, result = _through(running, lambda r: r.sdo_read(name, args.object, args.type))
+        else:
+            code, result = _through(
+                running, lambda r: r.sdo_write(name, args.object, args.value, args.type) or "OK"
+            )
+        if code:
+            return code
+        return _print_sdo(cfg, name, args, result)
 
     async def op(gw: Any) -> Any:
         if args.op == "read":
             return await gw.commands.sdo_read(name, args.object, args.type)
-        if args.value is None:
-            print("error: sdo write needs a VALUE", file=sys.stderr)
-            raise SystemExit(EXIT_CONFIG)
         await gw.commands.sdo_write(name, args.object, args.value, args.type)
         return "OK"
 
@@ -212,6 +259,10 @@ def cmd_sdo(args: argparse.Namespace) -> int:
     except GatewayError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_FAILED
+    return _print_sdo(cfg, name, args, result)
+
+
+def _print_sdo(cfg: Config, name: str, args: argparse.Namespace, result: Any) -> int:
     if isinstance(result, (bytes, bytearray)):
         result = bytes(result).hex(" ")
     if isinstance(result, int) and not isinstance(result, bool):
@@ -256,6 +307,14 @@ def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
 def cmd_nmt(args: argparse.Namespace) -> int:
     cfg = _load_for_bus(args.config)
     name = "all" if args.node == "all" else _node_name(cfg, args.node)
+    running = _beside(cfg, "nmt")
+    if running is not None:
+        names = [n.name for n in cfg.nodes] if name == "all" else [name]
+        code, _ = _through(running, lambda r: [r.nmt(n, args.command) for n in names])
+        if code:
+            return code
+        print(f"NMT {args.command} sent to {name} through the running gateway at {running.endpoint}")
+        return 0
 
     async def op(gw: Any) -> None:
         gw.commands.nmt(name, args.command)

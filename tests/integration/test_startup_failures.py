@@ -5,12 +5,8 @@ restart it and a second start on free ports works."""
 
 from __future__ import annotations
 
-import selectors
 import socket
-import subprocess
-import sys
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -20,9 +16,8 @@ import yaml
 
 from gateway.app import Gateway
 from gateway.startup import StartupError
-from tests.helpers import free_port, make_config, unique_channel
+from tests.helpers import free_port, gateway_process, make_config, unique_channel, wait_ready
 
-REPO = Path(__file__).resolve().parents[2]
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 GATEWAY_THREADS = ("can-reader", "can-sender", "zenoh-events", "sim-runner")
 
@@ -40,31 +35,6 @@ def write_config(path: Path, modbus: int, zenoh: int, health: int) -> Path:
     }
     path.write_text(yaml.safe_dump(raw), encoding="utf-8")
     return path
-
-
-def gateway_process(config: Path) -> subprocess.Popen[str]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "gateway", "run", "-c", str(config), "--log-level", "warning"],
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-
-
-def wait_ready(proc: subprocess.Popen[str], timeout_s: float = 60.0) -> str:
-    """The summary line a gateway prints once everything listens (bounded wait)."""
-    assert proc.stdout is not None
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if sel.select(timeout=deadline - time.monotonic()):
-            line = proc.stdout.readline()
-            if line:
-                return line
-            raise AssertionError(f"gateway exited before it was ready: {proc.wait()}")
-    raise AssertionError("gateway did not become ready")
 
 
 def port_free(port: int) -> bool:
