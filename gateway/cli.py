@@ -1,4 +1,4 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|lss|eds|profile``.
+"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback. Imports everything it drives; nothing imports this module.
@@ -324,6 +324,81 @@ def cmd_nmt(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
+    """The bus a listening tool (scan, monitor) opens, and the simulated devices it runs when
+    the bus is in-process and no gateway runs on it; exits 2 in one line when a gateway runs
+    on an in-process bus (a second process cannot join it)."""
+    import can
+
+    from gateway.app import SimulatedBus
+    from gateway.tools import beside
+
+    sim = None
+    if beside.in_process_bus(cfg):
+        running = beside.find_running_gateway(cfg)
+        line = beside.refusal(cfg, command)
+        if running is not None:
+            running.close()
+            line = line or (
+                f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway "
+                f"running at {running.endpoint}, so `{command}` cannot join it; give both a bus "
+                "they share (can.interface: remote, docs/canopen.md)"
+            )
+        if line is not None:
+            print(line, file=sys.stderr)
+            raise SystemExit(EXIT_CONFIG)
+    bus = can.Bus(**cfg.can.bus_kwargs())
+    if beside.in_process_bus(cfg) and cfg.simulated_nodes():
+        print(beside.private_note(cfg), file=sys.stderr)
+        sim = SimulatedBus(cfg)
+        sim.start()  # after the tool's bus is open: it sees the boot-ups
+    return bus, sim
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    from gateway.tools.scan import report, scan
+
+    cfg = _load_for_bus(args.config)
+    bus, sim = _tool_bus(cfg, "scan")
+    try:
+        found = scan(bus, listen_s=args.listen, active=args.active, sdo_timeout_s=args.timeout)
+    finally:
+        bus.shutdown()
+        if sim is not None:
+            sim.stop()
+    print("\n".join(report(found, cfg, args.active)))
+    return 0
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from gateway.tools.frames import FrameDecoder
+    from gateway.tools.monitor import kind_filter, monitor, node_filter
+
+    cfg = _load_for_bus(args.config)
+    try:
+        nodes = node_filter(cfg, _split(args.node))
+        kinds = kind_filter(_split(args.kind))
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    decoder = FrameDecoder(cfg)
+    bus, sim = _tool_bus(cfg, "monitor")
+    try:
+        monitor(bus, decoder, sys.stdout, nodes=nodes, kinds=kinds, count=args.count,
+                duration_s=args.duration)  # fmt: skip
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bus.shutdown()
+        if sim is not None:
+            sim.stop()
+    return 0
+
+
+def _split(values: list[str] | None) -> list[str]:
+    return [v for item in values or [] for v in item.split(",") if v]
+
+
 def cmd_eds_show(args: argparse.Namespace) -> int:
     from gateway.eds import EdsError, load_eds
     from gateway.eds.show import render
@@ -414,6 +489,20 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("command", choices=["start", "stop", "preop", "reset", "reset-comm"])
     sp.add_argument("node", help="node name, id, or 'all'")
     sp.set_defaults(fn=cmd_nmt)
+
+    sp = with_config(sub.add_parser("scan", help="which node ids are on the bus, and what they are"))
+    sp.add_argument("--active", action="store_true", help="also read 1000h, 1008h, 1018h of ids 1..127")
+    sp.add_argument("--listen", type=float, default=1.5, metavar="S", help="passive listening time")
+    sp.add_argument("--timeout", type=float, default=0.1, metavar="S", help="SDO timeout of --active")
+    sp.set_defaults(fn=cmd_scan)
+
+    sp = with_config(sub.add_parser("monitor", help="print the bus traffic in CANopen words"))
+    sp.add_argument("--node", action="append", metavar="NAME|ID", help="only these nodes (repeat or comma)")
+    sp.add_argument("--kind", action="append", metavar="KIND",
+                    help="only these kinds: nmt, sync, time, emcy, pdo, sdo, heartbeat, lss, other")  # fmt: skip
+    sp.add_argument("--count", type=int, help="stop after this many lines")
+    sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    sp.set_defaults(fn=cmd_monitor)
 
     sp = sub.add_parser("eds", help="inspect an EDS or DCF (checked as when loaded)")
     eds_sub = sp.add_subparsers(dest="eds_command", required=True, metavar="ACTION")

@@ -167,3 +167,17 @@ def test_a_tool_on_a_shared_bus_sends_no_heartbeat_and_no_sync(
         network.disconnect()
     assert 0x601 in seen and 0x581 in seen  # the SDO exchange itself
     assert 0x77F not in seen and 0x080 not in seen
+
+
+@pytest.mark.parametrize("command", [["scan"], ["monitor", "--count", "1"]])
+def test_listening_tools_beside_a_gateway_on_an_in_process_bus_refuse_in_one_line(
+    running: Path, command: list[str]
+) -> None:
+    r = cli(*command, "-c", str(running))
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith(
+        f"error: {running}: can.interface: virtual: the bus lives inside the gateway"
+    )
+    assert f"so `{command[0]}`" in lines[0] and "can.interface: remote, docs/canopen.md" in lines[0]
