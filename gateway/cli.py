@@ -32,10 +32,12 @@ def _load_for_bus(path: str) -> Config:
     """The config of a command that opens the CAN bus: also refuses an interface python-can
     cannot load (unknown name, plug-in not installed), in one line, before anything starts."""
     from gateway.bus.can_backend import can_section_problems, driver_problem, interface_problem
-    from gateway.config import blame, env_keys
+    from gateway.config import CAN_INTERFACE_MISSING, blame, env_keys
 
     cfg = _load(path)
     from_env = env_keys(os.environ)
+    if "interface" not in cfg.can.model_fields_set:  # written in the file or the environment
+        raise ConfigError([f"{cfg.source}: can.interface: {CAN_INTERFACE_MISSING}"])
     problem = interface_problem(cfg.can.interface) or driver_problem(cfg.can.interface)
     if problem is not None:
         raise ConfigError([f"{blame('can.interface', cfg.source, from_env)}: can.interface: {problem}"])

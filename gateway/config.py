@@ -750,21 +750,11 @@ def load_config(path: str | os.PathLike[str], environ: Mapping[str, str] | None 
             [f"{source}: the file is empty; a config needs at least can: and nodes: "
              "(see config/demo.yaml)"]
         )
-    missing = []
-    if isinstance(raw, dict) and ENV_PREFIX + "CAN__INTERFACE" not in environ:
-        can_raw = raw.get("can")
-        if not isinstance(can_raw, dict) or "interface" not in can_raw:
-            missing.append(f"{source}: can.interface: {CAN_INTERFACE_MISSING}")
-    try:
-        cfg = parse_config(raw, source, environ)
-    except ConfigError as exc:
-        raise ConfigError(missing + exc.problems) from None
-    if missing:
-        raise ConfigError(missing)
-    return cfg
+    return parse_config(raw, source, environ)
 
 
-#: A file must say which bus it runs on: the in-process ``virtual`` bus is not a silent default.
+#: A config that opens the bus must say which one: the in-process ``virtual`` bus is not a
+#: silent default (``can.interface`` must be written; checked by the commands that open the bus).
 CAN_INTERFACE_MISSING = (
     "required key is missing: the CAN interface python-can opens (socketcan, pcan, kvaser, "
     "ixxat, slcan, remote, ...; virtual for simulated devices in this process, without hardware)"
