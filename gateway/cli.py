@@ -326,6 +326,51 @@ def cmd_nmt(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eds_show(args: argparse.Namespace) -> int:
+    from gateway.eds import EdsError, load_eds
+    from gateway.eds.show import render
+
+    try:
+        eds = load_eds(args.file)
+    except EdsError as exc:
+        raise ConfigError(exc.problems) from None
+    sys.stdout.write(render(eds, args.node_id))
+    return 0
+
+
+def cmd_profile_init(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from gateway.eds import EdsError, load_eds
+    from gateway.eds.show import overlay_profile
+
+    try:
+        eds = load_eds(args.eds)
+    except EdsError as exc:
+        raise ConfigError(exc.problems) from None
+    if args.output:
+        out = Path(args.output)
+        if out.exists() and not args.force:
+            print(f"error: {out} exists (use --force to overwrite)", file=sys.stderr)
+            return EXIT_FAILED
+        try:
+            ref = str(eds.path.relative_to(out.resolve().parent))
+        except ValueError:
+            ref = str(eds.path)
+        out.write_text(overlay_profile(eds, ref), encoding="utf-8")
+        print(f"wrote {out}")
+    else:
+        sys.stdout.write(overlay_profile(eds, args.eds))
+    return 0
+
+
+def cmd_lss(args: argparse.Namespace) -> int:
+    from gateway.bus.lss_cli import run_lss
+
+    cfg = _load(args.config)
+    return run_lss(cfg, args)
+
+
 def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
     """The bus a listening tool (scan, monitor) opens, and the simulated devices it runs when
     the bus is in-process and no gateway runs on it; exits 2 in one line when a gateway runs
@@ -429,51 +474,6 @@ def _split(values: list[str] | None) -> list[str]:
     return [v for item in values or [] for v in item.split(",") if v]
 
 
-def cmd_eds_show(args: argparse.Namespace) -> int:
-    from gateway.eds import EdsError, load_eds
-    from gateway.eds.show import render
-
-    try:
-        eds = load_eds(args.file)
-    except EdsError as exc:
-        raise ConfigError(exc.problems) from None
-    sys.stdout.write(render(eds, args.node_id))
-    return 0
-
-
-def cmd_profile_init(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from gateway.eds import EdsError, load_eds
-    from gateway.eds.show import overlay_profile
-
-    try:
-        eds = load_eds(args.eds)
-    except EdsError as exc:
-        raise ConfigError(exc.problems) from None
-    if args.output:
-        out = Path(args.output)
-        if out.exists() and not args.force:
-            print(f"error: {out} exists (use --force to overwrite)", file=sys.stderr)
-            return EXIT_FAILED
-        try:
-            ref = str(eds.path.relative_to(out.resolve().parent))
-        except ValueError:
-            ref = str(eds.path)
-        out.write_text(overlay_profile(eds, ref), encoding="utf-8")
-        print(f"wrote {out}")
-    else:
-        sys.stdout.write(overlay_profile(eds, args.eds))
-    return 0
-
-
-def cmd_lss(args: argparse.Namespace) -> int:
-    from gateway.bus.lss_cli import run_lss
-
-    cfg = _load(args.config)
-    return run_lss(cfg, args)
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="canopen-gateway",
@@ -520,6 +520,29 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("node", help="node name, id, or 'all'")
     sp.set_defaults(fn=cmd_nmt)
 
+    sp = sub.add_parser("eds", help="inspect an EDS or DCF (checked as when loaded)")
+    eds_sub = sp.add_subparsers(dest="eds_command", required=True, metavar="ACTION")
+    show = eds_sub.add_parser("show", help="print the objects and the PDO mappings as tables")
+    show.add_argument("file", metavar="FILE", help="EDS or DCF file")
+    show.add_argument("--node-id", type=int, help="resolve $NODEID for this node id")
+    show.set_defaults(fn=cmd_eds_show)
+
+    sp = sub.add_parser("profile", help="device profiles (overlays on an EDS)")
+    prof_sub = sp.add_subparsers(dest="profile_command", required=True, metavar="ACTION")
+    init = prof_sub.add_parser("init", help="write an editable overlay profile from an EDS")
+    init.add_argument("--eds", required=True, metavar="FILE", help="EDS or DCF file")
+    init.add_argument("-o", "--output", metavar="FILE", help="profile .yaml to write (default: stdout)")
+    init.add_argument("--force", action="store_true", help="overwrite an existing file")
+    init.set_defaults(fn=cmd_profile_init)
+
+    sp = with_config(sub.add_parser("lss", help="LSS commissioning (CiA 305)"))
+    sp.add_argument(
+        "action",
+        choices=["inquire", "set-node-id", "set-bitrate", "store", "switch-global", "switch-selective", "auto-id"],
+    )
+    sp.add_argument("args", nargs="*", help="action arguments (see docs/canopen.md)")
+    sp.set_defaults(fn=cmd_lss)
+
     sp = with_config(sub.add_parser("scan", help="which node ids are on the bus, and what they are"))
     sp.add_argument("--active", action="store_true", help="also read 1000h, 1008h, 1018h of ids 1..127")
     sp.add_argument("--listen", type=float, default=1.5, metavar="S", help="passive listening time")
@@ -543,29 +566,6 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("node", help="simulated node name")
     sp.add_argument("fault", choices=list(FAULTS))
     sp.set_defaults(fn=cmd_fault)
-
-    sp = sub.add_parser("eds", help="inspect an EDS or DCF (checked as when loaded)")
-    eds_sub = sp.add_subparsers(dest="eds_command", required=True, metavar="ACTION")
-    show = eds_sub.add_parser("show", help="print the objects and the PDO mappings as tables")
-    show.add_argument("file", metavar="FILE", help="EDS or DCF file")
-    show.add_argument("--node-id", type=int, help="resolve $NODEID for this node id")
-    show.set_defaults(fn=cmd_eds_show)
-
-    sp = sub.add_parser("profile", help="device profiles (overlays on an EDS)")
-    prof_sub = sp.add_subparsers(dest="profile_command", required=True, metavar="ACTION")
-    init = prof_sub.add_parser("init", help="write an editable overlay profile from an EDS")
-    init.add_argument("--eds", required=True, metavar="FILE", help="EDS or DCF file")
-    init.add_argument("-o", "--output", metavar="FILE", help="profile .yaml to write (default: stdout)")
-    init.add_argument("--force", action="store_true", help="overwrite an existing file")
-    init.set_defaults(fn=cmd_profile_init)
-
-    sp = with_config(sub.add_parser("lss", help="LSS commissioning (CiA 305)"))
-    sp.add_argument(
-        "action",
-        choices=["inquire", "set-node-id", "set-bitrate", "store", "switch-global", "switch-selective", "auto-id"],
-    )
-    sp.add_argument("args", nargs="*", help="action arguments (see docs/canopen.md)")
-    sp.set_defaults(fn=cmd_lss)
     return p
 
 
