@@ -250,6 +250,14 @@ function qualityCell(q) {
   return el("span", { class: "muted" }, q);
 }
 
+// Text that may wrap after each `sep` and nowhere else (Zenoh keys after "/", signal names
+// after "_"): the signals table fits 1280 px.
+function breakable(text, sep = "/") {
+  const out = [];
+  text.split(sep).forEach((part, i) => { if (i) out.push(sep, document.createElement("wbr")); out.push(part); });
+  return out;
+}
+
 function renderSignals(signals) {
   const tbody = document.querySelector("#signals tbody");
   tbody.replaceChildren();
@@ -257,7 +265,7 @@ function renderSignals(signals) {
   for (const s of signals) {
     nodeSignals[s.name] = s;
     const tr = el("tr", { "data-signal": s.name },
-      el("th", { scope: "row", title: s.description }, s.name),
+      el("th", { scope: "row", title: s.description }, ...breakable(s.name, "_")),
       el("td", { "data-col": "value", class: "num" }, ""),
       el("td", { "data-col": "unit" }, s.unit),
       el("td", { "data-col": "quality" }, ""),
@@ -265,7 +273,7 @@ function renderSignals(signals) {
       el("td", { "data-col": "source" }, s.source + (s.writable ? " (writable)" : "")),
       el("td", { "data-col": "object", class: "code" }, s.object),
       el("td", { "data-col": "modbus", class: "nowrap" }, s.modbus || el("span", { class: "muted" }, "not mapped")),
-      el("td", { "data-col": "zenoh", class: "code" }, s.zenoh.join("\n")));
+      el("td", { "data-col": "zenoh", class: "code" }, ...breakable(s.zenoh.join("\n"))));
     tbody.append(tr);
   }
 }
