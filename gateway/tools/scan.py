@@ -242,7 +242,9 @@ def report(found: dict[int, Found], cfg: Config, active: bool) -> list[str]:
         if profile:
             match.append(f"profile {profile}")
         n = configured.get(node_id)
-        if n is not None:
+        if node_id == cfg.master.node_id and n is None:
+            match.append(f"a master with this config's master.node_id {node_id} (the gateway?)")
+        elif n is not None:
             agrees = profile is None or n.profile in (None, profile)
             match.append(
                 f"config node {n.name} ({n.device})" + ("" if agrees else f", but the device looks like {profile}")
@@ -256,8 +258,9 @@ def report(found: dict[int, Found], cfg: Config, active: bool) -> list[str]:
     silent = [n for node_id, n in sorted(configured.items()) if node_id not in found]
     for n in silent:
         lines.append(f"{n.node_id:>3}  not found: config node {n.name} ({n.device})")
-    if silent and (set(found) - set(configured)):
-        others = ", ".join(str(i) for i in sorted(set(found) - set(configured)))
+    unknown = set(found) - set(configured) - {cfg.master.node_id}
+    if silent and unknown:
+        others = ", ".join(str(i) for i in sorted(unknown))
         lines.append(f"configured but not found: {', '.join(n.name for n in silent)}; "
                      f"found but not configured: node id {others} (a wrong node_id?)")  # fmt: skip
     if not found:

@@ -139,3 +139,42 @@ def test_scan_finds_our_simulator_a_local_node_and_a_scripted_heartbeat() -> Non
         "configured but not found: display; found but not configured: node id 7, 9 "
         "(a wrong node_id?)"
     ) in text
+
+
+async def test_the_console_scans_the_bus_beside_the_running_master() -> None:
+    """``POST /api/commission/scan`` (web.writes and the token): a second connection to the
+    gateway's bus finds its simulated wire and a LocalNode the config does not know."""
+    import asyncio
+    import json
+    import urllib.request
+
+    from gateway.app import Gateway
+    from tests.helpers import free_port, node_operational, wait_until
+
+    token = "scan-test-token-12"
+    cfg = make_config([WIRE], health={"port": free_port()}, web={"writes": True, "token": token})
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        await wait_until(lambda: node_operational(gw, "wire"), what="wire operational")
+        with local_node(cfg.can.channel, 7, "posi_plus"):
+
+            def post() -> dict:
+                req = urllib.request.Request(
+                    f"http://127.0.0.1:{gw.health.port}/api/commission/scan", data=b"{}",
+                    method="POST", headers={"Authorization": f"Bearer {token}"},
+                )  # fmt: skip
+                with urllib.request.urlopen(req, timeout=30) as r:
+                    return json.loads(r.read())
+
+            doc = await asyncio.to_thread(post)
+    finally:
+        await gw.stop()
+    assert doc["ok"] is True
+    # the gateway's own heartbeat (master.node_id 127) is seen on the bus too
+    assert sorted(n["node_id"] for n in doc["nodes"]) == [1, 7, 127]
+    rows = {line.split()[0]: line for line in doc["report"][1:]}
+    assert rows["1"].split()[1] == "operational"
+    assert rows["1"].endswith("profile sgh10; config node wire (sgh10)")
+    assert rows["7"].endswith("profile posi_plus; not in the config")
+    assert rows["127"].endswith("a master with this config's master.node_id 127 (the gateway?)")

@@ -353,6 +353,7 @@ function showResult(id, res) {
   if (res.ok) {
     const d = res.doc;
     if (id === "sdo-read") box.textContent = `${d.node} ${d.object} = ${d.value}`;
+    else if (id === "scan") box.textContent = d.report.join("\n");
     else if (id === "lss-inquire") box.textContent = ["vendor_id", "product_code", "revision", "serial", "node_id"].map((k) => `${k}: ${d[k]}`).join("\n");
     else box.textContent = "done: " + JSON.stringify(d);
   } else {
@@ -431,7 +432,7 @@ async function initCommission() {
   document.getElementById("lock").addEventListener("click", () => { sessionStorage.removeItem(TOKEN_KEY); showLocked(""); });
 
   const ops = { "sdo-read": (v) => v, "sdo-write": (v) => ({ ...v, value: v.type === "string" || v.type === "bytes" ? v.value : numberOrText(v.value || "") }),
-    "nmt": (v) => v, "set": (v) => ({ ...v, value: numberOrText(v.value || "") }), "lss-inquire": (v) => v };
+    "nmt": (v) => v, "set": (v) => ({ ...v, value: numberOrText(v.value || "") }), "lss-inquire": (v) => v, "scan": (v) => v };
   for (const [op, shape] of Object.entries(ops)) {
     document.getElementById("form-" + op).addEventListener("submit", async (ev) => {
       ev.preventDefault();
