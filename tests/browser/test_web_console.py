@@ -365,3 +365,29 @@ async def test_a_demo_fault_from_the_node_page_shows_the_node_lost(browser: Any)
         await run(browser.get, base + "/")
         await run(wait_for, browser, lambda d: cell(d, "wire", "presence") == "lost", "lost")
         assert await run(cell, browser, "wire", "quality") == "stale"
+
+
+async def test_the_commissioning_page_scans_the_bus(browser: Any) -> None:
+    async with gateway(writes=True) as (_, base):
+        from selenium.webdriver.common.by import By
+
+        def check() -> None:
+            browser.get(base + "/commissioning")
+            box = wait_for(browser, lambda d: d.find_element(By.ID, "token"), "the token box")
+            box.clear()
+            box.send_keys(TOKEN)
+            browser.find_element(By.CSS_SELECTOR, "#form-login button[type=submit]").click()
+            wait_for(browser, lambda d: d.find_element(By.ID, "ops").is_displayed(), "unlocked")
+            browser.find_element(By.CSS_SELECTOR, "#form-scan button").click()
+            result = wait_for(
+                browser,
+                lambda d: (
+                    "config node wire" in d.find_element(By.ID, "result-scan").text
+                    and d.find_element(By.ID, "result-scan").text
+                ),
+                "the scan",
+            )
+            assert "profile sgh10; config node wire (sgh10)" in result
+            assert "profile ap05; config node display (ap05)" in result
+
+        await run(check)
