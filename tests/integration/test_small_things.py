@@ -1,7 +1,7 @@
 """The small things a new user meets in the first hour: a closed pipe (``check | head -1``) and
 Ctrl-C during start-up end the program without a traceback; an unknown node is an argument
 error (exit 2); a token of digits gets our words; log lines read as sentences; the console
-has a favicon and offers the register map as a CSV file."""
+has a favicon."""
 
 from __future__ import annotations
 
