@@ -123,14 +123,6 @@ class WebConsole:
             return self._file("commission.html") if self.writes else None
         if path.startswith("/static/"):
             return self._file(path.removeprefix("/static/"))
-        if path == "/api/registers.csv":  # the whole map, as `canopen-gateway registers --csv`
-            name = f"{self.cfg.gateway.name}-registers.csv"
-            return Response(
-                HTTPStatus.OK,
-                self.model.regmap.to_csv().encode(),
-                "text/csv; charset=utf-8",
-                headers={**SECURITY_HEADERS, "Content-Disposition": f'attachment; filename="{name}"'},
-            )
         if path == "/favicon.ico":  # asked for by browsers and tools whatever the page says
             return self._file("favicon.svg")
         if path == "/api/overview":

@@ -127,33 +127,3 @@ async def test_console_serves_a_favicon() -> None:
             assert (status, ctype) == (200, "image/svg+xml") and body.startswith(b"<svg")
         _, _, page = await asyncio.to_thread(fetch, "/")
         assert b'<link rel="icon" href="/static/favicon.svg"' in page
-
-
-async def test_the_register_map_downloads_as_the_cli_prints_it() -> None:
-    import asyncio
-
-    from gateway.app import Gateway
-    from gateway.modbus.regmap import build_register_map
-    from tests.helpers import make_config
-
-    wire = {"name": "wire", "node_id": 1, "profile": "sgh10"}
-    cfg = make_config([wire], health={"port": free_port()})
-    gw = Gateway(cfg)
-    await gw.start()
-    try:
-
-        def fetch() -> tuple[str, str, str]:
-            url = f"http://127.0.0.1:{gw.health.port}/api/registers.csv"
-            with urllib.request.urlopen(url, timeout=5) as r:
-                return (
-                    r.headers["Content-Type"],
-                    r.headers["Content-Disposition"],
-                    r.read().decode(),
-                )
-
-        ctype, disposition, body = await asyncio.to_thread(fetch)
-    finally:
-        await gw.stop()
-    assert ctype == "text/csv; charset=utf-8"
-    assert disposition == 'attachment; filename="test-registers.csv"'
-    assert body == build_register_map(cfg).to_csv()
