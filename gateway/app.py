@@ -297,7 +297,6 @@ class Gateway:
                 self.overview,
                 regmap=self.modbus.regmap if self.modbus is not None else None,
             )
-            self.web.sim = self.sim  # demo fault injection (simulated devices only)
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(
             self.cfg.health.host,

@@ -442,34 +442,6 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_fault(args: argparse.Namespace) -> int:
-    """Inject a fault into a simulated device of the running gateway (its web API)."""
-    import json
-    import urllib.error
-    import urllib.request
-
-    cfg = _load(args.config)
-    h = cfg.health
-    if not h.port or not cfg.web.enabled:
-        print(f"error: {cfg.source}: health.port: the running gateway's web API is needed "
-              "(health.port and web.enabled)", file=sys.stderr)  # fmt: skip
-        return EXIT_CONFIG
-    url = f"http://{h.host}:{h.port}/api/sim/{args.node}/{args.fault}"
-    try:
-        with urllib.request.urlopen(urllib.request.Request(url, method="POST"), timeout=10) as r:
-            doc = json.loads(r.read())
-    except urllib.error.HTTPError as exc:
-        doc = json.loads(exc.read() or b"{}")
-        print(f"error: {doc.get('message', exc)}", file=sys.stderr)
-        return EXIT_CONFIG if exc.code == 404 else EXIT_FAILED
-    except OSError as exc:
-        print(f"error: no gateway answers at {url} ({exc}); start it: canopen-gateway run -c "
-              f"{cfg.source}", file=sys.stderr)  # fmt: skip
-        return EXIT_FAILED
-    print(f"{args.node}: {doc['result']}")
-    return 0
-
-
 def _split(values: list[str] | None) -> list[str]:
     return [v for item in values or [] for v in item.split(",") if v]
 
@@ -557,15 +529,6 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     sp.set_defaults(fn=cmd_monitor)
 
-    from gateway.sim.faults import FAULTS
-
-    sp = with_config(sub.add_parser(
-        "fault", help="inject a fault into a simulated device of the running gateway (demo)",
-        epilog="faults: " + "; ".join(f"{k}: {v}" for k, v in FAULTS.items()),
-    ))  # fmt: skip
-    sp.add_argument("node", help="simulated node name")
-    sp.add_argument("fault", choices=list(FAULTS))
-    sp.set_defaults(fn=cmd_fault)
     return p
 
 

@@ -92,8 +92,6 @@ class WebConsole:
         self.commissioning = Commissioning(cfg, commands) if self.writes else None
         self.static = _load_static()
         self.warn = RateLimitedLog(log)
-        #: the simulated devices of a demo (``app.SimulatedBus``), for fault injection; or None
-        self.sim: Any = None
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)
@@ -106,8 +104,6 @@ class WebConsole:
         path = request.path
         if path.startswith("/api/commission/"):
             return await self._commission(request, path.removeprefix("/api/commission/"))
-        if path == "/api/sim" or path.startswith("/api/sim/"):
-            return self._sim_fault(request, path.removeprefix("/api/sim").strip("/"))
         if request.method not in ("GET", "HEAD"):
             return Response(
                 HTTPStatus.METHOD_NOT_ALLOWED, b"GET or HEAD only\n", headers={"Allow": "GET, HEAD"}
@@ -137,31 +133,6 @@ class WebConsole:
                 return Response(HTTPStatus.OK, b"", "text/event-stream")
             return self._stream(request)
         return None
-
-    # ------------------------------------------------------------------ demo faults
-    def _sim_fault(self, request: Request, rest: str) -> Response:
-        """``GET /api/sim``: the simulated nodes and the faults; ``POST /api/sim/<node>/<fault>``
-        injects one. Only simulated devices are touched, so no token is asked."""
-        from gateway.sim.faults import FAULTS, inject
-
-        sim = self.sim
-        nodes = sorted(sim.nodes) if sim is not None and sim.runner is not None else []
-        if not rest:
-            return _json(HTTPStatus.OK, {"nodes": nodes, "faults": FAULTS})
-        if request.method != "POST":
-            return Response(
-                HTTPStatus.METHOD_NOT_ALLOWED, b"POST only\n", headers={"Allow": "POST"}
-            )
-        node, _, fault = rest.partition("/")
-        if node not in nodes:
-            return self._not_found(
-                f"no simulated node named {node!r}; simulated: {', '.join(nodes) or 'none'}"
-            )
-        if fault not in FAULTS:
-            return self._not_found(f"no fault {fault!r}; faults: {', '.join(FAULTS)}")
-        what = inject(sim.runner, sim.nodes[node], fault)
-        self.warn.warning(("sim_fault", node, fault), "simulated node %s: %s", node, what)
-        return _json(HTTPStatus.OK, {"ok": True, "node": node, "fault": fault, "result": what})
 
     def _not_found(self, message: str) -> Response:
         return _json(HTTPStatus.NOT_FOUND, {"error": "not_found", "message": message})

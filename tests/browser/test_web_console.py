@@ -338,35 +338,6 @@ async def test_the_overview_shows_another_master_on_the_bus(browser: Any) -> Non
         await run(wait_for, browser, shown, "the other master on the overview")
 
 
-async def test_a_demo_fault_from_the_node_page_shows_the_node_lost(browser: Any) -> None:
-    async with gateway() as (gw, base):
-
-        def unplug() -> None:
-            from selenium.webdriver.common.by import By
-
-            browser.get(base + "/node/wire")
-            button = wait_for(
-                browser,
-                lambda d: (
-                    d.find_element(By.ID, "sim-card").is_displayed()
-                    and d.find_element(By.CSS_SELECTOR, '#sim-faults button[data-fault="unplug"]')
-                ),
-                "the fault buttons",
-            )
-            button.click()
-            wait_for(
-                browser,
-                lambda d: d.find_element(By.ID, "result-sim").text == "wire: unplugged",
-                "the answer",
-            )
-
-        await run(unplug)
-        await wait_until(lambda: not gw.image.nodes["wire"].health.alive, 5, "wire lost")
-        await run(browser.get, base + "/")
-        await run(wait_for, browser, lambda d: cell(d, "wire", "presence") == "lost", "lost")
-        assert await run(cell, browser, "wire", "quality") == "stale"
-
-
 async def test_the_commissioning_page_scans_the_bus(browser: Any) -> None:
     async with gateway(writes=True) as (_, base):
         from selenium.webdriver.common.by import By

@@ -305,31 +305,10 @@ async function initNode() {
   renderValues(doc.values);
   renderEmcy(doc.emcy);
   renderRegisters(doc.registers);
-  initSimFaults(name);
   liveStream("/api/stream?node=" + encodeURIComponent(name), {
     node: (d) => { renderNodeRow(d.row); renderEmcy(d.emcy); },
     values: renderValues,
   });
-}
-
-// Demo fault injection: one button per fault, for simulated nodes only (GET /api/sim).
-async function initSimFaults(name) {
-  let sim;
-  try { sim = await getJSON("/api/sim"); } catch (e) { return; }
-  if (!sim.nodes.includes(name)) return;
-  const box = document.getElementById("sim-faults");
-  const result = document.getElementById("result-sim");
-  box.replaceChildren(...Object.entries(sim.faults).map(([fault, what]) => {
-    const b = el("button", { type: "button", className: "secondary", title: what, "data-fault": fault }, fault);
-    b.addEventListener("click", async () => {
-      const r = await fetch(`/api/sim/${encodeURIComponent(name)}/${fault}`, { method: "POST" });
-      const doc = await r.json();
-      result.className = "result " + (r.ok ? "ok" : "err");
-      result.textContent = r.ok ? `${name}: ${doc.result}` : doc.message;
-    });
-    return b;
-  }));
-  document.getElementById("sim-card").hidden = false;
 }
 
 // ------------------------------------------------------------------ commissioning
