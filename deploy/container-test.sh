@@ -33,7 +33,8 @@ CONFIG=config/demo.yaml  # the image copies it to /etc/canopen-gateway/config.ya
 CONTAINER=canopen-gateway-test-$$
 HEALTH_TIMEOUT_S=${HEALTH_TIMEOUT_S:-60}
 STOP_LIMIT_S=2
-# NOTES.md: the vfs storage driver and runc work on this machine (crun fails on its cgroups).
+# The vfs storage driver and runc work where overlayfs and crun do not (crun fails on
+# cgroup setups of nested containers and CI machines).
 PODMAN=(podman --storage-driver vfs --runtime runc)
 
 BUILD_ONLY=0
@@ -78,7 +79,7 @@ ensure_base() {
     mkdir -p "$BASE_CACHE"
     local rootfs=$BASE_CACHE/rootfs.partial
     rm -rf "$rootfs"
-    # NOTES.md recipe without python3-pip: the image's venv brings its own pip (ensurepip).
+    # No python3-pip in the rootfs: the image's venv brings its own pip (ensurepip).
     debootstrap --variant=minbase --include=python3,python3-venv,ca-certificates \
       bookworm "$rootfs" >"$BASE_CACHE/debootstrap.log" 2>&1 \
       || fail "debootstrap failed, see $BASE_CACHE/debootstrap.log"
@@ -101,7 +102,7 @@ build_image() {
   local revision
   revision=$(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo unknown)
   # --format docker keeps HEALTHCHECK (the OCI image format has no field for it).
-  # pip inside the build needs the host's CA bundle (NOTES.md).
+  # pip inside the build needs a CA bundle to reach PyPI: the host's, mounted read-only.
   "${PODMAN[@]}" build --isolation chroot --format docker \
     -v /etc/ssl/certs/ca-certificates.crt:/etc/ssl/certs/ca-certificates.crt:ro \
     --build-arg BASE_IMAGE="$BASE_IMAGE" --build-arg REVISION="$revision" \

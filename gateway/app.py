@@ -25,6 +25,7 @@ from gateway.metrics import modbus_function_label
 from gateway.modbus.regmap import build_register_map
 from gateway.modbus.server import ModbusGateway
 from gateway.profiles import load_node_profile
+from gateway.startup import startup_step
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
@@ -179,6 +180,7 @@ class Gateway:
             "ready": ready,
             "threads": {"failed": dead},
             "bus": {"state": self.driver.state, "detail": self.driver.last_error},
+            "bus_peers": self.master.peers.doc(),
             "modbus": modbus_up,
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
@@ -204,6 +206,7 @@ class Gateway:
                 "reopens": self.driver.reopens,
             },
             "threads_failed": self.threads.failures(),
+            "peers": self.master.peers.doc(),
             "counters": {},
         }
         if self.modbus is not None:
@@ -239,24 +242,48 @@ class Gateway:
         return doc
 
     async def start(self) -> None:
+        """Start every part; on a failure, stop what started and raise ``StartupError`` (the
+        setting and its value), so the process can exit with nothing left open."""
+        try:
+            await self._start()
+        except BaseException:
+            await self.stop()
+            raise
+
+    async def _start(self) -> None:
+        cfg = self.cfg
         if self.zenoh is not None:
+            z = cfg.zenoh
+            key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)
+            files = {
+                f"zenoh.{section}.{k}": v
+                for section in ("tls", "auth")
+                for k, v in (getattr(z, section).model_dump() if getattr(z, section) else {}).items()
+                if isinstance(v, str) and k.endswith(("_file", "certificate", "key"))
+            }
             # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
-            await self.zenoh.open()
+            with startup_step(key, ", ".join(where), files):
+                await self.zenoh.open()
         if self.sim is not None:
-            self.sim.start()
-        await asyncio.to_thread(self.driver.open)
+            with startup_step("can.channel", cfg.can.channel):
+                self.sim.start()
+        with startup_step("can.interface", cfg.can.interface):
+            await asyncio.to_thread(self.driver.open)
         await self.master.start()
         if self.modbus is not None:
-            await self.modbus.start()
+            with startup_step("modbus.port", f"{cfg.modbus.port} on {cfg.modbus.host}"):
+                await self.modbus.start()
         if self.zenoh is not None:
             await self.zenoh.start()
         if self.cfg.ascii is not None and self.cfg.ascii.enabled:
             from gateway.ascii.server import AsciiGateway
 
             self.ascii = AsciiGateway(self.cfg, self.image, self.commands)
-            await self.ascii.start()
-        if self.cfg.health.port:
-            await self._start_health()
+            with startup_step("ascii.port", f"{self.cfg.ascii.port} on {self.cfg.ascii.host}"):
+                await self.ascii.start()
+        if cfg.health.port:
+            with startup_step("health.port", f"{cfg.health.port} on {cfg.health.host}"):
+                await self._start_health()
         self.started = True
 
     async def _start_health(self) -> None:
@@ -307,6 +334,9 @@ class Gateway:
         c = self.metrics.counters
         ic = self.image.counters
         c.frames_in, c.frames_out, c.bus_errors = ic["frames_in"], ic["frames_out"], ic["bus_errors"]
+        peers = self.master.peers
+        c.other_master = {kind: s.count for kind, s in peers.other_master.items()}
+        c.other_sdo_client = {node: s.count for node, s in peers.sdo_clients.items()}
         for name, node in self.image.nodes.items():
             for reason, n in (
                 ("short", node.rx.pdo_too_short),

@@ -1,4 +1,4 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|lss|eds|profile|fault``.
+"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile|fault``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback. Imports everything it drives; nothing imports this module.
@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import sys
 import time
@@ -30,12 +31,19 @@ def _load(path: str) -> Config:
 def _load_for_bus(path: str) -> Config:
     """The config of a command that opens the CAN bus: also refuses an interface python-can
     cannot load (unknown name, plug-in not installed), in one line, before anything starts."""
-    from gateway.bus.can_backend import interface_problem
+    from gateway.bus.can_backend import can_section_problems, driver_problem, interface_problem
+    from gateway.config import CAN_INTERFACE_MISSING, blame, env_keys
 
     cfg = _load(path)
-    problem = interface_problem(cfg.can.interface)
+    from_env = env_keys(os.environ)
+    if "interface" not in cfg.can.model_fields_set:  # written in the file or the environment
+        raise ConfigError([f"{cfg.source}: can.interface: {CAN_INTERFACE_MISSING}"])
+    problem = interface_problem(cfg.can.interface) or driver_problem(cfg.can.interface)
     if problem is not None:
-        raise ConfigError([f"{cfg.source}: can.interface: {problem}"])
+        raise ConfigError([f"{blame('can.interface', cfg.source, from_env)}: can.interface: {problem}"])
+    problems = can_section_problems(cfg.can.model_dump(exclude_none=True))
+    if problems:
+        raise ConfigError([f"{blame(k, cfg.source, from_env)}: {k}: {why}" for k, why in problems])
     return cfg
 
 
@@ -76,11 +84,15 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     cfg = _load_for_bus(args.config)
     _setup_logging(args.log_level or cfg.gateway.log_level)
+    from gateway.startup import StartupError
     from gateway.zenoh_bridge.bridge import PrefixInUse
 
     gw = Gateway(cfg, simulate=not args.no_simulate)
     try:
         asyncio.run(_run_until_signal(gw.start, gw.stop, gw.summary))
+    except StartupError as exc:  # a port in use, a file missing: one line, everything closed
+        print(exc.line(args.config), file=sys.stderr)
+        return EXIT_CONFIG
     except PrefixInUse as exc:  # a configuration problem: two gateways under one prefix
         print(f"error: {args.config}: zenoh.prefix: {exc}", file=sys.stderr)
         return EXIT_CONFIG
@@ -105,8 +117,8 @@ def cmd_check(args: argparse.Namespace) -> int:
         sim = " (simulated)" if n in cfg.simulated_nodes() else ""
         print(
             f"  node {n.name}: id {n.node_id}, {lp.profile.title or n.device}{sim}; "
-            f"{len(pdo_sigs)} process signals ({', '.join(pdo_sigs)}), "
-            f"{len(sdo_sigs)} configuration objects"
+            f"{_count(len(pdo_sigs), 'process signal')} ({', '.join(pdo_sigs)}), "
+            f"{_count(len(sdo_sigs), 'configuration object')}"
         )
         for note in lp.notes:
             print(f"  warning: node {n.name}: {note}")
@@ -131,6 +143,11 @@ def _print_eds_warnings(cfg: Any) -> None:
             continue
         more = f" (canopen-gateway eds lint {path})" if count else ""
         print(f"  {path}: {count} warnings{more}")
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 process signal``, ``2 process signals``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def cmd_registers(args: argparse.Namespace) -> int:
@@ -181,6 +198,10 @@ async def _with_master(cfg: Config, fn: Any) -> Any:
     cfg.ascii = None
     cfg.health.port = 0
     cfg.master.probe_at_start = False
+    # no heartbeat and no SYNC of its own: beside a gateway they would be a second master's
+    # (the gateway warns about a heartbeat on its COB-ID; a second SYNC doubles sync TPDOs)
+    cfg.master.heartbeat_ms = 0
+    cfg.master.sync_period_ms = 0
     for n in cfg.nodes:
         n.configure = False
     cfg.health.port = 0  # a commissioning command opens no server
@@ -197,7 +218,41 @@ def _node_name(cfg: Config, node: str) -> str:
     for n in cfg.nodes:
         if n.name == node or str(n.node_id) == node:
             return n.name
-    raise SystemExit(f"error: no node {node!r} in {cfg.source}; nodes: {', '.join(n.name for n in cfg.nodes)}")
+    nodes = ", ".join(f"{n.name} (id {n.node_id})" for n in cfg.nodes)
+    print(f"error: no node {node!r} in {cfg.source}; nodes: {nodes}", file=sys.stderr)
+    raise SystemExit(EXIT_CONFIG)  # an argument error, like argparse's
+
+
+def _beside(cfg: Config, command: str) -> Any:
+    """A running gateway to go through (its Zenoh API), when the bus is in-process; exits 2
+    with one line when a gateway runs that cannot be reached (see gateway.tools.beside)."""
+    from gateway.tools import beside
+
+    if not beside.in_process_bus(cfg):
+        return None
+    running = beside.find_running_gateway(cfg)
+    if running is not None:
+        return running
+    line = beside.refusal(cfg, command) if cfg.simulated_nodes() else None
+    if line is not None:
+        print(line, file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+    if cfg.simulated_nodes():
+        print(beside.private_note(cfg), file=sys.stderr)
+    return None
+
+
+def _through(running: Any, fn: Any) -> tuple[int, Any]:
+    """Run ``fn(running)`` against a running gateway; errors as one line (exit 1)."""
+    from gateway.tools.beside import RemoteError
+
+    try:
+        return 0, fn(running)
+    except RemoteError as exc:
+        print(f"error: {exc} (through the running gateway at {running.endpoint})", file=sys.stderr)
+        return EXIT_FAILED, None
+    finally:
+        running.close()
 
 
 def cmd_sdo(args: argparse.Namespace) -> int:
@@ -206,12 +261,24 @@ def cmd_sdo(args: argparse.Namespace) -> int:
     cfg = _load_for_bus(args.config)
     name = _node_name(cfg, args.node)
     cfg.master.sdo_timeout_s = args.timeout
+    if args.op == "write" and args.value is None:
+        print("error: sdo write needs a VALUE", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+    running = _beside(cfg, f"sdo {args.op}")
+    if running is not None:
+        if args.op == "read":
+            code, result = _through(running, lambda r: r.sdo_read(name, args.object, args.type))
+        else:
+            code, result = _through(
+                running, lambda r: r.sdo_write(name, args.object, args.value, args.type) or "OK"
+            )
+        if code:
+            return code
+        return _print_sdo(cfg, name, args, result)
 
     async def op(gw: Any) -> Any:
         if args.op == "read":
             return await gw.commands.sdo_read(name, args.object, args.type)
-        if args.value is None:
-            raise SystemExit("error: sdo write needs a VALUE")
         await gw.commands.sdo_write(name, args.object, args.value, args.type)
         return "OK"
 
@@ -220,6 +287,10 @@ def cmd_sdo(args: argparse.Namespace) -> int:
     except GatewayError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_FAILED
+    return _print_sdo(cfg, name, args, result)
+
+
+def _print_sdo(cfg: Config, name: str, args: argparse.Namespace, result: Any) -> int:
     if isinstance(result, (bytes, bytearray)):
         result = bytes(result).hex(" ")
     if isinstance(result, int) and not isinstance(result, bool):
@@ -264,6 +335,14 @@ def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
 def cmd_nmt(args: argparse.Namespace) -> int:
     cfg = _load_for_bus(args.config)
     name = "all" if args.node == "all" else _node_name(cfg, args.node)
+    running = _beside(cfg, "nmt")
+    if running is not None:
+        names = [n.name for n in cfg.nodes] if name == "all" else [name]
+        code, _ = _through(running, lambda r: [r.nmt(n, args.command) for n in names])
+        if code:
+            return code
+        print(f"NMT {args.command} sent to {name} through the running gateway at {running.endpoint}")
+        return 0
 
     async def op(gw: Any) -> None:
         gw.commands.nmt(name, args.command)
@@ -364,6 +443,81 @@ def cmd_lss(args: argparse.Namespace) -> int:
     return run_lss(cfg, args)
 
 
+def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
+    """The bus a listening tool (scan, monitor) opens, and the simulated devices it runs when
+    the bus is in-process and no gateway runs on it; exits 2 in one line when a gateway runs
+    on an in-process bus (a second process cannot join it)."""
+    import can
+
+    from gateway.app import SimulatedBus
+    from gateway.tools import beside
+
+    sim = None
+    if beside.in_process_bus(cfg):
+        running = beside.find_running_gateway(cfg)
+        line = beside.refusal(cfg, command)
+        if running is not None:
+            running.close()
+            line = line or (
+                f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway "
+                f"running at {running.endpoint}, so `{command}` cannot join it; give both a bus "
+                "they share (can.interface: remote, docs/canopen.md)"
+            )
+        if line is not None:
+            print(line, file=sys.stderr)
+            raise SystemExit(EXIT_CONFIG)
+    bus = can.Bus(**cfg.can.bus_kwargs())
+    if beside.in_process_bus(cfg) and cfg.simulated_nodes():
+        print(beside.private_note(cfg), file=sys.stderr)
+        sim = SimulatedBus(cfg)
+        sim.start()  # after the tool's bus is open: it sees the boot-ups
+    return bus, sim
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    from gateway.tools.scan import report, scan
+
+    cfg = _load_for_bus(args.config)
+    bus, sim = _tool_bus(cfg, "scan")
+    try:
+        found = scan(bus, listen_s=args.listen, active=args.active, sdo_timeout_s=args.timeout)
+    finally:
+        bus.shutdown()
+        if sim is not None:
+            sim.stop()
+    print("\n".join(report(found, cfg, args.active)))
+    return 0
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from gateway.tools.frames import FrameDecoder
+    from gateway.tools.monitor import kind_filter, monitor, node_filter
+
+    cfg = _load_for_bus(args.config)
+    try:
+        nodes = node_filter(cfg, _split(args.node))
+        kinds = kind_filter(_split(args.kind))
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    decoder = FrameDecoder(cfg)
+    bus, sim = _tool_bus(cfg, "monitor")
+    try:
+        monitor(bus, decoder, sys.stdout, nodes=nodes, kinds=kinds, count=args.count,
+                duration_s=args.duration)  # fmt: skip
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bus.shutdown()
+        if sim is not None:
+            sim.stop()
+    return 0
+
+
+def _split(values: list[str] | None) -> list[str]:
+    return [v for item in values or [] for v in item.split(",") if v]
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="canopen-gateway",
@@ -444,6 +598,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("args", nargs="*", help="action arguments (see docs/canopen.md)")
     sp.set_defaults(fn=cmd_lss)
+
+    sp = with_config(sub.add_parser("scan", help="which node ids are on the bus, and what they are"))
+    sp.add_argument("--active", action="store_true", help="also read 1000h, 1008h, 1018h of ids 1..127")
+    sp.add_argument("--listen", type=float, default=1.5, metavar="S", help="passive listening time")
+    sp.add_argument("--timeout", type=float, default=0.1, metavar="S", help="SDO timeout of --active")
+    sp.set_defaults(fn=cmd_scan)
+
+    sp = with_config(sub.add_parser("monitor", help="print the bus traffic in CANopen words"))
+    sp.add_argument("--node", action="append", metavar="NAME|ID", help="only these nodes (repeat or comma)")
+    sp.add_argument("--kind", action="append", metavar="KIND",
+                    help="only these kinds: nmt, sync, time, emcy, pdo, sdo, heartbeat, lss, other")  # fmt: skip
+    sp.add_argument("--count", type=int, help="stop after this many lines")
+    sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    sp.set_defaults(fn=cmd_monitor)
+
     return p
 
 

@@ -23,7 +23,15 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from gateway import keyexpr
 from gateway.objref import ObjRef
@@ -31,6 +39,9 @@ from gateway.profiles import ProfileError, load_node_profile
 from gateway.profiles.schema import HexInt, SignalType
 
 ENV_PREFIX = "CANOPEN_GATEWAY__"
+#: keys whose environment values are taken as written, never as YAML numbers (a token of
+#: digits, "0123...", must keep its leading zero)
+ENV_TEXT_KEYS = frozenset({"token", "password"})
 
 
 class ConfigError(Exception):
@@ -428,6 +439,16 @@ class WebSection(_Model):
         description="password of the commissioning page; or CANOPEN_GATEWAY__WEB__TOKEN",
     )
 
+    @field_validator("token", mode="before")
+    @classmethod
+    def _token_text(cls, v: Any) -> Any:
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            raise ValueError(
+                "YAML read a number here; a token is text: put it in quotes "
+                "(token: \"0123456789012\")"
+            )
+        return v
+
     @model_validator(mode="after")
     def _token(self) -> WebSection:
         if self.writes and not self.token:
@@ -522,6 +543,65 @@ def _describe(err: Mapping[str, Any]) -> str:
     return msg.removeprefix("Value error, ")
 
 
+def _models_in(annotation: Any) -> tuple[type[BaseModel] | None, bool]:
+    """The pydantic model a field holds (directly, in a list, an Optional, or as dict values),
+    and whether the next part of a key path is a dict key."""
+    import typing
+
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation, False
+    origin = typing.get_origin(annotation)
+    args = typing.get_args(annotation)
+    if origin is Annotated:
+        return _models_in(args[0])
+    for arg in args:
+        model, _ = _models_in(arg)
+        if model is not None:
+            return model, origin is dict
+    return None, False
+
+
+def nearest_key(loc: tuple[Any, ...]) -> str | None:
+    """For an unknown key at ``loc``: the closest key its section allows, if one is close."""
+    import difflib
+
+    model: type[BaseModel] | None = Config
+    skip = False
+    for part in loc[:-1]:
+        if isinstance(part, int) or skip:
+            skip = False
+            continue
+        field = model.model_fields.get(str(part)) if model is not None else None
+        if field is None:
+            return None
+        model, skip = _models_in(field.annotation)
+    if model is None:
+        return None
+    near = difflib.get_close_matches(str(loc[-1]), list(model.model_fields), n=1, cutoff=0.6)
+    return near[0] if near else None
+
+
+def env_keys(environ: Mapping[str, str]) -> dict[str, str]:
+    """Key path (``modbus.port``, ``nodes[0].node_id``) -> the environment variable that sets it."""
+    out = {}
+    for key in environ:
+        if not key.startswith(ENV_PREFIX):
+            continue
+        path = [p.lower() for p in key[len(ENV_PREFIX) :].split("__") if p]
+        if path:
+            out[_loc(tuple(int(p) if p.isdigit() else p for p in path))] = key
+    return out
+
+
+def blame(loc: str, source: str, from_env: Mapping[str, str]) -> str:
+    """Who wrote the value at ``loc``: the environment variable that set it (or a section
+    above it), else the config file."""
+    for path, var in from_env.items():
+        if loc == path or loc.startswith((path + ".", path + "[")):
+            return var
+    return source
+
+
 def apply_env_overrides(raw: dict[str, Any], environ: Mapping[str, str]) -> list[str]:
     """Apply ``CANOPEN_GATEWAY__A__B=v`` overrides in place; returns problems."""
     problems = []
@@ -534,6 +614,8 @@ def apply_env_overrides(raw: dict[str, Any], environ: Mapping[str, str]) -> list
         try:
             parsed = yaml.safe_load(value) if value != "" else ""
         except yaml.YAMLError:
+            parsed = value
+        if path[-1] in ENV_TEXT_KEYS:
             parsed = value
         node: Any = raw
         for i, part in enumerate(path):
@@ -637,16 +719,21 @@ def parse_config(
         cfg = Config.model_validate({**raw, "source": source})
     except ValidationError as exc:
         for e in exc.errors():
-            errors.append((_loc(e["loc"]), _describe(e)))
+            what = _describe(e)
+            near = nearest_key(tuple(e["loc"])) if e.get("type") == "extra_forbidden" else None
+            if near is not None:
+                what += f"; did you mean {near!r}?"
+            errors.append((_loc(e["loc"]), what))
     errors += _semantic_problems(raw, base_dir)
     if cfg is not None:
         errors += _node_problems(cfg, base_dir)
+    from_env = env_keys(environ or {})
     seen: set[tuple[str, str]] = set()
     for loc, msg in errors:
         if (loc, msg) in seen:
             continue
         seen.add((loc, msg))
-        problems.append(f"{source}: {loc}: {msg}")
+        problems.append(f"{blame(loc, source, from_env)}: {loc}: {msg}")
     if problems:
         raise ConfigError(problems)
     assert cfg is not None
@@ -717,6 +804,20 @@ def load_config(path: str | os.PathLike[str], environ: Mapping[str, str] | None 
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
         problem = getattr(exc, "problem", None) or str(exc)
         raise ConfigError([f"{source}: {where}: YAML syntax error: {problem}"]) from None
-    return parse_config(raw, source, os.environ if environ is None else environ)
+    environ = os.environ if environ is None else environ
+    if raw is None or raw == {}:
+        raise ConfigError(
+            [f"{source}: the file is empty; a config needs at least can: and nodes: "
+             "(see config/demo.yaml)"]
+        )
+    return parse_config(raw, source, environ)
+
+
+#: A config that opens the bus must say which one: the in-process ``virtual`` bus is not a
+#: silent default (``can.interface`` must be written; checked by the commands that open the bus).
+CAN_INTERFACE_MISSING = (
+    "required key is missing: the CAN interface python-can opens (socketcan, pcan, kvaser, "
+    "ixxat, slcan, remote, ...; virtual for simulated devices in this process, without hardware)"
+)
 
 

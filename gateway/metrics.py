@@ -26,6 +26,7 @@ Metric names carry the prefix ``canopen_gateway_``:
     sdo_requests_total{node,op}, sdo_aborts_total{node,code}, sdo_latency_seconds{node}
     modbus_requests_total{function}, modbus_exceptions_total{code}
     zenoh_refused_total{operation}, modbus_watchdog_trips_total{reason}
+    other_master_frames_total{kind}, other_sdo_client_requests_total{node}
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
     plus process_* (CPU, memory, open files) of this process.
 
@@ -143,6 +144,8 @@ class Counters:
     modbus_exceptions: dict[str, int] = field(default_factory=dict)
     zenoh_refused: dict[str, int] = field(default_factory=dict)
     modbus_watchdog_trips: dict[str, int] = field(default_factory=dict)
+    other_master: dict[str, int] = field(default_factory=dict)
+    other_sdo_client: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -263,6 +266,8 @@ class Metrics:
                 modbus_exceptions=c.modbus_exceptions.copy(),
                 zenoh_refused=c.zenoh_refused.copy(),
                 modbus_watchdog_trips=c.modbus_watchdog_trips.copy(),
+                other_master=c.other_master.copy(),
+                other_sdo_client=c.other_sdo_client.copy(),
             )
 
     def _node_samples(self) -> list[NodeSample]:
@@ -349,6 +354,17 @@ class _GatewayCollector:
             "Modbus output watchdog trips (safe outputs written), by reason (timeout, disconnect).",
             ["reason"],
             c.modbus_watchdog_trips,
+            "other_master_frames_total",
+            "Frames of another master: NMT commands this gateway did not send (kind nmt), "
+            "heartbeats on its own COB-ID it did not send (kind heartbeat).",
+            ["kind"],
+            c.other_master,
+        )
+        yield labelled(
+            "other_sdo_client_requests_total",
+            "SDO requests of other clients (commissioning tools) to a node, by node.",
+            ["node"],
+            c.other_sdo_client,
         )
 
         state = GaugeMetricFamily(

@@ -142,3 +142,33 @@ async def modbus_gateway(
     finally:
         client.close()
         await gw.stop()
+def gateway_process(config: Any, *args: str) -> Any:
+    """``canopen-gateway run -c config`` as a separate process (stdout and stderr piped)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    return subprocess.Popen(
+        [sys.executable, "-m", "gateway", "run", "-c", str(config), "--log-level", "warning", *args],
+        cwd=Path(__file__).resolve().parents[1],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def wait_ready(proc: Any, timeout_s: float = 60.0) -> str:
+    """The summary line a gateway process prints once everything listens (bounded wait)."""
+    import selectors
+
+    assert proc.stdout is not None
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if sel.select(timeout=deadline - time.monotonic()):
+            line = proc.stdout.readline()
+            if line:
+                return line
+            raise AssertionError(f"gateway exited before it was ready: {proc.wait()}")
+    raise AssertionError("gateway did not become ready")

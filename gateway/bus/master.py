@@ -30,6 +30,14 @@ from typing import Any
 import can
 
 from gateway.bus.boot_steps import ConfigStep, build_boot_steps
+from gateway.bus.bus_peers import (
+    HEARTBEAT_BASE,
+    NMT_COB_ID,
+    SDO_REQUEST_BASE,
+    BusPeers,
+    describe_cob_id,
+    talking_node_id,
+)
 from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.driver import BusDriver
 from gateway.bus.lifecycle import LifecycleState
@@ -52,6 +60,11 @@ from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_COMMANDS
 
 log = logging.getLogger("gateway.master")
+
+#: the master's heartbeat: operational (CiA 301 7.2.8.3.2.2)
+MASTER_HEARTBEAT = b"\x05"
+#: another master / another SDO client is logged at most once per kind and this period
+PEER_LOG_PERIOD_S = 60.0
 
 #: queued events that wake the loop even when none asked for it (a bound, never reached while
 #: every quiet event's node has a deadline timer)
@@ -209,6 +222,15 @@ class Master:
         self._waiting: dict[tuple[str, int], tuple[asyncio.Future[bytes], ObjRef]] = {}
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
+        #: other masters, other SDO clients, unconfigured node ids (event loop only)
+        self.peers = BusPeers(
+            cfg.master.node_id,
+            MASTER_HEARTBEAT,
+            {n.node_id for n in cfg.nodes},
+            echo=bool(cfg.can.bus_kwargs().get("receive_own_messages")),
+        )
+        self.peer_log = RateLimitedLog(log, period_s=PEER_LOG_PERIOD_S)
+        self._seen_cob_ids: set[int] = set()  # the reader's own: unknown COB-IDs posted once
         for ncfg in cfg.nodes:
             lp = load_node_profile(ncfg, cfg.base_dir)
             names = [s.name for s in lp.profile.signals]
@@ -232,6 +254,14 @@ class Master:
             h[0x700 + p.node_id] = self._control(p, "nmt_ec")
             h[0x080 + p.node_id] = self._control(p, "emcy")
             h[0x580 + p.node_id] = self._control(p, "sdo")
+            if not self.peers.echo:  # our own requests come back with the echo on
+                h.setdefault(
+                    SDO_REQUEST_BASE + p.node_id, self._peer_frame(self._on_sdo_request, p)
+                )
+        h.setdefault(NMT_COB_ID, self._peer_frame(self._on_nmt_frame))
+        h.setdefault(
+            HEARTBEAT_BASE + self.cfg.master.node_id, self._peer_frame(self._on_own_heartbeat)
+        )
         self.driver.default_handler = self._unknown
         if self.image.end_batch not in self.driver.burst_listeners:
             self.driver.burst_listeners.append(self.image.end_batch)
@@ -339,12 +369,46 @@ class Master:
 
         return handle
 
+    def _peer_frame(self, fn: Callable[..., None], *args: Any) -> Callable[[can.Message], None]:
+        """Reader side of a frame another participant sent (NMT, our heartbeat COB-ID, SDO
+        requests to our nodes): to the loop, where ``peers`` judges it."""
+        post, frame_time = self._post, self.driver.frame_time
+
+        def handle(msg: can.Message) -> None:
+            if not msg.is_remote_frame:
+                post(fn, *args, bytes(msg.data), msg.timestamp or time.time(), frame_time(msg))
+
+        return handle
+
     def _unknown(self, msg: can.Message) -> None:
         cob = msg.arbitration_id
-        if cob in (0x000, 0x080) or cob == 0x700 + self.cfg.master.node_id or 0x7E4 <= cob <= 0x7E5:
-            return  # NMT / SYNC from another master, our own echo, LSS
+        if cob == 0x080 or 0x7E4 <= cob <= 0x7E5:
+            return  # SYNC from another master, LSS
         self.driver.rx_counters["unknown_cob_id"] += 1
-        self.warn.warning("unknown_cob_id", "frame with unexpected COB-ID 0x%03X ignored", cob)
+        seen = self._seen_cob_ids
+        if cob not in seen and len(seen) < 2048 and talking_node_id(cob) is not None:
+            seen.add(cob)  # first sighting: which node ids talk (for "did not appear")
+            self._post(self.peers.on_talking, cob, msg.timestamp or time.time(), wake=False)
+        self.warn.warning(
+            "unknown_cob_id",
+            "frame with unexpected COB-ID 0x%03X (%s) ignored",
+            cob,
+            describe_cob_id(cob),
+        )
+
+    def _on_nmt_frame(self, data: bytes, wall: float, now: float) -> None:
+        text = self.peers.on_nmt(data, wall, now)
+        if text is not None:
+            self.peer_log.warning(("other_master", "nmt"), "%s", text)
+
+    def _on_own_heartbeat(self, data: bytes, wall: float, now: float) -> None:
+        text = self.peers.on_own_heartbeat(data, wall, now)
+        if text is not None:
+            self.peer_log.warning(("other_master", "heartbeat"), "%s", text)
+
+    def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
+        text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
+        self.peer_log.info(("sdo_client", p.name), "%s", text)
 
     def _bus_state(self, state: str, detail: str) -> None:
         if state == "down":
@@ -386,6 +450,8 @@ class Master:
                     self.driver.send(o.cob_id, o.data, rtr=o.rtr, dlc=o.dlc)
                 except can.CanError:
                     continue
+                if o.cob_id == NMT_COB_ID:
+                    self.peers.sent(o.cob_id, o.data, self.clock())
                 if o.rpdo:
                     for listener in self.image.pdo_listeners:
                         listener(p.image, o.cob_id, o.data)
@@ -408,10 +474,13 @@ class Master:
                         o.names,
                     )
             elif isinstance(o, Note):
+                text = o.text
+                if "did not appear" in text:  # a wrong node id? say which ids talk instead
+                    text += self.peers.talking_hint()
                 if o.kind is not None:
-                    self.warn.log(o.level, o.kind, "%s", o.text)
+                    self.warn.log(o.level, o.kind, "%s", text)
                 else:
-                    log.log(o.level, "%s", o.text)
+                    log.log(o.level, "%s", text)
         if health:
             self.image.health_changed(p.image, "state")
         node = p.node
@@ -451,7 +520,9 @@ class Master:
         t0 = self.loop.time()
         if self.cfg.master.heartbeat_ms:
             hb = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
-            self._produce("heartbeat", hb, 0x700 + self.cfg.master.node_id, b"\x05")
+            self._produce(
+                "heartbeat", hb, HEARTBEAT_BASE + self.cfg.master.node_id, MASTER_HEARTBEAT
+            )
         if self.cfg.master.sync_period_ms:
             self._produce("sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), 0x080, b"")
         self._producers["housekeeping"] = self.loop.call_later(
@@ -482,6 +553,8 @@ class Master:
                 self.driver.send(cob_id, data)
             except can.CanError:
                 pass
+            else:
+                self.peers.sent(cob_id, data, self.clock())
         self._producers[name] = loop.call_at(
             periodic.next_deadline(), self._produce, name, periodic, cob_id, data
         )
@@ -489,6 +562,7 @@ class Master:
     def _housekeeping(self) -> None:
         """Summary lines of the rate-limited logs, once per period."""
         self.warn.flush()
+        self.peer_log.flush()
         self.driver.warn.flush()
         assert self.loop is not None
         self._producers["housekeeping"] = self.loop.call_later(
@@ -508,10 +582,12 @@ class Master:
         self.require_bus()
         targets = list(self.nodes.values()) if node == "all" else [self.nodes[node]]
         node_id = 0 if node == "all" else targets[0].node_id
+        frame = bytes([NMT_COMMANDS[command], node_id])
         try:
-            self.driver.send(0x000, bytes([NMT_COMMANDS[command], node_id]))
+            self.driver.send(NMT_COB_ID, frame)
         except can.CanError as exc:
             raise BusDown(str(exc)) from exc
+        self.peers.sent(NMT_COB_ID, frame, self.clock())
         for p in targets:
             p.node.on_nmt_command(command)
 

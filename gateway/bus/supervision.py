@@ -77,6 +77,9 @@ class InvalidStateByte:
 
     byte: int
 
+    def __str__(self) -> str:
+        return f"state byte 0x{self.byte:02X} is not an NMT state (DS-301: 0, 4, 5, 127)"
+
 
 @dataclass(frozen=True)
 class ToggleError:
@@ -86,6 +89,12 @@ class ToggleError:
     received: int
     count: int
 
+    def __str__(self) -> str:
+        return (
+            f"guarding answer toggle bit {self.received}, expected {self.expected} "
+            f"({self.count} in a row)"
+        )
+
 
 @dataclass(frozen=True)
 class WrongState:
@@ -94,6 +103,17 @@ class WrongState:
     expected: NmtState
     received: NmtState
     count: int
+
+    def __str__(self) -> str:
+        return (
+            f"guarding answer reports {_state_word(self.received)}, expected "
+            f"{_state_word(self.expected)} ({self.count} in a row)"
+        )
+
+
+def _state_word(state: NmtState) -> str:
+    """``pre-operational`` for NmtState.PRE_OPERATIONAL: the words of the manuals."""
+    return state.name.lower().replace("_", "-")
 
 
 Output = (

@@ -84,7 +84,7 @@ class Watchdog:
         bad = [o for o in outs if isinstance(o, (ToggleError, WrongState, InvalidStateByte))]
         state = byte & 0x7F
         if bad or state not in REPORTED_STATES:
-            return None, [f"{type(o).__name__}: {o}" for o in bad] or [f"state byte 0x{byte:02X}"]
+            return None, [str(o) for o in bad] or [f"state byte 0x{byte:02X}"]
         return NmtState(state), []
 
     def poll(self, now: float) -> tuple[bool, str | None]:

@@ -1,5 +1,5 @@
 """The commissioning operations of the web console: SDO read and write of any object, NMT
-commands, set-point writes, LSS inquiry. Present only with ``web.writes: true``; the console
+commands, set-point writes, LSS inquiry, a scan of the bus. Present only with ``web.writes: true``; the console
 checks the token before calling anything here.
 
 Every device operation goes through the command service, so a write from a browser gets the
@@ -129,7 +129,7 @@ def shown(value: Any) -> Any:
 class Commissioning:
     """The write operations, by name: ``await run(op, body)`` -> JSON-able result."""
 
-    OPS = ("sdo-read", "sdo-write", "nmt", "set", "lss-inquire")
+    OPS = ("sdo-read", "sdo-write", "nmt", "set", "lss-inquire", "scan")
 
     def __init__(self, cfg: Config, commands: CommandService, *, lss_timeout_s: float = 0.5):
         self.cfg = cfg
@@ -149,6 +149,8 @@ class Commissioning:
             return await self.set(doc)
         if op == "lss-inquire":
             return await self.lss_inquire(doc)
+        if op == "scan":
+            return await self.scan(doc)
         raise BadInput(f"unknown operation {op!r}; one of {', '.join(self.OPS)}")
 
     def _node(self, doc: dict[str, Any]) -> str:
@@ -230,6 +232,32 @@ class Commissioning:
             raise lss.LssBusy("another LSS inquiry is running")
         async with self._lss_lock:
             result = await asyncio.to_thread(self._inquire, address)
+        return {"ok": True, **result}
+
+    async def scan(self, doc: dict[str, Any]) -> dict[str, Any]:
+        """Which node ids are on the bus (``canopen-gateway scan --active``): on a second
+        connection, in a worker thread, one scan at a time (it shares the LSS lock)."""
+        from gateway.tools.scan import report, scan
+
+        if self._lss_lock.locked():
+            raise lss.LssBusy("a scan or an LSS inquiry is running")
+        async with self._lss_lock:
+            def run() -> dict[str, Any]:
+                try:
+                    bus = can.Bus(**self.cfg.can.bus_kwargs())
+                except (can.CanError, OSError, ValueError) as exc:
+                    raise LssFailed(
+                        f"cannot open a second connection to the CAN bus for the scan ({exc}); "
+                        "stop the gateway and use canopen-gateway scan"
+                    ) from None
+                try:
+                    found = scan(bus, listen_s=1.0, active=True, sdo_timeout_s=0.1)
+                finally:
+                    bus.shutdown()
+                return {"nodes": [f.doc() for f in found.values()],
+                        "report": report(found, self.cfg, active=True)}  # fmt: skip
+
+            result = await asyncio.to_thread(run)
         return {"ok": True, **result}
 
     def _inquire(self, address: tuple[int, ...] | None) -> dict[str, Any]:

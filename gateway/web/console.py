@@ -188,6 +188,8 @@ class WebConsole:
             return self._file("commission.html") if self.writes else None
         if path.startswith("/static/"):
             return self._file(path.removeprefix("/static/"))
+        if path == "/favicon.ico":  # asked for by browsers and tools whatever the page says
+            return self._file("favicon.svg")
         if path == "/api/overview":
             return _json(HTTPStatus.OK, self._overview_doc())
         if path.startswith("/api/node/"):

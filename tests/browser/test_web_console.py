@@ -133,7 +133,10 @@ async def test_a_live_value_changes_on_the_node_page(browser: Any) -> None:
         assert await run(value_cell, browser, "position", "quality") == "good"
         assert await run(value_cell, browser, "position", "unit") == "mm"
         assert await run(value_cell, browser, "position", "modbus") == "IR 100-101 @ unit 1"
-        assert await run(value_cell, browser, "position", "zenoh") == "canopen/test/wire/value/position"
+        assert (
+            await run(value_cell, browser, "position", "zenoh")
+            == "canopen/test/wire/value/position"
+        )
         await run(
             wait_for, browser, lambda d: value_cell(d, "position") not in ("", first), "a new value"
         )
@@ -175,7 +178,9 @@ async def test_commissioning_needs_the_token_and_an_sdo_write_reaches_the_device
             browser.get(base + "/")
             wait_for(browser, lambda d: d.find_elements(By.ID, "nav-commission"), "nav link")
             browser.get(base + "/commissioning")
-            wait_for(browser, lambda d: d.find_elements(By.CSS_SELECTOR, "#sw-node option"), "nodes")
+            wait_for(
+                browser, lambda d: d.find_elements(By.CSS_SELECTOR, "#sw-node option"), "nodes"
+            )
             assert not browser.find_element(By.ID, "ops").is_displayed()
             unlock("not-the-token")
             wait_for(browser, lambda d: text("result-login") == "Wrong token.", "refusal")
@@ -190,7 +195,9 @@ async def test_commissioning_needs_the_token_and_an_sdo_write_reaches_the_device
             Select(browser.find_element(By.ID, "sr-node")).select_by_value("wire")
             browser.find_element(By.ID, "sr-object").send_keys("0x1018:09")
             browser.find_element(By.CSS_SELECTOR, "#form-sdo-read button").click()
-            wait_for(browser, lambda d: "Sub-index does not exist" in text("result-sdo-read"), "abort")
+            wait_for(
+                browser, lambda d: "Sub-index does not exist" in text("result-sdo-read"), "abort"
+            )
             assert "0x06090011" in text("result-sdo-read")
 
         await run(check)
@@ -273,7 +280,9 @@ async def test_labels_and_text_contrast_pass_basic_accessibility_checks(browser:
             browser.find_element(By.ID, "token").send_keys("wrong-token-here")
             browser.find_element(By.CSS_SELECTOR, "#form-login button[type=submit]").click()
             wait_for(browser, lambda d: d.find_element(By.ID, "result-login").text, "refusal")
-            problems += [f"/commissioning: unlabelled {x}" for x in browser.execute_script(UNLABELLED_JS)]
+            problems += [
+                f"/commissioning: unlabelled {x}" for x in browser.execute_script(UNLABELLED_JS)
+            ]
             browser.find_element(By.ID, "token").clear()
             browser.find_element(By.ID, "token").send_keys(TOKEN)
             browser.find_element(By.CSS_SELECTOR, "#form-login button[type=submit]").click()
@@ -283,3 +292,73 @@ async def test_labels_and_text_contrast_pass_basic_accessibility_checks(browser:
             return problems
 
         assert await run(check) == []
+
+
+async def test_the_signals_table_fits_a_1280_px_window(browser: Any) -> None:
+    """Every column of the node page's signals table, Modbus and Zenoh included, is visible at
+    1280 px without scrolling sideways (the AP05 has the longest names and keys)."""
+    async with gateway() as (_, base):
+
+        def check() -> None:
+            from selenium.webdriver.common.by import By
+
+            browser.set_window_size(1280, 1000)
+            try:
+                browser.get(base + "/node/display")
+                wait_for(browser, lambda d: value_cell(d, "status_word") or None, "a value")
+                wrap = browser.find_element(By.CSS_SELECTOR, "#signals").find_element(
+                    By.XPATH, ".."
+                )
+                scroll, client = browser.execute_script(
+                    "return [arguments[0].scrollWidth, arguments[0].clientWidth]", wrap
+                )
+                assert scroll <= client, f"signals table {scroll} px wide in {client} px"
+            finally:
+                browser.set_window_size(1400, 1000)
+
+        await run(check)
+
+
+async def test_the_overview_shows_another_master_on_the_bus(browser: Any) -> None:
+    import can
+
+    async with gateway() as (gw, base):
+        await run(browser.get, base + "/")
+        other = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
+        try:
+            other.send(can.Message(arbitration_id=0x000, data=[0x80, 0], is_extended_id=False))
+        finally:
+            other.shutdown()
+
+        def shown(d: Any) -> bool:
+            from selenium.webdriver.common.by import By
+
+            return "NMT preop to every node (id 0)" in d.find_element(By.ID, "ov-bus").text
+
+        await run(wait_for, browser, shown, "the other master on the overview")
+
+
+async def test_the_commissioning_page_scans_the_bus(browser: Any) -> None:
+    async with gateway(writes=True) as (_, base):
+        from selenium.webdriver.common.by import By
+
+        def check() -> None:
+            browser.get(base + "/commissioning")
+            box = wait_for(browser, lambda d: d.find_element(By.ID, "token"), "the token box")
+            box.clear()
+            box.send_keys(TOKEN)
+            browser.find_element(By.CSS_SELECTOR, "#form-login button[type=submit]").click()
+            wait_for(browser, lambda d: d.find_element(By.ID, "ops").is_displayed(), "unlocked")
+            browser.find_element(By.CSS_SELECTOR, "#form-scan button").click()
+            result = wait_for(
+                browser,
+                lambda d: (
+                    "config node wire" in d.find_element(By.ID, "result-scan").text
+                    and d.find_element(By.ID, "result-scan").text
+                ),
+                "the scan",
+            )
+            assert "profile sgh10; config node wire (sgh10)" in result
+            assert "profile ap05; config node display (ap05)" in result
+
+        await run(check)

@@ -40,12 +40,12 @@ def test_good_config_loads() -> None:
 
 def test_unknown_key_is_reported_with_its_path() -> None:
     p = problems(with_nodes({"name": "wire", "node_idd": 1, "profile": "sgh10"}))
-    assert "cfg.yaml: nodes[0].node_idd: unknown key (typo?)" in p
+    assert "cfg.yaml: nodes[0].node_idd: unknown key (typo?); did you mean 'node_id'?" in p
 
 
 def test_unknown_section_is_reported() -> None:
     p = problems({**GOOD, "modbuss": {"port": 1}})
-    assert "cfg.yaml: modbuss: unknown key (typo?)" in p
+    assert "cfg.yaml: modbuss: unknown key (typo?); did you mean 'modbus'?" in p
 
 
 def test_wrong_type_is_reported() -> None:
@@ -127,7 +127,7 @@ def test_typo_and_duplicate_are_both_reported_at_once() -> None:
             {"name": "b", "node_id": 1, "profile": "sgh10", "modbus": {"unit_id": 3}},
         )
     )
-    assert "cfg.yaml: nodes[0].heartbeat_msec: unknown key (typo?)" in p
+    assert "cfg.yaml: nodes[0].heartbeat_msec: unknown key (typo?); did you mean 'heartbeat_ms'?" in p
     assert "cfg.yaml: nodes[1].node_id: duplicate node_id 1 (also nodes[0])" in p
 
 
@@ -196,7 +196,7 @@ def test_cli_check_prints_problems_and_exits_2(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert "Traceback" not in r.stderr
     lines = r.stderr.strip().splitlines()
-    assert f"{f}: nodes[0].nodeid: unknown key (typo?)" in lines
+    assert f"{f}: nodes[0].nodeid: unknown key (typo?); did you mean 'node_id'?" in lines
     assert f"{f}: nodes[1].node_id: duplicate node_id 1 (also nodes[0])" in lines
 
 

@@ -88,6 +88,15 @@ function header(doc) {
 }
 
 // ------------------------------------------------------------------ overview + nodes
+// Another master (NMT we did not send, our heartbeat COB-ID from elsewhere) or another SDO
+// client: what was seen last and how often; "none seen" otherwise.
+function peerFacts(seen, kind) {
+  const entries = Object.entries(seen || {});
+  if (!entries.length) return "none seen";
+  return el("span", { class: "peers" }, ...entries.map(([k, v]) =>
+    el("span", {}, badge(k, kind), ` ${v.detail} (${v.count}×) `)));
+}
+
 function renderOverview(o) {
   const can = o.can || {};
   const rates = o.rates || {};
@@ -108,6 +117,9 @@ function renderOverview(o) {
     ["Error frames", String(o.bus_errors)],
     ["Reopens", String(can.reopens || 0)],
     ["Undecodable", `${o.decode_errors} frames, ${o.unknown_cob_id} unknown COB-IDs`],
+    ["Other masters", peerFacts((o.peers || {}).other_master, "bad")],
+    ["Other SDO clients", peerFacts((o.peers || {}).other_sdo_clients, "info")],
+    ["Unconfigured ids", ((o.peers || {}).unconfigured_node_ids || []).join(", ") || "none"],
   ]);
   const mb = o.modbus;
   setFacts(document.getElementById("ov-modbus"), mb ? [
@@ -239,6 +251,14 @@ function qualityCell(q) {
   return el("span", { class: "muted" }, q);
 }
 
+// Text that may wrap after each `sep` and nowhere else (Zenoh keys after "/", signal names
+// after "_"): the signals table fits 1280 px.
+function breakable(text, sep = "/") {
+  const out = [];
+  text.split(sep).forEach((part, i) => { if (i) out.push(sep, document.createElement("wbr")); out.push(part); });
+  return out;
+}
+
 function renderSignals(signals) {
   const tbody = document.querySelector("#signals tbody");
   tbody.replaceChildren();
@@ -246,7 +266,7 @@ function renderSignals(signals) {
   for (const s of signals) {
     nodeSignals[s.name] = s;
     const tr = el("tr", { "data-signal": s.name },
-      el("th", { scope: "row", title: s.description }, s.name),
+      el("th", { scope: "row", title: s.description }, ...breakable(s.name, "_")),
       el("td", { "data-col": "value", class: "num" }, ""),
       el("td", { "data-col": "unit" }, s.unit),
       el("td", { "data-col": "quality" }, ""),
@@ -254,7 +274,7 @@ function renderSignals(signals) {
       el("td", { "data-col": "source" }, s.source + (s.writable ? " (writable)" : "")),
       el("td", { "data-col": "object", class: "code" }, s.object),
       el("td", { "data-col": "modbus", class: "nowrap" }, s.modbus || el("span", { class: "muted" }, "not mapped")),
-      el("td", { "data-col": "zenoh", class: "code" }, s.zenoh.join("\n")));
+      el("td", { "data-col": "zenoh", class: "code" }, ...breakable(s.zenoh.join("\n"))));
     tbody.append(tr);
   }
 }
@@ -314,6 +334,7 @@ function showResult(id, res) {
   if (res.ok) {
     const d = res.doc;
     if (id === "sdo-read") box.textContent = `${d.node} ${d.object} = ${d.value}`;
+    else if (id === "scan") box.textContent = d.report.join("\n");
     else if (id === "lss-inquire") box.textContent = ["vendor_id", "product_code", "revision", "serial", "node_id"].map((k) => `${k}: ${d[k]}`).join("\n");
     else box.textContent = "done: " + JSON.stringify(d);
   } else {
@@ -392,7 +413,7 @@ async function initCommission() {
   document.getElementById("lock").addEventListener("click", () => { sessionStorage.removeItem(TOKEN_KEY); showLocked(""); });
 
   const ops = { "sdo-read": (v) => v, "sdo-write": (v) => ({ ...v, value: v.type === "string" || v.type === "bytes" ? v.value : numberOrText(v.value || "") }),
-    "nmt": (v) => v, "set": (v) => ({ ...v, value: numberOrText(v.value || "") }), "lss-inquire": (v) => v };
+    "nmt": (v) => v, "set": (v) => ({ ...v, value: numberOrText(v.value || "") }), "lss-inquire": (v) => v, "scan": (v) => v };
   for (const [op, shape] of Object.entries(ops)) {
     document.getElementById("form-" + op).addEventListener("submit", async (ev) => {
       ev.preventDefault();

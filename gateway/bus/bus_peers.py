@@ -1,0 +1,254 @@
+"""Who else is on the bus: another master, other SDO clients, node ids nobody configured.
+
+A shared bus is normal (a commissioning tool reading objects of our nodes); two masters are
+not (two gateways with the same node id fight over the nodes: guarding-bit faults, lost
+nodes). This module tells them apart from the frames the master hands it, and says so in
+words:
+
+=========================================  ==============================================
+frame                                      meaning
+=========================================  ==============================================
+NMT command (COB-ID 000h) we did not send  another master: a warning (rate-limited)
+heartbeat on our own COB-ID (700h + our    another device with our node id: a warning
+id) with a payload we did not send
+SDO request (600h + id) to one of our      another SDO client (a commissioning tool):
+nodes                                      info, once per node and period
+frame of a node id that is not configured  remembered; a node that does not appear
+                                           points at the ids that talk instead
+=========================================  ==============================================
+
+"Did we send it": a python-can bus does not receive its own frames unless
+``receive_own_messages`` is set; then every frame on those COB-IDs came from elsewhere. With
+the echo on, what we sent in the last ``echo_window_s`` is matched and consumed first.
+
+Sans-I/O: the master calls it on the event loop (one owner), with the time; it returns the
+text of a line to log or None, and keeps counts for /healthz, the web console and /metrics.
+COB-ID functions: CiA 301 7.3.3 (pre-defined connection set).
+
+Imports: gateway.states and the standard library only.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from gateway.states import NMT_BY_CODE, NmtState
+
+# CiA 301 7.3.3, pre-defined connection set: function code (COB-ID bits 10..7) -> name
+NMT_COB_ID = 0x000
+SYNC_COB_ID = 0x080
+SDO_REQUEST_BASE = 0x600  # SDO client -> server (RSDO of the node)
+HEARTBEAT_BASE = 0x700
+_FUNCTIONS = {
+    0x080: "EMCY",
+    0x180: "TPDO1",
+    0x200: "RPDO1",
+    0x280: "TPDO2",
+    0x300: "RPDO2",
+    0x380: "TPDO3",
+    0x400: "RPDO3",
+    0x480: "TPDO4",
+    0x500: "RPDO4",
+    0x580: "SDO answer",
+    0x600: "SDO request",
+    0x700: "heartbeat",
+}
+#: functions a node sends itself: its id is talking when we see them
+_SENT_BY_NODE = frozenset({0x080, 0x180, 0x280, 0x380, 0x480, 0x580, 0x700})
+
+
+def describe_cob_id(cob_id: int) -> str:
+    """``TPDO1 of node id 1`` for 0x181; ``NMT``, ``SYNC``, ``LSS``; else ``COB-ID 0x7A0``."""
+    if cob_id == NMT_COB_ID:
+        return "NMT"
+    if cob_id == SYNC_COB_ID:
+        return "SYNC"
+    if cob_id == 0x100:
+        return "TIME"
+    if cob_id in (0x7E4, 0x7E5):
+        return "LSS"
+    base, node_id = cob_id & 0x780, cob_id & 0x7F
+    name = _FUNCTIONS.get(base)
+    if name is None or node_id == 0:
+        return f"COB-ID 0x{cob_id:03X}"
+    return f"{name} of node id {node_id}"
+
+
+def talking_node_id(cob_id: int) -> int | None:
+    """The node id that sent this frame, when its COB-ID is one a node sends itself."""
+    base, node_id = cob_id & 0x780, cob_id & 0x7F
+    if base in _SENT_BY_NODE and node_id:
+        return node_id
+    return None
+
+
+def _state_name(byte: int) -> str:
+    try:
+        return NmtState(byte & 0x7F).name.lower().replace("_", "-")
+    except ValueError:
+        return f"state 0x{byte:02X}"
+
+
+@dataclass
+class Sighting:
+    """What was seen of one kind: how often, when last (wall clock), and the last detail."""
+
+    count: int = 0
+    last_wall: float | None = None
+    detail: str = ""
+
+    def doc(self) -> dict[str, Any]:
+        return {"count": self.count, "last": self.last_wall, "detail": self.detail}
+
+
+@dataclass
+class TalkingId:
+    cob_ids: set[int] = field(default_factory=set)
+    last_wall: float | None = None
+
+
+class BusPeers:
+    """The other participants of the bus as the master saw them (see the module docstring)."""
+
+    def __init__(
+        self,
+        own_node_id: int,
+        own_heartbeat: bytes,
+        configured_ids: set[int],
+        *,
+        echo: bool = False,
+        echo_window_s: float = 1.0,
+    ):
+        self.own_node_id = own_node_id
+        self.own_heartbeat = own_heartbeat
+        self.configured_ids = configured_ids
+        self.echo = echo
+        self.echo_window_s = echo_window_s
+        self._sent: deque[tuple[float, int, bytes]] = deque()
+        #: "nmt", "heartbeat": another master's frames
+        self.other_master: dict[str, Sighting] = {}
+        #: node name -> SDO requests of other clients to that node
+        self.sdo_clients: dict[str, Sighting] = {}
+        self.talking: dict[int, TalkingId] = {}
+
+    # -- what we sent (only matters when the bus echoes our own frames)
+    def sent(self, cob_id: int, data: bytes, now: float) -> None:
+        if self.echo and cob_id in (NMT_COB_ID, HEARTBEAT_BASE + self.own_node_id):
+            self._sent.append((now, cob_id, bytes(data)))
+
+    def _ours(self, cob_id: int, data: bytes, now: float) -> bool:
+        sent = self._sent
+        while sent and now - sent[0][0] > self.echo_window_s:
+            sent.popleft()
+        for i, (_, cob, payload) in enumerate(sent):
+            if cob == cob_id and payload == data:
+                del sent[i]
+                return True
+        return False
+
+    def _see(self, table: dict[str, Sighting], kind: str, wall: float, detail: str) -> None:
+        s = table.setdefault(kind, Sighting())
+        s.count += 1
+        s.last_wall = wall
+        s.detail = detail
+
+    # -- frames
+    def on_nmt(self, data: bytes, wall: float, now: float) -> str | None:
+        """An NMT command on the bus: the text of a warning if another master sent it."""
+        if self._ours(NMT_COB_ID, data, now):
+            return None
+        if len(data) >= 2:
+            command = NMT_BY_CODE.get(data[0], f"command 0x{data[0]:02X}")
+            target = "every node (id 0)" if data[1] == 0 else f"node id {data[1]}"
+            detail = f"NMT {command} to {target}"
+        else:
+            detail = f"NMT frame {data.hex(' ') or '(empty)'}"
+        self._see(self.other_master, "nmt", wall, detail)
+        return (
+            f"another master on the bus: {detail}, which this gateway did not send; "
+            "two masters fight over the nodes (states, guarding): keep one"
+        )
+
+    def on_own_heartbeat(self, data: bytes, wall: float, now: float) -> str | None:
+        """A frame on our own heartbeat COB-ID: the text of a warning if we did not send it."""
+        if self.echo and (
+            data == self.own_heartbeat or self._ours(HEARTBEAT_BASE + self.own_node_id, data, now)
+        ):
+            return None
+        state = _state_name(data[0]) if data else "no state byte"
+        cob = HEARTBEAT_BASE + self.own_node_id
+        detail = f"heartbeat 0x{cob:03X} ({state}) from another device"
+        self._see(self.other_master, "heartbeat", wall, detail)
+        return (
+            f"another device uses this gateway's node id {self.own_node_id}: {detail}; "
+            "two masters with one node id: change master.node_id of one of them"
+        )
+
+    def on_sdo_request(self, node: str, node_id: int, data: bytes, wall: float) -> str:
+        """An SDO request of another client to one of our nodes (normal on a shared bus)."""
+        what = _sdo_request_text(data)
+        self._see(self.sdo_clients, node, wall, what)
+        return (
+            f"another SDO client talks to node {node} (id {node_id}): {what} "
+            "(a commissioning tool? normal on a shared bus)"
+        )
+
+    def on_talking(self, cob_id: int, wall: float) -> None:
+        """A frame of a node id that is not configured (first sightings per COB-ID)."""
+        node_id = talking_node_id(cob_id)
+        if node_id is None or node_id in self.configured_ids:
+            return
+        t = self.talking.setdefault(node_id, TalkingId())
+        t.cob_ids.add(cob_id)
+        t.last_wall = wall
+
+    # -- reports
+    def talking_hint(self) -> str:
+        """``; node ids talking on this bus but not configured: 1 (TPDO1 0x181, heartbeat 0x701)``."""
+        if not self.talking:
+            return "; no other node id talks on this bus either (wiring, bit rate, power?)"
+        parts = []
+        for node_id in sorted(self.talking)[:8]:
+            cobs = sorted(self.talking[node_id].cob_ids)[:3]
+            kinds = ", ".join(f"{describe_cob_id(c).split(' of ')[0]} 0x{c:03X}" for c in cobs)
+            parts.append(f"{node_id} ({kinds})")
+        more = f" and {len(self.talking) - 8} more" if len(self.talking) > 8 else ""
+        return (
+            "; node ids talking on this bus but not configured: "
+            + ", ".join(parts)
+            + more
+            + " (a wrong node_id in the config?)"
+        )
+
+    def doc(self) -> dict[str, Any]:
+        """For /healthz and the web console."""
+        return {
+            "other_master": {k: v.doc() for k, v in sorted(self.other_master.items())},
+            "other_sdo_clients": {k: v.doc() for k, v in sorted(self.sdo_clients.items())},
+            "unconfigured_node_ids": sorted(self.talking),
+        }
+
+
+# CiA 301 7.2.4.3: the client command specifier (bits 7..5 of byte 0) of an SDO request
+_SDO_CCS = {
+    0: "download segment",
+    1: "download",
+    2: "upload",
+    3: "upload segment",
+    4: "abort",
+    5: "block upload",
+    6: "block download",
+}
+
+
+def _sdo_request_text(data: bytes) -> str:
+    if not data:
+        return "empty SDO frame"
+    ccs = data[0] >> 5
+    name = _SDO_CCS.get(ccs, f"command 0x{data[0]:02X}")
+    if ccs in (1, 2, 4, 5, 6) and len(data) >= 4:
+        index = data[1] | (data[2] << 8)
+        return f"{name} of 0x{index:04X}:{data[3]:02X}"
+    return name

@@ -1,0 +1,162 @@
+"""Commissioning commands (``sdo``, ``nmt``) beside a running gateway.
+
+With ``can.interface: virtual`` the bus exists only inside one process: a second process that
+opens "the same" bus opens a private, empty copy, and with ``simulate:`` it would even simulate
+its own copy of the devices, so an SDO write would "succeed" on devices nobody else sees. So
+before such a command opens the bus:
+
+1. If the config's Zenoh endpoint answers as a gateway (its catalogue under the config's
+   prefix), the command goes through that gateway's Zenoh API (``<prefix>/<node>/sdo/..``,
+   ``<prefix>/<node>/nmt``): it reaches the real (simulated) devices of the running gateway.
+2. Else, if the command would simulate devices (``simulate:``) while the gateway's health port
+   is in use (a gateway runs without Zenoh), it refuses, in one line that says how to reach the
+   running gateway instead.
+3. Else nothing runs on this config: the command opens the bus itself (and simulates the devices
+   of ``simulate:``), and says on stderr that it acts on its own simulated devices.
+
+Other interfaces (socketcan, pcan, remote, ...) are shared by every process: the command opens
+the bus beside the gateway, as before.
+
+Imports: zenoh, config, objref, zenoh_bridge.keys. Nothing of bus/ or modbus/.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+from typing import Any
+
+import zenoh
+
+from gateway.config import Config
+from gateway.objref import ObjRef
+from gateway.zenoh_bridge.keys import catalog_key, nmt_key, sdo_key
+
+#: how long to wait for a running gateway to answer (loopback: a few ms when one runs)
+FIND_TIMEOUT_S = 1.5
+QUERY_TIMEOUT_S = 10.0
+
+
+class RemoteError(Exception):
+    """The running gateway answered with an error (its ``message`` in words, its ``kind``)."""
+
+    def __init__(self, kind: str, message: str):
+        self.kind = kind
+        super().__init__(message)
+
+
+def in_process_bus(cfg: Config) -> bool:
+    return cfg.can.interface == "virtual"
+
+
+def _port_in_use(host: str, port: int) -> bool:
+    if not port:
+        return False
+    try:
+        with socket.create_connection((host, port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+class ZenohGateway:
+    """A running gateway reached through its Zenoh queryable (a client session on its
+    listen endpoint)."""
+
+    def __init__(self, session: zenoh.Session, prefix: str, catalog: dict[str, Any]):
+        self.session = session
+        self.prefix = prefix
+        self.catalog = catalog
+        self.endpoint = ""
+
+    def close(self) -> None:
+        self.session.close()
+
+    def _get(self, key: str, payload: bytes | None = None) -> Any:
+        replies = self.session.get(key, payload=payload, timeout=QUERY_TIMEOUT_S)
+        for reply in replies:
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+            body = reply.err.payload.to_bytes()
+            try:
+                doc = json.loads(body)
+            except ValueError:
+                raise RemoteError("error", body.decode(errors="replace")) from None
+            raise RemoteError(str(doc.get("error", "error")), str(doc.get("message", doc)))
+        raise RemoteError("timeout", f"the running gateway did not answer {key}")
+
+    def sdo_read(self, node: str, obj: str, type_: str | None) -> Any:
+        key = sdo_key(self.prefix, node, ObjRef.parse(obj))
+        return self._get(key + (f"?type={type_}" if type_ else "")).get("value")
+
+    def sdo_write(self, node: str, obj: str, value: str, type_: str | None) -> None:
+        body: dict[str, Any] = {"value": _json_scalar(value)}
+        if type_:
+            body["type"] = type_
+        self._get(sdo_key(self.prefix, node, ObjRef.parse(obj)), json.dumps(body).encode())
+
+    def nmt(self, node: str, command: str) -> None:
+        self._get(nmt_key(self.prefix, node), json.dumps({"command": command}).encode())
+
+
+def _json_scalar(text: str) -> Any:
+    """``5`` -> 5, ``0x10`` -> 16, ``1.5`` -> 1.5, anything else as text."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def find_running_gateway(cfg: Config, timeout_s: float = FIND_TIMEOUT_S) -> ZenohGateway | None:
+    """The gateway that serves this config's Zenoh endpoint, or None when none answers."""
+    z = cfg.zenoh
+    endpoints = z.listen if z.mode == "peer" else z.connect
+    if not z.enabled or not endpoints:
+        return None
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps(endpoints))
+    conf.insert_json5("connect/timeout_ms", str(int(timeout_s * 1000)))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError:
+        return None  # nothing listens there
+    prefix = z.key_prefix(cfg.gateway.name)
+    try:
+        for reply in session.get(catalog_key(prefix), timeout=timeout_s):
+            if reply.ok is not None:
+                gw = ZenohGateway(session, prefix, json.loads(reply.ok.payload.to_bytes()))
+                gw.endpoint = ", ".join(endpoints)
+                return gw
+    except (zenoh.ZError, ValueError):
+        pass
+    session.close()
+    return None
+
+
+def refusal(cfg: Config, command: str) -> str | None:
+    """The one line that refuses ``command`` on an in-process bus while a gateway holds this
+    config's ports without a Zenoh API to go through; None when nothing runs."""
+    h = cfg.health
+    if not _port_in_use(h.host, h.port):
+        return None
+    url = f"http://{h.host}:{h.port}"
+    return (
+        f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway running "
+        f"at {url}, so `{command}` would act on a private copy of the devices; use its web "
+        f"console ({url}/commissioning with web.writes), enable zenoh (this command then goes "
+        "through it), or give both a bus they share (can.interface: remote, docs/canopen.md)"
+    )
+
+
+def private_note(cfg: Config) -> str:
+    names = ", ".join(n.name for n in cfg.simulated_nodes()) or "none"
+    return (
+        f"note: {cfg.source}: can.interface: virtual and no gateway runs on this config: acting "
+        f"on this command's own simulated devices ({names})"
+    )

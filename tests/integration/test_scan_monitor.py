@@ -1,0 +1,180 @@
+"""``scan`` and ``monitor`` on a python-can virtual bus, against our simulator, python canopen's
+LocalNode (an SDO server that is not ours) and frames scripted from the manuals."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import can
+import canopen
+
+from gateway.app import SimulatedBus
+from gateway.profiles import load_profile
+from gateway.tools.frames import FrameDecoder
+from gateway.tools.monitor import monitor
+from gateway.tools.scan import report, scan
+from tests.helpers import make_config
+
+WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
+DISPLAY = {"name": "display", "node_id": 5, "profile": "ap05"}
+
+
+def frame(cob_id: int, data: bytes) -> can.Message:
+    return can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+
+
+@contextmanager
+def local_node(channel: str, node_id: int, profile: str) -> Iterator[canopen.LocalNode]:
+    network = canopen.Network()
+    network.connect(interface="virtual", channel=channel)
+    node = canopen.LocalNode(node_id, str(load_profile(profile).eds_path))
+    network.add_node(node)
+    try:
+        yield node
+    finally:
+        network.disconnect()
+
+
+# --------------------------------------------------------------------------- frames in words
+
+
+def test_frames_are_decoded_with_what_the_config_knows() -> None:
+    d = FrameDecoder(make_config([WIRE, DISPLAY]))
+    # SGH10 manual 4.3: TPDO1 position (int32, 0.1 mm) and velocity
+    tpdo = d.decode(0x181, (12345).to_bytes(4, "little") + (20).to_bytes(2, "little", signed=True))
+    assert (tpdo.kind, tpdo.node, tpdo.service) == ("pdo", "wire", "TPDO1")
+    assert tpdo.text.startswith("position=1234.5 mm velocity=")
+    assert d.decode(0x000, b"\x02\x05").text == "stop to node id 5"
+    assert d.decode(0x000, b"\x01\x00").text == "start to every node"
+    assert d.decode(0x701, b"\x7f").text == "pre-operational"
+    assert d.decode(0x701, b"\x00").text == "boot-up"
+    emcy = d.decode(0x081, bytes([0x10, 0x81, 0x11, 0, 0, 0, 0, 0]))
+    assert emcy.text.startswith("0x8110 (CAN overrun (objects lost)), error register 0x11")
+    req = d.decode(0x601, bytes([0x40, 0x08, 0x10, 0, 0, 0, 0, 0]))
+    assert (req.service, req.text) == ("SDO request", "upload 0x1008:00 (Manufacturer device name)")
+    abort = d.decode(0x581, bytes([0x80, 0x00, 0x10, 0x00, 0x02, 0x00, 0x01, 0x06]))
+    assert (
+        abort.text
+        == "abort 0x1000:00 (Device type): 0x06010002 Attempt to write a read only object"
+    )
+    answer = d.decode(0x581, bytes([0x43, 0x00, 0x10, 0x00, 0x96, 0x01, 0x0A, 0x00]))
+    assert answer.text == "upload answer 0x1000:00 (Device type) = 655766 (0x000A0196)"
+    other = d.decode(0x18A, bytes(2))
+    assert (other.kind, other.node, other.node_id, other.service) == ("pdo", None, 10, "TPDO1")
+
+
+# --------------------------------------------------------------------------- monitor
+
+
+def test_monitor_prints_decoded_frames_filtered_by_node_and_kind() -> None:
+    cfg = make_config([WIRE, DISPLAY])
+    channel = cfg.can.channel
+    reader = can.Bus(interface="virtual", channel=channel)
+    sender = can.Bus(interface="virtual", channel=channel)
+    try:
+        for msg in [
+            frame(0x701, b"\x05"),  # wire heartbeat: filtered out by kind
+            frame(0x181, (100).to_bytes(4, "little") + bytes(2)),  # wire TPDO1
+            frame(0x605, bytes([0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0])),  # display: other node
+            frame(0x081, bytes([0x00, 0x50, 0x01, 0, 0, 0, 0, 0])),  # wire EMCY
+            frame(0x581, bytes([0x80, 0x00, 0x60, 0x00, 0x00, 0x00, 0x02, 0x06])),  # wire abort
+        ]:
+            sender.send(msg)
+        out = io.StringIO()
+        n = monitor(reader, FrameDecoder(cfg), out, nodes={1}, kinds={"pdo", "emcy", "sdo"},
+                    count=3, duration_s=30)  # fmt: skip
+    finally:
+        reader.shutdown()
+        sender.shutdown()
+    assert n == 3
+    lines = [line.split(None, 1)[1] for line in out.getvalue().splitlines()]  # without the time
+    assert lines[0] == "181  wire         TPDO1         position=10 mm velocity=0 mm/s"
+    assert lines[1].startswith("081  wire         EMCY          0x5000 (")
+    assert lines[2] == (
+        "581  wire         SDO answer    abort 0x6000:00 (Operating parameters): "
+        "0x06020000 Object does not exist in the object dictionary"
+    )
+
+
+# --------------------------------------------------------------------------- scan
+
+
+def test_scan_finds_our_simulator_a_local_node_and_a_scripted_heartbeat() -> None:
+    """wire (id 1, our simulator) and a POSI+ (id 7, python canopen's LocalNode) answer SDO;
+    id 9 only sends heartbeats; the configured display (id 5) is silent."""
+    cfg = make_config([WIRE, DISPLAY])
+    channel = cfg.can.channel
+    sim = SimulatedBus(cfg, ["wire"])
+    sim.start()
+    talker = can.Bus(interface="virtual", channel=channel)
+    bus = can.Bus(interface="virtual", channel=channel)
+    try:
+        with local_node(channel, 7, "posi_plus"):
+
+            def script() -> None:  # frames sent once the scan listens
+                talker.send(frame(0x709, b"\x05"))
+                talker.send(frame(0x189, bytes(4)))
+
+            found = scan(bus, listen_s=0.5, active=True, sdo_timeout_s=0.3,
+                         node_ids=range(1, 16), on_listening=script)  # fmt: skip
+    finally:
+        bus.shutdown()
+        talker.shutdown()
+        sim.stop()
+    assert sorted(found) == [1, 7, 9]
+    assert found[1].name == "SGH10" and found[1].device_type == 0x000A0196
+    assert found[1].vendor == 0x195
+    assert found[7].name == "POSI+" and found[7].vendor == 0x184
+    assert found[9].state == "operational" and found[9].device_type is None
+    lines = report(found, cfg, active=True)
+    text = "\n".join(lines)
+    row = {int(line.split()[0]): line for line in lines[1:] if line.split()[0].isdigit()}
+    assert row[1].endswith("profile sgh10; config node wire (sgh10)")
+    assert row[7].endswith("profile posi_plus; not in the config")
+    assert row[9].split()[1] == "operational" and row[9].endswith("not in the config")
+    assert row[5] == "  5  not found: config node display (ap05)"
+    assert (
+        "configured but not found: display; found but not configured: node id 7, 9 "
+        "(a wrong node_id?)"
+    ) in text
+
+
+async def test_the_console_scans_the_bus_beside_the_running_master() -> None:
+    """``POST /api/commission/scan`` (web.writes and the token): a second connection to the
+    gateway's bus finds its simulated wire and a LocalNode the config does not know."""
+    import asyncio
+    import json
+    import urllib.request
+
+    from gateway.app import Gateway
+    from tests.helpers import free_port, node_operational, wait_until
+
+    token = "scan-test-token-12"
+    cfg = make_config([WIRE], health={"port": free_port()}, web={"writes": True, "token": token})
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        await wait_until(lambda: node_operational(gw, "wire"), what="wire operational")
+        with local_node(cfg.can.channel, 7, "posi_plus"):
+
+            def post() -> dict:
+                req = urllib.request.Request(
+                    f"http://127.0.0.1:{gw.health.port}/api/commission/scan", data=b"{}",
+                    method="POST", headers={"Authorization": f"Bearer {token}"},
+                )  # fmt: skip
+                with urllib.request.urlopen(req, timeout=30) as r:
+                    return json.loads(r.read())
+
+            doc = await asyncio.to_thread(post)
+    finally:
+        await gw.stop()
+    assert doc["ok"] is True
+    # the gateway's own heartbeat (master.node_id 127) is seen on the bus too
+    assert sorted(n["node_id"] for n in doc["nodes"]) == [1, 7, 127]
+    rows = {line.split()[0]: line for line in doc["report"][1:]}
+    assert rows["1"].split()[1] == "operational"
+    assert rows["1"].endswith("profile sgh10; config node wire (sgh10)")
+    assert rows["7"].endswith("profile posi_plus; not in the config")
+    assert rows["127"].endswith("a master with this config's master.node_id 127 (the gateway?)")

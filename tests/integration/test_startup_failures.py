@@ -1,0 +1,141 @@
+"""A gateway that cannot start says why in one line and is gone: a port in use (Modbus, Zenoh
+listen, health/web), a file missing. Exit code 2, no traceback, and everything it had opened
+before the failure is closed again (ports free, its threads ended), so a service manager can
+restart it and a second start on free ports works."""
+
+from __future__ import annotations
+
+import socket
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from gateway.app import Gateway
+from gateway.startup import StartupError
+from tests.helpers import free_port, gateway_process, make_config, unique_channel, wait_ready
+
+WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
+GATEWAY_THREADS = ("can-reader", "can-sender", "zenoh-events", "sim-runner")
+
+
+def write_config(path: Path, modbus: int, zenoh: int, health: int) -> Path:
+    raw: dict[str, Any] = {
+        "gateway": {"name": f"g{zenoh}"},
+        "can": {"interface": "virtual", "channel": unique_channel()},
+        "master": {"heartbeat_ms": 0},
+        "nodes": [WIRE],
+        "modbus": {"port": modbus},
+        "zenoh": {"listen": [f"tcp/127.0.0.1:{zenoh}"], "refuse_duplicate_prefix": False},
+        "health": {"port": health},
+        "simulate": {"nodes": "all"},
+    }
+    path.write_text(yaml.safe_dump(raw), encoding="utf-8")
+    return path
+
+
+def port_free(port: int) -> bool:
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def first_gateway(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, int]]:
+    """A running gateway that holds a Modbus, a Zenoh and a health port."""
+    ports = {"modbus": free_port(), "zenoh": free_port(), "health": free_port()}
+    cfg = write_config(tmp_path_factory.mktemp("first") / "first.yaml", **ports)
+    proc = gateway_process(cfg)
+    try:
+        wait_ready(proc)
+        yield ports
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+@pytest.mark.parametrize(
+    ("taken", "key", "value"),
+    [
+        ("modbus", "modbus.port", "{port} on 127.0.0.1"),
+        ("zenoh", "zenoh.listen", "tcp/127.0.0.1:{port}"),
+        ("health", "health.port", "{port} on 127.0.0.1"),
+    ],
+)
+def test_second_gateway_on_a_port_in_use_exits_2_with_one_line_naming_the_setting(
+    first_gateway: dict[str, int], tmp_path: Path, taken: str, key: str, value: str
+) -> None:
+    ports = {name: free_port() for name in ("modbus", "zenoh", "health")}
+    ports[taken] = first_gateway[taken]
+    cfg = write_config(tmp_path / "second.yaml", **ports)
+    proc = gateway_process(cfg)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, err
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert lines == [
+        f"error: {cfg}: {key}: {value.format(port=ports[taken])} is already in use "
+        "(another gateway or program listens there)"
+    ]
+    assert out == ""
+    # what the second gateway had opened before the failure is closed with it
+    for name, port in ports.items():
+        if name != taken:
+            assert port_free(port), f"{name} port {port} still bound"
+
+
+async def test_failed_start_closes_every_part_and_ends_every_thread() -> None:
+    """In one process: the health port is taken; after ``start()`` raised, the Modbus and Zenoh
+    ports it had opened are free, the bus threads and the simulator ended, and a second gateway
+    starts on the same ports."""
+    before = {t for t in threading.enumerate() if not t.daemon}
+    holder = socket.socket()
+    holder.bind(("127.0.0.1", 0))
+    holder.listen()
+    taken = holder.getsockname()[1]
+    zenoh_port, modbus_port = free_port(), free_port()
+    sections: dict[str, Any] = {
+        "modbus": {"port": modbus_port},
+        "zenoh": {"listen": [f"tcp/127.0.0.1:{zenoh_port}"]},
+        "health": {"port": taken},
+    }
+    cfg = make_config([WIRE], **sections)
+    gw = Gateway(cfg)
+    try:
+        with pytest.raises(StartupError) as err:
+            await gw.start()
+    finally:
+        holder.close()
+    assert (err.value.key, err.value.value) == ("health.port", f"{taken} on 127.0.0.1")
+    assert port_free(modbus_port) and port_free(zenoh_port)
+    alive = [t.name for t in threading.enumerate() if t.name in GATEWAY_THREADS and t.is_alive()]
+    assert alive == []
+    # no thread that would hold the interpreter at exit (the loop's idle executor ends with it)
+    held = {t for t in threading.enumerate() if not t.daemon and not t.name.startswith("asyncio_")}
+    assert held <= before
+    again = Gateway(make_config([WIRE], **sections))
+    await again.start()
+    try:
+        assert again.started and again.health.port == taken
+    finally:
+        await again.stop()
+
+
+async def test_missing_password_file_names_its_key() -> None:
+    cfg = make_config(
+        [WIRE],
+        zenoh={"auth": {"user": "gw", "password_file": "no-such-password.txt"}},
+    )
+    gw = Gateway(cfg)
+    with pytest.raises(StartupError) as err:
+        await gw.start()
+    assert err.value.key == "zenoh.auth.password_file"
+    assert str(err.value.value).endswith("no-such-password.txt")
+    assert err.value.reason == "does not exist"

@@ -1,0 +1,183 @@
+"""``sdo`` and ``nmt`` on a config whose bus is the in-process ``virtual`` bus, as a new user
+runs them beside ``make demo``: they go through the running gateway's Zenoh API and reach its
+devices (the write is seen by the gateway, the NMT stop in its /healthz); without a Zenoh API
+they refuse in one line that says how to reach the gateway; with no gateway running they say
+that they act on their own simulated devices."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from tests.helpers import free_port, gateway_process, unique_channel, wait_ready
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def demo_like(path: Path, **sections: Any) -> Path:
+    """A config like config/demo.yaml (virtual bus, simulated devices, Zenoh writes on) on
+    free ports."""
+    raw: dict[str, Any] = {
+        "gateway": {"name": "demo"},
+        "can": {"interface": "virtual", "channel": unique_channel()},
+        "master": {"heartbeat_ms": 200},
+        "nodes": [{"name": "wire", "node_id": 1, "profile": "sgh10"}],
+        "modbus": {"port": free_port()},
+        "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port()}"], "writes": True},
+        "health": {"port": free_port()},
+        "simulate": {"nodes": "all"},
+    }
+    raw.update(sections)
+    path.write_text(yaml.safe_dump(raw), encoding="utf-8")
+    return path
+
+
+def cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "gateway", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def healthz(cfg: Path) -> dict[str, Any]:
+    port = yaml.safe_load(cfg.read_text(encoding="utf-8"))["health"]["port"]
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=5) as r:
+        return json.loads(r.read())
+
+
+@pytest.fixture(scope="module")
+def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    cfg = demo_like(tmp_path_factory.mktemp("demo") / "demo.yaml")
+    proc = gateway_process(cfg)
+    try:
+        wait_ready(proc)
+        yield cfg
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+def test_sdo_goes_through_the_running_gateway(running: Path) -> None:
+    r = cli("sdo", "read", "-c", str(running), "wire", "0x1008:00")
+    assert (r.returncode, r.stdout.strip()) == (0, "SGH10"), r.stderr
+    # a write reaches the gateway's devices: read back by another process, through it again
+    r = cli("sdo", "write", "-c", str(running), "wire", "0x6000:00", "4")
+    assert (r.returncode, r.stdout.strip()) == (0, "OK"), r.stderr
+    r = cli("sdo", "read", "-c", str(running), "wire", "0x6000:00")
+    assert (r.returncode, r.stdout.strip()) == (0, "4 (0x0004)"), r.stderr
+    r = cli("sdo", "write", "-c", str(running), "wire", "0x1000:00", "1")
+    assert r.returncode == 1
+    assert r.stderr.startswith("error: SDO abort 0x06010002 (Attempt to write a read only object)")
+    assert "through the running gateway at tcp/127.0.0.1:" in r.stderr
+
+
+def test_nmt_goes_through_the_running_gateway(running: Path) -> None:
+    r = cli("nmt", "-c", str(running), "stop", "wire")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith(
+        "NMT stop sent to wire through the running gateway at tcp/127.0.0.1:"
+    )
+    # the device's next heartbeat reports it stopped (bounded wait on /healthz)
+    deadline = time.monotonic() + 10
+    while healthz(running)["nodes"]["wire"]["nmt_state"] != "stopped":
+        assert time.monotonic() < deadline, "the gateway never saw wire stopped"
+        time.sleep(0.05)
+    r = cli("nmt", "-c", str(running), "start", "all")
+    assert r.returncode == 0, r.stderr
+
+
+def test_without_zenoh_beside_a_running_gateway_the_command_refuses_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from gateway.cli import main
+
+    with socket.socket() as held:  # the running gateway's health port
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        cfg = demo_like(tmp_path / "g.yaml", zenoh={"enabled": False}, health={"port": port})
+        with pytest.raises(SystemExit) as exc:
+            main(["sdo", "write", "-c", str(cfg), "wire", "0x6000:00", "4"])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith(
+        f"error: {cfg}: can.interface: virtual: the bus lives inside the gateway running at "
+        f"http://127.0.0.1:{port}, so `sdo write` would act on a private copy of the devices"
+    )
+    assert "can.interface: remote, docs/canopen.md" in lines[0]
+
+
+def test_with_no_gateway_running_the_command_says_it_acts_on_its_own_devices(
+    tmp_path: Path,
+) -> None:
+    cfg = demo_like(tmp_path / "alone.yaml")
+    r = cli("sdo", "read", "-c", str(cfg), "wire", "0x1008:00")
+    assert (r.returncode, r.stdout.strip()) == (0, "SGH10"), r.stderr
+    assert r.stderr.strip() == (
+        f"note: {cfg}: can.interface: virtual and no gateway runs on this config: acting on this "
+        "command's own simulated devices (wire)"
+    )
+
+
+def test_a_tool_on_a_shared_bus_sends_no_heartbeat_and_no_sync(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Beside a gateway on a shared bus the tool is a second master only for what it is asked:
+    no heartbeat on the gateway's COB-ID (the gateway would report another master), no SYNC
+    (synchronous TPDOs would be sent twice as often)."""
+    import can
+    import canopen
+
+    from gateway.cli import main
+    from gateway.profiles import load_profile
+
+    cfg = demo_like(
+        tmp_path / "shared.yaml",
+        zenoh={"enabled": False},
+        simulate={"nodes": []},
+        master={"heartbeat_ms": 100, "sync_period_ms": 50},
+    )
+    channel = yaml.safe_load(cfg.read_text(encoding="utf-8"))["can"]["channel"]
+    network = canopen.Network()
+    network.connect(interface="virtual", channel=channel)
+    watcher = can.Bus(interface="virtual", channel=channel)
+    try:
+        network.add_node(canopen.LocalNode(1, str(load_profile("sgh10").eds_path)))
+        assert main(["sdo", "read", "-c", str(cfg), "wire", "0x1008:00"]) == 0
+        assert capsys.readouterr().out.strip() == "SGH10"
+        seen = set()
+        while (msg := watcher.recv(timeout=0)) is not None:
+            seen.add(msg.arbitration_id)
+    finally:
+        watcher.shutdown()
+        network.disconnect()
+    assert 0x601 in seen and 0x581 in seen  # the SDO exchange itself
+    assert 0x77F not in seen and 0x080 not in seen
+
+
+@pytest.mark.parametrize("command", [["scan"], ["monitor", "--count", "1"]])
+def test_listening_tools_beside_a_gateway_on_an_in_process_bus_refuse_in_one_line(
+    running: Path, command: list[str]
+) -> None:
+    r = cli(*command, "-c", str(running))
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith(
+        f"error: {running}: can.interface: virtual: the bus lives inside the gateway"
+    )
+    assert f"so `{command[0]}`" in lines[0] and "can.interface: remote, docs/canopen.md" in lines[0]
