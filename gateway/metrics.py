@@ -354,6 +354,8 @@ class _GatewayCollector:
             "Modbus output watchdog trips (safe outputs written), by reason (timeout, disconnect).",
             ["reason"],
             c.modbus_watchdog_trips,
+        )
+        yield labelled(
             "other_master_frames_total",
             "Frames of another master: NMT commands this gateway did not send (kind nmt), "
             "heartbeats on its own COB-ID it did not send (kind heartbeat).",

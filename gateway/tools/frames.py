@@ -8,7 +8,7 @@ names and engineering values (the mapping the boot configuration leaves in the d
 gateway decodes it), SYNC, TIME and LSS. A frame of an unconfigured node id is named by its
 function. Pure: no bus, no clock.
 
-Imports: config, profiles, bus.codec, bus.boot_steps, bus.settings, bus.emcy, bus.sdo_text,
+Imports: config, profiles, bus.codec, bus.boot_steps, bus.settings, bus.emcy, cia301,
 bus.bus_peers, states, objref.
 """
 
@@ -21,8 +21,8 @@ from gateway.bus.boot_steps import build_boot_steps
 from gateway.bus.bus_peers import describe_cob_id
 from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.emcy import decode_emcy
-from gateway.bus.sdo_text import abort_text
 from gateway.bus.settings import resolve_node_settings
+from gateway.cia301 import abort_text
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, load_node_profile

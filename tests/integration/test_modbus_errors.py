@@ -161,6 +161,8 @@ async def test_a_stopped_node_answers_no_response_until_started_again() -> None:
         assert (await client.read_holding_registers(0, count=1, device_id=1)).registers == [4]
         assert code(await client.write_register(0, 1, device_id=1)) is None  # NMT start
         await wait_until(node.operational, 3, "operational again")
+        # good again only with a TPDO received after the new start
+        await wait_until(lambda: node.quality(node.signals["position"]) == Quality.GOOD, 3, "a fresh position")
         assert code(await client.read_input_registers(100, count=2, device_id=1)) is None
 
 
