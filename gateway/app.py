@@ -317,6 +317,7 @@ class Gateway:
                 self.overview,
                 regmap=self.modbus.regmap if self.modbus is not None else None,
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
+                frames=self.driver,
             )
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(

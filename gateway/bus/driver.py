@@ -90,6 +90,9 @@ class BusDriver:
         self.default_handler: FrameHandler | None = None
         #: called on the reader thread after a burst, when no received frame is left buffered
         self.burst_listeners: list[Callable[[], None]] = []
+        #: called on the reader thread with every received frame while set (the web console's
+        #: bus monitor, ``gateway.web.monitor``); None costs the reader one check per frame
+        self.frame_tap: FrameHandler | None = None
         self.bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
@@ -275,6 +278,9 @@ class BusDriver:
             if self.state == "error":
                 self._maybe_recovered()
             counters["frames_in"] += 1
+            tap = self.frame_tap  # one read: the loop may set it to None meanwhile
+            if tap is not None:
+                tap(msg)
             # CANopen (CiA 301) uses 11-bit identifiers: a 29-bit frame is never ours
             h = None if msg.is_extended_id else handlers.get(msg.arbitration_id)
             try:

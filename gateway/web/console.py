@@ -25,6 +25,11 @@ host and port: pages and static files, a small JSON API, server-sent events, and
                                        profile (a read, so no ``web.writes`` needed); needs
                                        ``Content-Type: application/json``; ``READS_PER_S`` per
                                        client (burst ``READ_BURST``), else 429 + ``Retry-After``
+``GET /monitor``                       bus monitor page (``static/monitor.html``)
+``GET /api/monitor/stream``            server-sent events of the bus monitor
+                                       (``gateway.web.monitor``): ``hello``, ``frames``,
+                                       ``status``; filters ``?node=wire,5``, ``?kind=pdo,emcy``;
+                                       400 for an unknown node or kind, 503 past 8 pages
 ``GET /api/sim``                       simulated nodes, their faults and who may inject them
 ``POST /api/sim/<name>/<action>``      fault injection into a node simulated in this process
                                        (``gateway.sim.faults``); see ``fault_rule``
@@ -40,8 +45,9 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.limits, config, image, commands (types), sim.faults (names and errors; the
-injector itself is given by the application). Never bus/ internals, modbus/ or zenoh_bridge/
+web.events, web.limits, web.monitor, config, image, commands (types), sim.faults (names and errors; the
+injector itself is given by the application; the bus driver, for the monitor's tap, too).
+Never bus/ internals, modbus/ or zenoh_bridge/
 modules with I/O.
 """
 
@@ -67,6 +73,7 @@ from gateway.web.commissioning import Commissioning, error_doc, shown
 from gateway.web.events import KINDS, EventLog, EventLogHandler
 from gateway.web.limits import ClientBudget
 from gateway.web.live import LiveHub, Subscriber, TooManyClients
+from gateway.web.monitor import FrameMonitor, FrameSource, TooManyPages
 from gateway.web.trends import TREND_PERIOD_S, TrendStore
 from gateway.web.views import ConsoleModel, OverviewFn
 from gateway.zenoh_bridge.payloads import engineering
@@ -116,6 +123,7 @@ class WebConsole:
         *,
         regmap: Any = None,
         faults: Any = None,
+        frames: FrameSource | None = None,
     ):
         self.cfg = cfg
         self.image = image
@@ -134,9 +142,12 @@ class WebConsole:
         #: ``gateway.sim.faults.FaultInjector`` when nodes are simulated in this process
         self.faults = faults
         self._sampler: Any = None
+        #: the bus monitor; ``frames`` is the bus driver (its ``frame_tap``)
+        self.monitor = FrameMonitor(cfg, frames)
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)
+        self.monitor.attach(loop)
         for node in self.image.nodes.values():
             self.events.watch(node)
         self.image.health_listeners.append(self.events.on_health)
@@ -145,6 +156,7 @@ class WebConsole:
 
     def stop(self) -> None:
         self.hub.detach()
+        self.monitor.detach()
         if self.events.on_health in self.image.health_listeners:
             self.image.health_listeners.remove(self.events.on_health)
         logging.getLogger("gateway").removeHandler(self._log_handler)
@@ -211,6 +223,10 @@ class WebConsole:
             return self._events(request)
         if path == "/api/sim":
             return _json(HTTPStatus.OK, self._sim_doc())
+        if path == "/monitor":
+            return self._file("monitor.html")
+        if path == "/api/monitor/stream":
+            return self._monitor_stream(request)
         return None
 
     def _not_found(self, message: str) -> Response:
@@ -432,6 +448,32 @@ class WebConsole:
         if text is not None:
             doc["text"] = text
         return _json(HTTPStatus.OK, doc)
+
+    # ------------------------------------------------------------------ bus monitor
+    def _monitor_stream(self, request: Request) -> Response | Stream:
+        try:
+            nodes, kinds = self.monitor.parse_filters(
+                request.query.get("node", "").split(","), request.query.get("kind", "").split(",")
+            )
+        except ValueError as exc:
+            message = str(exc).replace("--node ", "node: ").replace("--kind ", "kind: ")
+            return _json(HTTPStatus.BAD_REQUEST, {"error": "bad_request", "message": message})
+        if request.method == "HEAD":
+            return Response(HTTPStatus.OK, b"", "text/event-stream")
+        refused = self.monitor.refusal()
+        if refused is not None:
+            return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": refused})
+
+        async def body(reader: Any, writer: Any) -> None:
+            # opened here, not before the headers are written: a page is closed by its pump
+            try:
+                page = self.monitor.open(nodes, kinds)
+            except TooManyPages as exc:  # another page came first since refusal()
+                writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
+                return
+            await self.monitor.pump(page, reader, writer)
+
+        return Stream("text/event-stream", body)
 
     # ------------------------------------------------------------------ fault injection
     def fault_rule(self) -> str:

@@ -1,5 +1,6 @@
 // canopen-gateway web console: plain JavaScript, no framework, no build step.
-// Pages: index (overview + nodes table), node (one node, live), commission (writes, token).
+// Pages: index (overview + nodes table), node (one node, live), commission (writes, token),
+// events (the event log), monitor (the bus monitor).
 "use strict";
 
 const page = document.body.dataset.page;
@@ -641,8 +642,119 @@ async function initEvents() {
   liveStream("/api/stream", { events: (d) => addEvents(d.events) });
 }
 
+// ------------------------------------------------------------------ bus monitor
+// The gateway filters by node and kind and sends at most `max_lines_per_s` lines a second; the
+// page keeps the last MAX_FRAME_ROWS rows. Pause closes the stream (the gateway stops tapping
+// its reader when no monitor page is open) and says what was not recorded.
+const MAX_FRAME_ROWS = 500;
+const mon = { es: null, paused: false, pausedAt: null, limit: 100 };
+
+function fmtClock(ts) {
+  const d = new Date(ts * 1000);
+  return d.toLocaleTimeString(undefined, { hour12: false }) + "." + String(d.getMilliseconds()).padStart(3, "0");
+}
+
+function monitorQuery() {
+  const node = document.getElementById("mon-node").value;
+  const all = [...document.querySelectorAll('input[name="mkind"]')];
+  const kinds = all.filter((i) => i.checked).map((i) => i.value);
+  const q = new URLSearchParams();
+  if (node) q.set("node", node);
+  if (kinds.length < all.length) q.set("kind", kinds.join(","));
+  return { q, node, kinds: new Set(kinds) };
+}
+
+function monitorNote(text) {
+  return el("tr", { class: "note" }, el("td", { colSpan: 6, class: "muted" }, text));
+}
+
+function addFrameRows(items) {
+  const tbody = document.querySelector("#frames tbody");
+  const { node, kinds } = monitorQuery();
+  const rows = items.map((f) => {
+    if (f.skipped !== undefined) {
+      return monitorNote(`${f.skipped} frame${f.skipped === 1 ? "" : "s"} not shown (more than ${mon.limit} lines a second)`);
+    }
+    const tr = el("tr", { "data-kind": f.kind, "data-node": f.node || "" },
+      el("td", { class: "nowrap num" }, fmtClock(f.ts)),
+      el("td", { class: "code" }, f.cob_id),
+      el("td", {}, f.node ? el("a", { href: "/node/" + encodeURIComponent(f.node) }, f.node) : el("span", { class: "muted" }, f.node_id ? "id " + f.node_id : "-")),
+      el("td", { class: "nowrap" }, f.service),
+      el("td", { class: "frame-text" }, f.text),
+      el("td", { class: "code frame-data" }, f.data));
+    tr.hidden = (node && f.node !== node) || !kinds.has(f.kind);
+    return tr;
+  });
+  tbody.prepend(...rows.reverse());
+  while (tbody.rows.length > MAX_FRAME_ROWS) tbody.lastElementChild.remove();
+}
+
+function monitorStatus(s) {
+  const parts = [`${s.shown} shown`, `${s.skipped} skipped (over ${s.max_lines_per_s} lines a second)`];
+  if (s.dropped) parts.push(`${s.dropped} not read by this page in time`);
+  if (s.lost) parts.push(`${s.lost} lost in the gateway (its hand-off was full)`);
+  document.getElementById("mon-status").textContent = parts.join(", ");
+}
+
+function monitorOpen() {
+  if (mon.es) mon.es.close();
+  const { q, kinds } = monitorQuery();
+  if (!kinds.size) {
+    mon.es = null;
+    setConn("no kind selected");
+    return;
+  }
+  const qs = q.toString();
+  mon.es = liveStream("/api/monitor/stream" + (qs ? "?" + qs : ""), {
+    hello: (h) => { mon.limit = h.max_lines_per_s; document.getElementById("mon-limit").textContent = String(h.max_lines_per_s); },
+    frames: addFrameRows,
+    status: monitorStatus,
+  });
+}
+
+function monitorRefilter() {
+  const { node, kinds } = monitorQuery();
+  for (const tr of document.querySelectorAll("#frames tbody tr[data-kind]")) {
+    tr.hidden = (node && tr.dataset.node !== node) || !kinds.has(tr.dataset.kind);
+  }
+  if (!mon.paused) monitorOpen();
+}
+
+function monitorPause() {
+  const b = document.getElementById("mon-pause");
+  const tbody = document.querySelector("#frames tbody");
+  if (!mon.paused) {
+    mon.paused = true;
+    mon.pausedAt = Date.now() / 1000;
+    if (mon.es) mon.es.close();
+    mon.es = null;
+    setConn("paused");
+    b.textContent = "Resume";
+    b.setAttribute("aria-pressed", "true");
+  } else {
+    mon.paused = false;
+    tbody.prepend(monitorNote(`paused from ${fmtClock(mon.pausedAt)} to ${fmtClock(Date.now() / 1000)}: frames of that time not recorded`));
+    b.textContent = "Pause";
+    b.setAttribute("aria-pressed", "false");
+    monitorOpen();
+  }
+}
+
+async function initMonitor() {
+  const ov = await getJSON("/api/overview");
+  header(ov);
+  const sel = document.getElementById("mon-node");
+  const wanted = new URLSearchParams(location.search).get("node");
+  for (const r of ov.nodes) sel.append(el("option", { value: r.name, selected: r.name === wanted }, `${r.name} (id ${r.node_id})`));
+  sel.addEventListener("change", monitorRefilter);
+  for (const i of document.querySelectorAll('input[name="mkind"]')) i.addEventListener("change", monitorRefilter);
+  document.getElementById("mon-pause").addEventListener("click", monitorPause);
+  document.getElementById("mon-clear").addEventListener("click", () => document.querySelector("#frames tbody").replaceChildren());
+  monitorOpen();
+}
+
 // ------------------------------------------------------------------ start
-const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents };
+const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor };
 INIT[page]().catch((err) => {
   setConn("error");
   const main = document.querySelector("main");
