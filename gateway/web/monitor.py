@@ -17,8 +17,8 @@ are counted and the page gets one "skipped" line for them. Only frames that are 
 decoded (``gateway.tools.frames.FrameDecoder``, once per frame whatever the number of pages).
 
 Rule 3: a page is a bounded queue of lines (``MAX_PENDING``, the size of the page's own ring)
-written by its pump at most ``1 / SEND_INTERVAL_S`` times a second, plus a status once a
-second (shown, skipped, lost). A page whose socket does not drain is skipped (its queue drops
+written by its pump at most ``1 / SEND_INTERVAL_S`` times a second, each write with a status
+(shown, skipped, lost; once a second when no line comes). A page whose socket does not drain is skipped (its queue drops
 the oldest lines and counts them) and disconnected after ``SLOW_CLIENT_LIMIT_S``.
 
 Frames the gateway sends are not tapped (they leave through the sender thread): the page shows
@@ -45,7 +45,7 @@ from gateway.web.live import MAX_BUFFERED_BYTES, RETRY_MS, SLOW_CLIENT_LIMIT_S, 
 
 log = logging.getLogger("gateway.web")
 
-MAX_LINES_PER_S = 100  # per page: what a person can follow, far below a saturated bus
+MAX_LINES_PER_S = 200  # per page: more than the demo sends, far below a saturated bus
 MAX_PENDING = 500  # lines waiting for one page; also the page's ring
 HANDOFF_MAX = 20_000  # raw frames between two takes (2 s of a saturated 1 Mbit/s bus)
 HANDOFF_PERIOD_S = 0.05
@@ -362,7 +362,7 @@ class FrameMonitor:
                     lines = list(page.lines)
                     page.lines.clear()
                     chunks.append(sse("frames", lines))
-                if now - last_status >= STATUS_PERIOD_S:
+                if chunks or now - last_status >= STATUS_PERIOD_S:
                     chunks.append(sse("status", page.status(self.lost)))
                     last_status = now
                 if chunks:

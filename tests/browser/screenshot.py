@@ -6,7 +6,7 @@ runs the gateway of the config in this process (its simulated nodes included; th
 Zenoh and health ports of the config, or free ones when a running demo holds them;
 commissioning switched on with a throw-away token), waits until every node is operational and the page
 shows it live, and writes ``web-overview.png``, ``web-node.png``, ``web-commissioning.png``, ``web-trends.png``
-and ``web-events.png``.
+``web-events.png`` and ``web-monitor.png``.
 """
 
 from __future__ import annotations
@@ -86,6 +86,20 @@ def _shoot_first_hour(base: str, out: Path, node: str = "wire") -> None:
         d.save_screenshot(str(out / "web-events.png"))
 
 
+def _shoot_monitor(base: str, out: Path) -> None:
+    """``web-monitor.png``: the bus monitor of the demo, paused once it has a screenful."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    with chromium(1280, 1000) as d:
+        d.get(base + "/monitor")
+        WebDriverWait(d, 30).until(
+            lambda d: len(d.find_elements(By.CSS_SELECTOR, "#frames tbody tr[data-kind]")) >= 60
+        )
+        d.find_element(By.ID, "mon-pause").click()
+        d.save_screenshot(str(out / "web-monitor.png"))
+
+
 def _port_or_free(port: int) -> int:
     """``port`` when nothing listens on it (the picture then shows the config's ports)."""
     with socket.socket() as s:
@@ -116,6 +130,7 @@ async def main(config: str, out_dir: str, node: str = "display") -> None:
             await wait_until(lambda n=n: node_operational(gw, n.name), 15, f"{n.name} operational")
         await asyncio.to_thread(_shoot, f"http://127.0.0.1:{gw.health.port}", out, node)
         await asyncio.to_thread(_shoot_first_hour, f"http://127.0.0.1:{gw.health.port}", out)
+        await asyncio.to_thread(_shoot_monitor, f"http://127.0.0.1:{gw.health.port}", out)
     finally:
         await gw.stop()
 

@@ -647,7 +647,7 @@ async function initEvents() {
 // page keeps the last MAX_FRAME_ROWS rows. Pause closes the stream (the gateway stops tapping
 // its reader when no monitor page is open) and says what was not recorded.
 const MAX_FRAME_ROWS = 500;
-const mon = { es: null, paused: false, pausedAt: null, limit: 100 };
+const mon = { es: null, paused: false, pausedAt: null, limit: 200 };
 
 function fmtClock(ts) {
   const d = new Date(ts * 1000);
@@ -668,12 +668,25 @@ function monitorNote(text) {
   return el("tr", { class: "note" }, el("td", { colSpan: 6, class: "muted" }, text));
 }
 
+function skipText(n) {
+  return `${n} frame${n === 1 ? "" : "s"} not shown (more than ${mon.limit} lines a second)`;
+}
+
 function addFrameRows(items) {
   const tbody = document.querySelector("#frames tbody");
   const { node, kinds } = monitorQuery();
-  const rows = items.map((f) => {
+  for (const f of items) {
     if (f.skipped !== undefined) {
-      return monitorNote(`${f.skipped} frame${f.skipped === 1 ? "" : "s"} not shown (more than ${mon.limit} lines a second)`);
+      const top = tbody.firstElementChild;
+      if (top && top.dataset.skipped) { // one note for the frames skipped in a row
+        top.dataset.skipped = String(Number(top.dataset.skipped) + f.skipped);
+        top.cells[0].textContent = skipText(Number(top.dataset.skipped));
+      } else {
+        const note = monitorNote(skipText(f.skipped));
+        note.dataset.skipped = String(f.skipped);
+        tbody.prepend(note);
+      }
+      continue;
     }
     const tr = el("tr", { "data-kind": f.kind, "data-node": f.node || "" },
       el("td", { class: "nowrap num" }, fmtClock(f.ts)),
@@ -683,9 +696,8 @@ function addFrameRows(items) {
       el("td", { class: "frame-text" }, f.text),
       el("td", { class: "code frame-data" }, f.data));
     tr.hidden = (node && f.node !== node) || !kinds.has(f.kind);
-    return tr;
-  });
-  tbody.prepend(...rows.reverse());
+    tbody.prepend(tr);
+  }
   while (tbody.rows.length > MAX_FRAME_ROWS) tbody.lastElementChild.remove();
 }
 
