@@ -146,10 +146,11 @@ def refusal(cfg: Config, command: str) -> str | None:
     if not _port_in_use(h.host, h.port):
         return None
     url = f"http://{h.host}:{h.port}"
+    page = f"{url}/monitor" if command == "monitor" else f"{url}/commissioning with web.writes"
     return (
         f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway running "
         f"at {url}, so `{command}` would act on a private copy of the devices; use its web "
-        f"console ({url}/commissioning with web.writes), enable zenoh (this command then goes "
+        f"console ({page}), enable zenoh (this command then goes "
         "through it), or give both a bus they share (can.interface: remote, docs/canopen.md)"
     )
 

@@ -102,8 +102,10 @@ async def test_pause_closes_the_stream_and_resume_says_what_was_not_recorded(bro
         from selenium.webdriver.common.by import By
 
         def open_page() -> None:
-            browser.get(base + "/monitor")
+            browser.get(base + "/monitor?node=wire")
             wait_for(browser, lambda d: rows(d), "frames")
+            assert browser.find_element(By.ID, "mon-node").get_attribute("value") == "wire"
+            assert {r[1] for r in rows(browser)} == {"wire"}
 
         await run(open_page)
         await run(lambda: browser.find_element(By.ID, "mon-pause").click())

@@ -181,3 +181,5 @@ def test_listening_tools_beside_a_gateway_on_an_in_process_bus_refuse_in_one_lin
         f"error: {running}: can.interface: virtual: the bus lives inside the gateway"
     )
     assert f"so `{command[0]}`" in lines[0] and "can.interface: remote, docs/canopen.md" in lines[0]
+    if command[0] == "monitor":  # the running gateway's console shows its bus
+        assert "/monitor)" in lines[0]
