@@ -31,10 +31,10 @@ from typing import Any
 
 from gateway.bus.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.codec import compile_node
-from gateway.bus.sdo_values import OD_TYPE_NAMES
+from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
 from gateway.eds.parse import DATA_TYPES
-from gateway.eds.pdos import TYPE_BITS, eds_pdos, od_var, readable
+from gateway.eds.pdos import eds_pdos, od_var, readable
 from gateway.modbus.regmap import RegisterMapError, build_register_map
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, ProfileError, load_node_profile
@@ -182,7 +182,7 @@ def eds_problems(cfg: Config) -> list[Problem]:
             var = od_var(od, s.object)
             if var is None:
                 continue
-            eds_type = OD_TYPE_NAMES.get(var.data_type)
+            eds_type = TYPE_NAMES.get(var.data_type)
             eds_bits = TYPE_BITS.get(var.data_type)
             if s.type not in ("string", "bytes") and eds_type is not None and s.type != eds_type:
                 # a signed reading of an unsigned object of the same size is a profile's choice

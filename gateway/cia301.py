@@ -115,6 +115,20 @@ NUMERIC_TYPES: frozenset[int] = frozenset(
     code for code, name in TYPE_NAMES.items() if name not in ("string", "bytes")
 )
 
+# --------------------------------------------------------------------------- SDO command specifiers
+# CiA 301 7.2.4.3 (byte 0 of an SDO frame, bits 7..5; AP05 manual table 32)
+SDO_CCS_DOWNLOAD_SEGMENT = 0x00
+SDO_CCS_INITIATE_DOWNLOAD = 0x20
+SDO_CCS_INITIATE_UPLOAD = 0x40
+SDO_CCS_UPLOAD_SEGMENT = 0x60
+SDO_SCS_UPLOAD_SEGMENT = 0x00
+SDO_SCS_DOWNLOAD_SEGMENT = 0x20
+SDO_SCS_INITIATE_UPLOAD = 0x40
+SDO_SCS_INITIATE_DOWNLOAD = 0x60
+SDO_CS_ABORT = 0x80
+#: initiate download, expedited, size indicated, 1 data byte (AP05 manual table 32: 2Fh)
+SDO_DOWNLOAD_1_BYTE = 0x2F
+
 # --------------------------------------------------------------------------- SDO abort codes
 #: CiA 301 7.2.4.3.17 table 22, 0503 0000h .. 0800 0024h
 SDO_ABORT_TEXTS: dict[int, str] = {

@@ -247,7 +247,7 @@ def format_sdo_int(value: int, type_: str | None) -> str:
 
 def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
     """The type of ``obj`` on node ``name``: the profile signal's, else the EDS's."""
-    from gateway.bus.sdo_values import OD_TYPE_NAMES
+    from gateway.cia301 import TYPE_NAMES
     from gateway.objref import ObjRef
     from gateway.profiles import load_profile
 
@@ -258,7 +258,7 @@ def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
     if sig is not None:
         return sig.type
     var = lp.od_var(ref)
-    return None if var is None else OD_TYPE_NAMES.get(var.data_type)
+    return None if var is None else TYPE_NAMES.get(var.data_type)
 
 
 def cmd_nmt(args: argparse.Namespace) -> int:

@@ -31,14 +31,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from gateway.bus.master import Master, NodeParts
-from gateway.bus.sdo_values import OD_TYPE_NAMES, decode_value, encode_value
+from gateway.bus.sdo_values import decode_value, encode_value
+from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.errors import GatewayError, NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
 from gateway.image import NodeImage, SentOutputs, SignalValue
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import TextSignal, text_signals
 from gateway.profiles.schema import TYPE_BITS, Signal
-from gateway.states import NMT_COMMANDS
 
 log = logging.getLogger("gateway.commands")
 
@@ -419,7 +419,7 @@ class CommandService:
         if sig is not None:
             return sig.type
         var = p.lp.od_var(obj)
-        return None if var is None else OD_TYPE_NAMES.get(var.data_type)
+        return None if var is None else TYPE_NAMES.get(var.data_type)
 
     async def sdo_read(self, node: str, obj: str | ObjRef, type_: str | None = None) -> Any:
         """Upload any object; the value decoded by ``type_`` or the dictionary's type (bytes

@@ -9,7 +9,8 @@ service next to its manual section.
 Rule 2: no I/O, no clock. ``LssMaster.send`` returns the frames to put on 7E5h; the caller feeds
 7E4h frames to ``on_frame`` and calls ``poll(now)`` for the answer timeout.
 
-Imports: the standard library only. Must not import python-can, canopen or other gateway modules.
+Imports: gateway.cia301 (the LSS COB-IDs) and the standard library. Must not import python-can,
+canopen or other gateway modules.
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ import struct
 from dataclasses import dataclass
 from enum import StrEnum
 
+from gateway.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
+
 #: SGH10 manual 4.6: "LSS (rx) (LSS master -> SGH10): 7E5h", "LSS (tx) (SGH10 -> master): 7E4h".
-COB_ID_MASTER_TO_SLAVE = 0x7E5
-COB_ID_SLAVE_TO_MASTER = 0x7E4
+COB_ID_MASTER_TO_SLAVE = COB_LSS_MASTER
+COB_ID_SLAVE_TO_MASTER = COB_LSS_SLAVE
 
 # Command specifiers (SGH10 manual 4.6.1 - 4.6.3)
 CS_SWITCH_GLOBAL = 0x04  # 4.6.1.1

@@ -51,7 +51,18 @@ from typing import Any, TextIO
 import can
 
 from gateway.bus import lss
-from gateway.cia301 import abort_text
+from gateway.cia301 import (
+    COB_NMT,
+    COB_NMT_EC,
+    COB_SDO_RX,
+    COB_SDO_TX,
+    NMT_RESET_COMMUNICATION,
+    SDO_CCS_INITIATE_UPLOAD,
+    SDO_CS_ABORT,
+    SDO_DOWNLOAD_1_BYTE,
+    SDO_SCS_INITIATE_DOWNLOAD,
+    abort_text,
+)
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles import ProfileError, load_node_profile, load_profile
@@ -59,19 +70,6 @@ from gateway.profiles import ProfileError, load_node_profile, load_profile
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
-
-#: SGH10 manual 4.2.1.2 table 3: NMT reset communication; COB-ID 000h, [cs, node id].
-NMT_RESET_COMMUNICATION = 0x82
-#: DS-301 pre-defined connection set: SDO request 600h + id, answer 580h + id, boot-up 700h + id.
-COB_SDO_REQUEST = 0x600
-COB_SDO_ANSWER = 0x580
-COB_NMT_ERROR_CONTROL = 0x700
-#: DS-301 SDO command specifiers: expedited download of 1 byte (AP05 manual table 32: 2Fh),
-#: download answer 60h, upload request 40h, abort 80h.
-SDO_DOWNLOAD_1_BYTE = 0x2F
-SDO_DOWNLOAD_ANSWER = 0x60
-SDO_UPLOAD_REQUEST = 0x40
-SDO_ABORT = 0x80
 
 INQUIRE_ORDER = ("vendor_id", "product_code", "revision", "serial", "node_id")
 #: After the first answer, how long to listen for more slaves answering the same request.
@@ -453,8 +451,8 @@ def do_set_node_id(s: LssSession, a: LssArgs, out: TextIO) -> None:
         return
     assert old is not None
     # SGH10 manual 4.6.2.1: back in LSS waiting, the next reset communication adopts the id
-    s.send_frame(0x000, bytes([NMT_RESET_COMMUNICATION, old]))
-    if s.wait_frame(COB_NMT_ERROR_CONTROL + node_id, max(2.0, s.master.timeout_s)) is None:
+    s.send_frame(COB_NMT, bytes([NMT_RESET_COMMUNICATION, old]))
+    if s.wait_frame(COB_NMT_EC + node_id, max(2.0, s.master.timeout_s)) is None:
         raise LssFailed(f"NMT reset communication sent to node {old}: no boot-up from {node_id}")
     print(f"node {old} reset: boot-up received from node {node_id}", file=out)
 
@@ -563,14 +561,14 @@ def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
     old_id = parse_int(str(a.options.get("node", feature.get("factory_node_id", 125))), "node")
     if not 1 <= old_id <= 127:
         raise UsageError(f"node={old_id}: out of range 1..127")
-    reply_cob = int(feature.get("reply_cob_id", COB_SDO_ANSWER + old_id))
+    reply_cob = int(feature.get("reply_cob_id", COB_SDO_TX + old_id))
     if "node" in a.options:
-        reply_cob = COB_SDO_ANSWER + old_id
+        reply_cob = COB_SDO_TX + old_id
     timeout_s = a.number("timeout", 60.0)
     # AP05 manual table 32: 67Dh 2Fh 0Ah 5Fh 02h <new id> x x x
     request = bytes([SDO_DOWNLOAD_1_BYTE]) + struct.pack("<HB", obj.index, obj.sub)
     request += bytes([new_id, 0, 0, 0])
-    s.send_frame(COB_SDO_REQUEST + old_id, request)
+    s.send_frame(COB_SDO_RX + old_id, request)
     print(
         f"Auto-ID: {obj} = {new_id} sent to node {old_id}; press the key on the device that "
         f"shall take node id {new_id} (waiting {timeout_s:g} s)",
@@ -581,19 +579,19 @@ def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
     if answer is None:
         raise LssFailed(f"Auto-ID: no answer on 0x{reply_cob:03X} within {timeout_s:g} s")
     data = bytes(answer.data).ljust(8, b"\0")
-    if data[0] == SDO_ABORT:
+    if data[0] == SDO_CS_ABORT:
         code = struct.unpack_from("<I", data, 4)[0]
         raise LssFailed(f"Auto-ID refused: SDO abort 0x{code:08X} ({abort_text(code)})")
-    if data[0] != SDO_DOWNLOAD_ANSWER or struct.unpack_from("<HB", data, 1) != tuple(obj):
+    if data[0] != SDO_SCS_INITIATE_DOWNLOAD or struct.unpack_from("<HB", data, 1) != tuple(obj):
         raise LssFailed(f"Auto-ID: unexpected answer {data.hex(' ')}")
     print(f"Auto-ID: a device took node id {new_id}", file=out, flush=True)
-    if s.wait_frame(COB_NMT_ERROR_CONTROL + new_id, 5.0) is None:
+    if s.wait_frame(COB_NMT_EC + new_id, 5.0) is None:
         print(f"warning: no boot-up from node {new_id} within 5 s", file=out)
     else:
         print(f"boot-up received from node {new_id}", file=out)
     # Is there another device left with the old id? Read 1000h (DS-301 upload request).
-    s.send_frame(COB_SDO_REQUEST + old_id, bytes([SDO_UPLOAD_REQUEST, 0x00, 0x10, 0, 0, 0, 0, 0]))
-    if s.wait_frame(COB_SDO_ANSWER + old_id, 0.5) is not None:
+    s.send_frame(COB_SDO_RX + old_id, bytes([SDO_CCS_INITIATE_UPLOAD, 0x00, 0x10, 0, 0, 0, 0, 0]))
+    if s.wait_frame(COB_SDO_TX + old_id, 0.5) is not None:
         print(f"another device still answers as node {old_id}: run auto-id for it", file=out)
     else:
         print(f"no device answers as node {old_id} any more", file=out)

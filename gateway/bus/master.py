@@ -14,7 +14,7 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
 * **Services** for the command service: SDO upload/download (awaitable, one transfer per node
   at a time, queued in the node), RPDO outputs, NMT commands.
 
-Imports: bus.*, image, profiles, errors, config, states. Nothing northbound.
+Imports: bus.*, cia301, image, profiles, errors, config. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from gateway.bus.producers import Periodic
 from gateway.bus.refresh import refresh_plan
 from gateway.bus.settings import NodeSettings, resolve_node_settings
 from gateway.bus.verify import MappingMismatch, mapping_reads
+from gateway.cia301 import COB_NMT, NMT_COMMANDS
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage, RxCell
@@ -49,7 +50,6 @@ from gateway.profiles import (
     node_verifies_mapping,
 )
 from gateway.ratelimit import RateLimitedLog
-from gateway.states import NMT_COMMANDS
 
 log = logging.getLogger("gateway.master")
 
@@ -509,7 +509,7 @@ class Master:
         targets = list(self.nodes.values()) if node == "all" else [self.nodes[node]]
         node_id = 0 if node == "all" else targets[0].node_id
         try:
-            self.driver.send(0x000, bytes([NMT_COMMANDS[command], node_id]))
+            self.driver.send(COB_NMT, bytes([NMT_COMMANDS[command], node_id]))
         except can.CanError as exc:
             raise BusDown(str(exc)) from exc
         for p in targets:

@@ -15,10 +15,10 @@ from typing import Any
 import yaml
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 
+from gateway.cia301 import COB_ID_INVALID
 from gateway.eds import EdsFile
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import (
-    COB_ID_INVALID,
     EdsPdo,
     access_of,
     eds_pdos,

@@ -28,6 +28,7 @@ import canopen
 import yaml
 from pydantic import ValidationError
 
+from gateway.cia301 import COB_ID_INVALID
 from gateway.eds import EdsError, EdsFile, dictionary_for_node, load_eds
 from gateway.eds.pdos import (
     access_of,
@@ -153,7 +154,7 @@ def _eds_layout(od: canopen.ObjectDictionary, node_id: int | None, eds_path: Pat
     out = _EdsLayout([], [], {}, {})
     for kind, into in (("tpdo", out.tpdos), ("rpdo", out.rpdos)):
         for p in eds_pdos(od, node_id, kind):  # type: ignore[arg-type]
-            if p.cob_id & 0x80000000 or not (p.entries or p.gaps):
+            if p.cob_id & COB_ID_INVALID or not (p.entries or p.gaps):
                 continue
             found = mapping_findings(od, p.kind, p.number, p.map_index, p.entries, p.gaps, p.count)
             lines = [str(eds_file.problem(f.obj, f.message)) if eds_file else f"{eds_path}: {f.message}" for f in found]  # fmt: skip

@@ -24,9 +24,8 @@ from typing import Any, Literal, Protocol
 
 from pydantic import ValidationError
 
+from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_11BIT
 from gateway.eds.pdos import (
-    COB_ID_INVALID,
-    COB_ID_MASK_11BIT,
     EdsPdo,
     decode_entry,
     entry_value,

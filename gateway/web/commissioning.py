@@ -31,6 +31,7 @@ import can
 
 from gateway.bus import lss
 from gateway.bus.lss_cli import INQUIRE_ORDER, LssFailed, LssSession
+from gateway.cia301 import NMT_COMMANDS
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import (
@@ -43,7 +44,6 @@ from gateway.errors import (
 )
 from gateway.objref import ObjRef
 from gateway.profiles.schema import TYPE_BITS
-from gateway.states import NMT_COMMANDS
 from gateway.zenoh_bridge.payloads import Scaling, to_raw
 
 log = logging.getLogger("gateway.web")

@@ -17,11 +17,11 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from gateway.cia301 import NMT_COMMANDS
 from gateway.config import SignalOverride
 from gateway.errors import GatewayError, SdoAbort
 from gateway.image import EmcyRecord, NodeImage, Quality, SignalValue
 from gateway.profiles.schema import Signal
-from gateway.states import NMT_COMMANDS
 
 QUALITY_TEXT = {Quality.GOOD: "good", Quality.STALE: "stale", Quality.BAD: "bad"}
 
