@@ -24,7 +24,7 @@ from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label
 from gateway.modbus.regmap import build_register_map
 from gateway.modbus.server import ModbusGateway
-from gateway.profiles import load_node_profile
+from gateway.resolved import ResolvedNode, node_of, resolve_config
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
@@ -34,18 +34,23 @@ log = logging.getLogger("gateway")
 class SimulatedBus:
     """Simulated nodes of a config on their own connection to the configured bus."""
 
-    def __init__(self, cfg: Config, names: list[str] | None = None):
+    def __init__(
+        self,
+        cfg: Config,
+        names: list[str] | None = None,
+        resolved: dict[str, ResolvedNode] | None = None,
+    ):
         from gateway.sim.node import SimNode
 
         self.cfg = cfg
         wanted = names if names is not None else [n.name for n in cfg.simulated_nodes()]
+        resolved = resolved if resolved is not None else resolve_config(cfg, wanted)
         self.nodes: dict[str, Any] = {}
         for n in cfg.nodes:
             if n.name not in wanted:
                 continue
-            lp = load_node_profile(n, cfg.base_dir)
             self.nodes[n.name] = SimNode(
-                lp,
+                node_of(cfg, resolved, n).lp,
                 n.node_id,
                 motion=cfg.simulate.motion.get(n.name),
                 options=cfg.simulate.options.get(n.name),
@@ -73,22 +78,26 @@ class SimulatedBus:
 
 class Gateway:
     def __init__(self, cfg: Config, simulate: bool = True, *, passive: bool = False):
-        check_config(cfg)  # the cross-checks of `canopen-gateway check` (ConfigError)
+        #: every node resolved once (profile, settings, boot steps, codecs) for every part
+        self.nodes = resolve_config(cfg)
+        check_config(cfg, self.nodes)  # the cross-checks of `canopen-gateway check` (ConfigError)
         self.cfg = cfg
         self.image = ProcessImage()
         self.threads = ThreadRegistry()
         self.driver = BusDriver(
             cfg.can.bus_kwargs(), self.image, cfg.can.reopen_backoff_s, threads=self.threads
         )
-        self.master = Master(cfg, self.image, self.driver, passive=passive)
+        self.master = Master(cfg, self.image, self.driver, passive=passive, nodes=self.nodes)
         self.commands = CommandService(self.master)
-        self.modbus = ModbusGateway(cfg, self.image, self.commands) if cfg.modbus.enabled else None
+        self.modbus = (
+            ModbusGateway(cfg, self.image, self.commands, self.nodes) if cfg.modbus.enabled else None
+        )
         self.zenoh = (
             ZenohBridge(cfg, self.image, self.commands, self.catalog, threads=self.threads)
             if cfg.zenoh.enabled
             else None
         )
-        self.sim = SimulatedBus(cfg) if simulate and cfg.simulated_nodes() else None
+        self.sim = SimulatedBus(cfg, resolved=self.nodes) if simulate and cfg.simulated_nodes() else None
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
         self.health: Any = None
         self.web: Any = None
@@ -96,7 +105,7 @@ class Gateway:
 
     def catalog(self) -> dict[str, Any]:
         """Every node and signal: type, unit, scaling, Modbus address (for cloud discovery)."""
-        rm = self.modbus.regmap if self.modbus else build_register_map(self.cfg)
+        rm = self.modbus.regmap if self.modbus else build_register_map(self.cfg, self.nodes)
         addr: dict[tuple[str, str], list[dict[str, Any]]] = {}
         for p in rm.points:
             if p.node and p.kind in ("signal", "bit"):
@@ -287,7 +296,11 @@ class Gateway:
                 self.image,
                 self.commands,
                 self.overview,
-                regmap=self.modbus.regmap if self.modbus is not None else None,
+                regmap=(
+                    self.modbus.regmap
+                    if self.modbus is not None
+                    else build_register_map(self.cfg, self.nodes)
+                ),
             )
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(

@@ -91,15 +91,16 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from gateway.profiles import load_node_profile
+    from gateway.resolved import node_of, resolve_config
 
     cfg = _load_for_bus(args.config)
+    nodes = resolve_config(cfg)
     print(f"{args.config}: OK")
     if cfg.ascii is not None and cfg.ascii.enabled:
         gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
         print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
     for n in cfg.nodes:
-        lp = load_node_profile(n, cfg.base_dir)
+        lp = node_of(cfg, nodes, n).lp
         pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
         sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
         sim = " (simulated)" if n in cfg.simulated_nodes() else ""
@@ -110,18 +111,18 @@ def cmd_check(args: argparse.Namespace) -> int:
         )
         for note in lp.notes:
             print(f"  warning: node {n.name}: {note}")
-    _print_eds_warnings(cfg)
+    _print_eds_warnings(cfg, nodes)
     return 0
 
 
-def _print_eds_warnings(cfg: Any) -> None:
+def _print_eds_warnings(cfg: Any, nodes: Any) -> None:
     """One line per EDS/DCF of the config with its number of warnings."""
     from gateway.eds import EdsError, lint, load_eds
-    from gateway.profiles import load_node_profile
+    from gateway.resolved import node_of
 
     seen: list[Any] = []
     for n in cfg.nodes:
-        path = load_node_profile(n, cfg.base_dir).eds_path
+        path = node_of(cfg, nodes, n).lp.eds_path
         if path in seen:
             continue
         seen.append(path)

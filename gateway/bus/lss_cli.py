@@ -65,7 +65,8 @@ from gateway.cia301 import (
 )
 from gateway.config import Config
 from gateway.objref import ObjRef
-from gateway.profiles import ProfileError, load_node_profile, load_profile
+from gateway.profiles import ProfileError, load_profile
+from gateway.resolved import node_of, resolve_config
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -538,8 +539,8 @@ def _auto_id_feature(cfg: Config, a: LssArgs) -> dict[str, Any]:
         if feature is None:
             raise UsageError(f"profile {name} has no feature auto_id")
         return feature
-    for n in cfg.nodes:
-        feature = load_node_profile(n, cfg.base_dir).profile.features.get("auto_id")
+    for rn in resolve_config(cfg).values():
+        feature = rn.lp.profile.features.get("auto_id")
         if feature is not None:
             return feature
     raise UsageError(
@@ -620,11 +621,12 @@ def _simulation(cfg: Config) -> Iterator[None]:
     from gateway.sim.runner import SimRunner, build_sim_nodes
 
     specs = []
+    resolved = resolve_config(cfg, [n.name for n in wanted])
     for n in wanted:
         opts: dict[str, Any] = dict(cfg.simulate.options.get(n.name) or {})
         if n.name in cfg.simulate.motion:
             opts["motion"] = cfg.simulate.motion[n.name]
-        specs.append((load_node_profile(n, cfg.base_dir), n.node_id, opts))
+        specs.append((node_of(cfg, resolved, n).lp, n.node_id, opts))
     bus = can.Bus(**cfg.can.bus_kwargs())
     runner = SimRunner(bus, build_sim_nodes(specs)).start()
     try:

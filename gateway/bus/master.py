@@ -29,27 +29,22 @@ from typing import Any
 
 import can
 
-from gateway.bus.boot_steps import ConfigStep, build_boot_steps
-from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
+from gateway.bus.boot_steps import ConfigStep
+from gateway.bus.codec import RpdoCodec, TpdoCodec
 from gateway.bus.driver import BusDriver
 from gateway.bus.lifecycle import LifecycleState
 from gateway.bus.node import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
 from gateway.bus.producers import Periodic
-from gateway.bus.refresh import refresh_plan
-from gateway.bus.settings import NodeSettings, resolve_node_settings
-from gateway.bus.verify import MappingMismatch, mapping_reads
+from gateway.bus.settings import NodeSettings
+from gateway.bus.verify import MappingMismatch
 from gateway.cia301 import COB_NMT, NMT_COMMANDS
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage, RxCell
 from gateway.objref import ObjRef
-from gateway.profiles import (
-    LoadedProfile,
-    expected_identity,
-    load_node_profile,
-    node_verifies_mapping,
-)
+from gateway.profiles import LoadedProfile, expected_identity
 from gateway.ratelimit import RateLimitedLog
+from gateway.resolved import ResolvedNode, node_of, nodes_of
 
 log = logging.getLogger("gateway.master")
 
@@ -115,27 +110,11 @@ class NodeParts:
         return self.node.mapping_mismatches
 
 
-def build_node(
-    master_cfg: Any, ncfg: NodeConfig, lp: LoadedProfile, image: NodeImage, passive: bool = False
-) -> NodeParts:
-    """One node's parts from its config entry and profile (settings resolved once)."""
-    settings = resolve_node_settings(master_cfg, ncfg, lp.profile)
-    steps = build_boot_steps(
-        lp,
-        ncfg,
-        settings.supervision,
-        settings.heartbeat_ms,
-        settings.guard_time_ms,
-        settings.life_time_factor,
-    )
-    # The decoder follows the mapping the boot configuration leaves in the device.
-    writes = [(st.object, st.value) for st in steps] if ncfg.configure else []
-    tpdos, rpdos = compile_node(lp, ncfg.node_id, ncfg.pdo_variant, writes)
-    plan = (
-        refresh_plan(lp, ncfg.node_id, ncfg.pdo_variant, tpdos, writes)
-        if settings.refresh_on_start
-        else []
-    )
+def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> NodeParts:
+    """One node's parts from its resolution (settings, boot steps and codecs built once)."""
+    rn.require()
+    ncfg, lp, settings = rn.cfg, rn.lp, rn.settings
+    steps, tpdos, rpdos, plan = rn.boot_steps, rn.tpdos, rn.rpdos, rn.refresh
     control = status = None
     if settings.guarding_bit is not None:
         cs = lp.profile.signal_for(settings.guarding_bit.control)
@@ -173,11 +152,7 @@ def build_node(
         referencing=ref,
         reference_signal=ref_signal,
         passive=passive,
-        verify=(
-            mapping_reads(lp, ncfg.node_id, ncfg.pdo_variant)
-            if ncfg.configure and node_verifies_mapping(lp, ncfg, ncfg.eds_only)
-            else ()
-        ),
+        verify=rn.verify,
     )
     return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)
 
@@ -190,7 +165,13 @@ class Master:
     """
 
     def __init__(
-        self, cfg: Config, image: ProcessImage, driver: BusDriver, *, passive: bool = False
+        self,
+        cfg: Config,
+        image: ProcessImage,
+        driver: BusDriver,
+        *,
+        passive: bool = False,
+        nodes: dict[str, ResolvedNode] | None = None,
     ):
         self.cfg = cfg
         self.image = image
@@ -209,16 +190,16 @@ class Master:
         self._waiting: dict[tuple[str, int], tuple[asyncio.Future[bytes], ObjRef]] = {}
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
+        resolved = nodes_of(cfg, nodes)
         for ncfg in cfg.nodes:
-            lp = load_node_profile(ncfg, cfg.base_dir)
+            rn = node_of(cfg, resolved, ncfg)
+            lp = rn.lp
             names = [s.name for s in lp.profile.signals]
-            stale_ms = ncfg.stale_after_ms or lp.stale_after_ms  # derived: EDS-only, no supervision
-            stale = stale_ms / 1000.0 if stale_ms else None
             ni = NodeImage(
-                ncfg.name, ncfg.node_id, lp.family, names, stale, ncfg.modbus.serve_stale
+                ncfg.name, ncfg.node_id, lp.family, names, rn.stale_after_s, ncfg.modbus.serve_stale
             )
             image.add_node(ni)
-            parts = build_node(cfg.master, ncfg, lp, ni, passive)
+            parts = build_node(rn, ni, passive)
             self.nodes[ncfg.name] = parts
             self.by_id[ncfg.node_id] = parts
         self._install_handlers()

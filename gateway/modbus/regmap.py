@@ -35,9 +35,10 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from gateway.config import Config
-from gateway.profiles import LoadedProfile, load_node_profile
+from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import text_signals
 from gateway.profiles.schema import Signal
+from gateway.resolved import ResolvedNode, node_of, nodes_of
 
 Table = Literal["ir", "hr", "di", "co"]
 TABLE_NAMES = {
@@ -328,8 +329,9 @@ def _bit_descriptions(sig: Signal) -> dict[int, str] | None:
     return out
 
 
-def build_register_map(cfg: Config) -> RegisterMap:
+def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> RegisterMap:
     rm = RegisterMap()
+    resolved = nodes_of(cfg, nodes)
     flat = cfg.modbus.layout == "flat"
     stride = cfg.modbus.flat_stride
     gw_unit = cfg.modbus.flat_unit_id if flat else cfg.modbus.gateway_unit_id
@@ -343,7 +345,7 @@ def build_register_map(cfg: Config) -> RegisterMap:
         )
     for k, ncfg in enumerate(cfg.nodes, start=1):
         key = f"nodes[{k - 1}]"
-        lp = load_node_profile(ncfg, cfg.base_dir)
+        lp = node_of(cfg, resolved, ncfg).lp
         if flat:
             unit, base = cfg.modbus.flat_unit_id, k * stride
         else:

@@ -68,7 +68,7 @@ from gateway.modbus.protocol import (
 from gateway.modbus.regmap import build_register_map
 from gateway.modbus.security import Access, access_of, tls_context
 from gateway.modbus.watchdog import OutputWatchdog
-from gateway.profiles import load_node_profile
+from gateway.resolved import ResolvedNode, node_of, nodes_of
 from gateway.safe_outputs import safe_outputs
 
 log = logging.getLogger("gateway.modbus")
@@ -201,10 +201,17 @@ class _Connection(asyncio.Protocol):
 class ModbusGateway:
     """Starts/stops the Modbus TCP server for a config."""
 
-    def __init__(self, cfg: Config, image: ProcessImage, commands: CommandService):
+    def __init__(
+        self,
+        cfg: Config,
+        image: ProcessImage,
+        commands: CommandService,
+        nodes: dict[str, ResolvedNode] | None = None,
+    ):
         self.cfg = cfg
         self.commands = commands
-        self.regmap = build_register_map(cfg)
+        resolved = nodes_of(cfg, nodes)
+        self.regmap = build_register_map(cfg, resolved)
         self.store = ImageDatastore(self.regmap, image, commands, cfg)
         self.server: asyncio.Server | None = None  # the plain one, else the TLS one
         self.port = cfg.modbus.port
@@ -220,7 +227,7 @@ class ModbusGateway:
         self.safe_plan: dict[str, dict[str, Any]] = {}
         if self.watchdog.enabled:
             for n in cfg.nodes:
-                values = safe_outputs(load_node_profile(n, cfg.base_dir), n)
+                values = safe_outputs(node_of(cfg, resolved, n).lp, n)
                 if values:
                     self.safe_plan[n.name] = values
         self.store.watchdog = self.watchdog

@@ -29,8 +29,8 @@ from typing import Literal
 
 from gateway.config import Config
 from gateway.objref import ObjRef
-from gateway.profiles import load_node_profile
 from gateway.profiles.schema import Signal
+from gateway.resolved import ResolvedNode, node_of, nodes_of
 
 #: the liveliness token of the gateway itself, ``<prefix>/alive/_gateway``
 GATEWAY_TOKEN = "_gateway"
@@ -198,14 +198,15 @@ def _signal_text(sig: Signal, unit: str) -> str:
     return f"{kind}  {desc}".rstrip()
 
 
-def all_keys(cfg: Config) -> list[KeyInfo]:
+def all_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[KeyInfo]:
+    resolved = nodes_of(cfg, nodes)
     p = prefix_of(cfg)
     out = [
         KeyInfo(alive_key(p, GATEWAY_TOKEN), "liveliness", "the gateway is running"),
         KeyInfo(catalog_key(p), "query", "every node and signal: type, unit, scaling, Modbus"),
     ]
     for n in cfg.nodes:
-        lp = load_node_profile(n, cfg.base_dir)
+        lp = node_of(cfg, resolved, n).lp
         name = n.name
 
         def add(key: str, kind: str, text: str, _name: str = name) -> None:
@@ -234,9 +235,9 @@ def all_keys(cfg: Config) -> list[KeyInfo]:
     return out
 
 
-def render_keys(cfg: Config) -> str:
+def render_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> str:
     """The listing of ``canopen-gateway keys``: one line per key, grouped by node."""
-    keys = all_keys(cfg)
+    keys = all_keys(cfg, nodes)
     width = max((len(k.key) for k in keys), default=10)
     lines = [f"# prefix {prefix_of(cfg)}  (payloads: docs/zenoh.md)"]
     current = None

@@ -18,7 +18,8 @@ from hypothesis import strategies as st
 from gateway.bus.master import NodeParts, build_node
 from gateway.bus.node import Send, ValuesRead
 from gateway.image import NodeImage, Quality, SignalValue
-from gateway.profiles import expected_identity, load_profile
+from gateway.profiles import expected_identity
+from gateway.resolved import resolve_node
 from gateway.states import LinkState, NmtState
 from tests.helpers import make_config
 
@@ -99,9 +100,10 @@ class Harness:
             [{"name": "n", "node_id": node_id, "profile": profile, **node}],
             master={"boot_timeout_s": 5, **(master or {})},
         )
-        lp = load_profile(profile)
+        rn = resolve_node(cfg, cfg.nodes[0])
+        lp = rn.lp
         self.image = NodeImage("n", node_id, lp.family, [s.name for s in lp.profile.signals])
-        self.parts: NodeParts = build_node(cfg.master, cfg.nodes[0], lp, self.image)
+        self.parts: NodeParts = build_node(rn, self.image)
         self.node = self.parts.node
         ident = {(o.index, o.sub): v for o, v in expected_identity(lp)}
         self.device = Device(node_id, lp.profile.device_type or 0, identity=ident)
