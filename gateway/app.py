@@ -22,8 +22,8 @@ from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label
-from gateway.modbus.regmap import build_register_map
 from gateway.modbus.server import ModbusGateway
+from gateway.northbound.regmap import build_register_map
 from gateway.resolved import ResolvedNode, node_of, resolve_config
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge

@@ -34,7 +34,7 @@ from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import eds_pdos, od_var, readable
-from gateway.modbus.regmap import RegisterMapError, build_register_map
+from gateway.northbound.regmap import RegisterMapError, build_register_map
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import pdo_objects

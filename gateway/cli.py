@@ -135,7 +135,7 @@ def _print_eds_warnings(cfg: Any, nodes: Any) -> None:
 
 
 def cmd_registers(args: argparse.Namespace) -> int:
-    from gateway.modbus.regmap import build_register_map
+    from gateway.northbound.regmap import build_register_map
 
     cfg = _load(args.config)
     rm = build_register_map(cfg)
@@ -144,7 +144,7 @@ def cmd_registers(args: argparse.Namespace) -> int:
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
-    from gateway.zenoh_bridge.keys import render_keys
+    from gateway.northbound.keys import render_keys
 
     cfg = _load(args.config)
     sys.stdout.write(render_keys(cfg))

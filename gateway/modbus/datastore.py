@@ -54,8 +54,8 @@ from gateway.modbus.protocol import (
     to_registers,
     unpack_bits,
 )
-from gateway.modbus.regmap import TABLE_NAMES, Point, RegisterMap, Table
 from gateway.modbus.watchdog import OutputWatchdog
+from gateway.northbound.regmap import TABLE_NAMES, Point, RegisterMap, Table
 from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_BY_CODE
 

@@ -25,7 +25,7 @@ from gateway.errors import (
     Unmapped,
     ValueOutOfRange,
 )
-from gateway.modbus.regmap import Point, Table
+from gateway.northbound.regmap import Point, Table
 
 T = TypeVar("T")
 

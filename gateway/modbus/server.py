@@ -65,9 +65,9 @@ from gateway.modbus.protocol import (
     ModbusError,
     exception_code,
 )
-from gateway.modbus.regmap import build_register_map
 from gateway.modbus.security import Access, access_of, tls_context
 from gateway.modbus.watchdog import OutputWatchdog
+from gateway.northbound.regmap import build_register_map
 from gateway.resolved import ResolvedNode, node_of, nodes_of
 from gateway.safe_outputs import safe_outputs
 

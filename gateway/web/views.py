@@ -22,10 +22,10 @@ from gateway.bus.emcy import register_bits
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, Quality
-from gateway.modbus.regmap import RegisterMap, build_register_map
+from gateway.northbound.keys import is_published, is_writable, prefix_of, set_key, value_key
+from gateway.northbound.regmap import RegisterMap, build_register_map
 from gateway.profiles.schema import Signal
 from gateway.states import LinkState, NmtState
-from gateway.zenoh_bridge.keys import is_published, is_writable, prefix_of, set_key, value_key
 from gateway.zenoh_bridge.payloads import QUALITY_TEXT, Scaling, bits_of, engineering
 
 #: Bits of an average CAN 2.0A frame with 8 data bytes, stuff bits not counted (ISO 11898-1:

@@ -58,10 +58,7 @@ import zenoh.ext
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage
-from gateway.profiles.schema import Signal
-from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadCount, ThreadRegistry
-from gateway.zenoh_bridge.keys import (
+from gateway.northbound.keys import (
     GATEWAY_TOKEN,
     alive_key,
     emcy_key,
@@ -71,6 +68,9 @@ from gateway.zenoh_bridge.keys import (
     state_key,
     value_key,
 )
+from gateway.profiles.schema import Signal
+from gateway.ratelimit import RateLimitedLog
+from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.payloads import (
     Scaling,
     emcy_payload,

@@ -33,10 +33,7 @@ from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import Forbidden, GatewayError
 from gateway.image import NodeImage, ProcessImage
-from gateway.profiles.schema import Signal
-from gateway.ratelimit import RateLimitedLog
-from gateway.zenoh_bridge.access import WriteGate
-from gateway.zenoh_bridge.keys import (
+from gateway.northbound.keys import (
     Request,
     alive_key,
     catalog_key,
@@ -50,6 +47,9 @@ from gateway.zenoh_bridge.keys import (
     state_key,
     value_key,
 )
+from gateway.profiles.schema import Signal
+from gateway.ratelimit import RateLimitedLog
+from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.payloads import (
     Scaling,
     engineering,

@@ -14,7 +14,7 @@ from gateway.checks import parse_checked_config
 from gateway.cli import main
 from gateway.config import ConfigError
 from gateway.eds import lint, load_eds
-from gateway.modbus.regmap import build_register_map
+from gateway.northbound.regmap import build_register_map
 from gateway.objref import ObjRef
 from gateway.profiles import ProfileError, load_node_profile
 
