@@ -24,6 +24,7 @@ from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
 from gateway.northbound.regmap import build_register_map
+from gateway.northbound.summary import summarize
 from gateway.resolved import ResolvedNode, node_of, resolve_config
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
@@ -165,18 +166,18 @@ class Gateway:
         """Readiness and per-node details for /healthz."""
         nodes = {}
         for name, node in self.image.nodes.items():
-            h = node.health
-            age = node.data_age_s()
+            s = summarize(node)
+            age = s.data_age_s
             nodes[name] = {
-                "node_id": node.node_id,
-                "alive": h.alive,
-                "operational": node.operational(),
-                "nmt_state": h.nmt_state.name.lower(),
-                "lifecycle": h.lifecycle,
-                "link": h.link.name.lower(),
+                "node_id": s.node_id,
+                "alive": s.alive,
+                "operational": s.operational,
+                "nmt_state": s.nmt_state.name.lower(),
+                "lifecycle": s.lifecycle,
+                "link": s.link.name.lower(),
                 "data_age_s": None if age is None else round(age, 3),
-                "last_error": h.last_error,
-                "outputs": h.outputs,
+                "last_error": s.last_error,
+                "outputs": s.outputs,
             }
         bus_ok = self.driver.state == "ok"
         modbus_up = self.modbus is None or self.modbus.server is not None

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from gateway.config import Config
+from gateway.northbound.scaling import scaled, unscaled_step
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import text_signals
 from gateway.profiles.schema import Signal
@@ -303,8 +304,8 @@ def _description(sig: Signal, scale: float, offset: float, engineering: bool) ->
         def shown(eng: float | None) -> str:
             if eng is None:
                 return ""
-            raw = round((eng - sig.offset) / sig.scale) if sig.scale else 0
-            return f"{raw * scale + offset:g}" if engineering else str(raw)
+            raw = unscaled_step(eng, sig.scale, sig.offset)
+            return f"{scaled(raw, scale, offset):g}" if engineering else str(raw)
 
         extra.append(f"Range {shown(sig.min)}..{shown(sig.max)}.")
     return " ".join([desc, *extra]).strip()

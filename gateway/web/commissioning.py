@@ -42,9 +42,9 @@ from gateway.errors import (
     SdoAbort,
     SdoTimeout,
 )
+from gateway.northbound.scaling import Scaling, to_raw
 from gateway.objref import ObjRef
 from gateway.profiles.schema import TYPE_BITS
-from gateway.zenoh_bridge.payloads import Scaling, to_raw
 
 log = logging.getLogger("gateway.web")
 

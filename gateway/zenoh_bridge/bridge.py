@@ -68,11 +68,11 @@ from gateway.northbound.keys import (
     state_key,
     value_key,
 )
+from gateway.northbound.scaling import Scaling
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.payloads import (
-    Scaling,
     emcy_payload,
     state_fingerprint,
     state_payload,

@@ -47,12 +47,11 @@ from gateway.northbound.keys import (
     state_key,
     value_key,
 )
+from gateway.northbound.scaling import Scaling, engineering, to_raw
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.payloads import (
-    Scaling,
-    engineering,
     error_payload,
     nmt_command,
     reply_value,
@@ -60,7 +59,6 @@ from gateway.zenoh_bridge.payloads import (
     set_body,
     set_many_body,
     state_payload,
-    to_raw,
     value_payload,
 )
 
