@@ -1,5 +1,6 @@
 """CANopen facts (CiA 301 V4.2) in one place: function codes of the pre-defined connection set,
-PDO COB-ID bits, NMT command specifiers, data type codes with their sizes, SDO abort codes and
+PDO COB-ID bits, NMT command specifiers, data type codes with their sizes, the error register bits,
+SDO command specifiers, SDO abort codes and
 their texts.
 
 Rule: a number that CiA 301 defines is written here once, named, with the section it comes from;
@@ -114,6 +115,27 @@ SIGNED_TYPES: frozenset[int] = frozenset(dt.SIGNED_TYPES)
 NUMERIC_TYPES: frozenset[int] = frozenset(
     code for code, name in TYPE_NAMES.items() if name not in ("string", "bytes")
 )
+
+# --------------------------------------------------------------------------- EMCY
+# CiA 301 7.5.2.2 (object 1001h, carried in byte 2 of every EMCY frame)
+#: error register (1001h) bits
+ERROR_REGISTER_BITS: dict[int, str] = {
+    0: "generic",
+    1: "current",
+    2: "voltage",
+    3: "temperature",
+    4: "communication",
+    5: "device profile specific",
+    6: "reserved",
+    7: "manufacturer specific",
+}
+
+
+
+def register_bits(register: int) -> list[str]:
+    """Names of the bits set in an error register (1001h) value."""
+    return [name for bit, name in ERROR_REGISTER_BITS.items() if register & (1 << bit)]
+
 
 # --------------------------------------------------------------------------- SDO command specifiers
 # CiA 301 7.2.4.3 (byte 0 of an SDO frame, bits 7..5; AP05 manual table 32)

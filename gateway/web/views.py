@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.emcy import register_bits
+from gateway.cia301 import register_bits
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, Quality
