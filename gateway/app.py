@@ -17,6 +17,7 @@ import can
 from gateway import __version__
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
+from gateway.bus.resolved import ResolvedNode, node_of, resolve_config
 from gateway.checks import check_config
 from gateway.commands import CommandService
 from gateway.config import Config
@@ -25,7 +26,6 @@ from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
 from gateway.northbound.regmap import build_register_map
 from gateway.northbound.summary import summarize
-from gateway.resolved import ResolvedNode, node_of, resolve_config
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
 

@@ -29,7 +29,8 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-from gateway.bus.boot_steps import ConfigStep
+from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.resolved import ResolvedNode, nodes_of
 from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
 from gateway.eds.parse import DATA_TYPES
@@ -40,7 +41,6 @@ from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS
 from gateway.profiles.schema import Pdo
-from gateway.resolved import ResolvedNode, nodes_of
 from gateway.safe_outputs import safe_output_problems
 
 Problem = tuple[str, str]

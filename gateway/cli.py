@@ -91,7 +91,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from gateway.resolved import node_of, resolve_config
+    from gateway.bus.resolved import node_of, resolve_config
 
     cfg = _load_for_bus(args.config)
     nodes = resolve_config(cfg)
@@ -117,8 +117,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 def _print_eds_warnings(cfg: Any, nodes: Any) -> None:
     """One line per EDS/DCF of the config with its number of warnings."""
+    from gateway.bus.resolved import node_of
     from gateway.eds import EdsError, lint, load_eds
-    from gateway.resolved import node_of
 
     seen: list[Any] = []
     for n in cfg.nodes:
@@ -349,7 +349,7 @@ def cmd_profile_init(args: argparse.Namespace) -> int:
 
 
 def cmd_lss(args: argparse.Namespace) -> int:
-    from gateway.bus.lss_cli import run_lss
+    from gateway.tools.lss import run_lss
 
     cfg = _load(args.config)
     return run_lss(cfg, args)

@@ -18,7 +18,7 @@ Rules held here, once:
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it.
 
-Imports: bus.master (the operations), bus.sdo_values (value codecs), errors, image, objref,
+Imports: bus.master (the operations), bus.sdo.values (value codecs), errors, image, objref,
 profiles, states. Never modbus/ or zenoh_bridge/.
 """
 
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from gateway.bus.master import Master, NodeParts
-from gateway.bus.sdo_values import decode_value, encode_value
+from gateway.bus.sdo.values import decode_value, encode_value
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.errors import GatewayError, NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
 from gateway.image import NodeImage, SentOutputs, SignalValue

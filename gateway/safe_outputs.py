@@ -18,12 +18,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from gateway.bus.resolved import ResolvedNode, nodes_of
 from gateway.commands import check_value
 from gateway.config import Config, NodeConfig
 from gateway.errors import ValueOutOfRange
 from gateway.profiles import LoadedProfile
 from gateway.profiles.schema import Signal
-from gateway.resolved import ResolvedNode, nodes_of
 
 
 def rpdo_signals(lp: LoadedProfile, node: NodeConfig) -> list[Signal]:

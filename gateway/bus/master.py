@@ -1,4 +1,4 @@
-"""The CANopen master: a thin driver of one ``bus.node.Node`` per configured device.
+"""The CANopen master: a thin driver of one ``bus.node.owner.Node`` per configured device.
 
 It owns what the nodes must not: python-can (through ``BusDriver``), time and the event loop.
 
@@ -29,22 +29,22 @@ from typing import Any
 
 import can
 
-from gateway.bus.boot_steps import ConfigStep
-from gateway.bus.codec import RpdoCodec, TpdoCodec
 from gateway.bus.driver import BusDriver
-from gateway.bus.lifecycle import LifecycleState
-from gateway.bus.node import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
+from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.node.lifecycle import LifecycleState
+from gateway.bus.node.owner import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
+from gateway.bus.node.settings import NodeSettings
 from gateway.bus.producers import Periodic
-from gateway.bus.settings import NodeSettings
-from gateway.bus.verify import MappingMismatch
+from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.cia301 import COB_NMT, NMT_COMMANDS
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage, RxCell
 from gateway.objref import ObjRef
+from gateway.pdo.codec import RpdoCodec, TpdoCodec
+from gateway.pdo.verify import MappingMismatch
 from gateway.profiles import LoadedProfile, expected_identity
 from gateway.ratelimit import RateLimitedLog
-from gateway.resolved import ResolvedNode, node_of, nodes_of
 
 log = logging.getLogger("gateway.master")
 

@@ -50,6 +50,7 @@ import asyncio
 import logging
 from typing import Any
 
+from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import GatewayError
@@ -68,7 +69,6 @@ from gateway.modbus.protocol import (
 from gateway.modbus.security import Access, access_of, tls_context
 from gateway.modbus.watchdog import OutputWatchdog
 from gateway.northbound.regmap import build_register_map
-from gateway.resolved import ResolvedNode, node_of, nodes_of
 from gateway.safe_outputs import safe_outputs
 
 log = logging.getLogger("gateway.modbus")

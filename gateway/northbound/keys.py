@@ -27,10 +27,10 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
+from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles.schema import Signal
-from gateway.resolved import ResolvedNode, node_of, nodes_of
 
 #: the liveliness token of the gateway itself, ``<prefix>/alive/_gateway``
 GATEWAY_TOKEN = "_gateway"
@@ -241,11 +241,11 @@ def render_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> st
     width = max((len(k.key) for k in keys), default=10)
     lines = [f"# prefix {prefix_of(cfg)}  (payloads: docs/zenoh.md)"]
     current = None
-    nodes = {n.name: n for n in cfg.nodes}
+    configured = {n.name: n for n in cfg.nodes}
     for k in keys:
         if k.node != current:
             current = k.node
-            n = nodes.get(k.node)
+            n = configured.get(k.node)
             if n is not None:
                 lines.append("")
                 lines.append(f"# node {n.name}: {n.device}, node id {n.node_id}")

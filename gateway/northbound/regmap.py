@@ -34,12 +34,12 @@ import io
 from dataclasses import dataclass, field
 from typing import Literal
 
+from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.config import Config
 from gateway.northbound.scaling import scaled, unscaled_step
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import text_signals
 from gateway.profiles.schema import Signal
-from gateway.resolved import ResolvedNode, node_of, nodes_of
 
 Table = Literal["ir", "hr", "di", "co"]
 TABLE_NAMES = {

@@ -16,7 +16,7 @@ so: then stop the gateway and use ``canopen-gateway lss``. LSS inquiry switches 
 change NMT states or node ids.
 
 Imports: commands, errors, objref, config, profiles.schema, zenoh_bridge.payloads (scaling),
-bus.lss and bus.lss_cli (LSS frames and session), python-can.
+bus.lss.master and tools.lss (LSS frames and session), python-can.
 """
 
 from __future__ import annotations
@@ -29,8 +29,7 @@ from typing import Any
 
 import can
 
-from gateway.bus import lss
-from gateway.bus.lss_cli import INQUIRE_ORDER, LssFailed, LssSession
+from gateway.bus.lss import master as lss
 from gateway.cia301 import NMT_COMMANDS
 from gateway.commands import CommandService
 from gateway.config import Config
@@ -45,6 +44,7 @@ from gateway.errors import (
 from gateway.northbound.scaling import Scaling, to_raw
 from gateway.objref import ObjRef
 from gateway.profiles.schema import TYPE_BITS
+from gateway.tools.lss import INQUIRE_ORDER, LssFailed, LssSession
 
 log = logging.getLogger("gateway.web")
 

@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.boot_steps import ConfigStep, build_boot_steps
-from gateway.bus.lifecycle import (
+from gateway.bus.node.boot_steps import ConfigStep, build_boot_steps
+from gateway.bus.node.lifecycle import (
     Backoff,
     BootTimeout,
     Configured,
@@ -28,7 +28,7 @@ from gateway.bus.lifecycle import (
     WriteStep,
     WrongDevice,
 )
-from gateway.bus.sdo_values import encode_value
+from gateway.bus.sdo.values import encode_value
 from gateway.cia301 import SDO_ABORT_TEXTS, abort_text
 from gateway.errors import SdoAbort
 from gateway.objref import ObjRef
@@ -601,7 +601,7 @@ IDENTITY = ((ObjRef(0x1018, 1), 0x195), (ObjRef(0x1018, 2), 0x401))
 
 
 def _read(lc: NodeLifecycle, now: float) -> Any:
-    from gateway.bus.lifecycle import ReadIdentity
+    from gateway.bus.node.lifecycle import ReadIdentity
 
     a = lc.next_action(now)
     assert isinstance(a, ReadIdentity), a

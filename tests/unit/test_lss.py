@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from gateway.bus.lss import (
+from gateway.bus.lss.master import (
     COB_ID_MASTER_TO_SLAVE,
     COB_ID_SLAVE_TO_MASTER,
     ConfigAnswer,

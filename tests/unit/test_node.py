@@ -1,4 +1,4 @@
-"""The per-node machine (gateway.bus.node.Node) on a fake clock, against a device scripted in
+"""The per-node machine (gateway.bus.node.owner.Node) on a fake clock, against a device scripted in
 the test from the manuals' frames: boot-up, configuration, supervision, probes, freshness of
 values, refresh of change-only TPDOs, keep-alive, NMT expectations."""
 
@@ -16,10 +16,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.bus.master import NodeParts, build_node
-from gateway.bus.node import Send, ValuesRead
+from gateway.bus.node.owner import Send, ValuesRead
+from gateway.bus.resolved import resolve_node
 from gateway.image import NodeImage, Quality, SignalValue
 from gateway.profiles import expected_identity
-from gateway.resolved import resolve_node
 from gateway.states import LinkState, NmtState
 from tests.helpers import make_config
 
@@ -427,7 +427,7 @@ def test_sync_and_heartbeat_producers_are_due_every_period_and_catch_up_once() -
 def test_every_rpdo_sent_pushes_the_keepalive_back() -> None:
     """AP05 manual 5.5.4: any RPDO feeds the external heartbeat; the keep-alive re-sends the
     last RPDO only when none went out for keepalive_s."""
-    from gateway.bus.outputs import OutputImage
+    from gateway.bus.node.outputs import OutputImage
 
     h = Harness("ap05", node_id=1, guarding_bit={"enabled": False}, external_heartbeat={"interval_ms": 100})
     out = OutputImage("n", h.parts.rpdos, keepalive_s=0.05)

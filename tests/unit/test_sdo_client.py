@@ -1,11 +1,11 @@
-"""The SDO client machine (gateway.bus.sdo_client) byte for byte against the manuals' worked
+"""The SDO client machine (gateway.bus.sdo.client) byte for byte against the manuals' worked
 examples (SGH10 manual 4.4.1.4), with a fake clock for timeouts and retries."""
 
 from __future__ import annotations
 
 import math
 
-from gateway.bus.sdo_client import ABORT_TIMEOUT, ABORT_TOGGLE, SdoTransfer
+from gateway.bus.sdo.client import ABORT_TIMEOUT, ABORT_TOGGLE, SdoTransfer
 
 
 def h(text: str) -> bytes:

@@ -28,8 +28,8 @@ of the node (``health.fresh_since = None``); values are good again only when rec
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
-Imports: bus.lifecycle, bus.boot_steps, bus.sdo_values, bus.supervision, bus.sdo_client,
-bus.emcy, bus.settings, bus.codec, bus.verify, image, states, objref. Never python-can, asyncio, logging or a northbound module.
+Imports: bus.node.lifecycle, bus.node.boot_steps, bus.sdo.values, bus.error_control.supervision, bus.sdo.client,
+bus.emcy, bus.node.settings, pdo.codec, pdo.verify, image, states, objref. Never python-can, asyncio, logging or a northbound module.
 """
 
 from __future__ import annotations
@@ -38,12 +38,12 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from gateway.bus.boot_steps import ConfigStep
-from gateway.bus.codec import RpdoCodec, TpdoCodec
 from gateway.bus.emcy import EmcyHistory, decode_emcy
-from gateway.bus.events import HealthChanged, Note, Output, Refresh, SdoDone, Send, ValuesRead
-from gateway.bus.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
-from gateway.bus.lifecycle import (
+from gateway.bus.error_control.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
+from gateway.bus.error_control.watchdog import Watchdog
+from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.node.events import HealthChanged, Note, Output, Refresh, SdoDone, Send, ValuesRead
+from gateway.bus.node.lifecycle import (
     BootTimeout,
     Configured,
     LifecycleState,
@@ -57,17 +57,17 @@ from gateway.bus.lifecycle import (
     WriteStep,
     WrongDevice,
 )
-from gateway.bus.outputs import OutputImage
-from gateway.bus.referencing import Referencing
-from gateway.bus.sdo_channel import SdoChannel, SdoJob
-from gateway.bus.sdo_client import SdoTransfer
-from gateway.bus.sdo_values import decode_value
-from gateway.bus.settings import NodeSettings
-from gateway.bus.verify import MappingMismatch, MappingRead, compare_mapping
-from gateway.bus.watchdog import Watchdog
+from gateway.bus.node.outputs import OutputImage
+from gateway.bus.node.referencing import Referencing
+from gateway.bus.node.settings import NodeSettings
+from gateway.bus.sdo.channel import SdoChannel, SdoJob
+from gateway.bus.sdo.client import SdoTransfer
+from gateway.bus.sdo.values import decode_value
 from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth, NodeImage, SentOutputs
 from gateway.objref import ObjRef
+from gateway.pdo.codec import RpdoCodec, TpdoCodec
+from gateway.pdo.verify import MappingMismatch, MappingRead, compare_mapping
 from gateway.states import LinkState, NmtState
 
 OBJ_DEVICE_TYPE = ObjRef(0x1000, 0x00)
@@ -141,7 +141,7 @@ class Node:
         self._last_probe_end_s: float | None = None
         self._wait_until: float | None = None
         self._rtr_due_s: float | None = None
-        # verify_mapping (bus/verify.py): PDO objects read back after configuring
+        # verify_mapping (pdo/verify.py): PDO objects read back after configuring
         self.verify_reads = list(verify)
         self._verify_held: dict[ObjRef, int | None] = {}
         self.mapping_mismatches: list[MappingMismatch] = []
@@ -572,7 +572,7 @@ class Node:
         return out
 
     def _verify_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        """verify_mapping: collect the uploads; when all are in, compare (bus/verify.py)."""
+        """verify_mapping: collect the uploads; when all are in, compare (pdo/verify.py)."""
         r: MappingRead = job.arg
         raw = tr.result
         self._verify_held[r.object] = int.from_bytes(raw[:4], "little") if raw else None

@@ -26,11 +26,11 @@ profile of the config's LSS slaves does not support is refused before anything i
 options: ``timeout=S`` (answer timeout, default 1 s), ``profile=NAME`` (the LSS slave's profile
 for the bit rate check).
 
-The LSS frames and their matching come from ``gateway.bus.lss``; this module only does the
+The LSS frames and their matching come from ``gateway.bus.lss.master``; this module only does the
 I/O, parses the arguments and prints. When the config simulates nodes (``simulate:``), they
 run in this process on the same bus, so the commands can be tried without hardware.
 
-Imports: python-can, gateway.bus.lss, gateway.config, gateway.profiles, gateway.objref,
+Imports: python-can, gateway.bus.lss.master, gateway.config, gateway.profiles, gateway.objref,
 gateway.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
 """
 
@@ -50,7 +50,8 @@ from typing import Any, TextIO
 
 import can
 
-from gateway.bus import lss
+from gateway.bus.lss import master as lss
+from gateway.bus.resolved import node_of, resolve_config
 from gateway.cia301 import (
     COB_NMT,
     COB_NMT_EC,
@@ -66,7 +67,6 @@ from gateway.cia301 import (
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles import ProfileError, load_profile
-from gateway.resolved import node_of, resolve_config
 
 EXIT_OK = 0
 EXIT_FAILED = 1

@@ -11,8 +11,8 @@ A node whose boot configuration cannot be built (an object missing from the EDS,
 does not fit) is resolved with ``boot_error`` set and no steps or codecs: ``check`` reports it,
 and the master refuses it (``ResolvedNode.require``).
 
-Imports: config (types), profiles, objref, bus.settings, bus.boot_steps, bus.codec,
-bus.refresh, bus.verify. Nothing northbound, no I/O but reading the device files.
+Imports: config (types), profiles, objref, bus.node.settings, bus.node.boot_steps, pdo.codec,
+pdo.refresh, pdo.verify. Nothing northbound, no I/O but reading the device files.
 """
 
 from __future__ import annotations
@@ -21,13 +21,13 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from gateway.bus.boot_steps import ConfigStep, build_boot_steps
-from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
-from gateway.bus.refresh import Refresh, refresh_plan
-from gateway.bus.settings import NodeSettings, resolve_node_settings
-from gateway.bus.verify import MappingRead, mapping_reads
+from gateway.bus.node.boot_steps import ConfigStep, build_boot_steps
+from gateway.bus.node.settings import NodeSettings, resolve_node_settings
 from gateway.config import Config, ConfigError, NodeConfig
 from gateway.objref import ObjRef
+from gateway.pdo.codec import RpdoCodec, TpdoCodec, compile_node
+from gateway.pdo.refresh import Refresh, refresh_plan
+from gateway.pdo.verify import MappingRead, mapping_reads
 from gateway.profiles import LoadedProfile, ProfileError, load_node_profile, node_verifies_mapping
 
 

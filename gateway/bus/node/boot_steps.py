@@ -1,9 +1,9 @@
 """The boot configuration of a node: the ordered SDO writes derived from its profile (or EDS)
 and its node settings (supervision, TPDO transmission, PDO remapping, the profile's and the
 user's writes). ``build_boot_steps`` is the one place the CiA 301 PDO sequence is written; the
-lifecycle (``bus/lifecycle.py``) plays the steps, the codecs follow the same layout.
+lifecycle (``bus/node/lifecycle.py``) plays the steps, the codecs follow the same layout.
 
-Imports: gateway.cia301, gateway.objref, gateway.bus.sdo_values, gateway.eds.pdos, gateway.profiles (layout,
+Imports: gateway.cia301, gateway.objref, gateway.bus.sdo.values, gateway.eds.pdos, gateway.profiles (layout,
 schema; LoadedProfile for types only) and the standard library. No I/O, no clock.
 """
 
@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol
 
-from gateway.bus.sdo_values import encode_value
+from gateway.bus.sdo.values import encode_value
 from gateway.cia301 import COB_ID_INVALID, TYPE_NAMES
 from gateway.eds.pdos import default_value
 from gateway.objref import ObjRef

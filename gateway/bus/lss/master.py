@@ -331,7 +331,7 @@ class LssMaster:
 
     def resume(self, mode: LssMode) -> None:
         """The slaves are already in ``mode``: a previous session left them there (the CLI
-        keeps what each command leaves behind, see ``gateway.bus.lss_cli``)."""
+        keeps what each command leaves behind, see ``gateway.tools.lss``)."""
         self.mode = mode
 
     def send(self, request: LssRequest, now: float) -> list[bytes]:

@@ -8,9 +8,9 @@ Rule 2: nothing here does I/O or reads a clock. The driver asks ``next_action(no
 ``on_found``, ``on_lost``) and calls ``poll(now)`` for the boot timeout. Every event method
 returns the list of changes it caused.
 
-The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/boot_steps.py``.
+The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/node/boot_steps.py``.
 
-Imports: gateway.bus.boot_steps (the step type), gateway.cia301, gateway.objref and the
+Imports: gateway.bus.node.boot_steps (the step type), gateway.cia301, gateway.objref and the
 standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal, NamedTuple
 
-from gateway.bus.boot_steps import ConfigStep
+from gateway.bus.node.boot_steps import ConfigStep
 from gateway.cia301 import (
     NMT_ENTER_PRE_OPERATIONAL,
     NMT_START,
