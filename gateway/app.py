@@ -152,7 +152,7 @@ class Gateway:
             parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
         if self.ascii is not None:
             parts.append(f"CiA 309-3 ASCII {self.ascii.section.host}:{self.ascii.port}")
-        if self.health is not None and getattr(self.health, "port", 0):
+        if self.health is not None and self.health.port:
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
         nodes = ", ".join(

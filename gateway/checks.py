@@ -186,7 +186,7 @@ def eds_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> l
                     out.append(
                         (
                             f"{key} ({prof.family} signal {s.name})",
-                            f"type {s.type} but {s.object} is {DATA_TYPES.get(var.data_type, '?')} "
+                            f"type {s.type} but {s.object} is {DATA_TYPES.get(var.data_type or 0, '?')} "
                             f"in {eds}: must be {eds_type} (or another {eds_bits}-bit type)",
                         )
                     )
@@ -232,7 +232,7 @@ def _pdo_entry_problems(lp: LoadedProfile, kind: str, p: Pdo, where: str, eds: s
                 (
                     w,
                     f"{kind.upper()}{p.number} entry {e.object}/{e.bits}: the object is "
-                    f"{DATA_TYPES.get(var.data_type, '?')} ({bits} bit) in {eds}; must be /{bits}",
+                    f"{DATA_TYPES.get(var.data_type or 0, '?')} ({bits} bit) in {eds}; must be /{bits}",
                 )
             )
         if not var.pdo_mappable:

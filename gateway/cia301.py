@@ -70,8 +70,9 @@ OCTET_STRING = dt.OCTET_STRING
 UNICODE_STRING = dt.UNICODE_STRING
 DOMAIN = dt.DOMAIN
 
-#: data type code -> the gateway's signal type name (the types it serves)
-TYPE_NAMES: dict[int, str] = {
+#: data type code -> the gateway's signal type name (the types it serves); keyed so that the
+#: ``data_type`` of a canopen variable (``int | None``) can be looked up as it is
+TYPE_NAMES: dict[int | None, str] = {
     dt.BOOLEAN: "bool",
     dt.INTEGER8: "int8",
     dt.INTEGER16: "int16",
@@ -88,7 +89,7 @@ TYPE_NAMES: dict[int, str] = {
     dt.UNSIGNED64: "uint64",
 }
 #: bits of the fixed-size types; dummy entries 0001h..0007h of a PDO mapping map these too
-TYPE_BITS: dict[int, int] = {
+TYPE_BITS: dict[int | None, int] = {
     dt.BOOLEAN: 1,
     dt.INTEGER8: 8,
     dt.INTEGER16: 16,
@@ -113,7 +114,7 @@ TYPE_BITS: dict[int, int] = {
 SIGNED_TYPES: frozenset[int] = frozenset(dt.SIGNED_TYPES)
 #: the numeric types the gateway decodes (integers of 8..64 bits, BOOLEAN, REAL32)
 NUMERIC_TYPES: frozenset[int] = frozenset(
-    code for code, name in TYPE_NAMES.items() if name not in ("string", "bytes")
+    code for code, name in TYPE_NAMES.items() if code is not None and name not in ("string", "bytes")
 )
 
 # --------------------------------------------------------------------------- EMCY

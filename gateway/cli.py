@@ -12,7 +12,7 @@ import logging
 import signal
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from gateway import __version__
@@ -49,7 +49,9 @@ def _setup_logging(level: str) -> None:
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
 
-async def _run_until_signal(starter: Any, stopper: Any, ready_line: str | None = None) -> None:
+async def _run_until_signal(
+    starter: Any, stopper: Any, ready_line: str | Callable[[], str] | None = None
+) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -248,12 +250,12 @@ def format_sdo_int(value: int, type_: str | None) -> str:
 
 def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
     """The type of ``obj`` on node ``name``: the profile signal's, else the EDS's."""
+    from gateway.bus.resolved import node_of, resolve_config
     from gateway.cia301 import TYPE_NAMES
     from gateway.objref import ObjRef
-    from gateway.profiles import load_profile
 
     node = next(n for n in cfg.nodes if n.name == name)
-    lp = load_profile(node.profile, cfg.base_dir)
+    lp = node_of(cfg, resolve_config(cfg, [name]), node).lp
     ref = ObjRef.parse(obj)
     sig = lp.profile.signal_for(ref)
     if sig is not None:

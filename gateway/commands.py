@@ -19,7 +19,7 @@ Rules held here, once:
   through the gateway updates it, and a boot-up or loss of the node empties it.
 
 Imports: bus.master (the operations), bus.sdo.values (value codecs), errors, image, objref,
-profiles, states. Never modbus/ or zenoh_bridge/.
+profiles, cia301, states. Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ def check_value(sig: Signal, value: Any) -> Any:
             v = int(value)
         except (TypeError, ValueError):
             raise ValueOutOfRange(sig.name, value, "an integer") from None
-        rng = type_range(sig.type)
+        rng = type_range(sig.type_name)
         if rng and not rng[0] <= v <= rng[1]:
             raise ValueOutOfRange(sig.name, value, f"{rng[0]}..{rng[1]} ({sig.type})")
     # profile min/max are engineering values (raw x scale + offset)
@@ -273,7 +273,7 @@ class CommandService:
         if not sig.bits or not isinstance(new, int):
             return
         fixed = ~(writable_mask(sig) | self._managed_mask(p, sig.name))
-        changed = (int(new) ^ int(current or 0)) & fixed & ((1 << TYPE_BITS.get(sig.type, 64)) - 1)
+        changed = (int(new) ^ int(current or 0)) & fixed & ((1 << TYPE_BITS.get(sig.type_name, 64)) - 1)
         if changed:
             raise ValueOutOfRange(
                 sig.name,
@@ -289,7 +289,7 @@ class CommandService:
         sig = self.signal(node, name)
         if sig.access == "ro":
             raise ReadOnly(f"{node}.{name} is read-only")
-        if any(not 0 <= b < TYPE_BITS.get(sig.type, 64) for b in bits):
+        if any(not 0 <= b < TYPE_BITS.get(sig.type_name, 64) for b in bits):
             raise Unmapped(f"{node}.{name} has no bit {sorted(bits)}")
         allowed = writable_mask(sig) if sig.bits else 0
         async with self._word_lock(node, name):
@@ -397,7 +397,7 @@ class CommandService:
         try:
             epoch = self._epoch(p)
             data = await self.master.sdo(p.name, sig.object, None)
-            value = decode_value(bytes(data), sig.type)
+            value = decode_value(bytes(data), sig.type_name)
             self._cache[key] = (value, time.monotonic(), epoch)
             fut.set_result(value)
             return value
@@ -410,7 +410,7 @@ class CommandService:
                 del self._reading[key]
 
     async def _sdo_write_signal(self, p: NodeParts, sig: Signal, value: Any) -> None:
-        await self.master.sdo(p.name, sig.object, encode_value(value, sig.type))
+        await self.master.sdo(p.name, sig.object, encode_value(value, sig.type_name))
         self._cache[(p.name, sig.name)] = (value, time.monotonic(), self._epoch(p))
 
     # ------------------------------------------------------------------ SDO and NMT

@@ -11,7 +11,7 @@ without a safe value keeps the last value sent.
 trips); ``safe_output_problems(cfg)`` is the check of ``canopen-gateway check`` (key path and
 what is allowed, as ``gateway.checks`` reports them).
 
-Imports: config, profiles, resolved, commands (``check_value``, pure). No I/O but reading profiles.
+Imports: config, errors, profiles, bus.resolved, commands (``check_value``, pure). No I/O but reading profiles.
 """
 
 from __future__ import annotations
@@ -75,12 +75,12 @@ def safe_output_problems(
                     )
         for name, value in n.safe_outputs.items():
             key = f"nodes[{i}].safe_outputs.{name}"
-            sig = outputs.get(name)
-            if sig is None:
+            target = outputs.get(name)
+            if target is None:
                 problems.append((key, f"not an RPDO output of node {n.name}; outputs: {allowed}"))
                 continue
             try:
-                check_value(sig, value)
+                check_value(target, value)
             except ValueOutOfRange as exc:
                 problems.append((key, f"value {value!r} not allowed, expected {exc.allowed}"))
     return problems

@@ -15,7 +15,7 @@ and answers are still written.
 A client that disconnects mid-request harms nothing: the request completes on the bus, its
 answer is dropped, and the connection's task ends.
 
-Imports: asyncio, commands, config, errors, image, ascii.protocol, ratelimit. Never modbus/,
+Imports: asyncio, commands, config, errors, image, objref, ascii.protocol, ratelimit. Never modbus/,
 zenoh_bridge/, web/ or bus/.
 """
 

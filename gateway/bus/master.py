@@ -14,7 +14,8 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
 * **Services** for the command service: SDO upload/download (awaitable, one transfer per node
   at a time, queued in the node), RPDO outputs, NMT commands.
 
-Imports: bus.*, cia301, image, profiles, errors, config. Nothing northbound.
+Imports: bus.*, pdo.codec, pdo.verify, cia301, image, profiles, errors, config, objref,
+ratelimit. Nothing northbound.
 """
 
 from __future__ import annotations

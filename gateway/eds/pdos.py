@@ -299,7 +299,7 @@ def mapping_findings(
             what = f"{obj.index:04X}h has no sub-index {obj.sub:02X}h" if obj.index in od else "the file does not define it"  # fmt: skip
             out.append(PdoFinding(False, pdo, at, f"{pdo} maps {obj}/{bits}, but {what}: its type is unknown, so it is skipped; the other signals of {pdo} are served"))  # fmt: skip
             continue
-        type_name = DATA_TYPES.get(var.data_type, f"0x{var.data_type or 0:04X}")
+        type_name = DATA_TYPES.get(var.data_type or 0, f"0x{var.data_type or 0:04X}")
         served = signal_type(var)
         if served is None:
             out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}/{bits} ({type_name}) is not a type the gateway serves: skipped, the other signals of {pdo} are served"))  # fmt: skip
@@ -324,7 +324,7 @@ def eds_pdo_findings(od: canopen.ObjectDictionary, node_id: int | None = None) -
     """``mapping_findings`` of every enabled PDO the file describes."""
     out: list[PdoFinding] = []
     for kind in ("tpdo", "rpdo"):
-        for p in eds_pdos(od, node_id, kind):  # type: ignore[arg-type]
+        for p in eds_pdos(od, node_id, kind):
             if p.cob_id & COB_ID_INVALID or not (p.entries or p.gaps):
                 continue
             out += mapping_findings(od, p.kind, p.number, p.map_index, p.entries, p.gaps, p.count)

@@ -21,7 +21,7 @@ import ipaddress
 import logging
 import struct
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Mapping
 from typing import Any
 
 import gateway
@@ -125,7 +125,7 @@ class ImageDatastore:
         """Registers (ints) or bits (bools) of ``count`` consecutive addresses."""
         idx = self.regmap.index.get((unit, table), {})
         words: dict[tuple[str, str], Any] = {}  # a word read once per request for all its bits
-        snaps: dict[str, dict[str, SignalValue]] = {}  # one consistent view per node
+        snaps: dict[str, Mapping[str, SignalValue]] = {}  # one consistent view per node
         sums: dict[str, NodeSummary] = {}  # one health summary per node
         out: list[Any] = []
         a, end = address, address + count
@@ -152,12 +152,12 @@ class ImageDatastore:
         return self.image.nodes[p.node]
 
     def _servable(
-        self, node: NodeImage, name: str, snaps: dict[str, dict[str, SignalValue]] | None = None
+        self, node: NodeImage, name: str, snaps: dict[str, Mapping[str, SignalValue]] | None = None
     ) -> Any:
         """A process value if its quality allows serving it (stale only with serve_stale)."""
         if self.image.bus_state == "down":
             raise BusDown("CAN bus is down")
-        snap = None if snaps is None else snaps.get(node.name)
+        snap: Mapping[str, SignalValue] | None = None if snaps is None else snaps.get(node.name)
         if snap is None:
             snap = node.snapshot()
             if snaps is not None:
@@ -175,7 +175,7 @@ class ImageDatastore:
     async def _reg_value(
         self,
         p: Point,
-        snaps: dict[str, dict[str, SignalValue]] | None = None,
+        snaps: dict[str, Mapping[str, SignalValue]] | None = None,
         sums: dict[str, NodeSummary] | None = None,
     ) -> list[int]:
         if p.kind == "gateway":
@@ -199,7 +199,7 @@ class ImageDatastore:
         self,
         p: Point,
         words: dict[tuple[str, str], Any],
-        snaps: dict[str, dict[str, SignalValue]] | None = None,
+        snaps: dict[str, Mapping[str, SignalValue]] | None = None,
         sums: dict[str, NodeSummary] | None = None,
     ) -> int:
         node = self._node(p)
@@ -424,9 +424,9 @@ def _log_late_result(task: asyncio.Future[Any]) -> None:
 async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None) -> bytes:
     """Serve one request PDU; returns the response PDU (raises ModbusError / GatewayError)."""
     fc, body = pdu[0], pdu[1:]
-    code = check_request(fc, body)
-    if code is not None:
-        raise ModbusError(code, f"function code {fc}: malformed or unsupported request")
+    malformed = check_request(fc, body)
+    if malformed is not None:
+        raise ModbusError(malformed, f"function code {fc}: malformed or unsupported request")
     if unit not in store.regmap.units:
         raise ModbusError(
             ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"

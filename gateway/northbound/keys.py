@@ -193,7 +193,7 @@ def short_text(text: str, limit: int = 56) -> str:
 
 
 def _signal_text(sig: Signal, unit: str) -> str:
-    kind = sig.type + (f" [{unit}]" if unit else "")
+    kind = sig.type_name + (f" [{unit}]" if unit else "")
     desc = short_text(sig.description) if sig.description else ""
     return f"{kind}  {desc}".rstrip()
 

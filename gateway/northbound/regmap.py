@@ -24,7 +24,7 @@ the word order of one point.
 ``layout: flat`` puts everything in one unit (``flat_unit_id``): the gateway block at 0 and node
 *k* (1-based, config order) at ``k * flat_stride``, with the same offsets inside each block.
 
-Imports: config, profiles. Never pymodbus, bus/, zenoh_bridge/.
+Imports: config, profiles, bus.resolved, northbound.scaling. Never pymodbus, zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -382,7 +382,7 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None
             skey = f"{key}.signals.{sig.name}" if ov else key
             writable = sig.access in ("rw", "wo")
             table: Table = "hr" if (writable or sig.transport == "sdo") else "ir"
-            rtype = _REG_TYPE[sig.type]
+            rtype = _REG_TYPE[sig.type_name]
             scale = ov.scale if ov and ov.scale is not None else sig.scale
             offset = ov.offset if ov and ov.offset is not None else sig.offset
             engineering = bool(ov and ov.as_float) and rtype != "string"
@@ -411,7 +411,7 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None
                     offset=offset,
                     engineering=engineering,
                     unit_text=(ov.unit if ov and ov.unit is not None else sig.unit),
-                    transport=sig.transport,
+                    transport=sig.transport_name,
                     description=_description(sig, scale, offset, engineering),
                 ),
                 skey,
@@ -436,7 +436,7 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None
                         "rw" if writable else "ro",
                         n,
                         bit=b,
-                        transport=sig.transport,
+                        transport=sig.transport_name,
                         description=bits.get(b, f"(bit {b} not used)"),
                     ),
                     key,

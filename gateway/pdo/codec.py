@@ -59,7 +59,7 @@ class Field:
 
 def _field_kind(lp: LoadedProfile, obj: ObjRef, sig: Signal | None) -> tuple[bool, bool, bool]:
     if sig is not None:
-        t = sig.type
+        t = sig.type_name
         return t.startswith("int"), t == "float32", t in ("string", "bytes")
     if obj.index < 0x1000:  # a DS-301 dummy data type entry
         return obj.index in SIGNED_TYPES, obj.index == REAL32, False

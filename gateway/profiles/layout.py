@@ -14,7 +14,7 @@ of every PDO the node's settings name from this layout, the codecs (``gateway.pd
 compiled from it, ``verify_mapping`` compares the device with it, the register map and the
 Zenoh keys serve its objects.
 
-Imports: gateway.profiles.schema, gateway.eds.pdos, gateway.objref. No I/O.
+Imports: gateway.profiles.schema, gateway.eds.pdos, gateway.cia301, gateway.objref. No I/O.
 """
 
 from __future__ import annotations

@@ -29,8 +29,8 @@ manuals say so (SGH10 manual 000/003 section numbers unless noted):
 - a motion model (motion.py) for the position / velocity objects named by the profile's
   ``sim:`` hints, and the behaviours of the profile's features (behaviours/).
 
-Imports: python-can (Message only), gateway.cia301, gateway.profiles (LoadedProfile), gateway.objref and the
-other gateway.sim modules. Nothing of bus/, modbus/, zenoh_bridge/.
+Imports: python-can (Message only), gateway.cia301, gateway.states, gateway.profiles
+(LoadedProfile), gateway.objref and the other gateway.sim modules. Nothing of bus/, modbus/, zenoh_bridge/.
 """
 
 from __future__ import annotations

@@ -66,7 +66,7 @@ from gateway.cia301 import (
 )
 from gateway.config import Config
 from gateway.objref import ObjRef
-from gateway.profiles import ProfileError, load_profile
+from gateway.profiles import LoadedProfile, ProfileError, load_profile
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -199,6 +199,8 @@ class LssStateFile:
 
     def load(self) -> LeftState:
         entry = self._read_all().get(self.bus_key)
+        if not isinstance(entry, dict):
+            return LeftState()
         try:
             mode = lss.LssMode(entry["mode"])
             address = entry.get("address")
@@ -476,17 +478,17 @@ def check_bitrate_supported(cfg: Config, a: LssArgs) -> None:
     profiles are ``profile=NAME``, else those of the config's nodes with feature lss_slave."""
     kbps, index = bitrate_argument(a)
     name = a.options.get("profile")
+    lps: dict[str, tuple[LoadedProfile, list[str]]] = {}
     if name is not None:
         try:
             lps = {name: (load_profile(name, cfg.base_dir), [])}
         except ProfileError as exc:
             raise UsageError(str(exc)) from None
     else:
-        lps = {}
-        for n in cfg.nodes:
-            lp = load_profile(n.profile, cfg.base_dir)
+        for rn in resolve_config(cfg).values():
+            lp = rn.lp
             if "lss_slave" in lp.profile.features:
-                lps.setdefault(n.profile, (lp, []))[1].append(n.name)
+                lps.setdefault(rn.cfg.profile or rn.lp.family, (lp, []))[1].append(rn.name)
     for profile, (lp, nodes) in lps.items():
         feature = lp.profile.features.get("lss_slave") or {}
         indices = feature.get("bit_timing_indices")

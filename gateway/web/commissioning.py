@@ -15,7 +15,7 @@ so: then stop the gateway and use ``canopen-gateway lss``. LSS inquiry switches 
 (or the one at ``address``) to the LSS configuration state and back to waiting; it does not
 change NMT states or node ids.
 
-Imports: commands, errors, objref, config, profiles.schema, zenoh_bridge.payloads (scaling),
+Imports: commands, errors, objref, config, cia301, profiles.schema, northbound.scaling,
 bus.lss.master and tools.lss (LSS frames and session), python-can.
 """
 
@@ -247,7 +247,7 @@ class Commissioning:
             with session.configuration_state(address):  # type: ignore[arg-type]
                 for item in INQUIRE_ORDER:
                     value = session.request(lss.inquire(item))
-                    out[item] = value if item == "node_id" else f"0x{int(value or 0):08X}"
+                    out[item] = value if item == "node_id" else f"0x{value if isinstance(value, int) else 0:08X}"
             return out
         finally:
             bus.shutdown()

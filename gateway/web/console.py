@@ -20,7 +20,7 @@ host and port: pages and static files, a small JSON API, server-sent events, and
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, config,
-image, commands (types). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
+image, commands (types), ratelimit. Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
 
 from __future__ import annotations

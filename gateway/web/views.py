@@ -7,8 +7,9 @@ profiles, overrides, resolved supervision); Modbus addresses come from the regis
 keys from the key scheme, both pure functions of the config. Gateway-wide figures (bus, Modbus,
 Zenoh) come from an ``overview_fn`` given by the application, which alone knows those parts.
 
-Runs on the event loop. Imports: image, commands (types), config, modbus.regmap, zenoh_bridge.keys
-and zenoh_bridge.payloads (pure modules, no protocol library), bus.emcy (EMCY texts), states.
+Runs on the event loop. Imports: image, commands (types), config, northbound.regmap, northbound.keys,
+northbound.scaling and northbound.summary (pure modules, no protocol library), cia301 (the
+error register bits), profiles.schema, states. Never modbus/, zenoh_bridge/ or bus/.
 """
 
 from __future__ import annotations
@@ -264,7 +265,7 @@ class ConsoleModel:
     def emcy(self, name: str) -> dict[str, Any]:
         node = self.commands.node(name).image
         h = node.health
-        texts = {}
+        texts: dict[int, str] = {}
         for rec in h.emcy_history:
             texts.setdefault(rec.code, rec.text)
         return {

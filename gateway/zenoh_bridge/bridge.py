@@ -37,7 +37,8 @@ reachable, the gateway starts anyway and the bridge retries in the background (a
 0.5 s, 1 s, 2 s, then every 5 s apart). After a router restart zenoh reconnects by itself and
 re-declares publishers, queryable and liveliness tokens.
 
-Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a function passed in
+Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, northbound.keys,
+northbound.scaling, zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a function passed in
 by the app) and nothing of bus/ (nodes are known through the command service).
 """
 
@@ -467,7 +468,7 @@ class ZenohBridge:
             key,
             encoding=JSON,
             cache=zenoh.ext.CacheConfig(cache),
-            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=hb_ms / 1000.0)
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=hb_ms / 1000.0, sporadic_heartbeat=None)
             if hb_ms
             else None,
             publisher_detection=True,

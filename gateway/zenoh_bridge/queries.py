@@ -13,8 +13,8 @@ The publishing side (``bridge.py``) owns the session and the publishers; this si
 session through a function and knows the published value keys and their scaling as given at
 construction.
 
-Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, zenoh_bridge.keys,
-payloads, access. Nothing of bus/ or modbus/.
+Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, northbound.keys,
+northbound.scaling, payloads, access. Nothing of bus/ or modbus/.
 """
 
 from __future__ import annotations

@@ -29,7 +29,8 @@ gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on ch
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
 Imports: bus.node.lifecycle, bus.node.boot_steps, bus.sdo.values, bus.error_control.supervision, bus.sdo.client,
-bus.emcy, bus.node.settings, pdo.codec, pdo.verify, image, states, objref. Never python-can, asyncio, logging or a northbound module.
+bus.emcy, bus.node.settings, pdo.codec, pdo.verify, errors, image, states, objref. Never
+python-can, asyncio, logging or a northbound module.
 """
 
 from __future__ import annotations
@@ -145,7 +146,9 @@ class Node:
         self.verify_reads = list(verify)
         self._verify_held: dict[ObjRef, int | None] = {}
         self.mapping_mismatches: list[MappingMismatch] = []
-        self._pdo_names = frozenset(n for c in (*self.tpdos, *self.rpdos) for n in c.names)
+        self._pdo_names = frozenset(
+            [n for c in self.tpdos for n in c.names] + [n for c in self.rpdos for n in c.names]
+        )
 
     # ================================================================== queries
     @property
@@ -586,7 +589,11 @@ class Node:
             h.invalid_signals = h.invalid_signals | self._pdo_names
             note = Note(logging.ERROR, f"node {self.name}: {h.last_error}")
         else:
-            keep = {self.ref.signal} & h.invalid_signals if self.ref is not None else set()
+            keep = (
+                {self.ref.signal} & h.invalid_signals
+                if self.ref is not None and self.ref.signal is not None
+                else set[str]()
+            )
             h.invalid_signals = (h.invalid_signals - self._pdo_names) | keep
             note = Note(logging.INFO, f"node {self.name}: PDO mapping verified ({len(self.verify_reads)} objects read back)")  # fmt: skip
         return [note, HealthChanged("state")]
