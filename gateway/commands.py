@@ -18,8 +18,8 @@ Rules held here, once:
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it.
 
-Imports: bus.master (the operations), bus.sdo.values (value codecs), errors, image, objref,
-profiles, cia301, states. Never modbus/ or zenoh_bridge/.
+Imports: bus.master (the operations), bus.lss.master (its errors), bus.sdo.values (value
+codecs), errors, image, objref, profiles, cia301, states, python-can (its error type). Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -30,10 +30,21 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import can
+
+from gateway.bus.lss.master import LssBusy, LssStateError
 from gateway.bus.master import Master, NodeParts
 from gateway.bus.sdo.values import decode_value, encode_value
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
-from gateway.errors import GatewayError, NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
+from gateway.errors import (
+    BusDown,
+    GatewayError,
+    LssConflict,
+    NodeUnknown,
+    ReadOnly,
+    Unmapped,
+    ValueOutOfRange,
+)
 from gateway.image import NodeImage, SentOutputs, SignalValue
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
@@ -454,6 +465,22 @@ class CommandService:
         sig = p.lp.profile.signal_for(o)
         if sig is not None:
             self._cache.pop((node, sig.name), None)
+
+    def lss_busy(self) -> bool:
+        """An LSS session is running."""
+        return self.master.lss.busy()
+
+    async def lss_inquire(self, address: tuple[int, int, int, int] | None = None) -> dict[str, Any]:
+        """LSS inquire (CiA 305; SGH10 manual 4.6.3) of the one slave at ``address`` (switch
+        state selective), else of every slave (switch state global), on the gateway's own
+        connection to the bus: vendor_id, product_code, revision, serial, node_id."""
+        self.master.require_bus()
+        try:
+            return await self.master.lss.inquire_all(address)
+        except (LssBusy, LssStateError) as exc:
+            raise LssConflict(str(exc)) from None
+        except can.CanError as exc:
+            raise BusDown(str(exc)) from None
 
     def nmt(self, node: str, command: str) -> None:
         """NMT command to one node by name, or to all nodes with ``all``."""

@@ -31,13 +31,14 @@ from typing import Any
 import can
 
 from gateway.bus.driver import BusDriver
+from gateway.bus.lss.service import LssService
 from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.lifecycle import LifecycleState
 from gateway.bus.node.owner import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.producers import Periodic
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
-from gateway.cia301 import COB_NMT, NMT_COMMANDS
+from gateway.cia301 import COB_LSS_SLAVE, COB_NMT, NMT_COMMANDS
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage, RxCell
@@ -191,6 +192,8 @@ class Master:
         self._waiting: dict[tuple[str, int], tuple[asyncio.Future[bytes], ObjRef]] = {}
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
+        #: LSS (CiA 305) on this connection to the bus, for the command service
+        self.lss = LssService(driver.send, self._post, self.clock, driver.frame_time)
         resolved = nodes_of(cfg, nodes)
         for ncfg in cfg.nodes:
             rn = node_of(cfg, resolved, ncfg)
@@ -214,6 +217,7 @@ class Master:
             h[0x700 + p.node_id] = self._control(p, "nmt_ec")
             h[0x080 + p.node_id] = self._control(p, "emcy")
             h[0x580 + p.node_id] = self._control(p, "sdo")
+        h[COB_LSS_SLAVE] = self.lss.reader_handler()
         self.driver.default_handler = self._unknown
         if self.image.end_batch not in self.driver.burst_listeners:
             self.driver.burst_listeners.append(self.image.end_batch)
@@ -444,6 +448,7 @@ class Master:
             self._execute(p, p.node.start(now, probe=self.cfg.master.probe_at_start))
 
     async def stop(self) -> None:
+        self.lss.stop()
         for t in [*self._timers.values(), *self._producers.values()]:
             t.cancel()
         self._producers.clear()

@@ -30,62 +30,54 @@ The LSS frames and their matching come from ``gateway.bus.lss.master``; this mod
 I/O, parses the arguments and prints. When the config simulates nodes (``simulate:``), they
 run in this process on the same bus, so the commands can be tried without hardware.
 
-Imports: python-can, gateway.bus.lss.master, gateway.config, gateway.profiles, gateway.objref,
+Imports: python-can, gateway.bus.lss.master, gateway.tools.lss_session, gateway.bus.resolved,
+gateway.bus.sdo.client, gateway.config, gateway.profiles, gateway.objref,
 gateway.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import struct
 import sys
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, TextIO
 
 import can
 
 from gateway.bus.lss import master as lss
 from gateway.bus.resolved import node_of, resolve_config
+from gateway.bus.sdo.client import SdoTransfer
 from gateway.cia301 import (
     COB_NMT,
     COB_NMT_EC,
     COB_SDO_RX,
     COB_SDO_TX,
     NMT_RESET_COMMUNICATION,
-    SDO_CCS_INITIATE_UPLOAD,
-    SDO_CS_ABORT,
-    SDO_DOWNLOAD_1_BYTE,
-    SDO_SCS_INITIATE_DOWNLOAD,
     abort_text,
 )
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, ProfileError, load_profile
+from gateway.tools.lss_session import (
+    LeftState,
+    LssFailed,
+    LssSession,
+    LssStateFile,
+    format_address,
+)
 
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
 
-INQUIRE_ORDER = ("vendor_id", "product_code", "revision", "serial", "node_id")
-#: After the first answer, how long to listen for more slaves answering the same request.
-ANSWER_SETTLE_S = 0.05
-#: Buses remembered in the state file (the oldest are dropped).
-STATE_FILE_BUSES = 32
+INQUIRE_ORDER = lss.INQUIRE_ORDER
 DEFAULT_SWITCH_DELAY_MS = 100  # activate bit timing: silent d1, then d2 (SGH10 manual 4.6.2.3)
 
 
 class UsageError(Exception):
     """The arguments of an action are wrong; the message says what is expected."""
-
-
-class LssFailed(Exception):
-    """An LSS service or the Auto-ID failed (timeout, error answer)."""
 
 
 # --------------------------------------------------------------------------- arguments
@@ -157,226 +149,6 @@ def parse_address(parts: list[str]) -> tuple[int, int, int, int]:
         if not 0 <= v <= 0xFFFFFFFF:
             raise UsageError(f"{n} 0x{v:X} does not fit UNSIGNED32")
     return values  # type: ignore[return-value]
-
-
-# --------------------------------------------------------------------------- state left behind
-
-
-@dataclass(frozen=True)
-class LeftState:
-    """The LSS state a command left the slaves of one bus in (manual 4.6 Table 10)."""
-
-    mode: lss.LssMode = lss.LssMode.WAITING
-    #: the one slave switched selectively; None: all slaves (switch state global)
-    address: tuple[int, int, int, int] | None = None
-
-    def describe(self) -> str:
-        if self.address is None:
-            return f"all slaves in {self.mode}"
-        return f"slave {format_address(self.address)} in {self.mode}"
-
-
-class LssStateFile:
-    """Per bus, the state the last ``lss`` command left the slaves in, so the next command (a
-    new process) continues from it. A missing or unreadable file means: all slaves waiting."""
-
-    def __init__(self, path: Path, bus_key: str):
-        self.path = path
-        self.bus_key = bus_key
-
-    @classmethod
-    def for_bus(cls, bus_kwargs: dict[str, Any]) -> LssStateFile:
-        base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-        parts = [f"{k}={bus_kwargs[k]}" for k in ("interface", "channel", "host", "port") if k in bus_kwargs]
-        return cls(Path(base) / "canopen-gateway" / "lss-state.json", " ".join(parts))
-
-    def _read_all(self) -> dict[str, Any]:
-        try:
-            data = json.loads(self.path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return {}
-        return data if isinstance(data, dict) else {}
-
-    def load(self) -> LeftState:
-        entry = self._read_all().get(self.bus_key)
-        if not isinstance(entry, dict):
-            return LeftState()
-        try:
-            mode = lss.LssMode(entry["mode"])
-            address = entry.get("address")
-            return LeftState(mode, tuple(int(v) for v in address) if address else None)  # type: ignore[arg-type]
-        except (TypeError, KeyError, ValueError):
-            return LeftState()
-
-    def save(self, state: LeftState) -> None:
-        data = self._read_all()
-        data.pop(self.bus_key, None)
-        data[self.bus_key] = {
-            "mode": str(state.mode),
-            "address": list(state.address) if state.address else None,
-        }
-        data = dict(list(data.items())[-STATE_FILE_BUSES:])
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
-            tmp.replace(self.path)
-        except OSError:
-            pass  # a read-only home: the next command starts from "all waiting"
-
-
-def format_address(address: tuple[int, int, int, int]) -> str:
-    return ":".join(f"0x{v:X}" for v in address)
-
-
-# --------------------------------------------------------------------------- bus session
-
-
-class LssSession:
-    """LSS requests on a python-can bus: frames out on 7E5h, answers matched on 7E4h."""
-
-    def __init__(
-        self,
-        bus: can.BusABC,
-        timeout_s: float = 1.0,
-        clock: Callable[[], float] = time.monotonic,
-        left: LeftState | None = None,
-        settle_s: float = ANSWER_SETTLE_S,
-    ):
-        self.bus = bus
-        self.clock = clock
-        self.master = lss.LssMaster(timeout_s)
-        self.settle_s = settle_s
-        #: what the slaves are in now (what the previous command left, then what we did)
-        self.left = left or LeftState()
-        #: every answer to the last request (more than one: several slaves answered)
-        self.answers: list[lss.LssValue] = []
-        #: set while continuing with a slave a previous command left in configuration
-        self.resumed: tuple[int, int, int, int] | None = None
-        self.warnings: list[str] = []
-
-    def send_frame(self, cob_id: int, data: bytes) -> None:
-        self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
-
-    def request(self, req: lss.LssRequest) -> lss.LssValue:
-        """Send ``req``; its answer (None when the service has none). Raises LssFailed."""
-        for frame in self.master.send(req, self.clock()):
-            self.send_frame(lss.COB_ID_MASTER_TO_SLAVE, frame)
-        if req.frames[0][0] == lss.CS_SWITCH_GLOBAL:
-            self.left = LeftState(self.master.mode, None)
-            self.resumed = None
-        self.answers = []
-        if req.answer_cs is None:
-            return None
-        while True:
-            deadline = self.master.deadline_s
-            now = self.clock()
-            if deadline is None:
-                raise LssFailed(f"LSS {req.service}: no request pending")  # pragma: no cover
-            msg = self.bus.recv(timeout=max(0.0, deadline - now) + 0.001)
-            now = self.clock()
-            if (
-                msg is not None
-                and msg.arbitration_id == lss.COB_ID_SLAVE_TO_MASTER
-                and not msg.is_remote_frame
-                and not msg.is_error_frame
-            ):
-                for ev in self.master.on_frame(bytes(msg.data), now):
-                    if isinstance(ev, lss.LssAnswered):
-                        self.answers = [ev.value, *self._more_answers(req.answer_cs)]
-                        return ev.value
-            for ev in self.master.poll(now):
-                if isinstance(ev, lss.LssTimedOut):
-                    if self.resumed is not None:
-                        hint = (
-                            f"the slave {format_address(self.resumed)} the previous command "
-                            "left in configuration does not answer (reset or powered off "
-                            "since?); give address=VENDOR:PRODUCT:REVISION:SERIAL"
-                        )
-                        self.left = LeftState()
-                    else:
-                        hint = "no LSS slave in configuration state?"
-                    raise LssFailed(
-                        f"LSS {req.service}: no answer on 0x{lss.COB_ID_SLAVE_TO_MASTER:03X} "
-                        f"within {ev.timeout_s:g} s ({hint})"
-                    )
-
-    def _more_answers(self, cs: int) -> list[lss.LssValue]:
-        """Further answers with ``cs`` within ``settle_s``: other slaves in configuration."""
-        more: list[lss.LssValue] = []
-        deadline = self.clock() + self.settle_s
-        while (left := deadline - self.clock()) > 0:
-            msg = self.bus.recv(timeout=left)
-            if (
-                msg is not None
-                and msg.arbitration_id == lss.COB_ID_SLAVE_TO_MASTER
-                and not msg.is_remote_frame
-                and not msg.is_error_frame
-                and len(msg.data) > 0
-                and msg.data[0] == cs
-            ):
-                try:
-                    more.append(lss.decode_answer(bytes(msg.data))[1])
-                except ValueError:
-                    continue
-        return more
-
-    def configure(self, req: lss.LssRequest) -> None:
-        """A configure / store service; raises LssFailed when the slave answers an error."""
-        answer = self.request(req)
-        if len(self.answers) > 1:
-            self.warnings.append(
-                f"warning: {len(self.answers)} LSS slaves answered {req.service}: more than one "
-                "is in the LSS configuration state and each of them took it; address one with "
-                "address=VENDOR:PRODUCT:REVISION:SERIAL"
-            )
-        if isinstance(answer, lss.ConfigAnswer) and not answer.ok:
-            raise LssFailed(f"LSS {req.service} refused: {answer.text}")
-
-    def wait_frame(self, cob_id: int, timeout_s: float) -> can.Message | None:
-        """The next data frame on ``cob_id`` within ``timeout_s`` (None on timeout)."""
-        deadline = self.clock() + timeout_s
-        while True:
-            left = deadline - self.clock()
-            if left <= 0:
-                return None
-            msg = self.bus.recv(timeout=left)
-            if (
-                msg is not None
-                and msg.arbitration_id == cob_id
-                and not msg.is_remote_frame
-                and not msg.is_error_frame
-            ):
-                return msg
-
-    @contextmanager
-    def configuration_state(
-        self, address: tuple[int, int, int, int] | None, keep: bool = False
-    ) -> Iterator[None]:
-        """Slave(s) in LSS configuration for the block; back to waiting afterwards unless
-        ``keep``. By address: all to waiting, then switch state selective (Table 10: a slave
-        already in configuration ignores the selective switch). Without: the slave a previous
-        command left in configuration, else all slaves by switch state global."""
-        if address is not None:
-            self.select(address)
-        elif self.left.mode is lss.LssMode.CONFIGURATION and self.left.address is not None:
-            self.master.resume(lss.LssMode.CONFIGURATION)
-            self.resumed = self.left.address
-        else:
-            self.request(lss.switch_state_global(True))
-        ok = False
-        try:
-            yield
-            ok = True
-        finally:
-            if not keep or not ok:
-                self.request(lss.switch_state_global(False))
-
-    def select(self, address: tuple[int, int, int, int]) -> None:
-        """Only the slave with ``address`` in configuration (04h 00h, then 40h..43h)."""
-        self.request(lss.switch_state_global(False))
-        self.request(lss.switch_state_selective(*address))
-        self.left = LeftState(lss.LssMode.CONFIGURATION, address)
 
 
 # --------------------------------------------------------------------------- actions
@@ -568,10 +340,10 @@ def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
     if "node" in a.options:
         reply_cob = COB_SDO_TX + old_id
     timeout_s = a.number("timeout", 60.0)
-    # AP05 manual table 32: 67Dh 2Fh 0Ah 5Fh 02h <new id> x x x
-    request = bytes([SDO_DOWNLOAD_1_BYTE]) + struct.pack("<HB", obj.index, obj.sub)
-    request += bytes([new_id, 0, 0, 0])
-    s.send_frame(COB_SDO_RX + old_id, request)
+    # AP05 manual table 32: 67Dh 2Fh 0Ah 5Fh 02h <new id> x x x (an expedited download of 1 byte)
+    write = SdoTransfer(obj.index, obj.sub, bytes([new_id]), timeout_s=timeout_s, retries=0)
+    for frame in write.start(s.clock()):
+        s.send_frame(COB_SDO_RX + old_id, frame)
     print(
         f"Auto-ID: {obj} = {new_id} sent to node {old_id}; press the key on the device that "
         f"shall take node id {new_id} (waiting {timeout_s:g} s)",
@@ -582,10 +354,11 @@ def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
     if answer is None:
         raise LssFailed(f"Auto-ID: no answer on 0x{reply_cob:03X} within {timeout_s:g} s")
     data = bytes(answer.data).ljust(8, b"\0")
-    if data[0] == SDO_CS_ABORT:
-        code = struct.unpack_from("<I", data, 4)[0]
+    write.on_response(data, s.clock())  # an abort frame it would send is not sent: none was asked
+    if write.done and write.aborted_by_server and write.abort_code is not None:
+        code = write.abort_code
         raise LssFailed(f"Auto-ID refused: SDO abort 0x{code:08X} ({abort_text(code)})")
-    if data[0] != SDO_SCS_INITIATE_DOWNLOAD or struct.unpack_from("<HB", data, 1) != tuple(obj):
+    if not write.done or write.abort_code is not None:
         raise LssFailed(f"Auto-ID: unexpected answer {data.hex(' ')}")
     print(f"Auto-ID: a device took node id {new_id}", file=out, flush=True)
     if s.wait_frame(COB_NMT_EC + new_id, 5.0) is None:
@@ -593,7 +366,8 @@ def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
     else:
         print(f"boot-up received from node {new_id}", file=out)
     # Is there another device left with the old id? Read 1000h (DS-301 upload request).
-    s.send_frame(COB_SDO_RX + old_id, bytes([SDO_CCS_INITIATE_UPLOAD, 0x00, 0x10, 0, 0, 0, 0, 0]))
+    for frame in SdoTransfer(0x1000, 0x00).start(s.clock()):
+        s.send_frame(COB_SDO_RX + old_id, frame)
     if s.wait_frame(COB_SDO_TX + old_id, 0.5) is not None:
         print(f"another device still answers as node {old_id}: run auto-id for it", file=out)
     else:

@@ -259,6 +259,10 @@ def decode_answer(data: bytes) -> tuple[int, LssValue]:
 # --------------------------------------------------------------------------- master machine
 
 
+#: what ``inquire`` asks, in the order a session asks it (CiA 305 inquire services)
+INQUIRE_ORDER = ("vendor_id", "product_code", "revision", "serial", "node_id")
+
+
 class LssStateError(Exception):
     """A service was requested in an LSS state where the slave ignores it (Table 10)."""
 
@@ -368,6 +372,11 @@ class LssMaster:
         if data[0] == CS_SWITCH_SELECTIVE_ANSWER:
             self.mode = LssMode.CONFIGURATION
         return [LssAnswered(request, value)]
+
+    def cancel(self) -> None:
+        """Forget the pending request (its answer, if one comes, is ignored)."""
+        self.pending = None
+        self.sent_at_s = None
 
     def poll(self, now: float) -> list[LssEvent]:
         deadline = self.deadline_s
