@@ -33,8 +33,9 @@ import can
 from gateway.bus.driver import BusDriver
 from gateway.bus.lss.service import LssService
 from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.lifecycle import LifecycleState
-from gateway.bus.node.owner import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
+from gateway.bus.node.owner import Node
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.producers import Periodic
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of

@@ -38,7 +38,8 @@ Modbus/TCP Security (``modbus.tls``): a second listener with TLS; each of its co
 the rights of its certificate's role (``modbus.security``), checked here before a request is
 served: a refused request is answered 0x01 and logged once per period.
 
-Imports: commands, config, errors, image, northbound.regmap, modbus.security, modbus.watchdog,
+Imports: commands, config, errors, image, northbound.regmap, modbus.datastore, modbus.protocol,
+modbus.security, modbus.watchdog,
 bus.resolved (the resolved nodes' profiles), safe_outputs. Never zenoh_bridge/, and of bus/
 only the resolved nodes (the bus is reached through the command service only); no pymodbus (its server loses pipelined
 requests: it clears its receive buffer on every send).

@@ -53,7 +53,17 @@ def _gateway_imports(tree: ast.Module, path: Path) -> set[str]:
                     if (GATEWAY / f"{a.name}.py").exists() or (GATEWAY / a.name).is_dir()
                 )
             elif mod.startswith("gateway."):
-                out.add(mod[len("gateway.") :])
+                below = mod[len("gateway.") :]
+                base = GATEWAY.joinpath(*below.split("."))
+                submodules = [
+                    a.name
+                    for a in node.names
+                    if (base / f"{a.name}.py").exists() or (base / a.name).is_dir()
+                ]
+                # ``from gateway.bus.lss import master``: the module imported is bus.lss.master
+                out.update(f"{below}.{m}" for m in submodules)
+                if len(submodules) < len(node.names):
+                    out.add(below)
         elif isinstance(node, ast.Import):
             out.update(a.name[len("gateway.") :] for a in node.names if a.name.startswith("gateway."))
     return out
@@ -66,7 +76,7 @@ def _named(module: str, text: str, own_package: str) -> bool:
     if module.startswith(own_package + ".") or not own_package:
         names.add(parts[-1])  # a sibling by its own name
     for n in names:
-        if re.search(r"(?<![\w.])" + re.escape(n) + r"(?![\w])", text):
+        if re.search(r"(?<![\w.])" + re.escape(n) + r"(?![\w])(?!\.\w)", text):
             return True
     return any(
         re.search(r"(?<![\w.])" + re.escape(".".join(parts[:i])) + r"(\.\*|/)", text)

@@ -8,7 +8,8 @@ signal, or one RPDO); ``frame`` encodes an RPDO, with the guarding bit the link 
 keep-alive re-sends the last RPDO when none went out for ``keepalive_s`` (AP05 manual 5.5.4
 external heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes nothing).
 
-Imports: pdo.codec, bus.node.events, bus.error_control.supervision (the guarding-bit check), errors. No I/O.
+Imports: pdo.codec, bus.node.events, bus.error_control.guarding_bit (the guarding-bit check),
+errors. No I/O.
 """
 
 from __future__ import annotations
