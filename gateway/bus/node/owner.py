@@ -43,11 +43,12 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from gateway.bus.emcy import EmcyHistory, decode_emcy
-from gateway.bus.error_control.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
+from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.error_control.watchdog import Watchdog
 from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.events import HealthChanged, Note, Output, Refresh, SdoDone, Send
 from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features.guarding_bit import GuardingBitLink
 from gateway.bus.node.features.referencing import ReferencingFeature
 from gateway.bus.node.features.refresh import RefreshOnStart
 from gateway.bus.node.features.rtr_poll import RtrPoll
@@ -123,9 +124,12 @@ class Node:
         self.watch = Watchdog(settings, configure, active=not passive)
         self.hb, self.guard = self.watch.hb, self.watch.guard  # read-only views
         gb = settings.guarding_bit
-        self.gbit: GuardingBitCheck | None = (
-            GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0) if gb else None
+        link = (
+            GuardingBitLink(GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0))
+            if gb
+            else None
         )
+        self.gbit: GuardingBitCheck | None = link.check if link is not None else None
         self.control_signal, self.status_signal = guard_names
         health.supervision = settings.supervision
         health.link = LinkState.UNKNOWN if self.gbit is not None else LinkState.NOT_USED
@@ -146,7 +150,8 @@ class Node:
         self._last_probe_end_s: float | None = None
         self._wait_until: float | None = None
         # the device features, in the order they act (bus/node/features/)
-        self.features: list[NodeFeature] = []
+        self.features: list[NodeFeature] = [link] if link is not None else []
+        self._link = link
         if refresh:
             self.features.append(RefreshOnStart(refresh))
         ref = ReferencingFeature(referencing, reference_signal) if referencing else None
@@ -181,7 +186,6 @@ class Node:
         times = [
             self.lifecycle.next_deadline(),
             self.watch.next_deadline(),
-            self.gbit.next_deadline() if self.gbit else None,
             self.sdo.next_deadline(),
             self.next_probe_s if self.lifecycle.state is LifecycleState.WAITING else None,
             self._keepalive_due(),
@@ -227,15 +231,13 @@ class Node:
         if lost is not None:
             out += self._lost(now, lost)
         out += self._lifecycle_changes(self.lifecycle.poll(now), now)
-        if self.gbit is not None:
-            out += self._link(self.gbit.poll(now))
+        for f in self.features:
+            out += f.tick(self, now)
         if self._wait_until is not None and now >= self._wait_until:
             self._wait_until = None
         due = self._keepalive_due()
         if due is not None and now >= due:
             out += self._keepalive(now)
-        for f in self.features:
-            out += f.tick(self, now)
         if (
             self.lifecycle.state is LifecycleState.WAITING
             and self.next_probe_s is not None
@@ -299,9 +301,9 @@ class Node:
 
     def on_echo(self, bit: int, now: float) -> list[Output]:
         """The guarding bit of a status word just received in a TPDO (AP05 manual 5.5.5)."""
-        if self.gbit is None:
+        if self._link is None:
             return []
-        return self._link(self.gbit.on_status(bit, now))
+        return self._link.on_echo(self, bit, now)
 
     def on_sdo_response(self, data: bytes, now: float) -> list[Output]:
         out: list[Output] = []
@@ -380,9 +382,6 @@ class Node:
         out: list[Output] = [Note(logging.INFO, f"node {self.name} (id {self.node_id}) boot-up")]
         self._invalidate()
         self.watch.on_bootup(now)
-        if self.gbit is not None:
-            self.gbit.reset()
-            out += self._set_link(LinkState.UNKNOWN)
         self.emcy.clear()
         h.current_errors = []
         for f in self.features:
@@ -416,9 +415,8 @@ class Node:
             h.loss_count += 1
             self._invalidate()
             out += self._set_nmt(NmtState.UNKNOWN)
-            if self.gbit is not None:
-                self.gbit.reset()
-                out += self._set_link(LinkState.UNKNOWN)
+            for f in self.features:
+                out += f.on_lost(self)
             out.append(
                 Note(
                     logging.WARNING,
@@ -600,31 +598,6 @@ class Node:
         ]
 
     # -- guarding bit and keep-alive
-    def _link(self, changes: list[LinkOk | LinkFault]) -> list[Output]:
-        out: list[Output] = []
-        for ch in changes:
-            out += self._set_link(LinkState.OK if isinstance(ch, LinkOk) else LinkState.FAULT)
-        return out
-
-    def _set_link(self, state: LinkState) -> list[Output]:
-        h = self.health
-        if h.link == state:
-            return []
-        out: list[Output] = []
-        if state == LinkState.FAULT:
-            h.link_fault_count += 1
-            out.append(
-                Note(
-                    logging.WARNING,
-                    f"node {self.name}: guarding-bit link FAULT (process data not echoed)",
-                )
-            )
-        elif h.link == LinkState.FAULT:
-            out.append(Note(logging.INFO, f"node {self.name}: guarding-bit link restored"))
-        h.link = state
-        out.append(HealthChanged("state"))
-        return out
-
     def _keepalive_due(self) -> float | None:
         """Keep-alive RPDOs only in OPERATIONAL (RPDOs are not processed otherwise)."""
         h = self.health

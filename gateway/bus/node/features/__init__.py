@@ -6,8 +6,8 @@ says when it next needs time; it never does I/O.
 
 A node has the features its profile and settings ask for (``Node.features``, built in
 ``Node.__init__``): ``refresh_on_start`` (``refresh``), ``referencing`` (``referencing``),
-``verify_mapping`` (``verify_mapping``), ``rtr_poll_ms`` (``rtr_poll``). The order is the order
-they act in.
+``verify_mapping`` (``verify_mapping``), ``rtr_poll_ms`` (``rtr_poll``), ``guarding_bit``
+(``guarding_bit``). The order is the order they act in.
 
 Imports: bus.node.events; bus.node.owner, bus.sdo.channel and bus.sdo.client for types only. Never python-can, asyncio or
 a northbound module.
@@ -37,6 +37,10 @@ class NodeFeature:
 
     def on_invalidate(self, node: Node) -> None:
         """The node's values are no longer fresh (a boot-up or a loss)."""
+
+    def on_lost(self, node: Node) -> list[Output]:
+        """Supervision lost the node."""
+        return []
 
     def on_configured(self, node: Node, now: float) -> list[Output]:
         """The node was configured and NMT start sent."""
