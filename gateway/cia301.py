@@ -36,6 +36,8 @@ COB_ID_NO_RTR = 1 << 30  # bit 30 = 1: no RTR allowed on this PDO
 COB_ID_EXTENDED = 1 << 29  # bit 29 = 1: 29-bit CAN-ID
 COB_ID_MASK_11BIT = 0x7FF
 COB_ID_MASK_29BIT = 0x1FFFFFFF
+#: CiA 301 7.5.2.5 (1005h, the SYNC COB-ID): bit 30 = 1, this node generates SYNC
+SYNC_GENERATOR = 1 << 30
 #: PDO communication and mapping parameter base indices (CiA 301 7.5.2.35..38)
 PDO_COMM_BASE: dict[str, int] = {"rpdo": 0x1400, "tpdo": 0x1800}
 PDO_MAP_BASE: dict[str, int] = {"rpdo": 0x1600, "tpdo": 0x1A00}

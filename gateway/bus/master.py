@@ -39,7 +39,16 @@ from gateway.bus.node.owner import Node
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.producers import Periodic
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
-from gateway.cia301 import COB_LSS_SLAVE, COB_NMT, NMT_COMMANDS
+from gateway.cia301 import (
+    COB_EMCY,
+    COB_LSS_MASTER,
+    COB_LSS_SLAVE,
+    COB_NMT,
+    COB_NMT_EC,
+    COB_SDO_TX,
+    COB_SYNC,
+    NMT_COMMANDS,
+)
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage, RxCell
@@ -215,9 +224,9 @@ class Master:
         for p in self.nodes.values():
             for codec in p.tpdos:
                 h[codec.cob_id] = self._tpdo_handler(p, codec)
-            h[0x700 + p.node_id] = self._control(p, "nmt_ec")
-            h[0x080 + p.node_id] = self._control(p, "emcy")
-            h[0x580 + p.node_id] = self._control(p, "sdo")
+            h[COB_NMT_EC + p.node_id] = self._control(p, "nmt_ec")
+            h[COB_EMCY + p.node_id] = self._control(p, "emcy")
+            h[COB_SDO_TX + p.node_id] = self._control(p, "sdo")
         h[COB_LSS_SLAVE] = self.lss.reader_handler()
         self.driver.default_handler = self._unknown
         if self.image.end_batch not in self.driver.burst_listeners:
@@ -328,7 +337,7 @@ class Master:
 
     def _unknown(self, msg: can.Message) -> None:
         cob = msg.arbitration_id
-        if cob in (0x000, 0x080) or cob == 0x700 + self.cfg.master.node_id or 0x7E4 <= cob <= 0x7E5:
+        if cob in (COB_NMT, COB_SYNC) or cob == COB_NMT_EC + self.cfg.master.node_id or cob == COB_LSS_MASTER:
             return  # NMT / SYNC from another master, our own echo, LSS
         self.driver.rx_counters["unknown_cob_id"] += 1
         self.warn.warning("unknown_cob_id", "frame with unexpected COB-ID 0x%03X ignored", cob)
@@ -438,9 +447,9 @@ class Master:
         t0 = self.loop.time()
         if self.cfg.master.heartbeat_ms:
             hb = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
-            self._produce("heartbeat", hb, 0x700 + self.cfg.master.node_id, b"\x05")
+            self._produce("heartbeat", hb, COB_NMT_EC + self.cfg.master.node_id, b"\x05")
         if self.cfg.master.sync_period_ms:
-            self._produce("sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), 0x080, b"")
+            self._produce("sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), COB_SYNC, b"")
         self._producers["housekeeping"] = self.loop.call_later(
             self.warn.period_s, self._housekeeping
         )

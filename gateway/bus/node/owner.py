@@ -32,7 +32,7 @@ right after NMT start (RTR where the PDO allows it, else one SDO upload per mapp
 
 Imports: bus.node.* (lifecycle, boot steps, settings, outputs, events, features), bus.sdo.*
 (channel, client), bus.error_control.* (watchdog, guarding bit), bus.emcy, pdo.codec,
-pdo.verify, errors, image, states, objref, logging (levels of the log lines it returns). Never
+pdo.verify, cia301, errors, image, states, objref, logging (levels of the log lines it returns). Never
 python-can, asyncio or a northbound module.
 """
 
@@ -71,6 +71,7 @@ from gateway.bus.node.outputs import OutputImage
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
 from gateway.bus.sdo.client import SdoTransfer
+from gateway.cia301 import COB_NMT, COB_NMT_EC
 from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth, NodeImage, SentOutputs
 from gateway.objref import ObjRef
@@ -227,7 +228,7 @@ class Node:
             out += self._sdo_finished(finished, now)
         rtr, lost = self.watch.poll(now)
         if rtr:
-            out.append(Send(0x700 + self.node_id, b"", rtr=True, dlc=1))
+            out.append(Send(COB_NMT_EC + self.node_id, b"", rtr=True, dlc=1))
         if lost is not None:
             out += self._lost(now, lost)
         out += self._lifecycle_changes(self.lifecycle.poll(now), now)
@@ -501,7 +502,7 @@ class Node:
         while self.sdo.idle and not self.passive:
             action = self.lifecycle.next_action(now)
             if isinstance(action, SendNmt):
-                out.append(Send(0x000, bytes([action.command, self.node_id])))
+                out.append(Send(COB_NMT, bytes([action.command, self.node_id])))
                 out += self._lifecycle_changes(self.lifecycle.on_nmt_sent(now), now)
                 continue
             if isinstance(action, WriteStep):

@@ -5,7 +5,7 @@ The channel runs ``sdo_client.SdoTransfer`` machines and tells its owner (``bus.
 when one finishes; what a finished transfer means (a boot step, a probe, a command) is the
 owner's business. No I/O, no clock: frames out, ``now`` in.
 
-Imports: bus.sdo.client, bus.node.events, objref.
+Imports: bus.sdo.client, bus.node.events, cia301, objref.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from typing import Any
 
 from gateway.bus.node.events import Send
 from gateway.bus.sdo.client import SdoTransfer
+from gateway.cia301 import COB_SDO_RX
 from gateway.objref import ObjRef
 
 
@@ -132,4 +133,4 @@ class SdoChannel:
         return out, None
 
     def _frames(self, frames: list[bytes]) -> list[Send]:
-        return [Send(0x600 + self.node_id, f) for f in frames]
+        return [Send(COB_SDO_RX + self.node_id, f) for f in frames]
