@@ -292,3 +292,20 @@ class TestLssServiceOfTheMaster:
         with pytest.raises(LssFailed, match="no answer on 0x7E4 within 0.5 s"):
             await task
         svc.stop()
+
+    async def test_a_request_the_bus_refuses_leaves_nothing_pending(self) -> None:
+        import can
+
+        now = [0.0]
+
+        def refused(cob: int, data: bytes) -> None:
+            raise can.CanOperationError("CAN bus is down")
+
+        from gateway.bus.lss.service import LssService
+
+        svc = LssService(refused, lambda fn, *args: fn(*args), lambda: now[0], lambda m: now[0])
+        svc.machine.resume(LssMode.CONFIGURATION)
+        with pytest.raises(can.CanError):
+            await svc.request(inquire("node_id"))
+        assert svc.machine.pending is None, "the next request is not refused as busy"
+

@@ -117,8 +117,12 @@ class LssService:
         ``LssBusy`` (a request is pending), ``LssStateError`` (Table 10) or ``can.CanError``
         (the bus is down)."""
         frames = self.machine.send(req, self._clock())
-        for frame in frames:
-            self._send(COB_LSS_MASTER, frame)
+        try:
+            for frame in frames:
+                self._send(COB_LSS_MASTER, frame)
+        except can.CanError:
+            self.machine.cancel()  # nothing went out: nothing to wait for
+            raise
         if req.answer_cs is None:
             return None
         fut: asyncio.Future[LssValue] = asyncio.get_running_loop().create_future()
