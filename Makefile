@@ -39,10 +39,14 @@ tools:
 
 test: $(STAMP_TEST) tools
 	$(BIN)/ruff check gateway tests deploy $(wildcard bench)
+	$(BIN)/lint-imports --no-cache
+	$(BIN)/mypy
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP_TEST)
 	$(BIN)/ruff check gateway tests deploy $(wildcard bench)
+	$(BIN)/lint-imports --no-cache
+	$(BIN)/mypy
 
 bench: $(STAMP_TEST)
 	$(BIN)/pip install -q -e '.[test,bench]'

@@ -17,14 +17,15 @@ import can
 from gateway import __version__
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
+from gateway.bus.resolved import ResolvedNode, node_of, resolve_config
 from gateway.checks import check_config
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label
-from gateway.modbus.regmap import build_register_map
 from gateway.modbus.server import ModbusGateway
-from gateway.profiles import load_node_profile
+from gateway.northbound.regmap import build_register_map
+from gateway.northbound.summary import summarize
 from gateway.startup import startup_step
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
@@ -35,18 +36,23 @@ log = logging.getLogger("gateway")
 class SimulatedBus:
     """Simulated nodes of a config on their own connection to the configured bus."""
 
-    def __init__(self, cfg: Config, names: list[str] | None = None):
+    def __init__(
+        self,
+        cfg: Config,
+        names: list[str] | None = None,
+        resolved: dict[str, ResolvedNode] | None = None,
+    ):
         from gateway.sim.node import SimNode
 
         self.cfg = cfg
         wanted = names if names is not None else [n.name for n in cfg.simulated_nodes()]
+        resolved = resolved if resolved is not None else resolve_config(cfg, wanted)
         self.nodes: dict[str, Any] = {}
         for n in cfg.nodes:
             if n.name not in wanted:
                 continue
-            lp = load_node_profile(n, cfg.base_dir)
             self.nodes[n.name] = SimNode(
-                lp,
+                node_of(cfg, resolved, n).lp,
                 n.node_id,
                 motion=cfg.simulate.motion.get(n.name),
                 options=cfg.simulate.options.get(n.name),
@@ -74,22 +80,26 @@ class SimulatedBus:
 
 class Gateway:
     def __init__(self, cfg: Config, simulate: bool = True, *, passive: bool = False):
-        check_config(cfg)  # the cross-checks of `canopen-gateway check` (ConfigError)
+        #: every node resolved once (profile, settings, boot steps, codecs) for every part
+        self.nodes = resolve_config(cfg)
+        check_config(cfg, self.nodes)  # the cross-checks of `canopen-gateway check` (ConfigError)
         self.cfg = cfg
         self.image = ProcessImage()
         self.threads = ThreadRegistry()
         self.driver = BusDriver(
             cfg.can.bus_kwargs(), self.image, cfg.can.reopen_backoff_s, threads=self.threads
         )
-        self.master = Master(cfg, self.image, self.driver, passive=passive)
+        self.master = Master(cfg, self.image, self.driver, passive=passive, nodes=self.nodes)
         self.commands = CommandService(self.master)
-        self.modbus = ModbusGateway(cfg, self.image, self.commands) if cfg.modbus.enabled else None
+        self.modbus = (
+            ModbusGateway(cfg, self.image, self.commands, self.nodes) if cfg.modbus.enabled else None
+        )
         self.zenoh = (
             ZenohBridge(cfg, self.image, self.commands, self.catalog, threads=self.threads)
             if cfg.zenoh.enabled
             else None
         )
-        self.sim = SimulatedBus(cfg) if simulate and cfg.simulated_nodes() else None
+        self.sim = SimulatedBus(cfg, resolved=self.nodes) if simulate and cfg.simulated_nodes() else None
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
         self.health: Any = None
         self.web: Any = None
@@ -97,7 +107,7 @@ class Gateway:
 
     def catalog(self) -> dict[str, Any]:
         """Every node and signal: type, unit, scaling, Modbus address (for cloud discovery)."""
-        rm = self.modbus.regmap if self.modbus else build_register_map(self.cfg)
+        rm = self.modbus.regmap if self.modbus else build_register_map(self.cfg, self.nodes)
         addr: dict[tuple[str, str], list[dict[str, Any]]] = {}
         for p in rm.points:
             if p.node and p.kind in ("signal", "bit"):
@@ -143,7 +153,7 @@ class Gateway:
             parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
         if self.ascii is not None:
             parts.append(f"CiA 309-3 ASCII {self.ascii.section.host}:{self.ascii.port}")
-        if self.health is not None and getattr(self.health, "port", 0):
+        if self.health is not None and self.health.port:
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
         nodes = ", ".join(
@@ -157,18 +167,18 @@ class Gateway:
         """Readiness and per-node details for /healthz."""
         nodes = {}
         for name, node in self.image.nodes.items():
-            h = node.health
-            age = node.data_age_s()
+            s = summarize(node)
+            age = s.data_age_s
             nodes[name] = {
-                "node_id": node.node_id,
-                "alive": h.alive,
-                "operational": node.operational(),
-                "nmt_state": h.nmt_state.name.lower(),
-                "lifecycle": h.lifecycle,
-                "link": h.link.name.lower(),
+                "node_id": s.node_id,
+                "alive": s.alive,
+                "operational": s.operational,
+                "nmt_state": s.nmt_state.name.lower(),
+                "lifecycle": s.lifecycle,
+                "link": s.link.name.lower(),
                 "data_age_s": None if age is None else round(age, 3),
-                "last_error": h.last_error,
-                "outputs": h.outputs,
+                "last_error": s.last_error,
+                "outputs": s.outputs,
             }
         bus_ok = self.driver.state == "ok"
         modbus_up = self.modbus is None or self.modbus.server is not None
@@ -315,7 +325,11 @@ class Gateway:
                 self.image,
                 self.commands,
                 self.overview,
-                regmap=self.modbus.regmap if self.modbus is not None else None,
+                regmap=(
+                    self.modbus.regmap
+                    if self.modbus is not None
+                    else build_register_map(self.cfg, self.nodes)
+                ),
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
                 frames=self.driver,
             )

@@ -29,15 +29,15 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-from gateway.bus.boot_steps import ConfigStep, build_boot_steps
-from gateway.bus.codec import compile_node
-from gateway.bus.sdo_values import OD_TYPE_NAMES
+from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.resolved import ResolvedNode, nodes_of
+from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
 from gateway.eds.parse import DATA_TYPES
-from gateway.eds.pdos import TYPE_BITS, eds_pdos, od_var, readable
-from gateway.modbus.regmap import RegisterMapError, build_register_map
+from gateway.eds.pdos import eds_pdos, od_var, readable
+from gateway.northbound.regmap import RegisterMapError, build_register_map
 from gateway.objref import ObjRef
-from gateway.profiles import LoadedProfile, ProfileError, load_node_profile
+from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS
 from gateway.profiles.schema import Pdo
@@ -46,25 +46,20 @@ from gateway.safe_outputs import safe_output_problems
 Problem = tuple[str, str]
 
 
-def _steps(lp: LoadedProfile, n: NodeConfig) -> list[ConfigStep]:
-    return build_boot_steps(lp, n, n.supervision, n.heartbeat_ms, n.guard_time_ms, n.life_time_factor)
-
-
-def boot_problems(cfg: Config) -> list[Problem]:
+def boot_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
     """Boot steps that cannot be built, values outside the EDS limits or the profile's
     constraints, and PDO mappings they leave that cannot be decoded."""
     out: list[Problem] = []
+    resolved = nodes_of(cfg, nodes)
     for i, n in enumerate(cfg.nodes):
         if not n.configure:
             continue
-        try:
-            lp = load_node_profile(n, cfg.base_dir)
-        except ProfileError:
-            continue  # reported by the config loader
-        try:
-            steps = _steps(lp, n)
-            compile_node(lp, n.node_id, n.pdo_variant, [(s.object, s.value) for s in steps])
-        except (ValueError, KeyError) as exc:
+        rn = resolved.get(n.name)
+        if rn is None:
+            continue  # its profile does not load: reported by the config loader
+        lp, steps = rn.lp, rn.boot_steps
+        exc = rn.boot_error
+        if exc is not None:
             head, _, rest = str(exc).partition(": ")
             if head.split(".")[0] in ("tpdo", "rpdo") and rest:
                 out.append((f"nodes[{i}].{head}", rest))
@@ -123,21 +118,21 @@ def _written_pdos(lp: LoadedProfile, steps: list[ConfigStep], kind: str) -> set[
     return out
 
 
-def eds_problems(cfg: Config) -> list[Problem]:
+def eds_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
     """Every PDO of each node's layout and every signal against the node's EDS."""
     out: list[Problem] = []
+    resolved = nodes_of(cfg, nodes)
     for i, n in enumerate(cfg.nodes):
-        try:
-            lp = load_node_profile(n, cfg.base_dir)
-        except ProfileError:
+        rn = resolved.get(n.name)
+        if rn is None:
             continue
+        lp = rn.lp
         key = f"nodes[{i}]"
         eds = lp.eds_path.name
         od = lp.od
-        try:
-            steps: list[ConfigStep] | None = _steps(lp, n) if n.configure else []
-        except (ValueError, KeyError):
-            steps = None  # reported by boot_problems
+        steps: list[ConfigStep] | None = (
+            [] if not n.configure else None if rn.boot_error is not None else rn.boot_steps
+        )  # None: reported by boot_problems
         tpdos, rpdos = lp.profile.layout(n.pdo_variant if lp.profile.pdo_variants else None)
         trusted = lp.profile.verify_mapping is not False  # mapping objects describe the layout
         for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
@@ -182,7 +177,7 @@ def eds_problems(cfg: Config) -> list[Problem]:
             var = od_var(od, s.object)
             if var is None:
                 continue
-            eds_type = OD_TYPE_NAMES.get(var.data_type)
+            eds_type = TYPE_NAMES.get(var.data_type)
             eds_bits = TYPE_BITS.get(var.data_type)
             if s.type not in ("string", "bytes") and eds_type is not None and s.type != eds_type:
                 # a signed reading of an unsigned object of the same size is a profile's choice
@@ -191,7 +186,7 @@ def eds_problems(cfg: Config) -> list[Problem]:
                     out.append(
                         (
                             f"{key} ({prof.family} signal {s.name})",
-                            f"type {s.type} but {s.object} is {DATA_TYPES.get(var.data_type, '?')} "
+                            f"type {s.type} but {s.object} is {DATA_TYPES.get(var.data_type or 0, '?')} "
                             f"in {eds}: must be {eds_type} (or another {eds_bits}-bit type)",
                         )
                     )
@@ -237,7 +232,7 @@ def _pdo_entry_problems(lp: LoadedProfile, kind: str, p: Pdo, where: str, eds: s
                 (
                     w,
                     f"{kind.upper()}{p.number} entry {e.object}/{e.bits}: the object is "
-                    f"{DATA_TYPES.get(var.data_type, '?')} ({bits} bit) in {eds}; must be /{bits}",
+                    f"{DATA_TYPES.get(var.data_type or 0, '?')} ({bits} bit) in {eds}; must be /{bits}",
                 )
             )
         if not var.pdo_mappable:
@@ -255,14 +250,15 @@ def _pdo_entry_problems(lp: LoadedProfile, kind: str, p: Pdo, where: str, eds: s
     return out
 
 
-def protocol_problems(cfg: Config) -> list[Problem]:
-    out: list[Problem] = boot_problems(cfg)
+def protocol_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
+    resolved = nodes_of(cfg, nodes)
+    out: list[Problem] = boot_problems(cfg, resolved)
     for i, n in enumerate(cfg.nodes):
         key = f"nodes[{i}]"
-        try:
-            lp = load_node_profile(n, cfg.base_dir)
-        except ProfileError:
+        rn = resolved.get(n.name)
+        if rn is None:
             continue
+        lp = rn.lp
         if n.external_heartbeat is not None:
             if "external_heartbeat" not in lp.profile.features:
                 out.append(
@@ -312,16 +308,17 @@ def protocol_problems(cfg: Config) -> list[Problem]:
     return out
 
 
-def config_problems(cfg: Config) -> list[Problem]:
+def config_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
     """Every cross-check (see the module docstring), in a stable order."""
     out: list[Problem] = []
+    resolved = nodes_of(cfg, nodes)
     try:
-        build_register_map(cfg)
+        build_register_map(cfg, resolved)
     except RegisterMapError as exc:
         out.append((exc.key, str(exc)))
-    out += protocol_problems(cfg)
-    out += eds_problems(cfg)
-    out += safe_output_problems(cfg)
+    out += protocol_problems(cfg, resolved)
+    out += eds_problems(cfg, resolved)
+    out += safe_output_problems(cfg, resolved)
     seen: set[Problem] = set()
     unique = []
     for p in out:
@@ -331,9 +328,9 @@ def config_problems(cfg: Config) -> list[Problem]:
     return unique
 
 
-def check_config(cfg: Config) -> Config:
+def check_config(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> Config:
     """Raise ConfigError (one line per problem: file, key path, what is allowed)."""
-    problems = config_problems(cfg)
+    problems = config_problems(cfg, nodes)
     if problems:
         raise ConfigError([f"{cfg.source}: {k}: {m}" for k, m in problems])
     return cfg

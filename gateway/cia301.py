@@ -1,5 +1,6 @@
 """CANopen facts (CiA 301 V4.2) in one place: function codes of the pre-defined connection set,
-PDO COB-ID bits, NMT command specifiers, data type codes with their sizes, SDO abort codes and
+PDO COB-ID bits, NMT command specifiers, data type codes with their sizes, the error register bits,
+SDO command specifiers, SDO abort codes and
 their texts.
 
 Rule: a number that CiA 301 defines is written here once, named, with the section it comes from;
@@ -35,6 +36,8 @@ COB_ID_NO_RTR = 1 << 30  # bit 30 = 1: no RTR allowed on this PDO
 COB_ID_EXTENDED = 1 << 29  # bit 29 = 1: 29-bit CAN-ID
 COB_ID_MASK_11BIT = 0x7FF
 COB_ID_MASK_29BIT = 0x1FFFFFFF
+#: CiA 301 7.5.2.5 (1005h, the SYNC COB-ID): bit 30 = 1, this node generates SYNC
+SYNC_GENERATOR = 1 << 30
 #: PDO communication and mapping parameter base indices (CiA 301 7.5.2.35..38)
 PDO_COMM_BASE: dict[str, int] = {"rpdo": 0x1400, "tpdo": 0x1800}
 PDO_MAP_BASE: dict[str, int] = {"rpdo": 0x1600, "tpdo": 0x1A00}
@@ -69,8 +72,9 @@ OCTET_STRING = dt.OCTET_STRING
 UNICODE_STRING = dt.UNICODE_STRING
 DOMAIN = dt.DOMAIN
 
-#: data type code -> the gateway's signal type name (the types it serves)
-TYPE_NAMES: dict[int, str] = {
+#: data type code -> the gateway's signal type name (the types it serves); keyed so that the
+#: ``data_type`` of a canopen variable (``int | None``) can be looked up as it is
+TYPE_NAMES: dict[int | None, str] = {
     dt.BOOLEAN: "bool",
     dt.INTEGER8: "int8",
     dt.INTEGER16: "int16",
@@ -87,7 +91,7 @@ TYPE_NAMES: dict[int, str] = {
     dt.UNSIGNED64: "uint64",
 }
 #: bits of the fixed-size types; dummy entries 0001h..0007h of a PDO mapping map these too
-TYPE_BITS: dict[int, int] = {
+TYPE_BITS: dict[int | None, int] = {
     dt.BOOLEAN: 1,
     dt.INTEGER8: 8,
     dt.INTEGER16: 16,
@@ -112,8 +116,43 @@ TYPE_BITS: dict[int, int] = {
 SIGNED_TYPES: frozenset[int] = frozenset(dt.SIGNED_TYPES)
 #: the numeric types the gateway decodes (integers of 8..64 bits, BOOLEAN, REAL32)
 NUMERIC_TYPES: frozenset[int] = frozenset(
-    code for code, name in TYPE_NAMES.items() if name not in ("string", "bytes")
+    code for code, name in TYPE_NAMES.items() if code is not None and name not in ("string", "bytes")
 )
+
+# --------------------------------------------------------------------------- EMCY
+# CiA 301 7.5.2.2 (object 1001h, carried in byte 2 of every EMCY frame)
+#: error register (1001h) bits
+ERROR_REGISTER_BITS: dict[int, str] = {
+    0: "generic",
+    1: "current",
+    2: "voltage",
+    3: "temperature",
+    4: "communication",
+    5: "device profile specific",
+    6: "reserved",
+    7: "manufacturer specific",
+}
+
+
+
+def register_bits(register: int) -> list[str]:
+    """Names of the bits set in an error register (1001h) value."""
+    return [name for bit, name in ERROR_REGISTER_BITS.items() if register & (1 << bit)]
+
+
+# --------------------------------------------------------------------------- SDO command specifiers
+# CiA 301 7.2.4.3 (byte 0 of an SDO frame, bits 7..5; AP05 manual table 32)
+SDO_CCS_DOWNLOAD_SEGMENT = 0x00
+SDO_CCS_INITIATE_DOWNLOAD = 0x20
+SDO_CCS_INITIATE_UPLOAD = 0x40
+SDO_CCS_UPLOAD_SEGMENT = 0x60
+SDO_SCS_UPLOAD_SEGMENT = 0x00
+SDO_SCS_DOWNLOAD_SEGMENT = 0x20
+SDO_SCS_INITIATE_UPLOAD = 0x40
+SDO_SCS_INITIATE_DOWNLOAD = 0x60
+SDO_CS_ABORT = 0x80
+#: initiate download, expedited, size indicated, 1 data byte (AP05 manual table 32: 2Fh)
+SDO_DOWNLOAD_1_BYTE = 0x2F
 
 # --------------------------------------------------------------------------- SDO abort codes
 #: CiA 301 7.2.4.3.17 table 22, 0503 0000h .. 0800 0024h

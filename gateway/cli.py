@@ -13,7 +13,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from gateway import __version__
@@ -57,7 +57,9 @@ def _setup_logging(level: str) -> None:
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
 
-async def _run_until_signal(starter: Any, stopper: Any, ready_line: str | None = None) -> None:
+async def _run_until_signal(
+    starter: Any, stopper: Any, ready_line: str | Callable[[], str] | None = None
+) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -103,15 +105,16 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from gateway.profiles import load_node_profile
+    from gateway.bus.resolved import node_of, resolve_config
 
     cfg = _load_for_bus(args.config)
+    nodes = resolve_config(cfg)
     print(f"{args.config}: OK")
     if cfg.ascii is not None and cfg.ascii.enabled:
         gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
         print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
     for n in cfg.nodes:
-        lp = load_node_profile(n, cfg.base_dir)
+        lp = node_of(cfg, nodes, n).lp
         pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
         sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
         sim = " (simulated)" if n in cfg.simulated_nodes() else ""
@@ -122,18 +125,18 @@ def cmd_check(args: argparse.Namespace) -> int:
         )
         for note in lp.notes:
             print(f"  warning: node {n.name}: {note}")
-    _print_eds_warnings(cfg)
+    _print_eds_warnings(cfg, nodes)
     return 0
 
 
-def _print_eds_warnings(cfg: Any) -> None:
+def _print_eds_warnings(cfg: Any, nodes: Any) -> None:
     """One line per EDS/DCF of the config with its number of warnings."""
+    from gateway.bus.resolved import node_of
     from gateway.eds import EdsError, lint, load_eds
-    from gateway.profiles import load_node_profile
 
     seen: list[Any] = []
     for n in cfg.nodes:
-        path = load_node_profile(n, cfg.base_dir).eds_path
+        path = node_of(cfg, nodes, n).lp.eds_path
         if path in seen:
             continue
         seen.append(path)
@@ -151,7 +154,7 @@ def _count(n: int, noun: str) -> str:
 
 
 def cmd_registers(args: argparse.Namespace) -> int:
-    from gateway.modbus.regmap import build_register_map
+    from gateway.northbound.regmap import build_register_map
 
     cfg = _load(args.config)
     rm = build_register_map(cfg)
@@ -160,7 +163,7 @@ def cmd_registers(args: argparse.Namespace) -> int:
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
-    from gateway.zenoh_bridge.keys import render_keys
+    from gateway.northbound.keys import render_keys
 
     cfg = _load(args.config)
     sys.stdout.write(render_keys(cfg))
@@ -318,18 +321,18 @@ def format_sdo_int(value: int, type_: str | None) -> str:
 
 def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
     """The type of ``obj`` on node ``name``: the profile signal's, else the EDS's."""
-    from gateway.bus.sdo_values import OD_TYPE_NAMES
+    from gateway.bus.resolved import node_of, resolve_config
+    from gateway.cia301 import TYPE_NAMES
     from gateway.objref import ObjRef
-    from gateway.profiles import load_profile
 
     node = next(n for n in cfg.nodes if n.name == name)
-    lp = load_profile(node.profile, cfg.base_dir)
+    lp = node_of(cfg, resolve_config(cfg, [name]), node).lp
     ref = ObjRef.parse(obj)
     sig = lp.profile.signal_for(ref)
     if sig is not None:
         return sig.type
     var = lp.od_var(ref)
-    return None if var is None else OD_TYPE_NAMES.get(var.data_type)
+    return None if var is None else TYPE_NAMES.get(var.data_type)
 
 
 def cmd_nmt(args: argparse.Namespace) -> int:
@@ -437,7 +440,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
 
 
 def cmd_lss(args: argparse.Namespace) -> int:
-    from gateway.bus.lss_cli import run_lss
+    from gateway.tools.lss import run_lss
 
     cfg = _load(args.config)
     return run_lss(cfg, args)
@@ -475,7 +478,7 @@ def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
 
 
 def cmd_scan(args: argparse.Namespace) -> int:
-    from gateway.tools.scan import report, scan
+    from gateway.bus.scan import report, scan
 
     cfg = _load_for_bus(args.config)
     bus, sim = _tool_bus(cfg, "scan")
@@ -490,8 +493,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    from gateway.tools.frames import FrameDecoder
-    from gateway.tools.monitor import kind_filter, monitor, node_filter
+    from gateway.northbound.frames import FrameDecoder, kind_filter, node_filter
+    from gateway.tools.monitor import monitor
 
     cfg = _load_for_bus(args.config)
     try:

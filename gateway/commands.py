@@ -18,8 +18,8 @@ Rules held here, once:
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it.
 
-Imports: bus.master (the operations), bus.sdo_values (value codecs), errors, image, objref,
-profiles, states. Never modbus/ or zenoh_bridge/.
+Imports: bus.master (the operations), bus.lss.master (its errors), bus.sdo.values (value
+codecs), errors, image, objref, profiles, cia301, states, python-can (its error type). Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -30,15 +30,26 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import can
+
+from gateway.bus.lss.master import LssBusy, LssStateError
 from gateway.bus.master import Master, NodeParts
-from gateway.bus.sdo_values import OD_TYPE_NAMES, decode_value, encode_value
-from gateway.errors import GatewayError, NodeUnknown, ReadOnly, Unmapped, ValueOutOfRange
+from gateway.bus.sdo.values import decode_value, encode_value
+from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
+from gateway.errors import (
+    BusDown,
+    GatewayError,
+    LssConflict,
+    NodeUnknown,
+    ReadOnly,
+    Unmapped,
+    ValueOutOfRange,
+)
 from gateway.image import NodeImage, SentOutputs, SignalValue
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import TextSignal, text_signals
 from gateway.profiles.schema import TYPE_BITS, Signal
-from gateway.states import NMT_COMMANDS
 
 log = logging.getLogger("gateway.commands")
 
@@ -83,7 +94,7 @@ def check_value(sig: Signal, value: Any) -> Any:
             v = int(value)
         except (TypeError, ValueError):
             raise ValueOutOfRange(sig.name, value, "an integer") from None
-        rng = type_range(sig.type)
+        rng = type_range(sig.type_name)
         if rng and not rng[0] <= v <= rng[1]:
             raise ValueOutOfRange(sig.name, value, f"{rng[0]}..{rng[1]} ({sig.type})")
     # profile min/max are engineering values (raw x scale + offset)
@@ -273,7 +284,7 @@ class CommandService:
         if not sig.bits or not isinstance(new, int):
             return
         fixed = ~(writable_mask(sig) | self._managed_mask(p, sig.name))
-        changed = (int(new) ^ int(current or 0)) & fixed & ((1 << TYPE_BITS.get(sig.type, 64)) - 1)
+        changed = (int(new) ^ int(current or 0)) & fixed & ((1 << TYPE_BITS.get(sig.type_name, 64)) - 1)
         if changed:
             raise ValueOutOfRange(
                 sig.name,
@@ -289,7 +300,7 @@ class CommandService:
         sig = self.signal(node, name)
         if sig.access == "ro":
             raise ReadOnly(f"{node}.{name} is read-only")
-        if any(not 0 <= b < TYPE_BITS.get(sig.type, 64) for b in bits):
+        if any(not 0 <= b < TYPE_BITS.get(sig.type_name, 64) for b in bits):
             raise Unmapped(f"{node}.{name} has no bit {sorted(bits)}")
         allowed = writable_mask(sig) if sig.bits else 0
         async with self._word_lock(node, name):
@@ -397,7 +408,7 @@ class CommandService:
         try:
             epoch = self._epoch(p)
             data = await self.master.sdo(p.name, sig.object, None)
-            value = decode_value(bytes(data), sig.type)
+            value = decode_value(bytes(data), sig.type_name)
             self._cache[key] = (value, time.monotonic(), epoch)
             fut.set_result(value)
             return value
@@ -410,7 +421,7 @@ class CommandService:
                 del self._reading[key]
 
     async def _sdo_write_signal(self, p: NodeParts, sig: Signal, value: Any) -> None:
-        await self.master.sdo(p.name, sig.object, encode_value(value, sig.type))
+        await self.master.sdo(p.name, sig.object, encode_value(value, sig.type_name))
         self._cache[(p.name, sig.name)] = (value, time.monotonic(), self._epoch(p))
 
     # ------------------------------------------------------------------ SDO and NMT
@@ -419,7 +430,7 @@ class CommandService:
         if sig is not None:
             return sig.type
         var = p.lp.od_var(obj)
-        return None if var is None else OD_TYPE_NAMES.get(var.data_type)
+        return None if var is None else TYPE_NAMES.get(var.data_type)
 
     async def sdo_read(self, node: str, obj: str | ObjRef, type_: str | None = None) -> Any:
         """Upload any object; the value decoded by ``type_`` or the dictionary's type (bytes
@@ -454,6 +465,22 @@ class CommandService:
         sig = p.lp.profile.signal_for(o)
         if sig is not None:
             self._cache.pop((node, sig.name), None)
+
+    def lss_busy(self) -> bool:
+        """An LSS session is running."""
+        return self.master.lss.busy()
+
+    async def lss_inquire(self, address: tuple[int, int, int, int] | None = None) -> dict[str, Any]:
+        """LSS inquire (CiA 305; SGH10 manual 4.6.3) of the one slave at ``address`` (switch
+        state selective), else of every slave (switch state global), on the gateway's own
+        connection to the bus: vendor_id, product_code, revision, serial, node_id."""
+        self.master.require_bus()
+        try:
+            return await self.master.lss.inquire_all(address)
+        except (LssBusy, LssStateError) as exc:
+            raise LssConflict(str(exc)) from None
+        except can.CanError as exc:
+            raise BusDown(str(exc)) from None
 
     def nmt(self, node: str, command: str) -> None:
         """NMT command to one node by name, or to all nodes with ``all``."""

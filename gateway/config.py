@@ -242,7 +242,9 @@ class ModbusTls(_Model):
     ca: str | None = Field(default=None, description="CA certificates (PEM) that sign clients")
     require_client_cert: bool = True
     roles: dict[str, Literal["read", "write"]] = Field(
-        default_factory=lambda: {"Operator": "write", "Viewer": "read"},
+        default_factory=lambda: dict[str, Literal["read", "write"]](
+            Operator="write", Viewer="read"
+        ),
         description="role (certificate extension 1.3.6.1.4.1.50316.802.1) -> read or write",
     )
     default_role: str | None = Field(
@@ -306,8 +308,8 @@ class ZenohTls(_Model):
 
 
 #: what a Zenoh client may be allowed to do south (``zenoh.write_allow[].operations``)
-ZENOH_WRITE_OPERATIONS = ("set", "sdo_write", "nmt")
 ZenohWriteOperation = Literal["set", "sdo_write", "nmt"]
+ZENOH_WRITE_OPERATIONS: tuple[ZenohWriteOperation, ...] = ("set", "sdo_write", "nmt")
 
 
 class ZenohWriteRule(_Model):
@@ -659,7 +661,8 @@ def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, s
                 )
             else:
                 seen[key][v] = i
-        mb = n.get("modbus") if isinstance(n.get("modbus"), dict) else {}
+        mb_raw = n.get("modbus")
+        mb = mb_raw if isinstance(mb_raw, dict) else {}
         unit = mb.get("unit_id", n.get("node_id"))
         if unit is not None:
             if unit in seen["unit_id"]:
@@ -679,7 +682,8 @@ def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, s
                 f"unit id {gw_unit} is also used by nodes[{seen['unit_id'][gw_unit]}]",
             )
         )
-    zen = raw.get("zenoh") if isinstance(raw.get("zenoh"), dict) else {}
+    zen_raw = raw.get("zenoh")
+    zen = zen_raw if isinstance(zen_raw, dict) else {}
     rules = zen.get("write_allow")
     if isinstance(rules, list):
         for i, rule in enumerate(rules):

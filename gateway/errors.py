@@ -82,3 +82,16 @@ class Forbidden(GatewayError):
     """A write the configuration does not allow for this client (e.g. ``zenoh.writes: off``)."""
 
     kind = "forbidden"
+
+
+class LssFailed(GatewayError):
+    """An LSS service (CiA 305) got no answer from a slave in time."""
+
+    kind = "lss_failed"
+
+
+class LssConflict(GatewayError):
+    """Another LSS session is running, or the service needs another LSS state (SGH10 manual
+    4.6, Table 10)."""
+
+    kind = "lss_state"

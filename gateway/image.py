@@ -49,7 +49,7 @@ class EmcyRecord:
 
 @dataclass
 class NodeHealth:
-    """A node's health. Written by the node's owner only (``bus.node.Node``, on the event
+    """A node's health. Written by the node's owner only (``bus.node.owner.Node``, on the event
     loop); read by everyone."""
 
     nmt_state: NmtState = NmtState.UNKNOWN
@@ -128,7 +128,7 @@ class RxCounters:
 class SentOutputs(NamedTuple):
     """The node's output image as the gateway last set it: the values each RPDO carries (as
     last sent, or as set for its next frame when a write changed a signal that RPDO shares
-    with the one sent). One immutable record, written by ``bus.node.Node`` in one assignment
+    with the one sent). One immutable record, written by ``bus.node.owner.Node`` in one assignment
     on the event loop; readers (the command service for Modbus, Zenoh and the web console)
     see one write or the next, never a mix."""
 

@@ -11,17 +11,18 @@ without a safe value keeps the last value sent.
 trips); ``safe_output_problems(cfg)`` is the check of ``canopen-gateway check`` (key path and
 what is allowed, as ``gateway.checks`` reports them).
 
-Imports: config, profiles, commands (``check_value``, pure). No I/O but reading profiles.
+Imports: config, errors, profiles, bus.resolved, commands (``check_value``, pure). No I/O but reading profiles.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from gateway.bus.resolved import ResolvedNode, nodes_of
 from gateway.commands import check_value
 from gateway.config import Config, NodeConfig
 from gateway.errors import ValueOutOfRange
-from gateway.profiles import LoadedProfile, ProfileError, load_node_profile
+from gateway.profiles import LoadedProfile
 from gateway.profiles.schema import Signal
 
 
@@ -48,14 +49,17 @@ def safe_outputs(lp: LoadedProfile, node: NodeConfig) -> dict[str, Any]:
     return out
 
 
-def safe_output_problems(cfg: Config) -> list[tuple[str, str]]:
+def safe_output_problems(
+    cfg: Config, nodes: dict[str, ResolvedNode] | None = None
+) -> list[tuple[str, str]]:
     """Every safe value that names no RPDO output of its node or does not fit its type/range."""
     problems: list[tuple[str, str]] = []
+    resolved = nodes_of(cfg, nodes)
     for i, n in enumerate(cfg.nodes):
-        try:
-            lp = load_node_profile(n, cfg.base_dir)
-        except ProfileError:
-            continue  # reported by the config loader
+        rn = resolved.get(n.name)
+        if rn is None:
+            continue  # its profile does not load: reported by the config loader
+        lp = rn.lp
         outputs = {s.name: s for s in rpdo_signals(lp, n)}
         allowed = ", ".join(sorted(outputs)) or "none (the node has no RPDO output)"
         for name, sig in outputs.items():
@@ -71,12 +75,12 @@ def safe_output_problems(cfg: Config) -> list[tuple[str, str]]:
                     )
         for name, value in n.safe_outputs.items():
             key = f"nodes[{i}].safe_outputs.{name}"
-            sig = outputs.get(name)
-            if sig is None:
+            target = outputs.get(name)
+            if target is None:
                 problems.append((key, f"not an RPDO output of node {n.name}; outputs: {allowed}"))
                 continue
             try:
-                check_value(sig, value)
+                check_value(target, value)
             except ValueOutOfRange as exc:
                 problems.append((key, f"value {value!r} not allowed, expected {exc.allowed}"))
     return problems

@@ -93,7 +93,7 @@ def with_position(name: str) -> Callable[[Any], bool]:
 
 def node_operational(gw: Any, name: str) -> bool:
     """Configured, NMT operational and alive."""
-    from gateway.bus.lifecycle import LifecycleState
+    from gateway.bus.node.lifecycle import LifecycleState
     from gateway.image import NmtState
 
     rt = gw.master.nodes[name]

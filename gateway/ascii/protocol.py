@@ -1,7 +1,8 @@
 """The CiA 309-3 ASCII mapping, sans-I/O: text lines in, requests and answer lines out.
 
-Rule 1: everything about the command language lives here: the grammar, the data types and their
-text form, the internal error codes, the answer and event lines, and one client's session state
+Rule 1: everything about the command language lives here and in its two siblings (``grammar``:
+error codes, lines and tokens; ``values``: the data types and their text form): the requests,
+the answer and event lines, and one client's session state
 (default net and node, SDO time-out, the write gate). Rule 2: this module does no I/O and does
 not know the command service: it turns a line into a resolved ``Call`` (SDO upload, SDO
 download, NMT) or into an immediate answer, and formats what the caller got back.
@@ -28,22 +29,26 @@ bytes in decimal) and ``<net> <node> ERROR <code> (<text>)`` for the error contr
 (200 lost guarding message, 202 heartbeat started, 203 heartbeat lost), as Lely's gateway
 prints them.
 
-Imports: the standard library, gateway.errors, gateway.states. Nothing of bus/, commands or a
+Imports: the standard library, gateway.errors, ascii.grammar (error codes,
+lines, tokens), ascii.values (data types and their text). Nothing of bus/, commands or a
 transport.
 """
 
 from __future__ import annotations
 
-import base64
-import binascii
-import math
 import re
-import struct
 from collections.abc import Collection
 from dataclasses import dataclass
-from enum import IntEnum
-from typing import Any
 
+from gateway.ascii.grammar import IEC_TEXT, Iec, Overlong, RequestError, peek_seq, tokenize
+from gateway.ascii.values import (
+    DATA_TYPES,
+    UNSUPPORTED_TYPES,
+    DataType,
+    LengthMismatch,
+    encode_value,
+    parse_int,
+)
 from gateway.errors import (
     BusDown,
     Forbidden,
@@ -57,197 +62,10 @@ from gateway.errors import (
 
 #: the one CAN network of this gateway, as CiA 309-3 numbers networks (1..65535)
 NET = 1
-#: a request line longer than this (without its line end) is refused with ERROR:101
-MAX_LINE_BYTES = 1024
 #: CiA 301 SDO abort code "SDO protocol timed out": the answer to an SDO without a reply
 SDO_TIMEOUT_ABORT = 0x05040000
 #: CiA 301 "Data type does not match, length of service parameter does not match"
 TYPE_LENGTH_ABORT = 0x06070010
-
-
-class Iec(IntEnum):
-    """CiA 309-3 internal error codes (the answer ``ERROR:<code>``; 2xx also in events)."""
-
-    REQUEST_NOT_SUPPORTED = 100
-    SYNTAX = 101
-    INTERNAL_STATE = 102  # request not processed due to internal state
-    TIMEOUT = 103
-    NO_DEFAULT_NET = 104
-    NO_DEFAULT_NODE = 105
-    UNSUPPORTED_NET = 106
-    UNSUPPORTED_NODE = 107
-    LOST_GUARDING = 200
-    LOST_CONNECTION = 201
-    HEARTBEAT_STARTED = 202
-    HEARTBEAT_LOST = 203
-    WRONG_NMT_STATE = 204
-    BOOT_UP = 205
-
-
-IEC_TEXT: dict[Iec, str] = {
-    Iec.REQUEST_NOT_SUPPORTED: "Request not supported",
-    Iec.SYNTAX: "Syntax error",
-    Iec.INTERNAL_STATE: "Request not processed due to internal state",
-    Iec.TIMEOUT: "Time-out",
-    Iec.NO_DEFAULT_NET: "No default net set",
-    Iec.NO_DEFAULT_NODE: "No default node set",
-    Iec.UNSUPPORTED_NET: "Unsupported net",
-    Iec.UNSUPPORTED_NODE: "Unsupported node",
-    Iec.LOST_GUARDING: "Lost guarding message",
-    Iec.LOST_CONNECTION: "Lost connection",
-    Iec.HEARTBEAT_STARTED: "Heartbeat started",
-    Iec.HEARTBEAT_LOST: "Heartbeat lost",
-    Iec.WRONG_NMT_STATE: "Wrong NMT state",
-    Iec.BOOT_UP: "Boot-up",
-}
-
-
-# --------------------------------------------------------------------------- data types
-@dataclass(frozen=True)
-class DataType:
-    """A CiA 309-3 data type: its name, its ``struct`` format (None: variable length) and how
-    its value is written as text."""
-
-    name: str
-    fmt: str | None
-    kind: str  # "bool" | "int" | "hex" | "real" | "vs" | "b64"
-
-    @property
-    def size(self) -> int | None:
-        return None if self.fmt is None else struct.calcsize(self.fmt)
-
-
-#: The data types of CiA 309-3 this gateway speaks (``x8``..``x64``: unsigned, hex text).
-DATA_TYPES: dict[str, DataType] = {
-    t.name: t
-    for t in (
-        DataType("b", "<B", "bool"),
-        DataType("i8", "<b", "int"),
-        DataType("i16", "<h", "int"),
-        DataType("i32", "<i", "int"),
-        DataType("i64", "<q", "int"),
-        DataType("u8", "<B", "int"),
-        DataType("u16", "<H", "int"),
-        DataType("u32", "<I", "int"),
-        DataType("u64", "<Q", "int"),
-        DataType("x8", "<B", "hex"),
-        DataType("x16", "<H", "hex"),
-        DataType("x32", "<I", "hex"),
-        DataType("x64", "<Q", "hex"),
-        DataType("r32", "<f", "real"),
-        DataType("r64", "<d", "real"),
-        DataType("vs", None, "vs"),
-        DataType("os", None, "b64"),
-        DataType("d", None, "b64"),
-    )
-}
-#: Types of CiA 309-3 this gateway does not speak: ERROR:100, not a syntax error.
-UNSUPPORTED_TYPES = frozenset({"t", "td", "us"})
-
-
-class LengthMismatch(ValueError):
-    """The device's bytes do not have the length of the requested data type."""
-
-
-_INT_RE = re.compile(r"^[+-]?(0[xX][0-9A-Fa-f]+|[0-9]+)$")
-
-
-def parse_int(text: str) -> int:
-    """A decimal or ``0x`` hexadecimal integer (leading zeros allowed); ValueError otherwise."""
-    if not _INT_RE.match(text):
-        raise ValueError(f"not a number: {text!r}")
-    sign = -1 if text.startswith("-") else 1
-    body = text.lstrip("+-")
-    return sign * (int(body, 16) if body[:2].lower() == "0x" else int(body, 10))
-
-
-def encode_value(dtype: DataType, text: str) -> bytes:
-    """The bytes of an SDO download for ``text`` written as ``dtype``; ValueError when the text
-    is not a value of that type (answered ERROR:101)."""
-    if dtype.kind in ("bool", "int", "hex"):
-        v = parse_int(text)
-        if dtype.kind == "bool" and v not in (0, 1):
-            raise ValueError("a boolean is 0 or 1")
-        try:
-            return struct.pack(dtype.fmt or "", v)
-        except struct.error:
-            raise ValueError(f"{text} does not fit {dtype.name}") from None
-    if dtype.kind == "real":
-        try:
-            f = float(text)
-        except ValueError:
-            raise ValueError(f"not a number: {text!r}") from None
-        try:
-            return struct.pack(dtype.fmt or "", f)
-        except (struct.error, OverflowError):
-            raise ValueError(f"{text} does not fit {dtype.name}") from None
-    if dtype.kind == "vs":
-        if not text:
-            raise ValueError("an empty string cannot be downloaded")
-        if any(not 0x20 <= ord(c) <= 0x7E for c in text):
-            raise ValueError("a visible string holds printable ASCII characters only")
-        return text.encode("ascii")
-    # os, d: MIME base64 (RFC 2045) on one line
-    try:
-        data = base64.b64decode(text.encode("ascii"), validate=True)
-    except (binascii.Error, UnicodeEncodeError):
-        raise ValueError("not base64") from None
-    if not data:
-        raise ValueError("an empty value cannot be downloaded")
-    return data
-
-
-def _shortest_float(v: float, fmt: str) -> str:
-    """The shortest decimal text that packs back to the same bytes as ``v``."""
-    if math.isnan(v) or math.isinf(v):
-        return repr(v)
-    packed = struct.pack(fmt, v)
-    for digits in range(1, 18):
-        text = f"{v:.{digits}g}"
-        if struct.pack(fmt, float(text)) == packed:
-            return text
-    return repr(v)
-
-
-def quote_vs(text: str) -> str:
-    """A visible string as a token: bare when it is one word, else in double quotes (a quote
-    inside doubled)."""
-    if text and not any(c in text for c in ' \t"#') and not text.startswith("["):
-        return text
-    return '"' + text.replace('"', '""') + '"'
-
-
-def format_value(dtype: DataType, data: bytes) -> str:
-    """The text of an SDO upload's bytes as ``dtype`` (raises LengthMismatch)."""
-    size = dtype.size
-    if size is not None:
-        if len(data) < size or any(data[size:]):
-            raise LengthMismatch(f"{len(data)} bytes for {dtype.name}")
-        data = data[:size]  # an expedited upload without size indication is 4 bytes long
-        (v,) = struct.unpack(dtype.fmt or "", data)
-        if dtype.kind == "hex":
-            return f"0x{v:0{2 * size}X}"
-        if dtype.kind == "real":
-            return _shortest_float(v, dtype.fmt or "")
-        return str(v)
-    if dtype.kind == "vs":
-        text = data.rstrip(b"\0").decode("ascii", errors="replace").replace("\ufffd", "?")
-        return quote_vs("".join(c if 0x20 <= ord(c) <= 0x7E else "?" for c in text))
-    return base64.b64encode(data).decode("ascii")
-
-
-def format_plain(value: Any) -> str:
-    """A value decoded by the command service from the object's EDS type (a read without a
-    type): integers in decimal, reals, visible strings, anything else as base64."""
-    if isinstance(value, bool):
-        return str(int(value))
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return _shortest_float(value, "<f")
-    if isinstance(value, str):
-        return quote_vs("".join(c if 0x20 <= ord(c) <= 0x7E else "?" for c in value))
-    return base64.b64encode(bytes(value)).decode("ascii")
 
 
 # --------------------------------------------------------------------------- answers
@@ -352,113 +170,6 @@ class EventTracker:
         return out
 
 
-# --------------------------------------------------------------------------- lines
-class LineSplitter:
-    """Bytes of a TCP stream -> request lines (str, CR LF or LF removed).
-
-    A line longer than ``MAX_LINE_BYTES`` yields one ``Overlong`` (with the sequence number its
-    start carried, if any) and the rest of it up to the next LF is discarded: the connection
-    goes on with the next line. Bytes that are not ASCII are kept as U+FFFD (a syntax error)."""
-
-    def __init__(self, max_bytes: int = MAX_LINE_BYTES) -> None:
-        self.max_bytes = max_bytes
-        self._buf = bytearray()
-        self._discarding = False
-
-    def feed(self, data: bytes) -> list[str | Overlong]:
-        out: list[str | Overlong] = []
-        self._buf += data
-        while True:
-            nl = self._buf.find(b"\n")
-            if self._discarding:
-                if nl < 0:
-                    self._buf.clear()
-                    return out
-                del self._buf[: nl + 1]
-                self._discarding = False
-                continue
-            if nl < 0:
-                if len(self._buf) > self.max_bytes:
-                    out.append(Overlong(_peek_seq(self._buf)))
-                    self._buf.clear()
-                    self._discarding = True
-                return out
-            line = bytes(self._buf[:nl])
-            del self._buf[: nl + 1]
-            if line.endswith(b"\r"):
-                line = line[:-1]
-            if len(line) > self.max_bytes:
-                out.append(Overlong(_peek_seq(line)))
-                continue
-            out.append(line.decode("ascii", errors="replace"))
-
-
-@dataclass(frozen=True)
-class Overlong:
-    """A request line longer than ``MAX_LINE_BYTES``."""
-
-    seq: int | None
-
-
-_SEQ_RE = re.compile(rb"^\s*\[([0-9]{1,10})\]")
-
-
-def _peek_seq(line: bytes | bytearray | str) -> int | None:
-    raw = line.encode("ascii", errors="replace") if isinstance(line, str) else bytes(line)
-    m = _SEQ_RE.match(raw)
-    if m is None:
-        return None
-    v = int(m.group(1))
-    return v if v <= 0xFFFFFFFF else None
-
-
-class RequestError(Exception):
-    """A request answered with an internal error code."""
-
-    def __init__(self, seq: int | None, code: Iec, why: str = ""):
-        self.seq, self.code, self.why = seq, code, why
-        super().__init__(f"{int(code)} {IEC_TEXT[code]}" + (f": {why}" if why else ""))
-
-
-def tokenize(line: str) -> list[str]:
-    """Split on blanks; a token starting with ``"`` runs to the closing quote (``""`` inside is
-    one quote); ``#`` where a token starts begins a comment. ValueError when a quote is open."""
-    tokens: list[str] = []
-    i, n = 0, len(line)
-    while i < n:
-        c = line[i]
-        if c in " \t":
-            i += 1
-            continue
-        if c == "#":
-            break
-        if c == '"':
-            i += 1
-            buf: list[str] = []
-            while True:
-                if i >= n:
-                    raise ValueError("unterminated quote")
-                if line[i] == '"':
-                    if i + 1 < n and line[i + 1] == '"':
-                        buf.append('"')
-                        i += 2
-                        continue
-                    i += 1
-                    break
-                buf.append(line[i])
-                i += 1
-            if i < n and line[i] not in " \t":
-                raise ValueError("a quoted token must end with a blank")
-            tokens.append("".join(buf))
-            continue
-        j = i
-        while j < n and line[j] not in " \t":
-            j += 1
-        tokens.append(line[i:j])
-        i = j
-    return tokens
-
-
 # --------------------------------------------------------------------------- requests
 @dataclass(frozen=True)
 class Read:
@@ -556,7 +267,7 @@ def _dtype(word: str, seq: int | None) -> DataType:
 def parse_request(line: str) -> Request | None:
     """One request line -> a request (None for an empty or comment line); RequestError for
     a request answered with an internal error code at once."""
-    seq = _peek_seq(line)
+    seq = peek_seq(line)
     if any(not 0x20 <= ord(c) <= 0x7E and c != "\t" for c in line):
         raise RequestError(seq, Iec.SYNTAX, "a request is printable ASCII")
     try:

@@ -1,6 +1,6 @@
 """The CiA 309-3 ASCII gateway on TCP: one asyncio server, one ``Session`` per connection.
 
-Each connection splits its bytes into lines (``protocol.LineSplitter``: a line over 1 KiB is
+Each connection splits its bytes into lines (``grammar.LineSplitter``: a line over 1 KiB is
 answered ERROR:101 and skipped, the connection kept) and answers them in order, one at a time,
 from its own task; several clients are served at once. SDO and NMT requests go through the
 command service, the one way south, by node name (the CANopen node id of a configured node
@@ -15,7 +15,8 @@ and answers are still written.
 A client that disconnects mid-request harms nothing: the request completes on the bus, its
 answer is dropped, and the connection's task ends.
 
-Imports: asyncio, commands, config, errors, image, ascii.protocol, ratelimit. Never modbus/,
+Imports: asyncio, commands, config, errors, image, objref, ascii.protocol, ascii.grammar,
+ascii.values, ratelimit. Never modbus/,
 zenoh_bridge/, web/ or bus/.
 """
 
@@ -26,21 +27,19 @@ import logging
 from typing import Any
 
 from gateway import __version__
+from gateway.ascii.grammar import LineSplitter, Overlong
 from gateway.ascii.protocol import (
     EventTracker,
     HealthSample,
-    LineSplitter,
     NmtCommand,
-    Overlong,
     SdoDownload,
     SdoUpload,
     Session,
     answer_for_error,
     answer_ok,
     answer_value,
-    format_plain,
-    format_value,
 )
+from gateway.ascii.values import format_plain, format_value
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import GatewayError

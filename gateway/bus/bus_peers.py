@@ -25,7 +25,7 @@ Sans-I/O: the master calls it on the event loop (one owner), with the time; it r
 text of a line to log or None, and keeps counts for /healthz, the web console and /metrics.
 COB-ID functions: CiA 301 7.3.3 (pre-defined connection set).
 
-Imports: gateway.states and the standard library only.
+Imports: gateway.cia301, gateway.states and the standard library only.
 """
 
 from __future__ import annotations
@@ -34,13 +34,14 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from gateway.cia301 import COB_NMT, COB_NMT_EC, COB_SDO_RX, COB_SYNC
 from gateway.states import NMT_BY_CODE, NmtState
 
 # CiA 301 7.3.3, pre-defined connection set: function code (COB-ID bits 10..7) -> name
-NMT_COB_ID = 0x000
-SYNC_COB_ID = 0x080
-SDO_REQUEST_BASE = 0x600  # SDO client -> server (RSDO of the node)
-HEARTBEAT_BASE = 0x700
+NMT_COB_ID = COB_NMT
+SYNC_COB_ID = COB_SYNC
+SDO_REQUEST_BASE = COB_SDO_RX  # SDO client -> server (RSDO of the node)
+HEARTBEAT_BASE = COB_NMT_EC
 _FUNCTIONS = {
     0x080: "EMCY",
     0x180: "TPDO1",

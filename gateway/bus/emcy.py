@@ -8,8 +8,8 @@ signals that an error cause was removed.
 Texts come from the device profile's ``emcy`` table first (the manual's own words), else from
 the DS-301 generic error code classes below.
 
-Imports: the standard library only. Must not import python-can, canopen, logging or any other
-gateway module.
+Imports: gateway.cia301 (the error register bits) and the standard library. Must not import
+python-can, canopen, logging or any other gateway module.
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
+
+from gateway.cia301 import register_bits
 
 #: DS-301 emergency error codes: exact codes defined by DS-301.
 _DS301_EXACT: dict[int, str] = {
@@ -63,19 +65,6 @@ _DS301_SUBCLASS: dict[int, str] = {
     0xFF00: "Device specific",
 }
 
-#: DS-301 object 1001h error register bits.
-ERROR_REGISTER_BITS: dict[int, str] = {
-    0: "generic",
-    1: "current",
-    2: "voltage",
-    3: "temperature",
-    4: "communication",
-    5: "device profile specific",
-    6: "reserved",
-    7: "manufacturer specific",
-}
-
-
 def generic_text(code: int) -> str:
     """The DS-301 text for an error code: exact code, else its class, else 'unknown class'."""
     text = _DS301_EXACT.get(code)
@@ -97,11 +86,6 @@ def emcy_text(code: int, texts: Mapping[int, str] | None = None) -> str:
         if text:
             return text
     return generic_text(code)
-
-
-def register_bits(register: int) -> list[str]:
-    """Names of the bits set in an error register (1001h) value."""
-    return [name for bit, name in ERROR_REGISTER_BITS.items() if register & (1 << bit)]
 
 
 @dataclass(frozen=True)

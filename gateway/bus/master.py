@@ -1,4 +1,4 @@
-"""The CANopen master: a thin driver of one ``bus.node.Node`` per configured device.
+"""The CANopen master: a thin driver of one ``bus.node.owner.Node`` per configured device.
 
 It owns what the nodes must not: python-can (through ``BusDriver``), time and the event loop.
 
@@ -14,7 +14,8 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
 * **Services** for the command service: SDO upload/download (awaitable, one transfer per node
   at a time, queued in the node), RPDO outputs, NMT commands.
 
-Imports: bus.*, image, profiles, errors, config, states. Nothing northbound.
+Imports: bus.*, pdo.codec, pdo.verify, cia301, image, profiles, errors, config, objref,
+ratelimit. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -29,35 +30,39 @@ from typing import Any
 
 import can
 
-from gateway.bus.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.bus_peers import (
-    HEARTBEAT_BASE,
-    NMT_COB_ID,
-    SDO_REQUEST_BASE,
     BusPeers,
     describe_cob_id,
     talking_node_id,
 )
-from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.driver import BusDriver
-from gateway.bus.lifecycle import LifecycleState
-from gateway.bus.node import HealthChanged, Node, Note, SdoDone, Send, ValuesRead
+from gateway.bus.lss.service import LssService
+from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
+from gateway.bus.node.lifecycle import LifecycleState
+from gateway.bus.node.owner import Node
+from gateway.bus.node.settings import NodeSettings
 from gateway.bus.producers import Periodic
-from gateway.bus.refresh import refresh_plan
-from gateway.bus.settings import NodeSettings, resolve_node_settings
-from gateway.bus.verify import MappingMismatch, mapping_reads
+from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
+from gateway.cia301 import (
+    COB_EMCY,
+    COB_LSS_MASTER,
+    COB_LSS_SLAVE,
+    COB_NMT,
+    COB_NMT_EC,
+    COB_SDO_RX,
+    COB_SDO_TX,
+    COB_SYNC,
+    NMT_COMMANDS,
+)
 from gateway.config import Config, NodeConfig
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage, RxCell
 from gateway.objref import ObjRef
-from gateway.profiles import (
-    LoadedProfile,
-    expected_identity,
-    load_node_profile,
-    node_verifies_mapping,
-)
+from gateway.pdo.codec import RpdoCodec, TpdoCodec
+from gateway.pdo.verify import MappingMismatch
+from gateway.profiles import LoadedProfile, expected_identity
 from gateway.ratelimit import RateLimitedLog
-from gateway.states import NMT_COMMANDS
 
 log = logging.getLogger("gateway.master")
 
@@ -128,27 +133,11 @@ class NodeParts:
         return self.node.mapping_mismatches
 
 
-def build_node(
-    master_cfg: Any, ncfg: NodeConfig, lp: LoadedProfile, image: NodeImage, passive: bool = False
-) -> NodeParts:
-    """One node's parts from its config entry and profile (settings resolved once)."""
-    settings = resolve_node_settings(master_cfg, ncfg, lp.profile)
-    steps = build_boot_steps(
-        lp,
-        ncfg,
-        settings.supervision,
-        settings.heartbeat_ms,
-        settings.guard_time_ms,
-        settings.life_time_factor,
-    )
-    # The decoder follows the mapping the boot configuration leaves in the device.
-    writes = [(st.object, st.value) for st in steps] if ncfg.configure else []
-    tpdos, rpdos = compile_node(lp, ncfg.node_id, ncfg.pdo_variant, writes)
-    plan = (
-        refresh_plan(lp, ncfg.node_id, ncfg.pdo_variant, tpdos, writes)
-        if settings.refresh_on_start
-        else []
-    )
+def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> NodeParts:
+    """One node's parts from its resolution (settings, boot steps and codecs built once)."""
+    rn.require()
+    ncfg, lp, settings = rn.cfg, rn.lp, rn.settings
+    steps, tpdos, rpdos, plan = rn.boot_steps, rn.tpdos, rn.rpdos, rn.refresh
     control = status = None
     if settings.guarding_bit is not None:
         cs = lp.profile.signal_for(settings.guarding_bit.control)
@@ -186,11 +175,7 @@ def build_node(
         referencing=ref,
         reference_signal=ref_signal,
         passive=passive,
-        verify=(
-            mapping_reads(lp, ncfg.node_id, ncfg.pdo_variant)
-            if ncfg.configure and node_verifies_mapping(lp, ncfg, ncfg.eds_only)
-            else ()
-        ),
+        verify=rn.verify,
     )
     return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)
 
@@ -203,7 +188,13 @@ class Master:
     """
 
     def __init__(
-        self, cfg: Config, image: ProcessImage, driver: BusDriver, *, passive: bool = False
+        self,
+        cfg: Config,
+        image: ProcessImage,
+        driver: BusDriver,
+        *,
+        passive: bool = False,
+        nodes: dict[str, ResolvedNode] | None = None,
     ):
         self.cfg = cfg
         self.image = image
@@ -231,16 +222,18 @@ class Master:
         )
         self.peer_log = RateLimitedLog(log, period_s=PEER_LOG_PERIOD_S)
         self._seen_cob_ids: set[int] = set()  # the reader's own: unknown COB-IDs posted once
+        #: LSS (CiA 305) on this connection to the bus, for the command service
+        self.lss = LssService(driver.send, self._post, self.clock, driver.frame_time)
+        resolved = nodes_of(cfg, nodes)
         for ncfg in cfg.nodes:
-            lp = load_node_profile(ncfg, cfg.base_dir)
+            rn = node_of(cfg, resolved, ncfg)
+            lp = rn.lp
             names = [s.name for s in lp.profile.signals]
-            stale_ms = ncfg.stale_after_ms or lp.stale_after_ms  # derived: EDS-only, no supervision
-            stale = stale_ms / 1000.0 if stale_ms else None
             ni = NodeImage(
-                ncfg.name, ncfg.node_id, lp.family, names, stale, ncfg.modbus.serve_stale
+                ncfg.name, ncfg.node_id, lp.family, names, rn.stale_after_s, ncfg.modbus.serve_stale
             )
             image.add_node(ni)
-            parts = build_node(cfg.master, ncfg, lp, ni, passive)
+            parts = build_node(rn, ni, passive)
             self.nodes[ncfg.name] = parts
             self.by_id[ncfg.node_id] = parts
         self._install_handlers()
@@ -251,17 +244,14 @@ class Master:
         for p in self.nodes.values():
             for codec in p.tpdos:
                 h[codec.cob_id] = self._tpdo_handler(p, codec)
-            h[0x700 + p.node_id] = self._control(p, "nmt_ec")
-            h[0x080 + p.node_id] = self._control(p, "emcy")
-            h[0x580 + p.node_id] = self._control(p, "sdo")
+            h[COB_NMT_EC + p.node_id] = self._control(p, "nmt_ec")
+            h[COB_EMCY + p.node_id] = self._control(p, "emcy")
+            h[COB_SDO_TX + p.node_id] = self._control(p, "sdo")
             if not self.peers.echo:  # our own requests come back with the echo on
-                h.setdefault(
-                    SDO_REQUEST_BASE + p.node_id, self._peer_frame(self._on_sdo_request, p)
-                )
-        h.setdefault(NMT_COB_ID, self._peer_frame(self._on_nmt_frame))
-        h.setdefault(
-            HEARTBEAT_BASE + self.cfg.master.node_id, self._peer_frame(self._on_own_heartbeat)
-        )
+                h.setdefault(COB_SDO_RX + p.node_id, self._peer_frame(self._on_sdo_request, p))
+        h.setdefault(COB_NMT, self._peer_frame(self._on_nmt_frame))
+        h.setdefault(COB_NMT_EC + self.cfg.master.node_id, self._peer_frame(self._on_own_heartbeat))
+        h[COB_LSS_SLAVE] = self.lss.reader_handler()
         self.driver.default_handler = self._unknown
         if self.image.end_batch not in self.driver.burst_listeners:
             self.driver.burst_listeners.append(self.image.end_batch)
@@ -382,8 +372,8 @@ class Master:
 
     def _unknown(self, msg: can.Message) -> None:
         cob = msg.arbitration_id
-        if cob == 0x080 or 0x7E4 <= cob <= 0x7E5:
-            return  # SYNC from another master, LSS
+        if cob == COB_SYNC or cob == COB_LSS_MASTER:
+            return  # SYNC from another master, LSS requests of another master
         self.driver.rx_counters["unknown_cob_id"] += 1
         seen = self._seen_cob_ids
         if cob not in seen and len(seen) < 2048 and talking_node_id(cob) is not None:
@@ -450,7 +440,7 @@ class Master:
                     self.driver.send(o.cob_id, o.data, rtr=o.rtr, dlc=o.dlc)
                 except can.CanError:
                     continue
-                if o.cob_id == NMT_COB_ID:
+                if o.cob_id == COB_NMT:
                     self.peers.sent(o.cob_id, o.data, self.clock())
                 if o.rpdo:
                     for listener in self.image.pdo_listeners:
@@ -520,11 +510,9 @@ class Master:
         t0 = self.loop.time()
         if self.cfg.master.heartbeat_ms:
             hb = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
-            self._produce(
-                "heartbeat", hb, HEARTBEAT_BASE + self.cfg.master.node_id, MASTER_HEARTBEAT
-            )
+            self._produce("heartbeat", hb, COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
         if self.cfg.master.sync_period_ms:
-            self._produce("sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), 0x080, b"")
+            self._produce("sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), COB_SYNC, b"")
         self._producers["housekeeping"] = self.loop.call_later(
             self.warn.period_s, self._housekeeping
         )
@@ -533,6 +521,7 @@ class Master:
             self._execute(p, p.node.start(now, probe=self.cfg.master.probe_at_start))
 
     async def stop(self) -> None:
+        self.lss.stop()
         for t in [*self._timers.values(), *self._producers.values()]:
             t.cancel()
         self._producers.clear()
@@ -584,10 +573,10 @@ class Master:
         node_id = 0 if node == "all" else targets[0].node_id
         frame = bytes([NMT_COMMANDS[command], node_id])
         try:
-            self.driver.send(NMT_COB_ID, frame)
+            self.driver.send(COB_NMT, frame)
         except can.CanError as exc:
             raise BusDown(str(exc)) from exc
-        self.peers.sent(NMT_COB_ID, frame, self.clock())
+        self.peers.sent(COB_NMT, frame, self.clock())
         for p in targets:
             p.node.on_nmt_command(command)
 

@@ -10,8 +10,9 @@ skipped. ``pdos.eds_pdos`` lists the TPDOs and RPDOs of the dictionary (communic
 mapping objects 1400h-1BFFh, ``$NODEID`` resolved), ``pdos.unique_names`` names the mapped
 objects (ParameterName slugs, unique per node), ``show.render`` prints a dictionary and its PDOs.
 
-Imports: canopen, gateway.objref and the standard library. Nothing else of the gateway (the
-profile loader imports this package, not the other way round).
+Imports: its own modules (parse, build, pdos), canopen, gateway.objref and the standard
+library. Nothing else of the gateway (the profile loader imports this package, not the other
+way round).
 """
 
 from __future__ import annotations

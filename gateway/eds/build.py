@@ -94,13 +94,15 @@ class _Ctx:
             value, rel = parse_int(raw)
         except ValueError as exc:
             head = raw.split("#", 1)[0].strip() if "#" in raw else ""
+            got: tuple[int, bool] | None
             try:
-                value, rel = parse_int(head) if head else (None, False)  # type: ignore[assignment]
+                got = parse_int(head) if head else None
             except ValueError:
-                value = None  # type: ignore[assignment]
-            if value is None:
+                got = None
+            if got is None:
                 self.warn(sec, key, f"{key}={raw}: {exc}; ignored")
                 return None
+            value, rel = got
             self.warn(sec, key, f"{key}={raw}: text after the number ignored (CiA 306 comments start with ';')")  # fmt: skip
         if rel and not relative_ok:
             self.warn(sec, key, f"{key}={raw}: $NODEID is not allowed here; ignored")
@@ -201,7 +203,7 @@ def _variable(ctx: _Ctx, sec: Section, index: int, sub: int, name: str | None = 
     return var
 
 
-def _object_type(ctx: _Ctx, sec: Section, has_subs: bool) -> int | None:
+def _object_type(ctx: _Ctx, sec: Section, has_subs: bool) -> int:
     got = ctx.number(sec, "ObjectType")
     if got is None:
         if sec.get("ObjectType") not in (None, ""):

@@ -10,7 +10,8 @@ Names: the ParameterName of the object (of the sub-object for ARRAY/RECORD entri
 the object's name when the sub-object's name alone says little) as a snake_case slug; slugs
 that two objects of a node share, or that are empty, fall back to ``<slug>_<index>_<sub>``.
 
-Imports: canopen (dictionary types), gateway.objref, gateway.eds.parse.
+Imports: canopen (dictionary types), gateway.cia301 (COB-ID bits, PDO indices, data types),
+gateway.objref, gateway.eds.parse.
 """
 
 from __future__ import annotations
@@ -23,31 +24,23 @@ from typing import Any, Literal
 import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 
+from gateway.cia301 import (
+    COB_ID_INVALID,
+    PDO_COMM_BASE,
+    PDO_MAP_BASE,
+    TYPE_BITS,
+    TYPE_NAMES,
+)
 from gateway.eds.parse import DATA_TYPES
 from gateway.objref import ObjRef
 
 Kind = Literal["tpdo", "rpdo"]
 
-#: CiA 301: bit 31 of a PDO COB-ID = PDO not valid.
-COB_ID_INVALID = 0x80000000
-COB_ID_MASK_11BIT = 0x7FF
 #: CiA 301 7.5.2.36: a mapping object has at most 64 entries (sub 01h..40h).
 MAX_ENTRIES = 0x40
-COMM_BASE: dict[str, int] = {"rpdo": 0x1400, "tpdo": 0x1800}
-MAP_BASE: dict[str, int] = {"rpdo": 0x1600, "tpdo": 0x1A00}
-
-#: CiA 301 data type codes -> the gateway's signal type names.
-SIGNAL_TYPES: dict[int, str] = {
-    0x0001: "bool", 0x0002: "int8", 0x0003: "int16", 0x0004: "int32", 0x0005: "uint8",
-    0x0006: "uint16", 0x0007: "uint32", 0x0008: "float32", 0x0009: "string", 0x000A: "bytes",
-    0x0010: "int24", 0x0015: "int64", 0x0016: "uint24", 0x001B: "uint64",
-}  # fmt: skip
-#: bits of the fixed-size types (CiA 301 table 44); dummy entries 0001h..0007h map these too.
-TYPE_BITS: dict[int, int] = {
-    0x0001: 1, 0x0002: 8, 0x0003: 16, 0x0004: 32, 0x0005: 8, 0x0006: 16, 0x0007: 32,
-    0x0008: 32, 0x0010: 24, 0x0011: 64, 0x0012: 40, 0x0013: 48, 0x0014: 56, 0x0015: 64,
-    0x0016: 24, 0x0018: 40, 0x0019: 48, 0x001A: 56, 0x001B: 64,
-}  # fmt: skip
+#: the PDO facts of CiA 301, named here for the modules that read PDOs from an EDS
+COMM_BASE = PDO_COMM_BASE
+MAP_BASE = PDO_MAP_BASE
 _NODEID_RE = re.compile(r"\$NODEID", re.IGNORECASE)
 
 
@@ -233,7 +226,7 @@ def unique_names(od: canopen.ObjectDictionary, objs: list[ObjRef], taken: set[st
 
 
 def signal_type(var: ODVariable | None) -> str | None:
-    return SIGNAL_TYPES.get(var.data_type) if var is not None else None
+    return TYPE_NAMES.get(var.data_type) if var is not None else None
 
 
 def access_of(var: ODVariable | None) -> Literal["ro", "rw", "wo"]:
@@ -306,7 +299,7 @@ def mapping_findings(
             what = f"{obj.index:04X}h has no sub-index {obj.sub:02X}h" if obj.index in od else "the file does not define it"  # fmt: skip
             out.append(PdoFinding(False, pdo, at, f"{pdo} maps {obj}/{bits}, but {what}: its type is unknown, so it is skipped; the other signals of {pdo} are served"))  # fmt: skip
             continue
-        type_name = DATA_TYPES.get(var.data_type, f"0x{var.data_type or 0:04X}")
+        type_name = DATA_TYPES.get(var.data_type or 0, f"0x{var.data_type or 0:04X}")
         served = signal_type(var)
         if served is None:
             out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}/{bits} ({type_name}) is not a type the gateway serves: skipped, the other signals of {pdo} are served"))  # fmt: skip
@@ -331,7 +324,7 @@ def eds_pdo_findings(od: canopen.ObjectDictionary, node_id: int | None = None) -
     """``mapping_findings`` of every enabled PDO the file describes."""
     out: list[PdoFinding] = []
     for kind in ("tpdo", "rpdo"):
-        for p in eds_pdos(od, node_id, kind):  # type: ignore[arg-type]
+        for p in eds_pdos(od, node_id, kind):
             if p.cob_id & COB_ID_INVALID or not (p.entries or p.gaps):
                 continue
             out += mapping_findings(od, p.kind, p.number, p.map_index, p.entries, p.gaps, p.count)

@@ -5,7 +5,7 @@ limits) and the PDOs (COB-ID, transmission, event timer, mapping) as Markdown ta
 ``overlay_profile(eds, eds_ref)``: an editable overlay profile (YAML text) naming the signals
 the gateway derives from the EDS, with the fields a user may add.
 
-Imports: canopen (dictionary types), gateway.eds, gateway.objref.
+Imports: canopen (dictionary types), gateway.cia301, gateway.eds, gateway.objref.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from typing import Any
 import yaml
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 
+from gateway.cia301 import COB_ID_INVALID
 from gateway.eds import EdsFile
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import (
-    COB_ID_INVALID,
     EdsPdo,
     access_of,
     eds_pdos,
@@ -72,9 +72,10 @@ def render(eds: EdsFile, node_id: int | None = None) -> str:
         limits = ""
         if var.min is not None or var.max is not None:
             limits = f"{_shown(var.min)}..{_shown(var.max)}"
-        default = getattr(var, "default_raw", None) if isinstance(getattr(var, "default_raw", None), str) and "$NODEID" in var.default_raw.upper() else var.default  # fmt: skip
+        raw = getattr(var, "default_raw", None)
+        default = raw if isinstance(raw, str) and "$NODEID" in raw.upper() else var.default
         lines.append(
-            f"| {obj} | {var.name.replace('|', ' ')} | {DATA_TYPES.get(var.data_type, hex(var.data_type))} | "
+            f"| {obj} | {var.name.replace('|', ' ')} | {DATA_TYPES.get(var.data_type or 0, hex(var.data_type or 0))} | "
             f"{var.access_type} | {'yes' if var.pdo_mappable else ''} | {_shown(default)} | {limits} |"
         )
     lines += ["", f"PDOs{f' for node {node_id}' if node_id else ' ($NODEID = 0)'}:", ""]

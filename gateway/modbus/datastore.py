@@ -10,9 +10,8 @@ write timeout live here.
 Read Device Identification (function 43/14) answers from ``modbus.identity`` with the
 identity objects read here from each device once per boot, through the command service.
 
-Imports: commands, config, errors, image, modbus.identity, modbus.protocol, modbus.regmap,
-modbus.watchdog,
-ratelimit, states.
+Imports: commands, config, errors, image, modbus.identity, modbus.protocol, modbus.watchdog,
+northbound.regmap, northbound.summary, ratelimit, states.
 """
 
 from __future__ import annotations
@@ -22,14 +21,14 @@ import ipaddress
 import logging
 import struct
 import time
-from collections.abc import Awaitable
+from collections.abc import Awaitable, Callable, Mapping
 from typing import Any
 
 import gateway
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import BusDown, GatewayError, NodeNotOperational, SdoAbort, ValueOutOfRange
-from gateway.image import LinkState, NmtState, NodeImage, ProcessImage, Quality, SignalValue
+from gateway.image import NmtState, NodeImage, ProcessImage, Quality, SignalValue
 from gateway.modbus.identity import IDENTITY_OBJECTS, gateway_objects, node_objects
 from gateway.modbus.identity import parse_request as parse_identification
 from gateway.modbus.identity import respond as identification_response
@@ -54,12 +53,41 @@ from gateway.modbus.protocol import (
     to_registers,
     unpack_bits,
 )
-from gateway.modbus.regmap import TABLE_NAMES, Point, RegisterMap, Table
 from gateway.modbus.watchdog import OutputWatchdog
+from gateway.northbound.regmap import TABLE_NAMES, Point, RegisterMap, Table
+from gateway.northbound.summary import NodeSummary, summarize
 from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_BY_CODE
 
 log = logging.getLogger("gateway.modbus")
+
+#: node diagnostics in input registers (``regmap.NODE_DIAG``): the summary as register values
+DIAG_REGISTERS: dict[str, Callable[[NodeSummary], int]] = {
+    "quality": lambda s: int(s.quality if s.quality is not None else Quality.BAD),
+    "nmt_state": lambda s: 0xFFFF if s.nmt_state == NmtState.UNKNOWN else int(s.nmt_state),
+    "alive": lambda s: int(s.alive),
+    "lifecycle": lambda s: LIFECYCLE_CODES.get(s.lifecycle, 0),
+    "data_age_ms": lambda s: (
+        0xFFFFFFFF if s.data_age_s is None else min(int(s.data_age_s * 1000), 0xFFFFFFFE)
+    ),
+    "last_emcy_code": lambda s: s.last_emcy.code if s.last_emcy else 0,
+    "last_emcy_register": lambda s: s.last_emcy.register if s.last_emcy else 0,
+    "emcy_count": lambda s: s.emcy_count & 0xFFFF,
+    "loss_count": lambda s: s.loss_count & 0xFFFF,
+    "link_state": lambda s: int(s.link),
+    "link_fault_count": lambda s: s.link_fault_count & 0xFFFF,
+    "last_sdo_abort": lambda s: s.last_sdo_abort & 0xFFFFFFFF,
+    "boot_count": lambda s: s.boot_count & 0xFFFF,
+    "pdo_errors": lambda s: s.pdo_errors & 0xFFFF,
+}
+#: node diagnostics in discrete inputs (``regmap.NODE_DIAG_BITS``)
+DIAG_BITS: dict[str, Callable[[NodeSummary], bool]] = {
+    "alive": lambda s: s.alive,
+    "operational": lambda s: s.operational,
+    "link_ok": lambda s: s.link_ok,
+    "error_active": lambda s: bool(s.current_errors),
+    "outputs_safe": lambda s: s.outputs == "safe",
+}
 
 
 # ---------------------------------------------------------------------- the datastore
@@ -97,7 +125,8 @@ class ImageDatastore:
         """Registers (ints) or bits (bools) of ``count`` consecutive addresses."""
         idx = self.regmap.index.get((unit, table), {})
         words: dict[tuple[str, str], Any] = {}  # a word read once per request for all its bits
-        snaps: dict[str, dict[str, SignalValue]] = {}  # one consistent view per node
+        snaps: dict[str, Mapping[str, SignalValue]] = {}  # one consistent view per node
+        sums: dict[str, NodeSummary] = {}  # one health summary per node
         out: list[Any] = []
         a, end = address, address + count
         while a < end:
@@ -108,10 +137,10 @@ class ImageDatastore:
                     f"{TABLE_NAMES[table]} {a} of unit {unit} is not mapped",
                 )
             if table in ("di", "co"):
-                out.append(bool(await self._bit_value(p, words, snaps)))
+                out.append(bool(await self._bit_value(p, words, snaps, sums)))
                 a += 1
                 continue
-            regs = await self._reg_value(p, snaps)
+            regs = await self._reg_value(p, snaps, sums)
             lo = a - p.address
             take = min(p.end, end) - a
             out.extend(regs[lo : lo + take])
@@ -123,12 +152,12 @@ class ImageDatastore:
         return self.image.nodes[p.node]
 
     def _servable(
-        self, node: NodeImage, name: str, snaps: dict[str, dict[str, SignalValue]] | None = None
+        self, node: NodeImage, name: str, snaps: dict[str, Mapping[str, SignalValue]] | None = None
     ) -> Any:
         """A process value if its quality allows serving it (stale only with serve_stale)."""
         if self.image.bus_state == "down":
             raise BusDown("CAN bus is down")
-        snap = None if snaps is None else snaps.get(node.name)
+        snap: Mapping[str, SignalValue] | None = None if snaps is None else snaps.get(node.name)
         if snap is None:
             snap = node.snapshot()
             if snaps is not None:
@@ -144,13 +173,16 @@ class ImageDatastore:
         raise NodeNotOperational(node.name, f"{name} is stale")
 
     async def _reg_value(
-        self, p: Point, snaps: dict[str, dict[str, SignalValue]] | None = None
+        self,
+        p: Point,
+        snaps: dict[str, Mapping[str, SignalValue]] | None = None,
+        sums: dict[str, NodeSummary] | None = None,
     ) -> list[int]:
         if p.kind == "gateway":
             return to_registers(self._gateway_value(p.name), p)
         node = self._node(p)
         if p.kind == "diag":
-            return to_registers(self._diag_value(node, p.name), p)
+            return to_registers(self._diag_value(node, p.name, sums), p)
         if p.kind == "nmt":
             st = node.health.nmt_state
             return [0xFFFF if st == NmtState.UNKNOWN else int(st)]
@@ -167,18 +199,12 @@ class ImageDatastore:
         self,
         p: Point,
         words: dict[tuple[str, str], Any],
-        snaps: dict[str, dict[str, SignalValue]] | None = None,
+        snaps: dict[str, Mapping[str, SignalValue]] | None = None,
+        sums: dict[str, NodeSummary] | None = None,
     ) -> int:
         node = self._node(p)
         if p.kind == "diag_bit":
-            h = node.health
-            return {
-                "alive": h.alive,
-                "operational": node.operational(),
-                "link_ok": h.link in (LinkState.OK, LinkState.NOT_USED),
-                "error_active": bool(h.current_errors),
-                "outputs_safe": h.outputs == "safe",
-            }[p.name]
+            return int(DIAG_BITS[p.name](self._summary(node, sums)))
         assert p.bit is not None
         key = (node.name, p.name)
         if key not in words:
@@ -188,45 +214,20 @@ class ImageDatastore:
                 words[key] = await self._output_value(node.name, p.name)
         return (int(words[key]) >> p.bit) & 1
 
-    def _quality(self, node: NodeImage) -> Quality:
-        names = self.process_signals.get(node.name, ())
-        if not names:
-            return Quality.GOOD if node.operational() else Quality.STALE
-        now = time.monotonic()
-        return max(node.quality(node.signals[n], now) for n in names)
+    def _summary(self, node: NodeImage, sums: dict[str, NodeSummary] | None) -> NodeSummary:
+        """The node's health summary, taken once per request."""
+        s = None if sums is None else sums.get(node.name)
+        if s is None:
+            s = summarize(node, process=self.process_signals.get(node.name, ()))
+            if sums is not None:
+                sums[node.name] = s
+        return s
 
-    def _diag_value(self, node: NodeImage, name: str) -> int:
-        h = node.health
-        if name == "quality":
-            return int(self._quality(node))
-        if name == "nmt_state":
-            return 0xFFFF if h.nmt_state == NmtState.UNKNOWN else int(h.nmt_state)
-        if name == "alive":
-            return int(h.alive)
-        if name == "lifecycle":
-            return LIFECYCLE_CODES.get(h.lifecycle, 0)
-        if name == "data_age_ms":
-            age = node.data_age_s()
-            return 0xFFFFFFFF if age is None else min(int(age * 1000), 0xFFFFFFFE)
-        if name == "last_emcy_code":
-            return h.last_emcy.code if h.last_emcy else 0
-        if name == "last_emcy_register":
-            return h.last_emcy.register if h.last_emcy else 0
-        if name == "emcy_count":
-            return h.emcy_count & 0xFFFF
-        if name == "loss_count":
-            return h.loss_count & 0xFFFF
-        if name == "link_state":
-            return int(h.link)
-        if name == "link_fault_count":
-            return h.link_fault_count & 0xFFFF
-        if name == "last_sdo_abort":
-            return h.last_sdo_abort & 0xFFFFFFFF
-        if name == "boot_count":
-            return h.boot_count & 0xFFFF
-        if name == "pdo_errors":
-            return (node.rx.pdo_too_short + node.rx.pdo_too_long) & 0xFFFF
-        return 0
+    def _diag_value(
+        self, node: NodeImage, name: str, sums: dict[str, NodeSummary] | None = None
+    ) -> int:
+        encode = DIAG_REGISTERS.get(name)
+        return 0 if encode is None else encode(self._summary(node, sums))
 
     def _gateway_value(self, name: str) -> int:
         c = self.image.counters
@@ -423,9 +424,9 @@ def _log_late_result(task: asyncio.Future[Any]) -> None:
 async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None) -> bytes:
     """Serve one request PDU; returns the response PDU (raises ModbusError / GatewayError)."""
     fc, body = pdu[0], pdu[1:]
-    code = check_request(fc, body)
-    if code is not None:
-        raise ModbusError(code, f"function code {fc}: malformed or unsupported request")
+    malformed = check_request(fc, body)
+    if malformed is not None:
+        raise ModbusError(malformed, f"function code {fc}: malformed or unsupported request")
     if unit not in store.regmap.units:
         raise ModbusError(
             ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"

@@ -6,7 +6,8 @@ register-map point becomes registers and back (word order, types, strings).
 Which gateway error becomes which exception code (``exception_code``) is here too: the one
 mapping for every Modbus answer.
 
-Imports: errors, modbus.regmap (the point's type and word order). No I/O.
+Imports: errors, northbound.regmap (the point's type and word order), northbound.scaling.
+No I/O.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ from gateway.errors import (
     Unmapped,
     ValueOutOfRange,
 )
-from gateway.modbus.regmap import Point, Table
+from gateway.northbound.regmap import Point, Table
+from gateway.northbound.scaling import scaled, unscaled_step
 
 T = TypeVar("T")
 
@@ -171,7 +173,7 @@ def to_registers(value: Any, p: Point) -> list[int]:
         raw = bytes(raw)[: p.count * 2].ljust(p.count * 2, b"\0")
         return [(raw[i] << 8) | raw[i + 1] for i in range(0, len(raw), 2)]
     if p.engineering:
-        value = float(value) * p.scale + p.offset
+        value = scaled(float(value), p.scale, p.offset)
     if t == "float32":
         b = struct.pack(">f", float(value))
     elif t in ("int16", "uint16"):
@@ -205,6 +207,6 @@ def from_registers(regs: list[int], p: Point) -> Any:
         f = struct.unpack(">f", b)[0]
         if p.engineering:
             # float -> raw integer: NaN / inf raise ValueError / OverflowError (0x03)
-            return round((f - p.offset) / p.scale) if p.scale else 0
+            return unscaled_step(f, p.scale, p.offset)
         return f
     return int.from_bytes(b, "big", signed=t.startswith("int"))

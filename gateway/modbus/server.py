@@ -38,9 +38,10 @@ Modbus/TCP Security (``modbus.tls``): a second listener with TLS; each of its co
 the rights of its certificate's role (``modbus.security``), checked here before a request is
 served: a refused request is answered 0x01 and logged once per period.
 
-Imports: commands, config, errors, image, modbus.regmap, modbus.security, modbus.watchdog,
-profiles, safe_outputs. Never zenoh_bridge/ or bus/ directly
-(the bus is reached through the command service only); no pymodbus (its server loses pipelined
+Imports: commands, config, errors, image, northbound.regmap, modbus.datastore, modbus.protocol,
+modbus.security, modbus.watchdog,
+bus.resolved (the resolved nodes' profiles), safe_outputs. Never zenoh_bridge/, and of bus/
+only the resolved nodes (the bus is reached through the command service only); no pymodbus (its server loses pipelined
 requests: it clears its receive buffer on every send).
 """
 
@@ -50,6 +51,7 @@ import asyncio
 import logging
 from typing import Any
 
+from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import GatewayError
@@ -65,10 +67,9 @@ from gateway.modbus.protocol import (
     ModbusError,
     exception_code,
 )
-from gateway.modbus.regmap import build_register_map
 from gateway.modbus.security import Access, access_of, tls_context
 from gateway.modbus.watchdog import OutputWatchdog
-from gateway.profiles import load_node_profile
+from gateway.northbound.regmap import build_register_map
 from gateway.safe_outputs import safe_outputs
 
 log = logging.getLogger("gateway.modbus")
@@ -201,10 +202,17 @@ class _Connection(asyncio.Protocol):
 class ModbusGateway:
     """Starts/stops the Modbus TCP server for a config."""
 
-    def __init__(self, cfg: Config, image: ProcessImage, commands: CommandService):
+    def __init__(
+        self,
+        cfg: Config,
+        image: ProcessImage,
+        commands: CommandService,
+        nodes: dict[str, ResolvedNode] | None = None,
+    ):
         self.cfg = cfg
         self.commands = commands
-        self.regmap = build_register_map(cfg)
+        resolved = nodes_of(cfg, nodes)
+        self.regmap = build_register_map(cfg, resolved)
         self.store = ImageDatastore(self.regmap, image, commands, cfg)
         self.server: asyncio.Server | None = None  # the plain one, else the TLS one
         self.port = cfg.modbus.port
@@ -220,7 +228,7 @@ class ModbusGateway:
         self.safe_plan: dict[str, dict[str, Any]] = {}
         if self.watchdog.enabled:
             for n in cfg.nodes:
-                values = safe_outputs(load_node_profile(n, cfg.base_dir), n)
+                values = safe_outputs(node_of(cfg, resolved, n).lp, n)
                 if values:
                     self.safe_plan[n.name] = values
         self.store.watchdog = self.watchdog

@@ -11,7 +11,7 @@ node's ``tpdo:``/``rpdo:`` settings and PDO writes (``layout``), and a signal fo
 object (derived from the EDS where the profile names none). One result, used by the boot-step
 builder, the codecs, the register map, the Zenoh keys and the simulator.
 
-Imports: schema, layout, gateway.eds, objref, canopen, yaml. Nothing of bus/, modbus/,
+Imports: schema, layout, gateway.eds, cia301, objref, canopen, yaml. Nothing of bus/, modbus/,
 zenoh_bridge/, config.
 """
 
@@ -28,6 +28,7 @@ import canopen
 import yaml
 from pydantic import ValidationError
 
+from gateway.cia301 import COB_ID_INVALID
 from gateway.eds import EdsError, EdsFile, dictionary_for_node, load_eds
 from gateway.eds.pdos import (
     access_of,
@@ -153,7 +154,7 @@ def _eds_layout(od: canopen.ObjectDictionary, node_id: int | None, eds_path: Pat
     out = _EdsLayout([], [], {}, {})
     for kind, into in (("tpdo", out.tpdos), ("rpdo", out.rpdos)):
         for p in eds_pdos(od, node_id, kind):  # type: ignore[arg-type]
-            if p.cob_id & 0x80000000 or not (p.entries or p.gaps):
+            if p.cob_id & COB_ID_INVALID or not (p.entries or p.gaps):
                 continue
             found = mapping_findings(od, p.kind, p.number, p.map_index, p.entries, p.gaps, p.count)
             lines = [str(eds_file.problem(f.obj, f.message)) if eds_file else f"{eds_path}: {f.message}" for f in found]  # fmt: skip
@@ -377,15 +378,15 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
             )
         for kind, settings in (("tpdo", node.tpdo), ("rpdo", node.rpdo)):
             try:
-                new = apply_settings(kind, tpdos if kind == "tpdo" else rpdos, settings or {},  # type: ignore[arg-type]
+                remapped = apply_settings(kind, tpdos if kind == "tpdo" else rpdos, settings or {},  # type: ignore[arg-type]
                                      eds_pdos(od, node_id, kind), od, node_id, kind)  # type: ignore[arg-type]  # fmt: skip
             except PdoMappingError as exc:
                 head, _, rest = str(exc).partition(": ")
                 raise ProfileError(rest or str(exc), key=head) from None
             if kind == "tpdo":
-                tpdos = new
+                tpdos = remapped
             else:
-                rpdos = new
+                rpdos = remapped
         try:
             writes = [
                 (ObjRef.parse(w.object), w.value)
@@ -523,7 +524,7 @@ def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
     if vendor in (None, *_NOT_GIVEN) or product in (None, *_NOT_GIVEN):
         return ()
     out = []
-    for sub, given in ((1, int(vendor)), (2, int(product))):  # type: ignore[arg-type]
+    for sub, given in ((1, int(vendor)), (2, int(product))):
         var = od_var(lp.od, ObjRef(0x1018, sub))
         held = getattr(var, "value", None)
         if held is None:

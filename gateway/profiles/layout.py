@@ -9,12 +9,12 @@ The layout of a node (its TPDOs and RPDOs, each a ``Pdo``) is, in this order:
 3. the SDO writes of the boot configuration to PDO objects, replayed in order as the device
    applies them (``apply_pdo_writes``), e.g. a remap given as raw ``sdo:`` writes.
 
-The boot-step builder (``gateway.bus.boot_steps.build_boot_steps``) writes the CiA 301 sequence
-of every PDO the node's settings name from this layout, the codecs (``gateway.bus.codec``) are
+The boot-step builder (``gateway.bus.node.boot_steps.build_boot_steps``) writes the CiA 301 sequence
+of every PDO the node's settings name from this layout, the codecs (``gateway.pdo.codec``) are
 compiled from it, ``verify_mapping`` compares the device with it, the register map and the
 Zenoh keys serve its objects.
 
-Imports: gateway.profiles.schema, gateway.eds.pdos, gateway.objref. No I/O.
+Imports: gateway.profiles.schema, gateway.eds.pdos, gateway.cia301, gateway.objref. No I/O.
 """
 
 from __future__ import annotations
@@ -24,9 +24,8 @@ from typing import Any, Literal, Protocol
 
 from pydantic import ValidationError
 
+from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_11BIT
 from gateway.eds.pdos import (
-    COB_ID_INVALID,
-    COB_ID_MASK_11BIT,
     EdsPdo,
     decode_entry,
     entry_value,

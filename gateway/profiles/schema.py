@@ -161,6 +161,21 @@ class Signal(_Strict):
         return self
 
     @property
+    def type_name(self) -> SignalType:
+        """The signal's type: the profile's, else the EDS DataType (the loader fills it in, so
+        every signal of a loaded profile has one)."""
+        if self.type is None:
+            raise ValueError(f"signal {self.name}: no type (not resolved from the EDS)")
+        return self.type
+
+    @property
+    def transport_name(self) -> Literal["pdo", "sdo"]:
+        """``pdo`` or ``sdo`` (filled in by the loader from the PDO layout)."""
+        if self.transport is None:
+            raise ValueError(f"signal {self.name}: no transport (not resolved from the layout)")
+        return self.transport
+
+    @property
     def bit_length(self) -> int:
         if self.type in ("string", "bytes"):
             return 8 * (self.length or 0)

@@ -87,11 +87,11 @@ class FaultInjector:
             else:
                 runner.call(lambda now: node.raise_emcy(fault, GENERIC_REGISTER, now=now))
         elif action == "emcy-clear":
-            fault = self._emcy.pop(name, None)
-            if isinstance(fault, str):
-                runner.call(lambda now: node.inject_fault(fault, False, now))
-            elif fault is not None:
-                runner.call(lambda now: node.clear_emcy(fault, now))
+            active = self._emcy.pop(name) if name in self._emcy else None
+            if isinstance(active, str):
+                runner.call(lambda now: node.inject_fault(active, False, now))
+            elif active is not None:
+                runner.call(lambda now: node.clear_emcy(active, now))
         return {"ok": True, "node": name, "action": action, "state": self.state(name)}
 
     # ------------------------------------------------------------------ helpers

@@ -29,8 +29,8 @@ manuals say so (SGH10 manual 000/003 section numbers unless noted):
 - a motion model (motion.py) for the position / velocity objects named by the profile's
   ``sim:`` hints, and the behaviours of the profile's features (behaviours/).
 
-Imports: python-can (Message only), gateway.cia301, gateway.profiles (LoadedProfile), gateway.objref and the
-other gateway.sim modules. Nothing of bus/, modbus/, zenoh_bridge/.
+Imports: python-can (Message only), gateway.cia301, gateway.states, gateway.profiles
+(LoadedProfile), gateway.objref and the other gateway.sim modules. Nothing of bus/, modbus/, zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from gateway.cia301 import (
     BOOLEAN,
     COB_EMCY,
     COB_ID_INVALID,
+    COB_ID_MASK_11BIT,
     COB_ID_MASK_29BIT,
     COB_ID_NO_RTR,
     COB_NMT,
@@ -62,6 +63,7 @@ from gateway.cia301 import (
     REAL32,
     REAL64,
     SIGNED_TYPES,
+    SYNC_GENERATOR,
     TYPE_BITS,
 )
 from gateway.objref import ObjRef
@@ -91,8 +93,6 @@ SIGNATURE_LOAD = 0x64616F6C
 
 ResetKind = Literal["power", "node", "communication"]
 
-#: CiA 301 7.5.2.5 (1005h): bit 30 = 1, this node generates SYNC
-SYNC_GENERATOR = 1 << 30
 
 #: numeric data types the default motion drives (REAL64 too: the simulator writes it)
 _MOTION_TYPES = NUMERIC_TYPES | {REAL64}
@@ -222,7 +222,7 @@ class SimNode:
             can.Message(
                 arbitration_id=cob_id,
                 data=bytes(data),
-                is_extended_id=cob_id > 0x7FF,
+                is_extended_id=cob_id > COB_ID_MASK_11BIT,
                 is_remote_frame=rtr,
                 dlc=dlc if rtr else len(data),
             )
@@ -764,11 +764,11 @@ class SimNode:
     # ======================================================================================
     def _sdo_rx_cob(self) -> int:
         v = self.values.get(0x1200, 1)
-        return int(v) & 0x7FF if v is not None else COB_SDO_RX + self.node_id
+        return int(v) & COB_ID_MASK_11BIT if v is not None else COB_SDO_RX + self.node_id
 
     def _sdo_tx_cob(self) -> int:
         v = self.values.get(0x1200, 2)
-        return int(v) & 0x7FF if v is not None else COB_SDO_TX + self.node_id
+        return int(v) & COB_ID_MASK_11BIT if v is not None else COB_SDO_TX + self.node_id
 
     def listening(self) -> frozenset[int] | None:
         """The 11-bit COB-IDs of the frames ``handle`` acts on: NMT, its guarding RTR, SYNC,
@@ -804,7 +804,7 @@ class SimNode:
                 if not cob & COB_ID_INVALID:
                     m[cob & COB_ID_MASK_29BIT] = ("rpdo", n)
             sync = self.values.get(0x1005, 0, COB_SYNC)
-            m[int(sync) & 0x7FF] = ("sync", 0)
+            m[int(sync) & COB_ID_MASK_11BIT] = ("sync", 0)
             m[self._sdo_rx_cob()] = ("sdo", 0)
             self._cob_map = m
         return self._cob_map

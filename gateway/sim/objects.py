@@ -75,7 +75,7 @@ def resolve_default(var: od.ODVariable, node_id: int) -> Any:
 
 def type_size(var: od.ODVariable) -> int | None:
     """Bytes of a fixed-size type; None for strings and domains."""
-    st = od.ODVariable.STRUCT_TYPES.get(var.data_type)
+    st = od.ODVariable.STRUCT_TYPES.get(var.data_type or 0)  # None: no type, no size
     if st is not None:
         return st.size
     if var.data_type == dt.BOOLEAN:
@@ -103,7 +103,7 @@ def encode(var: od.ODVariable, value: Any) -> bytes:
         return value.encode("utf-8") if isinstance(value, str) else bytes(value)
     if var.data_type == dt.BOOLEAN:
         return b"\x01" if value else b"\x00"
-    st = od.ODVariable.STRUCT_TYPES[var.data_type]
+    st = od.ODVariable.STRUCT_TYPES[var.data_type or 0]
     if var.data_type in dt.FLOAT_TYPES:
         return st.pack(float(value))
     v = int(value)
@@ -125,7 +125,7 @@ def decode(var: od.ODVariable, data: bytes) -> Any:
         return bytes(data)
     if var.data_type == dt.BOOLEAN:
         return 1 if data[0] else 0
-    (value,) = od.ODVariable.STRUCT_TYPES[var.data_type].unpack(data)
+    (value,) = od.ODVariable.STRUCT_TYPES[var.data_type or 0].unpack(data)
     return value
 
 

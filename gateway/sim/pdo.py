@@ -47,7 +47,7 @@ def map_index(kind: Kind, number: int) -> int:
 def pdo_of(index: int) -> tuple[Kind, int, bool] | None:
     """(kind, number, is_mapping) for a PDO parameter index, else None."""
     for kind in ("rpdo", "tpdo"):
-        k: Kind = kind  # type: ignore[assignment]
+        k: Kind = kind
         if PDO_COMM_BASE[k] <= index < PDO_COMM_BASE[k] + 0x200:
             return k, index - PDO_COMM_BASE[k] + 1, False
         if PDO_MAP_BASE[k] <= index < PDO_MAP_BASE[k] + 0x200:

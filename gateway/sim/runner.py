@@ -10,7 +10,8 @@ real bus every node sees every frame). ``call(fn)`` runs
 frames it causes go out on the runner thread. The thread is usable from sync and async code
 alike (nothing here blocks an event loop except ``stop()``, which joins within ``timeout_s``).
 
-Imports: python-can, gateway.sim.node, gateway.profiles (types only).
+Imports: python-can, gateway.sim.node, gateway.sim.motion, gateway.sim.objects,
+gateway.profiles (types only).
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ before such a command opens the bus:
 Other interfaces (socketcan, pcan, remote, ...) are shared by every process: the command opens
 the bus beside the gateway, as before.
 
-Imports: zenoh, config, objref, zenoh_bridge.keys. Nothing of bus/ or modbus/.
+Imports: zenoh, config, objref, northbound.keys. Nothing of bus/ or modbus/.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from typing import Any
 import zenoh
 
 from gateway.config import Config
+from gateway.northbound.keys import catalog_key, nmt_key, sdo_key
 from gateway.objref import ObjRef
-from gateway.zenoh_bridge.keys import catalog_key, nmt_key, sdo_key
 
 #: how long to wait for a running gateway to answer (loopback: a few ms when one runs)
 FIND_TIMEOUT_S = 1.5
@@ -77,6 +77,7 @@ class ZenohGateway:
         for reply in replies:
             if reply.ok is not None:
                 return json.loads(reply.ok.payload.to_bytes())
+            assert reply.err is not None  # a reply is ok or err
             body = reply.err.payload.to_bytes()
             try:
                 doc = json.loads(body)

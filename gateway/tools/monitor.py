@@ -1,49 +1,24 @@
 """``canopen-gateway monitor``: candump for CANopen, one decoded line per frame.
 
-Reads frames from a python-can bus and prints them as ``gateway.tools.frames`` words them,
+Reads frames from a python-can bus and prints them as ``gateway.northbound.frames`` words them,
 filtered by node (name or id) and kind (nmt, sync, time, emcy, pdo, sdo, heartbeat, lss,
 other); stops after ``count`` lines or ``duration_s`` seconds, or at Ctrl-C.
 
 Line: seconds since the start, COB-ID, node, service, text:
 ``   0.104  181  wire         TPDO1         position=1234.5 mm velocity=0 mm/s``
 
-Imports: python-can, config, tools.frames.
+Imports: python-can, config, northbound.frames.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable
 from typing import TextIO
 
 import can
 
-from gateway.config import Config
-from gateway.tools.frames import KINDS, Decoded, FrameDecoder
-
-
-def node_filter(cfg: Config, items: Collection[str]) -> set[int]:
-    """Node ids from names or numbers; ValueError naming what is unknown."""
-    ids = set()
-    names = {n.name: n.node_id for n in cfg.nodes}
-    for item in items:
-        if item in names:
-            ids.add(names[item])
-        elif item.isdigit() and 1 <= int(item) <= 127:
-            ids.add(int(item))
-        else:
-            raise ValueError(
-                f"--node {item!r}: not a node of the config ({', '.join(names) or 'none'}) "
-                "nor a node id 1..127"
-            )
-    return ids
-
-
-def kind_filter(items: Collection[str]) -> set[str]:
-    unknown = [k for k in items if k not in KINDS]
-    if unknown:
-        raise ValueError(f"--kind {', '.join(unknown)}: kinds are {', '.join(KINDS)}")
-    return set(items)
+from gateway.northbound.frames import Decoded, FrameDecoder
 
 
 def format_line(t: float, cob_id: int, d: Decoded) -> str:

@@ -7,16 +7,14 @@ same checks as one from Modbus or Zenoh (type, range, writable bits, node operat
 same typed errors; here they become an HTTP status and a JSON body with the words a technician
 needs (an SDO abort with its code and its DS-301 text).
 
-LSS (CiA 305) runs on a second connection to the configured bus, in a worker thread, one
-inquiry at a time: the gateway's own connection stays with the master. That works on SocketCAN
-(several sockets per interface), python-can's ``virtual`` and ``remote`` buses; a backend that
-allows one connection per channel (some USB adapters) refuses the second one, and the page says
-so: then stop the gateway and use ``canopen-gateway lss``. LSS inquiry switches every LSS slave
+LSS (CiA 305) goes through the command service to the master's LSS service, on the gateway's
+own connection to the bus (no second connection, so it works on every interface), one inquiry
+at a time. LSS inquiry switches every LSS slave
 (or the one at ``address``) to the LSS configuration state and back to waiting; it does not
 change NMT states or node ids.
 
-Imports: commands, errors, objref, config, profiles.schema, zenoh_bridge.payloads (scaling),
-bus.lss and bus.lss_cli (LSS frames and session), python-can.
+Imports: commands, errors, objref, config, cia301, profiles.schema, northbound.scaling. Never
+bus/, tools/ or python-can.
 """
 
 from __future__ import annotations
@@ -29,22 +27,22 @@ from typing import Any
 
 import can
 
-from gateway.bus import lss
-from gateway.bus.lss_cli import INQUIRE_ORDER, LssFailed, LssSession
+from gateway.cia301 import NMT_COMMANDS
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import (
     BusDown,
     GatewayError,
+    LssConflict,
+    LssFailed,
     NodeNotOperational,
     NodeUnknown,
     SdoAbort,
     SdoTimeout,
 )
+from gateway.northbound.scaling import Scaling, to_raw
 from gateway.objref import ObjRef
 from gateway.profiles.schema import TYPE_BITS
-from gateway.states import NMT_COMMANDS
-from gateway.zenoh_bridge.payloads import Scaling, to_raw
 
 log = logging.getLogger("gateway.web")
 
@@ -57,6 +55,8 @@ STATUS_OF: dict[type[GatewayError], HTTPStatus] = {
     BusDown: HTTPStatus.SERVICE_UNAVAILABLE,
     SdoAbort: HTTPStatus.BAD_GATEWAY,  # the device refused
     SdoTimeout: HTTPStatus.GATEWAY_TIMEOUT,  # the device did not answer
+    LssFailed: HTTPStatus.GATEWAY_TIMEOUT,  # no LSS slave answered
+    LssConflict: HTTPStatus.CONFLICT,  # another LSS session, or the wrong LSS state
 }
 
 
@@ -75,10 +75,6 @@ def error_doc(exc: BaseException) -> tuple[HTTPStatus, dict[str, Any]]:
     if isinstance(exc, (BadInput, ValueError, TypeError, KeyError)):
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
         return HTTPStatus.BAD_REQUEST, {"error": "bad_request", "message": str(msg)}
-    if isinstance(exc, LssFailed):
-        return HTTPStatus.GATEWAY_TIMEOUT, {"error": "lss_failed", "message": str(exc)}
-    if isinstance(exc, (lss.LssStateError, lss.LssBusy)):
-        return HTTPStatus.CONFLICT, {"error": "lss_state", "message": str(exc)}
     return HTTPStatus.INTERNAL_SERVER_ERROR, {
         "error": "internal",
         "message": f"{type(exc).__name__}: {exc}",
@@ -135,7 +131,7 @@ class Commissioning:
         self.cfg = cfg
         self.commands = commands
         self.lss_timeout_s = lss_timeout_s
-        self._lss_lock = asyncio.Lock()
+        self._scan_lock = asyncio.Lock()  # one scan at a time
 
     async def run(self, op: str, body: bytes) -> dict[str, Any]:
         doc = parse_body(body)
@@ -213,35 +209,42 @@ class Commissioning:
         """LSS inquire vendor, product, revision, serial and node id (CiA 305; SGH10 manual
         4.6.3) of the one LSS slave on the bus, or of the slave at ``address``
         (``VENDOR:PRODUCT:REVISION:SERIAL``, switch state selective)."""
-        address = None
+        address: tuple[int, int, int, int] | None = None
         text = doc.get("address")
         if text not in (None, ""):
             if not isinstance(text, str):
                 raise BadInput("address: expected VENDOR:PRODUCT:REVISION:SERIAL")
             parts = text.replace(" ", "").split(":")
             try:
-                address = tuple(int(p, 0) for p in parts)
+                numbers = [int(p, 0) for p in parts]
             except ValueError:
-                address = None
-            if address is None or len(address) != 4 or not all(0 <= v < 1 << 32 for v in address):
+                numbers = []
+            if len(numbers) == 4 and all(0 <= v < 1 << 32 for v in numbers):
+                address = (numbers[0], numbers[1], numbers[2], numbers[3])
+            else:
                 raise BadInput(
                     f"address: {text!r} is not VENDOR:PRODUCT:REVISION:SERIAL "
                     "(four numbers, e.g. 0x1A2:0x3:0x1:12345)"
                 )
-        if self._lss_lock.locked():
-            raise lss.LssBusy("another LSS inquiry is running")
-        async with self._lss_lock:
-            result = await asyncio.to_thread(self._inquire, address)
-        return {"ok": True, **result}
+        if self.commands.lss_busy():
+            raise LssConflict("another LSS inquiry is running")
+        result = await self.commands.lss_inquire(address)
+        return {
+            "ok": True,
+            **{
+                item: value if item == "node_id" else f"0x{value if isinstance(value, int) else 0:08X}"
+                for item, value in result.items()
+            },
+        }
 
     async def scan(self, doc: dict[str, Any]) -> dict[str, Any]:
         """Which node ids are on the bus (``canopen-gateway scan --active``): on a second
         connection, in a worker thread, one scan at a time (it shares the LSS lock)."""
-        from gateway.tools.scan import report, scan
+        from gateway.bus.scan import report, scan
 
-        if self._lss_lock.locked():
-            raise lss.LssBusy("a scan or an LSS inquiry is running")
-        async with self._lss_lock:
+        if self._scan_lock.locked() or self.commands.lss_busy():
+            raise LssConflict("a scan or an LSS inquiry is running")
+        async with self._scan_lock:
             def run() -> dict[str, Any]:
                 try:
                     bus = can.Bus(**self.cfg.can.bus_kwargs())
@@ -260,22 +263,3 @@ class Commissioning:
             result = await asyncio.to_thread(run)
         return {"ok": True, **result}
 
-    def _inquire(self, address: tuple[int, ...] | None) -> dict[str, Any]:
-        """Worker thread: a second connection to the bus for the inquiry."""
-        try:
-            bus = can.Bus(**self.cfg.can.bus_kwargs())
-        except (can.CanError, OSError, ValueError) as exc:
-            raise LssFailed(
-                f"cannot open a second connection to the CAN bus for LSS ({exc}); this "
-                "interface allows one connection: stop the gateway and use canopen-gateway lss"
-            ) from None
-        try:
-            session = LssSession(bus, self.lss_timeout_s)
-            out: dict[str, Any] = {}
-            with session.configuration_state(address):  # type: ignore[arg-type]
-                for item in INQUIRE_ORDER:
-                    value = session.request(lss.inquire(item))
-                    out[item] = value if item == "node_id" else f"0x{int(value or 0):08X}"
-            return out
-        finally:
-            bus.shutdown()

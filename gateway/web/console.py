@@ -45,10 +45,9 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.limits, web.monitor, config, image, commands (types), sim.faults (names and errors; the
-injector itself is given by the application; the bus driver, for the monitor's tap, too).
-Never bus/ internals, modbus/ or zenoh_bridge/
-modules with I/O.
+web.events, web.limits, web.monitor, config, image, commands (types), ratelimit, sim.faults
+(names and errors; the injector itself is given by the application; the bus driver, for the
+monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
 
 from __future__ import annotations
@@ -68,6 +67,7 @@ from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.health import JSON_TYPE, Request, Response, Stream
 from gateway.image import ProcessImage
+from gateway.northbound.scaling import engineering
 from gateway.ratelimit import RateLimitedLog
 from gateway.web.commissioning import Commissioning, error_doc, shown
 from gateway.web.events import KINDS, EventLog, EventLogHandler
@@ -76,7 +76,6 @@ from gateway.web.live import LiveHub, Subscriber, TooManyClients
 from gateway.web.monitor import FrameMonitor, FrameSource, TooManyPages
 from gateway.web.trends import TREND_PERIOD_S, TrendStore
 from gateway.web.views import ConsoleModel, OverviewFn
-from gateway.zenoh_bridge.payloads import engineering
 
 log = logging.getLogger("gateway.web")
 

@@ -14,7 +14,7 @@ Rule 2 (the event loop): ``_take`` classifies each frame of the batch (kind and 
 lookup by COB-ID after its first frame), applies each page's filters, then each page's budget:
 the first ``MAX_LINES_PER_S`` matching frames of each second are shown, the rest of that second
 are counted and the page gets one "skipped" line for them. Only frames that are shown are
-decoded (``gateway.tools.frames.FrameDecoder``, once per frame whatever the number of pages).
+decoded (``gateway.northbound.frames.FrameDecoder``, once per frame whatever the number of pages).
 
 Rule 3: a page is a bounded queue of lines (``MAX_PENDING``, the size of the page's own ring)
 written by its pump at most ``1 / SEND_INTERVAL_S`` times a second, each write with a status
@@ -24,7 +24,7 @@ the oldest lines and counts them) and disconnected after ``SLOW_CLIENT_LIMIT_S``
 Frames the gateway sends are not tapped (they leave through the sender thread): the page shows
 what the gateway receives, as ``canopen-gateway monitor`` on a second connection shows both.
 
-Imports: config, tools.frames (the decoder), tools.monitor (node and kind filters), web.live
+Imports: config, northbound.frames (the decoder, node and kind filters), web.live
 (the SSE framing and its limits). Never bus/ (the driver is given as an object with a
 ``frame_tap`` attribute), modbus/ or zenoh_bridge/.
 """
@@ -39,8 +39,7 @@ from collections.abc import Callable, Iterable
 from typing import Any, Protocol
 
 from gateway.config import Config
-from gateway.tools.frames import KINDS, Decoded, FrameDecoder
-from gateway.tools.monitor import kind_filter, node_filter
+from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
 from gateway.web.live import MAX_BUFFERED_BYTES, RETRY_MS, SLOW_CLIENT_LIMIT_S, sse
 
 log = logging.getLogger("gateway.web")
@@ -176,6 +175,7 @@ class FrameMonitor:
         self.decoder()  # built once, on the loop, before any frame needs it
         page = MonitorPage(nodes, kinds)
         self.pages.add(page)
+        assert self.source is not None  # refusal() said so otherwise
         if self.source.frame_tap is None:
             self.source.frame_tap = self.on_frame  # one assignment, read by the reader thread
         return page

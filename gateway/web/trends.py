@@ -17,7 +17,7 @@ one value and one quality per signal; a node's signals are fixed when the store 
 What is a trend signal: numeric (integer or float type), carried by a TPDO of the node's PDO
 layout, without named bits (a status word is shown in the table, not plotted).
 
-Imports: image, web.views (signal metadata), zenoh_bridge.payloads (engineering units).
+Imports: image, web.views (signal metadata), northbound.scaling (engineering units).
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from gateway.image import ProcessImage, Quality
+from gateway.northbound.scaling import engineering
 from gateway.profiles.schema import TYPE_BITS
 from gateway.web.views import SignalMeta
-from gateway.zenoh_bridge.payloads import engineering
 
 TREND_PERIOD_S = 0.5
 TREND_WINDOW_S = 300.0

@@ -7,8 +7,9 @@ profiles, overrides, resolved supervision); Modbus addresses come from the regis
 keys from the key scheme, both pure functions of the config. Gateway-wide figures (bus, Modbus,
 Zenoh) come from an ``overview_fn`` given by the application, which alone knows those parts.
 
-Runs on the event loop. Imports: image, commands (types), config, modbus.regmap, zenoh_bridge.keys
-and zenoh_bridge.payloads (pure modules, no protocol library), bus.emcy (EMCY texts), states.
+Runs on the event loop. Imports: image, commands (types), config, northbound.regmap, northbound.keys,
+northbound.scaling and northbound.summary (pure modules, no protocol library), cia301 (the
+error register bits), profiles.schema, states. Never modbus/, zenoh_bridge/ or bus/.
 """
 
 from __future__ import annotations
@@ -18,15 +19,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.emcy import register_bits
+from gateway.cia301 import register_bits
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, Quality
-from gateway.modbus.regmap import RegisterMap, build_register_map
+from gateway.northbound.keys import is_published, is_writable, prefix_of, set_key, value_key
+from gateway.northbound.regmap import RegisterMap, build_register_map
+from gateway.northbound.scaling import Scaling, bits_of, engineering
+from gateway.northbound.summary import QUALITY_TEXT, summarize, worst_quality
 from gateway.profiles.schema import Signal
 from gateway.states import LinkState, NmtState
-from gateway.zenoh_bridge.keys import is_published, is_writable, prefix_of, set_key, value_key
-from gateway.zenoh_bridge.payloads import QUALITY_TEXT, Scaling, bits_of, engineering
 
 #: Bits of an average CAN 2.0A frame with 8 data bytes, stuff bits not counted (ISO 11898-1:
 #: SOF 1, identifier 11, RTR/IDE/r0 3, DLC 4, data 64, CRC 15 + delimiter 1, ACK 2, EOF 7,
@@ -203,17 +205,13 @@ class ConsoleModel:
     # ------------------------------------------------------------------ nodes
     def quality(self, node: NodeImage, now: float) -> Quality:
         """The node's worst process-data quality (as Modbus input register 0 of the node)."""
-        names = self.process.get(node.name)
-        if not names:
-            return Quality.GOOD if node.operational() else Quality.STALE
-        snap = node.snapshot()
-        return max(node.quality(snap[n], now) for n in names)
+        return worst_quality(node, self.process.get(node.name, ()), now)
 
     def node_row(self, name: str, now: float | None = None) -> dict[str, Any]:
         now = self.clock() if now is None else now
         info = self.commands.node(name)
         node = info.image
-        h = node.health
+        s = summarize(node, now, self.process.get(name, ()))
         sup = self.commands.supervision(name)
         if sup["kind"] == "heartbeat":
             timing = (
@@ -228,35 +226,36 @@ class ConsoleModel:
             )
         else:
             timing = "none"
-        age = node.data_age_s(now)
-        emcy = h.last_emcy
-        q = self.quality(node, now)
+        age = s.data_age_s
+        emcy = s.last_emcy
+        q = s.quality
+        assert q is not None
         return {
             "name": name,
             "node_id": info.node_id,
             "profile": info.lp.family,
             "title": info.lp.profile.title,
             "quality": QUALITY_TEXT[q],
-            "alive": h.alive,
-            "presence": "alive" if h.alive else ("lost" if h.boot_count or h.loss_count else "not seen"),
-            "usable": node.usable(),
-            "nmt_state": NMT_WORDS.get(h.nmt_state, h.nmt_state.name.lower()),
-            "lifecycle": h.lifecycle,
+            "alive": s.alive,
+            "presence": s.presence,
+            "usable": s.usable,
+            "nmt_state": NMT_WORDS.get(s.nmt_state, s.nmt_state.name.lower()),
+            "lifecycle": s.lifecycle,
             "supervision": sup["kind"],
             "supervision_timing": timing,
-            "link": LINK_WORDS.get(h.link, str(h.link)),
-            "link_faults": h.link_fault_count,
+            "link": LINK_WORDS.get(s.link, str(s.link)),
+            "link_faults": s.link_fault_count,
             "last_emcy": None
             if emcy is None
             else {"code": f"0x{emcy.code:04X}", "text": emcy.text, "ts": emcy.timestamp},
-            "emcy_count": h.emcy_count,
-            "current_errors": [f"0x{c:04X}" for c in h.current_errors],
-            "boots": h.boot_count,
-            "losses": h.loss_count,
+            "emcy_count": s.emcy_count,
+            "current_errors": [f"0x{c:04X}" for c in s.current_errors],
+            "boots": s.boot_count,
+            "losses": s.loss_count,
             "data_age_s": None if age is None else round(age, 3),
-            "last_sdo_abort": f"0x{h.last_sdo_abort:08X}" if h.last_sdo_abort else "",
-            "last_error": h.last_error,
-            "outputs": h.outputs,
+            "last_sdo_abort": f"0x{s.last_sdo_abort:08X}" if s.last_sdo_abort else "",
+            "last_error": s.last_error,
+            "outputs": s.outputs,
         }
 
     def node_rows(self) -> list[dict[str, Any]]:
@@ -266,7 +265,7 @@ class ConsoleModel:
     def emcy(self, name: str) -> dict[str, Any]:
         node = self.commands.node(name).image
         h = node.health
-        texts = {}
+        texts: dict[int, str] = {}
         for rec in h.emcy_history:
             texts.setdefault(rec.code, rec.text)
         return {

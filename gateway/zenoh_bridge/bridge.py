@@ -37,7 +37,8 @@ reachable, the gateway starts anyway and the bridge retries in the background (a
 0.5 s, 1 s, 2 s, then every 5 s apart). After a router restart zenoh reconnects by itself and
 re-declares publishers, queryable and liveliness tokens.
 
-Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a function passed in
+Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, northbound.keys,
+northbound.scaling, zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a function passed in
 by the app) and nothing of bus/ (nodes are known through the command service).
 """
 
@@ -58,10 +59,7 @@ import zenoh.ext
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage
-from gateway.profiles.schema import Signal
-from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadCount, ThreadRegistry
-from gateway.zenoh_bridge.keys import (
+from gateway.northbound.keys import (
     GATEWAY_TOKEN,
     alive_key,
     emcy_key,
@@ -71,8 +69,11 @@ from gateway.zenoh_bridge.keys import (
     state_key,
     value_key,
 )
+from gateway.northbound.scaling import Scaling
+from gateway.profiles.schema import Signal
+from gateway.ratelimit import RateLimitedLog
+from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.payloads import (
-    Scaling,
     emcy_payload,
     state_fingerprint,
     state_payload,
@@ -467,7 +468,7 @@ class ZenohBridge:
             key,
             encoding=JSON,
             cache=zenoh.ext.CacheConfig(cache),
-            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=hb_ms / 1000.0)
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=hb_ms / 1000.0, sporadic_heartbeat=None)
             if hb_ms
             else None,
             publisher_detection=True,

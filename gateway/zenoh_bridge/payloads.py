@@ -6,7 +6,7 @@ scale and offset); writes take engineering values too and are turned back into r
 or ``{"raw": v}`` passes a raw device value through. Everything a client may send that does not
 parse raises ``ValueError`` with a message saying what was expected.
 
-Imports: image, errors, states, profiles.schema, config (types only). Never zenoh, bus/, modbus/.
+Imports: image, errors, cia301, northbound.scaling, northbound.summary, profiles.schema, config (types only). Never zenoh, bus/, modbus/.
 """
 
 from __future__ import annotations
@@ -17,13 +17,12 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.config import SignalOverride
+from gateway.cia301 import NMT_COMMANDS
 from gateway.errors import GatewayError, SdoAbort
 from gateway.image import EmcyRecord, NodeImage, Quality, SignalValue
+from gateway.northbound.scaling import Scaling, bits_of, engineering
+from gateway.northbound.summary import QUALITY_TEXT, summarize
 from gateway.profiles.schema import Signal
-from gateway.states import NMT_COMMANDS
-
-QUALITY_TEXT = {Quality.GOOD: "good", Quality.STALE: "stale", Quality.BAD: "bad"}
 
 #: DS-301 7.2.7.1: EMCY error code 0000h = error reset / no error
 EMCY_ERROR_RESET = 0x0000
@@ -32,62 +31,6 @@ NMT_EXPECTED = 'an NMT command: start, stop, preop, reset or reset-comm (text, "
 SDO_WRITE_EXPECTED = 'a JSON value, {"value": v, "type": "uint16"} or {"hex": "0a0b"}'
 SET_EXPECTED = 'a JSON value, {"value": v}, {"raw": v} or {"bits": {"name": true}}'
 SET_MANY_EXPECTED = 'a JSON object {"signal": value, ...}'
-
-
-@dataclass(frozen=True)
-class Scaling:
-    """Engineering view of a signal on this gateway: profile values with the node's overrides."""
-
-    unit: str
-    scale: float
-    offset: float
-
-    @classmethod
-    def of(cls, sig: Signal, ov: SignalOverride | None) -> Scaling:
-        return cls(
-            ov.unit if ov is not None and ov.unit is not None else sig.unit,
-            ov.scale if ov is not None and ov.scale is not None else sig.scale,
-            ov.offset if ov is not None and ov.offset is not None else sig.offset,
-        )
-
-    @property
-    def identity(self) -> bool:
-        return self.scale == 1.0 and not self.offset
-
-
-def engineering(sig: Signal, raw: Any, sc: Scaling) -> Any:
-    """Raw device value -> JSON-able engineering value."""
-    if raw is None:
-        return None
-    if isinstance(raw, (bytes, bytearray)):
-        if sig.type == "string":
-            return bytes(raw).rstrip(b"\0").decode("ascii", errors="replace")
-        return bytes(raw).hex()
-    if sc.identity or isinstance(raw, str):
-        return raw
-    return round(raw * sc.scale + sc.offset, 9)
-
-
-def to_raw(sig: Signal, value: Any, sc: Scaling) -> Any:
-    """Engineering value from a client -> raw device value (range checks are the command
-    service's). Integer types are rounded to the nearest step."""
-    if sc.identity or sig.type in ("string", "bytes") or isinstance(value, (str, bool)):
-        return value
-    if not isinstance(value, (int, float)):
-        raise ValueError(f"{sig.name}: expected a number, got {value!r}")
-    if sc.scale == 0:
-        raise ValueError(f"{sig.name}: scale is 0, write {{'raw': value}} instead")
-    raw = (value - sc.offset) / sc.scale
-    return raw if sig.type == "float32" else round(raw)
-
-
-def bits_of(sig: Signal, raw: Any) -> dict[str, Any] | None:
-    if not sig.bits or not isinstance(raw, int):
-        return None
-    return {
-        b.name: (raw >> b.bit) & ((1 << b.width) - 1) if b.width > 1 else bool(raw >> b.bit & 1)
-        for b in sig.bits
-    }
 
 
 def value_payload(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -> dict[str, Any]:
@@ -138,23 +81,23 @@ def value_json(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -> s
 
 def state_payload(node: NodeImage, now_s: float | None = None) -> dict[str, Any]:
     """The health of a node, published on ``<node>/state`` when it changes."""
-    h = node.health
-    age = node.data_age_s()
+    s = summarize(node)
+    age = s.data_age_s
     return {
-        "node": node.name,
-        "node_id": node.node_id,
-        "nmt_state": h.nmt_state.name.lower(),
-        "alive": h.alive,
-        "operational": node.operational(),
-        "lifecycle": h.lifecycle,
-        "supervision": h.supervision,
-        "link": h.link.name.lower(),
-        "loss_count": h.loss_count,
-        "boot_count": h.boot_count,
-        "emcy_count": h.emcy_count,
-        "current_errors": [f"0x{c:04X}" for c in h.current_errors],
-        "last_error": h.last_error,
-        "outputs": h.outputs,
+        "node": s.name,
+        "node_id": s.node_id,
+        "nmt_state": s.nmt_state.name.lower(),
+        "alive": s.alive,
+        "operational": s.operational,
+        "lifecycle": s.lifecycle,
+        "supervision": s.supervision,
+        "link": s.link.name.lower(),
+        "loss_count": s.loss_count,
+        "boot_count": s.boot_count,
+        "emcy_count": s.emcy_count,
+        "current_errors": [f"0x{c:04X}" for c in s.current_errors],
+        "last_error": s.last_error,
+        "outputs": s.outputs,
         "data_age_s": None if age is None else round(age, 3),
         "ts": time.time() if now_s is None else now_s,
     }

@@ -13,8 +13,8 @@ The publishing side (``bridge.py``) owns the session and the publishers; this si
 session through a function and knows the published value keys and their scaling as given at
 construction.
 
-Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, zenoh_bridge.keys,
-payloads, access. Nothing of bus/ or modbus/.
+Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, northbound.keys,
+northbound.scaling, payloads, access. Nothing of bus/ or modbus/.
 """
 
 from __future__ import annotations
@@ -33,10 +33,7 @@ from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import Forbidden, GatewayError
 from gateway.image import NodeImage, ProcessImage
-from gateway.profiles.schema import Signal
-from gateway.ratelimit import RateLimitedLog
-from gateway.zenoh_bridge.access import WriteGate
-from gateway.zenoh_bridge.keys import (
+from gateway.northbound.keys import (
     Request,
     alive_key,
     catalog_key,
@@ -50,9 +47,11 @@ from gateway.zenoh_bridge.keys import (
     state_key,
     value_key,
 )
+from gateway.northbound.scaling import Scaling, engineering, to_raw
+from gateway.profiles.schema import Signal
+from gateway.ratelimit import RateLimitedLog
+from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.payloads import (
-    Scaling,
-    engineering,
     error_payload,
     nmt_command,
     reply_value,
@@ -60,7 +59,6 @@ from gateway.zenoh_bridge.payloads import (
     set_body,
     set_many_body,
     state_payload,
-    to_raw,
     value_payload,
 )
 

@@ -21,11 +21,11 @@ import canopen
 import pytest
 
 from gateway.checks import parse_checked_config
+from gateway.cia301 import TYPE_NAMES
 from gateway.cli import main
 from gateway.config import ConfigError
 from gateway.eds import lint, load_eds
 from gateway.eds.parse import read_text
-from gateway.eds.pdos import SIGNAL_TYPES
 from gateway.profiles import ProfileError, load_node_profile
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eds-corpus"
@@ -85,7 +85,7 @@ def reference_pdo_objects(od: canopen.ObjectDictionary) -> set[str]:
                 if index < 0x1000 or target is None:
                     continue
                 var = target if isinstance(target, canopen.objectdictionary.ODVariable) else target.subindices.get(subindex)
-                if var is not None and var.data_type in SIGNAL_TYPES:
+                if var is not None and var.data_type in TYPE_NAMES:
                     out.add(f"0x{index:04X}:{subindex:02X}")
     return out
 

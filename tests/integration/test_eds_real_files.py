@@ -16,7 +16,7 @@ import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
-from gateway.bus.settings import resolve_node_settings
+from gateway.bus.node.settings import resolve_node_settings
 from gateway.cli import main
 from gateway.config import ConfigError, NodeConfig
 from gateway.image import Quality

@@ -10,8 +10,8 @@ from typing import Any
 import can
 
 from gateway.app import Gateway, SimulatedBus
-from gateway.bus.boot_steps import build_boot_steps
-from gateway.bus.lifecycle import LifecycleState
+from gateway.bus.node.boot_steps import build_boot_steps
+from gateway.bus.node.lifecycle import LifecycleState
 from gateway.config import load_config
 from gateway.objref import ObjRef
 from gateway.profiles import load_profile

@@ -11,10 +11,10 @@ import can
 import canopen
 
 from gateway.app import SimulatedBus
+from gateway.bus.scan import report, scan
+from gateway.northbound.frames import FrameDecoder
 from gateway.profiles import load_profile
-from gateway.tools.frames import FrameDecoder
 from gateway.tools.monitor import monitor
-from gateway.tools.scan import report, scan
 from tests.helpers import make_config
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

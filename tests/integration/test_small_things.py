@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.bus.supervision import InvalidStateByte, ToggleError, WrongState
+from gateway.bus.error_control.supervision import InvalidStateByte, ToggleError, WrongState
 from gateway.cli import _count
 from gateway.config import ConfigError, parse_config
 from gateway.entry import main as entry_main

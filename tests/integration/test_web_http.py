@@ -12,6 +12,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
+import can
 import pytest
 
 from gateway.app import Gateway
@@ -232,11 +233,19 @@ async def test_nmt_and_set_point_writes_go_through_the_command_service() -> None
         assert gw.sim.nodes["wire"].get(0x6010, 1) == 125
 
 
-async def test_lss_inquiry_from_the_running_gateway_on_a_second_connection() -> None:
-    async with console(writes=True) as (_, base):
+async def test_lss_inquiry_from_the_running_gateway_goes_through_the_masters_connection(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    async with console(writes=True) as (gw, base):
+
+        def no_second_connection(*args: Any, **kwargs: Any) -> None:
+            raise AssertionError("a second can.Bus was opened while the gateway runs")
+
+        monkeypatch.setattr(can, "Bus", no_second_connection)
         code, doc = await post(base, "lss-inquire", {})
         assert code == 200, doc
         assert doc["vendor_id"] == "0x00000195" and doc["node_id"] == 1
+        assert gw.master.lss.machine.mode == "waiting", "the slaves are switched back to waiting"
 
 
 def test_writes_without_a_token_is_a_config_error_naming_the_key_and_the_variable() -> None:

@@ -8,25 +8,23 @@ import struct
 
 import pytest
 
+from gateway.ascii.grammar import Iec, LineSplitter, Overlong, RequestError, tokenize
 from gateway.ascii.protocol import (
-    DATA_TYPES,
     EventTracker,
     HealthSample,
-    Iec,
-    LengthMismatch,
-    LineSplitter,
     NmtCommand,
-    Overlong,
-    RequestError,
     SdoDownload,
     SdoUpload,
     Session,
     answer_for_error,
+    parse_request,
+)
+from gateway.ascii.values import (
+    DATA_TYPES,
+    LengthMismatch,
     encode_value,
     format_plain,
     format_value,
-    parse_request,
-    tokenize,
 )
 from gateway.errors import (
     BusDown,

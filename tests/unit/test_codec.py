@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.bus.codec import PdoMappingError, apply_pdo_writes, compile_node, pdo_objects
 from gateway.objref import ObjRef
+from gateway.pdo.codec import PdoMappingError, apply_pdo_writes, compile_node, pdo_objects
 from gateway.profiles import load_profile
 
 # AP05 manual 5.3.1.3, examples of communication (node 01h):

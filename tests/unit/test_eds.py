@@ -8,14 +8,14 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.boot_steps import build_boot_steps
-from gateway.bus.verify import MappingRead, compare_mapping, mapping_reads
+from gateway.bus.node.boot_steps import build_boot_steps
 from gateway.checks import parse_checked_config
 from gateway.cli import main
 from gateway.config import ConfigError
 from gateway.eds import lint, load_eds
-from gateway.modbus.regmap import build_register_map
+from gateway.northbound.regmap import build_register_map
 from gateway.objref import ObjRef
+from gateway.pdo.verify import MappingRead, compare_mapping, mapping_reads
 from gateway.profiles import ProfileError, load_node_profile
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
@@ -216,7 +216,7 @@ def test_shared_slugs_fall_back_to_index_and_sub() -> None:
 
 
 def test_config_remap_is_one_cia301_sequence_and_the_codec_follows_it() -> None:
-    from gateway.bus.codec import compile_node
+    from gateway.pdo.codec import compile_node
 
     n = Node(eds=str(IO), tpdo={1: {"mapping": ["0x6401:01", "0x0005:00", "0x6000:01"], "inhibit_ms": 1.5}}).cfg  # fmt: skip
     lp = load_node_profile(n)

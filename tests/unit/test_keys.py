@@ -7,8 +7,7 @@ import pytest
 
 from gateway.cli import main
 from gateway.config import parse_config
-from gateway.objref import ObjRef
-from gateway.zenoh_bridge.keys import (
+from gateway.northbound.keys import (
     BadKey,
     Request,
     all_keys,
@@ -20,6 +19,7 @@ from gateway.zenoh_bridge.keys import (
     sdo_key,
     short_text,
 )
+from gateway.objref import ObjRef
 
 P = "canopen/line1"
 

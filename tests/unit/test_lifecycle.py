@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.boot_steps import ConfigStep, build_boot_steps
-from gateway.bus.lifecycle import (
+from gateway.bus.node.boot_steps import ConfigStep, build_boot_steps
+from gateway.bus.node.lifecycle import (
     Backoff,
     BootTimeout,
     Configured,
@@ -28,7 +28,7 @@ from gateway.bus.lifecycle import (
     WriteStep,
     WrongDevice,
 )
-from gateway.bus.sdo_values import encode_value
+from gateway.bus.sdo.values import encode_value
 from gateway.cia301 import SDO_ABORT_TEXTS, abort_text
 from gateway.errors import SdoAbort
 from gateway.objref import ObjRef
@@ -601,7 +601,7 @@ IDENTITY = ((ObjRef(0x1018, 1), 0x195), (ObjRef(0x1018, 2), 0x401))
 
 
 def _read(lc: NodeLifecycle, now: float) -> Any:
-    from gateway.bus.lifecycle import ReadIdentity
+    from gateway.bus.node.lifecycle import ReadIdentity
 
     a = lc.next_action(now)
     assert isinstance(a, ReadIdentity), a
@@ -646,3 +646,43 @@ def test_an_identity_read_without_answer_is_retried_and_a_refusal_is_a_wrong_dev
     a = _read(lc, 0.5)
     lc.on_identity_result(0.5, None, abort_code=0x06020000, token=a.token)
     assert lc.state is W and "product (unreadable)" in (lc.last_error or "")
+
+
+class TestTransitionTable:
+    """The state changes are the table ``TRANSITIONS`` (h11 ``_state.py`` style): the code
+    reads it; our own misuse raises, a peer's event that means nothing is counted."""
+
+    def test_every_state_change_of_a_boot_and_a_loss_is_a_row_of_the_table(self) -> None:
+        from gateway.bus.node.lifecycle import TRANSITIONS
+
+        lc = NodeLifecycle([ConfigStep(ObjRef(0x1017, 0), 100, "uint16")])
+        changes = [*lc.on_bootup(0.0)]
+        action = lc.next_action(0.0)
+        assert isinstance(action, WriteStep)
+        changes += lc.on_step_result(0.0, True, token=action.token)
+        assert isinstance(lc.next_action(0.0), SendNmt)
+        changes += lc.on_nmt_sent(0.0)
+        changes += lc.on_lost(1.0)
+        moves = [(c.old, c.new) for c in changes if isinstance(c, StateChanged)]
+        assert moves == [(W, B), (B, C), (C, LifecycleState.OPERATIONAL), (LifecycleState.OPERATIONAL, W)]
+        table = {(old, new) for (old, _event), new in TRANSITIONS.items()}
+        assert set(moves) <= table
+
+    def test_a_change_the_table_does_not_define_raises_for_our_own_misuse(self) -> None:
+        from gateway.bus.node.lifecycle import LifecycleError, LifecycleEvent
+
+        lc = NodeLifecycle([])
+        with pytest.raises(LifecycleError, match="no transition from waiting on NMT start sent"):
+            lc._fire(LifecycleEvent.START_SENT, "a driver bug")
+        assert lc.state is W
+
+    def test_events_that_mean_nothing_in_the_state_are_counted_not_acted_on(self) -> None:
+        lc = NodeLifecycle([ConfigStep(ObjRef(0x1017, 0), 100, "uint16")])
+        assert lc.on_lost(0.0) == []  # never seen: nothing to lose
+        lc.on_bootup(0.0)
+        action = lc.next_action(0.0)
+        assert isinstance(action, WriteStep)
+        assert lc.on_step_result(0.0, True, token=action.token + 1) == []  # an old answer
+        assert lc.on_found(0.0) == []  # it is configuring already
+        assert lc.ignored == {(W, "lost"): 1, (C, "step result"): 1, (C, "found"): 1}
+        assert lc.state is C and lc.step_index == 0

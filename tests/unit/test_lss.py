@@ -4,10 +4,11 @@ and the request/answer matching machine with a fake clock."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 
-from gateway.bus.lss import (
+from gateway.bus.lss.master import (
     COB_ID_MASTER_TO_SLAVE,
     COB_ID_SLAVE_TO_MASTER,
     ConfigAnswer,
@@ -239,3 +240,72 @@ class TestLssMaster:
         assert [f[0] for f in sent] == [0x40, 0x41, 0x42, 0x43, 0x11, 0x17, 0x04]
         assert sent[4] == hx("11 0A 00 00 00 00 00 00")
         assert sent[-1] == hx("04 00 00 00 00 00 00 00")
+
+
+class TestLssServiceOfTheMaster:
+    """LSS while the gateway runs: the master's service sends on its connection, takes the
+    7E4h frames from the reader's hand-off and times out on the bus clock (fake here)."""
+
+    @staticmethod
+    def _service(now: list[float], sent: list[tuple[int, bytes]]) -> Any:
+        from gateway.bus.lss.service import LssService
+
+        svc = LssService(
+            lambda cob, data: sent.append((cob, data)),
+            lambda fn, *args: fn(*args),  # the hand-off, run at once
+            lambda: now[0],
+            lambda msg: now[0],
+            timeout_s=0.5,
+        )
+        svc.machine.resume(LssMode.CONFIGURATION)  # a slave in configuration already
+        return svc
+
+    async def test_an_answer_on_7e4h_resolves_the_request(self) -> None:
+        import asyncio
+
+        import can
+
+        now, sent = [0.0], []
+        svc = self._service(now, sent)
+        task = asyncio.create_task(svc.request(inquire("node_id")))
+        await asyncio.sleep(0)  # the request goes out
+        assert sent == [(0x7E5, bytes([0x5E, 0, 0, 0, 0, 0, 0, 0]))]
+        svc.reader_handler()(can.Message(arbitration_id=0x7E4, data=bytes([0x5E, 7, 0, 0, 0, 0, 0, 0])))
+        assert await task == 7
+        svc.stop()
+
+    async def test_an_unanswered_request_fails_just_after_its_deadline(self) -> None:
+        import asyncio
+
+        from gateway.errors import LssFailed
+
+        now, sent = [0.0], []
+        svc = self._service(now, sent)
+        task = asyncio.create_task(svc.request(inquire("node_id")))
+        await asyncio.sleep(0)
+        now[0] = 0.5
+        svc._poll()
+        await asyncio.sleep(0)
+        assert not task.done(), "at the deadline itself it still waits"
+        now[0] = math.nextafter(0.5, 1.0)
+        svc._poll()
+        with pytest.raises(LssFailed, match="no answer on 0x7E4 within 0.5 s"):
+            await task
+        svc.stop()
+
+    async def test_a_request_the_bus_refuses_leaves_nothing_pending(self) -> None:
+        import can
+
+        now = [0.0]
+
+        def refused(cob: int, data: bytes) -> None:
+            raise can.CanOperationError("CAN bus is down")
+
+        from gateway.bus.lss.service import LssService
+
+        svc = LssService(refused, lambda fn, *args: fn(*args), lambda: now[0], lambda m: now[0])
+        svc.machine.resume(LssMode.CONFIGURATION)
+        with pytest.raises(can.CanError):
+            await svc.request(inquire("node_id"))
+        assert svc.machine.pending is None, "the next request is not refused as busy"
+

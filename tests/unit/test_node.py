@@ -1,4 +1,4 @@
-"""The per-node machine (gateway.bus.node.Node) on a fake clock, against a device scripted in
+"""The per-node machine (gateway.bus.node.owner.Node) on a fake clock, against a device scripted in
 the test from the manuals' frames: boot-up, configuration, supervision, probes, freshness of
 values, refresh of change-only TPDOs, keep-alive, NMT expectations."""
 
@@ -16,9 +16,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.bus.master import NodeParts, build_node
-from gateway.bus.node import Send, ValuesRead
+from gateway.bus.node.events import Send, ValuesRead
+from gateway.bus.resolved import resolve_node
 from gateway.image import NodeImage, Quality, SignalValue
-from gateway.profiles import expected_identity, load_profile
+from gateway.profiles import expected_identity
 from gateway.states import LinkState, NmtState
 from tests.helpers import make_config
 
@@ -99,9 +100,10 @@ class Harness:
             [{"name": "n", "node_id": node_id, "profile": profile, **node}],
             master={"boot_timeout_s": 5, **(master or {})},
         )
-        lp = load_profile(profile)
+        rn = resolve_node(cfg, cfg.nodes[0])
+        lp = rn.lp
         self.image = NodeImage("n", node_id, lp.family, [s.name for s in lp.profile.signals])
-        self.parts: NodeParts = build_node(cfg.master, cfg.nodes[0], lp, self.image)
+        self.parts: NodeParts = build_node(rn, self.image)
         self.node = self.parts.node
         ident = {(o.index, o.sub): v for o, v in expected_identity(lp)}
         self.device = Device(node_id, lp.profile.device_type or 0, identity=ident)
@@ -425,7 +427,7 @@ def test_sync_and_heartbeat_producers_are_due_every_period_and_catch_up_once() -
 def test_every_rpdo_sent_pushes_the_keepalive_back() -> None:
     """AP05 manual 5.5.4: any RPDO feeds the external heartbeat; the keep-alive re-sends the
     last RPDO only when none went out for keepalive_s."""
-    from gateway.bus.outputs import OutputImage
+    from gateway.bus.node.outputs import OutputImage
 
     h = Harness("ap05", node_id=1, guarding_bit={"enabled": False}, external_heartbeat={"interval_ms": 100})
     out = OutputImage("n", h.parts.rpdos, keepalive_s=0.05)

@@ -14,7 +14,7 @@ from gateway.checks import load_checked_config as load_config
 from gateway.checks import parse_checked_config as parse_config
 from gateway.config import ConfigError
 from gateway.modbus.protocol import from_registers, to_registers
-from gateway.modbus.regmap import NODE_DIAG, Point, RegisterMap, build_register_map
+from gateway.northbound.regmap import NODE_DIAG, Point, RegisterMap, build_register_map
 
 ROOT = Path(__file__).resolve().parents[2]
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

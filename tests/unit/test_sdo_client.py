@@ -1,11 +1,13 @@
-"""The SDO client machine (gateway.bus.sdo_client) byte for byte against the manuals' worked
+"""The SDO client machine (gateway.bus.sdo.client) byte for byte against the manuals' worked
 examples (SGH10 manual 4.4.1.4), with a fake clock for timeouts and retries."""
 
 from __future__ import annotations
 
 import math
 
-from gateway.bus.sdo_client import ABORT_TIMEOUT, ABORT_TOGGLE, SdoTransfer
+import pytest
+
+from gateway.bus.sdo.client import ABORT_TIMEOUT, ABORT_TOGGLE, SdoTransfer
 
 
 def h(text: str) -> bytes:
@@ -84,3 +86,28 @@ def test_cancel_without_an_abort_frame_after_a_reboot() -> None:
     t.start(0.0)
     assert t.cancel(send_abort=False) == []
     assert t.done and t.result is None
+
+
+class TestTheTableIsData:
+    """``RESPONSES`` and ``PHASE_CHANGES`` are what the transfer reads (h11 ``_state.py``
+    style): a server's wrong answer is aborted and counted, our own wrong move raises."""
+
+    def test_an_answer_with_another_command_specifier_is_aborted_and_counted(self) -> None:
+        from gateway.bus.sdo.client import SdoPhase, SdoTransfer
+
+        t = SdoTransfer(0x1017, 0x00)
+        t.start(0.0)
+        # a download answer (60h) to an upload request: CiA 301 abort 0504 0001h
+        frames = t.on_response(bytes([0x60, 0x17, 0x10, 0x00, 0, 0, 0, 0]), 0.1)
+        assert frames == [bytes([0x80, 0x17, 0x10, 0x00, 0x01, 0x00, 0x04, 0x05])]
+        assert t.phase is SdoPhase.DONE and t.abort_code == 0x05040001
+        assert t.protocol_errors == 1
+
+    def test_a_phase_change_the_table_does_not_define_raises(self) -> None:
+        from gateway.bus.sdo.client import PHASE_CHANGES, SdoPhase, SdoStateError, SdoTransfer
+
+        t = SdoTransfer(0x1017, 0x00)
+        assert (SdoPhase.IDLE, SdoPhase.UP_SEG) not in PHASE_CHANGES
+        with pytest.raises(SdoStateError, match="no phase change from idle to upload-segment"):
+            t._enter(SdoPhase.UP_SEG)
+        assert t.phase is SdoPhase.IDLE

@@ -9,9 +9,8 @@ import math
 
 import pytest
 
-from gateway.bus.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
-from gateway.bus.settings import check_external_heartbeat
-from gateway.bus.supervision import (
+from gateway.bus.error_control.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
+from gateway.bus.error_control.supervision import (
     BootUpSeen,
     HeartbeatConsumer,
     InvalidStateByte,
@@ -24,6 +23,7 @@ from gateway.bus.supervision import (
     ToggleError,
     WrongState,
 )
+from gateway.bus.node.settings import check_external_heartbeat
 from gateway.states import LinkState, NmtState
 
 PRE_OP = 0x7F  # SGH10 manual 4.5.3: 127 = PRE-OPERATIONAL

@@ -8,8 +8,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gateway.image import Quality, SignalValue
+from gateway.northbound.scaling import Scaling
 from gateway.profiles import load_profile
-from gateway.zenoh_bridge.payloads import Scaling, value_json, value_payload
+from gateway.zenoh_bridge.payloads import value_json, value_payload
 
 SIG = load_profile("sgh10").profile.signal("position")
 

@@ -9,13 +9,13 @@ import logging
 import threading
 
 from gateway.image import EmcyRecord, NodeImage, ProcessImage, Quality
+from gateway.northbound.scaling import Scaling
 from gateway.profiles import load_profile
 from gateway.states import NmtState
 from gateway.web.events import EventLog, EventLogHandler
 from gateway.web.limits import ClientBudget
 from gateway.web.trends import TrendStore, is_trend_signal
 from gateway.web.views import SignalMeta
-from gateway.zenoh_bridge.payloads import Scaling
 
 
 def _meta(name: str, source: str = "TPDO") -> SignalMeta:

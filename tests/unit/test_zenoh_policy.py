@@ -9,11 +9,10 @@ import pytest
 
 from gateway.errors import NodeNotOperational, SdoAbort
 from gateway.image import EmcyRecord, NmtState, NodeImage, Quality, SignalValue
+from gateway.northbound.scaling import Scaling, engineering, to_raw
 from gateway.profiles.schema import Signal
 from gateway.zenoh_bridge.payloads import (
-    Scaling,
     emcy_payload,
-    engineering,
     error_payload,
     nmt_command,
     sdo_write_body,
@@ -21,7 +20,6 @@ from gateway.zenoh_bridge.payloads import (
     set_many_body,
     state_fingerprint,
     state_payload,
-    to_raw,
     value_payload,
 )
 from gateway.zenoh_bridge.policy import ReportPolicy

@@ -24,7 +24,8 @@ bitrate_index, values), ``pending_node_id`` (adopted at the next reset communica
 ``direction_sign()``, ``calibrate(preset, now)``, ``motion``, ``hints`` (SimHints; ``extra``
 holds the profile's other ``sim:`` keys), ``behaviour(feature)``.
 
-Imports: python-can types and gateway.objref only (the node is referenced for typing only).
+Imports: python-can types and gateway.objref only (the node, sim.node, is referenced for
+typing only).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ SGH10 manual 4.7.2.31 (and MSK5000 4.6.1): writing either object changes both. O
 whose profile names the feature get this coupling: on a CiA 401 I/O module 6200h is a digital
 output and must stay independent of the TPDO1 event timer.
 
-Imports: gateway.objref, the behaviour base class.
+Imports: gateway.objref, the behaviour base class (sim.behaviours), sim.node (types).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
-"""What a node machine (``bus.node.Node``) returns to its driver: the outputs of every event.
+"""What a node machine (``bus.node.owner.Node``) returns to its driver: the outputs of every event.
 
-Imports: bus.codec (the TPDO codec a refresh names), objref. No I/O.
+Imports: pdo.refresh (the plan's record, re-exported), objref. No I/O.
 """
 
 from __future__ import annotations
@@ -8,8 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.codec import TpdoCodec
-from gateway.objref import ObjRef
+from gateway.pdo.refresh import Refresh
 
 
 @dataclass(frozen=True)
@@ -59,11 +58,4 @@ class Note:
 
 Output = Send | SdoDone | ValuesRead | HealthChanged | Note
 
-
-@dataclass(frozen=True)
-class Refresh:
-    """How a change-only TPDO is read after NMT start: ``rtr`` or one SDO upload per object."""
-
-    codec: TpdoCodec
-    how: str  # "rtr" | "sdo"
-    objects: tuple[tuple[str, ObjRef, str], ...] = ()  # (signal, object, type) for "sdo"
+__all__ = ["HealthChanged", "Note", "Output", "Refresh", "SdoDone", "Send", "ValuesRead"]

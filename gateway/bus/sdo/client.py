@@ -4,7 +4,7 @@ manual 4.4.1, AP05 manual 5.4.1 with their worked examples).
 Rule 1: everything about the bytes of an SDO transfer lives here: expedited and segmented
 upload and download, the toggle bit, retries of an unanswered request, and the abort frame the
 client sends, which names the object of the transfer (index and sub-index) and the reason.
-Rule 2: no I/O and no clock. The owner (``bus.node.Node``) calls ``start(now)``, feeds every
+Rule 2: no I/O and no clock. The owner (``bus.node.owner.Node``) calls ``start(now)``, feeds every
 frame received on 580h + node id with ``on_response(data, now)`` and calls ``poll(now)`` at
 ``next_deadline()``; each returns the request frames (8 bytes for 600h + node id) to send.
 When ``done`` is true, ``result`` holds the uploaded bytes (``b""`` for a download) or
@@ -34,24 +34,30 @@ any active          cancel                                  DONE                
 
 A retry repeats only an initiate request (a segment repeated could be taken twice).
 
-Imports: the standard library only.
+The table is data the code reads: ``RESPONSES`` (per phase, the server command specifier it
+expects and the method that handles it) and ``PHASE_CHANGES`` (every phase change). An answer
+with another command specifier is the server's protocol error: the transfer is aborted
+(05040001h) and it is counted (``protocol_errors``); a phase change the table does not define
+is a bug of ours and raises ``SdoStateError``.
+
+Imports: gateway.cia301 (the command specifiers) and the standard library.
 """
 
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from enum import StrEnum
 
-# CiA 301 7.2.4.3 command specifiers (byte 0, bits 7..5)
-_CCS_DOWNLOAD_SEGMENT = 0x00
-_CCS_INITIATE_DOWNLOAD = 0x20
-_CCS_INITIATE_UPLOAD = 0x40
-_CCS_UPLOAD_SEGMENT = 0x60
-_CS_ABORT = 0x80
-_SCS_UPLOAD_SEGMENT = 0x00
-_SCS_DOWNLOAD_SEGMENT = 0x20
-_SCS_INITIATE_UPLOAD = 0x40
-_SCS_INITIATE_DOWNLOAD = 0x60
+from gateway.cia301 import SDO_CCS_DOWNLOAD_SEGMENT as _CCS_DOWNLOAD_SEGMENT
+from gateway.cia301 import SDO_CCS_INITIATE_DOWNLOAD as _CCS_INITIATE_DOWNLOAD
+from gateway.cia301 import SDO_CCS_INITIATE_UPLOAD as _CCS_INITIATE_UPLOAD
+from gateway.cia301 import SDO_CCS_UPLOAD_SEGMENT as _CCS_UPLOAD_SEGMENT
+from gateway.cia301 import SDO_CS_ABORT as _CS_ABORT
+from gateway.cia301 import SDO_SCS_DOWNLOAD_SEGMENT as _SCS_DOWNLOAD_SEGMENT
+from gateway.cia301 import SDO_SCS_INITIATE_DOWNLOAD as _SCS_INITIATE_DOWNLOAD
+from gateway.cia301 import SDO_SCS_INITIATE_UPLOAD as _SCS_INITIATE_UPLOAD
+from gateway.cia301 import SDO_SCS_UPLOAD_SEGMENT as _SCS_UPLOAD_SEGMENT
 
 # CiA 301 table 22: abort codes the client itself sends
 ABORT_TOGGLE = 0x05030000  # toggle bit not alternated
@@ -67,6 +73,27 @@ class SdoPhase(StrEnum):
     DOWN_INIT = "download-initiate"
     DOWN_SEG = "download-segment"
     DONE = "done"
+
+
+_P = SdoPhase
+#: every phase change of a transfer (the table of the module docstring)
+PHASE_CHANGES: frozenset[tuple[SdoPhase, SdoPhase]] = frozenset(
+    {
+        (_P.IDLE, _P.UP_INIT),
+        (_P.IDLE, _P.DOWN_INIT),
+        (_P.IDLE, _P.DONE),  # cancelled before it started
+        (_P.UP_INIT, _P.UP_SEG),
+        (_P.UP_INIT, _P.DONE),
+        (_P.UP_SEG, _P.DONE),
+        (_P.DOWN_INIT, _P.DOWN_SEG),
+        (_P.DOWN_INIT, _P.DONE),
+        (_P.DOWN_SEG, _P.DONE),
+    }
+)
+
+
+class SdoStateError(RuntimeError):
+    """Our own misuse of a transfer: a phase change ``PHASE_CHANGES`` does not define."""
 
 
 def abort_frame(index: int, sub: int, code: int) -> bytes:
@@ -105,6 +132,8 @@ class SdoTransfer:
         self._buf = bytearray()
         self._sent = 0  # bytes of a segmented download sent so far
         self._size: int | None = None  # size a segmented upload announced
+        #: answers of the server that broke the protocol (wrong command specifier or toggle)
+        self.protocol_errors = 0
 
     # -- queries
     @property
@@ -124,9 +153,9 @@ class SdoTransfer:
             return []
         head = struct.pack("<HB", self.index, self.sub)
         if self.data is None:
-            self.phase = SdoPhase.UP_INIT
+            self._enter(SdoPhase.UP_INIT)
             return self._send(bytes([_CCS_INITIATE_UPLOAD]) + head + b"\0\0\0\0", now)
-        self.phase = SdoPhase.DOWN_INIT
+        self._enter(SdoPhase.DOWN_INIT)
         n = len(self.data)
         if 0 < n <= 4:  # expedited, size indicated: e = 1, s = 1, n = 4 - size
             cmd = _CCS_INITIATE_DOWNLOAD | ((4 - n) << 2) | 0x03
@@ -148,53 +177,55 @@ class SdoTransfer:
                 return []  # an abort of another transfer (e.g. another client's)
             self.aborted_by_server = True
             return self._finish(code)
-        scs = cmd & 0xE0
-        if self.phase is SdoPhase.UP_INIT:
-            if scs != _SCS_INITIATE_UPLOAD:
-                return self._abort(ABORT_COMMAND)
-            if struct.unpack_from("<HB", data, 1) != (self.index, self.sub):
-                return []  # not the answer to our request
-            if cmd & 0x02:  # expedited
-                size = 4 - ((cmd >> 2) & 0x03) if cmd & 0x01 else 4
-                return self._succeed(data[4 : 4 + size])
-            self.phase = SdoPhase.UP_SEG
-            self._toggle = 0
-            self._size = struct.unpack_from("<I", data, 4)[0] if cmd & 0x01 else None
-            return self._send(bytes([_CCS_UPLOAD_SEGMENT]) + b"\0" * 7, now)
-        if self.phase is SdoPhase.UP_SEG:
-            if scs != _SCS_UPLOAD_SEGMENT:
-                return self._abort(ABORT_COMMAND)
-            if (cmd >> 4) & 1 != self._toggle:
-                return self._abort(ABORT_TOGGLE)
-            size = 7 - ((cmd >> 1) & 0x07)
-            self._buf += data[1 : 1 + size]
-            if cmd & 0x01:  # c: no more segments; the size indicated at initiate wins
-                size_ok = self._buf if self._size is None else self._buf[: self._size]
-                return self._succeed(bytes(size_ok))
-            self._toggle ^= 1
-            return self._send(bytes([_CCS_UPLOAD_SEGMENT | (self._toggle << 4)]) + b"\0" * 7, now)
-        if self.phase is SdoPhase.DOWN_INIT:
-            if scs != _SCS_INITIATE_DOWNLOAD:
-                return self._abort(ABORT_COMMAND)
-            if struct.unpack_from("<HB", data, 1) != (self.index, self.sub):
-                return []
-            assert self.data is not None
-            if 0 < len(self.data) <= 4:
-                return self._succeed(b"")
-            self.phase = SdoPhase.DOWN_SEG
-            self._toggle = 0
-            return self._next_segment(now)
-        if self.phase is SdoPhase.DOWN_SEG:
-            if scs != _SCS_DOWNLOAD_SEGMENT:
-                return self._abort(ABORT_COMMAND)
-            if (cmd >> 4) & 1 != self._toggle:
-                return self._abort(ABORT_TOGGLE)
-            assert self.data is not None
-            if self._sent >= len(self.data):
-                return self._succeed(b"")
-            self._toggle ^= 1
-            return self._next_segment(now)
-        return []
+        expected, handle = RESPONSES[self.phase]
+        if cmd & 0xE0 != expected:
+            self.protocol_errors += 1
+            return self._abort(ABORT_COMMAND)
+        return handle(self, cmd, data, now)
+
+    # -- the rows of the table, one method per phase (``RESPONSES``)
+    def _on_upload_initiate(self, cmd: int, data: bytes, now: float) -> list[bytes]:
+        if struct.unpack_from("<HB", data, 1) != (self.index, self.sub):
+            return []  # not the answer to our request
+        if cmd & 0x02:  # expedited
+            size = 4 - ((cmd >> 2) & 0x03) if cmd & 0x01 else 4
+            return self._succeed(data[4 : 4 + size])
+        self._enter(SdoPhase.UP_SEG)
+        self._toggle = 0
+        self._size = struct.unpack_from("<I", data, 4)[0] if cmd & 0x01 else None
+        return self._send(bytes([_CCS_UPLOAD_SEGMENT]) + b"\0" * 7, now)
+
+    def _on_upload_segment(self, cmd: int, data: bytes, now: float) -> list[bytes]:
+        if (cmd >> 4) & 1 != self._toggle:
+            self.protocol_errors += 1
+            return self._abort(ABORT_TOGGLE)
+        size = 7 - ((cmd >> 1) & 0x07)
+        self._buf += data[1 : 1 + size]
+        if cmd & 0x01:  # c: no more segments; the size indicated at initiate wins
+            size_ok = self._buf if self._size is None else self._buf[: self._size]
+            return self._succeed(bytes(size_ok))
+        self._toggle ^= 1
+        return self._send(bytes([_CCS_UPLOAD_SEGMENT | (self._toggle << 4)]) + b"\0" * 7, now)
+
+    def _on_download_initiate(self, cmd: int, data: bytes, now: float) -> list[bytes]:
+        if struct.unpack_from("<HB", data, 1) != (self.index, self.sub):
+            return []
+        assert self.data is not None
+        if 0 < len(self.data) <= 4:
+            return self._succeed(b"")
+        self._enter(SdoPhase.DOWN_SEG)
+        self._toggle = 0
+        return self._next_segment(now)
+
+    def _on_download_segment(self, cmd: int, data: bytes, now: float) -> list[bytes]:
+        if (cmd >> 4) & 1 != self._toggle:
+            self.protocol_errors += 1
+            return self._abort(ABORT_TOGGLE)
+        assert self.data is not None
+        if self._sent >= len(self.data):
+            return self._succeed(b"")
+        self._toggle ^= 1
+        return self._next_segment(now)
 
     def poll(self, now: float) -> list[bytes]:
         if self.done or self._deadline is None or now <= self._deadline:
@@ -230,18 +261,33 @@ class SdoTransfer:
         self._deadline = now + self.timeout_s
         return [frame]
 
+    def _enter(self, phase: SdoPhase) -> None:
+        if (self.phase, phase) not in PHASE_CHANGES:
+            raise SdoStateError(f"no phase change from {self.phase} to {phase}")
+        self.phase = phase
+
     def _succeed(self, result: bytes) -> list[bytes]:
         self.result = result
-        self.phase = SdoPhase.DONE
+        self._enter(SdoPhase.DONE)
         self._deadline = None
         return []
 
     def _finish(self, code: int) -> list[bytes]:
         self.abort_code = code
-        self.phase = SdoPhase.DONE
+        self._enter(SdoPhase.DONE)
         self._deadline = None
         return []
 
     def _abort(self, code: int) -> list[bytes]:
         self._finish(code)
         return [abort_frame(self.index, self.sub, code)]
+
+
+_Handler = Callable[[SdoTransfer, int, bytes, float], list[bytes]]
+#: phase -> (the server command specifier it expects, the method for it): the rows of the table
+RESPONSES: dict[SdoPhase, tuple[int, _Handler]] = {
+    SdoPhase.UP_INIT: (_SCS_INITIATE_UPLOAD, SdoTransfer._on_upload_initiate),
+    SdoPhase.UP_SEG: (_SCS_UPLOAD_SEGMENT, SdoTransfer._on_upload_segment),
+    SdoPhase.DOWN_INIT: (_SCS_INITIATE_DOWNLOAD, SdoTransfer._on_download_initiate),
+    SdoPhase.DOWN_SEG: (_SCS_DOWNLOAD_SEGMENT, SdoTransfer._on_download_segment),
+}

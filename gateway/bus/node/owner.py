@@ -8,6 +8,8 @@ image (the last values sent in each RPDO, bits included) and its health in the p
 (``NodeHealth``: only this class writes it). It writes the image's output section
 (``NodeImage.outputs``) too, in one assignment after each write or keep-alive: the one copy of
 the outputs that Modbus, Zenoh and the web console read.
+The device features (refresh on start, referencing, verify mapping, RTR poll) are hooks it calls
+(``bus/node/features/``), not branches of its own.
 Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the time ``now``
 (the bus clock: the time of the frames processed, seconds) — ``on_nmt_ec``, ``on_emcy``,
 ``on_echo``, ``on_sdo_response``, ``tick``, ``request_sdo``, ``write_outputs``, ``nmt`` — and
@@ -28,8 +30,10 @@ of the node (``health.fresh_since = None``); values are good again only when rec
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
-Imports: bus.lifecycle, bus.boot_steps, bus.sdo_values, bus.supervision, bus.sdo_client,
-bus.emcy, bus.settings, bus.codec, bus.verify, image, states, objref. Never python-can, asyncio, logging or a northbound module.
+Imports: bus.node.* (lifecycle, boot steps, settings, outputs, events, features), bus.sdo.*
+(channel, client), bus.error_control.* (watchdog, guarding bit), bus.emcy, pdo.codec,
+pdo.verify, cia301, errors, image, states, objref, logging (levels of the log lines it returns). Never
+python-can, asyncio or a northbound module.
 """
 
 from __future__ import annotations
@@ -38,12 +42,18 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from gateway.bus.boot_steps import ConfigStep
-from gateway.bus.codec import RpdoCodec, TpdoCodec
 from gateway.bus.emcy import EmcyHistory, decode_emcy
-from gateway.bus.events import HealthChanged, Note, Output, Refresh, SdoDone, Send, ValuesRead
-from gateway.bus.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
-from gateway.bus.lifecycle import (
+from gateway.bus.error_control.guarding_bit import GuardingBitCheck
+from gateway.bus.error_control.watchdog import Watchdog
+from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.node.events import HealthChanged, Note, Output, Refresh, SdoDone, Send
+from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features.guarding_bit import GuardingBitLink
+from gateway.bus.node.features.referencing import ReferencingFeature
+from gateway.bus.node.features.refresh import RefreshOnStart
+from gateway.bus.node.features.rtr_poll import RtrPoll
+from gateway.bus.node.features.verify_mapping import VerifyMapping
+from gateway.bus.node.lifecycle import (
     BootTimeout,
     Configured,
     LifecycleState,
@@ -57,17 +67,16 @@ from gateway.bus.lifecycle import (
     WriteStep,
     WrongDevice,
 )
-from gateway.bus.outputs import OutputImage
-from gateway.bus.referencing import Referencing
-from gateway.bus.sdo_channel import SdoChannel, SdoJob
-from gateway.bus.sdo_client import SdoTransfer
-from gateway.bus.sdo_values import decode_value
-from gateway.bus.settings import NodeSettings
-from gateway.bus.verify import MappingMismatch, MappingRead, compare_mapping
-from gateway.bus.watchdog import Watchdog
+from gateway.bus.node.outputs import OutputImage
+from gateway.bus.node.settings import NodeSettings
+from gateway.bus.sdo.channel import SdoChannel, SdoJob
+from gateway.bus.sdo.client import SdoTransfer
+from gateway.cia301 import COB_NMT, COB_NMT_EC
 from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth, NodeImage, SentOutputs
 from gateway.objref import ObjRef
+from gateway.pdo.codec import RpdoCodec, TpdoCodec
+from gateway.pdo.verify import MappingMismatch, MappingRead
 from gateway.states import LinkState, NmtState
 
 OBJ_DEVICE_TYPE = ObjRef(0x1000, 0x00)
@@ -105,7 +114,6 @@ class Node:
         self.passive = passive
         self.tpdos = list(tpdos)
         self.rpdos = list(rpdos)
-        self.refresh_plan = list(refresh)
         self.emcy_texts = emcy_texts or {}
         self.boot_steps = tuple(boot_steps)
         self.lifecycle = NodeLifecycle(
@@ -117,14 +125,16 @@ class Node:
         self.watch = Watchdog(settings, configure, active=not passive)
         self.hb, self.guard = self.watch.hb, self.watch.guard  # read-only views
         gb = settings.guarding_bit
-        self.gbit: GuardingBitCheck | None = (
-            GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0) if gb else None
+        link = (
+            GuardingBitLink(GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0))
+            if gb
+            else None
         )
+        self.gbit: GuardingBitCheck | None = link.check if link is not None else None
         self.control_signal, self.status_signal = guard_names
         health.supervision = settings.supervision
         health.link = LinkState.UNKNOWN if self.gbit is not None else LinkState.NOT_USED
         self.emcy = EmcyHistory()
-        self.ref = Referencing(referencing, reference_signal) if referencing else None
         control = (
             (self.control_signal, gb.control_bit)
             if gb is not None and self.control_signal
@@ -140,28 +150,48 @@ class Node:
         self.next_probe_s: float | None = None
         self._last_probe_end_s: float | None = None
         self._wait_until: float | None = None
-        self._rtr_due_s: float | None = None
-        # verify_mapping (bus/verify.py): PDO objects read back after configuring
-        self.verify_reads = list(verify)
-        self._verify_held: dict[ObjRef, int | None] = {}
-        self.mapping_mismatches: list[MappingMismatch] = []
-        self._pdo_names = frozenset(n for c in (*self.tpdos, *self.rpdos) for n in c.names)
+        # the device features, in the order they act (bus/node/features/)
+        self.features: list[NodeFeature] = [link] if link is not None else []
+        self._link = link
+        if refresh:
+            self.features.append(RefreshOnStart(refresh))
+        ref = ReferencingFeature(referencing, reference_signal) if referencing else None
+        if ref is not None:
+            self.features.append(ref)
+        if verify:
+            pdo_names = frozenset(
+                [n for c in self.tpdos for n in c.names] + [n for c in self.rpdos for n in c.names]
+            )
+            keep = ref.still_invalid if ref is not None else (lambda invalid: set[str]())
+            self.features.append(VerifyMapping(verify, pdo_names, keep))
+        if settings.rtr_poll_ms:
+            self.features.append(RtrPoll(settings.rtr_poll_ms, self.tpdos))
+        self._by_purpose = {p: f for f in self.features for p in f.purposes}
 
     # ================================================================== queries
     @property
     def alive(self) -> bool:
         return self.health.alive
 
+    @property
+    def refresh_plan(self) -> list[Refresh]:
+        """What ``refresh_on_start`` reads after NMT start (empty: nothing)."""
+        return next((f.plan for f in self.features if isinstance(f, RefreshOnStart)), [])
+
+    @property
+    def mapping_mismatches(self) -> list[MappingMismatch]:
+        """What ``verify_mapping`` found different (empty: none, or not checked)."""
+        return next((f.mismatches for f in self.features if isinstance(f, VerifyMapping)), [])
+
     def next_deadline(self) -> float | None:
         times = [
             self.lifecycle.next_deadline(),
             self.watch.next_deadline(),
-            self.gbit.next_deadline() if self.gbit else None,
             self.sdo.next_deadline(),
             self.next_probe_s if self.lifecycle.state is LifecycleState.WAITING else None,
             self._keepalive_due(),
             self._wait_until,
-            self._rtr_due_s,
+            *(f.next_deadline() for f in self.features),
         ]
         return min((t for t in times if t is not None), default=None)
 
@@ -198,19 +228,17 @@ class Node:
             out += self._sdo_finished(finished, now)
         rtr, lost = self.watch.poll(now)
         if rtr:
-            out.append(Send(0x700 + self.node_id, b"", rtr=True, dlc=1))
+            out.append(Send(COB_NMT_EC + self.node_id, b"", rtr=True, dlc=1))
         if lost is not None:
             out += self._lost(now, lost)
         out += self._lifecycle_changes(self.lifecycle.poll(now), now)
-        if self.gbit is not None:
-            out += self._link(self.gbit.poll(now))
+        for f in self.features:
+            out += f.tick(self, now)
         if self._wait_until is not None and now >= self._wait_until:
             self._wait_until = None
         due = self._keepalive_due()
         if due is not None and now >= due:
             out += self._keepalive(now)
-        if self._rtr_due_s is not None and now >= self._rtr_due_s:
-            out += self._rtr_poll(now)
         if (
             self.lifecycle.state is LifecycleState.WAITING
             and self.next_probe_s is not None
@@ -268,16 +296,15 @@ class Node:
             ),
             HealthChanged("emcy"),
         ]
-        if self.ref is not None and not self.passive:
-            out += self._check_reference(now)
-            out += self._drive(now)  # start it now if the channel is free
+        if not self.passive and any([f.on_emcy(self, now) for f in self.features]):
+            out += self._drive(now)  # start what a feature queued now if the channel is free
         return out
 
     def on_echo(self, bit: int, now: float) -> list[Output]:
         """The guarding bit of a status word just received in a TPDO (AP05 manual 5.5.5)."""
-        if self.gbit is None:
+        if self._link is None:
             return []
-        return self._link(self.gbit.on_status(bit, now))
+        return self._link.on_echo(self, bit, now)
 
     def on_sdo_response(self, data: bytes, now: float) -> list[Output]:
         out: list[Output] = []
@@ -356,14 +383,10 @@ class Node:
         out: list[Output] = [Note(logging.INFO, f"node {self.name} (id {self.node_id}) boot-up")]
         self._invalidate()
         self.watch.on_bootup(now)
-        if self.gbit is not None:
-            self.gbit.reset()
-            out += self._set_link(LinkState.UNKNOWN)
         self.emcy.clear()
         h.current_errors = []
-        out += self._set_referenced(False)  # MSK5000 5115h: the reference is lost at power-on
-        if self.verify_reads:  # not trusted until the mapping is read back and compared
-            h.invalid_signals = h.invalid_signals | self._pdo_names
+        for f in self.features:
+            out += f.on_bootup(self, now)
         out += self._set_nmt(NmtState.PRE_OPERATIONAL)
         out += self._set_alive(True, now)
         # a boot-up ends whatever transfer was running: the device forgot it
@@ -393,9 +416,8 @@ class Node:
             h.loss_count += 1
             self._invalidate()
             out += self._set_nmt(NmtState.UNKNOWN)
-            if self.gbit is not None:
-                self.gbit.reset()
-                out += self._set_link(LinkState.UNKNOWN)
+            for f in self.features:
+                out += f.on_lost(self)
             out.append(
                 Note(
                     logging.WARNING,
@@ -412,7 +434,8 @@ class Node:
 
     def _invalidate(self) -> None:
         self.health.fresh_since = None
-        self._rtr_due_s = None
+        for f in self.features:
+            f.on_invalidate(self)
 
     def _lifecycle_changes(self, changes: list[Any], now: float) -> list[Output]:
         h = self.health
@@ -461,15 +484,8 @@ class Node:
                     )
                 )
                 out += self._set_nmt_expected(NmtState.OPERATIONAL)
-                out += self._refresh(now)
-                if self.ref is not None:
-                    out += self._check_reference(now)
-                if self.verify_reads:
-                    self._verify_held = {}
-                    for r in self.verify_reads:
-                        self.sdo.queue(r.object, None, "verify", now, r)
-                if self.s.rtr_poll_ms:
-                    self._rtr_due_s = now + self.s.rtr_poll_ms / 1000.0
+                for f in self.features:
+                    out += f.on_configured(self, now)
         if changes:
             out.append(HealthChanged("state"))
         return out
@@ -486,7 +502,7 @@ class Node:
         while self.sdo.idle and not self.passive:
             action = self.lifecycle.next_action(now)
             if isinstance(action, SendNmt):
-                out.append(Send(0x000, bytes([action.command, self.node_id])))
+                out.append(Send(COB_NMT, bytes([action.command, self.node_id])))
                 out += self._lifecycle_changes(self.lifecycle.on_nmt_sent(now), now)
                 continue
             if isinstance(action, WriteStep):
@@ -514,7 +530,11 @@ class Node:
         out: list[Output] = []
         if tr.abort_code is not None and tr.aborted_by_server:
             self.health.last_sdo_abort = tr.abort_code
-        out += self._SDO_DONE[job.purpose](self, job, tr, now)
+        done = self._SDO_DONE.get(job.purpose)
+        if done is not None:
+            out += done(self, job, tr, now)
+        else:  # a feature's own transfer
+            out += self._by_purpose[job.purpose].sdo_done(self, job, tr, now)
         out += self._drive(now)
         return out
 
@@ -546,59 +566,19 @@ class Node:
         changes = self.lifecycle.on_identity_result(now, value, code, token=job.arg.token)
         return self._lifecycle_changes(changes, now)
 
-    def _refresh_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        if tr.result is None or self.health.fresh_since is None:
-            return []
-        name, _obj, type_ = job.arg
-        try:
-            value = decode_value(tr.result, type_)
-        except Exception:  # noqa: BLE001 - a short answer: the value stays stale
-            return []
-        return [ValuesRead((name,), (value,))]
-
-    def _reference_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        assert self.ref is not None
-        if tr.result is None:
-            note = f"node {self.name}: referencing state unreadable (0x{tr.abort_code or 0:08X})"
-            return [Note(logging.WARNING, note), *self._set_referenced(False)]
-        return self._set_referenced(self.ref.referenced(tr.result))
-
     def _user_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         out: list[Output] = [
             SdoDone(job.token, tr.result, tr.abort_code, tr.timed_out, tr.aborted_by_server)
         ]
-        if self.ref is not None and self.ref.is_command(job.obj, job.data):
-            out += self._check_reference(now)
+        for f in self.features:
+            out += f.on_user_sdo(self, job, now)
         return out
-
-    def _verify_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        """verify_mapping: collect the uploads; when all are in, compare (bus/verify.py)."""
-        r: MappingRead = job.arg
-        raw = tr.result
-        self._verify_held[r.object] = int.from_bytes(raw[:4], "little") if raw else None
-        if len(self._verify_held) < len(self.verify_reads):
-            return []
-        h = self.health
-        self.mapping_mismatches = compare_mapping(self.verify_reads, self._verify_held)
-        if self.mapping_mismatches:
-            text = "; ".join(str(m) for m in self.mapping_mismatches)
-            h.last_error = f"PDO mapping mismatch, values not served: {text}"
-            h.invalid_signals = h.invalid_signals | self._pdo_names
-            note = Note(logging.ERROR, f"node {self.name}: {h.last_error}")
-        else:
-            keep = {self.ref.signal} & h.invalid_signals if self.ref is not None else set()
-            h.invalid_signals = (h.invalid_signals - self._pdo_names) | keep
-            note = Note(logging.INFO, f"node {self.name}: PDO mapping verified ({len(self.verify_reads)} objects read back)")  # fmt: skip
-        return [note, HealthChanged("state")]
 
     _SDO_DONE: dict[str, Callable[[Node, SdoJob, SdoTransfer, float], list[Output]]] = {
         "boot": _boot_done,
         "probe": _probe_done,
         "identity": _identity_done,
-        "refresh": _refresh_done,
-        "reference": _reference_done,
         "user": _user_done,
-        "verify": _verify_done,
     }
 
     def _probe(self, now: float) -> list[Output]:
@@ -608,31 +588,6 @@ class Node:
             return []
         self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe", now)
         return []
-
-    def _refresh(self, now: float) -> list[Output]:
-        """Read change-only TPDOs right after NMT start (module docstring)."""
-        out: list[Output] = []
-        for r in self.refresh_plan:
-            if r.how == "rtr":
-                out.append(Send(r.codec.cob_id, b"", rtr=True, dlc=r.codec.length))
-            else:
-                for name, obj, type_ in r.objects:
-                    self.sdo.queue(obj, None, "refresh", now, (name, obj, type_))
-        return out
-
-    # ================================================================== internals: features
-    def _check_reference(self, now: float) -> list[Output]:
-        """Feature ``referencing``: read whether the position is referenced."""
-        assert self.ref is not None
-        self.sdo.queue(self.ref.status, None, "reference", now)
-        return []
-
-    def _set_referenced(self, ok: bool) -> list[Output]:
-        text = self.ref.apply(self.health, ok) if self.ref is not None else None
-        if text is None:
-            return []
-        level = logging.INFO if ok else logging.WARNING
-        return [Note(level, f"node {self.name}: {text}"), HealthChanged("state")]
 
     def _set_nmt(self, state: NmtState) -> list[Output]:
         if self.health.nmt_state == state:
@@ -644,31 +599,6 @@ class Node:
         ]
 
     # -- guarding bit and keep-alive
-    def _link(self, changes: list[LinkOk | LinkFault]) -> list[Output]:
-        out: list[Output] = []
-        for ch in changes:
-            out += self._set_link(LinkState.OK if isinstance(ch, LinkOk) else LinkState.FAULT)
-        return out
-
-    def _set_link(self, state: LinkState) -> list[Output]:
-        h = self.health
-        if h.link == state:
-            return []
-        out: list[Output] = []
-        if state == LinkState.FAULT:
-            h.link_fault_count += 1
-            out.append(
-                Note(
-                    logging.WARNING,
-                    f"node {self.name}: guarding-bit link FAULT (process data not echoed)",
-                )
-            )
-        elif h.link == LinkState.FAULT:
-            out.append(Note(logging.INFO, f"node {self.name}: guarding-bit link restored"))
-        h.link = state
-        out.append(HealthChanged("state"))
-        return out
-
     def _keepalive_due(self) -> float | None:
         """Keep-alive RPDOs only in OPERATIONAL (RPDOs are not processed otherwise)."""
         h = self.health
@@ -681,10 +611,3 @@ class Node:
         out: list[Output] = [self.outputs.keepalive(now)]
         self._publish_outputs()  # the guarding bit of the control word as sent
         return out
-
-    def _rtr_poll(self, now: float) -> list[Output]:
-        assert self.s.rtr_poll_ms
-        self._rtr_due_s = now + self.s.rtr_poll_ms / 1000.0
-        if self.health.nmt_state != NmtState.OPERATIONAL:
-            return []
-        return [Send(c.cob_id, b"", rtr=True, dlc=c.length) for c in self.tpdos]

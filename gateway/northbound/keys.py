@@ -27,9 +27,9 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
+from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.config import Config
 from gateway.objref import ObjRef
-from gateway.profiles import load_node_profile
 from gateway.profiles.schema import Signal
 
 #: the liveliness token of the gateway itself, ``<prefix>/alive/_gateway``
@@ -193,19 +193,20 @@ def short_text(text: str, limit: int = 56) -> str:
 
 
 def _signal_text(sig: Signal, unit: str) -> str:
-    kind = sig.type + (f" [{unit}]" if unit else "")
+    kind = sig.type_name + (f" [{unit}]" if unit else "")
     desc = short_text(sig.description) if sig.description else ""
     return f"{kind}  {desc}".rstrip()
 
 
-def all_keys(cfg: Config) -> list[KeyInfo]:
+def all_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[KeyInfo]:
+    resolved = nodes_of(cfg, nodes)
     p = prefix_of(cfg)
     out = [
         KeyInfo(alive_key(p, GATEWAY_TOKEN), "liveliness", "the gateway is running"),
         KeyInfo(catalog_key(p), "query", "every node and signal: type, unit, scaling, Modbus"),
     ]
     for n in cfg.nodes:
-        lp = load_node_profile(n, cfg.base_dir)
+        lp = node_of(cfg, resolved, n).lp
         name = n.name
 
         def add(key: str, kind: str, text: str, _name: str = name) -> None:
@@ -234,17 +235,17 @@ def all_keys(cfg: Config) -> list[KeyInfo]:
     return out
 
 
-def render_keys(cfg: Config) -> str:
+def render_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> str:
     """The listing of ``canopen-gateway keys``: one line per key, grouped by node."""
-    keys = all_keys(cfg)
+    keys = all_keys(cfg, nodes)
     width = max((len(k.key) for k in keys), default=10)
     lines = [f"# prefix {prefix_of(cfg)}  (payloads: docs/zenoh.md)"]
     current = None
-    nodes = {n.name: n for n in cfg.nodes}
+    configured = {n.name: n for n in cfg.nodes}
     for k in keys:
         if k.node != current:
             current = k.node
-            n = nodes.get(k.node)
+            n = configured.get(k.node)
             if n is not None:
                 lines.append("")
                 lines.append(f"# node {n.name}: {n.device}, node id {n.node_id}")

@@ -8,23 +8,24 @@ names and engineering values (the mapping the boot configuration leaves in the d
 gateway decodes it), SYNC, TIME and LSS. A frame of an unconfigured node id is named by its
 function. Pure: no bus, no clock.
 
-Imports: config, profiles, bus.codec, bus.boot_steps, bus.settings, bus.emcy, cia301,
+Imports: config, profiles, pdo.codec, bus.node.boot_steps, bus.node.settings, bus.emcy, cia301,
 bus.bus_peers, states, objref.
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.boot_steps import build_boot_steps
 from gateway.bus.bus_peers import describe_cob_id
-from gateway.bus.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.bus.emcy import decode_emcy
-from gateway.bus.settings import resolve_node_settings
+from gateway.bus.node.boot_steps import build_boot_steps
+from gateway.bus.node.settings import resolve_node_settings
 from gateway.cia301 import abort_text
 from gateway.config import Config
 from gateway.objref import ObjRef
+from gateway.pdo.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.profiles import LoadedProfile, load_node_profile
 from gateway.states import NMT_BY_CODE, NmtState
 
@@ -95,10 +96,10 @@ class FrameDecoder:
                 n.name, n.node_id, lp, {c.cob_id: c for c in tpdos}, {c.cob_id: c for c in rpdos}
             )
             self.by_id[n.node_id] = info
-            for c in tpdos:
-                self.pdo_owner[c.cob_id] = (info, f"TPDO{c.number}")
-            for c in rpdos:
-                self.pdo_owner[c.cob_id] = (info, f"RPDO{c.number}")
+            for t in tpdos:
+                self.pdo_owner[t.cob_id] = (info, f"TPDO{t.number}")
+            for r in rpdos:
+                self.pdo_owner[r.cob_id] = (info, f"RPDO{r.number}")
         self.master_id = cfg.master.node_id
 
     def node_name(self, node_id: int | None) -> str | None:
@@ -183,8 +184,8 @@ class FrameDecoder:
             value = int.from_bytes(data[4 : 4 + size], "little")
             text += f" = {value} (0x{value:0{size * 2}X})"
         elif (request and cs == 1) or (not request and cs == 2):
-            size = int.from_bytes(data[4:8], "little") if data[0] & 0x01 else None
-            text += " segmented" + (f", {size} bytes" if size is not None else "")
+            total = int.from_bytes(data[4:8], "little") if data[0] & 0x01 else None
+            text += " segmented" + (f", {total} bytes" if total is not None else "")
         return Decoded("sdo", node_id, name, service, text)
 
     def _pdo(self, info: _NodeInfo, cob_id: int, data: bytes) -> str:
@@ -225,3 +226,27 @@ def _engineering(raw: Any, scale: float, offset: float) -> str:
 
 def _unit(unit: str) -> str:
     return f" {unit}" if unit else ""
+
+
+def node_filter(cfg: Config, items: Collection[str]) -> set[int]:
+    """Node ids from names or numbers; ValueError naming what is unknown."""
+    ids = set()
+    names = {n.name: n.node_id for n in cfg.nodes}
+    for item in items:
+        if item in names:
+            ids.add(names[item])
+        elif item.isdigit() and 1 <= int(item) <= 127:
+            ids.add(int(item))
+        else:
+            raise ValueError(
+                f"--node {item!r}: not a node of the config ({', '.join(names) or 'none'}) "
+                "nor a node id 1..127"
+            )
+    return ids
+
+
+def kind_filter(items: Collection[str]) -> set[str]:
+    unknown = [k for k in items if k not in KINDS]
+    if unknown:
+        raise ValueError(f"--kind {', '.join(unknown)}: kinds are {', '.join(KINDS)}")
+    return set(items)

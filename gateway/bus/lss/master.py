@@ -9,7 +9,8 @@ service next to its manual section.
 Rule 2: no I/O, no clock. ``LssMaster.send`` returns the frames to put on 7E5h; the caller feeds
 7E4h frames to ``on_frame`` and calls ``poll(now)`` for the answer timeout.
 
-Imports: the standard library only. Must not import python-can, canopen or other gateway modules.
+Imports: gateway.cia301 (the LSS COB-IDs) and the standard library. Must not import python-can,
+canopen or other gateway modules.
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ import struct
 from dataclasses import dataclass
 from enum import StrEnum
 
+from gateway.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
+
 #: SGH10 manual 4.6: "LSS (rx) (LSS master -> SGH10): 7E5h", "LSS (tx) (SGH10 -> master): 7E4h".
-COB_ID_MASTER_TO_SLAVE = 0x7E5
-COB_ID_SLAVE_TO_MASTER = 0x7E4
+COB_ID_MASTER_TO_SLAVE = COB_LSS_MASTER
+COB_ID_SLAVE_TO_MASTER = COB_LSS_SLAVE
 
 # Command specifiers (SGH10 manual 4.6.1 - 4.6.3)
 CS_SWITCH_GLOBAL = 0x04  # 4.6.1.1
@@ -256,6 +259,10 @@ def decode_answer(data: bytes) -> tuple[int, LssValue]:
 # --------------------------------------------------------------------------- master machine
 
 
+#: what ``inquire`` asks, in the order a session asks it (CiA 305 inquire services)
+INQUIRE_ORDER = ("vendor_id", "product_code", "revision", "serial", "node_id")
+
+
 class LssStateError(Exception):
     """A service was requested in an LSS state where the slave ignores it (Table 10)."""
 
@@ -328,7 +335,7 @@ class LssMaster:
 
     def resume(self, mode: LssMode) -> None:
         """The slaves are already in ``mode``: a previous session left them there (the CLI
-        keeps what each command leaves behind, see ``gateway.bus.lss_cli``)."""
+        keeps what each command leaves behind, see ``gateway.tools.lss``)."""
         self.mode = mode
 
     def send(self, request: LssRequest, now: float) -> list[bytes]:
@@ -365,6 +372,11 @@ class LssMaster:
         if data[0] == CS_SWITCH_SELECTIVE_ANSWER:
             self.mode = LssMode.CONFIGURATION
         return [LssAnswered(request, value)]
+
+    def cancel(self) -> None:
+        """Forget the pending request (its answer, if one comes, is ignored)."""
+        self.pending = None
+        self.sent_at_s = None
 
     def poll(self, now: float) -> list[LssEvent]:
         deadline = self.deadline_s

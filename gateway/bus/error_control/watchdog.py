@@ -1,19 +1,17 @@
 """A node's error control, as the node's owner uses it: heartbeat consumer or node-guarding
-master (``bus.supervision``), with what each lifecycle step and each NMT command makes the node
+master (``bus.error_control.supervision``), with what each lifecycle step and each NMT command makes the node
 expected to report.
 
 Rule: the tables below are the code. Node guarding treats a valid answer with another state
 than the expected one as an error (DS-301), so the expectation must follow the node's life: a
 node being configured after its boot-up answers PRE-OPERATIONAL, which is right, not a fault.
 
-Imports: bus.supervision, bus.lifecycle (its states), bus.settings, states. No I/O, no clock.
+Imports: bus.error_control.supervision, bus.node.lifecycle (its states), bus.node.settings, states. No I/O, no clock.
 """
 
 from __future__ import annotations
 
-from gateway.bus.lifecycle import LifecycleState
-from gateway.bus.settings import NodeSettings
-from gateway.bus.supervision import (
+from gateway.bus.error_control.supervision import (
     HeartbeatConsumer,
     InvalidStateByte,
     NodeGuardingMaster,
@@ -22,6 +20,8 @@ from gateway.bus.supervision import (
     ToggleError,
     WrongState,
 )
+from gateway.bus.node.lifecycle import LifecycleState
+from gateway.bus.node.settings import NodeSettings
 from gateway.states import REPORTED_STATES, NmtState
 
 #: What a node-guarding answer must report in each lifecycle state. None = any valid state.

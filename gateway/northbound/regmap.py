@@ -24,7 +24,7 @@ the word order of one point.
 ``layout: flat`` puts everything in one unit (``flat_unit_id``): the gateway block at 0 and node
 *k* (1-based, config order) at ``k * flat_stride``, with the same offsets inside each block.
 
-Imports: config, profiles. Never pymodbus, bus/, zenoh_bridge/.
+Imports: config, profiles, bus.resolved, northbound.scaling. Never pymodbus, zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -34,8 +34,10 @@ import io
 from dataclasses import dataclass, field
 from typing import Literal
 
+from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.config import Config
-from gateway.profiles import LoadedProfile, load_node_profile
+from gateway.northbound.scaling import scaled, unscaled_step
+from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import text_signals
 from gateway.profiles.schema import Signal
 
@@ -302,8 +304,8 @@ def _description(sig: Signal, scale: float, offset: float, engineering: bool) ->
         def shown(eng: float | None) -> str:
             if eng is None:
                 return ""
-            raw = round((eng - sig.offset) / sig.scale) if sig.scale else 0
-            return f"{raw * scale + offset:g}" if engineering else str(raw)
+            raw = unscaled_step(eng, sig.scale, sig.offset)
+            return f"{scaled(raw, scale, offset):g}" if engineering else str(raw)
 
         extra.append(f"Range {shown(sig.min)}..{shown(sig.max)}.")
     return " ".join([desc, *extra]).strip()
@@ -328,8 +330,9 @@ def _bit_descriptions(sig: Signal) -> dict[int, str] | None:
     return out
 
 
-def build_register_map(cfg: Config) -> RegisterMap:
+def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> RegisterMap:
     rm = RegisterMap()
+    resolved = nodes_of(cfg, nodes)
     flat = cfg.modbus.layout == "flat"
     stride = cfg.modbus.flat_stride
     gw_unit = cfg.modbus.flat_unit_id if flat else cfg.modbus.gateway_unit_id
@@ -343,7 +346,7 @@ def build_register_map(cfg: Config) -> RegisterMap:
         )
     for k, ncfg in enumerate(cfg.nodes, start=1):
         key = f"nodes[{k - 1}]"
-        lp = load_node_profile(ncfg, cfg.base_dir)
+        lp = node_of(cfg, resolved, ncfg).lp
         if flat:
             unit, base = cfg.modbus.flat_unit_id, k * stride
         else:
@@ -379,7 +382,7 @@ def build_register_map(cfg: Config) -> RegisterMap:
             skey = f"{key}.signals.{sig.name}" if ov else key
             writable = sig.access in ("rw", "wo")
             table: Table = "hr" if (writable or sig.transport == "sdo") else "ir"
-            rtype = _REG_TYPE[sig.type]
+            rtype = _REG_TYPE[sig.type_name]
             scale = ov.scale if ov and ov.scale is not None else sig.scale
             offset = ov.offset if ov and ov.offset is not None else sig.offset
             engineering = bool(ov and ov.as_float) and rtype != "string"
@@ -408,7 +411,7 @@ def build_register_map(cfg: Config) -> RegisterMap:
                     offset=offset,
                     engineering=engineering,
                     unit_text=(ov.unit if ov and ov.unit is not None else sig.unit),
-                    transport=sig.transport,
+                    transport=sig.transport_name,
                     description=_description(sig, scale, offset, engineering),
                 ),
                 skey,
@@ -433,7 +436,7 @@ def build_register_map(cfg: Config) -> RegisterMap:
                         "rw" if writable else "ro",
                         n,
                         bit=b,
-                        transport=sig.transport,
+                        transport=sig.transport_name,
                         description=bits.get(b, f"(bit {b} not used)"),
                     ),
                     key,

@@ -6,18 +6,27 @@ gateway would wait forever for values it may serve as good. So right after NMT s
 by RTR when the PDO allows remote requests (COB-ID bit 30 = 0), else by one SDO upload per
 mapped object. Types 252/253 (on RTR only) are asked by RTR. Cyclic and SYNC PDOs need nothing.
 
-Imports: bus.codec, bus.events (the plan's record), cia301, objref. No I/O.
+Imports: pdo.codec, cia301, objref. No I/O.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.codec import TpdoCodec, pdo_objects
-from gateway.bus.events import Refresh
 from gateway.cia301 import COB_ID_NO_RTR, TRANSMISSION_EVENT, TRANSMISSION_RTR_ONLY
 from gateway.objref import ObjRef
+from gateway.pdo.codec import TpdoCodec, pdo_objects
+
+
+@dataclass(frozen=True)
+class Refresh:
+    """How a change-only TPDO is read after NMT start: ``rtr`` or one SDO upload per object."""
+
+    codec: TpdoCodec
+    how: str  # "rtr" | "sdo"
+    objects: tuple[tuple[str, ObjRef, str], ...] = ()  # (signal, object, type) for "sdo"
 
 CHANGE_ONLY = TRANSMISSION_EVENT
 RTR_ONLY = TRANSMISSION_RTR_ONLY

@@ -7,7 +7,7 @@ result for the boot steps, the codecs and this check). A mismatch means the devi
 decoded with the wrong layout: the node's process values are marked bad, and the mismatch says
 which PDO, what was expected and what the device holds.
 
-How it is run: the master gives ``mapping_reads`` to the node's machine (``bus.node.Node``,
+How it is run: the master gives ``mapping_reads`` to the node's machine (``bus.node.owner.Node``,
 ``verify=``), which queues them as SDO uploads (purpose "verify") once the node is configured
 and started, and calls ``compare_mapping`` when the last answer is in. It is not a lifecycle
 step: its outcome does not change the node's lifecycle (the node is started either way; only
@@ -22,13 +22,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-from gateway.eds.pdos import COB_ID_INVALID, decode_entry, entry_value
+from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT
+from gateway.eds.pdos import decode_entry, entry_value
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import pdo_cob_id, pdo_objects
 
 Kind = Literal["tpdo", "rpdo"]
-_COB_MASK = 0x1FFFFFFF  # CiA 301: bits 0..28 the identifier; bit 30 (no RTR) is not compared
+_COB_MASK = COB_ID_MASK_29BIT  # CiA 301: bits 0..28 the identifier; bit 30 (no RTR) is not compared
 
 
 @dataclass(frozen=True)

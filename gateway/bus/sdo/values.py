@@ -3,15 +3,13 @@
 The one encoding of values for SDO downloads and decoding of uploads, used by the boot steps,
 the command service and the CLI.
 
-Imports: cia301 (the data type codes) and the standard library.
+Imports: the standard library only.
 """
 
 from __future__ import annotations
 
 import struct
 from typing import Any
-
-from gateway.cia301 import TYPE_NAMES
 
 _PACK: dict[str, str] = {
     "bool": "<B",  # DS-301 BOOLEAN travels as one byte in an SDO
@@ -25,9 +23,6 @@ _PACK: dict[str, str] = {
     "uint64": "<Q",
     "float32": "<f",
 }
-
-#: canopen / DS-301 data type codes -> profile type names.
-OD_TYPE_NAMES = TYPE_NAMES
 
 
 def encode_value(value: int | float | str | bytes, type_: str) -> bytes:

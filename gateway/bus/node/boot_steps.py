@@ -1,9 +1,9 @@
 """The boot configuration of a node: the ordered SDO writes derived from its profile (or EDS)
 and its node settings (supervision, TPDO transmission, PDO remapping, the profile's and the
 user's writes). ``build_boot_steps`` is the one place the CiA 301 PDO sequence is written; the
-lifecycle (``bus/lifecycle.py``) plays the steps, the codecs follow the same layout.
+lifecycle (``bus/node/lifecycle.py``) plays the steps, the codecs follow the same layout.
 
-Imports: gateway.objref, gateway.bus.sdo_values, gateway.eds.pdos, gateway.profiles (layout,
+Imports: gateway.cia301, gateway.objref, gateway.bus.sdo.values, gateway.eds.pdos, gateway.profiles (layout,
 schema; LoadedProfile for types only) and the standard library. No I/O, no clock.
 """
 
@@ -13,7 +13,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol
 
-from gateway.bus.sdo_values import OD_TYPE_NAMES, encode_value
+from gateway.bus.sdo.values import encode_value
+from gateway.cia301 import COB_ID_INVALID, TYPE_NAMES
 from gateway.eds.pdos import default_value
 from gateway.objref import ObjRef
 from gateway.profiles.layout import pdo_cob_id, pdo_objects
@@ -61,8 +62,6 @@ class ConfigStep:
 OBJ_HEARTBEAT_PRODUCER = ObjRef(0x1017, 0x00)  # UNSIGNED16, ms; SGH10 manual 4.7.2.14
 OBJ_GUARD_TIME = ObjRef(0x100C, 0x00)  # UNSIGNED16, ms; SGH10 manual 4.7.2.9
 OBJ_LIFE_TIME_FACTOR = ObjRef(0x100D, 0x00)  # UNSIGNED8; SGH10 manual 4.7.2.10
-#: DS-301: bit 31 of a PDO COB-ID = PDO not valid (MSK5000 manual 4.3.1.2 step 2).
-COB_ID_INVALID = 0x80000000
 
 
 class WriteLike(Protocol):
@@ -97,7 +96,7 @@ class _Builder:
         var = self.lp.od_var(obj)
         if var is None:
             raise ValueError(f"{where}: {obj} is not in {self.lp.eds_path.name}")
-        type_name = OD_TYPE_NAMES.get(var.data_type)
+        type_name = TYPE_NAMES.get(var.data_type)
         if type_name is None:
             raise ValueError(f"{where}: {obj} has a data type the gateway cannot write")
         return type_name, var

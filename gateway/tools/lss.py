@@ -26,67 +26,58 @@ profile of the config's LSS slaves does not support is refused before anything i
 options: ``timeout=S`` (answer timeout, default 1 s), ``profile=NAME`` (the LSS slave's profile
 for the bit rate check).
 
-The LSS frames and their matching come from ``gateway.bus.lss``; this module only does the
+The LSS frames and their matching come from ``gateway.bus.lss.master``; this module only does the
 I/O, parses the arguments and prints. When the config simulates nodes (``simulate:``), they
 run in this process on the same bus, so the commands can be tried without hardware.
 
-Imports: python-can, gateway.bus.lss, gateway.config, gateway.profiles, gateway.objref,
+Imports: python-can, gateway.bus.lss.master, gateway.tools.lss_session, gateway.bus.resolved,
+gateway.bus.sdo.client, gateway.config, gateway.profiles, gateway.objref,
 gateway.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import struct
 import sys
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, TextIO
 
 import can
 
-from gateway.bus import lss
-from gateway.cia301 import abort_text
+from gateway.bus.lss import master as lss
+from gateway.bus.resolved import node_of, resolve_config
+from gateway.bus.sdo.client import SdoTransfer
+from gateway.cia301 import (
+    COB_NMT,
+    COB_NMT_EC,
+    COB_SDO_RX,
+    COB_SDO_TX,
+    NMT_RESET_COMMUNICATION,
+    abort_text,
+)
 from gateway.config import Config
 from gateway.objref import ObjRef
-from gateway.profiles import ProfileError, load_node_profile, load_profile
+from gateway.profiles import LoadedProfile, ProfileError, load_profile
+from gateway.tools.lss_session import (
+    LeftState,
+    LssFailed,
+    LssSession,
+    LssStateFile,
+    format_address,
+)
 
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
 
-#: SGH10 manual 4.2.1.2 table 3: NMT reset communication; COB-ID 000h, [cs, node id].
-NMT_RESET_COMMUNICATION = 0x82
-#: DS-301 pre-defined connection set: SDO request 600h + id, answer 580h + id, boot-up 700h + id.
-COB_SDO_REQUEST = 0x600
-COB_SDO_ANSWER = 0x580
-COB_NMT_ERROR_CONTROL = 0x700
-#: DS-301 SDO command specifiers: expedited download of 1 byte (AP05 manual table 32: 2Fh),
-#: download answer 60h, upload request 40h, abort 80h.
-SDO_DOWNLOAD_1_BYTE = 0x2F
-SDO_DOWNLOAD_ANSWER = 0x60
-SDO_UPLOAD_REQUEST = 0x40
-SDO_ABORT = 0x80
-
-INQUIRE_ORDER = ("vendor_id", "product_code", "revision", "serial", "node_id")
-#: After the first answer, how long to listen for more slaves answering the same request.
-ANSWER_SETTLE_S = 0.05
-#: Buses remembered in the state file (the oldest are dropped).
-STATE_FILE_BUSES = 32
+INQUIRE_ORDER = lss.INQUIRE_ORDER
 DEFAULT_SWITCH_DELAY_MS = 100  # activate bit timing: silent d1, then d2 (SGH10 manual 4.6.2.3)
 
 
 class UsageError(Exception):
     """The arguments of an action are wrong; the message says what is expected."""
-
-
-class LssFailed(Exception):
-    """An LSS service or the Auto-ID failed (timeout, error answer)."""
 
 
 # --------------------------------------------------------------------------- arguments
@@ -158,224 +149,6 @@ def parse_address(parts: list[str]) -> tuple[int, int, int, int]:
         if not 0 <= v <= 0xFFFFFFFF:
             raise UsageError(f"{n} 0x{v:X} does not fit UNSIGNED32")
     return values  # type: ignore[return-value]
-
-
-# --------------------------------------------------------------------------- state left behind
-
-
-@dataclass(frozen=True)
-class LeftState:
-    """The LSS state a command left the slaves of one bus in (manual 4.6 Table 10)."""
-
-    mode: lss.LssMode = lss.LssMode.WAITING
-    #: the one slave switched selectively; None: all slaves (switch state global)
-    address: tuple[int, int, int, int] | None = None
-
-    def describe(self) -> str:
-        if self.address is None:
-            return f"all slaves in {self.mode}"
-        return f"slave {format_address(self.address)} in {self.mode}"
-
-
-class LssStateFile:
-    """Per bus, the state the last ``lss`` command left the slaves in, so the next command (a
-    new process) continues from it. A missing or unreadable file means: all slaves waiting."""
-
-    def __init__(self, path: Path, bus_key: str):
-        self.path = path
-        self.bus_key = bus_key
-
-    @classmethod
-    def for_bus(cls, bus_kwargs: dict[str, Any]) -> LssStateFile:
-        base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-        parts = [f"{k}={bus_kwargs[k]}" for k in ("interface", "channel", "host", "port") if k in bus_kwargs]
-        return cls(Path(base) / "canopen-gateway" / "lss-state.json", " ".join(parts))
-
-    def _read_all(self) -> dict[str, Any]:
-        try:
-            data = json.loads(self.path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return {}
-        return data if isinstance(data, dict) else {}
-
-    def load(self) -> LeftState:
-        entry = self._read_all().get(self.bus_key)
-        try:
-            mode = lss.LssMode(entry["mode"])
-            address = entry.get("address")
-            return LeftState(mode, tuple(int(v) for v in address) if address else None)  # type: ignore[arg-type]
-        except (TypeError, KeyError, ValueError):
-            return LeftState()
-
-    def save(self, state: LeftState) -> None:
-        data = self._read_all()
-        data.pop(self.bus_key, None)
-        data[self.bus_key] = {
-            "mode": str(state.mode),
-            "address": list(state.address) if state.address else None,
-        }
-        data = dict(list(data.items())[-STATE_FILE_BUSES:])
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
-            tmp.replace(self.path)
-        except OSError:
-            pass  # a read-only home: the next command starts from "all waiting"
-
-
-def format_address(address: tuple[int, int, int, int]) -> str:
-    return ":".join(f"0x{v:X}" for v in address)
-
-
-# --------------------------------------------------------------------------- bus session
-
-
-class LssSession:
-    """LSS requests on a python-can bus: frames out on 7E5h, answers matched on 7E4h."""
-
-    def __init__(
-        self,
-        bus: can.BusABC,
-        timeout_s: float = 1.0,
-        clock: Callable[[], float] = time.monotonic,
-        left: LeftState | None = None,
-        settle_s: float = ANSWER_SETTLE_S,
-    ):
-        self.bus = bus
-        self.clock = clock
-        self.master = lss.LssMaster(timeout_s)
-        self.settle_s = settle_s
-        #: what the slaves are in now (what the previous command left, then what we did)
-        self.left = left or LeftState()
-        #: every answer to the last request (more than one: several slaves answered)
-        self.answers: list[lss.LssValue] = []
-        #: set while continuing with a slave a previous command left in configuration
-        self.resumed: tuple[int, int, int, int] | None = None
-        self.warnings: list[str] = []
-
-    def send_frame(self, cob_id: int, data: bytes) -> None:
-        self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
-
-    def request(self, req: lss.LssRequest) -> lss.LssValue:
-        """Send ``req``; its answer (None when the service has none). Raises LssFailed."""
-        for frame in self.master.send(req, self.clock()):
-            self.send_frame(lss.COB_ID_MASTER_TO_SLAVE, frame)
-        if req.frames[0][0] == lss.CS_SWITCH_GLOBAL:
-            self.left = LeftState(self.master.mode, None)
-            self.resumed = None
-        self.answers = []
-        if req.answer_cs is None:
-            return None
-        while True:
-            deadline = self.master.deadline_s
-            now = self.clock()
-            if deadline is None:
-                raise LssFailed(f"LSS {req.service}: no request pending")  # pragma: no cover
-            msg = self.bus.recv(timeout=max(0.0, deadline - now) + 0.001)
-            now = self.clock()
-            if (
-                msg is not None
-                and msg.arbitration_id == lss.COB_ID_SLAVE_TO_MASTER
-                and not msg.is_remote_frame
-                and not msg.is_error_frame
-            ):
-                for ev in self.master.on_frame(bytes(msg.data), now):
-                    if isinstance(ev, lss.LssAnswered):
-                        self.answers = [ev.value, *self._more_answers(req.answer_cs)]
-                        return ev.value
-            for ev in self.master.poll(now):
-                if isinstance(ev, lss.LssTimedOut):
-                    if self.resumed is not None:
-                        hint = (
-                            f"the slave {format_address(self.resumed)} the previous command "
-                            "left in configuration does not answer (reset or powered off "
-                            "since?); give address=VENDOR:PRODUCT:REVISION:SERIAL"
-                        )
-                        self.left = LeftState()
-                    else:
-                        hint = "no LSS slave in configuration state?"
-                    raise LssFailed(
-                        f"LSS {req.service}: no answer on 0x{lss.COB_ID_SLAVE_TO_MASTER:03X} "
-                        f"within {ev.timeout_s:g} s ({hint})"
-                    )
-
-    def _more_answers(self, cs: int) -> list[lss.LssValue]:
-        """Further answers with ``cs`` within ``settle_s``: other slaves in configuration."""
-        more: list[lss.LssValue] = []
-        deadline = self.clock() + self.settle_s
-        while (left := deadline - self.clock()) > 0:
-            msg = self.bus.recv(timeout=left)
-            if (
-                msg is not None
-                and msg.arbitration_id == lss.COB_ID_SLAVE_TO_MASTER
-                and not msg.is_remote_frame
-                and not msg.is_error_frame
-                and len(msg.data) > 0
-                and msg.data[0] == cs
-            ):
-                try:
-                    more.append(lss.decode_answer(bytes(msg.data))[1])
-                except ValueError:
-                    continue
-        return more
-
-    def configure(self, req: lss.LssRequest) -> None:
-        """A configure / store service; raises LssFailed when the slave answers an error."""
-        answer = self.request(req)
-        if len(self.answers) > 1:
-            self.warnings.append(
-                f"warning: {len(self.answers)} LSS slaves answered {req.service}: more than one "
-                "is in the LSS configuration state and each of them took it; address one with "
-                "address=VENDOR:PRODUCT:REVISION:SERIAL"
-            )
-        if isinstance(answer, lss.ConfigAnswer) and not answer.ok:
-            raise LssFailed(f"LSS {req.service} refused: {answer.text}")
-
-    def wait_frame(self, cob_id: int, timeout_s: float) -> can.Message | None:
-        """The next data frame on ``cob_id`` within ``timeout_s`` (None on timeout)."""
-        deadline = self.clock() + timeout_s
-        while True:
-            left = deadline - self.clock()
-            if left <= 0:
-                return None
-            msg = self.bus.recv(timeout=left)
-            if (
-                msg is not None
-                and msg.arbitration_id == cob_id
-                and not msg.is_remote_frame
-                and not msg.is_error_frame
-            ):
-                return msg
-
-    @contextmanager
-    def configuration_state(
-        self, address: tuple[int, int, int, int] | None, keep: bool = False
-    ) -> Iterator[None]:
-        """Slave(s) in LSS configuration for the block; back to waiting afterwards unless
-        ``keep``. By address: all to waiting, then switch state selective (Table 10: a slave
-        already in configuration ignores the selective switch). Without: the slave a previous
-        command left in configuration, else all slaves by switch state global."""
-        if address is not None:
-            self.select(address)
-        elif self.left.mode is lss.LssMode.CONFIGURATION and self.left.address is not None:
-            self.master.resume(lss.LssMode.CONFIGURATION)
-            self.resumed = self.left.address
-        else:
-            self.request(lss.switch_state_global(True))
-        ok = False
-        try:
-            yield
-            ok = True
-        finally:
-            if not keep or not ok:
-                self.request(lss.switch_state_global(False))
-
-    def select(self, address: tuple[int, int, int, int]) -> None:
-        """Only the slave with ``address`` in configuration (04h 00h, then 40h..43h)."""
-        self.request(lss.switch_state_global(False))
-        self.request(lss.switch_state_selective(*address))
-        self.left = LeftState(lss.LssMode.CONFIGURATION, address)
 
 
 # --------------------------------------------------------------------------- actions
@@ -453,8 +226,8 @@ def do_set_node_id(s: LssSession, a: LssArgs, out: TextIO) -> None:
         return
     assert old is not None
     # SGH10 manual 4.6.2.1: back in LSS waiting, the next reset communication adopts the id
-    s.send_frame(0x000, bytes([NMT_RESET_COMMUNICATION, old]))
-    if s.wait_frame(COB_NMT_ERROR_CONTROL + node_id, max(2.0, s.master.timeout_s)) is None:
+    s.send_frame(COB_NMT, bytes([NMT_RESET_COMMUNICATION, old]))
+    if s.wait_frame(COB_NMT_EC + node_id, max(2.0, s.master.timeout_s)) is None:
         raise LssFailed(f"NMT reset communication sent to node {old}: no boot-up from {node_id}")
     print(f"node {old} reset: boot-up received from node {node_id}", file=out)
 
@@ -477,17 +250,17 @@ def check_bitrate_supported(cfg: Config, a: LssArgs) -> None:
     profiles are ``profile=NAME``, else those of the config's nodes with feature lss_slave."""
     kbps, index = bitrate_argument(a)
     name = a.options.get("profile")
+    lps: dict[str, tuple[LoadedProfile, list[str]]] = {}
     if name is not None:
         try:
             lps = {name: (load_profile(name, cfg.base_dir), [])}
         except ProfileError as exc:
             raise UsageError(str(exc)) from None
     else:
-        lps = {}
-        for n in cfg.nodes:
-            lp = load_profile(n.profile, cfg.base_dir)
+        for rn in resolve_config(cfg).values():
+            lp = rn.lp
             if "lss_slave" in lp.profile.features:
-                lps.setdefault(n.profile, (lp, []))[1].append(n.name)
+                lps.setdefault(rn.cfg.profile or rn.lp.family, (lp, []))[1].append(rn.name)
     for profile, (lp, nodes) in lps.items():
         feature = lp.profile.features.get("lss_slave") or {}
         indices = feature.get("bit_timing_indices")
@@ -540,8 +313,8 @@ def _auto_id_feature(cfg: Config, a: LssArgs) -> dict[str, Any]:
         if feature is None:
             raise UsageError(f"profile {name} has no feature auto_id")
         return feature
-    for n in cfg.nodes:
-        feature = load_node_profile(n, cfg.base_dir).profile.features.get("auto_id")
+    for rn in resolve_config(cfg).values():
+        feature = rn.lp.profile.features.get("auto_id")
         if feature is not None:
             return feature
     raise UsageError(
@@ -563,14 +336,14 @@ def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
     old_id = parse_int(str(a.options.get("node", feature.get("factory_node_id", 125))), "node")
     if not 1 <= old_id <= 127:
         raise UsageError(f"node={old_id}: out of range 1..127")
-    reply_cob = int(feature.get("reply_cob_id", COB_SDO_ANSWER + old_id))
+    reply_cob = int(feature.get("reply_cob_id", COB_SDO_TX + old_id))
     if "node" in a.options:
-        reply_cob = COB_SDO_ANSWER + old_id
+        reply_cob = COB_SDO_TX + old_id
     timeout_s = a.number("timeout", 60.0)
-    # AP05 manual table 32: 67Dh 2Fh 0Ah 5Fh 02h <new id> x x x
-    request = bytes([SDO_DOWNLOAD_1_BYTE]) + struct.pack("<HB", obj.index, obj.sub)
-    request += bytes([new_id, 0, 0, 0])
-    s.send_frame(COB_SDO_REQUEST + old_id, request)
+    # AP05 manual table 32: 67Dh 2Fh 0Ah 5Fh 02h <new id> x x x (an expedited download of 1 byte)
+    write = SdoTransfer(obj.index, obj.sub, bytes([new_id]), timeout_s=timeout_s, retries=0)
+    for frame in write.start(s.clock()):
+        s.send_frame(COB_SDO_RX + old_id, frame)
     print(
         f"Auto-ID: {obj} = {new_id} sent to node {old_id}; press the key on the device that "
         f"shall take node id {new_id} (waiting {timeout_s:g} s)",
@@ -581,19 +354,21 @@ def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
     if answer is None:
         raise LssFailed(f"Auto-ID: no answer on 0x{reply_cob:03X} within {timeout_s:g} s")
     data = bytes(answer.data).ljust(8, b"\0")
-    if data[0] == SDO_ABORT:
-        code = struct.unpack_from("<I", data, 4)[0]
+    write.on_response(data, s.clock())  # an abort frame it would send is not sent: none was asked
+    if write.done and write.aborted_by_server and write.abort_code is not None:
+        code = write.abort_code
         raise LssFailed(f"Auto-ID refused: SDO abort 0x{code:08X} ({abort_text(code)})")
-    if data[0] != SDO_DOWNLOAD_ANSWER or struct.unpack_from("<HB", data, 1) != tuple(obj):
+    if not write.done or write.abort_code is not None:
         raise LssFailed(f"Auto-ID: unexpected answer {data.hex(' ')}")
     print(f"Auto-ID: a device took node id {new_id}", file=out, flush=True)
-    if s.wait_frame(COB_NMT_ERROR_CONTROL + new_id, 5.0) is None:
+    if s.wait_frame(COB_NMT_EC + new_id, 5.0) is None:
         print(f"warning: no boot-up from node {new_id} within 5 s", file=out)
     else:
         print(f"boot-up received from node {new_id}", file=out)
     # Is there another device left with the old id? Read 1000h (DS-301 upload request).
-    s.send_frame(COB_SDO_REQUEST + old_id, bytes([SDO_UPLOAD_REQUEST, 0x00, 0x10, 0, 0, 0, 0, 0]))
-    if s.wait_frame(COB_SDO_ANSWER + old_id, 0.5) is not None:
+    for frame in SdoTransfer(0x1000, 0x00).start(s.clock()):
+        s.send_frame(COB_SDO_RX + old_id, frame)
+    if s.wait_frame(COB_SDO_TX + old_id, 0.5) is not None:
         print(f"another device still answers as node {old_id}: run auto-id for it", file=out)
     else:
         print(f"no device answers as node {old_id} any more", file=out)
@@ -622,11 +397,12 @@ def _simulation(cfg: Config) -> Iterator[None]:
     from gateway.sim.runner import SimRunner, build_sim_nodes
 
     specs = []
+    resolved = resolve_config(cfg, [n.name for n in wanted])
     for n in wanted:
         opts: dict[str, Any] = dict(cfg.simulate.options.get(n.name) or {})
         if n.name in cfg.simulate.motion:
             opts["motion"] = cfg.simulate.motion[n.name]
-        specs.append((load_node_profile(n, cfg.base_dir), n.node_id, opts))
+        specs.append((node_of(cfg, resolved, n).lp, n.node_id, opts))
     bus = can.Bus(**cfg.can.bus_kwargs())
     runner = SimRunner(bus, build_sim_nodes(specs)).start()
     try:

@@ -1,16 +1,20 @@
 """The life of one node as the master sees it: waiting, booting, configuring, operational.
 
 Rule 1: every decision about when to configure a node, which SDO write comes next, when to
-retry a failed write and when to start the node lives here, in the table of ``NodeLifecycle``.
+retry a failed write and when to start the node lives here. The state changes are a table the
+code reads (``TRANSITIONS``, shown in the docstring of ``NodeLifecycle``), as h11's
+``_state.py``: a change the table does not define raises ``LifecycleError`` (our own misuse);
+an event of the device or of the driver that means nothing in the current state is ignored and
+counted (``ignored``).
 Rule 2: nothing here does I/O or reads a clock. The driver asks ``next_action(now)`` what to do
 (an SDO write, an NMT command, or wait), does it, and reports the outcome
 (``on_step_result``, ``on_nmt_sent``); it also reports what it observed (``on_bootup``,
 ``on_found``, ``on_lost``) and calls ``poll(now)`` for the boot timeout. Every event method
 returns the list of changes it caused.
 
-The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/boot_steps.py``.
+The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/node/boot_steps.py``.
 
-Imports: gateway.bus.boot_steps (the step type), gateway.cia301, gateway.objref and the
+Imports: gateway.bus.node.boot_steps (the step type), gateway.cia301, gateway.objref and the
 standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
@@ -22,7 +26,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal, NamedTuple
 
-from gateway.bus.boot_steps import ConfigStep
+from gateway.bus.node.boot_steps import ConfigStep
 from gateway.cia301 import (
     NMT_ENTER_PRE_OPERATIONAL,
     NMT_START,
@@ -52,6 +56,44 @@ class Backoff:
         if attempt < 1:
             return 0.0
         return min(self.max_s, self.initial_s * self.factor ** (attempt - 1))
+
+
+class LifecycleEvent(StrEnum):
+    """What moves the node from one state to another (the columns of ``TRANSITIONS``)."""
+
+    BOOTUP = "boot-up"  # a boot-up message (SGH10 manual 4.2.2)
+    FOUND = "found"  # the node answers although no boot-up was seen
+    CONFIGURE = "configure"  # the node is PRE-OPERATIONAL: configuration starts
+    START_SENT = "NMT start sent"  # every step done, NMT start went out
+    LOST = "lost"  # supervision lost the node
+    WRONG_IDENTITY = "wrong identity"  # 1018h holds other values than the EDS
+
+
+_W, _B, _C, _O = (
+    LifecycleState.WAITING,
+    LifecycleState.BOOTING,
+    LifecycleState.CONFIGURING,
+    LifecycleState.OPERATIONAL,
+)
+_E = LifecycleEvent
+#: (state, event) -> next state: every state change of ``NodeLifecycle`` (its docstring shows
+#: the same table with the actions)
+TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = {
+    (_W, _E.BOOTUP): _B,
+    (_C, _E.BOOTUP): _B,
+    (_O, _E.BOOTUP): _B,
+    (_W, _E.FOUND): _B,
+    (_B, _E.CONFIGURE): _C,  # NMT pre-operational sent, or the boot-up said so (4.2.1.1)
+    (_C, _E.START_SENT): _O,
+    (_B, _E.LOST): _W,
+    (_C, _E.LOST): _W,
+    (_O, _E.LOST): _W,
+    (_C, _E.WRONG_IDENTITY): _W,
+}
+
+
+class LifecycleError(RuntimeError):
+    """The gateway's own misuse of the machine: a change the table does not define."""
 
 
 # -- actions (what the driver must do); NamedTuples so ``action[0]`` is the kind
@@ -226,6 +268,9 @@ class NodeLifecycle:
         self._boot_deadline: float | None = None
         self._waiting_since: float | None = None
         self._config_started: float | None = None
+        #: events that meant nothing in the state they came in (a late answer, a second
+        #: "found"...), by (state, event name): counted, not acted on
+        self.ignored: dict[tuple[LifecycleState, str], int] = {}
 
     # -- queries
     @property
@@ -286,7 +331,7 @@ class NodeLifecycle:
         self.boots += 1
         out: list[Change] = []
         if self.state is not LifecycleState.BOOTING:
-            out.append(self._to(LifecycleState.BOOTING, "boot-up received"))
+            out.append(self._fire(LifecycleEvent.BOOTUP, "boot-up received"))
         self._preop_pending = False  # SGH10 manual 4.2.1.1: after boot-up it is PRE-OPERATIONAL
         out.append(self._begin_configuring(now, "node is pre-operational after boot-up"))
         return out
@@ -294,7 +339,7 @@ class NodeLifecycle:
     def on_found(self, now: float, device_type: int | None = None) -> list[Change]:
         """The node answers although no boot-up was seen (gateway restarted, cable replugged)."""
         if self.state is not LifecycleState.WAITING:
-            return []
+            return self._ignore("found")
         if (
             self.expected_device_type is not None
             and device_type is not None
@@ -309,16 +354,16 @@ class NodeLifecycle:
         self._boot_deadline = None
         self._preop_pending = True
         self._reset_progress()
-        return [self._to(LifecycleState.BOOTING, "found running")]
+        return [self._fire(LifecycleEvent.FOUND, "found running")]
 
     def on_lost(self, now: float) -> list[Change]:
         if self.state is LifecycleState.WAITING:
-            return []
+            return self._ignore("lost")
         self.losses += 1
         self._preop_pending = False
         self._reset_progress()
         self._arm_boot_timeout(now)
-        return [self._to(LifecycleState.WAITING, "lost (supervision)")]
+        return [self._fire(LifecycleEvent.LOST, "lost (supervision)")]
 
     def on_nmt_sent(self, now: float) -> list[Change]:
         """The NMT command of the last ``SendNmt`` action went out."""
@@ -330,10 +375,10 @@ class NodeLifecycle:
             self.last_error = None
             started = self._config_started if self._config_started is not None else now
             return [
-                self._to(LifecycleState.OPERATIONAL, "configured, NMT start sent"),
+                self._fire(LifecycleEvent.START_SENT, "configured, NMT start sent"),
                 Configured(now - started),
             ]
-        return []
+        return self._ignore("NMT sent")
 
     def on_step_result(
         self,
@@ -348,9 +393,9 @@ class NodeLifecycle:
         ignored. Without a token the result applies to the step in flight.
         """
         if self.state is not LifecycleState.CONFIGURING or self._in_flight is None:
-            return []
+            return self._ignore("step result")
         if token is not None and token != self._in_flight:
-            return []
+            return self._ignore("step result")
         self._in_flight = None
         index = self.step_index
         step = self.steps[index]
@@ -376,9 +421,9 @@ class NodeLifecycle:
         """Outcome of the last ``ReadIdentity``: the value read, or None with the abort code
         (a refusal) or without (no answer: retried with backoff)."""
         if self.state is not LifecycleState.CONFIGURING or self._in_flight is None:
-            return []
+            return self._ignore("identity result")
         if token is not None and token != self._in_flight:
-            return []
+            return self._ignore("identity result")
         self._in_flight = None
         obj, _ = self.expected_identity[self._identity_index]
         if value is None and abort_code is None:
@@ -408,14 +453,23 @@ class NodeLifecycle:
             "(1018h against the EDS): not configured"
         )
         self._reset_progress()
-        changed = self._to(LifecycleState.WAITING, "wrong device (1018h)")
+        changed = self._fire(LifecycleEvent.WRONG_IDENTITY, "wrong device (1018h)")
         vendor = next((v for o, v in self.expected_identity if o.sub == 1), 0)
         return [changed, WrongDevice(vendor, found.get(ObjRef(0x1018, 1)) or 0)]
 
     # -- internals
-    def _to(self, new: LifecycleState, reason: str) -> StateChanged:
+    def _fire(self, event: LifecycleEvent, reason: str) -> StateChanged:
+        """The state change ``TRANSITIONS`` defines for ``event`` in the current state."""
+        new = TRANSITIONS.get((self.state, event))
+        if new is None:
+            raise LifecycleError(f"no transition from {self.state} on {event}")
         old, self.state = self.state, new
         return StateChanged(old, new, reason)
+
+    def _ignore(self, event: str) -> list[Change]:
+        key = (self.state, event)
+        self.ignored[key] = self.ignored.get(key, 0) + 1
+        return []
 
     def _reset_progress(self) -> None:
         self._identity_index = 0
@@ -429,7 +483,7 @@ class NodeLifecycle:
         self._boot_deadline = None
         self._reset_progress()
         self._config_started = now
-        return self._to(LifecycleState.CONFIGURING, reason)
+        return self._fire(LifecycleEvent.CONFIGURE, reason)
 
     def _arm_boot_timeout(self, now: float) -> None:
         self._waiting_since = now

@@ -8,7 +8,8 @@ signal, or one RPDO); ``frame`` encodes an RPDO, with the guarding bit the link 
 keep-alive re-sends the last RPDO when none went out for ``keepalive_s`` (AP05 manual 5.5.4
 external heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes nothing).
 
-Imports: bus.codec, bus.events, bus.supervision (the guarding-bit check), errors. No I/O.
+Imports: pdo.codec, bus.node.events, bus.error_control.guarding_bit (the guarding-bit check),
+errors. No I/O.
 """
 
 from __future__ import annotations
@@ -16,10 +17,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from gateway.bus.codec import RpdoCodec
-from gateway.bus.events import Send
-from gateway.bus.guarding_bit import GuardingBitCheck
+from gateway.bus.error_control.guarding_bit import GuardingBitCheck
+from gateway.bus.node.events import Send
 from gateway.errors import Unmapped
+from gateway.pdo.codec import RpdoCodec
 
 
 class OutputImage:

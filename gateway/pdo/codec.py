@@ -59,7 +59,7 @@ class Field:
 
 def _field_kind(lp: LoadedProfile, obj: ObjRef, sig: Signal | None) -> tuple[bool, bool, bool]:
     if sig is not None:
-        t = sig.type
+        t = sig.type_name
         return t.startswith("int"), t == "float32", t in ("string", "bytes")
     if obj.index < 0x1000:  # a DS-301 dummy data type entry
         return obj.index in SIGNED_TYPES, obj.index == REAL32, False
@@ -147,7 +147,7 @@ class TpdoCodec:
 
 class RpdoCodec:
     """Encodes one RPDO from the values of its mapped fields (stateless: the values are the
-    node's output image, owned by ``bus.node.Node``)."""
+    node's output image, owned by ``bus.node.owner.Node``)."""
 
     __slots__ = ("cob_id", "number", "fields", "length", "names", "_pack", "_index")
 

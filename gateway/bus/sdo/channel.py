@@ -1,11 +1,11 @@
 """One node's SDO channel: transfers queued and run one at a time, in order (CiA 301: one
 SDO server channel per node; a second request while one runs would be taken as part of it).
 
-The channel runs ``sdo_client.SdoTransfer`` machines and tells its owner (``bus.node.Node``)
+The channel runs ``sdo_client.SdoTransfer`` machines and tells its owner (``bus.node.owner.Node``)
 when one finishes; what a finished transfer means (a boot step, a probe, a command) is the
 owner's business. No I/O, no clock: frames out, ``now`` in.
 
-Imports: bus.sdo_client, bus.events, objref.
+Imports: bus.sdo.client, bus.node.events, cia301, objref.
 """
 
 from __future__ import annotations
@@ -15,8 +15,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.events import Send
-from gateway.bus.sdo_client import SdoTransfer
+from gateway.bus.node.events import Send
+from gateway.bus.sdo.client import SdoTransfer
+from gateway.cia301 import COB_SDO_RX
 from gateway.objref import ObjRef
 
 
@@ -132,4 +133,4 @@ class SdoChannel:
         return out, None
 
     def _frames(self, frames: list[bytes]) -> list[Send]:
-        return [Send(0x600 + self.node_id, f) for f in frames]
+        return [Send(COB_SDO_RX + self.node_id, f) for f in frames]

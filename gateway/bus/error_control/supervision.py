@@ -1,5 +1,5 @@
 """Node supervision as plain state machines: heartbeat consumer and node guarding master
-(the guarding-bit check of process data is in ``bus.guarding_bit``).
+(the guarding-bit check of process data is in ``bus.error_control.guarding_bit``).
 
 Rule 1: everything that decides whether a node (or its process-data link) is alive lives here,
 with each transition in a table next to the manual section it implements.

@@ -1,0 +1,5 @@
+"""SDO (CiA 301 7.2.4): the client transfer machine (``client``), the per-node channel that runs
+one transfer at a time (``channel``) and the bytes of a value in a transfer (``values``).
+
+Imports: cia301, errors, objref. No I/O.
+"""

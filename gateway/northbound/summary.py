@@ -1,0 +1,108 @@
+"""One health summary per node, read from the process image once and formatted by each
+adapter: Zenoh's ``<node>/state`` payload, the node diagnostics in Modbus input registers and
+discrete inputs, the node rows of the web console and ``/healthz``.
+
+A summary is taken at one instant (``now``, monotonic): the data age and the worst process
+quality are computed once, so two adapters never disagree on what "operational" or "usable"
+means. The words each adapter uses for a state (``QUALITY_TEXT``, the Modbus codes) are theirs.
+
+Imports: image, states. Nothing of bus/ or of an adapter.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Collection
+from dataclasses import dataclass
+
+from gateway.image import EmcyRecord, NodeImage, Quality
+from gateway.states import LinkState, NmtState
+
+#: quality as every adapter writes it in text
+QUALITY_TEXT = {Quality.GOOD: "good", Quality.STALE: "stale", Quality.BAD: "bad"}
+
+
+@dataclass(frozen=True)
+class NodeSummary:
+    """A node's health at one instant (see the module docstring)."""
+
+    name: str
+    node_id: int
+    nmt_state: NmtState
+    alive: bool
+    #: alive, OPERATIONAL and the guarding-bit link not in fault
+    operational: bool
+    #: operational and the link confirmed OK (or not used): the Zenoh liveliness token follows it
+    usable: bool
+    lifecycle: str
+    supervision: str
+    link: LinkState
+    link_fault_count: int
+    loss_count: int
+    boot_count: int
+    emcy_count: int
+    last_emcy: EmcyRecord | None
+    current_errors: tuple[int, ...]
+    last_sdo_abort: int
+    last_error: str
+    #: "normal", or "safe" from the output watchdog's write of the safe values
+    outputs: str
+    #: seconds since the last value received from the node; None: none yet
+    data_age_s: float | None
+    #: PDOs received shorter or longer than their mapping
+    pdo_errors: int
+    #: the worst quality of the node's process signals (None when not asked for)
+    quality: Quality | None = None
+
+    @property
+    def link_ok(self) -> bool:
+        return self.link in (LinkState.OK, LinkState.NOT_USED)
+
+    @property
+    def presence(self) -> str:
+        """"alive", "lost" (seen before) or "not seen"."""
+        if self.alive:
+            return "alive"
+        return "lost" if self.boot_count or self.loss_count else "not seen"
+
+
+def worst_quality(node: NodeImage, process: Collection[str], now: float) -> Quality:
+    """The worst quality of ``process`` (the signals the node's TPDOs carry) from one snapshot;
+    a node without process signals is good while operational, else stale."""
+    if not process:
+        return Quality.GOOD if node.operational() else Quality.STALE
+    snap = node.snapshot()
+    return max(node.quality(snap[n], now) for n in process)
+
+
+def summarize(
+    node: NodeImage, now: float | None = None, process: Collection[str] | None = None
+) -> NodeSummary:
+    """The node's summary at ``now`` (monotonic, default: the current time); with ``process``
+    (its process signal names) the worst quality too."""
+    now = time.monotonic() if now is None else now
+    h = node.health
+    rx = node.rx
+    return NodeSummary(
+        name=node.name,
+        node_id=node.node_id,
+        nmt_state=h.nmt_state,
+        alive=h.alive,
+        operational=node.operational(),
+        usable=node.usable(),
+        lifecycle=h.lifecycle,
+        supervision=h.supervision,
+        link=h.link,
+        link_fault_count=h.link_fault_count,
+        loss_count=h.loss_count,
+        boot_count=h.boot_count,
+        emcy_count=h.emcy_count,
+        last_emcy=h.last_emcy,
+        current_errors=tuple(h.current_errors),
+        last_sdo_abort=h.last_sdo_abort,
+        last_error=h.last_error,
+        outputs=h.outputs,
+        data_age_s=node.data_age_s(now),
+        pdo_errors=rx.pdo_too_short + rx.pdo_too_long,
+        quality=None if process is None else worst_quality(node, process, now),
+    )
