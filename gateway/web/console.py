@@ -45,7 +45,7 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.limits, web.monitor, config, image, commands (types), ratelimit, sim.faults
+web.events, web.limits, web.monitor, northbound.scaling, config, image, commands (types), ratelimit, sim.faults
 (names and errors; the injector itself is given by the application; the bus driver, for the
 monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """

@@ -17,7 +17,7 @@ one value and one quality per signal; a node's signals are fixed when the store 
 What is a trend signal: numeric (integer or float type), carried by a TPDO of the node's PDO
 layout, without named bits (a status word is shown in the table, not plotted).
 
-Imports: image, web.views (signal metadata), northbound.scaling (engineering units).
+Imports: image, web.views (signal metadata), northbound.scaling (engineering units), profiles.schema.
 """
 
 from __future__ import annotations
