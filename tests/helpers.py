@@ -36,7 +36,10 @@ def make_config(nodes: list[dict[str, Any]], **sections: Any) -> Any:
     raw: dict[str, Any] = {
         "gateway": {"name": "test"},
         "can": {"interface": "virtual", "channel": unique_channel()},
-        "master": {"heartbeat_ms": 200, "sync_period_ms": 50, "boot_timeout_s": 5},
+        # a consumer timeout of 3 heartbeat periods: a starved test machine does not lose nodes
+        # (the timeout edges themselves are tested on a fake clock, tests/unit)
+        "master": {"heartbeat_ms": 200, "sync_period_ms": 50, "boot_timeout_s": 5,
+                   "heartbeat_timeout_multiple": 3},
         "nodes": nodes,
         "modbus": {"port": free_port()},
         "zenoh": {"listen": [f"tcp/127.0.0.1:{free_port()}"]},

@@ -102,7 +102,7 @@ async def test_the_page_loads_with_the_overview_and_every_node(browser: Any) -> 
             bus = browser.find_element(By.ID, "ov-bus").text
             assert "virtual" in bus and "ok" in bus
             assert cell(browser, "wire", "nmt_state") == "operational"
-            assert cell(browser, "wire", "supervision") == "heartbeat 100 ms, lost after 150 ms"
+            assert cell(browser, "wire", "supervision") == "heartbeat 100 ms, lost after 300 ms"
             wait_for(browser, lambda d: d.find_element(By.ID, "conn").text == "live", "live")
 
         await run(check)

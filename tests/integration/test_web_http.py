@@ -87,7 +87,7 @@ async def test_pages_static_files_and_api_are_served_on_the_health_port() -> Non
         (row,) = doc["nodes"]
         assert row["name"] == "wire" and row["presence"] == "alive"
         assert row["quality"] == "good" and row["nmt_state"] == "operational"
-        assert row["supervision_timing"] == "heartbeat 100 ms, lost after 150 ms"
+        assert row["supervision_timing"] == "heartbeat 100 ms, lost after 300 ms"
         code, _, body = await http(base + "/api/node/wire")
         detail = json.loads(body)
         position = next(s for s in detail["signals"] if s["name"] == "position")
