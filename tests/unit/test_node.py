@@ -98,7 +98,7 @@ class Harness:
     ):
         cfg = make_config(
             [{"name": "n", "node_id": node_id, "profile": profile, **node}],
-            master={"boot_timeout_s": 5, **(master or {})},
+            master={"boot_timeout_s": 5, "heartbeat_timeout_multiple": 1.5, **(master or {})},
         )
         rn = resolve_node(cfg, cfg.nodes[0])
         lp = rn.lp
