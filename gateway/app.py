@@ -305,6 +305,7 @@ class Gateway:
         c = self.metrics.counters
         ic = self.image.counters
         c.frames_in, c.frames_out, c.bus_errors = ic["frames_in"], ic["frames_out"], ic["bus_errors"]
+        c.bursts = ic["bursts"]
         for name, node in self.image.nodes.items():
             for reason, n in (
                 ("short", node.rx.pdo_too_short),

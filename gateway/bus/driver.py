@@ -289,6 +289,7 @@ class BusDriver:
                 )
 
     def _end_burst(self) -> None:
+        self.rx_counters["bursts"] += 1
         for listener in self.burst_listeners:
             try:
                 listener()
