@@ -826,7 +826,7 @@ async def scenario(
         ratio=gw["cpu"] / bare["cpu"] if bare["cpu"] else math_nan(),
         bare_us_per_frame=bare["us_per_frame"],
         lost=gw["frames_sent"] - gw["frames_in"],
-        threads={name: round(c * 100, 1) for name, _tid, c in gw["threads"] if c >= 0.005},
+        threads={f"{name} {tid}": round(c * 100, 1) for name, tid, c in gw["threads"] if c >= 0.005},
         profile=gw["profile"].get("top", {}) if gw["profile"] else {},
     )
     return out

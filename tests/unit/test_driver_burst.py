@@ -54,6 +54,8 @@ def test_burst_listeners_run_once_per_burst_after_every_buffered_frame() -> None
         assert burst_seen.wait(WAIT_S)  # a failing listener does not stop the others
         assert bursts == [20, 21]
         assert d.threads.failures() == {}
+        # counted: two bursts (wake-ups) for 21 frames (canopen_gateway_can_bursts_total)
+        assert d.image.counters["bursts"] == 2 and d.image.counters["frames_in"] == 21
     finally:
         device.shutdown()
         d.close()
