@@ -595,13 +595,16 @@ async def _gateway_phase(
             await asyncio.sleep(0.1)
         endpoint = cfg["zenoh"]["listen"][0]
         prefix = "canopen/linerate"
-        probe_key = f"{prefix}/n1/value/position"
+        # publish: pdo puts node 1's TPDO1 and TPDO2 (one record) on tpdo/1
+        pdo = publish == "pdo"
+        probe_key = f"{prefix}/n1/tpdo/1" if pdo else f"{prefix}/n1/value/position"
+        parse = ["json_all" if pdo else "json"]
         sub = start_subscriber([endpoint], [(f"{prefix}/**", "count")], probe_key)
         workers.append(sub)
         for _ in range(200):  # the subscriber is matched once it sees node 1 move
             if await sub.acall("wait", 1, 0.05, 0.05):
                 break
-        sub0 = await sub.acall("take", ["json"])
+        sub0 = await sub.acall("take", parse)
         poller = start_poller()
         workers.append(poller)
         plc = Worker(PlcClient, name="plc")
@@ -647,7 +650,7 @@ async def _gateway_phase(
         gen.close()
         await asyncio.sleep(1.5)  # the gateway copies its counters into the metrics every second
         frames_in = metric(health + "/metrics", "canopen_gateway_frames_in_total")
-        z = await sub.acall("take", ["json"])
+        z = await sub.acall("take", parse)
     finally:
         if gen is not None:
             gen.close()
@@ -673,10 +676,12 @@ async def _gateway_phase(
         mb_seen.setdefault(v - (1 << 32) if v >= 1 << 31 else v, t)
     z_seen: dict[int, float] = {}
     for _, v, t in z["records"]:
+        if isinstance(v, dict):  # publish: pdo
+            v = v["signals"]["position"]["value"]
         z_seen.setdefault(round(v / POSITION_SCALE), t)
     mb_lat = [(mb_seen[v] - t) * 1000 for v, t in probe if v in mb_seen]
     z_lat = [(z_seen[v] - t) * 1000 for v, t in probe if v in z_seen]
-    value_samples = sum(c for k, c in z["counts"].items() if "/value/" in k)
+    value_samples = sum(c for k, c in z["counts"].items() if "/value/" in k or "/tpdo/" in k)
     return {
         "cpu": cpu,
         "cpu_polled": cpu_polled,
