@@ -114,6 +114,9 @@ class SocketcandServer:
         conn.sendall(b"< ok >")
         expect(b"rawmode")
         conn.sendall(b"< ok >")
+        # python-can reads the "< ok >" alone (one recv, compared whole): frames sent in the
+        # same TCP read would fail its handshake, so the first frames wait a moment
+        time.sleep(0.2)
         self.conn = conn
         self.connected.set()
         reader = threading.Thread(target=self._read, args=(conn,), name="socketcand-rx", daemon=True)

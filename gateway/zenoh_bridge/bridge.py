@@ -178,8 +178,7 @@ class _PdoPub:
     signals one frame carries), the signals published in it, its publisher, and what was last
     published (the record's ``seq`` and the qualities), kept under its own lock."""
 
-    __slots__ = ("key", "names", "entries", "solo", "lock", "pub", "last_seq", "last_quality",
-                 "count")  # fmt: skip
+    __slots__ = ("key", "names", "entries", "lock", "pub", "last_seq", "last_quality", "count")
 
     def __init__(
         self, key: str, names: tuple[str, ...], entries: list[tuple[Signal, int, Scaling]]
@@ -187,7 +186,6 @@ class _PdoPub:
         self.key = key
         self.names = names  # the record key (``NodeImage.records``)
         self.entries = entries  # (signal, index in the record, scaling)
-        self.solo = True  # no signal of the record is also published on its own value key
         self.lock = threading.Lock()
         self.pub: Any = None
         self.last_seq = 0
@@ -265,6 +263,13 @@ class _ValueBatch:
         with self.lock:
             self.pending[id(sp)] = (node, sp)
 
+    def mark_all(self, node: NodeImage, sps: tuple[Any, ...]) -> None:
+        """Mark the publications of one PDO (one lock for all)."""
+        with self.lock:
+            pending = self.pending
+            for sp in sps:
+                pending[id(sp)] = (node, sp)
+
     def take(self) -> list[tuple[NodeImage, _SignalPub]]:
         """The marked signals, unmarked (the next marks go to the next batch)."""
         with self.lock:
@@ -307,6 +312,11 @@ class ZenohBridge:
         #: ``publish: pdo``: (node, record key) -> its PDO publication
         self.pdo_pubs: dict[tuple[str, tuple[str, ...]], _PdoPub] = {}
         self.pdo_by_node: dict[str, list[_PdoPub]] = {}
+        #: (node, record key of a TPDO) -> (publications to mark, ``publish: every`` signals):
+        #: the reader's work per frame, planned once
+        self._routes: dict[
+            tuple[str, tuple[str, ...]], tuple[tuple[Any, ...], tuple[Any, ...]]
+        ] = {}
         self.state_pubs: dict[str, Any] = {}
         self.emcy_pubs: dict[str, Any] = {}
         self.raw_pubs: dict[tuple[str, int], Any] = {}
@@ -374,10 +384,15 @@ class ZenohBridge:
                 ]
                 if entries:
                     pp = _PdoPub(tpdo_key(self.prefix, name, number), names, entries)
-                    pp.solo = not any((name, n) in self.pubs for n in names)
                     self.pdo_pubs[(name, names)] = pp
                     pps.append(pp)
             self.pdo_by_node[name] = pps
+            for _number, names in rt.tpdo_records:
+                pp = self.pdo_pubs.get((name, names))
+                sps_of = [self.pubs[(name, n)] for n in names if (name, n) in self.pubs]
+                every = tuple(sp for sp in sps_of if sp.policy.mode == "every")
+                marks = tuple(sp for sp in sps_of if sp.policy.mode != "every")
+                self._routes[(name, names)] = ((pp, *marks) if pp is not None else marks, every)
 
     def _value_keys(self) -> dict[str, list[tuple[str, Signal]]]:
         """Per node, the value keys a get answers from the image: every published signal's,
@@ -668,11 +683,16 @@ class ZenohBridge:
         """Called on the bus reader thread for every decoded PDO."""
         if self.session is None:
             return
-        pp = self.pdo_pubs.get((node.name, names)) if self.pdo_pubs else None
-        if pp is not None:
-            self._values.mark(node, pp)
-            if pp.solo:
-                return
+        route = self._routes.get((node.name, names))
+        if route is not None:  # a TPDO's record: what to mark and publish, planned
+            marks, every = route
+            if marks:
+                self._values.mark_all(node, marks)
+            if every:
+                now = self._clock()
+                for sp in every:
+                    self._offer(node, sp, now)
+            return
         pubs = self.pubs
         nname = node.name
         mark = self._values.mark
