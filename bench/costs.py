@@ -6,7 +6,8 @@ Scenarios (60 SGH10 nodes through a socketcand server on 127.0.0.1, default conf
 value, a Modbus poller for the latency): a 500 kbit/s bus (4,505 frames/s of 8-byte standard
 frames without stuffing) and a 1 Mbit/s bus (9,009 frames/s), every frame carrying new values;
 the same 1 Mbit/s bus with ``publish: pdo``; one frame per TCP write at 5,000 frames/s (as
-SocketCAN delivers them: one frame per read); then a ladder of rates to find the largest one the
+SocketCAN delivers them: one frame per read), also with ``zenoh.batch_ms: 1`` and with Zenoh
+off (what publication costs per wake-up); then a ladder of rates to find the largest one the
 gateway holds with 0 frames lost and p99 frame -> Modbus and frame -> Zenoh <= 1 ms.
 
 Per scenario: gateway CPU (% of one core) and its ratio to the bare listener, p99 frame ->
@@ -26,16 +27,16 @@ from bench.report import Row, Section
 from bench.stats import Summary
 
 BUS_500K, BUS_1M = 4505, 9009
-LADDER = (1000, 2000, 3000, 4505, 6000)
+LADDER = (500, 1000, 2000, 4505)
 
 
-def _rows(sec: Section, label: str, runs: list[dict[str, Any]]) -> None:
+def _rows(sec: Section, label: str, runs: list[dict[str, Any]], zenoh: bool = True) -> None:
     s = Summary.of
 
     def col(key: str) -> Summary:
         return s([r[key] for r in runs])
 
-    sec.rows += [
+    rows = [
         Row(f"{label}: frames/s", col("fps")),
         Row(f"{label}: gateway CPU, % of one core", s([r["cpu"] * 100 for r in runs]),
             "bare listener", s([r["bare_cpu"] * 100 for r in runs]), col("ratio"),
@@ -52,6 +53,7 @@ def _rows(sec: Section, label: str, runs: list[dict[str, Any]]) -> None:
         Row(f"{label}: context switches per burst, reader / all threads",
             col("reader_switches_per_burst"), "all threads", col("switches_per_burst"), digits=2),
     ]  # fmt: skip
+    sec.rows += [row for row in rows if zenoh or "Zenoh" not in row.figure]
 
 
 async def run(phase_s: float = 8.0, reps: int = 2) -> Section:
@@ -66,7 +68,8 @@ async def run(phase_s: float = 8.0, reps: int = 2) -> Section:
             "stuffing) and a 1 Mbit/s bus (9,009 frames/s), every frame carrying new values "
             f"(position and velocity), default config (`publish: change`), {reps} runs each; "
             "the 1 Mbit/s bus with `publish: pdo`; one frame per TCP write at 5,000 frames/s "
-            "(one frame per read, as SocketCAN delivers them); then rates "
+            "(one frame per read, as SocketCAN delivers them), also with `zenoh.batch_ms: 1` "
+            "and, once, with Zenoh off (what publication costs); then rates "
             f"{', '.join(f'{r:,}' for r in LADDER)} frames/s once each for the largest rate "
             "held with 0 lost and both p99 <= 1 ms. Reader CPU per burst and per frame from "
             "/proc/PID/task and the gateway's `can_bursts_total` / `frames_in_total`."
@@ -79,10 +82,14 @@ async def run(phase_s: float = 8.0, reps: int = 2) -> Section:
          {"fps": BUS_1M, "every_value": True, "publish": "pdo"}, reps),
         ("one frame per read, 5,000 frames/s, every value",
          {"fps": 5000, "every_value": True, "per_frame": True}, reps),
+        ("one frame per read, 5,000 frames/s, every value, zenoh.batch_ms 1",
+         {"fps": 5000, "every_value": True, "per_frame": True, "batch_ms": 1.0}, reps),
+        ("one frame per read, 5,000 frames/s, every value, Zenoh off",
+         {"fps": 5000, "every_value": True, "per_frame": True, "zenoh": False}, 1),
     ]  # fmt: skip
     for label, kw, n in plan:
         runs = [await scenario(phase_s=phase_s, **kw) for _ in range(n)]
-        _rows(sec, label, runs)
+        _rows(sec, label, runs, kw.get("zenoh", True))
     held = 0
     ladder = []
     for fps in LADDER:

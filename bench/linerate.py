@@ -542,7 +542,13 @@ async def _bare_phase(phase_s: float, gen_kw: dict[str, Any] | None = None) -> d
             "us_per_frame": (d1[busy][3] - d0[busy][3]) / max(1, frames) * 1e6}  # fmt: skip
 
 
-def _gateway_config(path: pathlib.Path, can_port: int, publish: str = "change") -> dict[str, Any]:
+def _gateway_config(
+    path: pathlib.Path,
+    can_port: int,
+    publish: str = "change",
+    zenoh: bool = True,
+    batch_ms: float = 0.0,
+) -> dict[str, Any]:
     cfg = {
         "gateway": {"name": "linerate", "log_level": "warning"},
         "can": {"interface": "socketcand", "host": "127.0.0.1", "port": can_port,
@@ -554,7 +560,8 @@ def _gateway_config(path: pathlib.Path, can_port: int, publish: str = "change") 
             for i in range(1, N_NODES + 1)
         ],
         "modbus": {"host": "127.0.0.1", "port": free_port()},
-        "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{free_port()}"], "publish": publish},
+        "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{free_port()}"], "publish": publish,
+                  "enabled": zenoh, "batch_ms": batch_ms},
         "health": {"host": "127.0.0.1", "port": free_port()},
     }  # fmt: skip
     path.write_text(yaml.safe_dump(cfg), encoding="utf-8")
@@ -566,11 +573,13 @@ async def _gateway_phase(
     profile_s: float,
     gen_kw: dict[str, Any] | None = None,
     publish: str = "change",
+    zenoh: bool = True,
+    batch_ms: float = 0.0,
 ) -> dict[str, Any]:
     server = SocketcandServer()
     server.serve_one()
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="bench-linerate-"))
-    cfg = _gateway_config(tmp / "gateway.yaml", server.port, publish)
+    cfg = _gateway_config(tmp / "gateway.yaml", server.port, publish, zenoh, batch_ms)
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     log = open(tmp / "gateway.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(
@@ -604,7 +613,7 @@ async def _gateway_phase(
         parse = ["json_all" if pdo else "json"]
         sub = start_subscriber([endpoint], [(f"{prefix}/**", "count")], probe_key)
         workers.append(sub)
-        for _ in range(200):  # the subscriber is matched once it sees node 1 move
+        for _ in range(200 if zenoh else 0):  # the subscriber is matched once it sees node 1 move
             if await sub.acall("wait", 1, 0.05, 0.05):
                 break
         sub0 = await sub.acall("take", parse)
@@ -815,6 +824,8 @@ async def scenario(
     publish: str = "change",
     phase_s: float = 10.0,
     profile_s: float = 0.0,
+    zenoh: bool = True,
+    batch_ms: float = 0.0,
 ) -> dict[str, Any]:
     """One paired run, bare listener then gateway, of a line-rate scenario: ``fps`` frames/s
     (TPDOs + heartbeats of the 60 nodes; default the bench's 9,489), every frame with new values
@@ -824,7 +835,7 @@ async def scenario(
     if fps is not None:
         gen_kw["period_s"] = 2 * N_NODES / (fps - N_NODES / HEARTBEAT_S)
     bare = await _bare_phase(phase_s, gen_kw)
-    gw = await _gateway_phase(phase_s, profile_s, gen_kw, publish)
+    gw = await _gateway_phase(phase_s, profile_s, gen_kw, publish, zenoh, batch_ms)
     keys = ("fps", "cpu", "mb_p50", "mb_p99", "z_p50", "z_p99", "frames_per_burst",
             "reader_cpu", "reader_us_per_burst", "reader_us_per_frame",
             "reader_switches_per_burst", "switches_per_burst", "value_samples_per_s", "not_alive")  # fmt: skip
@@ -834,7 +845,9 @@ async def scenario(
         ratio=gw["cpu"] / bare["cpu"] if bare["cpu"] else math_nan(),
         bare_us_per_frame=bare["us_per_frame"],
         lost=gw["frames_sent"] - gw["frames_in"],
-        threads={f"{name} {tid}": round(c * 100, 1) for name, tid, c in gw["threads"] if c >= 0.005},
+        threads={
+            f"{name} {tid}": round(c * 100, 1) for name, tid, c in gw["threads"] if c >= 0.005
+        },
         profile=gw["profile"].get("top", {}) if gw["profile"] else {},
     )
     return out
@@ -851,10 +864,13 @@ def main() -> None:
     ap.add_argument("--phase", type=float, default=10.0)
     ap.add_argument("--profile", type=float, default=0.0)
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--no-zenoh", action="store_true", help="the gateway without Zenoh")
+    ap.add_argument("--batch-ms", type=float, default=0.0, help="zenoh.batch_ms")
     args = ap.parse_args()
     for _ in range(args.repeat):
         r = asyncio.run(scenario(args.fps, args.every_value, args.per_frame, args.publish,
-                                 args.phase, args.profile))  # fmt: skip
+                                 args.phase, args.profile, not args.no_zenoh,
+                                 args.batch_ms))  # fmt: skip
         print(json.dumps(r), flush=True)
 
 

@@ -90,6 +90,10 @@ class BusDriver:
         self.default_handler: FrameHandler | None = None
         #: called on the reader thread after a burst, when no received frame is left buffered
         self.burst_listeners: list[Callable[[], None]] = []
+        #: at least this long (``mono`` seconds) between two calls of the burst listeners: the
+        #: end of a burst that comes sooner waits, with the next frames, until the gap is over
+        #: (0: after every burst)
+        self.burst_gap_s = 0.0
         self.bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
@@ -240,7 +244,10 @@ class BusDriver:
     def _run(self) -> None:
         counters = self.rx_counters
         handlers = self.handlers
-        in_burst = False  # frames handled since the burst listeners were last called
+        in_burst = False  # within a burst: frames taken since the last wait
+        ended = False  # frames handled since the burst listeners were last called
+        last_end = float("-inf")  # ``mono`` time the burst listeners were last called
+        mono = self.mono
         while self._running.is_set():
             bus = self.bus
             if bus is None:
@@ -248,9 +255,12 @@ class BusDriver:
                     continue
                 bus = self.bus
                 assert bus is not None
+            wait = 0.05
+            if ended:  # the end of a burst waits for the gap: wake up when it is over
+                wait = min(wait, max(0.0, last_end + self.burst_gap_s - mono()))
             try:
                 # within a burst: only what is already buffered; between bursts: wait
-                msg = bus.recv(timeout=0.0 if in_burst else 0.05)
+                msg = bus.recv(timeout=0.0 if in_burst else wait)
             except Exception as exc:  # noqa: BLE001 - any backend failure keeps us running
                 if not self._running.is_set():
                     break
@@ -264,9 +274,13 @@ class BusDriver:
                 self.clock_state = (True, self.clock_state[1])
                 if in_burst:
                     in_burst = False
+                    counters["bursts"] += 1
+                if ended and mono() - last_end >= self.burst_gap_s:
+                    ended = False
+                    last_end = mono()
                     self._end_burst()
                 continue
-            in_burst = True
+            in_burst = ended = True
             self.clock_state = (False, msg.timestamp)  # one assignment (see __init__)
             if msg.is_error_frame:
                 counters["bus_errors"] += 1
@@ -289,7 +303,6 @@ class BusDriver:
                 )
 
     def _end_burst(self) -> None:
-        self.rx_counters["bursts"] += 1
         for listener in self.burst_listeners:
             try:
                 listener()

@@ -22,12 +22,13 @@ WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 async def test_one_sample_per_pdo_with_every_signal_its_quality_and_the_record_time() -> None:
     cfg = make_config(
         [WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp", "speed": 2000}}},
-        zenoh={"publish": "pdo"},
+        zenoh={"publish": "pdo", "batch_ms": 2},  # and the values of 2 ms go out together
     )  # fmt: skip
     gw = Gateway(cfg)
     await gw.start()
     z = ZClient(cfg.zenoh.listen)
     try:
+        assert gw.driver.burst_gap_s == 0.002
         pdo = z.subscribe(f"{P}/wire/tpdo/*")
         single = z.subscribe(f"{P}/wire/value/*")
         await wait_until(lambda: gw.image.nodes["wire"].operational(), 8, "wire operational")
