@@ -6,7 +6,8 @@ path: no event-loop hop, no logging per frame); everything else (heartbeat, EMCY
 handed to its handler, which for control traffic forwards to the event loop. The reader takes
 frames in bursts: after a frame it asks the backend for the next one without waiting, and only
 when none is buffered does it call the ``burst_listeners`` (once per burst: consumers that hand
-work to another thread wake it there, not once per frame) and then block. A backend that
+work to another thread wake it there, not once per frame; with ``burst_gap_s``, at most once per
+gap, the bursts within it taken together) and then block. A backend that
 raises is reported, the bus is closed and reopened with exponential backoff; the gateway keeps
 running. A bus that cannot be opened at start is retried the same way (only an interface name
 python-can does not know is fatal).
