@@ -27,7 +27,7 @@ from bench.report import Row, Section
 from bench.stats import Summary
 
 BUS_500K, BUS_1M = 4505, 9009
-LADDER = (500, 1000, 2000, 4505)
+LADDER = (1000, 2000, 3000, 4505)  # above the 600 heartbeats/s of the 60 nodes
 
 
 def _rows(sec: Section, label: str, runs: list[dict[str, Any]], zenoh: bool = True) -> None:
@@ -93,7 +93,11 @@ async def run(phase_s: float = 8.0, reps: int = 2) -> Section:
     held = 0
     ladder = []
     for fps in LADDER:
-        r = await scenario(fps=fps, every_value=True, phase_s=phase_s)
+        try:
+            r = await scenario(fps=fps, every_value=True, phase_s=phase_s)
+        except Exception as exc:  # noqa: BLE001 - one failed rate must not lose the others
+            ladder.append(f"{fps:,} frames/s: not measured ({exc})")
+            continue
         ok = r["lost"] == 0 and r["mb_p99"] <= 1.0 and r["z_p99"] <= 1.0
         ladder.append(
             f"{fps:,} frames/s: CPU {r['cpu'] * 100:.1f}% ({r['ratio']:.2f}x bare), p99 Modbus "

@@ -833,6 +833,8 @@ async def scenario(
     ``zenoh.publish``."""
     gen_kw: dict[str, Any] = {"every_value": every_value, "per_frame": per_frame}
     if fps is not None:
+        if fps <= N_NODES / HEARTBEAT_S:
+            raise ValueError(f"{fps} frames/s: the heartbeats alone are {N_NODES / HEARTBEAT_S:g}")
         gen_kw["period_s"] = 2 * N_NODES / (fps - N_NODES / HEARTBEAT_S)
     bare = await _bare_phase(phase_s, gen_kw)
     gw = await _gateway_phase(phase_s, profile_s, gen_kw, publish, zenoh, batch_ms)
