@@ -53,7 +53,7 @@ def _rows(sec: Section, label: str, runs: list[dict[str, Any]], zenoh: bool = Tr
         Row(f"{label}: context switches per burst, reader / all threads",
             col("reader_switches_per_burst"), "all threads", col("switches_per_burst"), digits=2),
     ]  # fmt: skip
-    sec.rows += [row for row in rows if zenoh or "Zenoh" not in row.figure]
+    sec.rows += [row for row in rows if zenoh or "-> Zenoh" not in row.figure]
 
 
 async def run(phase_s: float = 8.0, reps: int = 2) -> Section:
