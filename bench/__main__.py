@@ -1,6 +1,6 @@
 """``python -m bench [name ...]``: run the benchmarks (all by default) and write RESULTS.md.
 
-Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate. Running a subset prints its sections
+Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs. Running a subset prints its sections
 and leaves RESULTS.md as it is.
 
 Imports: bench.*.
@@ -16,7 +16,17 @@ import time
 import traceback
 from collections.abc import Awaitable, Callable
 
-from bench import hotpath, ingest, latency, linerate, modbus_rps, scale, startup, zenoh_outage
+from bench import (
+    costs,
+    hotpath,
+    ingest,
+    latency,
+    linerate,
+    modbus_rps,
+    scale,
+    startup,
+    zenoh_outage,
+)
 from bench.findings import findings
 from bench.machine import describe, load_average
 from bench.report import Section, render
@@ -30,6 +40,7 @@ BENCHES: dict[str, Callable[[], Awaitable[Section]]] = {
     "hotpath": hotpath.run,
     "outage": zenoh_outage.run,
     "linerate": linerate.run,
+    "costs": costs.run,
 }
 HERE = pathlib.Path(__file__).resolve().parent
 

@@ -114,6 +114,9 @@ class SocketcandServer:
         conn.sendall(b"< ok >")
         expect(b"rawmode")
         conn.sendall(b"< ok >")
+        # python-can reads the "< ok >" alone (one recv, compared whole): frames sent in the
+        # same TCP read would fail its handshake, so the first frames wait a moment
+        time.sleep(0.2)
         self.conn = conn
         self.connected.set()
         reader = threading.Thread(target=self._read, args=(conn,), name="socketcand-rx", daemon=True)
@@ -157,8 +160,22 @@ class SocketcandServer:
 class Generator:
     """60 SGH10 on a saturated bus: the frames of each 0.5 ms slot in one TCP write."""
 
-    def __init__(self, server: SocketcandServer):
+    def __init__(
+        self,
+        server: SocketcandServer,
+        period_s: float = PERIOD_S,
+        every_value: bool = False,
+        per_frame: bool = False,
+    ):
         self.server = server
+        #: TPDO1 + TPDO2 of every node every ``period_s``, in 27 slots
+        self.period_s = period_s
+        self.slot_s = period_s / round(PERIOD_S / SLOT_S)
+        #: every frame carries new values (position and velocity), TPDO1 and TPDO2 alike
+        self.every_value = every_value
+        #: each frame its own TCP write, spread over the slot (one frame per read, as
+        #: SocketCAN delivers them); else the frames of a slot in one write
+        self.per_frame = per_frame
         self.stop = threading.Event()
         self.sent = {"tpdo": 0, "heartbeat": 0, "bootup": 0}
         self.probe: list[tuple[int, float]] = []  # (position of node 1, perf_counter at send)
@@ -177,7 +194,8 @@ class Generator:
     def _run(self) -> None:
         c0 = time.thread_time()
         slots_per_period = round(PERIOD_S / SLOT_S)  # 27
-        slots_per_hb = round(HEARTBEAT_S / SLOT_S)  # 200
+        slot_s = self.slot_s
+        slots_per_hb = round(HEARTBEAT_S / slot_s)  # 200 at the default rate
         ids = range(1, N_NODES + 1)
         tpdo1 = collections.defaultdict(list)
         tpdo2 = collections.defaultdict(list)
@@ -190,6 +208,7 @@ class Generator:
         clock = time.perf_counter
         pack = SGH10_TPDO.pack
         send = self.server.send
+        every_value, per_frame = self.every_value, self.per_frame
         boot = "".join(f"< frame {0x700 + i:03X} {time.time():.6f} 00 >" for i in ids)
         send(boot.encode())
         self.sent["bootup"] += N_NODES
@@ -206,20 +225,38 @@ class Generator:
             probe = None
             for base, nodes in ((0x180, tpdo1[k]), (0x280, tpdo2[k])):
                 for i in nodes:
-                    value = cycle * 8 + i  # every node's position moves every cycle
-                    parts.append(f"< frame {base + i:03X} {ts} {pack(value, 7).hex()} >")
+                    if every_value:  # every frame new values: position and velocity
+                        value = (cycle * 2 + (base == 0x280)) * 64 + i
+                        velocity = value & 0x3FFF
+                    else:  # every node's position moves every cycle
+                        value, velocity = cycle * 8 + i, 7
+                    parts.append(f"< frame {base + i:03X} {ts} {pack(value, velocity).hex()} >")
                     if i == 1 and (not self.probe or self.probe[-1][0] != value):
                         probe = value
                 self.sent["tpdo"] += len(nodes)
-            if parts:
+            if parts and not per_frame:
                 if probe is not None:
                     self.probe.append((probe, clock()))
                 try:
                     send("".join(parts).encode())
                 except OSError:
                     return
+            elif parts:
+                gap = slot_s / len(parts)
+                at = nxt
+                for part in parts:
+                    delay = at - clock()
+                    if delay > 0:
+                        time.sleep(delay)
+                    if probe is not None and part.startswith(("< frame 181", "< frame 281")):
+                        self.probe.append((probe, clock()))
+                    try:
+                        send(part.encode())
+                    except OSError:
+                        return
+                    at += gap
             slot += 1
-            nxt += SLOT_S
+            nxt += slot_s
             delay = nxt - clock()
             if delay > 0:
                 time.sleep(delay)
@@ -315,8 +352,9 @@ def thread_cpu_s(pid: int) -> dict[int, float]:
     return out
 
 
-def thread_detail(pid: int) -> dict[int, tuple[float, int, int]]:
-    """Per thread: system CPU seconds, voluntary and involuntary context switches so far."""
+def thread_detail(pid: int) -> dict[int, tuple[float, int, int, float]]:
+    """Per thread: system CPU seconds, voluntary and involuntary context switches so far, CPU
+    seconds (user + system)."""
     out = {}
     for tid in os.listdir(f"/proc/{pid}/task"):
         try:
@@ -326,11 +364,12 @@ def thread_detail(pid: int) -> dict[int, tuple[float, int, int]]:
                 status = dict(line.split(":", 1) for line in f.read().splitlines() if ":" in line)
         except OSError:
             continue  # the thread ended meanwhile
-        sys_s = int(stat[stat.rindex(")") + 2 :].split()[12]) / _CLK_TCK
+        fields = stat[stat.rindex(")") + 2 :].split()
         out[int(tid)] = (
-            sys_s,
+            int(fields[12]) / _CLK_TCK,
             int(status["voluntary_ctxt_switches"]),
             int(status["nonvoluntary_ctxt_switches"]),
+            (int(fields[11]) + int(fields[12])) / _CLK_TCK,
         )
     return out
 
@@ -417,13 +456,58 @@ def metric(url: str, name: str) -> float:
     return math_nan()
 
 
+def metrics(url: str) -> dict[str, float]:
+    """The unlabelled samples of a Prometheus text page."""
+    out = {}
+    with urllib.request.urlopen(url, timeout=2) as r:
+        for line in r.read().decode().splitlines():
+            name, _, value = line.partition(" ")
+            if line and not line.startswith("#") and "{" not in name:
+                out[name] = float(value)
+    return out
+
+
 def math_nan() -> float:
     return float("nan")
 
 
 
+def reader_figures(
+    per_thread: list[tuple[str, int, float]],
+    d0: dict[int, tuple[float, int, int, float]],
+    d1: dict[int, tuple[float, int, int, float]],
+    c0: dict[str, float],
+    c1: dict[str, float],
+    wall: float,
+) -> dict[str, float]:
+    """The reader's cost per burst (one wake-up each) and per frame, and the context switches
+    per burst: of the reader, and of every thread of the process."""
+    ns = "canopen_gateway_"
+    frames = c1.get(ns + "frames_in_total", 0) - c0.get(ns + "frames_in_total", 0)
+    bursts = c1.get(ns + "can_bursts_total", 0) - c0.get(ns + "can_bursts_total", 0)
+    reader = next((tid for name, tid, _ in per_thread if name == "can-reader"), None)
+    if reader is None:  # not named without a profile: the busiest thread but the main one
+        main = min(tid for _, tid, _ in per_thread)
+        reader = next((tid for _, tid, _ in per_thread if tid != main), None)
+    out = {"frames_in_window": frames, "bursts": bursts,
+           "frames_per_burst": frames / bursts if bursts else math_nan()}  # fmt: skip
+    if reader is None or reader not in d0 or reader not in d1 or not bursts:
+        return out
+    r_cpu = d1[reader][3] - d0[reader][3]
+    r_sw = (d1[reader][1] - d0[reader][1]) + (d1[reader][2] - d0[reader][2])
+    all_sw = sum((d1[t][1] - d0[t][1]) + (d1[t][2] - d0[t][2]) for t in d1 if t in d0)
+    out.update(
+        reader_cpu=r_cpu / wall,
+        reader_us_per_burst=r_cpu / bursts * 1e6,
+        reader_us_per_frame=r_cpu / max(1, frames) * 1e6,
+        reader_switches_per_burst=r_sw / bursts,
+        switches_per_burst=all_sw / bursts,
+    )
+    return out
+
+
 # ---------------------------------------------------------------------- phases
-async def _bare_phase(phase_s: float) -> dict[str, Any]:
+async def _bare_phase(phase_s: float, gen_kw: dict[str, Any] | None = None) -> dict[str, Any]:
     server = SocketcandServer()
     server.serve_one()
     bare = Worker(BareListener, name="bare-listener")
@@ -432,7 +516,7 @@ async def _bare_phase(phase_s: float) -> dict[str, Any]:
         call = asyncio.ensure_future(bare.acall("run", server.port, phase_s + 2.0,
                                                 timeout_s=phase_s + 60))  # fmt: skip
         await asyncio.to_thread(server.connected.wait, 30)
-        gen = Generator(server).start()
+        gen = Generator(server, **(gen_kw or {})).start()
         await asyncio.sleep(1.0)
         pid = bare.proc.pid
         assert pid is not None
@@ -450,12 +534,21 @@ async def _bare_phase(phase_s: float) -> dict[str, Any]:
     wall = t1 - t0
     frames = (s1["tpdo"] + s1["heartbeat"]) - (s0["tpdo"] + s0["heartbeat"])
     d = [sum(d1[t][i] - d0[t][i] for t in d1 if t in d0) for i in range(3)]
+    # its receive loop is the process's busiest thread: its CPU per frame
+    busy = max((t for t in d1 if t in d0), key=lambda t: d1[t][3] - d0[t][3])
     return {"cpu": (c1 - c0) / wall, "fps": frames / wall, "received": result["frames"],
             "lag_ms": gen.max_lag_s * 1000 if gen else math_nan(),
-            "sys": d[0] / wall, "switches_per_frame": (d[1] + d[2]) / frames}  # fmt: skip
+            "sys": d[0] / wall, "switches_per_frame": (d[1] + d[2]) / frames,
+            "us_per_frame": (d1[busy][3] - d0[busy][3]) / max(1, frames) * 1e6}  # fmt: skip
 
 
-def _gateway_config(path: pathlib.Path, can_port: int) -> dict[str, Any]:
+def _gateway_config(
+    path: pathlib.Path,
+    can_port: int,
+    publish: str = "change",
+    zenoh: bool = True,
+    batch_ms: float = 0.0,
+) -> dict[str, Any]:
     cfg = {
         "gateway": {"name": "linerate", "log_level": "warning"},
         "can": {"interface": "socketcand", "host": "127.0.0.1", "port": can_port,
@@ -467,18 +560,26 @@ def _gateway_config(path: pathlib.Path, can_port: int) -> dict[str, Any]:
             for i in range(1, N_NODES + 1)
         ],
         "modbus": {"host": "127.0.0.1", "port": free_port()},
-        "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{free_port()}"]},
+        "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{free_port()}"], "publish": publish,
+                  "enabled": zenoh, "batch_ms": batch_ms},
         "health": {"host": "127.0.0.1", "port": free_port()},
     }  # fmt: skip
     path.write_text(yaml.safe_dump(cfg), encoding="utf-8")
     return cfg
 
 
-async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
+async def _gateway_phase(
+    phase_s: float,
+    profile_s: float,
+    gen_kw: dict[str, Any] | None = None,
+    publish: str = "change",
+    zenoh: bool = True,
+    batch_ms: float = 0.0,
+) -> dict[str, Any]:
     server = SocketcandServer()
     server.serve_one()
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="bench-linerate-"))
-    cfg = _gateway_config(tmp / "gateway.yaml", server.port)
+    cfg = _gateway_config(tmp / "gateway.yaml", server.port, publish, zenoh, batch_ms)
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     log = open(tmp / "gateway.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(
@@ -492,7 +593,7 @@ async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
         await asyncio.to_thread(server.connected.wait, 60)
         if not server.connected.is_set():
             raise RuntimeError("the gateway did not connect to the socketcand server")
-        gen = Generator(server).start()
+        gen = Generator(server, **(gen_kw or {})).start()
         deadline = time.monotonic() + 60
         while True:
             try:
@@ -506,13 +607,16 @@ async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
             await asyncio.sleep(0.1)
         endpoint = cfg["zenoh"]["listen"][0]
         prefix = "canopen/linerate"
-        probe_key = f"{prefix}/n1/value/position"
+        # publish: pdo puts node 1's TPDO1 and TPDO2 (one record) on tpdo/1
+        pdo = publish == "pdo"
+        probe_key = f"{prefix}/n1/tpdo/1" if pdo else f"{prefix}/n1/value/position"
+        parse = ["json_all" if pdo else "json"]
         sub = start_subscriber([endpoint], [(f"{prefix}/**", "count")], probe_key)
         workers.append(sub)
-        for _ in range(200):  # the subscriber is matched once it sees node 1 move
+        for _ in range(200 if zenoh else 0):  # the subscriber is matched once it sees node 1 move
             if await sub.acall("wait", 1, 0.05, 0.05):
                 break
-        sub0 = await sub.acall("take", ["json"])
+        sub0 = await sub.acall("take", parse)
         poller = start_poller()
         workers.append(poller)
         plc = Worker(PlcClient, name="plc")
@@ -538,11 +642,13 @@ async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
             wall = t1 - t0
             return (c1 - c0) / wall, {t: (c - th0.get(t, 0.0)) / wall for t, c in th1.items()}, t0
 
+        counts0 = metrics(health + "/metrics")  # counters are copied in at every scrape
         sent0, tw0 = dict(gen.sent), time.perf_counter()
         detail0 = thread_detail(proc.pid)
         cpu, threads_cpu, _ = await window(phase_s)  # PLC + Zenoh: the load of the issue
         detail1 = thread_detail(proc.pid)
         sent1, tw1 = dict(gen.sent), time.perf_counter()
+        counts1 = metrics(health + "/metrics")
         comms = {tid: thread_comm(proc.pid, tid) for tid in threads_cpu}
         rss = rss_kib(proc.pid)
         # latency: a Modbus poller in a tight loop on node 1's position meanwhile
@@ -556,7 +662,7 @@ async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
         gen.close()
         await asyncio.sleep(1.5)  # the gateway copies its counters into the metrics every second
         frames_in = metric(health + "/metrics", "canopen_gateway_frames_in_total")
-        z = await sub.acall("take", ["json"])
+        z = await sub.acall("take", parse)
     finally:
         if gen is not None:
             gen.close()
@@ -582,10 +688,12 @@ async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
         mb_seen.setdefault(v - (1 << 32) if v >= 1 << 31 else v, t)
     z_seen: dict[int, float] = {}
     for _, v, t in z["records"]:
+        if isinstance(v, dict):  # publish: pdo
+            v = v["signals"]["position"]["value"]
         z_seen.setdefault(round(v / POSITION_SCALE), t)
     mb_lat = [(mb_seen[v] - t) * 1000 for v, t in probe if v in mb_seen]
     z_lat = [(z_seen[v] - t) * 1000 for v, t in probe if v in z_seen]
-    value_samples = sum(c for k, c in z["counts"].items() if "/value/" in k)
+    value_samples = sum(c for k, c in z["counts"].items() if "/value/" in k or "/tpdo/" in k)
     return {
         "cpu": cpu,
         "cpu_polled": cpu_polled,
@@ -606,6 +714,7 @@ async def _gateway_phase(phase_s: float, profile_s: float) -> dict[str, Any]:
             for name, tid, _c in per_thread
             if tid in detail0 and tid in detail1
         },
+        **reader_figures(per_thread, detail0, detail1, counts0, counts1, tw1 - tw0),
         "mb_p50": percentile(mb_lat, 50), "mb_p99": percentile(mb_lat, 99),
         "z_p50": percentile(z_lat, 50), "z_p99": percentile(z_lat, 99),
         "probes": len(probe), "mb_seen": len(mb_lat), "z_seen": len(z_lat),
@@ -706,3 +815,66 @@ async def run(phase_s: float = 20.0, profile_s: float = 8.0) -> Section:
             + "; ".join(f"{fn} {share * 100:.0f}%" for fn, share in top)
         )
     return sec
+
+
+async def scenario(
+    fps: float | None = None,
+    every_value: bool = False,
+    per_frame: bool = False,
+    publish: str = "change",
+    phase_s: float = 10.0,
+    profile_s: float = 0.0,
+    zenoh: bool = True,
+    batch_ms: float = 0.0,
+) -> dict[str, Any]:
+    """One paired run, bare listener then gateway, of a line-rate scenario: ``fps`` frames/s
+    (TPDOs + heartbeats of the 60 nodes; default the bench's 9,489), every frame with new values
+    or not, each frame its own TCP write or a slot's frames in one; ``publish`` the config's
+    ``zenoh.publish``."""
+    gen_kw: dict[str, Any] = {"every_value": every_value, "per_frame": per_frame}
+    if fps is not None:
+        if fps <= N_NODES / HEARTBEAT_S:
+            raise ValueError(f"{fps} frames/s: the heartbeats alone are {N_NODES / HEARTBEAT_S:g}")
+        gen_kw["period_s"] = 2 * N_NODES / (fps - N_NODES / HEARTBEAT_S)
+    bare = await _bare_phase(phase_s, gen_kw)
+    gw = await _gateway_phase(phase_s, profile_s, gen_kw, publish, zenoh, batch_ms)
+    keys = ("fps", "cpu", "mb_p50", "mb_p99", "z_p50", "z_p99", "frames_per_burst",
+            "reader_cpu", "reader_us_per_burst", "reader_us_per_frame",
+            "reader_switches_per_burst", "switches_per_burst", "value_samples_per_s", "not_alive")  # fmt: skip
+    out = {k: gw.get(k, math_nan()) for k in keys}
+    out.update(
+        bare_cpu=bare["cpu"],
+        ratio=gw["cpu"] / bare["cpu"] if bare["cpu"] else math_nan(),
+        bare_us_per_frame=bare["us_per_frame"],
+        lost=gw["frames_sent"] - gw["frames_in"],
+        threads={
+            f"{name} {tid}": round(c * 100, 1) for name, tid, c in gw["threads"] if c >= 0.005
+        },
+        profile=gw["profile"].get("top", {}) if gw["profile"] else {},
+    )
+    return out
+
+
+def main() -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m bench.linerate", description=scenario.__doc__)
+    ap.add_argument("--fps", type=float, default=None)
+    ap.add_argument("--every-value", action="store_true")
+    ap.add_argument("--per-frame", action="store_true")
+    ap.add_argument("--publish", default="change")
+    ap.add_argument("--phase", type=float, default=10.0)
+    ap.add_argument("--profile", type=float, default=0.0)
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--no-zenoh", action="store_true", help="the gateway without Zenoh")
+    ap.add_argument("--batch-ms", type=float, default=0.0, help="zenoh.batch_ms")
+    args = ap.parse_args()
+    for _ in range(args.repeat):
+        r = asyncio.run(scenario(args.fps, args.every_value, args.per_frame, args.publish,
+                                 args.phase, args.profile, not args.no_zenoh,
+                                 args.batch_ms))  # fmt: skip
+        print(json.dumps(r), flush=True)
+
+
+if __name__ == "__main__":
+    main()

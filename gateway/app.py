@@ -352,6 +352,7 @@ class Gateway:
         peers = self.master.peers
         c.other_master = {kind: s.count for kind, s in peers.other_master.items()}
         c.other_sdo_client = {node: s.count for node, s in peers.sdo_clients.items()}
+        c.bursts = ic["bursts"]
         for name, node in self.image.nodes.items():
             for reason, n in (
                 ("short", node.rx.pdo_too_short),

@@ -135,9 +135,20 @@ class NodeInfo:
     image: NodeImage
     pdo_cob_ids: tuple[int, ...]
     outputs: frozenset[str]  # signals sent in RPDOs
+    #: (TPDO number, record key) of each received PDO: the signals one frame carries (TPDOs
+    #: with the same signals share one record; the first number names it)
+    tpdo_records: tuple[tuple[int, tuple[str, ...]], ...] = ()
 
     def is_output(self, name: str) -> bool:
         return name in self.outputs
+
+
+def _tpdo_records(p: NodeParts) -> tuple[tuple[int, tuple[str, ...]], ...]:
+    seen: dict[tuple[str, ...], int] = {}
+    for codec in p.tpdos:
+        if codec.names:
+            seen.setdefault(codec.names, codec.number)
+    return tuple((number, names) for names, number in seen.items())
 
 
 class CommandService:
@@ -169,6 +180,7 @@ class CommandService:
                 p.image,
                 tuple(c.cob_id for c in p.tpdos) + tuple(c.cob_id for c in p.rpdos),
                 frozenset(p.node.by_signal) | frozenset(t.name for t in text_signals(p.lp.profile)),
+                _tpdo_records(p),
             )
             self._infos[name] = info
         return info

@@ -374,7 +374,15 @@ class ZenohSection(_Model):
     connect: list[str] = Field(default_factory=list)
     prefix: str | None = None
     multicast_scouting: bool = False
-    publish: Literal["change", "every"] = "change"
+    #: change / every: a sample per signal on its value key; pdo: a sample per received PDO
+    #: with all its signals on ``<node>/tpdo/<n>`` (a signal's own publish still applies)
+    publish: Literal["change", "every", "pdo"] = "change"
+    batch_ms: float = Field(
+        default=0.0,
+        ge=0,
+        le=100,
+        description="values of frames received within this window go out together (0 = per burst)",
+    )
     raw_pdo: bool = False
     tls: ZenohTls | None = None
     writes: bool = Field(default=False, description="off: every set, SDO download, NMT refused")

@@ -326,7 +326,7 @@ class Counters:
     (``image.counter_set()``) and readers sum them."""
 
     NAMES = ("frames_in", "frames_out", "decode_errors", "unknown_cob_id", "bus_errors",
-             "pdo_too_long", "emcy_errors")  # fmt: skip
+             "pdo_too_long", "emcy_errors", "bursts")  # fmt: skip
 
     def __init__(self) -> None:
         self._sets: list[dict[str, int]] = []

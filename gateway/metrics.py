@@ -135,6 +135,7 @@ class Counters:
     frames_in: int = 0
     frames_out: int = 0
     bus_errors: int = 0
+    bursts: int = 0
     zenoh_publications: int = 0
     decode_errors: dict[tuple[str, str], int] = field(default_factory=dict)
     emcy: dict[str, int] = field(default_factory=dict)
@@ -257,6 +258,7 @@ class Metrics:
                 frames_in=c.frames_in,
                 frames_out=c.frames_out,
                 bus_errors=c.bus_errors,
+                bursts=c.bursts,
                 zenoh_publications=c.zenoh_publications,
                 decode_errors=c.decode_errors.copy(),
                 emcy=c.emcy.copy(),
@@ -307,6 +309,11 @@ class _GatewayCollector:
 
         yield counter("frames_in_total", "CAN frames received.", c.frames_in)
         yield counter("frames_out_total", "CAN frames sent.", c.frames_out)
+        yield counter(
+            "can_bursts_total",
+            "Bursts of received CAN frames the reader handled (one wake-up each).",
+            c.bursts,
+        )
         yield counter("bus_errors_total", "CAN error frames and failed sends.", c.bus_errors)
         yield counter(
             "zenoh_publications_total", "Samples published on Zenoh.", c.zenoh_publications

@@ -6,7 +6,8 @@ path: no event-loop hop, no logging per frame); everything else (heartbeat, EMCY
 handed to its handler, which for control traffic forwards to the event loop. The reader takes
 frames in bursts: after a frame it asks the backend for the next one without waiting, and only
 when none is buffered does it call the ``burst_listeners`` (once per burst: consumers that hand
-work to another thread wake it there, not once per frame) and then block. A backend that
+work to another thread wake it there, not once per frame; with ``burst_gap_s``, at most once per
+gap, the bursts within it taken together) and then block. A backend that
 raises is reported, the bus is closed and reopened with exponential backoff; the gateway keeps
 running. A bus that cannot be opened at start is retried the same way (only an interface name
 python-can does not know is fatal).
@@ -93,6 +94,10 @@ class BusDriver:
         #: called on the reader thread with every received frame while set (the web console's
         #: bus monitor, ``gateway.web.monitor``); None costs the reader one check per frame
         self.frame_tap: FrameHandler | None = None
+        #: at least this long (``mono`` seconds) between two calls of the burst listeners: the
+        #: end of a burst that comes sooner waits, with the next frames, until the gap is over
+        #: (0: after every burst)
+        self.burst_gap_s = 0.0
         self.bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
@@ -243,7 +248,10 @@ class BusDriver:
     def _run(self) -> None:
         counters = self.rx_counters
         handlers = self.handlers
-        in_burst = False  # frames handled since the burst listeners were last called
+        in_burst = False  # within a burst: frames taken since the last wait
+        ended = False  # frames handled since the burst listeners were last called
+        last_end = float("-inf")  # ``mono`` time the burst listeners were last called
+        mono = self.mono
         while self._running.is_set():
             bus = self.bus
             if bus is None:
@@ -251,9 +259,12 @@ class BusDriver:
                     continue
                 bus = self.bus
                 assert bus is not None
+            wait = 0.05
+            if ended:  # the end of a burst waits for the gap: wake up when it is over
+                wait = min(wait, max(0.0, last_end + self.burst_gap_s - mono()))
             try:
                 # within a burst: only what is already buffered; between bursts: wait
-                msg = bus.recv(timeout=0.0 if in_burst else 0.05)
+                msg = bus.recv(timeout=0.0 if in_burst else wait)
             except Exception as exc:  # noqa: BLE001 - any backend failure keeps us running
                 if not self._running.is_set():
                     break
@@ -267,9 +278,13 @@ class BusDriver:
                 self.clock_state = (True, self.clock_state[1])
                 if in_burst:
                     in_burst = False
+                    counters["bursts"] += 1
+                if ended and mono() - last_end >= self.burst_gap_s:
+                    ended = False
+                    last_end = mono()
                     self._end_burst()
                 continue
-            in_burst = True
+            in_burst = ended = True
             self.clock_state = (False, msg.timestamp)  # one assignment (see __init__)
             if msg.is_error_frame:
                 counters["bus_errors"] += 1

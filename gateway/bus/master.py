@@ -255,6 +255,10 @@ class Master:
         self.driver.default_handler = self._unknown
         if self.image.end_batch not in self.driver.burst_listeners:
             self.driver.burst_listeners.append(self.image.end_batch)
+        # the values of the bursts within zenoh.batch_ms are published together
+        self.driver.burst_gap_s = (
+            self.cfg.zenoh.batch_ms / 1000.0 if self.cfg.zenoh.enabled else 0.0
+        )
         self.driver.on_state = self._bus_state
 
     def _post(self, fn: Callable[..., None], *args: Any, wake: bool = True) -> None:

@@ -39,6 +39,8 @@ from gateway.modbus.protocol import (
     MASK_WRITE_REGISTER,
     READ_COILS,
     READ_DISCRETE_INPUTS,
+    READ_HOLDING,
+    READ_INPUT,
     READ_TABLE,
     WRITE_COIL,
     WRITE_COILS,
@@ -140,7 +142,35 @@ class ImageDatastore:
                 out.append(bool(await self._bit_value(p, words, snaps, sums)))
                 a += 1
                 continue
-            regs = await self._reg_value(p, snaps, sums)
+            # a value of the image (or the gateway's) is read without a coroutine per point
+            if p.kind in ("gateway", "diag", "nmt") or p.table == "ir":
+                regs = self._image_regs(p, snaps, sums)
+            else:
+                regs = await self._reg_value(p, snaps, sums)
+            lo = a - p.address
+            take = min(p.end, end) - a
+            out.extend(regs[lo : lo + take])
+            a += take
+        return out
+
+    def read_now(self, unit: int, table: Table, address: int, count: int) -> list[int] | None:
+        """``read`` of registers all served from the image, at once; None when one of them
+        is an output (read through the command service: ``read``)."""
+        idx = self.regmap.index.get((unit, table), {})
+        snaps: dict[str, Mapping[str, SignalValue]] = {}  # one consistent view per node
+        sums: dict[str, NodeSummary] = {}  # one health summary per node
+        out: list[int] = []
+        a, end = address, address + count
+        while a < end:
+            p = idx.get(a)
+            if p is None:
+                raise ModbusError(
+                    ExceptionCode.ILLEGAL_DATA_ADDRESS,
+                    f"{TABLE_NAMES[table]} {a} of unit {unit} is not mapped",
+                )
+            if not (p.kind in ("gateway", "diag", "nmt") or p.table == "ir"):
+                return None
+            regs = self._image_regs(p, snaps, sums)
             lo = a - p.address
             take = min(p.end, end) - a
             out.extend(regs[lo : lo + take])
@@ -172,12 +202,13 @@ class ImageDatastore:
             raise NodeNotOperational(node.name, f"{name} flagged invalid by the device")
         raise NodeNotOperational(node.name, f"{name} is stale")
 
-    async def _reg_value(
+    def _image_regs(
         self,
         p: Point,
         snaps: dict[str, Mapping[str, SignalValue]] | None = None,
         sums: dict[str, NodeSummary] | None = None,
     ) -> list[int]:
+        """The registers of a point served from the image (not an output): no await."""
         if p.kind == "gateway":
             return to_registers(self._gateway_value(p.name), p)
         node = self._node(p)
@@ -186,9 +217,17 @@ class ImageDatastore:
         if p.kind == "nmt":
             st = node.health.nmt_state
             return [0xFFFF if st == NmtState.UNKNOWN else int(st)]
-        if p.table == "ir":
-            return to_registers(self._servable(node, p.name, snaps), p)
-        return to_registers(await self._output_value(node.name, p.name), p)
+        return to_registers(self._servable(node, p.name, snaps), p)
+
+    async def _reg_value(
+        self,
+        p: Point,
+        snaps: dict[str, Mapping[str, SignalValue]] | None = None,
+        sums: dict[str, NodeSummary] | None = None,
+    ) -> list[int]:
+        if p.kind in ("gateway", "diag", "nmt") or p.table == "ir":
+            return self._image_regs(p, snaps, sums)
+        return to_registers(await self._output_value(self._node(p).name, p.name), p)
 
     async def _output_value(self, node: str, name: str) -> Any:
         """A writable point: the last value sent by RPDO, else the device's value by SDO
@@ -421,6 +460,29 @@ def _log_late_result(task: asyncio.Future[Any]) -> None:
 
 
 # ---------------------------------------------------------------------- one request
+def execute_now(store: ImageDatastore, unit: int, pdu: bytes) -> bytes | None:
+    """A register read served from the image at once (no await, no task), or None when the
+    request needs ``execute`` (writes, bits, identification, outputs read through the command
+    service). Raises as ``execute`` does."""
+    fc = pdu[0]
+    if fc not in (READ_HOLDING, READ_INPUT):
+        return None
+    body = pdu[1:]
+    code = check_request(fc, body)
+    if code is not None:
+        raise ModbusError(code, f"function code {fc}: malformed or unsupported request")
+    if unit not in store.regmap.units:
+        raise ModbusError(
+            ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"
+        )
+    address, qty = struct.unpack(">HH", body)
+    values = store.read_now(unit, READ_TABLE[fc], address, qty)
+    if values is None:
+        return None
+    data = struct.pack(f">{len(values)}H", *values)
+    return bytes((fc, len(data))) + data
+
+
 async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None) -> bytes:
     """Serve one request PDU; returns the response PDU (raises ModbusError / GatewayError)."""
     fc, body = pdu[0], pdu[1:]

@@ -56,7 +56,7 @@ from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import ProcessImage
-from gateway.modbus.datastore import ImageDatastore, execute
+from gateway.modbus.datastore import ImageDatastore, execute, execute_now
 from gateway.modbus.protocol import (
     MAX_IN_FLIGHT,
     MBAP,
@@ -154,6 +154,8 @@ class _Connection(asyncio.Protocol):
                 break
             pdu = bytes(buf[MBAP.size : size])
             del buf[:size]
+            if not self.in_flight and self._serve_now(tid, unit, pdu):
+                continue  # a read of the image: answered at once, no task
             self.in_flight += 1
             task = asyncio.get_running_loop().create_task(self._serve(tid, unit, pdu))
             self.tasks.add(task)
@@ -171,6 +173,24 @@ class _Connection(asyncio.Protocol):
             self.paused = False
             self.transport.resume_reading()
         self._parse()
+
+    def _serve_now(self, tid: int, unit: int, pdu: bytes) -> bool:
+        """Answer a register read served from the image right here (with nothing else in
+        flight, so answers keep the order of the requests); False: ``_serve`` it in a task."""
+        store = self.store
+        try:
+            self._authorise(pdu[0])
+            response = execute_now(store, unit, pdu)
+        except Exception:  # noqa: BLE001 - the task path answers it with its exception code
+            return False
+        if response is None:
+            return False
+        store.requests += 1
+        store.by_function[pdu[0]] = store.by_function.get(pdu[0], 0) + 1
+        self.owner.request_seen()
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.write(MBAP.pack(tid, 0, len(response) + 1, unit) + response)
+        return True
 
     async def _serve(self, tid: int, unit: int, pdu: bytes) -> None:
         store = self.store

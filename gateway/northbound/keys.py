@@ -9,6 +9,7 @@ Under a prefix (default ``canopen/<gateway name>``, ``zenoh.prefix`` in the conf
 | ``<prefix>/<node>/state`` | event; get = current | JSON NMT state, alive, lifecycle, link |
 | ``<prefix>/<node>/emcy`` | event | JSON code, register, text, manufacturer bytes |
 | ``<prefix>/<node>/pdo/<cob-id hex>`` | publication (``raw_pdo``) | raw PDO bytes |
+| ``<prefix>/<node>/tpdo/<n>`` | publication (``publish: pdo``) | JSON ts, seq, each signal's value, unit, quality |
 | ``<prefix>/alive/<node>`` | liveliness token | present while the node is alive |
 | ``<prefix>/alive/_gateway`` | liveliness token | present while the gateway runs |
 | ``<prefix>/<node>/sdo/<index>/<sub>`` | query | get = SDO upload; with payload = download |
@@ -95,6 +96,11 @@ def pdo_key(prefix: str, node: str, cob_id: int) -> str:
     return f"{prefix}/{node}/pdo/{cob_id:03x}"
 
 
+def tpdo_key(prefix: str, node: str, number: int) -> str:
+    """One sample per received PDO with all its signals (``zenoh.publish: pdo``)."""
+    return f"{prefix}/{node}/tpdo/{number}"
+
+
 def alive_key(prefix: str, node: str) -> str:
     return f"{prefix}/alive/{node}"
 
@@ -173,7 +179,7 @@ def parse_key(prefix: str, key: str) -> Request:
             raise BadKey(f"SDO key {key}: expected {prefix}/{node}/sdo/<index hex>/<sub hex>")
         obj = ObjRef(_hex(rest[1], "index", 0xFFFF), _hex(rest[2], "sub-index", 0xFF))
         return Request("sdo", node, obj=obj)
-    if rest == ["emcy"] or rest[:1] == ["pdo"]:
+    if rest == ["emcy"] or rest[:1] in (["pdo"], ["tpdo"]):
         raise BadKey(f"{key} is a publication: subscribe to it")
     raise BadKey(f"unknown key {key}; {expected}")
 
@@ -230,6 +236,8 @@ def all_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[
         add(f"{p}/{name}/sdo/<index>/<sub>", "query", "SDO upload (get) / download (payload)")
         add(snapshot_key(p, name), "query", "all current values and the state")
         add(nmt_key(p, name), "query", "NMT: start, stop, preop, reset, reset-comm")
+        if cfg.zenoh.publish == "pdo":
+            add(f"{p}/{name}/tpdo/<n>", "value", "one sample per received TPDO, all its signals")
         if cfg.zenoh.raw_pdo:
             add(f"{p}/{name}/pdo/<cob-id hex>", "raw", "raw PDO bytes, received and sent")
     return out

@@ -58,7 +58,7 @@ import zenoh.ext
 
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.image import NodeImage, ProcessImage
+from gateway.image import NodeImage, ProcessImage, SignalValue
 from gateway.northbound.keys import (
     GATEWAY_TOKEN,
     alive_key,
@@ -67,6 +67,7 @@ from gateway.northbound.keys import (
     pdo_key,
     prefix_of,
     state_key,
+    tpdo_key,
     value_key,
 )
 from gateway.northbound.scaling import Scaling
@@ -75,6 +76,7 @@ from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.payloads import (
     emcy_payload,
+    pdo_json,
     state_fingerprint,
     state_payload,
     value_json,
@@ -172,6 +174,26 @@ class _SignalPub:
         self.last_seq = 0  # seq of the last sample published
 
 
+class _PdoPub:
+    """One received PDO published as one sample (``publish: pdo``): the record key (the
+    signals one frame carries), the signals published in it, its publisher, and what was last
+    published (the record's ``seq`` and the qualities), kept under its own lock."""
+
+    __slots__ = ("key", "names", "entries", "lock", "pub", "last_seq", "last_quality", "count")
+
+    def __init__(
+        self, key: str, names: tuple[str, ...], entries: list[tuple[Signal, int, Scaling]]
+    ):
+        self.key = key
+        self.names = names  # the record key (``NodeImage.records``)
+        self.entries = entries  # (signal, index in the record, scaling)
+        self.lock = threading.Lock()
+        self.pub: Any = None
+        self.last_seq = 0
+        self.last_quality: tuple[Any, ...] = ()
+        self.count = 0  # samples published, under the lock
+
+
 class _EventSender:
     """Puts events in order on its own thread (BLOCK may wait; the event loop must not)."""
 
@@ -242,6 +264,13 @@ class _ValueBatch:
         with self.lock:
             self.pending[id(sp)] = (node, sp)
 
+    def mark_all(self, node: NodeImage, sps: tuple[Any, ...]) -> None:
+        """Mark the publications of one PDO (one lock for all)."""
+        with self.lock:
+            pending = self.pending
+            for sp in sps:
+                pending[id(sp)] = (node, sp)
+
     def take(self) -> list[tuple[NodeImage, _SignalPub]]:
         """The marked signals, unmarked (the next marks go to the next batch)."""
         with self.lock:
@@ -281,6 +310,14 @@ class ZenohBridge:
         self.loop: asyncio.AbstractEventLoop | None = None
         self.pubs: dict[tuple[str, str], _SignalPub] = {}
         self.by_node: dict[str, list[_SignalPub]] = {}
+        #: ``publish: pdo``: (node, record key) -> its PDO publication
+        self.pdo_pubs: dict[tuple[str, tuple[str, ...]], _PdoPub] = {}
+        self.pdo_by_node: dict[str, list[_PdoPub]] = {}
+        #: (node, record key of a TPDO) -> (publications to mark, ``publish: every`` signals):
+        #: the reader's work per frame, planned once
+        self._routes: dict[
+            tuple[str, tuple[str, ...]], tuple[tuple[Any, ...], tuple[Any, ...]]
+        ] = {}
         self.state_pubs: dict[str, Any] = {}
         self.emcy_pubs: dict[str, Any] = {}
         self.raw_pubs: dict[tuple[str, int], Any] = {}
@@ -309,7 +346,7 @@ class ZenohBridge:
             self.prefix,
             session=lambda: self.session,
             scaling=self.scaling,
-            value_keys={n: [(sp.key, sp.sig) for sp in sps] for n, sps in self.by_node.items()},
+            value_keys=self._value_keys(),
             catalog_fn=catalog_fn,
         )
 
@@ -319,6 +356,7 @@ class ZenohBridge:
         for name in self.image.nodes:
             rt = self.commands.node(name)
             sps: list[_SignalPub] = []
+            in_pdo: dict[str, tuple[Signal, Scaling]] = {}
             for sig in rt.lp.profile.signals:
                 if not is_published(sig):
                     continue
@@ -327,6 +365,9 @@ class ZenohBridge:
                 if mode == "off":
                     continue
                 sc = Scaling.of(sig, ov)
+                if mode == "pdo":
+                    in_pdo[sig.name] = (sig, sc)
+                    continue
                 policy = ReportPolicy(
                     mode,
                     deadband=ov.deadband if ov is not None else 0.0,
@@ -337,6 +378,37 @@ class ZenohBridge:
                 self.pubs[(name, sig.name)] = sp
                 sps.append(sp)
             self.by_node[name] = sps
+            pps = []
+            for number, names in rt.tpdo_records:
+                entries = [
+                    (in_pdo[n][0], i, in_pdo[n][1]) for i, n in enumerate(names) if n in in_pdo
+                ]
+                if entries:
+                    pp = _PdoPub(tpdo_key(self.prefix, name, number), names, entries)
+                    self.pdo_pubs[(name, names)] = pp
+                    pps.append(pp)
+            self.pdo_by_node[name] = pps
+            for _number, names in rt.tpdo_records:
+                pdo_pub = self.pdo_pubs.get((name, names))
+                sps_of = [self.pubs[(name, n)] for n in names if (name, n) in self.pubs]
+                every = tuple(sp for sp in sps_of if sp.policy.mode == "every")
+                marks = tuple(sp for sp in sps_of if sp.policy.mode != "every")
+                self._routes[(name, names)] = (
+                    (pdo_pub, *marks) if pdo_pub is not None else marks, every
+                )
+
+    def _value_keys(self) -> dict[str, list[tuple[str, Signal]]]:
+        """Per node, the value keys a get answers from the image: every published signal's,
+        whether its samples go out on its value key or in its PDO's sample."""
+        out: dict[str, list[tuple[str, Signal]]] = {}
+        for name, sps in self.by_node.items():
+            keys = [(sp.key, sp.sig) for sp in sps]
+            for pp in self.pdo_by_node.get(name, ()):
+                keys += [
+                    (value_key(self.prefix, name, sig.name), sig) for sig, _i, _sc in pp.entries
+                ]
+            out[name] = keys
+        return out
 
     def scaling(self, node: str, sig: Signal) -> Scaling:
         sp = self.pubs.get((node, sig.name))
@@ -481,6 +553,10 @@ class ZenohBridge:
             sp.pub = self._publisher(
                 s, sp.key, hist.values, congestion_control=zenoh.CongestionControl.DROP
             )
+        for pp in self.pdo_pubs.values():
+            pp.pub = self._publisher(
+                s, pp.key, hist.values, congestion_control=zenoh.CongestionControl.DROP
+            )
         for name in self.image.nodes:
             for pubs, key in ((self.state_pubs, state_key), (self.emcy_pubs, emcy_key)):
                 pubs[name] = self._publisher(
@@ -558,6 +634,8 @@ class ZenohBridge:
         burst and the event loop may flush at the same time). Value and quality are read
         under the signal's lock, so a publication carries the latest value at its turn; one
         older than the last published (a lower ``seq``) is never published after it."""
+        if type(sp) is _PdoPub:  # a PDO marked in the batch (``publish: pdo``)
+            return self._offer_pdo(node, sp, now)
         s = self.session
         if s is None or sp.pub is None:
             return
@@ -577,9 +655,46 @@ class ZenohBridge:
             sp.policy.published(value, quality, now)  # counts it, under the lock
             sp.last_seq = sv.seq
 
+    def _offer_pdo(self, node: NodeImage, pp: _PdoPub, now: float, again: bool = False) -> None:
+        """Publish the PDO's current record with all its signals, if it is newer than the last
+        one published, or (``again``) its qualities changed since. Any thread, under the PDO's
+        lock: one record read once, so the signals of a sample are of one frame."""
+        s = self.session
+        if s is None or pp.pub is None:
+            return
+        with pp.lock:
+            r = node.records.get(pp.names)
+            if r is None or r[3] < pp.last_seq or (r[3] == pp.last_seq and not again):
+                return
+            values, ts, mono, seq = r
+            quality = node.quality
+            entries = []
+            for sig, i, sc in pp.entries:
+                sv = SignalValue(sig.name, values[i], ts, mono, seq)
+                entries.append((sig, sv, quality(sv, now), sc))
+            qualities = tuple(e[2] for e in entries)
+            if again and r[3] == pp.last_seq and qualities == pp.last_quality:
+                return
+            try:
+                pp.pub.put(pdo_json(entries, ts, seq), timestamp=s.new_timestamp())
+            except zenoh.ZError:
+                return
+            pp.last_seq, pp.last_quality = seq, qualities
+            pp.count += 1
+
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
         if self.session is None:
+            return
+        route = self._routes.get((node.name, names))
+        if route is not None:  # a TPDO's record: what to mark and publish, planned
+            marks, every = route
+            if marks:
+                self._values.mark_all(node, marks)
+            if every:
+                now = self._clock()
+                for sp in every:
+                    self._offer(node, sp, now)
             return
         pubs = self.pubs
         nname = node.name
@@ -597,6 +712,9 @@ class ZenohBridge:
 
     def _refresh(self, node: NodeImage, now: float) -> None:
         """Held-back samples whose time has come, and quality changes without a new frame."""
+        for pp in self.pdo_by_node.get(node.name, ()):
+            if pp.last_seq:
+                self._offer_pdo(node, pp, now, again=True)
         for sp in self.by_node.get(node.name, ()):
             sv = node.signals[sp.sig.name]
             if not sv.seq:
@@ -673,7 +791,8 @@ class ZenohBridge:
         """Samples published: values (each signal's count, kept under its lock, whichever
         thread published) and raw PDOs (per thread), summed when read."""
         values = sum(sp.policy.published_count for sp in list(self.pubs.values()))
-        return values + self._raw_publications.value
+        pdos = sum(pp.count for pp in list(self.pdo_pubs.values()))
+        return values + pdos + self._raw_publications.value
 
     @property
     def events_sent(self) -> int:

@@ -79,6 +79,36 @@ def value_json(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -> s
     return json.dumps(value_payload(sig, sv, quality, sc))
 
 
+def pdo_json(
+    entries: list[tuple[Signal, SignalValue, Quality, Scaling]], ts: float, seq: int
+) -> str:
+    """One received PDO with all its signals (``publish: pdo``): the source time and frame
+    counter of the record, then per signal what a value sample says of it (value, unit,
+    quality; bits and text where the signal has them)."""
+    parts = []
+    for sig, sv, quality, sc in entries:
+        name = _UNIT_JSON.get(sig.name) or _UNIT_JSON.setdefault(sig.name, json.dumps(sig.name))
+        raw = sv.value
+        if (
+            sv.seq
+            and not sig.bits
+            and not sig.values
+            and type(raw) in (int, float)
+            and math.isfinite(raw)
+        ):
+            value = raw if sc.identity else round(raw * sc.scale + sc.offset, 9)
+            unit = _UNIT_JSON.get(sc.unit) or _UNIT_JSON.setdefault(sc.unit, json.dumps(sc.unit))
+            parts.append(
+                f'{name}: {{"value": {value!r}, "unit": {unit}, '
+                f'"quality": "{QUALITY_TEXT[quality]}"}}'
+            )
+        else:
+            d = value_payload(sig, sv, quality, sc)
+            del d["ts"], d["seq"]
+            parts.append(f"{name}: {json.dumps(d)}")
+    return f'{{"ts": {json.dumps(ts)}, "seq": {seq}, "signals": {{{", ".join(parts)}}}}}'
+
+
 def state_payload(node: NodeImage, now_s: float | None = None) -> dict[str, Any]:
     """The health of a node, published on ``<node>/state`` when it changes."""
     s = summarize(node)

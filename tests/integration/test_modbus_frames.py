@@ -140,6 +140,37 @@ async def test_pipelined_requests_split_anywhere_are_all_answered_by_transaction
             writer.close()
 
 
+async def test_reads_answered_at_once_and_requests_that_need_a_task_mix_in_one_stream() -> None:
+    """Reads of the image are answered without a task; an unmapped address, a bit read and an
+    identification request take the task path; in one pipelined stream every one is answered,
+    by transaction id, and counted once."""
+    async with running() as gw:
+        store = gw.modbus.store
+        before = store.requests
+        reader, writer = await asyncio.open_connection("127.0.0.1", gw.modbus.port)
+        try:
+            pdus = {
+                1: read_input(100, 2),  # position: the image
+                2: read_input(0xFFFF, 2),  # past the end: exception
+                3: bytes([0x02]) + struct.pack(">HH", 0, 1),  # discrete input: task path
+                4: read_input(1, 1),  # NMT state
+                5: bytes([0x2B, 0x0E, 0x01, 0x00]),  # FC 43/14: identification (task path)
+                6: read_input(100, 2),
+            }
+            writer.write(b"".join(adu(pdu, tid=t) for t, pdu in pdus.items()))
+            answers = {tid: pdu for tid, _, pdu in [await read_adu(reader) for _ in pdus]}
+            assert sorted(answers) == sorted(pdus)
+            position = b"\x04\x04" + struct.pack(">2H", *POSITION)
+            assert answers[1] == answers[6] == position
+            assert answers[2] == b"\x84\x02"
+            assert answers[3] == b"\x02\x01\x01"  # discrete input 0 (alive): one byte, set
+            assert answers[4] == b"\x04\x02\x00\x05", "NMT state operational"
+            assert answers[5][:3] == b"\x2b\x0e\x01"  # MEI 14, basic identification
+            assert store.requests - before == len(pdus)
+        finally:
+            writer.close()
+
+
 async def test_more_requests_in_flight_than_the_limit_are_throttled_not_dropped() -> None:
     async with running() as gw:
         reader, writer = await asyncio.open_connection("127.0.0.1", gw.modbus.port)

@@ -58,11 +58,13 @@ def test_hot_path_counters_are_plain_ints_read_at_scrape_time():
         counters.frames_in += 1
     counters.frames_out += 7
     counters.bus_errors += 2
+    counters.bursts += 3
     counters.zenoh_publications += 5
     samples = scrape(metrics)
     assert samples[("canopen_gateway_frames_in_total", ())] == 1000
     assert samples[("canopen_gateway_frames_out_total", ())] == 7
     assert samples[("canopen_gateway_bus_errors_total", ())] == 2
+    assert samples[("canopen_gateway_can_bursts_total", ())] == 3
     assert samples[("canopen_gateway_zenoh_publications_total", ())] == 5
     counters.frames_in += 1
     assert scrape(metrics)[("canopen_gateway_frames_in_total", ())] == 1001

@@ -18,6 +18,7 @@ from gateway.northbound.keys import (
     render_keys,
     sdo_key,
     short_text,
+    tpdo_key,
 )
 from gateway.objref import ObjRef
 
@@ -67,6 +68,12 @@ def test_raw_pdo_keys_are_listed_only_when_enabled() -> None:
     assert not any("/pdo/" in k.key for k in all_keys(config()))
     assert any(k.key == f"{P}/wire/pdo/<cob-id hex>" for k in all_keys(config(raw_pdo=True)))
     assert pdo_key(P, "wire", 0x181) == f"{P}/wire/pdo/181"
+
+
+def test_pdo_keys_are_listed_with_publish_pdo() -> None:
+    assert not any("/tpdo/" in k.key for k in all_keys(config()))
+    assert any(k.key == f"{P}/wire/tpdo/<n>" for k in all_keys(config(publish="pdo")))
+    assert tpdo_key(P, "wire", 1) == f"{P}/wire/tpdo/1"
 
 
 def test_a_signal_with_publish_off_has_no_value_key() -> None:
@@ -158,6 +165,7 @@ def test_query_keys_parse_into_requests(key: str, expected: Request) -> None:
         (f"{P}/alive/wire", "liveliness"),
         (f"{P}/wire/emcy", "subscribe"),
         (f"{P}/wire/pdo/181", "subscribe"),
+        (f"{P}/wire/tpdo/1", "subscribe"),
     ],
 )
 def test_keys_outside_the_scheme_say_what_was_expected(key: str, words: str) -> None:
