@@ -23,14 +23,15 @@ ticks the node at once even on a path that forgot to drive.
 
 The decisions are tables below: what the node-guarding master expects in each lifecycle state
 (``GUARD_EXPECTS``), what an NMT command makes the node's expected state (``NMT_EXPECTS``), what
-a finished SDO transfer means by its purpose (``Node._SDO_DONE``).
+a finished SDO transfer of its own purposes means (``sdo_done.SDO_DONE``).
 
 Truthfulness (docs/architecture.md, "Never lies"): a boot-up and a loss invalidate every value
 of the node (``health.fresh_since = None``); values are good again only when received after the
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
-Imports: bus.node.* (lifecycle, boot steps, settings, outputs, events, features), bus.sdo.*
+Imports: bus.node.* (lifecycle, lifecycle_report, boot steps, settings, outputs, events,
+features, sdo_done), bus.sdo.*
 (channel, client), bus.error_control.* (watchdog, guarding bit), bus.emcy, pdo.codec,
 pdo.verify, cia301, errors, image, states, objref, logging (levels of the log lines it returns). Never
 python-can, asyncio or a northbound module.
@@ -39,7 +40,7 @@ python-can, asyncio or a northbound module.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from gateway.bus.emcy import EmcyHistory, decode_emcy
@@ -54,20 +55,16 @@ from gateway.bus.node.features.refresh import RefreshOnStart
 from gateway.bus.node.features.rtr_poll import RtrPoll
 from gateway.bus.node.features.verify_mapping import VerifyMapping
 from gateway.bus.node.lifecycle import (
-    BootTimeout,
-    Configured,
     LifecycleState,
     NodeLifecycle,
     ReadIdentity,
     SendNmt,
-    StateChanged,
-    StepFailed,
-    StepSkipped,
     Wait,
     WriteStep,
-    WrongDevice,
 )
+from gateway.bus.node.lifecycle_report import take_lifecycle_changes
 from gateway.bus.node.outputs import OutputImage
+from gateway.bus.node.sdo_done import SDO_DONE
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
 from gateway.bus.sdo.client import SdoTransfer
@@ -438,57 +435,8 @@ class Node:
             f.on_invalidate(self)
 
     def _lifecycle_changes(self, changes: list[Any], now: float) -> list[Output]:
-        h = self.health
-        out: list[Output] = []
-        for ch in changes:
-            if isinstance(ch, StateChanged):
-                h.lifecycle = str(ch.new)
-                out.append(
-                    Note(logging.INFO, f"node {self.name}: {ch.old} -> {ch.new} ({ch.reason})")
-                )
-                self.watch.on_lifecycle(ch.new)
-            elif isinstance(ch, StepFailed):
-                h.last_error = ch.message
-                if ch.abort_code is not None:
-                    h.last_sdo_abort = ch.abort_code
-                self._wait_until = now + ch.retry_in_s
-                out.append(
-                    Note(
-                        logging.WARNING,
-                        f"node {self.name}: boot step {ch.index} failed: {ch.message}; retry {ch.attempt} in {ch.retry_in_s:.1f} s",
-                    )
-                )
-            elif isinstance(ch, StepSkipped):
-                out.append(
-                    Note(
-                        logging.INFO, f"node {self.name}: optional boot step skipped: {ch.message}"
-                    )
-                )
-            elif isinstance(ch, BootTimeout):
-                h.last_error = self.lifecycle.last_error or "no boot-up"
-                out.append(
-                    Note(logging.WARNING, f"node {self.name} (id {self.node_id}): {h.last_error}")
-                )
-            elif isinstance(ch, WrongDevice):
-                h.last_error = self.lifecycle.last_error or "wrong device type"
-                out.append(
-                    Note(logging.ERROR, f"node {self.name} (id {self.node_id}): {h.last_error}")
-                )
-            elif isinstance(ch, Configured):
-                h.last_error = ""
-                h.fresh_since = now  # values are good again when received from now on
-                out.append(
-                    Note(
-                        logging.INFO,
-                        f"node {self.name} (id {self.node_id}) configured in {ch.duration_s * 1000:.0f} ms and started",
-                    )
-                )
-                out += self._set_nmt_expected(NmtState.OPERATIONAL)
-                for f in self.features:
-                    out += f.on_configured(self, now)
-        if changes:
-            out.append(HealthChanged("state"))
-        return out
+        """What the lifecycle reported, taken into health and log lines (lifecycle_report.py)."""
+        return take_lifecycle_changes(self, changes, now)
 
     def _set_nmt_expected(self, state: NmtState) -> list[Output]:
         """After our NMT start the node is operational (its next heartbeat confirms it)."""
@@ -530,56 +478,13 @@ class Node:
         out: list[Output] = []
         if tr.abort_code is not None and tr.aborted_by_server:
             self.health.last_sdo_abort = tr.abort_code
-        done = self._SDO_DONE.get(job.purpose)
+        done = SDO_DONE.get(job.purpose)
         if done is not None:
             out += done(self, job, tr, now)
         else:  # a feature's own transfer
             out += self._by_purpose[job.purpose].sdo_done(self, job, tr, now)
         out += self._drive(now)
         return out
-
-    def _boot_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        ok = tr.result is not None
-        code = tr.abort_code if tr.aborted_by_server else None
-        return self._lifecycle_changes(
-            self.lifecycle.on_step_result(now, ok, code, token=job.arg.token), now
-        )
-
-    def _probe_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        self._last_probe_end_s = now
-        if tr.result is None or self.lifecycle.state is not LifecycleState.WAITING:
-            return []
-        device_type = int.from_bytes(tr.result[:4].ljust(4, b"\0"), "little")
-        out: list[Output] = [
-            Note(logging.INFO, f"node {self.name} (id {self.node_id}) found running")
-        ]
-        out += self._lifecycle_changes(self.lifecycle.on_found(now, device_type), now)
-        if self.lifecycle.state is LifecycleState.BOOTING:  # not a wrong device type
-            self.watch.on_found(now)
-            if not self.watch.guard_lost:
-                out += self._set_alive(True, now)
-        return out
-
-    def _identity_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        value = int.from_bytes(tr.result[:4].ljust(4, b"\0"), "little") if tr.result is not None else None
-        code = None if value is not None or tr.timed_out else (tr.abort_code or 0x08000000)
-        changes = self.lifecycle.on_identity_result(now, value, code, token=job.arg.token)
-        return self._lifecycle_changes(changes, now)
-
-    def _user_done(self, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-        out: list[Output] = [
-            SdoDone(job.token, tr.result, tr.abort_code, tr.timed_out, tr.aborted_by_server)
-        ]
-        for f in self.features:
-            out += f.on_user_sdo(self, job, now)
-        return out
-
-    _SDO_DONE: dict[str, Callable[[Node, SdoJob, SdoTransfer, float], list[Output]]] = {
-        "boot": _boot_done,
-        "probe": _probe_done,
-        "identity": _identity_done,
-        "user": _user_done,
-    }
 
     def _probe(self, now: float) -> list[Output]:
         """Find a node that is already running (no boot-up will come) by reading 1000h."""

@@ -1,55 +1,33 @@
-"""The gateway's configuration: one YAML file validated by pydantic, plus environment overrides.
+"""The gateway's configuration as data: the pydantic models of every section of the YAML file
+(``gateway:``, ``can:``, ``master:``, ``nodes:``, ``modbus:``, ``zenoh:``, ``health:``,
+``web:``, ``ascii:``, ``simulate:``) with the rules one field or one section can check itself
+(ranges, patterns, key expressions, networks, TLS roles, token length).
 
-Every problem is reported as one line naming the file, the key path (``nodes[2].node_id``) and
-what is allowed; all problems of a file are collected before reporting. Environment variables
-``CANOPEN_GATEWAY__SECTION__KEY=value`` override single keys (list items by index:
-``CANOPEN_GATEWAY__NODES__0__NODE_ID=5``); values are parsed as YAML scalars/flow lists.
+What a section cannot see (duplicates across nodes, names that refer to nodes, profiles and
+EDS files) is checked when the file is loaded (``config.load``).
 
-This module checks what one file can say about itself (schema, duplicates, profile and EDS names,
-the node's PDO settings against its EDS, key expressions). The checks across the config, the
-profiles/EDS and the compiled register map (``canopen-gateway check``) live in ``gateway.checks``,
-which imports this module; this module imports neither it nor modbus/.
-
-Imports: pydantic, yaml, gateway.objref, gateway.keyexpr, gateway.profiles. Nothing of bus/,
+Imports: pydantic, gateway.objref, gateway.keyexpr, gateway.profiles.schema. Nothing of bus/,
 modbus/, zenoh_bridge/, checks.
 """
 
 from __future__ import annotations
 
 import ipaddress
-import os
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import (
     BaseModel,
     BeforeValidator,
     ConfigDict,
     Field,
-    ValidationError,
     field_validator,
     model_validator,
 )
 
 from gateway import keyexpr
 from gateway.objref import ObjRef
-from gateway.profiles import ProfileError, load_node_profile
 from gateway.profiles.schema import HexInt, SignalType
-
-ENV_PREFIX = "CANOPEN_GATEWAY__"
-#: keys whose environment values are taken as written, never as YAML numbers (a token of
-#: digits, "0123...", must keep its leading zero)
-ENV_TEXT_KEYS = frozenset({"token", "password"})
-
-
-class ConfigError(Exception):
-    """One or more configuration problems, one line each."""
-
-    def __init__(self, problems: list[str]):
-        self.problems = problems
-        super().__init__("\n".join(problems))
 
 
 def _obj(v: Any) -> ObjRef:
@@ -516,320 +494,9 @@ class Config(_Model):
         return Path(self.source).parent if self.source != "<memory>" else Path.cwd()
 
 
-# --------------------------------------------------------------------------- loading
-
-
-def _loc(loc: tuple[Any, ...]) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        else:
-            out += ("." if out else "") + str(part)
-    return out or "(top level)"
-
-
-def _describe(err: Mapping[str, Any]) -> str:
-    t = err.get("type", "")
-    ctx = err.get("ctx") or {}
-    if t == "extra_forbidden":
-        return "unknown key (typo?)"
-    if t == "missing":
-        return "required key is missing"
-    if t == "literal_error":
-        return f"must be one of {ctx.get('expected', '')}"
-    if t in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
-        bounds = {
-            "greater_than_equal": ">=",
-            "less_than_equal": "<=",
-            "greater_than": ">",
-            "less_than": "<",
-        }
-        limit = next(iter(ctx.values()), "")
-        return f"got {err.get('input')!r}, must be {bounds[t]} {limit}"
-    if t == "string_pattern_mismatch":
-        return f"got {err.get('input')!r}, must match {ctx.get('pattern')}"
-    msg = str(err.get("msg", "invalid"))
-    return msg.removeprefix("Value error, ")
-
-
-def _models_in(annotation: Any) -> tuple[type[BaseModel] | None, bool]:
-    """The pydantic model a field holds (directly, in a list, an Optional, or as dict values),
-    and whether the next part of a key path is a dict key."""
-    import typing
-
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation, False
-    origin = typing.get_origin(annotation)
-    args = typing.get_args(annotation)
-    if origin is Annotated:
-        return _models_in(args[0])
-    for arg in args:
-        model, _ = _models_in(arg)
-        if model is not None:
-            return model, origin is dict
-    return None, False
-
-
-def nearest_key(loc: tuple[Any, ...]) -> str | None:
-    """For an unknown key at ``loc``: the closest key its section allows, if one is close."""
-    import difflib
-
-    model: type[BaseModel] | None = Config
-    skip = False
-    for part in loc[:-1]:
-        if isinstance(part, int) or skip:
-            skip = False
-            continue
-        field = model.model_fields.get(str(part)) if model is not None else None
-        if field is None:
-            return None
-        model, skip = _models_in(field.annotation)
-    if model is None:
-        return None
-    near = difflib.get_close_matches(str(loc[-1]), list(model.model_fields), n=1, cutoff=0.6)
-    return near[0] if near else None
-
-
-def env_keys(environ: Mapping[str, str]) -> dict[str, str]:
-    """Key path (``modbus.port``, ``nodes[0].node_id``) -> the environment variable that sets it."""
-    out = {}
-    for key in environ:
-        if not key.startswith(ENV_PREFIX):
-            continue
-        path = [p.lower() for p in key[len(ENV_PREFIX) :].split("__") if p]
-        if path:
-            out[_loc(tuple(int(p) if p.isdigit() else p for p in path))] = key
-    return out
-
-
-def blame(loc: str, source: str, from_env: Mapping[str, str]) -> str:
-    """Who wrote the value at ``loc``: the environment variable that set it (or a section
-    above it), else the config file."""
-    for path, var in from_env.items():
-        if loc == path or loc.startswith((path + ".", path + "[")):
-            return var
-    return source
-
-
-def apply_env_overrides(raw: dict[str, Any], environ: Mapping[str, str]) -> list[str]:
-    """Apply ``CANOPEN_GATEWAY__A__B=v`` overrides in place; returns problems."""
-    problems = []
-    for key, value in sorted(environ.items()):
-        if not key.startswith(ENV_PREFIX):
-            continue
-        path = [p.lower() for p in key[len(ENV_PREFIX) :].split("__") if p]
-        if not path:
-            continue
-        try:
-            parsed = yaml.safe_load(value) if value != "" else ""
-        except yaml.YAMLError:
-            parsed = value
-        if path[-1] in ENV_TEXT_KEYS:
-            parsed = value
-        node: Any = raw
-        for i, part in enumerate(path):
-            last = i == len(path) - 1
-            if isinstance(node, list):
-                if not part.isdigit() or int(part) >= len(node):
-                    problems.append(f"environment {key}: no list item {part!r}")
-                    break
-                if last:
-                    node[int(part)] = parsed
-                else:
-                    node = node[int(part)]
-            elif isinstance(node, dict):
-                if last:
-                    node[part] = parsed
-                else:
-                    node = node.setdefault(part, {})
-            else:
-                problems.append(f"environment {key}: {'.'.join(path[:i])} is not a section")
-                break
-    return problems
-
-
-def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, str]]:
-    """Checks across entries that pydantic cannot see, run on the raw data."""
-    out: list[tuple[str, str]] = []
-    nodes = raw.get("nodes") or []
-    if not isinstance(nodes, list):
-        return out
-    seen: dict[str, dict[Any, int]] = {"node_id": {}, "name": {}, "unit_id": {}}
-    for i, n in enumerate(nodes):
-        if not isinstance(n, dict):
-            continue
-        for key in ("node_id", "name"):
-            v = n.get(key)
-            if v is None:
-                continue
-            if v in seen[key]:
-                out.append(
-                    (f"nodes[{i}].{key}", f"duplicate {key} {v!r} (also nodes[{seen[key][v]}])")
-                )
-            else:
-                seen[key][v] = i
-        mb_raw = n.get("modbus")
-        mb = mb_raw if isinstance(mb_raw, dict) else {}
-        unit = mb.get("unit_id", n.get("node_id"))
-        if unit is not None:
-            if unit in seen["unit_id"]:
-                out.append(
-                    (
-                        f"nodes[{i}].modbus.unit_id",
-                        f"duplicate Modbus unit id {unit} (also nodes[{seen['unit_id'][unit]}])",
-                    )
-                )
-            else:
-                seen["unit_id"][unit] = i
-    gw_unit = (raw.get("modbus") or {}).get("gateway_unit_id", 247)
-    if gw_unit in seen["unit_id"]:
-        out.append(
-            (
-                "modbus.gateway_unit_id",
-                f"unit id {gw_unit} is also used by nodes[{seen['unit_id'][gw_unit]}]",
-            )
-        )
-    zen_raw = raw.get("zenoh")
-    zen = zen_raw if isinstance(zen_raw, dict) else {}
-    rules = zen.get("write_allow")
-    if isinstance(rules, list):
-        for i, rule in enumerate(rules):
-            wanted = rule.get("nodes") if isinstance(rule, dict) else None
-            for j, name in enumerate(wanted if isinstance(wanted, list) else []):
-                if name not in seen["name"]:
-                    out.append(
-                        (
-                            f"zenoh.write_allow[{i}].nodes[{j}]",
-                            f"no node named {name!r} in nodes; nodes: "
-                            + ", ".join(sorted(map(str, seen["name"]))),
-                        )
-                    )
-    sim = raw.get("simulate") or {}
-    if isinstance(sim, dict) and isinstance(sim.get("nodes"), list):
-        for j, name in enumerate(sim["nodes"]):
-            if name not in seen["name"]:
-                out.append(
-                    (f"simulate.nodes[{j}]", f"no node named {name!r} in nodes")
-                )
-    return out
-
-
-def parse_config(
-    raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None
-) -> Config:
-    """Validate an already-parsed YAML document; raise ConfigError with every problem."""
-    if raw is None:
-        raw = {}
-    if not isinstance(raw, dict):
-        raise ConfigError([f"{source}: (top level): must be a mapping of sections"])
-    problems = [f"{source}: {p}" for p in apply_env_overrides(raw, environ or {})]
-    base_dir = Path(source).parent if source != "<memory>" else Path.cwd()
-    errors: list[tuple[str, str]] = []
-    cfg: Config | None = None
-    try:
-        cfg = Config.model_validate({**raw, "source": source})
-    except ValidationError as exc:
-        for e in exc.errors():
-            what = _describe(e)
-            near = nearest_key(tuple(e["loc"])) if e.get("type") == "extra_forbidden" else None
-            if near is not None:
-                what += f"; did you mean {near!r}?"
-            errors.append((_loc(e["loc"]), what))
-    errors += _semantic_problems(raw, base_dir)
-    if cfg is not None:
-        errors += _node_problems(cfg, base_dir)
-    from_env = env_keys(environ or {})
-    seen: set[tuple[str, str]] = set()
-    for loc, msg in errors:
-        if (loc, msg) in seen:
-            continue
-        seen.add((loc, msg))
-        problems.append(f"{blame(loc, source, from_env)}: {loc}: {msg}")
-    if problems:
-        raise ConfigError(problems)
-    assert cfg is not None
-    return cfg
-
-
-def _node_problems(cfg: Config, base_dir: Path) -> list[tuple[str, str]]:
-    """Each node's profile / EDS loads, and its signal overrides and variant exist."""
-    out: list[tuple[str, str]] = []
-    for i, n in enumerate(cfg.nodes):
-        key = f"nodes[{i}]"
-        try:
-            lp = load_node_profile(n, base_dir)
-        except ProfileError as exc:
-            if exc.key is not None:
-                out.append((f"{key}.{exc.key}" if exc.key else key, str(exc)))
-                continue
-            for line in str(exc).splitlines():
-                out.append((f"{key}.{'eds' if n.eds else 'profile'}", line))
-            continue
-        names = {s.name for s in lp.profile.signals}
-        for s in n.signals:
-            if s not in names:
-                out.append(
-                    (
-                        f"{key}.signals.{s}",
-                        (f"profile {n.profile}" if n.profile else n.device)
-                        + f" has no signal {s!r}; it has: "
-                        + ", ".join(sorted(names)),
-                    )
-                )
-        if n.pdo_variant is not None:
-            var = lp.profile.pdo_variants
-            if var is None:
-                out.append((f"{key}.pdo_variant", f"profile {n.profile} has no PDO variants"))
-            elif n.pdo_variant not in var.variants:
-                out.append(
-                    (
-                        f"{key}.pdo_variant",
-                        f"got {n.pdo_variant!r}, profile {n.profile} allows {sorted(var.variants)}",
-                    )
-                )
-        if n.verify_mapping and lp.profile.verify_mapping is False:
-            out.append(
-                (
-                    f"{key}.verify_mapping",
-                    f"profile {n.profile}: its mapping objects do not describe the layout in use; "
-                    "must be false",
-                )
-            )
-    return out
-
-
-def load_config(path: str | os.PathLike[str], environ: Mapping[str, str] | None = None) -> Config:
-    """Read and validate a config file; ``environ`` defaults to ``os.environ``."""
-    p = Path(path)
-    source = str(p)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError([f"{source}: file does not exist"]) from None
-    except OSError as exc:
-        raise ConfigError([f"{source}: cannot read: {exc.strerror}"]) from None
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ConfigError([f"{source}: {where}: YAML syntax error: {problem}"]) from None
-    environ = os.environ if environ is None else environ
-    if raw is None or raw == {}:
-        raise ConfigError(
-            [f"{source}: the file is empty; a config needs at least can: and nodes: "
-             "(see config/demo.yaml)"]
-        )
-    return parse_config(raw, source, environ)
-
-
 #: A config that opens the bus must say which one: the in-process ``virtual`` bus is not a
 #: silent default (``can.interface`` must be written; checked by the commands that open the bus).
 CAN_INTERFACE_MISSING = (
     "required key is missing: the CAN interface python-can opens (socketcan, pcan, kvaser, "
     "ixxat, slcan, remote, ...; virtual for simulated devices in this process, without hardware)"
 )
-
-

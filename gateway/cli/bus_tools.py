@@ -1,0 +1,109 @@
+"""The commands that work on the bus beside or without a gateway: ``scan`` and ``monitor`` (a
+bus of their own, with the simulated devices of the config when the bus is in-process and no
+gateway runs), ``lss`` (gateway.tools.lss) and ``fault`` (into a running gateway's simulated
+node).
+
+Imports: python-can, gateway.app (SimulatedBus), gateway.tools, gateway.bus.scan,
+gateway.northbound.frames, gateway.sim.faults_client, gateway.config, cli.load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from gateway.cli.load import EXIT_CONFIG, load, load_for_bus
+from gateway.config import Config
+
+
+def cmd_fault(args: argparse.Namespace) -> int:
+    from gateway.sim.faults_client import run_fault
+
+    cfg = load(args.config)
+    if args.node is not None and args.action is None:
+        print("error: fault NODE ACTION: give an action too (or neither, to list)", file=sys.stderr)
+        return EXIT_CONFIG
+    return run_fault(cfg, args.node, args.action, args.url)
+
+
+def cmd_lss(args: argparse.Namespace) -> int:
+    from gateway.tools.lss import run_lss
+
+    cfg = load(args.config)
+    return run_lss(cfg, args)
+
+
+def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
+    """The bus a listening tool (scan, monitor) opens, and the simulated devices it runs when
+    the bus is in-process and no gateway runs on it; exits 2 in one line when a gateway runs
+    on an in-process bus (a second process cannot join it)."""
+    import can
+
+    from gateway.app import SimulatedBus
+    from gateway.tools import beside
+
+    sim = None
+    if beside.in_process_bus(cfg):
+        running = beside.find_running_gateway(cfg)
+        line = beside.refusal(cfg, command)
+        if running is not None:
+            running.close()
+            line = line or (
+                f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway "
+                f"running at {running.endpoint}, so `{command}` cannot join it; give both a bus "
+                "they share (can.interface: remote, docs/canopen.md)"
+            )
+        if line is not None:
+            print(line, file=sys.stderr)
+            raise SystemExit(EXIT_CONFIG)
+    bus = can.Bus(**cfg.can.bus_kwargs())
+    if beside.in_process_bus(cfg) and cfg.simulated_nodes():
+        print(beside.private_note(cfg), file=sys.stderr)
+        sim = SimulatedBus(cfg)
+        sim.start()  # after the tool's bus is open: it sees the boot-ups
+    return bus, sim
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    from gateway.bus.scan import report, scan
+
+    cfg = load_for_bus(args.config)
+    bus, sim = _tool_bus(cfg, "scan")
+    try:
+        found = scan(bus, listen_s=args.listen, active=args.active, sdo_timeout_s=args.timeout)
+    finally:
+        bus.shutdown()
+        if sim is not None:
+            sim.stop()
+    print("\n".join(report(found, cfg, args.active)))
+    return 0
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from gateway.northbound.frames import FrameDecoder, kind_filter, node_filter
+    from gateway.tools.monitor import monitor
+
+    cfg = load_for_bus(args.config)
+    try:
+        nodes = node_filter(cfg, _split(args.node))
+        kinds = kind_filter(_split(args.kind))
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    decoder = FrameDecoder(cfg)
+    bus, sim = _tool_bus(cfg, "monitor")
+    try:
+        monitor(bus, decoder, sys.stdout, nodes=nodes, kinds=kinds, count=args.count,
+                duration_s=args.duration)  # fmt: skip
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bus.shutdown()
+        if sim is not None:
+            sim.stop()
+    return 0
+
+
+def _split(values: list[str] | None) -> list[str]:
+    return [v for item in values or [] for v in item.split(",") if v]

@@ -1,0 +1,96 @@
+"""The long-running commands: ``run`` (the gateway) and ``simulate`` (only the simulated
+devices of a config), each until SIGINT / SIGTERM, with the logging they set up.
+
+Imports: gateway.app, gateway.startup, gateway.zenoh_bridge.bridge (PrefixInUse), cli.load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load, load_for_bus
+
+
+def setup_logging(level: str) -> None:
+    logging.basicConfig(
+        level=getattr(logging, level.upper(), logging.INFO),
+        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    for noisy in ("pymodbus", "can", "canopen", "zenoh"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+
+
+async def run_until_signal(
+    starter: Any, stopper: Any, ready_line: str | Callable[[], str] | None = None
+) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, stop.set)
+        except (NotImplementedError, RuntimeError):
+            pass
+    await starter()
+    if ready_line:
+        print(ready_line() if callable(ready_line) else ready_line, flush=True)
+    try:
+        await stop.wait()
+    finally:
+        t0 = time.monotonic()
+        try:
+            await asyncio.wait_for(stopper(), timeout=1.5)
+        except TimeoutError:
+            logging.getLogger("gateway").warning("shutdown took too long; exiting anyway")
+        logging.getLogger("gateway").info("stopped in %.0f ms", (time.monotonic() - t0) * 1000)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from gateway.app import Gateway
+
+    cfg = load_for_bus(args.config)
+    setup_logging(args.log_level or cfg.gateway.log_level)
+    from gateway.startup import StartupError
+    from gateway.zenoh_bridge.bridge import PrefixInUse
+
+    gw = Gateway(cfg, simulate=not args.no_simulate)
+    try:
+        asyncio.run(run_until_signal(gw.start, gw.stop, gw.summary))
+    except StartupError as exc:  # a port in use, a file missing: one line, everything closed
+        print(exc.line(args.config), file=sys.stderr)
+        return EXIT_CONFIG
+    except PrefixInUse as exc:  # a configuration problem: two gateways under one prefix
+        print(f"error: {args.config}: zenoh.prefix: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    except OSError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from gateway.app import SimulatedBus
+
+    cfg = load(args.config)
+    setup_logging(args.log_level or cfg.gateway.log_level)
+    names = args.nodes.split(",") if args.nodes else [n.name for n in cfg.simulated_nodes()]
+    if not names:
+        names = [n.name for n in cfg.nodes]
+    sim = SimulatedBus(cfg, names)
+
+    async def start() -> None:
+        sim.start()
+
+    async def stop() -> None:
+        sim.stop()
+
+    line = f"simulating {', '.join(f'{n}@{sim.nodes[n].node_id}' for n in sim.nodes)} on {cfg.can.bus_kwargs()}"
+    asyncio.run(run_until_signal(start, stop, line))
+    return 0

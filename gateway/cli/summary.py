@@ -1,0 +1,81 @@
+"""The commands that say what a configuration compiles to: ``check`` (validated, each node
+summarised, the warnings of each EDS), ``registers`` (the Modbus register map) and ``keys``
+(the Zenoh key expressions).
+
+Imports: gateway.bus.resolved, gateway.eds, gateway.northbound.regmap, gateway.northbound.keys,
+cli.load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from gateway.cli.load import load, load_for_bus
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from gateway.bus.resolved import node_of, resolve_config
+
+    cfg = load_for_bus(args.config)
+    nodes = resolve_config(cfg)
+    print(f"{args.config}: OK")
+    if cfg.ascii is not None and cfg.ascii.enabled:
+        gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
+        print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
+    for n in cfg.nodes:
+        lp = node_of(cfg, nodes, n).lp
+        pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
+        sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
+        sim = " (simulated)" if n in cfg.simulated_nodes() else ""
+        print(
+            f"  node {n.name}: id {n.node_id}, {lp.profile.title or n.device}{sim}; "
+            f"{_count(len(pdo_sigs), 'process signal')} ({', '.join(pdo_sigs)}), "
+            f"{_count(len(sdo_sigs), 'configuration object')}"
+        )
+        for note in lp.notes:
+            print(f"  warning: node {n.name}: {note}")
+    _print_eds_warnings(cfg, nodes)
+    return 0
+
+
+def _print_eds_warnings(cfg: Any, nodes: Any) -> None:
+    """One line per EDS/DCF of the config with its number of warnings."""
+    from gateway.bus.resolved import node_of
+    from gateway.eds import EdsError, lint, load_eds
+
+    seen: list[Any] = []
+    for n in cfg.nodes:
+        path = node_of(cfg, nodes, n).lp.eds_path
+        if path in seen:
+            continue
+        seen.append(path)
+        try:
+            count = len(lint(load_eds(path)).warnings)
+        except EdsError:
+            continue
+        more = f" (canopen-gateway eds lint {path})" if count else ""
+        print(f"  {path}: {count} warnings{more}")
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 process signal``, ``2 process signals``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
+def cmd_registers(args: argparse.Namespace) -> int:
+    from gateway.northbound.regmap import build_register_map
+
+    cfg = load(args.config)
+    rm = build_register_map(cfg)
+    sys.stdout.write(rm.to_csv() if args.csv else rm.to_markdown())
+    return 0
+
+
+def cmd_keys(args: argparse.Namespace) -> int:
+    from gateway.northbound.keys import render_keys
+
+    cfg = load(args.config)
+    sys.stdout.write(render_keys(cfg))
+    return 0

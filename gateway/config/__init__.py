@@ -1,0 +1,92 @@
+"""The gateway's configuration: one YAML file validated by pydantic, plus environment overrides.
+
+Every problem is reported as one line naming the file, the key path (``nodes[2].node_id``) and
+what is allowed; all problems of a file are collected before reporting. Environment variables
+``CANOPEN_GATEWAY__SECTION__KEY=value`` override single keys (list items by index:
+``CANOPEN_GATEWAY__NODES__0__NODE_ID=5``); values are parsed as YAML scalars/flow lists.
+
+This package checks what one file can say about itself (schema, duplicates, profile and EDS
+names, the node's PDO settings against its EDS, key expressions). The checks across the config,
+the profiles/EDS and the compiled register map (``canopen-gateway check``) live in
+``gateway.checks``, which imports this package; this package imports neither it nor modbus/.
+
+The package, one module per part, re-exported here (``from gateway.config import Config``):
+
+- ``model``: the sections of the file (pydantic models) and what each checks of itself;
+- ``load``: ``load_config`` / ``parse_config`` and the checks across entries of one file;
+- ``env``: the ``CANOPEN_GATEWAY__`` environment overrides and whom a problem blames;
+- ``errors``: ``ConfigError`` and how a problem is worded.
+
+Imports: model, load, env, errors (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
+checks.
+"""
+
+from __future__ import annotations
+
+from gateway.config.env import ENV_PREFIX, ENV_TEXT_KEYS, apply_env_overrides, blame, env_keys
+from gateway.config.errors import ConfigError, nearest_key
+from gateway.config.load import load_config, parse_config
+from gateway.config.model import (
+    CAN_INTERFACE_MISSING,
+    WEB_TOKEN_MIN_LENGTH,
+    AsciiSection,
+    CanSection,
+    Config,
+    ExternalHeartbeat,
+    GatewaySection,
+    GuardingBitSettings,
+    HealthSection,
+    MasterSection,
+    ModbusSection,
+    ModbusTls,
+    NodeConfig,
+    NodeModbus,
+    Obj,
+    PdoSetting,
+    SdoWrite,
+    SignalOverride,
+    SimulateSection,
+    WebSection,
+    ZenohAuth,
+    ZenohHistory,
+    ZenohSection,
+    ZenohTls,
+    ZenohWriteRule,
+)
+
+__all__ = [
+    "AsciiSection",
+    "CAN_INTERFACE_MISSING",
+    "CanSection",
+    "Config",
+    "ConfigError",
+    "ENV_PREFIX",
+    "ENV_TEXT_KEYS",
+    "ExternalHeartbeat",
+    "GatewaySection",
+    "GuardingBitSettings",
+    "HealthSection",
+    "MasterSection",
+    "ModbusSection",
+    "ModbusTls",
+    "NodeConfig",
+    "NodeModbus",
+    "Obj",
+    "PdoSetting",
+    "SdoWrite",
+    "SignalOverride",
+    "SimulateSection",
+    "WEB_TOKEN_MIN_LENGTH",
+    "WebSection",
+    "ZenohAuth",
+    "ZenohHistory",
+    "ZenohSection",
+    "ZenohTls",
+    "ZenohWriteRule",
+    "apply_env_overrides",
+    "blame",
+    "env_keys",
+    "load_config",
+    "nearest_key",
+    "parse_config",
+]

@@ -1,0 +1,204 @@
+"""Loading the configuration: read the YAML file, apply the environment overrides, validate
+the sections (``config.model``) and check what one file can say about itself beyond its
+sections: duplicate node ids, names and Modbus unit ids, names that refer to nodes, each node's
+profile or EDS, its signal overrides, PDO variant and ``verify_mapping``. Every problem is
+reported as one line naming the file (or the environment variable), the key path and what is
+allowed; all problems of a file are collected before ``ConfigError`` is raised.
+
+The checks across the config, the profiles/EDS and the compiled register map
+(``canopen-gateway check``) live in ``gateway.checks``, which imports this package.
+
+Imports: pydantic, yaml, gateway.profiles (load_node_profile), config.model, config.errors,
+config.env.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import ValidationError
+
+from gateway.config.env import apply_env_overrides, blame, env_keys
+from gateway.config.errors import ConfigError, describe, key_path, nearest_key
+from gateway.config.model import Config
+from gateway.profiles import ProfileError, load_node_profile
+
+
+def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, str]]:
+    """Checks across entries that pydantic cannot see, run on the raw data."""
+    out: list[tuple[str, str]] = []
+    nodes = raw.get("nodes") or []
+    if not isinstance(nodes, list):
+        return out
+    seen: dict[str, dict[Any, int]] = {"node_id": {}, "name": {}, "unit_id": {}}
+    for i, n in enumerate(nodes):
+        if not isinstance(n, dict):
+            continue
+        for key in ("node_id", "name"):
+            v = n.get(key)
+            if v is None:
+                continue
+            if v in seen[key]:
+                out.append(
+                    (f"nodes[{i}].{key}", f"duplicate {key} {v!r} (also nodes[{seen[key][v]}])")
+                )
+            else:
+                seen[key][v] = i
+        mb_raw = n.get("modbus")
+        mb = mb_raw if isinstance(mb_raw, dict) else {}
+        unit = mb.get("unit_id", n.get("node_id"))
+        if unit is not None:
+            if unit in seen["unit_id"]:
+                out.append(
+                    (
+                        f"nodes[{i}].modbus.unit_id",
+                        f"duplicate Modbus unit id {unit} (also nodes[{seen['unit_id'][unit]}])",
+                    )
+                )
+            else:
+                seen["unit_id"][unit] = i
+    gw_unit = (raw.get("modbus") or {}).get("gateway_unit_id", 247)
+    if gw_unit in seen["unit_id"]:
+        out.append(
+            (
+                "modbus.gateway_unit_id",
+                f"unit id {gw_unit} is also used by nodes[{seen['unit_id'][gw_unit]}]",
+            )
+        )
+    zen_raw = raw.get("zenoh")
+    zen = zen_raw if isinstance(zen_raw, dict) else {}
+    rules = zen.get("write_allow")
+    if isinstance(rules, list):
+        for i, rule in enumerate(rules):
+            wanted = rule.get("nodes") if isinstance(rule, dict) else None
+            for j, name in enumerate(wanted if isinstance(wanted, list) else []):
+                if name not in seen["name"]:
+                    out.append(
+                        (
+                            f"zenoh.write_allow[{i}].nodes[{j}]",
+                            f"no node named {name!r} in nodes; nodes: "
+                            + ", ".join(sorted(map(str, seen["name"]))),
+                        )
+                    )
+    sim = raw.get("simulate") or {}
+    if isinstance(sim, dict) and isinstance(sim.get("nodes"), list):
+        for j, name in enumerate(sim["nodes"]):
+            if name not in seen["name"]:
+                out.append(
+                    (f"simulate.nodes[{j}]", f"no node named {name!r} in nodes")
+                )
+    return out
+
+
+def parse_config(
+    raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None
+) -> Config:
+    """Validate an already-parsed YAML document; raise ConfigError with every problem."""
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise ConfigError([f"{source}: (top level): must be a mapping of sections"])
+    problems = [f"{source}: {p}" for p in apply_env_overrides(raw, environ or {})]
+    base_dir = Path(source).parent if source != "<memory>" else Path.cwd()
+    errors: list[tuple[str, str]] = []
+    cfg: Config | None = None
+    try:
+        cfg = Config.model_validate({**raw, "source": source})
+    except ValidationError as exc:
+        for e in exc.errors():
+            what = describe(e)
+            near = nearest_key(tuple(e["loc"])) if e.get("type") == "extra_forbidden" else None
+            if near is not None:
+                what += f"; did you mean {near!r}?"
+            errors.append((key_path(e["loc"]), what))
+    errors += _semantic_problems(raw, base_dir)
+    if cfg is not None:
+        errors += _node_problems(cfg, base_dir)
+    from_env = env_keys(environ or {})
+    seen: set[tuple[str, str]] = set()
+    for loc, msg in errors:
+        if (loc, msg) in seen:
+            continue
+        seen.add((loc, msg))
+        problems.append(f"{blame(loc, source, from_env)}: {loc}: {msg}")
+    if problems:
+        raise ConfigError(problems)
+    assert cfg is not None
+    return cfg
+
+
+def _node_problems(cfg: Config, base_dir: Path) -> list[tuple[str, str]]:
+    """Each node's profile / EDS loads, and its signal overrides and variant exist."""
+    out: list[tuple[str, str]] = []
+    for i, n in enumerate(cfg.nodes):
+        key = f"nodes[{i}]"
+        try:
+            lp = load_node_profile(n, base_dir)
+        except ProfileError as exc:
+            if exc.key is not None:
+                out.append((f"{key}.{exc.key}" if exc.key else key, str(exc)))
+                continue
+            for line in str(exc).splitlines():
+                out.append((f"{key}.{'eds' if n.eds else 'profile'}", line))
+            continue
+        names = {s.name for s in lp.profile.signals}
+        for s in n.signals:
+            if s not in names:
+                out.append(
+                    (
+                        f"{key}.signals.{s}",
+                        (f"profile {n.profile}" if n.profile else n.device)
+                        + f" has no signal {s!r}; it has: "
+                        + ", ".join(sorted(names)),
+                    )
+                )
+        if n.pdo_variant is not None:
+            var = lp.profile.pdo_variants
+            if var is None:
+                out.append((f"{key}.pdo_variant", f"profile {n.profile} has no PDO variants"))
+            elif n.pdo_variant not in var.variants:
+                out.append(
+                    (
+                        f"{key}.pdo_variant",
+                        f"got {n.pdo_variant!r}, profile {n.profile} allows {sorted(var.variants)}",
+                    )
+                )
+        if n.verify_mapping and lp.profile.verify_mapping is False:
+            out.append(
+                (
+                    f"{key}.verify_mapping",
+                    f"profile {n.profile}: its mapping objects do not describe the layout in use; "
+                    "must be false",
+                )
+            )
+    return out
+
+
+def load_config(path: str | os.PathLike[str], environ: Mapping[str, str] | None = None) -> Config:
+    """Read and validate a config file; ``environ`` defaults to ``os.environ``."""
+    p = Path(path)
+    source = str(p)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError([f"{source}: file does not exist"]) from None
+    except OSError as exc:
+        raise ConfigError([f"{source}: cannot read: {exc.strerror}"]) from None
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError([f"{source}: {where}: YAML syntax error: {problem}"]) from None
+    environ = os.environ if environ is None else environ
+    if raw is None or raw == {}:
+        raise ConfigError(
+            [f"{source}: the file is empty; a config needs at least can: and nodes: "
+             "(see config/demo.yaml)"]
+        )
+    return parse_config(raw, source, environ)

@@ -1,0 +1,56 @@
+"""The COB-IDs a simulated device receives on, read from its current objects (SGH10 manual
+000/003 4.1): the valid TPDOs (an RTR asks for one) and RPDOs of 1400h-1BFFh, SYNC from 1005h,
+its SDO server's request and response COB-IDs from 1200h (default 600h / 580h + node id).
+
+``receive_map`` is derived again whenever a COB-ID, a PDO parameter or the node id changes (the
+node drops its copy then).
+
+Imports: gateway.cia301 (COB-IDs and their bits), sim.objects, sim.pdo. Nothing of bus/,
+modbus/, zenoh_bridge/.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import gateway.sim.pdo as pdo
+from gateway.cia301 import (
+    COB_ID_INVALID,
+    COB_ID_MASK_11BIT,
+    COB_ID_MASK_29BIT,
+    COB_SDO_RX,
+    COB_SDO_TX,
+    COB_SYNC,
+)
+from gateway.sim.objects import ObjectValues
+
+
+def sdo_rx_cob(values: ObjectValues, node_id: int) -> int:
+    """The COB-ID of the SDO requests the device answers (1200h:01)."""
+    v = values.get(0x1200, 1)
+    return int(v) & COB_ID_MASK_11BIT if v is not None else COB_SDO_RX + node_id
+
+
+def sdo_tx_cob(values: ObjectValues, node_id: int) -> int:
+    """The COB-ID of the device's SDO responses (1200h:02)."""
+    v = values.get(0x1200, 2)
+    return int(v) & COB_ID_MASK_11BIT if v is not None else COB_SDO_TX + node_id
+
+
+def receive_map(
+    values: ObjectValues, node_id: int, tpdos: Iterable[int], rpdos: Iterable[int]
+) -> dict[int, tuple[str, int]]:
+    """COB-ID -> (``tpdo`` | ``rpdo`` | ``sync`` | ``sdo``, PDO number or 0)."""
+    m: dict[int, tuple[str, int]] = {}
+    for n in tpdos:
+        cob = pdo.cob_id(values, "tpdo", n)
+        if not cob & COB_ID_INVALID:
+            m[cob & COB_ID_MASK_29BIT] = ("tpdo", n)
+    for n in rpdos:
+        cob = pdo.cob_id(values, "rpdo", n)
+        if not cob & COB_ID_INVALID:
+            m[cob & COB_ID_MASK_29BIT] = ("rpdo", n)
+    sync = values.get(0x1005, 0, COB_SYNC)
+    m[int(sync) & COB_ID_MASK_11BIT] = ("sync", 0)
+    m[sdo_rx_cob(values, node_id)] = ("sdo", 0)
+    return m
