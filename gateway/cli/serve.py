@@ -1,7 +1,7 @@
 """The long-running commands: ``run`` (the gateway) and ``simulate`` (only the simulated
 devices of a config), each until SIGINT / SIGTERM, with the logging they set up.
 
-Imports: gateway.app, gateway.startup, gateway.zenoh_bridge.bridge (PrefixInUse), cli.load.
+Imports: gateway.app, gateway.startup, gateway.zenoh_bridge.session (PrefixInUse), cli.load.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     cfg = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
     from gateway.startup import StartupError
-    from gateway.zenoh_bridge.bridge import PrefixInUse
+    from gateway.zenoh_bridge.session import PrefixInUse
 
     gw = Gateway(cfg, simulate=not args.no_simulate)
     try:

@@ -9,7 +9,7 @@ import time
 from typing import Any
 
 from gateway.app import Gateway
-from gateway.zenoh_bridge.bridge import CONNECT_WAIT_S
+from gateway.zenoh_bridge.session import CONNECT_WAIT_S
 from tests.helpers import free_port, make_config, wait_until
 from tests.zenoh_client import ZClient, drain, open_router, sample_where
 

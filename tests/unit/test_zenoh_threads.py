@@ -15,7 +15,8 @@ import zenoh
 
 from gateway.app import Gateway
 from gateway.image import SignalView
-from gateway.zenoh_bridge.bridge import REOPEN_SCHEDULE_S, _ValueBatch
+from gateway.zenoh_bridge.bridge import _ValueBatch
+from gateway.zenoh_bridge.session import REOPEN_SCHEDULE_S
 from tests.helpers import make_config, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

@@ -1,0 +1,52 @@
+"""The Zenoh bridge's housekeeping on the event loop: held-back samples whose time has come
+(``max_rate_hz``) and quality changes that no frame announces (stale by age), per node every
+period (``HOUSEKEEPING_PERIOD_S``, shorter when a maximum rate needs it), and per node when its
+health changes. Publication itself is the bridge's (``_offer``, ``_offer_pdo``, under each
+publication's lock).
+
+Imports: image, zenoh_bridge.bridge (types only). Never zenoh, modbus/ nor bus/.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import TYPE_CHECKING
+
+from gateway.image import NodeImage
+
+if TYPE_CHECKING:
+    from gateway.zenoh_bridge.bridge import ZenohBridge
+
+HOUSEKEEPING_PERIOD_S = 0.1
+
+
+def refresh(bridge: ZenohBridge, node: NodeImage, now: float) -> None:
+    """Held-back samples whose time has come, and quality changes without a new frame."""
+    for pp in bridge.pdo_by_node.get(node.name, ()):
+        if pp.last_seq:
+            bridge._offer_pdo(node, pp, now, again=True)
+    for sp in bridge.by_node.get(node.name, ()):
+        sv = node.signals[sp.sig.name]
+        if not sv.seq:
+            continue
+        pol = sp.policy
+        with sp.lock:  # the policy is the publishing thread's, under the signal's lock
+            due = pol.take_due(now) or (
+                pol.last_time_s is not None and node.quality(sv, now) != pol.last_quality
+            )
+        if due:
+            bridge._offer(node, sp, now)
+
+
+async def housekeeping(bridge: ZenohBridge) -> None:
+    period = HOUSEKEEPING_PERIOD_S
+    rates = [sp.policy.min_interval_s for sp in bridge.pubs.values() if sp.policy.min_interval_s]
+    if rates:
+        period = max(0.01, min(period, min(rates) / 2))
+    while True:
+        await asyncio.sleep(period)
+        if bridge.session is None:
+            continue
+        now = bridge._clock()
+        for node in bridge.image.nodes.values():
+            refresh(bridge, node, now)
