@@ -18,7 +18,7 @@ Rules held here, once:
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it.
 
-Imports: bus.master (the operations), bus.lss.master (its errors), bus.sdo.values (value
+Imports: bus.master (the operations), bus.parts (the nodes), bus.lss.master (its errors), bus.sdo.values (value
 codecs), errors, image, objref, profiles, cia301, states, python-can (its error type). Never modbus/ or zenoh_bridge/.
 """
 
@@ -33,7 +33,8 @@ from typing import Any
 import can
 
 from gateway.bus.lss.master import LssBusy, LssStateError
-from gateway.bus.master import Master, NodeParts
+from gateway.bus.master import Master
+from gateway.bus.parts import NodeParts
 from gateway.bus.sdo.values import decode_value, encode_value
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.errors import (

@@ -11,11 +11,13 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
   (frames to the sender thread, SDO results to the waiting command, values read by SDO into
   the image, health changes to the image's listeners, log lines). Then the node's timer is set
   to its ``next_deadline()``: the driver sleeps until a node needs time, it never polls.
+* Each node's parts (``NodeParts``: config, profile, image, codecs, ``Node``) are built by
+  ``bus/parts.py`` (``build_node``).
 * **Services** for the command service: SDO upload/download (awaitable, one transfer per node
   at a time, queued in the node), RPDO outputs, NMT commands.
 
-Imports: bus.*, pdo.codec, pdo.verify, cia301, image, profiles, errors, config, objref,
-ratelimit. Nothing northbound.
+Imports: bus.*, pdo.codec, cia301, image, errors, config, objref, ratelimit, python-can.
+Nothing northbound.
 """
 
 from __future__ import annotations
@@ -25,7 +27,6 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import can
@@ -37,11 +38,9 @@ from gateway.bus.bus_peers import (
 )
 from gateway.bus.driver import BusDriver
 from gateway.bus.lss.service import LssService
-from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.lifecycle import LifecycleState
-from gateway.bus.node.owner import Node
-from gateway.bus.node.settings import NodeSettings
+from gateway.bus.parts import NodeParts, build_node
 from gateway.bus.producers import Periodic
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.cia301 import (
@@ -55,13 +54,11 @@ from gateway.cia301 import (
     COB_SYNC,
     NMT_COMMANDS,
 )
-from gateway.config import Config, NodeConfig
+from gateway.config import Config
 from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
-from gateway.image import NodeImage, ProcessImage, RxCell
+from gateway.image import NodeImage, ProcessImage
 from gateway.objref import ObjRef
-from gateway.pdo.codec import RpdoCodec, TpdoCodec
-from gateway.pdo.verify import MappingMismatch
-from gateway.profiles import LoadedProfile, expected_identity
+from gateway.pdo.codec import TpdoCodec
 from gateway.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.master")
@@ -74,110 +71,6 @@ PEER_LOG_PERIOD_S = 60.0
 #: queued events that wake the loop even when none asked for it (a bound, never reached while
 #: every quiet event's node has a deadline timer)
 QUIET_LIMIT = 1024
-
-
-@dataclass
-class NodeParts:
-    """What the master built for one node: its config, profile, image, codecs and machine."""
-
-    cfg: NodeConfig
-    lp: LoadedProfile
-    image: NodeImage
-    settings: NodeSettings
-    boot_steps: list[ConfigStep]
-    tpdos: list[TpdoCodec]
-    rpdos: list[RpdoCodec]
-    node: Node
-    #: written by the event loop only (after every event of the node), read by the reader
-    #: thread: the node is heartbeat-supervised, alive and operational, so a heartbeat
-    #: repeating the previous one changes nothing before its deadline and needs no wake-up of
-    #: the loop (see ``_control``)
-    steady: bool = False
-    #: the event loop's cell of the node's receive counters (values read by SDO)
-    loop_rx: RxCell = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.loop_rx = self.image.rx.new_cell()
-
-    @property
-    def name(self) -> str:
-        return self.cfg.name
-
-    @property
-    def node_id(self) -> int:
-        return self.cfg.node_id
-
-    # read-only views of the node's machines (diagnostics and tests)
-    @property
-    def lifecycle(self) -> Any:
-        return self.node.lifecycle
-
-    @property
-    def hb(self) -> Any:
-        return self.node.hb
-
-    @property
-    def guard(self) -> Any:
-        return self.node.guard
-
-    @property
-    def gbit(self) -> Any:
-        return self.node.gbit
-
-    @property
-    def emcy(self) -> Any:
-        return self.node.emcy
-
-    @property
-    def mapping_mismatches(self) -> list[MappingMismatch]:
-        return self.node.mapping_mismatches
-
-
-def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> NodeParts:
-    """One node's parts from its resolution (settings, boot steps and codecs built once)."""
-    rn.require()
-    ncfg, lp, settings = rn.cfg, rn.lp, rn.settings
-    steps, tpdos, rpdos, plan = rn.boot_steps, rn.tpdos, rn.rpdos, rn.refresh
-    control = status = None
-    if settings.guarding_bit is not None:
-        cs = lp.profile.signal_for(settings.guarding_bit.control)
-        ss = lp.profile.signal_for(settings.guarding_bit.status)
-        control, status = (cs.name if cs else None), (ss.name if ss else None)
-    ref = lp.profile.features.get("referencing")
-    ref_signal = None
-    if ref is not None:
-        pos = lp.profile.signal_for(ObjRef.parse(ref.get("position", "0x6004:00")))
-        ref_signal = pos.name if pos is not None else None
-    # The image's record keys are bound now, before any thread writes a record: each TPDO,
-    # and each value read by SDO after NMT start (refresh), is a source of its signals.
-    for codec in tpdos:
-        image.bind(codec.names)
-    for r in plan:
-        for name, _obj, _type in r.objects:
-            image.bind((name,))
-    for rc in rpdos:
-        image.bind_output(rc.number, tuple(rc.names))
-    node = Node(
-        ncfg.name,
-        ncfg.node_id,
-        settings,
-        image.health,
-        image=image,
-        boot_steps=steps,
-        configure=ncfg.configure,
-        tpdos=tpdos,
-        rpdos=rpdos,
-        refresh=plan,
-        expected_device_type=lp.profile.device_type,
-        expected_identity=expected_identity(lp) if ncfg.identity_check else (),
-        emcy_texts=dict(lp.profile.emcy),
-        guard_names=(control, status),
-        referencing=ref,
-        reference_signal=ref_signal,
-        passive=passive,
-        verify=rn.verify,
-    )
-    return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)
 
 
 class Master:

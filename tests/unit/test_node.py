@@ -15,8 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.bus.master import NodeParts, build_node
 from gateway.bus.node.events import Send, ValuesRead
+from gateway.bus.parts import NodeParts, build_node
 from gateway.bus.resolved import resolve_node
 from gateway.image import NodeImage, Quality, SignalValue
 from gateway.profiles import expected_identity

@@ -1,0 +1,128 @@
+"""What the master builds for one configured node (``build_node``): its ``Node`` machine from
+the node's resolution (settings, boot steps, codecs built once), the image's record keys bound
+before any thread writes a record, and the ``NodeParts`` that hold it all for the master's
+handlers, inbox and services (``master.py``).
+
+Imports: bus.node.*, bus.resolved, image, objref, pdo.codec, pdo.verify, profiles, config.
+Nothing northbound, no python-can (the frames are the master's).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.node.owner import Node
+from gateway.bus.node.settings import NodeSettings
+from gateway.bus.resolved import ResolvedNode
+from gateway.config import NodeConfig
+from gateway.image import NodeImage, RxCell
+from gateway.objref import ObjRef
+from gateway.pdo.codec import RpdoCodec, TpdoCodec
+from gateway.pdo.verify import MappingMismatch
+from gateway.profiles import LoadedProfile, expected_identity
+
+
+@dataclass
+class NodeParts:
+    """What the master built for one node: its config, profile, image, codecs and machine."""
+
+    cfg: NodeConfig
+    lp: LoadedProfile
+    image: NodeImage
+    settings: NodeSettings
+    boot_steps: list[ConfigStep]
+    tpdos: list[TpdoCodec]
+    rpdos: list[RpdoCodec]
+    node: Node
+    #: written by the event loop only (after every event of the node), read by the reader
+    #: thread: the node is heartbeat-supervised, alive and operational, so a heartbeat
+    #: repeating the previous one changes nothing before its deadline and needs no wake-up of
+    #: the loop (see ``_control``)
+    steady: bool = False
+    #: the event loop's cell of the node's receive counters (values read by SDO)
+    loop_rx: RxCell = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.loop_rx = self.image.rx.new_cell()
+
+    @property
+    def name(self) -> str:
+        return self.cfg.name
+
+    @property
+    def node_id(self) -> int:
+        return self.cfg.node_id
+
+    # read-only views of the node's machines (diagnostics and tests)
+    @property
+    def lifecycle(self) -> Any:
+        return self.node.lifecycle
+
+    @property
+    def hb(self) -> Any:
+        return self.node.hb
+
+    @property
+    def guard(self) -> Any:
+        return self.node.guard
+
+    @property
+    def gbit(self) -> Any:
+        return self.node.gbit
+
+    @property
+    def emcy(self) -> Any:
+        return self.node.emcy
+
+    @property
+    def mapping_mismatches(self) -> list[MappingMismatch]:
+        return self.node.mapping_mismatches
+
+
+def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> NodeParts:
+    """One node's parts from its resolution (settings, boot steps and codecs built once)."""
+    rn.require()
+    ncfg, lp, settings = rn.cfg, rn.lp, rn.settings
+    steps, tpdos, rpdos, plan = rn.boot_steps, rn.tpdos, rn.rpdos, rn.refresh
+    control = status = None
+    if settings.guarding_bit is not None:
+        cs = lp.profile.signal_for(settings.guarding_bit.control)
+        ss = lp.profile.signal_for(settings.guarding_bit.status)
+        control, status = (cs.name if cs else None), (ss.name if ss else None)
+    ref = lp.profile.features.get("referencing")
+    ref_signal = None
+    if ref is not None:
+        pos = lp.profile.signal_for(ObjRef.parse(ref.get("position", "0x6004:00")))
+        ref_signal = pos.name if pos is not None else None
+    # The image's record keys are bound now, before any thread writes a record: each TPDO,
+    # and each value read by SDO after NMT start (refresh), is a source of its signals.
+    for codec in tpdos:
+        image.bind(codec.names)
+    for r in plan:
+        for name, _obj, _type in r.objects:
+            image.bind((name,))
+    for rc in rpdos:
+        image.bind_output(rc.number, tuple(rc.names))
+    node = Node(
+        ncfg.name,
+        ncfg.node_id,
+        settings,
+        image.health,
+        image=image,
+        boot_steps=steps,
+        configure=ncfg.configure,
+        tpdos=tpdos,
+        rpdos=rpdos,
+        refresh=plan,
+        expected_device_type=lp.profile.device_type,
+        expected_identity=expected_identity(lp) if ncfg.identity_check else (),
+        emcy_texts=dict(lp.profile.emcy),
+        guard_names=(control, status),
+        referencing=ref,
+        reference_signal=ref_signal,
+        passive=passive,
+        verify=rn.verify,
+    )
+    return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)
