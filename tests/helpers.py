@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import socket
+import threading
 import time
 import uuid
 from collections.abc import AsyncIterator, Callable, Iterable
@@ -51,6 +52,16 @@ def make_config(nodes: list[dict[str, Any]], **sections: Any) -> Any:
         else:
             raw[k] = v
     return parse_config(raw, environ={})
+
+
+def wait_until_sync(cond: Callable[[], Any], timeout_s: float = 5.0, what: str = "condition") -> Any:
+    """``wait_until`` for code outside the event loop (threads, other processes): poll
+    ``cond`` every 10 ms until truthy; fail the test after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while not (v := cond()):
+        assert time.monotonic() < deadline, f"timed out after {timeout_s} s waiting for {what}"
+        threading.Event().wait(0.01)
+    return v
 
 
 async def wait_until(cond: Callable[[], Any], timeout_s: float = 5.0, what: str = "condition") -> Any:

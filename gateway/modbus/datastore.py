@@ -21,7 +21,7 @@ import ipaddress
 import logging
 import struct
 import time
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Iterator, Mapping
 from typing import Any
 
 import gateway
@@ -123,13 +123,12 @@ class ImageDatastore:
         self.exceptions[int(code)] = self.exceptions.get(int(code), 0) + 1
 
     # ------------------------------------------------------------------ reads
-    async def read(self, unit: int, table: Table, address: int, count: int) -> list[Any]:
-        """Registers (ints) or bits (bools) of ``count`` consecutive addresses."""
+    def _points(
+        self, unit: int, table: Table, address: int, count: int
+    ) -> Iterator[tuple[Point, int, int]]:
+        """The points of ``count`` consecutive addresses, each with the slice of its registers
+        the request covers (``lo``, ``take``; bits: one each); an unmapped address raises."""
         idx = self.regmap.index.get((unit, table), {})
-        words: dict[tuple[str, str], Any] = {}  # a word read once per request for all its bits
-        snaps: dict[str, Mapping[str, SignalValue]] = {}  # one consistent view per node
-        sums: dict[str, NodeSummary] = {}  # one health summary per node
-        out: list[Any] = []
         a, end = address, address + count
         while a < end:
             p = idx.get(a)
@@ -138,43 +137,42 @@ class ImageDatastore:
                     ExceptionCode.ILLEGAL_DATA_ADDRESS,
                     f"{TABLE_NAMES[table]} {a} of unit {unit} is not mapped",
                 )
+            take = 1 if table in ("di", "co") else min(p.end, end) - a
+            yield p, a - p.address, take
+            a += take
+
+    @staticmethod
+    def _from_image(p: Point) -> bool:
+        """A value of the image (or the gateway's): read without a coroutine per point."""
+        return p.kind in ("gateway", "diag", "nmt") or p.table == "ir"
+
+    async def read(self, unit: int, table: Table, address: int, count: int) -> list[Any]:
+        """Registers (ints) or bits (bools) of ``count`` consecutive addresses."""
+        words: dict[tuple[str, str], Any] = {}  # a word read once per request for all its bits
+        snaps: dict[str, Mapping[str, SignalValue]] = {}  # one consistent view per node
+        sums: dict[str, NodeSummary] = {}  # one health summary per node
+        out: list[Any] = []
+        for p, lo, take in self._points(unit, table, address, count):
             if table in ("di", "co"):
                 out.append(bool(await self._bit_value(p, words, snaps, sums)))
-                a += 1
                 continue
-            # a value of the image (or the gateway's) is read without a coroutine per point
-            if p.kind in ("gateway", "diag", "nmt") or p.table == "ir":
+            if self._from_image(p):
                 regs = self._image_regs(p, snaps, sums)
             else:
                 regs = await self._reg_value(p, snaps, sums)
-            lo = a - p.address
-            take = min(p.end, end) - a
             out.extend(regs[lo : lo + take])
-            a += take
         return out
 
     def read_now(self, unit: int, table: Table, address: int, count: int) -> list[int] | None:
         """``read`` of registers all served from the image, at once; None when one of them
         is an output (read through the command service: ``read``)."""
-        idx = self.regmap.index.get((unit, table), {})
         snaps: dict[str, Mapping[str, SignalValue]] = {}  # one consistent view per node
         sums: dict[str, NodeSummary] = {}  # one health summary per node
         out: list[int] = []
-        a, end = address, address + count
-        while a < end:
-            p = idx.get(a)
-            if p is None:
-                raise ModbusError(
-                    ExceptionCode.ILLEGAL_DATA_ADDRESS,
-                    f"{TABLE_NAMES[table]} {a} of unit {unit} is not mapped",
-                )
-            if not (p.kind in ("gateway", "diag", "nmt") or p.table == "ir"):
+        for p, lo, take in self._points(unit, table, address, count):
+            if not self._from_image(p):
                 return None
-            regs = self._image_regs(p, snaps, sums)
-            lo = a - p.address
-            take = min(p.end, end) - a
-            out.extend(regs[lo : lo + take])
-            a += take
+            out.extend(self._image_regs(p, snaps, sums)[lo : lo + take])
         return out
 
     def _node(self, p: Point) -> NodeImage:
@@ -225,7 +223,7 @@ class ImageDatastore:
         snaps: dict[str, Mapping[str, SignalValue]] | None = None,
         sums: dict[str, NodeSummary] | None = None,
     ) -> list[int]:
-        if p.kind in ("gateway", "diag", "nmt") or p.table == "ir":
+        if self._from_image(p):
             return self._image_regs(p, snaps, sums)
         return to_registers(await self._output_value(self._node(p).name, p.name), p)
 

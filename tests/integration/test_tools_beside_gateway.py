@@ -10,7 +10,6 @@ import json
 import socket
 import subprocess
 import sys
-import time
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,7 +18,7 @@ from typing import Any
 import pytest
 import yaml
 
-from tests.helpers import free_port, gateway_process, unique_channel, wait_ready
+from tests.helpers import free_port, gateway_process, unique_channel, wait_ready, wait_until_sync
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -91,10 +90,9 @@ def test_nmt_goes_through_the_running_gateway(running: Path) -> None:
         "NMT stop sent to wire through the running gateway at tcp/127.0.0.1:"
     )
     # the device's next heartbeat reports it stopped (bounded wait on /healthz)
-    deadline = time.monotonic() + 10
-    while healthz(running)["nodes"]["wire"]["nmt_state"] != "stopped":
-        assert time.monotonic() < deadline, "the gateway never saw wire stopped"
-        time.sleep(0.05)
+    wait_until_sync(
+        lambda: healthz(running)["nodes"]["wire"]["nmt_state"] == "stopped", 10, "wire stopped"
+    )
     r = cli("nmt", "-c", str(running), "start", "all")
     assert r.returncode == 0, r.stderr
 

@@ -70,11 +70,12 @@ async def test_scripted_frames_each_new_frame_a_sample_and_a_lost_node_goes_stal
     z = ZClient(cfg.zenoh.listen)
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)
     beating = threading.Event()
+    silent = threading.Event()  # ends the device's wait at once when it goes silent
 
     def device_heartbeat() -> None:  # the device's own 50 ms heartbeat, until it goes silent
         while beating.is_set():
             bus.send(frame(0x701, "05"))
-            time.sleep(0.05)
+            silent.wait(0.05)  # the device's heartbeat period
 
     try:
         pdo = z.subscribe(f"{P}/wire/tpdo/*")
@@ -99,7 +100,8 @@ async def test_scripted_frames_each_new_frame_a_sample_and_a_lost_node_goes_stal
         sc = gw.zenoh.pubs[("wire", "velocity")].scaling
         assert v.body["value"] == 7 * sc.scale + sc.offset and v.body["quality"] == "good"
         assert got[-1]["signals"]["position"]["quality"] == "good"
-        beating.clear()  # the node goes silent: lost after its heartbeat timeout
+        beating.clear()
+        silent.set()  # the node goes silent: lost after its heartbeat timeout
         stale = await sample_where(
             pdo, lambda s: s.body["signals"]["position"]["quality"] == "stale", what="stale PDO"
         )
@@ -107,6 +109,7 @@ async def test_scripted_frames_each_new_frame_a_sample_and_a_lost_node_goes_stal
         assert stale.body["signals"]["position"]["value"] == got[-1]["signals"]["position"]["value"]
     finally:
         beating.clear()
+        silent.set()
         bus.shutdown()
         z.close()
         await gw.stop()

@@ -4,14 +4,13 @@ received has been handled, not once per frame (python-can virtual bus, real read
 from __future__ import annotations
 
 import threading
-import time
 import uuid
-from collections.abc import Callable
 
 import can
 
 from gateway.bus.driver import BusDriver
 from gateway.image import ProcessImage
+from tests.helpers import wait_until_sync
 
 WAIT_S = 5.0
 
@@ -63,13 +62,6 @@ def test_burst_listeners_run_once_per_burst_after_every_buffered_frame() -> None
         d.close()
 
 
-def _until(cond: Callable[[], bool], what: str) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while not cond():
-        assert time.monotonic() < deadline, what
-        time.sleep(0.001)
-
-
 def test_with_a_gap_the_ends_of_bursts_within_it_are_taken_together() -> None:
     """``burst_gap_s`` (``zenoh.batch_ms``): the burst listeners run at most once per gap of
     the driver's clock (a fake one here, standing still until the test moves it): the frames of
@@ -98,7 +90,7 @@ def test_with_a_gap_the_ends_of_bursts_within_it_are_taken_together() -> None:
         called.clear()
         for i in (1, 2):  # two more bursts, each its own wake-up, within the gap
             device.send(can.Message(arbitration_id=0x181, data=[i], is_extended_id=False))
-            _until(lambda i=i: bursts["bursts"] == i + 1, f"burst {i + 1} taken")
+            wait_until_sync(lambda i=i: bursts["bursts"] == i + 1, WAIT_S, f"burst {i + 1} taken")
         assert handled == [0, 1, 2]
         assert calls == [1]  # the clock stands still: the gap is not over
         now[0] += 1.0
