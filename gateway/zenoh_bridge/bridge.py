@@ -5,15 +5,19 @@ queryable whose answers live in ``queries.py`` (``QueryService``).
 Threads (started through the gateway's ``ThreadRegistry``: a thread that dies is reported and
 turns /healthz not-ready, never silently):
 
-* values are marked on the CAN reader thread right after the image was written, and the reader
-  publishes the *current* value of every marked signal once per burst of frames, when it has
-  handled every frame already received (the image's batch listener; coalescing when it is
-  behind); ``publish: every`` signals are published by the reader for every frame; a signal's
-  value, quality and policy are read and written under its own lock, whichever thread
-  publishes, and a sample never follows a newer one; publications are counted per signal under
-  that lock (raw PDOs per thread, ``threads.ThreadCount``) and summed when read;
+* values are marked on the CAN reader thread right after the image was written; at the end of
+  each burst of frames (the image's batch listener, when the reader has handled every frame
+  already received) the reader wakes the ``zenoh-publish`` thread (``sender.py``: one queued
+  flush at a time), which publishes the *current* value of every marked signal (coalescing
+  while it is behind). A Zenoh ``put`` releases the interpreter lock, so puts on the reader
+  let the event loop in and made the reader wait for the lock back (frame -> Modbus p99 2.4x
+  longer on a saturated bus, bench/RESULTS.md section 9). ``publish: every`` signals are put
+  by the reader for every frame. A signal's value, quality and policy are read and written
+  under its own lock, whichever thread publishes, and a sample never follows a newer one;
+  publications are counted per signal under that lock (raw PDOs per thread,
+  ``threads.ThreadCount``) and summed when read;
 * events (state, EMCY) are computed on the event loop when the master reports them and put by
-  the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
+  the ``zenoh-publish`` thread in order, with congestion control BLOCK and priority
   INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop;
 * a housekeeping task on the event loop publishes held-back samples (max rate) and quality
   changes that no frame announces (stale by age);
@@ -40,7 +44,7 @@ re-declares publishers, queryable and liveliness tokens.
 The bridge is composed of: ``plan.py`` (what to publish, planned once: ``SignalPub``,
 ``PdoPub``, the reader's routes), ``session.py`` (the session's lifecycle: open, duplicate
 check, re-open, declarations, stop; bound as this class's methods), ``housekeeping.py`` (the
-periodic refresh) and ``events.py`` (the ``zenoh-events`` thread). The per-frame path (the
+periodic refresh) and ``sender.py`` (the ``zenoh-publish`` thread). The per-frame path (the
 image's listeners, ``_ValueBatch``, ``_offer``) stays here.
 
 Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, northbound.keys,
@@ -70,7 +74,6 @@ from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge import housekeeping, session
-from gateway.zenoh_bridge.events import EventSender
 from gateway.zenoh_bridge.payloads import (
     emcy_payload,
     pdo_json,
@@ -80,6 +83,7 @@ from gateway.zenoh_bridge.payloads import (
 )
 from gateway.zenoh_bridge.plan import PdoPub, SignalPub, plan_publications, value_keys
 from gateway.zenoh_bridge.queries import QueryService
+from gateway.zenoh_bridge.sender import ZenohSender
 
 log = logging.getLogger("gateway.zenoh")
 
@@ -91,11 +95,12 @@ class _ValueBatch:
 
     The image's writer marks a signal as updated (a dict assignment under a lock) for every
     decoded PDO, and at the end of its batch (the image's batch listener: the CAN reader once
-    it has handled every frame already received, the event loop after values read by SDO) it
-    publishes the *current* value of every marked signal on its own thread. While the reader is
-    behind, its bursts grow and the marks of one signal coalesce into one sample: the work per
-    batch is bounded by the number of signals, not by the number of frames, and subscribers
-    always get the newest value. No thread hand-off, no wake-up per value.
+    it has handled every frame already received, the event loop after values read by SDO) the
+    ``zenoh-publish`` thread publishes the *current* value of every marked signal (``flush``).
+    While the reader or the publisher is behind, the marks of one signal coalesce into one
+    sample: the work per batch is bounded by the number of signals, not by the number of
+    frames, and subscribers always get the newest value. One wake-up per batch, none per
+    value.
 
     No update is lost: the marks are taken under the lock they are made under, so a mark lands
     either in the batch being published or in the next one; and the value published is read
@@ -180,8 +185,9 @@ class ZenohBridge:
         #: its own cell; values are counted by their policies, under each signal's lock
         self._raw_publications = ThreadCount()
         self.up = False
-        self._events = EventSender(self.threads)
         self._values = _ValueBatch(self._offer, lambda: self._clock())
+        #: the ``zenoh-publish`` thread: value flushes and events (``sender.py``)
+        self._sender = ZenohSender(self.threads, self._values.flush)
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}
         self._opened: zenoh.Session | None = None  # open, checked, not declared yet
@@ -343,7 +349,7 @@ class ZenohBridge:
         seq = self._event_seq.get(key, 0) + 1
         self._event_seq[key] = seq
         payload["seq"] = seq
-        self._events.put(pub, json.dumps(payload).encode(), s.new_timestamp())
+        self._sender.put_event(pub, json.dumps(payload).encode(), s.new_timestamp())
 
     def _sync_token(self, node: NodeImage) -> None:
         """A token while the node's values are usable: operational, guarding-bit link OK."""
@@ -371,7 +377,7 @@ class ZenohBridge:
 
     @property
     def events_sent(self) -> int:
-        return self._events.sent
+        return self._sender.sent
 
     # ------------------------------------------------------------------ queries (queries.py)
     @property

@@ -117,9 +117,9 @@ async def start(bridge: ZenohBridge) -> None:
     if bridge.loop is None:
         await bridge.open()
     bridge.image.value_listeners.append(bridge._on_values)
-    bridge.image.batch_listeners.append(bridge._values.flush)
+    bridge.image.batch_listeners.append(bridge._sender.wake_values)
     bridge.image.health_listeners.append(bridge._on_health)
-    bridge._events.start()
+    bridge._sender.start()
     opened, bridge._opened = bridge._opened, None
     if opened is not None:
         try:
@@ -295,11 +295,11 @@ async def stop(bridge: ZenohBridge) -> None:
         bridge.image.value_listeners.remove(bridge._on_values)
     if bridge._on_health in bridge.image.health_listeners:
         bridge.image.health_listeners.remove(bridge._on_health)
-    if bridge._values.flush in bridge.image.batch_listeners:
-        bridge.image.batch_listeners.remove(bridge._values.flush)
+    if bridge._sender.wake_values in bridge.image.batch_listeners:
+        bridge.image.batch_listeners.remove(bridge._sender.wake_values)
     if bridge._on_pdo in bridge.image.pdo_listeners:
         bridge.image.pdo_listeners.remove(bridge._on_pdo)
-    await asyncio.to_thread(bridge._events.stop)  # queued events go out before the close
+    await asyncio.to_thread(bridge._sender.stop)  # queued events and values go out before the close
     s, bridge.session = bridge.session, None
     opened, bridge._opened = bridge._opened, None
     bridge.tokens.clear()

@@ -1,0 +1,120 @@
+"""The ``zenoh-publish`` thread (``zenoh_bridge/sender.py``): a writer's wake-ups coalesce into
+one queued flush, a mark made while a flush runs gets a flush of its own, events and flushes
+go out in the order they were queued, stopping publishes what was queued; and in a running
+gateway every value put happens on that thread, never on the CAN reader."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+from gateway.app import Gateway
+from gateway.threads import ThreadRegistry
+from gateway.zenoh_bridge.sender import ZenohSender
+from tests.helpers import make_config, wait_until
+
+WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
+
+
+class Pub:
+    def __init__(self, name: str, log: list[str]) -> None:
+        self.name = name
+        self.log = log
+
+    def put(self, payload: bytes, timestamp: Any = None) -> None:
+        self.log.append(self.name)
+
+
+def test_wake_ups_before_the_flush_runs_coalesce_into_one_flush() -> None:
+    log: list[str] = []
+    sender = ZenohSender(ThreadRegistry(), lambda: log.append("flush"))
+    for _ in range(100):  # a hundred bursts end before the thread gets to run
+        sender.wake_values()
+    assert sender.queue.qsize() == 1
+    sender.start()
+    sender.stop()  # a last flush, then the end
+    assert log == ["flush", "flush"]
+
+
+def test_a_mark_made_while_a_flush_runs_gets_a_flush_of_its_own() -> None:
+    """The flag is cleared before the flush takes the marks: a writer that marks during the
+    flush (its mark may miss the marks taken) queues the next one."""
+    flushed = threading.Event()
+    calls: list[int] = []
+    sender: ZenohSender
+
+    def flush() -> None:
+        calls.append(len(calls))
+        if len(calls) == 1:
+            sender.wake_values()  # the reader ends a burst while the first flush runs
+        else:
+            flushed.set()
+
+    sender = ZenohSender(ThreadRegistry(), flush)
+    sender.start()
+    sender.wake_values()
+    assert flushed.wait(10)
+    sender.stop()
+    assert calls[:2] == [0, 1]
+
+
+def test_events_and_flushes_go_out_in_the_order_they_were_queued() -> None:
+    log: list[str] = []
+    sender = ZenohSender(ThreadRegistry(), lambda: log.append("flush"))
+    sender.put_event(Pub("state 1", log), b"{}", None)
+    sender.wake_values()
+    sender.put_event(Pub("emcy 1", log), b"{}", None)
+    sender.put_event(Pub("state 2", log), b"{}", None)
+    sender.start()
+    sender.stop()
+    assert log == ["state 1", "flush", "emcy 1", "state 2", "flush"]
+    assert sender.sent == 3 and sender.failed == 0
+
+
+def test_a_failing_event_put_is_counted_and_the_thread_goes_on() -> None:
+    log: list[str] = []
+
+    class Failing:
+        def put(self, payload: bytes, timestamp: Any = None) -> None:
+            raise RuntimeError("network gone")
+
+    threads = ThreadRegistry()
+    sender = ZenohSender(threads, lambda: log.append("flush"))
+    sender.put_event(Failing(), b"{}", None)
+    sender.put_event(Pub("state", log), b"{}", None)
+    sender.start()
+    sender.stop()
+    assert sender.failed == 1 and sender.sent == 1
+    assert log == ["state", "flush"]
+    assert threads.failures() == {}
+
+
+async def test_values_are_put_on_the_publish_thread_never_on_the_can_reader() -> None:
+    gw = Gateway(make_config([WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}}))
+    await gw.start()
+    try:
+        await wait_until(lambda: gw.status()["ready"], 8, "ready")
+        assert gw.zenoh is not None
+        threads: list[str] = []
+        done = threading.Event()
+
+        class Recording:
+            def __init__(self, pub: Any) -> None:
+                self.pub = pub
+
+            def put(self, payload: Any, **kw: Any) -> None:
+                name = threading.current_thread().name
+                threads.append(name)
+                if threads.count("zenoh-publish") >= 20:
+                    done.set()
+                self.pub.put(payload, **kw)
+
+        for sp in gw.zenoh.pubs.values():
+            sp.pub = Recording(sp.pub)
+        await wait_until(done.is_set, 8, "20 value samples")
+        # the loop puts only what no frame announces (housekeeping: quality by age, held-back
+        # samples); the reader never puts
+        assert "can-reader" not in threads
+        assert set(threads) <= {"zenoh-publish", "MainThread"}, threads
+    finally:
+        await gw.stop()
