@@ -26,6 +26,19 @@ def setup_logging(level: str) -> None:
     )
     for noisy in ("pymodbus", "can", "canopen", "zenoh"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
+    socketcand = logging.getLogger("can.interfaces.socketcand.socketcand")
+    if _socketcand_partial_read not in socketcand.filters:
+        socketcand.addFilter(_socketcand_partial_read)
+
+
+#: python-can's socketcand client warns whenever a TCP read ends inside a frame's text, which
+#: on a busy bus is about a hundred times a second; it reads on and loses nothing. Its other
+#: warnings (bad data, frames it cannot parse, a message it discards) stay.
+SOCKETCAND_PARTIAL_READ = "Got incomplete message => waiting for more data"
+
+
+def _socketcand_partial_read(record: logging.LogRecord) -> bool:
+    return record.msg != SOCKETCAND_PARTIAL_READ
 
 
 async def run_until_signal(
