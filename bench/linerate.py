@@ -480,8 +480,9 @@ def reader_figures(
     c1: dict[str, float],
     wall: float,
 ) -> dict[str, float]:
-    """The reader's cost per burst (one wake-up each) and per frame, and the context switches
-    per burst: of the reader, and of every thread of the process."""
+    """The reader's cost per burst (one wake-up each) and per frame, the ``zenoh-publish``
+    thread's per frame (the values the reader marked), and the context switches per burst: of
+    the reader, and of every thread of the process."""
     ns = "canopen_gateway_"
     frames = c1.get(ns + "frames_in_total", 0) - c0.get(ns + "frames_in_total", 0)
     bursts = c1.get(ns + "can_bursts_total", 0) - c0.get(ns + "can_bursts_total", 0)
@@ -494,6 +495,10 @@ def reader_figures(
     if reader is None or reader not in d0 or reader not in d1 or not bursts:
         return out
     r_cpu = d1[reader][3] - d0[reader][3]
+    pub = next((tid for name, tid, _ in per_thread if name == "zenoh-publish"), None)
+    if pub is not None and pub in d0 and pub in d1:
+        p_cpu = d1[pub][3] - d0[pub][3]
+        out.update(publish_cpu=p_cpu / wall, publish_us_per_frame=p_cpu / max(1, frames) * 1e6)
     r_sw = (d1[reader][1] - d0[reader][1]) + (d1[reader][2] - d0[reader][2])
     all_sw = sum((d1[t][1] - d0[t][1]) + (d1[t][2] - d0[t][2]) for t in d1 if t in d0)
     out.update(
@@ -839,7 +844,8 @@ async def scenario(
     bare = await _bare_phase(phase_s, gen_kw)
     gw = await _gateway_phase(phase_s, profile_s, gen_kw, publish, zenoh, batch_ms)
     keys = ("fps", "cpu", "mb_p50", "mb_p99", "z_p50", "z_p99", "frames_per_burst",
-            "reader_cpu", "reader_us_per_burst", "reader_us_per_frame",
+            "reader_cpu", "reader_us_per_burst", "reader_us_per_frame", "publish_cpu",
+            "publish_us_per_frame",
             "reader_switches_per_burst", "switches_per_burst", "value_samples_per_s", "not_alive")  # fmt: skip
     out = {k: gw.get(k, math_nan()) for k in keys}
     out.update(

@@ -118,3 +118,4 @@ async def test_values_are_put_on_the_publish_thread_never_on_the_can_reader() ->
         assert set(threads) <= {"zenoh-publish", "MainThread"}, threads
     finally:
         await gw.stop()
+

@@ -1,7 +1,8 @@
 """The Zenoh bridge's value batches, threads and retries, without a network: a batch never
 loses a mark, an exception in publishing is logged and publishing goes on, a thread that dies
-turns the gateway not-ready, client-mode attempts start on the documented schedule, and two
-flushes at once never publish an older value after a newer one."""
+turns the gateway not-ready (and carries its name in the kernel, for top -H), client-mode
+attempts start on the documented schedule, and two flushes at once never publish an older
+value after a newer one."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from typing import Any
 import pytest
 import zenoh
 
+from gateway import threads
 from gateway.app import Gateway
 from gateway.image import SignalView
 from gateway.zenoh_bridge.bridge import _ValueBatch
@@ -242,3 +244,25 @@ async def test_two_flushes_at_once_never_publish_an_older_value_after_a_newer_on
         assert sp.last_seq == 2
     finally:
         await gw.stop()
+
+
+def test_a_supervised_thread_carries_its_name_in_the_kernel() -> None:
+    """``top -H`` and /proc/PID/task/TID/comm show the gateway's thread names."""
+    import os
+    import sys
+
+    import pytest
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("thread names in /proc are Linux's")
+    seen: list[str] = []
+    done = threading.Event()
+
+    def target() -> None:
+        with open(f"/proc/{os.getpid()}/task/{threading.get_native_id()}/comm") as f:
+            seen.append(f.read().strip())
+        done.set()
+
+    threads.ThreadRegistry().start("zenoh-publish", target)
+    assert done.wait(10)
+    assert seen == ["zenoh-publish"]
