@@ -115,7 +115,8 @@ async def test_the_nodes_table_shows_a_node_going_lost_and_back(browser: Any) ->
         sim = gw.sim.nodes["wire"]
         gw.sim.runner.call(lambda now: sim.silence())
         await run(wait_for, browser, lambda d: cell(d, "wire", "presence") == "lost", "lost")
-        assert await run(cell, browser, "wire", "quality") == "stale"
+        # presence and quality may come in two updates of the row: wait for both
+        await run(wait_for, browser, lambda d: cell(d, "wire", "quality") == "stale", "stale")
         assert await run(cell, browser, "wire", "losses") == "1"
         assert await run(cell, browser, "display", "presence") == "alive"  # only wire
         gw.sim.runner.call(lambda now: sim.unsilence(now))
