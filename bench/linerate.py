@@ -552,7 +552,7 @@ def _gateway_config(
     can_port: int,
     publish: str = "change",
     zenoh: bool = True,
-    batch_ms: float = 0.0,
+    batch_ms: float | None = None,
 ) -> dict[str, Any]:
     cfg = {
         "gateway": {"name": "linerate", "log_level": "warning"},
@@ -566,9 +566,11 @@ def _gateway_config(
         ],
         "modbus": {"host": "127.0.0.1", "port": free_port()},
         "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{free_port()}"], "publish": publish,
-                  "enabled": zenoh, "batch_ms": batch_ms},
+                  "enabled": zenoh},
         "health": {"host": "127.0.0.1", "port": free_port()},
     }  # fmt: skip
+    if batch_ms is not None:  # else the gateway's default
+        cfg["zenoh"]["batch_ms"] = batch_ms
     path.write_text(yaml.safe_dump(cfg), encoding="utf-8")
     return cfg
 
@@ -579,7 +581,7 @@ async def _gateway_phase(
     gen_kw: dict[str, Any] | None = None,
     publish: str = "change",
     zenoh: bool = True,
-    batch_ms: float = 0.0,
+    batch_ms: float | None = None,
 ) -> dict[str, Any]:
     server = SocketcandServer()
     server.serve_one()
@@ -830,7 +832,7 @@ async def scenario(
     phase_s: float = 10.0,
     profile_s: float = 0.0,
     zenoh: bool = True,
-    batch_ms: float = 0.0,
+    batch_ms: float | None = None,
 ) -> dict[str, Any]:
     """One paired run, bare listener then gateway, of a line-rate scenario: ``fps`` frames/s
     (TPDOs + heartbeats of the 60 nodes; default the bench's 9,489), every frame with new values
@@ -873,7 +875,7 @@ def main() -> None:
     ap.add_argument("--profile", type=float, default=0.0)
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--no-zenoh", action="store_true", help="the gateway without Zenoh")
-    ap.add_argument("--batch-ms", type=float, default=0.0, help="zenoh.batch_ms")
+    ap.add_argument("--batch-ms", type=float, default=None, help="zenoh.batch_ms (default: the gateway's)")
     args = ap.parse_args()
     for _ in range(args.repeat):
         r = asyncio.run(scenario(args.fps, args.every_value, args.per_frame, args.publish,

@@ -356,7 +356,7 @@ class ZenohSection(_Model):
     #: with all its signals on ``<node>/tpdo/<n>`` (a signal's own publish still applies)
     publish: Literal["change", "every", "pdo"] = "change"
     batch_ms: float = Field(
-        default=0.0,
+        default=1.0,
         ge=0,
         le=100,
         description="values of frames received within this window go out together (0 = per burst)",

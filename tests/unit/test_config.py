@@ -38,6 +38,13 @@ def test_good_config_loads() -> None:
     assert cfg.zenoh.key_prefix(cfg.gateway.name) == "canopen/t"
 
 
+def test_values_of_one_millisecond_go_out_together_by_default() -> None:
+    """docs/zenoh.md: ``zenoh.batch_ms`` defaults to 1; 0 publishes at the end of every burst."""
+    assert parse_config(GOOD, "cfg.yaml", environ={}).zenoh.batch_ms == 1.0
+    per_burst = parse_config({**GOOD, "zenoh": {"batch_ms": 0}}, "cfg.yaml", environ={})
+    assert per_burst.zenoh.batch_ms == 0.0
+
+
 def test_unknown_key_is_reported_with_its_path() -> None:
     p = problems(with_nodes({"name": "wire", "node_idd": 1, "profile": "sgh10"}))
     assert "cfg.yaml: nodes[0].node_idd: unknown key (typo?); did you mean 'node_id'?" in p
