@@ -20,7 +20,8 @@
 
 ``load_checked_config`` / ``parse_checked_config`` are ``gateway.config``'s loaders plus these
 checks, raising ConfigError with every line. Pure: imports config, profiles, eds, the boot step
-builder, the codecs and the register map (no I/O but reading the files they name).
+builder, the external heartbeat keep-alive rule (bus/node/settings.py), the codecs and the
+register map (no I/O but reading the files they name).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.node.settings import external_keepalive_ms
 from gateway.bus.resolved import ResolvedNode, nodes_of
 from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
@@ -284,7 +286,7 @@ def protocol_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None)
                         )
                     )
             else:
-                keep = eh.keepalive_ms or max(1, eh.interval_ms // 2)
+                keep = external_keepalive_ms(eh.interval_ms, eh.keepalive_ms)
                 if keep >= eh.interval_ms:
                     out.append(
                         (

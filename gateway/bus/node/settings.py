@@ -165,35 +165,3 @@ def external_keepalive_ms(interval_ms: int, keepalive_ms: int | None) -> int:
     """The RPDO keep-alive period for an external heartbeat: the configured one, else half the
     interval (the rule of ``check_external_heartbeat``)."""
     return keepalive_ms or max(1, interval_ms // 2)
-
-
-def settings_problems(master: Any, node: Any, profile: Any) -> list[tuple[str, str]]:
-    """(key path below the node, problem) for settings the device or the gateway cannot run."""
-    out: list[tuple[str, str]] = []
-    s = resolve_node_settings(master, node, profile)
-    if s.supervision == "guarding" and (not s.guard_time_ms or not s.life_time_factor):
-        out.append(("guard_time_ms", "node guarding needs guard_time_ms and life_time_factor > 0"))
-    eh = node.external_heartbeat
-    if eh is not None:
-        if "external_heartbeat" not in profile.features:
-            out.append(
-                ("external_heartbeat", f"profile {profile.family} has no external heartbeat")
-            )
-        else:
-            keep = external_keepalive_ms(eh.interval_ms, eh.keepalive_ms)
-            problem = check_external_heartbeat(
-                eh.interval_ms,
-                eh.source,
-                master.sync_period_ms,
-                keep if eh.source == "rpdo" else None,
-            )
-            if problem:
-                key = "external_heartbeat." + (
-                    "interval_ms"
-                    if "not allowed" in problem
-                    else "keepalive_ms"
-                    if eh.source == "rpdo"
-                    else "source"
-                )
-                out.append((key, problem))
-    return out
