@@ -17,8 +17,9 @@ turns /healthz not-ready, never silently):
   publications are counted per signal under that lock (raw PDOs per thread,
   ``threads.ThreadCount``) and summed when read;
 * events (state, EMCY) are computed on the event loop when the master reports them and put by
-  the ``zenoh-publish`` thread in order, with congestion control BLOCK and priority
-  INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop;
+  the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
+  INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop nor
+  holds the values back;
 * a housekeeping task on the event loop publishes held-back samples (max rate) and quality
   changes that no frame announces (stale by age);
 * query callbacks run on zenoh threads and only hand the query to the event loop, where
@@ -44,7 +45,7 @@ re-declares publishers, queryable and liveliness tokens.
 The bridge is composed of: ``plan.py`` (what to publish, planned once: ``SignalPub``,
 ``PdoPub``, the reader's routes), ``session.py`` (the session's lifecycle: open, duplicate
 check, re-open, declarations, stop; bound as this class's methods), ``housekeeping.py`` (the
-periodic refresh) and ``sender.py`` (the ``zenoh-publish`` thread). The per-frame path (the
+periodic refresh) and ``sender.py`` (the ``zenoh-publish`` and ``zenoh-events`` threads). The per-frame path (the
 image's listeners, ``_ValueBatch``, ``_offer``) stays here.
 
 Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, northbound.keys,
@@ -186,8 +187,10 @@ class ZenohBridge:
         self._raw_publications = ThreadCount()
         self.up = False
         self._values = _ValueBatch(self._offer, lambda: self._clock())
-        #: the ``zenoh-publish`` thread: value flushes and events (``sender.py``)
-        self._sender = ZenohSender(self.threads, self._values.flush)
+        #: the publishing threads (``sender.py``): ``zenoh-publish`` the values,
+        #: ``zenoh-events`` the events (BLOCK: a congested link must not hold values back)
+        self._sender = ZenohSender(self.threads, "zenoh-publish", self._values.flush)
+        self._events = ZenohSender(self.threads, "zenoh-events")
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}
         self._opened: zenoh.Session | None = None  # open, checked, not declared yet
@@ -349,7 +352,7 @@ class ZenohBridge:
         seq = self._event_seq.get(key, 0) + 1
         self._event_seq[key] = seq
         payload["seq"] = seq
-        self._sender.put_event(pub, json.dumps(payload).encode(), s.new_timestamp())
+        self._events.put_event(pub, json.dumps(payload).encode(), s.new_timestamp())
 
     def _sync_token(self, node: NodeImage) -> None:
         """A token while the node's values are usable: operational, guarding-bit link OK."""
@@ -377,7 +380,7 @@ class ZenohBridge:
 
     @property
     def events_sent(self) -> int:
-        return self._sender.sent
+        return self._events.sent
 
     # ------------------------------------------------------------------ queries (queries.py)
     @property

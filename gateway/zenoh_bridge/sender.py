@@ -1,20 +1,24 @@
-"""The ``zenoh-publish`` thread of the Zenoh bridge: the Zenoh ``put`` of values and events.
+"""The Zenoh bridge's publishing threads: ``zenoh-publish`` puts the values, ``zenoh-events``
+the node state and EMCY events. Both are a ``ZenohSender``.
 
-Why a thread of its own: a Zenoh ``put`` releases the interpreter lock while Zenoh queues the
-sample (measured: 1.1 us alone, about 2 ms when another Python thread is busy, which then holds
-the lock). On the CAN reader every put was a chance for the event loop to take the lock and
-for the reader to wait for it back: frame -> Modbus latency grew with the number of samples.
-So the reader only marks what changed and wakes this thread once per burst; the thread takes
-the marks and publishes the latest values (``_ValueBatch.flush``), and while it waits for the
-lock the reader and the event loop go on.
+Why values have a thread of their own: a Zenoh ``put`` releases the interpreter lock while
+Zenoh queues the sample (measured: 1.1 us alone, about 2 ms when another Python thread is busy,
+which then holds the lock). On the CAN reader every put was a chance for the event loop to
+take the lock and for the reader to wait for it back: frame -> Modbus latency grew with the
+number of samples. So the reader only marks what changed and wakes ``zenoh-publish`` once per
+burst; the thread takes the marks and publishes the latest values (``_ValueBatch.flush``), and
+while it waits for the lock the reader and the event loop go on.
+
+Why events have another: they use congestion control BLOCK (never dropped), and a BLOCK put
+waits while a subscriber's link is congested; on the values' thread that would hold every
+subscriber's values back. Events are rare; their thread sleeps in between.
 
 * values: ``wake_values()`` (the image's batch listener: the reader at the end of a burst, the
   event loop after values read by SDO) queues one flush unless one is already queued; marks
   made meanwhile join it or the next one, none is left behind (the flag is cleared before the
   flush takes the marks). Marks coalesce per signal, so a slow network costs samples, never
   memory: the work per flush is bounded by the number of signals.
-* events (node state, EMCY): computed on the event loop and queued with ``put_event`` in
-  order; congestion control BLOCK may wait here, never on the loop.
+* events: computed on the event loop and queued with ``put_event`` in order.
 
 Not here: ``publish: every`` samples (one per frame, put by the reader as the frame is handled)
 and the housekeeping's rare puts on the event loop (quality changes no frame announces,
@@ -44,10 +48,14 @@ _STOP = None  # queue item: end the thread
 
 
 class ZenohSender:
-    """Puts values and events on its own thread, in the order they were queued."""
+    """Puts on its own thread, in the order queued: value flushes (``flush`` given) and
+    events."""
 
-    def __init__(self, threads: ThreadRegistry, flush: Callable[[], None]) -> None:
+    def __init__(
+        self, threads: ThreadRegistry, name: str, flush: Callable[[], None] | None = None
+    ) -> None:
         self.threads = threads
+        self.name = name
         self.flush = flush
         self.queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self.thread: threading.Thread | None = None
@@ -57,7 +65,7 @@ class ZenohSender:
         self.flushes = 0  # value flushes run
 
     def start(self) -> None:
-        self.thread = self.threads.start("zenoh-publish", self._run)
+        self.thread = self.threads.start(self.name, self._run)
 
     def wake_values(self) -> None:
         """The end of a writer's batch: publish the marked values on this thread (one queued
@@ -70,10 +78,11 @@ class ZenohSender:
         self.queue.put((pub, payload, timestamp))
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        """Publish what is queued and marked, then end the thread."""
+        """Publish what is queued (and marked), then end the thread."""
         if self.thread is None:
             return
-        self.queue.put(_FLUSH)
+        if self.flush is not None:
+            self.queue.put(_FLUSH)
         self.queue.put(_STOP)
         self.thread.join(timeout_s)
         self.thread = None
@@ -86,7 +95,8 @@ class ZenohSender:
             if item is _FLUSH:
                 self._flush_queued = False  # before the marks are taken: none is left behind
                 self.flushes += 1
-                self.flush()  # catches and logs what a value's publication raises
+                if self.flush is not None:
+                    self.flush()  # catches and logs what a value's publication raises
                 continue
             pub, payload, ts = item
             try:

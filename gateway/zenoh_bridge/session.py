@@ -120,6 +120,7 @@ async def start(bridge: ZenohBridge) -> None:
     bridge.image.batch_listeners.append(bridge._sender.wake_values)
     bridge.image.health_listeners.append(bridge._on_health)
     bridge._sender.start()
+    bridge._events.start()
     opened, bridge._opened = bridge._opened, None
     if opened is not None:
         try:
@@ -299,7 +300,8 @@ async def stop(bridge: ZenohBridge) -> None:
         bridge.image.batch_listeners.remove(bridge._sender.wake_values)
     if bridge._on_pdo in bridge.image.pdo_listeners:
         bridge.image.pdo_listeners.remove(bridge._on_pdo)
-    await asyncio.to_thread(bridge._sender.stop)  # queued events and values go out before the close
+    await asyncio.to_thread(bridge._sender.stop)  # marked values go out before the close
+    await asyncio.to_thread(bridge._events.stop)  # and queued events
     s, bridge.session = bridge.session, None
     opened, bridge._opened = bridge._opened, None
     bridge.tokens.clear()

@@ -19,7 +19,7 @@ from gateway.startup import StartupError
 from tests.helpers import free_port, gateway_process, make_config, unique_channel, wait_ready
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
-GATEWAY_THREADS = ("can-reader", "can-sender", "zenoh-publish", "sim-runner")
+GATEWAY_THREADS = ("can-reader", "can-sender", "zenoh-publish", "zenoh-events", "sim-runner")
 
 
 def write_config(path: Path, modbus: int, zenoh: int, health: int) -> Path:

@@ -1,7 +1,8 @@
-"""The ``zenoh-publish`` thread (``zenoh_bridge/sender.py``): a writer's wake-ups coalesce into
-one queued flush, a mark made while a flush runs gets a flush of its own, events and flushes
-go out in the order they were queued, stopping publishes what was queued; and in a running
-gateway every value put happens on that thread, never on the CAN reader."""
+"""The publishing threads (``zenoh_bridge/sender.py``): a writer's wake-ups coalesce into one
+queued flush, a mark made while a flush runs gets a flush of its own, what is queued goes out
+in order, stopping publishes what was queued; and in a running gateway every value put happens
+on ``zenoh-publish``, never on the CAN reader, and an event put that blocks (congestion control
+BLOCK on a congested link) does not hold the values back."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ class Pub:
 
 def test_wake_ups_before_the_flush_runs_coalesce_into_one_flush() -> None:
     log: list[str] = []
-    sender = ZenohSender(ThreadRegistry(), lambda: log.append("flush"))
+    sender = ZenohSender(ThreadRegistry(), "zenoh-publish", lambda: log.append("flush"))
     for _ in range(100):  # a hundred bursts end before the thread gets to run
         sender.wake_values()
     assert sender.queue.qsize() == 1
@@ -50,7 +51,7 @@ def test_a_mark_made_while_a_flush_runs_gets_a_flush_of_its_own() -> None:
         else:
             flushed.set()
 
-    sender = ZenohSender(ThreadRegistry(), flush)
+    sender = ZenohSender(ThreadRegistry(), "zenoh-publish", flush)
     sender.start()
     sender.wake_values()
     assert flushed.wait(10)
@@ -60,7 +61,7 @@ def test_a_mark_made_while_a_flush_runs_gets_a_flush_of_its_own() -> None:
 
 def test_events_and_flushes_go_out_in_the_order_they_were_queued() -> None:
     log: list[str] = []
-    sender = ZenohSender(ThreadRegistry(), lambda: log.append("flush"))
+    sender = ZenohSender(ThreadRegistry(), "zenoh-publish", lambda: log.append("flush"))
     sender.put_event(Pub("state 1", log), b"{}", None)
     sender.wake_values()
     sender.put_event(Pub("emcy 1", log), b"{}", None)
@@ -79,7 +80,7 @@ def test_a_failing_event_put_is_counted_and_the_thread_goes_on() -> None:
             raise RuntimeError("network gone")
 
     threads = ThreadRegistry()
-    sender = ZenohSender(threads, lambda: log.append("flush"))
+    sender = ZenohSender(threads, "zenoh-events", lambda: log.append("flush"))
     sender.put_event(Failing(), b"{}", None)
     sender.put_event(Pub("state", log), b"{}", None)
     sender.start()
@@ -119,3 +120,42 @@ async def test_values_are_put_on_the_publish_thread_never_on_the_can_reader() ->
     finally:
         await gw.stop()
 
+
+
+async def test_an_event_put_that_blocks_does_not_hold_the_values_back() -> None:
+    gw = Gateway(make_config([WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}}))
+    await gw.start()
+    release = threading.Event()
+    try:
+        await wait_until(lambda: gw.status()["ready"], 8, "ready")
+        assert gw.zenoh is not None
+        blocked = threading.Event()
+
+        class Congested:  # a BLOCK put waiting for a congested link
+            def put(self, payload: bytes, timestamp: Any = None) -> None:
+                blocked.set()
+                release.wait(30)
+
+        gw.zenoh._events.put_event(Congested(), b"{}", None)
+        await wait_until(blocked.is_set, 8, "the event put blocked")
+        puts: list[str] = []
+        enough = threading.Event()
+
+        class Counting:
+            def __init__(self, pub: Any) -> None:
+                self.pub = pub
+
+            def put(self, payload: Any, **kw: Any) -> None:
+                puts.append(threading.current_thread().name)
+                if len(puts) >= 10:
+                    enough.set()
+                self.pub.put(payload, **kw)
+
+        for sp in gw.zenoh.pubs.values():
+            sp.pub = Counting(sp.pub)
+        await wait_until(enough.is_set, 8, "10 value samples while the event put blocks")
+        assert blocked.is_set() and not release.is_set()
+        assert "zenoh-publish" in puts
+    finally:
+        release.set()
+        await gw.stop()

@@ -130,11 +130,11 @@ async def test_a_dead_zenoh_thread_turns_the_gateway_not_ready() -> None:
             def put(self, payload: bytes, timestamp: Any = None) -> None:
                 raise SystemExit("simulated death")  # not an Exception: escapes the loop
 
-        gw.zenoh._sender.put_event(Dying(), b"{}", None)
+        gw.zenoh._events.put_event(Dying(), b"{}", None)
         await wait_until(lambda: not gw.status()["ready"], 8, "not ready")
         st = gw.status()
-        assert "zenoh-publish" in st["threads"]["failed"]
-        assert "simulated death" in st["threads"]["failed"]["zenoh-publish"]
+        assert "zenoh-events" in st["threads"]["failed"]
+        assert "simulated death" in st["threads"]["failed"]["zenoh-events"]
     finally:
         await gw.stop()
 
