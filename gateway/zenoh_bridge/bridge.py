@@ -10,7 +10,7 @@ turns /healthz not-ready, never silently):
   already received) the reader wakes the ``zenoh-publish`` thread (``sender.py``: one queued
   flush at a time), which publishes the *current* value of every marked signal (coalescing
   while it is behind). A Zenoh ``put`` releases the interpreter lock, so puts on the reader
-  let the event loop in and made the reader wait for the lock back (frame -> Modbus p99 2.4x
+  let the event loop in and made the reader wait for the lock back (frame -> Modbus p99 about 2x
   longer on a saturated bus, bench/RESULTS.md section 10). ``publish: every`` signals are put
   by the reader for every frame. A signal's value, quality and policy are read and written
   under its own lock, whichever thread publishes, and a sample never follows a newer one;
