@@ -2,7 +2,7 @@
 
 Each connection splits its bytes into lines (``grammar.LineSplitter``: a line over 1 KiB is
 answered ERROR:101 and skipped, the connection kept) and answers them in order, one at a time,
-from its own task; several clients are served at once. SDO and NMT requests go through the
+in a task of its own; several clients are served at once. SDO and NMT requests go through the
 command service, the one way south, by node name (the CANopen node id of a configured node
 names it): the same checks and the same typed errors as Modbus and Zenoh, mapped to 309-3
 answers by ``protocol.answer_for_error``. The write gate (``ascii.writes``) is the session's.

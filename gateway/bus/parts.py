@@ -15,7 +15,7 @@ from typing import Any
 from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.owner import Node
 from gateway.bus.node.settings import NodeSettings
-from gateway.bus.resolved import ResolvedNode
+from gateway.bus.resolved import NamedNode, ResolvedNode
 from gateway.config import NodeConfig
 from gateway.image import NodeImage, RxCell
 from gateway.objref import ObjRef
@@ -25,7 +25,7 @@ from gateway.profiles import LoadedProfile, expected_identity
 
 
 @dataclass
-class NodeParts:
+class NodeParts(NamedNode):
     """What the master built for one node: its config, profile, image, codecs and machine."""
 
     cfg: NodeConfig
@@ -46,14 +46,6 @@ class NodeParts:
 
     def __post_init__(self) -> None:
         self.loop_rx = self.image.rx.new_cell()
-
-    @property
-    def name(self) -> str:
-        return self.cfg.name
-
-    @property
-    def node_id(self) -> int:
-        return self.cfg.node_id
 
     # read-only views of the node's machines (diagnostics and tests)
     @property

@@ -31,8 +31,23 @@ from gateway.pdo.verify import MappingRead, mapping_reads
 from gateway.profiles import LoadedProfile, ProfileError, load_node_profile, node_verifies_mapping
 
 
+class NamedNode:
+    """``name`` and ``node_id`` of what is built for one node, read from its config ``cfg``
+    (``ResolvedNode`` here, the master's ``NodeParts``)."""
+
+    cfg: NodeConfig
+
+    @property
+    def name(self) -> str:
+        return self.cfg.name
+
+    @property
+    def node_id(self) -> int:
+        return self.cfg.node_id
+
+
 @dataclass(frozen=True, eq=False)
-class ResolvedNode:
+class ResolvedNode(NamedNode):
     """One node as the whole gateway sees it (see the module docstring)."""
 
     cfg: NodeConfig
@@ -50,14 +65,6 @@ class ResolvedNode:
     verify: tuple[MappingRead, ...] = ()
     #: why the boot configuration or the codecs cannot be built (``check`` reports it)
     boot_error: ValueError | KeyError | None = None
-
-    @property
-    def name(self) -> str:
-        return self.cfg.name
-
-    @property
-    def node_id(self) -> int:
-        return self.cfg.node_id
 
     @property
     def stale_after_s(self) -> float | None:
