@@ -52,6 +52,7 @@ from gateway.modbus.protocol import (
     check_request,
     from_registers,
     pack_bits,
+    register_encoder,
     to_registers,
     unpack_bits,
 )
@@ -63,10 +64,15 @@ from gateway.states import NMT_BY_CODE
 
 log = logging.getLogger("gateway.modbus")
 
+def _nmt_register(state: NmtState) -> int:
+    """The NMT state register: the CiA 301 code, 0xFFFF while unknown."""
+    return 0xFFFF if state == NmtState.UNKNOWN else int(state)
+
+
 #: node diagnostics in input registers (``regmap.NODE_DIAG``): the summary as register values
 DIAG_REGISTERS: dict[str, Callable[[NodeSummary], int]] = {
     "quality": lambda s: int(s.quality if s.quality is not None else Quality.BAD),
-    "nmt_state": lambda s: 0xFFFF if s.nmt_state == NmtState.UNKNOWN else int(s.nmt_state),
+    "nmt_state": lambda s: _nmt_register(s.nmt_state),
     "alive": lambda s: int(s.alive),
     "lifecycle": lambda s: LIFECYCLE_CODES.get(s.lifecycle, 0),
     "data_age_ms": lambda s: (
@@ -92,6 +98,18 @@ DIAG_BITS: dict[str, Callable[[NodeSummary], bool]] = {
 }
 
 
+#: how a point's registers are read from the image: (snapshots, summaries) of the request
+RegisterGetter = Callable[
+    [dict[str, Mapping[str, SignalValue]], dict[str, NodeSummary]], list[int]
+]
+#: one step of a read plan: the point's getter, the slice of its registers asked for (first,
+#: count) and whether that is all of them
+ReadStep = tuple[RegisterGetter, int, int, bool]
+#: read plans kept (request shapes); past it, a new shape is compiled for each request
+PLAN_CACHE_SIZE = 1024
+_NO_PLAN: Any = object()
+
+
 # ---------------------------------------------------------------------- the datastore
 class ImageDatastore:
     """Reads from the image, writes through the command service, by the register map."""
@@ -115,6 +133,9 @@ class ImageDatastore:
         self._identity: dict[str, tuple[tuple[int, int], dict[str, Any]]] = {}
         #: per node, the signals its TPDOs carry (for the quality register)
         self.process_signals: dict[str, tuple[str, ...]] = {}
+        #: compiled register reads: per point, per request shape (``_read_plan``)
+        self._getters: dict[Point, RegisterGetter | None] = {}
+        self._plans: dict[tuple[int, str, int, int], tuple[ReadStep, ...] | None] = {}
         for p in regmap.points:
             if p.node and p.kind == "signal" and p.table == "ir":
                 self.process_signals[p.node] = (*self.process_signals.get(p.node, ()), p.name)
@@ -166,14 +187,62 @@ class ImageDatastore:
     def read_now(self, unit: int, table: Table, address: int, count: int) -> list[int] | None:
         """``read`` of registers all served from the image, at once; None when one of them
         is an output (read through the command service: ``read``)."""
+        plan = self._read_plan(unit, table, address, count)
+        if plan is None:
+            return None
         snaps: dict[str, Mapping[str, SignalValue]] = {}  # one consistent view per node
         sums: dict[str, NodeSummary] = {}  # one health summary per node
         out: list[int] = []
-        for p, lo, take in self._points(unit, table, address, count):
-            if not self._from_image(p):
-                return None
-            out.extend(self._image_regs(p, snaps, sums)[lo : lo + take])
+        for get, lo, take, whole in plan:
+            regs = get(snaps, sums)
+            out.extend(regs if whole else regs[lo : lo + take])
         return out
+
+    def _read_plan(
+        self, unit: int, table: Table, address: int, count: int
+    ) -> tuple[ReadStep, ...] | None:
+        """The steps of a register read served from the image (None: an output among them),
+        compiled once per request shape: a PLC repeats the same few reads. An unmapped address
+        raises, as ``_points`` does."""
+        key = (unit, table, address, count)
+        plan = self._plans.get(key, _NO_PLAN)
+        if plan is not _NO_PLAN:
+            return plan
+        steps: list[ReadStep] = []
+        for p, lo, take in self._points(unit, table, address, count):
+            get = self._getter(p)
+            if get is None:
+                plan = None
+                break
+            steps.append((get, lo, take, lo == 0 and take == p.count))
+        else:
+            plan = tuple(steps)
+        if len(self._plans) < PLAN_CACHE_SIZE:  # a client probing every shape grows it no further
+            self._plans[key] = plan
+        return plan
+
+    def _getter(self, p: Point) -> RegisterGetter | None:
+        """How ``p``'s registers are read from the image (None: an output), made once per point."""
+        get = self._getters.get(p, _NO_PLAN)
+        if get is _NO_PLAN:
+            get = self._make_getter(p) if self._from_image(p) else None
+            self._getters[p] = get
+        return get
+
+    def _make_getter(self, p: Point) -> RegisterGetter:
+        encode = register_encoder(p)
+        name = p.name
+        if p.kind == "gateway":
+            return lambda snaps, sums: encode(self._gateway_value(name))
+        node = self._node(p)
+        if p.kind == "diag":
+            diag = DIAG_REGISTERS.get(name)
+            if diag is None:
+                return lambda snaps, sums: encode(0)
+            return lambda snaps, sums: encode(diag(self._summary(node, sums)))
+        if p.kind == "nmt":
+            return lambda snaps, sums: [_nmt_register(node.health.nmt_state)]
+        return lambda snaps, sums: encode(self._servable(node, name, snaps))
 
     def _node(self, p: Point) -> NodeImage:
         assert p.node is not None
@@ -207,15 +276,9 @@ class ImageDatastore:
         sums: dict[str, NodeSummary] | None = None,
     ) -> list[int]:
         """The registers of a point served from the image (not an output): no await."""
-        if p.kind == "gateway":
-            return to_registers(self._gateway_value(p.name), p)
-        node = self._node(p)
-        if p.kind == "diag":
-            return to_registers(self._diag_value(node, p.name, sums), p)
-        if p.kind == "nmt":
-            st = node.health.nmt_state
-            return [0xFFFF if st == NmtState.UNKNOWN else int(st)]
-        return to_registers(self._servable(node, p.name, snaps), p)
+        get = self._getter(p)
+        assert get is not None, p
+        return get({} if snaps is None else snaps, {} if sums is None else sums)
 
     async def _reg_value(
         self,
@@ -259,12 +322,6 @@ class ImageDatastore:
             if sums is not None:
                 sums[node.name] = s
         return s
-
-    def _diag_value(
-        self, node: NodeImage, name: str, sums: dict[str, NodeSummary] | None = None
-    ) -> int:
-        encode = DIAG_REGISTERS.get(name)
-        return 0 if encode is None else encode(self._summary(node, sums))
 
     def _gateway_value(self, name: str) -> int:
         c = self.image.counters

@@ -13,6 +13,7 @@ No I/O.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from enum import IntEnum
 from typing import Any, TypeVar
 
@@ -186,6 +187,19 @@ def to_registers(value: Any, p: Point) -> list[int]:
     if p.word_order == "little":
         words.reverse()
     return words
+
+
+def register_encoder(p: Point) -> Callable[[Any], list[int]]:
+    """``to_registers`` for one point, made once: the common integer types without scaling
+    as a direct expression (the per-request path of image reads), the rest through it."""
+    t = p.type
+    if not p.engineering and t in ("int16", "uint16"):
+        return lambda value: [int(value) & 0xFFFF]
+    if not p.engineering and t in ("int32", "uint32"):
+        if p.word_order == "little":
+            return lambda value: [int(value) & 0xFFFF, (int(value) >> 16) & 0xFFFF]
+        return lambda value: [(int(value) >> 16) & 0xFFFF, int(value) & 0xFFFF]
+    return lambda value: to_registers(value, p)
 
 
 def from_registers(regs: list[int], p: Point) -> Any:

@@ -22,9 +22,12 @@ from gateway.states import LinkState, NmtState
 QUALITY_TEXT = {Quality.GOOD: "good", Quality.STALE: "stale", Quality.BAD: "bad"}
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class NodeSummary:
-    """A node's health at one instant (see the module docstring)."""
+    """A node's health at one instant (see the module docstring). Not frozen: one is made on
+    every Modbus read of a node's diagnostics, and a frozen dataclass's ``__init__`` (one
+    ``object.__setattr__`` per field) made ``summarize`` cost 10 us instead of 6.6; nothing
+    changes a summary once made."""
 
     name: str
     node_id: int

@@ -13,7 +13,7 @@ import pytest
 from gateway.checks import load_checked_config as load_config
 from gateway.checks import parse_checked_config as parse_config
 from gateway.config import ConfigError
-from gateway.modbus.protocol import from_registers, to_registers
+from gateway.modbus.protocol import from_registers, register_encoder, to_registers
 from gateway.northbound.regmap import NODE_DIAG, Point, RegisterMap, build_register_map
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -270,3 +270,24 @@ def test_an_engineering_float_that_is_not_a_finite_number_cannot_become_a_raw_va
     p = _pt("float32", 2, engineering=True, scale=0.1)
     with pytest.raises((ValueError, OverflowError)):
         from_registers(regs, p)
+
+
+@pytest.mark.parametrize(
+    ("type_", "count", "engineering"),
+    [("int16", 1, False), ("uint16", 1, False), ("int32", 2, False), ("uint32", 2, False),
+     ("float32", 2, False), ("float32", 2, True), ("int64", 4, False), ("uint64", 4, False),
+     ("string", 4, False)],
+)  # fmt: skip
+@pytest.mark.parametrize("word_order", ["big", "little"])
+def test_register_encoder_is_to_registers_made_once_per_point(
+    type_: str, count: int, engineering: bool, word_order: str
+) -> None:
+    """The per-point encoder of image reads gives what ``to_registers`` gives, for every type,
+    word order and scaling, at the edges of each range (values wider than the type wrap)."""
+    p = _pt(type_, count, word_order=word_order, engineering=engineering, scale=0.1, offset=2.0)
+    encode = register_encoder(p)
+    values: list[Any] = ["AB", b"xyz"] if type_ == "string" else [
+        0, 1, -1, 0x7FFF, -0x8000, 0xFFFF, 0x10000, 0x7FFFFFFF, -0x80000000, 0xFFFFFFFF,
+        0x1_0000_0001, -0x1_0000_0001, True, 3.7, -3.7]
+    for v in values:
+        assert encode(v) == to_registers(v, p), (p.type, p.word_order, v)
