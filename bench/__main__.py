@@ -1,6 +1,6 @@
 """``python -m bench [name ...]``: run the benchmarks (all by default) and write RESULTS.md.
 
-Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs. Running a subset prints its sections
+Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors. Running a subset prints its sections
 and leaves RESULTS.md as it is.
 
 Imports: bench.*.
@@ -18,6 +18,7 @@ from collections.abc import Awaitable, Callable
 
 from bench import (
     costs,
+    floors,
     hotpath,
     ingest,
     latency,
@@ -41,6 +42,7 @@ BENCHES: dict[str, Callable[[], Awaitable[Section]]] = {
     "outage": zenoh_outage.run,
     "linerate": linerate.run,
     "costs": costs.run,
+    "floors": floors.run,
 }
 HERE = pathlib.Path(__file__).resolve().parent
 

@@ -51,6 +51,7 @@ def _rows(sec: Section, label: str, runs: list[dict[str, Any]], zenoh: bool = Tr
             s([r["bare_us_per_frame"] for r in runs]), digits=1),
         Row(f"{label}: zenoh-publish thread us per frame", col("publish_us_per_frame"), digits=1),
         Row(f"{label}: frames per burst", col("frames_per_burst"), digits=2),
+        Row(f"{label}: value samples/s at the subscriber", col("value_samples_per_s")),
         Row(f"{label}: context switches per burst, reader / all threads",
             col("reader_switches_per_burst"), "all threads", col("switches_per_burst"), digits=2),
     ]  # fmt: skip
