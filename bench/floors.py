@@ -26,7 +26,15 @@ from typing import Any
 
 from bench.linerate import PLC_BLOCKS, PLC_NODES, PLC_PERIOD_S, PlcClient
 from bench.report import Row, Section
-from bench.rig import Injector, bench_config, bench_node, free_port, start_gateway, tpdo_frames
+from bench.rig import (
+    Injector,
+    bench_config,
+    bench_node,
+    free_port,
+    start_gateway,
+    tpdo_frames,
+    wait_until,
+)
 from bench.stats import Summary
 from bench.workers import Worker, start_subscriber
 
@@ -139,17 +147,13 @@ async def _modbus_floor(reps: int, window_s: float) -> tuple[list[float], list[f
     try:
         for i in range(1, PLC_NODES + 1):
             inj.send(tpdo_frames(i, [1000 + i])[0])  # a value for the reads at 100
-        store: Any = gw.modbus.store if gw.modbus is not None else None
-        assert store is not None
-
-        def received() -> bool:
-            return all(n.snapshot()["position"].seq for n in gw.image.nodes.values())
-
-        deadline = time.monotonic() + 5
-        while not received():
-            if time.monotonic() > deadline:
-                raise RuntimeError("the nodes' TPDOs did not reach the image")
-            await asyncio.sleep(0.01)
+        assert gw.modbus is not None
+        store = gw.modbus.store
+        await wait_until(
+            lambda: all(n.snapshot()["position"].seq for n in gw.image.nodes.values()),
+            5.0,
+            "the nodes' TPDOs in the image",
+        )
         loop = asyncio.get_running_loop()
         server = await loop.create_server(lambda: _CannedModbus(canned), "127.0.0.1", 0)
         bare_port = server.sockets[0].getsockname()[1]

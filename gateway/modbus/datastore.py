@@ -64,6 +64,7 @@ from gateway.states import NMT_BY_CODE
 
 log = logging.getLogger("gateway.modbus")
 
+
 def _nmt_register(state: NmtState) -> int:
     """The NMT state register: the CiA 301 code, 0xFFFF while unknown."""
     return 0xFFFF if state == NmtState.UNKNOWN else int(state)
@@ -99,15 +100,13 @@ DIAG_BITS: dict[str, Callable[[NodeSummary], bool]] = {
 
 
 #: how a point's registers are read from the image: (snapshots, summaries) of the request
-RegisterGetter = Callable[
-    [dict[str, Mapping[str, SignalValue]], dict[str, NodeSummary]], list[int]
-]
+RegisterGetter = Callable[[dict[str, Mapping[str, SignalValue]], dict[str, NodeSummary]], list[int]]
 #: one step of a read plan: the point's getter, the slice of its registers asked for (first,
 #: count) and whether that is all of them
 ReadStep = tuple[RegisterGetter, int, int, bool]
 #: read plans kept (request shapes); past it, a new shape is compiled for each request
 PLAN_CACHE_SIZE = 1024
-_NO_PLAN: Any = object()
+_MISSING: Any = object()  # not in a cache yet (None there means "an output")
 
 
 # ---------------------------------------------------------------------- the datastore
@@ -205,8 +204,8 @@ class ImageDatastore:
         compiled once per request shape: a PLC repeats the same few reads. An unmapped address
         raises, as ``_points`` does."""
         key = (unit, table, address, count)
-        plan = self._plans.get(key, _NO_PLAN)
-        if plan is not _NO_PLAN:
+        plan = self._plans.get(key, _MISSING)
+        if plan is not _MISSING:
             return plan
         steps: list[ReadStep] = []
         for p, lo, take in self._points(unit, table, address, count):
@@ -223,8 +222,8 @@ class ImageDatastore:
 
     def _getter(self, p: Point) -> RegisterGetter | None:
         """How ``p``'s registers are read from the image (None: an output), made once per point."""
-        get = self._getters.get(p, _NO_PLAN)
-        if get is _NO_PLAN:
+        get = self._getters.get(p, _MISSING)
+        if get is _MISSING:
             get = self._make_getter(p) if self._from_image(p) else None
             self._getters[p] = get
         return get

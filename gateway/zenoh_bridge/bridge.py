@@ -11,9 +11,10 @@ turns /healthz not-ready, never silently):
   flush at a time), which publishes the *current* value of every marked signal (coalescing
   while it is behind). A Zenoh ``put`` releases the interpreter lock, so puts on the reader
   let the event loop in and made the reader wait for the lock back (frame -> Modbus p99 about 2x
-  longer on a saturated bus, bench/RESULTS.md section 10). ``publish: every`` signals are put
-  by the reader for every frame. A signal's value, quality and policy are read and written
-  under its own lock, whichever thread publishes, and a sample never follows a newer one;
+  longer on a saturated bus: bench/RESULTS.md, the findings, "Cost per frame").
+  ``publish: every`` signals are put by the reader for every frame. A signal's value, quality
+  and policy are read and written under its own lock, whichever thread publishes, and a sample
+  never follows a newer one;
   publications are counted per signal under that lock (raw PDOs per thread,
   ``threads.ThreadCount``) and summed when read;
 * events (state, EMCY) are computed on the event loop when the master reports them and put by
