@@ -36,6 +36,8 @@ def _rows(sec: Section, label: str, runs: list[dict[str, Any]], zenoh: bool = Tr
     def col(key: str) -> Summary:
         return s([r[key] for r in runs])
 
+    pipe = "pipe_cpu" in runs[0]  # the bare pipeline ran too (bench/pipeline.py)
+
     rows = [
         Row(f"{label}: frames/s", col("fps")),
         Row(f"{label}: gateway CPU, % of one core", s([r["cpu"] * 100 for r in runs]),
@@ -45,6 +47,9 @@ def _rows(sec: Section, label: str, runs: list[dict[str, Any]], zenoh: bool = Tr
             met=all(r["mb_p99"] <= 1.0 for r in runs), digits=2),
         Row(f"{label}: p99 frame -> Zenoh (ms)", col("z_p99"), target="<= 1 ms",
             met=all(r["z_p99"] <= 1.0 for r in runs), digits=2),
+        Row(f"{label}: p99 frame -> Zenoh, PLC only, a subscriber on node 1's position (ms)",
+            col("zq_p99"), baseline_name="bare pipeline" if pipe else "",
+            baseline=col("pipe_zq_p99") if pipe else None, digits=2),
         Row(f"{label}: frames lost", col("lost"), target="0", met=all(r["lost"] == 0 for r in runs)),
         Row(f"{label}: reader us per burst (wake-up)", col("reader_us_per_burst"), digits=1),
         Row(f"{label}: reader us per frame", col("reader_us_per_frame"), "bare listener",
@@ -55,6 +60,19 @@ def _rows(sec: Section, label: str, runs: list[dict[str, Any]], zenoh: bool = Tr
         Row(f"{label}: context switches per burst, reader / all threads",
             col("reader_switches_per_burst"), "all threads", col("switches_per_burst"), digits=2),
     ]  # fmt: skip
+    if pipe:  # the bare pipeline under the same load
+        rows += [
+            Row(f"{label}: bare pipeline CPU, % of one core", s([r["pipe_cpu"] * 100 for r in runs]),
+                "bare listener", s([r["bare_cpu"] * 100 for r in runs]), col("pipe_ratio"),
+                "<= 2.5x bare", all(r["pipe_ratio"] <= 2.5 for r in runs), digits=1),
+            Row(f"{label}: gateway CPU against the bare pipeline, % of one core",
+                s([r["cpu"] * 100 for r in runs]), "bare pipeline",
+                s([r["pipe_cpu"] * 100 for r in runs]), col("gw_to_pipe"), digits=1),
+            Row(f"{label}: bare pipeline p99 frame -> Modbus (ms)", col("pipe_mb_p99"),
+                target="<= 1 ms", met=all(r["pipe_mb_p99"] <= 1.0 for r in runs), digits=2),
+            Row(f"{label}: bare pipeline p99 frame -> Zenoh (ms)", col("pipe_z_p99"),
+                target="<= 1 ms", met=all(r["pipe_z_p99"] <= 1.0 for r in runs), digits=2),
+        ]  # fmt: skip
     sec.rows += [row for row in rows if zenoh or ("-> Zenoh" not in row.figure
                                                   and "zenoh-publish" not in row.figure)]
 
@@ -81,8 +99,9 @@ async def run(phase_s: float = 8.0, reps: int = 2) -> Section:
         ),
     )
     plan: list[tuple[str, dict[str, Any], int]] = [
-        ("500 kbit/s, every value", {"fps": BUS_500K, "every_value": True}, reps),
-        ("1 Mbit/s, every value", {"fps": BUS_1M, "every_value": True}, reps),
+        ("500 kbit/s, every value", {"fps": BUS_500K, "every_value": True, "pipeline": True},
+         reps),
+        ("1 Mbit/s, every value", {"fps": BUS_1M, "every_value": True, "pipeline": True}, reps),
         ("1 Mbit/s, every value, publish: pdo",
          {"fps": BUS_1M, "every_value": True, "publish": "pdo"}, reps),
         ("one frame per read, 5,000 frames/s, every value",

@@ -511,6 +511,16 @@ def reader_figures(
     return out
 
 
+def _latencies(records: list[tuple[int, Any, float]], probe: list[tuple[int, float]]) -> list[float]:
+    """ms from each probed position's send to its first sample at a subscriber."""
+    seen: dict[int, float] = {}
+    for _, v, t in records:
+        if isinstance(v, dict):  # publish: pdo
+            v = v["signals"]["position"]["value"]
+        seen.setdefault(round(v / POSITION_SCALE), t)
+    return [(seen[v] - t) * 1000 for v, t in probe if v in seen]
+
+
 # ---------------------------------------------------------------------- phases
 async def _bare_phase(phase_s: float, gen_kw: dict[str, Any] | None = None) -> dict[str, Any]:
     server = SocketcandServer()
@@ -582,6 +592,7 @@ async def _gateway_phase(
     publish: str = "change",
     zenoh: bool = True,
     batch_ms: float | None = None,
+    pipeline: bool = False,
 ) -> dict[str, Any]:
     server = SocketcandServer()
     server.serve_one()
@@ -589,10 +600,12 @@ async def _gateway_phase(
     cfg = _gateway_config(tmp / "gateway.yaml", server.port, publish, zenoh, batch_ms)
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     log = open(tmp / "gateway.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "run", "-c", str(tmp / "gateway.yaml")],
-        cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT,
-    )  # fmt: skip
+    argv = [sys.executable, "-m", "gateway", "run", "-c", str(tmp / "gateway.yaml")]
+    if pipeline:  # the bare pipeline (bench/pipeline.py) on the same ports, in its place
+        argv = [sys.executable, "-m", "bench.pipeline", "--can-port", str(server.port),
+                "--channel", CHANNEL, "--modbus-port", str(cfg["modbus"]["port"]),
+                "--listen", cfg["zenoh"]["listen"][0], "--nodes", str(N_NODES)]  # fmt: skip
+    proc = subprocess.Popen(argv, cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
     gen: Generator | None = None
     workers: list[Worker] = []
     health = f"http://127.0.0.1:{cfg['health']['port']}"
@@ -602,7 +615,7 @@ async def _gateway_phase(
             raise RuntimeError("the gateway did not connect to the socketcand server")
         gen = Generator(server, **(gen_kw or {})).start()
         deadline = time.monotonic() + 60
-        while True:
+        while not pipeline:  # the pipeline has no health: the subscribers' wait below
             try:
                 st = http_json(health + "/healthz")
                 if all(n["operational"] for n in st["nodes"].values()) and st["ready"]:
@@ -624,6 +637,14 @@ async def _gateway_phase(
             if await sub.acall("wait", 1, 0.05, 0.05):
                 break
         sub0 = await sub.acall("take", parse)
+        # a second subscriber on node 1's position alone: its latency is not queued behind
+        # the other 119 keys' samples in a Python callback
+        psub = start_subscriber([endpoint], [(probe_key, "record")])
+        workers.append(psub)
+        for _ in range(200 if zenoh else 0):
+            if await psub.acall("wait", 1, 0.05, 0.05):
+                break
+        await psub.acall("take", parse)
         poller = start_poller()
         workers.append(poller)
         plc = Worker(PlcClient, name="plc")
@@ -643,19 +664,23 @@ async def _gateway_phase(
             end = t0 + duration_s
             while time.perf_counter() < end:
                 await asyncio.sleep(min(1.0, max(0.0, end - time.perf_counter())))
+                if pipeline:
+                    continue
                 st = http_json(health + "/healthz")
                 not_alive = max(not_alive, sum(1 for n in st["nodes"].values() if not n["alive"]))
             c1, th1, t1 = proc_cpu_s(proc.pid), thread_cpu_s(proc.pid), time.perf_counter()
             wall = t1 - t0
             return (c1 - c0) / wall, {t: (c - th0.get(t, 0.0)) / wall for t, c in th1.items()}, t0
 
-        counts0 = metrics(health + "/metrics")  # counters are copied in at every scrape
+        # the gateway's counters are copied in at every scrape (the bare pipeline has none)
+        counts0 = {} if pipeline else metrics(health + "/metrics")
         sent0, tw0 = dict(gen.sent), time.perf_counter()
         detail0 = thread_detail(proc.pid)
-        cpu, threads_cpu, _ = await window(phase_s)  # PLC + Zenoh: the load of the issue
+        cpu, threads_cpu, tq0 = await window(phase_s)  # PLC + Zenoh: the load of the issue
+        tq1 = time.perf_counter()  # [tq0, tq1): the PLC alone, no poller
         detail1 = thread_detail(proc.pid)
         sent1, tw1 = dict(gen.sent), time.perf_counter()
-        counts1 = metrics(health + "/metrics")
+        counts1 = {} if pipeline else metrics(health + "/metrics")
         comms = {tid: thread_comm(proc.pid, tid) for tid in threads_cpu}
         rss = rss_kib(proc.pid)
         # latency: a Modbus poller in a tight loop on node 1's position meanwhile
@@ -668,8 +693,11 @@ async def _gateway_phase(
         plc_result = await plc_call
         gen.close()
         await asyncio.sleep(1.5)  # the gateway copies its counters into the metrics every second
-        frames_in = metric(health + "/metrics", "canopen_gateway_frames_in_total")
+        frames_in = (
+            math_nan() if pipeline else metric(health + "/metrics", "canopen_gateway_frames_in_total")
+        )
         z = await sub.acall("take", parse)
+        pz = await psub.acall("take", parse) if zenoh else {"records": []}
     finally:
         if gen is not None:
             gen.close()
@@ -693,13 +721,11 @@ async def _gateway_phase(
     for regs, t in polled["changes"]:
         v = (regs[0] << 16) | regs[1]
         mb_seen.setdefault(v - (1 << 32) if v >= 1 << 31 else v, t)
-    z_seen: dict[int, float] = {}
-    for _, v, t in z["records"]:
-        if isinstance(v, dict):  # publish: pdo
-            v = v["signals"]["position"]["value"]
-        z_seen.setdefault(round(v / POSITION_SCALE), t)
     mb_lat = [(mb_seen[v] - t) * 1000 for v, t in probe if v in mb_seen]
-    z_lat = [(z_seen[v] - t) * 1000 for v, t in probe if v in z_seen]
+    z_lat = _latencies(z["records"], probe)
+    # frame -> Zenoh with the PLC alone (no poller), at a subscriber on node 1's position only
+    quiet = [(v, t) for v, t in gen.probe if tq0 <= t < tq1]
+    zq_lat = _latencies(pz["records"], quiet)
     value_samples = sum(c for k, c in z["counts"].items() if "/value/" in k or "/tpdo/" in k)
     return {
         "cpu": cpu,
@@ -724,6 +750,7 @@ async def _gateway_phase(
         **reader_figures(per_thread, detail0, detail1, counts0, counts1, tw1 - tw0),
         "mb_p50": percentile(mb_lat, 50), "mb_p99": percentile(mb_lat, 99),
         "z_p50": percentile(z_lat, 50), "z_p99": percentile(z_lat, 99),
+        "zq_p50": percentile(zq_lat, 50), "zq_p99": percentile(zq_lat, 99),
         "probes": len(probe), "mb_seen": len(mb_lat), "z_seen": len(z_lat),
         "plc_rps": plc_result["requests"] / plc_s,
         "poller_rps": polled["polls"] / latency_s,
@@ -833,11 +860,13 @@ async def scenario(
     profile_s: float = 0.0,
     zenoh: bool = True,
     batch_ms: float | None = None,
+    pipeline: bool = False,
 ) -> dict[str, Any]:
     """One paired run, bare listener then gateway, of a line-rate scenario: ``fps`` frames/s
     (TPDOs + heartbeats of the 60 nodes; default the bench's 9,489), every frame with new values
     or not, each frame its own TCP write or a slot's frames in one; ``publish`` the config's
-    ``zenoh.publish``."""
+    ``zenoh.publish``. With ``pipeline``, then the bare pipeline (``bench.pipeline``) under the
+    same load: its figures as ``pipe_*``."""
     gen_kw: dict[str, Any] = {"every_value": every_value, "per_frame": per_frame}
     if fps is not None:
         if fps <= N_NODES / HEARTBEAT_S:
@@ -845,7 +874,8 @@ async def scenario(
         gen_kw["period_s"] = 2 * N_NODES / (fps - N_NODES / HEARTBEAT_S)
     bare = await _bare_phase(phase_s, gen_kw)
     gw = await _gateway_phase(phase_s, profile_s, gen_kw, publish, zenoh, batch_ms)
-    keys = ("fps", "cpu", "mb_p50", "mb_p99", "z_p50", "z_p99", "frames_per_burst",
+    keys = ("fps", "cpu", "mb_p50", "mb_p99", "z_p50", "z_p99", "zq_p50", "zq_p99",
+            "frames_per_burst",
             "reader_cpu", "reader_us_per_burst", "reader_us_per_frame", "publish_cpu",
             "publish_us_per_frame",
             "reader_switches_per_burst", "switches_per_burst", "value_samples_per_s", "not_alive")  # fmt: skip
@@ -860,6 +890,13 @@ async def scenario(
         },
         profile=gw["profile"].get("top", {}) if gw["profile"] else {},
     )
+    if pipeline:
+        pipe = await _gateway_phase(phase_s, 0.0, gen_kw, pipeline=True)
+        out.update({f"pipe_{k}": pipe.get(k, math_nan()) for k in keys})
+        out.update(
+            pipe_ratio=pipe["cpu"] / bare["cpu"] if bare["cpu"] else math_nan(),
+            gw_to_pipe=gw["cpu"] / pipe["cpu"] if pipe["cpu"] else math_nan(),
+        )
     return out
 
 
@@ -876,11 +913,12 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--no-zenoh", action="store_true", help="the gateway without Zenoh")
     ap.add_argument("--batch-ms", type=float, default=None, help="zenoh.batch_ms (default: the gateway's)")
+    ap.add_argument("--pipeline", action="store_true", help="then the bare pipeline, same load")
     args = ap.parse_args()
     for _ in range(args.repeat):
         r = asyncio.run(scenario(args.fps, args.every_value, args.per_frame, args.publish,
                                  args.phase, args.profile, not args.no_zenoh,
-                                 args.batch_ms))  # fmt: skip
+                                 args.batch_ms, args.pipeline))  # fmt: skip
         print(json.dumps(r), flush=True)
 
 
