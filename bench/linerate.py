@@ -15,7 +15,11 @@ Two phases in the same run, each ``phase_s`` long, same frames, same transport:
 - **gateway**: ``canopen-gateway run`` with a config (default ``publish: change``, every node
   supervised by its 100 ms heartbeat) in a process of its own; a PLC-like Modbus client reads
   20 input registers of 6 nodes every 10 ms, a Modbus poller reads node 1's position in a
-  tight loop (latency), and a Zenoh subscriber in another process takes every value.
+  tight loop (latency), and a Zenoh subscriber in another process takes every value; a second
+  subscriber takes node 1's position alone (its latency is not queued behind the other keys'
+  samples in a Python callback);
+- **pipeline** (``scenario(pipeline=...)``, section 9): the bare pipeline (``bench.pipeline``)
+  in the gateway's place, under the same clients.
 
 Measured: CPU of each process from /proc/PID/stat, the gateway's CPU per thread
 (/proc/PID/task/*/stat, named by a py-spy dump), latency of node 1's positions from the frame
@@ -592,8 +596,10 @@ async def _gateway_phase(
     publish: str = "change",
     zenoh: bool = True,
     batch_ms: float | None = None,
-    pipeline: bool = False,
+    pipeline: str = "",
 ) -> dict[str, Any]:
+    """The gateway's phase of a scenario, or (``pipeline``: "bare", or "split" with its Modbus
+    server in a second process) the bare pipeline's in its place."""
     server = SocketcandServer()
     server.serve_one()
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="bench-linerate-"))
@@ -605,6 +611,8 @@ async def _gateway_phase(
         argv = [sys.executable, "-m", "bench.pipeline", "--can-port", str(server.port),
                 "--channel", CHANNEL, "--modbus-port", str(cfg["modbus"]["port"]),
                 "--listen", cfg["zenoh"]["listen"][0], "--nodes", str(N_NODES)]  # fmt: skip
+        if pipeline == "split":
+            argv.append("--split")
     proc = subprocess.Popen(argv, cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
     gen: Generator | None = None
     workers: list[Worker] = []
@@ -860,13 +868,14 @@ async def scenario(
     profile_s: float = 0.0,
     zenoh: bool = True,
     batch_ms: float | None = None,
-    pipeline: bool = False,
+    pipeline: str = "",
 ) -> dict[str, Any]:
     """One paired run, bare listener then gateway, of a line-rate scenario: ``fps`` frames/s
     (TPDOs + heartbeats of the 60 nodes; default the bench's 9,489), every frame with new values
     or not, each frame its own TCP write or a slot's frames in one; ``publish`` the config's
-    ``zenoh.publish``. With ``pipeline``, then the bare pipeline (``bench.pipeline``) under the
-    same load: its figures as ``pipe_*``."""
+    ``zenoh.publish``. With ``pipeline`` ("bare" or "split"), then the bare pipeline
+    (``bench.pipeline``) under the same load: its figures as ``pipe_*`` (with "split" the CPU
+    is the reading process's alone, not its Modbus process's)."""
     gen_kw: dict[str, Any] = {"every_value": every_value, "per_frame": per_frame}
     if fps is not None:
         if fps <= N_NODES / HEARTBEAT_S:
@@ -891,7 +900,7 @@ async def scenario(
         profile=gw["profile"].get("top", {}) if gw["profile"] else {},
     )
     if pipeline:
-        pipe = await _gateway_phase(phase_s, 0.0, gen_kw, pipeline=True)
+        pipe = await _gateway_phase(phase_s, 0.0, gen_kw, pipeline=pipeline)
         out.update({f"pipe_{k}": pipe.get(k, math_nan()) for k in keys})
         out.update(
             pipe_ratio=pipe["cpu"] / bare["cpu"] if bare["cpu"] else math_nan(),
@@ -913,7 +922,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--no-zenoh", action="store_true", help="the gateway without Zenoh")
     ap.add_argument("--batch-ms", type=float, default=None, help="zenoh.batch_ms (default: the gateway's)")
-    ap.add_argument("--pipeline", action="store_true", help="then the bare pipeline, same load")
+    ap.add_argument("--pipeline", choices=["bare", "split"], default="",
+                    help="then the bare pipeline under the same load (split: Modbus in a second process)")  # fmt: skip
     args = ap.parse_args()
     for _ in range(args.repeat):
         r = asyncio.run(scenario(args.fps, args.every_value, args.per_frame, args.publish,

@@ -9,6 +9,9 @@ that same thread (no hand-off); on the main thread an asyncio protocol answers M
 (function 3 or 4) from that dict: registers 100-101 the position (int32, high word first), 102
 the velocity, any other register 0. No node supervision, no quality, no register map, no
 configuration: what is left is python-can's receive, Zenoh's put and asyncio's transport.
+With ``--split`` the Modbus server is a process of its own reading the values from shared
+memory (a record per node with a sequence counter: a reader never takes a torn record), the
+design of two processes that the line-rate figures were asked to justify.
 
 Imports: can, zenoh, the standard library.
 """
@@ -17,19 +20,67 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import multiprocessing
 import os
 import signal
 import struct
 import threading
 import time
+from multiprocessing import shared_memory
 from typing import Any
 
 TPDO = struct.Struct("<ih")  # SGH10 TPDO1/TPDO2: position int32, velocity int16
 POSITION_SCALE = 0.1
+#: ``--split``: one record per node id in shared memory: sequence counter (odd while written),
+#: position, velocity; a reader retries a record whose counter was odd or changed under it
+RECORD = struct.Struct("<Iih")
+
+
+class SharedValues:
+    """node id -> (position, velocity) in shared memory (one writer, any readers)."""
+
+    def __init__(self, name: str | None = None, nodes: int = 128) -> None:
+        size = RECORD.size * nodes
+        self.shm = shared_memory.SharedMemory(name=name, create=name is None, size=size)
+        self.buf = self.shm.buf
+        self.seq = [0] * nodes
+
+    def __setitem__(self, node: int, value: tuple[int, int]) -> None:
+        seq = self.seq[node] + 1
+        off = node * RECORD.size
+        RECORD.pack_into(self.buf, off, seq, 0, 0)  # odd: being written
+        RECORD.pack_into(self.buf, off, seq + 1, value[0], value[1])
+        self.seq[node] = seq + 1
+
+    def get(self, node: int, default: tuple[int, int]) -> tuple[int, int]:
+        if not 0 <= node < len(self.seq):
+            return default
+        off = node * RECORD.size
+        while True:
+            seq, pos, vel = RECORD.unpack_from(self.buf, off)
+            if seq & 1:
+                continue
+            if RECORD.unpack_from(self.buf, off)[0] == seq:
+                return (pos, vel) if seq else default
+
+
+def _modbus_process(shm_name: str, port: int) -> None:
+    """``--split``: the Modbus server in a process of its own, reading the shared values."""
+    values = SharedValues(shm_name)
+
+    async def serve() -> None:
+        loop = asyncio.get_running_loop()
+        server = await loop.create_server(lambda: _Modbus(values), "127.0.0.1", port)  # type: ignore[arg-type]
+        async with server:
+            await server.serve_forever()
+
+    asyncio.run(serve())
 
 
 class Pipeline:
-    def __init__(self, can_port: int, channel: str, endpoint: str, prefix: str, nodes: int):
+    def __init__(
+        self, can_port: int, channel: str, endpoint: str, prefix: str, nodes: int, split: bool
+    ):
         import logging
 
         import can
@@ -51,14 +102,17 @@ class Pipeline:
         self.bus = can.Bus(interface="socketcand", host="127.0.0.1", port=can_port,
                            channel=channel, tcp_tune=True)  # fmt: skip
         #: node id -> (position, velocity) as the last TPDO carried them
-        self.values: dict[int, tuple[int, int]] = {}
+        self.values: Any = SharedValues() if split else {}
+        self.split = split
         self.frames = 0
         self.running = True
         self.thread = threading.Thread(target=self._read, name="can-reader", daemon=True)
 
     def _read(self) -> None:
-        recv, unpack, values = self.bus.recv, TPDO.unpack_from, self.values
+        recv, unpack = self.bus.recv, TPDO.unpack_from
         pubs, stamp = self.pubs, self.session.new_timestamp
+        last: dict[int, tuple[int, int]] = {} if self.split else self.values
+        shared = self.values if self.split else None
         while self.running:
             msg = recv(0.1)
             if msg is None:
@@ -69,8 +123,10 @@ class Pipeline:
                 continue
             node = cob & 0x7F
             pos, vel = unpack(msg.data)
-            old = values.get(node)
-            values[node] = (pos, vel)
+            old = last.get(node)
+            last[node] = (pos, vel)
+            if shared is not None:
+                shared[node] = (pos, vel)
             ppub, vpub = pubs.get(node, (None, None))
             if ppub is None:
                 continue
@@ -107,14 +163,26 @@ class _Modbus(asyncio.Protocol):
 
 async def _serve(p: Pipeline, modbus_port: int) -> None:
     loop = asyncio.get_running_loop()
-    server = await loop.create_server(lambda: _Modbus(p.values), "127.0.0.1", modbus_port)
+    child = server = None
+    if p.split:
+        child = multiprocessing.get_context("spawn").Process(
+            target=_modbus_process, args=(p.values.shm.name, modbus_port), daemon=True
+        )
+        child.start()
+    else:
+        server = await loop.create_server(lambda: _Modbus(p.values), "127.0.0.1", modbus_port)
     stop = asyncio.Event()
     loop.add_signal_handler(signal.SIGTERM, stop.set)
     p.thread.start()
     print("ready", flush=True)
     await stop.wait()
     p.running = False
-    server.close()
+    if server is not None:
+        server.close()
+    if child is not None:
+        child.terminate()
+        p.values.shm.close()
+        p.values.shm.unlink()
 
 
 def main() -> None:
@@ -125,8 +193,9 @@ def main() -> None:
     ap.add_argument("--listen", required=True)
     ap.add_argument("--prefix", default="canopen/linerate")
     ap.add_argument("--nodes", type=int, default=60)
+    ap.add_argument("--split", action="store_true", help="the Modbus server in a second process")
     a = ap.parse_args()
-    p = Pipeline(a.can_port, a.channel, a.listen, a.prefix, a.nodes)
+    p = Pipeline(a.can_port, a.channel, a.listen, a.prefix, a.nodes, a.split)
     try:
         asyncio.run(_serve(p, a.modbus_port))
     finally:
