@@ -9,7 +9,8 @@ SGH10 manual 4.3.1.1 Table 5) of every node every 13.5 ms, spread over 0.5 ms sl
 node's heartbeat every 100 ms: about 9,500 frames/s, a saturated 1 Mbit/s bus. The position of
 every node moves every cycle.
 
-Two phases in the same run, each ``phase_s`` long, same frames, same transport:
+Two phases in the same run (three with the pipeline), each ``phase_s`` long, same frames, same
+transport:
 - **bare**: a python-can socketcand Bus in a process of its own that receives the frames and
   unpacks them with ``struct`` into a dict (what any listener must at least do);
 - **gateway**: ``canopen-gateway run`` with a config (default ``publish: change``, every node
