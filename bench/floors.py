@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import asyncio
 import os
-import struct
 import time
 from typing import Any
 
 from bench.linerate import PLC_BLOCKS, PLC_NODES, PLC_PERIOD_S, PlcClient
+from bench.pipeline import BareModbus
 from bench.report import Row, Section
 from bench.rig import (
     Injector,
@@ -84,29 +84,6 @@ class ZenohPutter:
         self.session.close()
 
 
-class _CannedModbus(asyncio.Protocol):
-    """Answers every read (function 3 or 4) with zeros: the protocol and the loop, nothing else."""
-
-    def __init__(self, counter: list[int]) -> None:
-        self.counter = counter
-        self.buf = bytearray()
-        self.transport: asyncio.Transport | None = None
-
-    def connection_made(self, transport: Any) -> None:
-        self.transport = transport
-
-    def data_received(self, data: bytes) -> None:
-        buf = self.buf
-        buf += data
-        while len(buf) >= 12:
-            tid, _pid, length, unit, fc, _address, count = struct.unpack_from(">HHHBBHH", buf)
-            del buf[: 6 + length]
-            body = bytes((fc, 2 * count)) + bytes(2 * count)
-            assert self.transport is not None
-            self.transport.write(struct.pack(">HHHB", tid, 0, len(body) + 1, unit) + body)
-            self.counter[0] += 1
-
-
 async def _loop_cpu(duration_s: float) -> float:
     """CPU of the event loop's thread over ``duration_s`` (measured on that thread)."""
     c0 = time.thread_time()
@@ -155,7 +132,7 @@ async def _modbus_floor(reps: int, window_s: float) -> tuple[list[float], list[f
             "the nodes' TPDOs in the image",
         )
         loop = asyncio.get_running_loop()
-        server = await loop.create_server(lambda: _CannedModbus(canned), "127.0.0.1", 0)
+        server = await loop.create_server(lambda: BareModbus(canned), "127.0.0.1", 0)
         bare_port = server.sockets[0].getsockname()[1]
         gw_port = cfg.modbus.port
         gw_us, bare_us = [], []

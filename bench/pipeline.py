@@ -13,7 +13,7 @@ With ``--split`` the Modbus server is a process of its own reading the values fr
 memory (a record per node with a sequence counter: a reader never takes a torn record), the
 design of two processes that the line-rate figures were asked to justify.
 
-Imports: can, zenoh, the standard library.
+Imports: can and zenoh (in ``Pipeline`` only), the standard library.
 """
 
 from __future__ import annotations
@@ -42,7 +42,9 @@ class SharedValues:
     def __init__(self, name: str | None = None, nodes: int = 128) -> None:
         size = RECORD.size * nodes
         self.shm = shared_memory.SharedMemory(name=name, create=name is None, size=size)
-        self.buf = self.shm.buf
+        buf = self.shm.buf
+        assert buf is not None
+        self.buf = buf
         self.seq = [0] * nodes
 
     def __setitem__(self, node: int, value: tuple[int, int]) -> None:
@@ -70,7 +72,7 @@ def _modbus_process(shm_name: str, port: int) -> None:
 
     async def serve() -> None:
         loop = asyncio.get_running_loop()
-        server = await loop.create_server(lambda: _Modbus(values), "127.0.0.1", port)  # type: ignore[arg-type]
+        server = await loop.create_server(lambda: _Modbus(values), "127.0.0.1", port)
         async with server:
             await server.serve_forever()
 
@@ -127,9 +129,10 @@ class Pipeline:
             last[node] = (pos, vel)
             if shared is not None:
                 shared[node] = (pos, vel)
-            ppub, vpub = pubs.get(node, (None, None))
-            if ppub is None:
+            pair = pubs.get(node)
+            if pair is None:
                 continue
+            ppub, vpub = pair
             ts = time.time()
             if old is None or old[0] != pos:
                 ppub.put(f'{{"value":{pos * POSITION_SCALE!r},"ts":{ts!r}}}', timestamp=stamp())
@@ -137,16 +140,22 @@ class Pipeline:
                 vpub.put(f'{{"value":{vel},"ts":{ts!r}}}', timestamp=stamp())
 
 
-class _Modbus(asyncio.Protocol):
-    """Reads (function 3 or 4) answered from ``values``: 100-101 position, 102 velocity."""
+class BareModbus(asyncio.Protocol):
+    """Modbus/TCP reads (function 3 or 4) and nothing else: MBAP framing, ``registers`` for the
+    answer's data, a count of the requests answered. Also the bare protocol of the floors
+    section (``bench.floors``), which answers zeros."""
 
-    def __init__(self, values: dict[int, tuple[int, int]]) -> None:
-        self.values = values
+    def __init__(self, counter: list[int] | None = None) -> None:
+        self.counter = counter if counter is not None else [0]
         self.buf = bytearray()
         self.transport: Any = None
 
     def connection_made(self, transport: Any) -> None:
         self.transport = transport
+
+    def registers(self, unit: int, address: int, count: int) -> bytes:
+        """The ``count`` registers at ``address`` of ``unit``, packed (zeros here)."""
+        return bytes(2 * count)
 
     def data_received(self, data: bytes) -> None:
         buf = self.buf
@@ -154,11 +163,22 @@ class _Modbus(asyncio.Protocol):
         while len(buf) >= 12:
             tid, _pid, length, unit, fc, address, count = struct.unpack_from(">HHHBBHH", buf)
             del buf[: 6 + length]
-            pos, vel = self.values.get(unit, (0, 0))
-            regs = {100: (pos >> 16) & 0xFFFF, 101: pos & 0xFFFF, 102: vel & 0xFFFF}
-            words = [regs.get(a, 0) for a in range(address, address + count)]
-            body = bytes((fc, 2 * count)) + struct.pack(f">{count}H", *words)
+            body = bytes((fc, 2 * count)) + self.registers(unit, address, count)
             self.transport.write(struct.pack(">HHHB", tid, 0, len(body) + 1, unit) + body)
+            self.counter[0] += 1
+
+
+class _Modbus(BareModbus):
+    """Reads answered from ``values``: 100-101 position, 102 velocity, any other register 0."""
+
+    def __init__(self, values: Any) -> None:
+        super().__init__()
+        self.values = values
+
+    def registers(self, unit: int, address: int, count: int) -> bytes:
+        pos, vel = self.values.get(unit, (0, 0))
+        regs = {100: (pos >> 16) & 0xFFFF, 101: pos & 0xFFFF, 102: vel & 0xFFFF}
+        return struct.pack(f">{count}H", *(regs.get(a, 0) for a in range(address, address + count)))
 
 
 async def _serve(p: Pipeline, modbus_port: int) -> None:
