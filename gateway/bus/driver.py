@@ -271,6 +271,11 @@ class BusDriver:
                 counters["bus_errors"] += 1
                 log.error("CAN bus receive failed: %s; reopening", exc)
                 self._shutdown_bus()
+                # nothing is buffered any more: the bus clock follows the monotonic clock again
+                # (left "busy", it would stand still while the bus is down and no node could
+                # time out; a node silent through the outage would never be found lost)
+                self.clock_state = (True, self.clock_state[1])
+                in_burst = False
                 self._set_state("down", f"receive failed: {exc}")
                 continue
             if msg is None:

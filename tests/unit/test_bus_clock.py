@@ -76,3 +76,42 @@ def test_error_passive_clears_only_after_the_hold_time_without_error_frames() ->
     c.mono += 0.01
     d._maybe_recovered()
     assert d.state == "ok"
+
+
+class FailingBus:
+    """A backend that hands one frame over and then dies under the reader."""
+
+    def __init__(self, d: BusDriver, c: Clocks) -> None:
+        self.d, self.c, self.calls = d, c, 0
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        self.calls += 1
+        if self.calls == 1:  # a frame of a burst: the reader is "busy" with it
+            return can.Message(arbitration_id=0x181, data=bytes(8), timestamp=self.c.wall)
+        raise can.CanOperationError("Cannot operate on a closed bus")
+
+    def shutdown(self) -> None:
+        pass
+
+
+def test_a_bus_that_dies_in_a_burst_does_not_stop_the_bus_clock() -> None:
+    # The backend fails while the reader is within a burst: nothing is buffered any more, so
+    # the bus clock must go on with the monotonic clock; frozen at the last frame, no node
+    # could time out while the bus is down (a node silent through the outage never found lost)
+    c = Clocks()
+    d = driver(c)
+    seen: list[tuple[str, float]] = []
+
+    def on_state(state: str, detail: str) -> None:
+        c.mono += 1.5  # the outage goes on
+        c.wall += 1.5
+        seen.append((state, d.bus_clock()))
+        d._running.clear()  # no reopen in this test
+
+    d.on_state = on_state
+    d.bus = FailingBus(d, c)  # type: ignore[assignment]
+    d.state = "ok"
+    d._running.set()
+    d._run()
+    assert seen == [("down", 1001.5)]
+    assert d.idle
