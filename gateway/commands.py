@@ -18,8 +18,9 @@ Rules held here, once:
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it.
 
-Imports: bus.master (the operations), bus.parts (the nodes), bus.lss.master (its errors), bus.sdo.values (value
-codecs), errors, image, objref, profiles, cia301, states, python-can (its error type). Never modbus/ or zenoh_bridge/.
+Imports: bus.master (the operations), bus.parts (the nodes), bus.lss.master (its errors),
+bus.scan (the scan beside the master), bus.sdo.values (value codecs), errors, image, objref,
+profiles, cia301, states, python-can (its error type). Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ import can
 from gateway.bus.lss.master import LssBusy, LssStateError
 from gateway.bus.master import Master
 from gateway.bus.parts import NodeParts
+from gateway.bus.scan import Found, scan_beside
+from gateway.bus.scan import report as scan_report
 from gateway.bus.sdo.values import decode_value, encode_value
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.errors import (
@@ -494,6 +497,61 @@ class CommandService:
             raise LssConflict(str(exc)) from None
         except can.CanError as exc:
             raise BusDown(str(exc)) from None
+
+    async def scan_bus(self, *, listen_s: float = 1.0, sdo_timeout_s: float = 0.1) -> dict[str, Any]:
+        """Which node ids are on the bus and what they are (``canopen-gateway scan --active``),
+        on the gateway's own connection: the ids that talk within ``listen_s``; device type,
+        name and identity (1000h, 1008h, 1018h:01..04) of every id that answers. The scan's own
+        SDO client probes the ids no node of the config has; a configured node is read by the
+        master's SDO client, in turn with its other transfers. Returns ``{"nodes": [...],
+        "report": [lines as printed by the scan command]}``."""
+        self.master.require_bus()
+        ids = {p.node_id: name for name, p in self.master.nodes.items()}
+        found, identities = await asyncio.gather(
+            asyncio.to_thread(
+                scan_beside,
+                self.master.driver,
+                configured=set(ids),
+                listen_s=listen_s,
+                sdo_timeout_s=sdo_timeout_s,
+            ),
+            asyncio.gather(*(self._identify(name, node_id) for node_id, name in ids.items())),
+        )
+        for f in identities:
+            if f is None:
+                continue
+            heard = found.get(f.node_id)
+            if heard is not None:  # what it sent in the listening window
+                f.state, f.cob_ids = heard.state, heard.cob_ids
+            found[f.node_id] = f
+        return {
+            "nodes": [found[i].doc() for i in sorted(found)],
+            "report": scan_report(found, self.master.cfg, active=True, beside=True),
+        }
+
+    async def _identify(self, name: str, node_id: int) -> Found | None:
+        """Device type, name and identity of a configured node by the master's SDO client;
+        None if it does not answer 1000h."""
+
+        async def upload(index: int, sub: int) -> bytes | None:
+            try:
+                return await self.master.sdo(name, ObjRef(index, sub), None, check_state=False)
+            except GatewayError:  # an abort, no answer, the bus down
+                return None
+
+        def number(raw: bytes | None) -> int | None:
+            return int.from_bytes(raw[:4], "little") if raw else None
+
+        device_type = number(await upload(0x1000, 0))
+        if device_type is None:
+            return None
+        raw = await upload(0x1008, 0)
+        f = Found(node_id, device_type=device_type)
+        f.name = raw.rstrip(b"\0").decode("ascii", errors="replace") if raw is not None else None
+        f.vendor, f.product, f.revision, f.serial = [
+            number(await upload(0x1018, sub)) for sub in (1, 2, 3, 4)
+        ]
+        return f
 
     def nmt(self, node: str, command: str) -> None:
         """NMT command to one node by name, or to all nodes with ``all``."""

@@ -91,9 +91,11 @@ class BusDriver:
         self.default_handler: FrameHandler | None = None
         #: called on the reader thread after a burst, when no received frame is left buffered
         self.burst_listeners: list[Callable[[], None]] = []
-        #: called on the reader thread with every received frame while set (the web console's
-        #: bus monitor, ``gateway.web.monitor``); None costs the reader one check per frame
-        self.frame_tap: FrameHandler | None = None
+        #: called on the reader thread with every received frame, in order (the web console's
+        #: bus monitor, ``gateway.web.monitor``; the scan's ``bus.tap_bus.TapBus``); replaced
+        #: as a whole by ``add_tap`` / ``remove_tap`` (one assignment); empty costs the reader
+        #: one check per frame
+        self.frame_taps: tuple[FrameHandler, ...] = ()
         #: at least this long (``mono`` seconds) between two calls of the burst listeners: the
         #: end of a burst that comes sooner waits, with the next frames, until the gap is over
         #: (0: after every burst)
@@ -103,6 +105,7 @@ class BusDriver:
         self._running = threading.Event()
         self._closing = threading.Event()  # set by close(): wakes a reopen backoff at once
         self._send_lock = threading.Lock()
+        self._taps_lock = threading.Lock()  # writers of ``frame_taps`` only; the reader reads
         self.state = "down"
         self.last_error = ""
         self.reopen_attempts = 0  # failed attempts since the bus went down
@@ -298,9 +301,9 @@ class BusDriver:
             if self.state == "error":
                 self._maybe_recovered()
             counters["frames_in"] += 1
-            tap = self.frame_tap  # one read: the loop may set it to None meanwhile
-            if tap is not None:
-                tap(msg)
+            taps = self.frame_taps  # one read: another thread may replace it meanwhile
+            if taps:
+                self._tap(taps, msg)
             # CANopen (CiA 301) uses 11-bit identifiers: a 29-bit frame is never ours
             h = None if msg.is_extended_id else handlers.get(msg.arbitration_id)
             try:
@@ -313,6 +316,23 @@ class BusDriver:
                 self.warn.warning(
                     "handler", "frame 0x%03X could not be handled: %s", msg.arbitration_id, exc
                 )
+
+    def add_tap(self, tap: FrameHandler) -> None:
+        """Call ``tap`` on the reader thread with every frame received from now on."""
+        with self._taps_lock:  # two threads adding at once must not lose one
+            self.frame_taps = (*self.frame_taps, tap)
+
+    def remove_tap(self, tap: FrameHandler) -> None:
+        """Stop calling ``tap`` (a frame being handled may still reach it once)."""
+        with self._taps_lock:
+            self.frame_taps = tuple(t for t in self.frame_taps if t != tap)
+
+    def _tap(self, taps: tuple[FrameHandler, ...], msg: can.Message) -> None:
+        for tap in taps:
+            try:
+                tap(msg)
+            except Exception as exc:  # noqa: BLE001 - a tap must never stop the reader
+                self.warn.warning("tap", "frame tap %r failed: %s", tap, exc)
 
     def _end_burst(self) -> None:
         for listener in self.burst_listeners:

@@ -11,15 +11,18 @@ with the configured node of its id. A configured node that is not found is liste
 node id shows as one id configured but silent and another talking but not configured.
 
 Uses python canopen's SDO client on the given python-can bus (an SDO client that is not the
-gateway's, so a scan runs without the master). Imports: python-can, canopen, config, profiles,
-bus.bus_peers, states.
+gateway's, so a scan runs without the master). ``scan_beside`` scans while the gateway runs, on
+its own connection (``bus.tap_bus``, no second connection: every interface) and leaves the
+configured node ids to the master's SDO client (the command service reads their identity), so
+no answer meant for the master's transfers is sent to them by the scan. Imports: python-can,
+canopen, config, profiles, bus.bus_peers, bus.driver, bus.tap_bus, states.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,6 +30,8 @@ import can
 import canopen
 
 from gateway.bus.bus_peers import talking_node_id
+from gateway.bus.driver import BusDriver
+from gateway.bus.tap_bus import TapBus
 from gateway.config import Config
 from gateway.profiles import builtin_profiles, load_profile
 from gateway.states import NmtState
@@ -133,6 +138,28 @@ def scan(
     return found
 
 
+def scan_beside(
+    driver: BusDriver,
+    *,
+    configured: Collection[int],
+    listen_s: float = 1.0,
+    sdo_timeout_s: float = 0.1,
+) -> dict[int, Found]:
+    """An active scan on a running gateway's own connection (blocking: run it in a worker
+    thread). The ``configured`` node ids are only listened to, never probed here."""
+    bus = TapBus(driver)
+    try:
+        return scan(
+            bus,
+            listen_s=listen_s,
+            active=True,
+            sdo_timeout_s=sdo_timeout_s,
+            node_ids=[i for i in ALL_NODE_IDS if i not in configured],
+        )
+    finally:
+        bus.shutdown()
+
+
 def _probe(
     network: canopen.Network,
     bus: can.BusABC,
@@ -146,7 +173,7 @@ def _probe(
         bus.send(can.Message(arbitration_id=0x600 + node_id, data=b"\x40\x00\x10\x00" + bytes(4),
                              is_extended_id=False))  # fmt: skip
     time.sleep(timeout_s)  # the answers of every node arrive within one SDO timeout
-    for node_id in sorted(answered):
+    for node_id in sorted(answered & set(node_ids)):  # an answer to another client: not ours
         f = found.setdefault(node_id, Found(node_id))
         remote = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
         remote.sdo.RESPONSE_TIMEOUT = max(timeout_s, 0.05)
@@ -227,8 +254,10 @@ def _hex(value: int | None) -> str:
     return "-" if value is None else f"0x{value:08X}"
 
 
-def report(found: dict[int, Found], cfg: Config, active: bool) -> list[str]:
-    """The scan as lines: one per node found, then the configured nodes that were not found."""
+def report(found: dict[int, Found], cfg: Config, active: bool, beside: bool = False) -> list[str]:
+    """The scan as lines: one per node found, then the configured nodes that were not found.
+    ``beside``: the scan ran on the gateway's own connection (``scan_beside``), which does not
+    receive what the gateway sends: a node found with its ``master.node_id`` is another one."""
     configured = {n.node_id: n for n in cfg.nodes}
     identities = _builtin_identities() if active else {}
     lines = [
@@ -242,7 +271,10 @@ def report(found: dict[int, Found], cfg: Config, active: bool) -> list[str]:
         if profile:
             match.append(f"profile {profile}")
         n = configured.get(node_id)
-        if node_id == cfg.master.node_id and n is None:
+        if node_id == cfg.master.node_id and n is None and beside:
+            match.append(f"not the gateway but another node with its master.node_id {node_id}: "
+                         "a node id conflict")  # fmt: skip
+        elif node_id == cfg.master.node_id and n is None:
             match.append(f"a master with this config's master.node_id {node_id} (the gateway?)")
         elif n is not None:
             agrees = profile is None or n.profile in (None, profile)

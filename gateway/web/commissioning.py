@@ -25,8 +25,6 @@ import logging
 from http import HTTPStatus
 from typing import Any
 
-import can
-
 from gateway.cia301 import NMT_COMMANDS
 from gateway.commands import CommandService
 from gateway.config import Config
@@ -226,8 +224,8 @@ class Commissioning:
                     f"address: {text!r} is not VENDOR:PRODUCT:REVISION:SERIAL "
                     "(four numbers, e.g. 0x1A2:0x3:0x1:12345)"
                 )
-        if self.commands.lss_busy():
-            raise LssConflict("another LSS inquiry is running")
+        if self.commands.lss_busy() or self._scan_lock.locked():
+            raise LssConflict("another LSS inquiry or a scan is running")
         result = await self.commands.lss_inquire(address)
         return {
             "ok": True,
@@ -238,28 +236,12 @@ class Commissioning:
         }
 
     async def scan(self, doc: dict[str, Any]) -> dict[str, Any]:
-        """Which node ids are on the bus (``canopen-gateway scan --active``): on a second
-        connection, in a worker thread, one scan at a time (it shares the LSS lock)."""
-        from gateway.bus.scan import report, scan
-
+        """Which node ids are on the bus (``canopen-gateway scan --active``): through the
+        command service, on the gateway's own connection, one scan at a time (it shares the
+        LSS lock)."""
         if self._scan_lock.locked() or self.commands.lss_busy():
             raise LssConflict("a scan or an LSS inquiry is running")
         async with self._scan_lock:
-            def run() -> dict[str, Any]:
-                try:
-                    bus = can.Bus(**self.cfg.can.bus_kwargs())
-                except (can.CanError, OSError, ValueError) as exc:
-                    raise LssFailed(
-                        f"cannot open a second connection to the CAN bus for the scan ({exc}); "
-                        "stop the gateway and use canopen-gateway scan"
-                    ) from None
-                try:
-                    found = scan(bus, listen_s=1.0, active=True, sdo_timeout_s=0.1)
-                finally:
-                    bus.shutdown()
-                return {"nodes": [f.doc() for f in found.values()],
-                        "report": report(found, self.cfg, active=True)}  # fmt: skip
-
-            result = await asyncio.to_thread(run)
+            result = await self.commands.scan_bus()
         return {"ok": True, **result}
 

@@ -141,7 +141,7 @@ class WebConsole:
         #: ``gateway.sim.faults.FaultInjector`` when nodes are simulated in this process
         self.faults = faults
         self._sampler: Any = None
-        #: the bus monitor; ``frames`` is the bus driver (its ``frame_tap``)
+        #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
         self.monitor = FrameMonitor(cfg, frames)
 
     def start(self, loop: Any) -> None:

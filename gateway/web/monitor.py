@@ -2,7 +2,7 @@
 CANopen words, live, filtered by node and kind, at most ``MAX_LINES_PER_S`` lines a second.
 
 Rule 1 (the CAN reader thread): the one hand-off is ``FrameMonitor.on_frame``. It is installed
-as the driver's ``frame_tap`` only while a monitor page is open; otherwise the reader pays one
+as a tap of the driver (``add_tap``) only while a monitor page is open; otherwise the reader pays one
 attribute check per frame. While installed, it appends the raw ``(timestamp, COB-ID, data,
 RTR, 29-bit)`` tuple to a bounded deque (``HANDOFF_MAX`` frames; older frames are counted as
 lost if the loop falls that far behind) and calls ``loop.call_soon_threadsafe`` only when no
@@ -26,7 +26,7 @@ what the gateway receives, as ``canopen-gateway monitor`` on a second connection
 
 Imports: config, northbound.frames (the decoder, node and kind filters), web.live
 (the SSE framing and its limits). Never bus/ (the driver is given as an object with a
-``frame_tap`` attribute), modbus/ or zenoh_bridge/.
+``add_tap`` / ``remove_tap``), modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -57,9 +57,11 @@ RawFrame = tuple[float, int, bytes, bool, bool]
 
 
 class FrameSource(Protocol):
-    """The bus driver as the monitor sees it: one attribute, read by the reader per frame."""
+    """The bus driver as the monitor sees it: a tap called by its reader with every frame."""
 
-    frame_tap: Callable[[Any], None] | None
+    def add_tap(self, tap: Callable[[Any], None]) -> None: ...
+
+    def remove_tap(self, tap: Callable[[Any], None]) -> None: ...
 
 
 class TooManyPages(Exception):
@@ -121,6 +123,7 @@ class FrameMonitor:
         self.max_pages = max_pages
         self._clock = clock
         self.pages: set[MonitorPage] = set()
+        self.tapping = False  # on_frame is a tap of the source (while a page is open)
         self._decoder: FrameDecoder | None = None
         self._class: dict[int, tuple[str, int | None, str | None]] = {}  # COB-ID -> kind, id, name
         self._lock = threading.Lock()
@@ -176,15 +179,17 @@ class FrameMonitor:
         page = MonitorPage(nodes, kinds)
         self.pages.add(page)
         assert self.source is not None  # refusal() said so otherwise
-        if self.source.frame_tap is None:
-            self.source.frame_tap = self.on_frame  # one assignment, read by the reader thread
+        if not self.tapping:
+            self.source.add_tap(self.on_frame)  # read by the reader thread from its next frame
+            self.tapping = True
         return page
 
     def close(self, page: MonitorPage) -> None:
         """A page went away; the last one removes the tap."""
         self.pages.discard(page)
-        if not self.pages and self.source is not None:
-            self.source.frame_tap = None
+        if not self.pages and self.source is not None and self.tapping:
+            self.source.remove_tap(self.on_frame)
+            self.tapping = False
             with self._lock:
                 self.taken += len(self._ring)  # not lost: nobody is watching any more
                 self._ring.clear()

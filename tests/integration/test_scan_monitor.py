@@ -9,6 +9,7 @@ from contextlib import contextmanager
 
 import can
 import canopen
+import pytest
 
 from gateway.app import SimulatedBus
 from gateway.bus.scan import report, scan
@@ -141,9 +142,13 @@ def test_scan_finds_our_simulator_a_local_node_and_a_scripted_heartbeat() -> Non
     ) in text
 
 
-async def test_the_console_scans_the_bus_beside_the_running_master() -> None:
-    """``POST /api/commission/scan`` (web.writes and the token): a second connection to the
-    gateway's bus finds its simulated wire and a LocalNode the config does not know."""
+async def test_the_console_scans_the_bus_on_the_gateways_own_connection(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``POST /api/commission/scan`` (web.writes and the token) on the gateway's own connection
+    (no second ``can.Bus``: it works on interfaces that allow one connection) finds its
+    simulated wire, read by the master's SDO client, and a LocalNode the config does not know,
+    probed by the scan's own; another node with the gateway's node id is a conflict."""
     import asyncio
     import json
     import urllib.request
@@ -155,9 +160,18 @@ async def test_the_console_scans_the_bus_beside_the_running_master() -> None:
     cfg = make_config([WIRE], health={"port": free_port()}, web={"writes": True, "token": token})
     gw = Gateway(cfg)
     await gw.start()
+    spy = can.Bus(interface="virtual", channel=cfg.can.channel)  # every frame on the bus
+    talker = can.Bus(interface="virtual", channel=cfg.can.channel)
     try:
         await wait_until(lambda: node_operational(gw, "wire"), what="wire operational")
+        while spy.recv(0) is not None:  # what came before the scan
+            pass
+
+        def no_second_connection(*args: object, **kwargs: object) -> None:
+            raise can.CanInitializationError("this interface allows one connection per channel")
+
         with local_node(cfg.can.channel, 7, "posi_plus"):
+            monkeypatch.setattr(can, "Bus", no_second_connection)
 
             def post() -> dict:
                 req = urllib.request.Request(
@@ -167,14 +181,37 @@ async def test_the_console_scans_the_bus_beside_the_running_master() -> None:
                 with urllib.request.urlopen(req, timeout=30) as r:
                     return json.loads(r.read())
 
-            doc = await asyncio.to_thread(post)
+            async def scan_while_talking() -> dict:
+                task = asyncio.create_task(asyncio.to_thread(post))
+                await wait_until(lambda: gw.driver.frame_taps != (), what="the scan listens")
+                talker.send(frame(0x700 + 127, b"\x7f"))  # a heartbeat with the gateway's id
+                return await task
+
+            doc = await scan_while_talking()
+            monkeypatch.undo()
+        assert gw.driver.frame_taps == ()  # the scan's tap is gone
+        sent = []
+        while (msg := spy.recv(0)) is not None:
+            sent.append(msg)
     finally:
+        talker.shutdown()
+        spy.shutdown()
         await gw.stop()
     assert doc["ok"] is True
-    # the gateway's own heartbeat (master.node_id 127) is seen on the bus too
     assert sorted(n["node_id"] for n in doc["nodes"]) == [1, 7, 127]
+    wire = next(n for n in doc["nodes"] if n["node_id"] == 1)
+    assert (wire["name"], wire["vendor"], wire["device_type"]) == ("SGH10", 0x195, 0x000A0196)
     rows = {line.split()[0]: line for line in doc["report"][1:]}
     assert rows["1"].split()[1] == "operational"
     assert rows["1"].endswith("profile sgh10; config node wire (sgh10)")
     assert rows["7"].endswith("profile posi_plus; not in the config")
-    assert rows["127"].endswith("a master with this config's master.node_id 127 (the gateway?)")
+    assert rows["127"].endswith(
+        "not the gateway but another node with its master.node_id 127: a node id conflict"
+    )
+    # id 1 is the master's: one 1000h upload request to it (the master's), none by the scan
+    uploads_1000 = [m for m in sent if m.arbitration_id == 0x601 and bytes(m.data[:4]) == b"\x40\x00\x10\x00"]
+    assert len(uploads_1000) == 1
+    # every other id got the scan's 1000h probe, once, on the gateway's connection
+    probed = {m.arbitration_id - 0x600 for m in sent
+              if 0x600 < m.arbitration_id < 0x680 and bytes(m.data[:4]) == b"\x40\x00\x10\x00"}  # fmt: skip
+    assert probed == set(range(1, 128))

@@ -101,10 +101,10 @@ async def open_stream(addr: str, query: str = "") -> tuple[EventStream, dict[str
 
 async def test_the_monitor_streams_a_tpdo_an_emcy_and_an_sdo_abort_in_canopen_words() -> None:
     async with gateway() as (gw, device, addr):
-        assert gw.driver.frame_tap is None  # no page open: the reader only checks it
+        assert gw.driver.frame_taps == ()  # no page open: the reader only checks it
         stream, hello = await open_stream(addr)
         assert hello["max_lines_per_s"] == MAX_LINES_PER_S and hello["direction"] == "received"
-        assert gw.driver.frame_tap is not None
+        assert len(gw.driver.frame_taps) == 1
         # SGH10 manual: TPDO1 = position (int32, 0.1 mm) + velocity (int16)
         send(device, 0x181, (98765).to_bytes(4, "little", signed=True) + (-12).to_bytes(2, "little", signed=True))
         # AP05 manual 5.5.1 table 31: FF12h speed error, error register 81h
@@ -128,7 +128,7 @@ async def test_the_monitor_streams_a_tpdo_an_emcy_and_an_sdo_abort_in_canopen_wo
             "object dictionary",
         )  # fmt: skip
         assert lines[0]["data"] == "cd 81 01 00 f4 ff" and lines[0]["dir"] == "rx"
-        await wait_until(lambda: gw.driver.frame_tap is None, TIMEOUT_S, "the tap removed")
+        await wait_until(lambda: gw.driver.frame_taps == (), TIMEOUT_S, "the tap removed")
 
 
 async def test_filters_by_node_and_kind_are_applied_by_the_gateway() -> None:
@@ -149,7 +149,7 @@ async def test_filters_by_node_and_kind_are_applied_by_the_gateway() -> None:
         emcy.close()
         wire.close()
         await wait_until(lambda: not gw.web.monitor.pages, TIMEOUT_S, "both pages closed")
-        assert gw.driver.frame_tap is None
+        assert gw.driver.frame_taps == ()
 
 
 async def test_a_flood_is_shown_at_most_the_limit_a_second_with_the_skipped_counted() -> None:
@@ -184,7 +184,7 @@ async def test_an_unknown_node_or_kind_is_a_400_in_words(query: str, message: st
     async with gateway() as (gw, _, addr):
         code, doc = await get_json(f"http://{addr}/api/monitor/stream{query}")
         assert code == 400 and doc == {"error": "bad_request", "message": message}
-        assert gw.driver.frame_tap is None
+        assert gw.driver.frame_taps == ()
 
 
 async def test_the_monitor_page_is_served_and_linked_from_the_overview() -> None:

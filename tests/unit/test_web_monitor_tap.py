@@ -21,15 +21,20 @@ DISPLAY = {"name": "display", "node_id": 125, "profile": "ap05"}
 
 
 class FakeDriver:
-    """What the monitor sees of ``BusDriver``: its ``frame_tap``, as the reader calls it."""
+    """What the monitor sees of ``BusDriver``: its taps, as the reader calls them."""
 
     def __init__(self) -> None:
-        self.frame_tap: Callable[[Any], None] | None = None
+        self.frame_taps: tuple[Callable[[Any], None], ...] = ()
+
+    def add_tap(self, tap: Callable[[Any], None]) -> None:
+        self.frame_taps = (*self.frame_taps, tap)
+
+    def remove_tap(self, tap: Callable[[Any], None]) -> None:
+        self.frame_taps = tuple(t for t in self.frame_taps if t != tap)
 
     def receive(self, cob_id: int, data: bytes = b"", ts: float = 1_700_000_000.0) -> None:
         msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False, timestamp=ts)
-        tap = self.frame_tap  # as BusDriver._run does
-        if tap is not None:
+        for tap in self.frame_taps:  # as BusDriver._run does
             tap(msg)
 
 
@@ -85,14 +90,14 @@ def lines(page: Any) -> list[dict[str, Any]]:
 
 def test_the_tap_is_installed_only_while_a_page_is_open(rig: Any) -> None:
     m, driver, loop, _ = rig
-    assert driver.frame_tap is None  # nobody watching: the reader checks one attribute
+    assert driver.frame_taps == ()  # nobody watching: the reader checks one attribute
     a = m.open()
-    assert driver.frame_tap == m.on_frame
+    assert driver.frame_taps == (m.on_frame,)
     b = m.open()
     m.close(a)
-    assert driver.frame_tap == m.on_frame  # one page still open
+    assert driver.frame_taps == (m.on_frame,)  # one page still open
     m.close(b)
-    assert driver.frame_tap is None
+    assert driver.frame_taps == ()
     driver.receive(0x181, tpdo1(5))
     assert m.tapped == 0 and loop.soon == []
 
