@@ -31,7 +31,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from gateway.bus.node.boot_steps import ConfigStep
-from gateway.bus.node.settings import external_keepalive_ms
+from gateway.bus.node.settings import external_heartbeat_problem
 from gateway.bus.resolved import ResolvedNode, nodes_of
 from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
@@ -268,33 +268,11 @@ def protocol_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None)
                 )
                 continue
             eh = n.external_heartbeat
-            if eh.source == "sync":
-                period = cfg.master.sync_period_ms
-                if not period:
-                    out.append(
-                        (
-                            f"{key}.external_heartbeat.source",
-                            "source sync needs master.sync_period_ms > 0",
-                        )
-                    )
-                elif period >= eh.interval_ms:
-                    out.append(
-                        (
-                            "master.sync_period_ms",
-                            f"SYNC every {period:g} ms cannot feed {n.name}'s external heartbeat "
-                            f"of {eh.interval_ms} ms; use a SYNC period below {eh.interval_ms} ms",
-                        )
-                    )
-            else:
-                keep = external_keepalive_ms(eh.interval_ms, eh.keepalive_ms)
-                if keep >= eh.interval_ms:
-                    out.append(
-                        (
-                            f"{key}.external_heartbeat.keepalive_ms",
-                            f"keep-alive every {keep} ms cannot feed an external heartbeat of "
-                            f"{eh.interval_ms} ms; must be below {eh.interval_ms} ms",
-                        )
-                    )
+            problem = external_heartbeat_problem(
+                key, n.name, eh.interval_ms, eh.source, eh.keepalive_ms, cfg.master.sync_period_ms
+            )
+            if problem is not None:
+                out.append(problem)
         sup = n.supervision or lp.profile.boot.supervision
         if sup == "guarding":
             gt = n.guard_time_ms if n.guard_time_ms is not None else lp.profile.boot.guard_time_ms

@@ -190,6 +190,23 @@ def test_external_heartbeat_slower_sync_is_rejected() -> None:
     assert any(x.startswith("cfg.yaml: master.sync_period_ms: SYNC every 200 ms") for x in p), p
 
 
+def test_external_heartbeat_the_gateway_cannot_feed_is_rejected_with_its_key() -> None:
+    # AP05 manual 5.5.4: no RPDO / SYNC within 5F09h:01 and the device drops to pre-operational
+    def display(**eh: object) -> dict:
+        return {"name": "display", "node_id": 125, "profile": "ap05", "external_heartbeat": eh}
+
+    p = problems(with_nodes(display(interval_ms=100, source="sync")))
+    assert "cfg.yaml: nodes[0].external_heartbeat.source: source sync needs master.sync_period_ms > 0" in p
+    p = problems(with_nodes(display(interval_ms=100, keepalive_ms=100)))
+    assert (
+        "cfg.yaml: nodes[0].external_heartbeat.keepalive_ms: keep-alive every 100 ms cannot feed "
+        "an external heartbeat of 100 ms; must be below 100 ms"
+    ) in p
+    parse_config(with_nodes(display(interval_ms=100, keepalive_ms=40)), "cfg.yaml", environ={})
+    synced = with_nodes(display(interval_ms=100, source="sync"), master={"sync_period_ms": 50})
+    parse_config(synced, "cfg.yaml", environ={})
+
+
 def test_cli_check_prints_problems_and_exits_2(tmp_path: Path) -> None:
     f = tmp_path / "bad.yaml"
     f.write_text(

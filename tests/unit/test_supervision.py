@@ -23,7 +23,6 @@ from gateway.bus.error_control.supervision import (
     ToggleError,
     WrongState,
 )
-from gateway.bus.node.settings import check_external_heartbeat
 from gateway.states import LinkState, NmtState
 
 PRE_OP = 0x7F  # SGH10 manual 4.5.3: 127 = PRE-OPERATIONAL
@@ -375,28 +374,3 @@ class TestGuardingBitCheck:
         assert gb.on_status(0, 1.0) == []
         assert gb.next_bit(1.0) == 1
 
-
-# --------------------------------------------------------------------------- external heartbeat
-
-
-class TestExternalHeartbeat:
-    def test_check_accepts_sound_configs(self) -> None:
-        assert check_external_heartbeat(0, "rpdo", None, None) is None  # off
-        assert check_external_heartbeat(100, "rpdo", None, 50) is None
-        assert check_external_heartbeat(100, "sync", 50, None) is None
-
-    def test_check_rejects_interval_below_device_minimum(self) -> None:
-        # AP05 manual 5F09h:01: 0 or 10 ... 65535 ms
-        problem = check_external_heartbeat(5, "rpdo", None, 2)
-        assert problem is not None and "10..65535" in problem
-
-    def test_check_rejects_missing_or_slow_keepalive(self) -> None:
-        assert "needs a keep-alive" in (check_external_heartbeat(100, "rpdo", None, None) or "")
-        assert "too slow" in (check_external_heartbeat(100, "rpdo", None, 60) or "")
-
-    def test_check_rejects_sync_source_without_sync(self) -> None:
-        problem = check_external_heartbeat(100, "sync", 0, None)
-        assert problem is not None and "produces no SYNC" in problem
-
-    def test_check_rejects_unknown_source(self) -> None:
-        assert "must be 'rpdo' or 'sync'" in (check_external_heartbeat(100, "can", None, 10) or "")

@@ -4,8 +4,9 @@ The one place that decides which value wins (the node's config entry, else the p
 defaults, else the master's): ``check``, the boot-step builder and the master all call
 ``resolve_node_settings`` and read the same ``NodeSettings``.
 
-Also the external-heartbeat rule (AP05 manual 5.5.4): how often the gateway must feed the
-device's watchdog, checked once here for ``check`` and for the running gateway.
+Also the external-heartbeat rule (AP05 manual 5.5.4): how often the gateway feeds the
+device's watchdog (``external_keepalive_ms``, for the running gateway) and whether that is
+often enough (``external_heartbeat_problem``, for ``check``).
 
 Imports: objref. Nothing northbound, no I/O.
 """
@@ -54,64 +55,40 @@ class NodeSettings:
         return self.guard_time_ms * self.life_time_factor
 
 
-#: AP05 manual 5.7.2.31, 5F09h:02: 0 = timer triggered by an RPDO (set point), 1 = by a SYNC.
-EXTERNAL_HEARTBEAT_SOURCE_CODES: dict[str, int] = {"rpdo": 0, "sync": 1}
-#: AP05 manual 5.7.2.31, 5F09h:01: 0 (off) or 10 ... 65535 ms.
-EXTERNAL_HEARTBEAT_MIN_MS = 10
-EXTERNAL_HEARTBEAT_MAX_MS = 65535
-
-
-def check_external_heartbeat(
+def external_heartbeat_problem(
+    key: str,
+    name: str,
     interval_ms: int,
     source: str,
-    sync_period_ms: float | None,
-    keepalive_ms: float | None,
-    *,
-    margin: float = 0.5,
-) -> str | None:
-    """A problem text for a config that would let the device's watchdog expire, else None.
+    keepalive_ms: int | None,
+    sync_period_ms: float,
+) -> tuple[str, str] | None:
+    """(config key path, why) when the gateway could not feed the device's watchdog, else None.
 
     AP05 manual 5.5.4 / 5.7.2.31: with 5F09h:01 = interval > 0 the device drops to
-    PRE-OPERATIONAL when no RPDO (5F09h:02 = 0) or no SYNC (= 1) arrives within the interval.
-    The gateway must feed it at least every ``interval * (1 - margin)`` (half the interval by
-    default) so one late or lost frame does not trip it.
+    PRE-OPERATIONAL when no RPDO (5F09h:02 = 0) or no SYNC (= 1) arrives within the interval, so
+    the gateway's keep-alive RPDO (``external_keepalive_ms``) or its SYNC must come more often.
+    ``key`` is the node's key path (``nodes[i]``), ``name`` its name. The interval's own range (0 or 10..65535 ms)
+    is the profile's, checked with the other boot writes.
     """
-    if interval_ms == 0:
-        return None
-    if not EXTERNAL_HEARTBEAT_MIN_MS <= interval_ms <= EXTERNAL_HEARTBEAT_MAX_MS:
-        return (
-            f"external heartbeat interval {interval_ms} ms is not allowed: 0 (off) or "
-            f"{EXTERNAL_HEARTBEAT_MIN_MS}..{EXTERNAL_HEARTBEAT_MAX_MS} ms (AP05 manual 5F09h:01)"
-        )
-    if not 0.0 <= margin < 1.0:
-        return f"external heartbeat margin {margin} must be in 0 <= margin < 1"
-    limit_ms = interval_ms * (1.0 - margin)
-    if source == "rpdo":
-        if not keepalive_ms:
-            return (
-                f"external heartbeat source rpdo needs a keep-alive: the device expects an RPDO "
-                f"within {interval_ms} ms, set keepalive_ms <= {limit_ms:g}"
-            )
-        if keepalive_ms > limit_ms:
-            return (
-                f"external heartbeat keep-alive {keepalive_ms:g} ms is too slow for the "
-                f"{interval_ms} ms interval: send at least every {limit_ms:g} ms"
-            )
-        return None
     if source == "sync":
         if not sync_period_ms:
+            return f"{key}.external_heartbeat.source", "source sync needs master.sync_period_ms > 0"
+        if sync_period_ms >= interval_ms:
             return (
-                f"external heartbeat source sync but the gateway produces no SYNC "
-                f"(master.sync_period_ms is 0): the device drops to PRE-OPERATIONAL after "
-                f"{interval_ms} ms"
-            )
-        if sync_period_ms > limit_ms:
-            return (
-                f"SYNC period {sync_period_ms:g} ms is too slow for the external heartbeat "
-                f"interval {interval_ms} ms: SYNC at least every {limit_ms:g} ms"
+                "master.sync_period_ms",
+                f"SYNC every {sync_period_ms:g} ms cannot feed {name}'s external heartbeat "
+                f"of {interval_ms} ms; use a SYNC period below {interval_ms} ms",
             )
         return None
-    return f"external heartbeat source {source!r} must be 'rpdo' or 'sync'"
+    keep = external_keepalive_ms(interval_ms, keepalive_ms)
+    if keep >= interval_ms:
+        return (
+            f"{key}.external_heartbeat.keepalive_ms",
+            f"keep-alive every {keep} ms cannot feed an external heartbeat of "
+            f"{interval_ms} ms; must be below {interval_ms} ms",
+        )
+    return None
 
 
 def resolve_node_settings(master: Any, node: Any, profile: Any) -> NodeSettings:
@@ -163,5 +140,5 @@ def resolve_node_settings(master: Any, node: Any, profile: Any) -> NodeSettings:
 
 def external_keepalive_ms(interval_ms: int, keepalive_ms: int | None) -> int:
     """The RPDO keep-alive period for an external heartbeat: the configured one, else half the
-    interval (the rule of ``check_external_heartbeat``)."""
+    interval (``external_heartbeat_problem`` checks that it is below the interval)."""
     return keepalive_ms or max(1, interval_ms // 2)
