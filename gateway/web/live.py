@@ -45,6 +45,65 @@ MAX_CLIENTS = 64
 RETRY_MS = 2000
 
 
+class Handoff:
+    """The console's hand-off to the event loop, coalesced (Rule 1; the bus monitor's too).
+
+    The producer adds to its pending batch under ``lock``, calls ``arm()`` there, and when that
+    says so calls ``wake()`` after the lock: one ``call_soon_threadsafe`` for a whole flow. On
+    the loop, ``take`` (under the lock) empties the batch and returns it; ``deliver`` gets it
+    (without the lock); the hand-off stays armed ``period_s`` and takes again, and disarms when
+    a period brought nothing."""
+
+    def __init__(
+        self,
+        take: Callable[[], Any],
+        deliver: Callable[[Any], None],
+        period_s: float = HANDOFF_PERIOD_S,
+    ):
+        self.lock = threading.Lock()
+        self._take_batch = take
+        self._deliver = deliver
+        self.period_s = period_s
+        self.armed = False  # under the lock
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.handoffs = 0  # call_soon_threadsafe calls made by the producer
+        self.batches = 0  # batches taken on the loop
+
+    def arm(self) -> bool:
+        """Under ``lock``, after adding to the batch: True when the caller must ``wake()``."""
+        if self.armed:
+            return False
+        self.armed = True
+        return True
+
+    def wake(self) -> None:
+        """After ``arm()`` said so, outside the lock: have the loop take the batch."""
+        loop = self.loop
+        if loop is None:
+            return
+        self.handoffs += 1
+        try:
+            loop.call_soon_threadsafe(self.take)
+        except RuntimeError:  # the loop is closed: the gateway is stopping
+            pass
+
+    def take(self) -> None:
+        """On the loop: take the pending batch, deliver it, stay armed one period."""
+        with self.lock:
+            batch = self._take_batch()
+            if not batch:
+                self.armed = False
+                return
+        self.batches += 1
+        self._deliver(batch)
+        loop = self.loop
+        if loop is not None:
+            loop.call_later(self.period_s, self.take)
+        else:
+            with self.lock:
+                self.armed = False
+
+
 class Subscriber:
     """One browser's stream: which node it watches (None: the overview and nodes table) and
     what changed since its last update."""
@@ -84,16 +143,17 @@ class LiveHub:
         self.max_clients = max_clients
         self.subscribers: set[Subscriber] = set()
         self._watched: frozenset[str] = frozenset()  # read by the reader thread
-        self._lock = threading.Lock()
-        self._pending: dict[str, set[str]] = {}
-        self._armed = False
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self.handoffs = 0  # call_soon_threadsafe calls made by the reader thread
-        self.batches = 0  # batches taken on the loop
+        self._pending: dict[str, set[str]] = {}  # under the hand-off's lock
+        self.handoff = Handoff(self._swap, self._deliver)
+
+    @property
+    def handoffs(self) -> int:
+        """``call_soon_threadsafe`` calls made by the reader thread."""
+        return self.handoff.handoffs
 
     # ------------------------------------------------------------------ lifecycle
     def attach(self, loop: asyncio.AbstractEventLoop) -> None:
-        self._loop = loop
+        self.handoff.loop = loop
         self.image.value_listeners.append(self._on_values)
         self.image.health_listeners.append(self._on_health)
 
@@ -103,7 +163,7 @@ class LiveHub:
         if self._on_health in self.image.health_listeners:
             self.image.health_listeners.remove(self._on_health)
         self._watched = frozenset()
-        self._loop = None
+        self.handoff.loop = None
 
     def subscribe(self, node: str | None) -> Subscriber:
         if len(self.subscribers) >= self.max_clients:
@@ -126,42 +186,29 @@ class LiveHub:
         """Value listener: CAN reader thread (or the loop for SDO-read values)."""
         if node.name not in self._watched:
             return
-        with self._lock:
+        h = self.handoff
+        with h.lock:
             pending = self._pending.get(node.name)
             if pending is None:
                 self._pending[node.name] = set(names)
             else:
                 pending.update(names)
-            if self._armed:
+            if not h.arm():
                 return
-            self._armed = True
-        loop = self._loop
-        if loop is None:
-            return
-        self.handoffs += 1
-        try:
-            loop.call_soon_threadsafe(self._take)
-        except RuntimeError:  # the loop is closed: the gateway is stopping
-            pass
+        h.wake()
 
-    def _take(self) -> None:
-        """On the loop: take the pending batch; stay armed one period while values flow."""
-        with self._lock:
-            batch, self._pending = self._pending, {}
-            if not batch:
-                self._armed = False
-                return
-        self.batches += 1
+    def _swap(self) -> dict[str, set[str]]:
+        """Under the hand-off's lock, on the loop: the pending batch, emptied."""
+        batch, self._pending = self._pending, {}
+        return batch
+
+    def _deliver(self, batch: dict[str, set[str]]) -> None:
+        """On the loop: mark the batch's signals dirty for the pages that watch their node."""
         for sub in self.subscribers:
             names = batch.get(sub.node) if sub.node is not None else None
             if names:
                 sub.dirty_values |= names
                 sub.wake.set()
-        if self._loop is not None:
-            self._loop.call_later(HANDOFF_PERIOD_S, self._take)
-        else:
-            with self._lock:
-                self._armed = False
 
     def _on_health(self, node: NodeImage, what: str) -> None:
         """Health listener: on the event loop."""

@@ -6,7 +6,7 @@ as a tap of the driver (``add_tap``) only while a monitor page is open; otherwis
 attribute check per frame. While installed, it appends the raw ``(timestamp, COB-ID, data,
 RTR, 29-bit)`` tuple to a bounded deque (``HANDOFF_MAX`` frames; older frames are counted as
 lost if the loop falls that far behind) and calls ``loop.call_soon_threadsafe`` only when no
-hand-off is armed, as ``gateway.web.live`` does: the loop takes the whole batch and stays armed
+hand-off is armed, through ``gateway.web.live``'s ``Handoff``: the loop takes the whole batch and stays armed
 for ``HANDOFF_PERIOD_S`` while frames flow, so a saturated bus costs at most
 ``1 / HANDOFF_PERIOD_S`` wake-ups a second. Nothing is decoded or formatted on the reader thread.
 
@@ -33,14 +33,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import threading
 from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any, Protocol
 
 from gateway.config import Config
 from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
-from gateway.web.live import MAX_BUFFERED_BYTES, RETRY_MS, SLOW_CLIENT_LIMIT_S, sse
+from gateway.web.live import MAX_BUFFERED_BYTES, RETRY_MS, SLOW_CLIENT_LIMIT_S, Handoff, sse
 
 log = logging.getLogger("gateway.web")
 
@@ -126,24 +125,31 @@ class FrameMonitor:
         self.tapping = False  # on_frame is a tap of the source (while a page is open)
         self._decoder: FrameDecoder | None = None
         self._class: dict[int, tuple[str, int | None, str | None]] = {}  # COB-ID -> kind, id, name
-        self._lock = threading.Lock()
+        self.handoff = Handoff(self._swap, self._deliver, HANDOFF_PERIOD_S)
+        self._lock = self.handoff.lock
         self._ring: deque[RawFrame] = deque(maxlen=HANDOFF_MAX)
-        self._armed = False
-        self._loop: asyncio.AbstractEventLoop | None = None
         self.tapped = 0  # frames the reader appended (under the lock)
         self.taken = 0  # frames the loop took
-        self.handoffs = 0  # call_soon_threadsafe calls made by the reader thread
-        self.batches = 0  # batches taken on the loop
         self.decoded = 0  # frames decoded (on the loop)
 
     # ------------------------------------------------------------------ lifecycle
+    @property
+    def handoffs(self) -> int:
+        """``call_soon_threadsafe`` calls made by the reader thread."""
+        return self.handoff.handoffs
+
+    @property
+    def batches(self) -> int:
+        """Batches taken on the loop."""
+        return self.handoff.batches
+
     def attach(self, loop: asyncio.AbstractEventLoop) -> None:
-        self._loop = loop
+        self.handoff.loop = loop
 
     def detach(self) -> None:
         for page in list(self.pages):
             self.close(page)
-        self._loop = None
+        self.handoff.loop = None
 
     def decoder(self) -> FrameDecoder:
         if self._decoder is None:
@@ -205,44 +211,30 @@ class FrameMonitor:
         """The tap: CAN reader thread, one frame (a ``can.Message``). Never decodes."""
         raw = (msg.timestamp, msg.arbitration_id, bytes(msg.data), msg.is_remote_frame,
                msg.is_extended_id)  # fmt: skip
-        with self._lock:
+        h = self.handoff
+        with h.lock:
             self._ring.append(raw)
             self.tapped += 1
-            if self._armed:
+            if not h.arm():
                 return
-            self._armed = True
-        loop = self._loop
-        if loop is None:
-            return
-        self.handoffs += 1
-        try:
-            loop.call_soon_threadsafe(self._take)
-        except RuntimeError:  # the loop is closed: the gateway is stopping
-            pass
+        h.wake()
 
-    def _take(self) -> None:
-        """On the loop: take the batch, show it; stay armed one period while frames flow."""
-        with self._lock:
-            batch = list(self._ring)
-            self._ring.clear()
-            self.taken += len(batch)
-            if not batch:
-                self._armed = False
-                return
-        self.batches += 1
+    def _swap(self) -> list[RawFrame]:
+        """Under the hand-off's lock, on the loop: the frames appended since the last take."""
+        batch = list(self._ring)
+        self._ring.clear()
+        self.taken += len(batch)
+        return batch
+
+    def _deliver(self, batch: list[RawFrame]) -> None:
+        """On the loop: show the batch on the open pages."""
         if self.pages:
             self.show(batch)
-        loop = self._loop
-        if loop is not None:
-            loop.call_later(HANDOFF_PERIOD_S, self._take)
-        else:
-            with self._lock:
-                self._armed = False
 
     def _now(self) -> float:
         if self._clock is not None:
             return self._clock()
-        loop = self._loop
+        loop = self.handoff.loop
         return loop.time() if loop is not None else 0.0
 
     def classify(self, cob_id: int, data: bytes, rtr: bool, ext: bool) -> tuple[str, int | None, str | None]:
