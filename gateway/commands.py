@@ -507,16 +507,19 @@ class CommandService:
         "report": [lines as printed by the scan command]}``."""
         self.master.require_bus()
         ids = {p.node_id: name for name, p in self.master.nodes.items()}
-        found, identities = await asyncio.gather(
-            asyncio.to_thread(
-                scan_beside,
-                self.master.driver,
-                configured=set(ids),
-                listen_s=listen_s,
-                sdo_timeout_s=sdo_timeout_s,
-            ),
-            asyncio.gather(*(self._identify(name, node_id) for node_id, name in ids.items())),
-        )
+        try:
+            found, identities = await asyncio.gather(
+                asyncio.to_thread(
+                    scan_beside,
+                    self.master.driver,
+                    configured=set(ids),
+                    listen_s=listen_s,
+                    sdo_timeout_s=sdo_timeout_s,
+                ),
+                asyncio.gather(*(self._identify(name, node_id) for node_id, name in ids.items())),
+            )
+        except can.CanError as exc:  # the bus went down under the scan
+            raise BusDown(str(exc)) from None
         for f in identities:
             if f is None:
                 continue

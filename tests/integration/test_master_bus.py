@@ -40,6 +40,8 @@ async def test_bus_shut_under_the_driver_is_reopened_and_decoding_resumes() -> N
             gw.commands.nmt("wire", "start")
         with pytest.raises(BusDown):
             await gw.commands.sdo_read("wire", "0x1000:00")
+        with pytest.raises(BusDown):
+            await gw.commands.scan_bus()
         await wait_until(lambda: gw.driver.state == "ok", 3, "bus reopened")
         assert gw.driver.reopens == 1
         assert gw.image.counters["bus_errors"] >= 1
