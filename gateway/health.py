@@ -81,6 +81,15 @@ class Response:
     headers: Mapping[str, str] = field(default_factory=dict)
 
 
+def _error(path: str, status: HTTPStatus, kind: str, message: str) -> Response:
+    """An error the server answers itself: under ``/api/`` a JSON document with ``error`` and
+    ``message``, as the API's own errors; elsewhere one line of text."""
+    if path.startswith("/api/"):
+        body = json.dumps({"error": kind, "message": message}).encode() + b"\n"
+        return Response(status, body, JSON_TYPE)
+    return Response(status, message.encode() + b"\n", TEXT_TYPE)
+
+
 StreamBody = Callable[[asyncio.StreamReader, asyncio.StreamWriter], Awaitable[None]]
 
 
@@ -276,26 +285,29 @@ class HealthServer:
             if sep:
                 headers[name.strip().lower()] = value.strip()
         if "transfer-encoding" in headers:
-            return await self._respond(
-                writer, HTTPStatus.LENGTH_REQUIRED, b"send a Content-Length body\n", TEXT_TYPE
+            return await self._refuse(
+                writer, path, HTTPStatus.LENGTH_REQUIRED, "length_required", "send a Content-Length body"
             )
         length_text = headers.get("content-length", "0")
         if not length_text.isdigit():
-            return await self._respond(
-                writer, HTTPStatus.BAD_REQUEST, b"bad Content-Length\n", TEXT_TYPE
+            return await self._refuse(
+                writer, path, HTTPStatus.BAD_REQUEST, "bad_request", "bad Content-Length"
             )
         length = int(length_text)
         if length > MAX_REQUEST_BODY_BYTES:
-            return await self._respond(
+            return await self._refuse(
                 writer,
+                path,
                 HTTPStatus.REQUEST_ENTITY_TOO_LARGE,
-                f"body larger than {MAX_REQUEST_BODY_BYTES} bytes\n".encode(),
-                TEXT_TYPE,
+                "too_large",
+                f"body larger than {MAX_REQUEST_BODY_BYTES} bytes",
             )
         try:
             body = await asyncio.wait_for(reader.readexactly(length), self._read_timeout_s)
         except TimeoutError:
-            return await self._respond(writer, HTTPStatus.REQUEST_TIMEOUT, b"", TEXT_TYPE)
+            return await self._refuse(
+                writer, path, HTTPStatus.REQUEST_TIMEOUT, "timeout", "the body did not arrive in time"
+            )
         request = Request(
             method=method,
             path=urllib.parse.unquote(path),
@@ -308,9 +320,9 @@ class HealthServer:
             answer = await self._app(request)
         except Exception:
             log.exception("web request %s %s failed", method, path)
-            answer = Response(HTTPStatus.INTERNAL_SERVER_ERROR, b"internal error (see the log)\n")
+            answer = _error(path, HTTPStatus.INTERNAL_SERVER_ERROR, "internal", "internal error (see the log)")
         if answer is None:
-            answer = Response(HTTPStatus.NOT_FOUND, b"not found\n")
+            answer = _error(path, HTTPStatus.NOT_FOUND, "not_found", "not found")
         if isinstance(answer, Stream):
             head = (
                 "HTTP/1.1 200 OK\r\n"
@@ -343,6 +355,12 @@ class HealthServer:
             return HTTPStatus.INTERNAL_SERVER_ERROR, _json(doc)
         code = HTTPStatus.OK if status.get("status") == READY else HTTPStatus.SERVICE_UNAVAILABLE
         return code, _json(status)
+
+    async def _refuse(
+        self, writer: asyncio.StreamWriter, path: str, status: HTTPStatus, kind: str, message: str
+    ) -> None:
+        answer = _error(path, status, kind, message)
+        await self._respond(writer, answer.status, answer.body, answer.content_type)
 
     @staticmethod
     async def _respond(

@@ -142,10 +142,11 @@ async def test_commissioning_is_absent_when_writes_are_off() -> None:
     async with console(writes=False) as (_, base):
         assert (await http(base + "/commissioning"))[0] == 404
         for op, token in (("sdo-read", TOKEN), ("login", "anything"), ("nmt", None)):
-            code, _, _ = await http(
+            code, _, body = await http(
                 f"{base}/api/commission/{op}", {"node": "wire"}, token=token, method="POST"
             )
             assert code == 404
+            assert json.loads(body) == {"error": "not_found", "message": "not found"}
 
 
 async def test_commissioning_refuses_without_the_token_401_and_with_a_wrong_one_403() -> None:
@@ -210,10 +211,11 @@ async def test_bad_input_gets_400_with_a_message_and_nothing_crashes() -> None:
         assert code == 404 and "wire" in doc["message"]  # names the configured nodes
         code, doc = await post(base, "frobnicate", {})
         assert code == 404 and "sdo-read" in doc["message"]
-        code, _, _ = await http(
+        code, _, body = await http(
             f"{base}/api/commission/sdo-read", raw=b"x" * 70_000, token=TOKEN, method="POST"
         )
-        assert code == 413
+        assert code == 413  # the server's own refusals under /api/ are JSON too
+        assert json.loads(body) == {"error": "too_large", "message": "body larger than 65536 bytes"}
         assert (await http(base + "/livez"))[0] == 200
         code, doc = await post(base, "sdo-read", {"node": "wire", "object": "0x1000:00"})
         assert code == 200  # still serving
