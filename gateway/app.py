@@ -26,6 +26,7 @@ from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
 from gateway.northbound.regmap import build_register_map
 from gateway.northbound.summary import summarize
+from gateway.profiles.derived import text_rows_as_signals
 from gateway.startup import startup_step
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
@@ -119,7 +120,8 @@ class Gateway:
         for name in self.commands.names():
             rt = self.commands.node(name)
             sigs = {}
-            for s in rt.lp.profile.signals:
+            profile = rt.lp.profile
+            for s in [*profile.signals, *text_rows_as_signals(profile)]:  # with the AP05 text rows
                 sigs[s.name] = {
                     "object": str(s.object),
                     "type": s.type,
@@ -150,7 +152,9 @@ class Gateway:
             if self.modbus.tls_server is not None:
                 parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
-            parts.append(f"Zenoh {self.cfg.zenoh.mode} {','.join(self.cfg.zenoh.listen + self.cfg.zenoh.connect)} prefix {self.zenoh.prefix}")
+            z = self.cfg.zenoh
+            endpoints = z.connect if z.mode == "client" else z.listen + z.connect  # a client listens nowhere
+            parts.append(f"Zenoh {z.mode} {','.join(endpoints)} prefix {self.zenoh.prefix}")
         if self.ascii is not None:
             parts.append(f"CiA 309-3 ASCII {self.ascii.section.host}:{self.ascii.port}")
         if self.health is not None and self.health.port:
@@ -279,7 +283,8 @@ class Gateway:
                 self.sim.start()
         with startup_step("can.interface", cfg.can.interface):
             await asyncio.to_thread(self.driver.open)
-        await self.master.start()
+        # every listener before the master sends its first frame: a start that fails on a port
+        # in use must leave the devices as they were (no NMT command, no SDO, no heartbeat)
         if self.modbus is not None:
             with startup_step("modbus.port", f"{cfg.modbus.port} on {cfg.modbus.host}"):
                 await self.modbus.start()
@@ -294,6 +299,7 @@ class Gateway:
         if cfg.health.port:
             with startup_step("health.port", f"{cfg.health.port} on {cfg.health.host}"):
                 await self._start_health()
+        await self.master.start()
         self.started = True
 
     async def _start_health(self) -> None:

@@ -34,7 +34,7 @@ from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.settings import external_heartbeat_problem
 from gateway.bus.resolved import ResolvedNode, nodes_of
 from gateway.cia301 import TYPE_BITS, TYPE_NAMES
-from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
+from gateway.config import Config, ConfigError, NodeConfig, blame, load_config, parse_config
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import eds_pdos, od_var, readable
 from gateway.northbound.regmap import RegisterMapError, build_register_map
@@ -312,7 +312,7 @@ def check_config(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> C
     """Raise ConfigError (one line per problem: file, key path, what is allowed)."""
     problems = config_problems(cfg, nodes)
     if problems:
-        raise ConfigError([f"{cfg.source}: {k}: {m}" for k, m in problems])
+        raise ConfigError([f"{blame(k, cfg.source, cfg.env_keys)}: {k}: {m}" for k, m in problems])
     return cfg
 
 

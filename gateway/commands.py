@@ -57,6 +57,15 @@ from gateway.profiles.schema import TYPE_BITS, Signal
 
 log = logging.getLogger("gateway.commands")
 
+#: the types an SDO value may be read or written as (``type_`` of ``sdo_read`` / ``sdo_write``)
+SDO_TYPES = (*TYPE_BITS, "string", "bytes")
+
+
+def check_sdo_type(type_: str | None) -> None:
+    """A ``type_`` no SDO value can have is a client's error, refused before anything is sent."""
+    if type_ is not None and type_ not in SDO_TYPES:
+        raise ValueError(f"type {type_!r} is not one of {', '.join(SDO_TYPES)}")
+
 
 def type_range(type_: str) -> tuple[int, int] | None:
     bits = TYPE_BITS.get(type_)
@@ -451,6 +460,7 @@ class CommandService:
     async def sdo_read(self, node: str, obj: str | ObjRef, type_: str | None = None) -> Any:
         """Upload any object; the value decoded by ``type_`` or the dictionary's type (bytes
         when unknown)."""
+        check_sdo_type(type_)
         p = self._part(node)
         o = ObjRef.parse(obj)
         data = await self.master.sdo(node, o, None)
@@ -460,6 +470,7 @@ class CommandService:
     async def sdo_write(
         self, node: str, obj: str | ObjRef, value: Any, type_: str | None = None
     ) -> None:
+        check_sdo_type(type_)
         p = self._part(node)
         o = ObjRef.parse(obj)
         if isinstance(value, (bytes, bytearray)):

@@ -403,6 +403,7 @@ class Master:
 
     # ------------------------------------------------------------------ start / stop
     async def start(self) -> None:
+        """Start the master: its heartbeat and SYNC producers, and every node's boot-up."""
         self.loop = asyncio.get_running_loop()
         t0 = self.loop.time()
         if self.cfg.master.heartbeat_ms:
@@ -460,6 +461,8 @@ class Master:
         return self.nodes[name]
 
     def require_bus(self) -> None:
+        if self.loop is None:  # the listeners start before the master sends its first frame
+            raise BusDown("the gateway is starting")
         if self.driver.state == "down":
             raise BusDown(self.driver.last_error or "CAN bus is down")
 

@@ -8,6 +8,7 @@ Imports: gateway.checks, gateway.config, gateway.bus.can_backend (inside the bus
 from __future__ import annotations
 
 import os
+from typing import Any
 
 from gateway.checks import load_checked_config
 from gateway.config import Config, ConfigError
@@ -22,18 +23,40 @@ def load(path: str) -> Config:
 
 def load_for_bus(path: str) -> Config:
     """The config of a command that opens the CAN bus: also refuses an interface python-can
-    cannot load (unknown name, plug-in not installed), in one line, before anything starts."""
+    cannot load (unknown name, plug-in not installed), in one line, before anything starts.
+    Every problem in one run: the ``can:`` keys are checked also when the file has problems
+    elsewhere (read from the file as written then)."""
     from gateway.bus.can_backend import can_section_problems, driver_problem, interface_problem
-    from gateway.config import CAN_INTERFACE_MISSING, blame, env_keys
+    from gateway.config import CAN_INTERFACE_MISSING, blame, env_keys, raw_section
 
-    cfg = load(path)
+    problems: list[str] = []
+    cfg: Config | None = None
+    try:
+        cfg = load(path)
+    except ConfigError as exc:
+        problems += exc.problems
     from_env = env_keys(os.environ)
-    if "interface" not in cfg.can.model_fields_set:  # written in the file or the environment
-        raise ConfigError([f"{cfg.source}: can.interface: {CAN_INTERFACE_MISSING}"])
-    problem = interface_problem(cfg.can.interface) or driver_problem(cfg.can.interface)
-    if problem is not None:
-        raise ConfigError([f"{blame('can.interface', cfg.source, from_env)}: can.interface: {problem}"])
-    problems = can_section_problems(cfg.can.model_dump(exclude_none=True))
+    source = cfg.source if cfg is not None else str(path)
+    if cfg is not None:
+        section: dict[str, Any] | None = cfg.can.model_dump(exclude_none=True)
+        named = "interface" in cfg.can.model_fields_set  # written in the file or the environment
+    else:
+        section = raw_section(path, "can")
+        named = section is not None and isinstance(section.get("interface"), str)
+    if section is not None:
+        if not named:
+            problems.append(f"{source}: can.interface: {CAN_INTERFACE_MISSING}")
+        else:
+            problem = interface_problem(section["interface"]) or driver_problem(section["interface"])
+            if problem is not None:
+                where = blame("can.interface", source, from_env)
+                problems.append(f"{where}: can.interface: {problem}")
+            else:
+                problems += [
+                    f"{blame(k, source, from_env)}: {k}: {why}"
+                    for k, why in can_section_problems(section)
+                ]
     if problems:
-        raise ConfigError([f"{blame(k, cfg.source, from_env)}: {k}: {why}" for k, why in problems])
+        raise ConfigError(problems)
+    assert cfg is not None
     return cfg

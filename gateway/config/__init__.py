@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from gateway.config.env import ENV_PREFIX, ENV_TEXT_KEYS, apply_env_overrides, blame, env_keys
 from gateway.config.errors import ConfigError, nearest_key
-from gateway.config.load import load_config, parse_config
+from gateway.config.load import load_config, parse_config, raw_section
 from gateway.config.model import (
     CAN_INTERFACE_MISSING,
     WEB_TOKEN_MIN_LENGTH,
@@ -87,6 +87,7 @@ __all__ = [
     "blame",
     "env_keys",
     "load_config",
+    "raw_section",
     "nearest_key",
     "parse_config",
 ]

@@ -106,8 +106,9 @@ def parse_config(
     base_dir = Path(source).parent if source != "<memory>" else Path.cwd()
     errors: list[tuple[str, str]] = []
     cfg: Config | None = None
+    from_env = env_keys(environ or {})
     try:
-        cfg = Config.model_validate({**raw, "source": source})
+        cfg = Config.model_validate({**raw, "source": source, "env_keys": from_env})
     except ValidationError as exc:
         for e in exc.errors():
             what = describe(e)
@@ -118,7 +119,6 @@ def parse_config(
     errors += _semantic_problems(raw, base_dir)
     if cfg is not None:
         errors += _node_problems(cfg, base_dir)
-    from_env = env_keys(environ or {})
     seen: set[tuple[str, str]] = set()
     for loc, msg in errors:
         if (loc, msg) in seen:
@@ -176,6 +176,23 @@ def _node_problems(cfg: Config, base_dir: Path) -> list[tuple[str, str]]:
                 )
             )
     return out
+
+
+def raw_section(
+    path: str | os.PathLike[str], name: str, environ: Mapping[str, str] | None = None
+) -> dict[str, Any] | None:
+    """Section ``name`` of a config file as written (environment overrides applied), without
+    validation; None when the file or the section cannot be read as a mapping. For checks that
+    still have something to say about a file that failed validation elsewhere."""
+    try:
+        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None
+    if not isinstance(raw, dict):
+        return None
+    apply_env_overrides(raw, os.environ if environ is None else environ)
+    section = raw.get(name)
+    return section if isinstance(section, dict) else None
 
 
 def load_config(path: str | os.PathLike[str], environ: Mapping[str, str] | None = None) -> Config:

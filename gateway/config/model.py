@@ -476,6 +476,9 @@ class Config(_Model):
 
     #: where the file was loaded from (for resolving relative profile paths and messages)
     source: str = Field(default="<memory>", exclude=True)
+    #: key path -> the environment variable that set it (``config.env.env_keys``): a problem
+    #: found after loading is blamed on the variable, as one found while loading is
+    env_keys: dict[str, str] = Field(default_factory=dict, exclude=True)
 
     def node(self, name: str) -> NodeConfig:
         for n in self.nodes:

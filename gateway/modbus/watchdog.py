@@ -21,10 +21,10 @@ States::
     ARMED     request        -                                 ARMED               (deadline moves)
     TRIPPED   request        -                                 ARMED
     ARMED     tick           now >= last request + timeout     TRIPPED   "timeout"
-    WAITING   last client    watchdog_on_disconnect            TRIPPED   "disconnect"
     ARMED     last client    watchdog_on_disconnect            TRIPPED   "disconnect"
 
-Any other (state, event) pair changes nothing. Requests count whatever their unit, function or
+Any other (state, event) pair changes nothing: a client that connects and goes without a request
+(a port check, a tool looking around) while WAITING writes nothing, as no PLC talked yet. Requests count whatever their unit, function or
 outcome: a PLC that polls is alive (the server feeds a request when it arrives and again when
 it is answered, so a write waiting for its device is no silence).
 
@@ -76,7 +76,7 @@ class OutputWatchdog:
         if (
             self.clients == 0
             and self.trip_on_disconnect
-            and self.state in (WatchdogState.WAITING, WatchdogState.ARMED)
+            and self.state is WatchdogState.ARMED
         ):
             return self._trip(DISCONNECT)
         return None

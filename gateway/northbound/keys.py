@@ -31,6 +31,7 @@ from typing import Literal
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.config import Config
 from gateway.objref import ObjRef
+from gateway.profiles.derived import text_signals
 from gateway.profiles.schema import Signal
 
 #: the liveliness token of the gateway itself, ``<prefix>/alive/_gateway``
@@ -231,6 +232,8 @@ def all_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[
             if is_writable(s):
                 via = "RPDO" if s.transport == "pdo" else f"SDO {s.object}"
                 add(set_key(p, name, s.name), "query", f"write {s.type} ({via})")
+        for t in text_signals(lp.profile):  # AP05 alpha-numeric rows (profiles/derived.py)
+            add(set_key(p, name, t.name), "query", f"write string of up to {t.length} characters (RPDO, text of row {t.row})")
         add(f"{p}/{name}/value/<sdo signal>", "query", "SDO read of a configuration signal")
         add(set_key(p, name), "query", 'write several signals: {"signal": value, ...}')
         add(f"{p}/{name}/sdo/<index>/<sub>", "query", "SDO upload (get) / download (payload)")

@@ -72,3 +72,8 @@ def text_signals(profile: Profile) -> list[TextSignal]:
             )
         )
     return out
+
+
+def text_rows_as_signals(profile: Profile) -> list[Signal]:
+    """The text rows as signals (string, rw, RPDO), for listings: the catalogue, the keys."""
+    return [t.as_signal(profile.signal(t.head)) for t in text_signals(profile)]

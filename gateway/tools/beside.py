@@ -148,11 +148,13 @@ def refusal(cfg: Config, command: str) -> str | None:
         return None
     url = f"http://{h.host}:{h.port}"
     page = f"{url}/monitor" if command == "monitor" else f"{url}/commissioning with web.writes"
+    # sdo and nmt go through the gateway's Zenoh API when it has one; scan and monitor never do
+    via_zenoh = " enable zenoh (this command then goes through it)," if command.split()[0] in ("sdo", "nmt") else ""
     return (
         f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway running "
         f"at {url}, so `{command}` would act on a private copy of the devices; use its web "
-        f"console ({page}), enable zenoh (this command then goes "
-        "through it), or give both a bus they share (can.interface: remote, docs/canopen.md)"
+        f"console ({page}),{via_zenoh} or give both a bus they share (can.interface: remote, "
+        "docs/canopen.md)"
     )
 
 

@@ -26,7 +26,7 @@ from http import HTTPStatus
 from typing import Any
 
 from gateway.cia301 import NMT_COMMANDS
-from gateway.commands import CommandService
+from gateway.commands import SDO_TYPES, CommandService
 from gateway.config import Config
 from gateway.errors import (
     BusDown,
@@ -40,11 +40,9 @@ from gateway.errors import (
 )
 from gateway.northbound.scaling import Scaling, to_raw
 from gateway.objref import ObjRef
-from gateway.profiles.schema import TYPE_BITS
 
 log = logging.getLogger("gateway.web")
 
-SDO_TYPES = (*TYPE_BITS, "string", "bytes")
 
 #: typed errors of the command service -> HTTP status
 STATUS_OF: dict[type[GatewayError], HTTPStatus] = {

@@ -13,8 +13,8 @@ The publishing side (``bridge.py``) owns the session and the publishers; this si
 session through a function and knows the published value keys and their scaling as given at
 construction.
 
-Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, northbound.keys,
-northbound.scaling, payloads, access. Nothing of bus/ or modbus/.
+Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, profiles.derived,
+northbound.keys, northbound.scaling, payloads, access. Nothing of bus/ or modbus/.
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from gateway.northbound.keys import (
     value_key,
 )
 from gateway.northbound.scaling import Scaling, engineering, to_raw
+from gateway.profiles.derived import text_rows_as_signals
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.zenoh_bridge.access import WriteGate
@@ -327,9 +328,10 @@ class QueryService:
                 "nmt": nmt_key(p, name),
                 "set": set_key(p, name),
             }
+            texts = {t.name: t for t in text_rows_as_signals(rt.lp.profile)}
             for sname, s in n.get("signals", {}).items():
                 try:
-                    sig = rt.lp.profile.signal(sname)
+                    sig = texts.get(sname) or rt.lp.profile.signal(sname)
                 except KeyError:
                     continue
                 sc = self.scaling(name, sig)

@@ -123,6 +123,13 @@ async def test_last_client_disconnecting_writes_the_safe_outputs_at_once() -> No
     async with io_gateway(
         {"watchdog_on_disconnect": True}, health={"port": health}
     ) as (gw, frames):
+        wd = gw.modbus.watchdog
+        # a port check before any PLC talked: connects, sends nothing, goes; nothing is written
+        _, probe = await asyncio.open_connection("127.0.0.1", gw.modbus.port)
+        await wait_until(lambda: wd.clients == 1, 5, "the port check connected")
+        probe.close()
+        await wait_until(lambda: wd.clients == 0, 5, "the port check gone")
+        assert wd.trips == {"timeout": 0, "disconnect": 0} and wd.state == "waiting"
         client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
         await client.connect()
         await plc_writes(client)

@@ -128,6 +128,33 @@ async def test_failed_start_closes_every_part_and_ends_every_thread() -> None:
         await again.stop()
 
 
+async def test_a_start_that_fails_on_a_port_in_use_sends_nothing_to_the_devices() -> None:
+    """The listeners start before the master: a gateway that cannot serve leaves the devices
+    as they were (no NMT command, no SDO request, no heartbeat of its own on the bus)."""
+    import can
+
+    holder = socket.socket()
+    holder.bind(("127.0.0.1", 0))
+    holder.listen()
+    taken = holder.getsockname()[1]
+    cfg = make_config([WIRE], modbus={"port": free_port()}, health={"port": taken})
+    spy = can.Bus(interface="virtual", channel=cfg.can.channel)
+    gw = Gateway(cfg)
+    try:
+        with pytest.raises(StartupError) as err:
+            await gw.start()
+        frames = []
+        while (msg := spy.recv(0)) is not None:
+            frames.append(msg.arbitration_id)
+    finally:
+        holder.close()
+        spy.shutdown()
+    assert err.value.key == "health.port"
+    master_id = cfg.master.node_id
+    sent = [c for c in frames if c == 0x000 or 0x600 < c < 0x680 or c == 0x700 + master_id]
+    assert sent == [], [hex(c) for c in sent]
+
+
 async def test_missing_password_file_names_its_key() -> None:
     cfg = make_config(
         [WIRE],

@@ -117,6 +117,7 @@ def test_without_zenoh_beside_a_running_gateway_the_command_refuses_in_one_line(
         f"http://127.0.0.1:{port}, so `sdo write` would act on a private copy of the devices"
     )
     assert "can.interface: remote, docs/canopen.md" in lines[0]
+    assert "enable zenoh (this command then goes through it)" in lines[0]
 
 
 def test_with_no_gateway_running_the_command_says_it_acts_on_its_own_devices(
@@ -179,5 +180,6 @@ def test_listening_tools_beside_a_gateway_on_an_in_process_bus_refuse_in_one_lin
         f"error: {running}: can.interface: virtual: the bus lives inside the gateway"
     )
     assert f"so `{command[0]}`" in lines[0] and "can.interface: remote, docs/canopen.md" in lines[0]
+    assert "zenoh" not in lines[0]  # only sdo and nmt go through the gateway's Zenoh API
     if command[0] == "monitor":  # the running gateway's console shows its bus
         assert "/monitor)" in lines[0]

@@ -309,6 +309,10 @@ async def test_malformed_payloads_and_unknown_keys_get_reply_err_saying_what_was
             assert r.body["error"] == kind, (selector, payload, r.body)
             assert words in r.body["message"], (selector, payload, r.body["message"])
             assert r.body["key"] == selector
+        # an SDO type no value can have: refused before anything is sent to the device
+        r = await z.get_one(f"{P}/wire/sdo/1018/01?type=foo")
+        assert not r.ok and r.body["error"] == "bad_request"
+        assert r.body["message"].startswith("type 'foo' is not one of bool, int8,"), r.body
         # nothing crashed: the gateway still answers and publishes
         ok = await z.get_one(f"{P}/wire/state")
         assert ok.ok and ok.body["alive"] is True
@@ -346,6 +350,11 @@ async def test_snapshot_state_catalog_and_wildcard_gets() -> None:
             == f"{P}/display/set/set_point2"
         )
         assert cat["nodes"]["wire"]["keys"]["state"] == f"{P}/wire/state"
+        # the AP05 text rows (one string per row) are signals of the catalogue like the others
+        row1 = cat["nodes"]["display"]["signals"]["set_point1_text"]
+        assert (row1["type"], row1["access"], row1["transport"]) == ("string", "rw", "pdo")
+        assert row1["modbus"] and row1["modbus"][0]["table"] == "hr"
+        assert row1["zenoh"]["set"] == f"{P}/display/set/set_point1_text"
 
         states = await z.get(f"{P}/*/state")
         assert sorted(r.key for r in states) == [f"{P}/display/state", f"{P}/wire/state"]

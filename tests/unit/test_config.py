@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -188,6 +189,41 @@ def test_external_heartbeat_slower_sync_is_rejected() -> None:
         )
     )
     assert any(x.startswith("cfg.yaml: master.sync_period_ms: SYNC every 200 ms") for x in p), p
+
+
+def test_check_prints_every_problem_of_the_readme_example_in_one_run(tmp_path: Path) -> None:
+    """README "Configuration": a typo in a node, a duplicate node id, a typo in can: and one in
+    an environment variable are all printed by one ``check``, each blamed on who wrote it."""
+    f = tmp_path / "bad.yaml"
+    f.write_text(
+        "can: {interface: virtual, chanel: x}\n"
+        "nodes:\n"
+        "  - {name: a, node_id: 1, profile: sgh10}\n"
+        "  - {name: b, node_idd: 2, profile: sgh10}\n"
+        "  - {name: c, node_id: 1, profile: sgh10}\n"
+    )
+    env = {**os.environ, "CANOPEN_GATEWAY__MODBUS__PROT": "5020"}
+    r = subprocess.run(
+        [sys.executable, "-m", "gateway", "check", "-c", str(f)],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert f"{f}: nodes[1].node_idd: unknown key (typo?); did you mean 'node_id'?" in lines
+    assert f"{f}: nodes[2].node_id: duplicate node_id 1 (also nodes[0])" in lines
+    assert any(x.startswith(f"{f}: can.chanel: unknown key for interface 'virtual' (did you mean 'channel'?") for x in lines), lines
+    assert "CANOPEN_GATEWAY__MODBUS__PROT: modbus.prot: unknown key (typo?); did you mean 'port'?" in lines
+
+
+def test_a_cross_check_of_a_value_the_environment_set_blames_the_variable() -> None:
+    # README: a value set by an environment variable is blamed on the variable, also for the
+    # checks across sections (here the flat register layout's stride)
+    env = {"CANOPEN_GATEWAY__MODBUS__LAYOUT": "flat", "CANOPEN_GATEWAY__MODBUS__FLAT_STRIDE": "100"}
+    with pytest.raises(ConfigError) as exc:
+        parse_config({**GOOD}, "cfg.yaml", environ=env)
+    assert any(
+        x.startswith("CANOPEN_GATEWAY__MODBUS__FLAT_STRIDE: modbus.flat_stride: ") for x in exc.value.problems
+    ), exc.value.problems
 
 
 def test_external_heartbeat_the_gateway_cannot_feed_is_rejected_with_its_key() -> None:

@@ -62,6 +62,11 @@ def test_every_process_signal_has_a_value_key_and_every_node_state_emcy_and_aliv
     # RPDO outputs are written, not published
     assert f"{P}/display/value/set_point2" not in keys
     assert keys[f"{P}/display/set/set_point2"].description == "write int32 (RPDO)"
+    # docs/zenoh.md: every key of a configuration, the AP05 text rows too
+    assert keys[f"{P}/display/set/set_point1_text"].description == (
+        "write string of up to 6 characters (RPDO, text of row 1)"
+    )
+    assert f"{P}/display/set/set_point2_text" in keys
 
 
 def test_raw_pdo_keys_are_listed_only_when_enabled() -> None:

@@ -78,10 +78,16 @@ def test_last_client_gone_trips_at_once_when_configured() -> None:
     assert wd.trips == {TIMEOUT: 0, DISCONNECT: 1}
 
 
-def test_disconnect_trips_even_before_a_request() -> None:
+def test_a_client_gone_without_a_request_before_any_plc_talked_trips_nothing() -> None:
+    # docs/modbus.md: a gateway no PLC ever talked to does not write its outputs; a port check
+    # that connects and closes is not a PLC going away
     wd = OutputWatchdog(0.5, on_disconnect=True)
     wd.on_connect(T0)
-    assert wd.on_disconnect(T0 + 0.1) == DISCONNECT
+    assert wd.on_disconnect(T0 + 0.1) is None
+    assert wd.state is WatchdogState.WAITING and wd.next_deadline() is None
+    wd.on_connect(T0 + 1)
+    wd.on_request(T0 + 1)  # a PLC talked: from now on its going away trips
+    assert wd.on_disconnect(T0 + 1.1) == DISCONNECT
 
 
 def test_disconnect_does_not_trip_when_not_configured() -> None:
