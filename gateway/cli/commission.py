@@ -103,6 +103,8 @@ def cmd_sdo(args: argparse.Namespace) -> int:
             )
         if code:
             return code
+        # the value alone on stdout (scripts read it); where it came from on stderr
+        print(f"sdo {args.op} of {name} through the running gateway at {running.endpoint}", file=sys.stderr)
         return _print_sdo(cfg, name, args, result)
 
     async def op(gw: Any) -> Any:

@@ -44,12 +44,19 @@ def value_payload(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -
         "seq": sv.seq,
     }
     if sv.seq:
-        text = sig.values.get(raw) if isinstance(raw, int) else None
-        if text is not None:
-            d["text"] = text
-        bits = bits_of(sig, raw)
-        if bits is not None:
-            d["bits"] = bits
+        d.update(named(sig, raw))
+    return d
+
+
+def named(sig: Signal, raw: Any) -> dict[str, Any]:
+    """What the profile names in a raw value: ``text`` of an enumeration, ``bits`` of a word."""
+    d: dict[str, Any] = {}
+    text = sig.values.get(raw) if isinstance(raw, int) else None
+    if text is not None:
+        d["text"] = text
+    bits = bits_of(sig, raw)
+    if bits is not None:
+        d["bits"] = bits
     return d
 
 

@@ -54,6 +54,7 @@ from gateway.ratelimit import RateLimitedLog
 from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.payloads import (
     error_payload,
+    named,
     nmt_command,
     reply_value,
     sdo_write_body,
@@ -207,6 +208,7 @@ class QueryService:
                     "quality": "good",
                     "seq": None,
                     "source": "sdo",
+                    **named(sig, raw),
                 }
             return self._value_now(node, sig)
         if req.kind == "set":

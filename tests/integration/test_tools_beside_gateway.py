@@ -72,6 +72,7 @@ def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 def test_sdo_goes_through_the_running_gateway(running: Path) -> None:
     r = cli("sdo", "read", "-c", str(running), "wire", "0x1008:00")
     assert (r.returncode, r.stdout.strip()) == (0, "SGH10"), r.stderr
+    assert r.stderr.startswith("sdo read of wire through the running gateway at tcp/127.0.0.1:")
     # a write reaches the gateway's devices: read back by another process, through it again
     r = cli("sdo", "write", "-c", str(running), "wire", "0x6000:00", "4")
     assert (r.returncode, r.stdout.strip()) == (0, "OK"), r.stderr

@@ -270,6 +270,11 @@ async def test_an_engineering_value_written_is_scaled_back_to_the_raw_value() ->
         assert sim_value(gw, "wire", obj.index, obj.sub) == 123
         back = await z.get_one(f"{P}/wire/value/calibration_value")
         assert back.ok and back.body["value"] == 12.3 and back.body["unit"] == "mm"
+        # docs/zenoh.md "Value": a word with named bits adds "bits", also when read by SDO
+        word = await z.get_one(f"{P}/wire/value/operating_parameters")
+        assert word.ok and word.body["source"] == "sdo" and word.body["value"] == 0x0004
+        assert word.body["bits"]["scaling_enabled"] is True
+        assert word.body["bits"]["counting_direction_descending"] is False
 
 
 async def test_malformed_payloads_and_unknown_keys_get_reply_err_saying_what_was_expected() -> None:
