@@ -232,7 +232,7 @@ class NodeImage:
 
     def bind(self, names: tuple[str, ...]) -> None:
         """Make the record keyed ``names`` a source of those signals. Called while the node
-        is built (``bus.master.build_node``: every TPDO, every value read by SDO), before the
+        is built (``bus.parts.build_node``: every TPDO, every value read by SDO), before the
         reader thread runs; ``put`` never binds."""
         where = self.where
         for i, n in enumerate(names):

@@ -3,8 +3,8 @@
 
 Receiving: a tap of the driver (``BusDriver.add_tap``) hands every frame the reader receives
 to a bounded queue, from the moment the ``TapBus`` is made until ``shutdown``; ``recv`` takes
-from that queue on the tool's thread. The tap is the one hand-off (CAN reader thread -> the
-tool's thread): it never blocks the reader; when the tool falls ``QUEUE_MAX`` frames behind,
+from that queue on the thread that reads the bus for the tool (in the scan: python-can's
+``Notifier`` thread). The tap is the one hand-off (CAN reader thread -> that thread): it never blocks the reader; when the tool falls ``QUEUE_MAX`` frames behind,
 newer frames are dropped and counted in ``lost``.
 
 Sending: ``send`` queues the frame for the driver's sender thread, as every frame of the gateway

@@ -12,7 +12,8 @@ The device features (refresh on start, referencing, verify mapping, RTR poll) ar
 (``bus/node/features/``), not branches of its own.
 Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the time ``now``
 (the bus clock: the time of the frames processed, seconds) — ``on_nmt_ec``, ``on_emcy``,
-``on_echo``, ``on_sdo_response``, ``tick``, ``request_sdo``, ``write_outputs``, ``nmt`` — and
+``on_echo``, ``on_sdo_response``, ``on_bus_down``, ``tick``, ``request_sdo``, ``write_outputs``,
+``on_nmt_command`` — and
 executes what they return: ``Send`` frames, ``SdoDone`` results, ``ValuesRead``,
 ``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when ``tick`` is next due;
 the driver sleeps until the earliest deadline of all nodes.
@@ -25,7 +26,7 @@ The decisions are tables below: what the node-guarding master expects in each li
 (``GUARD_EXPECTS``), what an NMT command makes the node's expected state (``NMT_EXPECTS``), what
 a finished SDO transfer of its own purposes means (``sdo_done.SDO_DONE``).
 
-Truthfulness (docs/architecture.md, "Never lies"): a boot-up and a loss invalidate every value
+Truthfulness (docs/architecture.md, "Two flows", quality): a boot-up and a loss invalidate every value
 of the node (``health.fresh_since = None``); values are good again only when received after the
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
