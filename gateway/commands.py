@@ -553,17 +553,16 @@ class CommandService:
             except GatewayError:  # an abort, no answer, the bus down
                 return None
 
-        def number(raw: bytes | None) -> int | None:
-            return int.from_bytes(raw[:4], "little") if raw else None
+        async def read(index: int, sub: int, type_: str) -> Any:
+            raw = await upload(index, sub)
+            return decode_value(raw, type_) if raw else None
 
-        device_type = number(await upload(0x1000, 0))
+        device_type = await read(0x1000, 0, "uint32")
         if device_type is None:
             return None
-        raw = await upload(0x1008, 0)
-        f = Found(node_id, device_type=device_type)
-        f.name = raw.rstrip(b"\0").decode("ascii", errors="replace") if raw is not None else None
+        f = Found(node_id, device_type=device_type, name=await read(0x1008, 0, "string"))
         f.vendor, f.product, f.revision, f.serial = [
-            number(await upload(0x1018, sub)) for sub in (1, 2, 3, 4)
+            await read(0x1018, sub, "uint32") for sub in (1, 2, 3, 4)
         ]
         return f
 

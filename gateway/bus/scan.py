@@ -271,11 +271,12 @@ def report(found: dict[int, Found], cfg: Config, active: bool, beside: bool = Fa
         if profile:
             match.append(f"profile {profile}")
         n = configured.get(node_id)
-        if node_id == cfg.master.node_id and n is None and beside:
-            match.append(f"not the gateway but another node with its master.node_id {node_id}: "
-                         "a node id conflict")  # fmt: skip
-        elif node_id == cfg.master.node_id and n is None:
-            match.append(f"a master with this config's master.node_id {node_id} (the gateway?)")
+        if node_id == cfg.master.node_id and n is None:
+            match.append(
+                f"not the gateway but another node with its master.node_id {node_id}: a node id conflict"
+                if beside
+                else f"a master with this config's master.node_id {node_id} (the gateway?)"
+            )
         elif n is not None:
             agrees = profile is None or n.profile in (None, profile)
             match.append(

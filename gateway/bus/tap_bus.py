@@ -4,8 +4,9 @@
 Receiving: a tap of the driver (``BusDriver.add_tap``) hands every frame the reader receives
 to a bounded queue, from the moment the ``TapBus`` is made until ``shutdown``; ``recv`` takes
 from that queue on the thread that reads the bus for the tool (in the scan: python-can's
-``Notifier`` thread). The tap is the one hand-off (CAN reader thread -> that thread): it never blocks the reader; when the tool falls ``QUEUE_MAX`` frames behind,
-newer frames are dropped and counted in ``lost``.
+``Notifier`` thread). The tap is the one hand-off (CAN reader thread -> that thread): it
+never blocks the reader; when the tool falls ``QUEUE_MAX`` frames behind, newer frames are
+dropped and counted in ``lost``.
 
 Sending: ``send`` queues the frame for the driver's sender thread, as every frame of the gateway
 goes out: no second connection is opened, so it works on every interface, also those that allow

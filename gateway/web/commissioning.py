@@ -235,8 +235,8 @@ class Commissioning:
 
     async def scan(self, doc: dict[str, Any]) -> dict[str, Any]:
         """Which node ids are on the bus (``canopen-gateway scan --active``): through the
-        command service, on the gateway's own connection, one scan at a time (it shares the
-        LSS lock)."""
+        command service, on the gateway's own connection, one scan at a time and not while an
+        LSS inquiry runs (nor an inquiry while a scan runs)."""
         if self._scan_lock.locked() or self.commands.lss_busy():
             raise LssConflict("a scan or an LSS inquiry is running")
         async with self._scan_lock:

@@ -122,7 +122,6 @@ class FrameMonitor:
         self.max_pages = max_pages
         self._clock = clock
         self.pages: set[MonitorPage] = set()
-        self.tapping = False  # on_frame is a tap of the source (while a page is open)
         self._decoder: FrameDecoder | None = None
         self._class: dict[int, tuple[str, int | None, str | None]] = {}  # COB-ID -> kind, id, name
         self.handoff = Handoff(self._swap, self._deliver, HANDOFF_PERIOD_S)
@@ -183,19 +182,17 @@ class FrameMonitor:
             raise TooManyPages(refused)
         self.decoder()  # built once, on the loop, before any frame needs it
         page = MonitorPage(nodes, kinds)
-        self.pages.add(page)
         assert self.source is not None  # refusal() said so otherwise
-        if not self.tapping:
-            self.source.add_tap(self.on_frame)  # read by the reader thread from its next frame
-            self.tapping = True
+        if not self.pages:  # the first page: read by the reader thread from its next frame
+            self.source.add_tap(self.on_frame)
+        self.pages.add(page)
         return page
 
     def close(self, page: MonitorPage) -> None:
         """A page went away; the last one removes the tap."""
         self.pages.discard(page)
-        if not self.pages and self.source is not None and self.tapping:
-            self.source.remove_tap(self.on_frame)
-            self.tapping = False
+        if not self.pages and self.source is not None:
+            self.source.remove_tap(self.on_frame)  # removing it twice changes nothing
             with self._lock:
                 self.taken += len(self._ring)  # not lost: nobody is watching any more
                 self._ring.clear()

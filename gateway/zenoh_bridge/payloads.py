@@ -44,13 +44,13 @@ def value_payload(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -
         "seq": sv.seq,
     }
     if sv.seq:
-        d.update(named(sig, raw))
+        add_names(d, sig, raw)
     return d
 
 
-def named(sig: Signal, raw: Any) -> dict[str, Any]:
-    """What the profile names in a raw value: ``text`` of an enumeration, ``bits`` of a word."""
-    d: dict[str, Any] = {}
+def add_names(d: dict[str, Any], sig: Signal, raw: Any) -> dict[str, Any]:
+    """Add to ``d`` what the profile names in a raw value: ``text`` of an enumeration, ``bits``
+    of a word; returns ``d``."""
     text = sig.values.get(raw) if isinstance(raw, int) else None
     if text is not None:
         d["text"] = text

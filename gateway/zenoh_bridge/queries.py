@@ -53,8 +53,8 @@ from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.payloads import (
+    add_names,
     error_payload,
-    named,
     nmt_command,
     reply_value,
     sdo_write_body,
@@ -201,15 +201,15 @@ class QueryService:
             if sig.transport == "sdo":
                 raw = await self.commands.read_signal(req.node, req.signal)
                 sc = self.scaling(req.node, sig)
-                return {
+                doc = {
                     "value": engineering(sig, raw, sc),
                     "unit": sc.unit,
                     "ts": time.time(),
                     "quality": "good",
                     "seq": None,
                     "source": "sdo",
-                    **named(sig, raw),
                 }
+                return add_names(doc, sig, raw)
             return self._value_now(node, sig)
         if req.kind == "set":
             return await self._set(req, payload)

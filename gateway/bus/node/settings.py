@@ -68,8 +68,8 @@ def external_heartbeat_problem(
     AP05 manual 5.5.4 / 5.7.2.31: with 5F09h:01 = interval > 0 the device drops to
     PRE-OPERATIONAL when no RPDO (5F09h:02 = 0) or no SYNC (= 1) arrives within the interval, so
     the gateway's keep-alive RPDO (``external_keepalive_ms``) or its SYNC must come more often.
-    ``key`` is the node's key path (``nodes[i]``), ``name`` its name. The interval's own range (0 or 10..65535 ms)
-    is the profile's, checked with the other boot writes.
+    ``key`` is the node's key path (``nodes[i]``), ``name`` its name. The interval's own range
+    (0 or 10..65535 ms) is the profile's, checked with the other boot writes.
     """
     if source == "sync":
         if not sync_period_ms:
