@@ -62,6 +62,15 @@ class BusDown(GatewayError):
         super().__init__(detail)
 
 
+class NotActive(GatewayError):
+    """This gateway is the standby of a hot-standby pair: commands go to the active one."""
+
+    kind = "not_active"
+
+    def __init__(self, detail: str = "this gateway is the standby of a pair"):
+        super().__init__(detail)
+
+
 class ValueOutOfRange(GatewayError):
     kind = "value_out_of_range"
 

@@ -15,6 +15,13 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
   ``bus/parts.py`` (``build_node``).
 * **Services** for the command service: SDO upload/download (awaitable, one transfer per node
   at a time, queued in the node), RPDO outputs, NMT commands.
+* **A hot-standby pair** (``master.redundancy``; docs/redundancy.md): the role machine
+  (``bus/pair/flying_master.py``) decides whether this gateway masters the bus. While it does
+  not (``mastering`` False: listening at start, negotiating, standby) the nodes only listen
+  (``Node.stand_by``), every frame a node would send is dropped here, the logical master's
+  heartbeat and SYNC are not produced, the RPDOs the other gateway sends become the output
+  image, and the services refuse with ``NotActive``. At a take-over each node is adopted as it
+  runs (``Node.take_over``) and an SDO transfer the other gateway left open is aborted once.
 
 Imports: bus.*, pdo.codec, cia301, image, errors, config, objref, ratelimit, python-can.
 Nothing northbound.
@@ -40,6 +47,14 @@ from gateway.bus.driver import BusDriver
 from gateway.bus.lss.service import LssService
 from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.lifecycle import LifecycleState
+from gateway.bus.pair.flying_master import (
+    FLYING_MASTER_COB_IDS,
+    FlyingMaster,
+    PairTiming,
+    Role,
+    RoleChanged,
+)
+from gateway.bus.pair.flying_master import Send as PairSend
 from gateway.bus.parts import NodeParts, build_node
 from gateway.bus.producers import Periodic
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
@@ -55,7 +70,7 @@ from gateway.cia301 import (
     NMT_COMMANDS,
 )
 from gateway.config import Config
-from gateway.errors import BusDown, NodeNotOperational, SdoAbort, SdoTimeout
+from gateway.errors import BusDown, NodeNotOperational, NotActive, SdoAbort, SdoTimeout
 from gateway.image import NodeImage, ProcessImage
 from gateway.objref import ObjRef
 from gateway.pdo.codec import TpdoCodec
@@ -67,6 +82,10 @@ log = logging.getLogger("gateway.master")
 MASTER_HEARTBEAT = b"\x05"
 #: another master / another SDO client is logged at most once per kind and this period
 PEER_LOG_PERIOD_S = 60.0
+
+#: the abort an SDO transfer gets that the other gateway of a pair left open at a take-over:
+#: SDO protocol timed out (CiA 301 7.2.4.3.17)
+ABORT_LEFT_OPEN = 0x05040000
 
 #: queued events that wake the loop even when none asked for it (a bound, never reached while
 #: every quiet event's node has a deadline timer)
@@ -107,10 +126,40 @@ class Master:
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
         #: other masters, other SDO clients, unconfigured node ids (event loop only)
+        pair = cfg.master.redundancy
+        #: the role of this gateway in a hot-standby pair (None: no pair)
+        self.pair: FlyingMaster | None = None
+        known = {n.node_id for n in cfg.nodes}
+        if pair is not None and not passive:
+            hb_s = cfg.master.heartbeat_ms / 1000.0
+            takeover_s = pair.takeover_ms / 1000.0 if pair.takeover_ms else 3 * hb_s
+            self.pair = FlyingMaster(
+                node_id=pair.node_id,
+                priority=pair.priority,
+                master_node_id=cfg.master.node_id,
+                timing=PairTiming(
+                    takeover_s=takeover_s,
+                    detect_s=takeover_s,
+                    claim_period_s=hb_s,
+                    priority_slot_s=pair.priority_slot_ms / 1000.0,
+                    device_slot_s=pair.device_slot_ms / 1000.0,
+                ),
+            )
+            known |= {pair.node_id, *([pair.peer_node_id] if pair.peer_node_id else [])}
+        #: True while this gateway masters the bus (always, outside a pair)
+        self.mastering = self.pair is None
+        #: role listeners: called (role, reason) on the event loop when the pair's role changes
+        self.role_listeners: list[Callable[[str, str], None]] = []
+        self.standby_dropped = 0  # frames the nodes asked for while this gateway stood by
+        #: node id -> the first bytes of an SDO request the other gateway sent that no answer
+        #: has followed yet (a transfer it may leave open)
+        self._sdo_heard: dict[int, bytes] = {}
+        #: when the peer's own heartbeat (redundancy.peer_node_id) was last heard (bus clock)
+        self.peer_heartbeat_s: float | None = None
         self.peers = BusPeers(
             cfg.master.node_id,
             MASTER_HEARTBEAT,
-            {n.node_id for n in cfg.nodes},
+            known,
             echo=bool(cfg.can.bus_kwargs().get("receive_own_messages")),
         )
         self.peer_log = RateLimitedLog(log, period_s=PEER_LOG_PERIOD_S)
@@ -126,7 +175,9 @@ class Master:
                 ncfg.name, ncfg.node_id, lp.family, names, rn.stale_after_s, ncfg.modbus.serve_stale
             )
             image.add_node(ni)
-            parts = build_node(rn, ni, passive)
+            parts = build_node(rn, ni, passive or self.pair is not None)
+            if self.pair is not None:
+                parts.node.watch.active = True  # supervision judges what it hears
             self.nodes[ncfg.name] = parts
             self.by_id[ncfg.node_id] = parts
         self._install_handlers()
@@ -143,6 +194,16 @@ class Master:
             if not self.peers.echo:  # our own requests come back with the echo on
                 h.setdefault(COB_SDO_RX + p.node_id, self._peer_frame(self._on_sdo_request, p))
         h.setdefault(COB_NMT, self._peer_frame(self._on_nmt_frame))
+        if self.pair is not None:
+            for cob in FLYING_MASTER_COB_IDS:
+                h[cob] = self._peer_frame(self._on_pair_frame, cob)
+            h[COB_NMT_EC + self.cfg.master.node_id] = self._peer_frame(self._on_logical_heartbeat)
+            for p in self.nodes.values():
+                for cob in p.node.outputs.cob_ids:
+                    h[cob] = self._peer_frame(self._on_rpdo_heard, p, cob)
+            peer = self.cfg.master.redundancy.peer_node_id if self.cfg.master.redundancy else None
+            if peer:
+                h[COB_NMT_EC + peer] = self._peer_frame(self._on_peer_heartbeat)
         h.setdefault(COB_NMT_EC + self.cfg.master.node_id, self._peer_frame(self._on_own_heartbeat))
         h[COB_LSS_SLAVE] = self.lss.reader_handler()
         self.driver.default_handler = self._unknown
@@ -284,6 +345,13 @@ class Master:
         )
 
     def _on_nmt_frame(self, data: bytes, wall: float, now: float) -> None:
+        if not self.mastering and len(data) >= 2:
+            # the active gateway of the pair commands the nodes: guarding expects what it says
+            command = next((c for c, b in NMT_COMMANDS.items() if b == data[0]), None)
+            for p in self.nodes.values():
+                if command is not None and data[1] in (0, p.node_id):
+                    p.node.on_nmt_command(command)
+            return
         text = self.peers.on_nmt(data, wall, now)
         if text is not None:
             self.peer_log.warning(("other_master", "nmt"), "%s", text)
@@ -294,6 +362,9 @@ class Master:
             self.peer_log.warning(("other_master", "heartbeat"), "%s", text)
 
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
+        if not self.mastering:
+            self._sdo_heard[p.node_id] = data[:4]  # the active gateway's transfer
+            return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
         self.peer_log.info(("sdo_client", p.name), "%s", text)
 
@@ -311,6 +382,8 @@ class Master:
         elif kind == "emcy":
             outs = node.on_emcy(data, wall, now)
         else:
+            if not self.mastering:
+                self._sdo_heard.pop(p.node_id, None)  # answered: not left open by this frame
             outs = node.on_sdo_response(data, now)
         self._execute(p, outs)
 
@@ -333,6 +406,9 @@ class Master:
         health = False
         for o in outs:
             if isinstance(o, Send):
+                if not self.mastering:
+                    self.standby_dropped += 1  # a pair's standby sends nothing of the nodes'
+                    continue
                 try:
                     self.driver.send(o.cob_id, o.data, rtr=o.rtr, dlc=o.dlc)
                 except can.CanError:
@@ -410,7 +486,13 @@ class Master:
             hb = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
             self._produce("heartbeat", hb, COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
         if self.cfg.master.sync_period_ms:
-            self._produce("sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), COB_SYNC, b"")
+            self._produce(
+                "sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), COB_SYNC, b""
+            )
+        if self.pair is not None:
+            own = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
+            self._produce("pair", own, COB_NMT_EC + self.pair.node_id, MASTER_HEARTBEAT)
+            self._pair_actions(self.pair.start(self.clock()))
         self._producers["housekeeping"] = self.loop.call_later(
             self.warn.period_s, self._housekeeping
         )
@@ -435,7 +517,7 @@ class Master:
         loop = self.loop
         if loop is None:
             return
-        if periodic.due(loop.time()):
+        if periodic.due(loop.time()) and (self.mastering or name == "pair"):
             try:
                 self.driver.send(cob_id, data)
             except can.CanError:
@@ -463,6 +545,11 @@ class Master:
     def require_bus(self) -> None:
         if self.loop is None:  # the listeners start before the master sends its first frame
             raise BusDown("the gateway is starting")
+        if not self.mastering:
+            role = self.pair.role if self.pair is not None else "standby"
+            raise NotActive(
+                f"this gateway is the {role} one of a pair: send commands to the active one"
+            )
         if self.driver.state == "down":
             raise BusDown(self.driver.last_error or "CAN bus is down")
 
@@ -531,3 +618,99 @@ class Master:
             fut.set_exception(
                 SdoTimeout(p.name, str(obj), f"transfer ended (0x{done.abort_code or 0:08X})")
             )
+
+    # ------------------------------------------------------------------ a hot-standby pair
+    @property
+    def role(self) -> str | None:
+        """``active``, ``standby``, ``listening``, ``negotiating``; None outside a pair."""
+        return str(self.pair.role) if self.pair is not None else None
+
+    def _on_pair_frame(self, cob_id: int, data: bytes, wall: float, now: float) -> None:
+        assert self.pair is not None
+        self._pair_actions(self.pair.on_frame(cob_id, data, now))
+
+    def _on_logical_heartbeat(self, data: bytes, wall: float, now: float) -> None:
+        assert self.pair is not None
+        if self.mastering:
+            self._on_own_heartbeat(data, wall, now)  # someone else with the logical id?
+        self._pair_actions(self.pair.on_frame(COB_NMT_EC + self.cfg.master.node_id, data, now))
+
+    def _on_peer_heartbeat(self, data: bytes, wall: float, now: float) -> None:
+        self.peer_heartbeat_s = now
+
+    def _on_rpdo_heard(
+        self, p: NodeParts, cob_id: int, data: bytes, wall: float, now: float
+    ) -> None:
+        if not self.mastering:
+            self._execute(p, p.node.on_rpdo_heard(cob_id, data, wall, now))
+
+    def _pair_actions(self, actions: list[PairSend | RoleChanged]) -> None:
+        for a in actions:
+            if isinstance(a, PairSend):
+                try:
+                    self.driver.send(a.cob_id, a.data)
+                except can.CanError:
+                    pass
+            else:
+                self._role_changed(a)
+        self._schedule_pair()
+
+    def _schedule_pair(self) -> None:
+        loop, pair = self.loop, self.pair
+        if loop is None or pair is None:
+            return
+        deadline = pair.next_deadline_s()
+        old = self._timers.pop("\0pair", None)
+        if old is not None:
+            old.cancel()
+        if deadline is None:
+            return
+        lag = max(0.0, loop.time() - self.clock())
+        self._timers["\0pair"] = loop.call_at(max(deadline + lag, loop.time()), self._pair_tick)
+
+    def _pair_tick(self) -> None:
+        self._timers.pop("\0pair", None)
+        if self._inbox:
+            self._drain()  # what was heard counts before a timeout
+        assert self.pair is not None
+        self._pair_actions(self.pair.poll(self.clock()))
+
+    def _role_changed(self, change: RoleChanged) -> None:
+        now = self.clock()
+        level = logging.WARNING if Role.ACTIVE in (change.role, change.previous) else logging.INFO
+        log.log(level, "pair: %s -> %s (%s)", change.previous, change.role, change.reason)
+        if change.role is Role.ACTIVE:
+            self.mastering = True
+            try:  # the logical master's heartbeat at once: the devices' consumers go on
+                self.driver.send(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
+            except can.CanError:
+                pass
+            self._abort_left_open()
+            for p in self.nodes.values():
+                self._execute(p, p.node.take_over(now))
+        elif change.previous is Role.ACTIVE:
+            self.mastering = False
+            for p in self.nodes.values():
+                self._execute(p, p.node.stand_by(now))
+            for fut, _obj in self._waiting.values():
+                if not fut.done():
+                    fut.set_exception(NotActive("this gateway stood down to standby"))
+            self._waiting.clear()
+        for listener in self.role_listeners:
+            try:
+                listener(str(change.role), change.reason)
+            except Exception:  # noqa: BLE001 - a listener must not stop the take-over
+                log.exception("role listener failed")
+
+    def _abort_left_open(self) -> None:
+        """An SDO transfer the other gateway started and no answer ended: abort it once."""
+        heard, self._sdo_heard = self._sdo_heard, {}
+        for node_id, head in heard.items():
+            if len(head) < 4:
+                continue
+            frame = bytes((0x80, head[1], head[2], head[3])) + ABORT_LEFT_OPEN.to_bytes(4, "little")
+            try:
+                self.driver.send(COB_SDO_RX + node_id, frame)
+            except can.CanError:
+                continue
+            log.info("pair: SDO transfer left open on node id %d aborted", node_id)

@@ -119,6 +119,7 @@ def parse_config(
     errors += _semantic_problems(raw, base_dir)
     if cfg is not None:
         errors += _node_problems(cfg, base_dir)
+        errors += _pair_problems(cfg)
     seen: set[tuple[str, str]] = set()
     for loc, msg in errors:
         if (loc, msg) in seen:
@@ -129,6 +130,34 @@ def parse_config(
         raise ConfigError(problems)
     assert cfg is not None
     return cfg
+
+
+def _pair_problems(cfg: Config) -> list[tuple[str, str]]:
+    """A hot-standby pair (``master.redundancy``): its ids are its own, its timing is set."""
+    pair = cfg.master.redundancy
+    if pair is None:
+        return []
+    out: list[tuple[str, str]] = []
+    if cfg.master.heartbeat_ms <= 0:
+        out.append(
+            (
+                "master.heartbeat_ms",
+                "a pair needs the logical master's heartbeat (> 0): the standby takes over "
+                "when it is missing",
+            )
+        )
+    nodes = {n.node_id: i for i, n in enumerate(cfg.nodes)}
+    for key, value in (("node_id", pair.node_id), ("peer_node_id", pair.peer_node_id)):
+        if value is None:
+            continue
+        where = f"master.redundancy.{key}"
+        if value == cfg.master.node_id:
+            out.append((where, f"{value} is master.node_id (the logical master): take another id"))
+        elif value in nodes:
+            out.append((where, f"{value} is the node id of nodes[{nodes[value]}]"))
+    if pair.peer_node_id is not None and pair.peer_node_id == pair.node_id:
+        out.append(("master.redundancy.peer_node_id", "the peer's id must differ from node_id"))
+    return out
 
 
 def _node_problems(cfg: Config, base_dir: Path) -> list[tuple[str, str]]:

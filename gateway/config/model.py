@@ -60,6 +60,31 @@ class CanSection(BaseModel):
         return kw
 
 
+class PairSection(_Model):
+    """``master.redundancy``: this gateway's own identity in a hot-standby pair (CiA 302-2
+    flying master; docs/redundancy.md). Both gateways of a pair run the same config but this
+    section."""
+
+    node_id: int = Field(
+        ge=1, le=127, description="this gateway's own id in the pair: its heartbeat and claims"
+    )
+    priority: int = Field(
+        default=0, ge=0, le=255, description="CiA 302-2 1F90h:03: lower wins; equal: lower node_id"
+    )
+    takeover_ms: int | None = Field(
+        default=None,
+        ge=10,
+        le=60_000,
+        description="the active gateway's heartbeat missing this long: take over "
+        "(default 3 x master.heartbeat_ms)",
+    )
+    priority_slot_ms: int = Field(default=200, ge=0, le=10_000, description="CiA 302-2 1F90h:04")
+    device_slot_ms: int = Field(default=2, ge=0, le=1000, description="CiA 302-2 1F90h:05")
+    peer_node_id: int | None = Field(
+        default=None, ge=1, le=127, description="the other gateway's own id: its heartbeat is watched"
+    )
+
+
 class MasterSection(_Model):
     node_id: int = Field(default=127, ge=1, le=127, description="the gateway's own node id")
     heartbeat_ms: int = Field(default=1000, ge=0, le=65535, description="0 = no heartbeat")
@@ -75,6 +100,8 @@ class MasterSection(_Model):
         le=3_600_000,
         description="SDO-backed values read north are served from a cache this young (0 = always read)",
     )
+    #: a hot-standby pair: this gateway's own id and priority (off unless given)
+    redundancy: PairSection | None = None
 
 
 class SdoWrite(_Model):

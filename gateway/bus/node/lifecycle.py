@@ -67,6 +67,7 @@ class LifecycleEvent(StrEnum):
     START_SENT = "NMT start sent"  # every step done, NMT start went out
     LOST = "lost"  # supervision lost the node
     WRONG_IDENTITY = "wrong identity"  # 1018h holds other values than the EDS
+    ADOPTED = "adopted"  # a pair's take-over: heard operational, taken as it is
 
 
 _W, _B, _C, _O = (
@@ -89,6 +90,7 @@ TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = {
     (_C, _E.LOST): _W,
     (_O, _E.LOST): _W,
     (_C, _E.WRONG_IDENTITY): _W,
+    (_W, _E.ADOPTED): _O,
 }
 
 
@@ -222,6 +224,7 @@ class NodeLifecycle:
     CONFIGURING  last step ok                                  CONFIGURING  action: NMT start
     CONFIGURING  NMT start sent                                OPERATIONAL  Configured
     not WAITING  lost (from supervision)                       WAITING      boot timeout re-armed
+    WAITING      adopted (a pair's take-over, heard operational)  OPERATIONAL  (nothing sent)
     ===========  ============================================  ===========  =========================
 
     After a boot-up the node is PRE-OPERATIONAL (SGH10 manual 4.2.1.1) and configuration starts
@@ -355,6 +358,16 @@ class NodeLifecycle:
         self._preop_pending = True
         self._reset_progress()
         return [self._fire(LifecycleEvent.FOUND, "found running")]
+
+    def on_adopted(self, now: float) -> list[Change]:
+        """A pair's take-over: the node was heard OPERATIONAL under the other gateway; it is
+        taken as it is (no NMT command, no configuration)."""
+        if self.state is not LifecycleState.WAITING:
+            return self._ignore("adopted")
+        self._boot_deadline = None
+        self.last_error = None
+        self._reset_progress()
+        return [self._fire(LifecycleEvent.ADOPTED, "adopted operational at a take-over")]
 
     def on_lost(self, now: float) -> list[Change]:
         if self.state is LifecycleState.WAITING:

@@ -20,7 +20,7 @@ from typing import Any
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.node.events import Send
 from gateway.errors import Unmapped
-from gateway.pdo.codec import RpdoCodec
+from gateway.pdo.codec import RpdoCodec, TpdoCodec
 
 
 class OutputImage:
@@ -44,6 +44,30 @@ class OutputImage:
         self.control = control
         self.last_sent_s: dict[int, float] = {}
         self.sent = 0
+        #: the RPDOs by COB-ID, each with a decoder of its frames (a pair's standby learns the
+        #: outputs from the frames the active gateway sends)
+        self._heard = {r.cob_id: (r, TpdoCodec(r.cob_id, r.number, r.fields)) for r in self.rpdos}
+
+    @property
+    def cob_ids(self) -> tuple[int, ...]:
+        return tuple(self._heard)
+
+    def heard(self, cob_id: int, data: bytes) -> bool:
+        """An RPDO frame another master sent: its values become the output image's (False: not
+        one of ours, or shorter than its mapping)."""
+        entry = self._heard.get(cob_id)
+        if entry is None:
+            return False
+        codec, decoder = entry
+        try:
+            named = iter(decoder.decode(data))
+        except ValueError:
+            return False
+        old = self.values[codec.number]
+        self.values[codec.number] = [
+            next(named) if f.signal else old[i] for i, f in enumerate(codec.fields)
+        ]
+        return True
 
     def is_output(self, name: str) -> bool:
         return name in self.by_signal

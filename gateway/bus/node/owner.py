@@ -210,10 +210,10 @@ class Node:
 
     # ================================================================== events
     def start(self, now: float, probe: bool = True) -> list[Output]:
-        self.lifecycle.start(now)
         self.health.lifecycle = str(self.lifecycle.state)
         if self.passive:
-            return []
+            return []  # listening only: no boot timeout of ours to report
+        self.lifecycle.start(now)
         self.next_probe_s = now if probe else now + self.s.probe_period_s
         return self.tick(now)
 
@@ -260,6 +260,16 @@ class Node:
         out += self._set_nmt(state)
         if self.watch.alive:
             out += self._set_alive(True, now)
+        if (
+            self.passive
+            and state == NmtState.OPERATIONAL
+            and self.health.fresh_since is None
+            and self.health.alive
+        ):
+            # listening only (a pair's standby): the node was started by another master; no
+            # boot-up since it was heard operational, so what it sends from now on is fresh
+            self.health.fresh_since = now
+            out.append(HealthChanged("state"))
         if self.lifecycle.state is LifecycleState.WAITING and not self.passive:
             # alive but no boot-up seen (gateway restarted, node replugged): probe soon
             if self._probe_in_flight() is None and (
@@ -327,6 +337,47 @@ class Node:
     def on_nmt_command(self, command: str) -> None:
         """An NMT command a client sent to this node: the state guarding expects follows it."""
         self.watch.on_nmt_command(command)
+
+    # ================================================================== a pair's roles
+    def on_rpdo_heard(self, cob_id: int, data: bytes, wall: float, now: float) -> list[Output]:
+        """An RPDO of this node that the other gateway of a pair sent (this one listens): its
+        values become the output image, so a take-over goes on with them."""
+        if not self.passive or not self.outputs.heard(cob_id, data):
+            return []
+        self.outputs.last_sent_s[next(r.number for r in self.rpdos if r.cob_id == cob_id)] = now
+        self._sent = SentOutputs({}, wall, now, self._sent.seq + 1)
+        self._publish_outputs()
+        return []
+
+    def stand_by(self, now: float) -> list[Output]:
+        """This gateway became a pair's standby: listen only. Nothing of the lifecycle acts;
+        queued SDO work is dropped (the master sends nothing while standing by)."""
+        self.passive = True
+        cancelled = self.sdo.cancel_active(now)
+        out: list[Output] = []
+        if cancelled is not None and cancelled.purpose == "user":
+            out.append(SdoDone(cancelled.token, None, None, timed_out=True))
+        self.sdo.drop(lambda j: True)
+        return out
+
+    def take_over(self, now: float) -> list[Output]:
+        """This gateway became the pair's active one. A node heard OPERATIONAL is adopted as it
+        is (no NMT command, no SDO boot step); any other is found and configured as usual."""
+        self.passive = False
+        h = self.health
+        out: list[Output] = []
+        if (
+            h.alive
+            and h.nmt_state == NmtState.OPERATIONAL
+            and self.lifecycle.state is LifecycleState.WAITING
+        ):
+            out += self._lifecycle_changes(self.lifecycle.on_adopted(now), now)
+            for f in self.features:
+                out += f.on_adopted(self, now)
+        else:
+            self.lifecycle.start(now)  # the boot timeout runs from the take-over
+            self.next_probe_s = now
+        return out + self.tick(now)
 
     def write_outputs(
         self,
@@ -508,7 +559,7 @@ class Node:
     def _keepalive_due(self) -> float | None:
         """Keep-alive RPDOs only in OPERATIONAL (RPDOs are not processed otherwise)."""
         h = self.health
-        if not h.alive or h.nmt_state != NmtState.OPERATIONAL:
+        if self.passive or not h.alive or h.nmt_state != NmtState.OPERATIONAL:
             return None
         return self.outputs.keepalive_due(h.fresh_since)
 

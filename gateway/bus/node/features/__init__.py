@@ -46,6 +46,10 @@ class NodeFeature:
         """The node was configured and NMT start sent."""
         return []
 
+    def on_adopted(self, node: Node, now: float) -> list[Output]:
+        """A pair's take-over adopted the node as it runs (nothing was configured)."""
+        return []
+
     def on_emcy(self, node: Node, now: float) -> bool:
         """An EMCY arrived; True when SDO work was queued (the node then starts it)."""
         return False

@@ -50,6 +50,12 @@ class VerifyMapping(NodeFeature):
             node.sdo.queue(r.object, None, "verify", now, r)
         return []
 
+    def on_adopted(self, node: Node, now: float) -> list[Output]:
+        # a standby cannot read the mapping back; read it now if it is still not trusted
+        if node.health.invalid_signals & self.pdo_names:
+            return self.on_configured(node, now)
+        return []
+
     def sdo_done(self, node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         """Collect the uploads; when all are in, compare."""
         r: MappingRead = job.arg
