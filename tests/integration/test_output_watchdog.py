@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import urllib.request
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -268,6 +269,23 @@ async def test_clients_that_may_not_write_feed_nothing(pki: dict[str, Any]) -> N
         finally:
             for client in clients:
                 client.close()
+
+
+async def test_a_read_only_gateway_has_no_client_that_feeds_it(caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.WARNING, logger="gateway.modbus"):
+        async with io_gateway({"watchdog_ms": 300, "read_only": True}) as (gw, frames):
+            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+            await client.connect()
+            try:
+                rr = await client.read_holding_registers(OUT_1_8, count=4, device_id=UNIT)
+                assert not rr.isError(), rr
+                rr = await client.write_register(OUT_1_8, 1, device_id=UNIT)
+                assert rr.isError() and rr.exception_code == 0x01, rr
+                wd = gw.modbus.watchdog
+                assert wd.state == "waiting" and wd.writers == 0 and wd.next_deadline() is None
+            finally:
+                client.close()
+    assert any("never trips" in r.getMessage() for r in caplog.records), "said at start"
 
 
 async def plc_transaction(gw: Gateway, value: int) -> None:
