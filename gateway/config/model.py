@@ -282,10 +282,15 @@ class ModbusSection(_Model):
     allowed_networks: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
     write_timeout_s: float = Field(default=2.0, gt=0, le=60)
     watchdog_ms: int = Field(
-        default=0, ge=0, le=3_600_000, description="no request for this long: safe outputs; 0 = off"
+        default=0,
+        ge=0,
+        le=3_600_000,
+        description="no request of a client that may write for this long: safe outputs; 0 = off",
     )
     watchdog_on_disconnect: bool = Field(
-        default=False, description="safe outputs at once when the last Modbus client disconnects"
+        default=False,
+        description="safe outputs when the last client that may write disconnected and none "
+        "came back with a request within watchdog_ms (at once when watchdog_ms is 0)",
     )
 
     @model_validator(mode="after")

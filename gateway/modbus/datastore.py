@@ -383,21 +383,27 @@ class ImageDatastore:
         return read
 
     # ------------------------------------------------------------------ writes
+    def write_refusal(self, peer: str | None) -> str | None:
+        """Why a client at this address may not write (``read_only``, ``allowed_networks``),
+        or None when it may. The server also asks it once per connection: only clients that
+        may write feed the output watchdog."""
+        if self.read_only:
+            return "the gateway is read-only (modbus.read_only)"
+        if peer is None:
+            return None
+        try:
+            ip = ipaddress.ip_address(peer.split("%", 1)[0])
+        except ValueError:
+            return f"client address {peer!r} not understood"
+        if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+            ip = ip.ipv4_mapped
+        if not any(ip in net for net in self.allowed):
+            return f"client {peer} is not in modbus.allowed_networks"
+        return None
+
     def check_access(self, peer: str | None) -> None:
         """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged)."""
-        why = None
-        if self.read_only:
-            why = "the gateway is read-only (modbus.read_only)"
-        elif peer is not None:
-            try:
-                ip = ipaddress.ip_address(peer.split("%", 1)[0])
-            except ValueError:
-                why = f"client address {peer!r} not understood"
-            else:
-                if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
-                    ip = ip.ipv4_mapped
-                if not any(ip in net for net in self.allowed):
-                    why = f"client {peer} is not in modbus.allowed_networks"
+        why = self.write_refusal(peer)
         if why is not None:
             self.warn.warning(("refused", peer, why), "Modbus write from %s refused: %s", peer, why)
             raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)

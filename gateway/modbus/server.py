@@ -29,10 +29,13 @@ A frame whose MBAP header is invalid (protocol id not 0, length outside 2..254) 
 resynchronised in a TCP stream: it is dropped and that connection closed; other clients are not
 affected.
 
-The output watchdog (``modbus.watchdog_ms``, ``watchdog_on_disconnect``) is fed here: every
-request and every disconnection; its machine is ``modbus.watchdog.OutputWatchdog``, its timer a
-``loop.call_at`` at the machine's next deadline, and a trip writes the nodes' safe outputs
-(``gateway.safe_outputs``) through the command service.
+The output watchdog (``modbus.watchdog_ms``, ``watchdog_on_disconnect``) is fed here, by
+clients allowed to write only (decided once per connection: ``ImageDatastore.write_refusal``
+for ``read_only`` and ``allowed_networks``, and on TLS a role with ``write`` access): their
+requests, their connections and disconnections. Its machine is
+``modbus.watchdog.OutputWatchdog``, its timer a ``loop.call_at`` at the machine's next
+deadline, and a trip writes the nodes' safe outputs (``gateway.safe_outputs``) through the
+command service.
 
 Modbus/TCP Security (``modbus.tls``): a second listener with TLS; each of its connections gets
 the rights of its certificate's role (``modbus.security``), checked here before a request is
@@ -68,7 +71,7 @@ from gateway.modbus.protocol import (
     exception_code,
 )
 from gateway.modbus.security import Access, access_of, tls_context
-from gateway.modbus.watchdog import OutputWatchdog
+from gateway.modbus.watchdog import TIMEOUT, OutputWatchdog
 from gateway.northbound.regmap import build_register_map
 from gateway.safe_outputs import safe_outputs
 
@@ -85,6 +88,7 @@ class _Connection(asyncio.Protocol):
         self.tls = tls
         self.role: str | None = None
         self.access: Access | None = None  # a TLS client's rights; None: plain TCP
+        self.writer = False  # may write: feeds the output watchdog
         self.transport: asyncio.Transport | None = None
         self.peer: str | None = None
         self.buf = bytearray()
@@ -98,7 +102,6 @@ class _Connection(asyncio.Protocol):
         info = transport.get_extra_info("peername")
         self.peer = str(info[0]) if info else None
         self.owner.connections.add(self)
-        self.owner.watchdog.on_connect(asyncio.get_running_loop().time())
         if self.tls and self.owner.cfg.modbus.tls is not None:
             ssl_object = transport.get_extra_info("ssl_object")
             der = ssl_object.getpeercert(binary_form=True) if ssl_object is not None else None
@@ -107,7 +110,10 @@ class _Connection(asyncio.Protocol):
                 "Modbus/TLS client %s connected, role %s: %s",
                 self.peer, self.role or "none", self.access,
             )  # fmt: skip
-        log.debug("Modbus client %s connected", self.peer)
+        self.writer = self.access in (None, "write") and self.store.write_refusal(self.peer) is None
+        if self.writer:
+            self.owner.watchdog.on_writer_connect(asyncio.get_running_loop().time())
+        log.debug("Modbus client %s connected (%s)", self.peer, "may write" if self.writer else "reads only")
 
     def _authorise(self, fc: int) -> None:
         """A TLS client's role: ``read`` may not write, ``none`` may do nothing (0x01)."""
@@ -126,7 +132,8 @@ class _Connection(asyncio.Protocol):
         self.transport = None
         self.buf.clear()
         log.debug("Modbus client %s disconnected", self.peer)
-        self.owner.client_gone()
+        if self.writer:
+            self.owner.writer_gone()
 
     def data_received(self, data: bytes) -> None:
         self.buf += data
@@ -187,15 +194,21 @@ class _Connection(asyncio.Protocol):
             return False
         store.requests += 1
         store.by_function[pdu[0]] = store.by_function.get(pdu[0], 0) + 1
-        self.owner.request_seen()
+        self._feed_watchdog()
         if self.transport is not None and not self.transport.is_closing():
             self.transport.write(MBAP.pack(tid, 0, len(response) + 1, unit) + response)
         return True
 
+    def _feed_watchdog(self) -> None:
+        """A request of a client that may write, while it is connected (an answer after the
+        client went is no sign of life), feeds the output watchdog."""
+        if self.writer and self.transport is not None:
+            self.owner.request_seen()
+
     async def _serve(self, tid: int, unit: int, pdu: bytes) -> None:
         store = self.store
         store.requests += 1
-        self.owner.request_seen()
+        self._feed_watchdog()
         fc = pdu[0]
         store.by_function[fc] = store.by_function.get(fc, 0) + 1
         try:
@@ -214,7 +227,7 @@ class _Connection(asyncio.Protocol):
             elif not isinstance(exc, (ModbusError, GatewayError, ValueError)):
                 store.warn.warning(("error", type(exc).__name__), "error serving Modbus: %r", exc)
             response = bytes(((fc | 0x80) & 0xFF, int(code)))
-        self.owner.request_seen()  # again when answered: a slow write is no silence
+        self._feed_watchdog()  # again when answered: a slow write is no silence
         if self.transport is not None and not self.transport.is_closing():
             self.transport.write(MBAP.pack(tid, 0, len(response) + 1, unit) + response)
 
@@ -259,7 +272,8 @@ class ModbusGateway:
 
     # ------------------------------------------------------------------ output watchdog
     def request_seen(self) -> None:
-        """Every request (any unit, any function, any outcome) feeds the watchdog."""
+        """Every request of a client that may write (any unit, any function, any outcome)
+        feeds the watchdog."""
         wd = self.watchdog
         if not wd.enabled:
             return
@@ -267,10 +281,10 @@ class ModbusGateway:
         if self._wd_timer is None:
             self._wd_schedule()
 
-    def client_gone(self) -> None:
+    def writer_gone(self) -> None:
         if self._stopping:
             return  # the gateway stops: its clients did not go away
-        reason = self.watchdog.on_disconnect(asyncio.get_running_loop().time())
+        reason = self.watchdog.on_writer_disconnect(asyncio.get_running_loop().time())
         if reason is not None:
             self._trip(reason)
 
@@ -288,11 +302,13 @@ class ModbusGateway:
             self._wd_schedule()  # a request came since: the deadline moved
 
     def _trip(self, reason: str) -> None:
-        why = (
-            f"no request for {self.cfg.modbus.watchdog_ms} ms"
-            if reason == "timeout"
-            else "the last client disconnected"
-        )
+        ms = self.cfg.modbus.watchdog_ms
+        if reason == TIMEOUT:
+            why = f"no request of a client allowed to write for {ms} ms"
+        elif ms:
+            why = f"the last client allowed to write disconnected; no request of one for {ms} ms"
+        else:
+            why = "the last client allowed to write disconnected"
         log.warning(
             "Modbus output watchdog tripped (%s): writing the safe outputs of %s",
             why,
@@ -307,6 +323,11 @@ class ModbusGateway:
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
+        if self.watchdog.enabled and self.cfg.modbus.read_only:
+            log.warning(
+                "the Modbus output watchdog never trips: with modbus.read_only no client may "
+                "write, and only clients that may write feed it"
+            )
         if self.cfg.modbus.plain:
             self.server = await loop.create_server(
                 lambda: _Connection(self),

@@ -3,12 +3,15 @@ by python canopen's LocalNode on a virtual bus (boot-up and heartbeat sent by th
 pymodbus client as the PLC. When the PLC falls silent (or its connection goes), the RPDOs with
 the safe values are seen on the bus, outputs without a safe value keep theirs, the node says
 ``outputs: safe`` in /healthz, Modbus, Zenoh and the console's view, the trip is counted, and
-the PLC's next write takes over again."""
+the PLC's next write takes over again. Only clients allowed to write feed it: an HMI that
+only may read (outside ``allowed_networks``, a TLS role with ``read``) keeps nothing alive, and
+a PLC that connects per transaction is no PLC gone."""
 
 from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import urllib.request
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -23,6 +26,7 @@ from gateway.checks import check_config
 from gateway.config import ConfigError
 from tests.helpers import free_port, make_config, wait_until
 from tests.integration.test_eds_devices import IO, Heartbeat, SdoLog, boot, local_node
+from tests.integration.test_modbus_tls import SET_POINT1, Pki, client_for, secure_gateway
 from tests.zenoh_client import ZClient, sample_where
 
 UNIT = 5
@@ -30,6 +34,7 @@ OUT_1_8, OUT_9_10, OUT_1_10, ANALOGUE_1 = 100, 101, 102, 103  # holding register
 OUTPUTS_SAFE = 4  # discrete input of the node's diagnostics
 RPDO1, RPDO2 = 0x205, 0x305  # 6200h:01, 6200h:02 | 6300h:01, 6411h:01
 SAFE = {"write_output_1h_to_8h": 0, "analogue_output_1": -1}
+UNIT_AP05 = 125  # the AP05 display of the TLS tests (tests/integration/test_modbus_tls.py)
 
 
 @asynccontextmanager
@@ -126,9 +131,9 @@ async def test_last_client_disconnecting_writes_the_safe_outputs_at_once() -> No
         wd = gw.modbus.watchdog
         # a port check before any PLC talked: connects, sends nothing, goes; nothing is written
         _, probe = await asyncio.open_connection("127.0.0.1", gw.modbus.port)
-        await wait_until(lambda: wd.clients == 1, 5, "the port check connected")
+        await wait_until(lambda: wd.writers == 1, 5, "the port check connected")
         probe.close()
-        await wait_until(lambda: wd.clients == 0, 5, "the port check gone")
+        await wait_until(lambda: wd.writers == 0, 5, "the port check gone")
         assert wd.trips == {"timeout": 0, "disconnect": 0} and wd.state == "waiting"
         client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
         await client.connect()
@@ -153,6 +158,165 @@ async def test_last_client_disconnecting_writes_the_safe_outputs_at_once() -> No
         assert 'canopen_gateway_modbus_watchdog_trips_total{reason="disconnect"} 1.0' in metrics
         row = json.loads(await asyncio.to_thread(get, "/api/node/io"))
         assert row["row"]["outputs"] == "safe"
+
+
+PLC_ONLY = ["127.0.0.1/32"]  # allowed_networks: the PLC connects from 127.0.0.1
+HMI_ADDRESS = ("127.0.0.2", 0)  # an HMI on another loopback address: may read, not write
+
+
+def hmi_client(gw: Gateway) -> AsyncModbusTcpClient:
+    return AsyncModbusTcpClient(
+        "127.0.0.1", port=gw.modbus.port, timeout=3, source_address=HMI_ADDRESS
+    )
+
+
+async def hmi_reads(client: AsyncModbusTcpClient) -> None:
+    """An HMI's cycle: the outputs (holding registers, served from the image), the node's
+    diagnostics bits (served in a task), again and again."""
+    while True:
+        rr = await client.read_holding_registers(OUT_1_8, count=4, device_id=UNIT)
+        assert not rr.isError(), rr
+        rr = await client.read_discrete_inputs(0, count=5, device_id=UNIT)
+        assert not rr.isError(), rr
+        await asyncio.sleep(0.02)  # its cycle time
+
+
+async def test_an_hmi_that_only_reads_keeps_nothing_alive_when_the_plc_is_gone() -> None:
+    async with io_gateway({"watchdog_ms": 300, "allowed_networks": PLC_ONLY}) as (gw, frames):
+        wd = gw.modbus.watchdog
+        plc = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+        hmi = hmi_client(gw)
+        await plc.connect()
+        await hmi.connect()
+        reading = asyncio.create_task(hmi_reads(hmi))
+        try:
+            await plc_writes(plc)
+            await wait_until(lambda: bytes.fromhex("3412f401") in sent(frames, RPDO2), 5, "PLC's RPDO2")
+            assert wd.writers == 1, "the HMI is no writer"
+            plc.close()  # the PLC dies; the HMI keeps reading
+            await wait_until(lambda: bytes.fromhex("3412ffff") in sent(frames, RPDO2), 5, "safe RPDO2")
+            assert wd.trips == {"timeout": 1, "disconnect": 0}
+            assert not reading.done(), "the HMI read all along"
+            await wait_until(lambda: gw.image.nodes["io"].health.outputs == "safe", 5, "outputs safe")
+            bits = await hmi.read_discrete_inputs(OUTPUTS_SAFE, count=1, device_id=UNIT)
+            assert bits.bits[0] is True
+            assert wd.state == "tripped" and wd.next_deadline() is None, "its reads arm nothing"
+        finally:
+            reading.cancel()
+            await asyncio.gather(reading, return_exceptions=True)
+            hmi.close()
+            plc.close()
+
+
+async def test_a_plc_gone_with_an_hmi_still_connected_trips_on_disconnect() -> None:
+    async with io_gateway(
+        {"watchdog_on_disconnect": True, "allowed_networks": PLC_ONLY}
+    ) as (gw, frames):
+        wd = gw.modbus.watchdog
+        hmi = hmi_client(gw)
+        await hmi.connect()
+        plc = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+        await plc.connect()
+        try:
+            await plc_writes(plc)
+            rr = await hmi.read_holding_registers(OUT_1_8, count=4, device_id=UNIT)
+            assert rr.registers == [0xFF, 0x03, 0x1234, 500]
+            plc.close()  # the HMI stays connected: the PLC's connection is the one that counts
+            await wait_until(lambda: bytes.fromhex("3412ffff") in sent(frames, RPDO2), 5, "safe RPDO2")
+            assert wd.trips == {"timeout": 0, "disconnect": 1}
+        finally:
+            hmi.close()
+            plc.close()
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    ca = Pki(tmp_path_factory.mktemp("pki"))
+    return {
+        "ca": ca,
+        "server": ca.issue("gateway", server=True),
+        "operator": ca.issue("plc1", role="Operator"),
+        "viewer": ca.issue("hmi1", role="Viewer"),
+        "norole": ca.issue("laptop"),
+    }
+
+
+async def test_clients_that_may_not_write_feed_nothing(pki: dict[str, Any]) -> None:
+    """An address outside allowed_networks, a TLS role with read access, a TLS client with no
+    role: their writes are refused (0x01), and none of their requests arms the watchdog."""
+    async with secure_gateway(pki, watchdog_ms=300, allowed_networks=PLC_ONLY) as gw:
+        wd = gw.modbus.watchdog
+        outsider = hmi_client(gw)
+        viewer, norole = client_for(gw, pki, "viewer"), client_for(gw, pki, "norole")
+        operator = client_for(gw, pki, "operator")
+        clients = (outsider, viewer, norole, operator)
+        try:
+            for client in clients:
+                assert await client.connect()
+            await wait_until(lambda: len(gw.modbus.connections) == 4, 5, "four connections")
+            assert wd.writers == 1, "the operator only"
+            for client in (outsider, viewer, norole):
+                rr = await client.write_registers(SET_POINT1, [0, 1], device_id=UNIT_AP05)
+                assert rr.isError() and rr.exception_code == 0x01, rr
+                await client.read_holding_registers(SET_POINT1, count=2, device_id=UNIT_AP05)
+                await client.read_discrete_inputs(0, count=5, device_id=UNIT_AP05)
+            assert gw.modbus.store.requests == 9
+            assert wd.state == "waiting" and wd.next_deadline() is None, "nothing fed it"
+            # the operator (role Operator, from 127.0.0.1) may write: its read arms it
+            rr = await operator.read_holding_registers(SET_POINT1, count=2, device_id=UNIT_AP05)
+            assert not rr.isError(), rr
+            assert wd.state in ("armed", "tripped") and wd.last_request_s is not None
+        finally:
+            for client in clients:
+                client.close()
+
+
+async def test_a_read_only_gateway_has_no_client_that_feeds_it(caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.WARNING, logger="gateway.modbus"):
+        async with io_gateway({"watchdog_ms": 300, "read_only": True}) as (gw, frames):
+            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+            await client.connect()
+            try:
+                rr = await client.read_holding_registers(OUT_1_8, count=4, device_id=UNIT)
+                assert not rr.isError(), rr
+                rr = await client.write_register(OUT_1_8, 1, device_id=UNIT)
+                assert rr.isError() and rr.exception_code == 0x01, rr
+                wd = gw.modbus.watchdog
+                assert wd.state == "waiting" and wd.writers == 0 and wd.next_deadline() is None
+            finally:
+                client.close()
+    assert any("never trips" in r.getMessage() for r in caplog.records), "said at start"
+
+
+async def plc_transaction(gw: Gateway, value: int) -> None:
+    """A PLC that opens a connection for each transaction: connect, write, close."""
+    client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+    await client.connect()
+    rr = await client.write_register(OUT_1_8, value, device_id=UNIT)
+    assert not rr.isError(), rr
+    client.close()
+    await wait_until(lambda: gw.modbus.watchdog.writers == 0, 5, "the server saw it close")
+
+
+async def test_a_plc_that_connects_per_transaction_keeps_its_outputs() -> None:
+    # a watchdog time far longer than the test: what trips here trips on a disconnection
+    async with io_gateway({"watchdog_ms": 600_000, "watchdog_on_disconnect": True}) as (gw, frames):
+        wd = gw.modbus.watchdog
+        for value in range(1, 11):
+            await plc_transaction(gw, value)
+            assert wd.state == "disconnected", "the countdown of the last request runs"
+        await wait_until(lambda: bytes.fromhex("0a00") in sent(frames, RPDO1), 5, "the 10th write")
+        assert wd.trips == {"timeout": 0, "disconnect": 0}
+        assert gw.image.nodes["io"].health.outputs == "normal"
+        assert [d[:1] for d in sent(frames, RPDO1)] == [bytes((v,)) for v in range(1, 11)]
+
+
+async def test_a_plc_that_connects_per_transaction_and_stops_trips_on_disconnect() -> None:
+    async with io_gateway({"watchdog_ms": 300, "watchdog_on_disconnect": True}) as (gw, frames):
+        await plc_transaction(gw, 0xFF)
+        await wait_until(lambda: bytes.fromhex("0000") in sent(frames, RPDO1), 5, "safe RPDO1")
+        assert gw.modbus.watchdog.trips == {"timeout": 0, "disconnect": 1}
+        assert gw.image.nodes["io"].health.outputs == "safe"
 
 
 def test_check_names_a_safe_output_that_is_no_rpdo_output() -> None:
