@@ -628,6 +628,15 @@ class Master:
     def _on_pair_frame(self, cob_id: int, data: bytes, wall: float, now: float) -> None:
         assert self.pair is not None
         self._pair_actions(self.pair.on_frame(cob_id, data, now))
+        peer = self.pair.peer
+        if peer is not None and peer.node_id not in self.peers.configured_ids:
+            # the other gateway named its id in its claim: its own heartbeat is the peer's,
+            # not an unconfigured node that talks
+            self.peers.configured_ids.add(peer.node_id)
+            self.peers.talking.pop(peer.node_id, None)
+            self.driver.handlers[COB_NMT_EC + peer.node_id] = self._peer_frame(
+                self._on_peer_heartbeat
+            )
 
     def _on_logical_heartbeat(self, data: bytes, wall: float, now: float) -> None:
         assert self.pair is not None
