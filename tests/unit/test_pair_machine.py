@@ -123,6 +123,16 @@ class Pair:
         return sum(1 for _, s, c, _ in self.log if s == sender and c == cob_id)
 
 
+def a_active_b_standby() -> tuple[Pair, Gateway, Gateway]:
+    """A (priority 0) started alone and active, B (priority 1) joined a second later, at 5 s."""
+    pair = Pair()
+    a = pair.add("A", node_id=101, priority=0)
+    pair.run_until(1.0)
+    b = pair.add("B", node_id=102, priority=1)
+    pair.run_until(5.0)
+    return pair, a, b
+
+
 # ------------------------------------------------------------------ start
 
 
@@ -173,11 +183,7 @@ def test_equal_priority_the_lower_node_id_wins() -> None:
 
 
 def test_when_the_active_one_dies_the_standby_takes_over_within_a_second() -> None:
-    pair = Pair()
-    a = pair.add("A", node_id=101, priority=0)
-    pair.run_until(1.0)
-    b = pair.add("B", node_id=102, priority=1)
-    pair.run_until(5.0)
+    pair, a, b = a_active_b_standby()
     a.up = False  # SIGKILL
     last_a = pair.last_heartbeat("A")
     pair.run_until(10.0)
@@ -191,11 +197,7 @@ def test_when_the_active_one_dies_the_standby_takes_over_within_a_second() -> No
 
 
 def test_a_restarted_gateway_joins_as_standby_even_with_the_better_priority() -> None:
-    pair = Pair()
-    a = pair.add("A", node_id=101, priority=0)
-    pair.run_until(1.0)
-    b = pair.add("B", node_id=102, priority=1)
-    pair.run_until(5.0)
+    pair, a, b = a_active_b_standby()
     a.up = False
     pair.run_until(10.0)
     a = pair.restart("A")
@@ -206,11 +208,7 @@ def test_a_restarted_gateway_joins_as_standby_even_with_the_better_priority() ->
 
 
 def test_a_frozen_active_one_is_replaced_and_when_thawed_one_sender_remains_at_once() -> None:
-    pair = Pair()
-    a = pair.add("A", node_id=101, priority=0)
-    pair.run_until(1.0)
-    b = pair.add("B", node_id=102, priority=1)
-    pair.run_until(5.0)
+    pair, a, b = a_active_b_standby()
     a.up = False
     pair.run_until(10.0)  # B active
     b.up = False  # SIGSTOP for 2 s: B keeps its state
