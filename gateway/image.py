@@ -34,7 +34,9 @@ class SignalValue(NamedTuple):
     name: str
     value: Any = None
     timestamp: float = 0.0  # source timestamp (wall clock, seconds) of the frame
-    monotonic: float = 0.0  # receive time, monotonic clock, for data age and freshness
+    # receive time on the bus clock (monotonic; an SDO read: its request's), for data age
+    # and freshness
+    monotonic: float = 0.0
     seq: int = 0  # values received for this signal (0 = never)
 
 
@@ -148,7 +150,8 @@ class SignalView(Mapping[str, SignalValue]):
     """``node.signals``: signal name -> its latest ``SignalValue``, computed from the records.
 
     A signal may live in several records (SGH10 TPDO1 and TPDO2 carry the same values; a value
-    read by SDO): the most recently received wins, and ``seq`` counts all of them."""
+    read by SDO): the one valid latest wins (its ``monotonic``: a frame's receive time, an SDO
+    read's request time; ``ProcessImage.update``), and ``seq`` counts all of them."""
 
     __slots__ = ("_records", "_where")
 
@@ -378,12 +381,19 @@ class ProcessImage:
         values: tuple[Any, ...],
         ts: float,
         rx: RxCell | None = None,
+        mono: float | None = None,
     ) -> None:
         """Write the values of one PDO (hot path: one record, one assignment) and tell the value
         listeners. ``names`` is a bound key (``NodeImage.bind``); ``rx`` is the calling
         thread's cell of the node's counters (default: looked up). Each record has one writer:
-        a TPDO's is the reader thread, a value read by SDO's is the event loop."""
-        mono = time.monotonic()
+        a TPDO's is the reader thread, a value read by SDO's is the event loop.
+
+        ``mono`` is when the values were valid, on the bus clock (monotonic) that
+        ``fresh_since`` is on: a TPDO's receive time, a value read by SDO the time its
+        request went out (default: now). The freshness of a value and which record of a
+        signal is the latest are decided by it, not by when the writer got to it."""
+        if mono is None:
+            mono = time.monotonic()
         node.put(names, values, ts, mono)
         (rx or node.rx.cell()).last_rx_monotonic = mono
         for listener in self.value_listeners:

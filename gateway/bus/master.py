@@ -307,7 +307,8 @@ class Master:
                     length,
                 )
             values = decode(data)
-            update(node, names, values, msg.timestamp or time.time(), rx)
+            # stamped with its receive time (bus clock), not when the reader got to it
+            update(node, names, values, msg.timestamp or time.time(), rx, frame_time(msg))
             if pdo_listeners:
                 raw = bytes(data)
                 for listener in pdo_listeners:
@@ -426,7 +427,9 @@ class Master:
                 self._sdo_done(p, o)
             elif isinstance(o, ValuesRead):
                 if p.image.is_bound(o.names):  # bound by build_node: the refresh plan
-                    self.image.update(p.image, o.names, o.values, time.time(), p.loop_rx)
+                    self.image.update(
+                        p.image, o.names, o.values, time.time(), p.loop_rx, o.valid_at_s
+                    )
                     self.image.end_batch()
                 else:
                     self.warn.log(

@@ -516,7 +516,9 @@ def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
     """What the device at this node must hold in 1018h (CiA 301 7.5.2.20), as its EDS/DCF
     says: sub 01h = VendorNumber and 02h = ProductNumber of [DeviceInfo] when the file gives
     both, and for a DCF sub 04h = the ParameterValue of 1018h:04 (the serial number of the
-    commissioned device). Empty when the file gives no identity. A number the file contradicts
+    commissioned device). Empty when the file gives no identity. Only the sub-indices the file
+    defines are compared (CiA 301 makes only 1018h:01 mandatory: a file with 1018h:01 alone
+    says its devices have no product code to read). A number the file contradicts
     itself on ([DeviceInfo] and the value of 1018h differ; ``eds lint`` warns) is not compared:
     the file does not say which device it describes, and a right device must not be refused."""
     info = lp.od.device_information
@@ -526,6 +528,8 @@ def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
     out = []
     for sub, given in ((1, int(vendor)), (2, int(product))):
         var = od_var(lp.od, ObjRef(0x1018, sub))
+        if var is None:
+            continue
         held = getattr(var, "value", None)
         if held is None:
             held = getattr(var, "default", None)

@@ -2,13 +2,16 @@
 LocalNode built from the same EDS answers SDO (and produces its heartbeat) on a virtual bus; the
 test sends the boot-up and the TPDOs itself. Values over Modbus (pymodbus) and Zenoh with the
 EDS types, a config remap seen on the bus frame by frame in CiA 301 order, and a device holding
-another mapping than the EDS detected by verify_mapping (values bad, Modbus 0x0B)."""
+another mapping than the EDS detected by verify_mapping (values bad, Modbus 0x0B), and the
+identity check against devices with less of 1018h than four sub-indices (only 1018h:01 is
+mandatory, CiA 301 7.5.2.20)."""
 
 from __future__ import annotations
 
+import logging
 import struct
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
@@ -83,6 +86,7 @@ def boot(node: canopen.LocalNode) -> None:
 async def gateway_with(
     eds: Path, node_id: int, name: str, node_extra: dict[str, Any] | None = None,
     device_od: dict[tuple[int, int], int] | None = None,
+    device_setup: Callable[[canopen.LocalNode], None] | None = None,
 ) -> AsyncIterator[tuple[Gateway, canopen.LocalNode, can.BusABC, SdoLog]]:  # fmt: skip
     cfg = make_config(
         # heartbeat 300 ms: the LocalNode's heartbeat is a python-can software timer
@@ -94,6 +98,8 @@ async def gateway_with(
     for (index, sub), value in (device_od or {}).items():
         var = node.sdo[index] if sub == 0 and isinstance(node.object_dictionary[index], canopen.objectdictionary.ODVariable) else node.sdo[index][sub]  # fmt: skip
         node.set_data(index, sub, var.od.encode_raw(value))
+    if device_setup is not None:
+        device_setup(node)
     sniffer = can.Bus(interface="virtual", channel=cfg.can.channel)
     log = SdoLog(node_id)
     notifier = can.Notifier(sniffer, [log])
@@ -238,3 +244,62 @@ async def test_simulated_eds_only_node_runs_with_the_gateway() -> None:
         assert gw.master.nodes["io"].mapping_mismatches == []
     finally:
         await gw.stop()
+
+
+def _identity_uploads(log: SdoLog) -> list[int]:
+    """The sub-indices of 1018h the gateway asked for (SDO initiate upload), in order."""
+    return [d[3] for cob, d in log.frames if cob == log.cob and d[0] == 0x40 and d[1:3] == b"\x18\x10"]  # fmt: skip
+
+
+async def test_a_device_whose_eds_defines_only_the_vendor_id_of_1018h_is_configured(
+    tmp_path: Path,
+) -> None:
+    """The EDS gives VendorNumber and ProductNumber, but its 1018h has sub-index 01h only (as
+    the device): the vendor id is compared, the product code is not asked for."""
+    text = IO.read_text(encoding="utf-8")
+    head, rest = text.split("[1018sub2]", 1)
+    rest = rest[rest.index("[1400]") :]
+    head = head.replace("SubNumber=5", "SubNumber=2").replace(
+        "ParameterName=Number of entries\nObjectType=0x7\nDataType=0x0005\nAccessType=ro\nDefaultValue=4",
+        "ParameterName=Number of entries\nObjectType=0x7\nDataType=0x0005\nAccessType=ro\nDefaultValue=1",
+    )
+    eds = tmp_path / "io401-vendor-only.eds"
+    eds.write_text(head + rest, encoding="utf-8")
+    async with gateway_with(eds, 5, "io") as (gw, _node, _bus, log):
+        assert _identity_uploads(log) == [0x01]
+        assert "wrong device" not in gw.image.nodes["io"].health.last_error
+
+
+def _no_1018_beyond_the_vendor_id(node: canopen.LocalNode) -> None:
+    """The device answers 1018h:02..04 with "object does not exist" (SDO abort 0602 0000h)."""
+
+    def read(index: int, subindex: int, od: object) -> None:
+        if index == 0x1018 and subindex > 1:
+            raise canopen.SdoAbortedError(0x06020000)
+
+    node.add_read_callback(read)
+
+
+async def test_identity_objects_the_device_says_do_not_exist_are_not_compared_said_once(
+    caplog: Any,
+) -> None:
+    caplog.set_level(logging.INFO, logger="gateway")
+    async with gateway_with(IO, 5, "io", device_setup=_no_1018_beyond_the_vendor_id) as (gw, node, _bus, log):  # fmt: skip
+        assert _identity_uploads(log) == [0x01, 0x02]
+        health = gw.image.nodes["io"].health
+        assert "wrong device" not in health.last_error
+        # a reboot: checked again, configured again, not said again
+        boot(node)
+        await wait_until(
+            lambda: health.boot_count == 2
+            and gw.master.nodes["io"].lifecycle.state == "operational"
+            and gw.image.nodes["io"].operational(),
+            8,
+            "io configured again after its second boot-up",
+        )
+        assert _identity_uploads(log) == [0x01, 0x02] * 2
+    said = [r.getMessage() for r in caplog.records if "not compared" in r.getMessage()]
+    assert said == [
+        "node io: 0x1018:02 (product) not compared: the device says 0x06020000 "
+        "(Object does not exist in the object dictionary)"
+    ]

@@ -15,9 +15,11 @@ import pytest
 
 from gateway.bus.node.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.node.lifecycle import (
+    RECHECK_BACKOFF,
     Backoff,
     BootTimeout,
     Configured,
+    IdentityNotCompared,
     LifecycleState,
     NodeLifecycle,
     SendNmt,
@@ -261,7 +263,7 @@ class TestFoundRunningAndLost:
         lc = NodeLifecycle(STEPS, expected_device_type=0x000A0196)
         lc.start(0.0)
         out = lc.on_found(0.5, device_type=0x00020196)
-        assert out == [WrongDevice(expected=0x000A0196, found=0x00020196)]
+        assert out == [WrongDevice(expected=0x000A0196, found=0x00020196, recheck_in_s=60.0)]
         assert lc.state is W and lc.next_action(0.5) is None
         assert lc.last_error is not None and "0x00020196" in lc.last_error
         assert lc.poll(100.0) == []  # it did appear: no boot timeout on top
@@ -628,7 +630,7 @@ def test_another_device_is_not_configured_and_says_what_it_is() -> None:
     lc.on_identity_result(0.0, 0x195, token=a.token)
     a = _read(lc, 0.0)
     changes = lc.on_identity_result(0.0, 0x999, token=a.token)
-    assert changes == [StateChanged(C, W, "wrong device (1018h)"), WrongDevice(0x195, 0x195)]
+    assert changes == [StateChanged(C, W, "wrong device (1018h)"), WrongDevice(0x195, 0x195, 60.0)]
     assert lc.state is W and lc.next_action(1.0) is None
     assert lc.last_error == "wrong device: vendor 0x195 product 0x999, expected vendor 0x195 product 0x401 (1018h against the EDS): not configured"  # fmt: skip
 
@@ -644,8 +646,86 @@ def test_an_identity_read_without_answer_is_retried_and_a_refusal_is_a_wrong_dev
     assert a.object == ObjRef(0x1018, 1)
     lc.on_identity_result(0.5, 0x195, token=a.token)
     a = _read(lc, 0.5)
-    lc.on_identity_result(0.5, None, abort_code=0x06020000, token=a.token)
+    # a refusal other than "does not exist": read access denied (CiA 301 table 22)
+    lc.on_identity_result(0.5, None, abort_code=0x06010001, token=a.token)
     assert lc.state is W and "product (unreadable)" in (lc.last_error or "")
+
+
+def _boot_and_read(lc: NodeLifecycle, now: float, answers: list[tuple[int | None, int | None]]) -> list[Any]:  # fmt: skip
+    """Boot-up, then each identity read answered with (value, abort code) in turn."""
+    changes: list[Any] = list(lc.on_bootup(now))
+    for value, code in answers:
+        a = _read(lc, now)
+        changes += lc.on_identity_result(now, value, code, token=a.token)
+    return changes
+
+
+def test_an_identity_object_the_device_does_not_have_is_not_compared_and_said_once() -> None:
+    # CiA 301 7.5.2.20: only 1018h:01 is mandatory; "sub-index does not exist" is no product
+    lc = NodeLifecycle([ConfigStep(ObjRef(0x1017, 0), 100, "uint16")], expected_identity=IDENTITY)
+    changes = _boot_and_read(lc, 0.0, [(0x195, None), (None, 0x06090011)])
+    assert [c for c in changes if not isinstance(c, StateChanged)] == [
+        IdentityNotCompared(ObjRef(0x1018, 2), 0x06090011)
+    ]
+    assert isinstance(lc.next_action(0.0), WriteStep) and lc.state is C
+    # the next boot: the same answer (or "object does not exist") is not reported again
+    changes = _boot_and_read(lc, 5.0, [(0x195, None), (None, 0x06020000)])
+    assert [c for c in changes if not isinstance(c, StateChanged)] == []
+    assert isinstance(lc.next_action(5.0), WriteStep)
+
+
+def test_a_wrong_vendor_is_refused_naming_only_the_numbers_compared() -> None:
+    lc = NodeLifecycle([], expected_identity=IDENTITY)
+    changes = _boot_and_read(lc, 0.0, [(0x999, None), (None, 0x06090011)])
+    assert changes[-1] == WrongDevice(0x195, 0x999, 60.0)
+    assert lc.state is W
+    assert lc.last_error == "wrong device: vendor 0x999, expected vendor 0x195 (1018h against the EDS): not configured"  # fmt: skip
+
+
+class TestRefusedDeviceRecheck:
+    """A refused device is checked again at its next boot-up, or found running once the
+    recheck delay (minutes, growing) has passed; never at each of its heartbeats."""
+
+    def test_found_again_is_ignored_until_the_recheck_and_the_delay_grows(self) -> None:
+        lc = NodeLifecycle([], expected_identity=IDENTITY)
+        (*_, refused) = _boot_and_read(lc, 0.0, [(0x999, None), (0x401, None)])
+        assert refused == WrongDevice(0x195, 0x999, 60.0)
+        assert lc.recheck_at_s == 60.0
+        assert not lc.may_probe(59.9)
+        assert lc.on_found(59.9) == [] and lc.state is W  # a probe answered early: ignored
+        assert lc.may_probe(60.0)
+        assert states(lc.on_found(60.0)) == [(W, B)]
+        lc.on_nmt_sent(60.0)
+        changes: list[Any] = []
+        for value in (0x999, 0x401):
+            a = _read(lc, 60.0)
+            changes += lc.on_identity_result(60.0, value, token=a.token)
+        assert changes[-1] == WrongDevice(0x195, 0x999, 120.0)  # 2nd refusal in a row
+        assert lc.recheck_at_s == 180.0
+        delays = [RECHECK_BACKOFF.delay_s(n) for n in range(1, 8)]
+        assert delays == [60.0, 120.0, 240.0, 480.0, 960.0, 960.0, 960.0]
+
+    def test_a_boot_up_is_checked_at_once_and_a_configuration_ends_the_refusals(self) -> None:
+        lc = NodeLifecycle([], expected_identity=IDENTITY)
+        _boot_and_read(lc, 0.0, [(0x999, None), (0x401, None)])
+        assert lc.recheck_at_s == 60.0 and lc.refusals == 1
+        # the right device is plugged in: its boot-up is checked at once
+        changes = _boot_and_read(lc, 10.0, [(0x195, None), (0x401, None)])
+        assert lc.recheck_at_s is None and lc.may_probe(10.0)
+        assert not [c for c in changes if isinstance(c, WrongDevice)]
+        assert lc.next_action(10.0) == SendNmt("nmt_start", 0x01)
+        lc.on_nmt_sent(10.0)
+        assert lc.state is O and lc.refusals == 0
+
+    def test_a_wrong_device_type_found_by_a_probe_waits_its_recheck_too(self) -> None:
+        lc = NodeLifecycle(STEPS, expected_device_type=0x000A0196)
+        lc.start(0.0)
+        assert lc.on_found(0.5, device_type=0x00020196)[0].recheck_in_s == 60.0
+        assert not lc.may_probe(60.0) and lc.may_probe(60.5)
+        assert lc.on_found(1.5, device_type=0x00020196) == []  # not reported again
+        assert lc.on_found(60.5, device_type=0x00020196) == [
+            WrongDevice(0x000A0196, 0x00020196, 120.0)
+        ]
 
 
 class TestTransitionTable:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import logging
 import math
 import struct
 from collections.abc import Callable
@@ -15,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.bus.node.events import Send, ValuesRead
+from gateway.bus.node.events import Note, Send, ValuesRead
 from gateway.bus.parts import NodeParts, build_node
 from gateway.bus.resolved import resolve_node
 from gateway.image import NodeImage, Quality, SignalValue
@@ -110,6 +111,7 @@ class Harness:
         self.now = 0.0
         self.sent: list[tuple[float, Send]] = []
         self.read: list[ValuesRead] = []
+        self.notes: list[tuple[float, Note]] = []
         self._events: list[tuple[float, int, Callable[[], list[Any]]]] = []
         self._seq = itertools.count()
 
@@ -122,6 +124,8 @@ class Harness:
                     self.at(self.now + delay, self._rx(cob, data))
             elif isinstance(o, ValuesRead):
                 self.read.append(o)
+            elif isinstance(o, Note):
+                self.notes.append((self.now, o))
 
     def _rx(self, cob: int, data: bytes) -> Callable[[], list[Any]]:
         def deliver() -> list[Any]:
@@ -255,6 +259,31 @@ def test_a_boot_up_cancels_a_probe_in_flight_and_configuration_starts_at_once() 
     first_step = h.frames(0x601, after=0.0)
     assert first_step and first_step[0][0] == 0.05  # 1017h written at once, not after 0.5 s
     assert first_step[0][1].data[0] == 0x2B and first_step[0][1].data[1:3] == b"\x17\x10"
+
+
+def test_a_refused_device_sending_heartbeats_is_checked_again_only_after_minutes() -> None:
+    """Another vendor's device at the node id (1018h:01 differs), heartbeat every 100 ms, for
+    an hour: it is checked at its boot-up and then after 1, 2, 4, 8, 16, 16 minutes, not at
+    each heartbeat (before: NMT pre-operational and three SDO requests every second)."""
+    h = Harness("posi_plus", node_id=3, heartbeat_ms=100)
+    h.device.identity[(0x1018, 1)] = 0x999  # another vendor
+    h.start()
+    h.bootup(1.0)
+    h.heartbeats(1.01, 3600.0)
+    h.run_until(3600.0)
+    preops = [t for t, s in h.frames(0x000) if s.data[0] == 0x80]
+    assert preops == pytest.approx([61.0, 181.0, 421.0, 901.0, 1861.0, 2821.0], abs=0.11)
+    requests = h.frames(0x603)
+    assert len(requests) == 2 + 3 * len(preops)  # 1018h:01/02; then 1000h and 1018h:01/02
+    errors = [n.text for _, n in h.notes if n.level >= logging.ERROR]
+    assert len(errors) == 1 + len(preops)  # one line per check
+    assert errors[0].endswith("not configured; checked again at its next boot-up or in 60 s")
+    assert h.image.health.lifecycle == "waiting" and "wrong device" in h.image.health.last_error
+    # the right device replaces it: its boot-up is checked at once
+    h.device.identity[(0x1018, 1)] = 0x184
+    h.bootup(3600.5)
+    h.run_until(3601.0)
+    assert h.nmt_start_time(after=3600.0) < 3601.0
 
 
 # --------------------------------------------------------------------------- guarding (13.4)

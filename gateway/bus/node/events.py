@@ -36,10 +36,15 @@ class SdoDone:
 @dataclass(frozen=True)
 class ValuesRead:
     """Values for the process image that did not come in a TPDO: read by SDO (refresh after
-    NMT start), or outputs just sent. Names not in the image are ignored."""
+    NMT start), or outputs just sent. Names not in the image are ignored. ``valid_at_s``: the
+    latest instant (bus clock) the values are known to have been valid at the device before,
+    for a value read by SDO the time its request went out (the device took the value after
+    it); the image stamps the values with it, so a TPDO received after the request, and
+    handled before the answer, keeps the newer value. None: now."""
 
     names: tuple[str, ...]
     values: tuple[Any, ...]
+    valid_at_s: float | None = None
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,8 @@ from gateway.bus.node.boot_steps import ConfigStep
 from gateway.cia301 import (
     NMT_ENTER_PRE_OPERATIONAL,
     NMT_START,
+    SDO_ABORT_NO_OBJECT,
+    SDO_ABORT_NO_SUBINDEX,
     abort_text,
 )
 from gateway.objref import ObjRef
@@ -56,6 +58,12 @@ class Backoff:
         if attempt < 1:
             return 0.0
         return min(self.max_s, self.initial_s * self.factor ** (attempt - 1))
+
+
+#: A refused device (1000h or 1018h not what the file says) is checked again at its next
+#: boot-up, or when a probe finds it running after this delay: 1 min, 2 min, 4 min ... 16 min
+#: (not at each of its heartbeats: every check sends it NMT pre-operational and reads 1018h).
+RECHECK_BACKOFF = Backoff(initial_s=60.0, factor=2.0, max_s=960.0)
 
 
 class LifecycleEvent(StrEnum):
@@ -136,6 +144,9 @@ Action = Wait | WriteStep | SendNmt | ReadIdentity
 
 #: CiA 301 7.5.2.20 identity object 1018h: the sub-indices compared, and their words.
 IDENTITY_NAMES = {0x01: "vendor", 0x02: "product", 0x03: "revision", 0x04: "serial"}
+#: CiA 301 table 22: an identity read answered with these aborts is not compared (only
+#: 1018h:01 is mandatory; a device may lack 02h..04h): the device holds no such number
+IDENTITY_ABSENT = (SDO_ABORT_NO_OBJECT, SDO_ABORT_NO_SUBINDEX)
 
 
 # -- changes (what happened)
@@ -179,10 +190,21 @@ class BootTimeout:
 
 @dataclass(frozen=True)
 class WrongDevice:
-    """The node found has another device type (1000h) than the profile expects."""
+    """The node holds another device type (1000h) or identity (1018h) than the file says: it
+    is not configured, and checked again at its next boot-up or in ``recheck_in_s``."""
 
     expected: int
     found: int
+    recheck_in_s: float
+
+
+@dataclass(frozen=True)
+class IdentityNotCompared:
+    """An identity object the device says it does not have (``IDENTITY_ABSENT``): not compared.
+    Reported the first time only (the device says the same at every boot)."""
+
+    object: ObjRef
+    abort_code: int
 
 
 @dataclass(frozen=True)
@@ -192,7 +214,10 @@ class Configured:
     duration_s: float
 
 
-Change = StateChanged | StepFailed | StepSkipped | BootTimeout | WrongDevice | Configured
+Change = (
+    StateChanged | StepFailed | StepSkipped | BootTimeout | WrongDevice | IdentityNotCompared
+    | Configured
+)  # fmt: skip
 
 
 def _step_error(step: ConfigStep, abort_code: int | None) -> str:
@@ -211,13 +236,15 @@ class NodeLifecycle:
     WAITING      start                                         WAITING      boot timeout armed
     WAITING      poll, now > armed + boot timeout              WAITING      BootTimeout (once)
     WAITING      found running (probe of 1000h / supervision)  BOOTING      action: NMT pre-operational
-    WAITING      found, 1000h != expected device type          WAITING      WrongDevice
+    WAITING      found, 1000h != expected device type          WAITING      WrongDevice; recheck armed
+    WAITING      found, before the recheck of a refused device WAITING      ignored (counted)
     BOOTING      NMT pre-operational sent                      CONFIGURING  action: identity 0 (or step 0)
     any          boot-up                                       CONFIGURING  (via BOOTING) action: identity 0 (or step 0)
     CONFIGURING  identity read i ok, more to read              CONFIGURING  action: identity i + 1
     CONFIGURING  identity read i: no answer                    CONFIGURING  StepFailed; action: Wait, then read i again
-    CONFIGURING  last identity read, all as expected           CONFIGURING  action: step 0
-    CONFIGURING  last identity read, one differs / refused     WAITING      WrongDevice (not configured)
+    CONFIGURING  identity read i: abort "does not exist"       CONFIGURING  IdentityNotCompared (first time); i + 1
+    CONFIGURING  last identity read, all compared as expected  CONFIGURING  action: step 0
+    CONFIGURING  last identity read, one differs / refused     WAITING      WrongDevice (not configured); recheck armed
     CONFIGURING  step i ok                                     CONFIGURING  action: step i + 1
     CONFIGURING  step i failed (abort / timeout)               CONFIGURING  StepFailed; action: Wait, then step i again
     CONFIGURING  optional step i refused (abort)               CONFIGURING  StepSkipped; action: step i + 1
@@ -235,9 +262,17 @@ class NodeLifecycle:
     without a limit: ``last_error`` says what fails.
 
     ``expected_identity`` (CiA 302-2 1F85h..1F88h style, from the EDS/DCF): the 1018h
-    sub-indices and values the device must hold. They are read before the first step; a device
-    that holds other values (or refuses the read) is a wrong device: it is not configured and
-    not started (``last_error``: "wrong device: vendor V product P, expected ...").
+    sub-indices and values the device must hold. They are read before the first step; a
+    sub-index the device says does not exist (``IDENTITY_ABSENT``) is not compared; a device
+    that holds other values (or refuses the read otherwise) is a wrong device: it is not
+    configured and not started (``last_error``: "wrong device: vendor V product P, expected
+    ...").
+
+    A refused device (wrong identity, or a wrong device type found by a probe) is checked
+    again at its next boot-up, or when found running once ``recheck_at_s`` has passed (delays
+    of ``recheck``, default ``RECHECK_BACKOFF``, growing with each refusal in a row): until
+    then ``may_probe`` is false and a "found" is ignored, so its heartbeats do not make it
+    checked (NMT pre-operational, 1018h reads, an error line) over and over.
     """
 
     def __init__(
@@ -248,11 +283,18 @@ class NodeLifecycle:
         backoff: Backoff | None = None,
         expected_device_type: int | None = None,
         expected_identity: Sequence[tuple[ObjRef, int]] = (),
+        recheck: Backoff = RECHECK_BACKOFF,
     ):
         self.steps: tuple[ConfigStep, ...] = tuple(steps)
         self.expected_identity = tuple(expected_identity)
         self._identity_index = 0
         self._identity_found: dict[ObjRef, int | None] = {}
+        self._identity_skipped: set[ObjRef] = set()  # this boot's reads "does not exist"
+        #: identity objects the device said it does not have, over all boots (reported once)
+        self.identity_absent: set[ObjRef] = set()
+        self.recheck = recheck
+        self.refusals = 0  # refusals in a row (wrong device), since the last configuration
+        self._recheck_at: float | None = None
         self.boot_timeout_s = boot_timeout_s
         self.backoff = backoff or Backoff()
         self.expected_device_type = expected_device_type
@@ -284,6 +326,15 @@ class NodeLifecycle:
     @property
     def retry_at_s(self) -> float | None:
         return self._retry_at
+
+    @property
+    def recheck_at_s(self) -> float | None:
+        """When a refused device may be checked again (None: not refused, or booted since)."""
+        return self._recheck_at
+
+    def may_probe(self, now: float) -> bool:
+        """May a probe look for the node now? Not while a refused device waits its recheck."""
+        return self._recheck_at is None or now >= self._recheck_at
 
     def next_deadline(self) -> float | None:
         times = [t for t in (self._boot_deadline, self._retry_at) if t is not None]
@@ -332,6 +383,7 @@ class NodeLifecycle:
 
     def on_bootup(self, now: float) -> list[Change]:
         self.boots += 1
+        self._recheck_at = None  # a boot-up is always checked (a device replaced, reflashed)
         out: list[Change] = []
         if self.state is not LifecycleState.BOOTING:
             out.append(self._fire(LifecycleEvent.BOOTUP, "boot-up received"))
@@ -341,7 +393,7 @@ class NodeLifecycle:
 
     def on_found(self, now: float, device_type: int | None = None) -> list[Change]:
         """The node answers although no boot-up was seen (gateway restarted, cable replugged)."""
-        if self.state is not LifecycleState.WAITING:
+        if self.state is not LifecycleState.WAITING or not self.may_probe(now):
             return self._ignore("found")
         if (
             self.expected_device_type is not None
@@ -352,8 +404,8 @@ class NodeLifecycle:
                 f"device type (1000h) is 0x{device_type:08X}, the profile expects "
                 f"0x{self.expected_device_type:08X}: not configured"
             )
-            self._boot_deadline = None  # it did appear: no "no boot-up" report on top
-            return [WrongDevice(self.expected_device_type, device_type)]
+            delay = self._refuse(now)
+            return [WrongDevice(self.expected_device_type, device_type, delay)]
         self._boot_deadline = None
         self._preop_pending = True
         self._reset_progress()
@@ -385,6 +437,7 @@ class NodeLifecycle:
             return [self._begin_configuring(now, "NMT pre-operational sent")]
         if self.state is LifecycleState.CONFIGURING and self.step_index >= len(self.steps):
             self.configurations += 1
+            self.refusals = 0
             self.last_error = None
             started = self._config_started if self._config_started is not None else now
             return [
@@ -432,7 +485,8 @@ class NodeLifecycle:
         self, now: float, value: int | None, abort_code: int | None = None, token: int | None = None
     ) -> list[Change]:
         """Outcome of the last ``ReadIdentity``: the value read, or None with the abort code
-        (a refusal) or without (no answer: retried with backoff)."""
+        (``IDENTITY_ABSENT``: not compared; another: a refusal) or without (no answer:
+        retried with backoff)."""
         if self.state is not LifecycleState.CONFIGURING or self._in_flight is None:
             return self._ignore("identity result")
         if token is not None and token != self._in_flight:
@@ -447,12 +501,20 @@ class NodeLifecycle:
             self.last_error = f"{obj} (identity): no SDO answer"
             return [StepFailed(-1, step, None, self.attempt, delay, self.last_error)]
         self.attempt = 0
-        self._identity_found[obj] = value
+        out: list[Change] = []
+        if value is None and abort_code in IDENTITY_ABSENT:
+            self._identity_skipped.add(obj)
+            if obj not in self.identity_absent:
+                self.identity_absent.add(obj)
+                out.append(IdentityNotCompared(obj, abort_code))
+        else:
+            self._identity_found[obj] = value
         self._identity_index += 1
         if self._identity_index < len(self.expected_identity):
-            return []
-        if all(self._identity_found.get(o) == v for o, v in self.expected_identity):
-            return []
+            return out
+        compared = [(o, v) for o, v in self.expected_identity if o not in self._identity_skipped]
+        if all(self._identity_found.get(o) == v for o, v in compared):
+            return out
 
         def words(values: dict[ObjRef, int | None]) -> str:
             return " ".join(
@@ -460,15 +522,16 @@ class NodeLifecycle:
                 for o, v in values.items()
             )
 
-        found = {o: self._identity_found.get(o) for o, _ in self.expected_identity}
+        found = {o: self._identity_found.get(o) for o, _ in compared}
         self.last_error = (
-            f"wrong device: {words(found)}, expected {words(dict(self.expected_identity))} "
+            f"wrong device: {words(found)}, expected {words(dict(compared))} "
             "(1018h against the EDS): not configured"
         )
         self._reset_progress()
         changed = self._fire(LifecycleEvent.WRONG_IDENTITY, "wrong device (1018h)")
-        vendor = next((v for o, v in self.expected_identity if o.sub == 1), 0)
-        return [changed, WrongDevice(vendor, found.get(ObjRef(0x1018, 1)) or 0)]
+        delay = self._refuse(now)
+        vendor = next((v for o, v in compared if o.sub == 1), 0)
+        return [*out, changed, WrongDevice(vendor, found.get(ObjRef(0x1018, 1)) or 0, delay)]
 
     # -- internals
     def _fire(self, event: LifecycleEvent, reason: str) -> StateChanged:
@@ -484,9 +547,19 @@ class NodeLifecycle:
         self.ignored[key] = self.ignored.get(key, 0) + 1
         return []
 
+    def _refuse(self, now: float) -> float:
+        """A wrong device: no boot timeout report on top (it did appear), and no check again
+        before its next boot-up or the recheck delay; returns the delay."""
+        self.refusals += 1
+        delay = self.recheck.delay_s(self.refusals)
+        self._recheck_at = now + delay
+        self._boot_deadline = None
+        return delay
+
     def _reset_progress(self) -> None:
         self._identity_index = 0
         self._identity_found = {}
+        self._identity_skipped = set()
         self.step_index = 0
         self.attempt = 0
         self._in_flight = None

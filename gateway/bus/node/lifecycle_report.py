@@ -1,15 +1,16 @@
 """How a node takes what its lifecycle reports (``bus/node/lifecycle.py``): each change
 (``StateChanged``, ``StepFailed``, ``StepSkipped``, ``BootTimeout``, ``WrongDevice``,
-``Configured``) sets the fields of the node's health it speaks of (``lifecycle``,
+``IdentityNotCompared``, ``Configured``) sets the fields of the node's health it speaks of (``lifecycle``,
 ``last_error``, ``last_sdo_abort``, ``fresh_since``), becomes a log line (``Note``), tells the
 watchdog what guarding expects in the new state, and on ``Configured`` (NMT start sent) makes
-values fresh from now on and calls the features' ``on_configured``.
+values fresh from now on and calls the features' ``on_configured``. A wrong device's line is
+rate-limited by its kind (a device in a boot loop); the recheck delay it names bounds the rest.
 
 A module-level function taking the ``Node`` (``bus/node/owner.py``); like it, no I/O and no
 clock.
 
-Imports: bus.node.events, bus.node.lifecycle, gateway.states, logging; bus.node.owner for types
-only.
+Imports: bus.node.events, bus.node.lifecycle, gateway.cia301, gateway.states, logging;
+bus.node.owner for types only.
 """
 
 from __future__ import annotations
@@ -19,13 +20,16 @@ from typing import TYPE_CHECKING, Any
 
 from gateway.bus.node.events import HealthChanged, Note, Output
 from gateway.bus.node.lifecycle import (
+    IDENTITY_NAMES,
     BootTimeout,
     Configured,
+    IdentityNotCompared,
     StateChanged,
     StepFailed,
     StepSkipped,
     WrongDevice,
 )
+from gateway.cia301 import abort_text
 from gateway.states import NmtState
 
 if TYPE_CHECKING:
@@ -68,8 +72,17 @@ def take_lifecycle_changes(node: Node, changes: list[Any], now: float) -> list[O
             )
         elif isinstance(ch, WrongDevice):
             h.last_error = node.lifecycle.last_error or "wrong device type"
+            text = f"node {node.name} (id {node.node_id}): {h.last_error}; checked again at its next boot-up or in {ch.recheck_in_s:g} s"  # fmt: skip
+            out.append(Note(logging.ERROR, text, ("wrong_device", node.name)))
+        elif isinstance(ch, IdentityNotCompared):
+            obj, code = ch.object, ch.abort_code
+            what = IDENTITY_NAMES.get(obj.sub, "identity")
             out.append(
-                Note(logging.ERROR, f"node {node.name} (id {node.node_id}): {h.last_error}")
+                Note(
+                    logging.INFO,
+                    f"node {node.name}: {obj} ({what}) not compared: the device says "
+                    f"0x{code:08X} ({abort_text(code)})",
+                )
             )
         elif isinstance(ch, Configured):
             h.last_error = ""

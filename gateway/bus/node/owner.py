@@ -186,7 +186,7 @@ class Node:
             self.lifecycle.next_deadline(),
             self.watch.next_deadline(),
             self.sdo.next_deadline(),
-            self.next_probe_s if self.lifecycle.state is LifecycleState.WAITING else None,
+            self._probe_due_s(),
             self._keepalive_due(),
             self._wait_until,
             *(f.next_deadline() for f in self.features),
@@ -237,11 +237,8 @@ class Node:
         due = self._keepalive_due()
         if due is not None and now >= due:
             out += self._keepalive(now)
-        if (
-            self.lifecycle.state is LifecycleState.WAITING
-            and self.next_probe_s is not None
-            and now >= self.next_probe_s
-        ):
+        due = self._probe_due_s()
+        if due is not None and now >= due:
             out += self._probe(now)
         out += self._drive(now)
         return out
@@ -270,7 +267,11 @@ class Node:
             # boot-up since it was heard operational, so what it sends from now on is fresh
             self.health.fresh_since = now
             out.append(HealthChanged("state"))
-        if self.lifecycle.state is LifecycleState.WAITING and not self.passive:
+        if (
+            self.lifecycle.state is LifecycleState.WAITING
+            and not self.passive
+            and self.lifecycle.may_probe(now)  # a refused device waits for its recheck
+        ):
             # alive but no boot-up seen (gateway restarted, node replugged): probe soon
             if self._probe_in_flight() is None and (
                 self._last_probe_end_s is None
@@ -524,6 +525,14 @@ class Node:
     # ================================================================== internals: SDO
     def _probe_in_flight(self) -> SdoJob | None:
         return self.sdo.find("probe")
+
+    def _probe_due_s(self) -> float | None:
+        """When the next probe is due: in WAITING at ``next_probe_s``, not before the recheck
+        of a refused device (``NodeLifecycle.recheck_at_s``)."""
+        if self.lifecycle.state is not LifecycleState.WAITING or self.next_probe_s is None:
+            return None
+        recheck = self.lifecycle.recheck_at_s
+        return self.next_probe_s if recheck is None else max(self.next_probe_s, recheck)
 
     def _sdo_finished(self, finished: tuple[SdoJob, SdoTransfer], now: float) -> list[Output]:
         job, tr = finished

@@ -125,6 +125,7 @@ class SdoTransfer:
         self.abort_code: int | None = None
         self.aborted_by_server = False
         self.timed_out = False
+        self.started_s: float | None = None  # when the first request went out (``now``)
         self._request = b""
         self._deadline: float | None = None
         self._tries = 0
@@ -151,6 +152,7 @@ class SdoTransfer:
     def start(self, now: float) -> list[bytes]:
         if self.phase is not SdoPhase.IDLE:
             return []
+        self.started_s = now
         head = struct.pack("<HB", self.index, self.sub)
         if self.data is None:
             self._enter(SdoPhase.UP_INIT)

@@ -46,4 +46,4 @@ class RefreshOnStart(NodeFeature):
             value = decode_value(tr.result, type_)
         except Exception:  # noqa: BLE001 - a short answer: the value stays stale
             return []
-        return [ValuesRead((name,), (value,))]
+        return [ValuesRead((name,), (value,), tr.started_s)]
