@@ -131,11 +131,9 @@ def _field_kind(lp: LoadedProfile, obj: ObjRef, sig: Signal | None) -> tuple[boo
         t = sig.type_name
         is_text = t in ("string", "bytes")
         return t.startswith("int"), t.startswith("float"), is_text, None if is_text else TYPE_BITS.get(t)
-    if obj.index < 0x1000:  # a DS-301 dummy data type entry
-        dt = obj.index
-    else:
-        var = lp.od_var(obj)
-        dt = var.data_type if var is not None else 0
+    var = lp.od_var(obj) if obj.index >= 0x1000 else None
+    # a DS-301 dummy data type entry names its type by its index
+    dt = obj.index if obj.index < 0x1000 else (var.data_type or 0) if var is not None else 0
     is_text = dt in (VISIBLE_STRING, OCTET_STRING)
     return dt in SIGNED_TYPES, dt in _FLOAT_TYPES, is_text, _CIA_TYPE_BITS.get(dt)
 

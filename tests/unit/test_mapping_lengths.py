@@ -19,7 +19,14 @@ from gateway.config import NodeConfig
 from gateway.eds import lint, load_eds
 from gateway.errors import ValueOutOfRange
 from gateway.objref import ObjRef
-from gateway.pdo.codec import Field, FieldValueError, RpdoCodec, TpdoCodec, compile_fields, compile_node
+from gateway.pdo.codec import (
+    Field,
+    FieldValueError,
+    RpdoCodec,
+    TpdoCodec,
+    compile_fields,
+    compile_node,
+)
 from gateway.profiles import load_node_profile
 from gateway.profiles.schema import Pdo
 
