@@ -89,8 +89,10 @@ class Field:
     def raw(self, value: Any) -> int:
         """``value`` as the field's unsigned bits; raises FieldValueError when it does not fit."""
         if self.is_text:
+            if not isinstance(value, (bytes, bytearray)):
+                raise FieldValueError(self, value, "bytes")
             data = bytes(value)
-            if len(data) * 8 > self.bits:
+            if len(data) > self.bits // 8:
                 raise FieldValueError(self, value, f"at most {self.bits // 8} bytes")
             return int.from_bytes(data, "little")
         if self.is_float:
@@ -101,13 +103,14 @@ class Field:
             return int.from_bytes(packed, "little")
         lo, hi = self.value_range()  # type: ignore[misc]
         if not isinstance(value, int) or not lo <= value <= hi:
-            raise FieldValueError(self, value, f"an integer {lo}..{hi} ({self.value_bits} bits mapped)")
+            raise FieldValueError(self, value, f"an integer {lo}..{hi} ({self.value_bits} bits)")
         return value & ((1 << self.bits) - 1)  # a signed value sign-extended to the mapped width
 
     def value(self, raw: int) -> Any:
         """The field's unsigned bits ``raw`` as its value (the inverse of :meth:`raw`)."""
-        if self.is_text:
-            return raw.to_bytes(self.bits // 8, "little")
+        if self.is_text:  # whole bytes: the bits of a last partial byte are dropped
+            n = self.bits // 8
+            return (raw & ((1 << 8 * n) - 1)).to_bytes(n, "little")
         if self.is_float:
             return struct.unpack("<" + _FLOAT_CODES[self.bits], raw.to_bytes(self.bits // 8, "little"))[0]
         n = self.value_bits
@@ -157,12 +160,15 @@ def compile_fields(lp: LoadedProfile, pdo: Pdo) -> list[Field]:
 
 def _struct_format(fields: Sequence[Field]) -> str | None:
     """One ``struct`` format for the whole frame, None when a field needs the bit path
-    (unaligned, a width ``struct`` has no code for, an integer wider than its type)."""
+    (unaligned, a width ``struct`` has no code for, an integer wider than its type, text of a
+    partial byte)."""
     fmt = "<"
     for f in fields:
         if f.bit_offset % 8:
             return None
         if f.is_text:
+            if f.bits % 8:
+                return None
             fmt += f"{f.bits // 8}s"
         elif f.is_float:
             fmt += _FLOAT_CODES[f.bits]

@@ -99,7 +99,7 @@ def test_integer16_in_12_bits_decodes_sign_extended_and_refuses_what_12_bits_can
     assert tpdo.decode(bytes.fromhex("0000FF07")) == (0, 2047)
     with pytest.raises(FieldValueError) as exc:
         rpdo.encode([0, 3000])  # before: silently sent as -1096
-    assert exc.value.allowed == "an integer -2048..2047 (12 bits mapped)"
+    assert exc.value.allowed == "an integer -2048..2047 (12 bits)"
     assert "analogue" in str(exc.value)
 
 
@@ -121,7 +121,8 @@ def test_an_integer_wider_than_its_type_carries_the_type_in_its_low_bits() -> No
 @st.composite
 def layouts(draw: Any) -> tuple[list[Field], list[Any]]:
     """Fields of 1..64 bits at every offset (a raw padding entry first), widths up to 64 in all,
-    each with a value in its range (signed or not, narrower or as wide as its type)."""
+    each with a value it can carry: integers (signed or not, narrower or as wide as their type),
+    whole-byte text, REAL32/REAL64."""
     pad = draw(st.integers(0, 63))
     fields: list[Field] = []
     values: list[Any] = []
@@ -132,12 +133,24 @@ def layouts(draw: Any) -> tuple[list[Field], list[Any]]:
         offset = pad
     while offset < 64:
         bits = draw(st.integers(1, 64 - offset))
-        signed = draw(st.booleans()) and bits > 1
-        type_bits = draw(st.sampled_from([b for b in (8, 16, 24, 32, 40, 48, 56, 64) if b >= bits] + [bits]))
-        f = Field(ObjRef(0x2000 + len(fields), 0), bits, offset, f"s{len(fields)}", signed, False, False, type_bits)
-        lo, hi = f.value_range()  # type: ignore[misc]
-        fields.append(f)
-        values.append(draw(st.integers(lo, hi)))
+        obj, name = ObjRef(0x2000 + len(fields), 0), f"s{len(fields)}"
+        kind = draw(st.sampled_from(["int", "text", "float"]))
+        if kind == "float" and 64 - offset >= 32:
+            bits = draw(st.sampled_from([b for b in (32, 64) if b <= 64 - offset]))
+            fields.append(Field(obj, bits, offset, name, False, True, False, bits))
+            width = "f" if bits == 32 else "d"
+            value = draw(st.floats(width=bits, allow_nan=False))  # type: ignore[arg-type]
+            values.append(struct.unpack("<" + width, struct.pack("<" + width, value))[0])
+        elif kind == "text" and bits >= 8:
+            fields.append(Field(obj, bits, offset, name, False, False, True, None))
+            values.append(draw(st.binary(min_size=bits // 8, max_size=bits // 8)))
+        else:
+            signed = draw(st.booleans()) and bits > 1
+            type_bits = draw(st.sampled_from([b for b in (8, 16, 24, 32, 40, 48, 56, 64) if b >= bits] + [bits]))
+            f = Field(obj, bits, offset, name, signed, False, False, type_bits)
+            lo, hi = f.value_range()  # type: ignore[misc]
+            fields.append(f)
+            values.append(draw(st.integers(lo, hi)))
         offset += bits
         if draw(st.booleans()):
             break
@@ -159,7 +172,10 @@ def test_a_value_outside_the_mapped_width_is_refused_by_the_encoder(
     layout: tuple[list[Field], list[Any]], data: Any
 ) -> None:
     fields, values = layout
-    i = data.draw(st.sampled_from([i for i, f in enumerate(fields) if f.signal]))
+    ints = [i for i, f in enumerate(fields) if f.signal and f.value_range() is not None]
+    if not ints:
+        return
+    i = data.draw(st.sampled_from(ints))
     lo, hi = fields[i].value_range()  # type: ignore[misc]
     values[i] = data.draw(st.sampled_from([lo - 1, hi + 1]))
     with pytest.raises(FieldValueError):
@@ -220,3 +236,17 @@ def test_two_spellings_the_padded_one_first_counts_too(tmp_path: Path) -> None:
     assert loaded.od[0x1601][2].default == 0x64110110
     assert any("sub-index 02h again (first as [1601sub02]" in str(w) for w in loaded.warnings)
     assert loaded.line_of(ObjRef(0x1601, 2)) == line_of(eds, "[1601sub02]")
+
+
+def test_a_real32_beyond_its_range_is_refused_before_the_image_changes() -> None:
+    lp = load_node_profile(node(FLOW))
+    sig = lp.profile.signal("durchfluss")
+    with pytest.raises(ValueOutOfRange):
+        check_value(sig, 1e39)
+    assert check_value(sig, -3.25) == -3.25
+    rpdo = RpdoCodec(0x206, 1, [Field(ObjRef(0x2100, 0), 32, 0, "set_point", False, True, False, 32)])
+    image = OutputImage("flow", [rpdo])
+    image.set({None: {"set_point": 1.5}})
+    with pytest.raises(ValueOutOfRange):
+        image.set({None: {"set_point": 1e39}})  # before: OverflowError from struct, image changed
+    assert image.snapshot() == {1: (1.5,)}
