@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -67,10 +68,18 @@ def check_sdo_type(type_: str | None) -> None:
         raise ValueError(f"type {type_!r} is not one of {', '.join(SDO_TYPES)}")
 
 
-def type_range(type_: str) -> tuple[int, int] | None:
+#: the largest finite REAL32 (IEEE 754 binary32)
+REAL32_MAX = 3.4028234663852886e38
+
+
+def type_range(type_: str, mapped_bits: int | None = None) -> tuple[int, int] | None:
+    """The raw integers a ``type_`` holds; ``mapped_bits``: the width of a PDO entry narrower
+    than the type (CiA 301 7.5.2.36), which then bounds the range."""
     bits = TYPE_BITS.get(type_)
-    if bits is None or type_ == "float32":
+    if bits is None or type_.startswith("float"):
         return None
+    if mapped_bits is not None:
+        bits = min(bits, mapped_bits)
     if type_ == "bool":
         return 0, 1
     if type_.startswith("int"):
@@ -78,8 +87,9 @@ def type_range(type_: str) -> tuple[int, int] | None:
     return 0, (1 << bits) - 1
 
 
-def check_value(sig: Signal, value: Any) -> Any:
-    """Validate a raw value for a signal; returns it normalised or raises ValueOutOfRange."""
+def check_value(sig: Signal, value: Any, mapped_bits: int | None = None) -> Any:
+    """Validate a raw value for a signal; returns it normalised or raises ValueOutOfRange.
+    ``mapped_bits``: the narrowest RPDO entry carrying the signal (see ``type_range``)."""
     if sig.type in ("string", "bytes"):
         if isinstance(value, str):
             try:
@@ -100,6 +110,8 @@ def check_value(sig: Signal, value: Any) -> Any:
             v: float | int = float(value)
         except (TypeError, ValueError):
             raise ValueOutOfRange(sig.name, value, "a number") from None
+        if sig.type == "float32" and math.isfinite(v) and abs(v) > REAL32_MAX:
+            raise ValueOutOfRange(sig.name, value, f"a REAL32 (magnitude <= {REAL32_MAX:g})")
     else:
         if isinstance(value, float) and not value.is_integer():
             raise ValueOutOfRange(sig.name, value, "an integer")
@@ -107,9 +119,11 @@ def check_value(sig: Signal, value: Any) -> Any:
             v = int(value)
         except (TypeError, ValueError):
             raise ValueOutOfRange(sig.name, value, "an integer") from None
-        rng = type_range(sig.type_name)
+        rng = type_range(sig.type_name, mapped_bits)
         if rng and not rng[0] <= v <= rng[1]:
-            raise ValueOutOfRange(sig.name, value, f"{rng[0]}..{rng[1]} ({sig.type})")
+            narrow = mapped_bits is not None and mapped_bits < TYPE_BITS.get(sig.type_name, 64)
+            what = f"{sig.type} mapped in {mapped_bits} bits" if narrow else sig.type
+            raise ValueOutOfRange(sig.name, value, f"{rng[0]}..{rng[1]} ({what})")
     # profile min/max are engineering values (raw x scale + offset)
     eng = v * sig.scale + sig.offset
     if sig.min is not None and eng < sig.min - 1e-9:
@@ -162,6 +176,12 @@ def _tpdo_records(p: NodeParts) -> tuple[tuple[int, tuple[str, ...]], ...]:
         if codec.names:
             seen.setdefault(codec.names, codec.number)
     return tuple((number, names) for names, number in seen.items())
+
+
+def _mapped_bits(p: NodeParts, name: str) -> int | None:
+    """The width of the narrowest RPDO entry carrying ``name`` (None: not in an RPDO)."""
+    widths = [f.value_bits for c in p.node.by_signal.get(name, ()) if (f := c.field(name)) is not None]
+    return min(widths, default=None)
 
 
 class CommandService:
@@ -253,7 +273,7 @@ class CommandService:
             sig = self.signal(node, name)
             if sig.access == "ro":
                 raise ReadOnly(f"{node}.{name} is read-only")
-            checked[name] = check_value(sig, value)
+            checked[name] = check_value(sig, value, _mapped_bits(p, name))
         texts = {n: ts for n in checked if (ts := self._text(p.lp, n)) is not None}
         if texts:
             if len(checked) != 1:
@@ -325,7 +345,8 @@ class CommandService:
         sig = self.signal(node, name)
         if sig.access == "ro":
             raise ReadOnly(f"{node}.{name} is read-only")
-        if any(not 0 <= b < TYPE_BITS.get(sig.type_name, 64) for b in bits):
+        width = min(TYPE_BITS.get(sig.type_name, 64), _mapped_bits(p, name) or 64)
+        if any(not 0 <= b < width for b in bits):
             raise Unmapped(f"{node}.{name} has no bit {sorted(bits)}")
         allowed = writable_mask(sig) if sig.bits else 0
         async with self._word_lock(node, name):

@@ -11,6 +11,8 @@ CANopenNode) read them:
 missing ``ObjectType``  VAR (0x7), CiA 306 4.6.3.2; DOMAIN (0x2) and DEFTYPE (0x5) are VARs,
                         DEFSTRUCT (0x6) a RECORD, NULL (0x0) is not an object
 ``SubNumber``           counted from the sub-sections present (a different number: warning)
+two spellings           ``[1A00sub1]`` and ``[1A00sub01]``: the first in the file counts, the
+                        second is ignored (warning)
 ``CompactSubObj=n``     sub 00h UNSIGNED8 = n and subs 01h..n of the object's type,
                         names from ``[xxxxName]``, DCF values from ``[xxxxValue]``
 ``DataType``            missing, or outside CiA 301 table 44 (e.g. 0x0040, manufacturer
@@ -355,7 +357,7 @@ def build_dictionary(
                 var.access_type = "const"
                 od.add_object(var)
     for index, sec in sorted(objects.items()):
-        own = sorted(subs.get(index, []), key=lambda x: x[0])
+        own = sorted(subs.get(index, []), key=lambda x: (x[0], x[1].line))
         ot = _object_type(ctx, sec, bool(own))
         if ot == NULL:
             continue
@@ -373,10 +375,15 @@ def build_dictionary(
         obj: ODArray | ODRecord = ODArray(name, index) if ot == ARRAY else ODRecord(name, index)
         obj.storage_location = sec.get("StorageLocation")
         sn = ctx.number(sec, "SubNumber")
-        if sn is not None and sn[0] != len(own):
+        n_subs = len({sub for sub, _ in own})
+        if sn is not None and sn[0] != n_subs:
             found = ", ".join(f"[{s.name}]" for _, s in own) or "none"
-            ctx.warn(sec, "SubNumber", f"SubNumber={sec.get('SubNumber')} but {len(own)} sub-sections follow ({found}); the sub-sections count")  # fmt: skip
+            ctx.warn(sec, "SubNumber", f"SubNumber={sec.get('SubNumber')} but {n_subs} sub-sections follow ({found}); the sub-sections count")  # fmt: skip
         for sub, ssec in own:
+            if sub in obj.subindices:  # [1A00sub1] and [1A00sub01]: the first in the file counts
+                first = next(f for n, f in own if n == sub)
+                ctx.warn(ssec, None, f"sub-index {sub:02X}h again (first as [{first.name}] at line {first.line}): ignored")  # fmt: skip
+                continue
             sot = ctx.number(ssec, "ObjectType")
             if sot is not None and sot[0] not in (VAR, DOMAIN):
                 ctx.warn(ssec, "ObjectType", f"ObjectType={ssec.get('ObjectType')}: a sub-object is a VAR (0x7); read as VAR")  # fmt: skip

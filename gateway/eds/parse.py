@@ -4,10 +4,11 @@
 values with ``;`` comments removed) and never fails: what it cannot read is skipped and named in
 a warning (an :class:`EdsProblem`: file, line, section, message). A line outside any section, a
 line that is not ``key=value``, a header with text after its ``]``, a duplicate section or key
-(the first one counts) are such warnings. ``parse_int`` reads a CiA 306 4.6.3 number in every
-notation the standard and the common tools use: decimal, ``0x`` hex, octal with a leading 0,
-``$NODEID+<n>`` / ``<n>+$NODEID``; ``parse_real`` a REAL in decimal or as its IEEE 754 bit
-pattern in hex (``0x40490FDB`` = 3.1415927).
+(the first one counts) are such warnings; two spellings of one sub-section (``[1A00sub1]``,
+``[1A00sub01]``) are two sections here, and ``build`` keeps the first. ``parse_int`` reads a
+CiA 306 4.6.3 number in every notation the standard and the common tools use: decimal, ``0x``
+hex, octal with a leading 0, ``$NODEID+<n>`` / ``<n>+$NODEID``; ``parse_real`` a REAL in
+decimal or as its IEEE 754 bit pattern in hex (``0x40490FDB`` = 3.1415927).
 
 Imports: the standard library only.
 """
@@ -104,18 +105,20 @@ class EdsText:
     def section(self, name: str) -> Section | None:
         return self.sections.get(name.lower())
 
-    def line_of(self, index: int, sub: int | None = None) -> int:
+    def _object_section(self, index: int, sub: int | None) -> Section | None:
+        """The section of an object or sub-object; of two spellings of one sub-section
+        (``[1A00sub1]``, ``[1A00sub01]``) the first in the file, the one that counts."""
         if sub is None:
-            s = self.section(f"{index:04X}")
-        else:
-            s = self.section(f"{index:04X}sub{sub:X}") or self.section(f"{index:04X}sub{sub:02X}")
+            return self.section(f"{index:04X}")
+        found = [s for n in {f"{sub:X}", f"{sub:02X}"} if (s := self.section(f"{index:04X}sub{n}"))]
+        return min(found, key=lambda s: s.line, default=None)
+
+    def line_of(self, index: int, sub: int | None = None) -> int:
+        s = self._object_section(index, sub)
         return s.line if s is not None else 0
 
     def section_name(self, index: int, sub: int | None = None) -> str:
-        if sub is None:
-            s = self.section(f"{index:04X}")
-        else:
-            s = self.section(f"{index:04X}sub{sub:X}") or self.section(f"{index:04X}sub{sub:02X}")
+        s = self._object_section(index, sub)
         return s.name if s is not None else (f"{index:04X}" if sub is None else f"{index:04X}sub{sub:X}")
 
 

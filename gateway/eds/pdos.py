@@ -28,6 +28,9 @@ from gateway.cia301 import (
     COB_ID_INVALID,
     PDO_COMM_BASE,
     PDO_MAP_BASE,
+    REAL32,
+    REAL64,
+    SIGNED_TYPES,
     TYPE_BITS,
     TYPE_NAMES,
 )
@@ -41,6 +44,8 @@ MAX_ENTRIES = 0x40
 #: the PDO facts of CiA 301, named here for the modules that read PDOs from an EDS
 COMM_BASE = PDO_COMM_BASE
 MAP_BASE = PDO_MAP_BASE
+#: the float types (CiA 301 7.4.7.1 table 44): mapped with another length than theirs they have no value
+FLOAT_TYPES = (REAL32, REAL64)
 _NODEID_RE = re.compile(r"\$NODEID", re.IGNORECASE)
 
 
@@ -251,7 +256,7 @@ def readable(var: ODVariable | None) -> bool:
 class PdoFinding:
     """A problem of one mapping entry of one PDO: ``fatal`` when the gateway would decode the
     PDO wrongly (the node is refused), else a warning (the entry is decoded and dropped, or
-    served with the bit length the device sends)."""
+    an integer served at the narrower of its mapped and its type's length)."""
 
     fatal: bool
     pdo: str  # "TPDO4"
@@ -275,8 +280,10 @@ def mapping_findings(
     dummy data type, a zero length, more than 64 bits in all. Warnings (the entry is decoded at
     its offset by the length the mapping gives): an object the dictionary does not define or of
     a type the gateway does not serve (REAL64, DOMAIN, 40-/48-/56-bit integers, time types) is
-    skipped; a length other than the type's; an object marked not PDO-mappable, not readable
-    (TPDO) or not writable (RPDO)."""
+    skipped; a float (REAL32/REAL64) mapped with a length other than its type's is skipped
+    (it has no value); an integer mapped narrower than its type is served at the mapped width
+    (its writes limited to it), wider from the low bits of the type's width; an object marked
+    not PDO-mappable, not readable (TPDO) or not writable (RPDO)."""
     pdo = f"{kind.upper()}{number}"
     out: list[PdoFinding] = []
     if count is not None and count > MAX_ENTRIES:
@@ -306,7 +313,16 @@ def mapping_findings(
             continue
         want = TYPE_BITS.get(var.data_type)
         if want is not None and want != bits:
-            out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}/{bits}: the object is {type_name} ({want} bit); served with the {bits} bits the device sends"))  # fmt: skip
+            head = f"{pdo} entry {obj}/{bits}: the object is {type_name} ({want} bit)"
+            if var.data_type in FLOAT_TYPES:
+                out.append(PdoFinding(False, pdo, at, f"{head}; a float of another length has no value: skipped, the other signals of {pdo} are served"))  # fmt: skip
+                continue
+            if bits < want:
+                sign = ", sign-extended" if var.data_type in SIGNED_TYPES else ""
+                limit = "; writes are limited to that width" if kind == "rpdo" else ""
+                out.append(PdoFinding(False, pdo, at, f"{head}; served at the {bits} bits the device sends{sign}{limit}"))  # fmt: skip
+            else:
+                out.append(PdoFinding(False, pdo, at, f"{head}; served from the low {want} of the {bits} bits"))  # fmt: skip
         if served in ("string", "bytes") and bits % 8:
             out.append(PdoFinding(False, pdo, at, f"{pdo} entry {obj}/{bits}: a {type_name} of whole bytes; the last {bits % 8} bits are dropped"))  # fmt: skip
         if not var.pdo_mappable:

@@ -27,27 +27,40 @@ from typing import Any, Literal
 from gateway.cia301 import (
     OCTET_STRING,
     REAL32,
+    REAL64,
     SIGNED_TYPES,
     VISIBLE_STRING,
 )
+from gateway.cia301 import TYPE_BITS as _CIA_TYPE_BITS
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import PdoMappingError, pdo_cob_id
 from gateway.profiles.layout import apply_pdo_writes as _apply_pdo_writes
 from gateway.profiles.layout import pdo_objects as _pdo_objects
-from gateway.profiles.schema import Pdo, Signal
+from gateway.profiles.schema import TYPE_BITS, Pdo, Signal
 
-__all__ = ["PdoMappingError", "RpdoCodec", "TpdoCodec", "apply_pdo_writes", "compile_node",
+__all__ = ["FieldValueError", "PdoMappingError", "RpdoCodec", "TpdoCodec", "apply_pdo_writes", "compile_node",
            "pdo_cob_id", "pdo_objects"]  # fmt: skip
 
 # struct codes by (bits, signed)
 _CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h", (32, False): "I",
           (32, True): "i", (64, False): "Q", (64, True): "q"}  # fmt: skip
-
+# IEEE 754 struct codes by bits (REAL32, REAL64)
+_FLOAT_CODES = {32: "f", 64: "d"}
+_FLOAT_TYPES = (REAL32, REAL64)
 
 
 @dataclass(frozen=True)
 class Field:
+    """One mapping entry: ``bits`` at ``bit_offset`` of the frame (CiA 301 7.5.2.36).
+
+    ``type_bits`` is the width of the object's data type (None: text, or a type without a
+    fixed width). An integer mapped with another length than its type's is carried at the
+    narrower of the two (``value_bits``): a narrower entry is decoded at the mapped width (a
+    signed type sign-extended from it) and its writes range-checked against that width; a
+    wider one carries the type's value in its low bits. A float mapped with another length than
+    its type's has no value: ``compile_fields`` makes it an unnamed raw field."""
+
     obj: ObjRef
     bits: int
     bit_offset: int
@@ -55,42 +68,111 @@ class Field:
     signed: bool
     is_float: bool
     is_text: bool
+    type_bits: int | None = None
+
+    @property
+    def value_bits(self) -> int:
+        """The width the value is read and written at (see the class docstring)."""
+        if self.type_bits is None or self.is_text or self.is_float:
+            return self.bits
+        return min(self.bits, self.type_bits)
+
+    def value_range(self) -> tuple[int, int] | None:
+        """The integers this field can carry (None for text and floats)."""
+        if self.is_text or self.is_float:
+            return None
+        n = self.value_bits
+        if self.signed:
+            return -(1 << (n - 1)), (1 << (n - 1)) - 1
+        return 0, (1 << n) - 1
+
+    def raw(self, value: Any) -> int:
+        """``value`` as the field's unsigned bits; raises FieldValueError when it does not fit."""
+        if self.is_text:
+            if not isinstance(value, (bytes, bytearray)):
+                raise FieldValueError(self, value, "bytes")
+            data = bytes(value)
+            if len(data) > self.bits // 8:
+                raise FieldValueError(self, value, f"at most {self.bits // 8} bytes")
+            return int.from_bytes(data, "little")
+        if self.is_float:
+            try:
+                packed = struct.pack("<" + _FLOAT_CODES[self.bits], float(value))
+            except (OverflowError, TypeError, ValueError):
+                raise FieldValueError(self, value, f"a number of REAL{self.bits}") from None
+            return int.from_bytes(packed, "little")
+        lo, hi = self.value_range()  # type: ignore[misc]
+        if not isinstance(value, int) or not lo <= value <= hi:
+            raise FieldValueError(self, value, f"an integer {lo}..{hi} ({self.value_bits} bits)")
+        return value & ((1 << self.bits) - 1)  # a signed value sign-extended to the mapped width
+
+    def value(self, raw: int) -> Any:
+        """The field's unsigned bits ``raw`` as its value (the inverse of :meth:`raw`)."""
+        if self.is_text:  # whole bytes: the bits of a last partial byte are dropped
+            n = self.bits // 8
+            return (raw & ((1 << 8 * n) - 1)).to_bytes(n, "little")
+        if self.is_float:
+            return struct.unpack("<" + _FLOAT_CODES[self.bits], raw.to_bytes(self.bits // 8, "little"))[0]
+        n = self.value_bits
+        raw &= (1 << n) - 1
+        if self.signed and raw >> (n - 1):
+            return raw - (1 << n)
+        return raw
 
 
-def _field_kind(lp: LoadedProfile, obj: ObjRef, sig: Signal | None) -> tuple[bool, bool, bool]:
+class FieldValueError(ValueError):
+    """A value one field of an RPDO cannot carry (``allowed`` says what it can)."""
+
+    def __init__(self, field: Field, value: Any, allowed: str):
+        self.field, self.value, self.allowed = field, value, allowed
+        super().__init__(f"{field.signal or field.obj}: value {value!r} not allowed, expected {allowed}")
+
+
+def _field_kind(lp: LoadedProfile, obj: ObjRef, sig: Signal | None) -> tuple[bool, bool, bool, int | None]:
+    """(signed, float, text, bits of the data type) of a mapped object."""
     if sig is not None:
         t = sig.type_name
-        return t.startswith("int"), t == "float32", t in ("string", "bytes")
-    if obj.index < 0x1000:  # a DS-301 dummy data type entry
-        return obj.index in SIGNED_TYPES, obj.index == REAL32, False
-    var = lp.od_var(obj)
-    dt = var.data_type if var is not None else 0
-    return dt in SIGNED_TYPES, dt == REAL32, dt in (VISIBLE_STRING, OCTET_STRING)
+        is_text = t in ("string", "bytes")
+        return t.startswith("int"), t.startswith("float"), is_text, None if is_text else TYPE_BITS.get(t)
+    var = lp.od_var(obj) if obj.index >= 0x1000 else None
+    # a DS-301 dummy data type entry names its type by its index
+    dt = obj.index if obj.index < 0x1000 else (var.data_type or 0) if var is not None else 0
+    is_text = dt in (VISIBLE_STRING, OCTET_STRING)
+    return dt in SIGNED_TYPES, dt in _FLOAT_TYPES, is_text, _CIA_TYPE_BITS.get(dt)
 
 
 def compile_fields(lp: LoadedProfile, pdo: Pdo) -> list[Field]:
+    """The fields of one PDO at their bit offsets. A float entry whose length is not its
+    type's (a REAL32 mapped with 16 bits) has no value: it keeps its place as an unnamed raw
+    field (decoded and dropped, sent as zeros), so the other entries keep their offsets."""
     out = []
     offset = 0
     for e in pdo.mapping:
         sig = lp.profile.signal_for(e.object)
-        signed, is_float, is_text = _field_kind(lp, e.object, sig)
-        out.append(
-            Field(e.object, e.bits, offset, sig.name if sig else None, signed, is_float, is_text)
-        )
+        signed, is_float, is_text, type_bits = _field_kind(lp, e.object, sig)
+        name = sig.name if sig else None
+        if is_float and (e.bits != type_bits or e.bits not in _FLOAT_CODES):
+            name, signed, is_float = None, False, False
+        out.append(Field(e.object, e.bits, offset, name, signed, is_float, is_text, type_bits))
         offset += e.bits
     return out
 
 
 def _struct_format(fields: Sequence[Field]) -> str | None:
+    """One ``struct`` format for the whole frame, None when a field needs the bit path
+    (unaligned, a width ``struct`` has no code for, an integer wider than its type, text of a
+    partial byte)."""
     fmt = "<"
     for f in fields:
         if f.bit_offset % 8:
             return None
         if f.is_text:
+            if f.bits % 8:
+                return None
             fmt += f"{f.bits // 8}s"
-        elif f.is_float and f.bits == 32:
-            fmt += "f"
-        elif (f.bits, f.signed) in _CODES:
+        elif f.is_float:
+            fmt += _FLOAT_CODES[f.bits]
+        elif (f.bits, f.signed) in _CODES and f.value_bits == f.bits:
             fmt += _CODES[(f.bits, f.signed)]
         else:
             return None
@@ -131,18 +213,7 @@ class TpdoCodec:
 
     def _decode_bits(self, data: bytes | bytearray) -> tuple[Any, ...]:
         word = int.from_bytes(bytes(data[: self.length]), "little")
-        out: list[Any] = []
-        for f in self.fields:
-            raw = (word >> f.bit_offset) & ((1 << f.bits) - 1)
-            if f.is_text:
-                out.append(raw.to_bytes(f.bits // 8, "little"))
-            elif f.is_float:
-                out.append(struct.unpack("<f", raw.to_bytes(4, "little"))[0])
-            elif f.signed and raw >> (f.bits - 1):
-                out.append(raw - (1 << f.bits))
-            else:
-                out.append(raw)
-        return tuple(out)
+        return tuple(f.value((word >> f.bit_offset) & ((1 << f.bits) - 1)) for f in self.fields)
 
 
 class RpdoCodec:
@@ -168,21 +239,21 @@ class RpdoCodec:
     def index_of(self, signal: str) -> int | None:
         return self._index.get(signal)
 
+    def field(self, signal: str) -> Field | None:
+        """The mapping entry of ``signal`` in this RPDO (None: not mapped here)."""
+        i = self._index.get(signal)
+        return None if i is None else self.fields[i]
+
     def encode(self, values: Sequence[Any]) -> bytes:
+        """The frame carrying ``values`` (one per field, mapping order). Raises
+        FieldValueError, naming the field, for a value its mapped width cannot carry."""
+        raws = [f.raw(v) for f, v in zip(self.fields, values, strict=True)]
         if self._pack is not None:
             return self._pack(*values)
         word = 0
-        for f, v in zip(self.fields, values, strict=True):
-            if f.is_text:
-                raw = int.from_bytes(v, "little")
-            elif f.is_float:
-                raw = int.from_bytes(struct.pack("<f", v), "little")
-            else:
-                raw = int(v) & ((1 << f.bits) - 1)
+        for f, raw in zip(self.fields, raws, strict=True):
             word |= raw << f.bit_offset
         return word.to_bytes(self.length, "little")
-
-
 
 
 def pdo_objects(lp: LoadedProfile, kind: Literal["tpdo", "rpdo"], number: int) -> tuple[int, int]:

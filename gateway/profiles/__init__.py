@@ -28,9 +28,10 @@ import canopen
 import yaml
 from pydantic import ValidationError
 
-from gateway.cia301 import COB_ID_INVALID
+from gateway.cia301 import COB_ID_INVALID, TYPE_BITS
 from gateway.eds import EdsError, EdsFile, dictionary_for_node, load_eds
 from gateway.eds.pdos import (
+    FLOAT_TYPES,
     access_of,
     eds_pdos,
     mapping_findings,
@@ -430,6 +431,9 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
         typ = signal_type(var)
         if typ is None:
             continue  # REAL64, DOMAIN...: decoded at its offset and dropped (warned above)
+        widths = {e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o}
+        if var.data_type in FLOAT_TYPES and TYPE_BITS.get(var.data_type) not in widths:
+            continue  # a float mapped with another length has no value (warned above)
         length = None
         if typ in ("string", "bytes"):
             bits = next(e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o)

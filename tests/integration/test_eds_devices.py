@@ -87,12 +87,12 @@ async def gateway_with(
     eds: Path, node_id: int, name: str, node_extra: dict[str, Any] | None = None,
     device_od: dict[tuple[int, int], int] | None = None,
     device_setup: Callable[[canopen.LocalNode], None] | None = None,
+    sections: dict[str, Any] | None = None,
 ) -> AsyncIterator[tuple[Gateway, canopen.LocalNode, can.BusABC, SdoLog]]:  # fmt: skip
     cfg = make_config(
         # heartbeat 300 ms: the LocalNode's heartbeat is a python-can software timer
         [{"name": name, "node_id": node_id, "eds": str(eds), "heartbeat_ms": 300, **(node_extra or {})}],
-        simulate={"nodes": []},
-        master={"probe_at_start": False},
+        **{"simulate": {"nodes": []}, "master": {"probe_at_start": False}, **(sections or {})},
     )
     net, node = local_node(eds, node_id, cfg.can.channel)
     for (index, sub), value in (device_od or {}).items():

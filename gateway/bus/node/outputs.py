@@ -3,7 +3,8 @@ that carry them.
 
 The node's working copy of its output values (the process image's output section is the copy
 ``Node`` makes after each change, read north). ``set`` changes values (all RPDOs mapping a
-signal, or one RPDO); ``frame`` encodes an RPDO, with the guarding bit the link check asks for
+signal, or one RPDO) once every RPDO they touch encodes (a value an RPDO entry cannot carry
+changes nothing); ``frame`` encodes an RPDO, with the guarding bit the link check asks for
 (AP05 manual 5.5.5: control-word bit 8 toggles only when the previous toggle was echoed); the
 keep-alive re-sends the last RPDO when none went out for ``keepalive_s`` (AP05 manual 5.5.4
 external heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes nothing).
@@ -19,8 +20,8 @@ from typing import Any
 
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.node.events import Send
-from gateway.errors import Unmapped
-from gateway.pdo.codec import RpdoCodec, TpdoCodec
+from gateway.errors import Unmapped, ValueOutOfRange
+from gateway.pdo.codec import FieldValueError, RpdoCodec, TpdoCodec
 
 
 class OutputImage:
@@ -83,6 +84,9 @@ class OutputImage:
     def set(self, per_pdo: dict[int | None, dict[str, Any]]) -> list[int]:
         """Change values; returns the RPDO numbers to send.
 
+        Every RPDO the change touches is encoded first: a value one of them cannot carry (out
+        of the range of its mapped width) raises ValueOutOfRange and changes nothing.
+
         ``per_pdo[None]`` applies to every RPDO mapping the signal, ``per_pdo[n]`` to RPDO n
         only. The RPDOs to send: those carrying a signal mapped only there (or named by n); a
         signal mapped in several RPDOs (a shared control word) alone goes out in the last."""
@@ -100,12 +104,22 @@ class OutputImage:
                     numbers.append(cs[0].number)
         if not numbers and names:
             numbers.append(self.by_signal[names[0]][-1].number)
+        new: dict[int, list[Any]] = {}
         for pdo, vals in per_pdo.items():
             for n, v in vals.items():
                 for c in self.by_signal[n]:
                     if pdo is None or c.number == pdo:
-                        self.values[c.number][c.index_of(n)] = v  # type: ignore[index]
+                        new.setdefault(c.number, list(self.values[c.number]))[c.index_of(n)] = v  # type: ignore[index]
+        for number, values in new.items():  # every changed RPDO encodes before any changes
+            try:
+                self._codec(number).encode(values)
+            except FieldValueError as exc:
+                raise ValueOutOfRange(exc.field.signal or str(exc.field.obj), exc.value, exc.allowed) from None
+        self.values.update(new)
         return sorted(set(numbers))
+
+    def _codec(self, number: int) -> RpdoCodec:
+        return next(c for c in self.rpdos if c.number == number)
 
     def snapshot(self) -> dict[int, tuple[Any, ...]]:
         """The values of every RPDO, immutable (for the process image's output section)."""
@@ -113,7 +127,7 @@ class OutputImage:
 
     def frame(self, number: int, now: float) -> Send:
         """RPDO ``number`` as it goes out now (guarding bit applied)."""
-        codec = next(c for c in self.rpdos if c.number == number)
+        codec = self._codec(number)
         values = self.values[number]
         if self.gbit is not None and self.control is not None:
             i = codec.index_of(self.control[0])
