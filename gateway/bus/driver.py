@@ -4,10 +4,13 @@ A reader thread receives frames and dispatches them by COB-ID through a dict:
 process data (TPDOs) is decoded and written into the process image right on this thread (the hot
 path: no event-loop hop, no logging per frame); everything else (heartbeat, EMCY, SDO, LSS) is
 handed to its handler, which for control traffic forwards to the event loop. The reader takes
-frames in bursts: after a frame it asks the backend for the next one without waiting, and only
-when none is buffered does it call the ``burst_listeners`` (once per burst: consumers that hand
-work to another thread wake it there, not once per frame; with ``burst_gap_s``, at most once per
-gap, the bursts within it taken together) and then block. A backend that
+frames in bursts: after a frame it asks the backend for the next one without waiting, and when
+none is buffered it calls the ``burst_listeners`` (once per burst: consumers that hand work to
+another thread wake it there, not once per frame) and then blocks. While frames keep coming
+(the reader behind a backlog, a bus that never pauses) it also calls them after every
+``burst_max_frames`` frames, so what is handed over at the end of a burst never waits for a
+pause the bus may not make; how often a consumer acts on that is its own business (the Zenoh
+publisher coalesces over ``zenoh.batch_ms``). A backend that
 raises is reported, the bus is closed and reopened with exponential backoff; the gateway keeps
 running. A bus that cannot be opened at start is retried the same way (only an interface name
 python-can does not know is fatal).
@@ -61,6 +64,9 @@ CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
 CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
 
 FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface: a config error
+#: frames between two calls of the burst listeners while frames keep coming: under 1 ms of the
+#: reader's work at its 46-51 us per frame (bench/RESULTS.md, section 9)
+BURST_MAX_FRAMES = 16
 
 FrameHandler = Callable[[can.Message], None]
 
@@ -77,6 +83,7 @@ class BusDriver:
         *,
         reopen_backoff_max_s: float = 30.0,
         error_hold_s: float = 5.0,
+        burst_max_frames: int = BURST_MAX_FRAMES,
         threads: ThreadRegistry | None = None,
         mono: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
@@ -89,17 +96,15 @@ class BusDriver:
         self.on_state = on_state  # (state, detail), called on the reader thread
         self.handlers: dict[int, FrameHandler] = {}
         self.default_handler: FrameHandler | None = None
-        #: called on the reader thread after a burst, when no received frame is left buffered
+        #: called on the reader thread after a burst, when no received frame is left buffered,
+        #: and after every ``burst_max_frames`` frames while frames keep coming
         self.burst_listeners: list[Callable[[], None]] = []
+        self.burst_max_frames = burst_max_frames
         #: called on the reader thread with every received frame, in order (the web console's
         #: bus monitor, ``gateway.web.monitor``; the scan's ``bus.tap_bus.TapBus``); replaced
         #: as a whole by ``add_tap`` / ``remove_tap`` (one assignment); empty costs the reader
         #: one check per frame
         self.frame_taps: tuple[FrameHandler, ...] = ()
-        #: at least this long (``mono`` seconds) between two calls of the burst listeners: the
-        #: end of a burst that comes sooner waits, with the next frames, until the gap is over
-        #: (0: after every burst)
-        self.burst_gap_s = 0.0
         self.bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
@@ -252,9 +257,8 @@ class BusDriver:
         counters = self.rx_counters
         handlers = self.handlers
         in_burst = False  # within a burst: frames taken since the last wait
-        ended = False  # frames handled since the burst listeners were last called
-        last_end = float("-inf")  # ``mono`` time the burst listeners were last called
-        mono = self.mono
+        pending = 0  # frames taken since the burst listeners were last called
+        max_frames = self.burst_max_frames
         while self._running.is_set():
             bus = self.bus
             if bus is None:
@@ -262,12 +266,9 @@ class BusDriver:
                     continue
                 bus = self.bus
                 assert bus is not None
-            wait = 0.05
-            if ended:  # the end of a burst waits for the gap: wake up when it is over
-                wait = min(wait, max(0.0, last_end + self.burst_gap_s - mono()))
             try:
                 # within a burst: only what is already buffered; between bursts: wait
-                msg = bus.recv(timeout=0.0 if in_burst else wait)
+                msg = bus.recv(timeout=0.0 if in_burst else 0.05)
             except Exception as exc:  # noqa: BLE001 - any backend failure keeps us running
                 if not self._running.is_set():
                     break
@@ -287,12 +288,12 @@ class BusDriver:
                 if in_burst:
                     in_burst = False
                     counters["bursts"] += 1
-                if ended and mono() - last_end >= self.burst_gap_s:
-                    ended = False
-                    last_end = mono()
+                if pending:
+                    pending = 0
                     self._end_burst()
                 continue
-            in_burst = ended = True
+            in_burst = True
+            pending += 1
             self.clock_state = (False, msg.timestamp)  # one assignment (see __init__)
             if msg.is_error_frame:
                 counters["bus_errors"] += 1
@@ -316,6 +317,9 @@ class BusDriver:
                 self.warn.warning(
                     "handler", "frame 0x%03X could not be handled: %s", msg.arbitration_id, exc
                 )
+            if pending >= max_frames:  # frames keep coming: hand over what they brought
+                pending = 0
+                self._end_burst()
 
     def add_tap(self, tap: FrameHandler) -> None:
         """Call ``tap`` on the reader thread with every frame received from now on."""

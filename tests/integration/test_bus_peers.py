@@ -169,10 +169,11 @@ async def test_node_that_does_not_appear_names_the_ids_that_talk(
 
 
 def test_with_the_echo_on_our_own_frames_are_matched_and_others_still_seen() -> None:
-    peers = BusPeers(127, b"\x05", {1}, echo=True)
+    peers = BusPeers(127, {1}, echo=True)
     peers.sent(0x000, b"\x01\x01", now=10.0)
     assert peers.on_nmt(b"\x01\x01", wall=0.0, now=10.001) is None  # the echo of our own
     assert peers.on_nmt(b"\x01\x01", wall=0.0, now=10.002) is not None  # a second one: not ours
+    peers.sent(0x77F, b"\x05", now=10.0)
     assert peers.on_own_heartbeat(b"\x05", wall=0.0, now=10.0) is None
     assert peers.on_own_heartbeat(b"\x00", wall=0.0, now=10.0) is not None  # a boot-up: not ours
     peers.sent(0x000, b"\x02\x00", now=10.0)
