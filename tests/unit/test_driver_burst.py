@@ -11,6 +11,8 @@ import can
 
 from gateway.bus.driver import BusDriver
 from gateway.image import ProcessImage
+from gateway.threads import ThreadRegistry
+from gateway.zenoh_bridge.sender import ZenohSender
 
 WAIT_S = 5.0
 
@@ -100,3 +102,51 @@ def test_while_frames_keep_coming_the_listeners_run_every_burst_max_frames() -> 
     finally:
         device.shutdown()
         d.close()
+
+
+def test_a_backlog_the_reader_never_gets_through_still_reaches_zenoh() -> None:
+    """Sustained overload (the reader behind, the bus never pausing): the Zenoh publisher,
+    woken through the burst listeners, flushes while frames are still being handled. The
+    reader's handler for frame 100 waits for a flush: before, the only flush came after the
+    last frame."""
+    channel = f"burst-{uuid.uuid4().hex}"
+    d = BusDriver({"interface": "virtual", "channel": channel}, ProcessImage())
+    handled: list[int] = []
+    flushed_at: list[int] = []
+    flushed = threading.Event()
+    entered, go, all_handled = threading.Event(), threading.Event(), threading.Event()
+
+    def flush() -> None:
+        flushed_at.append(len(handled))
+        flushed.set()
+
+    sender = ZenohSender(ThreadRegistry(), "zenoh-publish", flush, batch_s=0.001)
+
+    def handle(msg: can.Message) -> None:
+        if not handled:
+            entered.set()
+            assert go.wait(WAIT_S)  # hold the reader while the backlog is queued
+        if len(handled) == 100:
+            assert flushed.wait(WAIT_S), "no flush while the frames keep coming"
+        handled.append(msg.data[1])
+        if len(handled) == 200:
+            all_handled.set()
+
+    d.handlers[0x181] = handle
+    d.burst_listeners.append(sender.wake_values)
+    sender.start()
+    d.open()
+    device = can.Bus(interface="virtual", channel=channel)
+    try:
+        device.send(can.Message(arbitration_id=0x181, data=[0, 0], is_extended_id=False))
+        assert entered.wait(WAIT_S)
+        for i in range(1, 200):
+            device.send(can.Message(arbitration_id=0x181, data=[0, i % 256], is_extended_id=False))
+        go.set()
+        assert all_handled.wait(WAIT_S)
+        assert flushed_at and flushed_at[0] < 200
+        assert d.image.counters["decode_errors"] == 0
+    finally:
+        device.shutdown()
+        d.close()
+        sender.stop()
