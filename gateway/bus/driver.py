@@ -29,7 +29,9 @@ Error frames are decoded by the SocketCAN layout (linux/can/error.h, also what p
 other backends follow): class bits in the CAN-ID, controller status in data byte 1.
 
 Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
-event loop sends is queued to it, so a blocking backend never blocks the loop). Both are
+event loop sends is queued to it, so a blocking backend never blocks the loop; a frame refused
+because the interface's transmit queue is full, ENOBUFS, is sent again a few times, a few ms
+apart, before it is counted as a bus error). Both are
 supervised (``gateway.threads``); each counts in its own counter set.
 
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
@@ -40,6 +42,7 @@ Imports: python-can, image (for counters), ratelimit, threads. Nothing northboun
 
 from __future__ import annotations
 
+import errno
 import logging
 import queue
 import threading
@@ -64,11 +67,22 @@ CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
 CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
 
 FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface: a config error
+#: a frame the interface refuses with ENOBUFS (its transmit queue full; SocketCAN's default
+#: txqueuelen is 10 frames, 1.1 ms each at 125 kbit/s) is sent again this often, this far apart
+TX_RETRIES = 5
+TX_RETRY_S = 0.002
 #: frames between two calls of the burst listeners while frames keep coming: under 1 ms of the
 #: reader's work at its 46-51 us per frame (bench/RESULTS.md, section 9)
 BURST_MAX_FRAMES = 16
 
 FrameHandler = Callable[[can.Message], None]
+
+
+def _tx_queue_full(exc: Exception) -> bool:
+    """The interface refused a frame because its transmit queue is full (ENOBUFS: python-can's
+    socketcan backend raises ``CanOperationError`` with that ``error_code``)."""
+    code = exc.error_code if isinstance(exc, can.CanError) else getattr(exc, "errno", None)
+    return code == errno.ENOBUFS
 
 
 class BusDriver:
@@ -110,6 +124,7 @@ class BusDriver:
         self._running = threading.Event()
         self._closing = threading.Event()  # set by close(): wakes a reopen backoff at once
         self._send_lock = threading.Lock()
+        self._tx_full = False  # the last frame was refused, its queue full (sender thread)
         self._taps_lock = threading.Lock()  # writers of ``frame_taps`` only; the reader reads
         self.state = "down"
         self.last_error = ""
@@ -244,13 +259,32 @@ class BusDriver:
                 counters["bus_errors"] += 1
                 continue
             try:
-                with self._send_lock:
-                    bus.send(msg)
+                self._send_one(bus, msg)
             except Exception as exc:  # noqa: BLE001 - a refused frame must not end the sender
                 counters["bus_errors"] += 1
                 self.warn.warning("send", "CAN send failed: %s", exc)
                 continue
             counters["frames_out"] += 1
+
+    def _send_one(self, bus: can.BusABC, msg: can.Message) -> None:
+        """Send one frame; one refused because the interface's transmit queue is full is sent
+        again ``TX_RETRIES`` times, ``TX_RETRY_S`` apart, unless the frame before was refused
+        the same way after all of its own (a bus off: the queue does not drain)."""
+        retries = 0 if self._tx_full else TX_RETRIES
+        while True:
+            try:
+                with self._send_lock:
+                    bus.send(msg)
+            except (can.CanOperationError, OSError) as exc:
+                full = _tx_queue_full(exc)
+                if not full or retries == 0 or not self._running.is_set():
+                    self._tx_full = full
+                    raise
+                retries -= 1
+                self._closing.wait(TX_RETRY_S)  # the queue drains meanwhile
+                continue
+            self._tx_full = False
+            return
 
     # ------------------------------------------------------------------ reading
     def _run(self) -> None:
