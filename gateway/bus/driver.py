@@ -1,19 +1,18 @@
 """The CAN bus driver: owns the python-can bus, the reader thread and sending.
 
-A reader thread receives frames and dispatches them by COB-ID through a dict:
-process data (TPDOs) is decoded and written into the process image right on this thread (the hot
-path: no event-loop hop, no logging per frame); everything else (heartbeat, EMCY, SDO, LSS) is
-handed to its handler, which for control traffic forwards to the event loop. The reader takes
-frames in bursts: after a frame it asks the backend for the next one without waiting, and when
-none is buffered it calls the ``burst_listeners`` (once per burst: consumers that hand work to
-another thread wake it there, not once per frame) and then blocks. While frames keep coming
-(the reader behind a backlog, a bus that never pauses) it also calls them after every
-``burst_max_frames`` frames, so what is handed over at the end of a burst never waits for a
-pause the bus may not make; how often a consumer acts on that is its own business (the Zenoh
-publisher coalesces over ``zenoh.batch_ms``). A backend that
-raises is reported, the bus is closed and reopened with exponential backoff; the gateway keeps
-running. A bus that cannot be opened at start is retried the same way (only an interface name
-python-can does not know is fatal).
+A reader thread receives frames and dispatches them by COB-ID through a dict: process data
+(TPDOs) is decoded and written into the process image right on this thread (the hot path: no
+event-loop hop, no logging per frame); everything else (heartbeat, EMCY, SDO, LSS) is handed to
+its handler, which for control traffic forwards to the event loop. The reader takes frames in
+bursts: after a frame it asks the backend for the next one without waiting, and when none is
+buffered it calls the ``burst_listeners`` (once per burst: consumers that hand work to another
+thread wake it there, not once per frame) and then blocks. While frames keep coming (the reader
+behind a backlog, a bus that never pauses) it also calls them after every ``burst_max_frames``
+frames, so what is handed over at the end of a burst never waits for a pause the bus may not
+make; how often a consumer acts on that is its own business (the Zenoh publisher coalesces over
+``zenoh.batch_ms``). A backend that raises is reported, the bus is closed and reopened with
+exponential backoff; the gateway keeps running. A bus that cannot be opened at start is retried
+the same way (only an interface name python-can does not know is fatal).
 
 Bus state (``state``, mirrored in ``image.bus_state``, with the reason in ``last_error``):
 
@@ -31,8 +30,8 @@ other backends follow): class bits in the CAN-ID, controller status in data byte
 Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
 event loop sends is queued to it, so a blocking backend never blocks the loop; a frame refused
 because the interface's transmit queue is full, ENOBUFS, is sent again a few times, a few ms
-apart, before it is counted as a bus error). Both are
-supervised (``gateway.threads``); each counts in its own counter set.
+apart, before it is counted as a bus error). Both are supervised (``gateway.threads``); each
+counts in its own counter set.
 
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.

@@ -187,7 +187,7 @@ def scan_beside(
         bus.shutdown()
 
 
-def request_pair_s(bitrate_bps: int | None) -> float:
+def _request_pair_s(bitrate_bps: int | None) -> float:
     """The wire time of one request and its answer at the bit rate (the assumed one if None)."""
     return 2 * FRAME_BITS_MAX / (bitrate_bps or ASSUMED_BITRATE_BPS)
 
@@ -204,7 +204,7 @@ def send_probes(
     """An SDO upload of 1000h:00 to each id, paced by the bit rate, then the wait for the last
     answers (see the module docstring). Raises the interface's ``can.CanError`` when a request
     is refused ``SEND_ATTEMPTS`` times."""
-    pair_s = request_pair_s(bitrate_bps)
+    pair_s = _request_pair_s(bitrate_bps)
     ids = list(node_ids)
     group_start = clock()
     for i in range(0, len(ids), TX_GROUP):
