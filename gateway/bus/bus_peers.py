@@ -19,7 +19,12 @@ frame of a node id that is not configured  remembered; a node that does not appe
 
 "Did we send it": a python-can bus does not receive its own frames unless
 ``receive_own_messages`` is set; then every frame on those COB-IDs came from elsewhere. With
-the echo on, what we sent in the last ``echo_window_s`` is matched and consumed first.
+the echo on, each frame received on them takes one frame with the same COB-ID and payload that
+we sent in the last ``echo_window_s`` (its echo); a frame that finds none is another
+participant's. So a second gateway with our node id, operational like us, is told apart by
+count: the bus carries two heartbeats for each one we sent. What waits for its echo is bounded
+by construction: frames older than the window are dropped whenever we send or receive, and at
+most ``ECHO_PENDING_MAX`` are kept (the oldest goes first).
 
 Sans-I/O: the master calls it on the event loop (one owner), with the time; it returns the
 text of a line to log or None, and keeps counts for /healthz, the web console and /metrics.
@@ -58,6 +63,9 @@ _FUNCTIONS = {
 }
 #: functions a node sends itself: its id is talking when we see them
 _SENT_BY_NODE = frozenset({0x080, 0x180, 0x280, 0x380, 0x480, 0x580, 0x700})
+#: our frames waiting for their echo, at most (the oldest goes first): an echo window (1 s) of
+#: NMT commands to every node one by one (127) and heartbeats every 10 ms (100) fits
+ECHO_PENDING_MAX = 256
 
 
 def describe_cob_id(cob_id: int) -> str:
@@ -116,18 +124,17 @@ class BusPeers:
     def __init__(
         self,
         own_node_id: int,
-        own_heartbeat: bytes,
         configured_ids: set[int],
         *,
         echo: bool = False,
         echo_window_s: float = 1.0,
     ):
         self.own_node_id = own_node_id
-        self.own_heartbeat = own_heartbeat
         self.configured_ids = configured_ids
         self.echo = echo
         self.echo_window_s = echo_window_s
-        self._sent: deque[tuple[float, int, bytes]] = deque()
+        #: (time sent, COB-ID, payload) of our frames the echo has not brought back yet
+        self._sent: deque[tuple[float, int, bytes]] = deque(maxlen=ECHO_PENDING_MAX)
         #: "nmt", "heartbeat": another master's frames
         self.other_master: dict[str, Sighting] = {}
         #: node name -> SDO requests of other clients to that node
@@ -137,12 +144,23 @@ class BusPeers:
     # -- what we sent (only matters when the bus echoes our own frames)
     def sent(self, cob_id: int, data: bytes, now: float) -> None:
         if self.echo and cob_id in (NMT_COB_ID, HEARTBEAT_BASE + self.own_node_id):
+            self._expire(now)
             self._sent.append((now, cob_id, bytes(data)))
 
-    def _ours(self, cob_id: int, data: bytes, now: float) -> bool:
+    @property
+    def echoes_pending(self) -> int:
+        """Frames we sent whose echo has not come back (yet) within the window."""
+        return len(self._sent)
+
+    def _expire(self, now: float) -> None:
         sent = self._sent
         while sent and now - sent[0][0] > self.echo_window_s:
             sent.popleft()
+
+    def _ours(self, cob_id: int, data: bytes, now: float) -> bool:
+        """The echo of a frame we sent: takes that frame (each echo answers one)."""
+        self._expire(now)
+        sent = self._sent
         for i, (_, cob, payload) in enumerate(sent):
             if cob == cob_id and payload == data:
                 del sent[i]
@@ -174,9 +192,7 @@ class BusPeers:
 
     def on_own_heartbeat(self, data: bytes, wall: float, now: float) -> str | None:
         """A frame on our own heartbeat COB-ID: the text of a warning if we did not send it."""
-        if self.echo and (
-            data == self.own_heartbeat or self._ours(HEARTBEAT_BASE + self.own_node_id, data, now)
-        ):
+        if self.echo and self._ours(HEARTBEAT_BASE + self.own_node_id, data, now):
             return None
         state = _state_name(data[0]) if data else "no state byte"
         cob = HEARTBEAT_BASE + self.own_node_id

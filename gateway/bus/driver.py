@@ -1,16 +1,18 @@
 """The CAN bus driver: owns the python-can bus, the reader thread and sending.
 
-A reader thread receives frames and dispatches them by COB-ID through a dict:
-process data (TPDOs) is decoded and written into the process image right on this thread (the hot
-path: no event-loop hop, no logging per frame); everything else (heartbeat, EMCY, SDO, LSS) is
-handed to its handler, which for control traffic forwards to the event loop. The reader takes
-frames in bursts: after a frame it asks the backend for the next one without waiting, and only
-when none is buffered does it call the ``burst_listeners`` (once per burst: consumers that hand
-work to another thread wake it there, not once per frame; with ``burst_gap_s``, at most once per
-gap, the bursts within it taken together) and then block. A backend that
-raises is reported, the bus is closed and reopened with exponential backoff; the gateway keeps
-running. A bus that cannot be opened at start is retried the same way (only an interface name
-python-can does not know is fatal).
+A reader thread receives frames and dispatches them by COB-ID through a dict: process data
+(TPDOs) is decoded and written into the process image right on this thread (the hot path: no
+event-loop hop, no logging per frame); everything else (heartbeat, EMCY, SDO, LSS) is handed to
+its handler, which for control traffic forwards to the event loop. The reader takes frames in
+bursts: after a frame it asks the backend for the next one without waiting, and when none is
+buffered it calls the ``burst_listeners`` (once per burst: consumers that hand work to another
+thread wake it there, not once per frame) and then blocks. While frames keep coming (the reader
+behind a backlog, a bus that never pauses) it also calls them after every ``burst_max_frames``
+frames, so what is handed over at the end of a burst never waits for a pause the bus may not
+make; how often a consumer acts on that is its own business (the Zenoh publisher coalesces over
+``zenoh.batch_ms``). A backend that raises is reported, the bus is closed and reopened with
+exponential backoff; the gateway keeps running. A bus that cannot be opened at start is retried
+the same way (only an interface name python-can does not know is fatal).
 
 Bus state (``state``, mirrored in ``image.bus_state``, with the reason in ``last_error``):
 
@@ -26,8 +28,10 @@ Error frames are decoded by the SocketCAN layout (linux/can/error.h, also what p
 other backends follow): class bits in the CAN-ID, controller status in data byte 1.
 
 Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
-event loop sends is queued to it, so a blocking backend never blocks the loop). Both are
-supervised (``gateway.threads``); each counts in its own counter set.
+event loop sends is queued to it, so a blocking backend never blocks the loop; a frame refused
+because the interface's transmit queue is full, ENOBUFS, is sent again a few times, a few ms
+apart, before it is counted as a bus error). Both are supervised (``gateway.threads``); each
+counts in its own counter set.
 
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
@@ -37,6 +41,7 @@ Imports: python-can, image (for counters), ratelimit, threads. Nothing northboun
 
 from __future__ import annotations
 
+import errno
 import logging
 import queue
 import threading
@@ -61,8 +66,22 @@ CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
 CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
 
 FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface: a config error
+#: a frame the interface refuses with ENOBUFS (its transmit queue full; SocketCAN's default
+#: txqueuelen is 10 frames, 1.1 ms each at 125 kbit/s) is sent again this often, this far apart
+TX_RETRIES = 5
+TX_RETRY_S = 0.002
+#: frames between two calls of the burst listeners while frames keep coming: under 1 ms of the
+#: reader's work at its 46-51 us per frame (bench/RESULTS.md, section 9)
+BURST_MAX_FRAMES = 16
 
 FrameHandler = Callable[[can.Message], None]
+
+
+def _tx_queue_full(exc: Exception) -> bool:
+    """The interface refused a frame because its transmit queue is full (ENOBUFS: python-can's
+    socketcan backend raises ``CanOperationError`` with that ``error_code``)."""
+    code = exc.error_code if isinstance(exc, can.CanError) else getattr(exc, "errno", None)
+    return code == errno.ENOBUFS
 
 
 class BusDriver:
@@ -77,6 +96,7 @@ class BusDriver:
         *,
         reopen_backoff_max_s: float = 30.0,
         error_hold_s: float = 5.0,
+        burst_max_frames: int = BURST_MAX_FRAMES,
         threads: ThreadRegistry | None = None,
         mono: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
@@ -89,22 +109,21 @@ class BusDriver:
         self.on_state = on_state  # (state, detail), called on the reader thread
         self.handlers: dict[int, FrameHandler] = {}
         self.default_handler: FrameHandler | None = None
-        #: called on the reader thread after a burst, when no received frame is left buffered
+        #: called on the reader thread after a burst, when no received frame is left buffered,
+        #: and after every ``burst_max_frames`` frames while frames keep coming
         self.burst_listeners: list[Callable[[], None]] = []
+        self.burst_max_frames = burst_max_frames
         #: called on the reader thread with every received frame, in order (the web console's
         #: bus monitor, ``gateway.web.monitor``; the scan's ``bus.tap_bus.TapBus``); replaced
         #: as a whole by ``add_tap`` / ``remove_tap`` (one assignment); empty costs the reader
         #: one check per frame
         self.frame_taps: tuple[FrameHandler, ...] = ()
-        #: at least this long (``mono`` seconds) between two calls of the burst listeners: the
-        #: end of a burst that comes sooner waits, with the next frames, until the gap is over
-        #: (0: after every burst)
-        self.burst_gap_s = 0.0
         self.bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
         self._closing = threading.Event()  # set by close(): wakes a reopen backoff at once
         self._send_lock = threading.Lock()
+        self._tx_full = False  # the last frame was refused, its queue full (sender thread)
         self._taps_lock = threading.Lock()  # writers of ``frame_taps`` only; the reader reads
         self.state = "down"
         self.last_error = ""
@@ -239,22 +258,40 @@ class BusDriver:
                 counters["bus_errors"] += 1
                 continue
             try:
-                with self._send_lock:
-                    bus.send(msg)
+                self._send_one(bus, msg)
             except Exception as exc:  # noqa: BLE001 - a refused frame must not end the sender
                 counters["bus_errors"] += 1
                 self.warn.warning("send", "CAN send failed: %s", exc)
                 continue
             counters["frames_out"] += 1
 
+    def _send_one(self, bus: can.BusABC, msg: can.Message) -> None:
+        """Send one frame; one refused because the interface's transmit queue is full is sent
+        again ``TX_RETRIES`` times, ``TX_RETRY_S`` apart, unless the frame before was refused
+        the same way after all of its own (a bus off: the queue does not drain)."""
+        retries = 0 if self._tx_full else TX_RETRIES
+        while True:
+            try:
+                with self._send_lock:
+                    bus.send(msg)
+            except (can.CanOperationError, OSError) as exc:
+                full = _tx_queue_full(exc)
+                if not full or retries == 0 or not self._running.is_set():
+                    self._tx_full = full
+                    raise
+                retries -= 1
+                self._closing.wait(TX_RETRY_S)  # the queue drains meanwhile
+                continue
+            self._tx_full = False
+            return
+
     # ------------------------------------------------------------------ reading
     def _run(self) -> None:
         counters = self.rx_counters
         handlers = self.handlers
         in_burst = False  # within a burst: frames taken since the last wait
-        ended = False  # frames handled since the burst listeners were last called
-        last_end = float("-inf")  # ``mono`` time the burst listeners were last called
-        mono = self.mono
+        pending = 0  # frames taken since the burst listeners were last called
+        max_frames = self.burst_max_frames
         while self._running.is_set():
             bus = self.bus
             if bus is None:
@@ -262,12 +299,9 @@ class BusDriver:
                     continue
                 bus = self.bus
                 assert bus is not None
-            wait = 0.05
-            if ended:  # the end of a burst waits for the gap: wake up when it is over
-                wait = min(wait, max(0.0, last_end + self.burst_gap_s - mono()))
             try:
                 # within a burst: only what is already buffered; between bursts: wait
-                msg = bus.recv(timeout=0.0 if in_burst else wait)
+                msg = bus.recv(timeout=0.0 if in_burst else 0.05)
             except Exception as exc:  # noqa: BLE001 - any backend failure keeps us running
                 if not self._running.is_set():
                     break
@@ -287,12 +321,12 @@ class BusDriver:
                 if in_burst:
                     in_burst = False
                     counters["bursts"] += 1
-                if ended and mono() - last_end >= self.burst_gap_s:
-                    ended = False
-                    last_end = mono()
+                if pending:
+                    pending = 0
                     self._end_burst()
                 continue
-            in_burst = ended = True
+            in_burst = True
+            pending += 1
             self.clock_state = (False, msg.timestamp)  # one assignment (see __init__)
             if msg.is_error_frame:
                 counters["bus_errors"] += 1
@@ -316,6 +350,9 @@ class BusDriver:
                 self.warn.warning(
                     "handler", "frame 0x%03X could not be handled: %s", msg.arbitration_id, exc
                 )
+            if pending >= max_frames:  # frames keep coming: hand over what they brought
+                pending = 0
+                self._end_burst()
 
     def add_tap(self, tap: FrameHandler) -> None:
         """Call ``tap`` on the reader thread with every frame received from now on."""

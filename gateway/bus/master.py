@@ -158,7 +158,6 @@ class Master:
         self.peer_heartbeat_s: float | None = None
         self.peers = BusPeers(
             cfg.master.node_id,
-            MASTER_HEARTBEAT,
             known,
             echo=bool(cfg.can.bus_kwargs().get("receive_own_messages")),
         )
@@ -209,10 +208,6 @@ class Master:
         self.driver.default_handler = self._unknown
         if self.image.end_batch not in self.driver.burst_listeners:
             self.driver.burst_listeners.append(self.image.end_batch)
-        # the values of the bursts within zenoh.batch_ms are published together
-        self.driver.burst_gap_s = (
-            self.cfg.zenoh.batch_ms / 1000.0 if self.cfg.zenoh.enabled else 0.0
-        )
         self.driver.on_state = self._bus_state
 
     def _post(self, fn: Callable[..., None], *args: Any, wake: bool = True) -> None:

@@ -3,8 +3,17 @@
 Passive: listen for ``listen_s`` and collect the node ids that send frames a node sends itself
 (heartbeat and boot-up, EMCY, TPDOs, SDO answers; CiA 301 7.3.3), with the NMT state of their
 last heartbeat. Active (``--active``): an SDO upload of 1000h (device type) to every node id
-1..127 at once, then for each id that answered within ``sdo_timeout_s``: 1008h (device name)
-and 1018h:01..04 (identity: vendor, product, revision, serial), one node after the other.
+1..127, then for each id that answered: 1008h (device name) and 1018h:01..04 (identity:
+vendor, product, revision, serial), one node after the other.
+
+The requests go out paced by the bit rate (``can.bitrate``; ``ASSUMED_BITRATE_BPS`` when it is
+not set): groups of ``TX_GROUP`` frames, each group after the wire has had time for the
+previous one's requests and their answers, so a SocketCAN transmit queue (10 frames by
+default) does not overflow; a request the interface still refuses (ENOBUFS, "transmit buffer
+full": ``can.CanOperationError``) is sent again after one group's wire time. The answers are
+awaited for the wire time of every request and its answer (``FRAME_BITS_MAX`` each) plus
+``sdo_timeout_s`` (the devices' own response time): 0.37 s at 125 kbit/s for 127 ids, 0.13 s at
+1 Mbit/s, on an otherwise quiet bus.
 
 Each node found is compared with the built-in profiles (device type, vendor, product, name) and
 with the configured node of its id. A configured node that is not found is listed too: a wrong
@@ -20,6 +29,7 @@ canopen, config, profiles, bus.bus_peers, bus.driver, bus.tap_bus, states.
 
 from __future__ import annotations
 
+import errno
 import threading
 import time
 from collections.abc import Callable, Collection
@@ -40,6 +50,18 @@ from gateway.states import NmtState
 PROFILE_NAMES = {301: "CiA 301", 401: "DS-401 I/O", 402: "DS-402 drive", 406: "DS-406 encoder",
                  410: "DS-410 inclinometer", 418: "DS-418 battery"}  # fmt: skip
 ALL_NODE_IDS = range(1, 128)
+#: ISO 11898-1: an 8-byte standard data frame is 108 bits, 24 stuff bits at most, then the
+#: 3-bit intermission: the wire time of one SDO request or answer, at worst
+FRAME_BITS_MAX = 135
+#: the bit rate assumed when ``can.bitrate`` is not set (SocketCAN takes it from ``ip link``):
+#: 125 kbit/s; a slower bus needs its ``can.bitrate`` for the scan to wait long enough
+ASSUMED_BITRATE_BPS = 125_000
+#: requests handed to the interface back-to-back: fewer than the 10 frames of a SocketCAN
+#: interface's default transmit queue (txqueuelen), leaving room for the gateway's own frames
+TX_GROUP = 8
+#: attempts at a request the interface refuses (its transmit queue full), one group's wire
+#: time apart; then the scan fails with the interface's error
+SEND_ATTEMPTS = 10
 
 
 @dataclass
@@ -110,8 +132,10 @@ def scan(
     sdo_timeout_s: float = 0.1,
     node_ids: range | list[int] = ALL_NODE_IDS,
     on_listening: Callable[[], None] | None = None,
+    bitrate_bps: int | None = None,
 ) -> dict[int, Found]:
-    """Scan the bus (see the module docstring); returns the nodes found by node id."""
+    """Scan the bus (see the module docstring); returns the nodes found by node id.
+    ``bitrate_bps``: the bus's bit rate (``can.bitrate``), None when unknown."""
     seen = _Seen()
     network = canopen.Network(bus)
     answered: set[int] = set()
@@ -131,7 +155,8 @@ def scan(
         time.sleep(listen_s)  # the passive window: frames the nodes send on their own
         found = seen.snapshot()
         if active:
-            _probe(network, bus, found, answered, node_ids, sdo_timeout_s)
+            send_probes(bus, node_ids, bitrate_bps=bitrate_bps, timeout_s=sdo_timeout_s)
+            _identify(network, found, answered, node_ids, sdo_timeout_s)
             found = {**seen.snapshot(), **found}
     finally:
         network.notifier.stop()
@@ -146,7 +171,8 @@ def scan_beside(
     sdo_timeout_s: float = 0.1,
 ) -> dict[int, Found]:
     """An active scan on a running gateway's own connection (blocking: run it in a worker
-    thread). The ``configured`` node ids are only listened to, never probed here."""
+    thread), paced by the driver's ``bitrate``. The ``configured`` node ids are only listened
+    to, never probed here."""
     bus = TapBus(driver)
     try:
         return scan(
@@ -155,24 +181,81 @@ def scan_beside(
             active=True,
             sdo_timeout_s=sdo_timeout_s,
             node_ids=[i for i in ALL_NODE_IDS if i not in configured],
+            bitrate_bps=driver.bus_kwargs.get("bitrate"),
         )
     finally:
         bus.shutdown()
 
 
-def _probe(
-    network: canopen.Network,
+def _request_pair_s(bitrate_bps: int | None) -> float:
+    """The wire time of one request and its answer at the bit rate (the assumed one if None)."""
+    return 2 * FRAME_BITS_MAX / (bitrate_bps or ASSUMED_BITRATE_BPS)
+
+
+def send_probes(
     bus: can.BusABC,
+    node_ids: range | list[int],
+    *,
+    bitrate_bps: int | None,
+    timeout_s: float,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], Any] = time.sleep,
+) -> None:
+    """An SDO upload of 1000h:00 to each id, paced by the bit rate, then the wait for the last
+    answers (see the module docstring). Raises the interface's ``can.CanError`` when a request
+    is refused ``SEND_ATTEMPTS`` times."""
+    pair_s = _request_pair_s(bitrate_bps)
+    ids = list(node_ids)
+    group_start = clock()
+    for i in range(0, len(ids), TX_GROUP):
+        group = ids[i : i + TX_GROUP]
+        if i:  # the previous group's requests and answers have had the wire
+            due = group_start + TX_GROUP * pair_s
+            _sleep_until(due, clock, sleep)
+            group_start = max(due, clock())
+        for node_id in group:
+            # CiA 301 7.2.4.3.6: initiate upload request, 1000h:00
+            msg = can.Message(arbitration_id=0x600 + node_id, data=b"\x40\x00\x10\x00" + bytes(4),
+                              is_extended_id=False)  # fmt: skip
+            _send_retrying(bus, msg, TX_GROUP * pair_s, sleep)
+        last_group = len(group)
+    if ids:  # the last group's requests and answers, then the devices' response time
+        _sleep_until(group_start + last_group * pair_s + timeout_s, clock, sleep)
+
+
+def _sleep_until(
+    deadline: float, clock: Callable[[], float], sleep: Callable[[float], Any]
+) -> None:
+    while (left := deadline - clock()) > 0:
+        sleep(left)
+
+
+def _send_retrying(
+    bus: can.BusABC, msg: can.Message, retry_s: float, sleep: Callable[[float], Any]
+) -> None:
+    for attempt in range(1, SEND_ATTEMPTS + 1):
+        try:
+            bus.send(msg)
+            return
+        except (can.CanOperationError, OSError) as exc:
+            if isinstance(exc, OSError) and exc.errno != errno.ENOBUFS:
+                raise
+            if attempt == SEND_ATTEMPTS:
+                raise can.CanOperationError(
+                    f"the scan's SDO request to node id {msg.arbitration_id - 0x600} was "
+                    f"refused {SEND_ATTEMPTS} times: {exc}"
+                ) from exc
+            sleep(retry_s)  # the transmit queue drains meanwhile
+
+
+def _identify(
+    network: canopen.Network,
     found: dict[int, Found],
     answered: set[int],
     node_ids: range | list[int],
     timeout_s: float,
 ) -> None:
-    # CiA 301 7.2.4.3.6: initiate upload request, 1000h:00, to every id at once
-    for node_id in node_ids:
-        bus.send(can.Message(arbitration_id=0x600 + node_id, data=b"\x40\x00\x10\x00" + bytes(4),
-                             is_extended_id=False))  # fmt: skip
-    time.sleep(timeout_s)  # the answers of every node arrive within one SDO timeout
+    """Device type, name and identity of each id that answered the probe."""
     for node_id in sorted(answered & set(node_ids)):  # an answer to another client: not ours
         f = found.setdefault(node_id, Found(node_id))
         remote = canopen.RemoteNode(node_id, canopen.ObjectDictionary())

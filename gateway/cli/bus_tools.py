@@ -71,7 +71,13 @@ def cmd_scan(args: argparse.Namespace) -> int:
     cfg = load_for_bus(args.config)
     bus, sim = _tool_bus(cfg, "scan")
     try:
-        found = scan(bus, listen_s=args.listen, active=args.active, sdo_timeout_s=args.timeout)
+        found = scan(
+            bus,
+            listen_s=args.listen,
+            active=args.active,
+            sdo_timeout_s=args.timeout,
+            bitrate_bps=cfg.can.bitrate,
+        )
     finally:
         bus.shutdown()
         if sim is not None:

@@ -7,8 +7,9 @@ turns /healthz not-ready, never silently):
 
 * values are marked on the CAN reader thread right after the image was written; at the end of
   each burst of frames (the image's batch listener, when the reader has handled every frame
-  already received) the reader wakes the ``zenoh-publish`` thread (``sender.py``: one queued
-  flush at a time), which publishes the *current* value of every marked signal (coalescing
+  already received, and every few frames while frames keep coming) the reader wakes the
+  ``zenoh-publish`` thread (``sender.py``: one queued flush at a time, at most one per
+  ``zenoh.batch_ms``), which publishes the *current* value of every marked signal (coalescing
   while it is behind). A Zenoh ``put`` releases the interpreter lock, so puts on the reader
   let the event loop in and made the reader wait for the lock back (frame -> Modbus p99 about 2x
   longer on a saturated bus: bench/RESULTS.md, the findings, "Cost per frame").
@@ -188,9 +189,15 @@ class ZenohBridge:
         self._raw_publications = ThreadCount()
         self.up = False
         self._values = _ValueBatch(self._offer, lambda: self._clock())
-        #: the publishing threads (``sender.py``): ``zenoh-publish`` the values,
+        #: the publishing threads (``sender.py``): ``zenoh-publish`` the values (a flush at
+        #: most, and while marks keep coming at least, every ``zenoh.batch_ms``),
         #: ``zenoh-events`` the events (BLOCK: a congested link must not hold values back)
-        self._sender = ZenohSender(self.threads, "zenoh-publish", self._values.flush)
+        self._sender = ZenohSender(
+            self.threads,
+            "zenoh-publish",
+            self._values.flush,
+            batch_s=cfg.zenoh.batch_ms / 1000.0,
+        )
         self._events = ZenohSender(self.threads, "zenoh-events")
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}

@@ -13,11 +13,17 @@ Why events have another: they use congestion control BLOCK (never dropped), and 
 waits while a subscriber's link is congested; on the values' thread that would hold every
 subscriber's values back. Events are rare; their thread sleeps in between.
 
-* values: ``wake_values()`` (the image's batch listener: the reader at the end of a burst, the
-  event loop after values read by SDO) queues one flush unless one is already queued; marks
-  made meanwhile join it or the next one, none is left behind (the flag is cleared before the
-  flush takes the marks). Marks coalesce per signal, so a slow network costs samples, never
-  memory: the work per flush is bounded by the number of signals.
+* values: ``wake_values()`` (the image's batch listener: the reader at the end of a burst and
+  every few frames while frames keep coming, the event loop after values read by SDO) queues
+  one flush unless one is already queued; marks made meanwhile join it or the next one, none
+  is left behind (the flag is cleared before the flush takes the marks). Marks coalesce per
+  signal, so a slow network costs samples, never memory: the work per flush is bounded by the
+  number of signals.
+* ``batch_s`` (``zenoh.batch_ms``): flushes start at least this far apart. A wake-up after a
+  quiet window flushes at once; one that comes sooner waits for the window's end, and the
+  marks of the window go out together. While marks keep coming a flush goes out every
+  ``batch_s`` (or as fast as flushes run), whether or not the bus ever pauses. The window is
+  the publisher's alone: the reader, and with it the process image (Modbus), is never held.
 * events: computed on the event loop and queued with ``put_event`` in order.
 
 Not here: ``publish: every`` samples (one per frame, put by the reader as the frame is handled)
@@ -26,6 +32,9 @@ held-back samples whose time has come).
 
 Started through the gateway's ``ThreadRegistry``: a thread that dies is reported and turns
 /healthz not-ready. A failed put is counted and logged, and the thread goes on.
+
+Clocks: ``clock`` and ``wait`` are injectable (tests use a fake clock); ``stop`` ends a window
+being waited for at once.
 
 Imports: threads. Never zenoh (it calls ``put`` on the publishers it is given), modbus/ nor
 bus/.
@@ -36,6 +45,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -52,19 +62,34 @@ class ZenohSender:
     events."""
 
     def __init__(
-        self, threads: ThreadRegistry, name: str, flush: Callable[[], None] | None = None
+        self,
+        threads: ThreadRegistry,
+        name: str,
+        flush: Callable[[], None] | None = None,
+        *,
+        batch_s: float = 0.0,
+        clock: Callable[[], float] = time.monotonic,
+        wait: Callable[[float], Any] | None = None,
     ) -> None:
         self.threads = threads
         self.name = name
         self.flush = flush
+        #: flushes start at least this far apart (``clock`` seconds; 0: at every wake-up)
+        self.batch_s = batch_s
+        self.clock = clock
+        self._stopping = threading.Event()
+        #: waits up to the given seconds for a window's end; returns early when stopping
+        self.wait: Callable[[float], Any] = wait if wait is not None else self._stopping.wait
         self.queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self.thread: threading.Thread | None = None
         self._flush_queued = False
+        self._last_flush_s = float("-inf")  # ``clock`` time the last flush started
         self.sent = 0  # events put
         self.failed = 0  # events whose put failed
         self.flushes = 0  # value flushes run
 
     def start(self) -> None:
+        self._stopping.clear()
         self.thread = self.threads.start(self.name, self._run)
 
     def wake_values(self) -> None:
@@ -81,6 +106,7 @@ class ZenohSender:
         """Publish what is queued (and marked), then end the thread."""
         if self.thread is None:
             return
+        self._stopping.set()  # a window being waited for ends now
         if self.flush is not None:
             self.queue.put(_FLUSH)
         self.queue.put(_STOP)
@@ -93,6 +119,10 @@ class ZenohSender:
             if item is _STOP:
                 return
             if item is _FLUSH:
+                early_s = self._last_flush_s + self.batch_s - self.clock()
+                if early_s > 0 and not self._stopping.is_set():
+                    self.wait(early_s)  # the window's marks go out together, at its end
+                self._last_flush_s = self.clock()
                 self._flush_queued = False  # before the marks are taken: none is left behind
                 self.flushes += 1
                 if self.flush is not None:

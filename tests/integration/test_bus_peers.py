@@ -169,10 +169,11 @@ async def test_node_that_does_not_appear_names_the_ids_that_talk(
 
 
 def test_with_the_echo_on_our_own_frames_are_matched_and_others_still_seen() -> None:
-    peers = BusPeers(127, b"\x05", {1}, echo=True)
+    peers = BusPeers(127, {1}, echo=True)
     peers.sent(0x000, b"\x01\x01", now=10.0)
     assert peers.on_nmt(b"\x01\x01", wall=0.0, now=10.001) is None  # the echo of our own
     assert peers.on_nmt(b"\x01\x01", wall=0.0, now=10.002) is not None  # a second one: not ours
+    peers.sent(0x77F, b"\x05", now=10.0)
     assert peers.on_own_heartbeat(b"\x05", wall=0.0, now=10.0) is None
     assert peers.on_own_heartbeat(b"\x00", wall=0.0, now=10.0) is not None  # a boot-up: not ours
     peers.sent(0x000, b"\x02\x00", now=10.0)
@@ -188,3 +189,33 @@ def test_cob_ids_are_described_by_the_predefined_connection_set() -> None:
     assert describe_cob_id(0x720) == "heartbeat of node id 32"
     assert describe_cob_id(0x7A0) == "COB-ID 0x7A0"
     assert describe_cob_id(0x050) == "COB-ID 0x050"
+
+
+async def test_with_the_echo_on_a_second_gateway_with_our_node_id_and_state_is_seen() -> None:
+    """``can.receive_own_messages``: the gateway's own heartbeats (operational, 05h) come back
+    from the bus and are taken as its own, none left waiting; another device sending the very
+    same heartbeat on 77Fh is another master all the same."""
+    async with master_running(
+        [WIRE], can={"receive_own_messages": True}, master={"heartbeat_ms": 20}
+    ) as gw:
+        peers = gw.master.peers
+        assert peers.echo
+        spy = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
+        try:
+            seen = [0]
+
+            def heartbeats_seen() -> bool:
+                while (msg := spy.recv(0)) is not None:
+                    seen[0] += msg.arbitration_id == 0x77F
+                return seen[0] >= 30
+
+            await wait_until(heartbeats_seen, what="30 heartbeats of the gateway")
+            assert "heartbeat" not in peers.other_master
+            assert peers.echoes_pending <= 2  # each echo took its frame
+            spy.send(frame(0x77F, b"\x05"))  # a second gateway with node id 127, operational
+            await wait_until(
+                lambda: "heartbeat" in peers.other_master, what="the second gateway seen"
+            )
+            assert peers.other_master["heartbeat"].count == 1
+        finally:
+            spy.shutdown()

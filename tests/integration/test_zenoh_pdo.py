@@ -28,7 +28,7 @@ async def test_one_sample_per_pdo_with_every_signal_its_quality_and_the_record_t
     await gw.start()
     z = ZClient(cfg.zenoh.listen)
     try:
-        assert gw.driver.burst_gap_s == 0.002
+        assert gw.zenoh is not None and gw.zenoh._sender.batch_s == 0.002  # the publisher's
         pdo = z.subscribe(f"{P}/wire/tpdo/*")
         single = z.subscribe(f"{P}/wire/value/*")
         await wait_until(lambda: gw.image.nodes["wire"].operational(), 8, "wire operational")

@@ -1,5 +1,6 @@
 """The reader takes frames in bursts: the burst listeners run once after every frame already
-received has been handled, not once per frame (python-can virtual bus, real reader thread)."""
+received has been handled, not once per frame, and every ``burst_max_frames`` frames while
+frames keep coming (python-can virtual bus, real reader thread)."""
 
 from __future__ import annotations
 
@@ -10,14 +11,16 @@ import can
 
 from gateway.bus.driver import BusDriver
 from gateway.image import ProcessImage
-from tests.helpers import wait_until_sync
+from gateway.threads import ThreadRegistry
+from gateway.zenoh_bridge.sender import ZenohSender
 
 WAIT_S = 5.0
 
 
 def test_burst_listeners_run_once_per_burst_after_every_buffered_frame() -> None:
     channel = f"burst-{uuid.uuid4().hex}"
-    d = BusDriver({"interface": "virtual", "channel": channel}, ProcessImage())
+    # a burst shorter than ``burst_max_frames``
+    d = BusDriver({"interface": "virtual", "channel": channel}, ProcessImage(), burst_max_frames=64)
     handled: list[int] = []
     bursts: list[int] = []
     entered, go, burst_seen = threading.Event(), threading.Event(), threading.Event()
@@ -62,40 +65,88 @@ def test_burst_listeners_run_once_per_burst_after_every_buffered_frame() -> None
         d.close()
 
 
-def test_with_a_gap_the_ends_of_bursts_within_it_are_taken_together() -> None:
-    """``burst_gap_s`` (``zenoh.batch_ms``): the burst listeners run at most once per gap of
-    the driver's clock (a fake one here, standing still until the test moves it): the frames of
-    the bursts within the gap are handed over in one call, none is left behind."""
+def test_while_frames_keep_coming_the_listeners_run_every_burst_max_frames() -> None:
+    """A backlog the reader never gets to the end of (sustained overload): what the frames
+    brought is handed over every ``burst_max_frames`` frames, not only when the bus pauses."""
     channel = f"burst-{uuid.uuid4().hex}"
-    now = [100.0]
-    d = BusDriver({"interface": "virtual", "channel": channel}, ProcessImage(), mono=lambda: now[0])
-    d.burst_gap_s = 1.0
+    d = BusDriver({"interface": "virtual", "channel": channel}, ProcessImage(), burst_max_frames=16)
     handled: list[int] = []
     calls: list[int] = []
-    called = threading.Event()
+    entered, go, done = threading.Event(), threading.Event(), threading.Event()
+
+    def handle(msg: can.Message) -> None:
+        if not handled:
+            entered.set()
+            assert go.wait(WAIT_S)  # hold the reader while the backlog is queued
+        handled.append(msg.data[0])
 
     def on_burst() -> None:
         calls.append(len(handled))
-        called.set()
+        if len(handled) == 100:
+            done.set()
 
-    d.handlers[0x181] = lambda msg: handled.append(msg.data[0])
+    d.handlers[0x181] = handle
     d.burst_listeners.append(on_burst)
     d.open()
     device = can.Bus(interface="virtual", channel=channel)
-    bursts = d.image.counters
     try:
         device.send(can.Message(arbitration_id=0x181, data=[0], is_extended_id=False))
-        assert called.wait(WAIT_S)  # the first burst: no gap to wait for
-        assert calls == [1]
-        called.clear()
-        for i in (1, 2):  # two more bursts, each its own wake-up, within the gap
+        assert entered.wait(WAIT_S)
+        for i in range(1, 100):
             device.send(can.Message(arbitration_id=0x181, data=[i], is_extended_id=False))
-            wait_until_sync(lambda i=i: bursts["bursts"] == i + 1, WAIT_S, f"burst {i + 1} taken")
-        assert handled == [0, 1, 2]
-        assert calls == [1]  # the clock stands still: the gap is not over
-        now[0] += 1.0
-        assert called.wait(WAIT_S)
-        assert calls == [1, 3]  # one call for both bursts, after every frame
+        go.set()
+        assert done.wait(WAIT_S)
+        assert calls == [16, 32, 48, 64, 80, 96, 100]  # the last one: nothing left buffered
+        assert handled == list(range(100))
+        assert d.image.counters["bursts"] == 1  # one wake-up of the reader for the backlog
     finally:
         device.shutdown()
         d.close()
+
+
+def test_a_backlog_the_reader_never_gets_through_still_reaches_zenoh() -> None:
+    """Sustained overload (the reader behind, the bus never pausing): the Zenoh publisher,
+    woken through the burst listeners, flushes while frames are still being handled. The
+    reader's handler for frame 100 waits for a flush: before, the only flush came after the
+    last frame."""
+    channel = f"burst-{uuid.uuid4().hex}"
+    d = BusDriver({"interface": "virtual", "channel": channel}, ProcessImage())
+    handled: list[int] = []
+    flushed_at: list[int] = []
+    flushed = threading.Event()
+    entered, go, all_handled = threading.Event(), threading.Event(), threading.Event()
+
+    def flush() -> None:
+        flushed_at.append(len(handled))
+        flushed.set()
+
+    sender = ZenohSender(ThreadRegistry(), "zenoh-publish", flush, batch_s=0.001)
+
+    def handle(msg: can.Message) -> None:
+        if not handled:
+            entered.set()
+            assert go.wait(WAIT_S)  # hold the reader while the backlog is queued
+        if len(handled) == 100:
+            assert flushed.wait(WAIT_S), "no flush while the frames keep coming"
+        handled.append(msg.data[1])
+        if len(handled) == 200:
+            all_handled.set()
+
+    d.handlers[0x181] = handle
+    d.burst_listeners.append(sender.wake_values)
+    sender.start()
+    d.open()
+    device = can.Bus(interface="virtual", channel=channel)
+    try:
+        device.send(can.Message(arbitration_id=0x181, data=[0, 0], is_extended_id=False))
+        assert entered.wait(WAIT_S)
+        for i in range(1, 200):
+            device.send(can.Message(arbitration_id=0x181, data=[0, i % 256], is_extended_id=False))
+        go.set()
+        assert all_handled.wait(WAIT_S)
+        assert flushed_at and flushed_at[0] < 200
+        assert d.image.counters["decode_errors"] == 0
+    finally:
+        device.shutdown()
+        d.close()
+        sender.stop()

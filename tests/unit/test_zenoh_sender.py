@@ -1,5 +1,6 @@
 """The publishing threads (``zenoh_bridge/sender.py``): a writer's wake-ups coalesce into one
-queued flush, a mark made while a flush runs gets a flush of its own, what is queued goes out
+queued flush, a mark made while a flush runs gets a flush of its own, flushes go out once per
+``batch_s`` window while marks keep coming (a fake clock), what is queued goes out
 in order, stopping publishes what was queued; and in a running gateway every value put happens
 on ``zenoh-publish``, never on the CAN reader, and an event put that blocks (congestion control
 BLOCK on a congested link) does not hold the values back."""
@@ -9,10 +10,12 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+import pytest
+
 from gateway.app import Gateway
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.sender import ZenohSender
-from tests.helpers import make_config, wait_until
+from tests.helpers import make_config, wait_until, wait_until_sync
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 
@@ -57,6 +60,88 @@ def test_a_mark_made_while_a_flush_runs_gets_a_flush_of_its_own() -> None:
     assert flushed.wait(10)
     sender.stop()
     assert calls[:2] == [0, 1]
+
+
+class FakeClock:
+    """The publisher's clock: it moves only when the publisher waits (by the time waited) or
+    when the test moves it."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+        self.waits: list[float] = []
+
+    def __call__(self) -> float:
+        return self.now
+
+    def wait(self, seconds: float) -> None:
+        self.waits.append(seconds)
+        self.now += seconds
+
+
+def test_while_marks_keep_coming_a_flush_goes_out_every_batch_window() -> None:
+    """Sustained load: the writer wakes the publisher again while each flush runs (the reader
+    every few frames of a backlog it never gets to the end of). Flushes start exactly one
+    window apart: at most one per window, and never none."""
+    clock = FakeClock()
+    times: list[float] = []
+    done = threading.Event()
+    sender: ZenohSender
+
+    def flush() -> None:
+        times.append(clock.now)
+        clock.now += 0.0003  # the flush takes 0.3 ms
+        if len(times) < 10:
+            sender.wake_values()  # marks keep coming
+        else:
+            done.set()
+
+    sender = ZenohSender(
+        ThreadRegistry(), "zenoh-publish", flush, batch_s=0.001, clock=clock, wait=clock.wait
+    )
+    sender.start()
+    sender.wake_values()
+    assert done.wait(10)
+    sender.stop()
+    assert times[:10] == pytest.approx([100.0 + 0.001 * i for i in range(10)])
+    assert clock.waits[:9] == pytest.approx([0.0007] * 9)
+
+
+def test_a_wake_up_after_a_quiet_window_flushes_at_once() -> None:
+    clock = FakeClock()
+    times: list[float] = []
+    flushed = threading.Semaphore(0)
+    sender = ZenohSender(
+        ThreadRegistry(),
+        "zenoh-publish",
+        lambda: (times.append(clock.now), flushed.release()),
+        batch_s=0.001,
+        clock=clock,
+        wait=clock.wait,
+    )
+    sender.start()
+    sender.wake_values()
+    assert flushed.acquire(timeout=10)
+    clock.now += 0.005  # quiet for five windows
+    sender.wake_values()
+    assert flushed.acquire(timeout=10)
+    sender.stop()
+    assert times[:2] == [100.0, 100.005]
+    assert clock.waits == []
+
+
+def test_stopping_ends_a_window_being_waited_for_and_publishes_the_marks() -> None:
+    """The real wait (no fake): a window of an hour does not hold ``stop``; the last flush
+    publishes what was marked."""
+    flushes: list[str] = []
+    sender = ZenohSender(
+        ThreadRegistry(), "zenoh-publish", lambda: flushes.append("flush"), batch_s=3600.0
+    )
+    sender.start()
+    sender.wake_values()  # flushes at once: the window starts
+    wait_until_sync(lambda: flushes == ["flush"], 10, "the first flush")
+    sender.wake_values()  # waits for the window's end
+    sender.stop(timeout_s=30)
+    assert sender.thread is None and flushes[-1] == "flush" and len(flushes) >= 2
 
 
 def test_events_and_flushes_go_out_in_the_order_they_were_queued() -> None:

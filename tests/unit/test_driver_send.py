@@ -1,0 +1,75 @@
+"""The sender thread and a full transmit queue (``bus/driver.py``): a frame the interface
+refuses with ENOBUFS (python-can's socketcan backend: ``CanOperationError`` with that
+``error_code``; a SocketCAN queue holds 10 frames by default) is sent again a few times before
+it counts as a bus error; while the queue does not drain at all (bus off), the frames that
+follow are not held up by retries; any other refusal is not retried. A virtual bus whose
+``send`` the test scripts."""
+
+from __future__ import annotations
+
+import errno
+import uuid
+
+import can
+
+from gateway.bus.driver import TX_RETRIES, BusDriver
+from gateway.image import ProcessImage
+from tests.helpers import wait_until_sync
+
+ENOBUFS = can.CanOperationError("Failed to transmit: No buffer space available", errno.ENOBUFS)
+
+
+def scripted(refusals: list[Exception | None]) -> tuple[BusDriver, list[int]]:
+    """A driver whose bus refuses its sends with ``refusals`` in turn (None: accepted; when
+    the list is used up, every send is accepted); returns it and the data byte of each
+    attempt."""
+    d = BusDriver({"interface": "virtual", "channel": f"tx-{uuid.uuid4().hex}"}, ProcessImage())
+    d.open()
+    attempts: list[int] = []
+
+    def send(msg: can.Message, timeout: float | None = None) -> None:
+        attempts.append(msg.data[0])
+        exc = refusals.pop(0) if refusals else None
+        if exc is not None:
+            raise exc
+
+    assert d.bus is not None
+    d.bus.send = send  # type: ignore[method-assign]
+    return d, attempts
+
+
+def test_a_frame_refused_while_the_transmit_queue_is_full_is_sent_again() -> None:
+    d, attempts = scripted([ENOBUFS, ENOBUFS])
+    try:
+        d.send(0x77F, b"\x05")
+        wait_until_sync(lambda: d.image.counters["frames_out"] == 1, what="the frame sent")
+        assert attempts == [5, 5, 5]
+        assert d.image.counters["bus_errors"] == 0
+    finally:
+        d.close()
+
+
+def test_a_queue_that_does_not_drain_costs_one_frame_its_retries_not_every_frame() -> None:
+    d, attempts = scripted([ENOBUFS] * (TX_RETRIES + 1) + [ENOBUFS, None, ENOBUFS])
+    try:
+        for data in (1, 2, 3, 4):
+            d.send(0x77F, bytes([data]))
+        wait_until_sync(lambda: d.image.counters["frames_out"] == 2, what="frames 3 and 4 sent")
+        # frame 1: its first attempt and every retry refused; frame 2: tried once (the queue
+        # still full); frame 3 sent (the queue drains again); frame 4 refused once, sent again
+        assert attempts == [1] * (TX_RETRIES + 1) + [2, 3, 4, 4]
+        assert d.image.counters["bus_errors"] == 2
+    finally:
+        d.close()
+
+
+def test_a_refusal_other_than_a_full_queue_is_not_retried() -> None:
+    d, attempts = scripted([can.CanOperationError("adapter unplugged")])
+    try:
+        d.send(0x77F, b"\x01")
+        d.send(0x77F, b"\x02")
+        wait_until_sync(lambda: d.image.counters["frames_out"] == 1, what="frame 2 sent")
+        assert attempts == [1, 2]
+        assert d.image.counters["bus_errors"] == 1
+    finally:
+        d.close()
