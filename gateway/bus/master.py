@@ -133,18 +133,32 @@ class Master:
 
     # ------------------------------------------------------------------ reader thread
     def _install_handlers(self) -> None:
+        taken: dict[int, str] = {}
+
+        def install(cob_id: int, what: str, handler: Callable[[can.Message], None]) -> None:
+            # one receiver per COB-ID: gateway.checks (every start) refuses two uses of one
+            assert cob_id not in taken, (
+                f"COB-ID 0x{cob_id:03X}: {what} would replace {taken[cob_id]} in the dispatch "
+                "table; two uses of one COB-ID must be refused by the config check "
+                "(gateway.checks.cob_id_problems)"
+            )
+            taken[cob_id] = what
+            h[cob_id] = handler
+
         h = self.driver.handlers
         for p in self.nodes.values():
             for codec in p.tpdos:
-                h[codec.cob_id] = self._tpdo_handler(p, codec)
-            h[COB_NMT_EC + p.node_id] = self._control(p, "nmt_ec")
-            h[COB_EMCY + p.node_id] = self._control(p, "emcy")
-            h[COB_SDO_TX + p.node_id] = self._control(p, "sdo")
+                install(codec.cob_id, f"{p.name} TPDO{codec.number}", self._tpdo_handler(p, codec))
+            install(COB_NMT_EC + p.node_id, f"{p.name} heartbeat", self._control(p, "nmt_ec"))
+            install(COB_EMCY + p.node_id, f"{p.name} EMCY", self._control(p, "emcy"))
+            install(COB_SDO_TX + p.node_id, f"{p.name} SDO response", self._control(p, "sdo"))
             if not self.peers.echo:  # our own requests come back with the echo on
-                h.setdefault(COB_SDO_RX + p.node_id, self._peer_frame(self._on_sdo_request, p))
-        h.setdefault(COB_NMT, self._peer_frame(self._on_nmt_frame))
-        h.setdefault(COB_NMT_EC + self.cfg.master.node_id, self._peer_frame(self._on_own_heartbeat))
-        h[COB_LSS_SLAVE] = self.lss.reader_handler()
+                install(COB_SDO_RX + p.node_id, f"{p.name} SDO request",
+                        self._peer_frame(self._on_sdo_request, p))  # fmt: skip
+        install(COB_NMT, "NMT", self._peer_frame(self._on_nmt_frame))
+        install(COB_NMT_EC + self.cfg.master.node_id, "the master's heartbeat",
+                self._peer_frame(self._on_own_heartbeat))  # fmt: skip
+        install(COB_LSS_SLAVE, "LSS response", self.lss.reader_handler())
         self.driver.default_handler = self._unknown
         if self.image.end_batch not in self.driver.burst_listeners:
             self.driver.burst_listeners.append(self.image.end_batch)
