@@ -22,7 +22,7 @@
   one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both).
 
 ``config_warnings(cfg)`` returns what runs but may not do what is meant, one ``(key path,
-text)`` each: an enabled SYNC-driven TPDO (transmission type 0..240) without a SYNC producer
+text naming the node)`` each (``check`` prints them after its summary): an enabled SYNC-driven TPDO (transmission type 0..240) without a SYNC producer
 (``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the node's EDS/DCF
 writes absolute that is another node's pre-defined one; a DCF whose ``[DeviceComissioning]
 NodeID`` is not the node id it is used at.
@@ -336,7 +336,7 @@ def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -
             continue
         key = f"nodes[{i}]"
         if rn.sync_tpdos and not sync:
-            out.append((key, f"{n.name}: {sync_wait_text(rn)}"))
+            out.append((key, f"node {n.name}: {sync_wait_text(rn)}"))
         try:
             eds = load_eds(rn.lp.eds_path)
         except EdsError:
@@ -347,13 +347,13 @@ def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -
             out.append(
                 (
                     f"{key}.node_id",
-                    f"{n.name} is node id {n.node_id}, but {file} [{own[1].section}] line "
+                    f"node {n.name}: node id {n.node_id}, but {file} [{own[1].section}] line "
                     f"{own[1].line} says NodeID {own[0]}: the file was written for node "
                     f"{own[0]}; COB-IDs it writes absolute are that node's",
                 )
             )
         for c, function, owner in foreign_cob_ids(eds, n.node_id):
-            out.append((key, f"{n.name}: {c.where(file)}: {foreign_text(c, function, owner)}"))
+            out.append((key, f"node {n.name}: {c.where(file)}: {foreign_text(c, function, owner)}"))
     return out
 
 

@@ -3,7 +3,7 @@
 ``master.sync_external``): the device never sends them, so those values stay bad. At NMT
 start the node's ``last_error`` says so ("waiting for SYNC-driven TPDOs: no SYNC producer")
 with a log line; when such a TPDO arrives after all (another master's SYNC), the text is taken
-back at the node's next tick.
+back at the node's next tick (a steady heartbeat-supervised node ticks at its consumer deadline).
 
 Imports: bus.node.features, bus.node.events, pdo.codec (types), logging; bus.node.owner for
 types only. No I/O.
@@ -33,8 +33,9 @@ class SyncWait(NodeFeature):
         self.waiting = list(waiting)
         pdos = ", ".join(f"TPDO{c.number}" for c in self.waiting)
         names = sorted({n for c in self.waiting for n in c.names})
+        verb = "carries" if len(self.waiting) == 1 else "carry"
         self.text = (
-            f"{WAITING} ({pdos} carry {', '.join(names)}; master.sync_period_ms is 0 and "
+            f"{WAITING} ({pdos} {verb} {', '.join(names)}; master.sync_period_ms is 0 and "
             "master.sync_external is not set)"
         )
 
