@@ -22,10 +22,11 @@
   one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both).
 
 ``config_warnings(cfg)`` returns what runs but may not do what is meant, one ``(key path,
-text naming the node)`` each (``check`` prints them after its summary): an enabled SYNC-driven TPDO (transmission type 0..240) without a SYNC producer
-(``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the node's EDS/DCF
-writes absolute that is another node's pre-defined one; a DCF whose ``[DeviceComissioning]
-NodeID`` is not the node id it is used at.
+text naming the node)`` each (``check`` prints them after its summary): a device's own TPDO
+and RPDO on one COB-ID; an enabled SYNC-driven TPDO (transmission type 0..240) without a
+SYNC producer (``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the
+node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF whose
+``[DeviceComissioning] NodeID`` is not the node id it is used at.
 
 ``load_checked_config`` / ``parse_checked_config`` are ``gateway.config``'s loaders plus these
 checks, raising ConfigError with every line. Pure: imports config, profiles, eds, the boot step
@@ -40,7 +41,7 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-from gateway.bus.cob_ids import clashes, gateway_uses
+from gateway.bus.cob_ids import clashes, gateway_uses, loops_back
 from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.settings import external_heartbeat_problem
 from gateway.bus.resolved import ResolvedNode, nodes_of
@@ -315,6 +316,8 @@ def cob_id_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -
             )
         )
     for first, later in clashes(gateway_uses(cfg, nodes_of(cfg, nodes))):
+        if loops_back(first, later):
+            continue  # a warning (config_warnings)
         out.append(
             (
                 later.key,
@@ -329,6 +332,16 @@ def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -
     """What runs but may not do what is meant (see the module docstring)."""
     out: list[Problem] = []
     resolved = nodes_of(cfg, nodes)
+    for first, later in clashes(gateway_uses(cfg, resolved)):
+        if loops_back(first, later):
+            out.append(
+                (
+                    later.key,
+                    f"node {later.node}: COB-ID 0x{later.cob_id:03X} of {later} is also "
+                    f"{first}: the device sends and receives on one COB-ID; a write of its "
+                    "RPDO would be a second sender on it",
+                )
+            )
     sync = cfg.master.sync_period_ms or cfg.master.sync_external
     for i, n in enumerate(cfg.nodes):
         rn = resolved.get(n.name)

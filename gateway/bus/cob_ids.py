@@ -15,7 +15,8 @@ its ``tpdo:``/``rpdo:`` ``cob_id``, a profile's ``boot.sdo`` write, the pre-defi
 
 ``clashes`` pairs the uses of one COB-ID: ``check`` and every start refuse them
 (``gateway.checks``), so the master's dispatch table (``bus/master.py``) never has two
-receivers for one COB-ID.
+receivers for one COB-ID; a device's own TPDO and RPDO on one COB-ID (``loops_back``) is a
+warning.
 
 Imports: cia301, config (types), objref, eds (a file's COB-IDs), profiles.layout, bus.resolved.
 No I/O but reading the device files (cached).
@@ -58,6 +59,9 @@ class CobUse:
     what: str  # "TPDO1", "EMCY", "heartbeat", "NMT"...
     origin: str  # "nodes[0].tpdo.1.cob_id", "io.dcf [1800sub1] line 123", "default 0x180 + node id 1"
     key: str  # "nodes[0].tpdo.1.cob_id", "nodes[0]", "master.node_id"
+    #: the gateway sends on it (RPDO, SDO request, NMT, its SYNC, heartbeat, LSS request)
+    sent: bool = False
+    node: str = ""  # the node's name; "" for the master
 
     def __str__(self) -> str:
         return f"{self.who} {self.what} ({self.origin})"
@@ -66,16 +70,16 @@ class CobUse:
 def master_uses(cfg: Config) -> list[CobUse]:
     """The master's own COB-IDs (see the module docstring)."""
     m = cfg.master
-    out = [CobUse(COB_NMT, MASTER, "NMT", "CiA 301 7.2.8", "master")]
+    out = [CobUse(COB_NMT, MASTER, "NMT", "CiA 301 7.2.8", "master", sent=True)]
     if m.sync_period_ms:
-        out.append(CobUse(COB_SYNC, MASTER, "SYNC", "master.sync_period_ms", "master.sync_period_ms"))
+        out.append(CobUse(COB_SYNC, MASTER, "SYNC", "master.sync_period_ms", "master.sync_period_ms", sent=True))  # fmt: skip
     elif m.sync_external:
         out.append(CobUse(COB_SYNC, MASTER, "SYNC of another master", "master.sync_external", "master.sync_external"))  # fmt: skip
     out.append(
-        CobUse(COB_NMT_EC + m.node_id, MASTER, "heartbeat", f"master.node_id {m.node_id}", "master.node_id")
+        CobUse(COB_NMT_EC + m.node_id, MASTER, "heartbeat", f"master.node_id {m.node_id}", "master.node_id", sent=True)  # fmt: skip
     )
     out.append(CobUse(COB_LSS_SLAVE, MASTER, "LSS response", "CiA 305", "master"))
-    out.append(CobUse(COB_LSS_MASTER, MASTER, "LSS request", "CiA 305", "master"))
+    out.append(CobUse(COB_LSS_MASTER, MASTER, "LSS request", "CiA 305", "master", sent=True))
     return out
 
 
@@ -88,10 +92,11 @@ def node_uses(index: int, rn: ResolvedNode) -> list[CobUse]:
     for kind, codecs in (("tpdo", rn.tpdos), ("rpdo", rn.rpdos)):
         for c in codecs:
             origin, at = _pdo_origin(index, rn, kind, c.number, c.cob_id)  # type: ignore[arg-type]
-            out.append(CobUse(c.cob_id, who, f"{kind.upper()}{c.number}", origin, at))
+            out.append(CobUse(c.cob_id, who, f"{kind.upper()}{c.number}", origin, at, kind == "rpdo", rn.name))
     for base, what in ((COB_EMCY, "EMCY"), (COB_SDO_TX, "SDO response"), (COB_SDO_RX, "SDO request"),
                        (COB_NMT_EC, "heartbeat")):  # fmt: skip
-        out.append(CobUse(base + nid, who, what, f"default 0x{base:03X} + node id {nid}", f"{key}.node_id"))
+        origin = f"default 0x{base:03X} + node id {nid}"
+        out.append(CobUse(base + nid, who, what, origin, f"{key}.node_id", base == COB_SDO_RX, rn.name))
     return out
 
 
@@ -106,7 +111,8 @@ def gateway_uses(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[CobUse]:
 
 
 def clashes(uses: list[CobUse]) -> list[tuple[CobUse, CobUse]]:
-    """(first use, later use) for every use of a COB-ID an earlier one already has."""
+    """(first use, later use) for every use of a COB-ID an earlier one already has (see
+    ``loops_back`` for the pairs that are one device's own)."""
     first: dict[int, CobUse] = {}
     out = []
     for u in uses:
@@ -114,6 +120,13 @@ def clashes(uses: list[CobUse]) -> list[tuple[CobUse, CobUse]]:
         if had is not u:
             out.append((had, u))
     return out
+
+
+def loops_back(first: CobUse, later: CobUse) -> bool:
+    """One device sends on a COB-ID it also receives on (its TPDO and its RPDO, as a real
+    Sevcon DCF has it): the gateway has one receiver for it still, so it runs; a write of that
+    RPDO puts a second sender on the COB-ID (``check`` warns)."""
+    return bool(first.node) and first.node == later.node and first.sent != later.sent
 
 
 def _pdo_origin(

@@ -108,6 +108,28 @@ def test_two_pdos_of_one_node_on_one_cob_id_are_refused() -> None:
     assert "is also nodes[0] (io) TPDO1 (default 0x180 + node id 5)" in p
 
 
+def test_a_device_sending_and_receiving_on_one_cob_id_is_a_warning() -> None:
+    """Its TPDO and its RPDO on one COB-ID (a real Sevcon DCF has RPDO6 and TPDO2 on 0x315):
+    one receiver in the gateway, so it runs; writing that RPDO adds a second sender."""
+    io = {"name": "io", "node_id": 5, "eds": str(IO401), "rpdo": {1: {"cob_id": 0x185}}}
+    cfg = parse_config(config(io, **SYNC), "cfg.yaml", environ={})
+    assert config_warnings(cfg) == [
+        ("nodes[0].rpdo.1.cob_id", "node io: COB-ID 0x185 of nodes[0] (io) RPDO1 "
+                                   "(nodes[0].rpdo.1.cob_id) is also nodes[0] (io) TPDO1 (default "
+                                   "0x180 + node id 5): the device sends and receives on one COB-ID; "
+                                   "a write of its RPDO would be a second sender on it"),
+    ]  # fmt: skip
+
+
+def test_every_start_runs_the_cob_id_check() -> None:
+    from gateway.app import Gateway
+
+    io = {"name": "io", "node_id": 5, "eds": str(IO401), "tpdo": {1: {"cob_id": 0x181}}}
+    cfg = parse_unchecked(config(WIRE, io, **SYNC), "cfg.yaml", environ={})
+    with pytest.raises(ConfigError, match=r"COB-ID 0x181 of nodes\[1\] \(io\) TPDO1"):
+        Gateway(cfg)
+
+
 def test_sync_produced_by_the_gateway_and_by_another_master_is_refused() -> None:
     p = problems(config(WIRE, sync_period_ms=10, sync_external=True))
     assert p == [
