@@ -16,12 +16,23 @@
   the EDS mapping objects are writable;
 * a signal's declared type is the EDS DataType; a signal declared as a PDO signal is in a PDO;
 * every safe output value (``safe_value``, ``nodes[].safe_outputs``) names an RPDO output of its
-  node and fits its type and range (``gateway.safe_outputs``).
+  node and fits its type and range (``gateway.safe_outputs``);
+* no COB-ID has two uses (``gateway.bus.cob_ids``: the PDOs, EMCY, SDO and heartbeat of every
+  node, the master's NMT, SYNC, heartbeat and LSS), named in one line with where each got it;
+  one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both).
+
+``config_warnings(cfg)`` returns what runs but may not do what is meant, one ``(key path,
+text naming the node)`` each (``check`` prints them after its summary): a device's own TPDO
+and RPDO on one COB-ID; an enabled SYNC-driven TPDO (transmission type 0..240) without a
+SYNC producer (``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the
+node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF whose
+``[DeviceComissioning] NodeID`` is not the node id it is used at.
 
 ``load_checked_config`` / ``parse_checked_config`` are ``gateway.config``'s loaders plus these
 checks, raising ConfigError with every line. Pure: imports config, profiles, eds, the boot step
 builder, the external heartbeat keep-alive rule (bus/node/settings.py), the codecs and the
-register map (no I/O but reading the files they name).
+register map, the COB-IDs of the nodes (bus/cob_ids.py), a device file's COB-IDs and NodeID
+(eds/cob_ids.py) (no I/O but reading the files they name).
 """
 
 from __future__ import annotations
@@ -30,11 +41,14 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
+from gateway.bus.cob_ids import clashes, gateway_uses, loops_back
 from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.settings import external_heartbeat_problem
 from gateway.bus.resolved import ResolvedNode, nodes_of
 from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, blame, load_config, parse_config
+from gateway.eds import EdsError, load_eds
+from gateway.eds.cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import eds_pdos, od_var, readable
 from gateway.northbound.regmap import RegisterMapError, build_register_map
@@ -288,6 +302,85 @@ def protocol_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None)
     return out
 
 
+def cob_id_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
+    """Every COB-ID with two uses (a node's and another node's, or the master's), at the
+    later one's key; and two SYNC producers."""
+    out: list[Problem] = []
+    if cfg.master.sync_external and cfg.master.sync_period_ms:
+        out.append(
+            (
+                "master.sync_external",
+                "true says another master produces SYNC, but master.sync_period_ms "
+                f"{cfg.master.sync_period_ms:g} makes this gateway produce it too; one SYNC "
+                "producer per bus (CiA 301 7.2.5): set one of them",
+            )
+        )
+    for first, later in clashes(gateway_uses(cfg, nodes_of(cfg, nodes))):
+        if loops_back(first, later):
+            continue  # a warning (config_warnings)
+        out.append(
+            (
+                later.key,
+                f"COB-ID 0x{later.cob_id:03X} of {later} is also {first}: one COB-ID cannot "
+                "serve both (the frames of one would be taken for the other's)",
+            )
+        )
+    return out
+
+
+def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
+    """What runs but may not do what is meant (see the module docstring)."""
+    out: list[Problem] = []
+    resolved = nodes_of(cfg, nodes)
+    for first, later in clashes(gateway_uses(cfg, resolved)):
+        if loops_back(first, later):
+            out.append(
+                (
+                    later.key,
+                    f"node {later.node}: COB-ID 0x{later.cob_id:03X} of {later} is also "
+                    f"{first}: the device sends and receives on one COB-ID; a write of its "
+                    "RPDO would be a second sender on it",
+                )
+            )
+    sync = cfg.master.sync_period_ms or cfg.master.sync_external
+    for i, n in enumerate(cfg.nodes):
+        rn = resolved.get(n.name)
+        if rn is None:
+            continue
+        key = f"nodes[{i}]"
+        if rn.sync_tpdos and not sync:
+            out.append((key, f"node {n.name}: {sync_wait_text(rn)}"))
+        try:
+            eds = load_eds(rn.lp.eds_path)
+        except EdsError:
+            continue
+        file = rn.lp.eds_path.name
+        own = dcf_node_id(eds)
+        if own is not None and own[0] != n.node_id:
+            out.append(
+                (
+                    f"{key}.node_id",
+                    f"node {n.name}: node id {n.node_id}, but {file} [{own[1].section}] line "
+                    f"{own[1].line} says NodeID {own[0]}: the file was written for node "
+                    f"{own[0]}; COB-IDs it writes absolute are that node's",
+                )
+            )
+        for c, function, owner in foreign_cob_ids(eds, n.node_id):
+            out.append((key, f"node {n.name}: {c.where(file)}: {foreign_text(c, function, owner)}"))
+    return out
+
+
+def sync_wait_text(rn: ResolvedNode) -> str:
+    """``TPDO2 is SYNC-driven (transmission type 1) but nothing produces SYNC ...``"""
+    pdos = ", ".join(f"TPDO{n}" for n in rn.sync_tpdos)
+    verb, them = ("is", "it") if len(rn.sync_tpdos) == 1 else ("are", "them")
+    return (
+        f"{pdos} {verb} SYNC-driven (transmission type 0..240) but no SYNC producer is "
+        f"configured: the device never sends {them}; set master.sync_period_ms, or "
+        "master.sync_external: true when another master sends SYNC"
+    )
+
+
 def config_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
     """Every cross-check (see the module docstring), in a stable order."""
     out: list[Problem] = []
@@ -299,6 +392,7 @@ def config_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -
     out += protocol_problems(cfg, resolved)
     out += eds_problems(cfg, resolved)
     out += safe_output_problems(cfg, resolved)
+    out += cob_id_problems(cfg, resolved)
     seen: set[Problem] = set()
     unique = []
     for p in out:
@@ -332,7 +426,9 @@ __all__ = [
     "SIGNAL_BITS",
     "boot_problems",
     "check_config",
+    "cob_id_problems",
     "config_problems",
+    "config_warnings",
     "eds_problems",
     "load_checked_config",
     "parse_checked_config",

@@ -28,6 +28,33 @@ COB_SDO_RX = 0x600  # + node id: client -> server (our request)
 COB_NMT_EC = 0x700  # + node id: boot-up, heartbeat, node-guarding answer
 COB_LSS_SLAVE = 0x7E4  # CiA 305: LSS slave -> master
 COB_LSS_MASTER = 0x7E5  # CiA 305: LSS master -> slave
+#: CiA 301 7.3.3 table 75: the node-specific functions of the pre-defined connection set, by
+#: function code (the COB-ID of node n is code + n, n = 1..127)
+PREDEFINED_FUNCTIONS: dict[int, str] = {
+    COB_EMCY: "EMCY",
+    COB_TPDO[0]: "TPDO1",
+    COB_RPDO[0]: "RPDO1",
+    COB_TPDO[1]: "TPDO2",
+    COB_RPDO[1]: "RPDO2",
+    COB_TPDO[2]: "TPDO3",
+    COB_RPDO[2]: "RPDO3",
+    COB_TPDO[3]: "TPDO4",
+    COB_RPDO[3]: "RPDO4",
+    COB_SDO_TX: "SDO response",
+    COB_SDO_RX: "SDO request",
+    COB_NMT_EC: "heartbeat",
+}
+
+
+def predefined_owner(cob_id: int) -> tuple[str, int] | None:
+    """(function, node id) whose pre-defined COB-ID ``cob_id`` is: 0x181 -> ("TPDO1", 1);
+    None for NMT, SYNC, TIME, LSS and ids outside the set."""
+    base, node_id = cob_id & 0x780, cob_id & 0x7F
+    name = PREDEFINED_FUNCTIONS.get(base)
+    if name is None or node_id == 0 or cob_id > COB_ID_MASK_11BIT:
+        return None
+    return name, node_id
+
 
 # --------------------------------------------------------------------------- PDO COB-ID bits
 # CiA 301 7.5.2.35 / 7.5.2.37 (1400h.., 1800h.. sub-index 01h)
@@ -43,6 +70,9 @@ PDO_COMM_BASE: dict[str, int] = {"rpdo": 0x1400, "tpdo": 0x1800}
 PDO_MAP_BASE: dict[str, int] = {"rpdo": 0x1600, "tpdo": 0x1A00}
 #: transmission types (CiA 301 7.5.2.35 table 71)
 TRANSMISSION_RTR_ONLY = (252, 253)
+#: synchronous: 0 acyclic (after an event, at the next SYNC), 1..240 every n-th SYNC; without a
+#: SYNC producer such a TPDO is never sent
+TRANSMISSION_SYNC = range(0, 241)
 TRANSMISSION_EVENT = (254, 255)
 
 # --------------------------------------------------------------------------- NMT

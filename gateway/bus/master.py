@@ -183,28 +183,47 @@ class Master:
 
     # ------------------------------------------------------------------ reader thread
     def _install_handlers(self) -> None:
+        taken: dict[int, str] = {}
+
+        def install(cob_id: int, what: str, handler: Callable[[can.Message], None]) -> None:
+            # one receiver per COB-ID: gateway.checks (every start) refuses two uses of one
+            assert cob_id not in taken, (
+                f"COB-ID 0x{cob_id:03X}: {what} would replace {taken[cob_id]} in the dispatch "
+                "table; two uses of one COB-ID must be refused by the config check "
+                "(gateway.checks.cob_id_problems)"
+            )
+            taken[cob_id] = what
+            h[cob_id] = handler
+
         h = self.driver.handlers
         for p in self.nodes.values():
             for codec in p.tpdos:
-                h[codec.cob_id] = self._tpdo_handler(p, codec)
-            h[COB_NMT_EC + p.node_id] = self._control(p, "nmt_ec")
-            h[COB_EMCY + p.node_id] = self._control(p, "emcy")
-            h[COB_SDO_TX + p.node_id] = self._control(p, "sdo")
+                install(codec.cob_id, f"{p.name} TPDO{codec.number}", self._tpdo_handler(p, codec))
+            install(COB_NMT_EC + p.node_id, f"{p.name} heartbeat", self._control(p, "nmt_ec"))
+            install(COB_EMCY + p.node_id, f"{p.name} EMCY", self._control(p, "emcy"))
+            install(COB_SDO_TX + p.node_id, f"{p.name} SDO response", self._control(p, "sdo"))
             if not self.peers.echo:  # our own requests come back with the echo on
-                h.setdefault(COB_SDO_RX + p.node_id, self._peer_frame(self._on_sdo_request, p))
-        h.setdefault(COB_NMT, self._peer_frame(self._on_nmt_frame))
+                install(COB_SDO_RX + p.node_id, f"{p.name} SDO request",
+                        self._peer_frame(self._on_sdo_request, p))  # fmt: skip
+        install(COB_NMT, "NMT", self._peer_frame(self._on_nmt_frame))
         if self.pair is not None:
-            for cob in FLYING_MASTER_COB_IDS:
-                h[cob] = self._peer_frame(self._on_pair_frame, cob)
-            h[COB_NMT_EC + self.cfg.master.node_id] = self._peer_frame(self._on_logical_heartbeat)
+            for cob in sorted(FLYING_MASTER_COB_IDS):
+                install(cob, f"CiA 302-2 0x{cob:02X}", self._peer_frame(self._on_pair_frame, cob))
+            install(COB_NMT_EC + self.cfg.master.node_id, "the logical master's heartbeat",
+                    self._peer_frame(self._on_logical_heartbeat))  # fmt: skip
             for p in self.nodes.values():
                 for cob in p.node.outputs.cob_ids:
-                    h[cob] = self._peer_frame(self._on_rpdo_heard, p, cob)
+                    if cob not in taken:  # an RPDO on its own TPDO's COB-ID: the TPDO is read
+                        install(cob, f"{p.name} RPDO heard",
+                                self._peer_frame(self._on_rpdo_heard, p, cob))  # fmt: skip
             peer = self.cfg.master.redundancy.peer_node_id if self.cfg.master.redundancy else None
             if peer:
-                h[COB_NMT_EC + peer] = self._peer_frame(self._on_peer_heartbeat)
-        h.setdefault(COB_NMT_EC + self.cfg.master.node_id, self._peer_frame(self._on_own_heartbeat))
-        h[COB_LSS_SLAVE] = self.lss.reader_handler()
+                install(COB_NMT_EC + peer, "the peer's heartbeat",
+                        self._peer_frame(self._on_peer_heartbeat))  # fmt: skip
+        else:
+            install(COB_NMT_EC + self.cfg.master.node_id, "the master's heartbeat",
+                    self._peer_frame(self._on_own_heartbeat))  # fmt: skip
+        install(COB_LSS_SLAVE, "LSS response", self.lss.reader_handler())
         self.driver.default_handler = self._unknown
         if self.image.end_batch not in self.driver.burst_listeners:
             self.driver.burst_listeners.append(self.image.end_batch)

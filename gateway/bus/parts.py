@@ -116,5 +116,6 @@ def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> Nod
         reference_signal=ref_signal,
         passive=passive,
         verify=rn.verify,
+        sync_tpdos=rn.sync_tpdos,
     )
     return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)

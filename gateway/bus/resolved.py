@@ -11,8 +11,9 @@ A node whose boot configuration cannot be built (an object missing from the EDS,
 does not fit) is resolved with ``boot_error`` set and no steps or codecs: ``check`` reports it,
 and the master refuses it (``ResolvedNode.require``).
 
-Imports: config (types), profiles, objref, bus.node.settings, bus.node.boot_steps, pdo.codec,
-pdo.refresh, pdo.verify. Nothing northbound, no I/O but reading the device files.
+Imports: cia301, config (types), profiles, profiles.layout, objref, bus.node.settings,
+bus.node.boot_steps, pdo.codec, pdo.refresh, pdo.verify. Nothing northbound, no I/O but reading
+the device files.
 """
 
 from __future__ import annotations
@@ -23,12 +24,14 @@ from typing import Any
 
 from gateway.bus.node.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.node.settings import NodeSettings, resolve_node_settings
+from gateway.cia301 import TRANSMISSION_SYNC
 from gateway.config import Config, ConfigError, NodeConfig
 from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.pdo.refresh import Refresh, refresh_plan
 from gateway.pdo.verify import MappingRead, mapping_reads
 from gateway.profiles import LoadedProfile, ProfileError, load_node_profile, node_verifies_mapping
+from gateway.profiles.layout import pdo_objects
 
 
 class NamedNode:
@@ -65,6 +68,9 @@ class ResolvedNode(NamedNode):
     verify: tuple[MappingRead, ...] = ()
     #: why the boot configuration or the codecs cannot be built (``check`` reports it)
     boot_error: ValueError | KeyError | None = None
+    #: the enabled TPDOs that are SYNC-driven (transmission type 0..240) as the boot
+    #: configuration leaves them: sent only when a SYNC producer runs
+    sync_tpdos: tuple[int, ...] = ()
 
     @property
     def stale_after_s(self) -> float | None:
@@ -108,7 +114,26 @@ def resolve_node(cfg: Config, ncfg: NodeConfig) -> ResolvedNode:
         if ncfg.configure and node_verifies_mapping(lp, ncfg, ncfg.eds_only)
         else ()
     )
-    return ResolvedNode(ncfg, lp, settings, steps, writes, tpdos, rpdos, plan, verify)
+    sync = sync_driven_tpdos(lp, ncfg.pdo_variant, tpdos, writes)
+    return ResolvedNode(ncfg, lp, settings, steps, writes, tpdos, rpdos, plan, verify, sync_tpdos=sync)
+
+
+def sync_driven_tpdos(
+    lp: LoadedProfile, variant: int | None, tpdos: list[TpdoCodec], writes: list[tuple[ObjRef, Any]]
+) -> tuple[int, ...]:
+    """The numbers of ``tpdos`` whose transmission type (the layout's, then the last boot
+    write of 180xh:02) is synchronous (CiA 301 7.5.2.35: 0..240)."""
+    layout, _ = lp.profile.layout(variant if lp.profile.pdo_variants else None)
+    types = {p.number: p.transmission_type for p in layout}
+    out = []
+    for c in tpdos:
+        comm, _ = pdo_objects(lp.profile, "tpdo", c.number)
+        for obj, value in writes:
+            if obj == ObjRef(comm, 0x02) and isinstance(value, int):
+                types[c.number] = value
+        if types.get(c.number) in TRANSMISSION_SYNC:
+            out.append(c.number)
+    return tuple(out)
 
 
 def resolve_config(cfg: Config, names: Iterable[str] | None = None) -> dict[str, ResolvedNode]:

@@ -1,9 +1,9 @@
 """The commands that say what a configuration compiles to: ``check`` (validated, each node
-summarised, the warnings of each EDS), ``registers`` (the Modbus register map) and ``keys``
-(the Zenoh key expressions).
+summarised, what may not do what is meant, the warnings of each EDS), ``registers`` (the Modbus
+register map) and ``keys`` (the Zenoh key expressions).
 
-Imports: gateway.bus.resolved, gateway.eds, gateway.northbound.regmap, gateway.northbound.keys,
-cli.load.
+Imports: gateway.bus.resolved, gateway.checks (config_warnings), gateway.eds,
+gateway.northbound.regmap, gateway.northbound.keys, cli.load.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from gateway.cli.load import load, load_for_bus
 
 def cmd_check(args: argparse.Namespace) -> int:
     from gateway.bus.resolved import node_of, resolve_config
+    from gateway.checks import config_warnings
 
     cfg = load_for_bus(args.config)
     nodes = resolve_config(cfg)
@@ -36,6 +37,8 @@ def cmd_check(args: argparse.Namespace) -> int:
         )
         for note in lp.notes:
             print(f"  warning: node {n.name}: {note}")
+    for _key, text in config_warnings(cfg, nodes):
+        print(f"  warning: {text}")
     _print_eds_warnings(cfg, nodes)
     return 0
 

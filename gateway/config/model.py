@@ -89,6 +89,10 @@ class MasterSection(_Model):
     node_id: int = Field(default=127, ge=1, le=127, description="the gateway's own node id")
     heartbeat_ms: int = Field(default=1000, ge=0, le=65535, description="0 = no heartbeat")
     sync_period_ms: float = Field(default=0, ge=0, le=65535, description="0 = no SYNC")
+    sync_external: bool = Field(
+        default=False,
+        description="another master produces SYNC on this bus (with sync_period_ms 0)",
+    )
     sdo_timeout_s: float = Field(default=0.5, gt=0, le=30)
     sdo_retries: int = Field(default=1, ge=0, le=10)
     boot_timeout_s: float = Field(default=10.0, gt=0, le=3600)

@@ -6,11 +6,12 @@ file it cannot read at all. Every deviation from CiA 306 is a warning with file,
 section (``EdsFile.warnings``). ``lint(eds)`` adds what the file's own enabled PDOs would do
 in the gateway (``pdos.mapping_findings``): an error where the gateway would decode a PDO
 wrongly (an object the file does not define, more than 64 bits), a warning where a signal is
-skipped. ``pdos.eds_pdos`` lists the TPDOs and RPDOs of the dictionary (communication and
+skipped, and a warning for each COB-ID written absolute that is another node's pre-defined one
+(``cob_ids``: ``0x181`` in a file for any node but node 1, a DCF's own NodeID excepted). ``pdos.eds_pdos`` lists the TPDOs and RPDOs of the dictionary (communication and
 mapping objects 1400h-1BFFh, ``$NODEID`` resolved), ``pdos.unique_names`` names the mapped
 objects (ParameterName slugs, unique per node), ``show.render`` prints a dictionary and its PDOs.
 
-Imports: its own modules (parse, build, pdos), canopen, gateway.objref and the standard
+Imports: its own modules (parse, build, pdos, cob_ids), canopen, gateway.objref and the standard
 library. Nothing else of the gateway (the profile loader imports this package, not the other
 way round).
 """
@@ -24,6 +25,7 @@ from pathlib import Path
 import canopen
 
 from gateway.eds.build import build_dictionary
+from gateway.eds.cob_ids import dcf_node_id, foreign_cob_id_problems
 from gateway.eds.parse import EdsError, EdsProblem, EdsText, read_sections, read_text
 from gateway.eds.pdos import PdoFinding, eds_pdo_findings
 from gateway.objref import ObjRef
@@ -129,8 +131,12 @@ def finding_problem(eds: EdsFile, f: PdoFinding) -> EdsProblem:
 
 
 def lint(eds: EdsFile) -> Lint:
-    """The file's warnings plus the findings of its enabled PDOs (see the module docstring)."""
+    """The file's warnings plus the findings of its enabled PDOs and its absolute COB-IDs of
+    another node (see the module docstring)."""
     findings = eds_pdo_findings(eds.od)
     errors = tuple(finding_problem(eds, f) for f in findings if f.fatal)
     pdo_warnings = [finding_problem(eds, f) for f in findings if not f.fatal]
-    return Lint(errors, tuple(sorted([*eds.warnings, *pdo_warnings], key=lambda p: p.line)))
+    own = dcf_node_id(eds)
+    cob_warnings = foreign_cob_id_problems(eds, own[0] if own is not None else None)
+    every = [*eds.warnings, *pdo_warnings, *cob_warnings]
+    return Lint(errors, tuple(sorted(every, key=lambda p: p.line)))

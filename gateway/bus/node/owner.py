@@ -8,7 +8,8 @@ image (the last values sent in each RPDO, bits included) and its health in the p
 (``NodeHealth``: only this class writes it). It writes the image's output section
 (``NodeImage.outputs``) too, in one assignment after each write or keep-alive: the one copy of
 the outputs that Modbus, Zenoh and the web console read.
-The device features (refresh on start, referencing, verify mapping, RTR poll) are hooks it calls
+The device features (refresh on start, referencing, verify mapping, RTR poll, waiting for
+SYNC-driven TPDOs without a SYNC producer) are hooks it calls
 (``bus/node/features/``), not branches of its own.
 Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the time ``now``
 (the bus clock: the time of the frames processed, seconds) — ``on_nmt_ec``, ``on_emcy``,
@@ -54,6 +55,7 @@ from gateway.bus.node.features.guarding_bit import GuardingBitLink
 from gateway.bus.node.features.referencing import ReferencingFeature
 from gateway.bus.node.features.refresh import RefreshOnStart
 from gateway.bus.node.features.rtr_poll import RtrPoll
+from gateway.bus.node.features.sync_wait import SyncWait
 from gateway.bus.node.features.verify_mapping import VerifyMapping
 from gateway.bus.node.lifecycle import (
     LifecycleState,
@@ -104,6 +106,7 @@ class Node:
         passive: bool = False,
         verify: Sequence[MappingRead] = (),
         image: NodeImage | None = None,
+        sync_tpdos: Sequence[int] = (),
     ):
         self.name = name
         self.node_id = node_id
@@ -164,6 +167,11 @@ class Node:
             self.features.append(VerifyMapping(verify, pdo_names, keep))
         if settings.rtr_poll_ms:
             self.features.append(RtrPoll(settings.rtr_poll_ms, self.tpdos))
+        if sync_tpdos and not settings.sync_producer:
+            read = {name for r in refresh for name in r.codec.names}
+            wait = SyncWait.of(self.tpdos, sync_tpdos, read)
+            if wait is not None:
+                self.features.append(wait)
         self._by_purpose = {p: f for f in self.features for p in f.purposes}
 
     # ================================================================== queries

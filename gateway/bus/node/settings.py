@@ -49,6 +49,8 @@ class NodeSettings:
     keepalive_ms: float  # re-send the last RPDO when none went out for this long (0 = never)
     refresh_on_start: bool  # read change-only TPDO values right after NMT start
     rtr_poll_ms: int | None
+    #: SYNC runs on the bus: this gateway produces it or another master does (``master.sync_*``)
+    sync_producer: bool = True
 
     @property
     def life_time_ms(self) -> int:
@@ -135,6 +137,7 @@ def resolve_node_settings(master: Any, node: Any, profile: Any) -> NodeSettings:
         keepalive_ms=min(periods) if periods else 0.0,
         refresh_on_start=getattr(node, "refresh_on_start", True),
         rtr_poll_ms=node.rtr_poll_ms,
+        sync_producer=bool(master.sync_period_ms or getattr(master, "sync_external", False)),
     )
 
 

@@ -7,7 +7,8 @@ says when it next needs time; it never does I/O.
 A node has the features its profile and settings ask for (``Node.features``, built in
 ``Node.__init__``): ``refresh_on_start`` (``refresh``), ``referencing`` (``referencing``),
 ``verify_mapping`` (``verify_mapping``), ``rtr_poll_ms`` (``rtr_poll``), ``guarding_bit``
-(``guarding_bit``). The order is the order they act in.
+(``guarding_bit``), SYNC-driven TPDOs without a SYNC producer (``sync_wait``). The order is the
+order they act in.
 
 Imports: bus.node.events; bus.node.owner, bus.sdo.channel and bus.sdo.client for types only. Never python-can, asyncio or
 a northbound module.
