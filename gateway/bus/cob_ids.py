@@ -18,7 +18,7 @@ its ``tpdo:``/``rpdo:`` ``cob_id``, a profile's ``boot.sdo`` write, the pre-defi
 receivers for one COB-ID; a device's own TPDO and RPDO on one COB-ID (``loops_back``) is a
 warning.
 
-Imports: cia301, config (types), objref, eds (a file's COB-IDs), profiles.layout, bus.resolved.
+Imports: cia301, config (types), objref, eds (a file's COB-IDs), profiles.layout, bus.resolved, bus.pair.flying_master (the CiA 302-2 COB-IDs of a pair).
 No I/O but reading the device files (cached).
 """
 
@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from gateway.bus.pair.flying_master import FLYING_MASTER_COB_IDS
 from gateway.bus.resolved import ResolvedNode
 from gateway.cia301 import (
     COB_EMCY,
@@ -80,6 +81,13 @@ def master_uses(cfg: Config) -> list[CobUse]:
     )
     out.append(CobUse(COB_LSS_SLAVE, MASTER, "LSS response", "CiA 305", "master"))
     out.append(CobUse(COB_LSS_MASTER, MASTER, "LSS request", "CiA 305", "master", sent=True))
+    pair = m.redundancy
+    if pair is not None:  # a hot-standby pair (docs/redundancy.md)
+        for cob in sorted(FLYING_MASTER_COB_IDS):
+            out.append(CobUse(cob, MASTER, f"CiA 302-2 0x{cob:02X}", "master.redundancy", "master.redundancy", sent=True))  # fmt: skip
+        for key, own in (("node_id", pair.node_id), ("peer_node_id", pair.peer_node_id)):
+            if own is not None:
+                out.append(CobUse(COB_NMT_EC + own, MASTER, "a pair member's heartbeat", f"master.redundancy.{key} {own}", f"master.redundancy.{key}", sent=key == "node_id"))  # fmt: skip
     return out
 
 
