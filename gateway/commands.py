@@ -69,7 +69,7 @@ def check_sdo_type(type_: str | None) -> None:
 
 def type_range(type_: str) -> tuple[int, int] | None:
     bits = TYPE_BITS.get(type_)
-    if bits is None or type_ == "float32":
+    if bits is None or type_ in ("float32", "float64"):
         return None
     if type_ == "bool":
         return 0, 1
@@ -95,7 +95,7 @@ def check_value(sig: Signal, value: Any) -> Any:
         if sig.type == "string" and any(b < 0x20 or b > 0x7E for b in raw.rstrip(b"\0")):
             raise ValueOutOfRange(sig.name, value, "printable ASCII characters only")
         return raw
-    if sig.type == "float32":
+    if sig.type in ("float32", "float64"):
         try:
             v: float | int = float(value)
         except (TypeError, ValueError):
@@ -481,7 +481,7 @@ class CommandService:
                 raise ValueOutOfRange(str(o), value, "a type (the object is not in the EDS)")
             if isinstance(value, str) and t not in ("string", "bytes"):
                 try:
-                    value = float(value) if t == "float32" else int(value, 0)
+                    value = float(value) if t in ("float32", "float64") else int(value, 0)
                 except ValueError:
                     raise ValueOutOfRange(str(o), value, f"a number ({t})") from None
             try:

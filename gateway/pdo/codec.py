@@ -27,6 +27,7 @@ from typing import Any, Literal
 from gateway.cia301 import (
     OCTET_STRING,
     REAL32,
+    REAL64,
     SIGNED_TYPES,
     VISIBLE_STRING,
 )
@@ -43,6 +44,9 @@ __all__ = ["PdoMappingError", "RpdoCodec", "TpdoCodec", "apply_pdo_writes", "com
 # struct codes by (bits, signed)
 _CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h", (32, False): "I",
           (32, True): "i", (64, False): "Q", (64, True): "q"}  # fmt: skip
+# struct codes of the IEEE 754 types by bits (CiA 301 7.1.4.4: REAL32, REAL64)
+_FLOAT_CODES = {32: "f", 64: "d"}
+_FLOAT_TYPES = {"float32": REAL32, "float64": REAL64}
 
 
 
@@ -60,12 +64,12 @@ class Field:
 def _field_kind(lp: LoadedProfile, obj: ObjRef, sig: Signal | None) -> tuple[bool, bool, bool]:
     if sig is not None:
         t = sig.type_name
-        return t.startswith("int"), t == "float32", t in ("string", "bytes")
+        return t.startswith("int"), t in _FLOAT_TYPES, t in ("string", "bytes")
     if obj.index < 0x1000:  # a DS-301 dummy data type entry
-        return obj.index in SIGNED_TYPES, obj.index == REAL32, False
+        return obj.index in SIGNED_TYPES, obj.index in _FLOAT_TYPES.values(), False
     var = lp.od_var(obj)
     dt = var.data_type if var is not None else 0
-    return dt in SIGNED_TYPES, dt == REAL32, dt in (VISIBLE_STRING, OCTET_STRING)
+    return dt in SIGNED_TYPES, dt in _FLOAT_TYPES.values(), dt in (VISIBLE_STRING, OCTET_STRING)
 
 
 def compile_fields(lp: LoadedProfile, pdo: Pdo) -> list[Field]:
@@ -88,8 +92,8 @@ def _struct_format(fields: Sequence[Field]) -> str | None:
             return None
         if f.is_text:
             fmt += f"{f.bits // 8}s"
-        elif f.is_float and f.bits == 32:
-            fmt += "f"
+        elif f.is_float and f.bits in _FLOAT_CODES:
+            fmt += _FLOAT_CODES[f.bits]
         elif (f.bits, f.signed) in _CODES:
             fmt += _CODES[(f.bits, f.signed)]
         else:
@@ -137,7 +141,8 @@ class TpdoCodec:
             if f.is_text:
                 out.append(raw.to_bytes(f.bits // 8, "little"))
             elif f.is_float:
-                out.append(struct.unpack("<f", raw.to_bytes(4, "little"))[0])
+                code = _FLOAT_CODES.get(f.bits, "f")
+                out.append(struct.unpack("<" + code, raw.to_bytes(struct.calcsize(code), "little"))[0])
             elif f.signed and raw >> (f.bits - 1):
                 out.append(raw - (1 << f.bits))
             else:
@@ -176,7 +181,7 @@ class RpdoCodec:
             if f.is_text:
                 raw = int.from_bytes(v, "little")
             elif f.is_float:
-                raw = int.from_bytes(struct.pack("<f", v), "little")
+                raw = int.from_bytes(struct.pack("<" + _FLOAT_CODES.get(f.bits, "f"), v), "little")
             else:
                 raw = int(v) & ((1 << f.bits) - 1)
             word |= raw << f.bit_offset
