@@ -19,8 +19,8 @@ from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import ProcessImage
 from gateway.northbound.keys import is_published, tpdo_key, value_key
-from gateway.profiles.layout import tpdo_objects
 from gateway.northbound.scaling import Scaling
+from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal
 from gateway.zenoh_bridge.policy import ReportPolicy
 
