@@ -274,7 +274,7 @@ def mapping_findings(
     counted in sub 00h without a value, an entry naming an index below 1000h that is not a
     dummy data type, a zero length, more than 64 bits in all. Warnings (the entry is decoded at
     its offset by the length the mapping gives): an object the dictionary does not define or of
-    a type the gateway does not serve (REAL64, DOMAIN, 40-/48-/56-bit integers, time types) is
+    a type the gateway does not serve (DOMAIN, UNICODE_STRING) is
     skipped; a length other than the type's; an object marked not PDO-mappable, not readable
     (TPDO) or not writable (RPDO)."""
     pdo = f"{kind.upper()}{number}"

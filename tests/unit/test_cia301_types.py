@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gateway.ascii.values import format_plain
 from gateway.bus.sdo.values import decode_value, encode_value
 from gateway.checks import parse_checked_config
 from gateway.cia301 import MS_PER_DAY, TIME_EPOCH_UNIX_MS, time_fields, time_ms, time_word
@@ -234,3 +235,10 @@ def test_as_float_on_a_time_type_is_a_config_error_naming_the_key() -> None:
         "c.yaml: nodes[0].signals.time_stamp.as_float: time_stamp is a time_of_day: "
         "as_float applies to numbers only"
     ]
+
+
+# --------------------------------------------------------------------------- ASCII (CiA 309-3)
+def test_an_untyped_ascii_read_of_a_real64_keeps_the_digits_of_a_double() -> None:
+    assert format_plain(6.02214076e23) == "6.02214076e+23"
+    assert format_plain(1e300) == "1e+300"  # beyond a single's range
+    assert format_plain(struct.unpack("<f", struct.pack("<f", 0.1))[0]) == "0.1"  # a REAL32
