@@ -26,6 +26,8 @@ from gateway.northbound.scaling import Scaling, engineering, time_of_text, time_
 from gateway.pdo.codec import compile_node
 from gateway.profiles import load_node_profile
 from gateway.profiles.schema import Signal
+from gateway.web.trends import is_trend_signal
+from gateway.web.views import SignalMeta
 from gateway.zenoh_bridge.payloads import pdo_json, value_json
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
@@ -242,3 +244,12 @@ def test_an_untyped_ascii_read_of_a_real64_keeps_the_digits_of_a_double() -> Non
     assert format_plain(6.02214076e23) == "6.02214076e+23"
     assert format_plain(1e300) == "1e+300"  # beyond a single's range
     assert format_plain(struct.unpack("<f", struct.pack("<f", 0.1))[0]) == "0.1"  # a REAL32
+
+
+def test_the_web_trends_draw_numbers_not_times_of_day() -> None:
+    def meta(type_: str) -> SignalMeta:
+        return SignalMeta(_sig(type_), IDENTITY, "TPDO", "", ())
+
+    assert is_trend_signal(meta("float64")) and is_trend_signal(meta("int48"))
+    assert is_trend_signal(meta("time_difference"))  # milliseconds
+    assert not is_trend_signal(meta("time_of_day"))  # ISO 8601 text
