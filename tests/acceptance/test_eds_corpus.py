@@ -1,7 +1,10 @@
 """Real device files: every EDS/DCF of ``../shared/eds-corpus/`` (third-party files written by
 device vendors and by other CANopen tools) that python canopen 2.4.1's ``import_od`` loads is
 loaded by ``eds show``, accepted by ``check`` as a one-node config, and ``registers`` lists the
-objects of its enabled PDO mappings; and no file, as is or damaged (truncated, bytes flipped,
+objects of its enabled PDO mappings; every object of those mappings is a register point of its
+CiA 301 type and size (an input for a TPDO, a holding register for an RPDO, both for an object
+in both), and a PDO built by python canopen's encoding of each object decodes to the registers
+docs/modbus.md gives (an RPDO from those registers to the same bytes); and no file, as is or damaged (truncated, bytes flipped,
 lines dropped), gives a traceback: every refusal is one line with file, line and section.
 
 The corpus is read from next to the clone (never copied into the repository); the tests skip
