@@ -119,6 +119,15 @@ TYPE_NAMES: dict[int | None, str] = {
     dt.INTEGER64: "int64",
     dt.UNSIGNED24: "uint24",
     dt.UNSIGNED64: "uint64",
+    dt.REAL64: "float64",
+    dt.INTEGER40: "int40",
+    dt.INTEGER48: "int48",
+    dt.INTEGER56: "int56",
+    dt.UNSIGNED40: "uint40",
+    dt.UNSIGNED48: "uint48",
+    dt.UNSIGNED56: "uint56",
+    dt.TIME_OF_DAY: "time_of_day",
+    dt.TIME_DIFFERENCE: "time_difference",
 }
 #: bits of the fixed-size types; dummy entries 0001h..0007h of a PDO mapping map these too
 TYPE_BITS: dict[int | None, int] = {
@@ -141,13 +150,53 @@ TYPE_BITS: dict[int | None, int] = {
     dt.UNSIGNED48: 48,
     dt.UNSIGNED56: 56,
     dt.UNSIGNED64: 64,
+    dt.TIME_OF_DAY: 48,
+    dt.TIME_DIFFERENCE: 48,
 }
 #: the signed integer types
 SIGNED_TYPES: frozenset[int] = frozenset(dt.SIGNED_TYPES)
-#: the numeric types the gateway decodes (integers of 8..64 bits, BOOLEAN, REAL32)
+#: the time types (CiA 301 7.1.6.5 / 7.1.6.6), by their signal type names
+TIME_TYPES: frozenset[str] = frozenset({"time_of_day", "time_difference"})
+#: the numeric types the gateway decodes (integers of 8..64 bits, BOOLEAN, REAL32, REAL64)
 NUMERIC_TYPES: frozenset[int] = frozenset(
-    code for code, name in TYPE_NAMES.items() if code is not None and name not in ("string", "bytes")
+    code
+    for code, name in TYPE_NAMES.items()
+    if code is not None and name not in ("string", "bytes") and name not in TIME_TYPES
 )
+
+# --------------------------------------------------------------------------- time types
+# CiA 301 7.1.6.5 TIME_OF_DAY and 7.1.6.6 TIME_DIFFERENCE: 48 bits, little endian on the bus:
+# bits 0..27 milliseconds after midnight, bits 28..31 reserved (0), bits 32..47 days since
+# 1984-01-01 (TIME_OF_DAY) or days (TIME_DIFFERENCE). The gateway keeps the 48-bit word as the
+# raw value (as it travels in a PDO or an SDO), and converts at the edges (Modbus, Zenoh).
+TIME_MS_BITS = 28
+TIME_MS_MASK = (1 << TIME_MS_BITS) - 1
+TIME_DAYS_SHIFT = 32
+TIME_DAYS_MAX = 0xFFFF
+MS_PER_DAY = 86_400_000
+#: 1984-01-01 00:00 UTC (the TIME_OF_DAY epoch) in milliseconds since 1970-01-01 (Unix)
+TIME_EPOCH_UNIX_MS = 5113 * MS_PER_DAY
+
+
+def time_fields(word: int) -> tuple[int, int]:
+    """(days, ms) of a TIME_OF_DAY / TIME_DIFFERENCE word (the reserved bits ignored)."""
+    return (word >> TIME_DAYS_SHIFT) & TIME_DAYS_MAX, word & TIME_MS_MASK
+
+
+def time_ms(word: int) -> int:
+    """The milliseconds a time word counts: days x 86 400 000 + ms (since 1984-01-01 for a
+    TIME_OF_DAY, the duration for a TIME_DIFFERENCE)."""
+    days, ms = time_fields(word)
+    return days * MS_PER_DAY + ms
+
+
+def time_word(total_ms: int) -> int:
+    """The time word of ``total_ms`` milliseconds (the inverse of ``time_ms``); ValueError
+    when it is negative or beyond 65535 days."""
+    days, ms = divmod(int(total_ms), MS_PER_DAY)
+    if total_ms < 0 or days > TIME_DAYS_MAX:
+        raise ValueError(f"{total_ms} ms is outside 0..{(TIME_DAYS_MAX + 1) * MS_PER_DAY - 1} ms")
+    return days << TIME_DAYS_SHIFT | ms
 
 # --------------------------------------------------------------------------- EMCY
 # CiA 301 7.5.2.2 (object 1001h, carried in byte 2 of every EMCY frame)

@@ -105,7 +105,7 @@ def check_value(sig: Signal, value: Any, mapped_bits: int | None = None) -> Any:
         if sig.type == "string" and any(b < 0x20 or b > 0x7E for b in raw.rstrip(b"\0")):
             raise ValueOutOfRange(sig.name, value, "printable ASCII characters only")
         return raw
-    if sig.type == "float32":
+    if sig.type in ("float32", "float64"):
         try:
             v: float | int = float(value)
         except (TypeError, ValueError):
@@ -502,7 +502,7 @@ class CommandService:
                 raise ValueOutOfRange(str(o), value, "a type (the object is not in the EDS)")
             if isinstance(value, str) and t not in ("string", "bytes"):
                 try:
-                    value = float(value) if t == "float32" else int(value, 0)
+                    value = float(value) if t in ("float32", "float64") else int(value, 0)
                 except ValueError:
                     raise ValueOutOfRange(str(o), value, f"a number ({t})") from None
             try:

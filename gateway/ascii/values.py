@@ -122,6 +122,14 @@ def _shortest_float(v: float, fmt: str) -> str:
     return repr(v)
 
 
+def _pack_single(v: float) -> bytes:
+    """``v`` as a single, or infinity's bytes when it is out of a single's range."""
+    try:
+        return struct.pack("<f", v)
+    except OverflowError:
+        return struct.pack("<f", math.inf)
+
+
 def quote_vs(text: str) -> str:
     """A visible string as a token: bare when it is one word, else in double quotes (a quote
     inside doubled)."""
@@ -151,13 +159,16 @@ def format_value(dtype: DataType, data: bytes) -> str:
 
 def format_plain(value: Any) -> str:
     """A value decoded by the command service from the object's EDS type (a read without a
-    type): integers in decimal, reals, visible strings, anything else as base64."""
+    type): integers in decimal (a TIME_OF_DAY / TIME_DIFFERENCE: its 48-bit word), reals,
+    visible strings, anything else as base64."""
     if isinstance(value, bool):
         return str(int(value))
     if isinstance(value, int):
         return str(value)
     if isinstance(value, float):
-        return _shortest_float(value, "<f")
+        # a REAL32 is exactly a single; a REAL64 that is not gets the digits of a double
+        single = math.isnan(value) or struct.unpack("<f", _pack_single(value))[0] == value
+        return _shortest_float(value, "<f" if single else "<d")
     if isinstance(value, str):
         return quote_vs("".join(c if 0x20 <= ord(c) <= 0x7E else "?" for c in value))
     return base64.b64encode(bytes(value)).decode("ascii")

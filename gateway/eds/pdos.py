@@ -279,7 +279,7 @@ def mapping_findings(
     counted in sub 00h without a value, an entry naming an index below 1000h that is not a
     dummy data type, a zero length, more than 64 bits in all. Warnings (the entry is decoded at
     its offset by the length the mapping gives): an object the dictionary does not define or of
-    a type the gateway does not serve (REAL64, DOMAIN, 40-/48-/56-bit integers, time types) is
+    a type the gateway does not serve (DOMAIN, UNICODE_STRING) is
     skipped; a float (REAL32/REAL64) mapped with a length other than its type's is skipped
     (it has no value); an integer mapped narrower than its type is served at the mapped width
     (its writes limited to it), wider from the low bits of the type's width; an object marked

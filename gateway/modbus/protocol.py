@@ -28,7 +28,12 @@ from gateway.errors import (
     ValueOutOfRange,
 )
 from gateway.northbound.regmap import Point, Table
-from gateway.northbound.scaling import scaled, unscaled_step
+from gateway.northbound.scaling import (
+    scaled,
+    time_register_ms,
+    time_word_of_ms,
+    unscaled_step,
+)
 
 T = TypeVar("T")
 
@@ -177,6 +182,10 @@ def to_registers(value: Any, p: Point) -> list[int]:
         value = scaled(float(value), p.scale, p.offset)
     if t == "float32":
         b = struct.pack(">f", float(value))
+    elif t == "float64":
+        b = struct.pack(">d", float(value))
+    elif t in ("time_of_day", "time_difference"):  # docs/modbus.md: (Unix) ms as uint64
+        b = time_register_ms(t, int(value)).to_bytes(8, "big")
     elif t in ("int16", "uint16"):
         return [int(value) & 0xFFFF]
     elif t in ("int32", "uint32"):
@@ -223,4 +232,8 @@ def from_registers(regs: list[int], p: Point) -> Any:
             # float -> raw integer: NaN / inf raise ValueError / OverflowError (0x03)
             return unscaled_step(f, p.scale, p.offset)
         return f
+    if t == "float64":
+        return struct.unpack(">d", b)[0]
+    if t in ("time_of_day", "time_difference"):
+        return time_word_of_ms(t, int.from_bytes(b, "big"))  # out of range: ValueError (0x03)
     return int.from_bytes(b, "big", signed=t.startswith("int"))

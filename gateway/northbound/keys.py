@@ -25,6 +25,7 @@ Imports: config, profiles, objref. Never zenoh, bus/, modbus/.
 from __future__ import annotations
 
 import re
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Literal
 
@@ -32,6 +33,7 @@ from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles.derived import text_signals
+from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal
 
 #: the liveliness token of the gateway itself, ``<prefix>/alive/_gateway``
@@ -126,9 +128,11 @@ def sdo_key(prefix: str, node: str, obj: ObjRef) -> str:
     return f"{prefix}/{node}/sdo/{obj.index:04x}/{obj.sub:02x}"
 
 
-def is_published(sig: Signal) -> bool:
-    """Signals decoded from a TPDO get a value key (RPDO outputs and SDO objects do not)."""
-    return sig.transport == "pdo" and sig.access == "ro"
+def is_published(sig: Signal, inputs: Collection[ObjRef] = frozenset()) -> bool:
+    """Signals decoded from a TPDO get a value key: the inputs, and an output whose object a
+    TPDO carries too (``inputs``: the node's TPDO objects, ``profiles.layout.tpdo_objects``).
+    RPDO-only outputs and SDO objects do not."""
+    return sig.transport == "pdo" and (sig.access == "ro" or sig.object in inputs)
 
 
 def is_writable(sig: Signal) -> bool:
@@ -222,9 +226,10 @@ def all_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[
         add(alive_key(p, name), "liveliness", "values usable: operational, supervision and process-data link OK")
         add(state_key(p, name), "event", "NMT state, supervision, link, errors (get: current)")
         add(emcy_key(p, name), "event", "EMCY: code, register, text")
+        inputs = tpdo_objects(lp.profile, n.pdo_variant)
         for s in lp.profile.signals:
             ov = n.signals.get(s.name)
-            if not is_published(s) or (ov is not None and ov.publish == "off"):
+            if not is_published(s, inputs) or (ov is not None and ov.publish == "off"):
                 continue
             unit = ov.unit if ov is not None and ov.unit is not None else s.unit
             add(value_key(p, name, s.name), "value", _signal_text(s, unit))

@@ -6,7 +6,8 @@ and one for the gateway itself (``modbus.gateway_unit_id``, default 247). Within
 * input registers 0..15: diagnostics (``NODE_DIAG``: quality, NMT state, alive, data age, EMCY,
   losses, guarding-bit link, last SDO abort)
 * input registers 100..: process data read from the node (the TPDO signals of the node's PDO
-  layout), in profile order
+  layout), in profile order; an object that a TPDO and an RPDO both carry is here (the
+  device's value) and in the holding registers (the output)
 * holding register 0: NMT command (write 1 start, 2 stop, 128 pre-op, 129 reset, 130 reset comm;
   reads the NMT state)
 * holding registers 100..: writable process data (RPDO signals), then configuration objects
@@ -31,7 +32,7 @@ from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
@@ -39,6 +40,7 @@ from gateway.config import Config
 from gateway.northbound.scaling import scaled, unscaled_step
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import text_signals
+from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal
 
 Table = Literal["ir", "hr", "di", "co"]
@@ -102,6 +104,10 @@ _REG_TYPE = {
     "bool": "uint16", "int8": "int16", "uint8": "uint16", "int16": "int16", "uint16": "uint16",
     "int24": "int32", "uint24": "uint32", "int32": "int32", "uint32": "uint32", "int64": "int64",
     "uint64": "uint64", "float32": "float32", "string": "string", "bytes": "string",
+    "int40": "int64", "int48": "int64", "int56": "int64", "uint40": "uint64", "uint48": "uint64",
+    "uint56": "uint64", "float64": "float64",
+    # CiA 301 7.1.6.5/6 (docs/modbus.md): Unix milliseconds / milliseconds as uint64
+    "time_of_day": "time_of_day", "time_difference": "time_difference",
 }  # fmt: skip
 _REG_COUNT = {
     "int16": 1,
@@ -111,7 +117,12 @@ _REG_COUNT = {
     "float32": 2,
     "int64": 4,
     "uint64": 4,
+    "float64": 4,
+    "time_of_day": 4,
+    "time_difference": 4,
 }
+#: what the registers of a time type hold (``Point.type_text``)
+_TIME_TEXT = {"time_of_day": "Unix ms", "time_difference": "ms"}
 
 
 class RegisterMapError(Exception):
@@ -160,6 +171,8 @@ class Point:
             return f"string[{self.count * 2}]"
         if self.count > 1:
             first = "high" if self.word_order == "big" else "low"
+            if self.type in _TIME_TEXT:
+                return f"{self.type} ({_TIME_TEXT[self.type]} as uint64, {first} word first)"
             return f"{self.type} ({first} word first)"
         return self.type
 
@@ -373,6 +386,7 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None
             add(Point(unit, "di", base + off, 1, "diag_bit", name, "bool", "ro", n, bit=off, description=desc))  # fmt: skip
         add(Point(unit, "hr", base + NMT_REGISTER, 1, "nmt", "nmt_command", "uint16", "rw", n, description=NMT_DESCRIPTION))  # fmt: skip
         mapped = _mapped_objects(lp, ncfg.pdo_variant)
+        inputs = tpdo_objects(lp.profile, ncfg.pdo_variant)
         next_addr = {"ir": base + SIGNAL_BASE, "hr": base + SIGNAL_BASE}
         next_bit = {"di": base + SIGNAL_BASE, "co": base + SIGNAL_BASE}
         for sig in lp.profile.signals:
@@ -386,6 +400,11 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None
             scale = ov.scale if ov and ov.scale is not None else sig.scale
             offset = ov.offset if ov and ov.offset is not None else sig.offset
             engineering = bool(ov and ov.as_float) and rtype != "string"
+            if engineering and rtype in _TIME_TEXT:
+                raise RegisterMapError(
+                    f"{key}.signals.{sig.name}.as_float",
+                    f"{sig.name} is a {rtype}: as_float applies to numbers only",
+                )
             if engineering:
                 rtype = "float32"
             count = ((sig.length or 0) + 1) // 2 if rtype == "string" else _REG_COUNT[rtype]
@@ -395,27 +414,32 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None
             else:
                 addr = next_addr[table]
                 next_addr[table] = addr + count
-            add(
-                Point(
-                    unit,
-                    table,
-                    addr,
-                    count,
-                    "signal",
-                    sig.name,
-                    rtype,
-                    "rw" if writable else "ro",
-                    n,
-                    word_order=word_order,
-                    scale=scale,
-                    offset=offset,
-                    engineering=engineering,
-                    unit_text=(ov.unit if ov and ov.unit is not None else sig.unit),
-                    transport=sig.transport_name,
-                    description=_description(sig, scale, offset, engineering),
-                ),
-                skey,
+            point = Point(
+                unit,
+                table,
+                addr,
+                count,
+                "signal",
+                sig.name,
+                rtype,
+                "rw" if writable else "ro",
+                n,
+                word_order=word_order,
+                scale=scale,
+                offset=offset,
+                engineering=engineering,
+                unit_text=(ov.unit if ov and ov.unit is not None else sig.unit),
+                transport=sig.transport_name,
+                description=_description(sig, scale, offset, engineering),
             )
+            add(point, skey)
+            if table == "hr" and sig.transport == "pdo" and sig.object in inputs:
+                # in a TPDO too: the device's own value, read-only, beside the output
+                addr = next_addr["ir"]
+                next_addr["ir"] = addr + count
+                desc = f"(the device's value, by TPDO; the output is holding register {point.address})"
+                desc = f"{point.description} {desc}".lstrip()
+                add(replace(point, table="ir", address=addr, access="ro", description=desc), skey)
             bits = _bit_descriptions(sig)
             if bits is None:
                 continue

@@ -5,14 +5,22 @@ Zenoh publishes and takes engineering values, the Modbus register map shows engi
 and serves ``as_float`` points as float32 engineering values, the web console shows and takes
 them: all through these functions.
 
-Imports: config (SignalOverride), profiles.schema (Signal). Nothing else of the gateway.
+The time types are not scaled: their raw value is the CiA 301 48-bit word (``gateway.cia301``);
+the engineering value of a TIME_OF_DAY is its ISO 8601 text in UTC
+(``"2026-11-27T08:30:00.250Z"``), of a TIME_DIFFERENCE its milliseconds; Modbus serves them as
+Unix milliseconds / milliseconds (``time_register_ms``).
+
+Imports: cia301 (time layout), config (SignalOverride), profiles.schema (Signal). Nothing else
+of the gateway.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from gateway.cia301 import TIME_EPOCH_UNIX_MS, time_ms, time_word
 from gateway.config import SignalOverride
 from gateway.profiles.schema import Signal
 
@@ -49,10 +57,52 @@ def unscaled_step(eng: float, scale: float, offset: float) -> int:
     return round((eng - offset) / scale) if scale else 0
 
 
+def time_register_ms(type_: str, word: int) -> int:
+    """A time word as Modbus serves it: Unix milliseconds (TIME_OF_DAY), milliseconds
+    (TIME_DIFFERENCE)."""
+    ms = time_ms(word)
+    return ms + TIME_EPOCH_UNIX_MS if type_ == "time_of_day" else ms
+
+
+def time_word_of_ms(type_: str, ms: int) -> int:
+    """The inverse of ``time_register_ms``; ValueError for a time before 1984-01-01 or beyond
+    65535 days."""
+    if type_ == "time_of_day":
+        if ms < TIME_EPOCH_UNIX_MS:
+            raise ValueError(f"{ms} Unix ms is before 1984-01-01, the TIME_OF_DAY epoch")
+        ms -= TIME_EPOCH_UNIX_MS
+    return time_word(ms)
+
+
+def time_text(word: int) -> str:
+    """A TIME_OF_DAY word as ISO 8601 in UTC, to the millisecond."""
+    ms = time_register_ms("time_of_day", word)
+    t = datetime.fromtimestamp(ms // 1000, UTC)
+    return t.strftime("%Y-%m-%dT%H:%M:%S") + f".{ms % 1000:03d}Z"
+
+
+def time_of_text(text: str) -> int:
+    """The TIME_OF_DAY word of an ISO 8601 time (without a zone: UTC); ValueError otherwise."""
+    try:
+        t = datetime.fromisoformat(text.replace("Z", "+00:00").replace("z", "+00:00"))
+    except ValueError:
+        raise ValueError(f"{text!r} is not an ISO 8601 time such as 2026-11-27T08:30:00.250Z") from None
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=UTC)
+    delta = t - datetime(1970, 1, 1, tzinfo=UTC)
+    if delta.microseconds % 1000:
+        raise ValueError(f"{text!r}: a TIME_OF_DAY counts whole milliseconds")
+    return time_word_of_ms("time_of_day", delta // timedelta(milliseconds=1))
+
+
 def engineering(sig: Signal, raw: Any, sc: Scaling) -> Any:
     """Raw device value -> JSON-able engineering value."""
     if raw is None:
         return None
+    if sig.type == "time_of_day":
+        return time_text(int(raw))
+    if sig.type == "time_difference":
+        return time_ms(int(raw))
     if isinstance(raw, (bytes, bytearray)):
         if sig.type == "string":
             return bytes(raw).rstrip(b"\0").decode("ascii", errors="replace")
@@ -64,7 +114,18 @@ def engineering(sig: Signal, raw: Any, sc: Scaling) -> Any:
 
 def to_raw(sig: Signal, value: Any, sc: Scaling) -> Any:
     """Engineering value from a client -> raw device value (range checks are the command
-    service's). Integer types are rounded to the nearest step."""
+    service's). Integer types are rounded to the nearest step; a TIME_OF_DAY is ISO 8601 text,
+    a TIME_DIFFERENCE milliseconds."""
+    if sig.type == "time_of_day":
+        if not isinstance(value, str):
+            raise ValueError(f"{sig.name}: expected an ISO 8601 time, got {value!r}")
+        return time_of_text(value)
+    if sig.type == "time_difference":
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or (
+            isinstance(value, float) and not value.is_integer()
+        ):
+            raise ValueError(f"{sig.name}: expected whole milliseconds, got {value!r}")
+        return time_word_of_ms("time_difference", int(value))
     if sc.identity or sig.type in ("string", "bytes") or isinstance(value, (str, bool)):
         return value
     if not isinstance(value, (int, float)):
@@ -72,7 +133,7 @@ def to_raw(sig: Signal, value: Any, sc: Scaling) -> Any:
     if sc.scale == 0:
         raise ValueError(f"{sig.name}: scale is 0, write {{'raw': value}} instead")
     raw = (value - sc.offset) / sc.scale
-    return raw if sig.type == "float32" else round(raw)
+    return raw if sig.type in ("float32", "float64") else round(raw)
 
 
 def bits_of(sig: Signal, raw: Any) -> dict[str, Any] | None:

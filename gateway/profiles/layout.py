@@ -102,6 +102,14 @@ def _pdo_index_lookup(
     return lookup(comm_named, comm_base), lookup(map_named, map_base)
 
 
+def tpdo_objects(profile: Profile, variant: int | None = None) -> frozenset[ObjRef]:
+    """Objects the TPDOs of the layout carry: the node's inputs. A signal whose object is here
+    is served as an input (the device's value), also when an RPDO carries it too (then it is
+    an output as well, e.g. a command number the device echoes)."""
+    tpdos, _ = profile.layout(variant)
+    return frozenset(e.object for p in tpdos for e in p.mapping)
+
+
 def is_pdo_object(obj: ObjRef) -> bool:
     return 0x1400 <= obj.index < 0x1C00
 

@@ -48,7 +48,8 @@ def _parse_int(v: Any) -> int:
 
 HexInt = Annotated[int, BeforeValidator(_parse_int)]
 
-#: Data types a signal may have; sizes in bits. ``string`` is ASCII (VISIBLE_STRING).
+#: Data types a signal may have; sizes in bits. ``string`` is ASCII (VISIBLE_STRING); the time
+#: types hold the CiA 301 48-bit word (``gateway.cia301`` converts it).
 SignalType = Literal[
     "bool",
     "int8",
@@ -62,6 +63,15 @@ SignalType = Literal[
     "int64",
     "uint64",
     "float32",
+    "int40",
+    "int48",
+    "int56",
+    "uint40",
+    "uint48",
+    "uint56",
+    "float64",
+    "time_of_day",
+    "time_difference",
     "string",
     "bytes",
 ]
@@ -79,6 +89,15 @@ TYPE_BITS: dict[str, int] = {
     "int64": 64,
     "uint64": 64,
     "float32": 32,
+    "int40": 40,
+    "int48": 48,
+    "int56": 56,
+    "uint40": 40,
+    "uint48": 48,
+    "uint56": 56,
+    "float64": 64,
+    "time_of_day": 48,  # CiA 301 7.1.6.5: the 48-bit word (ms and days)
+    "time_difference": 48,  # CiA 301 7.1.6.6
 }
 
 #: Feature names that code may key behaviour on (never on a device name).

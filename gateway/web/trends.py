@@ -42,7 +42,7 @@ def is_trend_signal(meta: SignalMeta) -> bool:
     return (
         meta.source == "TPDO"
         and s.type in TYPE_BITS
-        and s.type != "bool"
+        and s.type not in ("bool", "time_of_day")  # a time of day is text, not a curve
         and not s.bits
         and not s.values
     )

@@ -9,7 +9,7 @@ Zenoh) come from an ``overview_fn`` given by the application, which alone knows 
 
 Runs on the event loop. Imports: image, commands (types), config, northbound.regmap, northbound.keys,
 northbound.scaling and northbound.summary (pure modules, no protocol library), cia301 (the
-error register bits), profiles.schema, states. Never modbus/, zenoh_bridge/ or bus/.
+error register bits), profiles.schema, profiles.layout, states. Never modbus/, zenoh_bridge/ or bus/.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from gateway.northbound.keys import is_published, is_writable, prefix_of, set_ke
 from gateway.northbound.regmap import RegisterMap, build_register_map
 from gateway.northbound.scaling import Scaling, bits_of, engineering
 from gateway.northbound.summary import QUALITY_TEXT, summarize, worst_quality
+from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal
 from gateway.states import LinkState, NmtState
 
@@ -129,6 +130,7 @@ class ConsoleModel:
                 span = str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}"
                 where.setdefault(p.name, []).append(f"{TABLE_SHORT[p.table]} {span} @ unit {p.unit}")
         out = {}
+        inputs = tpdo_objects(info.lp.profile, getattr(info.cfg, "pdo_variant", None))
         for s in info.lp.profile.signals:
             ov = info.cfg.signals.get(s.name) if info.cfg is not None else None
             if s.transport == "sdo":
@@ -144,7 +146,7 @@ class ConsoleModel:
             if not self.cfg.zenoh.enabled:
                 keys.append("Zenoh off")
             else:
-                if (is_published(s) and not publish_off) or (
+                if (is_published(s, inputs) and not publish_off) or (
                     s.transport == "sdo" and s.access != "wo"
                 ):
                     keys.append(value_key(self.prefix, name, s.name))

@@ -2,7 +2,8 @@
 EMCY events, error replies, and the parsing of what clients send in queries.
 
 Values on Zenoh are engineering values (raw x scale + offset, with the node's overrides of unit,
-scale and offset); writes take engineering values too and are turned back into raw values here,
+scale and offset; a TIME_OF_DAY as ISO 8601 text, a TIME_DIFFERENCE in milliseconds); writes
+take engineering values too and are turned back into raw values here,
 or ``{"raw": v}`` passes a raw device value through. Everything a client may send that does not
 parse raises ``ValueError`` with a message saying what was expected.
 
@@ -17,7 +18,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.cia301 import NMT_COMMANDS
+from gateway.cia301 import NMT_COMMANDS, TIME_TYPES
 from gateway.errors import GatewayError, SdoAbort
 from gateway.image import EmcyRecord, NodeImage, Quality, SignalValue
 from gateway.northbound.scaling import Scaling, bits_of, engineering
@@ -74,6 +75,7 @@ def value_json(sig: Signal, sv: SignalValue, quality: Quality, sc: Scaling) -> s
         and type(raw) in (int, float)
         and math.isfinite(raw)
         and isinstance(sv.timestamp, float)
+        and sig.type not in TIME_TYPES
     ):
         value = raw if sc.identity else round(raw * sc.scale + sc.offset, 9)
         unit = _UNIT_JSON.get(sc.unit)
@@ -102,6 +104,7 @@ def pdo_json(
             and not sig.values
             and type(raw) in (int, float)
             and math.isfinite(raw)
+            and sig.type not in TIME_TYPES
         ):
             value = raw if sc.identity else round(raw * sc.scale + sc.offset, 9)
             unit = _UNIT_JSON.get(sc.unit) or _UNIT_JSON.setdefault(sc.unit, json.dumps(sc.unit))

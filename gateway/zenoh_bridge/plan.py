@@ -4,7 +4,7 @@ one sample (``publish: pdo``), and the route of each TPDO's record (what the rea
 what it publishes at once for every frame). The objects are the publications' state, used by
 ``bridge.py`` on whichever thread publishes, each under its own lock.
 
-Imports: config, image, commands, profiles.schema, northbound.keys, northbound.scaling,
+Imports: config, image, commands, profiles.schema, profiles.layout, northbound.keys, northbound.scaling,
 zenoh_bridge.policy. Never zenoh (the publishers are set on these objects by ``session.py``),
 modbus/ nor bus/.
 """
@@ -20,6 +20,7 @@ from gateway.config import Config
 from gateway.image import ProcessImage
 from gateway.northbound.keys import is_published, tpdo_key, value_key
 from gateway.northbound.scaling import Scaling
+from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal
 from gateway.zenoh_bridge.policy import ReportPolicy
 
@@ -87,8 +88,9 @@ def plan_publications(
         rt = commands.node(name)
         sps: list[SignalPub] = []
         in_pdo: dict[str, tuple[Signal, Scaling]] = {}
+        inputs = tpdo_objects(rt.lp.profile, rt.cfg.pdo_variant)
         for sig in rt.lp.profile.signals:
-            if not is_published(sig):
+            if not is_published(sig, inputs):
                 continue
             ov = rt.cfg.signals.get(sig.name)
             mode = (ov.publish if ov is not None and ov.publish else None) or default_mode

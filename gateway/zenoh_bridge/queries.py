@@ -289,9 +289,10 @@ class QueryService:
 
     # ------------------------------------------------------------------ read-only answers
     def _value_now(self, node: NodeImage, sig: Signal) -> dict[str, Any]:
-        """A TPDO value from the image's records; an RPDO output or text row from its output
-        section (as last written)."""
-        if self.commands.node(node.name).is_output(sig.name):
+        """A TPDO value from the image's records (also of an output a TPDO carries too: the
+        device's value); an RPDO output or text row from its output section (as last written)."""
+        rt = self.commands.node(node.name)
+        if rt.is_output(sig.name) and not any(sig.name in names for _, names in rt.tpdo_records):
             sv = self.commands.output_sample(node.name, sig.name)
         else:
             sv = node.signals[sig.name]

@@ -76,15 +76,15 @@ async def test_an_unserved_object_is_skipped_and_the_other_signals_decode_at_the
 
 
 @pytest.mark.skipif(not CORPUS.is_dir(), reason="no EDS corpus")
-def test_a_mapped_real64_is_named_in_a_warning_and_the_node_is_served(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+def test_a_mapped_real64_is_served_as_a_signal_of_its_pdo(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     eds = CORPUS / "jinr-greenlab__canopen__Test.eds"
     cfg = tmp_path / "c.yaml"
     cfg.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: dev, node_id: 5, eds: '{eds}'}}\n")  # fmt: skip
     assert main(["check", "-c", str(cfg)]) == 0
-    assert "10 process signals" in capsys.readouterr().out
-    assert main(["eds", "lint", str(eds)]) == 1
     out = capsys.readouterr().out
-    assert "[1A03sub1]: warning: TPDO4 entry 0x2001:06/64 (REAL64) is not a type the gateway serves: skipped" in out
+    assert "12 process signals" in out and "double_2001_06" in out and "double_2000_06" in out
+    assert main(["eds", "lint", str(eds)]) == 0
+    assert "REAL64" not in capsys.readouterr().out
 
 
 def test_supervision_follows_the_device(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

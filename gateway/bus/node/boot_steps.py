@@ -168,7 +168,7 @@ def _coerce(value: Any, type_name: str, where: str) -> int | float | str:
                     f"{where}: {value!r} is neither a number nor a {size}-character signature"
                 ) from None
             return int.from_bytes(raw, "little")
-    if type_name == "float32":
+    if type_name in ("float32", "float64"):
         return float(value)
     if isinstance(value, float):
         if not value.is_integer():
