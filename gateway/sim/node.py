@@ -143,6 +143,12 @@ class SimNode:
         # tpdo_on_operational; default for devices known only from their EDS, as most do; the
         # manual devices keep what their manuals describe)
         self.tpdo_on_operational = bool(raw.get("tpdo_on_operational", not profile.profile.sim))
+        # event-driven TPDOs without timer sent when their data change, the inputs sampled every
+        # input_cycle_ms (sim options; default for devices known only from their EDS)
+        self.tpdo_on_change = bool(raw.get("tpdo_on_change", not profile.profile.sim))
+        self.input_cycle_s = float(raw.get("input_cycle_ms", 10)) / 1000
+        if self.input_cycle_s <= 0:
+            raise ValueError(f"input_cycle_ms {raw.get('input_cycle_ms')} is not above 0")
         self.auto_inputs: list[ObjRef] = []
         if self.position_obj is None and self.velocity_obj is None and not profile.profile.sim:
             self.auto_inputs = mapped_inputs(self.values, self.store, node_id)
