@@ -179,8 +179,13 @@ def in_ranges(index: int, which: int) -> bool:
 class ObjectValues:
     """The (index, sub) -> value dict of a node, typed by its EDS."""
 
-    def __init__(self, dictionary: od.ObjectDictionary) -> None:
+    def __init__(
+        self, dictionary: od.ObjectDictionary, given: dict[tuple[int, int], Any] | None = None
+    ) -> None:
         self.od = dictionary
+        #: values the file gives outside the objects' own sections (1018h from [DeviceInfo]),
+        #: in place of their defaults
+        self.given = dict(given or {})
         self.vars: dict[tuple[int, int], od.ODVariable] = {}
         self.values: dict[tuple[int, int], Any] = {}
         for entry in dictionary.values():
@@ -218,7 +223,8 @@ class ObjectValues:
         for key, var in self.vars.items():
             if not in_ranges(key[0], index_range):
                 continue
-            self.values[key] = store.values.get(key, resolve_default(var, node_id))
+            default = self.given[key] if key in self.given else resolve_default(var, node_id)
+            self.values[key] = store.values.get(key, default)
 
     def save(self, node_id: int, store: PersistentStore, index_range: int = 1) -> None:
         """1010h: store writable parameters of the range that differ from the EDS default."""
@@ -228,7 +234,7 @@ class ObjectValues:
             if not var.writable:
                 continue
             value = self.values.get(key)
-            if value == resolve_default(var, node_id):
+            if value == self.given.get(key, resolve_default(var, node_id)):
                 store.values.pop(key, None)
             else:
                 store.values[key] = value
