@@ -149,9 +149,10 @@ class SimNode:
         # event-driven TPDOs without timer sent when their data change, the inputs sampled every
         # input_cycle_ms (sim options; default for devices known only from their EDS)
         self.tpdo_on_change = bool(raw.get("tpdo_on_change", not profile.profile.sim))
-        self.input_cycle_s = float(raw.get("input_cycle_ms", 10)) / 1000
-        if self.input_cycle_s <= 0:
-            raise ValueError(f"input_cycle_ms {raw.get('input_cycle_ms')} is not above 0")
+        cycle_ms = raw.get("input_cycle_ms", 10)
+        if isinstance(cycle_ms, bool) or not isinstance(cycle_ms, (int, float)) or cycle_ms <= 0:
+            raise ValueError(f"input_cycle_ms: {cycle_ms!r} is not a number of ms above 0")
+        self.input_cycle_s = cycle_ms / 1000
         self.auto_inputs: list[ObjRef] = []
         if self.position_obj is None and self.velocity_obj is None and not profile.profile.sim:
             self.auto_inputs = mapped_inputs(self.values, self.store, node_id)

@@ -74,3 +74,23 @@ def test_a_change_driven_tpdo_goes_out_only_in_operational() -> None:
     assert run(node, 20)
     node.handle(frame(0x000, f"80 {NODE:02X}"), 0.021)  # PRE-OPERATIONAL
     assert [m for ms in range(22, 60) for m in node.tick(ms / 1000) if m.arbitration_id == TPDO2] == []
+
+
+@pytest.mark.parametrize(
+    ("section", "value", "message"),
+    [
+        ("options", {"input_cycle_ms": 0}, "<memory>: simulate.options.io: input_cycle_ms: 0 is not a number of ms above 0"),
+        ("options", {"input_cycle_ms": "fast"}, "<memory>: simulate.options.io: input_cycle_ms: 'fast' is not a number of ms above 0"),
+        ("motion", {"kind": "bogus"}, "<memory>: simulate.motion.io: motion kind 'bogus' is not ramp, sine, random_walk or hold"),
+    ],
+)  # fmt: skip
+def test_a_simulator_option_it_refuses_is_a_config_error_naming_its_key(
+    section: str, value: dict[str, Any], message: str
+) -> None:
+    from gateway.app import SimulatedBus
+    from gateway.config import ConfigError
+
+    cfg = make_config([{"name": "io", "node_id": NODE, "eds": str(DCF)}], simulate={section: {"io": value}})
+    with pytest.raises(ConfigError) as err:
+        SimulatedBus(cfg)
+    assert err.value.problems == [message]
