@@ -20,7 +20,7 @@ from gateway.bus.master import Master
 from gateway.bus.resolved import ResolvedNode, node_of, resolve_config
 from gateway.checks import check_config
 from gateway.commands import CommandService
-from gateway.config import Config
+from gateway.config import Config, ConfigError, blame
 from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
@@ -43,6 +43,7 @@ class SimulatedBus:
         names: list[str] | None = None,
         resolved: dict[str, ResolvedNode] | None = None,
     ):
+        from gateway.sim.motion import MotionConfig
         from gateway.sim.node import SimNode
 
         self.cfg = cfg
@@ -52,12 +53,19 @@ class SimulatedBus:
         for n in cfg.nodes:
             if n.name not in wanted:
                 continue
-            self.nodes[n.name] = SimNode(
-                node_of(cfg, resolved, n).lp,
-                n.node_id,
-                motion=cfg.simulate.motion.get(n.name),
-                options=cfg.simulate.options.get(n.name),
-            )
+            # a motion or an option the simulator refuses is a config error naming its key
+            key = f"simulate.motion.{n.name}"
+            try:
+                MotionConfig.from_dict(cfg.simulate.motion.get(n.name))
+                key = f"simulate.options.{n.name}"
+                self.nodes[n.name] = SimNode(
+                    node_of(cfg, resolved, n).lp,
+                    n.node_id,
+                    motion=cfg.simulate.motion.get(n.name),
+                    options=cfg.simulate.options.get(n.name),
+                )
+            except (ValueError, TypeError) as exc:
+                raise ConfigError([f"{blame(key, cfg.source, cfg.env_keys)}: {key}: {exc}"]) from exc
         self.bus: can.BusABC | None = None
         self.runner: Any = None
 

@@ -5,8 +5,9 @@ implements DS-301 (NMT, SDO server, PDOs, SYNC, EMCY, heartbeat, node guarding, 
 and runs the device behaviours of its profile's features (behaviours/). ``SimRunner``
 (runner.py) drives nodes on a python-can bus in a background thread.
 
-Used by tests, demos and commissioning. Imports: gateway.profiles, gateway.objref, python-can,
-canopen (EDS types only), gateway.states. Nothing of bus/, modbus/ or zenoh_bridge/.
+Used by tests, demos and commissioning. Imports: gateway.profiles, gateway.eds (default values),
+gateway.objref, python-can, canopen (EDS types only), gateway.states. Nothing of bus/, modbus/
+or zenoh_bridge/.
 """
 
 from typing import Any

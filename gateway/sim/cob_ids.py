@@ -1,6 +1,8 @@
 """The COB-IDs a simulated device receives on, read from its current objects (SGH10 manual
-000/003 4.1): the valid TPDOs (an RTR asks for one) and RPDOs of 1400h-1BFFh, SYNC from 1005h,
-its SDO server's request and response COB-IDs from 1200h (default 600h / 580h + node id).
+000/003 4.1): the valid TPDOs (an RTR asks for one) and RPDOs of 1400h-1BFFh, SYNC from 1005h
+(80h where the file gives no value), and its default SDO server's request and response COB-IDs,
+600h / 580h + node id whatever 1200h holds (SGH10 manual 4.7.2.16: "The COB IDs cannot be
+changed"; the predefined connection set; a DCF written for another node id holds that node's).
 
 ``receive_map`` is derived again whenever a COB-ID, a PDO parameter or the node id changes (the
 node drops its copy then).
@@ -25,16 +27,14 @@ from gateway.cia301 import (
 from gateway.sim.objects import ObjectValues
 
 
-def sdo_rx_cob(values: ObjectValues, node_id: int) -> int:
-    """The COB-ID of the SDO requests the device answers (1200h:01)."""
-    v = values.get(0x1200, 1)
-    return int(v) & COB_ID_MASK_11BIT if v is not None else COB_SDO_RX + node_id
+def sdo_rx_cob(node_id: int) -> int:
+    """The COB-ID of the SDO requests the device answers (SGH10 manual 4.7.2.16: 600h + node id)."""
+    return COB_SDO_RX + node_id
 
 
-def sdo_tx_cob(values: ObjectValues, node_id: int) -> int:
-    """The COB-ID of the device's SDO responses (1200h:02)."""
-    v = values.get(0x1200, 2)
-    return int(v) & COB_ID_MASK_11BIT if v is not None else COB_SDO_TX + node_id
+def sdo_tx_cob(node_id: int) -> int:
+    """The COB-ID of the device's SDO responses (SGH10 manual 4.7.2.16: 580h + node id)."""
+    return COB_SDO_TX + node_id
 
 
 def receive_map(
@@ -50,7 +50,7 @@ def receive_map(
         cob = pdo.cob_id(values, "rpdo", n)
         if not cob & COB_ID_INVALID:
             m[cob & COB_ID_MASK_29BIT] = ("rpdo", n)
-    sync = values.get(0x1005, 0, COB_SYNC)
-    m[int(sync) & COB_ID_MASK_11BIT] = ("sync", 0)
-    m[sdo_rx_cob(values, node_id)] = ("sdo", 0)
+    sync = int(values.get(0x1005, 0) or COB_SYNC) & COB_ID_MASK_11BIT
+    m[sync or COB_SYNC] = ("sync", 0)
+    m[sdo_rx_cob(node_id)] = ("sdo", 0)
     return m

@@ -31,6 +31,9 @@ Keys read (all optional):
   sdo_expedited_only                refuse segmented transfers (abort 0x05040001)
   tpdo_on_operational               send event-driven TPDOs without timer once on entering
                                     OPERATIONAL (default: only for profiles without sim hints)
+  tpdo_on_change                    send event-driven TPDOs without timer when their data
+                                    change (default: only for profiles without sim hints)
+  input_cycle_ms                    how often such a device samples its inputs (default 10)
 Calibration (position = direction x model + offset + application offset):
   calibration_object                writing P makes the position P (SGH10 6010h:01)
   calibration: {preset, trigger, trigger_value, done_value, application_offset}

@@ -27,8 +27,8 @@ manuals say so (SGH10 manual 000/003 section numbers unless noted), and which mo
   behaviours of the profile's features (``behaviours/``).
 
 Imports: python-can (Message only), gateway.cia301, gateway.states, gateway.profiles
-(LoadedProfile), gateway.objref and the other gateway.sim modules. Nothing of bus/, modbus/,
-zenoh_bridge/.
+(LoadedProfile, expected_identity), gateway.objref and the other gateway.sim modules. Nothing of
+bus/, modbus/, zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ from gateway.cia301 import (
     COB_NMT_EC,
 )
 from gateway.objref import ObjRef
-from gateway.profiles import LoadedProfile
+from gateway.profiles import LoadedProfile, expected_identity
 from gateway.sim.auto_inputs import auto_value, mapped_inputs
 from gateway.sim.behaviours import Behaviour, behaviour_for
 from gateway.sim.cob_ids import receive_map, sdo_tx_cob
@@ -96,7 +96,10 @@ class SimNode:
         if isinstance(motion, dict):
             raw["motion"] = {**(raw.get("motion") or {}), **motion}
         self.hints = SimHints.from_dict(raw)
-        self.values = ObjectValues(profile.od)
+        # the identity the gateway checks (1018h), where the file gives it in [DeviceInfo] only
+        self.values = ObjectValues(
+            profile.od, {(o.index, o.sub): v for o, v in expected_identity(profile)}
+        )
         self.nmt_state = NmtState.BOOTUP
         self.powered = False
         self.silenced = False
@@ -143,6 +146,13 @@ class SimNode:
         # tpdo_on_operational; default for devices known only from their EDS, as most do; the
         # manual devices keep what their manuals describe)
         self.tpdo_on_operational = bool(raw.get("tpdo_on_operational", not profile.profile.sim))
+        # event-driven TPDOs without timer sent when their data change, the inputs sampled every
+        # input_cycle_ms (sim options; default for devices known only from their EDS)
+        self.tpdo_on_change = bool(raw.get("tpdo_on_change", not profile.profile.sim))
+        cycle_ms = raw.get("input_cycle_ms", 10)
+        if isinstance(cycle_ms, bool) or not isinstance(cycle_ms, (int, float)) or cycle_ms <= 0:
+            raise ValueError(f"input_cycle_ms: {cycle_ms!r} is not a number of ms above 0")
+        self.input_cycle_s = cycle_ms / 1000
         self.auto_inputs: list[ObjRef] = []
         if self.position_obj is None and self.velocity_obj is None and not profile.profile.sim:
             self.auto_inputs = mapped_inputs(self.values, self.store, node_id)
@@ -241,7 +251,7 @@ class SimNode:
             elif what == "sdo" and not msg.is_remote_frame:
                 response = self.sdo.on_request(bytes(msg.data), now)
                 if response is not None:
-                    self.send(sdo_tx_cob(self.values, self.node_id), response)
+                    self.send(sdo_tx_cob(self.node_id), response)
             elif self.nmt_state == NmtState.OPERATIONAL:
                 if what == "tpdo" and msg.is_remote_frame and self.hints.tpdo_rtr:
                     if not pdo.cob_id(self.values, "tpdo", number) & COB_ID_NO_RTR:
@@ -268,7 +278,7 @@ class SimNode:
             self.tpdo_producer.tick(now)
         abort = self.sdo.poll(now)
         if abort is not None:
-            self.send(sdo_tx_cob(self.values, self.node_id), abort)
+            self.send(sdo_tx_cob(self.node_id), abort)
         self._flush_emcy(now)
         return self.drain()
 

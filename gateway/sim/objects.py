@@ -1,17 +1,18 @@
 """The object dictionary values of one simulated node, and its persistent store.
 
 Knows an EDS's entries (from canopen's parsed ``ObjectDictionary``): data type, access, limits,
-defaults with ``$NODEID`` resolved. Values live in a dict keyed by (index, sub) as Python values
+defaults with ``$NODEID`` resolved (a DCF's ParameterValue first, CompactSubObj ``[xxxxValue]``
+included: what the gateway reads from the same file, ``gateway.eds.pdos.default_value``). Values live in a dict keyed by (index, sub) as Python values
 (int, float, str, bytes); this module encodes/decodes them to the little-endian bytes of SDO and
 PDO transfers and raises :class:`SdoAbortError` with the DS-301 abort code when an access is
 refused. It knows nothing of NMT, PDO rules or device behaviours (node.py does).
 
-Imports: canopen (object dictionary types only), gateway.objref.
+Imports: canopen (object dictionary types only), gateway.eds.pdos (default_value),
+gateway.objref.
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,6 +20,7 @@ from typing import Any
 from canopen import objectdictionary as od
 from canopen.objectdictionary import datatypes as dt
 
+from gateway.eds.pdos import default_value
 from gateway.objref import ObjRef
 
 # DS-301 7.2.4.3.17 SDO abort codes used by the server (also listed in SGH10 manual 4.4.1.3)
@@ -50,20 +52,14 @@ class SdoAbortError(Exception):
 
 
 _STRING_TYPES = (dt.VISIBLE_STRING, dt.OCTET_STRING, dt.UNICODE_STRING, dt.DOMAIN)
-_NODEID_RE = re.compile(r"\$NODEID", re.IGNORECASE)
 
 
 def resolve_default(var: od.ODVariable, node_id: int) -> Any:
-    """The EDS default of ``var`` with ``$NODEID`` replaced by ``node_id`` (0 / "" if none)."""
-    raw = getattr(var, "default_raw", None)
-    if isinstance(raw, str) and _NODEID_RE.search(raw):
-        total = 0
-        for term in _NODEID_RE.sub(str(node_id), raw.replace(" ", "")).split("+"):
-            if term:
-                total += int(term, 0)
-        return total
-    if var.default is not None:
-        return var.default
+    """The value the device holds after power-on without a store: a DCF's ParameterValue, else
+    the EDS default, ``$NODEID`` replaced by ``node_id`` (0 / "" if none)."""
+    value = default_value(var, node_id)
+    if value is not None:
+        return value
     if var.data_type in (dt.VISIBLE_STRING, dt.UNICODE_STRING):
         return ""
     if var.data_type in (dt.OCTET_STRING, dt.DOMAIN):
@@ -183,8 +179,13 @@ def in_ranges(index: int, which: int) -> bool:
 class ObjectValues:
     """The (index, sub) -> value dict of a node, typed by its EDS."""
 
-    def __init__(self, dictionary: od.ObjectDictionary) -> None:
+    def __init__(
+        self, dictionary: od.ObjectDictionary, given: dict[tuple[int, int], Any] | None = None
+    ) -> None:
         self.od = dictionary
+        #: values the file gives outside the objects' own sections (1018h from [DeviceInfo]),
+        #: in place of their defaults
+        self.given = dict(given or {})
         self.vars: dict[tuple[int, int], od.ODVariable] = {}
         self.values: dict[tuple[int, int], Any] = {}
         for entry in dictionary.values():
@@ -222,7 +223,8 @@ class ObjectValues:
         for key, var in self.vars.items():
             if not in_ranges(key[0], index_range):
                 continue
-            self.values[key] = store.values.get(key, resolve_default(var, node_id))
+            default = self.given[key] if key in self.given else resolve_default(var, node_id)
+            self.values[key] = store.values.get(key, default)
 
     def save(self, node_id: int, store: PersistentStore, index_range: int = 1) -> None:
         """1010h: store writable parameters of the range that differ from the EDS default."""
@@ -232,7 +234,7 @@ class ObjectValues:
             if not var.writable:
                 continue
             value = self.values.get(key)
-            if value == resolve_default(var, node_id):
+            if value == self.given.get(key, resolve_default(var, node_id)):
                 store.values.pop(key, None)
             else:
                 store.values[key] = value

@@ -11,7 +11,12 @@ parameters (from the current 180xh/1A0xh, dropped when a PDO object changes). It
 - types 1..240 every n-th SYNC, type 0 on SYNC when the data changed (4.2.3, 4.3.1.1);
 - an application event (a behaviour's ``trigger_tpdo``) for an event-driven TPDO;
 - with the sim option ``tpdo_on_operational``, an event-driven TPDO without timer sent once on
-  entering OPERATIONAL (CiA 301 7.3.2).
+  entering OPERATIONAL (CiA 301 7.3.2);
+- with the sim option ``tpdo_on_change``, an event-driven TPDO without timer (types 254/255,
+  180xh:05 = 0) sent when its data change: the device samples its inputs every
+  ``input_cycle_ms`` (from entering OPERATIONAL on) and sends each such TPDO whose data differ
+  from what it last sent; no two frames of a TPDO closer than its inhibit time 180xh:03
+  (100 us units, CiA 301 7.5.2.35), a change inside that window goes out when it ends.
 
 TPDOs go out in OPERATIONAL only: the node calls ``enter_operational`` / ``leave_operational``
 on its NMT changes. Sans-I/O as its node: it sends through ``node.send`` and reads no clock.
@@ -52,10 +57,13 @@ class TpdoProducer:
         self.node = node
         self.timers: dict[int, TpdoTimer] = {n: TpdoTimer() for n in node.tpdos}
         self._params: dict[int, pdo.TpdoParams] = {}  # dropped when a PDO object changes
+        #: next input sample of the change-driven TPDOs (None: not sampling)
+        self.next_sample_s: float | None = None
 
     def reset(self) -> None:
         """Initialisation: every timer stopped, nothing sent yet."""
         self.timers = {n: TpdoTimer() for n in self.node.tpdos}
+        self.next_sample_s = None
 
     def forget_params(self) -> None:
         """A PDO parameter or COB-ID may have changed."""
@@ -85,7 +93,7 @@ class TpdoProducer:
             return False
         t = self.timers[number]
         inhibit_s = params.inhibit_s
-        if not force and t.last_sent_s is not None and now < t.last_sent_s + inhibit_s:
+        if not force and t.last_sent_s is not None and now + _EPS_S < t.last_sent_s + inhibit_s:
             t.pending = True
             return False
         data = self.data(number, now)
@@ -102,8 +110,15 @@ class TpdoProducer:
                 self.send(number, now)
 
     def next_due(self) -> list[float]:
-        """The due times of the running event timers."""
-        return [t.next_due_s for t in self.timers.values() if t.next_due_s is not None]
+        """The due times of the running event timers, of the next input sample and of the
+        sends held back by the inhibit time."""
+        due = [t.next_due_s for t in self.timers.values() if t.next_due_s is not None]
+        if self.next_sample_s is not None:
+            due.append(self.next_sample_s)
+        for n, t in self.timers.items():
+            if t.pending and t.last_sent_s is not None:
+                due.append(t.last_sent_s + self.params(n).inhibit_s)
+        return due
 
     def tick(self, now: float) -> None:
         for n, t in self.timers.items():
@@ -121,6 +136,22 @@ class TpdoProducer:
             t.next_due_s += period_s
             if t.next_due_s <= now:
                 t.next_due_s = now + period_s
+        if self.next_sample_s is not None and now + _EPS_S >= self.next_sample_s:
+            self._send_changed(now)
+            cycle_s = self.node.input_cycle_s
+            self.next_sample_s += cycle_s
+            if self.next_sample_s <= now:
+                self.next_sample_s = now + cycle_s
+
+    def _send_changed(self, now: float) -> None:
+        """An input sample: each valid change-driven TPDO whose data changed is sent (or held
+        back by its inhibit time)."""
+        for n, t in self.timers.items():
+            params = self.params(n)
+            if params.transmission_type < 254 or params.event_timer_ms or params.cob_id & COB_ID_INVALID:
+                continue
+            if self.data(n, now) != t.last_data:
+                self.send(n, now)
 
     def on_sync(self, now: float) -> None:
         """SYNC (SGH10 manual 4.2.3, 4.3.1.1): synchronous TPDOs in OPERATIONAL."""
@@ -153,16 +184,20 @@ class TpdoProducer:
                 # an event-driven TPDO without timer is sent once on entering OPERATIONAL
                 # (its current values), then on events (CiA 301 7.3.2)
                 t.next_due_s = now
+        self.next_sample_s = now if node.tpdo_on_change else None
 
     def leave_operational(self) -> None:
         for t in self.timers.values():
             t.next_due_s = None
+        self.next_sample_s = None
 
     def catch_up(self, now: float) -> None:
         """Back on the bus: timers that fell due meanwhile run from ``now``."""
         for t in self.timers.values():
             if t.next_due_s is not None and t.next_due_s < now:
                 t.next_due_s = now
+        if self.next_sample_s is not None and self.next_sample_s < now:
+            self.next_sample_s = now
 
     def event_timer_written(self, number: int) -> None:
         """SGH10 manual 4.7.2.17 180xh:05: a change applies with the next timer run; a timer
