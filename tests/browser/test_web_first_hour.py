@@ -10,6 +10,7 @@ loop; every wait is a WebDriverWait on page content."""
 from __future__ import annotations
 
 import json
+import urllib.request
 from collections.abc import Iterator
 from typing import Any
 
@@ -89,6 +90,9 @@ async def test_trends_turn_stale_when_the_fault_buttons_unplug_the_node_and_good
             good, stale, _ = browser.execute_script(LAST_JS, "position")
             assert good is None and stale is not None  # never drawn as good
             assert "unplugged" in browser.find_element(By.ID, "fault-state").text
+            with urllib.request.urlopen(base + "/api/events?kind=warning&node=wire", timeout=5) as r:
+                texts = [e["text"] for e in json.loads(r.read())["events"]]
+            assert "simulated fault: wire unplug (from the web console)" in texts
             click("plug")
             wait_for(browser, lambda d: state_fact(d, "Presence").endswith("alive"), "alive")
             wait_for(browser, lambda d: trend_caption(d, "position").endswith("(good)"), "good again")

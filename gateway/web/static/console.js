@@ -569,7 +569,7 @@ async function initFaults(node) {
   for (const [action, text] of Object.entries(sim.actions)) {
     const b = el("button", { type: "button", class: "secondary", "data-fault": action, title: text }, action);
     b.addEventListener("click", async () => {
-      const headers = { "Content-Type": "application/json" };
+      const headers = { "Content-Type": "application/json", "X-Canopen-Client": "console" };
       if (sim.rule === "token") headers["Authorization"] = "Bearer " + (sessionStorage.getItem(TOKEN_KEY) || "");
       const r = await fetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
       let d;
