@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from gateway.cli import build_parser
-from tests.helpers import free_port, gateway_process, unique_channel, wait_ready
+from tests.helpers import free_port, gateway_running, unique_channel
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -51,13 +51,8 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     raw["health"]["port"] = free_port()
     path = tmp_path_factory.mktemp("demo") / "demo.yaml"
     path.write_text(yaml.safe_dump(raw), encoding="utf-8")
-    proc = gateway_process(path)
-    try:
-        wait_ready(proc)
+    with gateway_running(path):
         yield path
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
 
 
 def test_the_first_hour_commands_on_the_demo_run_against_the_running_demo(demo: Path) -> None:

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 import yaml
 
-from tests.helpers import free_port, gateway_process, unique_channel, wait_ready, wait_until_sync
+from tests.helpers import free_port, gateway_running, unique_channel, wait_until_sync
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -60,13 +60,8 @@ def healthz(cfg: Path) -> dict[str, Any]:
 @pytest.fixture(scope="module")
 def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     cfg = demo_like(tmp_path_factory.mktemp("demo") / "demo.yaml")
-    proc = gateway_process(cfg)
-    try:
-        wait_ready(proc)
+    with gateway_running(cfg):
         yield cfg
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
 
 
 def test_sdo_goes_through_the_running_gateway(running: Path) -> None:
