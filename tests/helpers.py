@@ -11,8 +11,8 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import AsyncIterator, Callable, Iterable
-from contextlib import asynccontextmanager
+from collections.abc import AsyncIterator, Callable, Iterable, Iterator
+from contextlib import asynccontextmanager, contextmanager
 from typing import Any
 
 import can
@@ -186,3 +186,15 @@ def wait_ready(proc: Any, timeout_s: float = 60.0) -> str:
                 return line
             raise AssertionError(f"gateway exited before it was ready: {proc.wait()}")
     raise AssertionError("gateway did not become ready")
+
+
+@contextmanager
+def gateway_running(config: Any, *args: str) -> Iterator[Any]:
+    """A gateway process on ``config``, ready (its summary line printed); stopped on exit."""
+    proc = gateway_process(config, *args)
+    try:
+        wait_ready(proc)
+        yield proc
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)

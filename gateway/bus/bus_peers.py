@@ -36,6 +36,7 @@ Imports: gateway.cia301, gateway.states and the standard library only.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -222,8 +223,16 @@ class BusPeers:
         t.last_wall = wall
 
     # -- reports
-    def talking_hint(self) -> str:
-        """``; node ids talking on this bus but not configured: 1 (TPDO1 0x181, heartbeat 0x701)``."""
+    def talking_hint(self, heard: Sequence[str] = ()) -> str:
+        """``; node ids talking on this bus but not configured: 1 (TPDO1 0x181, heartbeat 0x701)``.
+        ``heard``: the configured nodes that are heard (alive): when they are, the bus works and
+        only the ids outside the config are news."""
+        if not self.talking and heard:
+            return (
+                "; no node id outside the config talks on this bus (configured nodes heard: "
+                + ", ".join(heard)
+                + "; is this device powered and connected?)"
+            )
         if not self.talking:
             return "; no other node id talks on this bus either (wiring, bit rate, power?)"
         parts = []

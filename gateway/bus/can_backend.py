@@ -48,16 +48,17 @@ COMMON_KEYS = frozenset(
 
 
 @contextmanager
-def quiet_imports() -> Iterator[None]:
+def quiet_imports(level: int = logging.ERROR) -> Iterator[None]:
     """python-can's backends log warnings while they import ("Kvaser canlib is unavailable",
-    "uptime library not available"): our own line says what matters."""
+    "uptime library not available"): our own line says what matters. ``level``: the least
+    level still logged meanwhile."""
     logger = logging.getLogger("can")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
+    before = logger.level
+    logger.setLevel(level)
     try:
         yield
     finally:
-        logger.setLevel(level)
+        logger.setLevel(before)
 
 
 def installed_interfaces() -> list[str]:

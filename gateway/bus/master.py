@@ -456,7 +456,8 @@ class Master:
             elif isinstance(o, Note):
                 text = o.text
                 if "did not appear" in text:  # a wrong node id? say which ids talk instead
-                    text += self.peers.talking_hint()
+                    heard = [q.name for q in self.nodes.values() if q.image.health.alive]
+                    text += self.peers.talking_hint(heard)
                 if o.kind is not None:
                     self.warn.log(o.level, o.kind, "%s", text)
                 else:

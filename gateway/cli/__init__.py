@@ -1,14 +1,14 @@
 """Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile|fault``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
-without a traceback. Imports everything it drives; nothing imports this package.
+without a traceback; so are a CAN bus that cannot be opened and a start that fails. Imports everything it drives; nothing imports this package.
 
 This module holds the parser and ``main``; the commands are in its modules: ``serve`` (run,
 simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``eds`` (eds,
 profile), ``bus_tools`` (scan, monitor, lss, fault); ``load`` loads a command's configuration.
 
-Imports: gateway (version), gateway.config (ConfigError), load, serve, summary, commission, eds,
-bus_tools.
+Imports: gateway (version), gateway.config (ConfigError), gateway.startup (StartupError),
+gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, eds, bus_tools.
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
 from gateway.cli.serve import cmd_run, cmd_simulate
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
 from gateway.config import ConfigError
+from gateway.startup import StartupError
+from gateway.tools.bus_open import BusOpenError
 
 __all__ = ["EXIT_CONFIG", "EXIT_FAILED", "_count", "build_parser", "format_sdo_int", "main"]
 
@@ -135,6 +137,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         for line in exc.problems:
             print(line, file=sys.stderr)
+        return EXIT_CONFIG
+    except BusOpenError as exc:  # every command that opens the bus (gateway.tools.bus_open)
+        print(exc.line, file=sys.stderr)
+        return EXIT_CONFIG
+    except StartupError as exc:  # a part of a gateway or a commissioning master did not start
+        print(exc.line(args.config), file=sys.stderr)
         return EXIT_CONFIG
     except KeyboardInterrupt:
         return 130

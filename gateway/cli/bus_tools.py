@@ -3,7 +3,7 @@ bus of their own, with the simulated devices of the config when the bus is in-pr
 gateway runs), ``lss`` (gateway.tools.lss) and ``fault`` (into a running gateway's simulated
 node).
 
-Imports: python-can, gateway.app (SimulatedBus), gateway.tools, gateway.bus.scan,
+Imports: gateway.app (SimulatedBus), gateway.tools (beside, bus_open, lss, monitor), gateway.bus.scan,
 gateway.northbound.frames, gateway.sim.faults_client, gateway.config, cli.load.
 """
 
@@ -38,10 +38,9 @@ def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
     """The bus a listening tool (scan, monitor) opens, and the simulated devices it runs when
     the bus is in-process and no gateway runs on it; exits 2 in one line when a gateway runs
     on an in-process bus (a second process cannot join it)."""
-    import can
-
     from gateway.app import SimulatedBus
     from gateway.tools import beside
+    from gateway.tools.bus_open import BusOpenError, open_bus, opening
 
     sim = None
     if beside.in_process_bus(cfg):
@@ -57,11 +56,16 @@ def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
         if line is not None:
             print(line, file=sys.stderr)
             raise SystemExit(EXIT_CONFIG)
-    bus = can.Bus(**cfg.can.bus_kwargs())
+    bus = open_bus(cfg)
     if beside.in_process_bus(cfg) and cfg.simulated_nodes():
         print(beside.private_note(cfg), file=sys.stderr)
         sim = SimulatedBus(cfg)
-        sim.start()  # after the tool's bus is open: it sees the boot-ups
+        try:
+            with opening(cfg):
+                sim.start()  # after the tool's bus is open: it sees the boot-ups
+        except BusOpenError:
+            bus.shutdown()
+            raise
     return bus, sim
 
 

@@ -2,7 +2,7 @@
 gateway when the bus lives inside it (``gateway.tools.beside``), else with a passive master of
 their own on the bus (no server, no heartbeat, no SYNC, no configuration of the nodes).
 
-Imports: gateway.app, gateway.errors, gateway.tools.beside, gateway.bus.resolved,
+Imports: gateway.app, gateway.errors, gateway.tools.beside, gateway.tools.bus_open, gateway.bus.resolved,
 gateway.cia301, gateway.objref, gateway.config, cli.load.
 """
 
@@ -21,7 +21,9 @@ async def _with_master(cfg: Config, fn: Any) -> Any:
     """Open the bus with a master for one commissioning operation. Opens no server (no Modbus,
     Zenoh or health endpoint), so it runs beside a gateway that serves the same config."""
     from gateway.app import Gateway
+    from gateway.tools.bus_open import check_bus_opens
 
+    check_bus_opens(cfg)  # its bus driver would retry a bus that cannot open; say why, exit 2
     cfg.modbus.enabled = False
     cfg.zenoh.enabled = False
     cfg.ascii = None

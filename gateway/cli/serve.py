@@ -1,7 +1,8 @@
 """The long-running commands: ``run`` (the gateway) and ``simulate`` (only the simulated
 devices of a config), each until SIGINT / SIGTERM, with the logging they set up.
 
-Imports: gateway.app, gateway.startup, gateway.zenoh_bridge.session (PrefixInUse), cli.load.
+Imports: gateway.app, gateway.startup, gateway.zenoh_bridge.session (PrefixInUse),
+gateway.tools.bus_open, cli.load.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load, load_for_bus
+from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus
 
 
 def setup_logging(level: str) -> None:
@@ -67,11 +68,14 @@ async def run_until_signal(
 
 def cmd_run(args: argparse.Namespace) -> int:
     from gateway.app import Gateway
+    from gateway.tools.bus_open import check_bus_opens
 
     cfg = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
     from gateway.startup import StartupError
     from gateway.zenoh_bridge.session import PrefixInUse
+
+    check_bus_opens(cfg)  # a bus that cannot open at start: one line, exit 2 (cli.main)
 
     gw = Gateway(cfg, simulate=not args.no_simulate)
     try:
@@ -90,8 +94,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from gateway.app import SimulatedBus
+    from gateway.tools.bus_open import opening
 
-    cfg = load(args.config)
+    cfg = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
     names = args.nodes.split(",") if args.nodes else [n.name for n in cfg.simulated_nodes()]
     if not names:
@@ -99,7 +104,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     sim = SimulatedBus(cfg, names)
 
     async def start() -> None:
-        sim.start()
+        with opening(cfg):  # a bus that cannot open: one line, exit 2 (cli.main)
+            sim.start()
 
     async def stop() -> None:
         sim.stop()

@@ -44,22 +44,34 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def _print_eds_warnings(cfg: Any, nodes: Any) -> None:
-    """One line per EDS/DCF of the config with its number of warnings."""
+    """One line per EDS/DCF of the config with its number of warnings. An RPDO entry the file
+    marks ro is no warning when the node's profile says the device takes it from an RPDO only
+    (``rpdo_only_writable``, from the manual: SDO writes refused); the line counts them apart."""
     from gateway.bus.resolved import node_of
     from gateway.eds import EdsError, lint, load_eds
 
     seen: list[Any] = []
     for n in cfg.nodes:
-        path = node_of(cfg, nodes, n).lp.eds_path
+        lp = node_of(cfg, nodes, n).lp
+        path = lp.eds_path
         if path in seen:
             continue
         seen.append(path)
         try:
-            count = len(lint(load_eds(path)).warnings)
+            warnings = lint(load_eds(path)).warnings
         except EdsError:
             continue
+        rpdo_only = [f"entry {obj}: not writable (ro)" for obj in lp.profile.rpdo_only_writable]
+        explained = [w for w in warnings if any(e in w.message for e in rpdo_only)]
+        count = len(warnings) - len(explained)
         more = f" (canopen-gateway eds lint {path})" if count else ""
-        print(f"  {path}: {count} warnings{more}")
+        why = (
+            f"; {len(explained)} RPDO entries ro by SDO and written by RPDO only, as profile "
+            f"{lp.family} says (rpdo_only_writable)"
+            if explained
+            else ""
+        )
+        print(f"  {path}: {count} warnings{why}{more}")
 
 
 def _count(n: int, noun: str) -> str:

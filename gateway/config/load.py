@@ -102,9 +102,10 @@ def parse_config(
         raw = {}
     if not isinstance(raw, dict):
         raise ConfigError([f"{source}: (top level): must be a mapping of sections"])
-    problems = [f"{source}: {p}" for p in apply_env_overrides(raw, environ or {})]
+    problems = apply_env_overrides(raw, environ or {})  # each names its variable
     base_dir = Path(source).parent if source != "<memory>" else Path.cwd()
     errors: list[tuple[str, str]] = []
+    unknown: set[str] = set()  # key paths of keys that are not allowed (whoever wrote them)
     cfg: Config | None = None
     from_env = env_keys(environ or {})
     try:
@@ -115,6 +116,8 @@ def parse_config(
             near = nearest_key(tuple(e["loc"])) if e.get("type") == "extra_forbidden" else None
             if near is not None:
                 what += f"; did you mean {near!r}?"
+            if e.get("type") == "extra_forbidden":
+                unknown.add(key_path(e["loc"]))
             errors.append((key_path(e["loc"]), what))
     errors += _semantic_problems(raw, base_dir)
     if cfg is not None:
@@ -125,7 +128,7 @@ def parse_config(
         if (loc, msg) in seen:
             continue
         seen.add((loc, msg))
-        problems.append(f"{blame(loc, source, from_env)}: {loc}: {msg}")
+        problems.append(f"{blame(loc, source, from_env, unknown=loc in unknown)}: {loc}: {msg}")
     if problems:
         raise ConfigError(problems)
     assert cfg is not None

@@ -37,6 +37,7 @@ def base_url(cfg: Config, url: str | None) -> str:
 def _call(url: str, token: str | None, post: bool) -> tuple[int, dict[str, Any]]:
     req = urllib.request.Request(url, data=b"{}" if post else None, method="POST" if post else "GET")
     req.add_header("Content-Type", "application/json")
+    req.add_header("X-Canopen-Client", "cli")  # the event log names the command line
     if token:
         req.add_header("Authorization", f"Bearer {token}")
     try:

@@ -10,7 +10,8 @@ before such a command opens the bus:
    ``<prefix>/<node>/nmt``): it reaches the real (simulated) devices of the running gateway.
 2. Else, if the command would simulate devices (``simulate:``) while the gateway's health port
    is in use (a gateway runs without Zenoh), it refuses, in one line that says how to reach the
-   running gateway instead.
+   running gateway instead: its console's page for the command, and how to turn the
+   commissioning page on when that gateway does not serve it (web.writes and a token).
 3. Else nothing runs on this config: the command opens the bus itself (and simulates the devices
    of ``simulate:``), and says on stderr that it acts on its own simulated devices.
 
@@ -24,6 +25,8 @@ from __future__ import annotations
 
 import json
 import socket
+import urllib.error
+import urllib.request
 from typing import Any
 
 import zenoh
@@ -147,15 +150,32 @@ def refusal(cfg: Config, command: str) -> str | None:
     if not _port_in_use(h.host, h.port):
         return None
     url = f"http://{h.host}:{h.port}"
-    page = f"{url}/monitor" if command == "monitor" else f"{url}/commissioning with web.writes"
+    if command == "monitor":
+        page = f"its web console's bus monitor ({url}/monitor)"
+    elif _page_served(f"{url}/commissioning"):
+        page = f"its web console's commissioning page ({url}/commissioning)"
+    else:  # the page is there only with web.writes and a token (docs/web.md)
+        page = (
+            f"its web console's commissioning page ({url}/commissioning), which that gateway "
+            "serves when started with web.writes and a token: CANOPEN_GATEWAY__WEB__WRITES=true "
+            f"CANOPEN_GATEWAY__WEB__TOKEN='a long random text' canopen-gateway run -c {cfg.source}"
+        )
     # sdo and nmt go through the gateway's Zenoh API when it has one; scan and monitor never do
-    via_zenoh = " enable zenoh (this command then goes through it)," if command.split()[0] in ("sdo", "nmt") else ""
+    via_zenoh = "; enable zenoh (this command then goes through it)" if command.split()[0] in ("sdo", "nmt") else ""
     return (
         f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway running "
-        f"at {url}, so `{command}` would act on a private copy of the devices; use its web "
-        f"console ({page}),{via_zenoh} or give both a bus they share (can.interface: remote, "
-        "docs/canopen.md)"
+        f"at {url}, so `{command}` would act on a private copy of the devices; use {page}"
+        f"{via_zenoh}; or give both a bus they share (can.interface: remote, docs/canopen.md)"
     )
+
+
+def _page_served(url: str) -> bool:
+    """Whether the running gateway serves ``url`` (the commissioning page: 404 while off)."""
+    try:
+        with urllib.request.urlopen(url, timeout=FIND_TIMEOUT_S) as r:
+            return bool(r.status == 200)
+    except (urllib.error.URLError, OSError, ValueError):
+        return False
 
 
 def private_note(cfg: Config) -> str:

@@ -30,7 +30,7 @@ The LSS frames and their matching come from ``gateway.bus.lss.master``; this mod
 I/O, parses the arguments and prints. When the config simulates nodes (``simulate:``), they
 run in this process on the same bus, so the commands can be tried without hardware.
 
-Imports: python-can, gateway.bus.lss.master, gateway.tools.lss_session, gateway.bus.resolved,
+Imports: python-can, gateway.bus.lss.master, gateway.tools.lss_session, gateway.tools.bus_open, gateway.bus.resolved,
 gateway.bus.sdo.client, gateway.config, gateway.profiles, gateway.objref,
 gateway.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
 """
@@ -60,6 +60,7 @@ from gateway.cia301 import (
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, ProfileError, load_profile
+from gateway.tools.bus_open import open_bus
 from gateway.tools.lss_session import (
     LeftState,
     LssFailed,
@@ -403,7 +404,7 @@ def _simulation(cfg: Config) -> Iterator[None]:
         if n.name in cfg.simulate.motion:
             opts["motion"] = cfg.simulate.motion[n.name]
         specs.append((node_of(cfg, resolved, n).lp, n.node_id, opts))
-    bus = can.Bus(**cfg.can.bus_kwargs())
+    bus = open_bus(cfg)
     runner = SimRunner(bus, build_sim_nodes(specs)).start()
     try:
         yield
@@ -426,7 +427,7 @@ def run_lss(cfg: Config, args: argparse.Namespace, out: TextIO | None = None) ->
             check_bitrate_supported(cfg, a)
         state = LssStateFile.for_bus(cfg.can.bus_kwargs())
         with _simulation(cfg):
-            bus = can.Bus(**cfg.can.bus_kwargs())
+            bus = open_bus(cfg)
             session = LssSession(bus, timeout_s, left=state.load())
             try:
                 if args.action == "auto-id":

@@ -79,6 +79,14 @@ from gateway.web.views import ConsoleModel, OverviewFn
 
 log = logging.getLogger("gateway.web")
 
+#: The header our own clients send with a simulated fault (the console's page, ``canopen-gateway
+#: fault``), so the event log says where a fault came from; anything else is the HTTP API.
+CLIENT_HEADER = "x-canopen-client"
+FAULT_SOURCES = {
+    "console": "from the web console",
+    "cli": "from the command line, canopen-gateway fault",
+}
+
 CONTENT_TYPES = {
     ".html": "text/html; charset=utf-8",
     ".css": "text/css; charset=utf-8",
@@ -523,5 +531,8 @@ class WebConsole:
             result = self.faults.apply(node, action)
         except UnknownFault as exc:
             return self._not_found(str(exc))
-        log.warning("simulated fault: %s %s (from the web console)", node, action)
+        source = FAULT_SOURCES.get(
+            request.headers.get(CLIENT_HEADER, ""), f"from the HTTP API, client {request.client or '?'}"
+        )
+        log.warning("simulated fault: %s %s (%s)", node, action, source)
         return _json(HTTPStatus.OK, result)

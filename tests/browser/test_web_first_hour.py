@@ -10,6 +10,7 @@ loop; every wait is a WebDriverWait on page content."""
 from __future__ import annotations
 
 import json
+import urllib.request
 from collections.abc import Iterator
 from typing import Any
 
@@ -89,6 +90,9 @@ async def test_trends_turn_stale_when_the_fault_buttons_unplug_the_node_and_good
             good, stale, _ = browser.execute_script(LAST_JS, "position")
             assert good is None and stale is not None  # never drawn as good
             assert "unplugged" in browser.find_element(By.ID, "fault-state").text
+            with urllib.request.urlopen(base + "/api/events?kind=warning&node=wire", timeout=5) as r:
+                texts = [e["text"] for e in json.loads(r.read())["events"]]
+            assert "simulated fault: wire unplug (from the web console)" in texts
             click("plug")
             wait_for(browser, lambda d: state_fact(d, "Presence").endswith("alive"), "alive")
             wait_for(browser, lambda d: trend_caption(d, "position").endswith("(good)"), "good again")
@@ -200,3 +204,50 @@ def test_the_chart_library_is_vendored_with_its_licence() -> None:
     licence = static.joinpath("uPlot.LICENSE.txt").read_text()
     assert "The MIT License" in licence and "Leon Sorokin" in licence
     assert json.dumps("uPlot")  # the console loads it from /static only (CSP default-src 'self')
+
+
+#: fills the position trend with samples over ``arguments[0]`` seconds up to now (at a chart width
+#: of ``arguments[1]`` px, when given), and after the chart has drawn returns each x-axis label
+#: with its centre and its width (its widest line) in CSS pixels
+AXIS_LABELS_JS = """const [windowS, widthPx, done] = arguments;
+const c = trendCharts.position, now = Date.now() / 1000, n = 301;
+if (widthPx) c.plot.setSize({ width: widthPx, height: 150 });
+const t = [...Array(n).keys()].map(i => now - windowS + i * windowS / (n - 1));
+c.t.splice(0, c.t.length, ...t);
+c.good.splice(0, c.good.length, ...t.map((_, i) => i));
+c.stale.splice(0, c.stale.length, ...t.map(() => null));
+c.quality.splice(0, c.quality.length, ...t.map(() => 0));
+c.plot.setData([c.t, c.good, c.stale]);
+requestAnimationFrame(() => requestAnimationFrame(() => {
+  const u = c.plot, ax = u.axes[0], ctx = u.ctx;
+  ctx.save(); ctx.font = ax.font[0];
+  const px = window.devicePixelRatio || 1;
+  const width = (text) => Math.max(...text.split("\\n").map(l => ctx.measureText(l).width)) / px;
+  const out = ax._splits.map((v, i) => [String(ax._values[i]), u.valToPos(v, "x"),
+                                        width(String(ax._values[i]))]);
+  ctx.restore();
+  done(out);
+}));"""
+
+
+@pytest.mark.parametrize("width_px", [None, 240])
+@pytest.mark.parametrize("window_s", [300, 120, 20])
+async def test_the_time_axis_labels_of_a_trend_do_not_touch_at_1280_px(
+    browser: Any, window_s: int, width_px: int | None
+) -> None:
+    """``9:01pm9:02pm``: each label of the time axis is apart from the next by a gap a reader
+    sees (8 px at least), for the window the console keeps (300 s) and shorter ones, at the
+    width the page gives a chart at 1280 px and at the narrowest a chart gets (240 px)."""
+    async with gateway() as (gw, base):
+
+        def check() -> list[list[Any]]:
+            browser.get(base + "/node/wire")
+            wait_for(browser, lambda d: trend_caption(d, "position").endswith("(good)"), "a trend")
+            return list(browser.execute_async_script(AXIS_LABELS_JS, window_s, width_px))
+
+        labels = await run(check)
+    assert len(labels) >= 2, labels
+    assert all(text.strip() for text, _, _ in labels), labels
+    for (a, xa, wa), (b, xb, wb) in zip(labels, labels[1:], strict=False):
+        gap_px = (xb - xa) - (wa + wb) / 2
+        assert gap_px >= 8, f"{a!r} and {b!r} {gap_px:.1f} px apart: {labels}"

@@ -168,6 +168,26 @@ async def test_node_that_does_not_appear_names_the_ids_that_talk(
     assert records(caplog, "frame with unexpected COB-ID 0x701 (heartbeat of node id 1) ignored")
 
 
+async def test_node_that_does_not_appear_beside_nodes_that_talk_says_the_bus_works(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A configured node that is gone (unplugged) while the other configured nodes talk: no id
+    outside the config talks, and the line says so, not that no other id talks."""
+    caplog.set_level(logging.INFO, logger="gateway")
+    gone = {"name": "display", "node_id": 125, "profile": "ap05"}
+    async with master_running(
+        [WIRE, gone], simulate={"nodes": ["wire"]}, master={"boot_timeout_s": 3, "heartbeat_ms": 0}
+    ):
+        lines = await wait_until(
+            lambda: records(caplog, "did not appear"), timeout_s=15, what="boot timeout"
+        )
+    assert lines[0].endswith(
+        "; no node id outside the config talks on this bus (configured nodes heard: wire; "
+        "is this device powered and connected?)"
+    ), lines
+    assert "no other node id talks" not in lines[0]
+
+
 def test_with_the_echo_on_our_own_frames_are_matched_and_others_still_seen() -> None:
     peers = BusPeers(127, {1}, echo=True)
     peers.sent(0x000, b"\x01\x01", now=10.0)

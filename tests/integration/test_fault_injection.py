@@ -123,3 +123,28 @@ async def test_a_raised_emcy_reaches_the_console_and_the_event_log() -> None:
         assert json.loads(body)["events"][-1]["text"].startswith(f"wire: EMCY {code}")
         await fault(base, "wire", "emcy-clear")
         await wait_until(lambda: not health.current_errors, 5, "the error cleared")
+
+
+async def test_the_event_log_says_where_a_fault_came_from() -> None:
+    """The command line (``canopen-gateway fault``), the console's page (its header) and any
+    other HTTP client are each named as what they are."""
+    import asyncio
+    import urllib.request
+
+    from gateway.sim.faults_client import run_fault
+
+    async with demo() as (gw, base, _, _):
+        assert await asyncio.to_thread(run_fault, gw.cfg, "wire", "heartbeat-off", base) == 0
+        req = urllib.request.Request(
+            f"{base}/api/sim/wire/heartbeat-on",
+            data=b"{}",
+            method="POST",
+            headers={"Content-Type": "application/json", "X-Canopen-Client": "console"},
+        )
+        await asyncio.to_thread(lambda: urllib.request.urlopen(req, timeout=5).close())
+        await fault(base, "wire", "emcy")
+        _, _, body = await http(base + "/api/events?kind=warning&node=wire")
+        texts = [e["text"] for e in json.loads(body)["events"]]
+    assert "simulated fault: wire heartbeat-off (from the command line, canopen-gateway fault)" in texts
+    assert "simulated fault: wire heartbeat-on (from the web console)" in texts
+    assert "simulated fault: wire emcy (from the HTTP API, client 127.0.0.1)" in texts

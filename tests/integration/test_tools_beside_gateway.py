@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 import yaml
 
-from tests.helpers import free_port, gateway_process, unique_channel, wait_ready, wait_until_sync
+from tests.helpers import free_port, gateway_running, unique_channel, wait_until_sync
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -60,13 +60,8 @@ def healthz(cfg: Path) -> dict[str, Any]:
 @pytest.fixture(scope="module")
 def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     cfg = demo_like(tmp_path_factory.mktemp("demo") / "demo.yaml")
-    proc = gateway_process(cfg)
-    try:
-        wait_ready(proc)
+    with gateway_running(cfg):
         yield cfg
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
 
 
 def test_sdo_goes_through_the_running_gateway(running: Path) -> None:
@@ -184,3 +179,35 @@ def test_listening_tools_beside_a_gateway_on_an_in_process_bus_refuse_in_one_lin
     assert "zenoh" not in lines[0]  # only sdo and nmt go through the gateway's Zenoh API
     if command[0] == "monitor":  # the running gateway's console shows its bus
         assert "/monitor)" in lines[0]
+    else:  # its commissioning page scans; off in that gateway: how to turn it on
+        port = yaml.safe_load(running.read_text(encoding="utf-8"))["health"]["port"]
+        assert (
+            f"use its web console's commissioning page (http://127.0.0.1:{port}/commissioning), "
+            "which that gateway serves when started with web.writes and a token: "
+            "CANOPEN_GATEWAY__WEB__WRITES=true CANOPEN_GATEWAY__WEB__TOKEN='a long random text' "
+            f"canopen-gateway run -c {running};"
+        ) in lines[0]
+
+
+async def test_scan_beside_a_gateway_that_serves_its_commissioning_page_points_at_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import asyncio
+
+    from gateway.app import Gateway
+    from gateway.checks import load_checked_config
+    from gateway.cli import main
+
+    cfg_file = demo_like(tmp_path / "w.yaml", web={"writes": True, "token": "a long random text"})
+    gw = Gateway(load_checked_config(cfg_file))
+    await gw.start()
+    try:
+        with pytest.raises(SystemExit) as exc:
+            await asyncio.to_thread(main, ["scan", "-c", str(cfg_file)])
+    finally:
+        await gw.stop()
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert f"use its web console's commissioning page (http://127.0.0.1:{gw.cfg.health.port}/commissioning);" in lines[0]
+    assert "CANOPEN_GATEWAY__WEB__WRITES" not in lines[0]

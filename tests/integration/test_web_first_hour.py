@@ -211,7 +211,7 @@ async def test_faults_on_the_virtual_bus_need_no_token_and_act_on_the_simulated_
         await wait_until(lambda: node_operational(gw, "wire"), 5, "wire operational again")
         code, events = await get_json(base + "/api/events?kind=warning&node=wire")
         texts = [e["text"] for e in events["events"]]
-        assert "simulated fault: wire unplug (from the web console)" in texts
+        assert "simulated fault: wire unplug (from the HTTP API, client 127.0.0.1)" in texts
         code, _, doc = await post_json(base + "/api/sim/wire/fly")
         assert code == 404 and "unplug" in doc["message"]
         code, _, doc = await post_json(base + "/api/sim/nope/unplug")

@@ -173,7 +173,31 @@ def test_environment_override_to_missing_list_item_is_reported() -> None:
         {**GOOD, "nodes": [dict(n) for n in GOOD["nodes"]]},
         environ={"CANOPEN_GATEWAY__NODES__7__NODE_ID": "5"},
     )
-    assert "cfg.yaml: environment CANOPEN_GATEWAY__NODES__7__NODE_ID: no list item '7'" in p
+    assert "CANOPEN_GATEWAY__NODES__7__NODE_ID: nodes[7].node_id: no list item 7 (nodes has 2 items)" in p
+
+
+def test_an_unknown_section_from_the_environment_is_blamed_on_the_variable() -> None:
+    """``NODE`` for ``NODES``: the file has no ``node:`` section; the variable wrote it."""
+    p = problems(
+        {**GOOD, "nodes": [dict(n) for n in GOOD["nodes"]]},
+        environ={"CANOPEN_GATEWAY__NODE__0__NODE_ID": "5"},
+    )
+    assert p == ["CANOPEN_GATEWAY__NODE__0__NODE_ID: node: unknown key (typo?); did you mean 'nodes'?"]
+
+
+def test_an_unknown_key_written_in_the_file_is_still_the_file_s() -> None:
+    p = problems(
+        {**GOOD, "modbuss": {"port": 1}},
+        environ={"CANOPEN_GATEWAY__MODBUS__PORT": "502"},
+    )
+    assert "cfg.yaml: modbuss: unknown key (typo?); did you mean 'modbus'?" in p
+
+
+def test_a_value_that_is_not_valid_yaml_says_so_naming_the_variable() -> None:
+    p = problems(GOOD, environ={"CANOPEN_GATEWAY__ZENOH__CONNECT": '["tcp/router:7447"'})
+    assert len(p) == 1, p
+    assert p[0].startswith("CANOPEN_GATEWAY__ZENOH__CONNECT: zenoh.connect: not valid YAML ("), p
+    assert "valid list" not in p[0]
 
 
 def test_external_heartbeat_slower_sync_is_rejected() -> None:

@@ -179,3 +179,19 @@ def test_unknown_key_in_the_file_names_the_nearest_key(
         f"{path}: modbus.prot: unknown key (typo?); did you mean 'port'?",
         f"{path}: nodes[0].signals.position.unt: unknown key (typo?); did you mean 'unit'?",
     ]
+
+
+def test_check_of_the_demo_finds_no_warning_in_our_own_device_files(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The AP05's set points and control word are ro by SDO and written by RPDO only (AP05
+    manual 5.7.2.34, 5.7.2.42): its profile says so, and ``check`` counts them apart."""
+    assert main(["check", "-c", str(REPO / "config/demo.yaml")]) == 0
+    lines = [ln.strip() for ln in capsys.readouterr().out.splitlines() if ".eds:" in ln]
+    assert len(lines) == 5, lines
+    assert all(": 0 warnings" in ln for ln in lines), lines
+    ap05 = next(ln for ln in lines if ln.split(":")[0].endswith("ap05.eds"))
+    assert ap05.endswith(
+        "ap05.eds: 0 warnings; 6 RPDO entries ro by SDO and written by RPDO only, as profile "
+        "ap05 says (rpdo_only_writable)"
+    )

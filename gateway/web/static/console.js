@@ -439,6 +439,17 @@ const QUALITY_WORDS = ["good", "stale", "bad"];
 const trendCharts = {}; // signal name -> { plot, t, good, stale, quality, unit, box }
 let trendWindowS = 300;
 
+// the widest time label ("00:00:00", about 50 px in the axis font) and a gap a reader sees
+const TREND_TICK_SPACE_PX = 60;
+// the steps between time labels, in seconds (uPlot's own skip from 1 to 5 minutes, which leaves
+// a 5-minute trend with one label)
+const TREND_TICK_INCRS_S = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600];
+
+function clockLabel(t, withSeconds) {
+  const d = new Date(t * 1000), two = (n) => String(n).padStart(2, "0");
+  return two(d.getHours()) + ":" + two(d.getMinutes()) + (withSeconds ? ":" + two(d.getSeconds()) : "");
+}
+
 function trendSize(box) {
   return { width: Math.max(240, box.clientWidth - 4), height: 150 };
 }
@@ -472,7 +483,11 @@ function buildTrends(doc) {
       width: size.width, height: size.height, legend: { show: false },
       cursor: { drag: { x: false, y: false } },
       scales: { x: { time: true } },
-      axes: [{ stroke: "#4d5560" }, { stroke: "#4d5560", size: 60 }],
+      // time labels on one line, 24 h ("21:05", "21:05:30" under a minute apart), at least
+      // TREND_TICK_SPACE_PX apart: uPlot's own two-line labels (time, then date) collide
+      axes: [{ stroke: "#4d5560", space: TREND_TICK_SPACE_PX, incrs: TREND_TICK_INCRS_S,
+               values: (u, splits, ax, space, incr) => splits.map((t) => clockLabel(t, incr < 60)) },
+             { stroke: "#4d5560", size: 60 }],
       series: [{}, { label: "good", stroke: "#0a57a4", width: 2, spanGaps: false },
         { label: "stale", stroke: "#6b7580", width: 2, dash: [6, 4], spanGaps: false }],
     }, [c.t, c.good, c.stale], plotBox);
@@ -569,7 +584,7 @@ async function initFaults(node) {
   for (const [action, text] of Object.entries(sim.actions)) {
     const b = el("button", { type: "button", class: "secondary", "data-fault": action, title: text }, action);
     b.addEventListener("click", async () => {
-      const headers = { "Content-Type": "application/json" };
+      const headers = { "Content-Type": "application/json", "X-Canopen-Client": "console" };
       if (sim.rule === "token") headers["Authorization"] = "Bearer " + (sessionStorage.getItem(TOKEN_KEY) || "");
       const r = await fetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
       let d;
