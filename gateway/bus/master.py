@@ -15,15 +15,16 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
   ``bus/parts.py`` (``build_node``).
 * **Services** for the command service: SDO upload/download (awaitable, one transfer per node
   at a time, queued in the node), RPDO outputs, NMT commands.
-* **A hot-standby pair** (``master.redundancy``; docs/redundancy.md): the role machine
-  (``bus/pair/flying_master.py``) decides whether this gateway masters the bus. While it does
+* **A hot-standby pair** (``master.redundancy``; docs/redundancy.md): the pair member
+  (``bus/pair/member.py``, over the role machine ``bus/pair/flying_master.py``) decides whether
+  this gateway masters the bus. While it does
   not (``mastering`` False: listening at start, negotiating, standby) the nodes only listen
   (``Node.stand_by``), every frame a node would send is dropped here, the logical master's
   heartbeat and SYNC are not produced, the RPDOs the other gateway sends become the output
   image, and the services refuse with ``NotActive``. At a take-over each node is adopted as it
   runs (``Node.take_over``) and an SDO transfer the other gateway left open is aborted once.
 
-Imports: bus.*, pdo.codec, cia301, image, errors, config, objref, ratelimit, python-can.
+Imports: bus.* (bus.pair.member: a pair), pdo.codec, cia301, image, errors, config, objref, ratelimit, python-can.
 Nothing northbound.
 """
 
@@ -47,14 +48,8 @@ from gateway.bus.driver import BusDriver
 from gateway.bus.lss.service import LssService
 from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.lifecycle import LifecycleState
-from gateway.bus.pair.flying_master import (
-    FLYING_MASTER_COB_IDS,
-    FlyingMaster,
-    PairTiming,
-    Role,
-    RoleChanged,
-)
-from gateway.bus.pair.flying_master import Send as PairSend
+from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
+from gateway.bus.pair.member import PairMember
 from gateway.bus.parts import NodeParts, build_node
 from gateway.bus.producers import Periodic
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
@@ -82,10 +77,6 @@ log = logging.getLogger("gateway.master")
 MASTER_HEARTBEAT = b"\x05"
 #: another master / another SDO client is logged at most once per kind and this period
 PEER_LOG_PERIOD_S = 60.0
-
-#: the abort an SDO transfer gets that the other gateway of a pair left open at a take-over:
-#: SDO protocol timed out (CiA 301 7.2.4.3.17)
-ABORT_LEFT_OPEN = 0x05040000
 
 #: queued events that wake the loop even when none asked for it (a bound, never reached while
 #: every quiet event's node has a deadline timer)
@@ -126,36 +117,17 @@ class Master:
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
         #: other masters, other SDO clients, unconfigured node ids (event loop only)
-        pair = cfg.master.redundancy
-        #: the role of this gateway in a hot-standby pair (None: no pair)
-        self.pair: FlyingMaster | None = None
+        #: this gateway in a hot-standby pair (None: no pair)
+        self.member: PairMember | None = None
         known = {n.node_id for n in cfg.nodes}
-        if pair is not None and not passive:
-            hb_s = cfg.master.heartbeat_ms / 1000.0
-            takeover_s = pair.takeover_ms / 1000.0 if pair.takeover_ms else 3 * hb_s
-            self.pair = FlyingMaster(
-                node_id=pair.node_id,
-                priority=pair.priority,
-                master_node_id=cfg.master.node_id,
-                timing=PairTiming(
-                    takeover_s=takeover_s,
-                    detect_s=takeover_s,
-                    claim_period_s=hb_s,
-                    priority_slot_s=pair.priority_slot_ms / 1000.0,
-                    device_slot_s=pair.device_slot_ms / 1000.0,
-                ),
-            )
-            known |= {pair.node_id, *([pair.peer_node_id] if pair.peer_node_id else [])}
+        if cfg.master.redundancy is not None and not passive:
+            self.member = PairMember(cfg, self._send_quiet, self.clock, self._role_changed, self._drain)
+            known |= self.member.known_ids()
         #: True while this gateway masters the bus (always, outside a pair)
-        self.mastering = self.pair is None
+        self.mastering = self.member is None
         #: role listeners: called (role, reason) on the event loop when the pair's role changes
         self.role_listeners: list[Callable[[str, str], None]] = []
         self.standby_dropped = 0  # frames the nodes asked for while this gateway stood by
-        #: node id -> the first bytes of an SDO request the other gateway sent that no answer
-        #: has followed yet (a transfer it may leave open)
-        self._sdo_heard: dict[int, bytes] = {}
-        #: when the peer's own heartbeat (redundancy.peer_node_id) was last heard (bus clock)
-        self.peer_heartbeat_s: float | None = None
         self.peers = BusPeers(
             cfg.master.node_id,
             known,
@@ -174,8 +146,8 @@ class Master:
                 ncfg.name, ncfg.node_id, lp.family, names, rn.stale_after_s, ncfg.modbus.serve_stale
             )
             image.add_node(ni)
-            parts = build_node(rn, ni, passive or self.pair is not None)
-            if self.pair is not None:
+            parts = build_node(rn, ni, passive or self.member is not None)
+            if self.member is not None:
                 parts.node.watch.active = True  # supervision judges what it hears
             self.nodes[ncfg.name] = parts
             self.by_id[ncfg.node_id] = parts
@@ -206,19 +178,16 @@ class Master:
                 install(COB_SDO_RX + p.node_id, f"{p.name} SDO request",
                         self._peer_frame(self._on_sdo_request, p))  # fmt: skip
         install(COB_NMT, "NMT", self._peer_frame(self._on_nmt_frame))
-        if self.pair is not None:
-            for cob in sorted(FLYING_MASTER_COB_IDS):
-                install(cob, f"CiA 302-2 0x{cob:02X}", self._peer_frame(self._on_pair_frame, cob))
-            install(COB_NMT_EC + self.cfg.master.node_id, "the logical master's heartbeat",
-                    self._peer_frame(self._on_logical_heartbeat))  # fmt: skip
+        if self.member is not None:
+            for cob in sorted(self.member.cob_ids):
+                install(cob, f"the pair's 0x{cob:03X}", self._peer_frame(self._on_pair_frame, cob))
             for p in self.nodes.values():
                 for cob in p.node.outputs.cob_ids:
                     if cob not in taken:  # an RPDO on its own TPDO's COB-ID: the TPDO is read
                         install(cob, f"{p.name} RPDO heard",
                                 self._peer_frame(self._on_rpdo_heard, p, cob))  # fmt: skip
-            peer = self.cfg.master.redundancy.peer_node_id if self.cfg.master.redundancy else None
-            if peer:
-                install(COB_NMT_EC + peer, "the peer's heartbeat",
+            if self.member.peer_node_id:
+                install(COB_NMT_EC + self.member.peer_node_id, "the peer's heartbeat",
                         self._peer_frame(self._on_peer_heartbeat))  # fmt: skip
         else:
             install(COB_NMT_EC + self.cfg.master.node_id, "the master's heartbeat",
@@ -377,8 +346,8 @@ class Master:
             self.peer_log.warning(("other_master", "heartbeat"), "%s", text)
 
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
-        if not self.mastering:
-            self._sdo_heard[p.node_id] = data[:4]  # the active gateway's transfer
+        if self.member is not None and not self.mastering:
+            self.member.on_sdo_request(p.node_id, data)  # the active gateway's transfer
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
         self.peer_log.info(("sdo_client", p.name), "%s", text)
@@ -397,8 +366,8 @@ class Master:
         elif kind == "emcy":
             outs = node.on_emcy(data, wall, now)
         else:
-            if not self.mastering:
-                self._sdo_heard.pop(p.node_id, None)  # answered: not left open by this frame
+            if self.member is not None and not self.mastering:
+                self.member.on_sdo_response(p.node_id)
             outs = node.on_sdo_response(data, now)
         self._execute(p, outs)
 
@@ -507,10 +476,10 @@ class Master:
             self._produce(
                 "sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), COB_SYNC, b""
             )
-        if self.pair is not None:
+        if self.member is not None:
             own = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
-            self._produce("pair", own, COB_NMT_EC + self.pair.node_id, MASTER_HEARTBEAT)
-            self._pair_actions(self.pair.start(self.clock()))
+            self._produce("pair", own, self.member.own_heartbeat, MASTER_HEARTBEAT)
+            self.member.start(self.loop)
         self._producers["housekeeping"] = self.loop.call_later(
             self.warn.period_s, self._housekeeping
         )
@@ -520,6 +489,8 @@ class Master:
 
     async def stop(self) -> None:
         self.lss.stop()
+        if self.member is not None:
+            self.member.stop()
         for t in [*self._timers.values(), *self._producers.values()]:
             t.cancel()
         self._producers.clear()
@@ -564,7 +535,7 @@ class Master:
         if self.loop is None:  # the listeners start before the master sends its first frame
             raise BusDown("the gateway is starting")
         if not self.mastering:
-            role = self.pair.role if self.pair is not None else "standby"
+            role = self.role or "standby"
             raise NotActive(
                 f"this gateway is the {role} one of a pair: send commands to the active one"
             )
@@ -639,68 +610,46 @@ class Master:
 
     # ------------------------------------------------------------------ a hot-standby pair
     @property
+    def pair(self) -> FlyingMaster | None:
+        """The role machine of this gateway in a pair (None outside a pair)."""
+        return self.member.machine if self.member is not None else None
+
+    @property
     def role(self) -> str | None:
         """``active``, ``standby``, ``listening``, ``negotiating``; None outside a pair."""
-        return str(self.pair.role) if self.pair is not None else None
+        return str(self.member.machine.role) if self.member is not None else None
+
+    @property
+    def peer_heartbeat_s(self) -> float | None:
+        """When the peer's own heartbeat was last heard (bus clock; None: not heard)."""
+        return self.member.peer_heartbeat_s if self.member is not None else None
+
+    def _send_quiet(self, cob_id: int, data: bytes) -> None:
+        try:
+            self.driver.send(cob_id, data)
+        except can.CanError:
+            pass
 
     def _on_pair_frame(self, cob_id: int, data: bytes, wall: float, now: float) -> None:
-        assert self.pair is not None
-        self._pair_actions(self.pair.on_frame(cob_id, data, now))
-        peer = self.pair.peer
-        if peer is not None and peer.node_id not in self.peers.configured_ids:
+        member = self.member
+        assert member is not None
+        if cob_id == member.logical_heartbeat and self.mastering:
+            self._on_own_heartbeat(data, wall, now)  # someone else with the logical id?
+        learned = member.on_frame(cob_id, data, now)
+        if learned is not None and learned not in self.peers.configured_ids:
             # the other gateway named its id in its claim: its own heartbeat is the peer's,
             # not an unconfigured node that talks
-            self.peers.configured_ids.add(peer.node_id)
-            self.peers.talking.pop(peer.node_id, None)
-            self.driver.handlers[COB_NMT_EC + peer.node_id] = self._peer_frame(
-                self._on_peer_heartbeat
-            )
-
-    def _on_logical_heartbeat(self, data: bytes, wall: float, now: float) -> None:
-        assert self.pair is not None
-        if self.mastering:
-            self._on_own_heartbeat(data, wall, now)  # someone else with the logical id?
-        self._pair_actions(self.pair.on_frame(COB_NMT_EC + self.cfg.master.node_id, data, now))
+            self.peers.configured_ids.add(learned)
+            self.peers.talking.pop(learned, None)
+            self.driver.handlers[COB_NMT_EC + learned] = self._peer_frame(self._on_peer_heartbeat)
 
     def _on_peer_heartbeat(self, data: bytes, wall: float, now: float) -> None:
-        self.peer_heartbeat_s = now
+        if self.member is not None:
+            self.member.on_peer_heartbeat(now)
 
-    def _on_rpdo_heard(
-        self, p: NodeParts, cob_id: int, data: bytes, wall: float, now: float
-    ) -> None:
+    def _on_rpdo_heard(self, p: NodeParts, cob_id: int, data: bytes, wall: float, now: float) -> None:
         if not self.mastering:
             self._execute(p, p.node.on_rpdo_heard(cob_id, data, wall, now))
-
-    def _pair_actions(self, actions: list[PairSend | RoleChanged]) -> None:
-        for a in actions:
-            if isinstance(a, PairSend):
-                try:
-                    self.driver.send(a.cob_id, a.data)
-                except can.CanError:
-                    pass
-            else:
-                self._role_changed(a)
-        self._schedule_pair()
-
-    def _schedule_pair(self) -> None:
-        loop, pair = self.loop, self.pair
-        if loop is None or pair is None:
-            return
-        deadline = pair.next_deadline_s()
-        old = self._timers.pop("\0pair", None)
-        if old is not None:
-            old.cancel()
-        if deadline is None:
-            return
-        lag = max(0.0, loop.time() - self.clock())
-        self._timers["\0pair"] = loop.call_at(max(deadline + lag, loop.time()), self._pair_tick)
-
-    def _pair_tick(self) -> None:
-        self._timers.pop("\0pair", None)
-        if self._inbox:
-            self._drain()  # what was heard counts before a timeout
-        assert self.pair is not None
-        self._pair_actions(self.pair.poll(self.clock()))
 
     def _role_changed(self, change: RoleChanged) -> None:
         now = self.clock()
@@ -708,11 +657,10 @@ class Master:
         log.log(level, "pair: %s -> %s (%s)", change.previous, change.role, change.reason)
         if change.role is Role.ACTIVE:
             self.mastering = True
-            try:  # the logical master's heartbeat at once: the devices' consumers go on
-                self.driver.send(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
-            except can.CanError:
-                pass
-            self._abort_left_open()
+            # the logical master's heartbeat at once: the devices' consumers go on
+            self._send_quiet(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
+            assert self.member is not None
+            self.member.abort_left_open()
             for p in self.nodes.values():
                 self._execute(p, p.node.take_over(now))
         elif change.previous is Role.ACTIVE:
@@ -728,16 +676,3 @@ class Master:
                 listener(str(change.role), change.reason)
             except Exception:  # noqa: BLE001 - a listener must not stop the take-over
                 log.exception("role listener failed")
-
-    def _abort_left_open(self) -> None:
-        """An SDO transfer the other gateway started and no answer ended: abort it once."""
-        heard, self._sdo_heard = self._sdo_heard, {}
-        for node_id, head in heard.items():
-            if len(head) < 4:
-                continue
-            frame = bytes((0x80, head[1], head[2], head[3])) + ABORT_LEFT_OPEN.to_bytes(4, "little")
-            try:
-                self.driver.send(COB_SDO_RX + node_id, frame)
-            except can.CanError:
-                continue
-            log.info("pair: SDO transfer left open on node id %d aborted", node_id)
