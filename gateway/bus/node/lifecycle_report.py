@@ -2,15 +2,15 @@
 (``StateChanged``, ``StepFailed``, ``StepSkipped``, ``BootTimeout``, ``WrongDevice``,
 ``IdentityNotCompared``, ``Configured``) sets the fields of the node's health it speaks of (``lifecycle``,
 ``last_error``, ``last_sdo_abort``, ``fresh_since``), becomes a log line (``Note``), tells the
-watchdog what guarding expects in the new state, and on ``Configured`` (NMT start sent) makes
+supervision what guarding expects in the new state, and on ``Configured`` (NMT start sent) makes
 values fresh from now on and calls the features' ``on_configured``. A wrong device's line is
 rate-limited by its kind (a device in a boot loop); the recheck delay it names bounds the rest.
 
-A module-level function taking the ``Node`` (``bus/node/owner.py``); like it, no I/O and no
+A module-level function taking the ``Node`` (``bus/node/node.py``); like it, no I/O and no
 clock.
 
 Imports: bus.node.events, bus.node.lifecycle, gateway.cia301, gateway.states, logging;
-bus.node.owner for types only.
+bus.node.node for types only.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from gateway.cia301 import abort_text
 from gateway.states import NmtState
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
 
 
 def take_lifecycle_changes(node: Node, changes: list[Any], now: float) -> list[Output]:
@@ -47,7 +47,7 @@ def take_lifecycle_changes(node: Node, changes: list[Any], now: float) -> list[O
             out.append(
                 Note(logging.INFO, f"node {node.name}: {ch.old} -> {ch.new} ({ch.reason})")
             )
-            node.watch.on_lifecycle(ch.new)
+            node.supervision.on_lifecycle(ch.new)
         elif isinstance(ch, StepFailed):
             h.last_error = ch.message
             if ch.abort_code is not None:

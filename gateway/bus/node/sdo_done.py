@@ -4,10 +4,10 @@ node that was already running: found, or a wrong device type), ``identity`` (101
 expected identity) and ``user`` (a client's transfer: ``SdoDone``, then the features that watch
 clients' writes). A feature's own purposes are the feature's (``NodeFeature.sdo_done``).
 
-Module-level functions taking the ``Node`` (``bus/node/owner.py``), which calls them from
+Module-level functions taking the ``Node`` (``bus/node/node.py``), which calls them from
 ``_sdo_finished``; like it, no I/O and no clock.
 
-Imports: bus.node.events, bus.node.lifecycle (LifecycleState), logging; bus.node.owner,
+Imports: bus.node.events, bus.node.lifecycle (LifecycleState), logging; bus.node.node,
 bus.sdo.channel and bus.sdo.client for types only.
 """
 
@@ -21,7 +21,7 @@ from gateway.bus.node.events import Note, Output, SdoDone
 from gateway.bus.node.lifecycle import LifecycleState
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 
@@ -44,8 +44,8 @@ def probe_done(node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Out
     ]
     out += node._lifecycle_changes(node.lifecycle.on_found(now, device_type), now)
     if node.lifecycle.state is LifecycleState.BOOTING:  # not a wrong device type
-        node.watch.on_found(now)
-        if not node.watch.guard_lost:
+        node.supervision.on_found(now)
+        if not node.supervision.guard_lost:
             out += node._set_alive(True, now)
     return out
 

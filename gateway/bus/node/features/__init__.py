@@ -1,4 +1,4 @@
-"""Device features as hooks of the node's owner (``bus.node.owner.Node``), as the simulator's
+"""Device features as hooks of the node's owner (``bus.node.node.Node``), as the simulator's
 behaviours are hooks of ``SimNode``: the node calls every feature at its moments (boot-up,
 values invalidated, configured and started, EMCY, a client's SDO done, time) and hands each
 feature the SDO results of the purposes it owns. A feature returns what to do (``Output``s) and
@@ -10,7 +10,7 @@ A node has the features its profile and settings ask for (``Node.features``, bui
 (``guarding_bit``), SYNC-driven TPDOs without a SYNC producer (``sync_wait``). The order is the
 order they act in.
 
-Imports: bus.node.events; bus.node.owner, bus.sdo.channel and bus.sdo.client for types only. Never python-can, asyncio or
+Imports: bus.node.events; bus.node.node, bus.sdo.channel and bus.sdo.client for types only. Never python-can, asyncio or
 a northbound module.
 """
 
@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 from gateway.bus.node.events import Output
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 

@@ -5,7 +5,7 @@ echoes follow, FAULT after the tolerance (missed status words or time), UNKNOWN 
 or a loss until the next echo. The node's health says it (``NodeHealth.link``).
 
 Imports: bus.node.features, bus.node.events, bus.error_control.guarding_bit, states;
-bus.node.owner for types only. No I/O.
+bus.node.node for types only. No I/O.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from gateway.bus.node.features import NodeFeature
 from gateway.states import LinkState
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
 
 
 class GuardingBitLink(NodeFeature):

@@ -4,7 +4,7 @@ after configuration, after an EMCY and after a client writes the referencing com
 flags the position signal invalid (quality ``bad``) while it is not referenced.
 
 Imports: bus.node.features, bus.node.events, objref, image (the node's health it marks);
-bus.node.owner, bus.sdo.channel and bus.sdo.client for types only. No I/O.
+bus.node.node, bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from gateway.image import NodeHealth
 from gateway.objref import ObjRef
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 

@@ -2,7 +2,7 @@
 (by RTR where the PDO allows it, else one SDO upload per mapped object; the plan is
 ``pdo.refresh``), so values are good without waiting for a change.
 
-Imports: bus.node.features, bus.node.events, bus.sdo.values, pdo.refresh. bus.node.owner,
+Imports: bus.node.features, bus.node.events, bus.sdo.values, pdo.refresh. bus.node.node,
 bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
@@ -17,7 +17,7 @@ from gateway.bus.sdo.values import decode_value
 from gateway.pdo.refresh import Refresh
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 

@@ -1,7 +1,7 @@
 """Setting ``rtr_poll_ms``: ask every TPDO by RTR at that period while the node is operational
 (for devices whose TPDOs are sent only on request).
 
-Imports: bus.node.features, bus.node.events, pdo.codec, states; bus.node.owner for types only.
+Imports: bus.node.features, bus.node.events, pdo.codec, states; bus.node.node for types only.
 No I/O.
 """
 
@@ -16,7 +16,7 @@ from gateway.pdo.codec import TpdoCodec
 from gateway.states import NmtState
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
 
 
 class RtrPoll(NodeFeature):

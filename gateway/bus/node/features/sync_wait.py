@@ -5,7 +5,7 @@ start the node's ``last_error`` says so ("waiting for SYNC-driven TPDOs: no SYNC
 with a log line; when such a TPDO arrives after all (another master's SYNC), the text is taken
 back at the node's next tick (a steady heartbeat-supervised node ticks at its consumer deadline).
 
-Imports: bus.node.features, bus.node.events, pdo.codec (types), logging; bus.node.owner for
+Imports: bus.node.features, bus.node.events, pdo.codec (types), logging; bus.node.node for
 types only. No I/O.
 """
 
@@ -20,7 +20,7 @@ from gateway.bus.node.features import NodeFeature
 from gateway.pdo.codec import TpdoCodec
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
 
 #: the start of the node's ``last_error`` while it waits (docs/canopen.md, SYNC producer)
 WAITING = "waiting for SYNC-driven TPDOs: no SYNC producer"

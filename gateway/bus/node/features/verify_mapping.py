@@ -2,7 +2,7 @@
 them with the layout the codecs decode (``pdo.verify``); until they match, the node's PDO
 signals are not served (flagged invalid), and a mismatch says where.
 
-Imports: bus.node.features, bus.node.events, pdo.verify, objref. bus.node.owner,
+Imports: bus.node.features, bus.node.events, pdo.verify, objref. bus.node.node,
 bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
@@ -18,7 +18,7 @@ from gateway.objref import ObjRef
 from gateway.pdo.verify import MappingMismatch, MappingRead, compare_mapping
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
+    from gateway.bus.node.node import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 

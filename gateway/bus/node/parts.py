@@ -1,7 +1,7 @@
 """What the master builds for one configured node (``build_node``): its ``Node`` machine from
 the node's resolution (settings, boot steps, codecs built once), the image's record keys bound
 before any thread writes a record, and the ``NodeParts`` that hold it all for the master's
-handlers, inbox and services (``master.py``).
+handlers, inbox and services (``bus/master.py``).
 
 Imports: bus.node.*, bus.resolved, image, objref, pdo.codec, pdo.verify, profiles, config.
 Nothing northbound, no python-can (the frames are the master's).
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from gateway.bus.node.boot_steps import ConfigStep
-from gateway.bus.node.owner import Node
+from gateway.bus.node.node import Node
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.resolved import NamedNode, ResolvedNode
 from gateway.config import NodeConfig

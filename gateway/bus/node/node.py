@@ -34,7 +34,7 @@ right after NMT start (RTR where the PDO allows it, else one SDO upload per mapp
 
 Imports: bus.node.* (lifecycle, lifecycle_report, boot steps, settings, outputs, events,
 features, sdo_done), bus.sdo.*
-(channel, client), bus.error_control.* (watchdog, guarding bit), bus.emcy, pdo.codec,
+(channel, client), bus.error_control.* (node_supervision, guarding bit), bus.emcy, pdo.codec,
 pdo.verify, cia301, errors, image, states, objref, logging (levels of the log lines it returns). Never
 python-can, asyncio or a northbound module.
 """
@@ -47,7 +47,7 @@ from typing import Any
 
 from gateway.bus.emcy import EmcyHistory, decode_emcy
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
-from gateway.bus.error_control.watchdog import Watchdog
+from gateway.bus.error_control.node_supervision import NodeSupervision
 from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.events import HealthChanged, Note, Output, Refresh, SdoDone, Send
 from gateway.bus.node.features import NodeFeature
@@ -123,8 +123,8 @@ class Node:
             expected_device_type=expected_device_type,
             expected_identity=expected_identity,
         )
-        self.watch = Watchdog(settings, configure, active=not passive)
-        self.hb, self.guard = self.watch.hb, self.watch.guard  # read-only views
+        self.supervision = NodeSupervision(settings, configure, active=not passive)
+        self.hb, self.guard = self.supervision.hb, self.supervision.guard  # read-only views
         gb = settings.guarding_bit
         link = (
             GuardingBitLink(GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0))
@@ -192,7 +192,7 @@ class Node:
     def next_deadline(self) -> float | None:
         times = [
             self.lifecycle.next_deadline(),
-            self.watch.next_deadline(),
+            self.supervision.next_deadline(),
             self.sdo.next_deadline(),
             self._probe_due_s(),
             self._keepalive_due(),
@@ -232,7 +232,7 @@ class Node:
         out += frames
         if finished is not None:
             out += self._sdo_finished(finished, now)
-        rtr, lost = self.watch.poll(now)
+        rtr, lost = self.supervision.poll(now)
         if rtr:
             out.append(Send(COB_NMT_EC + self.node_id, b"", rtr=True, dlc=1))
         if lost is not None:
@@ -255,7 +255,7 @@ class Node:
         """A frame on 700h + node id: boot-up (00h), heartbeat, or node-guarding answer."""
         if byte == NmtState.BOOTUP:
             return self._bootup(now)
-        state, problems = self.watch.answer(byte, now)
+        state, problems = self.supervision.answer(byte, now)
         out: list[Output] = [
             Note(logging.WARNING, f"node {self.name}: {p}", ("guard", self.name, p.split(":")[0]))
             for p in problems
@@ -263,7 +263,7 @@ class Node:
         if state is None:
             return out
         out += self._set_nmt(state)
-        if self.watch.alive:
+        if self.supervision.alive:
             out += self._set_alive(True, now)
         if (
             self.passive
@@ -329,7 +329,7 @@ class Node:
         out += frames
         if finished is not None:
             out += self._sdo_finished(finished, now)
-        self.watch.on_sign_of_life(now, self.lifecycle.state)
+        self.supervision.on_sign_of_life(now, self.lifecycle.state)
         return out
 
     def on_bus_down(self, now: float) -> list[Output]:
@@ -345,7 +345,7 @@ class Node:
 
     def on_nmt_command(self, command: str) -> None:
         """An NMT command a client sent to this node: the state guarding expects follows it."""
-        self.watch.on_nmt_command(command)
+        self.supervision.on_nmt_command(command)
 
     # ================================================================== a pair's roles
     def on_rpdo_heard(self, cob_id: int, data: bytes, wall: float, now: float) -> list[Output]:
@@ -440,7 +440,7 @@ class Node:
         h.boot_count += 1
         out: list[Output] = [Note(logging.INFO, f"node {self.name} (id {self.node_id}) boot-up")]
         self._invalidate()
-        self.watch.on_bootup(now)
+        self.supervision.on_bootup(now)
         self.emcy.clear()
         h.current_errors = []
         for f in self.features:
@@ -501,7 +501,7 @@ class Node:
 
     def _set_nmt_expected(self, state: NmtState) -> list[Output]:
         """After our NMT start the node is operational (its next heartbeat confirms it)."""
-        if self.watch.hb is None and self.watch.guard is None:
+        if self.supervision.hb is None and self.supervision.guard is None:
             return self._set_nmt(state)
         return []
 
