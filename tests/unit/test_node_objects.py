@@ -103,36 +103,31 @@ def test_lifecycle_changes_become_reports_the_node_applies() -> None:
     )
 
 
-def test_a_probe_that_finds_the_node_says_so_and_writes_nothing_of_the_node() -> None:
+def _probe(device_type: int) -> tuple[SimpleNamespace, SdoOutcome]:
+    """A probe of node 5 (1000h read) answered with ``device_type``; its context and outcome."""
     lifecycle = NodeLifecycle([], expected_device_type=0x00020192)
     ctx = SimpleNamespace(name="io", node_id=5, lifecycle=lifecycle)
-    before = dict(vars(ctx))
     job = SdoJob(1, ObjRef(0x1000, 0x00), None, "probe")
     transfer = SimpleNamespace(
-        result=(0x00020192).to_bytes(4, "little"),
+        result=device_type.to_bytes(4, "little"),
         abort_code=None,
         timed_out=False,
         aborted_by_server=False,
     )
-    outcome = SDO_DONE["probe"](ctx, job, transfer, 3.0)
+    return ctx, SDO_DONE["probe"](ctx, job, transfer, 3.0)
+
+
+def test_a_probe_that_finds_the_node_says_so_and_writes_nothing_of_the_node() -> None:
+    ctx, outcome = _probe(0x00020192)
     assert isinstance(outcome, SdoOutcome)
     assert outcome.probe_ended and outcome.found and not outcome.user
     assert outcome.outputs == [Note(logging.INFO, "node io (id 5) found running")]
-    assert lifecycle.state is LifecycleState.BOOTING
-    assert vars(ctx) == before, "the outcome is applied by the node, not written here"
+    assert ctx.lifecycle.state is LifecycleState.BOOTING
+    assert set(vars(ctx)) == {"name", "node_id", "lifecycle"}, "the node applies the outcome"
 
 
 def test_a_probe_of_a_wrong_device_ends_the_probe_and_finds_nothing() -> None:
-    lifecycle = NodeLifecycle([], expected_device_type=0x00020192)
-    ctx = SimpleNamespace(name="io", node_id=5, lifecycle=lifecycle)
-    job = SdoJob(1, ObjRef(0x1000, 0x00), None, "probe")
-    transfer = SimpleNamespace(
-        result=(0x00030191).to_bytes(4, "little"),
-        abort_code=None,
-        timed_out=False,
-        aborted_by_server=False,
-    )
-    outcome = SDO_DONE["probe"](ctx, job, transfer, 3.0)
+    ctx, outcome = _probe(0x00030191)
     assert outcome.probe_ended and not outcome.found
-    assert lifecycle.state is LifecycleState.WAITING
+    assert ctx.lifecycle.state is LifecycleState.WAITING
     assert [type(c).__name__ for c in outcome.changes] == ["WrongDevice"]
