@@ -180,6 +180,10 @@ class Node:
     def by_signal(self) -> dict[str, list[RpdoCodec]]:
         return self.outputs.by_signal
 
+    def sdo_busy(self) -> bool:
+        """A transfer is running or waiting."""
+        return self.sdo.busy
+
     # ================================================================== events
     def start(self, now: float, probe: bool = True) -> list[Output]:
         self.health.lifecycle = str(self.lifecycle.state)
@@ -191,9 +195,8 @@ class Node:
 
     def tick(self, now: float) -> list[Output]:
         """Time has passed: timeouts, retries, scheduled frames."""
-        out: list[Output] = []
         frames, finished = self.sdo.poll(now)
-        out += frames
+        out: list[Output] = [*frames]
         if finished is not None:
             out += self._sdo_finished(finished, now)
         rtr, lost = self.supervision.poll(now)
@@ -269,14 +272,11 @@ class Node:
 
     def on_echo(self, bit: int, now: float) -> list[Output]:
         """The guarding bit of a status word just received in a TPDO (AP05 manual 5.5.5)."""
-        if self._link is None:
-            return []
-        return self._link.on_echo(self, bit, now)
+        return self._link.on_echo(self, bit, now) if self._link is not None else []
 
     def on_sdo_response(self, data: bytes, now: float) -> list[Output]:
-        out: list[Output] = []
         frames, finished = self.sdo.on_response(data, now)
-        out += frames
+        out: list[Output] = [*frames]
         if finished is not None:
             out += self._sdo_finished(finished, now)
         self.supervision.on_sign_of_life(now, self.lifecycle.state)
