@@ -12,13 +12,13 @@ The device features (refresh on start, referencing, verify mapping, RTR poll, wa
 SYNC-driven TPDOs without a SYNC producer; built by ``bus.node.parts``) are hooks it calls
 (``bus/node/features/``), not branches of its own; each sees the node as a ``NodeContext``.
 What its lifecycle reports (``lifecycle_report``) and what a finished transfer of its own
-purposes means (``sdo_done``) come back as values the node applies: nothing else writes it.
+purposes means (``sdo_done``) come back as values the node applies; neither writes the node.
 Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the time ``now``
 (the bus clock: the time of the frames processed, seconds) — ``on_nmt_ec``, ``on_emcy``,
 ``on_echo``, ``on_sdo_response``, ``on_bus_down``, ``tick``, ``request_sdo``, ``write_outputs``,
 ``on_nmt_command`` — and executes what they return: ``Send`` frames, ``SdoDone`` results,
-``ValuesRead``, ``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when ``tick`` is next due;
-the driver sleeps until the earliest deadline of all nodes.
+``ValuesRead``, ``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when
+``tick`` is next due; the driver sleeps until the earliest deadline of all nodes.
 Rule 3: queued work never waits for an unrelated timer. A handler that queues SDO work starts it
 when the channel is free (``_drive``), and while work is queued with no transfer running the
 channel's deadline is the moment it was queued (``SdoChannel.next_deadline``), so the driver
