@@ -18,7 +18,7 @@ Rules held here, once:
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it.
 
-Imports: bus.master (the operations), bus.parts (the nodes), bus.lss.master (its errors),
+Imports: bus.master (the operations), bus.node.parts (the nodes), bus.lss.master (its errors),
 bus.scan (the scan beside the master), bus.sdo.values (value codecs), errors, image, objref,
 profiles, cia301, states, python-can (its error type). Never modbus/ or zenoh_bridge/.
 """
@@ -36,7 +36,7 @@ import can
 
 from gateway.bus.lss.master import LssBusy, LssStateError
 from gateway.bus.master import Master
-from gateway.bus.parts import NodeParts
+from gateway.bus.node.parts import NodeParts
 from gateway.bus.scan import Found, scan_beside
 from gateway.bus.scan import report as scan_report
 from gateway.bus.sdo.values import decode_value, encode_value

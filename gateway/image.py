@@ -51,7 +51,7 @@ class EmcyRecord:
 
 @dataclass
 class NodeHealth:
-    """A node's health. Written by the node's owner only (``bus.node.owner.Node``, on the event
+    """A node's health. Written by the node's owner only (``bus.node.node.Node``, on the event
     loop); read by everyone."""
 
     nmt_state: NmtState = NmtState.UNKNOWN
@@ -130,7 +130,7 @@ class RxCounters:
 class SentOutputs(NamedTuple):
     """The node's output image as the gateway last set it: the values each RPDO carries (as
     last sent, or as set for its next frame when a write changed a signal that RPDO shares
-    with the one sent). One immutable record, written by ``bus.node.owner.Node`` in one assignment
+    with the one sent). One immutable record, written by ``bus.node.node.Node`` in one assignment
     on the event loop; readers (the command service for Modbus, Zenoh and the web console)
     see one write or the next, never a mix."""
 
@@ -235,7 +235,7 @@ class NodeImage:
 
     def bind(self, names: tuple[str, ...]) -> None:
         """Make the record keyed ``names`` a source of those signals. Called while the node
-        is built (``bus.parts.build_node``: every TPDO, every value read by SDO), before the
+        is built (``bus.node.parts.build_node``: every TPDO, every value read by SDO), before the
         reader thread runs; ``put`` never binds."""
         where = self.where
         for i, n in enumerate(names):

@@ -1,4 +1,4 @@
-"""The CANopen master: a thin driver of one ``bus.node.owner.Node`` per configured device.
+"""The CANopen master: a thin driver of one ``bus.node.node.Node`` per configured device.
 
 It owns what the nodes must not: python-can (through ``BusDriver``), time and the event loop.
 
@@ -12,7 +12,7 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
   the image, health changes to the image's listeners, log lines). Then the node's timer is set
   to its ``next_deadline()``: the driver sleeps until a node needs time, it never polls.
 * Each node's parts (``NodeParts``: config, profile, image, codecs, ``Node``) are built by
-  ``bus/parts.py`` (``build_node``).
+  ``bus/node/parts.py`` (``build_node``).
 * **Services** for the command service: SDO upload/download (awaitable, one transfer per node
   at a time, queued in the node), RPDO outputs, NMT commands.
 * **A hot-standby pair** (``master.redundancy``; docs/redundancy.md): the pair member
@@ -48,9 +48,9 @@ from gateway.bus.driver import BusDriver
 from gateway.bus.lss.service import LssService
 from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.lifecycle import LifecycleState
+from gateway.bus.node.parts import NodeParts, build_node
 from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
 from gateway.bus.pair.member import PairMember
-from gateway.bus.parts import NodeParts, build_node
 from gateway.bus.producers import Periodic
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
 from gateway.cia301 import (
@@ -148,7 +148,7 @@ class Master:
             image.add_node(ni)
             parts = build_node(rn, ni, passive or self.member is not None)
             if self.member is not None:
-                parts.node.watch.active = True  # supervision judges what it hears
+                parts.node.supervision.active = True  # supervision judges what it hears
             self.nodes[ncfg.name] = parts
             self.by_id[ncfg.node_id] = parts
         self._install_handlers()

@@ -218,7 +218,7 @@ class TpdoCodec:
 
 class RpdoCodec:
     """Encodes one RPDO from the values of its mapped fields (stateless: the values are the
-    node's output image, owned by ``bus.node.owner.Node``)."""
+    node's output image, owned by ``bus.node.node.Node``)."""
 
     __slots__ = ("cob_id", "number", "fields", "length", "names", "_pack", "_index")
 

@@ -7,7 +7,7 @@ result for the boot steps, the codecs and this check). A mismatch means the devi
 decoded with the wrong layout: the node's process values are marked bad, and the mismatch says
 which PDO, what was expected and what the device holds.
 
-How it is run: the master gives ``mapping_reads`` to the node's machine (``bus.node.owner.Node``,
+How it is run: the master gives ``mapping_reads`` to the node's machine (``bus.node.node.Node``,
 ``verify=``), which queues them as SDO uploads (purpose "verify") once the node is configured
 and started, and calls ``compare_mapping`` when the last answer is in. It is not a lifecycle
 step: its outcome does not change the node's lifecycle (the node is started either way; only

@@ -1,4 +1,4 @@
-"""The per-node machine (gateway.bus.node.owner.Node) on a fake clock, against a device scripted in
+"""The per-node machine (gateway.bus.node.node.Node) on a fake clock, against a device scripted in
 the test from the manuals' frames: boot-up, configuration, supervision, probes, freshness of
 values, refresh of change-only TPDOs, keep-alive, NMT expectations."""
 
@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.bus.node.events import Note, Send, ValuesRead
-from gateway.bus.parts import NodeParts, build_node
+from gateway.bus.node.parts import NodeParts, build_node
 from gateway.bus.resolved import resolve_node
 from gateway.image import NodeImage, Quality, SignalValue
 from gateway.profiles import expected_identity

@@ -20,6 +20,7 @@ from gateway.bus.error_control.supervision import (
     NodeGuardingMaster,
     NodeLost,
     SendGuardRtr,
+    Supervisor,
     ToggleError,
     WrongState,
 )
@@ -374,3 +375,32 @@ class TestGuardingBitCheck:
         assert gb.on_status(0, 1.0) == []
         assert gb.next_bit(1.0) == 1
 
+
+
+# --------------------------------------------------------------------------- the shared base
+
+
+def _alive_heartbeat() -> tuple[Supervisor, float]:
+    hb = HeartbeatConsumer(100, 1.5)
+    hb.on_heartbeat(OPERATIONAL, 1.0)
+    return hb, 1.0 + 0.15
+
+
+def _alive_guarding() -> tuple[Supervisor, float]:
+    g = NodeGuardingMaster(100, 3)
+    g.poll(1.0)  # activates guarding: first RTR
+    g.on_response(OPERATIONAL, 1.01)
+    return g, 1.01 + 0.3
+
+
+@pytest.mark.parametrize("make", [_alive_heartbeat, _alive_guarding], ids=["heartbeat", "guarding"])
+def test_heartbeat_and_guarding_answer_the_liveness_queries_of_one_base(make) -> None:
+    """``alive`` / ``lost`` / ``deadline_s`` and the loss count are the base's (``Supervisor``):
+    alive up to the deadline included, lost at the next instant, then no deadline."""
+    sup, deadline = make()
+    assert isinstance(sup, Supervisor)
+    assert sup.alive and not sup.lost and sup.deadline_s == pytest.approx(deadline)
+    assert not [o for o in sup.poll(sup.deadline_s) if isinstance(o, NodeLost)]
+    lost = [o for o in sup.poll(just_after(sup.deadline_s)) if isinstance(o, NodeLost)]
+    assert len(lost) == 1 and sup.lost and not sup.alive and sup.state is Liveness.LOST
+    assert sup.losses == 1 and sup.deadline_s is None

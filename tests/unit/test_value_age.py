@@ -20,7 +20,7 @@ import pytest
 import gateway.image
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
-from gateway.bus.parts import NodeParts
+from gateway.bus.node.parts import NodeParts
 from gateway.image import ProcessImage, Quality
 from tests.helpers import make_config
 

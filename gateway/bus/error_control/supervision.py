@@ -1,5 +1,7 @@
 """Node supervision as plain state machines: heartbeat consumer and node guarding master
-(the guarding-bit check of process data is in ``bus.error_control.guarding_bit``).
+(the guarding-bit check of process data is in ``bus.error_control.guarding_bit``). Both stand
+on one base, ``Supervisor``: the liveness of the node, the NMT state it reported, and the
+queries ``alive``, ``lost`` and ``deadline_s``.
 
 Rule 1: everything that decides whether a node (or its process-data link) is alive lives here,
 with each transition in a table next to the manual section it implements.
@@ -128,10 +130,64 @@ Output = (
 )
 
 
+# --------------------------------------------------------------------------- the shared base
+
+
+class Supervisor:
+    """What both machines below share: the liveness of the supervised node (``state``), the
+    NMT state it last reported (``nmt_state``), the counts of losses and boot-ups, and the
+    queries on them. Each machine says until when the node counts as alive (``deadline_s``);
+    a timeout expires strictly after it (the convention of this file)."""
+
+    def __init__(self) -> None:
+        self.state: Liveness = Liveness.UNKNOWN
+        self.nmt_state: NmtState | None = None
+        self.losses = 0
+        self.bootups = 0
+
+    # -- queries
+    @property
+    def lost(self) -> bool:
+        return self.state is Liveness.LOST
+
+    @property
+    def alive(self) -> bool:
+        return self.state is Liveness.ALIVE
+
+    @property
+    def deadline_s(self) -> float | None:
+        """Last instant at which the node still counts as alive (None: no timeout running)."""
+        raise NotImplementedError
+
+    # -- transitions both machines make
+    def _expired(self, now: float) -> bool:
+        deadline = self.deadline_s
+        return deadline is not None and now > deadline
+
+    def _lose(self, reason: str) -> NodeLost:
+        self.state = Liveness.LOST
+        self.losses += 1
+        return NodeLost(reason)
+
+    def _become_alive(self, nmt_state: NmtState) -> list[Output]:
+        if self.state is Liveness.ALIVE:
+            return []
+        self.state = Liveness.ALIVE
+        return [NodeAlive(nmt_state)]
+
+    def _report(self, nmt_state: NmtState) -> list[Output]:
+        """The node reports ``nmt_state`` (after a boot-up: PRE-OPERATIONAL, SGH10 manual
+        4.2.1.1); a change is an output."""
+        if nmt_state == self.nmt_state:
+            return []
+        old, self.nmt_state = self.nmt_state, nmt_state
+        return [NmtStateChanged(old, nmt_state)]
+
+
 # --------------------------------------------------------------------------- heartbeat consumer
 
 
-class HeartbeatConsumer:
+class HeartbeatConsumer(Supervisor):
     """Watches the heartbeat of one producer node (SGH10 manual 4.5.3, DS-301 heartbeat).
 
     The node sends ``700h + node id`` with its NMT state every ``producer_ms`` (object 1017h).
@@ -169,28 +225,17 @@ class HeartbeatConsumer:
             raise ValueError(f"multiple must be >= 1.0, got {multiple}")
         if bootup_grace_s is not None and bootup_grace_s <= 0:
             raise ValueError(f"bootup_grace_s must be > 0 or None, got {bootup_grace_s}")
+        super().__init__()
         self.producer_ms = producer_ms
         self.multiple = multiple
         self.bootup_grace_s = bootup_grace_s
         self._grace_until_s: float | None = None
         self.timeout_s: float = producer_ms * multiple / 1000.0
-        self.state: Liveness = Liveness.UNKNOWN
-        self.nmt_state: NmtState | None = None
         self.last_heartbeat_s: float | None = None
         self.heartbeats = 0
-        self.losses = 0
-        self.bootups = 0
         self.invalid_frames = 0
 
     # -- queries
-    @property
-    def lost(self) -> bool:
-        return self.state is Liveness.LOST
-
-    @property
-    def alive(self) -> bool:
-        return self.state is Liveness.ALIVE
-
     @property
     def deadline_s(self) -> float | None:
         """Last instant at which the node still counts as alive (None when not monitoring)."""
@@ -221,20 +266,12 @@ class HeartbeatConsumer:
                 return self.on_bootup(now)
             self.invalid_frames += 1
             return [InvalidStateByte(byte)]
-        out: list[Output] = []
         self.heartbeats += 1
         self.last_heartbeat_s = now
-        if self.state is not Liveness.ALIVE:
-            self.state = Liveness.ALIVE
-            out.append(NodeAlive(new))
-        if new != self.nmt_state:
-            out.append(NmtStateChanged(self.nmt_state, new))
-            self.nmt_state = new
-        return out
+        return [*self._become_alive(new), *self._report(new)]
 
     def on_bootup(self, now: float) -> list[Output]:
         self.bootups += 1
-        was_alive = self.state is Liveness.ALIVE
         self.last_heartbeat_s = None
         out: list[Output] = [BootUpSeen()]
         # SGH10 manual 4.2.1.1: after the boot-up message the device is PRE-OPERATIONAL.
@@ -242,30 +279,22 @@ class HeartbeatConsumer:
             self.state = Liveness.UNKNOWN
             self._grace_until_s = None
         else:
-            self.state = Liveness.ALIVE
             self._grace_until_s = now + self.bootup_grace_s
-            if not was_alive:
-                out.append(NodeAlive(NmtState.PRE_OPERATIONAL))
-        if self.nmt_state != NmtState.PRE_OPERATIONAL:
-            out.append(NmtStateChanged(self.nmt_state, NmtState.PRE_OPERATIONAL))
-            self.nmt_state = NmtState.PRE_OPERATIONAL
-        return out
+            out += self._become_alive(NmtState.PRE_OPERATIONAL)
+        return out + self._report(NmtState.PRE_OPERATIONAL)
 
     def poll(self, now: float) -> list[Output]:
-        deadline = self.deadline_s
-        if deadline is not None and now > deadline:
-            self.state = Liveness.LOST
-            self.losses += 1
-            if self.last_heartbeat_s is None:
-                return [NodeLost(f"no heartbeat within {self.bootup_grace_s:g} s of the boot-up")]
-            return [NodeLost(f"no heartbeat for more than {self.timeout_s * 1000:g} ms")]
-        return []
+        if not self._expired(now):
+            return []
+        if self.last_heartbeat_s is None:
+            return [self._lose(f"no heartbeat within {self.bootup_grace_s:g} s of the boot-up")]
+        return [self._lose(f"no heartbeat for more than {self.timeout_s * 1000:g} ms")]
 
 
 # --------------------------------------------------------------------------- node guarding
 
 
-class NodeGuardingMaster:
+class NodeGuardingMaster(Supervisor):
     """The master side of node guarding (DS-301; AP05 manual 5.5.2, SGH10 manual 4.5.2).
 
     Every guard time the master sends an RTR on ``700h + node id``; the node answers one byte:
@@ -303,12 +332,11 @@ class NodeGuardingMaster:
                 f"node guarding needs guard_time_ms > 0 and life_time_factor > 0 "
                 f"(got {guard_time_ms} ms x {life_time_factor}); 0 deactivates guarding"
             )
+        super().__init__()
         self.guard_time_ms = guard_time_ms
         self.life_time_factor = life_time_factor
         self.guard_time_s: float = guard_time_ms / 1000.0
         self.life_time_s: float = guard_time_ms * life_time_factor / 1000.0
-        self.state: Liveness = Liveness.UNKNOWN
-        self.nmt_state: NmtState | None = None
         self.expected_state: NmtState | None = None
         self.active = False
         self.expected_toggle = 0  # DS-301: first answer after activation carries toggle 0
@@ -318,19 +346,9 @@ class NodeGuardingMaster:
         self.answers = 0
         self.toggle_errors = 0
         self.state_errors = 0
-        self.losses = 0
-        self.bootups = 0
         self.last_answer_valid: bool | None = None
 
     # -- queries
-    @property
-    def lost(self) -> bool:
-        return self.state is Liveness.LOST
-
-    @property
-    def alive(self) -> bool:
-        return self.state is Liveness.ALIVE
-
     @property
     def deadline_s(self) -> float | None:
         """Last instant without a valid answer at which the node still counts as not lost."""
@@ -354,12 +372,9 @@ class NodeGuardingMaster:
             self.active = True
             self.last_valid_s = now
             self.next_rtr_s = now
-        deadline = self.deadline_s
-        if deadline is not None and now > deadline:
-            self.state = Liveness.LOST
-            self.losses += 1
+        if self._expired(now):
             out.append(
-                NodeLost(f"no valid guarding answer for more than {self.life_time_s * 1000:g} ms")
+                self._lose(f"no valid guarding answer for more than {self.life_time_s * 1000:g} ms")
             )
         assert self.next_rtr_s is not None
         if now >= self.next_rtr_s:
@@ -389,9 +404,7 @@ class NodeGuardingMaster:
             self.state_errors += 1
             self.last_answer_valid = False
             return [*out, InvalidStateByte(byte)]
-        if st != self.nmt_state:
-            out.append(NmtStateChanged(self.nmt_state, st))
-            self.nmt_state = st
+        out += self._report(st)
         if self.expected_state is not None and st != self.expected_state:
             self.state_errors += 1
             out.append(WrongState(self.expected_state, st, self.state_errors))
@@ -402,9 +415,7 @@ class NodeGuardingMaster:
                 self.active = True
                 self.next_rtr_s = now + self.guard_time_s
             self.last_valid_s = now
-            if self.state is not Liveness.ALIVE:
-                self.state = Liveness.ALIVE
-                out.append(NodeAlive(st))
+            out += self._become_alive(st)
         return out
 
     def on_sign_of_life(self, now: float) -> None:
@@ -420,8 +431,4 @@ class NodeGuardingMaster:
         self.state = Liveness.UNKNOWN
         if self.active:
             self.last_valid_s = now
-        out: list[Output] = [BootUpSeen()]
-        if self.nmt_state != NmtState.PRE_OPERATIONAL:
-            out.append(NmtStateChanged(self.nmt_state, NmtState.PRE_OPERATIONAL))
-            self.nmt_state = NmtState.PRE_OPERATIONAL
-        return out
+        return [BootUpSeen(), *self._report(NmtState.PRE_OPERATIONAL)]

@@ -1,4 +1,4 @@
-"""What a node machine (``bus.node.owner.Node``) returns to its driver: the outputs of every event.
+"""What a node machine (``bus.node.node.Node``) returns to its driver: the outputs of every event.
 
 Imports: pdo.refresh (the plan's record, re-exported), objref. No I/O.
 """

@@ -76,6 +76,7 @@ class LifecycleEvent(StrEnum):
     LOST = "lost"  # supervision lost the node
     WRONG_IDENTITY = "wrong identity"  # 1018h holds other values than the EDS
     ADOPTED = "adopted"  # a pair's take-over: heard operational, taken as it is
+    STOOD_DOWN = "stood down"  # this gateway became a pair's standby: the node is not ours
 
 
 _W, _B, _C, _O = (
@@ -99,6 +100,9 @@ TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = {
     (_O, _E.LOST): _W,
     (_C, _E.WRONG_IDENTITY): _W,
     (_W, _E.ADOPTED): _O,
+    (_B, _E.STOOD_DOWN): _W,
+    (_C, _E.STOOD_DOWN): _W,
+    (_O, _E.STOOD_DOWN): _W,
 }
 
 
@@ -252,6 +256,7 @@ class NodeLifecycle:
     CONFIGURING  NMT start sent                                OPERATIONAL  Configured
     not WAITING  lost (from supervision)                       WAITING      boot timeout re-armed
     WAITING      adopted (a pair's take-over, heard operational)  OPERATIONAL  (nothing sent)
+    not WAITING  stood down (this gateway became a pair's standby)  WAITING    (nothing sent)
     ===========  ============================================  ===========  =========================
 
     After a boot-up the node is PRE-OPERATIONAL (SGH10 manual 4.2.1.1) and configuration starts
@@ -420,6 +425,15 @@ class NodeLifecycle:
         self.last_error = None
         self._reset_progress()
         return [self._fire(LifecycleEvent.ADOPTED, "adopted operational at a take-over")]
+
+    def on_stood_down(self, now: float) -> list[Change]:
+        """This gateway became a pair's standby: the other gateway manages the node now."""
+        if self.state is LifecycleState.WAITING:
+            return []
+        self._preop_pending = False
+        self._reset_progress()
+        self._boot_deadline = None
+        return [self._fire(LifecycleEvent.STOOD_DOWN, "this gateway stood down to standby")]
 
     def on_lost(self, now: float) -> list[Change]:
         if self.state is LifecycleState.WAITING:

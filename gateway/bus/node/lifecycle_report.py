@@ -1,101 +1,88 @@
-"""How a node takes what its lifecycle reports (``bus/node/lifecycle.py``): each change
-(``StateChanged``, ``StepFailed``, ``StepSkipped``, ``BootTimeout``, ``WrongDevice``,
-``IdentityNotCompared``, ``Configured``) sets the fields of the node's health it speaks of (``lifecycle``,
-``last_error``, ``last_sdo_abort``, ``fresh_since``), becomes a log line (``Note``), tells the
-watchdog what guarding expects in the new state, and on ``Configured`` (NMT start sent) makes
-values fresh from now on and calls the features' ``on_configured``. A wrong device's line is
-rate-limited by its kind (a device in a boot loop); the recheck delay it names bounds the rest.
+"""What each change a node's lifecycle reports (``bus/node/lifecycle.py``: ``StateChanged``,
+``StepFailed``, ``StepSkipped``, ``BootTimeout``, ``WrongDevice``, ``IdentityNotCompared``,
+``Configured``) means for the node, as a ``Report`` the node applies (``Node``, in
+``bus/node/node.py``): the fields of its health it sets (``lifecycle``, ``last_error``,
+``last_sdo_abort``), its log line (``Note``), the new lifecycle state (the state guarding
+expects follows it), when a failed boot step is retried, and on ``Configured`` (NMT start
+sent) that values are fresh from now on and the features' ``on_configured`` runs. A wrong
+device's line is rate-limited by its kind (a device in a boot loop); the recheck delay it names
+bounds the rest.
 
-A module-level function taking the ``Node`` (``bus/node/owner.py``); like it, no I/O and no
-clock.
+Pure: changes in, reports out; it writes nothing, no I/O and no clock.
 
-Imports: bus.node.events, bus.node.lifecycle, gateway.cia301, gateway.states, logging;
-bus.node.owner for types only.
+Imports: bus.node.events, bus.node.lifecycle, gateway.cia301, logging.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
+from dataclasses import dataclass
 
-from gateway.bus.node.events import HealthChanged, Note, Output
+from gateway.bus.node.events import Note
 from gateway.bus.node.lifecycle import (
     IDENTITY_NAMES,
     BootTimeout,
+    Change,
     Configured,
     IdentityNotCompared,
+    LifecycleState,
     StateChanged,
     StepFailed,
     StepSkipped,
     WrongDevice,
 )
 from gateway.cia301 import abort_text
-from gateway.states import NmtState
-
-if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
 
 
-def take_lifecycle_changes(node: Node, changes: list[Any], now: float) -> list[Output]:
-    """Each change the lifecycle reported: the health fields it sets, its log line, what
-    guarding expects now, and on ``Configured`` the features' ``on_configured``."""
-    h = node.health
-    out: list[Output] = []
-    for ch in changes:
-        if isinstance(ch, StateChanged):
-            h.lifecycle = str(ch.new)
-            out.append(
-                Note(logging.INFO, f"node {node.name}: {ch.old} -> {ch.new} ({ch.reason})")
-            )
-            node.watch.on_lifecycle(ch.new)
-        elif isinstance(ch, StepFailed):
-            h.last_error = ch.message
-            if ch.abort_code is not None:
-                h.last_sdo_abort = ch.abort_code
-            node._wait_until = now + ch.retry_in_s
-            out.append(
-                Note(
-                    logging.WARNING,
-                    f"node {node.name}: boot step {ch.index} failed: {ch.message}; retry {ch.attempt} in {ch.retry_in_s:.1f} s",
-                )
-            )
-        elif isinstance(ch, StepSkipped):
-            out.append(
-                Note(
-                    logging.INFO, f"node {node.name}: optional boot step skipped: {ch.message}"
-                )
-            )
-        elif isinstance(ch, BootTimeout):
-            h.last_error = node.lifecycle.last_error or "no boot-up"
-            out.append(
-                Note(logging.WARNING, f"node {node.name} (id {node.node_id}): {h.last_error}")
-            )
-        elif isinstance(ch, WrongDevice):
-            h.last_error = node.lifecycle.last_error or "wrong device type"
-            text = f"node {node.name} (id {node.node_id}): {h.last_error}; checked again at its next boot-up or in {ch.recheck_in_s:g} s"  # fmt: skip
-            out.append(Note(logging.ERROR, text, ("wrong_device", node.name)))
-        elif isinstance(ch, IdentityNotCompared):
-            obj, code = ch.object, ch.abort_code
-            what = IDENTITY_NAMES.get(obj.sub, "identity")
-            out.append(
-                Note(
-                    logging.INFO,
-                    f"node {node.name}: {obj} ({what}) not compared: the device says "
-                    f"0x{code:08X} ({abort_text(code)})",
-                )
-            )
-        elif isinstance(ch, Configured):
-            h.last_error = ""
-            h.fresh_since = now  # values are good again when received from now on
-            out.append(
-                Note(
-                    logging.INFO,
-                    f"node {node.name} (id {node.node_id}) configured in {ch.duration_s * 1000:.0f} ms and started",
-                )
-            )
-            out += node._set_nmt_expected(NmtState.OPERATIONAL)
-            for f in node.features:
-                out += f.on_configured(node, now)
-    if changes:
-        out.append(HealthChanged("state"))
-    return out
+@dataclass(frozen=True)
+class Report:
+    """What one lifecycle change means for the node (None: that part does not change)."""
+
+    note: Note
+    #: the new lifecycle state: the health's ``lifecycle``, and what guarding expects
+    state: LifecycleState | None = None
+    last_error: str | None = None
+    last_sdo_abort: int | None = None
+    #: a boot step failed: nothing is retried before this instant
+    wait_until_s: float | None = None
+    #: NMT start sent: values received from now on are fresh, the features' ``on_configured``
+    configured: bool = False
+
+
+def lifecycle_reports(
+    changes: Sequence[Change], name: str, node_id: int, last_error: str | None, now: float
+) -> list[Report]:
+    """The reports of the changes, in their order (``last_error``: the lifecycle's)."""
+    return [_report(ch, name, node_id, last_error, now) for ch in changes]
+
+
+def _report(ch: Change, name: str, node_id: int, last_error: str | None, now: float) -> Report:
+    if isinstance(ch, StateChanged):
+        note = Note(logging.INFO, f"node {name}: {ch.old} -> {ch.new} ({ch.reason})")
+        return Report(note, state=ch.new)
+    if isinstance(ch, StepFailed):
+        text = f"node {name}: boot step {ch.index} failed: {ch.message}; retry {ch.attempt} in {ch.retry_in_s:.1f} s"  # fmt: skip
+        return Report(
+            Note(logging.WARNING, text),
+            last_error=ch.message,
+            last_sdo_abort=ch.abort_code,
+            wait_until_s=now + ch.retry_in_s,
+        )
+    if isinstance(ch, StepSkipped):
+        return Report(Note(logging.INFO, f"node {name}: optional boot step skipped: {ch.message}"))
+    if isinstance(ch, BootTimeout):
+        error = last_error or "no boot-up"
+        return Report(Note(logging.WARNING, f"node {name} (id {node_id}): {error}"), last_error=error)
+    if isinstance(ch, WrongDevice):
+        error = last_error or "wrong device type"
+        text = f"node {name} (id {node_id}): {error}; checked again at its next boot-up or in {ch.recheck_in_s:g} s"  # fmt: skip
+        return Report(Note(logging.ERROR, text, ("wrong_device", name)), last_error=error)
+    if isinstance(ch, IdentityNotCompared):
+        obj, code = ch.object, ch.abort_code
+        what = IDENTITY_NAMES.get(obj.sub, "identity")
+        text = f"node {name}: {obj} ({what}) not compared: the device says 0x{code:08X} ({abort_text(code)})"  # fmt: skip
+        return Report(Note(logging.INFO, text))
+    assert isinstance(ch, Configured)
+    text = f"node {name} (id {node_id}) configured in {ch.duration_s * 1000:.0f} ms and started"
+    return Report(Note(logging.INFO, text), last_error="", configured=True)

@@ -9,8 +9,11 @@ changes nothing); ``frame`` encodes an RPDO, with the guarding bit the link chec
 keep-alive re-sends the last RPDO when none went out for ``keepalive_s`` (AP05 manual 5.5.4
 external heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes nothing).
 
+It also keeps the record of the writes (``published``: the values of each RPDO, the time of
+the last write, the number of writes) that the node puts in the process image.
+
 Imports: pdo.codec, bus.node.events, bus.error_control.guarding_bit (the guarding-bit check),
-errors. No I/O.
+errors, image (the record). No I/O.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from typing import Any
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.node.events import Send
 from gateway.errors import Unmapped, ValueOutOfRange
+from gateway.image import SentOutputs
 from gateway.pdo.codec import FieldValueError, RpdoCodec, TpdoCodec
 
 
@@ -45,6 +49,7 @@ class OutputImage:
         self.control = control
         self.last_sent_s: dict[int, float] = {}
         self.sent = 0
+        self._record = SentOutputs({})
         #: the RPDOs by COB-ID, each with a decoder of its frames (a pair's standby learns the
         #: outputs from the frames the active gateway sends)
         self._heard = {r.cob_id: (r, TpdoCodec(r.cob_id, r.number, r.fields)) for r in self.rpdos}
@@ -53,9 +58,9 @@ class OutputImage:
     def cob_ids(self) -> tuple[int, ...]:
         return tuple(self._heard)
 
-    def heard(self, cob_id: int, data: bytes) -> bool:
-        """An RPDO frame another master sent: its values become the output image's (False: not
-        one of ours, or shorter than its mapping)."""
+    def heard(self, cob_id: int, data: bytes, now: float) -> bool:
+        """An RPDO frame another master sent at ``now``: its values become the output image's,
+        as if sent here (False: not one of ours, or shorter than its mapping)."""
         entry = self._heard.get(cob_id)
         if entry is None:
             return False
@@ -68,6 +73,7 @@ class OutputImage:
         self.values[codec.number] = [
             next(named) if f.signal else old[i] for i, f in enumerate(codec.fields)
         ]
+        self.last_sent_s[codec.number] = now
         return True
 
     def is_output(self, name: str) -> bool:
@@ -124,6 +130,16 @@ class OutputImage:
     def snapshot(self) -> dict[int, tuple[Any, ...]]:
         """The values of every RPDO, immutable (for the process image's output section)."""
         return {n: tuple(v) for n, v in self.values.items()}
+
+    def published(self, written: tuple[float, float] | None = None) -> SentOutputs:
+        """The record of the output image as set now (for the process image's output section):
+        ``written`` (wall-clock, bus-clock time) counts one more write; without it, the times
+        and count of the last write stay."""
+        record = self._record
+        if written is not None:
+            record = SentOutputs({}, written[0], written[1], record.seq + 1)
+        self._record = record._replace(rpdos=self.snapshot())
+        return self._record
 
     def frame(self, number: int, now: float) -> Send:
         """RPDO ``number`` as it goes out now (guarding bit applied)."""

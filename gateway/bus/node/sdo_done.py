@@ -4,71 +4,93 @@ node that was already running: found, or a wrong device type), ``identity`` (101
 expected identity) and ``user`` (a client's transfer: ``SdoDone``, then the features that watch
 clients' writes). A feature's own purposes are the feature's (``NodeFeature.sdo_done``).
 
-Module-level functions taking the ``Node`` (``bus/node/owner.py``), which calls them from
-``_sdo_finished``; like it, no I/O and no clock.
+Each entry tells its node's lifecycle the result and returns an ``SdoOutcome``: the outputs,
+the lifecycle's changes and what else the node (``bus/node/node.py``, ``_sdo_finished``) must
+do; the node applies it. Nothing here writes the node; no I/O and no clock.
 
-Imports: bus.node.events, bus.node.lifecycle (LifecycleState), logging; bus.node.owner,
-bus.sdo.channel and bus.sdo.client for types only.
+Imports: bus.node.events, bus.node.lifecycle, logging; bus.sdo.channel and bus.sdo.client for
+types only.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol
 
 from gateway.bus.node.events import Note, Output, SdoDone
-from gateway.bus.node.lifecycle import LifecycleState
+from gateway.bus.node.lifecycle import Change, LifecycleState, NodeLifecycle
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 
 
-def boot_done(node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+class DoneContext(Protocol):
+    """What the meaning of a finished transfer reads of its node (``Node`` is one)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def node_id(self) -> int: ...
+
+    @property
+    def lifecycle(self) -> NodeLifecycle: ...
+
+
+@dataclass(frozen=True)
+class SdoOutcome:
+    """What a finished transfer means for its node, in the order the node applies it."""
+
+    outputs: list[Output] = field(default_factory=list)
+    #: what the lifecycle reported (the node's lifecycle report, after ``outputs``)
+    changes: list[Change] = field(default_factory=list)
+    #: a probe ended now (an unprompted probe waits a while after it)
+    probe_ended: bool = False
+    #: a probe found the expected device running: supervision restarts, the node is alive
+    found: bool = False
+    #: a client's transfer: the features that watch clients' writes see it
+    user: bool = False
+
+
+def _u32(data: bytes) -> int:
+    return int.from_bytes(data[:4].ljust(4, b"\0"), "little")
+
+
+def boot_done(node: DoneContext, job: SdoJob, tr: SdoTransfer, now: float) -> SdoOutcome:
     ok = tr.result is not None
     code = tr.abort_code if tr.aborted_by_server else None
-    return node._lifecycle_changes(
-        node.lifecycle.on_step_result(now, ok, code, token=job.arg.token), now
+    return SdoOutcome(changes=node.lifecycle.on_step_result(now, ok, code, token=job.arg.token))
+
+
+def probe_done(node: DoneContext, job: SdoJob, tr: SdoTransfer, now: float) -> SdoOutcome:
+    lifecycle = node.lifecycle
+    if tr.result is None or lifecycle.state is not LifecycleState.WAITING:
+        return SdoOutcome(probe_ended=True)
+    note = Note(logging.INFO, f"node {node.name} (id {node.node_id}) found running")
+    changes = lifecycle.on_found(now, _u32(tr.result))
+    found = lifecycle.state is LifecycleState.BOOTING  # not a wrong device type
+    return SdoOutcome([note], changes, probe_ended=True, found=found)
+
+
+def identity_done(node: DoneContext, job: SdoJob, tr: SdoTransfer, now: float) -> SdoOutcome:
+    value = _u32(tr.result) if tr.result is not None else None
+    code = None if value is not None or tr.timed_out else (tr.abort_code or 0x08000000)
+    return SdoOutcome(
+        changes=node.lifecycle.on_identity_result(now, value, code, token=job.arg.token)
     )
 
 
-def probe_done(node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-    node._last_probe_end_s = now
-    if tr.result is None or node.lifecycle.state is not LifecycleState.WAITING:
-        return []
-    device_type = int.from_bytes(tr.result[:4].ljust(4, b"\0"), "little")
-    out: list[Output] = [
-        Note(logging.INFO, f"node {node.name} (id {node.node_id}) found running")
-    ]
-    out += node._lifecycle_changes(node.lifecycle.on_found(now, device_type), now)
-    if node.lifecycle.state is LifecycleState.BOOTING:  # not a wrong device type
-        node.watch.on_found(now)
-        if not node.watch.guard_lost:
-            out += node._set_alive(True, now)
-    return out
-
-
-def identity_done(node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-    value = int.from_bytes(tr.result[:4].ljust(4, b"\0"), "little") if tr.result is not None else None
-    code = None if value is not None or tr.timed_out else (tr.abort_code or 0x08000000)
-    changes = node.lifecycle.on_identity_result(now, value, code, token=job.arg.token)
-    return node._lifecycle_changes(changes, now)
-
-
-def user_done(node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
-    out: list[Output] = [
-        SdoDone(job.token, tr.result, tr.abort_code, tr.timed_out, tr.aborted_by_server)
-    ]
-    for f in node.features:
-        out += f.on_user_sdo(node, job, now)
-    return out
+def user_done(node: DoneContext, job: SdoJob, tr: SdoTransfer, now: float) -> SdoOutcome:
+    done = SdoDone(job.token, tr.result, tr.abort_code, tr.timed_out, tr.aborted_by_server)
+    return SdoOutcome([done], user=True)
 
 
 #: what a finished transfer means, by its purpose (a feature's own purposes: the feature's
 #: ``sdo_done``)
-SDO_DONE: dict[str, Callable[[Node, SdoJob, SdoTransfer, float], list[Output]]] = {
+SDO_DONE: dict[str, Callable[[DoneContext, SdoJob, SdoTransfer, float], SdoOutcome]] = {
     "boot": boot_done,
     "probe": probe_done,
     "identity": identity_done,

@@ -1,7 +1,7 @@
 """One node's SDO channel: transfers queued and run one at a time, in order (CiA 301: one
 SDO server channel per node; a second request while one runs would be taken as part of it).
 
-The channel runs ``sdo_client.SdoTransfer`` machines and tells its owner (``bus.node.owner.Node``)
+The channel runs ``sdo_client.SdoTransfer`` machines and tells its owner (``bus.node.node.Node``)
 when one finishes; what a finished transfer means (a boot step, a probe, a command) is the
 owner's business. No I/O, no clock: frames out, ``now`` in.
 

@@ -4,7 +4,7 @@ manual 4.4.1, AP05 manual 5.4.1 with their worked examples).
 Rule 1: everything about the bytes of an SDO transfer lives here: expedited and segmented
 upload and download, the toggle bit, retries of an unanswered request, and the abort frame the
 client sends, which names the object of the transfer (index and sub-index) and the reason.
-Rule 2: no I/O and no clock. The owner (``bus.node.owner.Node``) calls ``start(now)``, feeds every
+Rule 2: no I/O and no clock. The owner (``bus.node.node.Node``) calls ``start(now)``, feeds every
 frame received on 580h + node id with ``on_response(data, now)`` and calls ``poll(now)`` at
 ``next_deadline()``; each returns the request frames (8 bytes for 600h + node id) to send.
 When ``done`` is true, ``result`` holds the uploaded bytes (``b""`` for a download) or

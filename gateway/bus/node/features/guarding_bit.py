@@ -4,53 +4,48 @@ for it) and the device echoes it in the status word of its TPDO; the link is OK 
 echoes follow, FAULT after the tolerance (missed status words or time), UNKNOWN after a boot-up
 or a loss until the next echo. The node's health says it (``NodeHealth.link``).
 
-Imports: bus.node.features, bus.node.events, bus.error_control.guarding_bit, states;
-bus.node.owner for types only. No I/O.
+Imports: bus.node.features, bus.node.events, bus.error_control.guarding_bit, states. No I/O.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
 
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
 from gateway.bus.node.events import HealthChanged, Note, Output
-from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features import NodeContext, NodeFeature
 from gateway.states import LinkState
-
-if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
 
 
 class GuardingBitLink(NodeFeature):
     def __init__(self, check: GuardingBitCheck):
         self.check = check
 
-    def on_bootup(self, node: Node, now: float) -> list[Output]:
+    def on_bootup(self, node: NodeContext, now: float) -> list[Output]:
         self.check.reset()
         return self._set(node, LinkState.UNKNOWN)
 
-    def on_lost(self, node: Node) -> list[Output]:
+    def on_lost(self, node: NodeContext) -> list[Output]:
         self.check.reset()
         return self._set(node, LinkState.UNKNOWN)
 
-    def on_echo(self, node: Node, bit: int, now: float) -> list[Output]:
+    def on_echo(self, node: NodeContext, bit: int, now: float) -> list[Output]:
         """The guarding bit of a status word just received in a TPDO."""
         return self._changes(node, self.check.on_status(bit, now))
 
     def next_deadline(self) -> float | None:
         return self.check.next_deadline()
 
-    def tick(self, node: Node, now: float) -> list[Output]:
+    def tick(self, node: NodeContext, now: float) -> list[Output]:
         return self._changes(node, self.check.poll(now))
 
-    def _changes(self, node: Node, changes: list[LinkOk | LinkFault]) -> list[Output]:
+    def _changes(self, node: NodeContext, changes: list[LinkOk | LinkFault]) -> list[Output]:
         out: list[Output] = []
         for ch in changes:
             out += self._set(node, LinkState.OK if isinstance(ch, LinkOk) else LinkState.FAULT)
         return out
 
-    def _set(self, node: Node, state: LinkState) -> list[Output]:
+    def _set(self, node: NodeContext, state: LinkState) -> list[Output]:
         h = node.health
         if h.link == state:
             return []

@@ -4,7 +4,7 @@ after configuration, after an EMCY and after a client writes the referencing com
 flags the position signal invalid (quality ``bad``) while it is not referenced.
 
 Imports: bus.node.features, bus.node.events, objref, image (the node's health it marks);
-bus.node.owner, bus.sdo.channel and bus.sdo.client for types only. No I/O.
+bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
 from __future__ import annotations
@@ -13,12 +13,11 @@ import logging
 from typing import TYPE_CHECKING, Any
 
 from gateway.bus.node.events import HealthChanged, Note, Output
-from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features import NodeContext, NodeFeature
 from gateway.image import NodeHealth
 from gateway.objref import ObjRef
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 
@@ -58,23 +57,23 @@ class ReferencingFeature(NodeFeature):
     def __init__(self, spec: dict[str, Any], signal: str | None):
         self.ref = Referencing(spec, signal)
 
-    def on_bootup(self, node: Node, now: float) -> list[Output]:
+    def on_bootup(self, node: NodeContext, now: float) -> list[Output]:
         return self._set(node, False)  # MSK5000 5115h: the reference is lost at power-on
 
-    def on_configured(self, node: Node, now: float) -> list[Output]:
+    def on_configured(self, node: NodeContext, now: float) -> list[Output]:
         self._check(node, now)
         return []
 
-    def on_emcy(self, node: Node, now: float) -> bool:
+    def on_emcy(self, node: NodeContext, now: float) -> bool:
         self._check(node, now)
         return True
 
-    def on_user_sdo(self, node: Node, job: SdoJob, now: float) -> list[Output]:
+    def on_user_sdo(self, node: NodeContext, job: SdoJob, now: float) -> list[Output]:
         if self.ref.is_command(job.obj, job.data):
             self._check(node, now)
         return []
 
-    def sdo_done(self, node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+    def sdo_done(self, node: NodeContext, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         if tr.result is None:
             note = f"node {node.name}: referencing state unreadable (0x{tr.abort_code or 0:08X})"
             return [Note(logging.WARNING, note), *self._set(node, False)]
@@ -85,11 +84,11 @@ class ReferencingFeature(NodeFeature):
         sig = self.ref.signal
         return {sig} & invalid if sig is not None else set()
 
-    def _check(self, node: Node, now: float) -> None:
+    def _check(self, node: NodeContext, now: float) -> None:
         """Read whether the position is referenced."""
         node.sdo.queue(self.ref.status, None, "reference", now)
 
-    def _set(self, node: Node, ok: bool) -> list[Output]:
+    def _set(self, node: NodeContext, ok: bool) -> list[Output]:
         text = self.ref.apply(node.health, ok)
         if text is None:
             return []

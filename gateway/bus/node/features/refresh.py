@@ -2,7 +2,7 @@
 (by RTR where the PDO allows it, else one SDO upload per mapped object; the plan is
 ``pdo.refresh``), so values are good without waiting for a change.
 
-Imports: bus.node.features, bus.node.events, bus.sdo.values, pdo.refresh. bus.node.owner,
+Imports: bus.node.features, bus.node.events, bus.sdo.values, pdo.refresh;
 bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
@@ -12,12 +12,11 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from gateway.bus.node.events import Output, Send, ValuesRead
-from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features import NodeContext, NodeFeature
 from gateway.bus.sdo.values import decode_value
 from gateway.pdo.refresh import Refresh
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 
@@ -28,7 +27,7 @@ class RefreshOnStart(NodeFeature):
     def __init__(self, plan: Sequence[Refresh]):
         self.plan = list(plan)
 
-    def on_configured(self, node: Node, now: float) -> list[Output]:
+    def on_configured(self, node: NodeContext, now: float) -> list[Output]:
         out: list[Output] = []
         for r in self.plan:
             if r.how == "rtr":
@@ -38,7 +37,7 @@ class RefreshOnStart(NodeFeature):
                     node.sdo.queue(obj, None, "refresh", now, (name, obj, type_))
         return out
 
-    def sdo_done(self, node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+    def sdo_done(self, node: NodeContext, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         if tr.result is None or node.health.fresh_since is None:
             return []
         name, _obj, type_ = job.arg

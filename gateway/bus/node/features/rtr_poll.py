@@ -1,22 +1,17 @@
 """Setting ``rtr_poll_ms``: ask every TPDO by RTR at that period while the node is operational
 (for devices whose TPDOs are sent only on request).
 
-Imports: bus.node.features, bus.node.events, pdo.codec, states; bus.node.owner for types only.
-No I/O.
+Imports: bus.node.features, bus.node.events, pdo.codec, states. No I/O.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 from gateway.bus.node.events import Output, Send
-from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features import NodeContext, NodeFeature
 from gateway.pdo.codec import TpdoCodec
 from gateway.states import NmtState
-
-if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
 
 
 class RtrPoll(NodeFeature):
@@ -25,17 +20,17 @@ class RtrPoll(NodeFeature):
         self.tpdos = list(tpdos)
         self.due_s: float | None = None
 
-    def on_invalidate(self, node: Node) -> None:
+    def on_invalidate(self, node: NodeContext) -> None:
         self.due_s = None
 
-    def on_configured(self, node: Node, now: float) -> list[Output]:
+    def on_configured(self, node: NodeContext, now: float) -> list[Output]:
         self.due_s = now + self.period_s
         return []
 
     def next_deadline(self) -> float | None:
         return self.due_s
 
-    def tick(self, node: Node, now: float) -> list[Output]:
+    def tick(self, node: NodeContext, now: float) -> list[Output]:
         if self.due_s is None or now < self.due_s:
             return []
         self.due_s = now + self.period_s

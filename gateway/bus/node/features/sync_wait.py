@@ -5,22 +5,17 @@ start the node's ``last_error`` says so ("waiting for SYNC-driven TPDOs: no SYNC
 with a log line; when such a TPDO arrives after all (another master's SYNC), the text is taken
 back at the node's next tick (a steady heartbeat-supervised node ticks at its consumer deadline).
 
-Imports: bus.node.features, bus.node.events, pdo.codec (types), logging; bus.node.owner for
-types only. No I/O.
+Imports: bus.node.features, bus.node.events, pdo.codec (types), logging. No I/O.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 from gateway.bus.node.events import HealthChanged, Note, Output
-from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features import NodeContext, NodeFeature
 from gateway.pdo.codec import TpdoCodec
-
-if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
 
 #: the start of the node's ``last_error`` while it waits (docs/canopen.md, SYNC producer)
 WAITING = "waiting for SYNC-driven TPDOs: no SYNC producer"
@@ -48,11 +43,11 @@ class SyncWait(NodeFeature):
         alone = [c for c in sync if set(c.names) - others]
         return SyncWait(alone) if alone else None
 
-    def on_configured(self, node: Node, now: float) -> list[Output]:
+    def on_configured(self, node: NodeContext, now: float) -> list[Output]:
         node.health.last_error = self.text
         return [Note(logging.WARNING, f"node {node.name}: {self.text}"), HealthChanged("state")]
 
-    def tick(self, node: Node, now: float) -> list[Output]:
+    def tick(self, node: NodeContext, now: float) -> list[Output]:
         h = node.health
         if h.last_error != self.text or node.image is None or h.fresh_since is None:
             return []

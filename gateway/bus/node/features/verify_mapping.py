@@ -2,7 +2,7 @@
 them with the layout the codecs decode (``pdo.verify``); until they match, the node's PDO
 signals are not served (flagged invalid), and a mismatch says where.
 
-Imports: bus.node.features, bus.node.events, pdo.verify, objref. bus.node.owner,
+Imports: bus.node.features, bus.node.events, pdo.verify, objref;
 bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
@@ -13,12 +13,11 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from gateway.bus.node.events import HealthChanged, Note, Output
-from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features import NodeContext, NodeFeature
 from gateway.objref import ObjRef
 from gateway.pdo.verify import MappingMismatch, MappingRead, compare_mapping
 
 if TYPE_CHECKING:
-    from gateway.bus.node.owner import Node
     from gateway.bus.sdo.channel import SdoJob
     from gateway.bus.sdo.client import SdoTransfer
 
@@ -39,24 +38,24 @@ class VerifyMapping(NodeFeature):
         self.held: dict[ObjRef, int | None] = {}
         self.mismatches: list[MappingMismatch] = []
 
-    def on_bootup(self, node: Node, now: float) -> list[Output]:
+    def on_bootup(self, node: NodeContext, now: float) -> list[Output]:
         # not trusted until the mapping is read back and compared
         node.health.invalid_signals = node.health.invalid_signals | self.pdo_names
         return []
 
-    def on_configured(self, node: Node, now: float) -> list[Output]:
+    def on_configured(self, node: NodeContext, now: float) -> list[Output]:
         self.held = {}
         for r in self.reads:
             node.sdo.queue(r.object, None, "verify", now, r)
         return []
 
-    def on_adopted(self, node: Node, now: float) -> list[Output]:
+    def on_adopted(self, node: NodeContext, now: float) -> list[Output]:
         # a standby cannot read the mapping back; read it now if it is still not trusted
         if node.health.invalid_signals & self.pdo_names:
             return self.on_configured(node, now)
         return []
 
-    def sdo_done(self, node: Node, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
+    def sdo_done(self, node: NodeContext, job: SdoJob, tr: SdoTransfer, now: float) -> list[Output]:
         """Collect the uploads; when all are in, compare."""
         r: MappingRead = job.arg
         raw = tr.result

@@ -9,23 +9,25 @@ image (the last values sent in each RPDO, bits included) and its health in the p
 (``NodeImage.outputs``) too, in one assignment after each write or keep-alive: the one copy of
 the outputs that Modbus, Zenoh and the web console read.
 The device features (refresh on start, referencing, verify mapping, RTR poll, waiting for
-SYNC-driven TPDOs without a SYNC producer) are hooks it calls
-(``bus/node/features/``), not branches of its own.
+SYNC-driven TPDOs without a SYNC producer; built by ``bus.node.parts``) are hooks it calls
+(``bus/node/features/``), not branches of its own; each sees the node as a ``NodeContext``.
+What its lifecycle reports (``lifecycle_report``) and what a finished transfer of its own
+purposes means (``sdo_done``) come back as values the node applies; neither writes the node.
 Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the time ``now``
 (the bus clock: the time of the frames processed, seconds) — ``on_nmt_ec``, ``on_emcy``,
 ``on_echo``, ``on_sdo_response``, ``on_bus_down``, ``tick``, ``request_sdo``, ``write_outputs``,
-``on_nmt_command`` — and
-executes what they return: ``Send`` frames, ``SdoDone`` results, ``ValuesRead``,
-``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when ``tick`` is next due;
-the driver sleeps until the earliest deadline of all nodes.
+``on_nmt_command`` — and executes what they return: ``Send`` frames, ``SdoDone`` results,
+``ValuesRead``, ``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when
+``tick`` is next due; the driver sleeps until the earliest deadline of all nodes.
 Rule 3: queued work never waits for an unrelated timer. A handler that queues SDO work starts it
 when the channel is free (``_drive``), and while work is queued with no transfer running the
 channel's deadline is the moment it was queued (``SdoChannel.next_deadline``), so the driver
 ticks the node at once even on a path that forgot to drive.
 
-The decisions are tables below: what the node-guarding master expects in each lifecycle state
-(``GUARD_EXPECTS``), what an NMT command makes the node's expected state (``NMT_EXPECTS``), what
-a finished SDO transfer of its own purposes means (``sdo_done.SDO_DONE``).
+The decisions are tables: what the node-guarding master expects in each lifecycle state
+(``GUARD_EXPECTS``) and what an NMT command makes the node's expected state (``NMT_EXPECTS``),
+both in ``bus.error_control.node_supervision``; what a finished SDO transfer of its own
+purposes means (``sdo_done.SDO_DONE``).
 
 Truthfulness (docs/architecture.md, "Two flows", quality): a boot-up and a loss invalidate every value
 of the node (``health.fresh_since = None``); values are good again only when received after the
@@ -33,31 +35,28 @@ gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on ch
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
 Imports: bus.node.* (lifecycle, lifecycle_report, boot steps, settings, outputs, events,
-features, sdo_done), bus.sdo.*
-(channel, client), bus.error_control.* (watchdog, guarding bit), bus.emcy, pdo.codec,
-pdo.verify, cia301, errors, image, states, objref, logging (levels of the log lines it returns). Never
-python-can, asyncio or a northbound module.
+features, sdo_done), bus.sdo.* (channel, client), bus.error_control.* (node_supervision,
+guarding bit), bus.emcy, pdo.codec, pdo.verify, cia301, errors, image, states, objref, logging
+(levels of the log lines it returns). Never python-can, asyncio or a northbound module.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from gateway.bus.emcy import EmcyHistory, decode_emcy
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
-from gateway.bus.error_control.watchdog import Watchdog
+from gateway.bus.error_control.node_supervision import NodeSupervision
 from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.events import HealthChanged, Note, Output, Refresh, SdoDone, Send
 from gateway.bus.node.features import NodeFeature
 from gateway.bus.node.features.guarding_bit import GuardingBitLink
-from gateway.bus.node.features.referencing import ReferencingFeature
 from gateway.bus.node.features.refresh import RefreshOnStart
-from gateway.bus.node.features.rtr_poll import RtrPoll
-from gateway.bus.node.features.sync_wait import SyncWait
 from gateway.bus.node.features.verify_mapping import VerifyMapping
 from gateway.bus.node.lifecycle import (
+    Change,
     LifecycleState,
     NodeLifecycle,
     ReadIdentity,
@@ -65,18 +64,18 @@ from gateway.bus.node.lifecycle import (
     Wait,
     WriteStep,
 )
-from gateway.bus.node.lifecycle_report import take_lifecycle_changes
+from gateway.bus.node.lifecycle_report import lifecycle_reports
 from gateway.bus.node.outputs import OutputImage
-from gateway.bus.node.sdo_done import SDO_DONE
+from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
 from gateway.bus.sdo.client import SdoTransfer
 from gateway.cia301 import COB_NMT, COB_NMT_EC
 from gateway.errors import NodeNotOperational
-from gateway.image import NodeHealth, NodeImage, SentOutputs
+from gateway.image import NodeHealth, NodeImage
 from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
-from gateway.pdo.verify import MappingMismatch, MappingRead
+from gateway.pdo.verify import MappingMismatch
 from gateway.states import LinkState, NmtState
 
 OBJ_DEVICE_TYPE = ObjRef(0x1000, 0x00)
@@ -96,18 +95,16 @@ class Node:
         configure: bool = True,
         tpdos: Sequence[TpdoCodec] = (),
         rpdos: Sequence[RpdoCodec] = (),
-        refresh: Sequence[Refresh] = (),
+        features: Sequence[NodeFeature] = (),
         expected_device_type: int | None = None,
         expected_identity: Sequence[tuple[ObjRef, int]] = (),
         emcy_texts: dict[int, str] | None = None,
         guard_names: tuple[str | None, str | None] = (None, None),
-        referencing: dict[str, Any] | None = None,
-        reference_signal: str | None = None,
         passive: bool = False,
-        verify: Sequence[MappingRead] = (),
         image: NodeImage | None = None,
-        sync_tpdos: Sequence[int] = (),
     ):
+        """``features``: the device features, in the order they act (``bus.node.parts``); the
+        output image toggles the bit of their guarding-bit link, if any."""
         self.name = name
         self.node_id = node_id
         self.s = settings
@@ -123,55 +120,26 @@ class Node:
             expected_device_type=expected_device_type,
             expected_identity=expected_identity,
         )
-        self.watch = Watchdog(settings, configure, active=not passive)
-        self.hb, self.guard = self.watch.hb, self.watch.guard  # read-only views
-        gb = settings.guarding_bit
-        link = (
-            GuardingBitLink(GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0))
-            if gb
-            else None
-        )
-        self.gbit: GuardingBitCheck | None = link.check if link is not None else None
+        self.supervision = NodeSupervision(settings, configure, active=not passive)
+        self.hb, self.guard = self.supervision.hb, self.supervision.guard  # read-only views
+        self.features = list(features)  # bus/node/features/
+        self._link = next((f for f in self.features if isinstance(f, GuardingBitLink)), None)
+        self.gbit: GuardingBitCheck | None = self._link.check if self._link else None
         self.control_signal, self.status_signal = guard_names
         health.supervision = settings.supervision
         health.link = LinkState.UNKNOWN if self.gbit is not None else LinkState.NOT_USED
         self.emcy = EmcyHistory()
-        control = (
-            (self.control_signal, gb.control_bit)
-            if gb is not None and self.control_signal
-            else None
-        )
+        gb = settings.guarding_bit
+        control = (self.control_signal, gb.control_bit) if gb and self.control_signal else None
         self.outputs = OutputImage(
             name, self.rpdos, settings.keepalive_ms / 1000.0, self.gbit, control
         )
         self.image = image  # its ``outputs`` section is written here only
-        self._sent = SentOutputs({})
         self._publish_outputs()
         self.sdo = SdoChannel(node_id, settings.sdo_timeout_s, settings.sdo_retries)
         self.next_probe_s: float | None = None
         self._last_probe_end_s: float | None = None
         self._wait_until: float | None = None
-        # the device features, in the order they act (bus/node/features/)
-        self.features: list[NodeFeature] = [link] if link is not None else []
-        self._link = link
-        if refresh:
-            self.features.append(RefreshOnStart(refresh))
-        ref = ReferencingFeature(referencing, reference_signal) if referencing else None
-        if ref is not None:
-            self.features.append(ref)
-        if verify:
-            pdo_names = frozenset(
-                [n for c in self.tpdos for n in c.names] + [n for c in self.rpdos for n in c.names]
-            )
-            keep = ref.still_invalid if ref is not None else (lambda invalid: set[str]())
-            self.features.append(VerifyMapping(verify, pdo_names, keep))
-        if settings.rtr_poll_ms:
-            self.features.append(RtrPoll(settings.rtr_poll_ms, self.tpdos))
-        if sync_tpdos and not settings.sync_producer:
-            read = {name for r in refresh for name in r.codec.names}
-            wait = SyncWait.of(self.tpdos, sync_tpdos, read)
-            if wait is not None:
-                self.features.append(wait)
         self._by_purpose = {p: f for f in self.features for p in f.purposes}
 
     # ================================================================== queries
@@ -192,7 +160,7 @@ class Node:
     def next_deadline(self) -> float | None:
         times = [
             self.lifecycle.next_deadline(),
-            self.watch.next_deadline(),
+            self.supervision.next_deadline(),
             self.sdo.next_deadline(),
             self._probe_due_s(),
             self._keepalive_due(),
@@ -227,16 +195,15 @@ class Node:
 
     def tick(self, now: float) -> list[Output]:
         """Time has passed: timeouts, retries, scheduled frames."""
-        out: list[Output] = []
         frames, finished = self.sdo.poll(now)
-        out += frames
+        out: list[Output] = [*frames]
         if finished is not None:
             out += self._sdo_finished(finished, now)
-        rtr, lost = self.watch.poll(now)
+        rtr, lost = self.supervision.poll(now)
         if rtr:
             out.append(Send(COB_NMT_EC + self.node_id, b"", rtr=True, dlc=1))
         if lost is not None:
-            out += self._lost(now, lost)
+            out += self._set_alive(False, now, lost)
         out += self._lifecycle_changes(self.lifecycle.poll(now), now)
         for f in self.features:
             out += f.tick(self, now)
@@ -255,7 +222,7 @@ class Node:
         """A frame on 700h + node id: boot-up (00h), heartbeat, or node-guarding answer."""
         if byte == NmtState.BOOTUP:
             return self._bootup(now)
-        state, problems = self.watch.answer(byte, now)
+        state, problems = self.supervision.answer(byte, now)
         out: list[Output] = [
             Note(logging.WARNING, f"node {self.name}: {p}", ("guard", self.name, p.split(":")[0]))
             for p in problems
@@ -263,17 +230,13 @@ class Node:
         if state is None:
             return out
         out += self._set_nmt(state)
-        if self.watch.alive:
+        if self.supervision.alive:
             out += self._set_alive(True, now)
-        if (
-            self.passive
-            and state == NmtState.OPERATIONAL
-            and self.health.fresh_since is None
-            and self.health.alive
-        ):
+        h = self.health
+        if self.passive and state == NmtState.OPERATIONAL and h.fresh_since is None and h.alive:
             # listening only (a pair's standby): the node was started by another master; no
             # boot-up since it was heard operational, so what it sends from now on is fresh
-            self.health.fresh_since = now
+            h.fresh_since = now
             out.append(HealthChanged("state"))
         if (
             self.lifecycle.state is LifecycleState.WAITING
@@ -281,7 +244,7 @@ class Node:
             and self.lifecycle.may_probe(now)  # a refused device waits for its recheck
         ):
             # alive but no boot-up seen (gateway restarted, node replugged): probe soon
-            if self._probe_in_flight() is None and (
+            if self.sdo.find("probe") is None and (
                 self._last_probe_end_s is None
                 or now - self._last_probe_end_s >= min(1.0, self.s.probe_period_s)
             ):
@@ -293,43 +256,30 @@ class Node:
         h = self.health
         if len(data) < 3:
             h.emcy_errors += 1
-            return [
-                Note(
-                    logging.WARNING,
-                    f"node {self.name}: EMCY with {len(data)} bytes ignored",
-                    ("emcy_short", self.name),
-                )
-            ]
+            text = f"node {self.name}: EMCY with {len(data)} bytes ignored"
+            return [Note(logging.WARNING, text, ("emcy_short", self.name))]
         rec = decode_emcy(bytes(data), self.emcy_texts, wall_ts)
         self.emcy.add(rec)
         h.last_emcy = rec  # type: ignore[assignment]
         h.emcy_count += 1
         h.emcy_history = tuple(self.emcy.history)
         h.current_errors = sorted(self.emcy.current)
-        out: list[Output] = [
-            Note(
-                logging.WARNING,
-                f"node {self.name} EMCY 0x{rec.code:04X} ({rec.text}) register 0x{rec.register:02X}",
-            ),
-            HealthChanged("emcy"),
-        ]
+        text = f"node {self.name} EMCY 0x{rec.code:04X} ({rec.text}) register 0x{rec.register:02X}"
+        out: list[Output] = [Note(logging.WARNING, text), HealthChanged("emcy")]
         if not self.passive and any([f.on_emcy(self, now) for f in self.features]):
             out += self._drive(now)  # start what a feature queued now if the channel is free
         return out
 
     def on_echo(self, bit: int, now: float) -> list[Output]:
         """The guarding bit of a status word just received in a TPDO (AP05 manual 5.5.5)."""
-        if self._link is None:
-            return []
-        return self._link.on_echo(self, bit, now)
+        return self._link.on_echo(self, bit, now) if self._link is not None else []
 
     def on_sdo_response(self, data: bytes, now: float) -> list[Output]:
-        out: list[Output] = []
         frames, finished = self.sdo.on_response(data, now)
-        out += frames
+        out: list[Output] = [*frames]
         if finished is not None:
             out += self._sdo_finished(finished, now)
-        self.watch.on_sign_of_life(now, self.lifecycle.state)
+        self.supervision.on_sign_of_life(now, self.lifecycle.state)
         return out
 
     def on_bus_down(self, now: float) -> list[Output]:
@@ -345,29 +295,22 @@ class Node:
 
     def on_nmt_command(self, command: str) -> None:
         """An NMT command a client sent to this node: the state guarding expects follows it."""
-        self.watch.on_nmt_command(command)
+        self.supervision.on_nmt_command(command)
 
     # ================================================================== a pair's roles
     def on_rpdo_heard(self, cob_id: int, data: bytes, wall: float, now: float) -> list[Output]:
         """An RPDO of this node that the other gateway of a pair sent (this one listens): its
         values become the output image, so a take-over goes on with them."""
-        if not self.passive or not self.outputs.heard(cob_id, data):
-            return []
-        self.outputs.last_sent_s[next(r.number for r in self.rpdos if r.cob_id == cob_id)] = now
-        self._sent = SentOutputs({}, wall, now, self._sent.seq + 1)
-        self._publish_outputs()
+        if self.passive and self.outputs.heard(cob_id, data, now):
+            self._publish_outputs((wall, now))
         return []
 
     def stand_by(self, now: float) -> list[Output]:
         """This gateway became a pair's standby: listen only. Nothing of the lifecycle acts;
         queued SDO work is dropped (the master sends nothing while standing by)."""
         self.passive = True
-        cancelled = self.sdo.cancel_active(now)
-        out: list[Output] = []
-        if cancelled is not None and cancelled.purpose == "user":
-            out.append(SdoDone(cancelled.token, None, None, timed_out=True))
-        self.sdo.drop(lambda j: True)
-        return out
+        out = self._end_sdo_work(now, lambda j: False)
+        return out + self._lifecycle_changes(self.lifecycle.on_stood_down(now), now)
 
     def take_over(self, now: float) -> list[Output]:
         """This gateway became the pair's active one. A node heard OPERATIONAL is adopted as it
@@ -375,11 +318,8 @@ class Node:
         self.passive = False
         h = self.health
         out: list[Output] = []
-        if (
-            h.alive
-            and h.nmt_state == NmtState.OPERATIONAL
-            and self.lifecycle.state is LifecycleState.WAITING
-        ):
+        heard_operational = h.alive and h.nmt_state == NmtState.OPERATIONAL
+        if heard_operational and self.lifecycle.state is LifecycleState.WAITING:
             out += self._lifecycle_changes(self.lifecycle.on_adopted(now), now)
             for f in self.features:
                 out += f.on_adopted(self, now)
@@ -417,13 +357,13 @@ class Node:
         if self.health.outputs != mode:
             self.health.outputs = mode
             out.append(HealthChanged("state"))
-        self._sent = SentOutputs({}, wall, now, self._sent.seq + 1)
-        self._publish_outputs()
+        self._publish_outputs((wall, now))
         return out
 
-    def _publish_outputs(self) -> None:
-        """The output image as set now into the process image, in one assignment."""
-        sent = self._sent = self._sent._replace(rpdos=self.outputs.snapshot())
+    def _publish_outputs(self, written: tuple[float, float] | None = None) -> None:
+        """The output image as set now into the process image, in one assignment (``written``:
+        the wall-clock and bus-clock times of a write)."""
+        sent = self.outputs.published(written)
         if self.image is not None:
             self.image.outputs = sent
 
@@ -440,7 +380,7 @@ class Node:
         h.boot_count += 1
         out: list[Output] = [Note(logging.INFO, f"node {self.name} (id {self.node_id}) boot-up")]
         self._invalidate()
-        self.watch.on_bootup(now)
+        self.supervision.on_bootup(now)
         self.emcy.clear()
         h.current_errors = []
         for f in self.features:
@@ -448,20 +388,11 @@ class Node:
         out += self._set_nmt(NmtState.PRE_OPERATIONAL)
         out += self._set_alive(True, now)
         # a boot-up ends whatever transfer was running: the device forgot it
-        cancelled = self.sdo.cancel_active(now)
-        if cancelled is not None and cancelled.purpose == "user":
-            out.append(SdoDone(cancelled.token, None, None, timed_out=True))
-        self.sdo.drop(lambda j: j.purpose == "user")
+        out += self._end_sdo_work(now, lambda j: j.purpose == "user")
         if self.passive:
             return out
         out += self._lifecycle_changes(self.lifecycle.on_bootup(now), now)
         out += self._drive(now)
-        return out
-
-    def _lost(self, now: float, reason: str) -> list[Output]:
-        if not self.health.alive:
-            return []
-        out = self._set_alive(False, now, reason)
         return out
 
     def _set_alive(self, alive: bool, now: float, reason: str = "") -> list[Output]:
@@ -476,12 +407,8 @@ class Node:
             out += self._set_nmt(NmtState.UNKNOWN)
             for f in self.features:
                 out += f.on_lost(self)
-            out.append(
-                Note(
-                    logging.WARNING,
-                    f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})",
-                )
-            )
+            text = f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})"
+            out.append(Note(logging.WARNING, text))
             if not self.passive:
                 out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
                 self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss
@@ -495,13 +422,34 @@ class Node:
         for f in self.features:
             f.on_invalidate(self)
 
-    def _lifecycle_changes(self, changes: list[Any], now: float) -> list[Output]:
-        """What the lifecycle reported, taken into health and log lines (lifecycle_report.py)."""
-        return take_lifecycle_changes(self, changes, now)
+    def _lifecycle_changes(self, changes: Sequence[Change], now: float) -> list[Output]:
+        """What the lifecycle reported (``lifecycle_report``): health fields, log lines, what
+        guarding expects, and once configured fresh values and the features' ``on_configured``."""
+        h = self.health
+        out: list[Output] = []
+        for r in lifecycle_reports(changes, self.name, self.node_id, self.lifecycle.last_error, now):
+            out.append(r.note)
+            if r.state is not None:
+                h.lifecycle = str(r.state)
+                self.supervision.on_lifecycle(r.state)
+            if r.last_error is not None:
+                h.last_error = r.last_error
+            if r.last_sdo_abort is not None:
+                h.last_sdo_abort = r.last_sdo_abort
+            if r.wait_until_s is not None:
+                self._wait_until = r.wait_until_s
+            if r.configured:
+                h.fresh_since = now  # values are good again when received from now on
+                out += self._set_nmt_expected(NmtState.OPERATIONAL)
+                for f in self.features:
+                    out += f.on_configured(self, now)
+        if changes:
+            out.append(HealthChanged("state"))
+        return out
 
     def _set_nmt_expected(self, state: NmtState) -> list[Output]:
         """After our NMT start the node is operational (its next heartbeat confirms it)."""
-        if self.watch.hb is None and self.watch.guard is None:
+        if self.supervision.hb is None and self.supervision.guard is None:
             return self._set_nmt(state)
         return []
 
@@ -531,8 +479,14 @@ class Node:
         return out
 
     # ================================================================== internals: SDO
-    def _probe_in_flight(self) -> SdoJob | None:
-        return self.sdo.find("probe")
+    def _end_sdo_work(self, now: float, keep: Callable[[SdoJob], bool]) -> list[Output]:
+        """Cancel the running transfer (a client's is answered: timed out); of the queued work,
+        only what ``keep`` selects stays (``SdoChannel.drop``)."""
+        cancelled = self.sdo.cancel_active(now)
+        self.sdo.drop(keep)
+        if cancelled is not None and cancelled.purpose == "user":
+            return [SdoDone(cancelled.token, None, None, timed_out=True)]
+        return []
 
     def _probe_due_s(self) -> float | None:
         """When the next probe is due: in WAITING at ``next_probe_s``, not before the recheck
@@ -544,21 +498,33 @@ class Node:
 
     def _sdo_finished(self, finished: tuple[SdoJob, SdoTransfer], now: float) -> list[Output]:
         job, tr = finished
-        out: list[Output] = []
         if tr.abort_code is not None and tr.aborted_by_server:
             self.health.last_sdo_abort = tr.abort_code
         done = SDO_DONE.get(job.purpose)
         if done is not None:
-            out += done(self, job, tr, now)
+            out = self._take_sdo_outcome(done(self, job, tr, now), job, now)
         else:  # a feature's own transfer
-            out += self._by_purpose[job.purpose].sdo_done(self, job, tr, now)
-        out += self._drive(now)
+            out = self._by_purpose[job.purpose].sdo_done(self, job, tr, now)
+        return out + self._drive(now)
+
+    def _take_sdo_outcome(self, r: SdoOutcome, job: SdoJob, now: float) -> list[Output]:
+        """What a transfer of the node's own purposes meant (``sdo_done``), applied."""
+        if r.probe_ended:
+            self._last_probe_end_s = now
+        out = [*r.outputs, *self._lifecycle_changes(r.changes, now)]
+        if r.found:
+            self.supervision.on_found(now)
+            if not self.supervision.guard_lost:
+                out += self._set_alive(True, now)
+        if r.user:
+            for f in self.features:
+                out += f.on_user_sdo(self, job, now)
         return out
 
     def _probe(self, now: float) -> list[Output]:
         """Find a node that is already running (no boot-up will come) by reading 1000h."""
         self.next_probe_s = now + self.s.probe_period_s
-        if self._probe_in_flight() is not None:
+        if self.sdo.find("probe") is not None:
             return []
         self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe", now)
         return []
@@ -567,10 +533,7 @@ class Node:
         if self.health.nmt_state == state:
             return []
         self.health.nmt_state = state
-        return [
-            Note(logging.INFO, f"node {self.name} NMT state {state.name}"),
-            HealthChanged("state"),
-        ]
+        return [Note(logging.INFO, f"node {self.name} NMT state {state.name}"), HealthChanged("state")]
 
     # -- guarding bit and keep-alive
     def _keepalive_due(self) -> float | None:

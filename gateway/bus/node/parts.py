@@ -1,9 +1,11 @@
 """What the master builds for one configured node (``build_node``): its ``Node`` machine from
-the node's resolution (settings, boot steps, codecs built once), the image's record keys bound
-before any thread writes a record, and the ``NodeParts`` that hold it all for the master's
-handlers, inbox and services (``master.py``).
+the node's resolution (settings, boot steps, codecs built once) with the device features its
+profile and settings ask for (``node_features``), the image's record keys bound before any
+thread writes a record, and the ``NodeParts`` that hold it all for the master's handlers, inbox
+and services (``bus/master.py``).
 
-Imports: bus.node.*, bus.resolved, image, objref, pdo.codec, pdo.verify, profiles, config.
+Imports: bus.node.* (node, features, boot_steps, settings), bus.error_control.guarding_bit,
+bus.resolved, image, objref, pdo.codec, pdo.verify, profiles, config.
 Nothing northbound, no python-can (the frames are the master's).
 """
 
@@ -12,8 +14,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.node.boot_steps import ConfigStep
-from gateway.bus.node.owner import Node
+from gateway.bus.node.features import NodeFeature
+from gateway.bus.node.features.guarding_bit import GuardingBitLink
+from gateway.bus.node.features.referencing import ReferencingFeature
+from gateway.bus.node.features.refresh import RefreshOnStart
+from gateway.bus.node.features.rtr_poll import RtrPoll
+from gateway.bus.node.features.sync_wait import SyncWait
+from gateway.bus.node.features.verify_mapping import VerifyMapping
+from gateway.bus.node.node import Node
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.resolved import NamedNode, ResolvedNode
 from gateway.config import NodeConfig
@@ -73,6 +83,36 @@ class NodeParts(NamedNode):
         return self.node.mapping_mismatches
 
 
+def node_features(
+    rn: ResolvedNode, referencing: dict[str, Any] | None, reference_signal: str | None
+) -> list[NodeFeature]:
+    """The device features of a node (``bus/node/features/``), in the order they act."""
+    settings, tpdos, refresh = rn.settings, rn.tpdos, rn.refresh
+    features: list[NodeFeature] = []
+    gb = settings.guarding_bit
+    if gb is not None:  # AP05 manual 5.5.5
+        features.append(GuardingBitLink(GuardingBitCheck(gb.tolerance_missed, gb.tolerance_ms / 1000.0)))
+    if refresh:
+        features.append(RefreshOnStart(refresh))
+    ref = ReferencingFeature(referencing, reference_signal) if referencing else None
+    if ref is not None:
+        features.append(ref)
+    if rn.verify:
+        pdo_names = frozenset(
+            [n for c in tpdos for n in c.names] + [n for c in rn.rpdos for n in c.names]
+        )
+        keep = ref.still_invalid if ref is not None else (lambda invalid: set[str]())
+        features.append(VerifyMapping(rn.verify, pdo_names, keep))
+    if settings.rtr_poll_ms:
+        features.append(RtrPoll(settings.rtr_poll_ms, tpdos))
+    if rn.sync_tpdos and not settings.sync_producer:
+        read = {name for r in refresh for name in r.codec.names}
+        wait = SyncWait.of(tpdos, rn.sync_tpdos, read)
+        if wait is not None:
+            features.append(wait)
+    return features
+
+
 def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> NodeParts:
     """One node's parts from its resolution (settings, boot steps and codecs built once)."""
     rn.require()
@@ -107,15 +147,11 @@ def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> Nod
         configure=ncfg.configure,
         tpdos=tpdos,
         rpdos=rpdos,
-        refresh=plan,
+        features=node_features(rn, ref, ref_signal),
         expected_device_type=lp.profile.device_type,
         expected_identity=expected_identity(lp) if ncfg.identity_check else (),
         emcy_texts=dict(lp.profile.emcy),
         guard_names=(control, status),
-        referencing=ref,
-        reference_signal=ref_signal,
         passive=passive,
-        verify=rn.verify,
-        sync_tpdos=rn.sync_tpdos,
     )
     return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)

@@ -1,12 +1,13 @@
-"""A node's error control, as the node's owner uses it: heartbeat consumer or node-guarding
-master (``bus.error_control.supervision``), with what each lifecycle step and each NMT command makes the node
-expected to report.
+"""A node's supervision (``NodeSupervision``, the node's ``supervision``): heartbeat consumer or
+node-guarding master (``bus.error_control.supervision``), with what each lifecycle step and each
+NMT command makes the node expected to report.
 
 Rule: the tables below are the code. Node guarding treats a valid answer with another state
 than the expected one as an error (DS-301), so the expectation must follow the node's life: a
 node being configured after its boot-up answers PRE-OPERATIONAL, which is right, not a fault.
 
-Imports: bus.error_control.supervision, bus.node.lifecycle (its states), bus.node.settings, states. No I/O, no clock.
+Imports: bus.error_control.supervision, bus.node.lifecycle (its states), bus.node.settings,
+states. No I/O, no clock.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ NMT_EXPECTS: dict[str, NmtState | None] = {
 }
 
 
-class Watchdog:
+class NodeSupervision:
     """Heartbeat consumer, node-guarding master, or nothing (``supervision: none``)."""
 
     def __init__(self, s: NodeSettings, configure: bool = True, active: bool = True):
