@@ -27,7 +27,14 @@ from typing import Any
 import gateway
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.errors import BusDown, GatewayError, NodeNotOperational, SdoAbort, ValueOutOfRange
+from gateway.errors import (
+    BusDown,
+    GatewayError,
+    NodeNotOperational,
+    NotActive,
+    SdoAbort,
+    ValueOutOfRange,
+)
 from gateway.image import NmtState, NodeImage, ProcessImage, Quality, SignalValue
 from gateway.modbus.identity import IDENTITY_OBJECTS, gateway_objects, node_objects
 from gateway.modbus.identity import parse_request as parse_identification
@@ -57,7 +64,7 @@ from gateway.modbus.protocol import (
     unpack_bits,
 )
 from gateway.modbus.watchdog import OutputWatchdog
-from gateway.northbound.regmap import TABLE_NAMES, Point, RegisterMap, Table
+from gateway.northbound.regmap import PAIR_ROLE_CODES, TABLE_NAMES, Point, RegisterMap, Table
 from gateway.northbound.summary import NodeSummary, summarize
 from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_BY_CODE
@@ -336,6 +343,8 @@ class ImageDatastore:
                 ch for ch in parts[("major", "minor", "patch").index(name[8:])] if ch.isdigit()
             )
             return int(digits or 0)
+        if name == "pair_role":
+            return PAIR_ROLE_CODES.get(self.commands.master.role, 0)
         if name == "watchdog_trips":
             return 0 if self.watchdog is None else sum(self.watchdog.trips.values()) & 0xFFFFFFFF
         nodes = self.image.nodes.values()
@@ -402,11 +411,18 @@ class ImageDatastore:
         return None
 
     def check_access(self, peer: str | None) -> None:
-        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged)."""
+        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged); then the
+        standby of a hot-standby pair refuses every write before it reads or checks a value
+        (``NotActive``: 0x06 server device busy, the PLC retries on the active one)."""
         why = self.write_refusal(peer)
         if why is not None:
             self.warn.warning(("refused", peer, why), "Modbus write from %s refused: %s", peer, why)
             raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
+        master = self.commands.master
+        if not master.mastering:
+            raise NotActive(
+                f"this gateway is the {master.role} one of a pair: write to the active one"
+            )
 
     async def _bounded(self, op: Awaitable[T]) -> T:
         """Wait for the device at most ``write_timeout_s``; the operation itself is never cut

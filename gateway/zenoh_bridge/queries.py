@@ -31,7 +31,7 @@ import zenoh
 from gateway import __version__
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.errors import Forbidden, GatewayError
+from gateway.errors import Forbidden, GatewayError, NotActive
 from gateway.image import NodeImage, ProcessImage
 from gateway.northbound.keys import (
     Request,
@@ -182,6 +182,11 @@ class QueryService:
         op = write_operation(req, payload)
         if op is not None:
             self._authorize(op, req.node, key)
+            master = self.commands.master
+            if not master.mastering:  # a pair's standby: the active one takes writes
+                raise NotActive(
+                    f"this gateway is the {master.role} one of a pair: write to the active one"
+                )
         if req.kind == "catalog":
             return self.catalog()
         rt = self.commands.node(req.node)
