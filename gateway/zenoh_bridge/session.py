@@ -67,6 +67,10 @@ def zenoh_config(cfg: Config) -> zenoh.Config:
     conf.insert_json5("scouting/multicast/enabled", json.dumps(z.multicast_scouting))
     if z.mode == "client":
         conf.insert_json5("connect/timeout_ms", json.dumps(CLIENT_CONNECT_TIMEOUT_MS))
+    if z.history.heartbeat_ms == 0 and (z.history.values > 0 or z.history.events > 0):
+        # zenoh-ext: an advanced publisher without miss detection sequences its samples by
+        # timestamp, and its declaration fails unless the session timestamps
+        conf.insert_json5("timestamping/enabled", "true")
     if z.tls is not None:
         for key in TLS_KEYS:
             value = getattr(z.tls, key)
