@@ -224,6 +224,7 @@ class ZenohBridge:
             scaling=self.scaling,
             value_keys=value_keys(plan, self.prefix),
             catalog_fn=catalog_fn,
+            seq_of=self.seq_of,
         )
 
     # ------------------------------------------------------------------ lifecycle (session.py)
@@ -265,6 +266,17 @@ class ZenohBridge:
             self._declare_pair(s)
             for node in self.image.nodes.values():
                 self._sync_token(node)
+
+    def seq_of(self, node: str, name: str, own: int) -> int:
+        """The seq a value key shows for the image's ``own``: with the offset of a take-over;
+        while this gateway does not publish, never below what the other one published (its
+        get answers go on from the published numbers too)."""
+        sp = self.pubs.get((node, name))
+        if sp is None:
+            return own
+        if self.publishing:
+            return own + sp.seq_offset
+        return max(own + sp.seq_offset, self.heard.get(sp.key))
 
     # ------------------------------------------------------------------ what to publish
     def scaling(self, node: str, sig: Signal) -> Scaling:

@@ -212,7 +212,10 @@ async def test_the_cloud_sees_one_gateway_across_a_take_over() -> None:
         a_zid = str(a.zenoh.session.zid())
         before = [first, *drain(values)]
         assert {str(s.timestamp.get_id()) for s in before} == {a_zid}
-        # both answer gets from their image: one reply per key (the latest, consolidated)
+        # both answer gets from their image, B with the numbers the cloud saw (never lower)
+        heard = b.zenoh.heard.get(POSITION)
+        assert (await b.zenoh.dispatch(POSITION, None))["seq"] >= heard
+        # a get on the pair: one reply per key (the latest, consolidated)
         replies = await z.get(POSITION)
         assert len(replies) == 1 and replies[0].ok, replies
         # a write to the pair: A does it, B answers not_active
