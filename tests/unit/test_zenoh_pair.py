@@ -78,3 +78,50 @@ def test_the_seq_after_a_take_over_goes_above_what_was_heard() -> None:
     assert seq_offset(0, heard=590, own=600) == 0
     # a second take-over never lowers the offset: its own earlier samples stay below
     assert seq_offset(10, heard=0, own=700) == 10
+
+
+class _Capture:
+    """A publisher and a session stand-in: what was put, no network."""
+
+    def __init__(self) -> None:
+        self.payloads: list[dict[str, object]] = []
+
+    def put(self, payload: str, timestamp: object = None) -> None:
+        self.payloads.append(json.loads(payload))
+
+    def new_timestamp(self) -> None:
+        return None
+
+
+def test_a_take_over_numbers_value_keys_and_pdo_records_above_what_was_heard() -> None:
+    """The bridge of a gateway that stood by and takes over (no session, no bus: the
+    publication path with captured puts)."""
+    from gateway.app import Gateway
+    from tests.helpers import make_config
+
+    wire = {"name": "wire", "node_id": 1, "profile": "sgh10",
+            "signals": {"position": {"publish": "change"}}}  # fmt: skip
+    gw = Gateway(make_config([wire], zenoh={"publish": "pdo"}, modbus={"enabled": False}), False)
+    bridge = gw.zenoh
+    assert bridge is not None
+    node = gw.image.nodes["wire"]
+    sp = bridge.pubs[("wire", "position")]
+    pp = next(iter(bridge.pdo_pubs.values()))
+    assert pp.names == ("position", "velocity")
+    sp.pub, pp.pub, bridge.session = _Capture(), _Capture(), _Capture()  # type: ignore[assignment]
+    gw.image.value_listeners.append(bridge._on_values)  # as the bridge's start does
+    bridge.set_mastering(False)
+    for k in range(30):  # frames heard while standing by: 30 in this gateway's image
+        gw.image.update(node, pp.names, (k, 0), 1.0)
+    bridge._values.flush()
+    assert sp.pub.payloads == [] and pp.pub.payloads == []  # nothing published
+    # the other gateway had published up to 95 (value) and 90 (record)
+    bridge.heard.on_sample(sp.key, b'{"seq": 95}')
+    bridge.heard.on_sample(pp.key, b'{"seq": 90}')
+    assert bridge.seq_of("wire", "position", 30) == 95  # a get on the standby: not below
+    bridge.set_mastering(True)
+    gw.image.update(node, pp.names, (31, 0), 1.0)  # the first frame after the take-over
+    bridge._values.flush()
+    assert [p["seq"] for p in sp.pub.payloads] == [96]
+    assert [p["seq"] for p in pp.pub.payloads] == [91]
+    assert bridge.seq_of("wire", "position", 31) == 96  # a get answers the same number
