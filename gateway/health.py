@@ -1,7 +1,8 @@
 """Health and metrics over HTTP: ``GET /healthz``, ``GET /livez``, ``GET /metrics``.
 
 Responsible for: a minimal HTTP/1.1 server for probes and Prometheus scrapes, and the shape of
-the health document (``build_status``). It knows nothing of CAN, Modbus or Zenoh: the gateway
+the health document (``build_status``; ``pair_status`` for the role and peer of a hot-standby
+pair). It knows nothing of CAN, Modbus or Zenoh: the gateway
 hands it a ``status_fn`` returning a dict and, optionally, a metrics registry.
 
 - ``/healthz``: ``status_fn()`` as JSON; 200 when its ``"status"`` is ``"ready"``, else 503 (500

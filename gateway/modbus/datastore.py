@@ -4,8 +4,9 @@ response PDU out (``execute``).
 Reads are computed from the process image at the moment of the request (all registers of one
 request from one snapshot per node: a 32-bit value read in one request comes from one PDO,
 never torn); writes go through the command service and are answered when the RPDO was queued
-or the device confirmed the SDO. Write protection (``read_only``, ``allowed_networks``) and the
-write timeout live here.
+or the device confirmed the SDO. Write protection (``read_only``, ``allowed_networks``), the
+refusal of every write while the gateway does not master the bus of its hot-standby pair
+(``NotActive``: 0x06) and the write timeout live here.
 
 Read Device Identification (function 43/14) answers from ``modbus.identity`` with the
 identity objects read here from each device once per boot, through the command service.
