@@ -75,7 +75,9 @@ class Pair:
 
 
 @asynccontextmanager
-async def pair_running() -> AsyncIterator[Pair]:
+async def pair_running(a_ahead_frames: int = 0) -> AsyncIterator[Pair]:
+    """A and B running, B standby; B starts when A has counted ``a_ahead_frames`` positions
+    (A's frame counter then stays that far ahead of B's)."""
     router_endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = open_router(router_endpoint)
     cfg_a, cfg_b = pair_configs(router_endpoint)
@@ -88,6 +90,8 @@ async def pair_running() -> AsyncIterator[Pair]:
         await a.start()
         for name in ("wire", "display"):
             await wait_until(lambda n=name: node_operational(a, n), 10, f"A configures {name}")
+        position = a.image.nodes["wire"].signals
+        await wait_until(lambda: position["position"].seq >= a_ahead_frames, 20, "A ahead")
         await b.start()  # the duplicate-prefix check lets the partner in
         await wait_until(lambda: b.master.role == "standby", 5, "B standby")
         await wait_until(lambda: position_good(b), 5, "B serves the position good")
@@ -195,7 +199,8 @@ def _seqs(samples: list[Sample]) -> list[int]:
 
 
 async def test_the_cloud_sees_one_gateway_across_a_take_over() -> None:
-    async with pair_running() as pair:
+    # A's frame counter far ahead of B's: B's own numbers would go back at the take-over
+    async with pair_running(a_ahead_frames=600) as pair:
         a, b, z = pair.a, pair.b, pair.z
         assert a.zenoh is not None and b.zenoh is not None
         active = z.watch_liveliness(f"{P}/alive/_active/**")
@@ -239,6 +244,7 @@ async def test_the_cloud_sees_one_gateway_across_a_take_over() -> None:
         first_b = origins.index(b_zid)
         assert set(origins[:first_b]) == {a_zid} and set(origins[first_b:]) == {b_zid}
         seqs = _seqs(stream)
+        assert b.zenoh.pubs[("wire", "position")].seq_offset > 0, "B counted fewer frames"
         assert seqs == sorted(seqs), f"seq went back at the take-over: {seqs}"
         assert seqs[first_b] > seqs[first_b - 1], "B's first sample is a new one"
         assert len({(s.body["seq"], s.body["quality"]) for s in stream}) == len(stream)
