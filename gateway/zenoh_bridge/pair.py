@@ -12,7 +12,8 @@ and a cloud subscriber sees them as one gateway.
   gateway of a pair may start under a prefix whose ``_gateway`` token is held when a member
   token of the same logical master (another pair node id) is there too (``refusal``).
 * Sequence numbers never go back at a take-over: while it does not publish, a gateway hears
-  its own prefix and keeps the highest ``seq`` per published key (``HeardSeq``); when it
+  its own prefix, with the history of the other one's advanced publishers, and keeps the
+  highest ``seq`` per published key (``HeardSeq``); when it
   takes over, each value key publishes from above what was heard (``SignalPub.seq_offset``)
   and each event key from max(own, heard) + 1.
 

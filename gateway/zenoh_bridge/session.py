@@ -280,7 +280,8 @@ def declare(bridge: ZenohBridge, s: zenoh.Session) -> None:
 
 def declare_pair(bridge: ZenohBridge, s: zenoh.Session) -> None:
     """A hot-standby pair (``pair.py``): the member token always, the active token while this
-    gateway publishes, else the subscriber that hears the other one's seq (event loop)."""
+    gateway publishes, else the subscriber that hears the other one's seq, with the history
+    of its advanced publishers (event loop)."""
     if bridge.member is None:
         return
     master_node_id, pair_node_id = bridge.member
@@ -300,9 +301,13 @@ def declare_pair(bridge: ZenohBridge, s: zenoh.Session) -> None:
         sub, bridge.heard_sub = bridge.heard_sub, None
         sub.undeclare()
     elif not bridge.publishing and bridge.heard_sub is None:
-        bridge.heard_sub = s.declare_subscriber(
+        # with history: what the other one published before this gateway started (its
+        # advanced publishers' caches, e.g. the last state events) counts as heard too
+        bridge.heard_sub = zenoh.ext.declare_advanced_subscriber(
+            s,
             f"{bridge.prefix}/**",
             lambda sample: heard.on_sample(str(sample.key_expr), sample.payload.to_bytes()),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
         )
 
 
