@@ -21,8 +21,8 @@ Exception codes a client receives (``docs/modbus.md`` has the details):
   out of range or of the wrong type (e.g. non-ASCII text)
 * 0x04 server device failure: the device aborted the SDO transfer (the abort code is in the
   node's ``last_sdo_abort`` input registers 12-13)
-* 0x06 server device busy: any write to a gateway of a hot-standby pair that does not master
-  the bus (``NotActive``)
+* 0x06 server device busy: any write, and a read by SDO, to a gateway of a hot-standby pair
+  that does not master the bus (``NotActive``)
 * 0x0A gateway path unavailable: CAN bus down; unit id not configured
 * 0x0B gateway target failed to respond: node lost, never booted, not operational (and not
   ``serve_stale``), no SDO answer, write not confirmed within ``modbus.write_timeout_s``

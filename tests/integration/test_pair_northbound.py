@@ -153,11 +153,21 @@ async def test_the_standby_serves_reads_refuses_writes_0x06_and_takes_writes_onc
             )
             rr = await client_b.read_input_registers(position.address, count=2, device_id=1)
             assert not rr.isError(), rr
+            # a configuration object is read by SDO: that needs the bus, busy on the standby
+            limit = next(
+                p
+                for p in b.modbus.regmap.points
+                if (p.node, p.name) == ("wire", "work_area_1_low_limit")
+            )
+            rr = await client_b.read_holding_registers(limit.address, count=2, device_id=1)
+            assert rr.isError() and rr.exception_code == BUSY, rr
+            rr = await client_a.read_holding_registers(limit.address, count=2, device_id=1)
+            assert not rr.isError(), rr
             # every write function is refused "server device busy", nothing reaches the bus
             frames_before = b.image.counters["frames_out"]
             assert await every_write_answers(client_b) == {BUSY}
             assert b.image.counters["frames_out"] == frames_before
-            assert b.modbus.store.exceptions.get(BUSY) == 7
+            assert b.modbus.store.exceptions.get(BUSY) == 8
             # a PLC polling the standby arms no output watchdog: no timer, nothing to trip
             assert b.modbus.watchdog.state is WatchdogState.STANDBY
             assert b.modbus.watchdog.next_deadline() is None
