@@ -229,3 +229,4 @@ def test_pair_metrics_count_takeovers_and_negotiations_and_gauge_the_role():
     assert samples[("canopen_gateway_pair_takeovers_total", ())] == 1
     assert samples[("canopen_gateway_pair_negotiations_total", ())] == 2
     assert samples[("canopen_gateway_pair_role", ())] == 2
+
