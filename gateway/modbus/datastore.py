@@ -384,6 +384,8 @@ class ImageDatastore:
                 read[key] = await self.commands.sdo_read(node, obj)
             except SdoAbort:
                 continue  # the device does not have it
+            except NotActive:
+                return read  # a pair's standby reads nothing by SDO: the EDS values, no warning
             except (GatewayError, TimeoutError) as exc:
                 self.warn.warning(
                     ("identity", node), "identification of %s: %s not read: %s", node, obj, exc

@@ -141,7 +141,9 @@ async def every_write_answers(client: AsyncModbusTcpClient) -> set[int]:
     return {r.exception_code for r in answers}
 
 
-async def test_the_standby_serves_reads_refuses_writes_0x06_and_takes_writes_once_active() -> None:
+async def test_the_standby_serves_reads_refuses_writes_0x06_and_takes_writes_once_active(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     async with pair_running() as pair:
         a, b = pair.a, pair.b
         async with modbus_client(a) as client_a, modbus_client(b) as client_b:
@@ -163,6 +165,10 @@ async def test_the_standby_serves_reads_refuses_writes_0x06_and_takes_writes_onc
             assert rr.isError() and rr.exception_code == BUSY, rr
             rr = await client_a.read_holding_registers(limit.address, count=2, device_id=1)
             assert not rr.isError(), rr
+            # identification from the EDS / profile, quietly (no SDO on the standby)
+            ident = await client_b.read_device_information(read_code=1, device_id=125)
+            assert not ident.isError() and ident.information, ident
+            assert "identification of display" not in caplog.text
             # every write function is refused "server device busy", nothing reaches the bus
             frames_before = b.image.counters["frames_out"]
             assert await every_write_answers(client_b) == {BUSY}
