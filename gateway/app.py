@@ -21,10 +21,11 @@ from gateway.bus.resolved import ResolvedNode, node_of, resolve_config
 from gateway.checks import check_config
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
+from gateway.health import pair_status
 from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
-from gateway.northbound.regmap import build_register_map
+from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
 from gateway.profiles.derived import text_rows_as_signals
 from gateway.startup import startup_step
@@ -113,6 +114,18 @@ class Gateway:
         self.health: Any = None
         self.web: Any = None
         self.started = False
+        # a hot-standby pair: the adapters follow the role (the standby serves reads only)
+        self.master.role_listeners.append(self._role_changed)
+        self._role_changed(self.master.role or "", "start")
+
+    def _role_changed(self, role: str, reason: str) -> None:
+        """The pair's role changed (and once at construction): tell the adapters whether
+        this gateway masters the bus."""
+        mastering = self.master.mastering
+        if self.modbus is not None:
+            self.modbus.set_mastering(mastering)
+        if self.zenoh is not None:
+            self.zenoh.set_mastering(mastering)
 
     def catalog(self) -> dict[str, Any]:
         """Every node and signal: type, unit, scaling, Modbus address (for cloud discovery)."""
@@ -207,7 +220,23 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": nodes,
-        } | self._watchdog_status()
+        } | self._pair_status() | self._watchdog_status()
+
+    def _pair_status(self) -> dict[str, Any]:
+        """``role`` and ``peer`` of a hot-standby pair (None outside one)."""
+        pair = self.master.pair
+        if pair is None:
+            return pair_status(None, now_s=0.0, recent_s=0.0)
+        redundancy = self.cfg.master.redundancy
+        claim = pair.peer
+        return pair_status(
+            str(pair.role),
+            now_s=self.master.clock(),
+            recent_s=pair.timing.takeover_s,
+            claim=None if claim is None else (claim.priority, claim.node_id, claim.at_s),
+            peer_heartbeat_s=self.master.peer_heartbeat_s,
+            peer_node_id=redundancy.peer_node_id if redundancy is not None else None,
+        )
 
     def _watchdog_status(self) -> dict[str, Any]:
         if self.modbus is None or not self.modbus.watchdog.enabled:
@@ -229,6 +258,7 @@ class Gateway:
             },
             "threads_failed": self.threads.failures(),
             "peers": self.master.peers.doc(),
+            "pair": self._pair_status(),
             "counters": {},
         }
         if self.modbus is not None:
@@ -367,6 +397,10 @@ class Gateway:
         c.other_master = {kind: s.count for kind, s in peers.other_master.items()}
         c.other_sdo_client = {node: s.count for node, s in peers.sdo_clients.items()}
         c.bursts = ic["bursts"]
+        pair = self.master.pair
+        if pair is not None:
+            c.pair_takeovers, c.pair_negotiations = pair.takeovers, pair.negotiations
+        c.pair_role = PAIR_ROLE_CODES.get(self.master.role, 0)
         for name, node in self.image.nodes.items():
             for reason, n in (
                 ("short", node.rx.pdo_too_short),

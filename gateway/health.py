@@ -1,7 +1,8 @@
 """Health and metrics over HTTP: ``GET /healthz``, ``GET /livez``, ``GET /metrics``.
 
 Responsible for: a minimal HTTP/1.1 server for probes and Prometheus scrapes, and the shape of
-the health document (``build_status``). It knows nothing of CAN, Modbus or Zenoh: the gateway
+the health document (``build_status``; ``pair_status`` for the role and peer of a hot-standby
+pair). It knows nothing of CAN, Modbus or Zenoh: the gateway
 hands it a ``status_fn`` returning a dict and, optionally, a metrics registry.
 
 - ``/healthz``: ``status_fn()`` as JSON; 200 when its ``"status"`` is ``"ready"``, else 503 (500
@@ -136,6 +137,54 @@ def build_status(
         "zenoh_up": zenoh_up,
         "nodes": {name: dict(detail) for name, detail in (nodes or {}).items()},
         **extra,
+    }
+
+
+def pair_status(
+    role: str | None,
+    *,
+    now_s: float,
+    recent_s: float,
+    claim: tuple[int, int, float] | None = None,
+    peer_heartbeat_s: float | None = None,
+    peer_node_id: int | None = None,
+) -> dict[str, Any]:
+    """The ``role`` and ``peer`` entries of /healthz: this gateway's role in a hot-standby pair
+    and what it knows of the other gateway (both None outside a pair).
+
+    ``role`` is this gateway's (active, standby, listening, negotiating). The peer is known by
+    what was heard of it, on the bus clock (``now_s``): ``claim`` its last active master
+    response (priority, pair node id, time heard), ``peer_heartbeat_s`` when its own heartbeat
+    (``master.redundancy.peer_node_id``) was last heard. A peer whose claim is younger than
+    ``recent_s`` (the take-over time) is ``active``; else one whose heartbeat is that young is
+    ``standby``; else ``unknown`` (``heard`` false: nothing of it in that time).
+    """
+    if role is None:
+        return {"role": None, "peer": None}
+
+    def age(at_s: float | None) -> float | None:
+        return None if at_s is None else max(0.0, now_s - at_s)
+
+    def shown(age_s: float | None) -> float | None:
+        return None if age_s is None else round(age_s, 3)
+
+    claim_age, hb_age = age(claim[2] if claim else None), age(peer_heartbeat_s)
+    if claim_age is not None and claim_age <= recent_s:
+        peer_role = "active"
+    elif hb_age is not None and hb_age <= recent_s:
+        peer_role = "standby"
+    else:
+        peer_role = "unknown"
+    return {
+        "role": role,
+        "peer": {
+            "heard": peer_role != "unknown",
+            "role": peer_role,
+            "node_id": claim[1] if claim else peer_node_id,
+            "priority": claim[0] if claim else None,
+            "claim_age_s": shown(claim_age),
+            "heartbeat_age_s": shown(hb_age),
+        },
     }
 
 

@@ -27,6 +27,7 @@ Metric names carry the prefix ``canopen_gateway_``:
     modbus_requests_total{function}, modbus_exceptions_total{code}
     zenoh_refused_total{operation}, modbus_watchdog_trips_total{reason}
     other_master_frames_total{kind}, other_sdo_client_requests_total{node}
+    pair_takeovers_total, pair_negotiations_total, pair_role (a hot-standby pair)
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
     plus process_* (CPU, memory, open files) of this process.
 
@@ -137,6 +138,9 @@ class Counters:
     bus_errors: int = 0
     bursts: int = 0
     zenoh_publications: int = 0
+    pair_takeovers: int = 0
+    pair_negotiations: int = 0
+    pair_role: int = 0  # 0 no pair, 1 active, 2 standby, 3 listening / negotiating
     decode_errors: dict[tuple[str, str], int] = field(default_factory=dict)
     emcy: dict[str, int] = field(default_factory=dict)
     sdo_requests: dict[tuple[str, str], int] = field(default_factory=dict)
@@ -260,6 +264,9 @@ class Metrics:
                 bus_errors=c.bus_errors,
                 bursts=c.bursts,
                 zenoh_publications=c.zenoh_publications,
+                pair_takeovers=c.pair_takeovers,
+                pair_negotiations=c.pair_negotiations,
+                pair_role=c.pair_role,
                 decode_errors=c.decode_errors.copy(),
                 emcy=c.emcy.copy(),
                 sdo_requests=c.sdo_requests.copy(),
@@ -374,6 +381,22 @@ class _GatewayCollector:
             "SDO requests of other clients (commissioning tools) to a node, by node.",
             ["node"],
             c.other_sdo_client,
+        )
+        yield counter(
+            "pair_takeovers_total",
+            "Hot-standby pair: times this gateway took the bus over from a silent active one.",
+            c.pair_takeovers,
+        )
+        yield counter(
+            "pair_negotiations_total",
+            "Hot-standby pair: negotiations of the active master this gateway entered.",
+            c.pair_negotiations,
+        )
+        yield GaugeMetricFamily(
+            f"{NAMESPACE}_pair_role",
+            "Role in a hot-standby pair: 0 no pair, 1 active, 2 standby, "
+            "3 listening / negotiating.",
+            value=c.pair_role,
         )
 
         state = GaugeMetricFamily(

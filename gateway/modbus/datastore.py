@@ -4,8 +4,9 @@ response PDU out (``execute``).
 Reads are computed from the process image at the moment of the request (all registers of one
 request from one snapshot per node: a 32-bit value read in one request comes from one PDO,
 never torn); writes go through the command service and are answered when the RPDO was queued
-or the device confirmed the SDO. Write protection (``read_only``, ``allowed_networks``) and the
-write timeout live here.
+or the device confirmed the SDO. Write protection (``read_only``, ``allowed_networks``), the
+refusal of every write while the gateway does not master the bus of its hot-standby pair
+(``NotActive``: 0x06) and the write timeout live here.
 
 Read Device Identification (function 43/14) answers from ``modbus.identity`` with the
 identity objects read here from each device once per boot, through the command service.
@@ -27,7 +28,14 @@ from typing import Any
 import gateway
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.errors import BusDown, GatewayError, NodeNotOperational, SdoAbort, ValueOutOfRange
+from gateway.errors import (
+    BusDown,
+    GatewayError,
+    NodeNotOperational,
+    NotActive,
+    SdoAbort,
+    ValueOutOfRange,
+)
 from gateway.image import NmtState, NodeImage, ProcessImage, Quality, SignalValue
 from gateway.modbus.identity import IDENTITY_OBJECTS, gateway_objects, node_objects
 from gateway.modbus.identity import parse_request as parse_identification
@@ -57,7 +65,7 @@ from gateway.modbus.protocol import (
     unpack_bits,
 )
 from gateway.modbus.watchdog import OutputWatchdog
-from gateway.northbound.regmap import TABLE_NAMES, Point, RegisterMap, Table
+from gateway.northbound.regmap import PAIR_ROLE_CODES, TABLE_NAMES, Point, RegisterMap, Table
 from gateway.northbound.summary import NodeSummary, summarize
 from gateway.ratelimit import RateLimitedLog
 from gateway.states import NMT_BY_CODE
@@ -336,6 +344,8 @@ class ImageDatastore:
                 ch for ch in parts[("major", "minor", "patch").index(name[8:])] if ch.isdigit()
             )
             return int(digits or 0)
+        if name == "pair_role":
+            return PAIR_ROLE_CODES.get(self.commands.master.role, 0)
         if name == "watchdog_trips":
             return 0 if self.watchdog is None else sum(self.watchdog.trips.values()) & 0xFFFFFFFF
         nodes = self.image.nodes.values()
@@ -374,6 +384,8 @@ class ImageDatastore:
                 read[key] = await self.commands.sdo_read(node, obj)
             except SdoAbort:
                 continue  # the device does not have it
+            except NotActive:
+                return read  # a pair's standby reads nothing by SDO: the EDS values, no warning
             except (GatewayError, TimeoutError) as exc:
                 self.warn.warning(
                     ("identity", node), "identification of %s: %s not read: %s", node, obj, exc
@@ -402,11 +414,18 @@ class ImageDatastore:
         return None
 
     def check_access(self, peer: str | None) -> None:
-        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged)."""
+        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged); then the
+        standby of a hot-standby pair refuses every write before it reads or checks a value
+        (``NotActive``: 0x06 server device busy, the PLC retries on the active one)."""
         why = self.write_refusal(peer)
         if why is not None:
             self.warn.warning(("refused", peer, why), "Modbus write from %s refused: %s", peer, why)
             raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
+        master = self.commands.master
+        if not master.mastering:
+            raise NotActive(
+                f"this gateway is the {master.role} one of a pair: write to the active one"
+            )
 
     async def _bounded(self, op: Awaitable[T]) -> T:
         """Wait for the device at most ``write_timeout_s``; the operation itself is never cut

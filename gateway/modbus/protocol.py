@@ -21,6 +21,7 @@ from gateway.errors import (
     BusDown,
     NodeNotOperational,
     NodeUnknown,
+    NotActive,
     ReadOnly,
     SdoAbort,
     SdoTimeout,
@@ -45,6 +46,7 @@ class ExceptionCode(IntEnum):
     ILLEGAL_DATA_ADDRESS = 0x02
     ILLEGAL_DATA_VALUE = 0x03
     SERVER_DEVICE_FAILURE = 0x04
+    SERVER_DEVICE_BUSY = 0x06
     GATEWAY_PATH_UNAVAILABLE = 0x0A
     GATEWAY_TARGET_FAILED_TO_RESPOND = 0x0B
 
@@ -90,6 +92,8 @@ def exception_code(exc: BaseException) -> ExceptionCode:
     """The Modbus answer to a typed error of the command service."""
     if isinstance(exc, ModbusError):
         return exc.code
+    if isinstance(exc, NotActive):  # the standby of a pair: the active one takes commands
+        return ExceptionCode.SERVER_DEVICE_BUSY
     if isinstance(exc, (ValueOutOfRange, ValueError, OverflowError)):
         return ExceptionCode.ILLEGAL_DATA_VALUE
     if isinstance(exc, (ReadOnly, Unmapped)):

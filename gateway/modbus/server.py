@@ -21,6 +21,8 @@ Exception codes a client receives (``docs/modbus.md`` has the details):
   out of range or of the wrong type (e.g. non-ASCII text)
 * 0x04 server device failure: the device aborted the SDO transfer (the abort code is in the
   node's ``last_sdo_abort`` input registers 12-13)
+* 0x06 server device busy: any write, and a read by SDO, to a gateway of a hot-standby pair
+  that does not master the bus (``NotActive``)
 * 0x0A gateway path unavailable: CAN bus down; unit id not configured
 * 0x0B gateway target failed to respond: node lost, never booted, not operational (and not
   ``serve_stale``), no SDO answer, write not confirmed within ``modbus.write_timeout_s``
@@ -35,7 +37,8 @@ for ``read_only`` and ``allowed_networks``, and on TLS a role with ``write`` acc
 requests, their connections and disconnections. Its machine is
 ``modbus.watchdog.OutputWatchdog``, its timer a ``loop.call_at`` at the machine's next
 deadline, and a trip writes the nodes' safe outputs (``gateway.safe_outputs``) through the
-command service.
+command service. On the standby of a hot-standby pair it stands by (``set_mastering``): no
+timer, no trip, nothing logged per period.
 
 Modbus/TCP Security (``modbus.tls``): a second listener with TLS; each of its connections gets
 the rights of its certificate's role (``modbus.security``), checked here before a request is
@@ -71,7 +74,7 @@ from gateway.modbus.protocol import (
     exception_code,
 )
 from gateway.modbus.security import Access, access_of, tls_context
-from gateway.modbus.watchdog import TIMEOUT, OutputWatchdog
+from gateway.modbus.watchdog import TIMEOUT, OutputWatchdog, WatchdogState
 from gateway.northbound.regmap import build_register_map
 from gateway.safe_outputs import safe_outputs
 
@@ -280,6 +283,18 @@ class ModbusGateway:
         wd.on_request(asyncio.get_running_loop().time())
         if self._wd_timer is None:
             self._wd_schedule()
+
+    def set_mastering(self, mastering: bool) -> None:
+        """The gateway started or stopped mastering the bus (a hot-standby pair's role; the
+        app calls it at start and at every role change). On the standby the watchdog is
+        STANDBY (commands refuse: no safe outputs to write, no timer); when the gateway becomes
+        active it starts fresh, armed by the first request of a client that may write."""
+        if mastering == (self.watchdog.state is not WatchdogState.STANDBY):
+            return
+        self.watchdog.on_mastering(mastering)
+        if self._wd_timer is not None:
+            self._wd_timer.cancel()
+            self._wd_timer = None
 
     def writer_gone(self) -> None:
         if self._stopping:

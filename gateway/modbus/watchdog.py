@@ -24,10 +24,15 @@ States::
                   request arms it again (a PLC that connects per transaction does not trip)
     TRIPPED       the safe outputs were written once; the next writer's request arms it again
                   (the outputs stay safe until a client writes them)
+    STANDBY       the gateway is not the active one of a hot-standby pair (``master.redundancy``):
+                  its commands refuse, so it has no outputs to make safe; nothing arms it. When
+                  the gateway becomes active the watchdog starts fresh, WAITING as at start
+                  (what a PLC did before does not count)
 
 Events: ``request`` (a writer's request, when it arrives and again when it is answered),
 ``last_writer_gone`` (the number of connected writers fell to 0), ``deadline`` (``tick`` at or
-after ``next_deadline()``).
+after ``next_deadline()``), ``stand_by`` / ``take_over`` (the gateway stops / starts mastering
+the bus: ``on_mastering``).
 
 Imports: the standard library only.
 """
@@ -43,12 +48,15 @@ class WatchdogState(StrEnum):
     ARMED = "armed"
     DISCONNECTED = "disconnected"
     TRIPPED = "tripped"
+    STANDBY = "standby"
 
 
 class WatchdogEvent(StrEnum):
     REQUEST = "request"
     LAST_WRITER_GONE = "last_writer_gone"
     DEADLINE = "deadline"
+    STAND_BY = "stand_by"
+    TAKE_OVER = "take_over"
 
 
 TIMEOUT, DISCONNECT = "timeout", "disconnect"
@@ -69,6 +77,15 @@ TRANSITIONS: dict[tuple[WatchdogState, WatchdogEvent], tuple[WatchdogState, str 
     (_S.TRIPPED,      _E.LAST_WRITER_GONE): (_S.TRIPPED,       None),  # written once
     (_S.ARMED,        _E.DEADLINE):         (_S.TRIPPED,       TIMEOUT),
     (_S.DISCONNECTED, _E.DEADLINE):         (_S.TRIPPED,       DISCONNECT),
+    (_S.WAITING,      _E.STAND_BY):         (_S.STANDBY,       None),
+    (_S.ARMED,        _E.STAND_BY):         (_S.STANDBY,       None),  # no timer any more
+    (_S.DISCONNECTED, _E.STAND_BY):         (_S.STANDBY,       None),
+    (_S.TRIPPED,      _E.STAND_BY):         (_S.STANDBY,       None),
+    (_S.STANDBY,      _E.STAND_BY):         (_S.STANDBY,       None),
+    (_S.STANDBY,      _E.REQUEST):          (_S.STANDBY,       None),  # writes refuse (0x06)
+    (_S.STANDBY,      _E.LAST_WRITER_GONE): (_S.STANDBY,       None),
+    (_S.STANDBY,      _E.TAKE_OVER):        (_S.WAITING,       None),  # fresh, as at start
+    (_S.WAITING,      _E.TAKE_OVER):        (_S.WAITING,       None),
 }  # fmt: skip
 
 
@@ -101,6 +118,11 @@ class OutputWatchdog:
         if self.enabled:
             self.last_request_s = now
             self._fire(WatchdogEvent.REQUEST)
+
+    def on_mastering(self, mastering: bool) -> None:
+        """The gateway started (True) or stopped (False) mastering the bus (a pair's role)."""
+        if self.enabled:
+            self._fire(WatchdogEvent.TAKE_OVER if mastering else WatchdogEvent.STAND_BY)
 
     def on_writer_connect(self, now: float) -> None:
         self.writers += 1

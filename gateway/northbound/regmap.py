@@ -79,6 +79,17 @@ NODE_DIAG_BITS = [
     (3, "error_active", "an EMCY error is active"),
     (4, "outputs_safe", "the node's outputs hold the safe values of the output watchdog"),
 ]
+#: the gateway's role in a hot-standby pair (``master.redundancy``), as the register says it
+PAIR_ROLE_CODES: dict[str | None, int] = {
+    None: 0,  # no pair
+    "active": 1,
+    "standby": 2,
+    "listening": 3,
+    "negotiating": 3,
+}
+PAIR_ROLE_DESCRIPTION = (
+    "hot-standby pair: 0 no pair, 1 active, 2 standby, 3 listening / negotiating"
+)
 GATEWAY_REGS = [
     (0, "bus_state", "uint16", "CAN bus: 0 down, 1 ok, 2 error passive / bus off"),
     (1, "frames_in", "uint32", "CAN frames received"),
@@ -94,6 +105,7 @@ GATEWAY_REGS = [
     (17, "nodes_alive", "uint16", "nodes alive"),
     (18, "nodes_operational", "uint16", "nodes operational"),
     (19, "watchdog_trips", "uint32", "output watchdog trips (safe outputs written)"),
+    (21, "pair_role", "uint16", PAIR_ROLE_DESCRIPTION),
 ]
 NMT_DESCRIPTION = (
     "write 1 start, 2 stop, 128 pre-operational, 129 reset node, 130 reset communication; "

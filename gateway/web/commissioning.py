@@ -35,6 +35,7 @@ from gateway.errors import (
     LssFailed,
     NodeNotOperational,
     NodeUnknown,
+    NotActive,
     SdoAbort,
     SdoTimeout,
 )
@@ -49,6 +50,7 @@ STATUS_OF: dict[type[GatewayError], HTTPStatus] = {
     NodeUnknown: HTTPStatus.NOT_FOUND,
     NodeNotOperational: HTTPStatus.CONFLICT,
     BusDown: HTTPStatus.SERVICE_UNAVAILABLE,
+    NotActive: HTTPStatus.SERVICE_UNAVAILABLE,  # a pair's standby: the active one does it
     SdoAbort: HTTPStatus.BAD_GATEWAY,  # the device refused
     SdoTimeout: HTTPStatus.GATEWAY_TIMEOUT,  # the device did not answer
     LssFailed: HTTPStatus.GATEWAY_TIMEOUT,  # no LSS slave answered

@@ -77,6 +77,7 @@ from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge import housekeeping, session
+from gateway.zenoh_bridge.pair import HeardSeq, seq_offset
 from gateway.zenoh_bridge.payloads import (
     emcy_payload,
     pdo_json,
@@ -208,6 +209,19 @@ class ZenohBridge:
         self._clock: Callable[[], float] = time.monotonic
         self._sleep: Callable[[float], Any] = asyncio.sleep
         self._tasks: list[asyncio.Task[Any]] = []
+        #: a hot-standby pair (``pair.py``): this gateway's (master node id, pair node id),
+        #: whether it publishes (it masters the bus), the seq heard of the other one, tokens
+        red = cfg.master.redundancy
+        self.member: tuple[int, int] | None = (
+            (cfg.master.node_id, red.node_id) if red is not None else None
+        )
+        self.publishing = True
+        self.heard = HeardSeq(
+            [*(sp.key for sp in self.pubs.values()), *(pp.key for pp in self.pdo_pubs.values())]
+            + [k(self.prefix, n) for n in image.nodes for k in (state_key, emcy_key)]
+        )
+        self.pair_tokens: dict[str, Any] = {}
+        self.heard_sub: Any = None
         self.queries = QueryService(
             cfg,
             image,
@@ -217,6 +231,7 @@ class ZenohBridge:
             scaling=self.scaling,
             value_keys=value_keys(plan, self.prefix),
             catalog_fn=catalog_fn,
+            seq_of=self.seq_of,
         )
 
     # ------------------------------------------------------------------ lifecycle (session.py)
@@ -230,7 +245,45 @@ class ZenohBridge:
     _publisher = session.publisher
     _declare = session.declare
     _declare_raw_pdo = session.declare_raw_pdo
+    _declare_pair = session.declare_pair
     _housekeeping = housekeeping.housekeeping
+
+    # ------------------------------------------------------------------ a hot-standby pair
+    def set_mastering(self, mastering: bool) -> None:
+        """This gateway started or stopped mastering the bus (event loop; the app calls it at
+        construction and at every role change of a pair). Standing by, it stops publishing
+        and hears what the other one publishes; taking over, each key goes on above the
+        highest seq heard (``pair.py``), then it publishes again."""
+        if mastering == self.publishing:
+            return
+        if mastering:
+            for node in self.image.nodes.values():
+                for sp in self.by_node.get(node.name, ()):
+                    with sp.lock:
+                        own = node.signals[sp.sig.name].seq
+                        sp.seq_offset = seq_offset(sp.seq_offset, self.heard.get(sp.key), own)
+                for pp in self.pdo_by_node.get(node.name, ()):
+                    with pp.lock:
+                        r = node.records.get(pp.names)
+                        own = r[3] if r is not None else 0
+                        pp.seq_offset = seq_offset(pp.seq_offset, self.heard.get(pp.key), own)
+        self.publishing = mastering
+        s = self.session
+        if s is not None:
+            self._declare_pair(s)
+            for node in self.image.nodes.values():
+                self._sync_token(node)
+
+    def seq_of(self, node: str, name: str, own: int) -> int:
+        """The seq a value key shows for the image's ``own``: with the offset of a take-over;
+        while this gateway does not publish, never below what the other one published (its
+        get answers go on from the published numbers too)."""
+        sp = self.pubs.get((node, name))
+        if sp is None:
+            return own
+        if self.publishing:
+            return own + sp.seq_offset
+        return max(own + sp.seq_offset, self.heard.get(sp.key))
 
     # ------------------------------------------------------------------ what to publish
     def scaling(self, node: str, sig: Signal) -> Scaling:
@@ -242,7 +295,7 @@ class ZenohBridge:
     def _on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None:
         s = self.session
         pub = self.raw_pubs.get((node.name, cob_id))
-        if s is None or pub is None:
+        if s is None or pub is None or not self.publishing:
             return
         try:
             pub.put(data, timestamp=s.new_timestamp())
@@ -259,7 +312,7 @@ class ZenohBridge:
         if type(sp) is PdoPub:  # a PDO marked in the batch (``publish: pdo``)
             return self._offer_pdo(node, sp, now)
         s = self.session
-        if s is None or sp.pub is None:
+        if s is None or sp.pub is None or not self.publishing:
             return
         with sp.lock:
             sv = node.signals[sp.sig.name]
@@ -269,7 +322,8 @@ class ZenohBridge:
             value = sv.value
             if not sp.policy.offer(value, quality, now):
                 return
-            payload = value_json(sp.sig, sv, quality, sp.scaling)
+            out = sv if not sp.seq_offset else sv._replace(seq=sv.seq + sp.seq_offset)
+            payload = value_json(sp.sig, out, quality, sp.scaling)
             try:
                 sp.pub.put(payload, timestamp=s.new_timestamp())
             except zenoh.ZError:
@@ -282,7 +336,7 @@ class ZenohBridge:
         one published, or (``again``) its qualities changed since. Any thread, under the PDO's
         lock: one record read once, so the signals of a sample are of one frame."""
         s = self.session
-        if s is None or pp.pub is None:
+        if s is None or pp.pub is None or not self.publishing:
             return
         with pp.lock:
             r = node.records.get(pp.names)
@@ -298,7 +352,8 @@ class ZenohBridge:
             if again and r[3] == pp.last_seq and qualities == pp.last_quality:
                 return
             try:
-                pp.pub.put(pdo_json(entries, ts, seq), timestamp=s.new_timestamp())
+                out = pdo_json(entries, ts, seq + pp.seq_offset)
+                pp.pub.put(out, timestamp=s.new_timestamp())
             except zenoh.ZError:
                 return
             pp.last_seq, pp.last_quality = seq, qualities
@@ -306,7 +361,7 @@ class ZenohBridge:
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
-        if self.session is None:
+        if self.session is None or not self.publishing:
             return
         route = self._routes.get((node.name, names))
         if route is not None:  # a TPDO's record: what to mark and publish, planned
@@ -336,7 +391,7 @@ class ZenohBridge:
     def _on_health(self, node: NodeImage, what: str) -> None:
         """Called on the event loop when a node's health changes or an EMCY arrives."""
         s = self.session
-        if s is None:
+        if s is None or not self.publishing:
             return
         if what == "emcy":
             rec = node.health.last_emcy
@@ -356,8 +411,9 @@ class ZenohBridge:
 
     def _put_event(self, s: zenoh.Session, pub: Any, key: str, payload: dict[str, Any]) -> None:
         """Queue an event with the next ``seq`` of its key (1, 2, 3... since the gateway
-        started: a subscriber that sees a gap missed an event)."""
-        seq = self._event_seq.get(key, 0) + 1
+        started: a subscriber that sees a gap missed an event; in a pair, after the highest
+        the other gateway published)."""
+        seq = max(self._event_seq.get(key, 0), self.heard.get(key)) + 1
         self._event_seq[key] = seq
         payload["seq"] = seq
         self._events.put_event(pub, json.dumps(payload).encode(), s.new_timestamp())
@@ -367,7 +423,7 @@ class ZenohBridge:
         s = self.session
         if s is None:
             return
-        alive = node.usable()
+        alive = node.usable() and self.publishing
         tok = self.tokens.get(node.name)
         if alive and tok is None:
             self.tokens[node.name] = s.liveliness().declare_token(alive_key(self.prefix, node.name))

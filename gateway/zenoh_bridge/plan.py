@@ -28,7 +28,7 @@ from gateway.zenoh_bridge.policy import ReportPolicy
 class SignalPub:
     """One published signal: its key, engineering scaling, report policy and publisher."""
 
-    __slots__ = ("sig", "key", "scaling", "policy", "lock", "pub", "last_seq")
+    __slots__ = ("sig", "key", "scaling", "policy", "lock", "pub", "last_seq", "seq_offset")
 
     def __init__(self, sig: Signal, key: str, scaling: Scaling, policy: ReportPolicy):
         self.sig = sig
@@ -38,6 +38,8 @@ class SignalPub:
         self.lock = threading.Lock()
         self.pub: Any = None
         self.last_seq = 0  # seq of the last sample published
+        #: added to the image's seq in the payload: a hot-standby pair's take-over (pair.py)
+        self.seq_offset = 0
 
 
 class PdoPub:
@@ -45,7 +47,9 @@ class PdoPub:
     signals one frame carries), the signals published in it, its publisher, and what was last
     published (the record's ``seq`` and the qualities), kept under its own lock."""
 
-    __slots__ = ("key", "names", "entries", "lock", "pub", "last_seq", "last_quality", "count")
+    __slots__ = (
+        "key", "names", "entries", "lock", "pub", "last_seq", "last_quality", "count", "seq_offset"
+    )  # fmt: skip
 
     def __init__(
         self, key: str, names: tuple[str, ...], entries: list[tuple[Signal, int, Scaling]]
@@ -58,6 +62,7 @@ class PdoPub:
         self.last_seq = 0
         self.last_quality: tuple[Any, ...] = ()
         self.count = 0  # samples published, under the lock
+        self.seq_offset = 0  # as ``SignalPub.seq_offset``
 
 
 @dataclass

@@ -31,7 +31,7 @@ import zenoh
 from gateway import __version__
 from gateway.commands import CommandService
 from gateway.config import Config
-from gateway.errors import Forbidden, GatewayError
+from gateway.errors import Forbidden, GatewayError, NotActive
 from gateway.image import NodeImage, ProcessImage
 from gateway.northbound.keys import (
     Request,
@@ -95,6 +95,7 @@ class QueryService:
         scaling: Callable[[str, Signal], Scaling],
         value_keys: Mapping[str, Sequence[tuple[str, Signal]]],
         catalog_fn: Callable[[], dict[str, Any]] | None = None,
+        seq_of: Callable[[str, str, int], int] | None = None,
     ):
         self.cfg = cfg
         self.image = image
@@ -108,6 +109,9 @@ class QueryService:
             (node, sig.name) for node, keys in value_keys.items() for _key, sig in keys
         )
         self.catalog_fn = catalog_fn
+        #: (node, signal, the image's seq) -> the seq its value key shows (a pair's take-over
+        #: continues the other gateway's numbers: ``ZenohBridge.seq_of``)
+        self.seq_of = seq_of
         self.gate = WriteGate(cfg.zenoh)
         self.loop: asyncio.AbstractEventLoop | None = None  # set when the bridge starts
         #: refused writes by operation (``zenoh_refused_total{operation}``)
@@ -182,6 +186,11 @@ class QueryService:
         op = write_operation(req, payload)
         if op is not None:
             self._authorize(op, req.node, key)
+            master = self.commands.master
+            if not master.mastering:  # a pair's standby: the active one takes writes
+                raise NotActive(
+                    f"this gateway is the {master.role} one of a pair: write to the active one"
+                )
         if req.kind == "catalog":
             return self.catalog()
         rt = self.commands.node(req.node)
@@ -296,6 +305,8 @@ class QueryService:
             sv = self.commands.output_sample(node.name, sig.name)
         else:
             sv = node.signals[sig.name]
+            if self.seq_of is not None and sv.seq:
+                sv = sv._replace(seq=self.seq_of(node.name, sig.name, sv.seq))
         return value_payload(sig, sv, node.quality(sv), self.scaling(node.name, sig))
 
     def snapshot(self, node: NodeImage) -> dict[str, Any]:

@@ -4,8 +4,8 @@ background re-open in client mode, the declarations of publishers, tokens and qu
 session is open, and the stop. The bridge binds these functions as its methods (``open``,
 ``start``, ``stop``...); none of them runs per frame.
 
-Imports: zenoh, config, northbound.keys, zenoh_bridge.bridge (types only). Never modbus/ nor
-bus/.
+Imports: zenoh, config, northbound.keys, zenoh_bridge.pair, zenoh_bridge.bridge (types only).
+Never modbus/ nor bus/.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import zenoh.ext
 
 from gateway.config import Config
 from gateway.northbound.keys import GATEWAY_TOKEN, alive_key, emcy_key, pdo_key, state_key
+from gateway.zenoh_bridge.pair import active_key, member_key, refusal
 
 if TYPE_CHECKING:
     from gateway.zenoh_bridge.bridge import ZenohBridge
@@ -66,6 +67,10 @@ def zenoh_config(cfg: Config) -> zenoh.Config:
     conf.insert_json5("scouting/multicast/enabled", json.dumps(z.multicast_scouting))
     if z.mode == "client":
         conf.insert_json5("connect/timeout_ms", json.dumps(CLIENT_CONNECT_TIMEOUT_MS))
+    if z.history.heartbeat_ms == 0 and (z.history.values > 0 or z.history.events > 0):
+        # zenoh-ext: an advanced publisher without miss detection sequences its samples by
+        # timestamp, and its declaration fails unless the session timestamps
+        conf.insert_json5("timestamping/enabled", "true")
     if z.tls is not None:
         for key in TLS_KEYS:
             value = getattr(z.tls, key)
@@ -167,7 +172,8 @@ async def open_checked(bridge: ZenohBridge, conf: zenoh.Config) -> zenoh.Session
 
 
 def other_gateway(bridge: ZenohBridge, session: zenoh.Session) -> str | None:
-    """Worker thread: the key of a gateway token under our prefix, if one is announced."""
+    """Worker thread: the key of a gateway token under our prefix, if one is announced and
+    this gateway is not its partner in a hot-standby pair (``pair.refusal``)."""
     z = bridge.cfg.zenoh
     if z.connect:  # wait (bounded) for the configured router(s) to be connected
         deadline = bridge._clock() + CONNECT_WAIT_S
@@ -176,11 +182,14 @@ def other_gateway(bridge: ZenohBridge, session: zenoh.Session) -> str | None:
             if list(info.routers_zid()) or list(info.peers_zid()):
                 break
             time.sleep(0.02)
-    key = alive_key(bridge.prefix, GATEWAY_TOKEN)
-    for r in session.liveliness().get(key, timeout=DUPLICATE_CHECK_TIMEOUT_S):
-        if r.ok is not None:
-            return str(r.ok.key_expr)
-    return None
+    tokens = [
+        str(r.ok.key_expr)
+        for r in session.liveliness().get(
+            alive_key(bridge.prefix, "**"), timeout=DUPLICATE_CHECK_TIMEOUT_S
+        )
+        if r.ok is not None
+    ]
+    return refusal(tokens, bridge.prefix, bridge.member)
 
 
 async def reopen(bridge: ZenohBridge) -> None:
@@ -262,10 +271,44 @@ def declare(bridge: ZenohBridge, s: zenoh.Session) -> None:
         alive_key(bridge.prefix, GATEWAY_TOKEN)
     )
     bridge.queryable = s.declare_queryable(f"{bridge.prefix}/**", bridge.queries.on_query)
+    bridge._declare_pair(s)
     bridge.session = s
     bridge.up = True
     for node in bridge.image.nodes.values():
         bridge._sync_token(node)
+
+
+def declare_pair(bridge: ZenohBridge, s: zenoh.Session) -> None:
+    """A hot-standby pair (``pair.py``): the member token always, the active token while this
+    gateway publishes, else the subscriber that hears the other one's seq, with the history
+    of its advanced publishers (event loop)."""
+    if bridge.member is None:
+        return
+    master_node_id, pair_node_id = bridge.member
+    wanted = {
+        member_key(bridge.prefix, master_node_id, pair_node_id): True,
+        active_key(bridge.prefix, pair_node_id): bridge.publishing,
+    }
+    for key, on in wanted.items():
+        token = bridge.pair_tokens.get(key)
+        if on and token is None:
+            bridge.pair_tokens[key] = s.liveliness().declare_token(key)
+        elif not on and token is not None:
+            del bridge.pair_tokens[key]
+            token.undeclare()
+    heard = bridge.heard
+    if bridge.publishing and bridge.heard_sub is not None:
+        sub, bridge.heard_sub = bridge.heard_sub, None
+        sub.undeclare()
+    elif not bridge.publishing and bridge.heard_sub is None:
+        # with history: what the other one published before this gateway started (its
+        # advanced publishers' caches, e.g. the last state events) counts as heard too
+        bridge.heard_sub = zenoh.ext.declare_advanced_subscriber(
+            s,
+            f"{bridge.prefix}/**",
+            lambda sample: heard.on_sample(str(sample.key_expr), sample.payload.to_bytes()),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+        )
 
 
 def declare_raw_pdo(bridge: ZenohBridge, s: zenoh.Session) -> None:
@@ -305,6 +348,8 @@ async def stop(bridge: ZenohBridge) -> None:
     s, bridge.session = bridge.session, None
     opened, bridge._opened = bridge._opened, None
     bridge.tokens.clear()
+    bridge.pair_tokens.clear()
+    bridge.heard_sub = None
     for sess in (s, opened):
         if sess is not None:
             await asyncio.to_thread(sess.close)

@@ -103,9 +103,43 @@ async def test_the_page_loads_with_the_overview_and_every_node(browser: Any) -> 
             assert "virtual" in bus and "ok" in bus
             assert cell(browser, "wire", "nmt_state") == "operational"
             assert cell(browser, "wire", "supervision") == "heartbeat 100 ms, lost after 300 ms"
+            assert not browser.find_element(By.ID, "ov-pair-card").is_displayed()  # no pair
             wait_for(browser, lambda d: d.find_element(By.ID, "conn").text == "live", "live")
 
         await run(check)
+
+
+async def test_the_overview_shows_the_role_of_a_gateway_of_a_pair_and_its_peer(
+    browser: Any,
+) -> None:
+    """A gateway of a hot-standby pair alone on its bus: it negotiates, becomes active, and
+    hears nothing of the other one."""
+    cfg = make_config(
+        [{"name": "wire", "node_id": 1, "profile": "sgh10"}],
+        master={"redundancy": {"node_id": 101, "priority": 0, "peer_node_id": 102}},
+        health={"port": free_port()},
+    )
+    gw = Gateway(cfg)
+    await gw.start()
+    try:
+        await wait_until(lambda: gw.master.role == "active", 10, "active")
+        from selenium.webdriver.common.by import By
+
+        def pair_text(d: Any) -> str:
+            return str(d.find_element(By.ID, "ov-pair").text)
+
+        def check() -> None:
+            browser.get(f"http://127.0.0.1:{gw.health.port}/")
+            wait_for(browser, lambda d: "active" in pair_text(d), "the pair block")
+            assert browser.find_element(By.ID, "ov-pair-card").is_displayed()
+            text = pair_text(browser)
+            assert "This gateway\nactive" in text, text
+            assert "not heard node id 102" in text, text
+            assert "Its heartbeat\nnever heard" in text, text
+
+        await run(check)
+    finally:
+        await gw.stop()
 
 
 async def test_the_nodes_table_shows_a_node_going_lost_and_back(browser: Any) -> None:

@@ -155,3 +155,30 @@ async def test_a_late_subscriber_gets_the_last_value_of_every_signal_and_the_sta
             late.close()
         await gw.stop()
         router.close()
+
+
+async def test_without_heartbeats_the_gateway_starts_and_the_cache_still_serves() -> None:
+    """``history.heartbeat_ms: 0`` turns the heartbeats off: the advanced publishers then order
+    their samples by timestamp, which zenoh allows only with the session's timestamping on."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_router(endpoint)
+    cfg = make_config(
+        [WIRE],
+        simulate={"nodes": "all", "motion": {"wire": {"kind": "hold"}}},
+        zenoh={"listen": [], "connect": [endpoint], "history": {"heartbeat_ms": 0}},
+    )
+    gw = Gateway(cfg)
+    await gw.start()
+    late: AdvancedClient | None = None
+    try:
+        assert gw.zenoh is not None and gw.zenoh.up
+        position = gw.zenoh.pubs[("wire", "position")]
+        await wait_until(lambda: position.policy.last_quality is not None, 8, "position published")
+        late = AdvancedClient(endpoint, f"{P}/wire/value/position")
+        key, body = (await late.take(1))[0]
+        assert key == position.key and body["value"] is not None
+    finally:
+        if late is not None:
+            late.close()
+        await gw.stop()
+        router.close()

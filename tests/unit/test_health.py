@@ -6,7 +6,7 @@ import math
 
 from prometheus_client.parser import text_string_to_metric_families
 
-from gateway.health import NOT_READY, READY, build_status
+from gateway.health import NOT_READY, READY, build_status, pair_status
 from gateway.metrics import Metrics, NodeSample, nmt_state_code
 
 
@@ -182,3 +182,51 @@ def test_nmt_states_map_to_heartbeat_state_bytes():
     assert nmt_state_code("pre-operational") == 127
     assert nmt_state_code(127) == 127
     assert nmt_state_code("SLEEP") == -1
+
+
+# ---------------------------------------------------------------------- a hot-standby pair
+def test_outside_a_pair_role_and_peer_are_null():
+    assert pair_status(None, now_s=5.0, recent_s=0.3) == {"role": None, "peer": None}
+
+
+def test_the_standby_sees_the_active_peer_by_its_recent_claim():
+    doc = pair_status("standby", now_s=10.0, recent_s=0.3, claim=(0, 101, 9.9))
+    assert doc["role"] == "standby"
+    assert doc["peer"] == {
+        "heard": True,
+        "role": "active",
+        "node_id": 101,
+        "priority": 0,
+        "claim_age_s": 0.1,
+        "heartbeat_age_s": None,
+    }
+
+
+def test_a_claim_older_than_the_takeover_time_is_no_active_peer():
+    at = math.nextafter(9.75, 0.0)  # a hair more than the take-over time ago
+    doc = pair_status("active", now_s=10.0, recent_s=0.25, claim=(0, 101, at))
+    assert doc["peer"]["role"] == "unknown" and doc["peer"]["heard"] is False
+    doc = pair_status("active", now_s=10.0, recent_s=0.25, claim=(0, 101, 9.75))
+    assert doc["peer"]["role"] == "active"  # exactly the take-over time: still heard
+
+
+def test_the_active_one_sees_a_standby_peer_by_its_own_heartbeat():
+    doc = pair_status(
+        "active", now_s=10.0, recent_s=0.3, claim=(0, 101, 2.0), peer_heartbeat_s=9.95
+    )
+    peer = doc["peer"]
+    assert peer["role"] == "standby" and peer["heard"] is True
+    assert peer["heartbeat_age_s"] == 0.05 and peer["claim_age_s"] == 8.0
+    # never claimed, heartbeat configured: the id is the configured one, the priority unknown
+    doc = pair_status("active", now_s=10.0, recent_s=0.3, peer_heartbeat_s=9.9, peer_node_id=102)
+    assert doc["peer"]["node_id"] == 102 and doc["peer"]["priority"] is None
+
+
+def test_pair_metrics_count_takeovers_and_negotiations_and_gauge_the_role():
+    m = Metrics()
+    m.counters.pair_takeovers, m.counters.pair_negotiations, m.counters.pair_role = 1, 2, 2
+    samples = scrape(m)
+    assert samples[("canopen_gateway_pair_takeovers_total", ())] == 1
+    assert samples[("canopen_gateway_pair_negotiations_total", ())] == 2
+    assert samples[("canopen_gateway_pair_role", ())] == 2
+

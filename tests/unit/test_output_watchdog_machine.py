@@ -163,6 +163,11 @@ def _reach(state: WatchdogState, wd: OutputWatchdog) -> None:
     wd.on_writer_connect(T0)
     if state is WatchdogState.WAITING:
         return
+    if state is WatchdogState.STANDBY:
+        wd.on_request(T0)
+        wd.on_mastering(False)
+        assert wd.state is state
+        return
     wd.on_request(T0)
     if state is WatchdogState.DISCONNECTED:
         wd.on_writer_disconnect(T0 + 0.1)
@@ -185,6 +190,9 @@ def test_the_machine_does_what_its_table_says(
         reason = None
     elif event is WatchdogEvent.LAST_WRITER_GONE:
         reason = wd.on_writer_disconnect(T0 + 0.3)
+    elif event in (WatchdogEvent.STAND_BY, WatchdogEvent.TAKE_OVER):
+        wd.on_mastering(event is WatchdogEvent.TAKE_OVER)
+        reason = None
     else:
         deadline = wd.next_deadline()
         assert deadline is not None
@@ -200,6 +208,39 @@ def test_every_pair_the_machine_can_meet_is_in_its_table() -> None:
             assert (state, event) in TRANSITIONS
     timed = {s for s, e in TRANSITIONS if e is WatchdogEvent.DEADLINE}
     assert timed == {WatchdogState.ARMED, WatchdogState.DISCONNECTED}, "the states with a deadline"
+
+
+def test_the_standby_of_a_pair_never_trips_and_runs_no_timer() -> None:
+    wd = OutputWatchdog(0.5, on_disconnect=True)
+    wd.on_writer_connect(T0)
+    wd.on_request(T0)
+    assert wd.next_deadline() == T0 + 0.5
+    wd.on_mastering(False)  # the gateway stood down: its commands refuse
+    assert wd.state is WatchdogState.STANDBY and wd.next_deadline() is None
+    for k in range(1, 20):  # a PLC polls the standby: nothing arms it, nothing trips
+        wd.on_request(T0 + k)
+        assert wd.tick(T0 + k + 0.6) is None
+    assert wd.on_writer_disconnect(T0 + 30) is None
+    assert wd.trips == {TIMEOUT: 0, DISCONNECT: 0}
+
+
+def test_a_gateway_that_becomes_active_starts_its_watchdog_fresh() -> None:
+    wd = OutputWatchdog(0.5, on_disconnect=False)
+    wd.on_mastering(False)  # a pair's gateway starts as the standby
+    wd.on_request(T0)
+    wd.on_mastering(True)  # it takes over: waiting, as at start
+    assert wd.state is WatchdogState.WAITING and wd.next_deadline() is None
+    assert wd.tick(T0 + 10) is None
+    wd.on_request(T0 + 10)  # the first PLC request arms it
+    assert wd.tick(math.nextafter(T0 + 10.5, 0)) is None
+    assert wd.tick(T0 + 10.5) == TIMEOUT
+
+
+def test_a_disabled_watchdog_ignores_the_role() -> None:
+    wd = OutputWatchdog(0.0, on_disconnect=False)
+    wd.on_mastering(False)
+    wd.on_mastering(True)
+    assert wd.state is WatchdogState.OFF
 
 
 def test_negative_timeout_is_refused() -> None:

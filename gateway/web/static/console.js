@@ -139,6 +139,28 @@ function renderOverview(o) {
     ["Publications", `${fmtNumber(rates.zenoh_publications || 0)} /s (${z.publications} total)`],
     ["Key prefix", el("span", { class: "code" }, z.prefix)],
   ] : [["Zenoh", "disabled"]]);
+  renderPair(o.pair || {});
+}
+
+// A hot-standby pair (master.redundancy): this gateway's role and what it heard of the other
+// one; the card stays hidden outside a pair.
+function pairRole(role) {
+  return badge(role, role === "active" ? "good" : role === "unknown" ? "stale" : "info");
+}
+
+function renderPair(pair) {
+  const card = document.getElementById("ov-pair-card");
+  if (!card) return;
+  card.hidden = !pair.role;
+  if (!pair.role) return;
+  const p = pair.peer || {};
+  const who = p.node_id == null ? "" : ` node id ${p.node_id}` + (p.priority == null ? "" : `, priority ${p.priority}`);
+  setFacts(document.getElementById("ov-pair"), [
+    ["This gateway", pairRole(pair.role)],
+    ["Other gateway", p.heard ? el("span", {}, pairRole(p.role), who) : el("span", {}, badge("not heard", "stale"), who)],
+    ["Its claim", p.claim_age_s == null ? "never heard" : fmtAge(p.claim_age_s) + " ago"],
+    ["Its heartbeat", p.heartbeat_age_s == null ? "never heard" : fmtAge(p.heartbeat_age_s) + " ago"],
+  ]);
 }
 
 function presenceBadge(r) {
