@@ -134,7 +134,7 @@ def position_good(gw: Gateway) -> bool:
 async def test_the_localnodes_heartbeat_consumer_never_misses_the_logical_master_through_a_takeover() -> None:
     async with pair_with_localnode() as (a, b, sent_a, sent_b, node, heard):
         # A wrote the consumer into the device's own dictionary (an SDO server not ours)
-        assert node.sdo[0x1016][1].raw == CONSUMER_1016
+        assert int.from_bytes(node.get_data(0x1016, 1), "little") == CONSUMER_1016
         assert node.nmt.state == "OPERATIONAL"
         await wait_until(lambda: b.master.role == "standby", 5, "B standby")
         await wait_until(lambda: position_good(b), 5, "B serves the position good")
@@ -157,6 +157,6 @@ async def test_the_localnodes_heartbeat_consumer_never_misses_the_logical_master
         assert heard.sdo_requests[sdo_before:] == []
         assert not [c for c, _ in sent_b.frames if c in (0x000, 0x600 + NODE_ID)]
         assert node.nmt.state == "OPERATIONAL"
-        assert node.sdo[0x1016][1].raw == CONSUMER_1016
+        assert int.from_bytes(node.get_data(0x1016, 1), "little") == CONSUMER_1016
         assert node_operational(b, "enc")
         assert position_good(b)
