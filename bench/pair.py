@@ -35,6 +35,7 @@ import yaml
 
 from bench.report import Row, Section
 from bench.rig import NMT_EC_BASE, free_port
+from bench.startup import stop
 from bench.stats import Summary, paired_ratios
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
@@ -151,16 +152,6 @@ def _port_open(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
-def _stop(proc: subprocess.Popen[Any]) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 async def run(kills: int = 20, cpu_window_s: float = 3.0) -> Section:
     sec = Section(
         key="pair",
@@ -238,7 +229,7 @@ async def run(kills: int = 20, cpu_window_s: float = 3.0) -> Section:
                 bus.shutdown()
             for proc in (sim, relay):
                 if proc is not None:
-                    _stop(proc)
+                    stop(proc)
     s = Summary.of
     every = takeover_s[IDS[0]] + takeover_s[IDS[1]]
     sec.rows = [

@@ -336,8 +336,14 @@ def test_a_pair_of_processes_survives_kill_restart_and_freeze(tmp_path: Path) ->
         frozen_s = time.time()
         wait_until_sync(lambda: a.said("pair: negotiating -> active"), 10, "A takes over from frozen B")
         wait_until_sync(lambda: a.cobs(frozen_s).count(logical) >= 15, 10, "A's logical heartbeats")
+        thawed_s = time.time()
         os.kill(b.proc.pid, signal.SIGCONT)
         wait_until_sync(lambda: b.said("pair: active -> standby"), 10, "B stands by after the thaw")
+        # what B's backlog sends before it hears A's claim (docs/redundancy.md) commands nothing
+        assert not [
+            d for _, c, d in b.sent(thawed_s)
+            if c == COB_NMT or (COB_RSDO < c <= COB_RSDO + 127 and d[0] >> 5 == 1)  # SDO download
+        ]  # fmt: skip
         settled_s = time.time()
         wait_until_sync(lambda: a.cobs(settled_s).count(logical) >= 10, 10, "A goes on")
         assert logical not in b.cobs(settled_s)
