@@ -1,6 +1,6 @@
 """``python -m bench [name ...]``: run the benchmarks (all by default) and write RESULTS.md.
 
-Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors. Running a subset prints its sections
+Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors, pair. Running a subset prints its sections
 and leaves RESULTS.md as it is.
 
 Imports: bench.*.
@@ -24,6 +24,7 @@ from bench import (
     latency,
     linerate,
     modbus_rps,
+    pair,
     scale,
     startup,
     zenoh_outage,
@@ -43,6 +44,7 @@ BENCHES: dict[str, Callable[[], Awaitable[Section]]] = {
     "linerate": linerate.run,
     "costs": costs.run,
     "floors": floors.run,
+    "pair": pair.run,
 }
 HERE = pathlib.Path(__file__).resolve().parent
 

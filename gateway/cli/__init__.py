@@ -48,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-simulate", action="store_true", help="ignore the simulate: section")
     sp.set_defaults(fn=cmd_run)
 
-    sp = with_config(sub.add_parser("check", help="validate a configuration and summarise it"))
+    sp = sub.add_parser("check", help="validate a configuration (or the two of a pair) and summarise it")
+    sp.add_argument("-c", "--config", required=True, action="append", metavar="FILE",
+                    help="configuration YAML; twice: the two configs of a hot-standby pair, compared")  # fmt: skip
     sp.set_defaults(fn=cmd_check)
 
     sp = with_config(sub.add_parser("registers", help="print the Modbus register map"))

@@ -1,8 +1,10 @@
 """The commands that say what a configuration compiles to: ``check`` (validated, each node
-summarised, what may not do what is meant, the warnings of each EDS), ``registers`` (the Modbus
-register map) and ``keys`` (the Zenoh key expressions).
+summarised, what may not do what is meant, the warnings of each EDS; given two configs, also
+compared as a hot-standby pair), ``registers`` (the Modbus register map) and ``keys`` (the
+Zenoh key expressions).
 
-Imports: gateway.bus.resolved, gateway.checks (config_warnings), gateway.eds,
+Imports: gateway.bus.resolved, gateway.checks (config_warnings, pair_problems), gateway.config
+(ConfigError), gateway.eds,
 gateway.northbound.regmap, gateway.northbound.keys, cli.load.
 """
 
@@ -13,15 +15,47 @@ import sys
 from typing import Any
 
 from gateway.cli.load import load, load_for_bus
+from gateway.config import ConfigError
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from gateway.bus.resolved import node_of, resolve_config
+    """One config as at every start; two (``-c A -c B``): each so, then compared as the two
+    configs of a hot-standby pair (``gateway.checks.pair_problems``)."""
+    from gateway.bus.resolved import resolve_config
+    from gateway.checks import pair_problems
+
+    paths = [args.config] if isinstance(args.config, str) else list(args.config)
+    if len(paths) == 1:
+        cfg = load_for_bus(paths[0])
+        _print_summary(paths[0], cfg, resolve_config(cfg))
+        return 0
+    if len(paths) != 2:
+        raise ConfigError([f"check: -c given {len(paths)} times: one config, or the two of a pair"])
+    problems: list[str] = []
+    loaded = []
+    for path in paths:
+        try:
+            cfg = load_for_bus(path)
+        except ConfigError as exc:
+            problems += exc.problems
+            continue
+        loaded.append((path, cfg, resolve_config(cfg)))
+    if len(loaded) == 2:
+        (_, a, nodes_a), (_, b, nodes_b) = loaded
+        problems += pair_problems(a, b, nodes_a, nodes_b)
+    if problems:
+        raise ConfigError(problems)
+    for path, cfg, nodes in loaded:
+        _print_summary(path, cfg, nodes)
+    print(f"{paths[0]}, {paths[1]}: a pair (the same bus, logical master and nodes)")
+    return 0
+
+
+def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
+    from gateway.bus.resolved import node_of
     from gateway.checks import config_warnings
 
-    cfg = load_for_bus(args.config)
-    nodes = resolve_config(cfg)
-    print(f"{args.config}: OK")
+    print(f"{path}: OK")
     if cfg.ascii is not None and cfg.ascii.enabled:
         gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
         print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
@@ -40,7 +74,6 @@ def cmd_check(args: argparse.Namespace) -> int:
     for _key, text in config_warnings(cfg, nodes):
         print(f"  warning: {text}")
     _print_eds_warnings(cfg, nodes)
-    return 0
 
 
 def _print_eds_warnings(cfg: Any, nodes: Any) -> None:

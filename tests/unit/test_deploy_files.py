@@ -36,6 +36,7 @@ def load_yaml_all(path: Path) -> list[dict]:
         "deploy/config/gateway.yaml",
         "deploy/config/fleet-line1.yaml",
         "deploy/config/fleet-line2.yaml",
+        "deploy/config/pair.yaml",
     ],
 )
 def test_shipped_configs_pass_the_gateway_config_checks(path):
@@ -264,3 +265,67 @@ def test_dockerignore_admits_only_what_the_build_copies():
         "!deploy/config/",
     ):
         assert needed in lines
+
+
+# --- a hot-standby pair -------------------------------------------------------------------------
+PAIR_ENV = "CANOPEN_GATEWAY__MASTER__REDUNDANCY__"
+
+
+def pair_configs(envs: list[dict[str, str]]) -> list:
+    """deploy/config/pair.yaml as each gateway of the pair loads it (its environment applied)."""
+    return [load_config(DEPLOY / "config/pair.yaml", environ=env) for env in envs]
+
+
+def test_pair_compose_runs_two_gateways_of_one_image_and_config_with_own_ids():
+    from gateway.checks import pair_problems
+
+    compose = load_yaml(DEPLOY / "docker-compose.pair.yml")
+    services = compose["services"]
+    a, b = services["gateway-a"], services["gateway-b"]
+    assert a["image"] == b["image"] and a["volumes"] == b["volumes"]
+    assert a["network_mode"] == b["network_mode"] == "host"
+    source = a["volumes"][0].rsplit(":", 2)[0]
+    assert re.fullmatch(r"\$\{GATEWAY_CONFIG:-\./config/pair\.yaml\}", source)
+    envs = [{k: str(v) for k, v in s["environment"].items()} for s in (a, b)]
+    cfg_a, cfg_b = pair_configs(envs)
+    assert (cfg_a.master.redundancy.node_id, cfg_a.master.redundancy.priority) == (120, 0)
+    assert (cfg_b.master.redundancy.node_id, cfg_b.master.redundancy.priority) == (121, 1)
+    assert pair_problems(cfg_a, cfg_b) == []
+    # one machine: each its own ports
+    for key in ("MODBUS__PORT", "HEALTH__PORT", "ZENOH__LISTEN"):
+        assert envs[0][f"CANOPEN_GATEWAY__{key}"] != envs[1][f"CANOPEN_GATEWAY__{key}"]
+    assert cfg_a.zenoh.refuse_duplicate_prefix is False  # both run under canopen/line1
+
+
+@pytest.fixture(scope="module")
+def k8s_pair() -> dict[str, dict]:
+    kustomization = load_yaml(DEPLOY / "k8s/pair/kustomization.yaml")
+    docs = [
+        doc for name in kustomization["resources"] for doc in load_yaml_all(DEPLOY / "k8s/pair" / name)
+    ]
+    return {doc["metadata"]["name"]: doc for doc in docs}
+
+
+def test_k8s_pair_is_two_deployments_on_two_machines_with_the_pairs_config(k8s_pair):
+    from gateway.checks import pair_problems
+
+    cm = k8s_pair["canopen-gateway-pair-config"]
+    assert cm["data"]["config.yaml"] == (DEPLOY / "config/pair.yaml").read_text(encoding="utf-8")
+    envs = []
+    for name in ("canopen-gateway-a", "canopen-gateway-b"):
+        spec = k8s_pair[name]["spec"]
+        assert spec["replicas"] == 1 and spec["strategy"]["type"] == "Recreate"
+        pod = spec["template"]["spec"]
+        assert pod["hostNetwork"] is True
+        anti = pod["affinity"]["podAntiAffinity"]["requiredDuringSchedulingIgnoredDuringExecution"]
+        assert anti[0]["topologyKey"] == "kubernetes.io/hostname"
+        assert anti[0]["labelSelector"]["matchLabels"].items() <= spec["template"]["metadata"]["labels"].items()
+        assert spec["selector"]["matchLabels"].items() <= spec["template"]["metadata"]["labels"].items()
+        container = pod["containers"][0]
+        assert container["args"] == ["run", "-c", CONFIG_PATH]
+        volumes = {v["name"]: v for v in pod["volumes"]}
+        assert volumes["config"]["configMap"]["name"] == cm["metadata"]["name"]
+        envs.append({e["name"]: e["value"] for e in container["env"] if e["name"].startswith(PAIR_ENV)})
+    cfg_a, cfg_b = pair_configs(envs)
+    assert (cfg_a.master.redundancy.priority, cfg_b.master.redundancy.priority) == (0, 1)
+    assert pair_problems(cfg_a, cfg_b) == []

@@ -1,0 +1,173 @@
+"""``canopen-gateway check -c A.yaml -c B.yaml``: the two configs of a hot-standby pair are
+each checked as at every start, then compared: the same bus, logical master, nodes and
+register layout; both with ``master.redundancy``, distinct own ids, ``peer_node_id`` naming
+the other. Every difference is one line naming both files and the key path."""
+
+from __future__ import annotations
+
+import copy
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from gateway.checks import pair_problems
+from gateway.checks import parse_checked_config as parse_config
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def raw_pair() -> tuple[dict[str, Any], dict[str, Any]]:
+    raw: dict[str, Any] = {
+        "can": {"interface": "virtual", "channel": "line1", "bitrate": 500000},
+        "master": {
+            "node_id": 100,
+            "heartbeat_ms": 100,
+            "sync_period_ms": 50,
+            "redundancy": {"node_id": 101, "priority": 0, "peer_node_id": 102},
+        },
+        "nodes": [
+            {"name": "wire", "node_id": 1, "profile": "sgh10", "modbus": {"unit_id": 1}},
+            {"name": "display", "node_id": 2, "profile": "ap05"},
+        ],
+        "modbus": {"port": 5020},
+    }
+    b = copy.deepcopy(raw)
+    b["master"]["redundancy"] = {"node_id": 102, "priority": 1, "peer_node_id": 101}
+    b["modbus"]["port"] = 5021  # a gateway's own listening ports may differ
+    return raw, b
+
+
+def problems(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
+    return pair_problems(parse_config(a, "A.yaml", {}), parse_config(b, "B.yaml", {}))
+
+
+def test_two_configs_of_one_pair_agree() -> None:
+    assert problems(*raw_pair()) == []
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        (lambda b: b["can"].update(channel="line2"), "can.channel"),
+        (lambda b: b["can"].update(interface="socketcan"), "can.interface"),
+        (lambda b: b["can"].update(bitrate=250000), "can.bitrate"),
+        (lambda b: b["master"].update(node_id=99), "master.node_id"),
+        (lambda b: b["master"].update(heartbeat_ms=200), "master.heartbeat_ms"),
+        (lambda b: b["master"].update(sync_period_ms=0), "master.sync_period_ms"),
+        (lambda b: b["master"]["redundancy"].update(priority_slot_ms=100), "master.redundancy.priority_slot_ms"),
+        (lambda b: b["nodes"][0].update(node_id=3), "nodes[0].node_id"),
+        (lambda b: b["nodes"][0]["modbus"].update(unit_id=7), "nodes[0].modbus.unit_id"),
+        (lambda b: b["nodes"][0].update(heartbeat_ms=500), "nodes[0].heartbeat_ms"),
+        (lambda b: b["modbus"].update(layout="flat"), "modbus.layout"),
+    ],
+)
+def test_a_shared_setting_that_differs_is_one_line_naming_both_files_and_the_key(change: Any, key: str) -> None:
+    a, b = raw_pair()
+    change(b)
+    lines = problems(a, b)
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"A.yaml, B.yaml: {key}: ")
+    assert "in A.yaml" in lines[0] and "in B.yaml" in lines[0]
+
+
+def test_a_node_of_one_config_only_is_named() -> None:
+    a, b = raw_pair()
+    b["nodes"].pop(1)
+    assert problems(a, b) == ["A.yaml, B.yaml: nodes[1]: node display only in A.yaml"]
+    assert problems(b, a) == ["A.yaml, B.yaml: nodes[1]: node display only in B.yaml"]
+
+
+def test_nodes_in_another_order_are_compared_by_name() -> None:
+    a, b = raw_pair()
+    b["nodes"].reverse()
+    assert problems(a, b) == []
+    b["nodes"][0]["node_id"] = 5  # display, nodes[1] in A
+    assert problems(a, b) == [
+        "A.yaml, B.yaml: nodes[1] (display, nodes[0] in B.yaml).node_id: 2 in A.yaml, 5 in B.yaml: a pair must agree"
+    ]
+
+
+def test_another_profile_for_a_node_is_named() -> None:
+    a, b = raw_pair()
+    b["nodes"][0]["profile"] = "ap05"
+    lines = problems(a, b)
+    assert any(line.startswith("A.yaml, B.yaml: nodes[0].profile: the device descriptions differ") for line in lines)
+    assert any(line.startswith("A.yaml, B.yaml: nodes[0].profile: the profiles differ") for line in lines)
+
+
+def test_both_need_redundancy() -> None:
+    a, b = raw_pair()
+    del b["master"]["redundancy"]
+    lines = problems(a, b)
+    assert "A.yaml, B.yaml: master.redundancy: missing in B.yaml: both configs of a pair need it" in lines
+
+
+def test_the_two_own_ids_must_differ() -> None:
+    a, b = raw_pair()
+    for raw in (a, b):
+        raw["master"]["redundancy"] = {"node_id": 101}
+    assert problems(a, b) == [
+        "A.yaml, B.yaml: master.redundancy.node_id: 101 in both: each gateway needs its own id"
+    ]
+
+
+def test_peer_node_id_must_name_the_other_gateway() -> None:
+    a, b = raw_pair()
+    a["master"]["redundancy"]["peer_node_id"] = 103
+    assert problems(a, b) == [
+        "A.yaml, B.yaml: master.redundancy.peer_node_id: 103 in A.yaml, but the other "
+        "gateway's master.redundancy.node_id is 102"
+    ]
+
+
+def test_own_settings_may_differ() -> None:
+    a, b = raw_pair()
+    b["master"]["redundancy"]["takeover_ms"] = 400
+    b["gateway"] = {"name": "line1-b"}
+    b["zenoh"] = {"listen": ["tcp/127.0.0.1:7448"]}
+    assert problems(a, b) == []
+
+
+def _run_check(*paths: Path) -> subprocess.CompletedProcess[str]:
+    args = [a for p in paths for a in ("-c", str(p))]
+    return subprocess.run(
+        [sys.executable, "-m", "gateway", "check", *args], capture_output=True, text=True, cwd=ROOT
+    )
+
+
+def test_cli_check_of_two_configs_exits_2_with_one_line_per_difference(tmp_path: Path) -> None:
+    a, b = raw_pair()
+    fa, fb = tmp_path / "A.yaml", tmp_path / "B.yaml"
+    fa.write_text(yaml.safe_dump(a))
+    fb.write_text(yaml.safe_dump(b))
+    ok = _run_check(fa, fb)
+    assert ok.returncode == 0, ok.stderr
+    assert f"{fa}: OK" in ok.stdout and f"{fb}: OK" in ok.stdout
+    b["master"]["heartbeat_ms"] = 200
+    a["master"]["redundancy"]["peer_node_id"] = 103
+    fa.write_text(yaml.safe_dump(a))
+    fb.write_text(yaml.safe_dump(b))
+    bad = _run_check(fa, fb)
+    assert bad.returncode == 2
+    assert bad.stderr.strip().splitlines() == [
+        f"{fa}, {fb}: master.heartbeat_ms: 100 in {fa}, 200 in {fb}: a pair must agree",
+        f"{fa}, {fb}: master.redundancy.peer_node_id: 103 in {fa}, but the other gateway's "
+        "master.redundancy.node_id is 102",
+    ]
+
+
+def test_cli_check_of_a_pair_says_the_problems_of_each_file_first(tmp_path: Path) -> None:
+    a, b = raw_pair()
+    b["master"]["redundancy"]["node_id"] = 1  # a node's id
+    fa, fb = tmp_path / "A.yaml", tmp_path / "B.yaml"
+    fa.write_text(yaml.safe_dump(a))
+    fb.write_text(yaml.safe_dump(b))
+    bad = _run_check(fa, fb)
+    assert bad.returncode == 2
+    assert bad.stderr.strip().splitlines() == [
+        f"{fb}: master.redundancy.node_id: 1 is the node id of nodes[0]"
+    ]
