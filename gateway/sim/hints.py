@@ -3,7 +3,7 @@
 Profiles describe their device for the simulator in a free-form ``sim:`` mapping; the node
 options of a simulation (``SimNode(options=...)``) override it key by key. This module knows
 which keys mean what (with the spellings the profiles use) and turns them into
-:class:`SimHints`; unknown keys are kept in ``extra`` for behaviours to read.
+:class:`SimHints`; unknown keys are kept in ``extra`` for features to read.
 
 Keys read (all optional):
   position_object / position        object the motion model drives, e.g. "0x6004:00"
@@ -103,7 +103,7 @@ class SimHints:
         h.velocity_scale = 1.0 if scale is None else float(scale)
         h.motion = _motion(d)
 
-        # DS-406 6200h = 1800h:05 is the behaviour of feature ds406_cycle_timer (on a CiA 401
+        # DS-406 6200h = 1800h:05 is what feature ds406_cycle_timer simulates (on a CiA 401
         # device 6200h is a digital output)
         groups: list[tuple[ObjRef, ...]] = []
         for key in ("event_timer_mirror", "operating_parameters_mirror", "serial_number_mirror"):

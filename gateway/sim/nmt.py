@@ -78,12 +78,12 @@ def initialise(node: SimNode, kind: ResetKind, now: float) -> None:
         for name, active in node.faults.items():
             if active:
                 node.hint_fault_bits(name, True)
-    for b in node.behaviours:
+    for b in node.features:
         b.on_boot(now)
     node.send(COB_NMT_EC + node.node_id, b"\x00")  # boot-up (4.2.2), unless silenced
     node.nmt_state = NmtState.PRE_OPERATIONAL
     node.error_control.schedule_heartbeat(now)
-    for b in node.behaviours:
+    for b in node.features:
         b.on_nmt(int(node.nmt_state), now)
 
 

@@ -24,7 +24,7 @@ manuals say so (SGH10 manual 000/003 section numbers unless noted), and which mo
   their mapped objects. Mirrored objects (e.g. 180xh:05 with 6200h, 4.7.2.31) follow here.
 - a motion model (``motion.py``) for the position / velocity objects named by the profile's
   ``sim:`` hints (or, for a device known only from its EDS, ``auto_inputs.py``), and the
-  behaviours of the profile's features (``behaviours/``).
+  simulation of the profile's features (``features/``).
 
 Imports: python-can (Message only), gateway.cia301, gateway.states, gateway.profiles
 (LoadedProfile, expected_identity), gateway.objref and the other gateway.sim modules. Nothing of
@@ -53,10 +53,10 @@ from gateway.cia301 import (
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, expected_identity
 from gateway.sim.auto_inputs import auto_value, mapped_inputs
-from gateway.sim.behaviours import Behaviour, behaviour_for
 from gateway.sim.cob_ids import receive_map, sdo_tx_cob
 from gateway.sim.emcy import EmcyProducer
 from gateway.sim.error_control import ErrorControl
+from gateway.sim.features import SimFeature, feature_class
 from gateway.sim.hints import SimHints
 from gateway.sim.motion import Motion, MotionConfig
 from gateway.sim.objects import (
@@ -162,18 +162,18 @@ class SimNode:
         self._cob_map: dict[int, tuple[str, int]] | None = None
         self.error_control = ErrorControl(self)
 
-        self.behaviours: list[Behaviour] = []
+        self.features: list[SimFeature] = []
         feature_options = dict(raw.get("features") or {})
         for feature, params in profile.profile.features.items():
-            cls = behaviour_for(feature)
+            cls = feature_class(feature)
             if cls is not None:
                 merged = {**(params or {}), **feature_options.get(feature, {})}
-                self.behaviours.append(cls(self, merged))
-        # after the behaviours: a feature may add a mirror group (ds406_cycle_timer)
+                self.features.append(cls(self, merged))
+        # after the features: a feature may add a mirror group (ds406_cycle_timer)
         self._mirrored = frozenset(o for group in self.mirror_groups for o in group)
 
     # ======================================================================================
-    # API for behaviours and tests
+    # API for features and tests
     # ======================================================================================
     def get(self, index: int, sub: int = 0, default: Any = None) -> Any:
         """Current value of an object (no access check, no hooks)."""
@@ -198,8 +198,8 @@ class SimNode:
             )
         )
 
-    def behaviour(self, feature: str) -> Behaviour | None:
-        for b in self.behaviours:
+    def feature(self, feature: str) -> SimFeature | None:
+        for b in self.features:
             if b.feature == feature:
                 return b
         return None
@@ -226,7 +226,7 @@ class SimNode:
         if self.silenced or self._muted(now):
             return []
         self.rx_count += 1
-        for b in self.behaviours:
+        for b in self.features:
             if b.on_frame(msg, now):
                 return self.drain()
         if msg.is_extended_id or msg.is_error_frame:
@@ -245,7 +245,7 @@ class SimNode:
         if target is not None:
             what, number = target
             if what == "sync" and not msg.is_remote_frame:
-                for b in self.behaviours:
+                for b in self.features:
                     b.on_sync(now)
                 self.tpdo_producer.on_sync(now)
             elif what == "sdo" and not msg.is_remote_frame:
@@ -267,7 +267,7 @@ class SimNode:
             nmt.initialise(self, "power", now)
         if self.silenced:
             return []
-        for b in self.behaviours:
+        for b in self.features:
             b.tick(now)
         if self._muted(now):
             self._out.clear()
@@ -292,7 +292,7 @@ class SimNode:
         return min(due) if due else None
 
     def mute(self, until_s: float | None) -> None:
-        """Stay off the bus until ``until_s`` (behaviours still tick; None: back now)."""
+        """Stay off the bus until ``until_s`` (features still tick; None: back now)."""
         self.mute_until_s = until_s
         if until_s is not None:
             self._out.clear()
@@ -352,9 +352,9 @@ class SimNode:
             self._emit_emcy(data, self.now if now is None else now)
 
     def inject_fault(self, name: str, active: bool, now: float | None = None) -> bool:
-        """Turn a device fault on/off; True if one of the node's behaviours implements it.
+        """Turn a device fault on/off; True if one of the node's features implements it.
 
-        Without a behaviour, a fault listed in the sim hint ``faults: {name: {emcy: code,
+        Without a feature, a fault listed in the sim hint ``faults: {name: {emcy: code,
         register: bits, alarm_bit: n}}`` raises / clears that EMCY and sets / clears bit n of
         the DS-406 alarms 6503h (default for ``sensor_error``: bit 0, position error,
         SGH10 manual 4.7.2.38).
@@ -362,7 +362,7 @@ class SimNode:
         now = self.now if now is None else now
         self.faults[name] = active
         handled = False
-        for b in self.behaviours:
+        for b in self.features:
             handled = b.on_fault(name, active, now) or handled
         if not handled:
             spec = self.hints.faults.get(name)
@@ -401,7 +401,7 @@ class SimNode:
         nmt.initialise(self, "communication", now)
 
     def set_nmt_state(self, state: NmtState | int, now: float) -> None:
-        """Enter ``state`` (behaviours use this, e.g. external heartbeat -> PRE-OPERATIONAL)."""
+        """Enter ``state`` (features use this, e.g. external heartbeat -> PRE-OPERATIONAL)."""
         state = NmtState(state)
         if state == self.nmt_state:
             return
@@ -411,7 +411,7 @@ class SimNode:
             self.tpdo_producer.enter_operational(now)
         if old == NmtState.OPERATIONAL:
             self.tpdo_producer.leave_operational()
-        for b in self.behaviours:
+        for b in self.features:
             b.on_nmt(int(state), now)
 
     @property
@@ -449,7 +449,7 @@ class SimNode:
         self._process_now = None
 
     def update_process(self, now: float) -> None:
-        """Motion model -> position/velocity objects, then the behaviours' process update."""
+        """Motion model -> position/velocity objects, then the features' process update."""
         if self._process_now == now:
             return
         self._process_now = now
@@ -460,7 +460,7 @@ class SimNode:
             self.values.set(*self.position_obj, self.position_from_model(pos))
         if self.velocity_obj is not None:
             self.values.set(*self.velocity_obj, int(round(vel * self.velocity_scale)))
-        for b in self.behaviours:
+        for b in self.features:
             b.update_process(now)
 
     # -- position model: direction x model + calibration offset + application offset ---------
@@ -497,7 +497,7 @@ class SimNode:
         return self.tpdo_producer.data(number, now)
 
     def trigger_tpdo(self, number: int, now: float) -> None:
-        """An application event for an event-driven TPDO (behaviours), in OPERATIONAL only."""
+        """An application event for an event-driven TPDO (features), in OPERATIONAL only."""
         self.tpdo_producer.trigger(number, now)
 
     def _on_rpdo(self, number: int, data: bytes, now: float) -> None:
@@ -508,7 +508,7 @@ class SimNode:
             return
         for obj, value in pdo.unpack(self.values, entries, data):
             self.set(obj.index, obj.sub, value)
-        for b in self.behaviours:
+        for b in self.features:
             b.on_rpdo(number, data, now)
 
     # ======================================================================================
@@ -516,13 +516,13 @@ class SimNode:
     # ======================================================================================
     def listening(self) -> frozenset[int] | None:
         """The 11-bit COB-IDs of the frames ``handle`` acts on: NMT, its guarding RTR, SYNC,
-        SDO, its PDOs and what the behaviours look at. A runner may hand the node only those
+        SDO, its PDOs and what the features look at. A runner may hand the node only those
         standard frames (every extended or error frame still goes to every node). None: every
-        frame (not powered yet, or a behaviour that looks at all of them)."""
+        frame (not powered yet, or a feature that looks at all of them)."""
         if not self.powered:
             return None
         cobs = {COB_NMT, COB_NMT_EC + self.node_id, *self._cobs()}
-        for b in self.behaviours:
+        for b in self.features:
             ids = b.frame_cob_ids()
             if ids is None:
                 return None

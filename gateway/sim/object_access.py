@@ -5,7 +5,7 @@ Module-level functions taking the ``SimNode`` (SGH10 manual 000/003 section numb
 
 - ``sdo_read`` / ``sdo_write``, the SDO server's callbacks (4.4.1): objects the device does not
   use (sim hint ``unused_objects``) aborted with the hint's code; the access and size checks of
-  ``ObjectValues.check_write``; the behaviours' ``before_sdo_read`` / ``before_sdo_write``
+  ``ObjectValues.check_write``; the features' ``before_sdo_read`` / ``before_sdo_write``
   (which may abort) and ``after_sdo_write``; a 1003h entry beyond the count aborted 0x08000024;
 - ``check_profile_range``: a value outside the profile's min..max (engineering values) is
   aborted 0x06090030;
@@ -142,7 +142,7 @@ def sdo_read(node: SimNode, index: int, sub: int) -> bytes:
     if obj in node.hints.unused_objects:
         raise SdoAbortError(node.hints.unused_abort, f"{obj} is not used by this device")
     node.update_process(now)
-    for b in node.behaviours:
+    for b in node.features:
         code = b.before_sdo_read(obj, now)
         if code is not None:
             raise SdoAbortError(code)
@@ -161,10 +161,10 @@ def sdo_write(node: SimNode, index: int, sub: int, data: bytes, size_given: bool
         raise SdoAbortError(node.hints.unused_abort, f"{obj} is not used by this device")
     _, value = node.values.check_write(index, sub, data, size_given)
     check_profile_range(node.profile, obj, value)
-    for b in node.behaviours:
+    for b in node.features:
         code = b.before_sdo_write(obj, value, now)
         if code is not None:
             raise SdoAbortError(code)
     write_object(node, obj, value, now)
-    for b in node.behaviours:
+    for b in node.features:
         b.after_sdo_write(obj, value, now)

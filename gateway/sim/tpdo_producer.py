@@ -9,7 +9,7 @@ parameters (from the current 180xh/1A0xh, dropped when a PDO object changes). It
   180xh:03; a timer written in OPERATIONAL applies with its next run, one started from 0 runs
   from now (4.7.2.17);
 - types 1..240 every n-th SYNC, type 0 on SYNC when the data changed (4.2.3, 4.3.1.1);
-- an application event (a behaviour's ``trigger_tpdo``) for an event-driven TPDO;
+- an application event (a feature's ``trigger_tpdo``) for an event-driven TPDO;
 - with the sim option ``tpdo_on_operational``, an event-driven TPDO without timer sent once on
   entering OPERATIONAL (CiA 301 7.3.2);
 - with the sim option ``tpdo_on_change``, an event-driven TPDO without timer (types 254/255,
@@ -81,7 +81,7 @@ class TpdoProducer:
         node = self.node
         node.update_process(now)
         data = pdo.pack_compiled(node.values, self.params(number).plan)
-        for b in node.behaviours:
+        for b in node.features:
             data = b.tpdo_data(number, data, now)
         return data
 

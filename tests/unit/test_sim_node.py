@@ -302,7 +302,7 @@ def test_a_node_silenced_before_power_on_boots_without_a_word() -> None:
 
 def test_every_profile_feature_has_a_behaviour() -> None:
     from gateway.profiles.schema import KNOWN_FEATURES
-    from gateway.sim.behaviours import registered
+    from gateway.sim.features import registered
 
     assert set(registered()) == KNOWN_FEATURES
 
