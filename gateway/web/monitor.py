@@ -19,7 +19,7 @@ decoded (``gateway.northbound.frames.FrameDecoder``, once per frame whatever the
 Rule 3: a page is a bounded queue of lines (``MAX_PENDING``, the size of the page's own ring)
 written by its pump (the console's one, ``gateway.web.live.stream_sse``) at most ``1 / SEND_INTERVAL_S`` times a second, each write with a status
 (shown, skipped, lost; once a second when no line comes). A page whose socket does not drain is skipped (its queue drops
-the oldest lines and counts them) and disconnected after ``SLOW_CLIENT_LIMIT_S``.
+the oldest lines and counts them) and disconnected after ``SLOW_CLIENT_LIMIT_S`` (``web.live``'s).
 
 Frames the gateway sends are not tapped (they leave through the sender thread): the page shows
 what the gateway receives, as ``canopen-gateway monitor`` on a second connection shows both.
@@ -39,7 +39,7 @@ from typing import Any, Protocol
 
 from gateway.config import Config
 from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
-from gateway.web.live import MAX_BUFFERED_BYTES, SLOW_CLIENT_LIMIT_S, Handoff, sse, stream_sse
+from gateway.web.live import Handoff, sse, stream_sse
 
 log = logging.getLogger("gateway.web")
 
@@ -316,16 +316,11 @@ class FrameMonitor:
         }
 
     async def pump(
-        self,
-        page: MonitorPage,
-        reader: asyncio.StreamReader,
-        writer: asyncio.StreamWriter,
-        *,
-        slow_limit_s: float = SLOW_CLIENT_LIMIT_S,
-        max_buffered: int = MAX_BUFFERED_BYTES,
+        self, page: MonitorPage, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
     ) -> None:
-        """Write the page's lines until the browser goes away (or does not read): at most one
-        write every ``SEND_INTERVAL_S``, a status at least every ``STATUS_PERIOD_S``."""
+        """Write the page's lines until the browser goes away (or does not read for
+        ``web.live.SLOW_CLIENT_LIMIT_S``): at most one write every ``SEND_INTERVAL_S``, a status at least
+        every ``STATUS_PERIOD_S``."""
         last_status = float("-inf")
 
         def turn(now: float) -> bytes:
@@ -350,8 +345,6 @@ class FrameMonitor:
                 interval_s=SEND_INTERVAL_S,
                 who="bus monitor page",
                 first=sse("hello", self.hello(page)),
-                slow_limit_s=slow_limit_s,
-                max_buffered=max_buffered,
             )
         finally:
             self.close(page)
