@@ -9,7 +9,7 @@ import pytest
 
 GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
 MAX_LINES = 550
-PACKAGES = ("profiles",)
+PACKAGES = ("profiles", "sim")
 
 
 @pytest.mark.parametrize("package", PACKAGES)

@@ -335,4 +335,4 @@ def test_a_stopped_error_control_sends_no_heartbeat_and_answers_no_guarding(node
     assert frames(node.handle(rtr, 1.5)) == [(0x701, "05")]
     node.stop_error_control()
     node.power_cycle(2.0)  # a restart brings the heartbeat back
-    assert not node.error_control_off
+    assert not node.error_control.off

@@ -18,12 +18,13 @@ given it: no wall clock, no sleeps, no threads.
 
 What else a feature may use of its node: ``node_id``, ``nmt_state``, ``last_reset``,
 ``values.has(index, sub)``, ``default_of(index, sub)``, ``store`` (PersistentStore: node_id,
-bitrate_index, values), ``pending_node_id`` (adopted at the next reset communication),
-``raise_emcy(code, register, mfr, now=)`` / ``clear_emcy(code, now=)``, ``trigger_tpdo(n, now)``,
-``set_nmt_state(state, now)``, ``reset_communication(now)``, ``mute(until_s)``,
-``update_process(now)`` / ``invalidate_process()``, ``position_obj``, ``position_offset``,
-``direction_sign()``, ``calibrate(preset, now)``, ``motion``, ``hints`` (SimHints; ``extra``
-holds the profile's other ``sim:`` keys), ``feature(name)``.
+bitrate_index, values), ``pending_node_id`` and ``adopt_node_id_at_reset(node_id)`` (the id the
+next reset communication adopts), ``raise_emcy(code, register, mfr, now=)`` /
+``clear_emcy(code, now=)``, ``trigger_tpdo(n, now)``, ``set_nmt_state(state, now)``,
+``reset_communication(now)``, ``mute(until_s)``, ``update_process(now)`` /
+``invalidate_process()``, ``position_offset`` and ``set_position_offset(counts)``,
+``direction_sign()``, ``calibrate(preset, now)``, ``motion``, ``hints`` (SimHints: ``position``
+the position object; ``extra`` holds the profile's other ``sim:`` keys), ``feature(name)``.
 
 Imports: python-can types and gateway.objref only (the node, sim.node, is referenced for
 typing only).

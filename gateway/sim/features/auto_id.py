@@ -85,7 +85,7 @@ class AutoId(SimFeature):
                 node.set(*obj, new_id)
                 node.store.values[(obj.index, obj.sub)] = new_id
         node.store.node_id = new_id
-        node.pending_node_id = new_id
+        node.adopt_node_id_at_reset(new_id)
         self.requested_id = None
         self._reboot = True
 

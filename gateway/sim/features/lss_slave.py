@@ -134,7 +134,7 @@ class LssSlave(SimFeature):
             if self.state == CONFIGURATION and self.configured_node_id is not None:
                 if self.configured_node_id != self.node.node_id:
                     # 4.6.2.1: LSS waiting, then NMT reset communication activates the id
-                    self.node.pending_node_id = self.configured_node_id
+                    self.node.adopt_node_id_at_reset(self.configured_node_id)
             self.state = WAITING
         elif mode == 0x01:
             self.state = CONFIGURATION

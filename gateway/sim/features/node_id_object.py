@@ -106,7 +106,7 @@ class NodeIdObject(SimFeature):
         if cs == NMT_RESET_NODE and target in (0, self.node.node_id):
             stored = self.node.store.node_id
             if stored is not None and stored != self.node.node_id:
-                self.node.pending_node_id = stored
+                self.node.adopt_node_id_at_reset(stored)
         return False
 
     def after_sdo_write(self, obj: ObjRef, value: Any, now: float) -> None:

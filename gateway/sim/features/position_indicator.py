@@ -125,7 +125,7 @@ class PositionIndicator(SimFeature):
         return self._get(self.mode_obj) == ALPHANUMERIC_MODE
 
     def position(self) -> int:
-        pos_obj = self.node.position_obj
+        pos_obj = self.node.hints.position
         return _s32(self._get(pos_obj)) if pos_obj is not None else 0
 
     # -- hooks -------------------------------------------------------------------------------

@@ -79,7 +79,7 @@ class Referencing(SimFeature):
 
     def _lose_reference(self) -> None:
         self.referenced = False
-        self.node.position_offset = 0
+        self.node.set_position_offset(0)
         self.node.set(self.status.index, self.status.sub, 0)
         self._set_bit(self.flag_obj, self.flag_bit, True)
         self.node.set(self.position.index, self.position.sub, self.unreferenced_position)
@@ -118,7 +118,7 @@ class Referencing(SimFeature):
         """5115h = 1: position value := calibration value 6003h at the current measurement."""
         measured = self._measurement(now)
         calibration = int(self.node.get(self.calibration.index, self.calibration.sub, 0) or 0)
-        self.node.position_offset = calibration - measured
+        self.node.set_position_offset(calibration - measured)
         self.referenced = True
         self.references += 1
         # 6509h "Position value at the time of calibration" (UNSIGNED 32)

@@ -60,7 +60,7 @@ class WorkAreas(SimFeature):
             self.node.update_process(now)
 
     def update_process(self, now: float) -> None:
-        pos_obj = self.node.position_obj
+        pos_obj = self.node.hints.position
         if pos_obj is None:
             return
         position = int(self.node.get(*pos_obj, 0))
