@@ -20,7 +20,6 @@ from gateway.eds.pdos import (
     FLOAT_TYPES,
     eds_pdos,
     object_name,
-    od_var,
     signal_type,
     slug,
     unique_names,
@@ -212,7 +211,7 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
                 warnings += lay.warnings.get((kind, p.number), [])
     names = unique_names(od, new, {s.name for s in signals})
     for o in new:
-        var = od_var(od, o)
+        var = base.od_var(o)
         if var is None:
             continue  # not in the EDS: reported by the check of the layout
         typ = signal_type(var)
