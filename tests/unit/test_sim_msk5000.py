@@ -70,7 +70,7 @@ REMAP_SEQUENCE = [
 ]
 
 
-def test_behaviours_are_registered_under_their_feature_names() -> None:
+def test_sim_features_are_registered_under_their_feature_names() -> None:
     for feature in ("remappable_tpdo", "referencing", "speed_alarm"):
         cls = feature_class(feature)
         assert cls is not None and cls.feature == feature

@@ -300,7 +300,7 @@ def test_a_node_silenced_before_power_on_boots_without_a_word() -> None:
     assert sdo(n, "40 00 10 00 00 00 00 00", now=1.1) == [(0x581, "43 00 10 00 96 01 0A 00")]
 
 
-def test_every_profile_feature_has_a_behaviour() -> None:
+def test_every_profile_feature_has_a_sim_feature() -> None:
     from gateway.profiles.schema import KNOWN_FEATURES
     from gateway.sim.features import registered
 
