@@ -1,6 +1,6 @@
 """The simulated BEI IDEACOD POSI+ / POSI+ SF, driven with raw CAN frames and a fake clock.
 
-Covers the features of the profile features pdo_type_selector (2005h), cams (6300h-6320h),
+Covers the simulation of the profile features pdo_type_selector (2005h), cams (6300h-6320h),
 heartbeat_consumer (1016h) and node_id_object (2101h/2100h, SF 6101h/6100h), and the SDO examples
 of manual 002 section 2.2 byte for byte. The expected bytes are copied from the manual here, so
 the tests run without it.
