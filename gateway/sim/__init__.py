@@ -2,7 +2,7 @@
 
 ``SimNode`` (node.py) is a sans-I/O device: frames and the caller's clock in, frames out. It
 implements DS-301 (NMT, SDO server, PDOs, SYNC, EMCY, heartbeat, node guarding, store/restore)
-and runs the device behaviours of its profile's features (behaviours/). ``SimRunner``
+and runs the simulator features of its profile's features (features/). ``SimRunner``
 (runner.py) drives nodes on a python-can bus in a background thread.
 
 Used by tests, demos and commissioning. Imports: gateway.profiles, gateway.eds (default values),

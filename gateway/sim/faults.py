@@ -59,7 +59,7 @@ class FaultInjector:
         active = self._emcy.get(name)
         return {
             "unplugged": bool(node.silenced),
-            "heartbeat": not node.error_control_off,
+            "heartbeat": not node.error_control.off,
             "emcy": None if active is None else self._emcy_words(node, active),
         }
 

@@ -3,7 +3,7 @@
 Profiles describe their device for the simulator in a free-form ``sim:`` mapping; the node
 options of a simulation (``SimNode(options=...)``) override it key by key. This module knows
 which keys mean what (with the spellings the profiles use) and turns them into
-:class:`SimHints`; unknown keys are kept in ``extra`` for behaviours to read.
+:class:`SimHints`; unknown keys are kept in ``extra`` for features to read.
 
 Keys read (all optional):
   position_object / position        object the motion model drives, e.g. "0x6004:00"
@@ -34,6 +34,8 @@ Keys read (all optional):
   tpdo_on_change                    send event-driven TPDOs without timer when their data
                                     change (default: only for profiles without sim hints)
   input_cycle_ms                    how often such a device samples its inputs (default 10)
+  sdo_timeout_s                     an unfinished SDO transfer is aborted after it (default 1)
+  require_mappable                  a PDO mapping write refuses objects not marked PDOMapping
 Calibration (position = direction x model + offset + application offset):
   calibration_object                writing P makes the position P (SGH10 6010h:01)
   calibration: {preset, trigger, trigger_value, done_value, application_offset}
@@ -81,6 +83,11 @@ class SimHints:
     tpdo_rtr: bool = True
     faults: dict[str, dict[str, int]] = field(default_factory=dict)
     sdo_expedited_only: bool = False
+    sdo_timeout_s: float = 1.0
+    require_mappable: bool = False
+    tpdo_on_operational: bool = False
+    tpdo_on_change: bool = False
+    input_cycle_s: float = 0.01
     preset: ObjRef | None = None
     calibration_trigger: ObjRef | None = None
     calibration_trigger_value: int = 1
@@ -91,7 +98,11 @@ class SimHints:
     extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> SimHints:
+    def from_dict(cls, d: dict[str, Any], *, eds_only: bool = False) -> SimHints:
+        """The hints of ``d``; ``eds_only``: a device known only from its EDS (a profile
+        without ``sim:``), whose event-driven TPDOs default to ``tpdo_on_operational`` and
+        ``tpdo_on_change`` (as most such devices do; the manual devices keep what their
+        manuals describe)."""
         h = cls(extra=dict(d))
         h.position = _obj(_first(d, "position", "position_object"))
         h.velocity = _obj(_first(d, "velocity", "velocity_object"))
@@ -103,7 +114,7 @@ class SimHints:
         h.velocity_scale = 1.0 if scale is None else float(scale)
         h.motion = _motion(d)
 
-        # DS-406 6200h = 1800h:05 is the behaviour of feature ds406_cycle_timer (on a CiA 401
+        # DS-406 6200h = 1800h:05 is what feature ds406_cycle_timer simulates (on a CiA 401
         # device 6200h is a digital output)
         groups: list[tuple[ObjRef, ...]] = []
         for key in ("event_timer_mirror", "operating_parameters_mirror", "serial_number_mirror"):
@@ -129,6 +140,14 @@ class SimHints:
             # DS-301 1001h bit 7 manufacturer-specific (SGH10 manual 4.7.2.2: sensor error)
             h.faults["sensor_error"] = {"emcy": int(d["emcy_on_position_error"]), "register": 0x80}
         h.sdo_expedited_only = bool(d.get("sdo_expedited_only", False))
+        h.sdo_timeout_s = float(d.get("sdo_timeout_s", 1.0))
+        h.require_mappable = bool(d.get("require_mappable", False))
+        h.tpdo_on_operational = bool(d.get("tpdo_on_operational", eds_only))
+        h.tpdo_on_change = bool(d.get("tpdo_on_change", eds_only))
+        cycle_ms = d.get("input_cycle_ms", 10)
+        if isinstance(cycle_ms, bool) or not isinstance(cycle_ms, (int, float)) or cycle_ms <= 0:
+            raise ValueError(f"input_cycle_ms: {cycle_ms!r} is not a number of ms above 0")
+        h.input_cycle_s = cycle_ms / 1000
         _calibration(h, d)
         return h
 

@@ -10,8 +10,9 @@ resolved, overlaid with what 1010h stored) and reacts to frames and time:
 and never touches a bus, so tests drive it with a fake clock. What it implements, and where the
 manuals say so (SGH10 manual 000/003 section numbers unless noted), and which module holds it:
 
-- power-on, reset node, reset communication and the NMT commands (4.2.1, 4.2.2): ``nmt.py``.
-  STOPPED answers only NMT, heartbeat, guarding.
+- power-on, reset node, reset communication and the NMT commands (4.2.1, 4.2.2): ``nmt.py``
+  says what a command asks and what a reset adopts and reloads; the node applies it (its NMT
+  state and node id are its own). STOPPED answers only NMT, heartbeat, guarding.
 - heartbeat producer 1017h (4.5.3), node guarding and life guarding (4.5.2):
   ``error_control.py``.
 - SDO server (4.4.1, ``sdo.py``) in PRE-OPERATIONAL and OPERATIONAL, with the abort codes of
@@ -23,8 +24,13 @@ manuals say so (SGH10 manual 000/003 section numbers unless noted), and which mo
   (event timer, SYNC, inhibit time); RTR on the TPDO COB-ID (bit 30 clear) here. RPDOs write
   their mapped objects. Mirrored objects (e.g. 180xh:05 with 6200h, 4.7.2.31) follow here.
 - a motion model (``motion.py``) for the position / velocity objects named by the profile's
-  ``sim:`` hints (or, for a device known only from its EDS, ``auto_inputs.py``), and the
-  behaviours of the profile's features (``behaviours/``).
+  ``sim:`` hints (or, for a device known only from its EDS, ``auto_inputs.py``), with the
+  calibration: ``process.py``; the simulation of the profile's features (``features/``);
+  injected faults (``device_faults.py``).
+
+Each part owns its state and the node changes it only through the part's methods; a part sees
+the node through a Protocol of what it uses (``ErrorControlHost``, ``TpdoHost``, ``ObjectHost``,
+``FaultHost``) and never sets the node's fields.
 
 Imports: python-can (Message only), gateway.cia301, gateway.states, gateway.profiles
 (LoadedProfile, expected_identity), gateway.objref and the other gateway.sim modules. Nothing of
@@ -42,21 +48,19 @@ import gateway.sim.nmt as nmt
 import gateway.sim.object_access as object_access
 import gateway.sim.pdo as pdo
 from gateway.cia301 import (
-    COB_EMCY,
-    COB_ID_INVALID,
     COB_ID_MASK_11BIT,
-    COB_ID_MASK_29BIT,
     COB_ID_NO_RTR,
     COB_NMT,
     COB_NMT_EC,
 )
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, expected_identity
-from gateway.sim.auto_inputs import auto_value, mapped_inputs
-from gateway.sim.behaviours import Behaviour, behaviour_for
-from gateway.sim.cob_ids import receive_map, sdo_tx_cob
+from gateway.sim.auto_inputs import mapped_inputs
+from gateway.sim.cob_ids import emcy_cob, receive_map, sdo_tx_cob
+from gateway.sim.device_faults import DeviceFaults
 from gateway.sim.emcy import EmcyProducer
 from gateway.sim.error_control import ErrorControl
+from gateway.sim.features import SimFeature, feature_class
 from gateway.sim.hints import SimHints
 from gateway.sim.motion import Motion, MotionConfig
 from gateway.sim.objects import (
@@ -65,6 +69,7 @@ from gateway.sim.objects import (
     decode,
     resolve_default,
 )
+from gateway.sim.process import ProcessModel
 from gateway.sim.sdo import SdoServer
 from gateway.sim.tpdo_producer import TpdoProducer
 from gateway.states import NmtState
@@ -90,44 +95,34 @@ class SimNode:
         self.profile = profile
         self.configured_node_id = node_id
         self.node_id = node_id
-        self.pending_node_id: int | None = None
+        self.pending_node_id: int | None = None  # adopted at the next reset (LSS, Auto-ID)
         self.store = store if store is not None else PersistentStore()
         raw: dict[str, Any] = {**profile.profile.sim, **(options or {})}
         if isinstance(motion, dict):
             raw["motion"] = {**(raw.get("motion") or {}), **motion}
-        self.hints = SimHints.from_dict(raw)
+        self.hints = SimHints.from_dict(raw, eds_only=not profile.profile.sim)
         # the identity the gateway checks (1018h), where the file gives it in [DeviceInfo] only
         self.values = ObjectValues(
             profile.od, {(o.index, o.sub): v for o, v in expected_identity(profile)}
         )
         self.nmt_state = NmtState.BOOTUP
         self.powered = False
-        self.silenced = False
-        self.error_control_off = False  # heartbeat and guarding answers stopped (fault)
-        self.mute_until_s: float | None = None  # off the bus for a while (LSS bit timing switch)
         self.last_reset: nmt.ResetKind = "power"
+        self.silenced = False
+        self.mute_until_s: float | None = None  # off the bus for a while (LSS bit timing switch)
         self.now = 0.0
-        self.faults: dict[str, bool] = {}
         self.rx_count = 0
         self.tx_count = 0
         self._out: list[can.Message] = []
         #: called when the frames the node acts on may have changed (see ``listening``)
         self.on_listening_changed: Callable[[], None] | None = None
 
-        # motion model -> position / velocity objects
-        self.motion = Motion(motion if isinstance(motion, MotionConfig) else self.hints.motion)
-        self.position_obj = self.hints.position
-        self.velocity_obj = self.hints.velocity
-        self.velocity_scale = self.hints.velocity_scale
-        self.position_offset = 0  # counts added to the model (calibration / preset)
-        self._process_now: float | None = None
-
         self.sdo = SdoServer(
             lambda index, sub: object_access.sdo_read(self, index, sub),
             lambda index, sub, data, size_given: object_access.sdo_write(
                 self, index, sub, data, size_given
             ),
-            timeout_s=float(raw.get("sdo_timeout_s", 1.0)),
+            timeout_s=self.hints.sdo_timeout_s,
             segment_upload_command=self.hints.segment_upload_command,
             expedited_only=self.hints.sdo_expedited_only,
         )
@@ -137,43 +132,33 @@ class SimNode:
             present = tuple(o for o in group if self.values.has(*o))
             if len(present) > 1:
                 self.mirror_groups.append(present)
-        self.cob_id_change_preop_only = self.hints.cob_id_change_preop_only
-        self.require_mappable = bool(raw.get("require_mappable", False))
-
         # a device known only from its EDS (no sim hints): its numeric TPDO-mapped inputs follow
         # the motion model, each offset by its position in the list
-        # event-driven TPDOs without timer sent once on entering OPERATIONAL (sim option
-        # tpdo_on_operational; default for devices known only from their EDS, as most do; the
-        # manual devices keep what their manuals describe)
-        self.tpdo_on_operational = bool(raw.get("tpdo_on_operational", not profile.profile.sim))
-        # event-driven TPDOs without timer sent when their data change, the inputs sampled every
-        # input_cycle_ms (sim options; default for devices known only from their EDS)
-        self.tpdo_on_change = bool(raw.get("tpdo_on_change", not profile.profile.sim))
-        cycle_ms = raw.get("input_cycle_ms", 10)
-        if isinstance(cycle_ms, bool) or not isinstance(cycle_ms, (int, float)) or cycle_ms <= 0:
-            raise ValueError(f"input_cycle_ms: {cycle_ms!r} is not a number of ms above 0")
-        self.input_cycle_s = cycle_ms / 1000
-        self.auto_inputs: list[ObjRef] = []
-        if self.position_obj is None and self.velocity_obj is None and not profile.profile.sim:
-            self.auto_inputs = mapped_inputs(self.values, self.store, node_id)
+        auto_inputs: list[ObjRef] = []
+        if self.hints.position is None and self.hints.velocity is None and not profile.profile.sim:
+            auto_inputs = mapped_inputs(self.values, self.store, node_id)
+        # motion model -> position / velocity objects
+        self.motion = Motion(motion if isinstance(motion, MotionConfig) else self.hints.motion)
+        self.process = ProcessModel(self.values, self.hints, self.motion, auto_inputs)
         self.tpdos = pdo.numbers(self.values, "tpdo")
         self.rpdos = pdo.numbers(self.values, "rpdo")
         self.tpdo_producer = TpdoProducer(self)
         self._cob_map: dict[int, tuple[str, int]] | None = None
-        self.error_control = ErrorControl(self)
+        self.error_control = ErrorControl(self, emcy_codes=profile.profile.emcy)
+        self.device_faults = DeviceFaults(self)
 
-        self.behaviours: list[Behaviour] = []
+        self.features: list[SimFeature] = []
         feature_options = dict(raw.get("features") or {})
         for feature, params in profile.profile.features.items():
-            cls = behaviour_for(feature)
+            cls = feature_class(feature)
             if cls is not None:
                 merged = {**(params or {}), **feature_options.get(feature, {})}
-                self.behaviours.append(cls(self, merged))
-        # after the behaviours: a feature may add a mirror group (ds406_cycle_timer)
+                self.features.append(cls(self, merged))
+        # after the features: a feature may add a mirror group (ds406_cycle_timer)
         self._mirrored = frozenset(o for group in self.mirror_groups for o in group)
 
     # ======================================================================================
-    # API for behaviours and tests
+    # API for features and tests
     # ======================================================================================
     def get(self, index: int, sub: int = 0, default: Any = None) -> Any:
         """Current value of an object (no access check, no hooks)."""
@@ -198,11 +183,24 @@ class SimNode:
             )
         )
 
-    def behaviour(self, feature: str) -> Behaviour | None:
-        for b in self.behaviours:
+    def feature(self, feature: str) -> SimFeature | None:
+        for b in self.features:
             if b.feature == feature:
                 return b
         return None
+
+    @property
+    def position_offset(self) -> int:
+        """Counts added to the model (calibration / preset; a referencing run sets it)."""
+        return self.process.offset
+
+    def adopt_node_id_at_reset(self, node_id: int) -> None:
+        """The node id the next reset communication (or reset node) adopts (LSS, Auto-ID)."""
+        self.pending_node_id = node_id
+
+    def set_position_offset(self, counts: int) -> None:
+        """A referencing run's calibration (its offset objects are the feature's)."""
+        self.process.set_offset(counts, write_objects=False)
 
     def drain(self) -> list[can.Message]:
         """Frames queued outside handle()/tick() (fault injection between calls)."""
@@ -215,18 +213,18 @@ class SimNode:
     # ======================================================================================
     def power_on(self, now: float) -> list[can.Message]:
         """Switch the device on (first call of handle()/tick() does it implicitly)."""
-        nmt.initialise(self, "power", now)
+        self._initialise("power", now)
         return self.drain()
 
     def handle(self, msg: can.Message, now: float) -> list[can.Message]:
         """Frames to send in answer to ``msg`` received at ``now``."""
         self.now = now
         if not self.powered:
-            nmt.initialise(self, "power", now)
+            self._initialise("power", now)
         if self.silenced or self._muted(now):
             return []
         self.rx_count += 1
-        for b in self.behaviours:
+        for b in self.features:
             if b.on_frame(msg, now):
                 return self.drain()
         if msg.is_extended_id or msg.is_error_frame:
@@ -234,7 +232,7 @@ class SimNode:
         cob = msg.arbitration_id
         if cob == COB_NMT:
             if not msg.is_remote_frame and len(msg.data) >= 2:
-                nmt.on_nmt_command(self, msg.data[0], msg.data[1], now)
+                self._on_nmt_command(msg.data[0], msg.data[1], now)
             return self.drain()
         if cob == COB_NMT_EC + self.node_id and msg.is_remote_frame:
             self.error_control.on_guarding_rtr(now)
@@ -245,7 +243,7 @@ class SimNode:
         if target is not None:
             what, number = target
             if what == "sync" and not msg.is_remote_frame:
-                for b in self.behaviours:
+                for b in self.features:
                     b.on_sync(now)
                 self.tpdo_producer.on_sync(now)
             elif what == "sdo" and not msg.is_remote_frame:
@@ -264,10 +262,10 @@ class SimNode:
         """Frames due at ``now``."""
         self.now = now
         if not self.powered:
-            nmt.initialise(self, "power", now)
+            self._initialise("power", now)
         if self.silenced:
             return []
-        for b in self.behaviours:
+        for b in self.features:
             b.tick(now)
         if self._muted(now):
             self._out.clear()
@@ -292,7 +290,7 @@ class SimNode:
         return min(due) if due else None
 
     def mute(self, until_s: float | None) -> None:
-        """Stay off the bus until ``until_s`` (behaviours still tick; None: back now)."""
+        """Stay off the bus until ``until_s`` (features still tick; None: back now)."""
         self.mute_until_s = until_s
         if until_s is not None:
             self._out.clear()
@@ -322,19 +320,18 @@ class SimNode:
 
     def stop_error_control(self) -> None:
         """Stop the heartbeat and the answers to node guarding; process data continue."""
-        self.error_control_off = True
+        self.error_control.stop()
 
     def resume_error_control(self, now: float | None = None) -> None:
         """Heartbeat (next one now) and guarding answers again."""
-        self.error_control_off = False
         self.error_control.resume(self.now if now is None else now)
 
     def power_cycle(self, now: float | None = None) -> list[can.Message]:
         """Off and on again: stored configuration reloaded, boot-up sent."""
         now = self.now if now is None else now
         self.silenced = False
-        self.error_control_off = False
-        nmt.initialise(self, "power", now)
+        self.error_control.resume(now)  # on again; the heartbeat rescheduled by the boot
+        self._initialise("power", now)
         return self.drain()
 
     def raise_emcy(
@@ -352,37 +349,9 @@ class SimNode:
             self._emit_emcy(data, self.now if now is None else now)
 
     def inject_fault(self, name: str, active: bool, now: float | None = None) -> bool:
-        """Turn a device fault on/off; True if one of the node's behaviours implements it.
-
-        Without a behaviour, a fault listed in the sim hint ``faults: {name: {emcy: code,
-        register: bits, alarm_bit: n}}`` raises / clears that EMCY and sets / clears bit n of
-        the DS-406 alarms 6503h (default for ``sensor_error``: bit 0, position error,
-        SGH10 manual 4.7.2.38).
-        """
-        now = self.now if now is None else now
-        self.faults[name] = active
-        handled = False
-        for b in self.behaviours:
-            handled = b.on_fault(name, active, now) or handled
-        if not handled:
-            spec = self.hints.faults.get(name)
-            if spec and "emcy" in spec:
-                self.hint_fault_bits(name, active)
-                code = int(spec["emcy"])
-                if active:
-                    self.raise_emcy(code, int(spec.get("register", 0)), now=now)
-                else:
-                    self.clear_emcy(code, now=now)
-                handled = True
-        return handled
-
-    def hint_fault_bits(self, name: str, active: bool) -> None:
-        spec = self.hints.faults.get(name) or {}
-        alarm_bit = spec.get("alarm_bit", 0 if name == "sensor_error" else None)
-        if alarm_bit is not None and self.values.has(0x6503, 0):
-            alarms = int(self.values.get(0x6503, 0, 0))
-            mask = 1 << int(alarm_bit)
-            self.values.set(0x6503, 0, alarms | mask if active else alarms & ~mask)
+        """Turn a device fault on/off; True if one of the node's features or the sim hint
+        ``faults:`` implements it (``device_faults.py``)."""
+        return self.device_faults.inject(name, active, self.now if now is None else now)
 
     def sensor_error(self, active: bool = True, now: float | None = None) -> bool:
         return self.inject_fault("sensor_error", active, now)
@@ -398,20 +367,55 @@ class SimNode:
     # ======================================================================================
     def reset_communication(self, now: float) -> None:
         """As NMT 82h: adopt a pending node id and boot up again."""
-        nmt.initialise(self, "communication", now)
+        self._initialise("communication", now)
+
+    def _initialise(self, kind: nmt.ResetKind, now: float) -> None:
+        """INITIALISATION (SGH10 manual 4.2.1.1, ``nmt.py``), boot-up message, PRE-OPERATIONAL."""
+        self.powered, self.last_reset, self.nmt_state = True, kind, NmtState.BOOTUP
+        self.node_id = nmt.node_id_after_reset(
+            kind, configured=self.configured_node_id, current=self.node_id,
+            pending=self.pending_node_id, stored=self.store.node_id,
+        )  # fmt: skip
+        self.pending_node_id = None
+        nmt.reload_objects(self.values, self.store, self.node_id, kind)
+        if kind == "power":
+            self.emcy.reset()
+            self.device_faults.clear()
+            self.process.power_on(now, self.store.position_offset)
+        self.listening_changed()
+        self.sdo.reset()
+        self.error_control.reset()
+        self.tpdo_producer.reset()
+        self.process.invalidate()
+        if kind != "power":  # the device still has its faults: show them again
+            self.device_faults.show_again()
+        for b in self.features:
+            b.on_boot(now)
+        self.send(COB_NMT_EC + self.node_id, b"\x00")  # boot-up (4.2.2), unless silenced
+        self.nmt_state = NmtState.PRE_OPERATIONAL
+        self.error_control.schedule_heartbeat(now)
+        for b in self.features:
+            b.on_nmt(int(self.nmt_state), now)
+
+    def _on_nmt_command(self, cs: int, target: int, now: float) -> None:
+        """An NMT command ``[cs, target]`` (SGH10 manual 4.2.1): a reset or a new state."""
+        asked = nmt.command(cs, target, self.node_id)
+        if isinstance(asked, NmtState):
+            self.set_nmt_state(asked, now)
+        elif asked is not None:
+            self._initialise(asked, now)
 
     def set_nmt_state(self, state: NmtState | int, now: float) -> None:
-        """Enter ``state`` (behaviours use this, e.g. external heartbeat -> PRE-OPERATIONAL)."""
+        """Enter ``state`` (features use this, e.g. external heartbeat -> PRE-OPERATIONAL)."""
         state = NmtState(state)
         if state == self.nmt_state:
             return
-        old = self.nmt_state
-        self.nmt_state = state
+        old, self.nmt_state = self.nmt_state, state
         if state == NmtState.OPERATIONAL and old != NmtState.OPERATIONAL:
             self.tpdo_producer.enter_operational(now)
         if old == NmtState.OPERATIONAL:
             self.tpdo_producer.leave_operational()
-        for b in self.behaviours:
+        for b in self.features:
             b.on_nmt(int(state), now)
 
     @property
@@ -422,12 +426,6 @@ class SimNode:
     # ======================================================================================
     # EMCY
     # ======================================================================================
-    def _emcy_cob(self) -> int | None:
-        if not self.values.has(0x1014, 0):
-            return COB_EMCY + self.node_id
-        cob = int(self.values.get(0x1014, 0, 0))
-        return None if cob & COB_ID_INVALID else cob & COB_ID_MASK_29BIT
-
     def _emit_emcy(self, data: bytes, now: float) -> None:
         """EMCY only in OPERATIONAL / PRE-OPERATIONAL (SGH10 manual 4.5.1)."""
         if self.nmt_state not in (NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL):
@@ -436,7 +434,7 @@ class SimNode:
         self._flush_emcy(now)
 
     def _flush_emcy(self, now: float) -> None:
-        cob = self._emcy_cob()
+        cob = emcy_cob(self.values, self.node_id)
         for data in self.emcy.poll(now):
             if cob is not None:
                 self.send(cob, data)
@@ -446,46 +444,21 @@ class SimNode:
     # ======================================================================================
     def invalidate_process(self) -> None:
         """The next update_process() recomputes even at the same ``now``."""
-        self._process_now = None
+        self.process.invalidate()
 
     def update_process(self, now: float) -> None:
-        """Motion model -> position/velocity objects, then the behaviours' process update."""
-        if self._process_now == now:
-            return
-        self._process_now = now
-        pos, vel = self.motion.sample(now)
-        for i, obj in enumerate(self.auto_inputs):
-            self.values.set(*obj, auto_value(self.values, obj, pos + 7 * i))
-        if self.position_obj is not None:
-            self.values.set(*self.position_obj, self.position_from_model(pos))
-        if self.velocity_obj is not None:
-            self.values.set(*self.velocity_obj, int(round(vel * self.velocity_scale)))
-        for b in self.behaviours:
-            b.update_process(now)
+        """Motion model -> position/velocity objects, then the features' process update."""
+        if self.process.sample(now):
+            for b in self.features:
+                b.update_process(now)
 
-    # -- position model: direction x model + calibration offset + application offset ---------
     def direction_sign(self) -> int:
-        """-1 when the profile's direction bit is set (e.g. 6000h bit 0, AP05 manual 5.7.2.49)."""
-        d = self.hints.direction
-        if d is None or not self.values.has(*d[0]):
-            return 1
-        return -1 if int(self.values.get(*d[0], 0)) >> d[1] & 1 else 1
-
-    def position_from_model(self, model_counts: float) -> int:
-        app = self.hints.application_offset
-        app_offset = int(self.values.get(*app, 0)) if app is not None else 0
-        return self.direction_sign() * int(round(model_counts)) + self.position_offset + app_offset
+        """-1 when the profile's direction bit is set (``ProcessModel.direction_sign``)."""
+        return self.process.direction_sign()
 
     def calibrate(self, preset: int, now: float) -> None:
-        """Make the position read ``preset`` (+ the application offset) now: "Position value =
-        0 + calibration value + offset value" (SGH10 manual 3.2, AP05 manual 4.4)."""
-        model, _ = self.motion.sample(now)
-        self.position_offset = int(preset) - self.direction_sign() * int(round(model))
-        for obj in self.hints.offset_objects:
-            if self.values.has(*obj):
-                # SGH10 manual 4.7.2.44: 6509h = encoder value - position value
-                self.values.set(*obj, -self.position_offset)
-        self._process_now = None
+        """Make the position read ``preset`` now (``ProcessModel.calibrate``)."""
+        self.process.calibrate(preset, now)
 
     def tpdo(self, number: int) -> pdo.TpdoParams:
         """TPDO ``number``'s current parameters and compiled mapping (cached until a PDO
@@ -497,7 +470,7 @@ class SimNode:
         return self.tpdo_producer.data(number, now)
 
     def trigger_tpdo(self, number: int, now: float) -> None:
-        """An application event for an event-driven TPDO (behaviours), in OPERATIONAL only."""
+        """An application event for an event-driven TPDO (features), in OPERATIONAL only."""
         self.tpdo_producer.trigger(number, now)
 
     def _on_rpdo(self, number: int, data: bytes, now: float) -> None:
@@ -508,7 +481,7 @@ class SimNode:
             return
         for obj, value in pdo.unpack(self.values, entries, data):
             self.set(obj.index, obj.sub, value)
-        for b in self.behaviours:
+        for b in self.features:
             b.on_rpdo(number, data, now)
 
     # ======================================================================================
@@ -516,13 +489,13 @@ class SimNode:
     # ======================================================================================
     def listening(self) -> frozenset[int] | None:
         """The 11-bit COB-IDs of the frames ``handle`` acts on: NMT, its guarding RTR, SYNC,
-        SDO, its PDOs and what the behaviours look at. A runner may hand the node only those
+        SDO, its PDOs and what the features look at. A runner may hand the node only those
         standard frames (every extended or error frame still goes to every node). None: every
-        frame (not powered yet, or a behaviour that looks at all of them)."""
+        frame (not powered yet, or a feature that looks at all of them)."""
         if not self.powered:
             return None
         cobs = {COB_NMT, COB_NMT_EC + self.node_id, *self._cobs()}
-        for b in self.behaviours:
+        for b in self.features:
             ids = b.frame_cob_ids()
             if ids is None:
                 return None

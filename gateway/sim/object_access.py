@@ -1,11 +1,12 @@
 """The simulated device's objects as its SDO server reads and writes them: what a read or a
 write checks and what a write sets off.
 
-Module-level functions taking the ``SimNode`` (SGH10 manual 000/003 section numbers):
+Module-level functions taking the node as ``ObjectHost`` (a Protocol: what they use of a
+``SimNode``; SGH10 manual 000/003 section numbers):
 
 - ``sdo_read`` / ``sdo_write``, the SDO server's callbacks (4.4.1): objects the device does not
   use (sim hint ``unused_objects``) aborted with the hint's code; the access and size checks of
-  ``ObjectValues.check_write``; the behaviours' ``before_sdo_read`` / ``before_sdo_write``
+  ``ObjectValues.check_write``; the features' ``before_sdo_read`` / ``before_sdo_write``
   (which may abort) and ``after_sdo_write``; a 1003h entry beyond the count aborted 0x08000024;
 - ``check_profile_range``: a value outside the profile's min..max (engineering values) is
   aborted 0x06090030;
@@ -20,13 +21,13 @@ Module-level functions taking the ``SimNode`` (SGH10 manual 000/003 section numb
   or calibration trigger calibrates the position (SGH10 manual 3.2, AP05 manual 4.4).
 
 Imports: gateway.cia301 (COB-ID bits), gateway.objref, gateway.states, sim.objects (abort
-codes), sim.pdo; gateway.profiles and sim.node for types only. Nothing of bus/, modbus/,
+codes), sim.pdo; gateway.profiles and the other sim parts for types only. Nothing of bus/, modbus/,
 zenoh_bridge/.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import gateway.sim.pdo as pdo
 from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT, SYNC_GENERATOR
@@ -36,17 +37,45 @@ from gateway.sim.objects import (
     ABORT_RANGE,
     ABORT_STATE,
     ABORT_STORE,
+    ObjectValues,
+    PersistentStore,
     SdoAbortError,
 )
 from gateway.states import NmtState
 
 if TYPE_CHECKING:
     from gateway.profiles import LoadedProfile
-    from gateway.sim.node import SimNode
+    from gateway.sim.emcy import EmcyProducer
+    from gateway.sim.error_control import ErrorControl
+    from gateway.sim.features import SimFeature
+    from gateway.sim.hints import SimHints
 
 # 1010h / 1011h signatures, ASCII "save" / "load" little-endian (SGH10 manual 4.7.2.11/12)
 SIGNATURE_SAVE = 0x65766173
 SIGNATURE_LOAD = 0x64616F6C
+
+
+class ObjectHost(Protocol):
+    """What an SDO read or write uses of its node."""
+
+    values: ObjectValues
+    store: PersistentStore
+    hints: SimHints
+    profile: LoadedProfile
+    features: list[SimFeature]
+    emcy: EmcyProducer
+    error_control: ErrorControl
+    now: float
+    node_id: int
+    nmt_state: NmtState
+
+    @property
+    def position_offset(self) -> int: ...
+
+    def set(self, index: int, sub: int, value: Any) -> None: ...
+    def calibrate(self, preset: int, now: float) -> None: ...
+    def update_process(self, now: float) -> None: ...
+    def invalidate_process(self) -> None: ...
 
 
 def check_profile_range(profile: LoadedProfile, obj: ObjRef, value: Any) -> None:
@@ -66,12 +95,12 @@ def check_profile_range(profile: LoadedProfile, obj: ObjRef, value: Any) -> None
         raise SdoAbortError(ABORT_RANGE, f"{obj} value {eng} outside {sig.min}..{sig.max}")
 
 
-def _check_preop(node: SimNode, obj: ObjRef) -> None:
-    if node.cob_id_change_preop_only and node.nmt_state != NmtState.PRE_OPERATIONAL:
+def _check_preop(node: ObjectHost, obj: ObjRef) -> None:
+    if node.hints.cob_id_change_preop_only and node.nmt_state != NmtState.PRE_OPERATIONAL:
         raise SdoAbortError(ABORT_STATE, f"{obj} is writable in PRE-OPERATIONAL only")
 
 
-def _store_command(node: SimNode, obj: ObjRef, value: Any) -> None:
+def _store_command(node: ObjectHost, obj: ObjRef, value: Any) -> None:
     """1010h save / 1011h load (SGH10 manual 4.7.2.11/12)."""
     index, sub = obj
     if index == 0x1010:
@@ -88,7 +117,7 @@ def _store_command(node: SimNode, obj: ObjRef, value: Any) -> None:
         node.store.position_offset = None
 
 
-def _calibration_write(node: SimNode, obj: ObjRef, value: Any, now: float) -> None:
+def _calibration_write(node: ObjectHost, obj: ObjRef, value: Any, now: float) -> None:
     h = node.hints
     if h.calibration_trigger is None and obj == h.preset:
         node.calibrate(int(value), now)
@@ -99,7 +128,7 @@ def _calibration_write(node: SimNode, obj: ObjRef, value: Any, now: float) -> No
             node.values.set(*obj, h.calibration_done_value)
 
 
-def write_object(node: SimNode, obj: ObjRef, value: Any, now: float) -> None:
+def write_object(node: ObjectHost, obj: ObjRef, value: Any, now: float) -> None:
     """DS-301 objects with rules or side effects, then store the value."""
     index, sub = obj
     if index == 0x1003 and sub == 0:
@@ -123,7 +152,7 @@ def write_object(node: SimNode, obj: ObjRef, value: Any, now: float) -> None:
         _, _, is_map = which
         if is_map or sub == 1:  # COB-ID and mapping (SGH10 manual 4.1, 4.2.1.1)
             _check_preop(node, obj)
-        pdo.check_write(node.values, index, sub, value, require_mappable=node.require_mappable)
+        pdo.check_write(node.values, index, sub, value, require_mappable=node.hints.require_mappable)
     node.set(index, sub, value)
     if index == 0x1017:
         node.error_control.schedule_heartbeat(now)
@@ -134,7 +163,7 @@ def write_object(node: SimNode, obj: ObjRef, value: Any, now: float) -> None:
         node.invalidate_process()
 
 
-def sdo_read(node: SimNode, index: int, sub: int) -> bytes:
+def sdo_read(node: ObjectHost, index: int, sub: int) -> bytes:
     """The SDO server's read of ``index:sub`` (raises SdoAbortError)."""
     now = node.now
     var = node.values.var(index, sub)  # 0x06020000 / 0x06090011 first
@@ -142,7 +171,7 @@ def sdo_read(node: SimNode, index: int, sub: int) -> bytes:
     if obj in node.hints.unused_objects:
         raise SdoAbortError(node.hints.unused_abort, f"{obj} is not used by this device")
     node.update_process(now)
-    for b in node.behaviours:
+    for b in node.features:
         code = b.before_sdo_read(obj, now)
         if code is not None:
             raise SdoAbortError(code)
@@ -152,7 +181,7 @@ def sdo_read(node: SimNode, index: int, sub: int) -> bytes:
     return node.values.read_bytes(index, sub)
 
 
-def sdo_write(node: SimNode, index: int, sub: int, data: bytes, size_given: bool) -> None:
+def sdo_write(node: ObjectHost, index: int, sub: int, data: bytes, size_given: bool) -> None:
     """The SDO server's write of ``data`` to ``index:sub`` (raises SdoAbortError)."""
     now = node.now
     obj = ObjRef(index, sub)
@@ -161,10 +190,10 @@ def sdo_write(node: SimNode, index: int, sub: int, data: bytes, size_given: bool
         raise SdoAbortError(node.hints.unused_abort, f"{obj} is not used by this device")
     _, value = node.values.check_write(index, sub, data, size_given)
     check_profile_range(node.profile, obj, value)
-    for b in node.behaviours:
+    for b in node.features:
         code = b.before_sdo_write(obj, value, now)
         if code is not None:
             raise SdoAbortError(code)
     write_object(node, obj, value, now)
-    for b in node.behaviours:
+    for b in node.features:
         b.after_sdo_write(obj, value, now)

@@ -5,7 +5,7 @@ defaults with ``$NODEID`` resolved (a DCF's ParameterValue first, CompactSubObj 
 included: what the gateway reads from the same file, ``gateway.eds.pdos.default_value``). Values live in a dict keyed by (index, sub) as Python values
 (int, float, str, bytes); this module encodes/decodes them to the little-endian bytes of SDO and
 PDO transfers and raises :class:`SdoAbortError` with the DS-301 abort code when an access is
-refused. It knows nothing of NMT, PDO rules or device behaviours (node.py does).
+refused. It knows nothing of NMT, PDO rules or device features (node.py does).
 
 Imports: canopen (object dictionary types only), gateway.eds.pdos (default_value),
 gateway.objref.

@@ -1,15 +1,15 @@
 """The simulated device's TPDO producer: when each TPDO goes out, and with which data.
 
-``TpdoProducer(node)`` belongs to one ``SimNode`` and keeps, per TPDO, its timer (next event
-time, SYNC count, last data, last send, a send held back by the inhibit time) and its compiled
-parameters (from the current 180xh/1A0xh, dropped when a PDO object changes). It implements
-(SGH10 manual 000/003 section numbers):
+``TpdoProducer(host)`` belongs to one ``SimNode`` (seen as ``TpdoHost``, a Protocol) and keeps,
+per TPDO, its timer (next event time, SYNC count, last data, last send, a send held back by the
+inhibit time) and its compiled parameters (from the current 180xh/1A0xh, dropped when a PDO
+object changes). It implements (SGH10 manual 000/003 section numbers):
 
 - transmission types 254/255 (4.3.1.1) on the event timer 180xh:05, with the inhibit time
   180xh:03; a timer written in OPERATIONAL applies with its next run, one started from 0 runs
   from now (4.7.2.17);
 - types 1..240 every n-th SYNC, type 0 on SYNC when the data changed (4.2.3, 4.3.1.1);
-- an application event (a behaviour's ``trigger_tpdo``) for an event-driven TPDO;
+- an application event (a feature's ``trigger_tpdo``) for an event-driven TPDO;
 - with the sim option ``tpdo_on_operational``, an event-driven TPDO without timer sent once on
   entering OPERATIONAL (CiA 301 7.3.2);
 - with the sim option ``tpdo_on_change``, an event-driven TPDO without timer (types 254/255,
@@ -19,23 +19,25 @@ parameters (from the current 180xh/1A0xh, dropped when a PDO object changes). It
   (100 us units, CiA 301 7.5.2.35), a change inside that window goes out when it ends.
 
 TPDOs go out in OPERATIONAL only: the node calls ``enter_operational`` / ``leave_operational``
-on its NMT changes. Sans-I/O as its node: it sends through ``node.send`` and reads no clock.
+on its NMT changes. Sans-I/O as its node: it sends through ``host.send`` and reads no clock.
 
-Imports: gateway.cia301 (COB-ID bits), gateway.states (NmtState), sim.pdo; sim.node for types
-only. Nothing of bus/, modbus/, zenoh_bridge/.
+Imports: gateway.cia301 (COB-ID bits), gateway.states (NmtState), sim.pdo; sim.features,
+sim.hints and sim.objects for types only. Nothing of bus/, modbus/, zenoh_bridge/.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import gateway.sim.pdo as pdo
 from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT
 from gateway.states import NmtState
 
 if TYPE_CHECKING:
-    from gateway.sim.node import SimNode
+    from gateway.sim.features import SimFeature
+    from gateway.sim.hints import SimHints
+    from gateway.sim.objects import ObjectValues
 
 # Due times are sums of float periods (0.2 + 0.1 > 0.3): a timer is due within this margin.
 _EPS_S = 1e-9
@@ -50,10 +52,24 @@ class TpdoTimer:
     pending: bool = False  # held back by the inhibit time
 
 
+class TpdoHost(Protocol):
+    """What the TPDO producer uses of its node (the sim hints hold its options)."""
+
+    values: ObjectValues
+    features: list[SimFeature]
+    now: float
+    tpdos: list[int]
+    hints: SimHints
+    nmt_state: NmtState
+
+    def update_process(self, now: float) -> None: ...
+    def send(self, cob_id: int, data: bytes = b"", *, rtr: bool = False, dlc: int = 0) -> None: ...
+
+
 class TpdoProducer:
     """When the TPDOs of one simulated node are sent."""
 
-    def __init__(self, node: SimNode) -> None:
+    def __init__(self, node: TpdoHost) -> None:
         self.node = node
         self.timers: dict[int, TpdoTimer] = {n: TpdoTimer() for n in node.tpdos}
         self._params: dict[int, pdo.TpdoParams] = {}  # dropped when a PDO object changes
@@ -81,7 +97,7 @@ class TpdoProducer:
         node = self.node
         node.update_process(now)
         data = pdo.pack_compiled(node.values, self.params(number).plan)
-        for b in node.behaviours:
+        for b in node.features:
             data = b.tpdo_data(number, data, now)
         return data
 
@@ -138,7 +154,7 @@ class TpdoProducer:
                 t.next_due_s = now + period_s
         if self.next_sample_s is not None and now + _EPS_S >= self.next_sample_s:
             self._send_changed(now)
-            cycle_s = self.node.input_cycle_s
+            cycle_s = self.node.hints.input_cycle_s
             self.next_sample_s += cycle_s
             if self.next_sample_s <= now:
                 self.next_sample_s = now + cycle_s
@@ -177,14 +193,14 @@ class TpdoProducer:
             t.last_data = None
             t.next_due_s = now if pdo.event_timer_ms(node.values, n) > 0 else None
             if (
-                node.tpdo_on_operational
+                node.hints.tpdo_on_operational
                 and t.next_due_s is None
                 and pdo.transmission_type(node.values, "tpdo", n) >= 254
             ):
                 # an event-driven TPDO without timer is sent once on entering OPERATIONAL
                 # (its current values), then on events (CiA 301 7.3.2)
                 t.next_due_s = now
-        self.next_sample_s = now if node.tpdo_on_change else None
+        self.next_sample_s = now if node.hints.tpdo_on_change else None
 
     def leave_operational(self) -> None:
         for t in self.timers.values():

@@ -13,7 +13,7 @@ current value when the client's turn comes, at most ``MAX_UPDATES_PER_S`` times 
 full refresh every ``FULL_REFRESH_S`` (ages, rates). A client whose socket does not drain (more
 than ``MAX_BUFFERED_BYTES`` waiting in the transport) is skipped, its dirty set waiting (bounded
 by the number of signals and nodes), and dropped after ``SLOW_CLIENT_LIMIT_S``. Nothing the
-gateway does ever waits for a browser.
+gateway does ever waits for a browser. ``stream_sse`` is that pump, the bus monitor's pages' too.
 
 Rule 3: everything here runs on the event loop, except ``_on_values`` (the reader thread).
 Health listeners are called on the event loop by the image's writer.
@@ -228,48 +228,98 @@ class LiveHub:
         slow_limit_s: float = SLOW_CLIENT_LIMIT_S,
         max_buffered: int = MAX_BUFFERED_BYTES,
     ) -> None:
-        """Write ``sub``'s updates to ``writer`` until the client goes away (or is too slow)."""
-        loop = asyncio.get_running_loop()
-        transport = writer.transport
-        gone = asyncio.ensure_future(reader.read(1))  # the browser sends nothing: EOF = gone
+        """Write ``sub``'s updates to ``writer`` until the client goes away (or is too slow):
+        what changed, at most ``MAX_UPDATES_PER_S`` times a second, everything every
+        ``FULL_REFRESH_S``."""
         last_full = -FULL_REFRESH_S
-        last_send = -MIN_SEND_INTERVAL_S
-        slow_since: float | None = None
+
+        def turn(now: float) -> bytes:
+            nonlocal last_full
+            full = now - last_full >= FULL_REFRESH_S
+            events = render(sub, full)
+            if full:
+                last_full = now
+            if not events:
+                return b""
+            sub.sent += 1
+            return b"".join(sse(name, data) for name, data in events)
+
+        def skip() -> None:
+            sub.skipped += 1
+
         try:
-            writer.write(f"retry: {RETRY_MS}\n\n".encode())
-            while not gone.done() and not transport.is_closing():
-                now = loop.time()
-                wait_s = max(0.0, last_full + FULL_REFRESH_S - now)
-                if not sub.wake.is_set() and wait_s > 0:
-                    woken = asyncio.ensure_future(sub.wake.wait())
-                    await asyncio.wait({woken, gone}, timeout=wait_s, return_when="FIRST_COMPLETED")
-                    woken.cancel()
-                    if gone.done():
-                        break
-                # at most MAX_UPDATES_PER_S: what changes meanwhile joins this update
-                gap = last_send + MIN_SEND_INTERVAL_S - loop.time()
-                if gap > 0:
-                    await asyncio.sleep(gap)
-                now = loop.time()
-                if transport.get_write_buffer_size() > max_buffered:
-                    sub.skipped += 1
-                    if slow_since is None:
-                        slow_since = now
-                    elif now - slow_since > slow_limit_s:
-                        log.info("web console client dropped: it has not read for %.0f s", slow_limit_s)
-                        break
-                    last_send = now  # try again one interval later
-                    continue
-                slow_since = None
-                sub.wake.clear()
-                full = now - last_full >= FULL_REFRESH_S
-                events = render(sub, full)
-                if full:
-                    last_full = now
-                if events:
-                    writer.write(b"".join(sse(name, data) for name, data in events))
-                    sub.sent += 1
-                    last_send = now
+            await stream_sse(
+                reader,
+                writer,
+                sub.wake,
+                turn,
+                lambda: last_full + FULL_REFRESH_S,
+                interval_s=MIN_SEND_INTERVAL_S,
+                who="web console client",
+                on_skip=skip,
+                slow_limit_s=slow_limit_s,
+                max_buffered=max_buffered,
+            )
         finally:
-            gone.cancel()
             self.unsubscribe(sub)
+
+
+async def stream_sse(
+    reader: asyncio.StreamReader,
+    writer: asyncio.StreamWriter,
+    wake: asyncio.Event,
+    turn: Callable[[float], bytes],
+    due: Callable[[], float],
+    *,
+    interval_s: float,
+    who: str,
+    first: bytes = b"",
+    on_skip: Callable[[], None] | None = None,
+    slow_limit_s: float = SLOW_CLIENT_LIMIT_S,
+    max_buffered: int = MAX_BUFFERED_BYTES,
+) -> None:
+    """The one server-sent-event pump of the console (the live pages and the bus monitor, Rule 2).
+
+    Writes the ``retry:`` line and ``first``, then, until the browser goes away (EOF: it sends
+    nothing) or its transport closes, one ``turn(now)`` (loop time; the bytes to write, ``b""``
+    for nothing) when ``wake`` is set or the loop time ``due()`` has come, at most one write
+    every ``interval_s``: what comes meanwhile joins the next write. A turn whose socket holds
+    more than ``max_buffered`` bytes is skipped (``on_skip``), ``wake`` left set; after
+    ``slow_limit_s`` of skipped turns the client (``who``, in the log) is dropped."""
+    loop = asyncio.get_running_loop()
+    transport = writer.transport
+    gone = asyncio.ensure_future(reader.read(1))  # the browser sends nothing: EOF = gone
+    last_send = float("-inf")
+    slow_since: float | None = None
+    try:
+        writer.write(f"retry: {RETRY_MS}\n\n".encode() + first)
+        while not gone.done() and not transport.is_closing():
+            wait_s = max(0.0, due() - loop.time())
+            if not wake.is_set() and wait_s > 0:
+                woken = asyncio.ensure_future(wake.wait())
+                await asyncio.wait({woken, gone}, timeout=wait_s, return_when="FIRST_COMPLETED")
+                woken.cancel()
+                if gone.done():
+                    break
+            gap = last_send + interval_s - loop.time()
+            if gap > 0:
+                await asyncio.sleep(gap)
+            now = loop.time()
+            if transport.get_write_buffer_size() > max_buffered:
+                if on_skip is not None:
+                    on_skip()
+                if slow_since is None:
+                    slow_since = now
+                elif now - slow_since > slow_limit_s:
+                    log.info("%s dropped: it has not read for %.0f s", who, slow_limit_s)
+                    break
+                last_send = now  # try again one interval later
+                continue
+            slow_since = None
+            wake.clear()
+            data = turn(now)
+            if data:
+                writer.write(data)
+                last_send = now
+    finally:
+        gone.cancel()

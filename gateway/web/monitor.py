@@ -17,15 +17,15 @@ are counted and the page gets one "skipped" line for them. Only frames that are 
 decoded (``gateway.northbound.frames.FrameDecoder``, once per frame whatever the number of pages).
 
 Rule 3: a page is a bounded queue of lines (``MAX_PENDING``, the size of the page's own ring)
-written by its pump at most ``1 / SEND_INTERVAL_S`` times a second, each write with a status
+written by its pump (the console's one, ``gateway.web.live.stream_sse``) at most ``1 / SEND_INTERVAL_S`` times a second, each write with a status
 (shown, skipped, lost; once a second when no line comes). A page whose socket does not drain is skipped (its queue drops
-the oldest lines and counts them) and disconnected after ``SLOW_CLIENT_LIMIT_S``.
+the oldest lines and counts them) and disconnected after ``SLOW_CLIENT_LIMIT_S`` (``web.live``'s).
 
 Frames the gateway sends are not tapped (they leave through the sender thread): the page shows
 what the gateway receives, as ``canopen-gateway monitor`` on a second connection shows both.
 
 Imports: config, northbound.frames (the decoder, node and kind filters), web.live
-(the SSE framing and its limits). Never bus/ (the driver is given as an object with a
+(the SSE framing, its limits and its pump, ``stream_sse``). Never bus/ (the driver is given as an object with a
 ``add_tap`` / ``remove_tap``), modbus/ or zenoh_bridge/.
 """
 
@@ -39,7 +39,7 @@ from typing import Any, Protocol
 
 from gateway.config import Config
 from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
-from gateway.web.live import MAX_BUFFERED_BYTES, RETRY_MS, SLOW_CLIENT_LIMIT_S, Handoff, sse
+from gateway.web.live import Handoff, sse, stream_sse
 
 log = logging.getLogger("gateway.web")
 
@@ -316,52 +316,35 @@ class FrameMonitor:
         }
 
     async def pump(
-        self,
-        page: MonitorPage,
-        reader: asyncio.StreamReader,
-        writer: asyncio.StreamWriter,
-        *,
-        slow_limit_s: float = SLOW_CLIENT_LIMIT_S,
-        max_buffered: int = MAX_BUFFERED_BYTES,
+        self, page: MonitorPage, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
     ) -> None:
-        """Write the page's lines until the browser goes away (or does not read)."""
-        loop = asyncio.get_running_loop()
-        transport = writer.transport
-        gone = asyncio.ensure_future(reader.read(1))  # the browser sends nothing: EOF = gone
+        """Write the page's lines until the browser goes away (or does not read for
+        ``web.live.SLOW_CLIENT_LIMIT_S``): at most one write every ``SEND_INTERVAL_S``, a status at least
+        every ``STATUS_PERIOD_S``."""
         last_status = float("-inf")
-        slow_since: float | None = None
+
+        def turn(now: float) -> bytes:
+            nonlocal last_status
+            chunks = []
+            if page.lines:
+                lines = list(page.lines)
+                page.lines.clear()
+                chunks.append(sse("frames", lines))
+            if chunks or now - last_status >= STATUS_PERIOD_S:
+                chunks.append(sse("status", page.status(self.lost)))
+                last_status = now
+            return b"".join(chunks)
+
         try:
-            writer.write(f"retry: {RETRY_MS}\n\n".encode() + sse("hello", self.hello(page)))
-            while not gone.done() and not transport.is_closing():
-                wait_s = max(0.0, last_status + STATUS_PERIOD_S - loop.time())
-                if not page.wake.is_set() and wait_s > 0:
-                    woken = asyncio.ensure_future(page.wake.wait())
-                    await asyncio.wait({woken, gone}, timeout=wait_s, return_when="FIRST_COMPLETED")
-                    woken.cancel()
-                    if gone.done():
-                        break
-                now = loop.time()
-                if transport.get_write_buffer_size() > max_buffered:
-                    if slow_since is None:
-                        slow_since = now
-                    elif now - slow_since > slow_limit_s:
-                        log.info("bus monitor page dropped: it has not read for %.0f s", slow_limit_s)
-                        break
-                    await asyncio.sleep(SEND_INTERVAL_S)
-                    continue
-                slow_since = None
-                page.wake.clear()
-                chunks = []
-                if page.lines:
-                    lines = list(page.lines)
-                    page.lines.clear()
-                    chunks.append(sse("frames", lines))
-                if chunks or now - last_status >= STATUS_PERIOD_S:
-                    chunks.append(sse("status", page.status(self.lost)))
-                    last_status = now
-                if chunks:
-                    writer.write(b"".join(chunks))
-                await asyncio.sleep(SEND_INTERVAL_S)  # what comes meanwhile joins the next write
+            await stream_sse(
+                reader,
+                writer,
+                page.wake,
+                turn,
+                lambda: last_status + STATUS_PERIOD_S,
+                interval_s=SEND_INTERVAL_S,
+                who="bus monitor page",
+                first=sse("hello", self.hello(page)),
+            )
         finally:
-            gone.cancel()
             self.close(page)

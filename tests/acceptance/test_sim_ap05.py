@@ -183,7 +183,7 @@ def test_auto_id_waits_for_the_key_when_asked_to() -> None:
     )
     node.power_on(0.0)
     assert rx(node, 0x67D, "2F 0A 5F 02 09 00 00 00") == []
-    auto_id = node.behaviour("auto_id")
+    auto_id = node.feature("auto_id")
     auto_id.press_key(2.0)  # type: ignore[union-attr]
     assert hexframes(node.drain()) == [(0x5FD, "60 0A 5F 02 00 00 00 00")]
     assert hexframes(node.tick(2.001)) == [(0x709, "00")]
@@ -193,7 +193,7 @@ def test_auto_id_waits_for_the_key_when_asked_to() -> None:
 def test_4_1_2_alphanumeric_rows_ascii_and_acknowledgement(node: SimNode) -> None:
     rx(node, 0x601, "2F 1B 5F 02 03 00 00 00")  # operating mode 3
     rx(node, 0x000, "01 01")
-    display = node.behaviour("alphanumeric_display")
+    display = node.feature("alphanumeric_display")
     assert display is not None
     assert display.rows == {1: "", 2: "---"}  # type: ignore[attr-defined]
     # RPDO1: "HELLO!" in bytes 0-5, control bits 2 (valid) and 7 (ASCII)

@@ -162,7 +162,7 @@ def test_4_6_2_3_activate_bit_timing_is_silent_for_two_delays_then_boots(sgh10: 
     assert sgh10.tick(1.1999) == []
     out = sgh10.tick(1.2)
     assert [(m.arbitration_id, bytes(m.data)) for m in out][0] == (0x701, b"\x00")
-    lss = sgh10.behaviour("lss_slave")
+    lss = sgh10.feature("lss_slave")
     assert lss is not None and lss.bitrate_kbps == 250  # type: ignore[attr-defined]
 
 

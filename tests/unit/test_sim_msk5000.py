@@ -13,7 +13,7 @@ import can
 import pytest
 
 from gateway.profiles import load_profile
-from gateway.sim.behaviours import behaviour_for
+from gateway.sim.features import feature_class
 from gateway.sim.node import SimNode
 from tests.helpers import frame
 
@@ -70,12 +70,12 @@ REMAP_SEQUENCE = [
 ]
 
 
-def test_behaviours_are_registered_under_their_feature_names() -> None:
+def test_sim_features_are_registered_under_their_feature_names() -> None:
     for feature in ("remappable_tpdo", "referencing", "speed_alarm"):
-        cls = behaviour_for(feature)
+        cls = feature_class(feature)
         assert cls is not None and cls.feature == feature
     bench = Bench()
-    assert {b.feature for b in bench.node.behaviours} >= {
+    assert {b.feature for b in bench.node.features} >= {
         "remappable_tpdo",
         "referencing",
         "speed_alarm",
@@ -147,8 +147,8 @@ def test_mapping_entry_written_while_mapping_is_enabled_is_refused() -> None:
     bench = Bench()
     bench.sdo(REMAP_SEQUENCE[0][0])  # step 2 done, step 3 skipped
     assert bench.sdo("23 00 1A 01 20 00 04 60") == abort(0x1A00, 1, 0x08000022)
-    behaviour = bench.node.behaviour("remappable_tpdo")
-    assert behaviour.state(1) == "deactivated"
+    feature = bench.node.feature("remappable_tpdo")
+    assert feature.state(1) == "deactivated"
 
 
 def test_cob_id_cannot_change_while_the_pdo_is_valid() -> None:
@@ -164,7 +164,7 @@ def test_unmappable_or_oversized_entries_are_refused() -> None:
     bench = Bench()
     bench.sdo(REMAP_SEQUENCE[0][0])
     bench.sdo(REMAP_SEQUENCE[1][0])
-    assert bench.node.behaviour("remappable_tpdo").state(1) == "mapping_disabled"
+    assert bench.node.feature("remappable_tpdo").state(1) == "mapping_disabled"
     # 6000h operating parameters: PDO mapping "No"
     assert bench.sdo("23 00 1A 01 10 00 00 60") == abort(0x1A00, 1, 0x06040041)
     # 7000h does not exist
@@ -362,5 +362,5 @@ def test_node_id_from_5f0a_is_taken_over_after_save_and_reset_node() -> None:
     assert bench.sdo("23 10 10 01 73 61 76 65") == "60 10 10 01 00 00 00 00"  # "save"
     boot = bench.nmt(0x81)
     assert [(m.arbitration_id, hexs(m)) for m in boot] == [(0x705, "00")]
-    behaviour = bench.node.behaviour("node_id_object")
-    assert behaviour is not None and behaviour.bitrate_kbps == 250  # code 4 (notes)
+    feature = bench.node.feature("node_id_object")
+    assert feature is not None and feature.bitrate_kbps == 250  # code 4 (notes)

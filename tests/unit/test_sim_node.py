@@ -300,9 +300,9 @@ def test_a_node_silenced_before_power_on_boots_without_a_word() -> None:
     assert sdo(n, "40 00 10 00 00 00 00 00", now=1.1) == [(0x581, "43 00 10 00 96 01 0A 00")]
 
 
-def test_every_profile_feature_has_a_behaviour() -> None:
+def test_every_profile_feature_has_a_sim_feature() -> None:
     from gateway.profiles.schema import KNOWN_FEATURES
-    from gateway.sim.behaviours import registered
+    from gateway.sim.features import registered
 
     assert set(registered()) == KNOWN_FEATURES
 
@@ -335,4 +335,4 @@ def test_a_stopped_error_control_sends_no_heartbeat_and_answers_no_guarding(node
     assert frames(node.handle(rtr, 1.5)) == [(0x701, "05")]
     node.stop_error_control()
     node.power_cycle(2.0)  # a restart brings the heartbeat back
-    assert not node.error_control_off
+    assert not node.error_control.off

@@ -1,6 +1,6 @@
 """The simulated BEI IDEACOD POSI+ / POSI+ SF, driven with raw CAN frames and a fake clock.
 
-Covers the behaviours of the profile features pdo_type_selector (2005h), cams (6300h-6320h),
+Covers the simulation of the profile features pdo_type_selector (2005h), cams (6300h-6320h),
 heartbeat_consumer (1016h) and node_id_object (2101h/2100h, SF 6101h/6100h), and the SDO examples
 of manual 002 section 2.2 byte for byte. The expected bytes are copied from the manual here, so
 the tests run without it.
@@ -425,7 +425,7 @@ def test_node_numbers_outside_1_to_127_are_refused(value: int) -> None:
 
 def test_bit_rate_code_takes_effect_after_store_and_reset() -> None:
     node = make()
-    beh = node.behaviour("node_id_object")
+    beh = node.feature("node_id_object")
     assert beh is not None
     assert beh.bitrate_kbps == 20  # factory 2100h = 1
     assert write_u8(node, 0.1, 0x2100, 0, 4) == ok(0x2100, 0)
@@ -455,7 +455,7 @@ def test_sf_node_number_6101h_and_its_c5_alias_take_effect_after_store_and_reset
 
 def test_sf_has_no_pdo_type_and_no_cams() -> None:
     node = make("posi_sf")
-    assert {b.feature for b in node.behaviours} <= {"heartbeat_consumer", "node_id_object"}
+    assert {b.feature for b in node.features} <= {"heartbeat_consumer", "node_id_object"}
     assert write_u8(node, 0.1, 0x2005, 0, 2) == abort(0x2005, 0, 0x06020000)
     assert read(node, 0.1, 0x6300, 1) == abort(0x6300, 1, 0x06020000)
 

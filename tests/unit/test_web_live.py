@@ -7,7 +7,7 @@ import asyncio
 import threading
 
 from gateway.image import NodeImage, ProcessImage
-from gateway.web.live import MIN_SEND_INTERVAL_S, LiveHub, Subscriber, sse
+from gateway.web.live import MIN_SEND_INTERVAL_S, RETRY_MS, LiveHub, Subscriber, sse, stream_sse
 
 
 def _image() -> tuple[ProcessImage, NodeImage]:
@@ -154,3 +154,49 @@ async def test_a_client_that_does_not_read_is_skipped_then_dropped_and_stays_bou
 
 def test_server_sent_event_format() -> None:
     assert sse("values", {"a": 1}) == b'event: values\ndata: {"a":1}\n\n'
+
+
+async def test_the_one_sse_pump_writes_retry_and_first_then_a_turn_per_wake_until_the_browser_goes() -> None:
+    writer = FakeWriter(FakeTransport())
+    reader = asyncio.StreamReader()
+    wake = asyncio.Event()
+    turns: list[float] = []
+
+    def turn(now: float) -> bytes:
+        turns.append(now)
+        return b"event: x\ndata: 1\n\n"
+
+    pump = asyncio.create_task(
+        stream_sse(reader, writer, wake, turn, lambda: float("inf"), interval_s=0.0,
+                   who="test page", first=b"event: hello\ndata: {}\n\n")  # fmt: skip
+    )
+    await asyncio.wait_for(writer.written.wait(), 5)
+    assert writer.writes[0][1] == f"retry: {RETRY_MS}\n\n".encode() + b"event: hello\ndata: {}\n\n"
+    assert turns == []  # nothing due, nothing woke it
+    writer.written.clear()
+    wake.set()
+    await asyncio.wait_for(writer.written.wait(), 5)
+    assert len(turns) == 1 and writer.writes[1][1] == b"event: x\ndata: 1\n\n"
+    assert not wake.is_set()  # the turn took what woke it
+    reader.feed_eof()  # the browser goes away
+    await asyncio.wait_for(pump, 5)
+    assert len(turns) == 1
+
+
+async def test_the_one_sse_pump_skips_a_client_that_does_not_read_then_drops_it() -> None:
+    writer = FakeWriter(FakeTransport(buffered=10**9))  # the socket never drains
+    wake = asyncio.Event()
+    wake.set()
+    skipped: list[int] = []
+
+    def turn(now: float) -> bytes:
+        raise AssertionError("a turn while the socket does not drain")
+
+    await asyncio.wait_for(
+        stream_sse(asyncio.StreamReader(), writer, wake, turn, lambda: float("inf"),
+                   interval_s=0.01, who="test page", on_skip=lambda: skipped.append(1),
+                   slow_limit_s=0.05),  # fmt: skip
+        5,
+    )
+    assert len(skipped) >= 2 and wake.is_set()  # what woke it is still there, never written
+    assert len(writer.writes) == 1  # the retry line only

@@ -20,7 +20,7 @@ The node builds each TPDO from the current 1A0xh values, so a reactivated PDO ca
 layout from its next transmission. This module keeps no state of its own: the step reached is
 what the objects say (see :meth:`RemappableTpdo.state`).
 
-Imports: python-can (Message), gateway.cia301, gateway.objref, gateway.sim.behaviours, gateway.sim.objects.
+Imports: python-can (Message), gateway.cia301, gateway.objref, gateway.sim.features, gateway.sim.objects.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import can
 
 from gateway.cia301 import COB_ID_INVALID
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import bit_size, type_size
 
 # NMT state byte of PRE-OPERATIONAL (MSK5000CAN manual 4.5.3)
@@ -53,7 +53,7 @@ _MAX_BYTES = 8  # manual 4.3.1.2: "A maximum of 8 data bytes can be mapped in a 
 
 
 @register
-class RemappableTpdo(Behaviour):
+class RemappableTpdo(SimFeature):
     """Guards 180xh:01 and 1A0xh writes by the 4.3.1.2 procedure."""
 
     feature = "remappable_tpdo"

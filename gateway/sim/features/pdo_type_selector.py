@@ -11,7 +11,7 @@ Writes of a selector value the manual does not list (anything but 00h, 02h, 20h,
 POSI+) are refused with SDO abort 06090030h (value range exceeded). With software 1.01
 (6507h bytes 2,3 < 0102h) the selector is not storable and returns to 00h at every reset.
 
-Imports: gateway.sim.behaviours, gateway.sim.pdo, gateway.sim.objects, gateway.objref.
+Imports: gateway.sim.features, gateway.sim.pdo, gateway.sim.objects, gateway.objref.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import Any
 
 import gateway.sim.pdo as pdo
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import ABORT_RANGE
 
 TYPE_BITS = 4  # manual 002 5, 2005h: bit 3..0 = PDO1, bit 7..4 = PDO2
@@ -28,7 +28,7 @@ SOFTWARE_VERSION = ObjRef(0x6507, 0)  # manual 002 6: bytes 2,3 = software versi
 
 
 @register
-class PdoTypeSelector(Behaviour):
+class PdoTypeSelector(SimFeature):
     feature = "pdo_type_selector"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:

@@ -13,7 +13,7 @@ On any other node id 5F0Ah:02 is an ordinary parameter.
 Parameters (profile ``features: auto_id:``): object, node_id_object, factory_node_id,
 reply_cob_id; option key_press.
 
-Imports: python-can (Message), gateway.objref, gateway.sim.behaviours, gateway.sim.objects.
+Imports: python-can (Message), gateway.objref, gateway.sim.features, gateway.sim.objects.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any
 import can
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import ABORT_RANGE
 
 FACTORY_NODE_ID = 0x7D  # AP05 manual 5.1 / 5.6.2
@@ -32,7 +32,7 @@ STOPPED = 0x04
 
 
 @register
-class AutoId(Behaviour):
+class AutoId(SimFeature):
     feature = "auto_id"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:
@@ -85,7 +85,7 @@ class AutoId(Behaviour):
                 node.set(*obj, new_id)
                 node.store.values[(obj.index, obj.sub)] = new_id
         node.store.node_id = new_id
-        node.pending_node_id = new_id
+        node.adopt_node_id_at_reset(new_id)
         self.requested_id = None
         self._reboot = True
 

@@ -8,7 +8,7 @@ a gateway's guarding-bit check is tested.
 
 Parameters (profile ``features: guarding_bit:``): control, control_bit, status, status_bit.
 
-Imports: gateway.objref, gateway.sim.behaviours, gateway.sim.pdo.
+Imports: gateway.objref, gateway.sim.features, gateway.sim.pdo.
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ from typing import Any
 
 import gateway.sim.pdo as pdo
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 
 @register
-class GuardingBit(Behaviour):
+class GuardingBit(SimFeature):
     feature = "guarding_bit"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:

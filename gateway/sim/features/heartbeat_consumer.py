@@ -17,7 +17,7 @@ What the node does, as a table of (event -> reaction):
 The manual names no NMT reaction (the device has no 1029h), so the NMT state does not change.
 The EMCY code and error register bits come from the feature parameters.
 
-Imports: python-can (Message), gateway.sim.behaviours, gateway.objref.
+Imports: python-can (Message), gateway.sim.features, gateway.objref.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 import can
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 COB_HEARTBEAT_BASE = 0x700  # DS-301 NMT error control (boot-up / heartbeat)
 DEFAULT_EMCY_CODE = 0x8130  # manual 002 ch. 4, 1003h:01: life guard error or heartbeat error
@@ -50,7 +50,7 @@ def _bit_range(v: Any, default: tuple[int, int]) -> tuple[int, int]:
 
 
 @register
-class HeartbeatConsumer(Behaviour):
+class HeartbeatConsumer(SimFeature):
     feature = "heartbeat_consumer"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:

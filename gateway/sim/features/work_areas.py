@@ -15,7 +15,7 @@ EMCY 0000h (4.5.1), and 1001h bit 0 stays set while any error persists.
 Parameters (profile ``features: work_areas:``): state, low_limit, high_limit (lists of objects),
 state_bits {out_of_range, above_high_limit, below_low_limit}, alarms, alarm_bits, emcy (codes).
 
-Imports: gateway.objref, gateway.sim.behaviours.
+Imports: gateway.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 _EVAL_PERIOD_S = 0.005  # how often tick() re-evaluates the areas between TPDOs / SDO reads
 
@@ -33,7 +33,7 @@ def _refs(v: Any, default: list[str]) -> list[ObjRef]:
 
 
 @register
-class WorkAreas(Behaviour):
+class WorkAreas(SimFeature):
     feature = "work_areas"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:
@@ -60,7 +60,7 @@ class WorkAreas(Behaviour):
             self.node.update_process(now)
 
     def update_process(self, now: float) -> None:
-        pos_obj = self.node.position_obj
+        pos_obj = self.node.hints.position
         if pos_obj is None:
             return
         position = int(self.node.get(*pos_obj, 0))

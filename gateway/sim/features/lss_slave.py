@@ -25,7 +25,7 @@ Anything else on 7E5h is ignored, as are services not allowed in the current sta
 (manual Table 10). Bit timing table (4.6.2.2): 0 1000, 1 800, 2 500, 3 250, 4 125, 6 50,
 7 20 kbit/s; a simulator has no physical bit rate, ``bitrate_kbps`` reports the active one.
 
-Imports: python-can (Message), gateway.objref, gateway.sim.behaviours.
+Imports: python-can (Message), gateway.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from typing import Any
 
 import can
 
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 COB_LSS_MASTER = 0x7E5  # SGH10 manual 4.6: LSS (rx) master -> slave
 COB_LSS_SLAVE = 0x7E4  # SGH10 manual 4.6: LSS (tx) slave -> master
@@ -64,7 +64,7 @@ CONFIGURATION = "configuration"
 
 
 @register
-class LssSlave(Behaviour):
+class LssSlave(SimFeature):
     feature = "lss_slave"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:
@@ -134,7 +134,7 @@ class LssSlave(Behaviour):
             if self.state == CONFIGURATION and self.configured_node_id is not None:
                 if self.configured_node_id != self.node.node_id:
                     # 4.6.2.1: LSS waiting, then NMT reset communication activates the id
-                    self.node.pending_node_id = self.configured_node_id
+                    self.node.adopt_node_id_at_reset(self.configured_node_id)
             self.state = WAITING
         elif mode == 0x01:
             self.state = CONFIGURATION

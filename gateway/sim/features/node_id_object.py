@@ -24,7 +24,7 @@ As a table of (event -> effect):
 The node id object always reads the node id in effect after a reset, unless a new value was
 written since. A simulator has no physical bit rate: the effective one is ``bitrate_kbps``.
 
-Imports: python-can (Message), gateway.cia301, gateway.sim.behaviours, gateway.sim.objects, gateway.objref.
+Imports: python-can (Message), gateway.cia301, gateway.sim.features, gateway.sim.objects, gateway.objref.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import can
 
 from gateway.cia301 import NMT_RESET_NODE
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import ABORT_RANGE
 
 SIGNATURE_SAVE = 0x65766173  # manual 002 1010h: "save", bytes 73 61 76 65
@@ -47,7 +47,7 @@ def _refs(v: Any) -> list[ObjRef]:
 
 
 @register
-class NodeIdObject(Behaviour):
+class NodeIdObject(SimFeature):
     feature = "node_id_object"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:
@@ -106,7 +106,7 @@ class NodeIdObject(Behaviour):
         if cs == NMT_RESET_NODE and target in (0, self.node.node_id):
             stored = self.node.store.node_id
             if stored is not None and stored != self.node.node_id:
-                self.node.pending_node_id = stored
+                self.node.adopt_node_id_at_reset(stored)
         return False
 
     def after_sdo_write(self, obj: ObjRef, value: Any, now: float) -> None:

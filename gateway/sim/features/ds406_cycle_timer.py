@@ -4,7 +4,7 @@ SGH10 manual 4.7.2.31 (and MSK5000 4.6.1): writing either object changes both. O
 whose profile names the feature get this coupling: on a CiA 401 I/O module 6200h is a digital
 output and must stay independent of the TPDO1 event timer.
 
-Imports: gateway.objref, the behaviour base class (sim.behaviours), sim.node (types).
+Imports: gateway.objref, the feature base class (sim.features), sim.node (types).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 if TYPE_CHECKING:
     from gateway.sim.node import SimNode
@@ -22,7 +22,7 @@ CYCLIC_TIMER = ObjRef(0x6200, 0x00)  # DS-406 6200h, SGH10 manual 4.7.2.31
 
 
 @register
-class Ds406CycleTimer(Behaviour):
+class Ds406CycleTimer(SimFeature):
     feature = "ds406_cycle_timer"
 
     def __init__(self, node: SimNode, params: dict[str, Any]) -> None:

@@ -10,7 +10,7 @@ reset). Only a later NMT start brings it back.
 Parameters (profile ``features: external_heartbeat:``): interval, source (objects), sources
 (value -> "rpdo" / "sync").
 
-Imports: gateway.objref, gateway.sim.behaviours.
+Imports: gateway.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 OPERATIONAL = 0x05
 PRE_OPERATIONAL = 0x7F
@@ -26,7 +26,7 @@ _EPS_S = 1e-9
 
 
 @register
-class ExternalHeartbeat(Behaviour):
+class ExternalHeartbeat(SimFeature):
     feature = "external_heartbeat"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:

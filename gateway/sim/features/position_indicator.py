@@ -3,7 +3,7 @@
 
 The PLC sends set points and the control word 5F0Ch by RPDO (RPDO1: set point1 5F16h:03,
 RPDO2: set point2 5F16h:01; SDO writes of 5F16h/5F0Ch are refused as read-only, 5.7.2.34/42).
-The device computes the status word 5F19h, sent in both TPDOs (bytes 6-7). This behaviour owns
+The device computes the status word 5F19h, sent in both TPDOs (bytes 6-7). This feature owns
 these status bits (manual 5.3.3 Table 28):
 
   bit 0 / 1  arrow CW / CCW: a valid target exists and the position is outside target window1
@@ -22,7 +22,7 @@ The target is the last valid set point received (5.3.1.2: "the set point last re
 valid, is output in the 2nd row"). Loop positioning (4.1.1.2, 5F14h length, 5F15h 1 loop+ /
 2 loop-): a target approached from the wrong side is first overrun by the loop length. In the
 alpha-numeric display mode (5F1Bh:02 = 3) bits 0, 1, 3-6 and 9 are left to the
-``alphanumeric_display`` behaviour.
+``alphanumeric_display`` feature.
 
 Faults (``SimNode.inject_fault``): ``battery_low`` (critical: status bit 11, 6503h bit 12,
 6505h bit 4, EMCY FF20h), ``battery_empty`` (status bits 7 + 11, 6503h bit 13, EMCY 3200h,
@@ -33,7 +33,7 @@ sensor_error (manual Tables 19-21 and 31; see the profile notes on 3200h vs FF20
 On entering OPERATIONAL TPDO1 is sent once (the communication example 5.3.1.3 shows TPDO1 of
 both devices right after "all operational", with the factory event timer 0).
 
-Imports: gateway.objref, gateway.sim.behaviours.
+Imports: gateway.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 OPERATIONAL = 0x05
 ALPHANUMERIC_MODE = 3  # 5F1Bh:02 = 3 alpha-numeric display (5.7.2.45)
@@ -82,7 +82,7 @@ def _obj(v: Any, default: str) -> ObjRef:
 
 
 @register
-class PositionIndicator(Behaviour):
+class PositionIndicator(SimFeature):
     feature = "position_indicator"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:
@@ -125,7 +125,7 @@ class PositionIndicator(Behaviour):
         return self._get(self.mode_obj) == ALPHANUMERIC_MODE
 
     def position(self) -> int:
-        pos_obj = self.node.position_obj
+        pos_obj = self.node.hints.position
         return _s32(self._get(pos_obj)) if pos_obj is not None else 0
 
     # -- hooks -------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ Parameters (profile ``features: alphanumeric_display:``): mode_object, mode_valu
 data_identifier_bit, status_data_identifier_bit, text_length, rows {n: {rpdo, chars_1_4,
 chars_5_6}}, acknowledge_control_bits, acknowledged_status_bits.
 
-Imports: gateway.objref, gateway.sim.behaviours.
+Imports: gateway.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 _BLANK = {1: "", 2: "---"}  # 4.1.2: no valid set point
 _VALID_BITS = {1: 2, 2: 9}  # control word Table 27: validity of set point1 / set point2
@@ -35,7 +35,7 @@ def _ints(d: Any, default: dict[int, int]) -> dict[int, int]:
 
 
 @register
-class AlphanumericDisplay(Behaviour):
+class AlphanumericDisplay(SimFeature):
     feature = "alphanumeric_display"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:

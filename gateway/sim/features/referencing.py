@@ -17,7 +17,7 @@ What the manual says (MSK5000CAN manual 3 NOTICE, 3.2, 4.6.1.22, 4.6.1.29, 4.6.1
 Object addresses come from the feature parameters (``command``, ``calibration``, ``offset``,
 ``position``, ``not_referenced_flag``...), with the MSK5000CAN objects as defaults.
 
-Imports: gateway.objref, gateway.sim.behaviours.
+Imports: gateway.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 # MSK5000CAN manual 4.4.1.3 Table 8: 08000024h "No data available"
 _ABORT_NO_DATA = 0x08000024
@@ -43,7 +43,7 @@ def _obj(params: dict[str, Any], key: str, default: str) -> ObjRef:
 
 
 @register
-class Referencing(Behaviour):
+class Referencing(SimFeature):
     """5115h referencing: position only after the command, lost on power-on or sensor error."""
 
     feature = "referencing"
@@ -79,7 +79,7 @@ class Referencing(Behaviour):
 
     def _lose_reference(self) -> None:
         self.referenced = False
-        self.node.position_offset = 0
+        self.node.set_position_offset(0)
         self.node.set(self.status.index, self.status.sub, 0)
         self._set_bit(self.flag_obj, self.flag_bit, True)
         self.node.set(self.position.index, self.position.sub, self.unreferenced_position)
@@ -118,7 +118,7 @@ class Referencing(Behaviour):
         """5115h = 1: position value := calibration value 6003h at the current measurement."""
         measured = self._measurement(now)
         calibration = int(self.node.get(self.calibration.index, self.calibration.sub, 0) or 0)
-        self.node.position_offset = calibration - measured
+        self.node.set_position_offset(calibration - measured)
         self.referenced = True
         self.references += 1
         # 6509h "Position value at the time of calibration" (UNSIGNED 32)

@@ -10,7 +10,7 @@ node leaves OPERATIONAL. The speed is 6030h:01 in units of 6005h:02 x 0.01 mm/s.
 Also kept here: 5122h:01 bit 2 "Speed check (v > 5 m/s)" (4.6.1.23), the fixed hardware limit
 (profile sim hint ``hardware_speed_limit_mm_s``).
 
-Imports: gateway.objref, gateway.sim.behaviours.
+Imports: gateway.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 _OPERATIONAL = 0x05  # NMT state byte (manual 4.5.3)
 _ABORT_RANGE = 0x06090030  # manual 4.4.1.3 Table 8
@@ -33,7 +33,7 @@ def _obj(params: dict[str, Any], key: str, default: str) -> ObjRef:
 
 
 @register
-class SpeedAlarm(Behaviour):
+class SpeedAlarm(SimFeature):
     """5FFAh threshold check on 6030h:01 in OPERATIONAL; EMCY FF12h on / 0000h off."""
 
     feature = "speed_alarm"

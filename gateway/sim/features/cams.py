@@ -11,7 +11,7 @@ Choices where the manual is silent, after DS-406: a disabled cam reads 0 whateve
 a low limit above the high limit makes a cam that wraps through the end of the measuring range
 (active when position >= low or position <= high).
 
-Imports: gateway.sim.behaviours, gateway.objref.
+Imports: gateway.sim.features, gateway.objref.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from __future__ import annotations
 from typing import Any
 
 from gateway.objref import ObjRef
-from gateway.sim.behaviours import Behaviour, register
+from gateway.sim.features import SimFeature, register
 
 
 def cam_active(position: int, low: int, high: int) -> bool:
@@ -30,7 +30,7 @@ def cam_active(position: int, low: int, high: int) -> bool:
 
 
 @register
-class Cams(Behaviour):
+class Cams(SimFeature):
     feature = "cams"
 
     def __init__(self, node: Any, params: dict[str, Any]) -> None:

@@ -1,28 +1,30 @@
-"""Device behaviours of the simulator: the hook API and the registry feature name -> class.
+"""The simulator's device features (hooks of ``SimNode``, as ``bus.node.features`` are hooks of the
+gateway's node): the hook API and the registry feature name -> class.
 
 The simulator core (``gateway.sim.node.SimNode``) implements DS-301 for every device. What a
 manual describes beyond DS-301 (LSS, a guarding bit, work areas, an Auto-ID procedure...) lives
-in one module per *profile feature* under this package, as a subclass of :class:`Behaviour`
-registered with :func:`register`. A node gets one instance of each behaviour whose feature
+in one module per *profile feature* under this package, as a subclass of :class:`SimFeature`
+registered with :func:`register`. A node gets one instance of each feature class whose feature
 appears in its profile's ``features:``; the feature's parameter dict (from the profile, updated
-by the node's simulator options) is ``self.params``. Behaviours are chosen by feature, never by
+by the node's simulator options) is ``self.params``. Features are chosen by feature name, never by
 device name.
 
 Hooks are called by the node in this order for a frame: ``on_frame`` (may consume it), then the
 core's handling (NMT / SYNC / SDO / RPDO / RTR), which calls the specific hooks below. Frames a
-behaviour wants to send go through ``self.node.send(cob_id, data)``; values are read and written
+feature wants to send go through ``self.node.send(cob_id, data)``; values are read and written
 with ``self.node.get(index, sub)`` / ``self.node.set(index, sub, value)`` (no access checks, no
 hooks). All hooks get ``now`` (seconds, the caller's monotonic clock) and must be deterministic
 given it: no wall clock, no sleeps, no threads.
 
-What else a behaviour may use of its node: ``node_id``, ``nmt_state``, ``last_reset``,
+What else a feature may use of its node: ``node_id``, ``nmt_state``, ``last_reset``,
 ``values.has(index, sub)``, ``default_of(index, sub)``, ``store`` (PersistentStore: node_id,
-bitrate_index, values), ``pending_node_id`` (adopted at the next reset communication),
-``raise_emcy(code, register, mfr, now=)`` / ``clear_emcy(code, now=)``, ``trigger_tpdo(n, now)``,
-``set_nmt_state(state, now)``, ``reset_communication(now)``, ``mute(until_s)``,
-``update_process(now)`` / ``invalidate_process()``, ``position_obj``, ``position_offset``,
-``direction_sign()``, ``calibrate(preset, now)``, ``motion``, ``hints`` (SimHints; ``extra``
-holds the profile's other ``sim:`` keys), ``behaviour(feature)``.
+bitrate_index, values), ``pending_node_id`` and ``adopt_node_id_at_reset(node_id)`` (the id the
+next reset communication adopts), ``raise_emcy(code, register, mfr, now=)`` /
+``clear_emcy(code, now=)``, ``trigger_tpdo(n, now)``, ``set_nmt_state(state, now)``,
+``reset_communication(now)``, ``mute(until_s)``, ``update_process(now)`` /
+``invalidate_process()``, ``position_offset`` and ``set_position_offset(counts)``,
+``direction_sign()``, ``calibrate(preset, now)``, ``motion``, ``hints`` (SimHints: ``position``
+the position object; ``extra`` holds the profile's other ``sim:`` keys), ``feature(name)``.
 
 Imports: python-can types and gateway.objref only (the node, sim.node, is referenced for
 typing only).
@@ -41,8 +43,8 @@ if TYPE_CHECKING:
     from gateway.sim.node import SimNode
 
 
-class Behaviour:
-    """Base class of a device behaviour: every hook does nothing by default.
+class SimFeature:
+    """Base class of a device feature: every hook does nothing by default.
 
     Subclasses set ``feature`` to the profile feature name they implement and override only the
     hooks they need.
@@ -59,7 +61,7 @@ class Behaviour:
         """After power-on, reset node or reset communication, just before the boot-up message.
 
         ``self.node.last_reset`` says which ("power", "node" or "communication"); object values
-        have already been reloaded. A behaviour resets its own state here.
+        have already been reloaded. A feature resets its own state here.
         """
 
     def on_nmt(self, state: int, now: float) -> None:
@@ -108,7 +110,7 @@ class Behaviour:
         the node only those (see ``SimNode.listening``); None: every frame. Default: none when
         ``on_frame`` is not overridden, else every frame. Asked again whenever the node's
         node id or COB-ID objects change."""
-        if type(self).on_frame is Behaviour.on_frame:
+        if type(self).on_frame is SimFeature.on_frame:
             return ()
         return None
 
@@ -117,15 +119,15 @@ class Behaviour:
 
     def on_fault(self, name: str, active: bool, now: float) -> bool:
         """A fault was injected or cleared (``sensor_error``, ``battery_low``,
-        ``freeze_guarding_echo``...). Return True if this behaviour implements it."""
+        ``freeze_guarding_echo``...). Return True if this feature implements it."""
         return False
 
 
-_REGISTRY: dict[str, type[Behaviour]] = {}
+_REGISTRY: dict[str, type[SimFeature]] = {}
 
 
-def register(cls: type[Behaviour]) -> type[Behaviour]:
-    """Class decorator: make ``cls`` the behaviour of profile feature ``cls.feature``."""
+def register(cls: type[SimFeature]) -> type[SimFeature]:
+    """Class decorator: make ``cls`` the simulation of profile feature ``cls.feature``."""
     if not cls.feature:
         raise ValueError(f"{cls.__name__} has no feature name")
     other = _REGISTRY.get(cls.feature)
@@ -135,8 +137,8 @@ def register(cls: type[Behaviour]) -> type[Behaviour]:
     return cls
 
 
-def behaviour_for(feature: str) -> type[Behaviour] | None:
-    """The behaviour class of ``feature``, importing ``behaviours/<feature>.py`` on first use;
+def feature_class(feature: str) -> type[SimFeature] | None:
+    """The class simulating ``feature``, importing ``features/<feature>.py`` on first use;
     None if no module implements it (the core then simulates DS-301 only for that feature)."""
     if feature not in _REGISTRY:
         import importlib
@@ -150,8 +152,8 @@ def behaviour_for(feature: str) -> type[Behaviour] | None:
     return _REGISTRY.get(feature)
 
 
-def registered() -> dict[str, type[Behaviour]]:
-    """Features with a behaviour loaded so far (imports every module of this package first)."""
+def registered() -> dict[str, type[SimFeature]]:
+    """Features with a class loaded so far (imports every module of this package first)."""
     import importlib
     import pkgutil
 

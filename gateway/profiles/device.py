@@ -1,0 +1,103 @@
+"""What a device's file says about the device itself: how an EDS-only node is supervised
+(``device_supervision``, ``stale_after_from_event_timers``), the identity 1018h it must hold
+(``expected_identity``) and whether the gateway verifies its PDO mapping
+(``node_verifies_mapping``).
+
+Imports: profiles.schema, gateway.eds.pdos (od_var), objref, canopen; profiles.loader for types
+only. Nothing of bus/, modbus/, zenoh_bridge/, config.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import canopen
+
+from gateway.eds.pdos import od_var
+from gateway.objref import ObjRef
+from gateway.profiles.schema import Boot, Pdo
+
+if TYPE_CHECKING:
+    from gateway.profiles.loader import LoadedProfile
+
+
+#: an EDS-only node without supervision: values are stale after this many event timer periods
+STALE_EVENT_TIMER_MULTIPLE = 3
+
+
+def stale_after_from_event_timers(tpdos: Sequence[Pdo]) -> int | None:
+    """``stale_after_ms`` of a node the gateway cannot supervise: 3 x the longest event timer
+    of its TPDOs (None when no TPDO has one)."""
+    timers = [p.event_timer_ms for p in tpdos if p.event_timer_ms]
+    return STALE_EVENT_TIMER_MULTIPLE * max(timers) if timers else None
+
+
+def device_supervision(od: canopen.ObjectDictionary) -> Boot:
+    """How an EDS-only node is supervised when its config does not say: heartbeat when the
+    device has a writable 1017h (CiA 301 7.5.2.25), else node guarding when it has writable
+    100Ch and 100Dh and no 1017h (guard time and life time factor from the file when not 0;
+    else 100 ms and 3), else none."""
+    def settable(obj: ObjRef) -> canopen.objectdictionary.ODVariable | None:
+        var = od_var(od, obj)  # an integer the gateway can write (a damaged entry is not)
+        ok = var is not None and var.data_type in (0x5, 0x6, 0x7) and var.access_type in ("rw", "wo", "rww", "rwr")
+        return var if ok else None
+
+    hb = settable(ObjRef(0x1017, 0))
+    if hb is not None:
+        lo, hi = hb.min, hb.max  # a file whose limits exclude 100 ms: the nearest allowed time
+        if isinstance(lo, int) and isinstance(hi, int) and 0 < hi and lo <= hi and not lo <= 100 <= hi:
+            return Boot(heartbeat_ms=min(max(100, lo, 1), hi, 65535))
+        return Boot()
+    gt, ltf = settable(ObjRef(0x100C, 0)), settable(ObjRef(0x100D, 0))
+    if gt is not None and ltf is not None and (0x1017 not in od or od_var(od, ObjRef(0x1017, 0)) is None):
+        gt_ms = gt.default if gt is not None and isinstance(gt.default, int) and 0 < gt.default <= 65535 else 100
+        lt = ltf.default if ltf is not None and isinstance(ltf.default, int) and 0 < ltf.default <= 255 else 3
+        return Boot(supervision="guarding", guard_time_ms=gt_ms, life_time_factor=lt)
+    return Boot(supervision="none")
+
+
+#: CiA 306 placeholders: a VendorNumber / ProductNumber of 0 or all ones says nothing
+_NOT_GIVEN = (0, 0xFFFFFFFF)
+
+
+def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
+    """What the device at this node must hold in 1018h (CiA 301 7.5.2.20), as its EDS/DCF
+    says: sub 01h = VendorNumber and 02h = ProductNumber of [DeviceInfo] when the file gives
+    both, and for a DCF sub 04h = the ParameterValue of 1018h:04 (the serial number of the
+    commissioned device). Empty when the file gives no identity. Only the sub-indices the file
+    defines are compared (CiA 301 makes only 1018h:01 mandatory: a file with 1018h:01 alone
+    says its devices have no product code to read). A number the file contradicts
+    itself on ([DeviceInfo] and the value of 1018h differ; ``eds lint`` warns) is not compared:
+    the file does not say which device it describes, and a right device must not be refused."""
+    info = lp.od.device_information
+    vendor, product = info.vendor_number, info.product_number
+    if vendor in (None, *_NOT_GIVEN) or product in (None, *_NOT_GIVEN):
+        return ()
+    out = []
+    for sub, given in ((1, int(vendor)), (2, int(product))):
+        var = od_var(lp.od, ObjRef(0x1018, sub))
+        if var is None:
+            continue
+        held = getattr(var, "value", None)
+        if held is None:
+            held = getattr(var, "default", None)
+        if isinstance(held, int) and held not in _NOT_GIVEN and held != given:
+            continue
+        out.append((ObjRef(0x1018, sub), given))
+    serial = od_var(lp.od, ObjRef(0x1018, 4))
+    held = getattr(serial, "value", None)
+    if lp.eds_path.suffix.lower() == ".dcf" and isinstance(held, int) and held not in _NOT_GIVEN:
+        out.append((ObjRef(0x1018, 4), held))
+    return tuple(out)
+
+
+def node_verifies_mapping(lp: LoadedProfile, node: Any, eds_only: bool) -> bool:
+    """``verify_mapping``: the node's setting, else on for EDS-only nodes and for profiles
+    that ask for it; never for a profile whose mapping objects do not describe the layout."""
+    setting = getattr(node, "verify_mapping", None)
+    if lp.profile.verify_mapping is False:
+        return False
+    if setting is not None:
+        return bool(setting)
+    return eds_only or bool(lp.profile.verify_mapping)

@@ -1,0 +1,256 @@
+"""One configured node's complete profile (``load_node_profile``): the profile (or none: an
+EDS-only node) on the node's EDS or DCF, its PDO layout after the node's ``tpdo:``/``rpdo:``
+settings and PDO writes (``profiles.layout``), and a signal for every mapped object (derived
+from the EDS where the profile names none). Results are cached by the node's settings.
+
+Imports: profiles.loader, profiles.device, profiles.layout, profiles.schema, gateway.eds.pdos,
+cia301, objref. Nothing of bus/, modbus/, zenoh_bridge/, config (the node is read through
+``NodeLike``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+from gateway.cia301 import TYPE_BITS
+from gateway.eds.pdos import (
+    FLOAT_TYPES,
+    eds_pdos,
+    object_name,
+    signal_type,
+    slug,
+    unique_names,
+)
+from gateway.objref import ObjRef
+from gateway.profiles.device import (
+    STALE_EVENT_TIMER_MULTIPLE,
+    device_supervision,
+    stale_after_from_event_timers,
+)
+from gateway.profiles.layout import (
+    PdoMappingError,
+    PdoSettingLike,
+    apply_pdo_writes,
+    apply_settings,
+    is_pdo_object,
+)
+from gateway.profiles.loader import (
+    EdsLayout,
+    LoadedProfile,
+    ProfileError,
+    eds_layout,
+    layout_objects,
+    load_profile,
+    read_eds,
+    with_eds,
+)
+from gateway.profiles.schema import Profile, Signal
+
+
+class NodeLike(Protocol):
+    """What the loader reads of a node's configuration (``gateway.config.NodeConfig``)."""
+
+    @property
+    def node_id(self) -> int: ...
+    @property
+    def profile(self) -> str | None: ...
+    @property
+    def eds(self) -> str | None: ...
+    @property
+    def pdo_variant(self) -> int | None: ...
+    @property
+    def configure(self) -> bool: ...
+    @property
+    def sdo(self) -> Sequence[Any]: ...
+    @property
+    def tpdo(self) -> Mapping[int, PdoSettingLike]: ...
+    @property
+    def rpdo(self) -> Mapping[int, PdoSettingLike]: ...
+
+
+def _node_key(node: NodeLike, base_dir: Path | None) -> str:
+    def dump(v: Any) -> Any:
+        return v.model_dump(mode="json") if hasattr(v, "model_dump") else str(v)
+
+    return json.dumps(
+        {
+            "profile": node.profile,
+            "eds": node.eds,
+            "node_id": node.node_id,
+            "variant": node.pdo_variant,
+            "configure": node.configure,
+            "sdo": [dump(w) for w in node.sdo],
+            "tpdo": {str(k): dump(v) for k, v in (node.tpdo or {}).items()},
+            "rpdo": {str(k): dump(v) for k, v in (node.rpdo or {}).items()},
+            "base": str(base_dir),
+        },
+        sort_keys=True,
+        default=str,
+    )
+
+
+def resolve_eds_path(eds: str, base_dir: Path | None) -> Path:
+    p = Path(eds)
+    if not p.is_absolute() and base_dir is not None:
+        p = base_dir / p
+    return p.resolve()
+
+
+def load_node_profile(node: NodeLike, base_dir: Path | None = None) -> LoadedProfile:
+    """The complete profile of one configured node (see the module docstring)."""
+    return _load_node(_node_key(node, base_dir), node, base_dir)
+
+
+_NODE_CACHE: dict[str, LoadedProfile] = {}
+
+
+def _load_node(key: str, node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+    hit = _NODE_CACHE.get(key)
+    if hit is not None:
+        return hit
+    lp = _resolve_node(node, base_dir)
+    if len(_NODE_CACHE) > 512:
+        _NODE_CACHE.clear()
+    _NODE_CACHE[key] = lp
+    return lp
+
+
+def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+    if node.profile:
+        base = load_profile(node.profile, base_dir)
+        if node.eds:
+            eds_path = resolve_eds_path(node.eds, base_dir)
+            eds = read_eds(eds_path)
+            base = with_eds(base.profile, base.path, eds_path, eds.od)
+        elif base.profile.eds is None:
+            raise ProfileError(f"{base.path}: names no eds; give the node's eds")
+        # a DCF carries the values the device holds: read its ParameterValues
+    else:
+        if not node.eds:
+            raise ProfileError("a node needs a profile, an eds, or both")
+        eds_path = resolve_eds_path(node.eds, base_dir)
+        eds = read_eds(eds_path)
+        profile = Profile(
+            family=slug(eds_path.stem) or "device",
+            title=eds.product_name,
+            eds=eds_path.name,
+            signals=[],
+            boot=device_supervision(eds.od),
+        )
+        base = with_eds(profile, eds_path, eds_path, eds.od)
+    prof = base.profile
+    od = base.od
+    node_id = node.node_id
+    explicit = bool(prof.tpdos or prof.rpdos or prof.pdo_variants)
+    if explicit:
+        variant = node.pdo_variant
+        if prof.pdo_variants is None or variant not in prof.pdo_variants.variants:
+            variant = None  # an unknown variant is reported by the config check
+        tpdos, rpdos = prof.layout(variant)
+        lay = EdsLayout([], [], {}, {})
+    else:
+        lay = eds_layout(od, node_id, base.eds_path)
+        tpdos, rpdos = lay.tpdos, lay.rpdos
+    for (kind, number), why in lay.refused.items():
+        if number not in ((node.tpdo if kind == "tpdo" else node.rpdo) or {}):
+            raise ProfileError(why)  # unless the node's tpdo:/rpdo: settings remap or disable it
+    if node.configure:
+        if (node.tpdo or node.rpdo) and prof.pdo_variants is not None:
+            raise ProfileError(
+                f"profile {prof.family} chooses its PDO layout by {prof.pdo_variants.selector} "
+                "(pdo_variant); tpdo:/rpdo: cannot remap it"
+            )
+        for kind, settings in (("tpdo", node.tpdo), ("rpdo", node.rpdo)):
+            try:
+                remapped = apply_settings(kind, tpdos if kind == "tpdo" else rpdos, settings or {},  # type: ignore[arg-type]
+                                     eds_pdos(od, node_id, kind), od, node_id, kind)  # type: ignore[arg-type]  # fmt: skip
+            except PdoMappingError as exc:
+                head, _, rest = str(exc).partition(": ")
+                raise ProfileError(rest or str(exc), key=head) from None
+            if kind == "tpdo":
+                tpdos = remapped
+            else:
+                rpdos = remapped
+        try:
+            writes = [
+                (ObjRef.parse(w.object), w.value)
+                for w in [*prof.boot.sdo, *node.sdo]
+                if is_pdo_object(ObjRef.parse(w.object))
+            ]
+            if writes:
+                tpdos = apply_pdo_writes(prof, "tpdo", tpdos, node_id, writes)
+                rpdos = apply_pdo_writes(prof, "rpdo", rpdos, node_id, writes)
+        except PdoMappingError as exc:
+            raise ProfileError(str(exc), key="") from None
+    own_t, own_r = layout_objects(prof)
+    t_objs = {e.object for p in tpdos for e in p.mapping if e.object.index >= 0x1000}
+    r_objs = {e.object for p in rpdos for e in p.mapping if e.object.index >= 0x1000}
+    signals: list[Signal] = []
+    for s in prof.signals:
+        if s.transport == "sdo" and (s.object in t_objs or s.object in r_objs) and not (
+            s.object in own_t or s.object in own_r
+        ):
+            # mapped by the node's configuration (e.g. MSK5000 5122h:01 by the 4.3.1.2 remap)
+            s = s.model_copy(update={"transport": "pdo"})
+        signals.append(s)
+    named = {s.object for s in signals}
+    new: list[ObjRef] = []
+    for p in [*tpdos, *rpdos]:
+        if explicit and p.origin == "profile":
+            continue  # the profile's own layout: unnamed entries stay unnamed (dummies)
+        for e in p.mapping:
+            if e.object.index >= 0x1000 and e.object not in named and e.object not in new:
+                new.append(e.object)
+    warnings: list[str] = []
+    for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
+        for p in pdos:
+            if p.origin == "eds":  # a layout of the profile or the config is checked with its key
+                warnings += lay.warnings.get((kind, p.number), [])
+    names = unique_names(od, new, {s.name for s in signals})
+    for o in new:
+        var = base.od_var(o)
+        if var is None:
+            continue  # not in the EDS: reported by the check of the layout
+        typ = signal_type(var)
+        if typ is None:
+            continue  # REAL64, DOMAIN...: decoded at its offset and dropped (warned above)
+        widths = {e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o}
+        if var.data_type in FLOAT_TYPES and TYPE_BITS.get(var.data_type) not in widths:
+            continue  # a float mapped with another length has no value (warned above)
+        length = None
+        if typ in ("string", "bytes"):
+            bits = next(e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o)
+            length = max(1, bits // 8)
+        signals.append(
+            Signal(
+                name=names[o],
+                object=o,
+                type=typ,  # type: ignore[arg-type]
+                access="rw" if o in r_objs else "ro",
+                transport="pdo",
+                length=length,
+                description=f"{object_name(od, o)} ({o})",
+            )
+        )
+    update: dict[str, Any] = {"signals": signals}
+    if prof.pdo_variants is None:
+        update.update(tpdos=tpdos, rpdos=rpdos)
+    stale_ms: int | None = None
+    notes: list[str] = []
+    if not node.profile and getattr(node, "supervision", None) is None and prof.boot.supervision == "none":
+        stale_ms = stale_after_from_event_timers(tpdos)
+        age = (
+            f"its values go stale {stale_ms} ms after their last TPDO "
+            f"({STALE_EVENT_TIMER_MULTIPLE} x the longest TPDO event timer)"
+            if stale_ms
+            else "no TPDO has an event timer, so its values never go stale by age"
+        )
+        notes.append(
+            f"{base.eds_path.name} has neither 1017h (heartbeat) nor 100Ch/100Dh (node guarding): "
+            f"a lost device cannot be detected otherwise; {age}"
+        )
+    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od, tuple(warnings),
+                         stale_ms, tuple(notes))  # fmt: skip
