@@ -1,5 +1,5 @@
 """Device features as hooks of the node's owner (``bus.node.node.Node``), as the simulator's
-behaviours are hooks of ``SimNode``: the node calls every feature at its moments (boot-up,
+features are hooks of ``SimNode``: the node calls every feature at its moments (boot-up,
 values invalidated, configured and started, EMCY, a client's SDO done, time) and hands each
 feature the SDO results of the purposes it owns. A feature returns what to do (``Output``s) and
 says when it next needs time; it never does I/O.
