@@ -217,6 +217,8 @@ class Master:
 
     def _drain(self) -> None:
         self._drain_pending = False
+        if self.member is not None:
+            self.member.check()  # a stalled active gateway stands by before it acts
         inbox = self._inbox
         while inbox:
             fn, args = inbox.popleft()
@@ -382,6 +384,8 @@ class Master:
     def _tick(self, p: NodeParts) -> None:
         self._timers.pop(p.name, None)
         self._due.pop(p.name, None)
+        if self.member is not None:
+            self.member.check()  # a stalled active gateway stands by before it acts
         if self._inbox:
             self._drain()  # heartbeats queued without a wake-up count before any timeout
         self._execute(p, p.node.tick(self.clock()))
@@ -506,6 +510,8 @@ class Master:
         loop = self.loop
         if loop is None:
             return
+        if self.member is not None:
+            self.member.check()
         if periodic.due(loop.time()) and (self.mastering or name == "pair"):
             try:
                 self.driver.send(cob_id, data)
@@ -534,6 +540,8 @@ class Master:
     def require_bus(self) -> None:
         if self.loop is None:  # the listeners start before the master sends its first frame
             raise BusDown("the gateway is starting")
+        if self.member is not None:
+            self.member.check()
         if not self.mastering:
             role = self.role or "standby"
             raise NotActive(

@@ -216,8 +216,10 @@ def test_a_frozen_active_one_is_replaced_and_when_thawed_one_sender_remains_at_o
     a = pair.restart("A")  # A comes back while B is frozen: nobody answers
     pair.run_until(frozen_at + 4.0)
     assert a.fm.role is Role.ACTIVE
-    b.up = True  # SIGCONT: B still believes it is active
+    b.up = True  # SIGCONT: B still believes it is active, until it sees it did not run
     thawed_at = pair.now
+    pair._act(b, b.fm.on_stall(pair.now))  # what PairMember.check does at its first event
+    assert b.fm.role is Role.STANDBY and b.fm.stalls == 1
     pair.run_until(thawed_at + 0.5)
     assert (a.fm.role, b.fm.role) == (Role.ACTIVE, Role.STANDBY)
     last_b = pair.last_heartbeat("B")
@@ -323,3 +325,22 @@ def test_out_of_range_ids_are_refused() -> None:
         machine(0, 0)
     with pytest.raises(ValueError):
         machine(101, 256)
+
+
+def test_a_thawed_active_one_that_was_not_replaced_claims_again_after_a_negotiation() -> None:
+    pair, a, b = a_active_b_standby()
+    a.up = b.up = False  # both frozen (one machine, starved): nobody took over
+    pair.run_until(8.0)
+    a.up = b.up = True
+    pair._act(a, a.fm.on_stall(pair.now))
+    assert a.fm.role is Role.STANDBY
+    pair.run_until(12.0)
+    assert a.fm.role is Role.ACTIVE or b.fm.role is Role.ACTIVE
+    assert pair.heartbeat_senders(since=11.0) in ({"A"}, {"B"})
+
+
+def test_a_stall_means_nothing_to_a_standby() -> None:
+    fm = machine(102, 1)
+    fm.start(0.0)
+    fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", 0.1)
+    assert fm.on_stall(5.0) == [] and fm.role is Role.STANDBY and fm.stalls == 0

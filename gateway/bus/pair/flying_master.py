@@ -39,9 +39,13 @@ node id): lower priority first, then lower node id; ``>`` one that loses)::
     standby      72h                            negotiating  waits its time slot
     standby      active master silent           negotiating  sends 72h, waits its time slot
     active       71h <                          standby      goes silent at once
+    active       stalled (no event for takeover_s)  standby  goes silent at once
     active       71h >, 72h, 73h, 76h           active       answers 71h
 
-A gateway that comes back joins as standby whatever its priority (no fail-back: a change of
+An active gateway that was stalled (its process frozen, its machine starved) for longer than the
+take-over time stands by at once when it runs again: the other gateway may have taken over
+meanwhile, and two masters must never act on the bus. If nobody did, it negotiates again like
+any standby. A gateway that comes back joins as standby whatever its priority (no fail-back: a change of
 master is never made while one is working). Two actives that hear each other (after a partition
 or a frozen process) are resolved by (priority, node id) within one claim period.
 
@@ -94,6 +98,7 @@ class Heard(StrEnum):
     DETECTION_OVER = "detection time over"
     SLOT_OVER = "time slot over"
     ACTIVE_SILENT = "active master silent"
+    STALLED = "this gateway stalled"  # no event for longer than the take-over time
 
 
 _L, _N, _S, _A = Role.LISTENING, Role.NEGOTIATING, Role.STANDBY, Role.ACTIVE
@@ -112,6 +117,7 @@ TRANSITIONS: dict[tuple[Role, Heard], Role] = {
     (_S, _H.NEGOTIATION): _N,
     (_S, _H.ACTIVE_SILENT): _N,
     (_A, _H.BETTER_CLAIM): _S,
+    (_A, _H.STALLED): _S,
 }
 #: (role, heard) pairs that keep the role but are answered (the active master's 71h)
 ANSWERED: frozenset[tuple[Role, Heard]] = frozenset(
@@ -195,6 +201,7 @@ class FlyingMaster:
         self.ignored = 0  # frames that meant nothing in the role (our own echo among them)
         self.takeovers = 0  # standby -> active through a negotiation
         self.negotiations = 0
+        self.stalls = 0  # active -> standby because this gateway stalled
         self._deadline_s = 0.0
 
     # ------------------------------------------------------------------ queries
@@ -229,6 +236,14 @@ class FlyingMaster:
             return []
         return self._fire(heard, now)
 
+    def on_stall(self, now: float) -> list[Action]:
+        """The caller found that this gateway did not run for longer than the take-over time
+        (its process frozen, its machine starved): an active one stands by at once."""
+        if self.role is not Role.ACTIVE:
+            return []
+        self.stalls += 1
+        return self._fire(Heard.STALLED, now)
+
     def poll(self, now: float) -> list[Action]:
         """The deadline of the role has come (or not yet: then nothing happens)."""
         if not self.started or now < self._deadline_s:
@@ -244,6 +259,7 @@ class FlyingMaster:
         return self._fire(heard, now)
 
     # ------------------------------------------------------------------ inside
+
 
     def _classify(self, cob_id: int, data: bytes, now: float) -> Heard | None:
         if cob_id == COB_HEARTBEAT + self.master_node_id:
@@ -308,6 +324,8 @@ class FlyingMaster:
 
 
 def _standby_reason(heard: Heard, peer: Claim | None) -> str:
+    if heard is Heard.STALLED:
+        return "this gateway did not run for longer than the take-over time: the other may be active"
     if heard is Heard.LOGICAL_HEARTBEAT:
         return "the logical master's heartbeat is heard"
     who = f"priority {peer.priority}, node {peer.node_id}" if peer else "another gateway"

@@ -83,6 +83,9 @@ class PairMember:
         self._sdo_heard: dict[int, bytes] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.TimerHandle | None = None
+        #: the loop's time when this member last ran: while active it runs every claim period,
+        #: so a longer gap than the take-over time means the process did not run (``check``)
+        self._ran_s: float | None = None
 
     # ------------------------------------------------------------------ queries
     @property
@@ -98,7 +101,20 @@ class PairMember:
     # ------------------------------------------------------------------ start / stop
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
+        self._ran_s = loop.time()
         self._do(self.machine.start(self._clock()))
+
+    def check(self) -> None:
+        """Before this gateway acts on the bus (a node's timer, a producer): if it did not run
+        for longer than the take-over time, the other gateway may be active now; an active one
+        stands by first (``FlyingMaster.on_stall``)."""
+        loop = self._loop
+        if loop is None:
+            return
+        ran, self._ran_s = self._ran_s, loop.time()
+        if ran is not None and self._ran_s - ran > self.machine.timing.takeover_s:
+            log.warning("pair: this gateway did not run for %.1f s", self._ran_s - ran)
+            self._do(self.machine.on_stall(self._clock()))
 
     def stop(self) -> None:
         if self._timer is not None:
@@ -109,6 +125,7 @@ class PairMember:
     # ------------------------------------------------------------------ events (event loop)
     def on_frame(self, cob_id: int, data: bytes, now: float) -> int | None:
         """A frame of ``cob_ids``; returns the peer's id when this frame taught it."""
+        self.check()
         self._do(self.machine.on_frame(cob_id, data, now))
         peer = self.machine.peer
         if peer is not None and self.peer_node_id is None:
@@ -159,5 +176,6 @@ class PairMember:
 
     def _tick(self) -> None:
         self._timer = None
+        self.check()
         self._before_poll()  # what was heard counts before a timeout
         self._do(self.machine.poll(self._clock()))
