@@ -222,6 +222,15 @@ class BusPeers:
         t.cob_ids.add(cob_id)
         t.last_wall = wall
 
+    def admit(self, node_id: int) -> bool:
+        """``node_id`` belongs here (a hot-standby pair's partner): not an unconfigured node that
+        talks. False when it was known already."""
+        if node_id in self.configured_ids:
+            return False
+        self.configured_ids.add(node_id)
+        self.talking.pop(node_id, None)
+        return True
+
     # -- reports
     def talking_hint(self, heard: Sequence[str] = ()) -> str:
         """``; node ids talking on this bus but not configured: 1 (TPDO1 0x181, heartbeat 0x701)``.

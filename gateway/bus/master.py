@@ -15,14 +15,9 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
   ``bus/node/parts.py`` (``build_node``).
 * **Services** for the command service: SDO upload/download (awaitable, one transfer per node
   at a time, queued in the node), RPDO outputs, NMT commands.
-* **A hot-standby pair** (``master.redundancy``; docs/redundancy.md): the pair member
-  (``bus/pair/member.py``, over the role machine ``bus/pair/flying_master.py``) decides whether
-  this gateway masters the bus. While it does
-  not (``mastering`` False: listening at start, negotiating, standby) the nodes only listen
-  (``Node.stand_by``), every frame a node would send is dropped here, the logical master's
-  heartbeat and SYNC are not produced, the RPDOs the other gateway sends become the output
-  image, and the services refuse with ``NotActive``. At a take-over each node is adopted as it
-  runs (``Node.take_over``) and an SDO transfer the other gateway left open is aborted once.
+* **A hot-standby pair** (``master.redundancy``): the pair member (``bus/pair/member.py``)
+  decides whether this gateway masters the bus; while it does not (``mastering`` False) the
+  nodes only listen (``Node.stand_by``) and every frame a node would send is dropped here.
 
 Imports: bus.* (bus.pair.member: a pair), pdo.codec, cia301, image, errors, config, objref, ratelimit, python-can.
 Nothing northbound.
@@ -41,21 +36,25 @@ import can
 
 from gateway.bus.bus_peers import (
     BusPeers,
-    describe_cob_id,
-    talking_node_id,
 )
 from gateway.bus.driver import BusDriver
 from gateway.bus.lss.service import LssService
 from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.lifecycle import LifecycleState
-from gateway.bus.node.parts import NodeParts, build_node
+from gateway.bus.node.parts import NodeParts, build_node_into
 from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
 from gateway.bus.pair.member import PairMember
 from gateway.bus.producers import Periodic
+from gateway.bus.reader import (
+    control_handler,
+    peer_frame_handler,
+    tpdo_handler,
+    unknown_handler,
+)
 from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
+from gateway.bus.sdo.waiters import SdoWaiters
 from gateway.cia301 import (
     COB_EMCY,
-    COB_LSS_MASTER,
     COB_LSS_SLAVE,
     COB_NMT,
     COB_NMT_EC,
@@ -65,8 +64,8 @@ from gateway.cia301 import (
     NMT_COMMANDS,
 )
 from gateway.config import Config
-from gateway.errors import BusDown, NodeNotOperational, NotActive, SdoAbort, SdoTimeout
-from gateway.image import NodeImage, ProcessImage
+from gateway.errors import BusDown, NodeNotOperational, NotActive, SdoAbort
+from gateway.image import ProcessImage
 from gateway.objref import ObjRef
 from gateway.pdo.codec import TpdoCodec
 from gateway.ratelimit import RateLimitedLog
@@ -113,10 +112,9 @@ class Master:
         self._timers: dict[str, asyncio.TimerHandle] = {}
         self._producers: dict[str, asyncio.TimerHandle] = {}
         self._due: dict[str, float] = {}
-        self._waiting: dict[tuple[str, int], tuple[asyncio.Future[bytes], ObjRef]] = {}
+        self._waiting = SdoWaiters()  # the SDO transfers clients await
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
-        #: other masters, other SDO clients, unconfigured node ids (event loop only)
         #: this gateway in a hot-standby pair (None: no pair)
         self.member: PairMember | None = None
         known = {n.node_id for n in cfg.nodes}
@@ -126,29 +124,21 @@ class Master:
         #: True while this gateway masters the bus (always, outside a pair)
         self.mastering = self.member is None
         #: role listeners: called (role, reason) on the event loop when the pair's role changes
-        self.role_listeners: list[Callable[[str, str], None]] = []
+        self.role_listeners = self.member.role_listeners if self.member is not None else []
         self.standby_dropped = 0  # frames the nodes asked for while this gateway stood by
+        #: other masters, other SDO clients, unconfigured node ids (event loop only)
         self.peers = BusPeers(
             cfg.master.node_id,
             known,
             echo=bool(cfg.can.bus_kwargs().get("receive_own_messages")),
         )
         self.peer_log = RateLimitedLog(log, period_s=PEER_LOG_PERIOD_S)
-        self._seen_cob_ids: set[int] = set()  # the reader's own: unknown COB-IDs posted once
         #: LSS (CiA 305) on this connection to the bus, for the command service
         self.lss = LssService(driver.send, self._post, self.clock, driver.frame_time)
         resolved = nodes_of(cfg, nodes)
+        listening = self.member is not None  # a pair's member listens until it is active
         for ncfg in cfg.nodes:
-            rn = node_of(cfg, resolved, ncfg)
-            lp = rn.lp
-            names = [s.name for s in lp.profile.signals]
-            ni = NodeImage(
-                ncfg.name, ncfg.node_id, lp.family, names, rn.stale_after_s, ncfg.modbus.serve_stale
-            )
-            image.add_node(ni)
-            parts = build_node(rn, ni, passive or self.member is not None)
-            if self.member is not None:
-                parts.node.supervision.active = True  # supervision judges what it hears
+            parts = build_node_into(node_of(cfg, resolved, ncfg), image, passive, listening)
             self.nodes[ncfg.name] = parts
             self.by_id[ncfg.node_id] = parts
         self._install_handlers()
@@ -193,7 +183,9 @@ class Master:
             install(COB_NMT_EC + self.cfg.master.node_id, "the master's heartbeat",
                     self._peer_frame(self._on_own_heartbeat))  # fmt: skip
         install(COB_LSS_SLAVE, "LSS response", self.lss.reader_handler())
-        self.driver.default_handler = self._unknown
+        self.driver.default_handler = unknown_handler(
+            self.driver.rx_counters, self.warn, self._post, self.peers.on_talking
+        )
         if self.image.end_batch not in self.driver.burst_listeners:
             self.driver.burst_listeners.append(self.image.end_batch)
         self.driver.on_state = self._bus_state
@@ -228,107 +220,16 @@ class Master:
                 log.exception("event %s failed", getattr(fn, "__name__", fn))
 
     def _control(self, p: NodeParts, kind: str) -> Callable[[can.Message], None]:
-        frame_time = self.driver.frame_time
-        post = self._post
-        dispatch = self._on_control
-        last: list[bytes | None] = [None]  # the reader's own: the node's previous 700h frame
-
-        def handle(msg: can.Message) -> None:
-            if msg.is_remote_frame:
-                return
-            data = bytes(msg.data)
-            # a heartbeat repeating the previous one of a steady node changes nothing before
-            # the node's deadline: no wake-up of the loop for it
-            quiet = kind == "nmt_ec" and p.steady and data == last[0]
-            last[0] = data
-            post(
-                dispatch, p, kind, data, msg.timestamp or time.time(), frame_time(msg),
-                wake=not quiet,
-            )  # fmt: skip
-
-        return handle
+        return control_handler(p, kind, self._post, self._on_control, self.driver.frame_time)
 
     def _tpdo_handler(self, p: NodeParts, codec: TpdoCodec) -> Callable[[can.Message], None]:
-        image, node = self.image, p.image
-        rx = node.rx.new_cell()  # this handler's: written on the reader thread only
-        decode, names, length, update = codec.decode, codec.names, codec.length, image.update
-        counters = self.driver.rx_counters
-        pdo_listeners = image.pdo_listeners
-        warn = self.warn
-        gb = p.settings.guarding_bit
-        status_pos = (
-            names.index(p.node.status_signal) if gb and p.node.status_signal in names else -1
-        )
-        status_mask = 1 << gb.status_bit if gb else 0
-        frame_time, post, echo = self.driver.frame_time, self._post, self._on_echo
-
-        def handle(msg: can.Message) -> None:
-            data = msg.data
-            if msg.is_remote_frame:
-                return
-            n = len(data)
-            if n < length:
-                rx.pdo_too_short += 1
-                counters["decode_errors"] += 1
-                warn.warning(
-                    "short_pdo",
-                    "node %s: PDO 0x%03X with %d bytes, mapping needs %d; ignored",
-                    node.name,
-                    codec.cob_id,
-                    n,
-                    length,
-                )
-                return
-            if n > length:
-                # CiA 301: a PDO longer than its mapping is processed (the mapped bytes)
-                rx.pdo_too_long += 1
-                counters["pdo_too_long"] += 1
-                warn.warning(
-                    "long_pdo",
-                    "node %s: PDO 0x%03X with %d bytes, mapping has %d; extra bytes ignored",
-                    node.name,
-                    codec.cob_id,
-                    n,
-                    length,
-                )
-            values = decode(data)
-            # stamped with its receive time (bus clock), not when the reader got to it
-            update(node, names, values, msg.timestamp or time.time(), rx, frame_time(msg))
-            if pdo_listeners:
-                raw = bytes(data)
-                for listener in pdo_listeners:
-                    listener(node, codec.cob_id, raw)
-            if status_pos >= 0:
-                post(echo, p, 1 if values[status_pos] & status_mask else 0, frame_time(msg))
-
-        return handle
+        return tpdo_handler(
+            p, codec, self.image, self.driver.rx_counters, self.warn, self._post, self._on_echo,
+            self.driver.frame_time,
+        )  # fmt: skip
 
     def _peer_frame(self, fn: Callable[..., None], *args: Any) -> Callable[[can.Message], None]:
-        """Reader side of a frame another participant sent (NMT, our heartbeat COB-ID, SDO
-        requests to our nodes): to the loop, where ``peers`` judges it."""
-        post, frame_time = self._post, self.driver.frame_time
-
-        def handle(msg: can.Message) -> None:
-            if not msg.is_remote_frame:
-                post(fn, *args, bytes(msg.data), msg.timestamp or time.time(), frame_time(msg))
-
-        return handle
-
-    def _unknown(self, msg: can.Message) -> None:
-        cob = msg.arbitration_id
-        if cob == COB_SYNC or cob == COB_LSS_MASTER:
-            return  # SYNC from another master, LSS requests of another master
-        self.driver.rx_counters["unknown_cob_id"] += 1
-        seen = self._seen_cob_ids
-        if cob not in seen and len(seen) < 2048 and talking_node_id(cob) is not None:
-            seen.add(cob)  # first sighting: which node ids talk (for "did not appear")
-            self._post(self.peers.on_talking, cob, msg.timestamp or time.time(), wake=False)
-        self.warn.warning(
-            "unknown_cob_id",
-            "frame with unexpected COB-ID 0x%03X (%s) ignored",
-            cob,
-            describe_cob_id(cob),
-        )
+        return peer_frame_handler(self._post, self.driver.frame_time, fn, *args)
 
     def _on_nmt_frame(self, data: bytes, wall: float, now: float) -> None:
         if not self.mastering and len(data) >= 2:
@@ -411,21 +312,15 @@ class Master:
                 if o.what != "state":
                     self.image.health_changed(p.image, o.what)
             elif isinstance(o, SdoDone):
-                self._sdo_done(p, o)
+                self._waiting.done(p.name, o)
             elif isinstance(o, ValuesRead):
                 if p.image.is_bound(o.names):  # bound by build_node: the refresh plan
-                    self.image.update(
-                        p.image, o.names, o.values, time.time(), p.loop_rx, o.valid_at_s
-                    )
+                    self.image.update(p.image, o.names, o.values, time.time(), p.loop_rx, o.valid_at_s)
                     self.image.end_batch()
                 else:
-                    self.warn.log(
-                        logging.ERROR,
-                        ("unbound", p.name),
-                        "node %s: values %s read but not a source in the image; dropped",
-                        p.name,
-                        o.names,
-                    )
+                    self.warn.log(logging.ERROR, ("unbound", p.name),
+                                  "node %s: values %s read but not a source in the image; dropped",
+                                  p.name, o.names)  # fmt: skip
             elif isinstance(o, Note):
                 text = o.text
                 if "did not appear" in text:  # a wrong node id? say which ids talk instead
@@ -500,10 +395,7 @@ class Master:
         self._producers.clear()
         self._timers.clear()
         self._due.clear()
-        for fut, _obj in self._waiting.values():
-            if not fut.done():
-                fut.set_exception(BusDown("gateway stopping"))
-        self._waiting.clear()
+        self._waiting.fail_all(BusDown("gateway stopping"))
 
     def _produce(self, name: str, periodic: Periodic, cob_id: int, data: bytes) -> None:
         """SYNC / master heartbeat: send when due, then sleep until the next one."""
@@ -582,10 +474,9 @@ class Master:
         if check_state and not self.passive and not p.image.health.alive:
             raise NodeNotOperational(name, "not alive")
         assert self.loop is not None
-        fut: asyncio.Future[bytes] = self.loop.create_future()
         t0 = self.loop.time()
         token, outs = p.node.request_sdo(obj, data, self.clock())
-        self._waiting[(name, token)] = (fut, obj)
+        fut = self._waiting.add(self.loop, name, token, obj)
         self._execute(p, outs)
         op = "read" if data is None else "write"
         try:
@@ -598,24 +489,6 @@ class Master:
             self.on_sdo(name, op, self.loop.time() - t0, None)
         return result
 
-    def _sdo_done(self, p: NodeParts, done: SdoDone) -> None:
-        entry = self._waiting.pop((p.name, done.token), None)
-        if entry is None:
-            return
-        fut, obj = entry
-        if fut.done():
-            return
-        if done.data is not None:
-            fut.set_result(done.data)
-        elif done.by_server and done.abort_code is not None:
-            fut.set_exception(SdoAbort(done.abort_code, node=p.name, obj=str(obj)))
-        elif done.timed_out:
-            fut.set_exception(SdoTimeout(p.name, str(obj), "no SDO answer"))
-        else:
-            fut.set_exception(
-                SdoTimeout(p.name, str(obj), f"transfer ended (0x{done.abort_code or 0:08X})")
-            )
-
     # ------------------------------------------------------------------ a hot-standby pair
     @property
     def pair(self) -> FlyingMaster | None:
@@ -625,7 +498,7 @@ class Master:
     @property
     def role(self) -> str | None:
         """``active``, ``standby``, ``listening``, ``negotiating``; None outside a pair."""
-        return str(self.member.machine.role) if self.member is not None else None
+        return self.member.role if self.member is not None else None
 
     @property
     def peer_heartbeat_s(self) -> float | None:
@@ -644,11 +517,8 @@ class Master:
         if cob_id == member.logical_heartbeat and self.mastering:
             self._on_own_heartbeat(data, wall, now)  # someone else with the logical id?
         learned = member.on_frame(cob_id, data, now)
-        if learned is not None and learned not in self.peers.configured_ids:
-            # the other gateway named its id in its claim: its own heartbeat is the peer's,
-            # not an unconfigured node that talks
-            self.peers.configured_ids.add(learned)
-            self.peers.talking.pop(learned, None)
+        if learned is not None and self.peers.admit(learned):
+            # the other gateway named its id in its claim: its own heartbeat is the peer's
             self.driver.handlers[COB_NMT_EC + learned] = self._peer_frame(self._on_peer_heartbeat)
 
     def _on_peer_heartbeat(self, data: bytes, wall: float, now: float) -> None:
@@ -675,12 +545,4 @@ class Master:
             self.mastering = False
             for p in self.nodes.values():
                 self._execute(p, p.node.stand_by(now))
-            for fut, _obj in self._waiting.values():
-                if not fut.done():
-                    fut.set_exception(NotActive("this gateway stood down to standby"))
-            self._waiting.clear()
-        for listener in self.role_listeners:
-            try:
-                listener(str(change.role), change.reason)
-            except Exception:  # noqa: BLE001 - a listener must not stop the take-over
-                log.exception("role listener failed")
+            self._waiting.fail_all(NotActive("this gateway stood down to standby"))

@@ -27,7 +27,7 @@ from gateway.bus.node.node import Node
 from gateway.bus.node.settings import NodeSettings
 from gateway.bus.resolved import NamedNode, ResolvedNode
 from gateway.config import NodeConfig
-from gateway.image import NodeImage, RxCell
+from gateway.image import NodeImage, ProcessImage, RxCell
 from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
 from gateway.pdo.verify import MappingMismatch
@@ -155,3 +155,17 @@ def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> Nod
         passive=passive,
     )
     return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)
+
+
+def build_node_into(rn: ResolvedNode, image: ProcessImage, passive: bool, listening: bool) -> NodeParts:
+    """A node's image added to the process image, and its parts built on it. ``listening``:
+    a pair's member that is not active yet: the node only listens (passive) and its
+    supervision judges what it hears."""
+    ncfg, lp = rn.cfg, rn.lp
+    names = [s.name for s in lp.profile.signals]
+    ni = NodeImage(ncfg.name, ncfg.node_id, lp.family, names, rn.stale_after_s, ncfg.modbus.serve_stale)
+    image.add_node(ni)
+    parts = build_node(rn, ni, passive or listening)
+    if listening:
+        parts.node.supervision.active = True
+    return parts

@@ -77,6 +77,8 @@ class PairMember:
         #: when the peer's own heartbeat was last heard (bus clock)
         self.peer_heartbeat_s: float | None = None
         self._send, self._clock, self._on_role = send, clock, on_role
+        #: called (role, reason) on the event loop after the master took a role change
+        self.role_listeners: list[Callable[[str, str], None]] = []
         self._before_poll = before_poll  # the master drains what was heard before a timeout
         #: node id -> the first bytes of an SDO request the other gateway sent that no answer
         #: has followed yet (a transfer it may leave open)
@@ -88,6 +90,11 @@ class PairMember:
         self._ran_s: float | None = None
 
     # ------------------------------------------------------------------ queries
+    @property
+    def role(self) -> str:
+        """``active``, ``standby``, ``listening``, ``negotiating``."""
+        return str(self.machine.role)
+
     @property
     def cob_ids(self) -> frozenset[int]:
         """What the reader hands this member: the CiA 302-2 frames and the logical heartbeat."""
@@ -158,8 +165,13 @@ class PairMember:
         for a in actions:
             if isinstance(a, Send):
                 self._send(a.cob_id, a.data)
-            else:
-                self._on_role(a)
+                continue
+            self._on_role(a)
+            for listener in self.role_listeners:
+                try:
+                    listener(str(a.role), a.reason)
+                except Exception:  # noqa: BLE001 - a listener must not stop the take-over
+                    log.exception("role listener failed")
         self._schedule()
 
     def _schedule(self) -> None:
