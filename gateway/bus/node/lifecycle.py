@@ -12,10 +12,11 @@ Rule 2: nothing here does I/O or reads a clock. The driver asks ``next_action(no
 ``on_found``, ``on_lost``) and calls ``poll(now)`` for the boot timeout. Every event method
 returns the list of changes it caused.
 
-The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/node/boot_steps.py``.
+The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/node/boot_steps.py``;
+the states, actions and changes it speaks in from ``bus/node/lifecycle_actions.py``.
 
-Imports: gateway.bus.node.boot_steps (the step type), gateway.cia301, gateway.objref and the
-standard library.
+Imports: gateway.bus.node.boot_steps (the step type), gateway.bus.node.lifecycle_actions,
+gateway.cia301, gateway.objref and the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
 
@@ -24,26 +25,60 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Literal, NamedTuple
 
 from gateway.bus.node.boot_steps import ConfigStep
+from gateway.bus.node.lifecycle_actions import (
+    IDENTITY_ABSENT,
+    IDENTITY_NAMES,
+    Action,
+    BootTimeout,
+    Change,
+    Configured,
+    IdentityNotCompared,
+    LifecycleState,
+    ReadIdentity,
+    SendNmt,
+    StateChanged,
+    StepFailed,
+    StepSkipped,
+    Wait,
+    WriteStep,
+    WrongDevice,
+)
 from gateway.cia301 import (
     NMT_ENTER_PRE_OPERATIONAL,
     NMT_START,
-    SDO_ABORT_NO_OBJECT,
-    SDO_ABORT_NO_SUBINDEX,
     abort_text,
 )
 from gateway.objref import ObjRef
 
+#: what the lifecycle speaks in is defined in ``lifecycle_actions`` and read from here too
+__all__ = [
+    "LifecycleState",
+    "Wait",
+    "WriteStep",
+    "SendNmt",
+    "ReadIdentity",
+    "Action",
+    "IDENTITY_NAMES",
+    "IDENTITY_ABSENT",
+    "StateChanged",
+    "StepFailed",
+    "StepSkipped",
+    "BootTimeout",
+    "WrongDevice",
+    "IdentityNotCompared",
+    "Configured",
+    "Change",
+    "Backoff",
+    "LifecycleEvent",
+    "LifecycleError",
+    "NodeLifecycle",
+    "RECHECK_BACKOFF",
+    "TRANSITIONS",
+]
+
 # --------------------------------------------------------------------------- machine
-
-
-class LifecycleState(StrEnum):
-    WAITING = "waiting"  # not seen yet, or lost: waiting for a boot-up / to be found
-    BOOTING = "booting"  # seen; an NMT command must go out before configuring
-    CONFIGURING = "configuring"  # applying the SDO steps
-    OPERATIONAL = "operational"  # configured and NMT start sent
 
 
 @dataclass(frozen=True)
@@ -108,120 +143,6 @@ TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = {
 
 class LifecycleError(RuntimeError):
     """The gateway's own misuse of the machine: a change the table does not define."""
-
-
-# -- actions (what the driver must do); NamedTuples so ``action[0]`` is the kind
-
-
-class Wait(NamedTuple):
-    """Nothing to do for ``seconds`` (a retry is scheduled)."""
-
-    kind: Literal["wait"]
-    seconds: float
-
-
-class WriteStep(NamedTuple):
-    """Download ``step`` (SDO) and report with ``on_step_result(..., token=token)``."""
-
-    kind: Literal["sdo"]
-    step: ConfigStep
-    index: int
-    token: int
-
-
-class SendNmt(NamedTuple):
-    """Send NMT ``command`` to the node (SGH10 manual 4.2.1.2 table 3), then ``on_nmt_sent``."""
-
-    kind: Literal["nmt_preop", "nmt_start"]
-    command: int
-
-
-class ReadIdentity(NamedTuple):
-    """Upload ``object`` (1018h:01/02/04) and report with ``on_identity_result``."""
-
-    kind: Literal["identity"]
-    object: ObjRef
-    token: int
-
-
-Action = Wait | WriteStep | SendNmt | ReadIdentity
-
-#: CiA 301 7.5.2.20 identity object 1018h: the sub-indices compared, and their words.
-IDENTITY_NAMES = {0x01: "vendor", 0x02: "product", 0x03: "revision", 0x04: "serial"}
-#: CiA 301 table 22: an identity read answered with these aborts is not compared (only
-#: 1018h:01 is mandatory; a device may lack 02h..04h): the device holds no such number
-IDENTITY_ABSENT = (SDO_ABORT_NO_OBJECT, SDO_ABORT_NO_SUBINDEX)
-
-
-# -- changes (what happened)
-
-
-@dataclass(frozen=True)
-class StateChanged:
-    old: LifecycleState
-    new: LifecycleState
-    reason: str
-
-
-@dataclass(frozen=True)
-class StepFailed:
-    """A configuration step failed; it is retried after ``retry_in_s``."""
-
-    index: int
-    step: ConfigStep
-    abort_code: int | None  # None: no answer (timeout) or the bus refused to send
-    attempt: int
-    retry_in_s: float
-    message: str
-
-
-@dataclass(frozen=True)
-class StepSkipped:
-    """An optional step was refused by the device and skipped."""
-
-    index: int
-    step: ConfigStep
-    abort_code: int
-    message: str
-
-
-@dataclass(frozen=True)
-class BootTimeout:
-    """The node did not appear within the boot timeout (reported once per waiting period)."""
-
-    waited_s: float
-
-
-@dataclass(frozen=True)
-class WrongDevice:
-    """The node holds another device type (1000h) or identity (1018h) than the file says: it
-    is not configured, and checked again at its next boot-up or in ``recheck_in_s``."""
-
-    expected: int
-    found: int
-    recheck_in_s: float
-
-
-@dataclass(frozen=True)
-class IdentityNotCompared:
-    """An identity object the device says it does not have (``IDENTITY_ABSENT``): not compared.
-    Reported the first time only (the device says the same at every boot)."""
-
-    object: ObjRef
-    abort_code: int
-
-
-@dataclass(frozen=True)
-class Configured:
-    """All steps done and NMT start sent."""
-
-    duration_s: float
-
-
-Change = (
-    StateChanged | StepFailed | StepSkipped | BootTimeout | WrongDevice | IdentityNotCompared
-    | Configured
-)  # fmt: skip
 
 
 def _step_error(step: ConfigStep, abort_code: int | None) -> str:
