@@ -73,6 +73,9 @@ TX_RETRY_S = 0.002
 #: frames between two calls of the burst listeners while frames keep coming: under 1 ms of the
 #: reader's work at its 46-51 us per frame (bench/RESULTS.md, section 9)
 BURST_MAX_FRAMES = 16
+#: a frame stamped this far after the reader last looked at the clocks is not of this machine's
+#: clock (a few frames' processing at most separate the two)
+FRAME_TIME_AHEAD_S = 0.5
 
 FrameHandler = Callable[[can.Message], None]
 
@@ -138,6 +141,10 @@ class BusDriver:
         self.threads = threads or ThreadRegistry()
         self.mono = mono
         self.wall = wall
+        #: both clocks as the reader read them at the start of a burst (``frame_time`` turns a
+        #: frame's wall-clock timestamp into the bus clock without reading a clock)
+        self._burst_mono = mono()
+        self._burst_wall = wall()
         self.rx_counters = image.counters.counter_set()  # reader thread only
         self.tx_counters = image.counters.counter_set()  # sender thread only
         self._tx: queue.SimpleQueue[can.Message | None] = queue.SimpleQueue()
@@ -222,9 +229,18 @@ class BusDriver:
         return self.clock_state[1]
 
     def frame_time(self, msg: can.Message) -> float:
-        """A frame's receive time on the monotonic clock (its timestamp is wall-clock)."""
-        lag = self.wall() - msg.timestamp if msg.timestamp else 0.0
-        return self.mono() - lag if 0 < lag < 3600 else self.mono()
+        """A frame's receive time on the monotonic clock. Its timestamp is this machine's wall
+        clock (python-can's backends stamp frames on receipt), turned with both clocks as the
+        reader read them at the start of the burst (per frame: no clock read); a frame
+        without a timestamp, one from the future, or one more than an hour old is stamped now."""
+        ts = msg.timestamp
+        if ts:
+            t = self._burst_mono - (self._burst_wall - ts)
+            # received before the reader's last look at the clocks (it looks at every burst and
+            # every burst_max_frames), at most an hour before: else not of this clock
+            if -3600.0 < t - self._burst_mono < FRAME_TIME_AHEAD_S:
+                return t
+        return self.mono()
 
     # ------------------------------------------------------------------ sending
     def send(
@@ -325,6 +341,8 @@ class BusDriver:
                     pending = 0
                     self._end_burst()
                 continue
+            if not in_burst:
+                self._sync_clocks()  # at a burst's start (and every burst_max_frames in one)
             in_burst = True
             pending += 1
             self.clock_state = (False, msg.timestamp)  # one assignment (see __init__)
@@ -353,6 +371,11 @@ class BusDriver:
             if pending >= max_frames:  # frames keep coming: hand over what they brought
                 pending = 0
                 self._end_burst()
+                self._sync_clocks()
+
+    def _sync_clocks(self) -> None:
+        self._burst_mono = self.mono()
+        self._burst_wall = self.wall()
 
     def add_tap(self, tap: FrameHandler) -> None:
         """Call ``tap`` on the reader thread with every frame received from now on."""
