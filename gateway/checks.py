@@ -16,7 +16,7 @@
   the EDS mapping objects are writable;
 * a signal's declared type is the EDS DataType; a signal declared as a PDO signal is in a PDO;
 * every safe output value (``safe_value``, ``nodes[].safe_outputs``) names an RPDO output of its
-  node and fits its type and range (``gateway.safe_outputs``);
+  node and fits its type and range (``gateway.modbus.safe_outputs``);
 * no COB-ID has two uses (``gateway.bus.cob_ids``: the PDOs, EMCY, SDO and heartbeat of every
   node, the master's NMT, SYNC, heartbeat and LSS), named in one line with where each got it;
   one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both).
@@ -57,13 +57,13 @@ from gateway.eds import EdsError, load_eds
 from gateway.eds.cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import eds_pdos, od_var, readable
+from gateway.modbus.safe_outputs import safe_output_problems
 from gateway.northbound.regmap import RegisterMapError, build_register_map
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS
 from gateway.profiles.schema import Pdo
-from gateway.safe_outputs import safe_output_problems
 
 Problem = tuple[str, str]
 

@@ -36,7 +36,7 @@ clients allowed to write only (decided once per connection: ``ImageDatastore.wri
 for ``read_only`` and ``allowed_networks``, and on TLS a role with ``write`` access): their
 requests, their connections and disconnections. Its machine is
 ``modbus.watchdog.OutputWatchdog``, its timer a ``loop.call_at`` at the machine's next
-deadline, and a trip writes the nodes' safe outputs (``gateway.safe_outputs``) through the
+deadline, and a trip writes the nodes' safe outputs (``modbus.safe_outputs``) through the
 command service. On the standby of a hot-standby pair it stands by (``set_mastering``): no
 timer, no trip, nothing logged per period.
 
@@ -73,10 +73,10 @@ from gateway.modbus.protocol import (
     ModbusError,
     exception_code,
 )
+from gateway.modbus.safe_outputs import safe_outputs
 from gateway.modbus.security import Access, access_of, tls_context
 from gateway.modbus.watchdog import TIMEOUT, OutputWatchdog, WatchdogState
 from gateway.northbound.regmap import build_register_map
-from gateway.safe_outputs import safe_outputs
 
 log = logging.getLogger("gateway.modbus")
 

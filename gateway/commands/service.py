@@ -16,35 +16,32 @@ Rules held here, once:
   read-modify-write, one writer at a time per word;
 * SDO-backed values read north come from a cache (``master.sdo_cache_ms``, default 1000 ms):
   a read younger than that is served from it, concurrent reads share one upload, a write
-  through the gateway updates it, and a boot-up or loss of the node empties it.
+  through the gateway updates it, and a boot-up or loss of the node empties it
+  (``sdo_cache``).
 
-Imports: bus.master (the operations), bus.node.parts (the nodes), bus.lss.master (its errors),
-bus.scan (the scan beside the master), bus.sdo.values (value codecs), errors, image, objref,
-profiles, cia301, states, python-can (its error type). Never modbus/ or zenoh_bridge/.
+The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``bus_tools``'.
+
+Imports: bus.master (the operations), bus.node.parts (the nodes), bus.sdo.values (value
+codecs), commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
+profiles, cia301. Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import math
-import time
 from dataclasses import dataclass
 from typing import Any
 
-import can
-
-from gateway.bus.lss.master import LssBusy, LssStateError
 from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
-from gateway.bus.scan import Found, scan_beside
-from gateway.bus.scan import report as scan_report
 from gateway.bus.sdo.values import decode_value, encode_value
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
+from gateway.commands import bus_tools
+from gateway.commands.sdo_cache import SdoValueCache
+from gateway.commands.validation import bit_names, check_sdo_type, check_value, writable_mask
 from gateway.errors import (
-    BusDown,
     GatewayError,
-    LssConflict,
     NodeUnknown,
     ReadOnly,
     Unmapped,
@@ -57,98 +54,6 @@ from gateway.profiles.derived import TextSignal, text_signals
 from gateway.profiles.schema import TYPE_BITS, Signal
 
 log = logging.getLogger("gateway.commands")
-
-#: the types an SDO value may be read or written as (``type_`` of ``sdo_read`` / ``sdo_write``)
-SDO_TYPES = (*TYPE_BITS, "string", "bytes")
-
-
-def check_sdo_type(type_: str | None) -> None:
-    """A ``type_`` no SDO value can have is a client's error, refused before anything is sent."""
-    if type_ is not None and type_ not in SDO_TYPES:
-        raise ValueError(f"type {type_!r} is not one of {', '.join(SDO_TYPES)}")
-
-
-#: the largest finite REAL32 (IEEE 754 binary32)
-REAL32_MAX = 3.4028234663852886e38
-
-
-def type_range(type_: str, mapped_bits: int | None = None) -> tuple[int, int] | None:
-    """The raw integers a ``type_`` holds; ``mapped_bits``: the width of a PDO entry narrower
-    than the type (CiA 301 7.5.2.36), which then bounds the range."""
-    bits = TYPE_BITS.get(type_)
-    if bits is None or type_.startswith("float"):
-        return None
-    if mapped_bits is not None:
-        bits = min(bits, mapped_bits)
-    if type_ == "bool":
-        return 0, 1
-    if type_.startswith("int"):
-        return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
-    return 0, (1 << bits) - 1
-
-
-def check_value(sig: Signal, value: Any, mapped_bits: int | None = None) -> Any:
-    """Validate a raw value for a signal; returns it normalised or raises ValueOutOfRange.
-    ``mapped_bits``: the narrowest RPDO entry carrying the signal (see ``type_range``)."""
-    if sig.type in ("string", "bytes"):
-        if isinstance(value, str):
-            try:
-                raw = value.encode("ascii")
-            except UnicodeEncodeError:
-                raise ValueOutOfRange(sig.name, value, "ASCII text only") from None
-        elif isinstance(value, (bytes, bytearray)):
-            raw = bytes(value)
-        else:
-            raise ValueOutOfRange(sig.name, value, "text expected")
-        if sig.length is not None and len(raw) > sig.length:
-            raise ValueOutOfRange(sig.name, value, f"at most {sig.length} characters")
-        if sig.type == "string" and any(b < 0x20 or b > 0x7E for b in raw.rstrip(b"\0")):
-            raise ValueOutOfRange(sig.name, value, "printable ASCII characters only")
-        return raw
-    if sig.type in ("float32", "float64"):
-        try:
-            v: float | int = float(value)
-        except (TypeError, ValueError):
-            raise ValueOutOfRange(sig.name, value, "a number") from None
-        if sig.type == "float32" and math.isfinite(v) and abs(v) > REAL32_MAX:
-            raise ValueOutOfRange(sig.name, value, f"a REAL32 (magnitude <= {REAL32_MAX:g})")
-    else:
-        if isinstance(value, float) and not value.is_integer():
-            raise ValueOutOfRange(sig.name, value, "an integer")
-        try:
-            v = int(value)
-        except (TypeError, ValueError):
-            raise ValueOutOfRange(sig.name, value, "an integer") from None
-        rng = type_range(sig.type_name, mapped_bits)
-        if rng and not rng[0] <= v <= rng[1]:
-            narrow = mapped_bits is not None and mapped_bits < TYPE_BITS.get(sig.type_name, 64)
-            what = f"{sig.type} mapped in {mapped_bits} bits" if narrow else sig.type
-            raise ValueOutOfRange(sig.name, value, f"{rng[0]}..{rng[1]} ({what})")
-    # profile min/max are engineering values (raw x scale + offset)
-    eng = v * sig.scale + sig.offset
-    if sig.min is not None and eng < sig.min - 1e-9:
-        raise ValueOutOfRange(sig.name, value, f">= {sig.min:g} {sig.unit}".rstrip())
-    if sig.max is not None and eng > sig.max + 1e-9:
-        raise ValueOutOfRange(sig.name, value, f"<= {sig.max:g} {sig.unit}".rstrip())
-    return v
-
-
-def writable_mask(sig: Signal) -> int:
-    """Bits of a word signal a client may set or clear (the profile's ``writable`` bits)."""
-    mask = 0
-    for b in sig.bits:
-        if b.writable:
-            mask |= ((1 << b.width) - 1) << b.bit
-    return mask
-
-
-def bit_names(sig: Signal, mask: int) -> str:
-    names = []
-    for bit in range(64):
-        if mask >> bit & 1:
-            named = next((b.name for b in sig.bits if b.bit <= bit < b.bit + b.width), None)
-            names.append(f"bit {bit}" + (f" ({named})" if named else ""))
-    return ", ".join(names)
 
 
 @dataclass(frozen=True)
@@ -189,8 +94,7 @@ class CommandService:
         self.master = master
         cache_ms = getattr(master.cfg.master, "sdo_cache_ms", 1000)
         self.sdo_cache_s = cache_ms / 1000.0
-        self._cache: dict[tuple[str, str], tuple[Any, float, tuple[int, int]]] = {}
-        self._reading: dict[tuple[str, str], asyncio.Future[Any]] = {}
+        self._sdo_cache = SdoValueCache(master, self.sdo_cache_s)
         self._word_locks: dict[tuple[str, str], asyncio.Lock] = {}
         self._infos: dict[str, NodeInfo] = {}
 
@@ -300,11 +204,11 @@ class CommandService:
             sig = self.signal(node, n)
             if sig.bits:
                 async with self._word_lock(node, n):
-                    current = await self._sdo_value(p, sig)
+                    current = await self._sdo_cache.read(p, sig)
                     self._check_word(p, sig, v, current)
-                    await self._sdo_write_signal(p, sig, v)
+                    await self._sdo_cache.write(p, sig, v)
             else:
-                await self._sdo_write_signal(p, sig, v)
+                await self._sdo_cache.write(p, sig, v)
 
     async def write_safe_outputs(self, plan: dict[str, dict[str, Any]]) -> dict[str, str]:
         """The output watchdog tripped: write each node's safe values (``plan``: node -> RPDO
@@ -353,7 +257,7 @@ class CommandService:
             if p.node.is_output(name):
                 current = int(p.image.output(name) or 0)
             else:
-                current = int(await self._sdo_value(p, sig))
+                current = int(await self._sdo_cache.read(p, sig))
             word = current
             for bit, on in bits.items():
                 word = word | (1 << bit) if on else word & ~(1 << bit)
@@ -366,7 +270,7 @@ class CommandService:
             if p.node.is_output(name):
                 self.master.write_outputs(node, {None: {name: word}})
             else:
-                await self._sdo_write_signal(p, sig, check_value(sig, word))
+                await self._sdo_cache.write(p, sig, check_value(sig, word))
 
     def _word_lock(self, node: str, name: str) -> asyncio.Lock:
         return self._word_locks.setdefault((node, name), asyncio.Lock())
@@ -433,42 +337,7 @@ class CommandService:
             raise ReadOnly(f"{node}.{name} is write-only")
         if self._text(p.lp, name) is not None or p.node.is_output(name):
             return self.output_value(node, name)
-        return await self._sdo_value(p, sig, cached=True)
-
-    def _epoch(self, p: NodeParts) -> tuple[int, int]:
-        h = p.image.health
-        return h.boot_count, h.loss_count
-
-    async def _sdo_value(self, p: NodeParts, sig: Signal, cached: bool = False) -> Any:
-        key = (p.name, sig.name)
-        now = time.monotonic()
-        if cached:
-            hit = self._cache.get(key)
-            if hit is not None and now - hit[1] <= self.sdo_cache_s and hit[2] == self._epoch(p):
-                return hit[0]
-            pending = self._reading.get(key)
-            if pending is not None:
-                return await asyncio.shield(pending)
-        fut: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
-        self._reading[key] = fut
-        try:
-            epoch = self._epoch(p)
-            data = await self.master.sdo(p.name, sig.object, None)
-            value = decode_value(bytes(data), sig.type_name)
-            self._cache[key] = (value, time.monotonic(), epoch)
-            fut.set_result(value)
-            return value
-        except BaseException as exc:
-            fut.set_exception(exc)
-            fut.exception()  # retrieved: no "never retrieved" warning when nobody shares it
-            raise
-        finally:
-            if self._reading.get(key) is fut:
-                del self._reading[key]
-
-    async def _sdo_write_signal(self, p: NodeParts, sig: Signal, value: Any) -> None:
-        await self.master.sdo(p.name, sig.object, encode_value(value, sig.type_name))
-        self._cache[(p.name, sig.name)] = (value, time.monotonic(), self._epoch(p))
+        return await self._sdo_cache.read(p, sig, cached=True)
 
     # ------------------------------------------------------------------ SDO and NMT
     def _od_type(self, p: NodeParts, obj: ObjRef) -> str | None:
@@ -512,80 +381,19 @@ class CommandService:
         await self.master.sdo(node, o, data)
         sig = p.lp.profile.signal_for(o)
         if sig is not None:
-            self._cache.pop((node, sig.name), None)
+            self._sdo_cache.forget(node, sig.name)
 
     def lss_busy(self) -> bool:
         """An LSS session is running."""
         return self.master.lss.busy()
 
     async def lss_inquire(self, address: tuple[int, int, int, int] | None = None) -> dict[str, Any]:
-        """LSS inquire (CiA 305; SGH10 manual 4.6.3) of the one slave at ``address`` (switch
-        state selective), else of every slave (switch state global), on the gateway's own
-        connection to the bus: vendor_id, product_code, revision, serial, node_id."""
-        self.master.require_bus()
-        try:
-            return await self.master.lss.inquire_all(address)
-        except (LssBusy, LssStateError) as exc:
-            raise LssConflict(str(exc)) from None
-        except can.CanError as exc:
-            raise BusDown(str(exc)) from None
+        """LSS inquire of the slave at ``address``, else of every slave (``bus_tools``)."""
+        return await bus_tools.lss_inquire(self.master, address)
 
     async def scan_bus(self, *, listen_s: float = 1.0, sdo_timeout_s: float = 0.1) -> dict[str, Any]:
-        """Which node ids are on the bus and what they are (``canopen-gateway scan --active``),
-        on the gateway's own connection: the ids that talk within ``listen_s``; device type,
-        name and identity (1000h, 1008h, 1018h:01..04) of every id that answers. The scan's own
-        SDO client probes the ids no node of the config has; a configured node is read by the
-        master's SDO client, in turn with its other transfers. Returns ``{"nodes": [...],
-        "report": [lines as printed by the scan command]}``."""
-        self.master.require_bus()
-        ids = {p.node_id: name for name, p in self.master.nodes.items()}
-        try:
-            found, identities = await asyncio.gather(
-                asyncio.to_thread(
-                    scan_beside,
-                    self.master.driver,
-                    configured=set(ids),
-                    listen_s=listen_s,
-                    sdo_timeout_s=sdo_timeout_s,
-                ),
-                asyncio.gather(*(self._identify(name, node_id) for node_id, name in ids.items())),
-            )
-        except can.CanError as exc:  # the bus went down under the scan
-            raise BusDown(str(exc)) from None
-        for f in identities:
-            if f is None:
-                continue
-            heard = found.get(f.node_id)
-            if heard is not None:  # what it sent in the listening window
-                f.state, f.cob_ids = heard.state, heard.cob_ids
-            found[f.node_id] = f
-        return {
-            "nodes": [found[i].doc() for i in sorted(found)],
-            "report": scan_report(found, self.master.cfg, active=True, beside=True),
-        }
-
-    async def _identify(self, name: str, node_id: int) -> Found | None:
-        """Device type, name and identity of a configured node by the master's SDO client;
-        None if it does not answer 1000h."""
-
-        async def upload(index: int, sub: int) -> bytes | None:
-            try:
-                return await self.master.sdo(name, ObjRef(index, sub), None, check_state=False)
-            except GatewayError:  # an abort, no answer, the bus down
-                return None
-
-        async def read(index: int, sub: int, type_: str) -> Any:
-            raw = await upload(index, sub)
-            return decode_value(raw, type_) if raw else None
-
-        device_type = await read(0x1000, 0, "uint32")
-        if device_type is None:
-            return None
-        f = Found(node_id, device_type=device_type, name=await read(0x1008, 0, "string"))
-        f.vendor, f.product, f.revision, f.serial = [
-            await read(0x1018, sub, "uint32") for sub in (1, 2, 3, 4)
-        ]
-        return f
+        """Which node ids are on the bus and what they are (``bus_tools.scan_bus``)."""
+        return await bus_tools.scan_bus(self.master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
 
     def nmt(self, node: str, command: str) -> None:
         """NMT command to one node by name, or to all nodes with ``all``."""
