@@ -54,6 +54,33 @@ def make_config(nodes: list[dict[str, Any]], **sections: Any) -> Any:
     return parse_config(raw, environ={})
 
 
+def resolved(cfg: Any) -> Any:
+    """The nodes of a bare Config, resolved (``gateway.bus.resolved``), for a test that builds
+    a consumer (Master, ModbusGateway, the register map...) from it."""
+    from gateway.bus.resolved import resolve_config
+
+    return resolve_config(cfg)
+
+
+def with_nodes(cfg: Any) -> tuple[Any, Any]:
+    """``(cfg, resolved(cfg))``: ``all_keys(*with_nodes(cfg))``."""
+    return cfg, resolved(cfg)
+
+
+def gateway_of(cfg: Any, *args: Any, **kw: Any) -> Any:
+    """``Gateway(cfg, nodes, ...)`` with the nodes of ``cfg`` resolved (``resolved``)."""
+    from gateway.app import Gateway
+
+    return Gateway(cfg, resolved(cfg), *args, **kw)
+
+
+def simulated_bus(cfg: Any, names: list[str] | None = None) -> Any:
+    """``SimulatedBus(cfg, nodes, names)`` with the nodes of ``cfg`` resolved (``resolved``)."""
+    from gateway.app import SimulatedBus
+
+    return SimulatedBus(cfg, resolved(cfg), names)
+
+
 def wait_until_sync(cond: Callable[[], Any], timeout_s: float = 5.0, what: str = "condition") -> Any:
     """``wait_until`` for code outside the event loop (threads, other processes): poll
     ``cond`` every 10 ms until truthy; fail the test after ``timeout_s``."""
@@ -79,10 +106,9 @@ async def wait_until(cond: Callable[[], Any], timeout_s: float = 5.0, what: str 
 @asynccontextmanager
 async def master_running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Any]:
     """A Gateway with only the CANopen side (no Modbus, no Zenoh), stopped on exit."""
-    from gateway.app import Gateway
 
     cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         yield gw
@@ -143,9 +169,7 @@ async def modbus_gateway(
     Both are stopped on exit."""
     from pymodbus.client import AsyncModbusTcpClient
 
-    from gateway.app import Gateway
-
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
     try:

@@ -52,7 +52,7 @@ from gateway.bus.node.parts import NodeParts, build_node
 from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
 from gateway.bus.pair.member import PairMember
 from gateway.bus.producers import Periodic
-from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
+from gateway.bus.resolved import ResolvedNode
 from gateway.cia301 import (
     COB_EMCY,
     COB_LSS_MASTER,
@@ -97,7 +97,7 @@ class Master:
         driver: BusDriver,
         *,
         passive: bool = False,
-        nodes: dict[str, ResolvedNode] | None = None,
+        nodes: dict[str, ResolvedNode],
     ):
         self.cfg = cfg
         self.image = image
@@ -137,9 +137,8 @@ class Master:
         self._seen_cob_ids: set[int] = set()  # the reader's own: unknown COB-IDs posted once
         #: LSS (CiA 305) on this connection to the bus, for the command service
         self.lss = LssService(driver.send, self._post, self.clock, driver.frame_time)
-        resolved = nodes_of(cfg, nodes)
         for ncfg in cfg.nodes:
-            rn = node_of(cfg, resolved, ncfg)
+            rn = nodes[ncfg.name]
             lp = rn.lp
             names = [s.name for s in lp.profile.signals]
             ni = NodeImage(

@@ -17,6 +17,7 @@ from gateway.northbound.regmap import build_register_map
 from gateway.objref import ObjRef
 from gateway.pdo.verify import MappingRead, compare_mapping, mapping_reads
 from gateway.profiles import ProfileError, load_node_profile
+from tests.helpers import with_nodes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
 IO = DATA / "io401.eds"
@@ -240,7 +241,7 @@ def test_msk5000_manual_remap_in_the_config_serves_every_mapped_object() -> None
         },
         environ={},
     )  # fmt: skip
-    rm = build_register_map(cfg)
+    rm = build_register_map(*with_nodes(cfg))
     ir = {p.name: p.address for p in rm.points if p.table == "ir" and p.kind == "signal"}
     assert {"position", "sys_register", "flag0_register", "speed"} <= set(ir)
 
