@@ -22,7 +22,7 @@ the device files.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -180,17 +180,13 @@ def _profile_problems(key: str, n: NodeConfig, lp: LoadedProfile) -> list[Proble
     return out
 
 
-def resolve_nodes(
-    cfg: Config, names: Iterable[str] | None = None
-) -> tuple[dict[str, ResolvedNode], list[Problem]]:
-    """Node name -> its resolution, in config order, and the nodes' problems (``names``: only
-    these nodes). A node whose profile or EDS does not load is left out, its problem said."""
-    wanted = set(names) if names is not None else None
+def resolve_nodes(cfg: Config) -> tuple[dict[str, ResolvedNode], list[Problem]]:
+    """Node name -> its resolution, in config order, and the nodes' problems. A node with a
+    problem (its profile or EDS does not load, it asks what its profile has not) is left out,
+    its problem said."""
     out: dict[str, ResolvedNode] = {}
     problems: list[Problem] = []
     for i, ncfg in enumerate(cfg.nodes):
-        if wanted is not None and ncfg.name not in wanted:
-            continue
         key = f"nodes[{i}]"
         try:
             lp = load_node_profile(ncfg, cfg.base_dir)
@@ -201,15 +197,17 @@ def resolve_nodes(
                 where = f"{key}.{'eds' if ncfg.eds else 'profile'}"
                 problems += [(where, line) for line in str(exc).splitlines()]
             continue
-        problems += _profile_problems(key, ncfg, lp)
-        out[ncfg.name] = resolve_node(cfg, ncfg, lp)
+        asked = _profile_problems(key, ncfg, lp)
+        problems += asked
+        if not asked:
+            out[ncfg.name] = resolve_node(cfg, ncfg, lp)
     return out, problems
 
 
-def resolve_config(cfg: Config, names: Iterable[str] | None = None) -> dict[str, ResolvedNode]:
-    """Node name -> its resolution, in config order (``names``: only these nodes), for a config
-    already validated (its node problems were reported when it was loaded)."""
-    return resolve_nodes(cfg, names)[0]
+def resolve_config(cfg: Config) -> dict[str, ResolvedNode]:
+    """Node name -> its resolution, in config order, for a config already validated (its nodes'
+    problems were reported when it was loaded)."""
+    return resolve_nodes(cfg)[0]
 
 
 class Resolved(NamedTuple):
