@@ -17,7 +17,7 @@ from typing import Any
 
 import can
 
-from gateway.checks import parse_checked_config as parse_config
+from gateway.checks import load_checked, parse_checked
 
 _port_counter = itertools.count()
 
@@ -51,7 +51,18 @@ def make_config(nodes: list[dict[str, Any]], **sections: Any) -> Any:
             raw[k] = {**raw[k], **v}
         else:
             raw[k] = v
-    return parse_config(raw, environ={})
+    return parse_checked_config(raw, environ={})
+
+
+def parse_checked_config(raw: Any, source: str = "<memory>", environ: Any = None) -> Any:
+    """``gateway.checks.parse_checked``'s config alone (a test resolves its nodes when it needs
+    them: ``resolved``)."""
+    return parse_checked(raw, source, environ).cfg
+
+
+def load_checked_config(path: Any, environ: Any = None) -> Any:
+    """``gateway.checks.load_checked``'s config alone."""
+    return load_checked(path, environ).cfg
 
 
 def resolved(cfg: Any) -> Any:

@@ -33,8 +33,7 @@ hot-standby pair (``check -c A -c B``, docs/redundancy.md).
 
 Every function takes the nodes as resolved once (``gateway.bus.resolved``). ``load_checked`` /
 ``parse_checked`` read and validate a config, resolve its nodes in the same pass and run these
-checks, raising ConfigError with every line; they return the config and its nodes
-(``load_checked_config`` / ``parse_checked_config``: the config alone).
+checks, raising ConfigError with every line; they return the config and its nodes.
 
 Pure: imports config, bus.resolved (the resolution and its loaders), checks.pair, profiles,
 eds, the boot step builder, the external heartbeat keep-alive rule (bus/node/settings.py), the codecs and the
@@ -432,18 +431,6 @@ def load_checked(path: str | os.PathLike[str], environ: Mapping[str, str] | None
     return loaded
 
 
-def parse_checked_config(
-    raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None
-) -> Config:
-    return parse_checked(raw, source, environ).cfg
-
-
-def load_checked_config(
-    path: str | os.PathLike[str], environ: Mapping[str, str] | None = None
-) -> Config:
-    return load_checked(path, environ).cfg
-
-
 __all__ = [
     "SIGNAL_BITS",
     "boot_problems",
@@ -453,9 +440,7 @@ __all__ = [
     "config_warnings",
     "eds_problems",
     "load_checked",
-    "load_checked_config",
     "pair_problems",
     "parse_checked",
-    "parse_checked_config",
     "protocol_problems",
 ]

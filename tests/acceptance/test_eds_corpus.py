@@ -25,7 +25,6 @@ import canopen
 import pytest
 from canopen.objectdictionary import datatypes as dt
 
-from gateway.checks import parse_checked_config
 from gateway.cia301 import TYPE_NAMES
 from gateway.cli import main
 from gateway.config import ConfigError
@@ -36,7 +35,7 @@ from gateway.northbound.regmap import build_register_map
 from gateway.objref import ObjRef
 from gateway.pdo.codec import compile_node
 from gateway.profiles import ProfileError, load_node_profile
-from tests.helpers import with_nodes
+from tests.helpers import parse_checked_config, with_nodes
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eds-corpus"
 FILES = sorted(p for p in CORPUS.glob("*") if p.suffix.lower() in (".eds", ".dcf")) if CORPUS.is_dir() else []

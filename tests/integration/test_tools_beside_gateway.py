@@ -194,8 +194,8 @@ async def test_scan_beside_a_gateway_that_serves_its_commissioning_page_points_a
 ) -> None:
     import asyncio
 
-    from gateway.checks import load_checked_config
     from gateway.cli import main
+    from tests.helpers import load_checked_config
 
     cfg_file = demo_like(tmp_path / "w.yaml", web={"writes": True, "token": "a long random text"})
     gw = gateway_of(load_checked_config(cfg_file))

@@ -18,12 +18,12 @@ from gateway.bus.master import Master
 from gateway.bus.node.features.sync_wait import WAITING
 from gateway.bus.resolved import resolve_config
 from gateway.checks import config_warnings
-from gateway.checks import parse_checked_config as parse_config
 from gateway.config import ConfigError
 from gateway.config import parse_config as parse_unchecked
 from gateway.eds import lint, load_eds
 from gateway.image import ProcessImage
 from tests.helpers import gateway_of, with_nodes
+from tests.helpers import parse_checked_config as parse_config
 from tests.unit.test_node import sgh10
 
 ROOT = Path(__file__).resolve().parents[2]

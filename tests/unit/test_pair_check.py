@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from gateway.checks import pair_problems
-from gateway.checks import parse_checked_config as parse_config
+from tests.helpers import parse_checked_config as parse_config
 from tests.helpers import resolved
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -15,7 +15,6 @@ from hypothesis import strategies as st
 
 from gateway.ascii.values import format_plain
 from gateway.bus.sdo.values import decode_value, encode_value
-from gateway.checks import parse_checked_config
 from gateway.cia301 import MS_PER_DAY, TIME_EPOCH_UNIX_MS, time_fields, time_ms, time_word
 from gateway.config import ConfigError
 from gateway.image import Quality, SignalValue
@@ -29,7 +28,7 @@ from gateway.profiles.schema import Signal
 from gateway.web.trends import is_trend_signal
 from gateway.web.views import SignalMeta
 from gateway.zenoh_bridge.payloads import pdo_json, value_json
-from tests.helpers import with_nodes
+from tests.helpers import parse_checked_config, with_nodes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
 NODE = {"name": "dev", "node_id": 5, "profile": str(DATA / "types.yaml")}
