@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 import yaml
 
-from tests.helpers import free_port, gateway_of, gateway_running, unique_channel, wait_until_sync
+from tests.helpers import free_port, gateway_running, unique_channel, wait_until_sync
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -194,11 +194,12 @@ async def test_scan_beside_a_gateway_that_serves_its_commissioning_page_points_a
 ) -> None:
     import asyncio
 
+    from gateway.app import Gateway
+    from gateway.checks import load_checked
     from gateway.cli import main
-    from tests.helpers import load_checked_config
 
     cfg_file = demo_like(tmp_path / "w.yaml", web={"writes": True, "token": "a long random text"})
-    gw = gateway_of(load_checked_config(cfg_file))
+    gw = Gateway(*load_checked(cfg_file))
     await gw.start()
     try:
         with pytest.raises(SystemExit) as exc:
