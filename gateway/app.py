@@ -1,8 +1,10 @@
 """Builds the running gateway from a config: bus driver, master, process image, command service,
 Modbus server, Zenoh bridge, health endpoint, and (for demos/tests) simulated devices.
 
-``Gateway(cfg)`` then ``await start()`` / ``await stop()``. The only module that knows every
-part; the parts do not know each other except through the image and the command service.
+``Gateway(cfg, nodes)`` then ``await start()`` / ``await stop()``: ``nodes`` are the config's
+nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed to the master,
+Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
+parts do not know each other except through the image and the command service.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import can
 from gateway import __version__
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
-from gateway.bus.resolved import ResolvedNode, node_of, resolve_config
+from gateway.bus.resolved import ResolvedNode
 from gateway.checks import check_config
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
@@ -25,6 +27,7 @@ from gateway.health import pair_status
 from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
+from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
 from gateway.profiles.derived import text_rows_as_signals
@@ -41,15 +44,14 @@ class SimulatedBus:
     def __init__(
         self,
         cfg: Config,
+        nodes: dict[str, ResolvedNode],
         names: list[str] | None = None,
-        resolved: dict[str, ResolvedNode] | None = None,
     ):
         from gateway.sim.motion import MotionConfig
         from gateway.sim.node import SimNode
 
         self.cfg = cfg
         wanted = names if names is not None else [n.name for n in cfg.simulated_nodes()]
-        resolved = resolved if resolved is not None else resolve_config(cfg, wanted)
         self.nodes: dict[str, Any] = {}
         for n in cfg.nodes:
             if n.name not in wanted:
@@ -60,7 +62,7 @@ class SimulatedBus:
                 MotionConfig.from_dict(cfg.simulate.motion.get(n.name))
                 key = f"simulate.options.{n.name}"
                 self.nodes[n.name] = SimNode(
-                    node_of(cfg, resolved, n).lp,
+                    nodes[n.name].lp,
                     n.node_id,
                     motion=cfg.simulate.motion.get(n.name),
                     options=cfg.simulate.options.get(n.name),
@@ -89,9 +91,16 @@ class SimulatedBus:
 
 
 class Gateway:
-    def __init__(self, cfg: Config, simulate: bool = True, *, passive: bool = False):
+    def __init__(
+        self,
+        cfg: Config,
+        nodes: dict[str, ResolvedNode],
+        simulate: bool = True,
+        *,
+        passive: bool = False,
+    ):
         #: every node resolved once (profile, settings, boot steps, codecs) for every part
-        self.nodes = resolve_config(cfg)
+        self.nodes = nodes
         check_config(cfg, self.nodes)  # the cross-checks of `canopen-gateway check` (ConfigError)
         self.cfg = cfg
         self.image = ProcessImage()
@@ -109,7 +118,7 @@ class Gateway:
             if cfg.zenoh.enabled
             else None
         )
-        self.sim = SimulatedBus(cfg, resolved=self.nodes) if simulate and cfg.simulated_nodes() else None
+        self.sim = SimulatedBus(cfg, self.nodes) if simulate and cfg.simulated_nodes() else None
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
         self.health: Any = None
         self.web: Any = None
@@ -374,6 +383,7 @@ class Gateway:
                     if self.modbus is not None
                     else build_register_map(self.cfg, self.nodes)
                 ),
+                decoder=FrameDecoder(self.cfg, self.nodes),
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
                 frames=self.driver,
             )

@@ -17,7 +17,7 @@ from typing import Any
 
 import can
 
-from gateway.checks import parse_checked_config as parse_config
+from gateway.checks import load_checked, parse_checked
 
 _port_counter = itertools.count()
 
@@ -51,7 +51,45 @@ def make_config(nodes: list[dict[str, Any]], **sections: Any) -> Any:
             raw[k] = {**raw[k], **v}
         else:
             raw[k] = v
-    return parse_config(raw, environ={})
+    return parse_checked_config(raw, environ={})
+
+
+def parse_checked_config(raw: Any, source: str = "<memory>", environ: Any = None) -> Any:
+    """``gateway.checks.parse_checked``'s config alone (a test resolves its nodes when it needs
+    them: ``resolved``)."""
+    return parse_checked(raw, source, environ).cfg
+
+
+def load_checked_config(path: Any, environ: Any = None) -> Any:
+    """``gateway.checks.load_checked``'s config alone."""
+    return load_checked(path, environ).cfg
+
+
+def resolved(cfg: Any) -> Any:
+    """The nodes of a bare Config, resolved (``gateway.bus.resolved``), for a test that builds
+    a consumer (Master, ModbusGateway, the register map...) from it."""
+    from gateway.bus.resolved import resolve_config
+
+    return resolve_config(cfg)
+
+
+def with_nodes(cfg: Any) -> tuple[Any, Any]:
+    """``(cfg, resolved(cfg))``: ``all_keys(*with_nodes(cfg))``."""
+    return cfg, resolved(cfg)
+
+
+def gateway_of(cfg: Any, *args: Any, **kw: Any) -> Any:
+    """``Gateway(cfg, nodes, ...)`` with the nodes of ``cfg`` resolved (``resolved``)."""
+    from gateway.app import Gateway
+
+    return Gateway(cfg, resolved(cfg), *args, **kw)
+
+
+def simulated_bus(cfg: Any, names: list[str] | None = None) -> Any:
+    """``SimulatedBus(cfg, nodes, names)`` with the nodes of ``cfg`` resolved (``resolved``)."""
+    from gateway.app import SimulatedBus
+
+    return SimulatedBus(cfg, resolved(cfg), names)
 
 
 def wait_until_sync(cond: Callable[[], Any], timeout_s: float = 5.0, what: str = "condition") -> Any:
@@ -79,10 +117,9 @@ async def wait_until(cond: Callable[[], Any], timeout_s: float = 5.0, what: str 
 @asynccontextmanager
 async def master_running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Any]:
     """A Gateway with only the CANopen side (no Modbus, no Zenoh), stopped on exit."""
-    from gateway.app import Gateway
 
     cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         yield gw
@@ -143,9 +180,7 @@ async def modbus_gateway(
     Both are stopped on exit."""
     from pymodbus.client import AsyncModbusTcpClient
 
-    from gateway.app import Gateway
-
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
     try:

@@ -51,7 +51,7 @@ from gateway.bus.reader import (
     tpdo_handler,
     unknown_handler,
 )
-from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
+from gateway.bus.resolved import ResolvedNode
 from gateway.bus.sdo.waiters import SdoWaiters
 from gateway.cia301 import (
     COB_EMCY,
@@ -96,7 +96,7 @@ class Master:
         driver: BusDriver,
         *,
         passive: bool = False,
-        nodes: dict[str, ResolvedNode] | None = None,
+        nodes: dict[str, ResolvedNode],
     ):
         self.cfg = cfg
         self.image = image
@@ -135,10 +135,9 @@ class Master:
         self.peer_log = RateLimitedLog(log, period_s=PEER_LOG_PERIOD_S)
         #: LSS (CiA 305) on this connection to the bus, for the command service
         self.lss = LssService(driver.send, self._post, self.clock, driver.frame_time)
-        resolved = nodes_of(cfg, nodes)
         listening = self.member is not None  # a pair's member listens until it is active
         for ncfg in cfg.nodes:
-            parts = build_node_into(node_of(cfg, resolved, ncfg), image, passive, listening)
+            parts = build_node_into(nodes[ncfg.name], image, passive, listening)
             self.nodes[ncfg.name] = parts
             self.by_id[ncfg.node_id] = parts
         self._install_handlers()

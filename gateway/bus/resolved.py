@@ -1,31 +1,35 @@
 """Each configured node resolved once: its profile on its EDS, its settings, its boot steps and
 the PDO codecs they leave in the device, its refresh plan and its mapping reads.
 
-``resolve_config(cfg)`` builds one ``ResolvedNode`` per node whose profile loads (a node whose
-profile or EDS does not load is reported by the config loader and left out). ``check``, the
-master, the register map, the Zenoh key listing, the simulator, the web console and the
-command-line tools all read these: none of them loads a profile, builds boot steps or compiles
-codecs again.
+``resolve_nodes(cfg)`` is the one resolution: it loads each node's profile on its EDS (the
+only caller of ``load_node_profile``), finds the node's problems (a profile or EDS that does not
+load, a signal override, PDO variant or ``verify_mapping`` the profile does not allow) and
+builds one ``ResolvedNode`` per node whose profile loads. ``load_resolved`` / ``parse_resolved``
+read and validate a config file (``gateway.config``) and resolve its nodes in one pass, every
+problem in one ConfigError. ``check``, the master, the register map, the Zenoh key listing, the
+frame decoder, the simulator, the web console and the command-line tools all take these as a
+required argument: none of them loads a profile, builds boot steps or compiles codecs again.
 
 A node whose boot configuration cannot be built (an object missing from the EDS, a value that
 does not fit) is resolved with ``boot_error`` set and no steps or codecs: ``check`` reports it,
 and the master refuses it (``ResolvedNode.require``).
 
-Imports: cia301, config (types), profiles, profiles.layout, objref, bus.node.settings,
+Imports: cia301, config (types and loaders), profiles, profiles.layout, objref, bus.node.settings,
 bus.node.boot_steps, pdo.codec, pdo.refresh, pdo.verify. Nothing northbound, no I/O but reading
 the device files.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import os
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from gateway.bus.node.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.node.settings import NodeSettings, resolve_node_settings
 from gateway.cia301 import TRANSMISSION_SYNC
-from gateway.config import Config, ConfigError, NodeConfig
+from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
 from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.pdo.refresh import Refresh, refresh_plan
@@ -86,9 +90,8 @@ class ResolvedNode(NamedNode):
         return self
 
 
-def resolve_node(cfg: Config, ncfg: NodeConfig) -> ResolvedNode:
-    """One node (ProfileError when its profile or EDS does not load)."""
-    lp = load_node_profile(ncfg, cfg.base_dir)
+def resolve_node(cfg: Config, ncfg: NodeConfig, lp: LoadedProfile) -> ResolvedNode:
+    """One node on its loaded profile ``lp``."""
     settings = resolve_node_settings(cfg.master, ncfg, lp.profile)
     try:
         steps = build_boot_steps(
@@ -136,27 +139,108 @@ def sync_driven_tpdos(
     return tuple(out)
 
 
-def resolve_config(cfg: Config, names: Iterable[str] | None = None) -> dict[str, ResolvedNode]:
-    """Node name -> its resolution, in config order (``names``: only these nodes)."""
-    wanted = set(names) if names is not None else None
-    out: dict[str, ResolvedNode] = {}
-    for ncfg in cfg.nodes:
-        if wanted is not None and ncfg.name not in wanted:
-            continue
-        try:
-            out[ncfg.name] = resolve_node(cfg, ncfg)
-        except ProfileError:
-            continue  # reported by the config loader
+#: one problem of a node: (key path, what is allowed)
+Problem = tuple[str, str]
+
+
+def _profile_problems(key: str, n: NodeConfig, lp: LoadedProfile) -> list[Problem]:
+    """What node ``n`` (at key path ``key``) asks of its loaded profile that the profile has
+    not: a signal override, a PDO variant, ``verify_mapping``."""
+    out: list[Problem] = []
+    names = {s.name for s in lp.profile.signals}
+    for s in n.signals:
+        if s not in names:
+            out.append(
+                (
+                    f"{key}.signals.{s}",
+                    (f"profile {n.profile}" if n.profile else n.device)
+                    + f" has no signal {s!r}; it has: "
+                    + ", ".join(sorted(names)),
+                )
+            )
+    if n.pdo_variant is not None:
+        var = lp.profile.pdo_variants
+        if var is None:
+            out.append((f"{key}.pdo_variant", f"profile {n.profile} has no PDO variants"))
+        elif n.pdo_variant not in var.variants:
+            out.append(
+                (
+                    f"{key}.pdo_variant",
+                    f"got {n.pdo_variant!r}, profile {n.profile} allows {sorted(var.variants)}",
+                )
+            )
+    if n.verify_mapping and lp.profile.verify_mapping is False:
+        out.append(
+            (
+                f"{key}.verify_mapping",
+                f"profile {n.profile}: its mapping objects do not describe the layout in use; "
+                "must be false",
+            )
+        )
     return out
 
 
-def nodes_of(cfg: Config, nodes: dict[str, ResolvedNode] | None) -> dict[str, ResolvedNode]:
-    """``nodes`` when the caller resolved them, else the config resolved now (a consumer built
-    on its own, as in a unit test)."""
-    return nodes if nodes is not None else resolve_config(cfg)
+def resolve_nodes(cfg: Config) -> tuple[dict[str, ResolvedNode], list[Problem]]:
+    """Node name -> its resolution, in config order, and the nodes' problems. A node with a
+    problem (its profile or EDS does not load, it asks what its profile has not) is left out,
+    its problem said."""
+    out: dict[str, ResolvedNode] = {}
+    problems: list[Problem] = []
+    for i, ncfg in enumerate(cfg.nodes):
+        key = f"nodes[{i}]"
+        try:
+            lp = load_node_profile(ncfg, cfg.base_dir)
+        except ProfileError as exc:
+            if exc.key is not None:
+                problems.append((f"{key}.{exc.key}" if exc.key else key, str(exc)))
+            else:
+                where = f"{key}.{'eds' if ncfg.eds else 'profile'}"
+                problems += [(where, line) for line in str(exc).splitlines()]
+            continue
+        asked = _profile_problems(key, ncfg, lp)
+        problems += asked
+        if not asked:
+            out[ncfg.name] = resolve_node(cfg, ncfg, lp)
+    return out, problems
 
 
-def node_of(cfg: Config, nodes: dict[str, ResolvedNode], ncfg: NodeConfig) -> ResolvedNode:
-    """The resolution of ``ncfg``; a node left out of ``nodes`` is resolved again, which raises
-    the loader's ProfileError (as reading its profile always did)."""
-    return nodes.get(ncfg.name) or resolve_node(cfg, ncfg)
+def resolve_config(cfg: Config) -> dict[str, ResolvedNode]:
+    """Node name -> its resolution, in config order, for a config already validated (its nodes'
+    problems were reported when it was loaded)."""
+    return resolve_nodes(cfg)[0]
+
+
+class Resolved(NamedTuple):
+    """A config and its nodes, resolved once (``cfg, nodes = load_resolved(path)``)."""
+
+    cfg: Config
+    nodes: dict[str, ResolvedNode]
+
+
+def parse_resolved(
+    raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None
+) -> Resolved:
+    """``gateway.config.parse_config`` and the nodes resolved in the same pass: the problems of
+    both in one ConfigError."""
+    found: dict[str, ResolvedNode] = {}
+    cfg = parse_config(raw, source, environ, resolve=_resolver(found))
+    return Resolved(cfg, found)
+
+
+def load_resolved(path: str | os.PathLike[str], environ: Mapping[str, str] | None = None) -> Resolved:
+    """``gateway.config.load_config`` and the nodes resolved in the same pass."""
+    found: dict[str, ResolvedNode] = {}
+    cfg = load_config(path, environ, resolve=_resolver(found))
+    return Resolved(cfg, found)
+
+
+def _resolver(found: dict[str, ResolvedNode]) -> Callable[[Config], list[Problem]]:
+    """The hook the config loader calls on a config whose sections validate: resolves its nodes
+    into ``found`` and returns their problems."""
+
+    def resolve(cfg: Config) -> list[Problem]:
+        nodes, problems = resolve_nodes(cfg)
+        found.update(nodes)
+        return problems
+
+    return resolve

@@ -4,7 +4,8 @@ gateway runs), ``lss`` (gateway.tools.lss) and ``fault`` (into a running gateway
 node).
 
 Imports: gateway.app (SimulatedBus), gateway.tools (beside, bus_open, lss, monitor), gateway.bus.scan,
-gateway.northbound.frames, gateway.sim.faults_client, gateway.config, cli.load.
+gateway.northbound.frames, gateway.sim.faults_client, gateway.config, gateway.bus.resolved (types),
+cli.load.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import argparse
 import sys
 from typing import Any
 
+from gateway.bus.resolved import ResolvedNode
 from gateway.cli.load import EXIT_CONFIG, load, load_for_bus
 from gateway.config import Config
 
@@ -20,7 +22,7 @@ from gateway.config import Config
 def cmd_fault(args: argparse.Namespace) -> int:
     from gateway.sim.faults_client import run_fault
 
-    cfg = load(args.config)
+    cfg, _ = load(args.config)
     if args.node is not None and args.action is None:
         print("error: fault NODE ACTION: give an action too (or neither, to list)", file=sys.stderr)
         return EXIT_CONFIG
@@ -30,11 +32,11 @@ def cmd_fault(args: argparse.Namespace) -> int:
 def cmd_lss(args: argparse.Namespace) -> int:
     from gateway.tools.lss import run_lss
 
-    cfg = load(args.config)
-    return run_lss(cfg, args)
+    cfg, nodes = load(args.config)
+    return run_lss(cfg, nodes, args)
 
 
-def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
+def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tuple[Any, Any]:
     """The bus a listening tool (scan, monitor) opens, and the simulated devices it runs when
     the bus is in-process and no gateway runs on it; exits 2 in one line when a gateway runs
     on an in-process bus (a second process cannot join it)."""
@@ -59,7 +61,7 @@ def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
     bus = open_bus(cfg)
     if beside.in_process_bus(cfg) and cfg.simulated_nodes():
         print(beside.private_note(cfg), file=sys.stderr)
-        sim = SimulatedBus(cfg)
+        sim = SimulatedBus(cfg, nodes)
         try:
             with opening(cfg):
                 sim.start()  # after the tool's bus is open: it sees the boot-ups
@@ -72,8 +74,8 @@ def _tool_bus(cfg: Config, command: str) -> tuple[Any, Any]:
 def cmd_scan(args: argparse.Namespace) -> int:
     from gateway.bus.scan import report, scan
 
-    cfg = load_for_bus(args.config)
-    bus, sim = _tool_bus(cfg, "scan")
+    cfg, nodes = load_for_bus(args.config)
+    bus, sim = _tool_bus(cfg, nodes, "scan")
     try:
         found = scan(
             bus,
@@ -94,15 +96,15 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     from gateway.northbound.frames import FrameDecoder, kind_filter, node_filter
     from gateway.tools.monitor import monitor
 
-    cfg = load_for_bus(args.config)
+    cfg, resolved = load_for_bus(args.config)
     try:
         nodes = node_filter(cfg, _split(args.node))
         kinds = kind_filter(_split(args.kind))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
-    decoder = FrameDecoder(cfg)
-    bus, sim = _tool_bus(cfg, "monitor")
+    decoder = FrameDecoder(cfg, resolved)
+    bus, sim = _tool_bus(cfg, resolved, "monitor")
     try:
         monitor(bus, decoder, sys.stdout, nodes=nodes, kinds=kinds, count=args.count,
                 duration_s=args.duration)  # fmt: skip

@@ -13,11 +13,12 @@ import asyncio
 import sys
 from typing import Any
 
+from gateway.bus.resolved import ResolvedNode
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus
 from gateway.config import Config
 
 
-async def _with_master(cfg: Config, fn: Any) -> Any:
+async def _with_master(cfg: Config, nodes: dict[str, ResolvedNode], fn: Any) -> Any:
     """Open the bus with a master for one commissioning operation. Opens no server (no Modbus,
     Zenoh or health endpoint), so it runs beside a gateway that serves the same config."""
     from gateway.app import Gateway
@@ -37,7 +38,7 @@ async def _with_master(cfg: Config, fn: Any) -> Any:
         n.configure = False
     cfg.health.port = 0  # a commissioning command opens no server
     # passive: no NMT start or configuration of its own; SDO to nodes regardless of supervision
-    gw = Gateway(cfg, simulate=True, passive=True)
+    gw = Gateway(cfg, nodes, simulate=True, passive=True)
     await gw.start()
     try:
         return await fn(gw)
@@ -89,7 +90,7 @@ def _through(running: Any, fn: Any) -> tuple[int, Any]:
 def cmd_sdo(args: argparse.Namespace) -> int:
     from gateway.errors import GatewayError
 
-    cfg = load_for_bus(args.config)
+    cfg, nodes = load_for_bus(args.config)
     name = node_name(cfg, args.node)
     cfg.master.sdo_timeout_s = args.timeout
     if args.op == "write" and args.value is None:
@@ -107,7 +108,7 @@ def cmd_sdo(args: argparse.Namespace) -> int:
             return code
         # the value alone on stdout (scripts read it); where it came from on stderr
         print(f"sdo {args.op} of {name} through the running gateway at {running.endpoint}", file=sys.stderr)
-        return _print_sdo(cfg, name, args, result)
+        return _print_sdo(cfg, nodes, name, args, result)
 
     async def op(gw: Any) -> Any:
         if args.op == "read":
@@ -116,18 +117,20 @@ def cmd_sdo(args: argparse.Namespace) -> int:
         return "OK"
 
     try:
-        result = asyncio.run(_with_master(cfg, op))
+        result = asyncio.run(_with_master(cfg, nodes, op))
     except GatewayError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_FAILED
-    return _print_sdo(cfg, name, args, result)
+    return _print_sdo(cfg, nodes, name, args, result)
 
 
-def _print_sdo(cfg: Config, name: str, args: argparse.Namespace, result: Any) -> int:
+def _print_sdo(
+    cfg: Config, nodes: dict[str, ResolvedNode], name: str, args: argparse.Namespace, result: Any
+) -> int:
     if isinstance(result, (bytes, bytearray)):
         result = bytes(result).hex(" ")
     if isinstance(result, int) and not isinstance(result, bool):
-        result = format_sdo_int(result, args.type or _sdo_type(cfg, name, args.object))
+        result = format_sdo_int(result, args.type or _sdo_type(cfg, nodes, name, args.object))
     print(result)
     return 0
 
@@ -149,14 +152,13 @@ def format_sdo_int(value: int, type_: str | None) -> str:
     return f"{value} (0x{value & ((1 << bits) - 1):0{bits // 4}X})"
 
 
-def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
+def _sdo_type(cfg: Config, nodes: dict[str, ResolvedNode], name: str, obj: str) -> str | None:
     """The type of ``obj`` on node ``name``: the profile signal's, else the EDS's."""
-    from gateway.bus.resolved import node_of, resolve_config
     from gateway.cia301 import TYPE_NAMES
     from gateway.objref import ObjRef
 
     node = next(n for n in cfg.nodes if n.name == name)
-    lp = node_of(cfg, resolve_config(cfg, [name]), node).lp
+    lp = nodes[node.name].lp
     ref = ObjRef.parse(obj)
     sig = lp.profile.signal_for(ref)
     if sig is not None:
@@ -166,7 +168,7 @@ def _sdo_type(cfg: Config, name: str, obj: str) -> str | None:
 
 
 def cmd_nmt(args: argparse.Namespace) -> int:
-    cfg = load_for_bus(args.config)
+    cfg, nodes = load_for_bus(args.config)
     name = "all" if args.node == "all" else node_name(cfg, args.node)
     running = _beside(cfg, "nmt")
     if running is not None:
@@ -180,6 +182,6 @@ def cmd_nmt(args: argparse.Namespace) -> int:
     async def op(gw: Any) -> None:
         gw.commands.nmt(name, args.command)
 
-    asyncio.run(_with_master(cfg, op))
+    asyncio.run(_with_master(cfg, nodes, op))
     print(f"NMT {args.command} sent to {name}")
     return 0

@@ -1,5 +1,5 @@
 """How a command of the command line loads its configuration: checked as at every start
-(``gateway.checks``) and, for a command that opens the CAN bus, with an interface python-can
+(``gateway.checks``: validated, its nodes resolved once and cross-checked) and, for a command that opens the CAN bus, with an interface python-can
 can load; the exit codes of the command line.
 
 Imports: gateway.checks, gateway.config, gateway.bus.can_backend (inside the bus check).
@@ -10,18 +10,20 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from gateway.checks import load_checked_config
+from gateway.bus.resolved import Resolved
+from gateway.checks import load_checked
 from gateway.config import Config, ConfigError
 
 EXIT_CONFIG = 2
 EXIT_FAILED = 1
 
 
-def load(path: str) -> Config:
-    return load_checked_config(path)
+def load(path: str) -> Resolved:
+    """The config and its resolved nodes (``cfg, nodes = load(path)``)."""
+    return load_checked(path)
 
 
-def load_for_bus(path: str) -> Config:
+def load_for_bus(path: str) -> Resolved:
     """The config of a command that opens the CAN bus: also refuses an interface python-can
     cannot load (unknown name, plug-in not installed), in one line, before anything starts.
     Every problem in one run: the ``can:`` keys are checked also when the file has problems
@@ -31,8 +33,10 @@ def load_for_bus(path: str) -> Config:
 
     problems: list[str] = []
     cfg: Config | None = None
+    loaded: Resolved | None = None
     try:
-        cfg = load(path)
+        loaded = load(path)
+        cfg = loaded.cfg
     except ConfigError as exc:
         problems += exc.problems
     from_env = env_keys(os.environ)
@@ -58,5 +62,5 @@ def load_for_bus(path: str) -> Config:
                 ]
     if problems:
         raise ConfigError(problems)
-    assert cfg is not None
-    return cfg
+    assert loaded is not None
+    return loaded

@@ -70,14 +70,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from gateway.app import Gateway
     from gateway.tools.bus_open import check_bus_opens
 
-    cfg = load_for_bus(args.config)
+    cfg, nodes = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
     from gateway.startup import StartupError
     from gateway.zenoh_bridge.session import PrefixInUse
 
     check_bus_opens(cfg)  # a bus that cannot open at start: one line, exit 2 (cli.main)
 
-    gw = Gateway(cfg, simulate=not args.no_simulate)
+    gw = Gateway(cfg, nodes, simulate=not args.no_simulate)
     try:
         asyncio.run(run_until_signal(gw.start, gw.stop, gw.summary))
     except StartupError as exc:  # a port in use, a file missing: one line, everything closed
@@ -96,12 +96,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from gateway.app import SimulatedBus
     from gateway.tools.bus_open import opening
 
-    cfg = load_for_bus(args.config)
+    cfg, nodes = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
     names = args.nodes.split(",") if args.nodes else [n.name for n in cfg.simulated_nodes()]
     if not names:
         names = [n.name for n in cfg.nodes]
-    sim = SimulatedBus(cfg, names)
+    sim = SimulatedBus(cfg, nodes, names)
 
     async def start() -> None:
         with opening(cfg):  # a bus that cannot open: one line, exit 2 (cli.main)

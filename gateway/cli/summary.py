@@ -21,13 +21,12 @@ from gateway.config import ConfigError
 def cmd_check(args: argparse.Namespace) -> int:
     """One config as at every start; two (``-c A -c B``): each so, then compared as the two
     configs of a hot-standby pair (``gateway.checks.pair_problems``)."""
-    from gateway.bus.resolved import resolve_config
     from gateway.checks import pair_problems
 
     paths = [args.config] if isinstance(args.config, str) else list(args.config)
     if len(paths) == 1:
-        cfg = load_for_bus(paths[0])
-        _print_summary(paths[0], cfg, resolve_config(cfg))
+        cfg, nodes = load_for_bus(paths[0])
+        _print_summary(paths[0], cfg, nodes)
         return 0
     if len(paths) != 2:
         raise ConfigError([f"check: -c given {len(paths)} times: one config, or the two of a pair"])
@@ -35,11 +34,11 @@ def cmd_check(args: argparse.Namespace) -> int:
     loaded = []
     for path in paths:
         try:
-            cfg = load_for_bus(path)
+            cfg, nodes = load_for_bus(path)
         except ConfigError as exc:
             problems += exc.problems
             continue
-        loaded.append((path, cfg, resolve_config(cfg)))
+        loaded.append((path, cfg, nodes))
     if len(loaded) == 2:
         (_, a, nodes_a), (_, b, nodes_b) = loaded
         problems += pair_problems(a, b, nodes_a, nodes_b)
@@ -52,7 +51,6 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
-    from gateway.bus.resolved import node_of
     from gateway.checks import config_warnings
 
     print(f"{path}: OK")
@@ -60,7 +58,7 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
         gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
         print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
     for n in cfg.nodes:
-        lp = node_of(cfg, nodes, n).lp
+        lp = nodes[n.name].lp
         pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
         sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
         sim = " (simulated)" if n in cfg.simulated_nodes() else ""
@@ -80,12 +78,11 @@ def _print_eds_warnings(cfg: Any, nodes: Any) -> None:
     """One line per EDS/DCF of the config with its number of warnings. An RPDO entry the file
     marks ro is no warning when the node's profile says the device takes it from an RPDO only
     (``rpdo_only_writable``, from the manual: SDO writes refused); the line counts them apart."""
-    from gateway.bus.resolved import node_of
     from gateway.eds import EdsError, lint, load_eds
 
     seen: list[Any] = []
     for n in cfg.nodes:
-        lp = node_of(cfg, nodes, n).lp
+        lp = nodes[n.name].lp
         path = lp.eds_path
         if path in seen:
             continue
@@ -115,8 +112,8 @@ def _count(n: int, noun: str) -> str:
 def cmd_registers(args: argparse.Namespace) -> int:
     from gateway.northbound.regmap import build_register_map
 
-    cfg = load(args.config)
-    rm = build_register_map(cfg)
+    cfg, nodes = load(args.config)
+    rm = build_register_map(cfg, nodes)
     sys.stdout.write(rm.to_csv() if args.csv else rm.to_markdown())
     return 0
 
@@ -124,6 +121,6 @@ def cmd_registers(args: argparse.Namespace) -> int:
 def cmd_keys(args: argparse.Namespace) -> int:
     from gateway.northbound.keys import render_keys
 
-    cfg = load(args.config)
-    sys.stdout.write(render_keys(cfg))
+    cfg, nodes = load(args.config)
+    sys.stdout.write(render_keys(cfg, nodes))
     return 0

@@ -1,21 +1,22 @@
 """Loading the configuration: read the YAML file, apply the environment overrides, validate
 the sections (``config.model``) and check what one file can say about itself beyond its
-sections: duplicate node ids, names and Modbus unit ids, names that refer to nodes, each node's
-profile or EDS, its signal overrides, PDO variant and ``verify_mapping``. Every problem is
+sections: duplicate node ids, names and Modbus unit ids, names that refer to nodes. A caller that
+resolves the nodes (``gateway.bus.resolved``: each node's profile or EDS, its signal overrides,
+PDO variant and ``verify_mapping``) passes ``resolve``, whose problems join the file's. Every problem is
 reported as one line naming the file (or the environment variable), the key path and what is
 allowed; all problems of a file are collected before ``ConfigError`` is raised.
 
 The checks across the config, the profiles/EDS and the compiled register map
 (``canopen-gateway check``) live in ``gateway.checks``, which imports this package.
 
-Imports: pydantic, yaml, gateway.profiles (load_node_profile), config.model, config.errors,
+Imports: pydantic, yaml, config.model, config.errors,
 config.env.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,9 @@ from pydantic import ValidationError
 from gateway.config.env import apply_env_overrides, blame, env_keys
 from gateway.config.errors import ConfigError, describe, key_path, nearest_key
 from gateway.config.model import Config
-from gateway.profiles import ProfileError, load_node_profile
+
+#: what a config's nodes add to its problems once its sections validate: (key path, why) each
+Resolve = Callable[[Config], list[tuple[str, str]]]
 
 
 def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, str]]:
@@ -95,9 +98,13 @@ def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, s
 
 
 def parse_config(
-    raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None
+    raw: Any,
+    source: str = "<memory>",
+    environ: Mapping[str, str] | None = None,
+    resolve: Resolve | None = None,
 ) -> Config:
-    """Validate an already-parsed YAML document; raise ConfigError with every problem."""
+    """Validate an already-parsed YAML document; raise ConfigError with every problem (the
+    nodes' problems too when ``resolve`` is given)."""
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
@@ -121,7 +128,7 @@ def parse_config(
             errors.append((key_path(e["loc"]), what))
     errors += _semantic_problems(raw, base_dir)
     if cfg is not None:
-        errors += _node_problems(cfg, base_dir)
+        errors += resolve(cfg) if resolve is not None else []
         errors += _pair_problems(cfg)
     seen: set[tuple[str, str]] = set()
     for loc, msg in errors:
@@ -163,53 +170,6 @@ def _pair_problems(cfg: Config) -> list[tuple[str, str]]:
     return out
 
 
-def _node_problems(cfg: Config, base_dir: Path) -> list[tuple[str, str]]:
-    """Each node's profile / EDS loads, and its signal overrides and variant exist."""
-    out: list[tuple[str, str]] = []
-    for i, n in enumerate(cfg.nodes):
-        key = f"nodes[{i}]"
-        try:
-            lp = load_node_profile(n, base_dir)
-        except ProfileError as exc:
-            if exc.key is not None:
-                out.append((f"{key}.{exc.key}" if exc.key else key, str(exc)))
-                continue
-            for line in str(exc).splitlines():
-                out.append((f"{key}.{'eds' if n.eds else 'profile'}", line))
-            continue
-        names = {s.name for s in lp.profile.signals}
-        for s in n.signals:
-            if s not in names:
-                out.append(
-                    (
-                        f"{key}.signals.{s}",
-                        (f"profile {n.profile}" if n.profile else n.device)
-                        + f" has no signal {s!r}; it has: "
-                        + ", ".join(sorted(names)),
-                    )
-                )
-        if n.pdo_variant is not None:
-            var = lp.profile.pdo_variants
-            if var is None:
-                out.append((f"{key}.pdo_variant", f"profile {n.profile} has no PDO variants"))
-            elif n.pdo_variant not in var.variants:
-                out.append(
-                    (
-                        f"{key}.pdo_variant",
-                        f"got {n.pdo_variant!r}, profile {n.profile} allows {sorted(var.variants)}",
-                    )
-                )
-        if n.verify_mapping and lp.profile.verify_mapping is False:
-            out.append(
-                (
-                    f"{key}.verify_mapping",
-                    f"profile {n.profile}: its mapping objects do not describe the layout in use; "
-                    "must be false",
-                )
-            )
-    return out
-
-
 def raw_section(
     path: str | os.PathLike[str], name: str, environ: Mapping[str, str] | None = None
 ) -> dict[str, Any] | None:
@@ -227,8 +187,13 @@ def raw_section(
     return section if isinstance(section, dict) else None
 
 
-def load_config(path: str | os.PathLike[str], environ: Mapping[str, str] | None = None) -> Config:
-    """Read and validate a config file; ``environ`` defaults to ``os.environ``."""
+def load_config(
+    path: str | os.PathLike[str],
+    environ: Mapping[str, str] | None = None,
+    resolve: Resolve | None = None,
+) -> Config:
+    """Read and validate a config file; ``environ`` defaults to ``os.environ``; ``resolve`` as
+    for ``parse_config``."""
     p = Path(path)
     source = str(p)
     try:
@@ -250,4 +215,4 @@ def load_config(path: str | os.PathLike[str], environ: Mapping[str, str] | None 
             [f"{source}: the file is empty; a config needs at least can: and nodes: "
              "(see config/demo.yaml)"]
         )
-    return parse_config(raw, source, environ)
+    return parse_config(raw, source, environ, resolve)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from gateway.bus.resolved import ResolvedNode, nodes_of
+from gateway.bus.resolved import ResolvedNode
 from gateway.commands import check_value
 from gateway.config import Config, NodeConfig
 from gateway.errors import ValueOutOfRange
@@ -50,13 +50,12 @@ def safe_outputs(lp: LoadedProfile, node: NodeConfig) -> dict[str, Any]:
 
 
 def safe_output_problems(
-    cfg: Config, nodes: dict[str, ResolvedNode] | None = None
+    cfg: Config, nodes: dict[str, ResolvedNode]
 ) -> list[tuple[str, str]]:
     """Every safe value that names no RPDO output of its node or does not fit its type/range."""
     problems: list[tuple[str, str]] = []
-    resolved = nodes_of(cfg, nodes)
     for i, n in enumerate(cfg.nodes):
-        rn = resolved.get(n.name)
+        rn = nodes.get(n.name)
         if rn is None:
             continue  # its profile does not load: reported by the config loader
         lp = rn.lp

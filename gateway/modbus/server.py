@@ -57,7 +57,7 @@ import asyncio
 import logging
 from typing import Any
 
-from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
+from gateway.bus.resolved import ResolvedNode
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.errors import GatewayError
@@ -243,12 +243,11 @@ class ModbusGateway:
         cfg: Config,
         image: ProcessImage,
         commands: CommandService,
-        nodes: dict[str, ResolvedNode] | None = None,
+        nodes: dict[str, ResolvedNode],
     ):
         self.cfg = cfg
         self.commands = commands
-        resolved = nodes_of(cfg, nodes)
-        self.regmap = build_register_map(cfg, resolved)
+        self.regmap = build_register_map(cfg, nodes)
         self.store = ImageDatastore(self.regmap, image, commands, cfg)
         self.server: asyncio.Server | None = None  # the plain one, else the TLS one
         self.port = cfg.modbus.port
@@ -264,7 +263,7 @@ class ModbusGateway:
         self.safe_plan: dict[str, dict[str, Any]] = {}
         if self.watchdog.enabled:
             for n in cfg.nodes:
-                values = safe_outputs(node_of(cfg, resolved, n).lp, n)
+                values = safe_outputs(nodes[n.name].lp, n)
                 if values:
                     self.safe_plan[n.name] = values
         self.store.watchdog = self.watchdog

@@ -1,15 +1,15 @@
 """CAN frames in CANopen words, with what the configuration knows: one line per frame.
 
-``FrameDecoder(cfg).decode(msg)`` names the service by COB-ID (CiA 301 7.3.3, pre-defined
+``FrameDecoder(cfg, nodes).decode(msg)`` names the service by COB-ID (CiA 301 7.3.3, pre-defined
 connection set) and decodes the data: NMT commands with the target node, heartbeat states and
 boot-up, EMCY with the device's own text (profile ``emcy:``) and the error register bits, SDO
 requests and answers with the object and the abort text, PDOs of configured nodes with signal
-names and engineering values (the mapping the boot configuration leaves in the device, as the
-gateway decodes it), SYNC, TIME and LSS. A frame of an unconfigured node id is named by its
+names and engineering values (the codecs of the resolved nodes, ``gateway.bus.resolved``: the
+mapping the boot configuration leaves in the device, as the gateway decodes it), SYNC, TIME and LSS. A frame of an unconfigured node id is named by its
 function. Pure: no bus, no clock.
 
-Imports: config, profiles, pdo.codec, bus.node.boot_steps, bus.node.settings, bus.emcy, cia301,
-bus.bus_peers, states, objref.
+Imports: config, profiles, pdo.codec, bus.resolved (types), bus.emcy, cia301, bus.bus_peers,
+states, objref.
 """
 
 from __future__ import annotations
@@ -20,13 +20,12 @@ from typing import Any
 
 from gateway.bus.bus_peers import describe_cob_id
 from gateway.bus.emcy import decode_emcy
-from gateway.bus.node.boot_steps import build_boot_steps
-from gateway.bus.node.settings import resolve_node_settings
+from gateway.bus.resolved import ResolvedNode
 from gateway.cia301 import abort_text
 from gateway.config import Config
 from gateway.objref import ObjRef
-from gateway.pdo.codec import RpdoCodec, TpdoCodec, compile_node
-from gateway.profiles import LoadedProfile, load_node_profile
+from gateway.pdo.codec import RpdoCodec, TpdoCodec
+from gateway.profiles import LoadedProfile
 from gateway.states import NMT_BY_CODE, NmtState
 
 #: the kinds ``monitor --kind`` filters by
@@ -80,20 +79,14 @@ def _state_word(byte: int) -> str:
 class FrameDecoder:
     """Decodes frames with the knowledge of one configuration (see the module docstring)."""
 
-    def __init__(self, cfg: Config):
+    def __init__(self, cfg: Config, nodes: dict[str, ResolvedNode]):
         self.by_id: dict[int, _NodeInfo] = {}
         self.pdo_owner: dict[int, tuple[_NodeInfo, str]] = {}
         for n in cfg.nodes:
-            lp = load_node_profile(n, cfg.base_dir)
-            settings = resolve_node_settings(cfg.master, n, lp.profile)
-            steps = build_boot_steps(
-                lp, n, settings.supervision, settings.heartbeat_ms, settings.guard_time_ms,
-                settings.life_time_factor,
-            )  # fmt: skip
-            writes = [(st.object, st.value) for st in steps] if n.configure else []
-            tpdos, rpdos = compile_node(lp, n.node_id, n.pdo_variant, writes)
+            rn = nodes[n.name].require()
+            tpdos, rpdos = rn.tpdos, rn.rpdos
             info = _NodeInfo(
-                n.name, n.node_id, lp, {c.cob_id: c for c in tpdos}, {c.cob_id: c for c in rpdos}
+                n.name, n.node_id, rn.lp, {c.cob_id: c for c in tpdos}, {c.cob_id: c for c in rpdos}
             )
             self.by_id[n.node_id] = info
             for t in tpdos:

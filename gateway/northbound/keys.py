@@ -29,7 +29,7 @@ from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Literal
 
-from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
+from gateway.bus.resolved import ResolvedNode
 from gateway.config import Config
 from gateway.objref import ObjRef
 from gateway.profiles.derived import text_signals
@@ -209,15 +209,14 @@ def _signal_text(sig: Signal, unit: str) -> str:
     return f"{kind}  {desc}".rstrip()
 
 
-def all_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[KeyInfo]:
-    resolved = nodes_of(cfg, nodes)
+def all_keys(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[KeyInfo]:
     p = prefix_of(cfg)
     out = [
         KeyInfo(alive_key(p, GATEWAY_TOKEN), "liveliness", "the gateway is running"),
         KeyInfo(catalog_key(p), "query", "every node and signal: type, unit, scaling, Modbus"),
     ]
     for n in cfg.nodes:
-        lp = node_of(cfg, resolved, n).lp
+        lp = nodes[n.name].lp
         name = n.name
 
         def add(key: str, kind: str, text: str, _name: str = name) -> None:
@@ -251,7 +250,7 @@ def all_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[
     return out
 
 
-def render_keys(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> str:
+def render_keys(cfg: Config, nodes: dict[str, ResolvedNode]) -> str:
     """The listing of ``canopen-gateway keys``: one line per key, grouped by node."""
     keys = all_keys(cfg, nodes)
     width = max((len(k.key) for k in keys), default=10)

@@ -35,7 +35,7 @@ import io
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
-from gateway.bus.resolved import ResolvedNode, node_of, nodes_of
+from gateway.bus.resolved import ResolvedNode
 from gateway.config import Config
 from gateway.northbound.scaling import scaled, unscaled_step
 from gateway.profiles import LoadedProfile
@@ -355,9 +355,8 @@ def _bit_descriptions(sig: Signal) -> dict[int, str] | None:
     return out
 
 
-def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> RegisterMap:
+def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode]) -> RegisterMap:
     rm = RegisterMap()
-    resolved = nodes_of(cfg, nodes)
     flat = cfg.modbus.layout == "flat"
     stride = cfg.modbus.flat_stride
     gw_unit = cfg.modbus.flat_unit_id if flat else cfg.modbus.gateway_unit_id
@@ -371,7 +370,7 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode] | None = None
         )
     for k, ncfg in enumerate(cfg.nodes, start=1):
         key = f"nodes[{k - 1}]"
-        lp = node_of(cfg, resolved, ncfg).lp
+        lp = nodes[ncfg.name].lp
         if flat:
             unit, base = cfg.modbus.flat_unit_id, k * stride
         else:

@@ -47,7 +47,7 @@ from typing import Any, TextIO
 import can
 
 from gateway.bus.lss import master as lss
-from gateway.bus.resolved import node_of, resolve_config
+from gateway.bus.resolved import ResolvedNode
 from gateway.bus.sdo.client import SdoTransfer
 from gateway.cia301 import (
     COB_NMT,
@@ -245,7 +245,7 @@ def bitrate_argument(a: LssArgs) -> tuple[int, int]:
         raise UsageError(str(exc)) from None
 
 
-def check_bitrate_supported(cfg: Config, a: LssArgs) -> None:
+def check_bitrate_supported(cfg: Config, nodes: dict[str, ResolvedNode], a: LssArgs) -> None:
     """Refuse a bit rate an LSS slave's profile does not list (``bit_timing_indices``), e.g.
     10 kbit/s on the SGH10 (manual 4.6.2.2: "supports only ... table index 0 until 7"). The
     profiles are ``profile=NAME``, else those of the config's nodes with feature lss_slave."""
@@ -258,17 +258,17 @@ def check_bitrate_supported(cfg: Config, a: LssArgs) -> None:
         except ProfileError as exc:
             raise UsageError(str(exc)) from None
     else:
-        for rn in resolve_config(cfg).values():
+        for rn in nodes.values():
             lp = rn.lp
             if "lss_slave" in lp.profile.features:
                 lps.setdefault(rn.cfg.profile or rn.lp.family, (lp, []))[1].append(rn.name)
-    for profile, (lp, nodes) in lps.items():
+    for profile, (lp, names) in lps.items():
         feature = lp.profile.features.get("lss_slave") or {}
         indices = feature.get("bit_timing_indices")
         if indices is None or index in indices:
             continue
         rates = ", ".join(str(lss.BIT_TIMING_KBPS[i]) for i in indices if i in lss.BIT_TIMING_KBPS)
-        who = f" (nodes {', '.join(nodes)})" if nodes else ""
+        who = f" (nodes {', '.join(names)})" if names else ""
         raise UsageError(
             f"{kbps} kbit/s (table index {index}) is not supported by profile {profile}{who}; "
             f"it supports {rates} kbit/s; nothing was sent"
@@ -303,7 +303,7 @@ def do_store(s: LssSession, a: LssArgs, out: TextIO) -> None:
     print("LSS configuration stored", file=out)
 
 
-def _auto_id_feature(cfg: Config, a: LssArgs) -> dict[str, Any]:
+def _auto_id_feature(cfg: Config, nodes: dict[str, ResolvedNode], a: LssArgs) -> dict[str, Any]:
     name = a.options.get("profile")
     if name is not None:
         try:
@@ -314,7 +314,7 @@ def _auto_id_feature(cfg: Config, a: LssArgs) -> dict[str, Any]:
         if feature is None:
             raise UsageError(f"profile {name} has no feature auto_id")
         return feature
-    for rn in resolve_config(cfg).values():
+    for rn in nodes.values():
         feature = rn.lp.profile.features.get("auto_id")
         if feature is not None:
             return feature
@@ -323,7 +323,9 @@ def _auto_id_feature(cfg: Config, a: LssArgs) -> dict[str, Any]:
     )
 
 
-def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
+def do_auto_id(
+    s: LssSession, a: LssArgs, out: TextIO, cfg: Config, nodes: dict[str, ResolvedNode]
+) -> None:
     """AP05 manual 5.6.2: SDO write of the new id to 5F0Ah:02 of the devices with the factory
     id; the one whose key is pressed answers (on 580h + old id), stores the id and boots with
     it; then look whether another device still answers with the old id."""
@@ -332,7 +334,7 @@ def do_auto_id(s: LssSession, a: LssArgs, out: TextIO, cfg: Config) -> None:
     new_id = parse_int(a.words[0], "node id")
     if not 1 <= new_id <= 127:
         raise UsageError(f"node id {new_id} out of range 1..127 (AP05 manual 5.7.2.32)")
-    feature = _auto_id_feature(cfg, a)
+    feature = _auto_id_feature(cfg, nodes, a)
     obj = ObjRef.parse(feature.get("object", "0x5F0A:02"))
     old_id = parse_int(str(a.options.get("node", feature.get("factory_node_id", 125))), "node")
     if not 1 <= old_id <= 127:
@@ -389,7 +391,7 @@ ACTIONS: dict[str, Callable[[LssSession, LssArgs, TextIO], None]] = {
 
 
 @contextmanager
-def _simulation(cfg: Config) -> Iterator[None]:
+def _simulation(cfg: Config, nodes: dict[str, ResolvedNode]) -> Iterator[None]:
     """The config's simulated nodes on their own connection to the bus (commissioning drills)."""
     wanted = cfg.simulated_nodes()
     if not wanted:
@@ -398,12 +400,11 @@ def _simulation(cfg: Config) -> Iterator[None]:
     from gateway.sim.runner import SimRunner, build_sim_nodes
 
     specs = []
-    resolved = resolve_config(cfg, [n.name for n in wanted])
     for n in wanted:
         opts: dict[str, Any] = dict(cfg.simulate.options.get(n.name) or {})
         if n.name in cfg.simulate.motion:
             opts["motion"] = cfg.simulate.motion[n.name]
-        specs.append((node_of(cfg, resolved, n).lp, n.node_id, opts))
+        specs.append((nodes[n.name].lp, n.node_id, opts))
     bus = open_bus(cfg)
     runner = SimRunner(bus, build_sim_nodes(specs)).start()
     try:
@@ -413,7 +414,9 @@ def _simulation(cfg: Config) -> Iterator[None]:
         bus.shutdown()
 
 
-def run_lss(cfg: Config, args: argparse.Namespace, out: TextIO | None = None) -> int:
+def run_lss(
+    cfg: Config, nodes: dict[str, ResolvedNode], args: argparse.Namespace, out: TextIO | None = None
+) -> int:
     """Run ``args.action`` with ``args.args``; 0 done, 1 failed, 2 wrong arguments."""
     out = out or sys.stdout
     try:
@@ -424,14 +427,14 @@ def run_lss(cfg: Config, args: argparse.Namespace, out: TextIO | None = None) ->
         if args.action != "auto-id" and args.action not in ACTIONS:
             raise UsageError(f"unknown LSS action {args.action!r}")
         if args.action == "set-bitrate":
-            check_bitrate_supported(cfg, a)
+            check_bitrate_supported(cfg, nodes, a)
         state = LssStateFile.for_bus(cfg.can.bus_kwargs())
-        with _simulation(cfg):
+        with _simulation(cfg, nodes):
             bus = open_bus(cfg)
             session = LssSession(bus, timeout_s, left=state.load())
             try:
                 if args.action == "auto-id":
-                    do_auto_id(session, a, out, cfg)
+                    do_auto_id(session, a, out, cfg, nodes)
                 else:
                     ACTIONS[args.action](session, a, out)
             finally:

@@ -45,7 +45,7 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.limits, web.monitor, northbound.scaling, config, image, commands (types), ratelimit, sim.faults
+web.events, web.limits, web.monitor, northbound.scaling, northbound.frames (the decoder's type), config, image, commands (types), ratelimit, sim.faults
 (names and errors; the injector itself is given by the application; the bus driver, for the
 monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
@@ -67,6 +67,7 @@ from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.health import JSON_TYPE, Request, Response, Stream
 from gateway.image import ProcessImage
+from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
 from gateway.ratelimit import RateLimitedLog
 from gateway.web.commissioning import Commissioning, error_doc, shown
@@ -128,7 +129,8 @@ class WebConsole:
         commands: CommandService,
         overview_fn: OverviewFn | None = None,
         *,
-        regmap: Any = None,
+        regmap: Any,
+        decoder: FrameDecoder,
         faults: Any = None,
         frames: FrameSource | None = None,
     ):
@@ -150,7 +152,7 @@ class WebConsole:
         self.faults = faults
         self._sampler: Any = None
         #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
-        self.monitor = FrameMonitor(cfg, frames)
+        self.monitor = FrameMonitor(cfg, decoder, frames)
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)

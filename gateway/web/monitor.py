@@ -112,6 +112,7 @@ class FrameMonitor:
     def __init__(
         self,
         cfg: Config,
+        decoder: FrameDecoder,
         source: FrameSource | None,
         *,
         clock: Callable[[], float] | None = None,
@@ -122,7 +123,7 @@ class FrameMonitor:
         self.max_pages = max_pages
         self._clock = clock
         self.pages: set[MonitorPage] = set()
-        self._decoder: FrameDecoder | None = None
+        self._decoder = decoder  # the config's resolved nodes' (built by the application)
         self._class: dict[int, tuple[str, int | None, str | None]] = {}  # COB-ID -> kind, id, name
         self.handoff = Handoff(self._swap, self._deliver, HANDOFF_PERIOD_S)
         self._lock = self.handoff.lock
@@ -151,8 +152,6 @@ class FrameMonitor:
         self.handoff.loop = None
 
     def decoder(self) -> FrameDecoder:
-        if self._decoder is None:
-            self._decoder = FrameDecoder(self.cfg)
         return self._decoder
 
     def parse_filters(

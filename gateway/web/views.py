@@ -24,7 +24,7 @@ from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, Quality
 from gateway.northbound.keys import is_published, is_writable, prefix_of, set_key, value_key
-from gateway.northbound.regmap import RegisterMap, build_register_map
+from gateway.northbound.regmap import RegisterMap
 from gateway.northbound.scaling import Scaling, bits_of, engineering
 from gateway.northbound.summary import QUALITY_TEXT, summarize, worst_quality
 from gateway.profiles.layout import tpdo_objects
@@ -101,7 +101,7 @@ class ConsoleModel:
         commands: CommandService,
         overview_fn: OverviewFn | None = None,
         *,
-        regmap: RegisterMap | None = None,
+        regmap: RegisterMap,
         clock: Callable[[], float] = time.monotonic,
     ):
         self.cfg = cfg
@@ -109,7 +109,7 @@ class ConsoleModel:
         self.commands = commands
         self.overview_fn = overview_fn
         self.clock = clock
-        self.regmap = regmap if regmap is not None else build_register_map(cfg)
+        self.regmap = regmap
         self.prefix = prefix_of(cfg)
         #: per node, the signals its TPDOs carry (their worst quality is the node's status,
         #: as Modbus input register 0 of the node)

@@ -25,7 +25,6 @@ import canopen
 import pytest
 from canopen.objectdictionary import datatypes as dt
 
-from gateway.checks import parse_checked_config
 from gateway.cia301 import TYPE_NAMES
 from gateway.cli import main
 from gateway.config import ConfigError
@@ -36,6 +35,7 @@ from gateway.northbound.regmap import build_register_map
 from gateway.objref import ObjRef
 from gateway.pdo.codec import compile_node
 from gateway.profiles import ProfileError, load_node_profile
+from tests.helpers import parse_checked_config, with_nodes
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eds-corpus"
 FILES = sorted(p for p in CORPUS.glob("*") if p.suffix.lower() in (".eds", ".dcf")) if CORPUS.is_dir() else []
@@ -238,7 +238,7 @@ def test_every_pdo_signal_agrees_with_the_register_map(eds: Path) -> None:
                            "nodes": [{"name": "dev", "node_id": NODE_ID, "eds": str(eds)}]}  # fmt: skip
     cfg = parse_checked_config(raw, "cfg.yaml", environ={})
     lp = load_node_profile(cfg.nodes[0])
-    points = {(p.table, p.name): p for p in build_register_map(cfg).node_points("dev") if p.kind == "signal"}
+    points = {(p.table, p.name): p for p in build_register_map(*with_nodes(cfg)).node_points("dev") if p.kind == "signal"}
     tpdos, rpdos = compile_node(lp, NODE_ID)
     codecs = {("tpdo", c.number): c for c in tpdos} | {("rpdo", c.number): c for c in rpdos}
     problems: list[str] = []

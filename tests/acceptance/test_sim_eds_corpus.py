@@ -16,13 +16,12 @@ from typing import Any
 
 import pytest
 
-from gateway.app import Gateway
 from gateway.bus.resolved import resolve_config
 from gateway.checks import check_config
 from gateway.config import ConfigError
 from gateway.image import Quality
 from gateway.profiles import ProfileError
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eds-corpus"
 FILES = sorted(p for p in CORPUS.glob("*") if p.suffix.lower() in (".eds", ".dcf")) if CORPUS.is_dir() else []
@@ -57,7 +56,7 @@ async def test_each_enabled_tpdo_of_a_simulated_corpus_device_arrives_as_the_gat
         # CiA 301 makes 1000h mandatory: the gateway finds a running node by reading it, so a
         # device without it is found only by its boot-up, sent here before the gateway listens
         pytest.skip(f"{eds.name} has no 1000h (device type)")
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         node = gw.nodes["dev"]

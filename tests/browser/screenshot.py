@@ -17,10 +17,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from gateway.app import Gateway
 from gateway.config import load_config
 from tests.browser.chromium import chromium
-from tests.helpers import free_port, node_operational, wait_until
+from tests.helpers import free_port, gateway_of, node_operational, wait_until
 
 TOKEN = "screenshot-token-only"
 
@@ -123,7 +122,7 @@ async def main(config: str, out_dir: str, node: str = "display") -> None:
     cfg = load_config(config, environ=environ)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         for n in cfg.nodes:

@@ -17,7 +17,7 @@ import pytest
 
 from gateway.app import Gateway
 from tests.browser.chromium import BrowserUnavailable, chromium
-from tests.helpers import free_port, make_config, node_operational, wait_until
+from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 
 TOKEN = "browser-test-token-7"
 WAIT_S = 15.0
@@ -44,7 +44,7 @@ async def gateway(writes: bool = False) -> AsyncIterator[tuple[Gateway, str]]:
         health={"port": free_port()},
         web={"writes": True, "token": TOKEN} if writes else {},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         await wait_until(lambda: node_operational(gw, "wire"), 5, "wire operational")
@@ -119,7 +119,7 @@ async def test_the_overview_shows_the_role_of_a_gateway_of_a_pair_and_its_peer(
         master={"redundancy": {"node_id": 101, "priority": 0, "peer_node_id": 102}},
         health={"port": free_port()},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         await wait_until(lambda: gw.master.role == "active", 10, "active")

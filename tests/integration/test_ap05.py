@@ -17,9 +17,9 @@ import zenoh
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
-from gateway.app import Gateway, SimulatedBus
+from gateway.app import Gateway
 from gateway.image import LinkState, NmtState
-from tests.helpers import free_port, make_config, operational, wait_until
+from tests.helpers import free_port, gateway_of, make_config, operational, simulated_bus, wait_until
 from tests.zenoh_client import ZClient
 
 # register map of an AP05 unit (see docs/modbus.md): holding registers
@@ -39,7 +39,7 @@ def raw_ap05(**node: object) -> dict:
 
 async def _raw_gateway(nodes: list[dict], **sections: object) -> tuple[Gateway, can.BusABC]:
     cfg = make_config(nodes, simulate={"nodes": []}, **sections)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     bus = can.Bus(interface="virtual", channel=cfg.can.channel, receive_own_messages=False)
     return gw, bus
@@ -141,7 +141,7 @@ async def test_frozen_guarding_echo_faults_the_link_then_recovers() -> None:
     cfg = make_config(
         [{**AP05_SIM, "guarding_bit": {"tolerance_missed": 3, "tolerance_ms": 400, "period_ms": 50}}]
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     session, kinds, sub = _subscribe_liveliness(cfg.zenoh.listen[0], "canopen/test/alive/display")
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
@@ -182,7 +182,7 @@ async def test_frozen_guarding_echo_faults_the_link_then_recovers() -> None:
 async def test_external_heartbeat_is_fed_and_the_device_stays_operational(source: str) -> None:
     node = {**AP05_SIM, "external_heartbeat": {"interval_ms": 200, "source": source}}
     cfg = make_config([node], master={"sync_period_ms": 50})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     sim = gw.sim.nodes["display"]
     try:
@@ -205,9 +205,9 @@ async def test_external_heartbeat_is_fed_and_the_device_stays_operational(source
 async def test_gateway_stopped_device_drops_to_pre_operational() -> None:
     node = {**AP05_SIM, "external_heartbeat": {"interval_ms": 200, "source": "rpdo"}}
     cfg = make_config([node])
-    sim = SimulatedBus(cfg)
+    sim = simulated_bus(cfg)
     sim.start()
-    gw = Gateway(cfg, simulate=False)
+    gw = gateway_of(cfg, simulate=False)
     await gw.start()
     try:
         await wait_until(lambda: gw.image.nodes["display"].operational(), 5, "operational")
@@ -215,7 +215,7 @@ async def test_gateway_stopped_device_drops_to_pre_operational() -> None:
         await gw.stop()
         await wait_until(lambda: int(sim.nodes["display"].nmt_state) == 127, 3, "pre-operational")
         # a gateway started again sees and reports that state, then starts the node again
-        gw2 = Gateway(cfg, simulate=False)
+        gw2 = gateway_of(cfg, simulate=False)
         await gw2.start()
         try:
             await wait_until(
@@ -260,7 +260,7 @@ async def test_alphanumeric_text_round_trip_and_invalid_text_refused(
 async def test_text_through_zenoh_and_invalid_text_gets_reply_err() -> None:
     node = {**AP05_SIM, "sdo": [{"object": "0x5F1B:02", "value": 3}]}
     cfg = make_config([node], zenoh={"writes": True})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     conf = zenoh.Config()
     conf.insert_json5("connect/endpoints", json.dumps(cfg.zenoh.listen))
@@ -328,7 +328,7 @@ async def test_text_written_is_read_back_by_modbus_and_zenoh_from_the_image_outp
 
 async def test_power_cycle_through_the_runner_reconfigures_the_node() -> None:
     cfg = make_config([AP05_SIM])
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     node = gw.image.nodes["display"]
     try:
@@ -343,7 +343,7 @@ async def test_power_cycle_through_the_runner_reconfigures_the_node() -> None:
 
 async def test_static_target_window_is_acknowledged_by_coil_from_the_plc() -> None:
     cfg = make_config([{**AP05_SIM, "guarding_bit": {"enabled": False}}])
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
     sim = gw.sim.nodes["display"]
@@ -362,7 +362,7 @@ async def test_an_output_written_reaches_the_live_web_page_as_its_value() -> Non
     """Outputs are not echoed into the received values; writing them tells the image's value
     listeners all the same, so a browser watching the node sees the set point it was sent."""
     cfg = make_config([AP05_SIM], health={"port": free_port()}, zenoh={"enabled": False})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         await wait_until(gw.image.nodes["display"].operational, 5, "operational")

@@ -22,7 +22,7 @@ import yaml
 from gateway.app import Gateway
 from gateway.cli import main
 from gateway.states import NmtState
-from tests.helpers import free_port, make_config, unique_channel, wait_until
+from tests.helpers import free_port, gateway_of, make_config, unique_channel, wait_until
 
 EDS = Path(__file__).resolve().parents[1] / "data" / "eds" / "io401.eds"
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -106,7 +106,7 @@ async def sim_gateway(**ascii_cfg: Any) -> AsyncIterator[tuple[Gateway, Sniffer,
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)
     sniffer = Sniffer()
     notifier = can.Notifier(bus, [sniffer])
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         await wait_until(lambda: gw.image.nodes["wire"].operational(), 8, "wire operational")
@@ -259,7 +259,7 @@ async def test_a_configured_node_that_was_never_heard_is_answered_102_without_an
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)
     sniffer = Sniffer()
     notifier = can.Notifier(bus, [sniffer])
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         c = await Client.connect(gw.ascii.port)
@@ -342,7 +342,7 @@ async def local_gateway(
     node = canopen.LocalNode(5, od)
     net.add_node(node)
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     hb = Heartbeat(bus, node)
     try:

@@ -12,9 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.app import Gateway
 from gateway.config import load_config
-from tests.helpers import free_port, wait_until
+from tests.helpers import free_port, gateway_of, wait_until
 
 pytest.importorskip("can_remote")
 
@@ -60,7 +59,7 @@ async def test_gateway_serves_devices_simulated_in_another_process(tmp_path: Pat
             text=True,
         )
         assert "simulating" in (sim.stdout.readline() if sim.stdout else "")
-        gw = Gateway(load_config(cfg_file, environ={}), simulate=False)
+        gw = gateway_of(load_config(cfg_file, environ={}), simulate=False)
         await gw.start()
         for name in ("wire", "display"):
             await wait_until(lambda n=name: gw.image.nodes[n].operational(), 10, f"{name} operational")

@@ -9,8 +9,7 @@ import queue
 import zenoh
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 
 NODES = [
     {"name": "wire", "node_id": 1, "profile": "sgh10"},
@@ -31,7 +30,7 @@ async def test_position_changes_reach_modbus_and_zenoh() -> None:
     cfg = make_config(
         NODES, simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp", "speed": 2000}}}
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     session, samples = _subscriber(cfg.zenoh.listen[0])
     sub = session.declare_subscriber(

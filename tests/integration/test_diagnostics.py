@@ -14,7 +14,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
-from tests.helpers import frame, free_port, make_config, node_operational, wait_until
+from tests.helpers import frame, free_port, gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_health_http import http_get
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -35,7 +35,7 @@ def metric(m: dict, name: str, **labels: str) -> float:
 
 async def test_every_documented_metric_and_diagnostics_register_counts() -> None:
     cfg = make_config([WIRE], health={"port": free_port()}, zenoh={"enabled": True})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
@@ -131,7 +131,7 @@ async def test_every_documented_metric_and_diagnostics_register_counts() -> None
 
 async def test_random_29_bit_traffic_is_logged_as_a_few_summary_lines(caplog: Any) -> None:
     cfg = make_config([WIRE], modbus={"enabled": False}, zenoh={"enabled": False})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)
     rnd = random.Random(7)

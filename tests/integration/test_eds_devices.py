@@ -22,7 +22,7 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
 from gateway.image import Quality
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
@@ -103,7 +103,7 @@ async def gateway_with(
     sniffer = can.Bus(interface="virtual", channel=cfg.can.channel)
     log = SdoLog(node_id)
     notifier = can.Notifier(sniffer, [log])
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     hb = Heartbeat(sniffer, node)
     try:
@@ -231,7 +231,7 @@ async def test_device_holding_another_mapping_than_the_eds_is_detected_and_its_v
 
 async def test_simulated_eds_only_node_runs_with_the_gateway() -> None:
     cfg = make_config([{"name": "io", "node_id": 5, "eds": str(IO)}], zenoh={"enabled": False})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         sigs = gw.image.nodes["io"].signals

@@ -15,13 +15,12 @@ import can
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
 from gateway.bus.node.settings import resolve_node_settings
 from gateway.cli import main
 from gateway.config import ConfigError, NodeConfig
 from gateway.image import Quality
 from gateway.profiles import load_node_profile
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 from tests.integration.test_eds_devices import boot, gateway_with, local_node
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
@@ -134,7 +133,7 @@ async def test_an_unsupervised_device_runs_and_its_values_go_stale_by_data_age(t
                       master={"probe_at_start": False})  # fmt: skip
     net, node = local_node(IO, 5, cfg.can.channel)  # its 1017h is 0: no heartbeat on the bus
     sender = can.Bus(interface="virtual", channel=cfg.can.channel)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         assert gw.master.nodes["io"].settings.supervision == "none"
@@ -175,7 +174,7 @@ async def test_a_device_whose_1018h_differs_from_its_eds_is_refused_at_boot_and_
     net, node = local_node(IO, 5, cfg.can.channel)
     node.set_data(0x1018, 2, struct.pack("<I", 0x999))  # another product of the same vendor
     sender = can.Bus(interface="virtual", channel=cfg.can.channel)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         boot(node)
@@ -228,7 +227,7 @@ async def test_identity_check_false_configures_any_device() -> None:
                       simulate={"nodes": []}, master={"probe_at_start": False})  # fmt: skip
     net, node = local_node(IO, 5, cfg.can.channel)
     node.set_data(0x1018, 2, struct.pack("<I", 0x999))
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         boot(node)

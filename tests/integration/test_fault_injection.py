@@ -15,7 +15,7 @@ from typing import Any
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
-from tests.helpers import free_port, make_config, node_operational, wait_until
+from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_web_http import http
 from tests.zenoh_client import ZClient
 
@@ -31,7 +31,7 @@ async def demo() -> AsyncIterator[tuple[Gateway, str, AsyncModbusTcpClient, ZCli
         ],
         health={"port": free_port()},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
     await client.connect()

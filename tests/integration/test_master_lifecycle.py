@@ -9,13 +9,12 @@ from typing import Any
 
 import can
 
-from gateway.app import Gateway, SimulatedBus
 from gateway.bus.node.boot_steps import build_boot_steps
 from gateway.bus.node.lifecycle import LifecycleState
 from gateway.config import load_config
 from gateway.objref import ObjRef
 from gateway.profiles import load_profile
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, simulated_bus, wait_until
 from tests.helpers import master_running as running
 from tests.helpers import node_operational as operational
 
@@ -28,10 +27,10 @@ async def test_node_running_before_the_gateway_is_found_by_probe_and_configured_
         modbus={"enabled": False},
         zenoh={"enabled": False},
     )
-    sim = SimulatedBus(cfg)
+    sim = simulated_bus(cfg)
     sim.start()  # the device boots now: its boot-up is gone before the gateway listens
     observer = can.Bus(interface="virtual", channel=cfg.can.channel)
-    gw = Gateway(cfg, simulate=False)
+    gw = gateway_of(cfg, simulate=False)
     try:
         await wait_until(lambda: sim.nodes["wire"].powered, 2, "device powered")
         await gw.start()
@@ -199,10 +198,10 @@ async def test_node_with_configure_false_is_only_started() -> None:
         modbus={"enabled": False},
         zenoh={"enabled": False},
     )
-    sim = SimulatedBus(cfg)
+    sim = simulated_bus(cfg)
     sim.start()
     observer = can.Bus(interface="virtual", channel=cfg.can.channel)
-    gw = Gateway(cfg, simulate=False)
+    gw = gateway_of(cfg, simulate=False)
     try:
         await wait_until(lambda: sim.nodes["wire"].powered, 2, "device powered")
         await gw.start()

@@ -18,7 +18,7 @@ import yaml
 
 from gateway.app import Gateway
 from gateway.errors import NodeNotOperational, SdoAbort, SdoTimeout
-from tests.helpers import make_config, unique_channel, wait_until
+from tests.helpers import gateway_of, make_config, unique_channel, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -28,7 +28,7 @@ MAGNET = {"name": "magnet", "node_id": 2, "profile": "msk5000"}
 @asynccontextmanager
 async def running(nodes: list[dict[str, Any]], **sections: Any) -> AsyncIterator[Gateway]:
     cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False}, **sections)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         for name in gw.master.nodes:

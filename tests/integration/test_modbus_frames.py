@@ -13,7 +13,7 @@ from collections.abc import AsyncIterator
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 HOLD = {"wire": {"kind": "hold", "min": -5000, "max": 5000, "hold": -1234}}
@@ -23,7 +23,7 @@ POSITION = [0xFFFF, 0xFB2E]  # input registers 100-101 of unit 1: int32 -1234
 @contextlib.asynccontextmanager
 async def running() -> AsyncIterator[Gateway]:
     cfg = make_config([WIRE], zenoh={"enabled": False}, simulate={"nodes": "all", "motion": HOLD})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         node = gw.image.nodes["wire"]

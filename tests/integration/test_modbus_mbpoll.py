@@ -13,7 +13,7 @@ from collections.abc import AsyncIterator
 import pytest
 
 from gateway.app import Gateway
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 
 pytestmark = pytest.mark.skipif(
     shutil.which("mbpoll") is None,
@@ -37,7 +37,7 @@ HOLD = {"kind": "hold", "min": -5000, "max": 5000, "hold": -1234}
 async def running() -> AsyncIterator[Gateway]:
     motion = {"wire": HOLD, "wire2": HOLD}
     cfg = make_config(NODES, zenoh={"enabled": False}, simulate={"nodes": "all", "motion": motion})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         for n in NODES:

@@ -28,7 +28,7 @@ from pymodbus.client import AsyncModbusTlsClient
 from gateway.app import Gateway
 from gateway.config import ConfigError
 from gateway.modbus.security import ROLE_OID, access_of, certificate_role
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 
 DISPLAY = {"name": "display", "node_id": 125, "profile": "ap05"}
 SET_POINT1 = 100  # AP05 holding registers 100-101 (docs/modbus.md)
@@ -138,7 +138,7 @@ def tls_section(pki: dict[str, Any], **extra: Any) -> dict[str, Any]:
 async def secure_gateway(pki: dict[str, Any], **modbus: Any) -> AsyncIterator[Gateway]:
     tls = modbus.pop("tls", tls_section(pki))
     cfg = make_config([DISPLAY], zenoh={"enabled": False}, modbus={"tls": tls, **modbus})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         await wait_until(gw.image.nodes["display"].operational, 5, "display operational")
@@ -268,7 +268,7 @@ def test_role_extension_is_read_from_the_certificate(pki: dict[str, Any]) -> Non
 def test_a_missing_certificate_file_is_a_config_error_naming_the_key(pki: dict[str, Any]) -> None:
     cfg = make_config([DISPLAY], modbus={"tls": tls_section(pki, cert="/nonexistent/gw.pem")})
     with pytest.raises(ConfigError) as err:
-        Gateway(cfg)
+        gateway_of(cfg)
     assert "modbus.tls.cert: file /nonexistent/gw.pem does not exist" in str(err.value)
 
 

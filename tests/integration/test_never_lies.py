@@ -23,7 +23,7 @@ from gateway.app import Gateway
 from gateway.image import Quality
 from gateway.profiles import load_profile
 from gateway.states import NmtState
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient, sample_where
 
 NO_RESPONSE = 0x0B
@@ -76,7 +76,7 @@ async def gateway(
         zenoh={"writes": True},
     )
     dev = RawSgh10(cfg.can.channel)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
     await client.connect()

@@ -24,7 +24,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from gateway.app import Gateway
 from gateway.checks import check_config
 from gateway.config import ConfigError
-from tests.helpers import free_port, make_config, wait_until
+from tests.helpers import free_port, gateway_of, make_config, wait_until, with_nodes
 from tests.integration.test_eds_devices import IO, Heartbeat, SdoLog, boot, local_node
 from tests.integration.test_modbus_tls import SET_POINT1, Pki, client_for, secure_gateway
 from tests.zenoh_client import ZClient, sample_where
@@ -50,7 +50,7 @@ async def io_gateway(modbus: dict[str, Any], **sections: Any) -> AsyncIterator[t
     sniffer = can.Bus(interface="virtual", channel=cfg.can.channel)
     frames = SdoLog(UNIT)  # records every frame on the bus
     notifier = can.Notifier(sniffer, [frames])
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     hb = Heartbeat(sniffer, node)
     try:
@@ -322,9 +322,9 @@ async def test_a_plc_that_connects_per_transaction_and_stops_trips_on_disconnect
 def test_check_names_a_safe_output_that_is_no_rpdo_output() -> None:
     with pytest.raises(ConfigError) as err:
         check_config(
-            make_config(
+            *with_nodes(make_config(
                 [{"name": "io", "node_id": 5, "eds": str(IO), "safe_outputs": {"read_input_1h_to_8h": 0}}]
-            )
+            ))
         )
     (line,) = [p for p in err.value.problems if "safe_outputs" in p]
     assert "nodes[0].safe_outputs.read_input_1h_to_8h: not an RPDO output of node io" in line
@@ -334,9 +334,9 @@ def test_check_names_a_safe_output_that_is_no_rpdo_output() -> None:
 def test_check_names_a_safe_value_out_of_range() -> None:
     with pytest.raises(ConfigError) as err:
         check_config(
-            make_config(
+            *with_nodes(make_config(
                 [{"name": "io", "node_id": 5, "eds": str(IO), "safe_outputs": {"write_output_1h_to_8h": 300}}]
-            )
+            ))
         )
     (line,) = [p for p in err.value.problems if "safe_outputs" in p]
     assert "nodes[0].safe_outputs.write_output_1h_to_8h: value 300 not allowed" in line
@@ -347,7 +347,7 @@ async def test_simulated_ap05_set_point_falls_back_to_its_safe_value() -> None:
     holds it, written by the PLC, then by the watchdog."""
     display = {"name": "display", "node_id": 125, "profile": "ap05", "safe_outputs": {"set_point1": 0}}
     cfg = make_config([display], zenoh={"enabled": False}, modbus={"watchdog_ms": 200})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
     try:

@@ -19,7 +19,7 @@ from gateway.app import Gateway, SimulatedBus
 from gateway.config import parse_config
 from gateway.errors import NotActive
 from gateway.image import Quality
-from tests.helpers import make_config, node_operational, wait_until
+from tests.helpers import gateway_of, make_config, node_operational, simulated_bus, wait_until
 
 LOGICAL = 100
 HB_MS = 100
@@ -68,9 +68,9 @@ class Sent:
 @asynccontextmanager
 async def pair_running() -> AsyncIterator[tuple[Gateway, Gateway, Sent, Sent, SimulatedBus]]:
     cfg_a, cfg_b = pair_configs()
-    sim = SimulatedBus(cfg_a, names=["wire", "display"])
+    sim = simulated_bus(cfg_a, names=["wire", "display"])
     sim.start()
-    a, b = Gateway(cfg_a, simulate=False), Gateway(cfg_b, simulate=False)
+    a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
     sent_a, sent_b = Sent(a), Sent(b)
     try:
         await a.start()

@@ -26,7 +26,7 @@ import canopen
 from gateway.app import Gateway
 from gateway.config import parse_config
 from gateway.image import Quality
-from tests.helpers import make_config, node_operational, wait_until
+from tests.helpers import gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_eds_devices import Heartbeat, boot, local_node
 from tests.integration.test_pair import Sent
 
@@ -103,7 +103,7 @@ async def pair_with_localnode() -> AsyncIterator[
     bus = can.Bus(interface="virtual", channel=cfg_a.can.channel)
     heard = LogicalHeartbeats()
     notifier = can.Notifier(bus, [heard])
-    a, b = Gateway(cfg_a, simulate=False), Gateway(cfg_b, simulate=False)
+    a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
     sent_a, sent_b = Sent(a), Sent(b)
     hb, tpdo = Heartbeat(bus, node), Tpdo1(bus)
     try:

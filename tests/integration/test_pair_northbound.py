@@ -18,10 +18,17 @@ from typing import Any
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway, SimulatedBus
+from gateway.app import Gateway
 from gateway.config import parse_config
 from gateway.modbus.watchdog import WatchdogState
-from tests.helpers import free_port, make_config, node_operational, wait_until
+from tests.helpers import (
+    free_port,
+    gateway_of,
+    make_config,
+    node_operational,
+    simulated_bus,
+    wait_until,
+)
 from tests.integration.test_pair import Sent, position_good
 from tests.zenoh_client import Sample, ZClient, drain, next_sample, open_router, sample_where
 
@@ -81,9 +88,9 @@ async def pair_running(a_ahead_frames: int = 0) -> AsyncIterator[Pair]:
     router_endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = open_router(router_endpoint)
     cfg_a, cfg_b = pair_configs(router_endpoint)
-    sim = SimulatedBus(cfg_a, names=["wire", "display"])
+    sim = simulated_bus(cfg_a, names=["wire", "display"])
     sim.start()
-    a, b = Gateway(cfg_a, simulate=False), Gateway(cfg_b, simulate=False)
+    a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
     sent_a = Sent(a)
     z = ZClient([router_endpoint], mode="client")
     try:
@@ -282,7 +289,7 @@ async def test_the_cloud_sees_one_gateway_across_a_take_over() -> None:
 
 async def test_the_duplicate_prefix_check_lets_the_partner_in_and_refuses_a_stranger() -> None:
     async with pair_running() as pair:
-        stranger = Gateway(
+        stranger = gateway_of(
             make_config(
                 [WIRE],
                 zenoh={"mode": "peer", "listen": [], "connect": [pair.router]},

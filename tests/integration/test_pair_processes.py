@@ -41,7 +41,7 @@ from pymodbus.client import ModbusTcpClient
 
 from gateway.config import load_config
 from gateway.northbound.regmap import Point, build_register_map
-from tests.helpers import free_port, wait_ready, wait_until_sync
+from tests.helpers import free_port, wait_ready, wait_until_sync, with_nodes
 
 pytest.importorskip("can_remote")
 
@@ -205,7 +205,7 @@ def started(argv: list[str], **kw: Any) -> Iterator[subprocess.Popen[str]]:
 
 
 def point(cfg: Path, node: str, name: str) -> Point:
-    rm = build_register_map(load_config(cfg, environ={}))
+    rm = build_register_map(*with_nodes(load_config(cfg, environ={})))
     return next(p for p in rm.node_points(node) if p.name == name)
 
 

@@ -6,14 +6,13 @@ from __future__ import annotations
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
-from gateway.app import Gateway
 from gateway.image import Quality
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 
 
 async def test_unreferenced_position_is_bad_until_referenced() -> None:
     cfg = make_config([{"name": "magnet", "node_id": 2, "profile": "msk5000"}])
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port)
     node = gw.image.nodes["magnet"]

@@ -16,8 +16,7 @@ import canopen
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
-from gateway.app import Gateway
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient
 
 EDS = Path(__file__).resolve().parents[2] / "gateway" / "profiles" / "msk5000.eds"
@@ -62,7 +61,7 @@ async def test_reference_lost_after_emcy_ff10_is_never_served_as_good() -> None:
     node.set_data(0x5115, 0, b"\x01")  # referenced
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)
     dev = Device(bus, node)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
     z = ZClient(gw.cfg.zenoh.listen)

@@ -11,12 +11,11 @@ import can
 import canopen
 import pytest
 
-from gateway.app import SimulatedBus
 from gateway.bus.scan import report, scan
 from gateway.northbound.frames import FrameDecoder
 from gateway.profiles import load_profile
 from gateway.tools.monitor import monitor
-from tests.helpers import make_config
+from tests.helpers import gateway_of, make_config, simulated_bus, with_nodes
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 DISPLAY = {"name": "display", "node_id": 5, "profile": "ap05"}
@@ -42,7 +41,7 @@ def local_node(channel: str, node_id: int, profile: str) -> Iterator[canopen.Loc
 
 
 def test_frames_are_decoded_with_what_the_config_knows() -> None:
-    d = FrameDecoder(make_config([WIRE, DISPLAY]))
+    d = FrameDecoder(*with_nodes(make_config([WIRE, DISPLAY])))
     # SGH10 manual 4.3: TPDO1 position (int32, 0.1 mm) and velocity
     tpdo = d.decode(0x181, (12345).to_bytes(4, "little") + (20).to_bytes(2, "little", signed=True))
     assert (tpdo.kind, tpdo.node, tpdo.service) == ("pdo", "wire", "TPDO1")
@@ -84,7 +83,7 @@ def test_monitor_prints_decoded_frames_filtered_by_node_and_kind() -> None:
         ]:
             sender.send(msg)
         out = io.StringIO()
-        n = monitor(reader, FrameDecoder(cfg), out, nodes={1}, kinds={"pdo", "emcy", "sdo"},
+        n = monitor(reader, FrameDecoder(*with_nodes(cfg)), out, nodes={1}, kinds={"pdo", "emcy", "sdo"},
                     count=3, duration_s=30)  # fmt: skip
     finally:
         reader.shutdown()
@@ -107,7 +106,7 @@ def test_scan_finds_our_simulator_a_local_node_and_a_scripted_heartbeat() -> Non
     id 9 only sends heartbeats; the configured display (id 5) is silent."""
     cfg = make_config([WIRE, DISPLAY])
     channel = cfg.can.channel
-    sim = SimulatedBus(cfg, ["wire"])
+    sim = simulated_bus(cfg, ["wire"])
     sim.start()
     talker = can.Bus(interface="virtual", channel=channel)
     bus = can.Bus(interface="virtual", channel=channel)
@@ -153,12 +152,11 @@ async def test_the_console_scans_the_bus_on_the_gateways_own_connection(
     import json
     import urllib.request
 
-    from gateway.app import Gateway
     from tests.helpers import free_port, node_operational, wait_until
 
     token = "scan-test-token-12"
     cfg = make_config([WIRE], health={"port": free_port()}, web={"writes": True, "token": token})
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     spy = can.Bus(interface="virtual", channel=cfg.can.channel)  # every frame on the bus
     talker = can.Bus(interface="virtual", channel=cfg.can.channel)

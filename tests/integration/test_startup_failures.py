@@ -14,9 +14,15 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.app import Gateway
 from gateway.startup import StartupError
-from tests.helpers import free_port, gateway_process, make_config, unique_channel, wait_ready
+from tests.helpers import (
+    free_port,
+    gateway_of,
+    gateway_process,
+    make_config,
+    unique_channel,
+    wait_ready,
+)
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 GATEWAY_THREADS = ("can-reader", "can-sender", "zenoh-publish", "zenoh-events", "sim-runner")
@@ -107,7 +113,7 @@ async def test_failed_start_closes_every_part_and_ends_every_thread() -> None:
         "health": {"port": taken},
     }
     cfg = make_config([WIRE], **sections)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     try:
         with pytest.raises(StartupError) as err:
             await gw.start()
@@ -120,7 +126,7 @@ async def test_failed_start_closes_every_part_and_ends_every_thread() -> None:
     # no thread that would hold the interpreter at exit (the loop's idle executor ends with it)
     held = {t for t in threading.enumerate() if not t.daemon and not t.name.startswith("asyncio_")}
     assert held <= before
-    again = Gateway(make_config([WIRE], **sections))
+    again = gateway_of(make_config([WIRE], **sections))
     await again.start()
     try:
         assert again.started and again.health.port == taken
@@ -139,7 +145,7 @@ async def test_a_start_that_fails_on_a_port_in_use_sends_nothing_to_the_devices(
     taken = holder.getsockname()[1]
     cfg = make_config([WIRE], modbus={"port": free_port()}, health={"port": taken})
     spy = can.Bus(interface="virtual", channel=cfg.can.channel)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     try:
         with pytest.raises(StartupError) as err:
             await gw.start()
@@ -160,7 +166,7 @@ async def test_missing_password_file_names_its_key() -> None:
         [WIRE],
         zenoh={"auth": {"user": "gw", "password_file": "no-such-password.txt"}},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     with pytest.raises(StartupError) as err:
         await gw.start()
     assert err.value.key == "zenoh.auth.password_file"

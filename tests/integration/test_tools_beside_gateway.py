@@ -195,11 +195,11 @@ async def test_scan_beside_a_gateway_that_serves_its_commissioning_page_points_a
     import asyncio
 
     from gateway.app import Gateway
-    from gateway.checks import load_checked_config
+    from gateway.checks import load_checked
     from gateway.cli import main
 
     cfg_file = demo_like(tmp_path / "w.yaml", web={"writes": True, "token": "a long random text"})
-    gw = Gateway(load_checked_config(cfg_file))
+    gw = Gateway(*load_checked(cfg_file))
     await gw.start()
     try:
         with pytest.raises(SystemExit) as exc:

@@ -20,7 +20,7 @@ import pytest
 from gateway.app import Gateway
 from gateway.cli import main
 from gateway.image import Quality
-from tests.helpers import free_port, make_config, node_operational, wait_until
+from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_never_lies import RawSgh10, started
 from tests.integration.test_web_http import http
 
@@ -36,7 +36,7 @@ async def console(**sections: Any) -> AsyncIterator[tuple[Gateway, str]]:
         zenoh={"enabled": False},
         **sections,
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         await wait_until(lambda: node_operational(gw, "wire"), 5, "wire operational")
@@ -179,7 +179,7 @@ async def test_a_device_abort_is_shown_with_its_code_and_text() -> None:
             raise canopen.sdo.exceptions.SdoAbortedError(0x08000022)
 
     dev.local.add_read_callback(refuse)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         dev.boot()

@@ -17,7 +17,7 @@ import pytest
 
 from gateway.app import Gateway
 from gateway.config import ConfigError, parse_config
-from tests.helpers import free_port, make_config, node_operational, wait_until
+from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 
 TOKEN = "plant-floor-token-42"
 TIMEOUT_S = 5.0
@@ -33,7 +33,7 @@ async def console(writes: bool, northbound: bool = False) -> AsyncIterator[tuple
         web=web,
         **off,
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     try:
         await wait_until(lambda: node_operational(gw, "wire"), 5, "wire operational")

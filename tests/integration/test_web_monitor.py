@@ -17,7 +17,7 @@ import pytest
 
 from gateway.app import Gateway
 from gateway.web.monitor import MAX_LINES_PER_S
-from tests.helpers import free_port, make_config, wait_until
+from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.integration.test_web_first_hour import get_json
 
 TIMEOUT_S = 10.0
@@ -37,7 +37,7 @@ async def gateway() -> AsyncIterator[tuple[Gateway, can.BusABC, str]]:
         zenoh={"enabled": False},
         simulate={"nodes": []},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     device = can.Bus(interface="virtual", channel=cfg.can.channel)
     try:

@@ -14,8 +14,7 @@ import can
 import pytest
 import zenoh
 
-from gateway.app import Gateway
-from tests.helpers import free_port, make_config, wait_until
+from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient
 
 P = "canopen/test"
@@ -83,7 +82,7 @@ async def test_users_passwords_and_access_control_through_a_router(tmp_path: Pat
             "auth": {"user": "gateway", "password_file": str(tmp_path / "gateway.password")},
         },
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     clients: list[ZClient] = []
     bus = None
@@ -142,7 +141,7 @@ async def test_the_gateway_cannot_join_a_router_with_a_wrong_password(tmp_path: 
             "auth": {"user": "gateway", "password": "not-the-password"},
         },
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()  # starts (Modbus and the bus run), Zenoh keeps trying in the background
     try:
         assert gw.zenoh is not None and not gw.zenoh.up

@@ -14,7 +14,7 @@ from typing import Any
 import can
 
 from gateway.app import Gateway
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient, drain, next_sample, sample_where
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -32,7 +32,7 @@ async def running(
     are on unless ``zenoh={"writes": False}`` is given."""
     sections["zenoh"] = {"writes": True, **sections.get("zenoh", {})}
     cfg = make_config(nodes, simulate={"nodes": "all", "motion": motion or RAMP}, **sections)
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     client = ZClient(cfg.zenoh.listen)
     try:

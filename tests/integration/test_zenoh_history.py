@@ -14,7 +14,7 @@ import zenoh
 import zenoh.ext
 
 from gateway.app import Gateway
-from tests.helpers import free_port, make_config, wait_until
+from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.zenoh_client import open_router, session_config
 
 P = "canopen/test"
@@ -74,7 +74,7 @@ async def test_emcy_events_raised_while_the_router_is_down_arrive_in_order_after
         simulate={"nodes": "all", "motion": {"wire": {"kind": "hold"}}},
         zenoh={"listen": [], "connect": [endpoint]},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     sub = AdvancedClient(endpoint, f"{P}/wire/emcy")
     late: AdvancedClient | None = None
@@ -115,7 +115,7 @@ async def test_a_late_subscriber_gets_the_last_value_of_every_signal_and_the_sta
         simulate={"nodes": "all", "motion": {"wire": {"kind": "hold"}}},
         zenoh={"listen": [], "connect": [endpoint]},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     late: AdvancedClient | None = None
     try:
@@ -167,7 +167,7 @@ async def test_without_heartbeats_the_gateway_starts_and_the_cache_still_serves(
         simulate={"nodes": "all", "motion": {"wire": {"kind": "hold"}}},
         zenoh={"listen": [], "connect": [endpoint], "history": {"heartbeat_ms": 0}},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     late: AdvancedClient | None = None
     try:

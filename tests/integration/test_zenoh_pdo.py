@@ -11,8 +11,7 @@ from typing import Any
 
 import can
 
-from gateway.app import Gateway
-from tests.helpers import frame, make_config, wait_until
+from tests.helpers import frame, gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient, drain, sample_where
 
 P = "canopen/test"
@@ -24,7 +23,7 @@ async def test_one_sample_per_pdo_with_every_signal_its_quality_and_the_record_t
         [WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp", "speed": 2000}}},
         zenoh={"publish": "pdo", "batch_ms": 2},  # and the values of 2 ms go out together
     )  # fmt: skip
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     z = ZClient(cfg.zenoh.listen)
     try:
@@ -65,7 +64,7 @@ async def test_scripted_frames_each_new_frame_a_sample_and_a_lost_node_goes_stal
             "signals": {"velocity": {"publish": "every"}}}  # fmt: skip
     cfg = make_config([node], simulate={"nodes": []}, master={"sync_period_ms": 0},
                       zenoh={"publish": "pdo"})  # fmt: skip
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     z = ZClient(cfg.zenoh.listen)
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)

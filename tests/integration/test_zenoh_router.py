@@ -8,9 +8,8 @@ import queue
 import time
 from typing import Any
 
-from gateway.app import Gateway
 from gateway.zenoh_bridge.session import CONNECT_WAIT_S
-from tests.helpers import free_port, make_config, wait_until
+from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient, drain, open_router, sample_where
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -45,7 +44,7 @@ async def wait_tokens(z: ZClient, expected: set[str], timeout_s: float = 8.0) ->
 async def test_values_tokens_and_queries_flow_through_a_router() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = open_router(endpoint)
-    gw = Gateway(through_router(endpoint))
+    gw = gateway_of(through_router(endpoint))
     await gw.start()
     z = ZClient([endpoint], mode="client")
     try:
@@ -65,7 +64,7 @@ async def test_values_tokens_and_queries_flow_through_a_router() -> None:
 
 async def test_a_peer_gateway_starts_without_a_router_and_connects_when_it_appears() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    gw = Gateway(through_router(endpoint))
+    gw = gateway_of(through_router(endpoint))
     assert gw.zenoh is not None
     bridge = gw.zenoh
     clock = [0.0]  # the bridge's clock: until it is up, each reading is 0.5 s later
@@ -94,7 +93,7 @@ async def test_a_peer_gateway_starts_without_a_router_and_connects_when_it_appea
 async def test_after_a_router_restart_data_flows_again_and_tokens_return() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = open_router(endpoint)
-    gw = Gateway(through_router(endpoint))
+    gw = gateway_of(through_router(endpoint))
     await gw.start()
     z = ZClient([endpoint], mode="client")
     try:
@@ -123,7 +122,7 @@ async def test_after_a_router_restart_data_flows_again_and_tokens_return() -> No
 
 async def test_a_client_mode_gateway_starts_without_a_router_and_connects_later() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    gw = Gateway(through_router(endpoint, mode="client"))
+    gw = gateway_of(through_router(endpoint, mode="client"))
     await gw.start()  # client mode: no router -> the bridge keeps trying in the background
     assert gw.zenoh is not None and not gw.zenoh.up
     assert not gw.status()["zenoh"]

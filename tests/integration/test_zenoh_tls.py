@@ -13,8 +13,7 @@ import subprocess
 import pytest
 import zenoh
 
-from gateway.app import Gateway
-from tests.helpers import free_port, make_config, wait_until
+from tests.helpers import free_port, gateway_of, make_config, wait_until
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl")
 
@@ -65,7 +64,7 @@ async def test_values_over_tls_for_a_client_that_trusts_the_ca_and_refusal_other
             "tls": {"listen_certificate": certs["cert"], "listen_private_key": certs["key"]},
         },
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     session = zenoh.open(client_config(endpoint, certs["ca"]))
     samples: queue.Queue[dict] = queue.Queue()

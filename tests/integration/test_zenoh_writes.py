@@ -13,7 +13,7 @@ from typing import Any
 import can
 
 from gateway.app import Gateway
-from tests.helpers import free_port, make_config, wait_until
+from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.integration.test_diagnostics import metric, scrape
 from tests.zenoh_client import ZClient
 
@@ -34,7 +34,7 @@ async def gateway(zenoh: dict[str, Any]) -> AsyncIterator[tuple[Gateway, ZClient
         health={"port": free_port()},
         zenoh=zenoh,
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     z = ZClient(cfg.zenoh.listen)
     bus: can.BusABC | None = None

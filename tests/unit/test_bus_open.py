@@ -9,9 +9,9 @@ import os
 
 import pytest
 
-from gateway.checks import parse_checked_config
 from gateway.config import Config
 from gateway.tools.bus_open import BusOpenError, bus_open_line, opening
+from tests.helpers import parse_checked_config
 
 NODES = [{"name": "wire", "node_id": 1, "profile": "sgh10"}]
 

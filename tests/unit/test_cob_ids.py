@@ -18,11 +18,12 @@ from gateway.bus.master import Master
 from gateway.bus.node.features.sync_wait import WAITING
 from gateway.bus.resolved import resolve_config
 from gateway.checks import config_warnings
-from gateway.checks import parse_checked_config as parse_config
 from gateway.config import ConfigError
 from gateway.config import parse_config as parse_unchecked
 from gateway.eds import lint, load_eds
 from gateway.image import ProcessImage
+from tests.helpers import gateway_of, with_nodes
+from tests.helpers import parse_checked_config as parse_config
 from tests.unit.test_node import sgh10
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -113,7 +114,7 @@ def test_a_device_sending_and_receiving_on_one_cob_id_is_a_warning() -> None:
     one receiver in the gateway, so it runs; writing that RPDO adds a second sender."""
     io = {"name": "io", "node_id": 5, "eds": str(IO401), "rpdo": {1: {"cob_id": 0x185}}}
     cfg = parse_config(config(io, **SYNC), "cfg.yaml", environ={})
-    assert config_warnings(cfg) == [
+    assert config_warnings(*with_nodes(cfg)) == [
         ("nodes[0].rpdo.1.cob_id", "node io: COB-ID 0x185 of nodes[0] (io) RPDO1 "
                                    "(nodes[0].rpdo.1.cob_id) is also nodes[0] (io) TPDO1 (default "
                                    "0x180 + node id 5): the device sends and receives on one COB-ID; "
@@ -122,12 +123,11 @@ def test_a_device_sending_and_receiving_on_one_cob_id_is_a_warning() -> None:
 
 
 def test_every_start_runs_the_cob_id_check() -> None:
-    from gateway.app import Gateway
 
     io = {"name": "io", "node_id": 5, "eds": str(IO401), "tpdo": {1: {"cob_id": 0x181}}}
     cfg = parse_unchecked(config(WIRE, io, **SYNC), "cfg.yaml", environ={})
     with pytest.raises(ConfigError, match=r"COB-ID 0x181 of nodes\[1\] \(io\) TPDO1"):
-        Gateway(cfg)
+        gateway_of(cfg)
 
 
 def test_sync_produced_by_the_gateway_and_by_another_master_is_refused() -> None:
@@ -172,7 +172,7 @@ def test_check_warns_of_a_dcf_written_for_another_node_id(tmp_path: Path) -> Non
     cfg = parse_config(config({"name": "io", "node_id": 5, "eds": str(dcf)}, **SYNC), "cfg.yaml", environ={})
     nid = line_of(dcf, "NodeID=1")
     cob = line_of(dcf, "DefaultValue=0x181")
-    assert config_warnings(cfg) == [
+    assert config_warnings(*with_nodes(cfg)) == [
         ("nodes[0].node_id", f"node io: node id 5, but io.dcf [DeviceComissioning] line {nid} says "
                              "NodeID 1: the file was written for node 1; COB-IDs it writes absolute "
                              "are that node's"),
@@ -181,7 +181,7 @@ def test_check_warns_of_a_dcf_written_for_another_node_id(tmp_path: Path) -> Non
                      "1's (relative: $NODEID+0x180)"),
     ]  # fmt: skip
     at_1 = parse_config(config({"name": "io", "node_id": 1, "eds": str(dcf)}, **SYNC), "c.yaml", environ={})
-    assert config_warnings(at_1) == []
+    assert config_warnings(*with_nodes(at_1)) == []
 
 
 # --------------------------------------------------------------------------- SYNC
@@ -192,14 +192,14 @@ def test_check_warns_of_sync_driven_tpdos_without_a_sync_producer(tmp_path: Path
     """ros2_canopen's cia402_slave.eds: TPDO1-3 transmission type 1 (every SYNC)."""
     node = {"name": "drive", "node_id": 2, "eds": str(CIA402_SLAVE), "tpdo": {1: {}, 2: {}, 4: {}}}
     cfg = parse_config(config(node), "cfg.yaml", environ={})
-    assert config_warnings(cfg) == [
+    assert config_warnings(*with_nodes(cfg)) == [
         ("nodes[0]", "node drive: TPDO1, TPDO2 are SYNC-driven (transmission type 0..240) but no "
                      "SYNC producer is configured: the device never sends them; set "
                      "master.sync_period_ms, or master.sync_external: true when another master "
                      "sends SYNC"),
     ]  # fmt: skip
     for master in ({"sync_period_ms": 10}, {"sync_external": True}):
-        assert config_warnings(parse_config(config(node, **master), "c.yaml", environ={})) == []
+        assert config_warnings(*with_nodes(parse_config(config(node, **master), "c.yaml", environ={}))) == []
     f = tmp_path / "drive.yaml"
     f.write_text(f"can: {{interface: virtual}}\nnodes:\n  - {{name: drive, node_id: 2, eds: {CIA402_SLAVE}, tpdo: {{1: {{}}}}}}\n")
     r = subprocess.run([sys.executable, "-m", "gateway", "check", "-c", str(f)], capture_output=True, text=True)

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from gateway.checks import load_checked_config as load_config
-from gateway.checks import parse_checked_config as parse_config
 from gateway.config import ConfigError
+from tests.helpers import load_checked_config as load_config
+from tests.helpers import parse_checked_config as parse_config
 
 GOOD = {
     "gateway": {"name": "t"},

@@ -13,6 +13,7 @@ import pytest
 import yaml
 
 from gateway.config import load_config
+from tests.helpers import resolved
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
@@ -290,7 +291,7 @@ def test_pair_compose_runs_two_gateways_of_one_image_and_config_with_own_ids():
     cfg_a, cfg_b = pair_configs(envs)
     assert (cfg_a.master.redundancy.node_id, cfg_a.master.redundancy.priority) == (120, 0)
     assert (cfg_b.master.redundancy.node_id, cfg_b.master.redundancy.priority) == (121, 1)
-    assert pair_problems(cfg_a, cfg_b) == []
+    assert pair_problems(cfg_a, cfg_b, resolved(cfg_a), resolved(cfg_b)) == []
     # one machine: each its own ports
     for key in ("MODBUS__PORT", "HEALTH__PORT", "ZENOH__LISTEN"):
         assert envs[0][f"CANOPEN_GATEWAY__{key}"] != envs[1][f"CANOPEN_GATEWAY__{key}"]
@@ -328,4 +329,4 @@ def test_k8s_pair_is_two_deployments_on_two_machines_with_the_pairs_config(k8s_p
         envs.append({e["name"]: e["value"] for e in container["env"] if e["name"].startswith(PAIR_ENV)})
     cfg_a, cfg_b = pair_configs(envs)
     assert (cfg_a.master.redundancy.priority, cfg_b.master.redundancy.priority) == (0, 1)
-    assert pair_problems(cfg_a, cfg_b) == []
+    assert pair_problems(cfg_a, cfg_b, resolved(cfg_a), resolved(cfg_b)) == []

@@ -12,6 +12,7 @@ import urllib.request
 from pathlib import Path
 
 from gateway.cli import build_parser
+from tests.helpers import gateway_of
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = [
@@ -69,7 +70,6 @@ def test_the_container_test_cites_nothing_outside_the_repository() -> None:
 
 
 def test_the_web_api_set_example_is_accepted_as_written() -> None:
-    from gateway.app import Gateway
     from tests.helpers import free_port, make_config, node_operational, wait_until
 
     web = (ROOT / "docs/web.md").read_text(encoding="utf-8")
@@ -83,7 +83,7 @@ def test_the_web_api_set_example_is_accepted_as_written() -> None:
             health={"port": free_port()},
             web={"writes": True, "token": token},
         )
-        gw = Gateway(cfg)
+        gw = gateway_of(cfg)
         await gw.start()
         try:
             await wait_until(lambda: node_operational(gw, body["node"]), what="operational")

@@ -9,7 +9,6 @@ from typing import Any
 import pytest
 
 from gateway.bus.node.boot_steps import build_boot_steps
-from gateway.checks import parse_checked_config
 from gateway.cli import main
 from gateway.config import ConfigError
 from gateway.eds import lint, load_eds
@@ -17,6 +16,7 @@ from gateway.northbound.regmap import build_register_map
 from gateway.objref import ObjRef
 from gateway.pdo.verify import MappingRead, compare_mapping, mapping_reads
 from gateway.profiles import ProfileError, load_node_profile
+from tests.helpers import parse_checked_config, with_nodes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
 IO = DATA / "io401.eds"
@@ -240,7 +240,7 @@ def test_msk5000_manual_remap_in_the_config_serves_every_mapped_object() -> None
         },
         environ={},
     )  # fmt: skip
-    rm = build_register_map(cfg)
+    rm = build_register_map(*with_nodes(cfg))
     ir = {p.name: p.address for p in rm.points if p.table == "ir" and p.kind == "signal"}
     assert {"position", "sys_register", "flag0_register", "speed"} <= set(ir)
 

@@ -21,6 +21,7 @@ from gateway.northbound.keys import (
     tpdo_key,
 )
 from gateway.objref import ObjRef
+from tests.helpers import with_nodes
 
 P = "canopen/line1"
 
@@ -45,13 +46,13 @@ def test_prefix_defaults_to_canopen_and_the_gateway_name() -> None:
 
 def test_prefix_is_configurable_and_a_trailing_slash_is_ignored() -> None:
     assert prefix_of(config(prefix="plant/hall2/")) == "plant/hall2"
-    keys = {k.key for k in all_keys(config(prefix="plant/hall2"))}
+    keys = {k.key for k in all_keys(*with_nodes(config(prefix="plant/hall2")))}
     assert "plant/hall2/wire/value/position" in keys
     assert not any(k.startswith("canopen/") for k in keys)
 
 
 def test_every_process_signal_has_a_value_key_and_every_node_state_emcy_and_alive() -> None:
-    keys = {k.key: k for k in all_keys(config())}
+    keys = {k.key: k for k in all_keys(*with_nodes(config()))}
     for node in ("wire", "display"):
         assert keys[f"{P}/{node}/state"].kind == "event"
         assert keys[f"{P}/{node}/emcy"].kind == "event"
@@ -70,14 +71,14 @@ def test_every_process_signal_has_a_value_key_and_every_node_state_emcy_and_aliv
 
 
 def test_raw_pdo_keys_are_listed_only_when_enabled() -> None:
-    assert not any("/pdo/" in k.key for k in all_keys(config()))
-    assert any(k.key == f"{P}/wire/pdo/<cob-id hex>" for k in all_keys(config(raw_pdo=True)))
+    assert not any("/pdo/" in k.key for k in all_keys(*with_nodes(config())))
+    assert any(k.key == f"{P}/wire/pdo/<cob-id hex>" for k in all_keys(*with_nodes(config(raw_pdo=True))))
     assert pdo_key(P, "wire", 0x181) == f"{P}/wire/pdo/181"
 
 
 def test_pdo_keys_are_listed_with_publish_pdo() -> None:
-    assert not any("/tpdo/" in k.key for k in all_keys(config()))
-    assert any(k.key == f"{P}/wire/tpdo/<n>" for k in all_keys(config(publish="pdo")))
+    assert not any("/tpdo/" in k.key for k in all_keys(*with_nodes(config())))
+    assert any(k.key == f"{P}/wire/tpdo/<n>" for k in all_keys(*with_nodes(config(publish="pdo"))))
     assert tpdo_key(P, "wire", 1) == f"{P}/wire/tpdo/1"
 
 
@@ -96,19 +97,19 @@ def test_a_signal_with_publish_off_has_no_value_key() -> None:
         },
         environ={},
     )
-    keys = {k.key for k in all_keys(cfg)}
+    keys = {k.key for k in all_keys(*with_nodes(cfg))}
     assert f"{P}/wire/value/position" in keys
     assert f"{P}/wire/value/velocity" not in keys
 
 
 def test_listing_has_one_short_line_per_key_grouped_by_node() -> None:
-    text = render_keys(config())
+    text = render_keys(*with_nodes(config()))
     lines = text.splitlines()
     assert lines[0].startswith("# prefix canopen/line1")
     assert "# node wire: sgh10, node id 1" in lines
     assert "# node display: ap05, node id 125" in lines
     body = [line for line in lines if line and not line.startswith("#")]
-    assert len(body) == len(all_keys(config()))
+    assert len(body) == len(all_keys(*with_nodes(config())))
     assert max(len(line) for line in body) < 160
     pos = next(line for line in body if line.startswith(f"{P}/wire/value/position "))
     assert "int32 [mm]" in pos

@@ -15,7 +15,8 @@ import pytest
 import yaml
 
 from gateway.checks import pair_problems
-from gateway.checks import parse_checked_config as parse_config
+from tests.helpers import parse_checked_config as parse_config
+from tests.helpers import resolved
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -42,7 +43,8 @@ def raw_pair() -> tuple[dict[str, Any], dict[str, Any]]:
 
 
 def problems(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
-    return pair_problems(parse_config(a, "A.yaml", {}), parse_config(b, "B.yaml", {}))
+    cfg_a, cfg_b = parse_config(a, "A.yaml", {}), parse_config(b, "B.yaml", {})
+    return pair_problems(cfg_a, cfg_b, resolved(cfg_a), resolved(cfg_b))
 
 
 def test_two_configs_of_one_pair_agree() -> None:

@@ -10,11 +10,12 @@ from typing import Any
 
 import pytest
 
-from gateway.checks import load_checked_config as load_config
-from gateway.checks import parse_checked_config as parse_config
 from gateway.config import ConfigError
 from gateway.modbus.protocol import from_registers, register_encoder, to_registers
 from gateway.northbound.regmap import NODE_DIAG, Point, RegisterMap, build_register_map
+from tests.helpers import load_checked_config as load_config
+from tests.helpers import parse_checked_config as parse_config
+from tests.helpers import with_nodes
 
 ROOT = Path(__file__).resolve().parents[2]
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -24,7 +25,7 @@ DISPLAY = {"name": "display", "node_id": 125, "profile": "ap05"}
 
 def regmap(*nodes: dict[str, Any], **modbus: Any) -> RegisterMap:
     raw = {"nodes": list(nodes), "modbus": modbus}
-    return build_register_map(parse_config(raw, environ={}))
+    return build_register_map(*with_nodes(parse_config(raw, environ={})))
 
 
 def point(rm: RegisterMap, unit: int, table: str, address: int) -> Point:
@@ -216,7 +217,7 @@ def test_register_table_in_docs_is_the_one_the_cli_prints_for_the_demo() -> None
     doc = (ROOT / "docs/modbus.md").read_text(encoding="utf-8")
     start = doc.index("<!-- register-table:begin -->") + len("<!-- register-table:begin -->\n")
     end = doc.index("<!-- register-table:end -->")
-    expected = build_register_map(load_config(ROOT / "config/demo.yaml", environ={})).to_markdown()
+    expected = build_register_map(*with_nodes(load_config(ROOT / "config/demo.yaml", environ={}))).to_markdown()
     assert doc[start:end] == expected, (
         "docs/modbus.md is out of date: regenerate the table with "
         "`canopen-gateway registers -c config/demo.yaml`"

@@ -7,7 +7,7 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from gateway.bus.resolved import resolve_node
+from gateway.bus.resolved import resolve_config
 from gateway.profiles import load_node_profile
 from gateway.sim.node import SimNode
 from tests.helpers import frame, make_config
@@ -35,7 +35,7 @@ def test_compact_mapping_values_are_what_the_simulated_device_holds() -> None:
 
 def test_each_tpdo_goes_out_with_the_mapping_the_gateway_decodes() -> None:
     cfg = make_config([{"name": "io", "node_id": NODE, "eds": str(DCF)}])
-    resolved = resolve_node(cfg, cfg.nodes[0])
+    resolved = resolve_config(cfg)[cfg.nodes[0].name]
     node = SimNode(resolved.lp, NODE)
     node.power_on(0.0)
     node.handle(frame(0x000, f"01 {NODE:02X}"), 0.0)

@@ -23,7 +23,7 @@ import pytest
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
 from gateway.image import NodeImage, ProcessImage, SignalView
-from tests.helpers import make_config
+from tests.helpers import make_config, resolved
 
 WAIT_S = 5.0
 #: SGH10 whose TPDO1 sends on change only and allows no RTR (DS-301 1800h:01 bit 30): after
@@ -40,7 +40,7 @@ def built_master(nodes: list[dict[str, Any]]) -> Master:
     """The master of ``nodes`` built as at start (nothing opened, no thread running)."""
     cfg = make_config(nodes, modbus={"enabled": False}, zenoh={"enabled": False})
     image = ProcessImage()
-    return Master(cfg, image, BusDriver(cfg.can.bus_kwargs(), image))
+    return Master(cfg, image, BusDriver(cfg.can.bus_kwargs(), image), nodes=resolved(cfg))
 
 
 class HookedWhere(dict[str, Any]):

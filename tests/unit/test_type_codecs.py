@@ -15,7 +15,6 @@ from hypothesis import strategies as st
 
 from gateway.ascii.values import format_plain
 from gateway.bus.sdo.values import decode_value, encode_value
-from gateway.checks import parse_checked_config
 from gateway.cia301 import MS_PER_DAY, TIME_EPOCH_UNIX_MS, time_fields, time_ms, time_word
 from gateway.config import ConfigError
 from gateway.image import Quality, SignalValue
@@ -29,6 +28,7 @@ from gateway.profiles.schema import Signal
 from gateway.web.trends import is_trend_signal
 from gateway.web.views import SignalMeta
 from gateway.zenoh_bridge.payloads import pdo_json, value_json
+from tests.helpers import parse_checked_config, with_nodes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
 NODE = {"name": "dev", "node_id": 5, "profile": str(DATA / "types.yaml")}
@@ -207,7 +207,7 @@ def test_tpdos_with_real64_integer48_and_time_of_day_decode_as_cia301_lays_them_
 
 # --------------------------------------------------------------------------- register map
 def test_register_map_gives_each_type_its_registers_and_an_object_of_both_pdos_both_tables() -> None:
-    rm = build_register_map(cfg())
+    rm = build_register_map(*with_nodes(cfg()))
     got = {(p.table, p.name): (p.address, p.type, p.count, p.access) for p in rm.node_points("dev") if p.kind == "signal"}
     assert got[("ir", "energy")] == (100, "float64", 4, "ro")
     assert got[("ir", "position")] == (104, "int64", 4, "ro")
@@ -223,7 +223,7 @@ def test_register_map_gives_each_type_its_registers_and_an_object_of_both_pdos_b
 
 
 def test_an_object_of_a_tpdo_and_an_rpdo_gets_a_zenoh_value_key() -> None:
-    keys = {k.key for k in all_keys(cfg())}
+    keys = {k.key for k in all_keys(*with_nodes(cfg()))}
     assert "canopen/gateway/dev/value/command_number" in keys
     assert "canopen/gateway/dev/set/command_number" in keys
     assert "canopen/gateway/dev/value/command_argument" not in keys  # RPDO only

@@ -22,7 +22,7 @@ from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
 from gateway.image import ProcessImage, Quality
-from tests.helpers import make_config
+from tests.helpers import make_config, resolved
 
 #: SGH10 whose TPDO1 sends on change only and allows no RTR (DS-301 1800h:01 bit 30)
 WIRE = {
@@ -50,7 +50,7 @@ class Bench:
         # the image's own clock (a write without a time of its own) is the same fake clock
         fake_time = types.SimpleNamespace(monotonic=lambda: self.mono, time=self.wall)
         monkeypatch.setattr(gateway.image, "time", fake_time)
-        self.master = Master(cfg, self.image, self.driver)
+        self.master = Master(cfg, self.image, self.driver, nodes=resolved(cfg))
         self.p: NodeParts = self.master.nodes["wire"]
         self.node = self.p.image
         self.answered = 0  # SDO requests answered so far

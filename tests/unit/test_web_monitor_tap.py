@@ -12,9 +12,10 @@ from typing import Any
 import can
 import pytest
 
+from gateway.northbound.frames import FrameDecoder
 from gateway.web import monitor as mon
 from gateway.web.monitor import MAX_LINES_PER_S, FrameMonitor, TooManyPages
-from tests.helpers import make_config
+from tests.helpers import make_config, with_nodes
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 DISPLAY = {"name": "display", "node_id": 125, "profile": "ap05"}
@@ -77,7 +78,8 @@ def tpdo1(position: int) -> bytes:
 @pytest.fixture
 def rig() -> tuple[FrameMonitor, FakeDriver, FakeLoop, Clock]:
     driver, loop, clock = FakeDriver(), FakeLoop(), Clock()
-    m = FrameMonitor(make_config([WIRE, DISPLAY]), driver, clock=clock)
+    cfg = make_config([WIRE, DISPLAY])
+    m = FrameMonitor(cfg, FrameDecoder(*with_nodes(cfg)), driver, clock=clock)
     m.attach(loop)  # type: ignore[arg-type]
     return m, driver, loop, clock
 
@@ -227,7 +229,8 @@ def test_pages_are_bounded_and_a_console_without_a_bus_refuses(rig: Any) -> None
         m.open()
     with pytest.raises(TooManyPages, match="at most 8 monitor pages"):
         m.open()
-    busless = FrameMonitor(make_config([WIRE]), None)
+    cfg = make_config([WIRE])
+    busless = FrameMonitor(cfg, FrameDecoder(*with_nodes(cfg)), None)
     assert busless.refusal() == "this gateway has no bus to monitor"
 
 

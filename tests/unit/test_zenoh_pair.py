@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 from gateway.zenoh_bridge.pair import HeardSeq, active_key, member_key, refusal, seq_offset
+from tests.helpers import gateway_of
 
 P = "canopen/line1"
 GW = f"{P}/alive/_gateway"
@@ -96,12 +97,11 @@ class _Capture:
 def test_a_take_over_numbers_value_keys_and_pdo_records_above_what_was_heard() -> None:
     """The bridge of a gateway that stood by and takes over (no session, no bus: the
     publication path with captured puts)."""
-    from gateway.app import Gateway
     from tests.helpers import make_config
 
     wire = {"name": "wire", "node_id": 1, "profile": "sgh10",
             "signals": {"position": {"publish": "change"}}}  # fmt: skip
-    gw = Gateway(make_config([wire], zenoh={"publish": "pdo"}, modbus={"enabled": False}), False)
+    gw = gateway_of(make_config([wire], zenoh={"publish": "pdo"}, modbus={"enabled": False}), False)
     bridge = gw.zenoh
     assert bridge is not None
     node = gw.image.nodes["wire"]

@@ -12,10 +12,9 @@ from typing import Any
 
 import pytest
 
-from gateway.app import Gateway
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.sender import ZenohSender
-from tests.helpers import make_config, wait_until, wait_until_sync
+from tests.helpers import gateway_of, make_config, wait_until, wait_until_sync
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 
@@ -176,7 +175,7 @@ def test_a_failing_event_put_is_counted_and_the_thread_goes_on() -> None:
 
 
 async def test_values_are_put_on_the_publish_thread_never_on_the_can_reader() -> None:
-    gw = Gateway(make_config([WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}}))
+    gw = gateway_of(make_config([WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}}))
     await gw.start()
     try:
         await wait_until(lambda: gw.status()["ready"], 8, "ready")
@@ -208,7 +207,7 @@ async def test_values_are_put_on_the_publish_thread_never_on_the_can_reader() ->
 
 
 async def test_an_event_put_that_blocks_does_not_hold_the_values_back() -> None:
-    gw = Gateway(make_config([WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}}))
+    gw = gateway_of(make_config([WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}}))
     await gw.start()
     release = threading.Event()
     try:

@@ -15,11 +15,10 @@ import pytest
 import zenoh
 
 from gateway import threads
-from gateway.app import Gateway
 from gateway.image import SignalView
 from gateway.zenoh_bridge.bridge import _ValueBatch
 from gateway.zenoh_bridge.session import REOPEN_SCHEDULE_S
-from tests.helpers import make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
 
@@ -120,7 +119,7 @@ def test_an_exception_while_publishing_is_logged_and_publishing_goes_on(caplog: 
 
 
 async def test_a_dead_zenoh_thread_turns_the_gateway_not_ready() -> None:
-    gw = Gateway(make_config([WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}}))
+    gw = gateway_of(make_config([WIRE], simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}}))
     await gw.start()
     try:
         await wait_until(lambda: gw.status()["ready"], 8, "ready")
@@ -142,7 +141,7 @@ async def test_a_dead_zenoh_thread_turns_the_gateway_not_ready() -> None:
 async def test_client_mode_attempts_start_on_the_documented_schedule() -> None:
     """Docs: retried in the background after 0.5 s, 1 s, 2 s, then every 5 s; each attempt
     takes the connect timeout (1 s) itself, which must not add up."""
-    gw = Gateway(make_config([WIRE], zenoh={"mode": "client", "connect": ["tcp/127.0.0.1:9"]}))
+    gw = gateway_of(make_config([WIRE], zenoh={"mode": "client", "connect": ["tcp/127.0.0.1:9"]}))
     bridge = gw.zenoh
     assert bridge is not None
     now = [0.0]
@@ -194,7 +193,7 @@ async def test_two_flushes_at_once_never_publish_an_older_value_after_a_newer_on
     """The event loop flushes a signal (A) and the reader's burst flushes it too (B). A reads
     the value (seq 1); exactly then a new frame lands (seq 2) and B publishes. A sample of
     seq 1 after the one of seq 2 would stay the latest under report by exception."""
-    gw = Gateway(make_config([WIRE], simulate={"nodes": []}, modbus={"enabled": False}))
+    gw = gateway_of(make_config([WIRE], simulate={"nodes": []}, modbus={"enabled": False}))
     await gw.start()
     try:
         bridge = gw.zenoh

@@ -28,21 +28,21 @@ SYNC producer (``master.sync_period_ms`` 0 and no ``master.sync_external``); a C
 node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF whose
 ``[DeviceComissioning] NodeID`` is not the node id it is used at.
 
-``pair_problems(a, b)`` compares the two configs of a hot-standby pair (``check -c A -c B``,
-docs/redundancy.md): the same CAN bus, logical master, nodes (their device description and
-profile by content) and Modbus layout; both with ``master.redundancy``, distinct own ids,
-``peer_node_id`` naming the other.
+``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
+hot-standby pair (``check -c A -c B``, docs/redundancy.md).
 
-``load_checked_config`` / ``parse_checked_config`` are ``gateway.config``'s loaders plus these
-checks, raising ConfigError with every line. Pure: imports config, profiles, eds, the boot step
-builder, the external heartbeat keep-alive rule (bus/node/settings.py), the codecs and the
+Every function takes the nodes as resolved once (``gateway.bus.resolved``). ``load_checked`` /
+``parse_checked`` read and validate a config, resolve its nodes in the same pass and run these
+checks, raising ConfigError with every line; they return the config and its nodes.
+
+Pure: imports config, bus.resolved (the resolution and its loaders), checks.pair, profiles,
+eds, the boot step builder, the external heartbeat keep-alive rule (bus/node/settings.py), the codecs and the
 register map, the COB-IDs of the nodes (bus/cob_ids.py), a device file's COB-IDs and NodeID
 (eds/cob_ids.py) (no I/O but reading the files they name).
 """
 
 from __future__ import annotations
 
-import hashlib
 import os
 from collections.abc import Mapping
 from typing import Any
@@ -50,9 +50,10 @@ from typing import Any
 from gateway.bus.cob_ids import clashes, gateway_uses, loops_back
 from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.settings import external_heartbeat_problem
-from gateway.bus.resolved import ResolvedNode, nodes_of
+from gateway.bus.resolved import Resolved, ResolvedNode, load_resolved, parse_resolved
+from gateway.checks.pair import pair_problems
 from gateway.cia301 import TYPE_BITS, TYPE_NAMES
-from gateway.config import Config, ConfigError, NodeConfig, blame, load_config, parse_config
+from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.eds import EdsError, load_eds
 from gateway.eds.cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES
@@ -68,11 +69,11 @@ from gateway.profiles.schema import Pdo
 Problem = tuple[str, str]
 
 
-def boot_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
+def boot_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
     """Boot steps that cannot be built, values outside the EDS limits or the profile's
     constraints, and PDO mappings they leave that cannot be decoded."""
     out: list[Problem] = []
-    resolved = nodes_of(cfg, nodes)
+    resolved = nodes
     for i, n in enumerate(cfg.nodes):
         if not n.configure:
             continue
@@ -140,10 +141,10 @@ def _written_pdos(lp: LoadedProfile, steps: list[ConfigStep], kind: str) -> set[
     return out
 
 
-def eds_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
+def eds_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
     """Every PDO of each node's layout and every signal against the node's EDS."""
     out: list[Problem] = []
-    resolved = nodes_of(cfg, nodes)
+    resolved = nodes
     for i, n in enumerate(cfg.nodes):
         rn = resolved.get(n.name)
         if rn is None:
@@ -272,8 +273,8 @@ def _pdo_entry_problems(lp: LoadedProfile, kind: str, p: Pdo, where: str, eds: s
     return out
 
 
-def protocol_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
-    resolved = nodes_of(cfg, nodes)
+def protocol_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
+    resolved = nodes
     out: list[Problem] = boot_problems(cfg, resolved)
     for i, n in enumerate(cfg.nodes):
         key = f"nodes[{i}]"
@@ -308,7 +309,7 @@ def protocol_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None)
     return out
 
 
-def cob_id_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
+def cob_id_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
     """Every COB-ID with two uses (a node's and another node's, or the master's), at the
     later one's key; and two SYNC producers."""
     out: list[Problem] = []
@@ -321,7 +322,7 @@ def cob_id_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -
                 "producer per bus (CiA 301 7.2.5): set one of them",
             )
         )
-    for first, later in clashes(gateway_uses(cfg, nodes_of(cfg, nodes))):
+    for first, later in clashes(gateway_uses(cfg, nodes)):
         if loops_back(first, later):
             continue  # a warning (config_warnings)
         out.append(
@@ -334,10 +335,10 @@ def cob_id_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -
     return out
 
 
-def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
+def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
     """What runs but may not do what is meant (see the module docstring)."""
     out: list[Problem] = []
-    resolved = nodes_of(cfg, nodes)
+    resolved = nodes
     for first, later in clashes(gateway_uses(cfg, resolved)):
         if loops_back(first, later):
             out.append(
@@ -387,10 +388,10 @@ def sync_wait_text(rn: ResolvedNode) -> str:
     )
 
 
-def config_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> list[Problem]:
+def config_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
     """Every cross-check (see the module docstring), in a stable order."""
     out: list[Problem] = []
-    resolved = nodes_of(cfg, nodes)
+    resolved = nodes
     try:
         build_register_map(cfg, resolved)
     except RegisterMapError as exc:
@@ -408,7 +409,7 @@ def config_problems(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -
     return unique
 
 
-def check_config(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> Config:
+def check_config(cfg: Config, nodes: dict[str, ResolvedNode]) -> Config:
     """Raise ConfigError (one line per problem: file, key path, what is allowed)."""
     problems = config_problems(cfg, nodes)
     if problems:
@@ -416,126 +417,18 @@ def check_config(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> C
     return cfg
 
 
-def parse_checked_config(
-    raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None
-) -> Config:
-    return check_config(parse_config(raw, source, environ))
+def parse_checked(raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None) -> Resolved:
+    """The config validated, its nodes resolved and cross-checked: ConfigError otherwise."""
+    loaded = parse_resolved(raw, source, environ)
+    check_config(*loaded)
+    return loaded
 
 
-def load_checked_config(
-    path: str | os.PathLike[str], environ: Mapping[str, str] | None = None
-) -> Config:
-    return check_config(load_config(path, environ))
-
-
-#: what the two configs of a pair must agree on besides the nodes: the bus, the logical master
-#: (every ``master.*`` but this gateway's own ``redundancy``), the CiA 302-2 slots (1F90h:04,
-#: 1F90h:05, the same on both or the negotiation is not one), the register layout a PLC reads.
-PAIR_SHARED_CAN = ("interface", "channel", "bitrate")
-PAIR_SHARED_SLOTS = ("priority_slot_ms", "device_slot_ms")
-PAIR_SHARED_MODBUS = ("layout", "gateway_unit_id", "flat_unit_id", "flat_stride", "word_order")
-
-
-def _differences(key: str, a: Any, b: Any) -> list[tuple[str, Any, Any]]:
-    """``(key path, value in a, value in b)`` of each leaf where two dumped sections differ."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        out: list[tuple[str, Any, Any]] = []
-        for k in [*a, *(k for k in b if k not in a)]:
-            out += _differences(f"{key}.{k}" if key else str(k), a.get(k), b.get(k))
-        return out
-    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
-        return [d for i, (x, y) in enumerate(zip(a, b, strict=True)) for d in _differences(f"{key}[{i}]", x, y)]
-    return [] if a == b else [(key, a, b)]
-
-
-def _digest(path: Any) -> str:
-    return hashlib.sha256(open(path, "rb").read()).hexdigest()
-
-
-def pair_problems(
-    a: Config,
-    b: Config,
-    nodes_a: dict[str, ResolvedNode] | None = None,
-    nodes_b: dict[str, ResolvedNode] | None = None,
-) -> list[str]:
-    """One line per disagreement of the two configs of a pair, each naming both files and the
-    key path (each config checked on its own already)."""
-    both = f"{a.source}, {b.source}"
-    out: list[str] = []
-
-    def differ(key: str, va: Any, vb: Any) -> None:
-        out.append(f"{both}: {key}: {va!r} in {a.source}, {vb!r} in {b.source}: a pair must agree")
-
-    for k in PAIR_SHARED_CAN:
-        va, vb = getattr(a.can, k), getattr(b.can, k)
-        if va != vb:
-            differ(f"can.{k}", va, vb)
-    master_a = a.master.model_dump(exclude={"redundancy"})
-    master_b = b.master.model_dump(exclude={"redundancy"})
-    for key, va, vb in _differences("master", master_a, master_b):
-        differ(key, va, vb)
-    pa, pb = a.master.redundancy, b.master.redundancy
-    for cfg, pair in ((a, pa), (b, pb)):
-        if pair is None:
-            out.append(f"{both}: master.redundancy: missing in {cfg.source}: both configs of a pair need it")
-    if pa is not None and pb is not None:
-        for k in PAIR_SHARED_SLOTS:
-            va, vb = getattr(pa, k), getattr(pb, k)
-            if va != vb:
-                differ(f"master.redundancy.{k}", va, vb)
-        if pa.node_id == pb.node_id:
-            out.append(f"{both}: master.redundancy.node_id: {pa.node_id} in both: each gateway needs its own id")
-        for cfg, pair, other in ((a, pa, pb), (b, pb, pa)):
-            if pair.peer_node_id is not None and pair.peer_node_id != other.node_id:
-                out.append(
-                    f"{both}: master.redundancy.peer_node_id: {pair.peer_node_id} in {cfg.source}, "
-                    f"but the other gateway's master.redundancy.node_id is {other.node_id}"
-                )
-    if a.modbus.enabled and b.modbus.enabled:
-        for k in PAIR_SHARED_MODBUS:
-            va, vb = getattr(a.modbus, k), getattr(b.modbus, k)
-            if va != vb:
-                differ(f"modbus.{k}", va, vb)
-    out += _pair_node_problems(a, b, nodes_of(a, nodes_a), nodes_of(b, nodes_b))
-    return out
-
-
-def _pair_node_problems(
-    a: Config, b: Config, nodes_a: dict[str, ResolvedNode], nodes_b: dict[str, ResolvedNode]
-) -> list[str]:
-    """The same nodes by name, each with the same settings, device description and profile."""
-    both = f"{a.source}, {b.source}"
-    out: list[str] = []
-    index_b = {n.name: j for j, n in enumerate(b.nodes)}
-    names_a = {n.name for n in a.nodes}
-    for i, n in enumerate(a.nodes):
-        j = index_b.get(n.name)
-        if j is None:
-            out.append(f"{both}: nodes[{i}]: node {n.name} only in {a.source}")
-            continue
-        m = b.nodes[j]
-        where = f"nodes[{i}]" if i == j else f"nodes[{i}] ({n.name}, nodes[{j}] in {b.source})"
-        dump_a = n.model_dump(exclude={"profile", "eds"})
-        dump_b = m.model_dump(exclude={"profile", "eds"})
-        for key, va, vb in _differences("", dump_a, dump_b):
-            out.append(f"{both}: {where}.{key}: {va!r} in {a.source}, {vb!r} in {b.source}: a pair must agree")
-        ra, rb = nodes_a.get(n.name), nodes_b.get(n.name)
-        if ra is None or rb is None:
-            continue  # its profile does not load: said by each file's own check
-        key = f"{where}.{'eds' if n.eds else 'profile'}"
-        if _digest(ra.lp.eds_path) != _digest(rb.lp.eds_path):
-            out.append(
-                f"{both}: {key}: the device descriptions differ "
-                f"({ra.lp.eds_path} in {a.source}, {rb.lp.eds_path} in {b.source})"
-            )
-        if ra.lp.profile.model_dump() != rb.lp.profile.model_dump():
-            out.append(
-                f"{both}: {key}: the profiles differ ({ra.lp.path} in {a.source}, {rb.lp.path} in {b.source})"
-            )
-    for j, m in enumerate(b.nodes):
-        if m.name not in names_a:
-            out.append(f"{both}: nodes[{j}]: node {m.name} only in {b.source}")
-    return out
+def load_checked(path: str | os.PathLike[str], environ: Mapping[str, str] | None = None) -> Resolved:
+    """A config file validated, its nodes resolved and cross-checked: ConfigError otherwise."""
+    loaded = load_resolved(path, environ)
+    check_config(*loaded)
+    return loaded
 
 
 __all__ = [
@@ -546,8 +439,8 @@ __all__ = [
     "config_problems",
     "config_warnings",
     "eds_problems",
-    "load_checked_config",
+    "load_checked",
     "pair_problems",
-    "parse_checked_config",
+    "parse_checked",
     "protocol_problems",
 ]

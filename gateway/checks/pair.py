@@ -1,0 +1,125 @@
+"""The checks of the two configs of a hot-standby pair (``check -c A -c B``, docs/redundancy.md):
+``pair_problems(a, b, nodes_a, nodes_b)``, one line per disagreement naming both files and the
+key path: the same CAN bus, logical master, nodes (their device description and profile by
+content) and Modbus layout; both with ``master.redundancy``, distinct own ids, ``peer_node_id``
+naming the other.
+
+Imports: config (types), bus.resolved (types). No I/O but reading the device files to compare.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any
+
+from gateway.bus.resolved import ResolvedNode
+from gateway.config import Config
+
+#: what the two configs of a pair must agree on besides the nodes: the bus, the logical master
+#: (every ``master.*`` but this gateway's own ``redundancy``), the CiA 302-2 slots (1F90h:04,
+#: 1F90h:05, the same on both or the negotiation is not one), the register layout a PLC reads.
+PAIR_SHARED_CAN = ("interface", "channel", "bitrate")
+PAIR_SHARED_SLOTS = ("priority_slot_ms", "device_slot_ms")
+PAIR_SHARED_MODBUS = ("layout", "gateway_unit_id", "flat_unit_id", "flat_stride", "word_order")
+
+
+def _differences(key: str, a: Any, b: Any) -> list[tuple[str, Any, Any]]:
+    """``(key path, value in a, value in b)`` of each leaf where two dumped sections differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out: list[tuple[str, Any, Any]] = []
+        for k in [*a, *(k for k in b if k not in a)]:
+            out += _differences(f"{key}.{k}" if key else str(k), a.get(k), b.get(k))
+        return out
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [d for i, (x, y) in enumerate(zip(a, b, strict=True)) for d in _differences(f"{key}[{i}]", x, y)]
+    return [] if a == b else [(key, a, b)]
+
+
+def _digest(path: Any) -> str:
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+def pair_problems(
+    a: Config,
+    b: Config,
+    nodes_a: dict[str, ResolvedNode],
+    nodes_b: dict[str, ResolvedNode],
+) -> list[str]:
+    """One line per disagreement of the two configs of a pair, each naming both files and the
+    key path (each config checked on its own already)."""
+    both = f"{a.source}, {b.source}"
+    out: list[str] = []
+
+    def differ(key: str, va: Any, vb: Any) -> None:
+        out.append(f"{both}: {key}: {va!r} in {a.source}, {vb!r} in {b.source}: a pair must agree")
+
+    for k in PAIR_SHARED_CAN:
+        va, vb = getattr(a.can, k), getattr(b.can, k)
+        if va != vb:
+            differ(f"can.{k}", va, vb)
+    master_a = a.master.model_dump(exclude={"redundancy"})
+    master_b = b.master.model_dump(exclude={"redundancy"})
+    for key, va, vb in _differences("master", master_a, master_b):
+        differ(key, va, vb)
+    pa, pb = a.master.redundancy, b.master.redundancy
+    for cfg, pair in ((a, pa), (b, pb)):
+        if pair is None:
+            out.append(f"{both}: master.redundancy: missing in {cfg.source}: both configs of a pair need it")
+    if pa is not None and pb is not None:
+        for k in PAIR_SHARED_SLOTS:
+            va, vb = getattr(pa, k), getattr(pb, k)
+            if va != vb:
+                differ(f"master.redundancy.{k}", va, vb)
+        if pa.node_id == pb.node_id:
+            out.append(f"{both}: master.redundancy.node_id: {pa.node_id} in both: each gateway needs its own id")
+        for cfg, pair, other in ((a, pa, pb), (b, pb, pa)):
+            if pair.peer_node_id is not None and pair.peer_node_id != other.node_id:
+                out.append(
+                    f"{both}: master.redundancy.peer_node_id: {pair.peer_node_id} in {cfg.source}, "
+                    f"but the other gateway's master.redundancy.node_id is {other.node_id}"
+                )
+    if a.modbus.enabled and b.modbus.enabled:
+        for k in PAIR_SHARED_MODBUS:
+            va, vb = getattr(a.modbus, k), getattr(b.modbus, k)
+            if va != vb:
+                differ(f"modbus.{k}", va, vb)
+    out += _pair_node_problems(a, b, nodes_a, nodes_b)
+    return out
+
+
+def _pair_node_problems(
+    a: Config, b: Config, nodes_a: dict[str, ResolvedNode], nodes_b: dict[str, ResolvedNode]
+) -> list[str]:
+    """The same nodes by name, each with the same settings, device description and profile."""
+    both = f"{a.source}, {b.source}"
+    out: list[str] = []
+    index_b = {n.name: j for j, n in enumerate(b.nodes)}
+    names_a = {n.name for n in a.nodes}
+    for i, n in enumerate(a.nodes):
+        j = index_b.get(n.name)
+        if j is None:
+            out.append(f"{both}: nodes[{i}]: node {n.name} only in {a.source}")
+            continue
+        m = b.nodes[j]
+        where = f"nodes[{i}]" if i == j else f"nodes[{i}] ({n.name}, nodes[{j}] in {b.source})"
+        dump_a = n.model_dump(exclude={"profile", "eds"})
+        dump_b = m.model_dump(exclude={"profile", "eds"})
+        for key, va, vb in _differences("", dump_a, dump_b):
+            out.append(f"{both}: {where}.{key}: {va!r} in {a.source}, {vb!r} in {b.source}: a pair must agree")
+        ra, rb = nodes_a.get(n.name), nodes_b.get(n.name)
+        if ra is None or rb is None:
+            continue  # its profile does not load: said by each file's own check
+        key = f"{where}.{'eds' if n.eds else 'profile'}"
+        if _digest(ra.lp.eds_path) != _digest(rb.lp.eds_path):
+            out.append(
+                f"{both}: {key}: the device descriptions differ "
+                f"({ra.lp.eds_path} in {a.source}, {rb.lp.eds_path} in {b.source})"
+            )
+        if ra.lp.profile.model_dump() != rb.lp.profile.model_dump():
+            out.append(
+                f"{both}: {key}: the profiles differ ({ra.lp.path} in {a.source}, {rb.lp.path} in {b.source})"
+            )
+    for j, m in enumerate(b.nodes):
+        if m.name not in names_a:
+            out.append(f"{both}: nodes[{j}]: node {m.name} only in {b.source}")
+    return out
