@@ -298,8 +298,11 @@ async def test_the_duplicate_prefix_check_lets_the_partner_in_and_refuses_a_stra
             ),
             simulate=False,
         )
-        with pytest.raises(Exception, match="another gateway already runs under Zenoh prefix"):
-            await stranger.start()
+        try:
+            with pytest.raises(Exception, match="another gateway already runs under Zenoh prefix"):
+                await stranger.start()
+        finally:
+            await stranger.stop()  # refused: nothing runs; started by mistake: stopped
         # the pair runs on, both members announced
         tokens = await pair.z.alive_tokens(f"{P}/alive/**")
         assert {f"{P}/alive/_gateway", f"{P}/alive/_active/101"} <= tokens
