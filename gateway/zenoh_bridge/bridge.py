@@ -199,7 +199,7 @@ class ZenohBridge:
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}
         #: a hot-standby pair (``pair.py``): this gateway's (master node id, pair node id),
-        #: whether it publishes (it masters the bus), the seq heard of the other one, tokens
+        #: whether it publishes (it masters the bus), the seq heard of the other one
         red = cfg.master.redundancy
         self.member: tuple[int, int] | None = (
             (cfg.master.node_id, red.node_id) if red is not None else None
