@@ -318,7 +318,7 @@ class ZenohBridge:
 
     def on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None:
         """A PDO's raw bytes (the image's PDO listener, with ``zenoh.raw_pdo``)."""
-        s = self.session
+        s = self.link.session  # per frame: no property call
         pub = self.link.raw_pubs.get((node.name, cob_id))
         if s is None or pub is None or not self.publishing:
             return
@@ -336,7 +336,7 @@ class ZenohBridge:
         older than the last published (a lower ``seq``) is never published after it."""
         if type(sp) is PdoPub:  # a PDO marked in the batch (``publish: pdo``)
             return self.offer_pdo(node, sp, now)
-        s = self.session
+        s = self.link.session
         if s is None or sp.pub is None or not self.publishing:
             return
         with sp.lock:
@@ -360,7 +360,7 @@ class ZenohBridge:
         """Publish the PDO's current record with all its signals, if it is newer than the last
         one published, or (``again``) its qualities changed since. Any thread, under the PDO's
         lock: one record read once, so the signals of a sample are of one frame."""
-        s = self.session
+        s = self.link.session
         if s is None or pp.pub is None or not self.publishing:
             return
         with pp.lock:
@@ -386,7 +386,7 @@ class ZenohBridge:
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
-        if self.session is None or not self.publishing:
+        if self.link.session is None or not self.publishing:
             return
         route = self._routes.get((node.name, names))
         if route is not None:  # a TPDO's record: what to mark and publish, planned
