@@ -249,7 +249,8 @@ class Metrics:
         copies its plain counters in)."""
         self._refresh = refresh
 
-    def _snapshot(self) -> Counters:
+    def snapshot(self) -> Counters:
+        """A copy of the counters, taken under the lock after the owner's refresh (scrape)."""
         refresh = getattr(self, "_refresh", None)
         if refresh is not None:
             try:
@@ -279,7 +280,8 @@ class Metrics:
                 other_sdo_client=c.other_sdo_client.copy(),
             )
 
-    def _node_samples(self) -> list[NodeSample]:
+    def node_samples(self) -> list[NodeSample]:
+        """One ``NodeSample`` per node from the node source; none when it fails (scrape)."""
         if self._node_source is None:
             return []
         try:
@@ -301,7 +303,7 @@ class _GatewayCollector:
 
     def collect(self) -> Iterable[Metric]:
         m = self._metrics
-        return list(self._families(m._snapshot(), m._node_samples(), uptime_s=m.uptime_s()))
+        return list(self._families(m.snapshot(), m.node_samples(), uptime_s=m.uptime_s()))
 
     @staticmethod
     def _families(c: Counters, nodes: list[NodeSample], *, uptime_s: float) -> Iterator[Metric]:

@@ -29,7 +29,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-import can.interface
 import can.interfaces
 import can.typechecking
 from can.exceptions import CanInterfaceNotImplementedError
@@ -61,6 +60,30 @@ def quiet_imports(level: int = logging.ERROR) -> Iterator[None]:
         logger.setLevel(before)
 
 
+def bus_class(interface: str) -> type[can.BusABC]:
+    """The bus class python-can opens for ``interface``, found the way ``can.Bus`` finds it
+    (``can.interfaces.BACKENDS``, then the module's class). Raises NotImplementedError for an
+    unknown name, CanInterfaceNotImplementedError when its module or class does not import."""
+    try:
+        module_name, class_name = can.interfaces.BACKENDS[interface]
+    except KeyError:
+        raise NotImplementedError(f"CAN interface '{interface}' not supported") from None
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as exc:  # noqa: BLE001 - any import failure makes the interface unusable
+        raise CanInterfaceNotImplementedError(
+            f"Cannot import module {module_name} for CAN interface '{interface}': {exc}"
+        ) from None
+    try:
+        cls: type[can.BusABC] = getattr(module, class_name)
+    except Exception as exc:  # noqa: BLE001
+        raise CanInterfaceNotImplementedError(
+            f"Cannot import class {class_name} from module {module_name} for CAN interface "
+            f"'{interface}': {exc}"
+        ) from None
+    return cls
+
+
 def installed_interfaces() -> list[str]:
     """The interface names python-can knows on this install, sorted."""
     return sorted(can.interfaces.VALID_INTERFACES)
@@ -76,7 +99,7 @@ def interface_problem(interface: str) -> str | None:
         )
     try:
         with quiet_imports():
-            can.interface._get_class_for_interface(interface)
+            bus_class(interface)
     except (CanInterfaceNotImplementedError, NotImplementedError, ImportError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         return (
@@ -93,7 +116,7 @@ def interface_keys(interface: str) -> frozenset[str] | None:
     """The ``can:`` keys the interface's bus class takes; None when it cannot be inspected."""
     try:
         with quiet_imports():
-            cls = can.interface._get_class_for_interface(interface)
+            cls = bus_class(interface)
     except Exception:  # noqa: BLE001 - reported by interface_problem
         return None
     params = set()

@@ -45,10 +45,11 @@ reachable, the gateway starts anyway and the bridge retries in the background (a
 re-declares publishers, queryable and liveliness tokens.
 
 The bridge is composed of: ``plan.py`` (what to publish, planned once: ``SignalPub``,
-``PdoPub``, the reader's routes), ``session.py`` (the session's lifecycle: open, duplicate
-check, re-open, declarations, stop; bound as this class's methods), ``housekeeping.py`` (the
-periodic refresh) and ``sender.py`` (the ``zenoh-publish`` and ``zenoh-events`` threads). The per-frame path (the
-image's listeners, ``_ValueBatch``, ``_offer``) stays here.
+``PdoPub``, the reader's routes), ``session.py`` (``ZenohSession``, the session's lifecycle:
+open, duplicate check, re-open, declarations, stop; it holds the session, publishers, tokens
+and tasks, and the bridge calls it through its public methods), ``housekeeping.py`` (the
+periodic refresh) and ``sender.py`` (the ``zenoh-publish`` and ``zenoh-events`` threads). The
+per-frame path (the image's listeners, ``_ValueBatch``, ``offer``) stays here.
 
 Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, northbound.keys,
 northbound.scaling, zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a
@@ -71,12 +72,12 @@ import zenoh
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, SignalValue
-from gateway.northbound.keys import alive_key, emcy_key, prefix_of, state_key
+from gateway.northbound.keys import emcy_key, prefix_of, state_key
 from gateway.northbound.scaling import Scaling
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadCount, ThreadRegistry
-from gateway.zenoh_bridge import housekeeping, session
+from gateway.zenoh_bridge.housekeeping import housekeeping_loop, refresh
 from gateway.zenoh_bridge.pair import HeardSeq, seq_offset
 from gateway.zenoh_bridge.payloads import (
     emcy_payload,
@@ -88,6 +89,7 @@ from gateway.zenoh_bridge.payloads import (
 from gateway.zenoh_bridge.plan import PdoPub, SignalPub, plan_publications, value_keys
 from gateway.zenoh_bridge.queries import QueryService
 from gateway.zenoh_bridge.sender import ZenohSender
+from gateway.zenoh_bridge.session import ZenohSession
 
 log = logging.getLogger("gateway.zenoh")
 
@@ -170,8 +172,6 @@ class ZenohBridge:
         self.catalog_fn = catalog_fn
         self.threads = threads if threads is not None else ThreadRegistry()
         self.prefix = prefix_of(cfg)
-        self.session: zenoh.Session | None = None
-        self.loop: asyncio.AbstractEventLoop | None = None
         #: what to publish, planned once (``plan.py``); the reader's work per frame is a
         #: lookup in ``_routes``
         plan = plan_publications(cfg, image, commands, self.prefix)
@@ -180,16 +180,12 @@ class ZenohBridge:
         self.pdo_pubs = plan.pdo_pubs
         self.pdo_by_node = plan.pdo_by_node
         self._routes = plan.routes
-        self.state_pubs: dict[str, Any] = {}
-        self.emcy_pubs: dict[str, Any] = {}
-        self.raw_pubs: dict[tuple[str, int], Any] = {}
-        self.tokens: dict[str, Any] = {}
-        self.queryable: Any = None
         #: raw PDOs published: the reader thread (TPDOs) and the loop (RPDOs) count each in
         #: its own cell; values are counted by their policies, under each signal's lock
         self._raw_publications = ThreadCount()
-        self.up = False
-        self._values = _ValueBatch(self._offer, lambda: self._clock())
+        #: the bridge's monotonic clock (injectable): publication policy, retries, waits
+        self.clock: Callable[[], float] = time.monotonic
+        self._values = _ValueBatch(self.offer, lambda: self.clock())
         #: the publishing threads (``sender.py``): ``zenoh-publish`` the values (a flush at
         #: most, and while marks keep coming at least, every ``zenoh.batch_ms``),
         #: ``zenoh-events`` the events (BLOCK: a congested link must not hold values back)
@@ -202,15 +198,8 @@ class ZenohBridge:
         self._events = ZenohSender(self.threads, "zenoh-events")
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}
-        self._opened: zenoh.Session | None = None  # open, checked, not declared yet
-        self._open_failed: zenoh.ZError | None = None
-        self._last_attempt_s = 0.0
-        #: the bridge's monotonic clock (injectable): publication policy, retries, waits
-        self._clock: Callable[[], float] = time.monotonic
-        self._sleep: Callable[[float], Any] = asyncio.sleep
-        self._tasks: list[asyncio.Task[Any]] = []
         #: a hot-standby pair (``pair.py``): this gateway's (master node id, pair node id),
-        #: whether it publishes (it masters the bus), the seq heard of the other one, tokens
+        #: whether it publishes (it masters the bus), the seq heard of the other one
         red = cfg.master.redundancy
         self.member: tuple[int, int] | None = (
             (cfg.master.node_id, red.node_id) if red is not None else None
@@ -220,8 +209,6 @@ class ZenohBridge:
             [*(sp.key for sp in self.pubs.values()), *(pp.key for pp in self.pdo_pubs.values())]
             + [k(self.prefix, n) for n in image.nodes for k in (state_key, emcy_key)]
         )
-        self.pair_tokens: dict[str, Any] = {}
-        self.heard_sub: Any = None
         self.queries = QueryService(
             cfg,
             image,
@@ -233,20 +220,57 @@ class ZenohBridge:
             catalog_fn=catalog_fn,
             seq_of=self.seq_of,
         )
+        #: the session, its publishers, tokens and tasks, from open to stop (``session.py``)
+        self.link = ZenohSession(self, clock=lambda: self.clock())
 
     # ------------------------------------------------------------------ lifecycle (session.py)
-    open = session.open
-    start = session.start
-    stop = session.stop
-    _open_checked = session.open_checked
-    _other_gateway = session.other_gateway
-    _reopen = session.reopen
-    _try_open = session.try_open
-    _publisher = session.publisher
-    _declare = session.declare
-    _declare_raw_pdo = session.declare_raw_pdo
-    _declare_pair = session.declare_pair
-    _housekeeping = housekeeping.housekeeping
+    @property
+    def session(self) -> zenoh.Session | None:
+        """The open session, its publications declared; None before and after."""
+        return self.link.session
+
+    @property
+    def up(self) -> bool:
+        return self.link.up
+
+    async def open(self) -> None:
+        """Open the session, checked against a gateway of the same prefix (``ZenohSession.open``)."""
+        await self.link.open()
+
+    async def start(self) -> None:
+        await self.link.start()
+
+    async def stop(self) -> None:
+        await self.link.stop()
+
+    def attach(self) -> None:
+        """The session starts: listen to the image, start the publishing threads."""
+        self.image.value_listeners.append(self._on_values)
+        self.image.batch_listeners.append(self._sender.wake_values)
+        self.image.health_listeners.append(self._on_health)
+        self._sender.start()
+        self._events.start()
+
+    async def detach(self) -> None:
+        """The session stops: no more listening; marked values and queued events go out first."""
+        if self._on_values in self.image.value_listeners:
+            self.image.value_listeners.remove(self._on_values)
+        if self._on_health in self.image.health_listeners:
+            self.image.health_listeners.remove(self._on_health)
+        if self._sender.wake_values in self.image.batch_listeners:
+            self.image.batch_listeners.remove(self._sender.wake_values)
+        if self.on_pdo in self.image.pdo_listeners:
+            self.image.pdo_listeners.remove(self.on_pdo)
+        await asyncio.to_thread(self._sender.stop)  # marked values go out before the close
+        await asyncio.to_thread(self._events.stop)  # and queued events
+
+    async def housekeeping(self) -> None:
+        """The periodic refresh (``housekeeping.py``), until cancelled."""
+        await housekeeping_loop(self)
+
+    def node_alive(self, node: NodeImage) -> bool:
+        """Whether the node's token is wanted: its values usable and this gateway publishing."""
+        return node.usable() and self.publishing
 
     # ------------------------------------------------------------------ a hot-standby pair
     def set_mastering(self, mastering: bool) -> None:
@@ -270,7 +294,7 @@ class ZenohBridge:
         self.publishing = mastering
         s = self.session
         if s is not None:
-            self._declare_pair(s)
+            self.link.declare_pair(s)
             for node in self.image.nodes.values():
                 self._sync_token(node)
 
@@ -292,9 +316,10 @@ class ZenohBridge:
             return sp.scaling
         return Scaling.of(sig, self.commands.node(node).cfg.signals.get(sig.name))
 
-    def _on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None:
-        s = self.session
-        pub = self.raw_pubs.get((node.name, cob_id))
+    def on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None:
+        """A PDO's raw bytes (the image's PDO listener, with ``zenoh.raw_pdo``)."""
+        s = self.link.session  # per frame: no property call
+        pub = self.link.raw_pubs.get((node.name, cob_id))
         if s is None or pub is None or not self.publishing:
             return
         try:
@@ -304,14 +329,14 @@ class ZenohBridge:
             pass
 
     # ------------------------------------------------------------------ values
-    def _offer(self, node: NodeImage, sp: SignalPub, now: float) -> None:
+    def offer(self, node: NodeImage, sp: SignalPub, now: float) -> None:
         """Publish the signal's current value if its policy says so (any thread: the reader's
         burst and the event loop may flush at the same time). Value and quality are read
         under the signal's lock, so a publication carries the latest value at its turn; one
         older than the last published (a lower ``seq``) is never published after it."""
         if type(sp) is PdoPub:  # a PDO marked in the batch (``publish: pdo``)
-            return self._offer_pdo(node, sp, now)
-        s = self.session
+            return self.offer_pdo(node, sp, now)
+        s = self.link.session
         if s is None or sp.pub is None or not self.publishing:
             return
         with sp.lock:
@@ -331,11 +356,11 @@ class ZenohBridge:
             sp.policy.published(value, quality, now)  # counts it, under the lock
             sp.last_seq = sv.seq
 
-    def _offer_pdo(self, node: NodeImage, pp: PdoPub, now: float, again: bool = False) -> None:
+    def offer_pdo(self, node: NodeImage, pp: PdoPub, now: float, again: bool = False) -> None:
         """Publish the PDO's current record with all its signals, if it is newer than the last
         one published, or (``again``) its qualities changed since. Any thread, under the PDO's
         lock: one record read once, so the signals of a sample are of one frame."""
-        s = self.session
+        s = self.link.session
         if s is None or pp.pub is None or not self.publishing:
             return
         with pp.lock:
@@ -361,7 +386,7 @@ class ZenohBridge:
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
-        if self.session is None or not self.publishing:
+        if self.link.session is None or not self.publishing:
             return
         route = self._routes.get((node.name, names))
         if route is not None:  # a TPDO's record: what to mark and publish, planned
@@ -369,9 +394,9 @@ class ZenohBridge:
             if marks:
                 self._values.mark_all(node, marks)
             if every:
-                now = self._clock()
+                now = self.clock()
                 for sp in every:
-                    self._offer(node, sp, now)
+                    self.offer(node, sp, now)
             return
         pubs = self.pubs
         nname = node.name
@@ -382,8 +407,8 @@ class ZenohBridge:
             if sp is None:
                 continue
             if sp.policy.mode == "every":
-                now = now or self._clock()
-                self._offer(node, sp, now)
+                now = now or self.clock()
+                self.offer(node, sp, now)
             else:
                 mark(node, sp)
 
@@ -398,16 +423,18 @@ class ZenohBridge:
             if rec is not None:
                 payload = emcy_payload(node, rec, node.health.emcy_count)
                 self._put_event(
-                    s, self.emcy_pubs[node.name], emcy_key(self.prefix, node.name), payload
+                    s, self.link.emcy_pubs[node.name], emcy_key(self.prefix, node.name), payload
                 )
         else:
             d = state_payload(node)
             fp = state_fingerprint(d)
             if self._last_state.get(node.name) != fp:
                 self._last_state[node.name] = fp
-                self._put_event(s, self.state_pubs[node.name], state_key(self.prefix, node.name), d)
+                self._put_event(
+                    s, self.link.state_pubs[node.name], state_key(self.prefix, node.name), d
+                )
         self._sync_token(node)
-        housekeeping.refresh(self, node, self._clock())
+        refresh(self, node, self.clock())
 
     def _put_event(self, s: zenoh.Session, pub: Any, key: str, payload: dict[str, Any]) -> None:
         """Queue an event with the next ``seq`` of its key (1, 2, 3... since the gateway
@@ -420,19 +447,7 @@ class ZenohBridge:
 
     def _sync_token(self, node: NodeImage) -> None:
         """A token while the node's values are usable: operational, guarding-bit link OK."""
-        s = self.session
-        if s is None:
-            return
-        alive = node.usable() and self.publishing
-        tok = self.tokens.get(node.name)
-        if alive and tok is None:
-            self.tokens[node.name] = s.liveliness().declare_token(alive_key(self.prefix, node.name))
-        elif not alive and tok is not None:
-            del self.tokens[node.name]
-            try:
-                tok.undeclare()
-            except zenoh.ZError:
-                pass
+        self.link.sync_token(node.name, self.node_alive(node))
 
     @property
     def publications(self) -> int:

@@ -1,7 +1,7 @@
 """The Zenoh bridge's housekeeping on the event loop: held-back samples whose time has come
 (``max_rate_hz``) and quality changes that no frame announces (stale by age), per node every
 period (``HOUSEKEEPING_PERIOD_S``, shorter when a maximum rate needs it), and per node when its
-health changes. Publication itself is the bridge's (``_offer``, ``_offer_pdo``, under each
+health changes. Publication itself is the bridge's (``offer``, ``offer_pdo``, under each
 publication's lock).
 
 Imports: image, zenoh_bridge.bridge (types only). Never zenoh, modbus/ nor bus/.
@@ -24,7 +24,7 @@ def refresh(bridge: ZenohBridge, node: NodeImage, now: float) -> None:
     """Held-back samples whose time has come, and quality changes without a new frame."""
     for pp in bridge.pdo_by_node.get(node.name, ()):
         if pp.last_seq:
-            bridge._offer_pdo(node, pp, now, again=True)
+            bridge.offer_pdo(node, pp, now, again=True)
     for sp in bridge.by_node.get(node.name, ()):
         sv = node.signals[sp.sig.name]
         if not sv.seq:
@@ -35,10 +35,11 @@ def refresh(bridge: ZenohBridge, node: NodeImage, now: float) -> None:
                 pol.last_time_s is not None and node.quality(sv, now) != pol.last_quality
             )
         if due:
-            bridge._offer(node, sp, now)
+            bridge.offer(node, sp, now)
 
 
-async def housekeeping(bridge: ZenohBridge) -> None:
+async def housekeeping_loop(bridge: ZenohBridge) -> None:
+    """Refresh every node each period while a session is open (event loop, until cancelled)."""
     period = HOUSEKEEPING_PERIOD_S
     rates = [sp.policy.min_interval_s for sp in bridge.pubs.values() if sp.policy.min_interval_s]
     if rates:
@@ -47,6 +48,6 @@ async def housekeeping(bridge: ZenohBridge) -> None:
         await asyncio.sleep(period)
         if bridge.session is None:
             continue
-        now = bridge._clock()
+        now = bridge.clock()
         for node in bridge.image.nodes.values():
             refresh(bridge, node, now)

@@ -106,7 +106,7 @@ async def test_publish_every_sends_each_frame_and_max_rate_caps_the_rate() -> No
         await sample_where(pos, lambda s: s.body["quality"] == "good", what="a position sample")
         await sample_where(vel, lambda s: s.body["quality"] == "good", what="a velocity sample")
         now = [time.monotonic()]
-        bridge._clock = lambda: now[0]  # the bridge's clock stands still from here
+        bridge.clock = lambda: now[0]  # the bridge's clock stands still from here
         position = gw.image.nodes["wire"].signals
         vpolicy = bridge.pubs[("wire", "velocity")].policy
         seq = position["position"].seq

@@ -74,7 +74,7 @@ async def test_a_peer_gateway_starts_without_a_router_and_connects_when_it_appea
             clock[0] += 0.5
         return clock[0]
 
-    gw.zenoh._clock = ticking
+    gw.zenoh.clock = ticking
     await gw.start()  # nothing listens on the router endpoint yet
     # open waited for a router only its bounded time (on its own clock), then went on
     assert CONNECT_WAIT_S <= clock[0] <= CONNECT_WAIT_S + 1.0

@@ -108,7 +108,7 @@ def test_a_take_over_numbers_value_keys_and_pdo_records_above_what_was_heard() -
     sp = bridge.pubs[("wire", "position")]
     pp = next(iter(bridge.pdo_pubs.values()))
     assert pp.names == ("position", "velocity")
-    sp.pub, pp.pub, bridge.session = _Capture(), _Capture(), _Capture()  # type: ignore[assignment]
+    sp.pub, pp.pub, bridge.link.session = _Capture(), _Capture(), _Capture()  # type: ignore[assignment]
     gw.image.value_listeners.append(bridge._on_values)  # as the bridge's start does
     bridge.set_mastering(False)
     for k in range(30):  # frames heard while standing by: 30 in this gateway's image

@@ -155,20 +155,21 @@ async def test_client_mode_attempts_start_on_the_documented_schedule() -> None:
         starts.append(now[0])
         now[0] += 1.0  # the connect timeout
         if len(starts) == 6:
-            bridge.session = object()  # type: ignore[assignment]  # stop here
+            link.session = object()  # type: ignore[assignment]  # stop here
         raise zenoh.ZError("no router")
 
-    bridge._clock = lambda: now[0]
-    bridge._sleep = sleep
-    bridge._try_open = try_open  # type: ignore[method-assign]
-    bridge._last_attempt_s = 0.0  # the first attempt, at start, began at 0 and took 1 s
+    link = bridge.link
+    link.clock = lambda: now[0]
+    link.sleep = sleep
+    link.try_open = try_open  # type: ignore[method-assign]
+    link.last_attempt_s = 0.0  # the first attempt, at start, began at 0 and took 1 s
     now[0] = 1.0
-    await bridge._reopen()
+    await link.reopen()
     assert REOPEN_SCHEDULE_S == (0.5, 1.0, 2.0, 5.0)
     # an attempt longer than the period (1 s > 0.5 s) is followed by the next one at once;
     # from then on attempts start 1 s, 2 s, then 5 s apart, whatever they last
     assert starts == pytest.approx([1.0, 2.0, 4.0, 9.0, 14.0, 19.0])
-    bridge.session = None
+    link.session = None
 
 
 class WatchedLock:
@@ -217,7 +218,7 @@ async def test_two_flushes_at_once_never_publish_an_older_value_after_a_newer_on
 
         def flush_b() -> None:
             try:
-                bridge._offer(node, sp, time.monotonic())
+                bridge.offer(node, sp, time.monotonic())
             finally:
                 lock.settled.set()
 
@@ -236,7 +237,7 @@ async def test_two_flushes_at_once_never_publish_an_older_value_after_a_newer_on
 
         image.update(node, tpdo.names, frame[1], time.time())
         node.signals = ViewThatLetsBIn(node.records, node.where)
-        bridge._offer(node, sp, time.monotonic())  # A
+        bridge.offer(node, sp, time.monotonic())  # A
         assert lock.watched is not None
         lock.watched.join(5)
         assert published == sorted(published) and published[-1] == 2, published
