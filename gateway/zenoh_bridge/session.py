@@ -54,6 +54,10 @@ REOPEN_SCHEDULE_S = (0.5, 1.0, 2.0, 5.0)
 CONNECT_WAIT_S = 2.0
 #: how long the liveliness get of the duplicate check may take
 DUPLICATE_CHECK_TIMEOUT_S = 2.0
+#: gets of the duplicate-prefix check that find no token before this gateway counts itself
+#: alone, this far apart
+DUPLICATE_CHECK_ATTEMPTS = 3
+DUPLICATE_CHECK_PAUSE_S = 0.15
 
 
 class PrefixInUse(RuntimeError):
@@ -206,13 +210,20 @@ class ZenohSession:
                 if list(info.routers_zid()) or list(info.peers_zid()):
                     break
                 time.sleep(0.02)
-        tokens = [
-            str(r.ok.key_expr)
-            for r in session.liveliness().get(
-                alive_key(self.prefix, "**"), timeout=DUPLICATE_CHECK_TIMEOUT_S
-            )
-            if r.ok is not None
-        ]
+        # right after connecting, the routing may not reach every token yet: the tokens of a
+        # few gets are taken together before this gateway counts itself alone (or a pair's
+        # partner present)
+        tokens: set[str] = set()
+        for attempt in range(DUPLICATE_CHECK_ATTEMPTS):
+            if attempt:
+                time.sleep(DUPLICATE_CHECK_PAUSE_S)
+            tokens |= {
+                str(r.ok.key_expr)
+                for r in session.liveliness().get(
+                    alive_key(self.prefix, "**"), timeout=DUPLICATE_CHECK_TIMEOUT_S
+                )
+                if r.ok is not None
+            }
         return refusal(tokens, self.prefix, self.bridge.member)
 
     async def reopen(self) -> None:
