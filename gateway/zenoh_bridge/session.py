@@ -210,11 +210,11 @@ class ZenohSession:
                 if list(info.routers_zid()) or list(info.peers_zid()):
                     break
                 time.sleep(0.02)
-        # right after connecting, the routing may not reach every token yet: the tokens of a
-        # few gets are taken together before this gateway counts itself alone (or a pair's
-        # partner present)
+        # right after connecting to a router or peer, the routing may not reach every token
+        # yet: the tokens of a few gets are taken together before this gateway counts itself
+        # alone (or a pair's partner present)
         tokens: set[str] = set()
-        for attempt in range(DUPLICATE_CHECK_ATTEMPTS):
+        for attempt in range(DUPLICATE_CHECK_ATTEMPTS if z.connect else 1):
             if attempt:
                 time.sleep(DUPLICATE_CHECK_PAUSE_S)
             tokens |= {
