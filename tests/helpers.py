@@ -13,6 +13,7 @@ import time
 import uuid
 from collections.abc import AsyncIterator, Callable, Iterable, Iterator
 from contextlib import asynccontextmanager, contextmanager
+from pathlib import Path
 from typing import Any
 
 import can
@@ -233,3 +234,18 @@ def gateway_running(config: Any, *args: str) -> Iterator[Any]:
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def edited_copy(tmp_path: Path, src: Path, old: str, new: str, name: str = "edited.eds") -> Path:
+    """A copy of the device file ``src`` in ``tmp_path`` with the first ``old`` made ``new``."""
+    text = src.read_text(encoding="utf-8")
+    assert old in text, old
+    p = tmp_path / name
+    p.write_text(text.replace(old, new, 1), encoding="utf-8")
+    return p
+
+
+def line_of(path: Path, text: str) -> int:
+    """The number of the first line of ``path`` that is ``text`` (stripped)."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return next(i for i, line in enumerate(lines, start=1) if line.strip() == text)

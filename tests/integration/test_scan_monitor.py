@@ -206,9 +206,10 @@ async def test_the_console_scans_the_bus_on_the_gateways_own_connection(
     assert rows["127"].endswith(
         "not the gateway but another node with its master.node_id 127: a node id conflict"
     )
-    # id 1 is the master's: one 1000h upload request to it (the master's), none by the scan
+    # id 1 is the master's: its 1000h upload request (repeated only by the master's own SDO
+    # retry when a loaded machine answers late), none by the scan
     uploads_1000 = [m for m in sent if m.arbitration_id == 0x601 and bytes(m.data[:4]) == b"\x40\x00\x10\x00"]
-    assert len(uploads_1000) == 1
+    assert 1 <= len(uploads_1000) <= 1 + gw.cfg.master.sdo_retries
     # every other id got the scan's 1000h probe, once, on the gateway's connection
     probed = {m.arbitration_id - 0x600 for m in sent
               if 0x600 < m.arbitration_id < 0x680 and bytes(m.data[:4]) == b"\x40\x00\x10\x00"}  # fmt: skip

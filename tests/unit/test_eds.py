@@ -16,26 +16,14 @@ from gateway.northbound.regmap import build_register_map
 from gateway.objref import ObjRef
 from gateway.pdo.verify import MappingRead, compare_mapping, mapping_reads
 from gateway.profiles import ProfileError, load_node_profile
-from tests.helpers import parse_checked_config, with_nodes
+from tests.helpers import edited_copy, line_of, parse_checked_config, with_nodes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
 IO = DATA / "io401.eds"
 FLOW = DATA / "measure.eds"
 
 
-def broken(tmp_path: Path, src: Path, old: str, new: str, name: str = "broken.eds") -> Path:
-    text = src.read_text(encoding="utf-8")
-    assert old in text, old
-    p = tmp_path / name
-    p.write_text(text.replace(old, new, 1), encoding="utf-8")
-    return p
 
-
-def line_of(path: Path, text: str) -> int:
-    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
-        if line.strip() == text:
-            return i
-    raise AssertionError(text)
 
 
 def lint_of(path: Path) -> tuple[list[str], list[str]]:
@@ -62,7 +50,7 @@ def lint_of(path: Path) -> tuple[list[str], list[str]]:
 def test_a_deviation_is_a_warning_with_file_line_and_section_and_the_file_loads(
     tmp_path: Path, old: str, new: str, section: str, message: str
 ) -> None:
-    p = broken(tmp_path, IO, old, new)
+    p = edited_copy(tmp_path, IO, old, new)
     errors, warnings = lint_of(p)
     assert errors == []
     match = [x for x in warnings if f"[{section}]" in x and message in x]
@@ -102,7 +90,7 @@ def test_cia306_defaults_missing_object_type_any_number_notation_hex_reals(tmp_p
 
 
 def test_an_enabled_pdo_the_gateway_would_decode_wrongly_is_refused_in_one_line(tmp_path: Path) -> None:
-    p = broken(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x6401011O")
+    p = edited_copy(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x6401011O")
     errors, _ = lint_of(p)
     line = line_of(p, "[1A01sub2]")
     assert errors == [f"{p}:{line}: [1A01sub2]: TPDO2: 1A01h:00 counts entry 02h, which has no value"]
@@ -112,20 +100,20 @@ def test_an_enabled_pdo_the_gateway_would_decode_wrongly_is_refused_in_one_line(
     # the node's own settings may disable that PDO: then the file serves the rest
     lp = load_node_profile(Node(eds=str(p), tpdo={2: {"enabled": False}}).cfg)
     assert [x.number for x in lp.profile.tpdos] == [1]
-    long = broken(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x64010140", "long.eds")
+    long = edited_copy(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x64010140", "long.eds")
     errors, _ = lint_of(long)
     assert errors == [f"{long}:{line_of(long, '[1A01sub0]')}: [1A01sub0]: TPDO2 maps 80 bits; a PDO carries at most 64"]
 
 
 def test_a_line_that_is_not_key_value_is_a_warning_with_its_line(tmp_path: Path) -> None:
-    p = broken(tmp_path, IO, "PDOMapping=0\n\n[1018]", "PDOMapping=0\nthis is no key\n\n[1018]")
+    p = edited_copy(tmp_path, IO, "PDOMapping=0\n\n[1018]", "PDOMapping=0\nthis is no key\n\n[1018]")
     errors, warnings = lint_of(p)
     assert errors == []
     assert warnings == [f"{p}:{line_of(p, 'this is no key')}: [1017]: line 'this is no key' is not 'key=value': ignored"]  # fmt: skip
 
 
 def test_listed_object_without_section_and_unlisted_object_are_warnings(tmp_path: Path) -> None:
-    p = broken(tmp_path, IO, "18=0x6411", "18=0x6412")
+    p = edited_copy(tmp_path, IO, "18=0x6411", "18=0x6412")
     _, warnings = lint_of(p)
     assert any("object 0x6412 is listed but has no section [6412]" in x for x in warnings)
     assert any("[6411]: object is not listed" in x for x in warnings)
@@ -134,13 +122,13 @@ def test_listed_object_without_section_and_unlisted_object_are_warnings(tmp_path
 def test_eds_lint_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["eds", "lint", str(IO)]) == 0
     assert capsys.readouterr().out.strip() == f"{IO}: 0 errors, 0 warnings"
-    warn = broken(tmp_path, IO, "[6401sub2]", "[6401sbu2]")
+    warn = edited_copy(tmp_path, IO, "[6401sub2]", "[6401sbu2]")
     assert main(["eds", "lint", str(warn)]) == 1
     out = capsys.readouterr().out.splitlines()
     assert any(x.startswith(f"{warn}:{line_of(warn, '[6401sbu2]')}: [6401sbu2]: warning: unknown section") for x in out)
     assert main(["eds", "show", "--strict", str(warn)]) == 1
     capsys.readouterr()
-    bad = broken(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x6401011O", "bad.eds")
+    bad = edited_copy(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x6401011O", "bad.eds")
     assert main(["eds", "lint", str(bad)]) == 2
     assert ": [1A01sub2]: error: TPDO2: 1A01h:00 counts entry 02h" in capsys.readouterr().out
 
@@ -356,7 +344,7 @@ def test_eds_show_and_profile_init(tmp_path: Path, capsys: pytest.CaptureFixture
     cfg = parse_checked_config({"can": {"interface": "virtual", "channel": "x"}, "nodes": [{"name": "flow", "node_id": 6, "profile": str(target)}]}, environ={})  # fmt: skip
     lp = load_node_profile(cfg.nodes[0], cfg.base_dir)
     assert [s.name for s in lp.profile.signals] == ["temperatur", "durchfluss", "status", "zahler", "sollwert"]
-    bad = broken(tmp_path, IO, "[6401sub2]", "[6401sbu2]")
+    bad = edited_copy(tmp_path, IO, "[6401sub2]", "[6401sbu2]")
     assert main(["eds", "show", str(bad)]) == 0
     assert capsys.readouterr().err == f"{bad}: 2 warnings (canopen-gateway eds lint {bad})\n"
 
@@ -411,14 +399,14 @@ def test_expected_identity_is_vendor_and_product_and_a_dcf_serial(tmp_path: Path
     dcf.write_text(head + "[1018sub4]" + section + "\nParameterValue=0x00C0FFEE\n\n" + tail, encoding="utf-8")
     lp = load_node_profile(Node(eds=str(dcf)).cfg)
     assert expected_identity(lp)[-1] == (ObjRef(0x1018, 4), 0xC0FFEE)
-    anonymous = broken(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=", "anon.eds")
+    anonymous = edited_copy(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=", "anon.eds")
     assert expected_identity(load_node_profile(Node(eds=str(anonymous)).cfg)) == ()
 
 
 def test_device_info_other_than_1018h_is_a_warning_and_that_number_is_not_compared(tmp_path: Path) -> None:
     from gateway.profiles import expected_identity
 
-    p = broken(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=0x00000ABD")
+    p = edited_copy(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=0x00000ABD")
     # the file contradicts itself on the vendor: only the product is checked at boot
     assert expected_identity(load_node_profile(Node(eds=str(p)).cfg)) == ((ObjRef(0x1018, 2), 0x401),)
     _, warnings = lint_of(p)

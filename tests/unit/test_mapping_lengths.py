@@ -29,23 +29,14 @@ from gateway.pdo.codec import (
 )
 from gateway.profiles import load_node_profile
 from gateway.profiles.schema import Pdo
+from tests.helpers import edited_copy, line_of
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
 IO = DATA / "io401.eds"
 FLOW = DATA / "measure.eds"
 
 
-def patched(tmp_path: Path, src: Path, old: str, new: str, name: str = "patched.eds") -> Path:
-    text = src.read_text(encoding="utf-8")
-    assert old in text, old
-    p = tmp_path / name
-    p.write_text(text.replace(old, new, 1), encoding="utf-8")
-    return p
 
-
-def line_of(path: Path, text: str) -> int:
-    lines = path.read_text(encoding="utf-8").splitlines()
-    return next(i for i, line in enumerate(lines, start=1) if line.strip() == text)
 
 
 def node(eds: Path) -> NodeConfig:
@@ -57,7 +48,7 @@ def node(eds: Path) -> NodeConfig:
 
 def test_real32_mapped_in_16_bits_is_not_served_and_warned_with_file_line_and_pdo(tmp_path: Path) -> None:
     # measure.eds TPDO1: temperatur 2000h REAL32 /32, durchfluss 2001h REAL32 /32 -> 2000h /16
-    eds = patched(tmp_path, FLOW, "DefaultValue=0x20000020", "DefaultValue=0x20000010")
+    eds = edited_copy(tmp_path, FLOW, "DefaultValue=0x20000020", "DefaultValue=0x20000010")
     lp = load_node_profile(node(eds))
     names = {s.name for s in lp.profile.signals}
     assert "temperatur" not in names and "durchfluss" in names
@@ -216,7 +207,7 @@ def test_a_write_is_range_checked_against_the_mapped_width() -> None:
 def test_two_spellings_of_one_sub_section_the_first_counts_and_the_second_warns(tmp_path: Path) -> None:
     # io401.eds RPDO2 1601h sub 2 = 6411h:01/16; a second spelling [1601sub02] maps 6300h:01
     second = "[1601sub02]\nParameterName=Mapped object 2\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x63000110\nPDOMapping=0\n\n[1601sub3]"  # fmt: skip
-    eds = patched(tmp_path, IO, "[1601sub3]", second)
+    eds = edited_copy(tmp_path, IO, "[1601sub3]", second)
     loaded = load_eds(eds)
     assert loaded.od[0x1601][2].default == 0x64110110
     at = f"{eds}:{line_of(eds, '[1601sub02]')}: [1601sub02]: sub-index 02h again (first as [1601sub2] at line {line_of(eds, '[1601sub2]')}): ignored"  # fmt: skip
@@ -229,9 +220,9 @@ def test_two_spellings_of_one_sub_section_the_first_counts_and_the_second_warns(
 
 
 def test_two_spellings_the_padded_one_first_counts_too(tmp_path: Path) -> None:
-    eds = patched(tmp_path, IO, "[1601sub2]", "[1601sub02]")
+    eds = edited_copy(tmp_path, IO, "[1601sub2]", "[1601sub02]")
     later = "[1601sub2]\nParameterName=Mapped object 2\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x63000110\nPDOMapping=0\n\n[1601sub3]"  # fmt: skip
-    eds = patched(tmp_path, eds, "[1601sub3]", later, "twice.eds")
+    eds = edited_copy(tmp_path, eds, "[1601sub3]", later, "twice.eds")
     loaded = load_eds(eds)
     assert loaded.od[0x1601][2].default == 0x64110110
     assert any("sub-index 02h again (first as [1601sub02]" in str(w) for w in loaded.warnings)

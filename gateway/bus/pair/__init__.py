@@ -2,5 +2,5 @@
 
 ``flying_master.py`` is the role machine (CiA 302-2 NMT flying master, sans-I/O).
 
-Imports: nothing of its own package's parents.
+Imports: nothing.
 """

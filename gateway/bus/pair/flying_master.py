@@ -53,7 +53,7 @@ The time slot is CiA 302-2's: ``priority * priority_slot_s + node_id * device_sl
 (1F90h:04, 1F90h:05); the defaults here are shorter than 1F90h's (1500 ms, 10 ms) so that a
 take-over fits in a second.
 
-Imports: the standard library only.
+Imports: gateway.cia301 (the heartbeat's COB-ID) and the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
 
@@ -62,6 +62,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal, NamedTuple
+
+from gateway.cia301 import COB_NMT_EC as COB_HEARTBEAT  # heartbeat, + node id
 
 # CiA 302-2 (NMT flying master): the COB-IDs of its services
 COB_ACTIVE_MASTER_RESPONSE = 0x71  # [priority, node id]
@@ -76,7 +78,6 @@ FLYING_MASTER_COB_IDS = frozenset(
         COB_FORCE_NEGOTIATION,
     }
 )
-COB_HEARTBEAT = 0x700  # CiA 301 7.2.8.3.2.2: heartbeat, + node id
 
 
 class Role(StrEnum):

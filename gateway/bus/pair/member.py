@@ -9,7 +9,7 @@ heard without its answer) and the peer's id and own heartbeat. A role change goe
 Rule: everything runs on the event loop (the master hands it frames from its one inbox); it
 does no blocking I/O; the master's ``send`` and ``clock`` are its only ways out and in.
 
-Imports: bus.pair.flying_master, cia301, config (types), asyncio (its timer), logging and the
+Imports: bus.pair.flying_master, bus.sdo.client (the abort frame), cia301, config (types), asyncio (its timer), logging and the
 standard library. Never a northbound module.
 """
 
@@ -26,14 +26,11 @@ from gateway.bus.pair.flying_master import (
     RoleChanged,
     Send,
 )
-from gateway.cia301 import COB_NMT_EC, COB_SDO_RX
+from gateway.bus.sdo.client import abort_frame
+from gateway.cia301 import COB_NMT_EC, COB_SDO_RX, SDO_ABORT_TIMEOUT
 from gateway.config import Config
 
 log = logging.getLogger("gateway.master")
-
-#: the abort an SDO transfer gets that the other gateway left open at a take-over: SDO
-#: protocol timed out (CiA 301 7.2.4.3.17)
-ABORT_LEFT_OPEN = 0x05040000
 
 
 def pair_timing(cfg: Config) -> PairTiming:
@@ -156,8 +153,9 @@ class PairMember:
         for node_id, head in heard.items():
             if len(head) < 4:
                 continue
-            abort = bytes((0x80, head[1], head[2], head[3])) + ABORT_LEFT_OPEN.to_bytes(4, "little")
-            self._send(COB_SDO_RX + node_id, abort)
+            index, sub = int.from_bytes(head[1:3], "little"), head[3]
+            # SDO protocol timed out (CiA 301 7.2.4.3.17): the transfer's client is gone
+            self._send(COB_SDO_RX + node_id, abort_frame(index, sub, SDO_ABORT_TIMEOUT))
             log.info("pair: SDO transfer left open on node id %d aborted", node_id)
 
     # ------------------------------------------------------------------ inside
