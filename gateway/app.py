@@ -19,10 +19,10 @@ import can
 from gateway import __version__
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
-from gateway.bus.resolved import ResolvedNode
 from gateway.checks import check_config
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
+from gateway.device.resolved import ResolvedNode
 from gateway.health import pair_status
 from gateway.image import ProcessImage
 from gateway.metrics import modbus_function_label

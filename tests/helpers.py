@@ -67,9 +67,9 @@ def load_checked_config(path: Any, environ: Any = None) -> Any:
 
 
 def resolved(cfg: Any) -> Any:
-    """The nodes of a bare Config, resolved (``gateway.bus.resolved``), for a test that builds
+    """The nodes of a bare Config, resolved (``gateway.device.resolved``), for a test that builds
     a consumer (Master, ModbusGateway, the register map...) from it."""
-    from gateway.bus.resolved import resolve_config
+    from gateway.device.resolved import resolve_config
 
     return resolve_config(cfg)
 

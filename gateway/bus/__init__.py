@@ -1,6 +1,6 @@
 """The CANopen side of the gateway: the driver (python-can, its reader and sender threads), the
-master (the event loop's driver of every node), each node resolved from the config
-(``resolved``), the per-node owner (``node/``), SDO (``sdo/``), error control
+master (the event loop's driver of every node) of the nodes ``gateway.device`` resolved, the
+per-node owner (``node/``), SDO (``sdo/``), error control
 (``error_control/``), LSS (``lss/``), EMCY and the master's own periodic frames.
 
 Nothing in this package imports a northbound module (modbus, zenoh_bridge, web, ascii).

@@ -1,6 +1,6 @@
 """Which COB-IDs the gateway uses on the bus, and where each one comes from.
 
-Per configured node, as resolved (``bus/resolved.py``: what the reader dispatches on and what
+Per configured node, as resolved (``device/resolved.py``: what the reader dispatches on and what
 the node's RPDOs are sent on): the COB-ID of every enabled TPDO and RPDO, and the node's EMCY,
 SDO response, SDO request and heartbeat (CiA 301 7.3.3 pre-defined connection set: function
 code + node id). The master's own: NMT 000h, SYNC 080h when this gateway produces it
@@ -18,7 +18,7 @@ its ``tpdo:``/``rpdo:`` ``cob_id``, a profile's ``boot.sdo`` write, the pre-defi
 receivers for one COB-ID; a device's own TPDO and RPDO on one COB-ID (``loops_back``) is a
 warning.
 
-Imports: cia301, config (types), objref, eds (a file's COB-IDs), profiles.layout, bus.resolved, bus.pair.flying_master (the CiA 302-2 COB-IDs of a pair).
+Imports: cia301, config (types), objref, eds (a file's COB-IDs), profiles.layout, device.resolved, bus.pair.flying_master (the CiA 302-2 COB-IDs of a pair).
 No I/O but reading the device files (cached).
 """
 
@@ -28,7 +28,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 from gateway.bus.pair.flying_master import FLYING_MASTER_COB_IDS
-from gateway.bus.resolved import ResolvedNode
 from gateway.cia301 import (
     COB_EMCY,
     COB_LSS_MASTER,
@@ -42,6 +41,7 @@ from gateway.cia301 import (
     COB_TPDO,
 )
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 from gateway.eds import EdsError, load_eds
 from gateway.eds.cob_ids import file_cob_ids
 from gateway.objref import ObjRef

@@ -19,7 +19,7 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
   decides whether this gateway masters the bus; while it does not (``mastering`` False) the
   nodes only listen (``Node.stand_by``) and every frame a node would send is dropped here.
 
-Imports: bus.* (bus.pair.member: a pair), pdo.codec, cia301, image, errors, config, objref, ratelimit, python-can.
+Imports: bus.* (bus.pair.member: a pair), device.resolved, pdo.codec, cia301, image, errors, config, objref, ratelimit, python-can.
 Nothing northbound.
 """
 
@@ -51,7 +51,6 @@ from gateway.bus.reader import (
     tpdo_handler,
     unknown_handler,
 )
-from gateway.bus.resolved import ResolvedNode
 from gateway.bus.sdo.waiters import SdoWaiters
 from gateway.cia301 import (
     COB_EMCY,
@@ -64,6 +63,7 @@ from gateway.cia301 import (
     NMT_COMMANDS,
 )
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 from gateway.errors import BusDown, NodeNotOperational, NotActive, SdoAbort
 from gateway.image import ProcessImage
 from gateway.objref import ObjRef

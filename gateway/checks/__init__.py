@@ -31,12 +31,12 @@ node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF who
 ``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
 hot-standby pair (``check -c A -c B``, docs/redundancy.md).
 
-Every function takes the nodes as resolved once (``gateway.bus.resolved``). ``load_checked`` /
+Every function takes the nodes as resolved once (``gateway.device.resolved``). ``load_checked`` /
 ``parse_checked`` read and validate a config, resolve its nodes in the same pass and run these
 checks, raising ConfigError with every line; they return the config and its nodes.
 
-Pure: imports config, bus.resolved (the resolution and its loaders), checks.pair, profiles,
-eds, the boot step builder, the external heartbeat keep-alive rule (bus/node/settings.py), the codecs and the
+Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, profiles,
+eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
 register map, the COB-IDs of the nodes (bus/cob_ids.py), a device file's COB-IDs and NodeID
 (eds/cob_ids.py) (no I/O but reading the files they name).
 """
@@ -48,12 +48,12 @@ from collections.abc import Mapping
 from typing import Any
 
 from gateway.bus.cob_ids import clashes, gateway_uses, loops_back
-from gateway.bus.node.boot_steps import ConfigStep
-from gateway.bus.node.settings import external_heartbeat_problem
-from gateway.bus.resolved import Resolved, ResolvedNode, load_resolved, parse_resolved
 from gateway.checks.pair import pair_problems
 from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, blame
+from gateway.device.boot_steps import ConfigStep
+from gateway.device.resolved import Resolved, ResolvedNode, load_resolved, parse_resolved
+from gateway.device.settings import external_heartbeat_problem
 from gateway.eds import EdsError, load_eds
 from gateway.eds.cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES

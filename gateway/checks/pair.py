@@ -4,7 +4,7 @@ key path: the same CAN bus, logical master, nodes (their device description and 
 content) and Modbus layout; both with ``master.redundancy``, distinct own ids, ``peer_node_id``
 naming the other.
 
-Imports: config (types), bus.resolved (types). No I/O but reading the device files to compare.
+Imports: config (types), device.resolved (types). No I/O but reading the device files to compare.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from __future__ import annotations
 import hashlib
 from typing import Any
 
-from gateway.bus.resolved import ResolvedNode
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 
 #: what the two configs of a pair must agree on besides the nodes: the bus, the logical master
 #: (every ``master.*`` but this gateway's own ``redundancy``), the CiA 302-2 slots (1F90h:04,

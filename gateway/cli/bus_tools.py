@@ -4,7 +4,7 @@ gateway runs), ``lss`` (gateway.tools.lss) and ``fault`` (into a running gateway
 node).
 
 Imports: gateway.app (SimulatedBus), gateway.tools (beside, bus_open, lss, monitor), gateway.bus.scan,
-gateway.northbound.frames, gateway.sim.faults_client, gateway.config, gateway.bus.resolved (types),
+gateway.northbound.frames, gateway.sim.faults_client, gateway.config, gateway.device.resolved (types),
 cli.load.
 """
 
@@ -14,9 +14,9 @@ import argparse
 import sys
 from typing import Any
 
-from gateway.bus.resolved import ResolvedNode
 from gateway.cli.load import EXIT_CONFIG, load, load_for_bus
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 
 
 def cmd_fault(args: argparse.Namespace) -> int:

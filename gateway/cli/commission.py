@@ -2,7 +2,7 @@
 gateway when the bus lives inside it (``gateway.tools.beside``), else with a passive master of
 their own on the bus (no server, no heartbeat, no SYNC, no configuration of the nodes).
 
-Imports: gateway.app, gateway.errors, gateway.tools.beside, gateway.tools.bus_open, gateway.bus.resolved,
+Imports: gateway.app, gateway.errors, gateway.tools.beside, gateway.tools.bus_open, gateway.device.resolved,
 gateway.cia301, gateway.objref, gateway.config, cli.load.
 """
 
@@ -13,9 +13,9 @@ import asyncio
 import sys
 from typing import Any
 
-from gateway.bus.resolved import ResolvedNode
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 
 
 async def _with_master(cfg: Config, nodes: dict[str, ResolvedNode], fn: Any) -> Any:

@@ -2,7 +2,7 @@
 (``gateway.checks``: validated, its nodes resolved once and cross-checked) and, for a command that opens the CAN bus, with an interface python-can
 can load; the exit codes of the command line.
 
-Imports: gateway.checks, gateway.config, gateway.bus.can_backend (inside the bus check).
+Imports: gateway.checks, gateway.config, gateway.device.resolved, gateway.bus.can_backend (inside the bus check).
 """
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from gateway.bus.resolved import Resolved
 from gateway.checks import load_checked
 from gateway.config import Config, ConfigError
+from gateway.device.resolved import Resolved
 
 EXIT_CONFIG = 2
 EXIT_FAILED = 1

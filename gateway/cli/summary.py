@@ -3,7 +3,7 @@ summarised, what may not do what is meant, the warnings of each EDS; given two c
 compared as a hot-standby pair), ``registers`` (the Modbus register map) and ``keys`` (the
 Zenoh key expressions).
 
-Imports: gateway.bus.resolved, gateway.checks (config_warnings, pair_problems), gateway.config
+Imports: gateway.device.resolved, gateway.checks (config_warnings, pair_problems), gateway.config
 (ConfigError), gateway.eds,
 gateway.northbound.regmap, gateway.northbound.keys, cli.load.
 """

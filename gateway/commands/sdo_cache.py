@@ -3,7 +3,7 @@ while younger than ``master.sdo_cache_ms`` (default 1000 ms) and read in the nod
 boot epoch; concurrent reads of one value share one upload; a write through the gateway
 updates it; a boot-up or loss of the node (a new epoch) empties it for that node.
 
-Imports: bus.master (the SDO transfers), bus.node.parts (the nodes), bus.sdo.values (value
+Imports: bus.master (the SDO transfers), bus.node.parts (the nodes), device.values (value
 codecs), profiles.schema.
 """
 
@@ -15,7 +15,7 @@ from typing import Any
 
 from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
-from gateway.bus.sdo.values import decode_value, encode_value
+from gateway.device.values import decode_value, encode_value
 from gateway.profiles.schema import Signal
 
 

@@ -21,7 +21,7 @@ Rules held here, once:
 
 The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``bus_tools``'.
 
-Imports: bus.master (the operations), bus.node.parts (the nodes), bus.sdo.values (value
+Imports: bus.master (the operations), bus.node.parts (the nodes), device.values (value
 codecs), commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
 profiles, cia301. Never modbus/ or zenoh_bridge/.
 """
@@ -35,11 +35,11 @@ from typing import Any
 
 from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
-from gateway.bus.sdo.values import decode_value, encode_value
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.commands import bus_tools
 from gateway.commands.sdo_cache import SdoValueCache
 from gateway.commands.validation import bit_names, check_sdo_type, check_value, writable_mask
+from gateway.device.values import decode_value, encode_value
 from gateway.errors import (
     GatewayError,
     NodeUnknown,

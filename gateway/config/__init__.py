@@ -7,7 +7,7 @@ what is allowed; all problems of a file are collected before reporting. Environm
 
 This package checks what one file can say about itself (schema, duplicates, key expressions).
 A node's profile and EDS, and what the node asks of them, are checked by the node's resolution
-(``gateway.bus.resolved``), which hands itself to ``load_config`` / ``parse_config`` as
+(``gateway.device.resolved``), which hands itself to ``load_config`` / ``parse_config`` as
 ``resolve``: its problems join the file's, in one ConfigError. The checks across the config,
 the profiles/EDS and the compiled register map (``canopen-gateway check``) live in
 ``gateway.checks``, which imports this package; this package imports neither it nor modbus/.

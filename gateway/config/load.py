@@ -1,7 +1,7 @@
 """Loading the configuration: read the YAML file, apply the environment overrides, validate
 the sections (``config.model``) and check what one file can say about itself beyond its
 sections: duplicate node ids, names and Modbus unit ids, names that refer to nodes. A caller that
-resolves the nodes (``gateway.bus.resolved``: each node's profile or EDS, its signal overrides,
+resolves the nodes (``gateway.device.resolved``: each node's profile or EDS, its signal overrides,
 PDO variant and ``verify_mapping``) passes ``resolve``, whose problems join the file's. Every problem is
 reported as one line naming the file (or the environment variable), the key path and what is
 allowed; all problems of a file are collected before ``ConfigError`` is raised.

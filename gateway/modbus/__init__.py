@@ -4,5 +4,5 @@ output watchdog and the safe outputs it writes, Modbus/TCP Security and the devi
 identification. The register map itself is shared (``northbound.regmap``).
 
 Imports: commands, northbound, image, config, errors, states; of bus/ only the resolved nodes
-(bus.resolved). Never zenoh_bridge/, web/, ascii/.
+(device.resolved). Never zenoh_bridge/, web/, ascii/.
 """

@@ -11,16 +11,16 @@ without a safe value keeps the last value sent.
 trips); ``safe_output_problems(cfg)`` is the check of ``canopen-gateway check`` (key path and
 what is allowed, as ``gateway.checks`` reports them).
 
-Imports: config, errors, profiles, bus.resolved, commands (``check_value``, pure). No I/O but reading profiles.
+Imports: config, errors, profiles, device.resolved, commands (``check_value``, pure). No I/O but reading profiles.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.bus.resolved import ResolvedNode
 from gateway.commands import check_value
 from gateway.config import Config, NodeConfig
+from gateway.device.resolved import ResolvedNode
 from gateway.errors import ValueOutOfRange
 from gateway.profiles import LoadedProfile
 from gateway.profiles.schema import Signal

@@ -46,7 +46,7 @@ served: a refused request is answered 0x01 and logged once per period.
 
 Imports: commands, config, errors, image, northbound.regmap, modbus.datastore, modbus.protocol,
 modbus.security, modbus.watchdog,
-bus.resolved (the resolved nodes' profiles), safe_outputs. Never zenoh_bridge/, and of bus/
+device.resolved (the resolved nodes' profiles), safe_outputs. Never zenoh_bridge/, and of bus/
 only the resolved nodes (the bus is reached through the command service only); no pymodbus (its server loses pipelined
 requests: it clears its receive buffer on every send).
 """
@@ -57,9 +57,9 @@ import asyncio
 import logging
 from typing import Any
 
-from gateway.bus.resolved import ResolvedNode
 from gateway.commands import CommandService
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 from gateway.errors import GatewayError
 from gateway.image import ProcessImage
 from gateway.modbus.datastore import ImageDatastore, execute, execute_now

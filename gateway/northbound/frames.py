@@ -4,11 +4,11 @@
 connection set) and decodes the data: NMT commands with the target node, heartbeat states and
 boot-up, EMCY with the device's own text (profile ``emcy:``) and the error register bits, SDO
 requests and answers with the object and the abort text, PDOs of configured nodes with signal
-names and engineering values (the codecs of the resolved nodes, ``gateway.bus.resolved``: the
+names and engineering values (the codecs of the resolved nodes, ``gateway.device.resolved``: the
 mapping the boot configuration leaves in the device, as the gateway decodes it), SYNC, TIME and LSS. A frame of an unconfigured node id is named by its
 function. Pure: no bus, no clock.
 
-Imports: config, profiles, pdo.codec, bus.resolved (types), bus.emcy, cia301, bus.bus_peers,
+Imports: config, profiles, pdo.codec, device.resolved (types), bus.emcy, cia301, bus.bus_peers,
 states, objref.
 """
 
@@ -20,9 +20,9 @@ from typing import Any
 
 from gateway.bus.bus_peers import describe_cob_id
 from gateway.bus.emcy import decode_emcy
-from gateway.bus.resolved import ResolvedNode
 from gateway.cia301 import abort_text
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
 from gateway.profiles import LoadedProfile

@@ -25,7 +25,7 @@ the word order of one point.
 ``layout: flat`` puts everything in one unit (``flat_unit_id``): the gateway block at 0 and node
 *k* (1-based, config order) at ``k * flat_stride``, with the same offsets inside each block.
 
-Imports: config, profiles, bus.resolved, northbound.scaling. Never pymodbus, zenoh_bridge/.
+Imports: config, profiles, device.resolved, northbound.scaling. Never pymodbus, zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ import io
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
-from gateway.bus.resolved import ResolvedNode
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 from gateway.northbound.scaling import scaled, unscaled_step
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import text_signals

@@ -9,7 +9,7 @@ The layout of a node (its TPDOs and RPDOs, each a ``Pdo``) is, in this order:
 3. the SDO writes of the boot configuration to PDO objects, replayed in order as the device
    applies them (``apply_pdo_writes``), e.g. a remap given as raw ``sdo:`` writes.
 
-The boot-step builder (``gateway.bus.node.boot_steps.build_boot_steps``) writes the CiA 301 sequence
+The boot-step builder (``gateway.device.boot_steps.build_boot_steps``) writes the CiA 301 sequence
 of every PDO the node's settings name from this layout, the codecs (``gateway.pdo.codec``) are
 compiled from it, ``verify_mapping`` compares the device with it, the register map and the
 Zenoh keys serve its objects.

@@ -30,7 +30,7 @@ The LSS frames and their matching come from ``gateway.bus.lss.master``; this mod
 I/O, parses the arguments and prints. When the config simulates nodes (``simulate:``), they
 run in this process on the same bus, so the commands can be tried without hardware.
 
-Imports: python-can, gateway.bus.lss.master, gateway.tools.lss_session, gateway.tools.bus_open, gateway.bus.resolved,
+Imports: python-can, gateway.bus.lss.master, gateway.tools.lss_session, gateway.tools.bus_open, gateway.device.resolved,
 gateway.bus.sdo.client, gateway.config, gateway.profiles, gateway.objref,
 gateway.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
 """
@@ -47,7 +47,6 @@ from typing import Any, TextIO
 import can
 
 from gateway.bus.lss import master as lss
-from gateway.bus.resolved import ResolvedNode
 from gateway.bus.sdo.client import SdoTransfer
 from gateway.cia301 import (
     COB_NMT,
@@ -58,6 +57,7 @@ from gateway.cia301 import (
     abort_text,
 )
 from gateway.config import Config
+from gateway.device.resolved import ResolvedNode
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, ProfileError, load_profile
 from gateway.tools.bus_open import open_bus

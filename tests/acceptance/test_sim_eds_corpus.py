@@ -16,9 +16,9 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.resolved import resolve_config
 from gateway.checks import check_config
 from gateway.config import ConfigError
+from gateway.device.resolved import resolve_config
 from gateway.image import Quality
 from gateway.profiles import ProfileError
 from tests.helpers import gateway_of, make_config, wait_until

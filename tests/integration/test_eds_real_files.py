@@ -15,9 +15,9 @@ import can
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.bus.node.settings import resolve_node_settings
 from gateway.cli import main
 from gateway.config import ConfigError, NodeConfig
+from gateway.device.settings import resolve_node_settings
 from gateway.image import Quality
 from gateway.profiles import load_node_profile
 from tests.helpers import gateway_of, make_config, wait_until

@@ -16,10 +16,10 @@ import pytest
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
 from gateway.bus.node.features.sync_wait import WAITING
-from gateway.bus.resolved import resolve_config
 from gateway.checks import config_warnings
 from gateway.config import ConfigError
 from gateway.config import parse_config as parse_unchecked
+from gateway.device.resolved import resolve_config
 from gateway.eds import lint, load_eds
 from gateway.image import ProcessImage
 from tests.helpers import gateway_of, with_nodes

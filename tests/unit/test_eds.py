@@ -8,9 +8,9 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.node.boot_steps import build_boot_steps
 from gateway.cli import main
 from gateway.config import ConfigError
+from gateway.device.boot_steps import build_boot_steps
 from gateway.eds import lint, load_eds
 from gateway.northbound.regmap import build_register_map
 from gateway.objref import ObjRef

@@ -13,7 +13,6 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.node.boot_steps import ConfigStep, build_boot_steps
 from gateway.bus.node.lifecycle import (
     RECHECK_BACKOFF,
     Backoff,
@@ -30,8 +29,9 @@ from gateway.bus.node.lifecycle import (
     WriteStep,
     WrongDevice,
 )
-from gateway.bus.sdo.values import encode_value
 from gateway.cia301 import SDO_ABORT_TEXTS, abort_text
+from gateway.device.boot_steps import ConfigStep, build_boot_steps
+from gateway.device.values import encode_value
 from gateway.errors import SdoAbort
 from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, load_profile

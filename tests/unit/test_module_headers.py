@@ -1,7 +1,7 @@
 """Every module header that lists what the module imports ("Imports: ...") names every module of
 the gateway it really imports: the headers are the documented layering, and they stay true.
 
-A claim names a module by its dotted path below ``gateway`` (``bus.node.settings``), by a
+A claim names a module by its dotted path below ``gateway`` (``device.settings``), by a
 prefix of it (``profiles`` covers ``profiles.schema``; ``bus.*`` or ``bus/`` covers all of
 ``bus``), or by its last part (``settings``) for a sibling in the same package.
 """

@@ -24,6 +24,15 @@ def test_every_module_of_the_package_is_under_550_lines(package: str) -> None:
     assert too_long == {}
 
 
+def test_no_module_of_the_gateway_is_over_550_lines() -> None:
+    too_long = {
+        str(p.relative_to(GATEWAY)): n
+        for p in sorted(GATEWAY.rglob("*.py"))
+        if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES
+    }
+    assert too_long == {}
+
+
 def test_the_profiles_package_still_offers_its_public_names() -> None:
     import gateway.profiles as profiles
 

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from gateway.bus.node.events import Note, Send, ValuesRead
 from gateway.bus.node.parts import NodeParts, build_node
-from gateway.bus.resolved import resolve_config
+from gateway.device.resolved import resolve_config
 from gateway.image import NodeImage, Quality, SignalValue
 from gateway.profiles import expected_identity
 from gateway.states import LinkState, NmtState

@@ -1,4 +1,4 @@
-"""Each configured node is resolved once, when the config is loaded (``gateway.bus.resolved``):
+"""Each configured node is resolved once, when the config is loaded (``gateway.device.resolved``):
 the commands load, check and serve from that one resolution, and no module but the resolver
 loads a node's profile."""
 
@@ -32,11 +32,11 @@ def _calls_of(name: str) -> set[str]:
 
 
 def test_only_the_resolver_loads_a_node_profile() -> None:
-    assert _calls_of("load_node_profile") == {"gateway/bus/resolved.py"}
+    assert _calls_of("load_node_profile") == {"gateway/device/resolved.py"}
 
 
 def test_only_the_resolver_builds_boot_steps() -> None:
-    assert _calls_of("build_boot_steps") == {"gateway/bus/resolved.py"}
+    assert _calls_of("build_boot_steps") == {"gateway/device/resolved.py"}
 
 
 @pytest.mark.parametrize("command", ["check", "registers", "keys"])

@@ -7,7 +7,7 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from gateway.bus.resolved import resolve_config
+from gateway.device.resolved import resolve_config
 from gateway.profiles import load_node_profile
 from gateway.sim.node import SimNode
 from tests.helpers import frame, make_config

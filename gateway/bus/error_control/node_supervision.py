@@ -6,7 +6,7 @@ Rule: the tables below are the code. Node guarding treats a valid answer with an
 than the expected one as an error (DS-301), so the expectation must follow the node's life: a
 node being configured after its boot-up answers PRE-OPERATIONAL, which is right, not a fault.
 
-Imports: bus.error_control.supervision, bus.node.lifecycle (its states), bus.node.settings,
+Imports: bus.error_control.supervision, bus.node.lifecycle (its states), device.settings,
 states. No I/O, no clock.
 """
 
@@ -22,7 +22,7 @@ from gateway.bus.error_control.supervision import (
     WrongState,
 )
 from gateway.bus.node.lifecycle import LifecycleState
-from gateway.bus.node.settings import NodeSettings
+from gateway.device.settings import NodeSettings
 from gateway.states import REPORTED_STATES, NmtState
 
 #: What a node-guarding answer must report in each lifecycle state. None = any valid state.

@@ -12,10 +12,10 @@ Rule 2: nothing here does I/O or reads a clock. The driver asks ``next_action(no
 ``on_found``, ``on_lost``) and calls ``poll(now)`` for the boot timeout. Every event method
 returns the list of changes it caused.
 
-The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``bus/node/boot_steps.py``;
+The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``device/boot_steps.py``;
 the states, actions and changes it speaks in from ``bus/node/lifecycle_actions.py``.
 
-Imports: gateway.bus.node.boot_steps (the step type), gateway.bus.node.lifecycle_actions,
+Imports: gateway.device.boot_steps (the step type), gateway.bus.node.lifecycle_actions,
 gateway.cia301, gateway.objref and the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
@@ -26,7 +26,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
-from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.lifecycle_actions import (
     IDENTITY_ABSENT,
     IDENTITY_NAMES,
@@ -50,6 +49,7 @@ from gateway.cia301 import (
     NMT_START,
     abort_text,
 )
+from gateway.device.boot_steps import ConfigStep
 from gateway.objref import ObjRef
 
 #: what the lifecycle speaks in is defined in ``lifecycle_actions`` and read from here too

@@ -34,8 +34,8 @@ of the node (``health.fresh_since = None``); values are good again only when rec
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
-Imports: bus.node.* (lifecycle, lifecycle_report, boot steps, settings, outputs, events,
-features, sdo_done), bus.sdo.* (channel, client), bus.error_control.* (node_supervision,
+Imports: bus.node.* (lifecycle, lifecycle_report, outputs, events, features, sdo_done),
+device.* (boot_steps, settings), bus.sdo.* (channel, client), bus.error_control.* (node_supervision,
 guarding bit), bus.emcy, pdo.codec, pdo.verify, cia301, errors, image, states, objref, logging
 (levels of the log lines it returns). Never python-can, asyncio or a northbound module.
 """
@@ -49,7 +49,6 @@ from typing import Any
 from gateway.bus.emcy import EmcyHistory, decode_emcy
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.error_control.node_supervision import NodeSupervision
-from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.events import HealthChanged, Note, Output, Refresh, SdoDone, Send
 from gateway.bus.node.features import NodeFeature
 from gateway.bus.node.features.guarding_bit import GuardingBitLink
@@ -67,10 +66,11 @@ from gateway.bus.node.lifecycle import (
 from gateway.bus.node.lifecycle_report import lifecycle_reports
 from gateway.bus.node.outputs import OutputImage
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
-from gateway.bus.node.settings import NodeSettings
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
 from gateway.bus.sdo.client import SdoTransfer
 from gateway.cia301 import COB_NMT, COB_NMT_EC
+from gateway.device.boot_steps import ConfigStep
+from gateway.device.settings import NodeSettings
 from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth, NodeImage
 from gateway.objref import ObjRef

@@ -4,8 +4,8 @@ profile and settings ask for (``node_features``), the image's record keys bound 
 thread writes a record, and the ``NodeParts`` that hold it all for the master's handlers, inbox
 and services (``bus/master.py``).
 
-Imports: bus.node.* (node, features, boot_steps, settings), bus.error_control.guarding_bit,
-bus.resolved, image, objref, pdo.codec, pdo.verify, profiles, config.
+Imports: bus.node.* (node, features), device.* (boot_steps, settings), bus.error_control.guarding_bit,
+device.resolved, image, objref, pdo.codec, pdo.verify, profiles, config.
 Nothing northbound, no python-can (the frames are the master's).
 """
 
@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
-from gateway.bus.node.boot_steps import ConfigStep
 from gateway.bus.node.features import NodeFeature
 from gateway.bus.node.features.guarding_bit import GuardingBitLink
 from gateway.bus.node.features.referencing import ReferencingFeature
@@ -24,9 +23,10 @@ from gateway.bus.node.features.rtr_poll import RtrPoll
 from gateway.bus.node.features.sync_wait import SyncWait
 from gateway.bus.node.features.verify_mapping import VerifyMapping
 from gateway.bus.node.node import Node
-from gateway.bus.node.settings import NodeSettings
-from gateway.bus.resolved import NamedNode, ResolvedNode
 from gateway.config import NodeConfig
+from gateway.device.boot_steps import ConfigStep
+from gateway.device.resolved import NamedNode, ResolvedNode
+from gateway.device.settings import NodeSettings
 from gateway.image import NodeImage, ProcessImage, RxCell
 from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
