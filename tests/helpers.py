@@ -69,9 +69,9 @@ def load_checked_config(path: Any, environ: Any = None) -> Any:
 def resolved(cfg: Any) -> Any:
     """The nodes of a bare Config, resolved (``gateway.device.resolved``), for a test that builds
     a consumer (Master, ModbusGateway, the register map...) from it."""
-    from gateway.device.resolved import resolve_config
+    from gateway.device.resolved import resolve_nodes
 
-    return resolve_config(cfg)
+    return resolve_nodes(cfg)[0]
 
 
 def with_nodes(cfg: Any) -> tuple[Any, Any]:

@@ -204,12 +204,6 @@ def resolve_nodes(cfg: Config) -> tuple[dict[str, ResolvedNode], list[Problem]]:
     return out, problems
 
 
-def resolve_config(cfg: Config) -> dict[str, ResolvedNode]:
-    """Node name -> its resolution, in config order, for a config already validated (its nodes'
-    problems were reported when it was loaded)."""
-    return resolve_nodes(cfg)[0]
-
-
 class Resolved(NamedTuple):
     """A config and its nodes, resolved once (``cfg, nodes = load_resolved(path)``)."""
 

@@ -18,10 +18,9 @@ import pytest
 
 from gateway.checks import check_config
 from gateway.config import ConfigError
-from gateway.device.resolved import resolve_config
 from gateway.image import Quality
 from gateway.profiles import ProfileError
-from tests.helpers import gateway_of, make_config, wait_until
+from tests.helpers import gateway_of, make_config, resolved, wait_until
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eds-corpus"
 FILES = sorted(p for p in CORPUS.glob("*") if p.suffix.lower() in (".eds", ".dcf")) if CORPUS.is_dir() else []
@@ -39,7 +38,7 @@ def checked_config(eds: Path) -> Any:
             zenoh={"enabled": False},
             simulate={"nodes": "all", "motion": {"dev": {"kind": "hold", "hold": 1234}}},
         )
-        check_config(cfg, resolve_config(cfg))
+        check_config(cfg, resolved(cfg))
     except (ConfigError, ProfileError):
         return None
     return cfg
@@ -52,7 +51,7 @@ async def test_each_enabled_tpdo_of_a_simulated_corpus_device_arrives_as_the_gat
     cfg = checked_config(eds)
     if cfg is None:
         pytest.skip(f"check refuses {eds.name}")
-    if 0x1000 not in resolve_config(cfg)["dev"].lp.od:
+    if 0x1000 not in resolved(cfg)["dev"].lp.od:
         # CiA 301 makes 1000h mandatory: the gateway finds a running node by reading it, so a
         # device without it is found only by its boot-up, sent here before the gateway listens
         pytest.skip(f"{eds.name} has no 1000h (device type)")

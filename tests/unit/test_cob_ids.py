@@ -19,10 +19,9 @@ from gateway.bus.node.features.sync_wait import WAITING
 from gateway.checks import config_warnings
 from gateway.config import ConfigError
 from gateway.config import parse_config as parse_unchecked
-from gateway.device.resolved import resolve_config
 from gateway.eds import lint, load_eds
 from gateway.image import ProcessImage
-from tests.helpers import gateway_of, with_nodes
+from tests.helpers import gateway_of, resolved, with_nodes
 from tests.helpers import parse_checked_config as parse_config
 from tests.unit.test_node import sgh10
 
@@ -146,7 +145,7 @@ def test_the_master_refuses_a_second_receiver_for_one_cob_id() -> None:
     cfg = parse_unchecked(config(WIRE, io, **SYNC), "cfg.yaml", environ={})
     image = ProcessImage()
     with pytest.raises(AssertionError, match=r"COB-ID 0x181: io TPDO1 would replace wire TPDO1"):
-        Master(cfg, image, BusDriver(cfg.can.bus_kwargs(), image), nodes=resolve_config(cfg))
+        Master(cfg, image, BusDriver(cfg.can.bus_kwargs(), image), nodes=resolved(cfg))
 
 
 # --------------------------------------------------------------------------- device files

@@ -18,11 +18,10 @@ from hypothesis import strategies as st
 
 from gateway.bus.node.events import Note, Send, ValuesRead
 from gateway.bus.node.parts import NodeParts, build_node
-from gateway.device.resolved import resolve_config
 from gateway.image import NodeImage, Quality, SignalValue
 from gateway.profiles import expected_identity
 from gateway.states import LinkState, NmtState
-from tests.helpers import make_config
+from tests.helpers import make_config, resolved
 
 
 class Device:
@@ -101,7 +100,7 @@ class Harness:
             [{"name": "n", "node_id": node_id, "profile": profile, **node}],
             master={"boot_timeout_s": 5, "heartbeat_timeout_multiple": 1.5, **(master or {})},
         )
-        rn = resolve_config(cfg)[cfg.nodes[0].name]
+        rn = resolved(cfg)[cfg.nodes[0].name]
         lp = rn.lp
         self.image = NodeImage("n", node_id, lp.family, [s.name for s in lp.profile.signals])
         self.parts: NodeParts = build_node(rn, self.image)

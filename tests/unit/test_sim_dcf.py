@@ -7,10 +7,9 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from gateway.device.resolved import resolve_config
 from gateway.profiles import load_node_profile
 from gateway.sim.node import SimNode
-from tests.helpers import frame, make_config
+from tests.helpers import frame, make_config, resolved
 
 DCF = Path(__file__).resolve().parents[1] / "data" / "eds" / "compact.dcf"
 NODE = 10
@@ -35,12 +34,12 @@ def test_compact_mapping_values_are_what_the_simulated_device_holds() -> None:
 
 def test_each_tpdo_goes_out_with_the_mapping_the_gateway_decodes() -> None:
     cfg = make_config([{"name": "io", "node_id": NODE, "eds": str(DCF)}])
-    resolved = resolve_config(cfg)[cfg.nodes[0].name]
-    node = SimNode(resolved.lp, NODE)
+    rn = resolved(cfg)[cfg.nodes[0].name]
+    node = SimNode(rn.lp, NODE)
     node.power_on(0.0)
     node.handle(frame(0x000, f"01 {NODE:02X}"), 0.0)
     sent = {m.arbitration_id: bytes(m.data) for m in node.tick(0.05)}
-    codecs = {c.cob_id: c for c in resolved.tpdos}
+    codecs = {c.cob_id: c for c in rn.tpdos}
     assert sorted(codecs) == sorted(sent) == [0x180 + NODE, 0x280 + NODE]
     a1, a2 = node.get(0x2000, 1), node.get(0x2000, 2)
     assert sent[0x180 + NODE] == struct.pack("<hh", a1, a2)
