@@ -372,17 +372,15 @@ class Gateway:
         if self.cfg.web.enabled:
             from gateway.sim.faults import FaultInjector
             from gateway.web.console import WebConsole
+            from gateway.web.views import ConsoleModel
 
+            regmap = (
+                self.modbus.regmap
+                if self.modbus is not None
+                else build_register_map(self.cfg, self.nodes)
+            )
             self.web = WebConsole(
-                self.cfg,
-                self.image,
-                self.commands,
-                self.overview,
-                regmap=(
-                    self.modbus.regmap
-                    if self.modbus is not None
-                    else build_register_map(self.cfg, self.nodes)
-                ),
+                ConsoleModel(self.cfg, self.image, self.commands, self.overview, regmap=regmap),
                 decoder=FrameDecoder(self.cfg, self.nodes),
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
                 frames=self.driver,

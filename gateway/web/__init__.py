@@ -9,6 +9,8 @@ or with ``web.enabled: false``). Modules:
 * ``live``: server-sent events, the one hand-off from the CAN reader thread, per-client
   coalescing and bounds;
 * ``commissioning``: SDO, NMT, set points, LSS inquiry (``web.writes: true`` only);
+* ``pages``: each page put together at load time, the shell ``static/shell.html`` around the
+  page's own part;
 * ``static/``: HTML, CSS and plain JavaScript, shipped as package data (no CDN, no build step).
 
 Imports: nothing of this package is imported by bus/, modbus/ or zenoh_bridge/.

@@ -45,7 +45,7 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.limits, web.monitor, northbound.scaling, northbound.frames (the decoder's type), config, image, commands (types), ratelimit, sim.faults
+web.events, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), ratelimit, sim.faults
 (names and errors; the injector itself is given by the application; the bus driver, for the
 monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
@@ -63,10 +63,7 @@ from importlib import resources
 from typing import Any
 
 from gateway import __version__
-from gateway.commands import CommandService
-from gateway.config import Config
 from gateway.health import JSON_TYPE, Request, Response, Stream
-from gateway.image import ProcessImage
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
 from gateway.ratelimit import RateLimitedLog
@@ -75,8 +72,9 @@ from gateway.web.events import KINDS, EventLog, EventLogHandler
 from gateway.web.limits import ClientBudget
 from gateway.web.live import LiveHub, Subscriber, TooManyClients
 from gateway.web.monitor import FrameMonitor, FrameSource, TooManyPages
+from gateway.web.pages import fill_pages
 from gateway.web.trends import TREND_PERIOD_S, TrendStore
-from gateway.web.views import ConsoleModel, OverviewFn
+from gateway.web.views import ConsoleModel
 
 log = logging.getLogger("gateway.web")
 
@@ -111,11 +109,24 @@ def _json(status: HTTPStatus, doc: Any) -> Response:
     return Response(status, body, JSON_TYPE)
 
 
+def _refuse_unless_json_post(request: Request) -> Response | None:
+    """None for a POST with a JSON body; else the 405 or 415 answer."""
+    if request.method != "POST":
+        return Response(HTTPStatus.METHOD_NOT_ALLOWED, b"POST only\n", headers={"Allow": "POST"})
+    if not request.headers.get("content-type", "").startswith("application/json"):
+        return _json(
+            HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
+            {"error": "bad_request", "message": "send Content-Type: application/json"},
+        )
+    return None
+
+
 def _load_static() -> dict[str, bytes]:
     files = {}
     for entry in resources.files("gateway.web").joinpath("static").iterdir():
         if entry.is_file() and any(entry.name.endswith(ext) for ext in CONTENT_TYPES):
             files[entry.name] = entry.read_bytes()
+    fill_pages(files)
     return files
 
 
@@ -124,35 +135,32 @@ class WebConsole:
 
     def __init__(
         self,
-        cfg: Config,
-        image: ProcessImage,
-        commands: CommandService,
-        overview_fn: OverviewFn | None = None,
+        model: ConsoleModel,
         *,
-        regmap: Any,
         decoder: FrameDecoder,
         faults: Any = None,
         frames: FrameSource | None = None,
     ):
-        self.cfg = cfg
-        self.image = image
-        self.commands = commands
-        self.writes = cfg.web.writes
-        self._token = (cfg.web.token or "").encode()
-        self.model = ConsoleModel(cfg, image, commands, overview_fn, regmap=regmap)
-        self.hub = LiveHub(image)
-        self.commissioning = Commissioning(cfg, commands) if self.writes else None
+        #: what the pages and the API show, built from the console's config, image and commands
+        self.model = model
+        self.cfg = model.cfg
+        self.image = model.image
+        self.commands = model.commands
+        self.writes = self.cfg.web.writes
+        self._token = (self.cfg.web.token or "").encode()
+        self.hub = LiveHub(self.image)
+        self.commissioning = Commissioning(self.cfg, self.commands) if self.writes else None
         self.static = _load_static()
         self.warn = RateLimitedLog(log)
-        self.trends = TrendStore(image, self.model.meta)
-        self.events = EventLog(commands.names())
+        self.trends = TrendStore(self.image, self.model.meta)
+        self.events = EventLog(self.commands.names())
         self._log_handler = EventLogHandler(self.events)
         self.read_budget = ClientBudget(READS_PER_S, READ_BURST)
         #: ``gateway.sim.faults.FaultInjector`` when nodes are simulated in this process
         self.faults = faults
         self._sampler: Any = None
         #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
-        self.monitor = FrameMonitor(cfg, decoder, frames)
+        self.monitor = FrameMonitor(self.cfg, decoder, frames)
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)
@@ -406,13 +414,9 @@ class WebConsole:
 
     async def _read(self, request: Request, rest: str) -> Response:
         """SDO upload of one configuration object (see the module docstring)."""
-        if request.method != "POST":
-            return Response(HTTPStatus.METHOD_NOT_ALLOWED, b"POST only\n", headers={"Allow": "POST"})
-        if not request.headers.get("content-type", "").startswith("application/json"):
-            return _json(
-                HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
-                {"error": "bad_request", "message": "send Content-Type: application/json"},
-            )
+        refused = _refuse_unless_json_post(request)
+        if refused is not None:
+            return refused
         node, _, signal = rest.partition("/")
         metas = self.model.meta.get(node)
         if metas is None:
@@ -517,13 +521,9 @@ class WebConsole:
         rule = self.fault_rule()
         if rule == "none":
             return None  # absent: 404, as if it did not exist
-        if request.method != "POST":
-            return Response(HTTPStatus.METHOD_NOT_ALLOWED, b"POST only\n", headers={"Allow": "POST"})
-        if not request.headers.get("content-type", "").startswith("application/json"):
-            return _json(
-                HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
-                {"error": "bad_request", "message": "send Content-Type: application/json"},
-            )
+        refused = _refuse_unless_json_post(request)
+        if refused is not None:
+            return refused
         if rule == "token":
             refused = self._authorised(request)
             if refused is not None:
