@@ -23,7 +23,8 @@ from typing import Any
 import can
 
 from gateway.app import Gateway
-from gateway.config import Config, parse_config
+from gateway.config import Config, ConfigError, parse_config
+from gateway.device.resolved import resolve_nodes
 
 #: SGH10 TPDO1 and TPDO2 (SGH10 manual 4.3.1.1 Table 5): position int32, velocity int16
 SGH10_TPDO = struct.Struct("<ih")
@@ -79,6 +80,15 @@ def bench_config(nodes: list[dict[str, Any]], tag: str, **sections: Any) -> Conf
         else:
             raw[key] = value
     return parse_config(raw, environ={})
+
+
+def gateway_of(cfg: Config, **kwargs: Any) -> Gateway:
+    """A gateway built from a bench config and its nodes, resolved here (the command line
+    resolves them when it loads the file)."""
+    nodes, problems = resolve_nodes(cfg)
+    if problems:
+        raise ConfigError([f"{key}: {text}" for key, text in problems])
+    return Gateway(cfg, nodes, **kwargs)
 
 
 def zenoh_endpoint(cfg: Config) -> str:
@@ -150,7 +160,7 @@ async def wait_until(cond: Callable[[], Any], timeout_s: float, what: str) -> An
 async def start_gateway(cfg: Config, injector: Injector, node_ids: Iterable[int]) -> Gateway:
     """Start a gateway without simulated nodes and make the nodes alive and operational: a
     boot-up (so the master does not probe them by SDO: nobody would answer) then a heartbeat."""
-    gw = Gateway(cfg, simulate=False)
+    gw = gateway_of(cfg, simulate=False)
     await gw.start()
     ids = list(node_ids)
     for nid in ids:

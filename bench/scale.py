@@ -41,6 +41,7 @@ from bench.rig import (
     Injector,
     bench_config,
     bench_node,
+    gateway_of,
     unique_channel,
     wait_until,
     zenoh_endpoint,
@@ -111,9 +112,7 @@ class ScaleGateway:
         }
 
     async def _start(self) -> Any:
-        from gateway.app import Gateway
-
-        gw = Gateway(self.cfg, simulate=False)
+        gw = gateway_of(self.cfg, simulate=False)
         await gw.start()
         self.gen = threading.Thread(target=self._generate, name="generator", daemon=True)
         self.gen.start()

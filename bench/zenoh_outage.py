@@ -30,9 +30,8 @@ import zenoh
 import zenoh.ext
 
 from bench.report import Row, Section, render_section
-from bench.rig import free_port, unique_channel
+from bench.rig import free_port, gateway_of, unique_channel
 from bench.stats import Summary
-from gateway.app import Gateway
 from gateway.config import parse_config
 
 REPS = 3
@@ -83,7 +82,7 @@ async def _one(rep: int) -> dict[str, float]:
         },
         environ={},
     )
-    gw = Gateway(cfg)
+    gw = gateway_of(cfg)
     await gw.start()
     adv_s = zenoh.open(_conf("client", endpoint))
     plain_s = zenoh.open(_conf("client", endpoint))
