@@ -264,6 +264,7 @@ class QueryService:
         sig = self.commands.signal(rt, req.signal)
         body = set_body(payload)
         via = "rpdo" if rt.is_output(req.signal) else "sdo"
+        done = {"ok": True, "node": req.node, "signal": req.signal}
         if body.bits is not None:
             named = {b.name: b for b in sig.bits}
             bits: dict[int, bool] = {}
@@ -278,23 +279,10 @@ class QueryService:
                     )
                 bits[b.bit] = on
             await self.commands.write_bits(req.node, req.signal, bits)
-            return {
-                "ok": True,
-                "node": req.node,
-                "signal": req.signal,
-                "bits": body.bits,
-                "via": via,
-            }
+            return {**done, "bits": body.bits, "via": via}
         raw = body.value if body.raw else to_raw(sig, body.value, self.scaling(req.node, sig))
         await self.commands.write_signal(req.node, req.signal, raw)
-        return {
-            "ok": True,
-            "node": req.node,
-            "signal": req.signal,
-            "value": body.value,
-            "raw": raw,
-            "via": via,
-        }
+        return {**done, "value": body.value, "raw": raw, "via": via}
 
     # ------------------------------------------------------------------ read-only answers
     def _value_now(self, node: NodeImage, sig: Signal) -> dict[str, Any]:
