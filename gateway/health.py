@@ -42,7 +42,7 @@ import json
 import logging
 import urllib.parse
 from collections.abc import Awaitable, Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 from http import HTTPStatus
 from typing import Any
 
@@ -188,6 +188,7 @@ def pair_status(
     }
 
 
+@dataclass(eq=False, repr=False)
 class HealthServer:
     """HTTP endpoint for probes and scrapes on the running event loop.
 
@@ -199,24 +200,16 @@ class HealthServer:
         await server.stop()
     """
 
-    def __init__(
-        self,
-        host: str,
-        port: int,
-        status_fn: StatusFn,
-        registry: CollectorRegistry | None = None,
-        *,
-        read_timeout_s: float = 5.0,
-        app: App | None = None,
-    ) -> None:
-        self.host = host
-        self.requested_port = port
-        self._status_fn = status_fn
-        self._registry = registry
-        self._app = app
-        self._read_timeout_s = read_timeout_s
-        self._server: asyncio.Server | None = None
-        self._connections: set[asyncio.Task[None]] = set()
+    host: str
+    #: the port asked for; ``port`` is the one bound
+    requested_port: int
+    status_fn: StatusFn
+    registry: CollectorRegistry | None = None
+    _: KW_ONLY
+    read_timeout_s: float = 5.0
+    app: App | None = None
+    _server: asyncio.Server | None = field(default=None, init=False)
+    _connections: set[asyncio.Task[None]] = field(default_factory=set, init=False)
 
     @property
     def port(self) -> int:
@@ -239,7 +232,7 @@ class HealthServer:
         log.info(
             "health endpoint on %s (/healthz, /livez, /metrics%s)",
             self.url,
-            ", web console /" if self._app is not None else "",
+            ", web console /" if self.app is not None else "",
         )
 
     async def stop(self) -> None:
@@ -278,7 +271,7 @@ class HealthServer:
     async def _serve_one(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
             head = await asyncio.wait_for(
-                reader.readuntil(b"\r\n\r\n"), timeout=self._read_timeout_s
+                reader.readuntil(b"\r\n\r\n"), timeout=self.read_timeout_s
             )
         except TimeoutError:
             return await self._respond(writer, HTTPStatus.REQUEST_TIMEOUT, b"", TEXT_TYPE)
@@ -293,7 +286,7 @@ class HealthServer:
         method, target, _version = parts
         path, _, query = target.partition("?")
         head_only = method == "HEAD"
-        if self._app is not None and path not in HEALTH_PATHS:
+        if self.app is not None and path not in HEALTH_PATHS:
             return await self._serve_app(reader, writer, method, path, query, lines[1:])
         if method not in ("GET", "HEAD"):
             return await self._respond(
@@ -309,8 +302,8 @@ class HealthServer:
         if path == "/livez":
             body = b'{"status": "alive"}\n'
             return await self._respond(writer, HTTPStatus.OK, body, JSON_TYPE, head_only=head_only)
-        if path == "/metrics" and self._registry is not None:
-            body = generate_latest(self._registry)
+        if path == "/metrics" and self.registry is not None:
+            body = generate_latest(self.registry)
             return await self._respond(
                 writer, HTTPStatus.OK, body, CONTENT_TYPE_LATEST, head_only=head_only
             )
@@ -327,7 +320,7 @@ class HealthServer:
         query: str,
         header_lines: list[str],
     ) -> None:
-        assert self._app is not None
+        assert self.app is not None
         headers: dict[str, str] = {}
         for line in header_lines:
             name, sep, value = line.partition(":")
@@ -352,7 +345,7 @@ class HealthServer:
                 f"body larger than {MAX_REQUEST_BODY_BYTES} bytes",
             )
         try:
-            body = await asyncio.wait_for(reader.readexactly(length), self._read_timeout_s)
+            body = await asyncio.wait_for(reader.readexactly(length), self.read_timeout_s)
         except TimeoutError:
             return await self._refuse(
                 writer, path, HTTPStatus.REQUEST_TIMEOUT, "timeout", "the body did not arrive in time"
@@ -366,7 +359,7 @@ class HealthServer:
             client=_peer(writer),
         )
         try:
-            answer = await self._app(request)
+            answer = await self.app(request)
         except Exception:
             log.exception("web request %s %s failed", method, path)
             answer = _error(path, HTTPStatus.INTERNAL_SERVER_ERROR, "internal", "internal error (see the log)")
@@ -395,7 +388,7 @@ class HealthServer:
 
     async def _health(self) -> tuple[HTTPStatus, bytes]:
         try:
-            status = self._status_fn()
+            status = self.status_fn()
             if inspect.isawaitable(status):
                 status = await status
         except Exception as exc:

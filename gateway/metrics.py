@@ -41,7 +41,8 @@ import math
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -152,6 +153,12 @@ class Counters:
     other_master: dict[str, int] = field(default_factory=dict)
     other_sdo_client: dict[str, int] = field(default_factory=dict)
 
+    def copy(self) -> Counters:
+        """A copy with label dicts of its own (the caller holds the lock that guards them)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        own: dict[str, Any] = {k: v.copy() if isinstance(v, dict) else v for k, v in values.items()}
+        return Counters(**own)
+
 
 @dataclass(frozen=True, slots=True)
 class NodeSample:
@@ -257,28 +264,8 @@ class Metrics:
                 refresh()
             except Exception:  # a broken source must not take /metrics down with it
                 log.exception("metrics refresh failed")
-        c = self.counters
         with self._lock:
-            return Counters(
-                frames_in=c.frames_in,
-                frames_out=c.frames_out,
-                bus_errors=c.bus_errors,
-                bursts=c.bursts,
-                zenoh_publications=c.zenoh_publications,
-                pair_takeovers=c.pair_takeovers,
-                pair_negotiations=c.pair_negotiations,
-                pair_role=c.pair_role,
-                decode_errors=c.decode_errors.copy(),
-                emcy=c.emcy.copy(),
-                sdo_requests=c.sdo_requests.copy(),
-                sdo_aborts=c.sdo_aborts.copy(),
-                modbus_requests=c.modbus_requests.copy(),
-                modbus_exceptions=c.modbus_exceptions.copy(),
-                zenoh_refused=c.zenoh_refused.copy(),
-                modbus_watchdog_trips=c.modbus_watchdog_trips.copy(),
-                other_master=c.other_master.copy(),
-                other_sdo_client=c.other_sdo_client.copy(),
-            )
+            return self.counters.copy()
 
     def node_samples(self) -> list[NodeSample]:
         """One ``NodeSample`` per node from the node source; none when it fails (scrape)."""

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
-from gateway.image import EmcyRecord, NodeImage, Quality
+from gateway.image import EmcyRecord, NodeHealth, NodeImage, Quality
 from gateway.states import LinkState, NmtState
 
 #: quality as every adapter writes it in text
@@ -69,6 +69,14 @@ class NodeSummary:
         return "lost" if self.boot_count or self.loss_count else "not seen"
 
 
+#: the summary's fields that are the node health's own (same name, same type): copied as they are
+HEALTH_FIELDS = tuple(
+    f.name
+    for f in fields(NodeSummary)
+    if f.type == {h.name: h.type for h in fields(NodeHealth)}.get(f.name)
+)
+
+
 def worst_quality(node: NodeImage, process: Collection[str], now: float) -> Quality:
     """The worst quality of ``process`` (the signals the node's TPDOs carry) from one snapshot;
     a node without process signals is good while operational, else stale."""
@@ -87,24 +95,12 @@ def summarize(
     h = node.health
     rx = node.rx
     return NodeSummary(
+        **{name: getattr(h, name) for name in HEALTH_FIELDS},
         name=node.name,
         node_id=node.node_id,
-        nmt_state=h.nmt_state,
-        alive=h.alive,
         operational=node.operational(),
         usable=node.usable(),
-        lifecycle=h.lifecycle,
-        supervision=h.supervision,
-        link=h.link,
-        link_fault_count=h.link_fault_count,
-        loss_count=h.loss_count,
-        boot_count=h.boot_count,
-        emcy_count=h.emcy_count,
-        last_emcy=h.last_emcy,
         current_errors=tuple(h.current_errors),
-        last_sdo_abort=h.last_sdo_abort,
-        last_error=h.last_error,
-        outputs=h.outputs,
         data_age_s=node.data_age_s(now),
         pdo_errors=rx.pdo_too_short + rx.pdo_too_long,
         quality=None if process is None else worst_quality(node, process, now),

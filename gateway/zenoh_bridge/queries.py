@@ -24,6 +24,7 @@ import json
 import logging
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import KW_ONLY, dataclass, field
 from typing import Any
 
 import zenoh
@@ -81,41 +82,33 @@ def write_operation(req: Request, payload: bytes | None) -> str | None:
     return None
 
 
+@dataclass(eq=False, repr=False)
 class QueryService:
     """The answers of the queryable (see the module docstring)."""
 
-    def __init__(
-        self,
-        cfg: Config,
-        image: ProcessImage,
-        commands: CommandService,
-        prefix: str,
-        *,
-        session: Callable[[], zenoh.Session | None],
-        scaling: Callable[[str, Signal], Scaling],
-        value_keys: Mapping[str, Sequence[tuple[str, Signal]]],
-        catalog_fn: Callable[[], dict[str, Any]] | None = None,
-        seq_of: Callable[[str, str, int], int] | None = None,
-    ):
-        self.cfg = cfg
-        self.image = image
-        self.commands = commands
-        self.prefix = prefix
-        self.session = session
-        self.scaling = scaling
-        #: per node, the published value keys and their signals (the publishing side's plan)
-        self.value_keys = value_keys
+    cfg: Config
+    image: ProcessImage
+    commands: CommandService
+    prefix: str
+    _: KW_ONLY
+    session: Callable[[], zenoh.Session | None]
+    scaling: Callable[[str, Signal], Scaling]
+    #: per node, the published value keys and their signals (the publishing side's plan)
+    value_keys: Mapping[str, Sequence[tuple[str, Signal]]]
+    catalog_fn: Callable[[], dict[str, Any]] | None = None
+    #: (node, signal, the image's seq) -> the seq its value key shows (a pair's take-over
+    #: continues the other gateway's numbers: ``ZenohBridge.seq_of``)
+    seq_of: Callable[[str, str, int], int] | None = None
+    #: set when the bridge starts
+    loop: asyncio.AbstractEventLoop | None = field(default=None, init=False)
+    #: refused writes by operation (``zenoh_refused_total{operation}``)
+    refused: dict[str, int] = field(default_factory=dict, init=False)
+
+    def __post_init__(self) -> None:
         self.published: Collection[tuple[str, str]] = frozenset(
-            (node, sig.name) for node, keys in value_keys.items() for _key, sig in keys
+            (node, sig.name) for node, keys in self.value_keys.items() for _key, sig in keys
         )
-        self.catalog_fn = catalog_fn
-        #: (node, signal, the image's seq) -> the seq its value key shows (a pair's take-over
-        #: continues the other gateway's numbers: ``ZenohBridge.seq_of``)
-        self.seq_of = seq_of
-        self.gate = WriteGate(cfg.zenoh)
-        self.loop: asyncio.AbstractEventLoop | None = None  # set when the bridge starts
-        #: refused writes by operation (``zenoh_refused_total{operation}``)
-        self.refused: dict[str, int] = {}
+        self.gate = WriteGate(self.cfg.zenoh)
         self._refusal_log = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
         self._answers: set[asyncio.Future[Any]] = set()
 
@@ -264,6 +257,7 @@ class QueryService:
         sig = self.commands.signal(rt, req.signal)
         body = set_body(payload)
         via = "rpdo" if rt.is_output(req.signal) else "sdo"
+        done = {"ok": True, "node": req.node, "signal": req.signal}
         if body.bits is not None:
             named = {b.name: b for b in sig.bits}
             bits: dict[int, bool] = {}
@@ -278,23 +272,10 @@ class QueryService:
                     )
                 bits[b.bit] = on
             await self.commands.write_bits(req.node, req.signal, bits)
-            return {
-                "ok": True,
-                "node": req.node,
-                "signal": req.signal,
-                "bits": body.bits,
-                "via": via,
-            }
+            return {**done, "bits": body.bits, "via": via}
         raw = body.value if body.raw else to_raw(sig, body.value, self.scaling(req.node, sig))
         await self.commands.write_signal(req.node, req.signal, raw)
-        return {
-            "ok": True,
-            "node": req.node,
-            "signal": req.signal,
-            "value": body.value,
-            "raw": raw,
-            "via": via,
-        }
+        return {**done, "value": body.value, "raw": raw, "via": via}
 
     # ------------------------------------------------------------------ read-only answers
     def _value_now(self, node: NodeImage, sig: Signal) -> dict[str, Any]:
