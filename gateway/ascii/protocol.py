@@ -40,7 +40,7 @@ import re
 from collections.abc import Collection
 from dataclasses import dataclass
 
-from gateway.ascii.grammar import IEC_TEXT, Iec, Overlong, RequestError, peek_seq, tokenize
+from gateway.ascii.grammar import Iec, Overlong, RequestError, peek_seq, tokenize
 from gateway.ascii.values import (
     DATA_TYPES,
     UNSUPPORTED_TYPES,
@@ -119,7 +119,7 @@ def event_emcy(node_id: int, code: int, register: int, manufacturer: bytes) -> s
 
 
 def event_error(node_id: int, code: Iec) -> str:
-    return f"{NET} {node_id} ERROR {int(code)} ({IEC_TEXT[code]})"
+    return f"{NET} {node_id} ERROR {int(code)} ({code.text})"
 
 
 @dataclass(frozen=True)
