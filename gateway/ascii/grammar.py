@@ -3,30 +3,24 @@
 ``MAX_LINE_BYTES`` refused whole), the sequence number of a line, and its tokens (``tokenize``:
 ``#`` comments, quoted visible strings).
 
-Imports: the standard library. Nothing of bus/, commands or a transport.
+Imports: gateway.code_text (the base of ``Iec``) and the standard library. Nothing of bus/,
+commands or a transport.
 """
 
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from enum import IntEnum
+
+from gateway.code_text import CodeText
 
 #: a request line longer than this (without its line end) is refused with ERROR:101
 MAX_LINE_BYTES = 1024
 
 
-class Iec(IntEnum):
+class Iec(CodeText):
     """CiA 309-3 internal error codes (the answer ``ERROR:<code>``; 2xx also in events), each
     with its text (``Iec.TIMEOUT.text``: "Time-out")."""
-
-    text: str
-
-    def __new__(cls, code: int, text: str) -> Iec:
-        member = int.__new__(cls, code)
-        member._value_ = code
-        member.text = text
-        return member
 
     REQUEST_NOT_SUPPORTED = 100, "Request not supported"
     SYNTAX = 101, "Syntax error"

@@ -45,11 +45,7 @@ from gateway.bus.node.lifecycle_actions import (
     WriteStep,
     WrongDevice,
 )
-from gateway.cia301 import (
-    NMT_ENTER_PRE_OPERATIONAL,
-    NMT_START,
-    abort_text,
-)
+from gateway.cia301 import NmtCommand, abort_text
 from gateway.objref import ObjRef
 
 #: what the lifecycle speaks in is defined in ``lifecycle_actions`` and read from here too
@@ -269,7 +265,7 @@ class NodeLifecycle:
     def next_action(self, now: float) -> Action | None:
         """What the driver must do now; the same action again until its outcome is reported."""
         if self.state is LifecycleState.BOOTING and self._preop_pending:
-            return SendNmt("nmt_preop", NMT_ENTER_PRE_OPERATIONAL)
+            return SendNmt("nmt_preop", NmtCommand.ENTER_PRE_OPERATIONAL)
         if self.state is not LifecycleState.CONFIGURING:
             return None
         if self._retry_at is not None:
@@ -283,7 +279,7 @@ class NodeLifecycle:
             obj = self.expected_identity[self._identity_index][0]
             return ReadIdentity("identity", obj, self._in_flight)
         if self.step_index >= len(self.steps):
-            return SendNmt("nmt_start", NMT_START)
+            return SendNmt("nmt_start", NmtCommand.START)
         if self._in_flight is None:
             self._token += 1
             self._in_flight = self._token
