@@ -201,23 +201,14 @@ class Nmt:
 
 
 @dataclass(frozen=True)
-class SetNode:
+class Set:
+    """``[net] set node <id>``, ``set network <net>``, ``[net] set sdo_timeout <ms>``: a
+    default of the connection (``value`` in milliseconds for the SDO timeout)."""
+
     seq: int | None
-    net: int | None
+    net: int | None  # always None for ``set network``
+    what: str  # a key of _SET_MAX
     value: int
-
-
-@dataclass(frozen=True)
-class SetNetwork:
-    seq: int | None
-    value: int
-
-
-@dataclass(frozen=True)
-class SetSdoTimeout:
-    seq: int | None
-    net: int | None
-    value_ms: int
 
 
 @dataclass(frozen=True)
@@ -231,8 +222,10 @@ class InfoVersion:
     seq: int | None
 
 
-Request = Read | Write | Nmt | SetNode | SetNetwork | SetSdoTimeout | Help | InfoVersion
+Request = Read | Write | Nmt | Set | Help | InfoVersion
 
+#: the ``set`` commands and the largest value each takes (the smallest is 1)
+_SET_MAX = {"network": 0xFFFF, "node": 127, "sdo_timeout": 0xFFFF}
 _NMT_WORDS = {"start": "start", "stop": "stop", "preop": "preop", "preoperational": "preop"}
 _RESET_WORDS = {"node": "reset", "comm": "reset-comm", "communication": "reset-comm"}
 #: commands of CiA 309-3 (or of canopend/coctl) this gateway does not offer: ERROR:100
@@ -333,18 +326,12 @@ def parse_request(line: str) -> Request | None:
         if net is not None:
             raise RequestError(seq, Iec.SYNTAX, "a node before a network-level command")
         net = node
-        if what == "network":
-            need(1)
-            if net is not None:
-                raise RequestError(seq, Iec.SYNTAX, "set network takes no net before it")
-            return SetNetwork(seq, _number(args[0], 1, 0xFFFF, seq, "network"))
-        if what == "node":
-            need(1)
-            return SetNode(seq, net, _number(args[0], 1, 127, seq, "node"))
-        if what == "sdo_timeout":
-            need(1)
-            return SetSdoTimeout(seq, net, _number(args[0], 1, 0xFFFF, seq, "sdo_timeout"))
-        raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, f"set {what}")
+        if what not in _SET_MAX:
+            raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, f"set {what}")
+        need(1)
+        if what == "network" and net is not None:
+            raise RequestError(seq, Iec.SYNTAX, "set network takes no net before it")
+        return Set(seq, net, what, _number(args[0], 1, _SET_MAX[what], seq, what))
     if cmd == "help":
         if numbers or len(args) > 1:
             raise RequestError(seq, Iec.SYNTAX, "help [datatype]")
@@ -462,37 +449,41 @@ class Session:
             raise RequestError(seq, Iec.UNSUPPORTED_NODE)
         return node
 
+    def _node_to_change(
+        self, seq: int | None, net: int | None, node: int | None, *, all_ok: bool
+    ) -> int:
+        """The node a write or an NMT command addresses (``_node``); while writes are off the
+        request is refused (ERROR:100) and counted."""
+        node_id = self._node(seq, net, node, all_ok=all_ok)
+        if not self.writes:
+            self.refused += 1
+            raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+        return node_id
+
     def _resolve(self, req: Request) -> list[str] | Call:
         seq = req.seq
         if isinstance(req, Read):
             node = self._node(seq, req.net, req.node, all_ok=False)
             return SdoUpload(seq, node, req.index, req.sub, req.dtype, self.sdo_timeout_ms)
         if isinstance(req, Write):
-            node = self._node(seq, req.net, req.node, all_ok=False)
-            if not self.writes:
-                self.refused += 1
-                raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+            node = self._node_to_change(seq, req.net, req.node, all_ok=False)
             return SdoDownload(seq, node, req.index, req.sub, req.data, self.sdo_timeout_ms)
         if isinstance(req, Nmt):
-            node = self._node(seq, req.net, req.node, all_ok=True)
-            if not self.writes:
-                self.refused += 1
-                raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+            node = self._node_to_change(seq, req.net, req.node, all_ok=True)
             return NmtCommand(seq, node, req.command)
-        if isinstance(req, SetNetwork):
-            if req.value != NET:
-                raise RequestError(seq, Iec.UNSUPPORTED_NET)
-            self.default_net = req.value
-            return [answer_ok(seq)]
-        if isinstance(req, SetNode):
-            self._net(seq, req.net)
-            if req.value not in self.node_ids:
-                raise RequestError(seq, Iec.UNSUPPORTED_NODE)
-            self.default_node = req.value
-            return [answer_ok(seq)]
-        if isinstance(req, SetSdoTimeout):
-            self._net(seq, req.net)
-            self.sdo_timeout_ms = req.value_ms
+        if isinstance(req, Set):
+            if req.what == "network":
+                if req.value != NET:
+                    raise RequestError(seq, Iec.UNSUPPORTED_NET)
+                self.default_net = req.value
+            elif req.what == "node":
+                self._net(seq, req.net)
+                if req.value not in self.node_ids:
+                    raise RequestError(seq, Iec.UNSUPPORTED_NODE)
+                self.default_node = req.value
+            else:
+                self._net(seq, req.net)
+                self.sdo_timeout_ms = req.value
             return [answer_ok(seq)]
         if isinstance(req, Help):
             if req.topic not in ("", "datatype"):
