@@ -172,20 +172,30 @@ class EventTracker:
 
 # --------------------------------------------------------------------------- requests
 @dataclass(frozen=True)
-class Read:
+class _Request:
+    """What every request line carries: its sequence number (``[seq]``, echoed in the answer)."""
+
     seq: int | None
+
+
+@dataclass(frozen=True)
+class _NodeRequest(_Request):
+    """A node-level command, ``[seq] [[net] node] command``: None where the line leaves the net
+    or the node to the connection's default."""
+
     net: int | None
     node: int | None
+
+
+@dataclass(frozen=True)
+class Read(_NodeRequest):
     index: int
     sub: int
     dtype: DataType | None
 
 
 @dataclass(frozen=True)
-class Write:
-    seq: int | None
-    net: int | None
-    node: int | None
+class Write(_NodeRequest):
     index: int
     sub: int
     dtype: DataType
@@ -193,33 +203,28 @@ class Write:
 
 
 @dataclass(frozen=True)
-class Nmt:
-    seq: int | None
-    net: int | None
-    node: int | None
+class Nmt(_NodeRequest):
     command: str  # a key of gateway.states.NMT_COMMANDS
 
 
 @dataclass(frozen=True)
-class Set:
+class Set(_Request):
     """``[net] set node <id>``, ``set network <net>``, ``[net] set sdo_timeout <ms>``: a
     default of the connection (``value`` in milliseconds for the SDO timeout)."""
 
-    seq: int | None
     net: int | None  # always None for ``set network``
     what: str  # a key of _SET_MAX
     value: int
 
 
 @dataclass(frozen=True)
-class Help:
-    seq: int | None
+class Help(_Request):
     topic: str
 
 
 @dataclass(frozen=True)
-class InfoVersion:
-    seq: int | None
+class InfoVersion(_Request):
+    """``info version``: the gateway's identity and version."""
 
 
 Request = Read | Write | Nmt | Set | Help | InfoVersion
@@ -437,8 +442,10 @@ class Session:
         if net != NET:
             raise RequestError(seq, Iec.UNSUPPORTED_NET)
 
-    def _node(self, seq: int | None, net: int | None, node: int | None, *, all_ok: bool) -> int:
-        self._net(seq, net)
+    def _node(self, req: _NodeRequest, *, all_ok: bool) -> int:
+        """The node id ``req`` addresses (its own or the default; 0, all nodes, if ``all_ok``)."""
+        seq, node = req.seq, req.node
+        self._net(seq, req.net)
         if node is None:
             if self.default_node is None:
                 raise RequestError(seq, Iec.NO_DEFAULT_NODE)
@@ -449,27 +456,25 @@ class Session:
             raise RequestError(seq, Iec.UNSUPPORTED_NODE)
         return node
 
-    def _node_to_change(
-        self, seq: int | None, net: int | None, node: int | None, *, all_ok: bool
-    ) -> int:
+    def _node_to_change(self, req: _NodeRequest, *, all_ok: bool) -> int:
         """The node a write or an NMT command addresses (``_node``); while writes are off the
         request is refused (ERROR:100) and counted."""
-        node_id = self._node(seq, net, node, all_ok=all_ok)
+        node = self._node(req, all_ok=all_ok)
         if not self.writes:
             self.refused += 1
-            raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
-        return node_id
+            raise RequestError(req.seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+        return node
 
     def _resolve(self, req: Request) -> list[str] | Call:
         seq = req.seq
         if isinstance(req, Read):
-            node = self._node(seq, req.net, req.node, all_ok=False)
+            node = self._node(req, all_ok=False)
             return SdoUpload(seq, node, req.index, req.sub, req.dtype, self.sdo_timeout_ms)
         if isinstance(req, Write):
-            node = self._node_to_change(seq, req.net, req.node, all_ok=False)
+            node = self._node_to_change(req, all_ok=False)
             return SdoDownload(seq, node, req.index, req.sub, req.data, self.sdo_timeout_ms)
         if isinstance(req, Nmt):
-            node = self._node_to_change(seq, req.net, req.node, all_ok=True)
+            node = self._node_to_change(req, all_ok=True)
             return NmtCommand(seq, node, req.command)
         if isinstance(req, Set):
             if req.what == "network":
