@@ -8,12 +8,17 @@ every other module imports it from here (the device manuals repeat these tables:
 4.2.1.2 table 3 and AP05 manual 5.2.1.2 table 23 for NMT, SGH10 manual 4.4.1.3 table 8 for the
 abort codes). Device-specific numbers stay with the device's profile.
 
-Imports: canopen.objectdictionary.datatypes (the data type codes). Nothing of the gateway.
+Imports: canopen.objectdictionary.datatypes (the data type codes), gateway.code_text (the base
+of the enums whose members carry a text). Nothing else of the gateway.
 """
 
 from __future__ import annotations
 
+from enum import IntEnum
+
 from canopen.objectdictionary import datatypes as dt
+
+from gateway.code_text import CodeText
 
 # --------------------------------------------------------------------------- function codes
 # CiA 301 7.3.3 pre-defined connection set (11-bit CAN-ID = function code + node id)
@@ -76,21 +81,23 @@ TRANSMISSION_SYNC = range(0, 241)
 TRANSMISSION_EVENT = (254, 255)
 
 # --------------------------------------------------------------------------- NMT
-# CiA 301 7.2.8.3.1 (SGH10 manual 4.2.1.2 table 3; AP05 manual 5.2.1.2 table 23)
-NMT_START = 0x01
-NMT_STOP = 0x02
-NMT_ENTER_PRE_OPERATIONAL = 0x80
-NMT_RESET_NODE = 0x81
-NMT_RESET_COMMUNICATION = 0x82
-#: command names as the CLI, Modbus HR 0, Zenoh and the web console spell them
-NMT_COMMANDS: dict[str, int] = {
-    "start": NMT_START,
-    "stop": NMT_STOP,
-    "preop": NMT_ENTER_PRE_OPERATIONAL,
-    "reset": NMT_RESET_NODE,
-    "reset-comm": NMT_RESET_COMMUNICATION,
-}
-NMT_BY_CODE: dict[int, str] = {v: k for k, v in NMT_COMMANDS.items()}
+
+
+class NmtCommand(CodeText):
+    """NMT command specifier, byte 0 of an NMT frame (CiA 301 7.2.8.3.1; SGH10 manual 4.2.1.2
+    table 3; AP05 manual 5.2.1.2 table 23), each with its ``text``: the command's name as the
+    CLI, Modbus HR 0, Zenoh and the web console spell it."""
+
+    START = 0x01, "start"
+    STOP = 0x02, "stop"
+    ENTER_PRE_OPERATIONAL = 0x80, "preop"
+    RESET_NODE = 0x81, "reset"
+    RESET_COMMUNICATION = 0x82, "reset-comm"
+
+
+#: the NMT commands by name, and the names by command specifier
+NMT_COMMANDS: dict[str, int] = {c.text: int(c) for c in NmtCommand}
+NMT_BY_CODE: dict[int, str] = {int(c): c.text for c in NmtCommand}
 
 # --------------------------------------------------------------------------- data types
 # CiA 301 7.4.7.1 table 44 (the codes are python canopen's ``datatypes``)
@@ -220,18 +227,29 @@ def register_bits(register: int) -> list[str]:
 
 
 # --------------------------------------------------------------------------- SDO command specifiers
-# CiA 301 7.2.4.3 (byte 0 of an SDO frame, bits 7..5; AP05 manual table 32)
-SDO_CCS_DOWNLOAD_SEGMENT = 0x00
-SDO_CCS_INITIATE_DOWNLOAD = 0x20
-SDO_CCS_INITIATE_UPLOAD = 0x40
-SDO_CCS_UPLOAD_SEGMENT = 0x60
-SDO_SCS_UPLOAD_SEGMENT = 0x00
-SDO_SCS_DOWNLOAD_SEGMENT = 0x20
-SDO_SCS_INITIATE_UPLOAD = 0x40
-SDO_SCS_INITIATE_DOWNLOAD = 0x60
-SDO_CS_ABORT = 0x80
-#: initiate download, expedited, size indicated, 1 data byte (AP05 manual table 32: 2Fh)
-SDO_DOWNLOAD_1_BYTE = 0x2F
+# CiA 301 7.2.4.3 (byte 0 of an SDO frame, bits 7..5; AP05 manual table 32): the client's and
+# the server's specifiers are two sets, the same number means another service in each
+
+
+class SdoCcs(IntEnum):
+    """Client command specifier: byte 0 of a request, bits 7..5."""
+
+    DOWNLOAD_SEGMENT = 0x00
+    INITIATE_DOWNLOAD = 0x20
+    INITIATE_UPLOAD = 0x40
+    UPLOAD_SEGMENT = 0x60
+    ABORT = 0x80
+
+
+class SdoScs(IntEnum):
+    """Server command specifier: byte 0 of an answer, bits 7..5."""
+
+    UPLOAD_SEGMENT = 0x00
+    DOWNLOAD_SEGMENT = 0x20
+    INITIATE_UPLOAD = 0x40
+    INITIATE_DOWNLOAD = 0x60
+    ABORT = 0x80
+
 
 # --------------------------------------------------------------------------- SDO abort codes
 #: CiA 301 7.2.4.3.17 table 22, 0503 0000h .. 0800 0024h

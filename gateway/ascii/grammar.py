@@ -3,54 +3,39 @@
 ``MAX_LINE_BYTES`` refused whole), the sequence number of a line, and its tokens (``tokenize``:
 ``#`` comments, quoted visible strings).
 
-Imports: the standard library. Nothing of bus/, commands or a transport.
+Imports: gateway.code_text (the base of ``Iec``) and the standard library. Nothing of bus/,
+commands or a transport.
 """
 
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from enum import IntEnum
+
+from gateway.code_text import CodeText
 
 #: a request line longer than this (without its line end) is refused with ERROR:101
 MAX_LINE_BYTES = 1024
 
 
-class Iec(IntEnum):
-    """CiA 309-3 internal error codes (the answer ``ERROR:<code>``; 2xx also in events)."""
+class Iec(CodeText):
+    """CiA 309-3 internal error codes (the answer ``ERROR:<code>``; 2xx also in events), each
+    with its text (``Iec.TIMEOUT.text``: "Time-out")."""
 
-    REQUEST_NOT_SUPPORTED = 100
-    SYNTAX = 101
-    INTERNAL_STATE = 102  # request not processed due to internal state
-    TIMEOUT = 103
-    NO_DEFAULT_NET = 104
-    NO_DEFAULT_NODE = 105
-    UNSUPPORTED_NET = 106
-    UNSUPPORTED_NODE = 107
-    LOST_GUARDING = 200
-    LOST_CONNECTION = 201
-    HEARTBEAT_STARTED = 202
-    HEARTBEAT_LOST = 203
-    WRONG_NMT_STATE = 204
-    BOOT_UP = 205
-
-
-IEC_TEXT: dict[Iec, str] = {
-    Iec.REQUEST_NOT_SUPPORTED: "Request not supported",
-    Iec.SYNTAX: "Syntax error",
-    Iec.INTERNAL_STATE: "Request not processed due to internal state",
-    Iec.TIMEOUT: "Time-out",
-    Iec.NO_DEFAULT_NET: "No default net set",
-    Iec.NO_DEFAULT_NODE: "No default node set",
-    Iec.UNSUPPORTED_NET: "Unsupported net",
-    Iec.UNSUPPORTED_NODE: "Unsupported node",
-    Iec.LOST_GUARDING: "Lost guarding message",
-    Iec.LOST_CONNECTION: "Lost connection",
-    Iec.HEARTBEAT_STARTED: "Heartbeat started",
-    Iec.HEARTBEAT_LOST: "Heartbeat lost",
-    Iec.WRONG_NMT_STATE: "Wrong NMT state",
-    Iec.BOOT_UP: "Boot-up",
-}
+    REQUEST_NOT_SUPPORTED = 100, "Request not supported"
+    SYNTAX = 101, "Syntax error"
+    INTERNAL_STATE = 102, "Request not processed due to internal state"
+    TIMEOUT = 103, "Time-out"
+    NO_DEFAULT_NET = 104, "No default net set"
+    NO_DEFAULT_NODE = 105, "No default node set"
+    UNSUPPORTED_NET = 106, "Unsupported net"
+    UNSUPPORTED_NODE = 107, "Unsupported node"
+    LOST_GUARDING = 200, "Lost guarding message"
+    LOST_CONNECTION = 201, "Lost connection"
+    HEARTBEAT_STARTED = 202, "Heartbeat started"
+    HEARTBEAT_LOST = 203, "Heartbeat lost"
+    WRONG_NMT_STATE = 204, "Wrong NMT state"
+    BOOT_UP = 205, "Boot-up"
 
 
 class LineSplitter:
@@ -117,7 +102,7 @@ class RequestError(Exception):
 
     def __init__(self, seq: int | None, code: Iec, why: str = ""):
         self.seq, self.code, self.why = seq, code, why
-        super().__init__(f"{int(code)} {IEC_TEXT[code]}" + (f": {why}" if why else ""))
+        super().__init__(f"{int(code)} {code.text}" + (f": {why}" if why else ""))
 
 
 def tokenize(line: str) -> list[str]:

@@ -40,7 +40,7 @@ import re
 from collections.abc import Collection
 from dataclasses import dataclass
 
-from gateway.ascii.grammar import IEC_TEXT, Iec, Overlong, RequestError, peek_seq, tokenize
+from gateway.ascii.grammar import Iec, Overlong, RequestError, peek_seq, tokenize
 from gateway.ascii.values import (
     DATA_TYPES,
     UNSUPPORTED_TYPES,
@@ -119,7 +119,7 @@ def event_emcy(node_id: int, code: int, register: int, manufacturer: bytes) -> s
 
 
 def event_error(node_id: int, code: Iec) -> str:
-    return f"{NET} {node_id} ERROR {int(code)} ({IEC_TEXT[code]})"
+    return f"{NET} {node_id} ERROR {int(code)} ({code.text})"
 
 
 @dataclass(frozen=True)
@@ -172,20 +172,30 @@ class EventTracker:
 
 # --------------------------------------------------------------------------- requests
 @dataclass(frozen=True)
-class Read:
+class _Request:
+    """What every request line carries: its sequence number (``[seq]``, echoed in the answer)."""
+
     seq: int | None
+
+
+@dataclass(frozen=True)
+class _NodeRequest(_Request):
+    """A node-level command, ``[seq] [[net] node] command``: None where the line leaves the net
+    or the node to the connection's default."""
+
     net: int | None
     node: int | None
+
+
+@dataclass(frozen=True)
+class Read(_NodeRequest):
     index: int
     sub: int
     dtype: DataType | None
 
 
 @dataclass(frozen=True)
-class Write:
-    seq: int | None
-    net: int | None
-    node: int | None
+class Write(_NodeRequest):
     index: int
     sub: int
     dtype: DataType
@@ -193,46 +203,34 @@ class Write:
 
 
 @dataclass(frozen=True)
-class Nmt:
-    seq: int | None
-    net: int | None
-    node: int | None
+class Nmt(_NodeRequest):
     command: str  # a key of gateway.states.NMT_COMMANDS
 
 
 @dataclass(frozen=True)
-class SetNode:
-    seq: int | None
-    net: int | None
+class Set(_Request):
+    """``[net] set node <id>``, ``set network <net>``, ``[net] set sdo_timeout <ms>``: a
+    default of the connection (``value`` in milliseconds for the SDO timeout)."""
+
+    net: int | None  # always None for ``set network``
+    what: str  # a key of _SET_MAX
     value: int
 
 
 @dataclass(frozen=True)
-class SetNetwork:
-    seq: int | None
-    value: int
-
-
-@dataclass(frozen=True)
-class SetSdoTimeout:
-    seq: int | None
-    net: int | None
-    value_ms: int
-
-
-@dataclass(frozen=True)
-class Help:
-    seq: int | None
+class Help(_Request):
     topic: str
 
 
 @dataclass(frozen=True)
-class InfoVersion:
-    seq: int | None
+class InfoVersion(_Request):
+    """``info version``: the gateway's identity and version."""
 
 
-Request = Read | Write | Nmt | SetNode | SetNetwork | SetSdoTimeout | Help | InfoVersion
+Request = Read | Write | Nmt | Set | Help | InfoVersion
 
+#: the ``set`` commands and the largest value each takes (the smallest is 1)
+_SET_MAX = {"network": 0xFFFF, "node": 127, "sdo_timeout": 0xFFFF}
 _NMT_WORDS = {"start": "start", "stop": "stop", "preop": "preop", "preoperational": "preop"}
 _RESET_WORDS = {"node": "reset", "comm": "reset-comm", "communication": "reset-comm"}
 #: commands of CiA 309-3 (or of canopend/coctl) this gateway does not offer: ERROR:100
@@ -333,18 +331,12 @@ def parse_request(line: str) -> Request | None:
         if net is not None:
             raise RequestError(seq, Iec.SYNTAX, "a node before a network-level command")
         net = node
-        if what == "network":
-            need(1)
-            if net is not None:
-                raise RequestError(seq, Iec.SYNTAX, "set network takes no net before it")
-            return SetNetwork(seq, _number(args[0], 1, 0xFFFF, seq, "network"))
-        if what == "node":
-            need(1)
-            return SetNode(seq, net, _number(args[0], 1, 127, seq, "node"))
-        if what == "sdo_timeout":
-            need(1)
-            return SetSdoTimeout(seq, net, _number(args[0], 1, 0xFFFF, seq, "sdo_timeout"))
-        raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, f"set {what}")
+        if what not in _SET_MAX:
+            raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, f"set {what}")
+        need(1)
+        if what == "network" and net is not None:
+            raise RequestError(seq, Iec.SYNTAX, "set network takes no net before it")
+        return Set(seq, net, what, _number(args[0], 1, _SET_MAX[what], seq, what))
     if cmd == "help":
         if numbers or len(args) > 1:
             raise RequestError(seq, Iec.SYNTAX, "help [datatype]")
@@ -450,8 +442,10 @@ class Session:
         if net != NET:
             raise RequestError(seq, Iec.UNSUPPORTED_NET)
 
-    def _node(self, seq: int | None, net: int | None, node: int | None, *, all_ok: bool) -> int:
-        self._net(seq, net)
+    def _node(self, req: _NodeRequest, *, all_ok: bool) -> int:
+        """The node id ``req`` addresses (its own or the default; 0, all nodes, if ``all_ok``)."""
+        seq, node = req.seq, req.node
+        self._net(seq, req.net)
         if node is None:
             if self.default_node is None:
                 raise RequestError(seq, Iec.NO_DEFAULT_NODE)
@@ -462,37 +456,39 @@ class Session:
             raise RequestError(seq, Iec.UNSUPPORTED_NODE)
         return node
 
+    def _node_to_change(self, req: _NodeRequest, *, all_ok: bool) -> int:
+        """The node a write or an NMT command addresses (``_node``); while writes are off the
+        request is refused (ERROR:100) and counted."""
+        node = self._node(req, all_ok=all_ok)
+        if not self.writes:
+            self.refused += 1
+            raise RequestError(req.seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+        return node
+
     def _resolve(self, req: Request) -> list[str] | Call:
         seq = req.seq
         if isinstance(req, Read):
-            node = self._node(seq, req.net, req.node, all_ok=False)
+            node = self._node(req, all_ok=False)
             return SdoUpload(seq, node, req.index, req.sub, req.dtype, self.sdo_timeout_ms)
         if isinstance(req, Write):
-            node = self._node(seq, req.net, req.node, all_ok=False)
-            if not self.writes:
-                self.refused += 1
-                raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+            node = self._node_to_change(req, all_ok=False)
             return SdoDownload(seq, node, req.index, req.sub, req.data, self.sdo_timeout_ms)
         if isinstance(req, Nmt):
-            node = self._node(seq, req.net, req.node, all_ok=True)
-            if not self.writes:
-                self.refused += 1
-                raise RequestError(seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
+            node = self._node_to_change(req, all_ok=True)
             return NmtCommand(seq, node, req.command)
-        if isinstance(req, SetNetwork):
-            if req.value != NET:
-                raise RequestError(seq, Iec.UNSUPPORTED_NET)
-            self.default_net = req.value
-            return [answer_ok(seq)]
-        if isinstance(req, SetNode):
-            self._net(seq, req.net)
-            if req.value not in self.node_ids:
-                raise RequestError(seq, Iec.UNSUPPORTED_NODE)
-            self.default_node = req.value
-            return [answer_ok(seq)]
-        if isinstance(req, SetSdoTimeout):
-            self._net(seq, req.net)
-            self.sdo_timeout_ms = req.value_ms
+        if isinstance(req, Set):
+            if req.what == "network":
+                if req.value != NET:
+                    raise RequestError(seq, Iec.UNSUPPORTED_NET)
+                self.default_net = req.value
+            elif req.what == "node":
+                self._net(seq, req.net)
+                if req.value not in self.node_ids:
+                    raise RequestError(seq, Iec.UNSUPPORTED_NODE)
+                self.default_node = req.value
+            else:
+                self._net(seq, req.net)
+                self.sdo_timeout_ms = req.value
             return [answer_ok(seq)]
         if isinstance(req, Help):
             if req.topic not in ("", "datatype"):

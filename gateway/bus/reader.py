@@ -82,6 +82,12 @@ def tpdo_handler(
     status_pos = names.index(p.node.status_signal) if gb and p.node.status_signal in names else -1
     status_mask = 1 << gb.status_bit if gb else 0
 
+    def wrong_length(key: str, n: int, mapping: str) -> None:
+        """The rate-limited warning of a TPDO of ``n`` bytes, not its mapping's ``length``;
+        ``mapping`` ends the sentence (``"needs %d; ignored"``)."""
+        text = "node %s: PDO 0x%03X with %d bytes, mapping " + mapping
+        warn.warning(key, text, node.name, codec.cob_id, n, length)
+
     def handle(msg: can.Message) -> None:
         data = msg.data
         if msg.is_remote_frame:
@@ -90,27 +96,13 @@ def tpdo_handler(
         if n < length:
             rx.pdo_too_short += 1
             counters["decode_errors"] += 1
-            warn.warning(
-                "short_pdo",
-                "node %s: PDO 0x%03X with %d bytes, mapping needs %d; ignored",
-                node.name,
-                codec.cob_id,
-                n,
-                length,
-            )
+            wrong_length("short_pdo", n, "needs %d; ignored")
             return
         if n > length:
             # CiA 301: a PDO longer than its mapping is processed (the mapped bytes)
             rx.pdo_too_long += 1
             counters["pdo_too_long"] += 1
-            warn.warning(
-                "long_pdo",
-                "node %s: PDO 0x%03X with %d bytes, mapping has %d; extra bytes ignored",
-                node.name,
-                codec.cob_id,
-                n,
-                length,
-            )
+            wrong_length("long_pdo", n, "has %d; extra bytes ignored")
         values = decode(data)
         # stamped with its receive time (bus clock), not when the reader got to it
         update(node, names, values, msg.timestamp or time.time(), rx, frame_time(msg))

@@ -15,14 +15,20 @@ from gateway.cli.load import EXIT_FAILED
 from gateway.config import ConfigError
 
 
-def cmd_eds_show(args: argparse.Namespace) -> int:
+def _load(path: str) -> Any:
+    """The device description at ``path``; a file that cannot be read raises ConfigError."""
     from gateway.eds import EdsError, load_eds
-    from gateway.eds.show import render
 
     try:
-        eds = load_eds(args.file)
+        return load_eds(path)
     except EdsError as exc:
         raise ConfigError(exc.problems) from None
+
+
+def cmd_eds_show(args: argparse.Namespace) -> int:
+    from gateway.eds.show import render
+
+    eds = _load(args.file)
     if args.strict:
         return cmd_eds_lint(args)
     sys.stdout.write(render(eds, args.node_id))
@@ -66,13 +72,9 @@ def cmd_eds_lint(args: argparse.Namespace) -> int:
 def cmd_profile_init(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from gateway.eds import EdsError, load_eds
     from gateway.eds.show import overlay_profile
 
-    try:
-        eds = load_eds(args.eds)
-    except EdsError as exc:
-        raise ConfigError(exc.problems) from None
+    eds = _load(args.eds)
     if args.output:
         out = Path(args.output)
         if out.exists() and not args.force:

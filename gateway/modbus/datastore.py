@@ -118,6 +118,18 @@ class ImageDatastore:
 
 
 # ---------------------------------------------------------------------- one request
+def _check(store: ImageDatastore, unit: int, fc: int, body: bytes) -> None:
+    """The checks every request passes first: raise the Modbus exception ``check_request``
+    gives a malformed or unsupported request, or 0Ah for a unit id that is not configured."""
+    code = check_request(fc, body)
+    if code is not None:
+        raise ModbusError(code, f"function code {fc}: malformed or unsupported request")
+    if unit not in store.regmap.units:
+        raise ModbusError(
+            ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"
+        )
+
+
 def execute_now(store: ImageDatastore, unit: int, pdu: bytes) -> bytes | None:
     """A register read served from the image at once (no await, no task), or None when the
     request needs ``execute`` (writes, bits, identification, outputs read through the command
@@ -126,13 +138,7 @@ def execute_now(store: ImageDatastore, unit: int, pdu: bytes) -> bytes | None:
     if fc not in (READ_HOLDING, READ_INPUT):
         return None
     body = pdu[1:]
-    code = check_request(fc, body)
-    if code is not None:
-        raise ModbusError(code, f"function code {fc}: malformed or unsupported request")
-    if unit not in store.regmap.units:
-        raise ModbusError(
-            ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"
-        )
+    _check(store, unit, fc, body)
     address, qty = struct.unpack(">HH", body)
     values = store.read_now(unit, READ_TABLE[fc], address, qty)
     if values is None:
@@ -144,13 +150,7 @@ def execute_now(store: ImageDatastore, unit: int, pdu: bytes) -> bytes | None:
 async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None) -> bytes:
     """Serve one request PDU; returns the response PDU (raises ModbusError / GatewayError)."""
     fc, body = pdu[0], pdu[1:]
-    malformed = check_request(fc, body)
-    if malformed is not None:
-        raise ModbusError(malformed, f"function code {fc}: malformed or unsupported request")
-    if unit not in store.regmap.units:
-        raise ModbusError(
-            ExceptionCode.GATEWAY_PATH_UNAVAILABLE, f"unit id {unit} is not configured"
-        )
+    _check(store, unit, fc, body)
     if fc == ENCAPSULATED_INTERFACE:
         code, object_id = parse_identification(body)
         return identification_response(await store.identification(unit), code, object_id)

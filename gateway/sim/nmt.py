@@ -20,28 +20,22 @@ from __future__ import annotations
 
 from typing import Literal
 
-from gateway.cia301 import (
-    NMT_ENTER_PRE_OPERATIONAL,
-    NMT_RESET_COMMUNICATION,
-    NMT_RESET_NODE,
-    NMT_START,
-    NMT_STOP,
-)
+from gateway.cia301 import NmtCommand
 from gateway.sim.objects import ObjectValues, PersistentStore
 from gateway.states import NmtState
 
 ResetKind = Literal["power", "node", "communication"]
 
 #: the NMT commands that change the state without a reset (4.2.1)
-NMT_COMMAND_STATES = {
-    NMT_START: NmtState.OPERATIONAL,
-    NMT_STOP: NmtState.STOPPED,
-    NMT_ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
+NMT_COMMAND_STATES: dict[int, NmtState] = {
+    NmtCommand.START: NmtState.OPERATIONAL,
+    NmtCommand.STOP: NmtState.STOPPED,
+    NmtCommand.ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
 }
 #: the NMT commands that reset the node (4.2.1, 4.2.2)
 NMT_COMMAND_RESETS: dict[int, ResetKind] = {
-    NMT_RESET_NODE: "node",
-    NMT_RESET_COMMUNICATION: "communication",
+    NmtCommand.RESET_NODE: "node",
+    NmtCommand.RESET_COMMUNICATION: "communication",
 }
 #: the store's sub-index of 1010h / 1011h each reset reloads (SGH10 manual 4.7.2.11/12: 1 all
 #: objects, 2 communication objects 1000h-1FFFh)

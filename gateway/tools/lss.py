@@ -53,7 +53,7 @@ from gateway.cia301 import (
     COB_NMT_EC,
     COB_SDO_RX,
     COB_SDO_TX,
-    NMT_RESET_COMMUNICATION,
+    NmtCommand,
     abort_text,
 )
 from gateway.config import Config
@@ -227,7 +227,7 @@ def do_set_node_id(s: LssSession, a: LssArgs, out: TextIO) -> None:
         return
     assert old is not None
     # SGH10 manual 4.6.2.1: back in LSS waiting, the next reset communication adopts the id
-    s.send_frame(COB_NMT, bytes([NMT_RESET_COMMUNICATION, old]))
+    s.send_frame(COB_NMT, bytes([NmtCommand.RESET_COMMUNICATION, old]))
     if s.wait_frame(COB_NMT_EC + node_id, max(2.0, s.master.timeout_s)) is None:
         raise LssFailed(f"NMT reset communication sent to node {old}: no boot-up from {node_id}")
     print(f"node {old} reset: boot-up received from node {node_id}", file=out)

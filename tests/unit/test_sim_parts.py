@@ -7,7 +7,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import gateway.sim.nmt as nmt
-from gateway.cia301 import NMT_RESET_COMMUNICATION, NMT_RESET_NODE, NMT_START, NMT_STOP
+from gateway.cia301 import NmtCommand
 from gateway.sim.device_faults import DeviceFaults
 from gateway.sim.error_control import ErrorControl
 from gateway.sim.hints import SimHints
@@ -53,11 +53,11 @@ class FakeHost:
 
 
 def test_nmt_says_what_a_command_asks_and_which_node_id_a_reset_adopts() -> None:
-    assert nmt.command(NMT_START, 0, 5) == NmtState.OPERATIONAL  # 0: every node (4.2.1)
-    assert nmt.command(NMT_STOP, 5, 5) == NmtState.STOPPED
-    assert nmt.command(NMT_START, 6, 5) is None  # another node's
-    assert nmt.command(NMT_RESET_NODE, 5, 5) == "node"
-    assert nmt.command(NMT_RESET_COMMUNICATION, 0, 5) == "communication"
+    assert nmt.command(NmtCommand.START, 0, 5) == NmtState.OPERATIONAL  # 0: every node (4.2.1)
+    assert nmt.command(NmtCommand.STOP, 5, 5) == NmtState.STOPPED
+    assert nmt.command(NmtCommand.START, 6, 5) is None  # another node's
+    assert nmt.command(NmtCommand.RESET_NODE, 5, 5) == "node"
+    assert nmt.command(NmtCommand.RESET_COMMUNICATION, 0, 5) == "communication"
     assert nmt.command(0x7F, 5, 5) is None  # not an NMT command
     # power-on: the stored id (LSS / Auto-ID) or the configured one; a pending one is dropped
     assert nmt.node_id_after_reset("power", configured=5, current=9, pending=8, stored=7) == 7

@@ -4,13 +4,15 @@ LSS sets the node id and bit rate of a device over the bus, addressed by its LSS
 identity object 1018h). Frames are always 8 bytes, byte 0 the command specifier (cs), unused
 bytes 00h (SGH10 manual 4.6). The master sends on 7E5h, slaves answer on 7E4h.
 
-Rule 1: every byte of an LSS frame the gateway sends or reads is built or parsed here, each
-service next to its manual section.
+Rule 1: every LSS frame the gateway sends or reads is built or parsed here, each service next to
+its manual section (the numbers of the protocol, shared with the simulated slave, are
+``cia305``'s).
 Rule 2: no I/O, no clock. ``LssMaster.send`` returns the frames to put on 7E5h; the caller feeds
 7E4h frames to ``on_frame`` and calls ``poll(now)`` for the answer timeout.
 
-Imports: gateway.cia301 (the LSS COB-IDs) and the standard library. Must not import python-can,
-canopen or other gateway modules.
+Imports: gateway.cia301 (the LSS COB-IDs), gateway.cia305 (the command specifiers, the bit
+timing table, the frame layout) and the standard library. Must not import python-can, canopen
+or other gateway modules.
 """
 
 from __future__ import annotations
@@ -20,36 +22,32 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 from gateway.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
+from gateway.cia305 import (
+    BIT_TIMING_KBPS,
+    BIT_TIMING_TABLE_DS301,
+    CS_ACTIVATE_BIT_TIMING,
+    CS_CONFIGURE_BIT_TIMING,
+    CS_CONFIGURE_NODE_ID,
+    CS_INQUIRE_NODE_ID,
+    CS_INQUIRE_PRODUCT_CODE,
+    CS_INQUIRE_REVISION,
+    CS_INQUIRE_SERIAL,
+    CS_INQUIRE_VENDOR_ID,
+    CS_STORE_CONFIGURATION,
+    CS_SWITCH_GLOBAL,
+    CS_SWITCH_SELECTIVE_ANSWER,
+    CS_SWITCH_SELECTIVE_PRODUCT,
+    CS_SWITCH_SELECTIVE_REVISION,
+    CS_SWITCH_SELECTIVE_SERIAL,
+    CS_SWITCH_SELECTIVE_VENDOR,
+    MODE_CONFIGURATION,
+    MODE_WAITING,
+    lss_frame,
+)
 
 #: SGH10 manual 4.6: "LSS (rx) (LSS master -> SGH10): 7E5h", "LSS (tx) (SGH10 -> master): 7E4h".
 COB_ID_MASTER_TO_SLAVE = COB_LSS_MASTER
 COB_ID_SLAVE_TO_MASTER = COB_LSS_SLAVE
-
-# Command specifiers (SGH10 manual 4.6.1 - 4.6.3)
-CS_SWITCH_GLOBAL = 0x04  # 4.6.1.1
-CS_SWITCH_SELECTIVE_VENDOR = 0x40  # 4.6.1.2
-CS_SWITCH_SELECTIVE_PRODUCT = 0x41
-CS_SWITCH_SELECTIVE_REVISION = 0x42
-CS_SWITCH_SELECTIVE_SERIAL = 0x43
-CS_SWITCH_SELECTIVE_ANSWER = 0x44
-CS_CONFIGURE_NODE_ID = 0x11  # 4.6.2.1
-CS_CONFIGURE_BIT_TIMING = 0x13  # 4.6.2.2
-CS_ACTIVATE_BIT_TIMING = 0x15  # 4.6.2.3
-CS_STORE_CONFIGURATION = 0x17  # 4.6.2.4
-CS_INQUIRE_VENDOR_ID = 0x5A  # 4.6.3.1
-CS_INQUIRE_PRODUCT_CODE = 0x5B  # 4.6.3.2
-CS_INQUIRE_REVISION = 0x5C  # 4.6.3.3
-CS_INQUIRE_SERIAL = 0x5D  # 4.6.3.4
-CS_INQUIRE_NODE_ID = 0x5E  # 4.6.3.5
-
-#: Switch state global modes (4.6.1.1).
-MODE_WAITING = 0x00
-MODE_CONFIGURATION = 0x01
-
-#: CiA 305 / DS-301 bit timing table (table selector 00h), SGH10 manual 4.6.2.2. Index 5 is
-#: reserved; the SGH10 supports indices 0..7 only (8 = 10 kbit/s "not supported" there).
-BIT_TIMING_KBPS: dict[int, int] = {0: 1000, 1: 800, 2: 500, 3: 250, 4: 125, 6: 50, 7: 20, 8: 10}
-BIT_TIMING_TABLE_DS301 = 0x00
 
 #: Error codes of the configure / store answers (4.6.2.1, 4.6.2.2, 4.6.2.4).
 _CONFIG_ERRORS: dict[int, dict[int, str]] = {
@@ -75,11 +73,6 @@ SERVICE_NAMES: dict[int, str] = {
     CS_INQUIRE_SERIAL: "inquire serial number",
     CS_INQUIRE_NODE_ID: "inquire node id",
 }
-
-
-def _frame(cs: int, payload: bytes = b"") -> bytes:
-    """cs + payload, filled with 00h to 8 bytes (SGH10 manual 4.6: unused bytes are 00h)."""
-    return bytes([cs]) + payload.ljust(7, b"\0")
 
 
 def bit_timing_index(kbps: int) -> int:
@@ -119,7 +112,7 @@ def switch_state_global(configuration: bool) -> LssRequest:
     """04h mode: all slaves to LSS configuration (01h) or waiting (00h); no answer (4.6.1.1)."""
     mode = MODE_CONFIGURATION if configuration else MODE_WAITING
     return LssRequest(
-        "switch state global", (_frame(CS_SWITCH_GLOBAL, bytes([mode])),), None, False
+        "switch state global", (lss_frame(CS_SWITCH_GLOBAL, bytes([mode])),), None, False
     )
 
 
@@ -129,7 +122,7 @@ def switch_state_selective(
     """40h..43h with the four parts of the LSS address (1018h:01..04, each UNSIGNED32 LE,
     bytes 1-4); the addressed slave answers 44h (4.6.1.2)."""
     frames = tuple(
-        _frame(cs, struct.pack("<I", value))
+        lss_frame(cs, struct.pack("<I", value))
         for cs, value in (
             (CS_SWITCH_SELECTIVE_VENDOR, vendor_id),
             (CS_SWITCH_SELECTIVE_PRODUCT, product_code),
@@ -146,7 +139,7 @@ def configure_node_id(node_id: int) -> LssRequest:
         raise ValueError(f"node id {node_id} out of range 1..127 (SGH10 manual 4.6.2.1)")
     return LssRequest(
         "configure node id",
-        (_frame(CS_CONFIGURE_NODE_ID, bytes([node_id])),),
+        (lss_frame(CS_CONFIGURE_NODE_ID, bytes([node_id])),),
         CS_CONFIGURE_NODE_ID,
         True,
     )
@@ -163,7 +156,7 @@ def configure_bit_timing(index: int, table: int = BIT_TIMING_TABLE_DS301) -> Lss
         raise ValueError("table selector and index are one byte each")
     return LssRequest(
         "configure bit timing",
-        (_frame(CS_CONFIGURE_BIT_TIMING, bytes([table, index])),),
+        (lss_frame(CS_CONFIGURE_BIT_TIMING, bytes([table, index])),),
         CS_CONFIGURE_BIT_TIMING,
         True,
     )
@@ -176,7 +169,7 @@ def activate_bit_timing(switch_delay_ms: int) -> LssRequest:
         raise ValueError(f"switch delay {switch_delay_ms} ms out of range 0..65535")
     return LssRequest(
         "activate bit timing",
-        (_frame(CS_ACTIVATE_BIT_TIMING, struct.pack("<H", switch_delay_ms)),),
+        (lss_frame(CS_ACTIVATE_BIT_TIMING, struct.pack("<H", switch_delay_ms)),),
         None,
         True,
     )
@@ -187,7 +180,7 @@ def store_configuration() -> LssRequest:
     configuration state."""
     return LssRequest(
         "store configuration",
-        (_frame(CS_STORE_CONFIGURATION),),
+        (lss_frame(CS_STORE_CONFIGURATION),),
         CS_STORE_CONFIGURATION,
         True,
     )
@@ -208,7 +201,7 @@ def inquire(what: str) -> LssRequest:
     cs = _INQUIRE.get(what)
     if cs is None:
         raise ValueError(f"cannot inquire {what!r}; one of {', '.join(_INQUIRE)}")
-    return LssRequest(SERVICE_NAMES[cs], (_frame(cs),), cs, True)
+    return LssRequest(SERVICE_NAMES[cs], (lss_frame(cs),), cs, True)
 
 
 # --------------------------------------------------------------------------- answers

@@ -16,7 +16,7 @@ The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``device/b
 the states, actions and changes it speaks in from ``bus/node/lifecycle_actions.py``.
 
 Imports: gateway.device.boot_steps (the step type), gateway.bus.node.lifecycle_actions,
-gateway.cia301, gateway.objref and the standard library.
+gateway.bus.transitions (the table's rows), gateway.cia301, gateway.objref and the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
 
@@ -44,11 +44,8 @@ from gateway.bus.node.lifecycle_actions import (
     WriteStep,
     WrongDevice,
 )
-from gateway.cia301 import (
-    NMT_ENTER_PRE_OPERATIONAL,
-    NMT_START,
-    abort_text,
-)
+from gateway.bus.transitions import transition_table
+from gateway.cia301 import NmtCommand, abort_text
 from gateway.device.boot_steps import ConfigStep
 from gateway.objref import ObjRef
 
@@ -122,23 +119,16 @@ _W, _B, _C, _O = (
 )
 _E = LifecycleEvent
 #: (state, event) -> next state: every state change of ``NodeLifecycle`` (its docstring shows
-#: the same table with the actions)
-TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = {
-    (_W, _E.BOOTUP): _B,
-    (_C, _E.BOOTUP): _B,
-    (_O, _E.BOOTUP): _B,
-    (_W, _E.FOUND): _B,
-    (_B, _E.CONFIGURE): _C,  # NMT pre-operational sent, or the boot-up said so (4.2.1.1)
-    (_C, _E.START_SENT): _O,
-    (_B, _E.LOST): _W,
-    (_C, _E.LOST): _W,
-    (_O, _E.LOST): _W,
-    (_C, _E.WRONG_IDENTITY): _W,
-    (_W, _E.ADOPTED): _O,
-    (_B, _E.STOOD_DOWN): _W,
-    (_C, _E.STOOD_DOWN): _W,
-    (_O, _E.STOOD_DOWN): _W,
-}
+#: the same table with the actions), written as rows (from these states, on these events, to)
+TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = transition_table(
+    ((_W, _C, _O), (_E.BOOTUP,), _B),
+    ((_W,), (_E.FOUND,), _B),
+    ((_B,), (_E.CONFIGURE,), _C),  # NMT pre-operational sent, or the boot-up said so (4.2.1.1)
+    ((_C,), (_E.START_SENT,), _O),
+    ((_B, _C, _O), (_E.LOST, _E.STOOD_DOWN), _W),
+    ((_C,), (_E.WRONG_IDENTITY,), _W),
+    ((_W,), (_E.ADOPTED,), _O),
+)
 
 
 class LifecycleError(RuntimeError):
@@ -269,7 +259,7 @@ class NodeLifecycle:
     def next_action(self, now: float) -> Action | None:
         """What the driver must do now; the same action again until its outcome is reported."""
         if self.state is LifecycleState.BOOTING and self._preop_pending:
-            return SendNmt("nmt_preop", NMT_ENTER_PRE_OPERATIONAL)
+            return SendNmt("nmt_preop", NmtCommand.ENTER_PRE_OPERATIONAL)
         if self.state is not LifecycleState.CONFIGURING:
             return None
         if self._retry_at is not None:
@@ -283,7 +273,7 @@ class NodeLifecycle:
             obj = self.expected_identity[self._identity_index][0]
             return ReadIdentity("identity", obj, self._in_flight)
         if self.step_index >= len(self.steps):
-            return SendNmt("nmt_start", NMT_START)
+            return SendNmt("nmt_start", NmtCommand.START)
         if self._in_flight is None:
             self._token += 1
             self._in_flight = self._token

@@ -53,7 +53,8 @@ The time slot is CiA 302-2's: ``priority * priority_slot_s + node_id * device_sl
 (1F90h:04, 1F90h:05); the defaults here are shorter than 1F90h's (1500 ms, 10 ms) so that a
 take-over fits in a second.
 
-Imports: gateway.cia301 (the heartbeat's COB-ID) and the standard library.
+Imports: gateway.bus.transitions (the table's rows), gateway.cia301 (the heartbeat's COB-ID) and
+the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
 
@@ -63,6 +64,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal, NamedTuple
 
+from gateway.bus.transitions import transition_table
 from gateway.cia301 import COB_NMT_EC as COB_HEARTBEAT  # heartbeat, + node id
 
 # CiA 302-2 (NMT flying master): the COB-IDs of its services
@@ -104,22 +106,16 @@ class Heard(StrEnum):
 
 _L, _N, _S, _A = Role.LISTENING, Role.NEGOTIATING, Role.STANDBY, Role.ACTIVE
 _H = Heard
-#: (role, heard) -> next role: every role change (the module docstring shows the same table)
-TRANSITIONS: dict[tuple[Role, Heard], Role] = {
-    (_L, _H.LOGICAL_HEARTBEAT): _S,
-    (_L, _H.BETTER_CLAIM): _S,
-    (_L, _H.WORSE_CLAIM): _S,
-    (_L, _H.NEGOTIATION): _N,
-    (_L, _H.DETECTION_OVER): _N,
-    (_N, _H.LOGICAL_HEARTBEAT): _S,
-    (_N, _H.BETTER_CLAIM): _S,
-    (_N, _H.WORSE_CLAIM): _S,
-    (_N, _H.SLOT_OVER): _A,
-    (_S, _H.NEGOTIATION): _N,
-    (_S, _H.ACTIVE_SILENT): _N,
-    (_A, _H.BETTER_CLAIM): _S,
-    (_A, _H.STALLED): _S,
-}
+#: (role, heard) -> next role: every role change, written as the rows of the module docstring's
+#: table (from these roles, on these, to)
+TRANSITIONS: dict[tuple[Role, Heard], Role] = transition_table(
+    ((_L, _N), (_H.LOGICAL_HEARTBEAT, _H.BETTER_CLAIM, _H.WORSE_CLAIM), _S),
+    ((_L, _S), (_H.NEGOTIATION,), _N),
+    ((_L,), (_H.DETECTION_OVER,), _N),
+    ((_N,), (_H.SLOT_OVER,), _A),
+    ((_S,), (_H.ACTIVE_SILENT,), _N),
+    ((_A,), (_H.BETTER_CLAIM, _H.STALLED), _S),
+)
 #: (role, heard) pairs that keep the role but are answered (the active master's 71h)
 ANSWERED: frozenset[tuple[Role, Heard]] = frozenset(
     {(_A, _H.WORSE_CLAIM), (_A, _H.NEGOTIATION), (_A, _H.REQUEST), (_A, _H.FORCE)}

@@ -49,15 +49,7 @@ import struct
 from collections.abc import Callable
 from enum import StrEnum
 
-from gateway.cia301 import SDO_CCS_DOWNLOAD_SEGMENT as _CCS_DOWNLOAD_SEGMENT
-from gateway.cia301 import SDO_CCS_INITIATE_DOWNLOAD as _CCS_INITIATE_DOWNLOAD
-from gateway.cia301 import SDO_CCS_INITIATE_UPLOAD as _CCS_INITIATE_UPLOAD
-from gateway.cia301 import SDO_CCS_UPLOAD_SEGMENT as _CCS_UPLOAD_SEGMENT
-from gateway.cia301 import SDO_CS_ABORT as _CS_ABORT
-from gateway.cia301 import SDO_SCS_DOWNLOAD_SEGMENT as _SCS_DOWNLOAD_SEGMENT
-from gateway.cia301 import SDO_SCS_INITIATE_DOWNLOAD as _SCS_INITIATE_DOWNLOAD
-from gateway.cia301 import SDO_SCS_INITIATE_UPLOAD as _SCS_INITIATE_UPLOAD
-from gateway.cia301 import SDO_SCS_UPLOAD_SEGMENT as _SCS_UPLOAD_SEGMENT
+from gateway.cia301 import SdoCcs, SdoScs
 
 # CiA 301 table 22: abort codes the client itself sends
 ABORT_TOGGLE = 0x05030000  # toggle bit not alternated
@@ -98,7 +90,7 @@ class SdoStateError(RuntimeError):
 
 def abort_frame(index: int, sub: int, code: int) -> bytes:
     """CiA 301 7.2.4.3.17: abort transfer, naming the object."""
-    return struct.pack("<BHBI", _CS_ABORT, index, sub, code)
+    return struct.pack("<BHBI", SdoCcs.ABORT, index, sub, code)
 
 
 class SdoTransfer:
@@ -156,13 +148,13 @@ class SdoTransfer:
         head = struct.pack("<HB", self.index, self.sub)
         if self.data is None:
             self._enter(SdoPhase.UP_INIT)
-            return self._send(bytes([_CCS_INITIATE_UPLOAD]) + head + b"\0\0\0\0", now)
+            return self._send(bytes([SdoCcs.INITIATE_UPLOAD]) + head + b"\0\0\0\0", now)
         self._enter(SdoPhase.DOWN_INIT)
         n = len(self.data)
         if 0 < n <= 4:  # expedited, size indicated: e = 1, s = 1, n = 4 - size
-            cmd = _CCS_INITIATE_DOWNLOAD | ((4 - n) << 2) | 0x03
+            cmd = SdoCcs.INITIATE_DOWNLOAD | ((4 - n) << 2) | 0x03
             return self._send(bytes([cmd]) + head + self.data.ljust(4, b"\0"), now)
-        cmd = _CCS_INITIATE_DOWNLOAD | 0x01  # segmented, size indicated
+        cmd = SdoCcs.INITIATE_DOWNLOAD | 0x01  # segmented, size indicated
         return self._send(bytes([cmd]) + head + struct.pack("<I", n), now)
 
     def on_response(self, data: bytes, now: float) -> list[bytes]:
@@ -170,7 +162,7 @@ class SdoTransfer:
             return []
         data = bytes(data).ljust(8, b"\0")
         cmd = data[0]
-        if cmd == _CS_ABORT:
+        if cmd == SdoScs.ABORT:
             index, sub, code = struct.unpack_from("<HBI", data, 1)
             if (index, sub) != (self.index, self.sub) and self.phase in (
                 SdoPhase.UP_INIT,
@@ -195,7 +187,7 @@ class SdoTransfer:
         self._enter(SdoPhase.UP_SEG)
         self._toggle = 0
         self._size = struct.unpack_from("<I", data, 4)[0] if cmd & 0x01 else None
-        return self._send(bytes([_CCS_UPLOAD_SEGMENT]) + b"\0" * 7, now)
+        return self._send(bytes([SdoCcs.UPLOAD_SEGMENT]) + b"\0" * 7, now)
 
     def _on_upload_segment(self, cmd: int, data: bytes, now: float) -> list[bytes]:
         if (cmd >> 4) & 1 != self._toggle:
@@ -207,7 +199,7 @@ class SdoTransfer:
             size_ok = self._buf if self._size is None else self._buf[: self._size]
             return self._succeed(bytes(size_ok))
         self._toggle ^= 1
-        return self._send(bytes([_CCS_UPLOAD_SEGMENT | (self._toggle << 4)]) + b"\0" * 7, now)
+        return self._send(bytes([SdoCcs.UPLOAD_SEGMENT | (self._toggle << 4)]) + b"\0" * 7, now)
 
     def _on_download_initiate(self, cmd: int, data: bytes, now: float) -> list[bytes]:
         if struct.unpack_from("<HB", data, 1) != (self.index, self.sub):
@@ -252,7 +244,7 @@ class SdoTransfer:
         chunk = self.data[self._sent : self._sent + 7]
         self._sent += len(chunk)
         last = 1 if self._sent >= len(self.data) else 0
-        cmd = _CCS_DOWNLOAD_SEGMENT | (self._toggle << 4) | ((7 - len(chunk)) << 1) | last
+        cmd = SdoCcs.DOWNLOAD_SEGMENT | (self._toggle << 4) | ((7 - len(chunk)) << 1) | last
         return self._send(bytes([cmd]) + chunk.ljust(7, b"\0"), now)
 
     def _send(self, frame: bytes, now: float) -> list[bytes]:
@@ -288,8 +280,8 @@ class SdoTransfer:
 _Handler = Callable[[SdoTransfer, int, bytes, float], list[bytes]]
 #: phase -> (the server command specifier it expects, the method for it): the rows of the table
 RESPONSES: dict[SdoPhase, tuple[int, _Handler]] = {
-    SdoPhase.UP_INIT: (_SCS_INITIATE_UPLOAD, SdoTransfer._on_upload_initiate),
-    SdoPhase.UP_SEG: (_SCS_UPLOAD_SEGMENT, SdoTransfer._on_upload_segment),
-    SdoPhase.DOWN_INIT: (_SCS_INITIATE_DOWNLOAD, SdoTransfer._on_download_initiate),
-    SdoPhase.DOWN_SEG: (_SCS_DOWNLOAD_SEGMENT, SdoTransfer._on_download_segment),
+    SdoPhase.UP_INIT: (SdoScs.INITIATE_UPLOAD, SdoTransfer._on_upload_initiate),
+    SdoPhase.UP_SEG: (SdoScs.UPLOAD_SEGMENT, SdoTransfer._on_upload_segment),
+    SdoPhase.DOWN_INIT: (SdoScs.INITIATE_DOWNLOAD, SdoTransfer._on_download_initiate),
+    SdoPhase.DOWN_SEG: (SdoScs.DOWNLOAD_SEGMENT, SdoTransfer._on_download_segment),
 }

@@ -25,7 +25,8 @@ Anything else on 7E5h is ignored, as are services not allowed in the current sta
 (manual Table 10). Bit timing table (4.6.2.2): 0 1000, 1 800, 2 500, 3 250, 4 125, 6 50,
 7 20 kbit/s; a simulator has no physical bit rate, ``bitrate_kbps`` reports the active one.
 
-Imports: python-can (Message), gateway.objref, gateway.sim.features.
+Imports: python-can (Message), gateway.cia301 (the LSS COB-IDs), gateway.cia305 (the command
+specifiers, the bit timing table, the frame layout), gateway.sim.features.
 """
 
 from __future__ import annotations
@@ -35,29 +36,13 @@ from typing import Any
 
 import can
 
+from gateway import cia305
+from gateway.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
 from gateway.sim.features import SimFeature, register
 
-COB_LSS_MASTER = 0x7E5  # SGH10 manual 4.6: LSS (rx) master -> slave
-COB_LSS_SLAVE = 0x7E4  # SGH10 manual 4.6: LSS (tx) slave -> master
-
-CS_SWITCH_GLOBAL = 0x04  # 4.6.1.1
-CS_SELECTIVE_VENDOR = 0x40  # 4.6.1.2
-CS_SELECTIVE_PRODUCT = 0x41
-CS_SELECTIVE_REVISION = 0x42
-CS_SELECTIVE_SERIAL = 0x43
-CS_SELECTIVE_ANSWER = 0x44
-CS_CONFIGURE_NODE_ID = 0x11  # 4.6.2.1
-CS_CONFIGURE_BIT_TIMING = 0x13  # 4.6.2.2
-CS_ACTIVATE_BIT_TIMING = 0x15  # 4.6.2.3
-CS_STORE = 0x17  # 4.6.2.4
-CS_INQUIRE_VENDOR = 0x5A  # 4.6.3.1 .. 4.6.3.4
-CS_INQUIRE_PRODUCT = 0x5B
-CS_INQUIRE_REVISION = 0x5C
-CS_INQUIRE_SERIAL = 0x5D
-CS_INQUIRE_NODE_ID = 0x5E  # 4.6.3.5
-
-# CiA 301 bit timing table, SGH10 manual 4.6.2.2 (index 5 reserved, 8/9 not supported)
-BIT_TIMING_KBPS = {0: 1000, 1: 800, 2: 500, 3: 250, 4: 125, 6: 50, 7: 20}
+#: SGH10 manual 4.6.2.2: the bit timing indices a slave takes when its profile does not list
+#: ``bit_timing_indices`` (8, 10 kbit/s, is "not supported" there)
+DEFAULT_BIT_TIMING_INDICES = frozenset(cia305.BIT_TIMING_KBPS) - {8}
 
 WAITING = "waiting"
 CONFIGURATION = "configuration"
@@ -71,8 +56,8 @@ class LssSlave(SimFeature):
         super().__init__(node, params)
         self.rx_cob = int(params.get("cob_id_master_to_slave", COB_LSS_MASTER))
         self.tx_cob = int(params.get("cob_id_slave_to_master", COB_LSS_SLAVE))
-        self.table = int(params.get("bit_timing_table", 0))
-        self.indices = set(params.get("bit_timing_indices", BIT_TIMING_KBPS))
+        self.table = int(params.get("bit_timing_table", cia305.BIT_TIMING_TABLE_DS301))
+        self.indices = set(params.get("bit_timing_indices", DEFAULT_BIT_TIMING_INDICES))
         self.state = WAITING
         self._selective = 0  # how many of 40h..43h matched in order
         self.configured_node_id: int | None = None
@@ -83,7 +68,7 @@ class LssSlave(SimFeature):
     @property
     def bitrate_kbps(self) -> int | None:
         idx = self.active_bitrate_index
-        return None if idx is None else BIT_TIMING_KBPS.get(idx)
+        return None if idx is None else cia305.BIT_TIMING_KBPS.get(idx)
 
     def identity(self, sub: int) -> int:
         """1018h:sub, with the profile's constants where it gives them (manual 4.6)."""
@@ -117,9 +102,9 @@ class LssSlave(SimFeature):
             return False
         data = bytes(msg.data).ljust(8, b"\0")
         cs = data[0]
-        if cs == CS_SWITCH_GLOBAL:
+        if cs == cia305.CS_SWITCH_GLOBAL:
             self._switch_global(data[1])
-        elif CS_SELECTIVE_VENDOR <= cs <= CS_SELECTIVE_SERIAL:
+        elif cia305.CS_SWITCH_SELECTIVE_VENDOR <= cs <= cia305.CS_SWITCH_SELECTIVE_SERIAL:
             self._selective_step(cs, struct.unpack_from("<I", data, 1)[0])
         elif self.state == CONFIGURATION:
             self._configuration_service(cs, data, now)
@@ -127,23 +112,23 @@ class LssSlave(SimFeature):
 
     # -- services ----------------------------------------------------------------------------
     def _answer(self, cs: int, *payload: int) -> None:
-        self.node.send(self.tx_cob, bytes([cs, *payload]).ljust(8, b"\0"))
+        self.node.send(self.tx_cob, cia305.lss_frame(cs, bytes(payload)))
 
     def _switch_global(self, mode: int) -> None:
-        if mode == 0x00:
+        if mode == cia305.MODE_WAITING:
             if self.state == CONFIGURATION and self.configured_node_id is not None:
                 if self.configured_node_id != self.node.node_id:
                     # 4.6.2.1: LSS waiting, then NMT reset communication activates the id
                     self.node.adopt_node_id_at_reset(self.configured_node_id)
             self.state = WAITING
-        elif mode == 0x01:
+        elif mode == cia305.MODE_CONFIGURATION:
             self.state = CONFIGURATION
         self._selective = 0
 
     def _selective_step(self, cs: int, value: int) -> None:
         if self.state != WAITING:
             return  # manual Table 10: selective switching only in LSS waiting
-        step = cs - CS_SELECTIVE_VENDOR
+        step = cs - cia305.CS_SWITCH_SELECTIVE_VENDOR
         if step != self._selective or value != self.identity(step + 1):
             self._selective = 0
             return
@@ -151,30 +136,30 @@ class LssSlave(SimFeature):
         if self._selective == 4:
             self._selective = 0
             self.state = CONFIGURATION
-            self._answer(CS_SELECTIVE_ANSWER)
+            self._answer(cia305.CS_SWITCH_SELECTIVE_ANSWER)
 
     def _configuration_service(self, cs: int, data: bytes, now: float) -> None:
-        if cs == CS_CONFIGURE_NODE_ID:
+        if cs == cia305.CS_CONFIGURE_NODE_ID:
             nid = data[1]
             if 0x01 <= nid <= 0x7F:
                 self.configured_node_id = nid
                 self._answer(cs, 0x00, 0x00)
             else:
                 self._answer(cs, 0x01, 0x00)  # 01h: no valid node id
-        elif cs == CS_CONFIGURE_BIT_TIMING:
+        elif cs == cia305.CS_CONFIGURE_BIT_TIMING:
             selector, index = data[1], data[2]
-            if selector == self.table and index in self.indices and index in BIT_TIMING_KBPS:
+            if selector == self.table and index in self.indices and index in cia305.BIT_TIMING_KBPS:
                 self.configured_bitrate_index = index
                 self._answer(cs, 0x00, 0x00)
             else:
                 self._answer(cs, 0x01, 0x00)  # 01h: no valid baud rate
-        elif cs == CS_ACTIVATE_BIT_TIMING:
+        elif cs == cia305.CS_ACTIVATE_BIT_TIMING:
             delay_ms = struct.unpack_from("<H", data, 1)[0]
             if self.configured_bitrate_index is not None:
                 self.active_bitrate_index = self.configured_bitrate_index
             self._boot_at_s = now + 2 * delay_ms / 1000
             self.node.mute(self._boot_at_s)
-        elif cs == CS_STORE:
+        elif cs == cia305.CS_STORE_CONFIGURATION:
             store = self.node.store
             store.node_id = (
                 self.configured_node_id or self.node.pending_node_id or self.node.node_id
@@ -182,8 +167,8 @@ class LssSlave(SimFeature):
             if self.configured_bitrate_index is not None:
                 store.bitrate_index = self.configured_bitrate_index
             self._answer(cs, 0x00, 0x00)
-        elif CS_INQUIRE_VENDOR <= cs <= CS_INQUIRE_SERIAL:
-            value = self.identity(cs - CS_INQUIRE_VENDOR + 1)
+        elif cia305.CS_INQUIRE_VENDOR_ID <= cs <= cia305.CS_INQUIRE_SERIAL:
+            value = self.identity(cs - cia305.CS_INQUIRE_VENDOR_ID + 1)
             self._answer(cs, *struct.pack("<I", value & 0xFFFFFFFF))
-        elif cs == CS_INQUIRE_NODE_ID:
+        elif cs == cia305.CS_INQUIRE_NODE_ID:
             self._answer(cs, self.node.node_id)

@@ -33,7 +33,7 @@ from typing import Any
 
 import can
 
-from gateway.cia301 import NMT_RESET_NODE
+from gateway.cia301 import NmtCommand
 from gateway.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import ABORT_RANGE
@@ -103,7 +103,7 @@ class NodeIdObject(SimFeature):
         if msg.arbitration_id != 0 or msg.is_remote_frame or len(msg.data) < 2:
             return False
         cs, target = msg.data[0], msg.data[1]
-        if cs == NMT_RESET_NODE and target in (0, self.node.node_id):
+        if cs == NmtCommand.RESET_NODE and target in (0, self.node.node_id):
             stored = self.node.store.node_id
             if stored is not None and stored != self.node.node_id:
                 self.node.adopt_node_id_at_reset(stored)
