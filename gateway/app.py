@@ -17,7 +17,7 @@ from typing import Any
 import can
 
 from gateway import __version__
-from gateway.bus.driver import BusDriver
+from gateway.bus.driver import BusDriver, BusOpenFailed
 from gateway.bus.master import Master
 from gateway.checks import check_config
 from gateway.commands import CommandService
@@ -98,9 +98,12 @@ class Gateway:
         simulate: bool = True,
         *,
         passive: bool = False,
+        bus_must_open: bool = False,
     ):
         #: every node resolved once (profile, settings, boot steps, codecs) for every part
         self.nodes = nodes
+        #: a bus that cannot open stops the start (``BusOpenFailed``) instead of being retried
+        self.bus_must_open = bus_must_open
         check_config(cfg, self.nodes)  # the cross-checks of `canopen-gateway check` (ConfigError)
         self.cfg = cfg
         self.image = ProcessImage()
@@ -327,9 +330,9 @@ class Gateway:
                 await self.zenoh.open()
         if self.sim is not None:
             with startup_step("can.channel", cfg.can.channel):
-                self.sim.start()
+                self._start_simulated_devices()
         with startup_step("can.interface", cfg.can.interface):
-            await asyncio.to_thread(self.driver.open)
+            await asyncio.to_thread(self.driver.open, must_open=self.bus_must_open)
         # every listener before the master sends its first frame: a start that fails on a port
         # in use must leave the devices as they were (no NMT command, no SDO, no heartbeat)
         if self.modbus is not None:
@@ -348,6 +351,17 @@ class Gateway:
                 await self._start_health()
         await self.master.start()
         self.started = True
+
+    def _start_simulated_devices(self) -> None:
+        """The simulated devices' own connection to the configured bus: with ``bus_must_open``
+        a bus that cannot open stops the start as the gateway's own would (``BusOpenFailed``)."""
+        assert self.sim is not None
+        try:
+            self.sim.start()
+        except Exception as exc:
+            if self.bus_must_open:
+                raise BusOpenFailed(exc) from exc
+            raise
 
     async def _start_health(self) -> None:
         from gateway.health import HealthServer

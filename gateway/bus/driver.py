@@ -36,11 +36,12 @@ counts in its own counter set.
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, image (for counters), ratelimit, threads. Nothing northbound.
+Imports: python-can, bus.can_backend (quiet_imports), image (for counters), ratelimit, threads. Nothing northbound.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import queue
@@ -51,6 +52,7 @@ from typing import Any
 
 import can
 
+from gateway.bus.can_backend import quiet_imports
 from gateway.image import ProcessImage
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadRegistry
@@ -66,6 +68,16 @@ CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
 CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
 
 FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface: a config error
+
+
+class BusOpenFailed(Exception):
+    """The bus could not be opened by a start that needs it (``BusDriver.open(must_open=True)``,
+    a gateway started by ``run``): ``cause`` is what python-can's backend raised."""
+
+    def __init__(self, cause: BaseException):
+        super().__init__(str(cause))
+        self.cause = cause
+
 #: a frame the interface refuses with ENOBUFS (its transmit queue full; SocketCAN's default
 #: txqueuelen is 10 frames, 1.1 ms each at 125 kbit/s) is sent again this often, this far apart
 TX_RETRIES = 5
@@ -151,17 +163,24 @@ class BusDriver:
         self._sender: threading.Thread | None = None
 
     # ------------------------------------------------------------------ lifecycle
-    def open(self) -> None:
+    def open(self, *, must_open: bool = False) -> None:
         """Open the bus and start the reader thread.
 
         An interface python-can does not know raises (a configuration error); any other
-        failure leaves the bus down and the reader thread retries with backoff.
+        failure leaves the bus down and the reader thread retries with backoff. With
+        ``must_open`` (a start that stops when its bus cannot open) every failure raises
+        ``BusOpenFailed`` and no thread starts: the bus is opened once, by the gateway itself.
         """
         try:
-            self.bus = can.Bus(**self.bus_kwargs)
-        except FATAL_OPEN_ERRORS:
-            raise
-        except Exception as exc:  # noqa: BLE001 - adapter unplugged, interface down, ...
+            # a start that must open says why in its own line: python-can's retries stay quiet
+            with quiet_imports(logging.CRITICAL) if must_open else contextlib.nullcontext():
+                self.bus = can.Bus(**self.bus_kwargs)
+        except Exception as exc:
+            if must_open:
+                self._set_state("down", str(exc))
+                raise BusOpenFailed(exc) from exc
+            if isinstance(exc, FATAL_OPEN_ERRORS):
+                raise
             log.error("CAN bus cannot be opened: %s; retrying with backoff", exc)
             self.bus = None
             self._set_state("down", str(exc))

@@ -22,9 +22,7 @@ async def _with_master(cfg: Config, nodes: dict[str, ResolvedNode], fn: Any) -> 
     """Open the bus with a master for one commissioning operation. Opens no server (no Modbus,
     Zenoh or health endpoint), so it runs beside a gateway that serves the same config."""
     from gateway.app import Gateway
-    from gateway.tools.bus_open import check_bus_opens
-
-    check_bus_opens(cfg)  # its bus driver would retry a bus that cannot open; say why, exit 2
+    from gateway.tools.bus_open import gateway_bus
     cfg.modbus.enabled = False
     cfg.zenoh.enabled = False
     cfg.ascii = None
@@ -38,8 +36,10 @@ async def _with_master(cfg: Config, nodes: dict[str, ResolvedNode], fn: Any) -> 
         n.configure = False
     cfg.health.port = 0  # a commissioning command opens no server
     # passive: no NMT start or configuration of its own; SDO to nodes regardless of supervision
-    gw = Gateway(cfg, nodes, simulate=True, passive=True)
-    await gw.start()
+    # a bus that cannot open: one line, exit 2 (its driver would retry it otherwise)
+    gw = Gateway(cfg, nodes, simulate=True, passive=True, bus_must_open=True)
+    with gateway_bus(cfg):
+        await gw.start()
     try:
         return await fn(gw)
     finally:

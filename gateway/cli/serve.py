@@ -68,18 +68,18 @@ async def run_until_signal(
 
 def cmd_run(args: argparse.Namespace) -> int:
     from gateway.app import Gateway
-    from gateway.tools.bus_open import check_bus_opens
+    from gateway.tools.bus_open import gateway_bus
 
     cfg, nodes = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
     from gateway.startup import StartupError
     from gateway.zenoh_bridge.session import PrefixInUse
 
-    check_bus_opens(cfg)  # a bus that cannot open at start: one line, exit 2 (cli.main)
-
-    gw = Gateway(cfg, nodes, simulate=not args.no_simulate)
+    # a bus that cannot open at start: one line, exit 2 (cli.main); opened once, by the gateway
+    gw = Gateway(cfg, nodes, simulate=not args.no_simulate, bus_must_open=True)
     try:
-        asyncio.run(run_until_signal(gw.start, gw.stop, gw.summary))
+        with gateway_bus(cfg):
+            asyncio.run(run_until_signal(gw.start, gw.stop, gw.summary))
     except StartupError as exc:  # a port in use, a file missing: one line, everything closed
         print(exc.line(args.config), file=sys.stderr)
         return EXIT_CONFIG

@@ -11,11 +11,12 @@ OS or the backend gave, and what usually causes it; the command line prints it a
 
 ``open_bus(cfg)`` opens the configured bus (a ``can.BusABC`` of the tool's own);
 ``opening(cfg)`` wraps a block that opens it (the simulated devices' connection);
-``check_bus_opens(cfg)`` opens and closes it before a gateway or a commissioning master starts
-(their bus driver keeps retrying a bus that fails later, ``gateway.bus.driver``).
+``gateway_bus(cfg)`` wraps the start of a gateway or a commissioning master that must open its
+bus (``Gateway(..., bus_must_open=True)``: it opens the bus once and stops when it cannot; a bus
+lost later is reopened by its driver, ``gateway.bus.driver``).
 
 Imports: python-can, gateway.config (blame), gateway.bus.can_backend (quiet_imports,
-driver_problem).
+driver_problem), gateway.bus.driver (BusOpenFailed).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from typing import Any
 import can
 
 from gateway.bus.can_backend import driver_problem, quiet_imports
+from gateway.bus.driver import BusOpenFailed
 from gateway.config import Config, blame
 
 #: What usually causes an errno of opening a CAN interface, in words (``{channel}`` and
@@ -121,7 +123,12 @@ def open_bus(cfg: Config) -> Any:
         return can.Bus(**cfg.can.bus_kwargs())
 
 
-def check_bus_opens(cfg: Config) -> None:
-    """Open the configured bus once and close it again: a start that cannot have its bus stops
-    here, in one line, before anything is sent or served."""
-    open_bus(cfg).shutdown()
+@contextmanager
+def gateway_bus(cfg: Config) -> Iterator[None]:
+    """Run a block that starts a gateway or a commissioning master built with
+    ``bus_must_open``: the bus it could not open (``BusOpenFailed``: its own connection or the
+    simulated devices') leaves as ``BusOpenError``. The gateway opens its bus once, itself."""
+    try:
+        yield
+    except BusOpenFailed as exc:
+        raise BusOpenError(bus_open_line(cfg, exc.cause)) from None

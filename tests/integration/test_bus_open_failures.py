@@ -112,3 +112,31 @@ def test_fault_opens_no_bus_and_says_in_one_line_that_no_gateway_answers(
     err = capsys.readouterr().err
     assert code == 1, err
     assert len(err.splitlines()) == 1 and "no gateway answers at http://127.0.0.1:" in err, err
+
+
+def test_run_opens_its_bus_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``run`` opens the configured bus once, by the gateway itself (a CAN server that takes one
+    client, as a socketcand stub may, is not used up by a trial open before the start)."""
+    import can
+
+    import gateway.cli.serve as serve
+    from tests.helpers import unique_channel
+
+    opened: list[dict[str, Any]] = []
+    real_bus = can.Bus
+
+    def counting_bus(*args: Any, **kwargs: Any) -> Any:
+        opened.append(kwargs)
+        return real_bus(*args, **kwargs)
+
+    async def start_and_stop(starter: Any, stopper: Any, ready_line: Any = None) -> None:
+        await starter()
+        await stopper()
+
+    monkeypatch.setattr(can, "Bus", counting_bus)
+    monkeypatch.setattr(serve, "run_until_signal", start_and_stop)
+    cfg = write_config(tmp_path / "plant.yaml", {"interface": "virtual", "channel": unique_channel()})
+    assert entry_main(["run", "-c", str(cfg), "--no-simulate"]) == 0, capsys.readouterr().err
+    assert [k["interface"] for k in opened] == ["virtual"]
