@@ -5,8 +5,9 @@ the node's RPDOs are sent on): the COB-ID of every enabled TPDO and RPDO, and th
 SDO response, SDO request and heartbeat (CiA 301 7.3.3 pre-defined connection set: function
 code + node id). The master's own: NMT 000h, SYNC 080h when this gateway produces it
 (``master.sync_period_ms``) or another master does (``master.sync_external``), its heartbeat
-700h + ``master.node_id`` (sent, and watched for another master on that id), LSS 7E4h/7E5h
-(CiA 305).
+700h + ``master.node_id`` (sent, and watched for another master on that id) unless
+``master.heartbeat_ms`` is 0 outside a pair (then the master's node id is not on the bus and a
+node may have it), LSS 7E4h/7E5h (CiA 305).
 
 Where a PDO's COB-ID comes from, first match: the node's ``sdo:`` write of the COB-ID object,
 its ``tpdo:``/``rpdo:`` ``cob_id``, a profile's ``boot.sdo`` write, the pre-defined COB-ID
@@ -76,9 +77,10 @@ def master_uses(cfg: Config) -> list[CobUse]:
         out.append(CobUse(COB_SYNC, MASTER, "SYNC", "master.sync_period_ms", "master.sync_period_ms", sent=True))  # fmt: skip
     elif m.sync_external:
         out.append(CobUse(COB_SYNC, MASTER, "SYNC of another master", "master.sync_external", "master.sync_external"))  # fmt: skip
-    out.append(
-        CobUse(COB_NMT_EC + m.node_id, MASTER, "heartbeat", f"master.node_id {m.node_id}", "master.node_id", sent=True)  # fmt: skip
-    )
+    if m.heartbeat_ms or m.redundancy is not None:  # heartbeat_ms 0: the id is not on the bus
+        out.append(
+            CobUse(COB_NMT_EC + m.node_id, MASTER, "heartbeat", f"master.node_id {m.node_id}", "master.node_id", sent=True)  # fmt: skip
+        )
     out.append(CobUse(COB_LSS_SLAVE, MASTER, "LSS response", "CiA 305", "master"))
     out.append(CobUse(COB_LSS_MASTER, MASTER, "LSS request", "CiA 305", "master", sent=True))
     pair = m.redundancy

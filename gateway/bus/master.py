@@ -178,7 +178,7 @@ class Master:
             if self.member.peer_node_id:
                 install(COB_NMT_EC + self.member.peer_node_id, "the peer's heartbeat",
                         self._peer_frame(self._on_peer_heartbeat))  # fmt: skip
-        else:
+        elif self.cfg.master.heartbeat_ms:  # without one the master's node id is not on the bus
             install(COB_NMT_EC + self.cfg.master.node_id, "the master's heartbeat",
                     self._peer_frame(self._on_own_heartbeat))  # fmt: skip
         install(COB_LSS_SLAVE, "LSS response", self.lss.reader_handler())

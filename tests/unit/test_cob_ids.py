@@ -21,7 +21,7 @@ from gateway.config import ConfigError
 from gateway.config import parse_config as parse_unchecked
 from gateway.eds import lint, load_eds
 from gateway.image import ProcessImage
-from tests.helpers import gateway_of, resolved, with_nodes
+from tests.helpers import gateway_of, master_running, resolved, wait_until, with_nodes
 from tests.helpers import parse_checked_config as parse_config
 from tests.unit.test_node import sgh10
 
@@ -88,6 +88,15 @@ def test_a_node_on_the_masters_heartbeat_id_is_refused() -> None:
         "both (the frames of one would be taken for the other's)"
     ]
     parse_config(config({**WIRE, "node_id": 127}, node_id=126, **SYNC), "cfg.yaml", environ={})
+
+
+async def test_a_master_without_a_heartbeat_leaves_its_node_id_to_a_node() -> None:
+    """``master.heartbeat_ms: 0``: the master sends nothing on 700h + its node id, so a node may
+    have that id (127 nodes on one bus): the config is accepted and the node's heartbeats are
+    that node's (it comes up operational)."""
+    async with master_running([{**WIRE, "node_id": 127}], master={"heartbeat_ms": 0}) as gw:
+        await wait_until(lambda: gw.image.by_id[127].operational(), 10.0, "node 127 operational")
+        assert gw.image.by_id[127].health.alive
 
 
 def test_a_pdo_on_the_sync_cob_id_is_refused_only_when_sync_runs() -> None:
