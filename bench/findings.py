@@ -165,7 +165,7 @@ def findings(sections: list[Section]) -> Section:
     v, b, r = f.value, f.base, f.ratio
     sec = Section(
         key="findings",
-        title="11. What the numbers show, and the ways past the missed targets",
+        title="12. What the numbers show, and the ways past the missed targets",
         method=(
             "Figures quoted from the sections above (this run). Profiles: py-spy 0.4.3 "
             "(`py-spy record --threads --format raw`, 250 Hz) of the scale run and of the Modbus "
