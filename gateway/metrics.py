@@ -155,8 +155,9 @@ class Counters:
 
     def copy(self) -> Counters:
         """A copy with label dicts of its own (the caller holds the lock that guards them)."""
-        values = {f.name: getattr(self, f.name) for f in fields(self)}
-        own: dict[str, Any] = {k: v.copy() if isinstance(v, dict) else v for k, v in values.items()}
+        own: dict[str, Any] = {
+            f.name: v.copy() if isinstance(v := getattr(self, f.name), dict) else v for f in fields(self)
+        }
         return Counters(**own)
 
 

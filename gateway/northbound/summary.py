@@ -70,11 +70,8 @@ class NodeSummary:
 
 
 #: the summary's fields that are the node health's own (same name, same type): copied as they are
-HEALTH_FIELDS = tuple(
-    f.name
-    for f in fields(NodeSummary)
-    if f.type == {h.name: h.type for h in fields(NodeHealth)}.get(f.name)
-)
+_HEALTH_TYPES = {h.name: h.type for h in fields(NodeHealth)}
+HEALTH_FIELDS = tuple(f.name for f in fields(NodeSummary) if f.type == _HEALTH_TYPES.get(f.name))
 
 
 def worst_quality(node: NodeImage, process: Collection[str], now: float) -> Quality:
