@@ -19,8 +19,10 @@ Imports: bench.*, gateway.config, the standard library (zenoh in the load proces
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import logging
+import os
 import socket
 import struct
 import threading
@@ -42,6 +44,8 @@ GET_TIMEOUT_S = 10.0
 STEADY_S = 5.0
 TARGET_P99_MS = 10.0
 TARGET_MAX_MS = 50.0
+#: ``PLC_FIRST_FREEZE_GC=0``: the gateway without ``gc.freeze`` after its start
+FREEZE_GC = os.environ.get("PLC_FIRST_FREEZE_GC", "1") != "0"
 #: (name, kind, argument, count per burst, bursts or rate)
 LOADS: list[tuple[str, str, str, int, float]] = [
     (f"4 bursts of 500 concurrent `get {PREFIX}/**`", "burst", f"{PREFIX}/**", 500, 4),
@@ -68,7 +72,9 @@ class PlcPoller:
         self._rtts: list[float] = []
         self._errors = 0
 
-    def start(self, host: str, port: int, unit: int, address: int, count: int, period_s: float) -> bool:
+    def start(
+        self, host: str, port: int, unit: int, address: int, count: int, period_s: float
+    ) -> bool:
         self._stop.clear()
         self._rtts, self._errors = [], 0
         args = (host, port, unit, address, count, period_s)
@@ -76,7 +82,9 @@ class PlcPoller:
         self._thread.start()
         return True
 
-    def _run(self, host: str, port: int, unit: int, address: int, count: int, period_s: float) -> None:
+    def _run(
+        self, host: str, port: int, unit: int, address: int, count: int, period_s: float
+    ) -> None:
         clock = time.perf_counter
         with socket.create_connection((host, port), timeout=60.0) as s:
             s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -126,7 +134,9 @@ class QueryLoad:
         self.session = zenoh.open(conf)
         self.info = {"zid": str(self.session.info.zid())}
 
-    def _fire(self, selector: str, n: int, tally: dict[str, int], done: threading.Semaphore) -> None:
+    def _fire(
+        self, selector: str, n: int, tally: dict[str, int], done: threading.Semaphore
+    ) -> None:
         lock = threading.Lock()
 
         def on_reply(reply: Any) -> None:
@@ -249,8 +259,20 @@ async def run() -> Section:
     logging.getLogger("gateway").setLevel(logging.ERROR)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     cfg = _config(endpoint, free_port(), free_port())
-    gw = gateway_of(cfg)
+    gw = gateway_of(cfg, freeze_gc=FREEZE_GC)  # as ``canopen-gateway run`` does
     await gw.start()
+    pauses: list[float] = []
+    gc_t0 = [0.0]
+
+    def on_gc(phase: str, info: dict[str, int]) -> None:
+        if info.get("generation") != 2:
+            return
+        if phase == "start":
+            gc_t0[0] = time.perf_counter()
+        else:
+            pauses.append(time.perf_counter() - gc_t0[0])
+
+    gc.callbacks.append(on_gc)
     plc = load = None
     rows: list[Row] = []
     notes: list[str] = []
@@ -259,7 +281,9 @@ async def run() -> Section:
         plc = Worker(PlcPoller, name="plc")
         load = Worker(QueryLoad, endpoint, name="query-load")
         http_base = f"http://127.0.0.1:{cfg.health.port}"
-        await _measure(plc, load, cfg.modbus.port, ("warm", "burst", f"{PREFIX}/**", 20, 1), http_base)
+        await _measure(
+            plc, load, cfg.modbus.port, ("warm", "burst", f"{PREFIX}/**", 20, 1), http_base
+        )
         rss0 = _rss_mib()
         idle, _ = await _measure(plc, load, cfg.modbus.port, ("idle", "idle", "", 0, 0), http_base)
         rows.append(_row("idle", idle))
@@ -273,12 +297,17 @@ async def run() -> Section:
                 f"({int(fig['errors'])} not a register answer)."
             )
         rss1 = _rss_mib()
+        notes.append(
+            f"full garbage collections during the loads: {len(pauses)}, the longest "
+            f"{max(pauses, default=0.0) * 1000:.1f} ms (a stall of every thread)."
+        )
         rows.append(Row("gateway RSS before the loads, MiB", Summary.of([rss0]), digits=1))
         rows.append(Row("gateway RSS after the loads, MiB", Summary.of([rss1]), digits=1,
                         target="+ <= 2 MiB", met=rss1 - rss0 <= 2.0))  # fmt: skip
         m = gw.metrics_text() if hasattr(gw, "metrics_text") else ""
         notes += [line for line in m.splitlines() if line.startswith("zenoh_queries")]
     finally:
+        gc.callbacks.remove(on_gc)
         for w in (plc, load):
             if w is not None:
                 w.close()

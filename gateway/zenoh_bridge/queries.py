@@ -24,6 +24,7 @@ Imports: zenoh, commands, errors, image, config, ratelimit, threads, profiles.sc
 profiles.derived, northbound.keys, northbound.scaling, payloads, access, worker. Nothing of bus/
 or modbus/.
 """
+
 from __future__ import annotations
 
 import asyncio
