@@ -450,6 +450,10 @@ class Gateway:
         if self.zenoh is not None:
             c.zenoh_publications = self.zenoh.publications
             c.zenoh_refused = dict(self.zenoh.refused)
+            q = self.zenoh.queries
+            c.zenoh_queries_answered, c.zenoh_queries_busy = q.answered, q.busy
+            c.zenoh_query_queue_depth = q.worker.depth
+        c.northbound_turns_refused = self.turns.refused
         if self.modbus is not None:
             store = self.modbus.store
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}

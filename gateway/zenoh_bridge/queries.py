@@ -61,7 +61,7 @@ from gateway.northbound.scaling import Scaling, engineering, to_raw
 from gateway.profiles.derived import text_rows_as_signals
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadRegistry
+from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.payloads import (
     add_names,
@@ -156,6 +156,18 @@ class QueryService:
         self.worker: QueryWorker[zenoh.Query] = QueryWorker(self._job)
         #: commands handed to the event loop and not answered yet (``COMMANDS_MAX``)
         self._command_slots = threading.BoundedSemaphore(COMMANDS_MAX)
+        #: queries answered (a reply, or a reply_err other than busy) and refused busy, each
+        #: counted on the thread that answered it (``zenoh_queries_*_total``)
+        self._answered = ThreadCount()
+        self._busy = ThreadCount()
+
+    @property
+    def answered(self) -> int:
+        return self._answered.value
+
+    @property
+    def busy(self) -> int:
+        return self._busy.value
 
     # ------------------------------------------------------------------ the worker
     def start(self, threads: ThreadRegistry) -> None:
@@ -181,6 +193,7 @@ class QueryService:
             self._refuse(query, Busy(why, retry))
 
     def _refuse(self, query: zenoh.Query, exc: Busy) -> None:
+        self._busy.add()
         try:
             query.reply_err(json.dumps(busy_payload(str(query.key_expr), exc)), encoding=JSON)
         except zenoh.ZError:
@@ -199,6 +212,7 @@ class QueryService:
 
     def _reply_err(self, query: zenoh.Query, key: str, exc: Exception) -> None:
         if isinstance(exc, Busy):
+            self._busy.add()
             body = busy_payload(key, exc)
         else:
             if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
@@ -213,7 +227,7 @@ class QueryService:
         """The worker's job for one query: the one dispatch point. A read is answered here,
         a reply per step; a command goes to the event loop, which answers and finalises it."""
         key = str(query.key_expr)
-        handed = False
+        handed = answered = False
         try:
             replies = self._read_replies(query, key)
             if replies is None:
@@ -222,10 +236,14 @@ class QueryService:
             for rkey, body in replies:
                 self._reply(query, rkey, body)
                 yield
+            answered = True
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
             self._reply_err(query, key, exc)
+            answered = not isinstance(exc, Busy)
         finally:
             if not handed:
+                if answered:
+                    self._answered.add()
                 query.drop()
 
     def _read_replies(self, query: zenoh.Query, key: str) -> Replies | None:
@@ -268,6 +286,7 @@ class QueryService:
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
             self._reply_err(query, key, exc)
         finally:
+            self._answered.add()
             self._command_slots.release()
             query.drop()
 

@@ -15,8 +15,12 @@ over a second (docs/modbus.md, "What a burst costs"). Here no query runs on the 
   reply), then the lane goes to the back of the round. A long answer (a wildcard over every
   node, thousands of history samples) is a lazy iterator and never held whole: it gives way to
   the other lanes between turns, and to the event loop (the Modbus server) after every turn:
-  the thread lets the interpreter lock go (``give_way``), so a Modbus request that arrived
-  waits at most one turn, not one answer, let alone a burst of them.
+  the thread sleeps as long as the turn took (``give_way``: at least ``GIVE_WAY_MIN_S``, at most
+  ``GIVE_WAY_MAX_S``), so the queries take at most about half of the interpreter lock and a
+  Modbus request waits for one turn at most, not for an answer, let alone a burst of them. A
+  ``time.sleep(0)`` would not do: the thread that lets the lock go takes it back before the
+  waiting one runs, which then waits the interpreter's 5 ms switch interval, at every one of
+  the few times a Modbus answer needs the lock.
 * A job is an iterator: ``start(item)`` makes it (on this thread), each ``next`` does one
   unit of work; its own ``finally`` finalises the query (stopping the worker closes the
   iterators that are left). An exception that escapes a job is logged (rate-limited) and
@@ -52,16 +56,20 @@ QUEUE_MAX = 1000
 LANE_MAX = 500
 #: replies of one answer per turn, before the next lane and the event loop get their turn
 PER_TURN = 4
+#: the pause after a turn: as long as the turn took, within these bounds (seconds)
+GIVE_WAY_MIN_S = 0.0002
+GIVE_WAY_MAX_S = 0.005
 #: the retry hint's bounds, seconds
 RETRY_MIN_S = 0.05
 RETRY_MAX_S = 10.0
 ANONYMOUS = "anonymous"
 
 
-def give_way() -> None:
-    """Let the interpreter lock go: a thread waiting for it (the event loop, with a Modbus
-    request in hand) takes it now, not after the 5 ms switch interval."""
-    time.sleep(0)
+def give_way(turn_s: float) -> None:
+    """Let the interpreter lock go for as long as the turn held it: a thread waiting for it
+    (the event loop, with a Modbus request in hand) takes it now, not after the 5 ms switch
+    interval."""
+    time.sleep(min(GIVE_WAY_MAX_S, max(GIVE_WAY_MIN_S, turn_s)))
 
 
 @dataclass
@@ -82,7 +90,7 @@ class QueryWorker(Generic[T]):
         lane_max: int = LANE_MAX,
         per_turn: int = PER_TURN,
         clock: Callable[[], float] = time.monotonic,
-        yield_fn: Callable[[], None] = give_way,
+        yield_fn: Callable[[float], None] = give_way,
     ) -> None:
         self._start = start
         self.queue_max = queue_max
@@ -188,8 +196,9 @@ class QueryWorker(Generic[T]):
                     self._wake.wait()
                 if self._stopping:
                     return
+            t0 = time.perf_counter()
             self.step()
-            self._give_way()
+            self._give_way(time.perf_counter() - t0)
 
     def start_thread(self, threads: ThreadRegistry, name: str = "zenoh-queries") -> None:
         with self._lock:

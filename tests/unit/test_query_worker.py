@@ -30,7 +30,7 @@ class Log:
 
 
 def worker(log: Log, **kw: object) -> QueryWorker[tuple[str, int]]:
-    return QueryWorker(log.job, yield_fn=lambda: None, **kw)  # type: ignore[arg-type]
+    return QueryWorker(log.job, yield_fn=lambda s: None, **kw)  # type: ignore[arg-type]
 
 
 def run_all(w: QueryWorker[tuple[str, int]]) -> int:
@@ -87,7 +87,7 @@ def test_the_retry_hint_is_the_depth_times_the_mean_job_time_within_bounds() -> 
         now[0] += 0.1  # every job takes 0.1 s of the fake clock
         yield
 
-    w: QueryWorker[str] = QueryWorker(job, clock=lambda: now[0], yield_fn=lambda: None)
+    w: QueryWorker[str] = QueryWorker(job, clock=lambda: now[0], yield_fn=lambda s: None)
     assert w.retry_after_s() == RETRY_MIN_S  # an empty queue
     for i in range(60):
         w.submit("a", f"j{i}")
@@ -109,7 +109,7 @@ def test_a_job_that_raises_is_dropped_counted_and_the_others_go_on() -> None:
             raise RuntimeError("a bug")
         return log.job(item)
 
-    w: QueryWorker[tuple[str, int]] = QueryWorker(job, yield_fn=lambda: None)
+    w: QueryWorker[tuple[str, int]] = QueryWorker(job, yield_fn=lambda s: None)
     w.submit("a", ("bad", 1))
     w.submit("a", ("good", 1))
     run_all(w)
