@@ -133,11 +133,17 @@ class QueryLoad:
         self.zenoh = zenoh
         self.session = zenoh.open(conf)
         self.info = {"zid": str(self.session.info.zid())}
+        self.errors: dict[str, str] = {}  # the first error text of each kind
+
+    def first_errors(self) -> dict[str, str]:
+        out, self.errors = self.errors, {}
+        return out
 
     def _fire(
         self, selector: str, n: int, tally: dict[str, int], done: threading.Semaphore
     ) -> None:
         lock = threading.Lock()
+        errors = self.errors
 
         def on_reply(reply: Any) -> None:
             with lock:
@@ -145,7 +151,9 @@ class QueryLoad:
                     tally["ok"] += 1
                 else:
                     err = reply.err.payload.to_bytes()
-                    tally["busy" if b'"busy"' in err else "err"] += 1
+                    kind = "busy" if b'"busy"' in err else "err"
+                    tally[kind] += 1
+                    errors.setdefault(kind, err.decode(errors="replace")[:160])
 
         for _ in range(n):
             handler = self.zenoh.handlers.Callback(on_reply, done.release)
@@ -289,12 +297,14 @@ async def run() -> Section:
         rows.append(_row("idle", idle))
         for what in LOADS:
             fig, res = await _measure(plc, load, cfg.modbus.port, what, http_base)
+            first = await load.acall("first_errors")
             rows.append(_row(what[0], fig))
             notes.append(
                 f"{what[0]}: {res.get('gets', 0)} requests, {res.get('ok', 0)} answers, "
                 f"{res.get('busy', 0)} refused busy, {res.get('err', 0)} other errors, "
                 f"{res.get('ended', 0)} ended; the PLC got {int(fig['n'])} answers "
                 f"({int(fig['errors'])} not a register answer)."
+                + "".join(f" First {k}: `{v}`." for k, v in sorted(first.items()))
             )
         rss1 = _rss_mib()
         notes.append(

@@ -60,6 +60,11 @@ READY = "ready"
 NOT_READY = "not-ready"
 MAX_REQUEST_HEAD_BYTES = 8192
 MAX_REQUEST_BODY_BYTES = 65536
+#: connections accepted per loop iteration (asyncio accepts up to the backlog at once) and
+#: waiting in the kernel: a burst of clients is let in a few at a time, and the loop polls
+#: its other sockets (a PLC's) in between; the kernel holds the rest, a client whose
+#: connection is not taken yet tries again (TCP)
+ACCEPT_BACKLOG = 16
 JSON_TYPE = "application/json"
 TEXT_TYPE = "text/plain; charset=utf-8"
 HEALTH_PATHS = ("/healthz", "/livez", "/metrics")
@@ -233,7 +238,11 @@ class HealthServer:
         if self._server is not None:
             raise RuntimeError("health server already started")
         self._server = await asyncio.start_server(
-            self._on_connection, self.host, self.requested_port, limit=MAX_REQUEST_HEAD_BYTES
+            self._on_connection,
+            self.host,
+            self.requested_port,
+            limit=MAX_REQUEST_HEAD_BYTES,
+            backlog=ACCEPT_BACKLOG,
         )
         log.info(
             "health endpoint on %s (/healthz, /livez, /metrics%s)",

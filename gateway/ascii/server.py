@@ -58,6 +58,9 @@ log = logging.getLogger("gateway.ascii")
 
 #: lines waiting to be answered on one connection before it stops reading (back-pressure)
 MAX_PENDING_LINES = 64
+#: connections accepted per loop iteration and waiting in the kernel (a burst is let in a few
+#: at a time: the PLC first)
+ACCEPT_BACKLOG = 16
 #: event lines are not queued for a client with more than this unsent
 EVENT_BACKLOG_BYTES = 64 * 1024
 
@@ -90,7 +93,7 @@ class AsciiGateway:
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
         self.server = await loop.create_server(
-            lambda: _Connection(self), self.section.host, self.section.port
+            lambda: _Connection(self), self.section.host, self.section.port, backlog=ACCEPT_BACKLOG
         )
         self.port = self.server.sockets[0].getsockname()[1]
         if self.section.events:

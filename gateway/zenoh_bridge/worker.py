@@ -51,9 +51,9 @@ log = logging.getLogger("gateway.zenoh")
 T = TypeVar("T")
 
 #: jobs waiting or running, all lanes together: past it, ``busy``
-QUEUE_MAX = 1000
+QUEUE_MAX = 400
 #: jobs of one lane (one querying session, or every anonymous query together)
-LANE_MAX = 500
+LANE_MAX = 200
 #: replies of one answer per turn, before the next lane and the event loop get their turn
 PER_TURN = 4
 #: the pause after a turn: as long as the turn took, within these bounds (seconds)
