@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import threading
+import urllib.error
 import urllib.request
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -156,3 +157,47 @@ async def test_metrics_count_queries_answered_refused_and_the_queue_depth() -> N
         m = await asyncio.to_thread(scrape)
         assert m["canopen_gateway_zenoh_query_queue_depth"] == 0
         assert m["canopen_gateway_zenoh_queries_answered_total"] == 1
+
+
+async def test_console_and_ascii_clients_refused_a_turn_get_busy_and_the_plc_its_answer() -> None:
+    """When too many console and ASCII requests wait for a turn on the event loop, a console
+    API request is answered 503 busy with Retry-After and an ASCII line ERROR:102; the health
+    probe and the PLC are not held up by turns at all."""
+    port = free_port()
+    async with manual_worker(
+        health={"host": "127.0.0.1", "port": port}, ascii={"port": free_port()}
+    ) as (gw, _z):
+        assert gw.modbus is not None and gw.ascii is not None
+
+        async def refused(bounded: bool = True) -> bool:
+            gw.turns.refused += 1
+            return False
+
+        gw.turns.turn = refused  # type: ignore[method-assign]  # as when 256 already wait
+
+        def get(path: str) -> tuple[int, dict[str, str], bytes]:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=5) as r:
+                    return r.status, dict(r.headers), r.read()
+            except urllib.error.HTTPError as exc:
+                return exc.code, dict(exc.headers), exc.read()
+
+        status, headers, body = await asyncio.to_thread(get, "/api/overview")
+        assert status == 503 and headers["Retry-After"] == "1"
+        assert json.loads(body)["error"] == "busy"
+        status, _, _ = await asyncio.to_thread(get, "/healthz")
+        assert status == 200
+
+        reader, writer = await asyncio.open_connection("127.0.0.1", gw.ascii.port)
+        writer.write(b"[7] 1 read 0x1008 0 vs\r\n")
+        assert await asyncio.wait_for(reader.readuntil(b"\r\n"), 5) == b"[7] ERROR:102\r\n"
+        writer.close()
+
+        plc = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
+        await plc.connect()
+        try:
+            rr = await plc.read_input_registers(0, count=3, device_id=1)
+        finally:
+            plc.close()
+        assert not rr.isError()
+        assert gw.turns.refused == 2
