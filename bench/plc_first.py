@@ -295,7 +295,10 @@ async def run() -> Section:
         rss0 = _rss_mib()
         idle, _ = await _measure(plc, load, cfg.modbus.port, ("idle", "idle", "", 0, 0), http_base)
         rows.append(_row("idle", idle))
+        only = os.environ.get("PLC_FIRST_LOADS", "")  # e.g. "http" or "burst,steady"
         for what in LOADS:
+            if only and what[1] not in only.split(","):
+                continue
             fig, res = await _measure(plc, load, cfg.modbus.port, what, http_base)
             first = await load.acall("first_errors")
             rows.append(_row(what[0], fig))

@@ -25,6 +25,9 @@ from collections import deque
 
 #: pieces of northbound work per loop iteration
 PER_ITERATION = 1
+#: and at least this long between two turns (seconds): a burst is spread out in time too, so
+#: the other processes of a small machine (the PLC's own, on a shared one) get a processor
+MIN_GAP_S = 0.001
 #: clients waiting for a turn: past it, refused
 WAITING_MAX = 256
 #: what a refused client is told: ask again after this many seconds
@@ -34,9 +37,16 @@ RETRY_AFTER_S = 1
 class LoopTurns:
     """See the module docstring."""
 
-    def __init__(self, per_iteration: int = PER_ITERATION, waiting_max: int = WAITING_MAX):
+    def __init__(
+        self,
+        per_iteration: int = PER_ITERATION,
+        waiting_max: int = WAITING_MAX,
+        min_gap_s: float = MIN_GAP_S,
+    ):
         self.per_iteration = per_iteration
         self.waiting_max = waiting_max
+        self.min_gap_s = min_gap_s
+        self._last = float("-inf")  # loop time of the last turn given
         self._used = 0
         self._armed = False
         self._waiters: deque[asyncio.Future[None]] = deque()
@@ -52,9 +62,14 @@ class LoopTurns:
         client already bounded by its own limit (a live page: at most so many streams, each
         waiting for one turn at a time) passes ``bounded=False`` and always waits."""
         loop = asyncio.get_running_loop()
-        if self._used < self.per_iteration and not self._waiters:
+        if (
+            self._used < self.per_iteration
+            and not self._waiters
+            and loop.time() - self._last >= self.min_gap_s
+        ):
             self._used += 1
             self.granted += 1
+            self._last = loop.time()
             self._arm(loop)
             return True
         if bounded and len(self._waiters) >= self.waiting_max:
@@ -69,17 +84,26 @@ class LoopTurns:
     def _arm(self, loop: asyncio.AbstractEventLoop) -> None:
         if not self._armed:
             self._armed = True
-            loop.call_soon(self._next, loop)
+            due = self._last + self.min_gap_s
+            if self._waiters and loop.time() < due:
+                loop.call_at(due, self._next, loop)
+            else:
+                loop.call_soon(self._next, loop)
 
     def _next(self, loop: asyncio.AbstractEventLoop) -> None:
-        """A new loop iteration (the sockets were polled since the last): new turns."""
+        """A new loop iteration (the sockets were polled since the last), and the gap since
+        the last turn past: new turns."""
         self._armed = False
         self._used = 0
+        if self._waiters and loop.time() - self._last < self.min_gap_s:
+            self._arm(loop)
+            return
         while self._waiters and self._used < self.per_iteration:
             fut = self._waiters.popleft()
             if not fut.done():
                 fut.set_result(None)
                 self._used += 1
                 self.granted += 1
+                self._last = loop.time()
         if self._used or self._waiters:
             self._arm(loop)

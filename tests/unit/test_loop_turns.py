@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import socket
+import time
 
 from gateway.turns import LoopTurns
 
@@ -94,3 +95,18 @@ async def test_a_client_that_goes_away_gives_its_turn_up() -> None:
     assert await after
     assert gone.cancelled() and turns.waiting == 0
     assert turns.granted == 2
+
+
+async def test_turns_are_spread_out_in_time_by_the_minimum_gap() -> None:
+    turns = LoopTurns(min_gap_s=0.002)
+    loop = asyncio.get_running_loop()
+    at: list[float] = []
+
+    async def client() -> None:
+        await turns.turn()
+        at.append(loop.time())
+
+    await asyncio.gather(*(client() for _ in range(5)))
+    gaps = [b - a for a, b in zip(at, at[1:], strict=False)]
+    slack = time.get_clock_info("monotonic").resolution
+    assert len(gaps) == 4 and all(g >= 0.002 - slack for g in gaps)
