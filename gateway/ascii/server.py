@@ -72,8 +72,9 @@ class AsciiGateway:
         self, cfg: Config, image: ProcessImage, commands: Any, turns: LoopTurns | None = None
     ) -> None:
         assert cfg.ascii is not None
-        #: turns on the event loop, shared with the other northbound clients (the PLC first)
-        self.turns = turns if turns is not None else LoopTurns()
+        #: turns on the event loop, shared with the other northbound clients (the PLC first;
+        #: the application gives its own, standing alone it has one without a gap)
+        self.turns = turns if turns is not None else LoopTurns(min_gap_s=0.0)
         self.section = cfg.ascii
         self.image = image
         self.commands: CommandService = commands
