@@ -201,3 +201,17 @@ async def test_console_and_ascii_clients_refused_a_turn_get_busy_and_the_plc_its
             plc.close()
         assert not rr.isError()
         assert gw.turns.refused == 2
+
+
+async def test_a_gateway_built_with_freeze_gc_moves_what_it_built_out_of_the_collectors_reach() -> None:
+    import gc
+
+    cfg = make_config([WIRE], zenoh={"enabled": False}, modbus={"enabled": False})
+    gw = gateway_of(cfg, freeze_gc=True)  # as ``canopen-gateway run`` builds it
+    gc.unfreeze()
+    try:
+        await gw.start()
+        assert gc.get_freeze_count() > 0
+        await gw.stop()
+    finally:
+        gc.unfreeze()  # the test process's own objects back to the collector
