@@ -76,7 +76,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from gateway.zenoh_bridge.session import PrefixInUse
 
     # a bus that cannot open at start: one line, exit 2 (cli.main); opened once, by the gateway
-    gw = Gateway(cfg, nodes, simulate=not args.no_simulate, bus_must_open=True)
+    gw = Gateway(cfg, nodes, simulate=not args.no_simulate, bus_must_open=True, freeze_gc=True)
     try:
         with gateway_bus(cfg):
             asyncio.run(run_until_signal(gw.start, gw.stop, gw.summary))
