@@ -86,6 +86,8 @@ async def test_the_standby_reports_each_node_as_the_active_one_does() -> None:
         assert display.lifecycle == "operational" and display.link is LinkState.OK
         assert display.operational and display.usable
         assert b.master.standby_dropped == 0  # and it built no frame of its own for the nodes
+        # a heartbeat node the standby hears steady costs it no wake-up per repeated heartbeat
+        assert b.master.nodes["wire"].steady and b.master.nodes["display"].steady
 
 
 async def test_a_node_the_operator_stopped_stays_stopped_through_a_takeover() -> None:
