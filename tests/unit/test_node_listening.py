@@ -265,3 +265,23 @@ def test_the_guarding_bit_of_a_heard_rpdo_is_the_expectation_of_the_link_check()
     check.heard(0, 0.2)
     assert check.deadline_s == 1.2  # toggled: its echo is due within the tolerance
     assert check.next_bit(0.3) == 0  # a take-over goes on from the bit heard (still unechoed)
+
+
+def test_a_gateway_that_stands_down_keeps_its_nodes_started_and_takes_them_back_as_they_run() -> None:
+    h = running()
+    node = h.parts.node  # the active one's node
+    t = h.now
+    h._take(node.stand_by(t))
+    assert node.listening and h.active_image.health.lifecycle == "operational"
+    h._take(node.stand_by(t))  # standing by again changes nothing of what it knew
+    assert node.heard.started
+    h.standby = None  # the other listening node plays no part here
+    h.run_until(t + 0.3)  # within the life time (100 ms x 5): see test_pair_check
+    assert not [s for tt, s in h.sent if tt >= t and not s.rtr]  # listening: nothing sent...
+    assert not [s for tt, s in h.sent if tt >= t and s.rtr]  # ...not even a guarding RTR
+    h._take(node.take_over(h.now))
+    h._take(node.take_over(h.now))  # a second take-over: it is ours already
+    t2 = h.now
+    h.run_until(t2 + 2.0)
+    assert not [s for tt, s in h.sent if tt >= t2 and (s.cob_id == 0x000 or s.cob_id == 0x603)]
+    assert node.lifecycle.state is LifecycleState.OPERATIONAL and len(h.guard_rtrs(after=t2)) >= 15

@@ -50,9 +50,11 @@ class HeardLife:
         #: NMT start says the node was started (its OPERATIONAL state alone no longer does)
         self.restarted = False
 
-    def stood_down(self, started: bool) -> None:
-        """This gateway stood down: ``started`` says whether it had the node operational."""
-        self.started, self.restarted = started, False
+    def stood_down(self, state: LifecycleState) -> None:
+        """This gateway stood down from mastering the node, its lifecycle in ``state``: the
+        node is started if it had it operational (already listening: nothing changes)."""
+        if state is not LifecycleState.LISTENING:
+            self.started, self.restarted = state is LifecycleState.OPERATIONAL, False
 
     def on_nmt_command(self, command: str) -> None:
         if command == "start":

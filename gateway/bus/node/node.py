@@ -317,19 +317,19 @@ class Node:
         return []
 
     def stand_by(self, now: float) -> list[Output]:
-        """This gateway became a pair's standby: the node only listens; queued SDO work is
-        dropped (the master sends nothing while standing by)."""
-        self.heard.stood_down(self.lifecycle.state is LifecycleState.OPERATIONAL)
+        """This gateway became a pair's standby: the node only listens, queued SDO work dropped."""
+        self.heard.stood_down(self.lifecycle.state)
         out = self._end_sdo_work(now, lambda j: False)
         return out + self._lifecycle_changes(self.lifecycle.on_listen(now), now)
 
     def take_over(self, now: float) -> list[Output]:
-        """This gateway became the pair's active one: a node heard started is adopted as it
-        runs (``HeardLife.adopt_in``), any other is found and configured as usual."""
+        """The pair's take-over: a node heard started is adopted as it runs (``HeardLife``)."""
+        if not self.listening:
+            return self.tick(now)  # ours already: nothing to take over
         adopt = self.heard.adopt_in(self.health.alive, self.health.nmt_state)
         out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None), now)
         if adopt is None:
-            self.next_probe_s = now
+            self.next_probe_s = now  # found and configured as usual
         return out + listening.adopted(self, adopt, now) + self.tick(now)
 
     def write_outputs(
