@@ -156,6 +156,17 @@ def _pair_problems(cfg: Config) -> list[tuple[str, str]]:
                 "when it is missing",
             )
         )
+    hb = cfg.master.heartbeat_ms
+    if pair.takeover_ms is not None and hb > 0 and pair.takeover_ms < 2 * hb:
+        out.append(
+            (
+                "master.redundancy.takeover_ms",
+                f"{pair.takeover_ms} ms is under two logical heartbeats (2 x master.heartbeat_ms "
+                f"= {2 * hb} ms): one late heartbeat would look like a dead master and a lone "
+                f"gateway would flap between active and standby; allowed: at least {2 * hb} ms "
+                f"(default 3 x master.heartbeat_ms)",
+            )
+        )
     nodes = {n.node_id: i for i, n in enumerate(cfg.nodes)}
     for key, value in (("node_id", pair.node_id), ("peer_node_id", pair.peer_node_id)):
         if value is None:
