@@ -31,7 +31,7 @@ from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
 from gateway.profiles.derived import text_rows_as_signals
-from gateway.startup import startup_step
+from gateway.startup import Listener, StartupError, ports_in_use, startup_step, zenoh_listeners
 from gateway.threads import ThreadRegistry
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
@@ -310,12 +310,37 @@ class Gateway:
         setting and its value), so the process can exit with nothing left open."""
         try:
             await self._start()
+        except StartupError as exc:  # the variable that set a key is blamed, not the file
+            await self.stop()
+            raise exc.blamed(self._env_var) from None
         except BaseException:
             await self.stop()
             raise
 
+    def _env_var(self, key: str) -> str | None:
+        where = blame(key, self.cfg.source, self.cfg.env_keys)
+        return None if where == self.cfg.source else where
+
+    def _listeners(self) -> list[Listener]:
+        """Every port this gateway will listen on, with the key that sets it."""
+        cfg = self.cfg
+        out = []
+        if self.modbus is not None:
+            out.append(Listener("modbus.port", cfg.modbus.host, cfg.modbus.port, f"{cfg.modbus.port} on {cfg.modbus.host}"))  # fmt: skip
+        if self.zenoh is not None and cfg.zenoh.mode != "client":
+            out += zenoh_listeners("zenoh.listen", cfg.zenoh.listen)
+        if cfg.ascii is not None and cfg.ascii.enabled:
+            out.append(Listener("ascii.port", cfg.ascii.host, cfg.ascii.port, f"{cfg.ascii.port} on {cfg.ascii.host}"))  # fmt: skip
+        if cfg.health.port:
+            out.append(Listener("health.port", cfg.health.host, cfg.health.port, f"{cfg.health.port} on {cfg.health.host}"))  # fmt: skip
+        return out
+
     async def _start(self) -> None:
         cfg = self.cfg
+        # every port before anything opens: one failed start names every port in use
+        busy = ports_in_use(self._listeners())
+        if busy is not None:
+            raise busy
         if self.zenoh is not None:
             z = cfg.zenoh
             key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)

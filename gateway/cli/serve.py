@@ -81,7 +81,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         with gateway_bus(cfg):
             asyncio.run(run_until_signal(gw.start, gw.stop, gw.summary))
     except StartupError as exc:  # a port in use, a file missing: one line, everything closed
-        print(exc.line(args.config), file=sys.stderr)
+        for line in exc.lines(args.config):  # every port in use, one line each
+            print(line, file=sys.stderr)
         return EXIT_CONFIG
     except PrefixInUse as exc:  # a configuration problem: two gateways under one prefix
         print(f"error: {args.config}: zenoh.prefix: {exc}", file=sys.stderr)
