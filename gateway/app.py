@@ -5,6 +5,10 @@ Modbus server, Zenoh bridge, health endpoint, and (for demos/tests) simulated de
 nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed to the master,
 Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
 parts do not know each other except through the image and the command service.
+
+Imports: every part: ascii.server, bus.driver, bus.master, checks, commands, config, device.resolved,
+health, image, metrics, modbus.server, northbound (frames, regmap, summary), profiles.derived,
+sim (faults, motion, node, runner), startup, threads, web (console, views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations

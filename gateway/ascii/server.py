@@ -40,7 +40,7 @@ from gateway.ascii.protocol import (
     answer_value,
 )
 from gateway.ascii.values import format_plain, format_value
-from gateway.commands import CommandService
+from gateway.commands import CommandService, acting_for
 from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import NodeImage, ProcessImage
@@ -207,7 +207,8 @@ class _Connection(asyncio.Protocol):
             item = await self.lines.get()
             if item is None:
                 break
-            answers = await self._answer(item)
+            with acting_for(f"ASCII client {self.peer}"):  # named in the log of writes
+                answers = await self._answer(item)
             self._write(answers)
             if self.paused and self.lines.qsize() < MAX_PENDING_LINES // 2 and self.transport:
                 self.paused = False

@@ -30,7 +30,7 @@ from typing import Any
 import zenoh
 
 from gateway import __version__
-from gateway.commands import CommandService
+from gateway.commands import CommandService, acting_for
 from gateway.config import Config
 from gateway.errors import Forbidden, GatewayError, NotActive
 from gateway.image import NodeImage, ProcessImage
@@ -145,7 +145,8 @@ class QueryService:
                 return
             payload = query.payload.to_bytes() if query.payload is not None else None
             type_param = query.parameters.get("type")
-            result = await self.dispatch(key, payload, type_param)
+            with acting_for(f"Zenoh query on {key}"):  # named in the log of writes
+                result = await self.dispatch(key, payload, type_param)
             self._reply(query, key, result)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
             if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
