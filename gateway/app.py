@@ -225,7 +225,11 @@ class Gateway:
         modbus_up = self.modbus is None or self.modbus.server is not None
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
-        ready = self.started and bus_ok and modbus_up and zenoh_up and not dead
+        # ready: the bus and the PLC side serve; the cloud side (Zenoh) counts only for a gateway
+        # without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's gateway out
+        # of service because the router is away. /healthz says "zenoh": false meanwhile.
+        northbound_up = modbus_up if self.modbus is not None else zenoh_up
+        ready = self.started and bus_ok and northbound_up and not dead
         return {
             "status": "ready" if ready else "not-ready",
             "ready": ready,
