@@ -411,3 +411,20 @@ def test_device_info_other_than_1018h_is_a_warning_and_that_number_is_not_compar
     assert expected_identity(load_node_profile(Node(eds=str(p)).cfg)) == ((ObjRef(0x1018, 2), 0x401),)
     _, warnings = lint_of(p)
     assert warnings == [f"{p}:{line_of(p, 'VendorNumber=0x00000ABD')}: [DeviceInfo]: VendorNumber=0xABD but 1018h:01 DefaultValue=0xABC: the identity check at boot does not compare it"]  # fmt: skip
+
+
+def test_profile_init_keeps_the_objects_name_and_index_as_each_signals_description(
+    tmp_path: Path,
+) -> None:
+    """A profile written by ``profile init`` describes each signal as the EDS-only node does
+    (``Temperatur (0x6401:01)``-like: the object's name and index), so the register map of a
+    node that got a profile does not lose the words its EDS gave it."""
+    target = tmp_path / "flow.yaml"
+    assert main(["profile", "init", "--eds", str(FLOW), "-o", str(target)]) == 0
+    cfg = parse_checked_config({"can": {"interface": "virtual", "channel": "x"}, "nodes": [{"name": "flow", "node_id": 6, "profile": str(target)}]}, environ={})  # fmt: skip
+    with_profile = load_node_profile(cfg.nodes[0], cfg.base_dir).profile
+    eds_only = load_node_profile(Node(eds=str(FLOW)).cfg).profile
+    by_object = {s.object: s.description for s in eds_only.signals}
+    for s in with_profile.signals:
+        assert s.description == by_object[s.object], s.name
+        assert s.description.endswith(f"({s.object})") and len(s.description) > len(f"({s.object})")

@@ -23,7 +23,9 @@ def settings(kind: str) -> NodeSettings:
     )  # fmt: skip
 
 
-def problem(kind: str, obj: ObjRef, value: int, steps: list[ConfigStep] | None = None) -> str | None:
+def problem(
+    kind: str, obj: ObjRef, value: int, steps: list[ConfigStep] | None = None
+) -> str | None:
     return supervision_problem("n", settings(kind), steps or [], MASTER, obj, value)
 
 
