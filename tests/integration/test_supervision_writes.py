@@ -26,11 +26,13 @@ from gateway.app import Gateway
 from gateway.errors import SupervisionWrite, ValueOutOfRange
 from tests.helpers import edited_copy, free_port, gateway_of, make_config, wait_until
 from tests.integration.test_ascii_gateway import Heartbeat, boot
+from tests.integration.test_web_http import post
 from tests.zenoh_client import ZClient
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10", "heartbeat_ms": 100}
 SPARE = {"name": "spare", "node_id": 2, "profile": "sgh10", "supervision": "none"}
 P = "canopen/test"
+TOKEN = "plant-floor-token-42"
 ILLEGAL_VALUE = 0x03
 IO401 = Path(__file__).resolve().parents[1] / "data" / "eds" / "io401.eds"
 
@@ -41,7 +43,7 @@ async def gateway() -> AsyncIterator[tuple[Gateway, AsyncModbusTcpClient, ZClien
         [WIRE, SPARE],
         simulate={"nodes": "all", "motion": {"wire": {"kind": "hold"}}},
         health={"port": free_port()},
-        web={"enabled": True},
+        web={"enabled": True, "writes": True, "token": TOKEN},
         zenoh={"writes": True},
         ascii={"port": free_port(), "writes": True},
     )
@@ -112,6 +114,10 @@ async def test_heartbeat_time_0_on_a_heartbeat_supervised_node_is_refused_by_eve
         answer = await ascii_request(gw.cfg.ascii.port, "[7] 1 w 0x1017 0 u16 0")
         assert answer == "[7] ERROR:0x08000022"
 
+        base = f"http://127.0.0.1:{gw.health.port}"
+        status, doc = await post(base, "sdo-write", {"node": "wire", "object": "0x1017:00", "value": 0})
+        assert status >= 400 and "supervised by its heartbeat" in doc["message"], (status, doc)
+
         with pytest.raises(SupervisionWrite, match="heartbeat_ms in the config"):
             await gw.commands.sdo_write("wire", "0x1017:00", 0)
         # a write of the value the gateway configured changes nothing and is allowed
@@ -121,7 +127,8 @@ async def test_heartbeat_time_0_on_a_heartbeat_supervised_node_is_refused_by_eve
         assert gw.image.nodes["wire"].health.alive
         refused = [m for m in warnings_of(caplog) if "refused" in m and "0x1017:00" in m]
         clients = ("Modbus client 127.0.0.1", f"Zenoh query on {P}/wire/set/heartbeat_time",
-                   f"Zenoh query on {P}/wire/sdo/1017/00", "ASCII client 127.0.0.1:")  # fmt: skip
+                   f"Zenoh query on {P}/wire/sdo/1017/00", "ASCII client 127.0.0.1:",
+                   "web console client 127.0.0.1")  # fmt: skip
         for who in clients:
             assert any(m.startswith(who) for m in refused), (who, refused)
         events = [e.text for e in gw.web.events.since(0)]
@@ -142,6 +149,8 @@ async def test_heartbeat_time_outside_the_manuals_range_is_refused_and_a_change_
         assert sim_value(gw, "spare", 0x1017, 0) == before
         with pytest.raises(ValueOutOfRange, match=r"0 or 10\.\.65535"):
             await gw.commands.sdo_write("spare", "0x1017:00", 5)
+        assert await ascii_request(gw.cfg.ascii.port, "[8] 2 w 0x1017 0 u16 5") == "[8] ERROR:101"
+        assert sim_value(gw, "spare", 0x1017, 0) == before
 
         assert code(await client.write_register(address, 20, device_id=unit)) is None
         assert sim_value(gw, "spare", 0x1017, 0) == 20
