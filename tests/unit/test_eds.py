@@ -285,6 +285,14 @@ def test_check_refuses_boot_values_outside_the_eds_limits() -> None:
     assert p == ["cfg.yaml: nodes[0].heartbeat_ms: 20000 for 0x1017:00 (producer heartbeat time (ms)) is outside 0..10000 (LowLimit/HighLimit in measure.eds)"]  # fmt: skip
 
 
+def test_check_refuses_an_sgh10_or_msk5000_heartbeat_of_5_ms_as_their_manuals_do() -> None:
+    """SGH10 manual 000 4.7.2.14 and MSK5000 manual 001 4.6.1.15: 1017h "0d, 10d ... 65535d"."""
+    for profile in ("sgh10", "msk5000"):
+        p = problems([{"name": "enc", "node_id": 1, "profile": profile, "heartbeat_ms": 5}])
+        assert p == [f"cfg.yaml: nodes[0].heartbeat_ms: 5 for 0x1017:00 (producer heartbeat time (ms)) is not allowed: 0 or 10..65535 (profile {profile}); producer heartbeat time in ms; 0 = off"]  # fmt: skip
+        assert problems([{"name": "enc", "node_id": 1, "profile": profile, "heartbeat_ms": 10}]) == []
+
+
 def test_check_refuses_ap05_heartbeat_and_external_heartbeat_of_5_ms() -> None:
     p = problems(
         [{"name": "display", "node_id": 125, "profile": "ap05", "heartbeat_ms": 5,
