@@ -333,8 +333,13 @@ class Gateway:
         """Every port this gateway will listen on, with the key that sets it."""
         cfg = self.cfg
         out = []
-        if self.modbus is not None:
+        if self.modbus is not None and cfg.modbus.plain:
             out.append(Listener("modbus.port", cfg.modbus.host, cfg.modbus.port, f"{cfg.modbus.port} on {cfg.modbus.host}"))  # fmt: skip
+        if self.modbus is not None:
+            tls = cfg.modbus.tls
+            if tls is not None:
+                host = tls.host or cfg.modbus.host
+                out.append(Listener("modbus.tls.port", host, tls.port, f"{tls.port} on {host}"))
         if self.zenoh is not None and cfg.zenoh.mode != "client":
             out += zenoh_listeners("zenoh.listen", cfg.zenoh.listen)
         if cfg.ascii is not None and cfg.ascii.enabled:
