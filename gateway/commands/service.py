@@ -310,9 +310,11 @@ class CommandService:
         """A write of an error control object that was sent: who changed what, at WARNING (the
         console's event log shows it)."""
         if is_supervision_object(obj):
+            kind = p.settings.supervision
+            how = "does not supervise it" if kind == "none" else f"supervises it by {kind}"
             log.warning(
-                "%s wrote %s = %s on node %s (error control; the gateway supervises %s by %s)",
-                current_client(), obj, value, p.name, p.name, p.settings.supervision,
+                "%s wrote %s = %s on node %s (error control; the gateway %s)",
+                current_client(), obj, value, p.name, how,
             )  # fmt: skip
 
     def _word_lock(self, node: str, name: str) -> asyncio.Lock:

@@ -156,6 +156,7 @@ async def test_heartbeat_time_outside_the_manuals_range_is_refused_and_a_change_
         assert sim_value(gw, "spare", 0x1017, 0) == 20
         changed = [m for m in warnings_of(caplog) if "wrote 0x1017:00 = 20 on node spare" in m]
         assert changed and changed[0].startswith("Modbus client 127.0.0.1"), warnings_of(caplog)
+        assert changed[0].endswith("(error control; the gateway does not supervise it)")
 
 
 @asynccontextmanager
