@@ -433,10 +433,10 @@ class CommandService:
 
     def _as_integer(self, p: NodeParts, o: ObjRef, data: bytes, type_: str | None) -> int | None:
         """The integer an SDO download's bytes carry, by ``type_`` or the dictionary's type
-        (None: not an integer type, or bytes of another length)."""
+        (None: not an integer type). Bytes of another length than the type's are read as the
+        integer they hold, so a 4-byte 0 to a 16-bit 1017h is still a 0 to be checked."""
         t = type_ or self._od_type(p, o)
-        bits = TYPE_BITS.get(t or "")
-        if t is None or bits is None or t.startswith("float") or len(data) * 8 != bits:
+        if t is None or t not in TYPE_BITS or t.startswith("float") or not 0 < len(data) <= 8:
             return None
         return int.from_bytes(data, "little", signed=t.startswith("int"))
 

@@ -113,6 +113,9 @@ async def test_heartbeat_time_0_on_a_heartbeat_supervised_node_is_refused_by_eve
 
         answer = await ascii_request(gw.cfg.ascii.port, "[7] 1 w 0x1017 0 u16 0")
         assert answer == "[7] ERROR:0x08000022"
+        # the same 0 in four bytes is the same write
+        answer = await ascii_request(gw.cfg.ascii.port, "[9] 1 w 0x1017 0 u32 0")
+        assert answer == "[9] ERROR:0x08000022"
 
         base = f"http://127.0.0.1:{gw.health.port}"
         status, doc = await post(base, "sdo-write", {"node": "wire", "object": "0x1017:00", "value": 0})
