@@ -1,12 +1,11 @@
 """The command service, split by role: ``service`` (``CommandService``, the one way south and
 the only writer of device values), ``validation`` (the checks of a value before it is sent),
-``sdo_cache`` (the SDO values read north), ``bus_tools`` (LSS inquire, the bus scan) and
-``client`` (who asked: ``acting_for``, set by each adapter around a client's request).
+``sdo_cache`` (the SDO values read north) and ``bus_tools`` (LSS inquire, the bus scan);
+``audit`` says who asked (``acting_as``, set by each adapter around a client's request).
 
-Imports: commands.service, commands.validation, commands.client. Never modbus/ or zenoh_bridge/.
+Imports: commands.service, commands.validation. Never modbus/ or zenoh_bridge/.
 """
 
-from gateway.commands.client import acting_for, current_client
 from gateway.commands.service import CommandService, NodeInfo
 from gateway.commands.validation import (
     REAL32_MAX,
@@ -23,8 +22,6 @@ __all__ = [
     "SDO_TYPES",
     "CommandService",
     "NodeInfo",
-    "acting_for",
-    "current_client",
     "bit_names",
     "check_sdo_type",
     "check_value",

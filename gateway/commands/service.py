@@ -17,7 +17,7 @@ Rules held here, once:
 * a configuration write (SDO) is checked against the object's range (EDS LowLimit/HighLimit,
   the profile's constraints) and refused when it would defeat the gateway's supervision of
   the node (``validation.supervision_problem``); a refusal, and an accepted write of an error
-  control object, is logged at WARNING naming the write and its client (``client``);
+  control object, is logged at WARNING naming the write and its client (``audit.WHO``);
 * SDO-backed values read north come from a cache (``master.sdo_cache_ms``, default 1000 ms):
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it
@@ -27,7 +27,7 @@ The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``b
 
 Imports: bus.master (the operations), bus.node.parts (the nodes), device.values (value
 codecs), commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
-profiles, cia301, commands.client. Never modbus/ or zenoh_bridge/.
+profiles, cia301, commands.audit. Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.commands import bus_tools
-from gateway.commands.client import current_client
+from gateway.commands.audit import WHO
 from gateway.commands.sdo_cache import SdoValueCache
 from gateway.commands.validation import (
     bit_names,
@@ -303,7 +303,7 @@ class CommandService:
         master_id = self.master.cfg.master.node_id
         why = supervision_problem(p.name, p.settings, p.boot_steps, master_id, obj, value)
         if why is not None:
-            log.warning("%s: write %s = %s refused: %s", current_client(), shown, value, why)
+            log.warning("%s: write %s = %s refused: %s", WHO.get(), shown, value, why)
             raise SupervisionWrite(shown, value, why)
 
     def _log_config_write(self, p: NodeParts, obj: ObjRef, value: Any) -> None:
@@ -314,7 +314,7 @@ class CommandService:
             how = "does not supervise it" if kind == "none" else f"supervises it by {kind}"
             log.warning(
                 "%s wrote %s = %s on node %s (error control; the gateway %s)",
-                current_client(), obj, value, p.name, how,
+                WHO.get(), obj, value, p.name, how,
             )  # fmt: skip
 
     def _word_lock(self, node: str, name: str) -> asyncio.Lock:
