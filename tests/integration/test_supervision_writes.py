@@ -167,7 +167,7 @@ async def local_node(
     """The gateway and python canopen's LocalNode from ``eds`` as node 5 (the test sends its
     boot-up and heartbeat)."""
     cfg = make_config(
-        [{"name": "io", "node_id": 5, "eds": str(eds), **node}],
+        [{"name": "io", "node_id": 5, **({} if "profile" in node else {"eds": str(eds)}), **node}],
         simulate={"nodes": []},
         master={"probe_at_start": False},
         modbus={"enabled": False},
@@ -219,3 +219,21 @@ async def test_localnode_keeps_its_heartbeat_and_limits_from_its_eds_hold(tmp_pa
         assert int.from_bytes(dev.get_data(0x1800, 5), "little") == 500
         assert int.from_bytes(dev.get_data(0x1017, 0), "little") == 300
         assert gw.image.nodes["io"].health.alive
+
+
+async def test_a_consumer_of_the_masters_heartbeat_set_at_boot_is_kept(tmp_path: Path) -> None:
+    """A POSI+ (python canopen's LocalNode from its EDS) whose config makes it watch the
+    master's heartbeat (1016h:01 = master id 127, 1500 ms): a write that would stop that is
+    refused and the device keeps the entry; the configured value may be written again."""
+    from gateway.profiles import load_profile
+
+    watching = (127 << 16) | 1500
+    node = {"profile": "posi_plus", "sdo": [{"object": "0x1016:01", "value": watching}]}
+    async with local_node(load_profile("posi_plus").eds_path, node) as (gw, dev):
+        assert int.from_bytes(dev.get_data(0x1016, 1), "little") == watching
+        with pytest.raises(SupervisionWrite, match="watching the master's heartbeat"):
+            await gw.commands.sdo_write("io", "0x1016:01", 0)
+        with pytest.raises(SupervisionWrite):
+            await gw.commands.write_bits("io", "consumer_heartbeat_time", {16: False})
+        await gw.commands.sdo_write("io", "0x1016:01", watching)
+        assert int.from_bytes(dev.get_data(0x1016, 1), "little") == watching
