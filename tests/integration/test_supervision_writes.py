@@ -237,3 +237,27 @@ async def test_a_consumer_of_the_masters_heartbeat_set_at_boot_is_kept(tmp_path:
             await gw.commands.write_bits("io", "consumer_heartbeat_time", {16: False})
         await gw.commands.sdo_write("io", "0x1016:01", watching)
         assert int.from_bytes(dev.get_data(0x1016, 1), "little") == watching
+
+
+async def test_guard_time_and_a_heartbeat_on_a_guarded_node_are_refused() -> None:
+    """Our simulated POSI+ supervised by node guarding (guard 200 ms, factor 3): 100Ch = 0 and
+    100Dh = 0 would end guarding, 1017h = 100 would replace it by a heartbeat; each is refused,
+    the device keeps its values and the node stays alive."""
+    rotary = {"name": "rotary", "node_id": 3, "profile": "posi_plus", "supervision": "guarding",
+              "guard_time_ms": 200, "life_time_factor": 3}  # fmt: skip
+    gw = gateway_of(make_config([rotary], modbus={"enabled": False}, zenoh={"enabled": False}))
+    await gw.start()
+    try:
+        await wait_until(lambda: gw.image.nodes["rotary"].usable(), 8, "rotary usable")
+        for obj, value, why in (
+            ("0x100C:00", 0, "100Ch = 200 ms"),
+            ("0x100D:00", 0, "100Dh = 3"),
+            ("0x1017:00", 100, "takes precedence"),
+        ):
+            with pytest.raises(SupervisionWrite, match=why):
+                await gw.commands.sdo_write("rotary", obj, value)
+        assert (sim_value(gw, "rotary", 0x100C, 0), sim_value(gw, "rotary", 0x100D, 0)) == (200, 3)
+        assert sim_value(gw, "rotary", 0x1017, 0) == 0
+        assert gw.image.nodes["rotary"].health.alive
+    finally:
+        await gw.stop()
