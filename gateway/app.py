@@ -5,6 +5,10 @@ Modbus server, Zenoh bridge, health endpoint, and (for demos/tests) simulated de
 nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed to the master,
 Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
 parts do not know each other except through the image and the command service.
+
+Imports: every part: ascii.server, bus.driver, bus.master, checks, commands, config, device.resolved,
+health, image, metrics, modbus.server, northbound (frames, regmap, summary), profiles.derived,
+sim (faults, motion, node, runner), startup, threads, turns, web (console, views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
 from gateway.profiles.derived import text_rows_as_signals
-from gateway.startup import startup_step
+from gateway.startup import Listener, StartupError, ports_in_use, startup_step, zenoh_listeners
 from gateway.threads import ThreadRegistry
 from gateway.turns import LoopTurns
 from gateway.zenoh_bridge.bridge import ZenohBridge
@@ -230,7 +234,11 @@ class Gateway:
         modbus_up = self.modbus is None or self.modbus.server is not None
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
-        ready = self.started and bus_ok and modbus_up and zenoh_up and not dead
+        # ready: the bus and the PLC side serve; the cloud side (Zenoh) counts only for a gateway
+        # without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's gateway out
+        # of service because the router is away. /healthz says "zenoh": false meanwhile.
+        northbound_up = modbus_up if self.modbus is not None else zenoh_up
+        ready = self.started and bus_ok and northbound_up and not dead
         return {
             "status": "ready" if ready else "not-ready",
             "ready": ready,
@@ -319,12 +327,42 @@ class Gateway:
         setting and its value), so the process can exit with nothing left open."""
         try:
             await self._start()
+        except StartupError as exc:  # the variable that set a key is blamed, not the file
+            await self.stop()
+            raise exc.blamed(self._env_var) from None
         except BaseException:
             await self.stop()
             raise
 
+    def _env_var(self, key: str) -> str | None:
+        where = blame(key, self.cfg.source, self.cfg.env_keys)
+        return None if where == self.cfg.source else where
+
+    def _listeners(self) -> list[Listener]:
+        """Every port this gateway will listen on, with the key that sets it."""
+        cfg = self.cfg
+        out = []
+        if self.modbus is not None and cfg.modbus.plain:
+            out.append(Listener("modbus.port", cfg.modbus.host, cfg.modbus.port, f"{cfg.modbus.port} on {cfg.modbus.host}"))  # fmt: skip
+        if self.modbus is not None:
+            tls = cfg.modbus.tls
+            if tls is not None:
+                host = tls.host or cfg.modbus.host
+                out.append(Listener("modbus.tls.port", host, tls.port, f"{tls.port} on {host}"))
+        if self.zenoh is not None and cfg.zenoh.mode != "client":
+            out += zenoh_listeners("zenoh.listen", cfg.zenoh.listen)
+        if cfg.ascii is not None and cfg.ascii.enabled:
+            out.append(Listener("ascii.port", cfg.ascii.host, cfg.ascii.port, f"{cfg.ascii.port} on {cfg.ascii.host}"))  # fmt: skip
+        if cfg.health.port:
+            out.append(Listener("health.port", cfg.health.host, cfg.health.port, f"{cfg.health.port} on {cfg.health.host}"))  # fmt: skip
+        return out
+
     async def _start(self) -> None:
         cfg = self.cfg
+        # every port before anything opens: one failed start names every port in use
+        busy = ports_in_use(self._listeners())
+        if busy is not None:
+            raise busy
         if self.zenoh is not None:
             z = cfg.zenoh
             key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)

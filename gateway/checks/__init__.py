@@ -40,6 +40,10 @@ Pure: imports config, device.resolved (the resolution and its loaders), checks.p
 eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
 register map, the COB-IDs of the nodes (bus/cob_ids.py), a device file's COB-IDs and NodeID
 (eds/cob_ids.py) (no I/O but reading the files they name).
+
+Imports: config, checks.pair, cia301, objref, bus.cob_ids, device (boot_steps, resolved,
+settings), eds (parse, pdos, cob_ids), profiles (layout, schema), modbus.safe_outputs (its
+rule only), northbound.regmap.
 """
 
 from __future__ import annotations

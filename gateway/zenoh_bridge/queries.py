@@ -40,6 +40,7 @@ import zenoh
 
 from gateway import __version__
 from gateway.commands import CommandService
+from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import Forbidden, GatewayError, NotActive
 from gateway.image import NodeImage, ProcessImage
@@ -110,6 +111,15 @@ def lane_of(query: zenoh.Query) -> str:
     """The querying session when the query says (``source_info``), else the anonymous lane."""
     si = query.source_info
     return ANONYMOUS if si is None else str(si.source_id.zid)
+
+
+def zenoh_who(query: zenoh.Query) -> str:
+    """Who a query's write is audited as: ``zenoh`` and the querier's id when it sent one."""
+    try:
+        info = query.source_info
+    except Exception:  # noqa: BLE001 - an unstable API: no id rather than no answer
+        info = None
+    return "zenoh" if info is None else f"zenoh {info.source_id.zid}"
 
 
 def write_operation(req: Request, payload: bytes | None) -> str | None:
@@ -295,7 +305,8 @@ class QueryService:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else None
             type_param = query.parameters.get("type")
-            result = await self.dispatch(key, payload, type_param)
+            with acting_as(zenoh_who(query)):  # the audit of a write names the asker
+                result = await self.dispatch(key, payload, type_param)
             self._reply(query, key, result)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
             self._reply_err(query, key, exc)
