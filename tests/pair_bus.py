@@ -168,7 +168,9 @@ class PairBus:
         self, pred: Callable[[Frame], bool], timeout_s: float = 10.0, after: int = 0
     ) -> Frame:
         """Block until a frame of index >= ``after`` satisfies ``pred``; return it. Raises
-        ``TimeoutError`` after ``timeout_s``. (``after=len(bus.frames)`` looks only ahead.)"""
+        ``TimeoutError`` after ``timeout_s``. (``after=len(bus.frames)`` looks only ahead.)
+        It blocks: from a coroutine on the loop of an in-process gateway, call it through
+        ``await asyncio.to_thread(bus.wait_for, pred, ...)`` (else the gateway stops too)."""
         deadline = time.monotonic() + timeout_s
         i = after
         with self._lock:
