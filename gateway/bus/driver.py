@@ -153,7 +153,9 @@ class BusDriver:
         self.reopen_backoff_s = reopen_backoff_s
         self.reopen_backoff_max_s = max(reopen_backoff_max_s, reopen_backoff_s)
         self.error_hold_s = error_hold_s
-        self.on_state = on_state  # (state, detail), called on the reader thread
+        #: (state, detail) at every change, on the reader thread (on the caller's for the
+        #: outcome of ``open``: a bus down from the start is said too)
+        self.on_state = on_state
         self.handlers: dict[int, FrameHandler] = {}
         self.default_handler: FrameHandler | None = None
         #: called on the reader thread after a burst, when no received frame is left buffered,
@@ -219,7 +221,7 @@ class BusDriver:
                 raise
             log.error("CAN bus cannot be opened: %s; retrying with backoff", exc)
             self.bus = None
-            self._set_state("down", str(exc))
+            self._set_state("down", str(exc), tell=True)  # down from the start: said all the same
         else:
             self._set_state("ok", "")
         self._running.set()
@@ -248,8 +250,8 @@ class BusDriver:
                 # shut all the same (else its finaliser tries again and warns)
                 can.BusABC.shutdown(bus)
 
-    def _set_state(self, state: str, detail: str) -> None:
-        changed = state != self.state
+    def _set_state(self, state: str, detail: str, tell: bool = False) -> None:
+        changed = tell or state != self.state
         self.state = state
         self.image.bus_state = state
         if detail:

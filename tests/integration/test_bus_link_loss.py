@@ -182,3 +182,26 @@ async def test_a_remote_can_server_killed_takes_the_bus_down_and_it_reopens_when
             with remote_server(port, channel):
                 await wait_until(lambda: gw.image.bus_state == "ok", 20, "the bus reopened")
                 assert gw.driver.reopens == 1 and states[-1] == ("ok", "")
+
+
+def test_a_bus_that_cannot_open_at_start_is_said_down_and_opens_when_its_server_comes() -> None:
+    """``on_state`` hears "down" from the start (the pair's role machine must know), and the
+    reader retries a socketcand server nobody runs once per backoff, refused at once."""
+    from gateway.bus.driver import BusDriver
+    from gateway.image import ProcessImage
+
+    with PairBus() as pair:
+        pair.unplug("gw")  # the server refuses member gw, as a daemon without that channel
+        states: list[tuple[str, str]] = []
+        driver = BusDriver({**pair.can_section("gw")}, ProcessImage(), reopen_backoff_s=0.05,
+                           on_state=lambda s, d: states.append((s, d)))  # fmt: skip
+        driver.open()
+        try:
+            assert states == [("down", driver.last_error)]
+            assert "during the handshake" in states[0][1]
+            wait_until_sync(lambda: pair.refused["gw"] >= 3, 10, "three attempts refused")
+            pair.plug("gw")
+            wait_until_sync(lambda: driver.state == "ok", 10, "the bus open")
+            assert states[-1] == ("ok", "") and pair.connected("gw")
+        finally:
+            driver.close()
