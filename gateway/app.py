@@ -17,6 +17,7 @@ from typing import Any
 import can
 
 from gateway import __version__
+from gateway.bus.can_backend import open_can_bus
 from gateway.bus.driver import BusDriver, BusOpenFailed
 from gateway.bus.master import Master
 from gateway.checks import check_config
@@ -77,7 +78,7 @@ class SimulatedBus:
 
         if not self.nodes:
             return
-        self.bus = can.Bus(**self.cfg.can.bus_kwargs())
+        self.bus = open_can_bus(self.cfg.can.bus_kwargs())  # socketcand: ours, see can_backend
         self.runner = SimRunner(self.bus, list(self.nodes.values()))
         self.runner.start()
 
