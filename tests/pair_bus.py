@@ -53,9 +53,11 @@ HANDSHAKE_PAUSE_S = 0.2
 
 @dataclass(frozen=True)
 class Frame:
-    """One frame as it reached the relay: ``t`` is ``time.monotonic()`` there; ``delivered`` is
-    False when its sender was cut (nobody heard it). ``dlc`` is the length the sender gave
-    (python-can's socketcand client sends a remote frame as its length and no data bytes)."""
+    """One frame as it reached the relay: ``t`` is ``time.monotonic()`` there (the clock of
+    every process on this machine); ``delivered`` says whether another member heard it (False
+    when its sender was cut, or no other member was connected and uncut). ``dlc`` is the length
+    the sender gave (python-can's socketcand client sends a remote frame as its length and no
+    data bytes)."""
 
     t: float
     sender: str
