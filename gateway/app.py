@@ -10,6 +10,7 @@ parts do not know each other except through the image and the command service.
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import time
 from typing import Any
@@ -19,15 +20,17 @@ import can
 from gateway import __version__
 from gateway.bus.driver import BusDriver, BusOpenFailed
 from gateway.bus.master import Master
-from gateway.checks import check_config
+from gateway.checks import check_config, journal_path
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
 from gateway.device.resolved import ResolvedNode
 from gateway.health import pair_status
 from gateway.image import ProcessImage
+from gateway.journal import Entry, Journal, ntp64_of_time
 from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
 from gateway.northbound.frames import FrameDecoder
+from gateway.northbound.keys import audit_key, prefix_of
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
 from gateway.profiles.derived import text_rows_as_signals
@@ -122,6 +125,18 @@ class Gateway:
             else None
         )
         self.sim = SimulatedBus(cfg, self.nodes) if simulate and cfg.simulated_nodes() else None
+        jpath = journal_path(cfg)
+        self.journal = (
+            None
+            if jpath is None
+            else Journal(
+                jpath,
+                max_mb=cfg.journal.max_mb,
+                values_ms=cfg.journal.values_ms,
+                keep_days=cfg.journal.keep_days,
+                sync=cfg.journal.sync,
+            )
+        )
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
         self.health: Any = None
         self.web: Any = None
@@ -232,7 +247,7 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": nodes,
-        } | self._pair_status() | self._watchdog_status()
+        } | self._pair_status() | self._watchdog_status() | self._journal_status()
 
     def _pair_status(self) -> dict[str, Any]:
         """``role`` and ``peer`` of a hot-standby pair (None outside one)."""
@@ -248,6 +263,21 @@ class Gateway:
             claim=None if claim is None else (claim.priority, claim.node_id, claim.at_s),
             peer_heartbeat_s=self.master.peer_heartbeat_s,
             peer_node_id=redundancy.peer_node_id if redundancy is not None else None,
+        )
+
+    def _journal_status(self) -> dict[str, Any]:
+        """The journal's figures and last error (a full or slow disk shows here; the gateway
+        stays ready: it keeps serving without it)."""
+        return {} if self.journal is None else {"journal": self.journal.status()}
+
+    def audit(self, record: dict[str, Any]) -> None:
+        """A write or command done or refused (the command service's audit hook): journaled
+        under ``<prefix>/audit``."""
+        if self.journal is None:
+            return
+        self.journal.append(
+            Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
+                  record.get("node"), None, json.dumps(record).encode())
         )
 
     def _watchdog_status(self) -> dict[str, Any]:
@@ -316,6 +346,14 @@ class Gateway:
 
     async def _start(self) -> None:
         cfg = self.cfg
+        if self.journal is not None:
+            # first: the events of this run are committed before they are published
+            with startup_step("journal.path", cfg.journal.path):
+                await asyncio.to_thread(self.journal.open)
+            self.journal.start(self.threads)
+            if self.zenoh is not None:
+                self.zenoh.use_journal(self.journal)
+            self.commands.audit = self.audit
         if self.zenoh is not None:
             z = cfg.zenoh
             key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)
@@ -433,6 +471,9 @@ class Gateway:
                     c.decode_errors[(name, reason)] = n
             if node.health.emcy_count:
                 c.emcy[name] = node.health.emcy_count
+        if self.journal is not None:
+            jc = self.journal.counts
+            c.journal = {"written": jc.written, "dropped": jc.dropped, "removed": jc.removed}
         if self.zenoh is not None:
             c.zenoh_publications = self.zenoh.publications
             c.zenoh_refused = dict(self.zenoh.refused)
@@ -458,3 +499,5 @@ class Gateway:
         await asyncio.to_thread(self.driver.close)
         if self.sim is not None:
             self.sim.stop()
+        if self.journal is not None:
+            await asyncio.to_thread(self.journal.stop)  # what waits is committed

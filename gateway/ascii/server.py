@@ -41,6 +41,7 @@ from gateway.ascii.protocol import (
 )
 from gateway.ascii.values import format_plain, format_value
 from gateway.commands import CommandService
+from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import NodeImage, ProcessImage
@@ -226,7 +227,8 @@ class _Connection(asyncio.Protocol):
             self.gw.warn.warning("ascii_refused", "ASCII client %s: write or NMT refused (ascii.writes is false)", self.peer)  # fmt: skip
         if isinstance(result, list):
             return result
-        return [await self.gw.perform(result)]
+        with acting_as(f"ascii {self.peer}"):  # the audit of a write names the client
+            return [await self.gw.perform(result)]
 
     def _write(self, lines: list[str]) -> None:
         if lines and self.transport is not None and not self.transport.is_closing():

@@ -21,8 +21,11 @@ Rules held here, once:
 
 The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``bus_tools``'.
 
+Every write and command is audited (``commands.audit``: who, what, outcome) when the app gives
+the service an ``audit`` sink.
+
 Imports: bus.master (the operations), bus.node.parts (the nodes), device.values (value
-codecs), commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
+codecs), commands.audit, commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
 profiles, cia301. Never modbus/ or zenoh_bridge/.
 """
 
@@ -37,6 +40,7 @@ from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.commands import bus_tools
+from gateway.commands.audit import AuditSink, acting_as, audited
 from gateway.commands.sdo_cache import SdoValueCache
 from gateway.commands.validation import bit_names, check_sdo_type, check_value, writable_mask
 from gateway.device.values import decode_value, encode_value
@@ -97,6 +101,9 @@ class CommandService:
         self._sdo_cache = SdoValueCache(master, self.sdo_cache_s)
         self._word_locks: dict[tuple[str, str], asyncio.Lock] = {}
         self._infos: dict[str, NodeInfo] = {}
+        #: every write and command (``audited``) is handed here with who, what and the
+        #: outcome (``commands.audit``); None: not audited
+        self.audit: AuditSink | None = None
 
     # ------------------------------------------------------------------ lookups
     def _part(self, name: str) -> NodeParts:
@@ -168,6 +175,7 @@ class CommandService:
         """Write a writable signal: an RPDO for process data, an SDO download otherwise."""
         await self.write_signals(node, {name: value})
 
+    @audited("write", lambda node, values, **_: (node, ",".join(values), values))
     async def write_signals(self, node: str, values: dict[str, Any], *, safe: bool = False) -> None:
         """Several signals; those of RPDOs go out together (e.g. set point + control word).
         ``safe``: the safe values of the output watchdog (see ``write_safe_outputs``)."""
@@ -220,7 +228,8 @@ class CommandService:
             if not values:
                 continue
             try:
-                await self.write_signals(node, values, safe=True)
+                with acting_as("watchdog"):
+                    await self.write_signals(node, values, safe=True)
             except GatewayError as exc:
                 done[node] = str(exc)
                 log.warning("safe outputs of %s not written: %s", node, exc)
@@ -242,6 +251,7 @@ class CommandService:
                 f" on those bits; writable: {bit_names(sig, writable_mask(sig)) or 'none'}",
             )
 
+    @audited("write_bits", lambda node, name, bits: (node, name, {"bits": bits}))
     async def write_bits(self, node: str, name: str, bits: dict[int, bool]) -> None:
         """Set or clear bits of a word signal (read-modify-write of the current value). A bit
         the profile does not mark writable may only be "written" with the value it has."""
@@ -357,6 +367,7 @@ class CommandService:
         t = type_ or self._od_type(p, o)
         return bytes(data) if t is None else decode_value(bytes(data), t)
 
+    @audited("sdo_write", lambda node, obj, value, type_=None: (node, str(obj), value))
     async def sdo_write(
         self, node: str, obj: str | ObjRef, value: Any, type_: str | None = None
     ) -> None:
@@ -395,6 +406,7 @@ class CommandService:
         """Which node ids are on the bus and what they are (``bus_tools.scan_bus``)."""
         return await bus_tools.scan_bus(self.master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
 
+    @audited("nmt", lambda node, command: (node, "nmt", command))
     def nmt(self, node: str, command: str) -> None:
         """NMT command to one node by name, or to all nodes with ``all``."""
         if command not in NMT_COMMANDS:

@@ -93,7 +93,7 @@ class Entry(NamedTuple):
     key: str  # the Zenoh key it was published on (``<prefix>/audit`` for the audit)
     node: str | None
     seq: int | None
-    payload: bytes  # as published
+    payload: bytes | str  # as published (text is stored as its UTF-8 bytes)
 
 
 class Row(NamedTuple):
@@ -261,8 +261,9 @@ class Journal:
         with self._cond:
             if len(self._queue) >= self.max_pending:
                 self.counts.dropped += 1
-                self._droplog.warning("queue", "journal behind: entries dropped (%d so far)",
-                                      self.counts.dropped)
+                self._droplog.warning(
+                    "queue", "journal behind: entries dropped (%d so far)", self.counts.dropped
+                )
                 self._queue.append((None, on_commit))
             else:
                 self._queue.append((entry, on_commit))
@@ -315,7 +316,8 @@ class Journal:
             params = []
             for e in rows:
                 t, tid = _stamp(e)
-                params.append((t - T_BIAS, e.kind, e.key, e.node, e.seq, e.payload, tid))
+                data = e.payload.encode() if isinstance(e.payload, str) else e.payload
+                params.append((t - T_BIAS, e.kind, e.key, e.node, e.seq, data, tid))
             con.execute("BEGIN")
             removed = self._bound(con, sum(len(p[5]) + len(p[2]) + ROW_OVERHEAD for p in params))
             con.executemany(
@@ -329,17 +331,27 @@ class Journal:
                 con.execute("ROLLBACK")
             self.counts.dropped += len(rows)
             self.counts.last_error = str(exc)
-            self._droplog.warning("commit", "journal %s: %s; %d entries not journaled so far",
-                                  self.path, exc, self.counts.dropped)
+            self._droplog.warning(
+                "commit",
+                "journal %s: %s; %d entries not journaled so far",
+                self.path,
+                exc,
+                self.counts.dropped,
+            )
             return
         self.counts.written += len(rows)
         self.counts.commits += 1
         self.counts.last_error = None
         if removed:
             self.counts.removed += removed
-            self._removelog.info("removed", "journal %s bounded (max_mb %s, keep_days %s): "
-                                 "%d oldest entries removed so far", self.path, self.max_mb,
-                                 self.keep_days, self.counts.removed)
+            self._removelog.info(
+                "removed",
+                "journal %s bounded (max_mb %s, keep_days %s): %d oldest entries removed so far",
+                self.path,
+                self.max_mb,
+                self.keep_days,
+                self.counts.removed,
+            )
 
     def _bound(self, con: sqlite3.Connection, incoming: int) -> int:
         """Oldest entries first, in the transaction of the rows about to come (``incoming``

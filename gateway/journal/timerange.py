@@ -56,8 +56,9 @@ def parse_span(text: str) -> float:
     """A duration in seconds (``5m``, ``1.5h``, ``200ms``)."""
     m = _SPAN.match(text)
     if m is None:
-        raise TimeRangeError(f"_time: {text!r} is not a duration (a number and one of "
-                             "u ms s m h d w, e.g. 5m)")
+        raise TimeRangeError(
+            f"_time: {text!r} is not a duration (a number and one of u ms s m h d w, e.g. 5m)"
+        )
     return float(m.group(1)) * UNITS_S[m.group(2)]
 
 

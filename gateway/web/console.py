@@ -45,7 +45,8 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), ratelimit, sim.faults
+web.events, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), ratelimit, sim.faults,
+commands.audit (who asked, for the audit)
 (names and errors; the injector itself is given by the application; the bus driver, for the
 monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
@@ -63,6 +64,7 @@ from importlib import resources
 from typing import Any
 
 from gateway import __version__
+from gateway.commands.audit import acting_as
 from gateway.health import JSON_TYPE, Request, Response, Stream
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
@@ -335,7 +337,8 @@ class WebConsole:
                 f"no operation {op!r}; one of login, {', '.join(Commissioning.OPS)}"
             )
         try:
-            result = await self.commissioning.run(op, request.body)
+            with acting_as(f"web {request.client or '?'}"):  # the audit names the client
+                result = await self.commissioning.run(op, request.body)
         except Exception as exc:  # every failure becomes an answer with words
             status, doc = error_doc(exc)
             if status == HTTPStatus.INTERNAL_SERVER_ERROR:

@@ -14,7 +14,8 @@ session through a function and knows the published value keys and their scaling 
 construction.
 
 Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, profiles.derived,
-northbound.keys, northbound.scaling, payloads, access. Nothing of bus/ or modbus/.
+northbound.keys, northbound.scaling, payloads, access, history (``_time`` queries), commands.audit
+(who asked). Nothing of bus/ or modbus/.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import zenoh
 
 from gateway import __version__
 from gateway.commands import CommandService
+from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import Forbidden, GatewayError, NotActive
 from gateway.image import NodeImage, ProcessImage
@@ -53,6 +55,7 @@ from gateway.profiles.derived import text_rows_as_signals
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.zenoh_bridge.access import WriteGate
+from gateway.zenoh_bridge.history import HistoryService, has_time_range
 from gateway.zenoh_bridge.payloads import (
     add_names,
     error_payload,
@@ -69,6 +72,15 @@ log = logging.getLogger("gateway.zenoh")
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 REFUSAL_LOG_PERIOD_S = 10.0
+
+
+def zenoh_who(query: zenoh.Query) -> str:
+    """Who a query's write is audited as: ``zenoh`` and the querier's id when it sent one."""
+    try:
+        info = query.source_info
+    except Exception:  # noqa: BLE001 - an unstable API: no id rather than no answer
+        info = None
+    return "zenoh" if info is None else f"zenoh {info.source_id.zid}"
 
 
 def write_operation(req: Request, payload: bytes | None) -> str | None:
@@ -103,6 +115,8 @@ class QueryService:
     loop: asyncio.AbstractEventLoop | None = field(default=None, init=False)
     #: refused writes by operation (``zenoh_refused_total{operation}``)
     refused: dict[str, int] = field(default_factory=dict, init=False)
+    #: history by time range (``history.py``), set when the gateway has a journal
+    history: HistoryService | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
         self.published: Collection[tuple[str, str]] = frozenset(
@@ -140,12 +154,18 @@ class QueryService:
     async def _answer(self, query: zenoh.Query) -> None:
         key = str(query.key_expr)
         try:
+            if has_time_range(query):  # history by time range, from the journal
+                if self.history is None:
+                    raise ValueError("_time: this gateway keeps no history (journal.path unset)")
+                await asyncio.to_thread(self.history.answer, query, key)
+                return
             if has_wildcard(key):
                 self._answer_wildcard(query, key)
                 return
             payload = query.payload.to_bytes() if query.payload is not None else None
             type_param = query.parameters.get("type")
-            result = await self.dispatch(key, payload, type_param)
+            with acting_as(zenoh_who(query)):  # the audit of a write names the asker
+                result = await self.dispatch(key, payload, type_param)
             self._reply(query, key, result)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
             if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
