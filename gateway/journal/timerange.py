@@ -99,8 +99,11 @@ def parse_time_range(text: str, now: float) -> TimeRange:
     else:
         raise TimeRangeError(f"_time: {text!r}: expected {ALLOWED}")
     for v in (start, end):
-        if v is not None and (not math.isfinite(v) or not 0 <= v < 2**32):
-            raise TimeRangeError(f"_time: {text!r}: a bound before 1970 or after 2106")
+        if v is not None and not math.isfinite(v):
+            raise TimeRangeError(f"_time: {text!r}: a bound is not a finite time")
+    # nothing is older than 1970 or newer than 2106 (NTP64's end): such bounds are open ends
+    start = None if start is not None and start < 0 else start
+    end = None if end is not None and end >= 2**32 else end
     if start is not None and end is not None and start > end:
         raise TimeRangeError(f"_time: {text!r}: the start is after the end")
     return TimeRange(

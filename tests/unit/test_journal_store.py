@@ -104,8 +104,10 @@ def test_a_full_disk_drops_entries_and_still_publishes(tmp_path):
     j.start()
     published = []
     for i in range(1, 2001):
-        j.append(Entry(ntp64_of_time(1.8e9 + i), "emcy", "k", "n1", i, b"y" * 500),
-                 lambda i=i: published.append(i))
+        j.append(
+            Entry(ntp64_of_time(1.8e9 + i), "emcy", "k", "n1", i, b"y" * 500),
+            lambda i=i: published.append(i),
+        )
     wait_until_sync(lambda: len(published) == 2000, what="every callback")
     assert published == list(range(1, 2001))
     assert j.counts.dropped > 0
