@@ -14,7 +14,7 @@ from typing import Any
 import zenoh
 
 from gateway.app import Gateway
-from tests.helpers import free_port, gateway_of, make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until
 from tests.integration.test_zenoh_history import raise_and_clear
 from tests.zenoh_client import ZClient
 
