@@ -436,6 +436,7 @@ class Gateway:
                 decoder=FrameDecoder(self.cfg, self.nodes),
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
                 frames=self.driver,
+                journal=self.journal,
             )
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(
