@@ -186,3 +186,12 @@ def test_path_problem_names_the_reason(tmp_path):
     (tmp_path / "file").write_text("")
     why = path_problem(tmp_path / "file" / "journal")
     assert why is not None and "Not a directory" in why
+
+
+def test_sync_full_makes_every_commit_fsync(tmp_path):
+    for sync, level in (("normal", 1), ("full", 2)):
+        j = Journal(tmp_path / sync, sync=sync)
+        j.open()
+        assert j._con.execute("PRAGMA synchronous").fetchone()[0] == level
+        assert j._con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        j.stop()
