@@ -1,6 +1,6 @@
 """``python -m bench [name ...]``: run the benchmarks (all by default) and write RESULTS.md.
 
-Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors, pair. Running a subset prints its sections
+Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors, pair, journal. Running a subset prints its sections
 and leaves RESULTS.md as it is.
 
 Imports: bench.*.
@@ -21,6 +21,7 @@ from bench import (
     floors,
     hotpath,
     ingest,
+    journal,
     latency,
     linerate,
     modbus_rps,
@@ -45,6 +46,7 @@ BENCHES: dict[str, Callable[[], Awaitable[Section]]] = {
     "costs": costs.run,
     "floors": floors.run,
     "pair": pair.run,
+    "journal": journal.run,
 }
 HERE = pathlib.Path(__file__).resolve().parent
 

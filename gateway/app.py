@@ -492,6 +492,9 @@ class Gateway:
             await self.health.stop()
             if self.web is not None:
                 self.web.stop()
+        if self.journal is not None:
+            # what waits is committed and its events queued for the bridge, which stops next
+            await asyncio.to_thread(self.journal.stop)
         if self.zenoh is not None:
             await self.zenoh.stop()
         if self.modbus is not None:
@@ -500,5 +503,3 @@ class Gateway:
         await asyncio.to_thread(self.driver.close)
         if self.sim is not None:
             self.sim.stop()
-        if self.journal is not None:
-            await asyncio.to_thread(self.journal.stop)  # what waits is committed
