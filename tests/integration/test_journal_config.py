@@ -1,6 +1,8 @@
 """``journal.path`` is checked by ``canopen-gateway check`` and at start: a directory that cannot
 be created or written is refused with exit code 2 and one line naming the file, ``journal.path``
-and the operating system's reason; a good one is created. The example of docs/zenoh.md is the
+and the operating system's reason; a good one is created. A gateway process started on a
+damaged journal starts with a fresh one, keeps the damaged file aside and says so in one log
+line. The example of docs/zenoh.md is the
 tested one (docs/examples/backfill.py)."""
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ from pathlib import Path
 
 import yaml
 
-from tests.helpers import free_port, gateway_process, unique_channel
+from gateway.journal import Journal
+from tests.helpers import free_port, gateway_process, unique_channel, wait_ready
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -71,3 +74,26 @@ def test_the_docs_example_is_the_tested_one() -> None:
         example.index("    sub = session.declare_subscriber") : example.index("\n\nif __name__")
     ]
     assert body in doc
+
+
+def test_a_gateway_on_a_damaged_journal_starts_fresh_and_keeps_the_file_aside(
+    tmp_path: Path,
+) -> None:
+    cfg = write_config(tmp_path, "journal")
+    (tmp_path / "journal").mkdir()
+    damaged = tmp_path / "journal" / "journal.sqlite3"
+    damaged.write_bytes(b"not a database at all " * 500)
+    proc = gateway_process(cfg)
+    try:
+        wait_ready(proc)
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+    aside = [p for p in (tmp_path / "journal").iterdir() if ".damaged-" in p.name]
+    assert len(aside) == 1 and aside[0].read_bytes() == b"not a database at all " * 500
+    lines = [line for line in err.splitlines() if "damaged" in line]
+    assert len(lines) == 1 and str(damaged) in lines[0] and aside[0].name in lines[0]
+    fresh = Journal(tmp_path / "journal")
+    fresh.open()  # the file the gateway made is a journal of this version
+    assert fresh.set_aside is None
+    fresh.stop()
