@@ -78,6 +78,12 @@ async def test_the_journal_survives_a_restart_is_filtered_and_exports_csv(tmp_pa
         assert [int(r["seq"]) for r in rows] == [1, 2, 3, 4]
         assert json.loads(rows[0]["payload"])["code"] == "0xFF05"
 
+        code, _, body = await http(f"{base}/healthz")
+        status = json.loads(body)["journal"]
+        assert status["written"] >= 1 and status["dropped"] == 0 and status["error"] is None
+        code, _, body = await http(f"{base}/metrics")
+        assert b'canopen_gateway_journal_entries_total{outcome="written"}' in body
+
         for query, words in (
             ("kind=warning", "kind: warning is not one of state, emcy, audit"),
             ("node=ghost", "no node named 'ghost'"),
