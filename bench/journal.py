@@ -41,7 +41,7 @@ from bench.stats import Summary
 from gateway.journal import Entry, Journal, ntp64_of_time
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-PAIRS = 2
+PAIRS = 3
 PHASE_S = 10.0
 APPEND_N = 50_000
 BACKFILL_N = 10_000
@@ -55,12 +55,30 @@ EMCY_PAYLOAD = json.dumps(
 
 async def line_rate() -> dict[str, list[dict[str, Any]]]:
     runs: dict[str, list[dict[str, Any]]] = {"off": [], "on": []}
-    for _ in range(PAIRS):
-        for mode in ("off", "on"):
+    for i in range(PAIRS):
+        for mode in ("off", "on") if i % 2 == 0 else ("on", "off"):  # neither always first
             journal = {} if mode == "on" else None
             r = await linerate._gateway_phase(PHASE_S, 0.0, {"every_value": True}, journal=journal)
             runs[mode].append(r)
     return runs
+
+
+def thread_cpu(r: dict[str, Any], name: str) -> float:
+    """% of one core of the gateway's threads of that name in a line-rate run."""
+    return sum(c for n, _tid, c in r["threads"] if n.startswith(name)) * 100
+
+
+def value_call_us(n: int = 200_000) -> float:
+    """The cost of ``Journal.value`` per call on the publishing thread (a dict assignment
+    under a lock), microseconds."""
+    j = Journal(pathlib.Path(tempfile.mkdtemp(prefix="bench-journal-")), values_ms=1000)
+    e = Entry(1 << 62, "value", f"{PREFIX}/wire/value/position", "wire", 1, b"{}")
+    keys = [f"{PREFIX}/n{i}/value/position" for i in range(120)]
+    entries = [e._replace(key=k) for k in keys]
+    t0 = time.perf_counter()
+    for i in range(n):
+        j.value(entries[i % 120])
+    return (time.perf_counter() - t0) / n * 1e6
 
 
 def sustained(sync: str, n: int = APPEND_N) -> float:
@@ -172,6 +190,12 @@ async def run() -> Section:
         Row("frame -> Zenoh p99 (ms), on / off", s(col(on, "z_p99")), "off",
             s(col(off, "z_p99")), digits=2),
         Row("frames/s sent", s(col(on, "fps")), "off", s(col(off, "fps"))),
+        Row("journal-writer thread CPU, % of one core (journal on)",
+            s([thread_cpu(r, "journal-writer") for r in on]), digits=2),
+        Row("zenoh-publish thread CPU, % of one core (it calls Journal.value), on / off",
+            s([thread_cpu(r, "zenoh-publish") for r in on]), "off",
+            s([thread_cpu(r, "zenoh-publish") for r in off]), digits=1),
+        Row("Journal.value per call (us, in this process)", s([value_call_us()]), digits=2),
     ]  # fmt: skip
     normal = await asyncio.to_thread(sustained, "normal")
     full = await asyncio.to_thread(sustained, "full", APPEND_N // 10)

@@ -420,7 +420,8 @@ class Journal:
         base = "SELECT id, t, kind, key, node, seq, payload, tid FROM entries WHERE " + (
             " AND ".join(where) or "1"
         )
-        con = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, check_same_thread=False)
+        uri = f"{self.path.resolve().as_uri()}?mode=ro"  # percent-encoded: any file name
+        con = sqlite3.connect(uri, uri=True, check_same_thread=False)
         try:
             last: tuple[int, int] | None = None
             while True:
