@@ -4,7 +4,8 @@ written by one thread (``journal-writer``), read by any thread through connectio
 What goes in (``Entry``): every state and EMCY sample as published (``append``, write ahead:
 the entry's ``on_commit`` runs after its commit, and the bridge publishes it there), the latest
 value sample of each signal per ``values_ms`` window (``value``: a dict assignment, the writer
-takes the window's latest), and the audit of every write (``append`` without a callback).
+takes the window's latest; or ``values_from``: the writer asks a source once per window), and
+the audit of every write (``append`` without a callback).
 
 Rules held here, once:
 
@@ -196,6 +197,7 @@ class Journal:
             collections.deque()
         )
         self._values: dict[str, Entry] = {}
+        self._value_sources: list[Callable[[], Iterable[Entry]]] = []
         self._values_lock = threading.Lock()
         self._stopping = False
         self._con: sqlite3.Connection | None = None
@@ -275,6 +277,23 @@ class Journal:
             with self._values_lock:
                 self._values[entry.key] = entry
 
+    def values_from(self, source: Callable[[], Iterable[Entry]]) -> None:
+        """``source`` gives, once per window on the writer's thread, the latest value samples
+        published since the last window (the publisher only keeps its latest: no call per
+        sample)."""
+        self._value_sources.append(source)
+
+    def _window(self) -> list[Entry]:
+        with self._values_lock:
+            window, self._values = self._values, {}
+        rows = list(window.values())
+        for source in self._value_sources:
+            try:
+                rows.extend(source())
+            except Exception:  # noqa: BLE001 - a failing source must not stop the journal
+                log.exception("journal: reading the values of a window failed")
+        return rows
+
     # ------------------------------------------------------------------ the writer thread
     def _run(self) -> None:
         values_s = self.values_ms / 1000.0
@@ -295,9 +314,7 @@ class Journal:
             rows = [e for e, _ in batch if e is not None]
             if values_s and (stopping or time.monotonic() >= self._next_values):
                 self._next_values = time.monotonic() + values_s
-                with self._values_lock:
-                    window, self._values = self._values, {}
-                rows.extend(window.values())
+                rows.extend(self._window())
             if rows:
                 self._commit(rows)
             for _, callback in batch:

@@ -80,6 +80,7 @@ from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.history import HistoryService
 from gateway.zenoh_bridge.housekeeping import housekeeping_loop, refresh
+from gateway.zenoh_bridge.journaling import heard_entry, published_values, restore_seqs
 from gateway.zenoh_bridge.pair import HeardSeq, seq_offset
 from gateway.zenoh_bridge.payloads import (
     emcy_payload,
@@ -280,21 +281,15 @@ class ZenohBridge:
     # ------------------------------------------------------------------ the journal
     def use_journal(self, journal: Journal) -> None:
         """Journal what is published (before the session starts): events are committed
-        before they go out (write ahead), values at ``journal.values_ms``; every key's ``seq``
-        goes on above the highest the journal holds."""
+        before they go out (write ahead), the writer takes the values each ``values_ms``
+        (``journaling.py``); every key's ``seq`` goes on above the highest it holds."""
         self.journal = journal
         self.queries.history = HistoryService(
             journal, self.prefix, self.heard.keys, lambda: self.session
         )
-        last = journal.last_seqs()
-        for node in self.image.nodes:
-            for key in (state_key(self.prefix, node), emcy_key(self.prefix, node)):
-                if key in last:
-                    self._event_seq[key] = max(self._event_seq.get(key, 0), last[key])
-        for sp in self.pubs.values():
-            if sp.key in last:
-                with sp.lock:
-                    sp.seq_offset = max(sp.seq_offset, last[sp.key])
+        events = [k(self.prefix, n) for n in self.image.nodes for k in (state_key, emcy_key)]
+        restore_seqs(journal.last_seqs(), self._event_seq, events, self.pubs.values())
+        journal.values_from(lambda: published_values(self.pubs))
 
     def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None:
         """A sample of our prefix heard while standing by (a zenoh thread): its seq is kept
@@ -303,24 +298,13 @@ class ZenohBridge:
         before = max(self.heard.get(key), self._event_seq.get(key, 0))
         self.heard.on_sample(key, payload)
         j = self.journal
-        if j is None or key not in self.heard.keys or timestamp is None:
+        if j is None:
             return
-        rest = key[len(self.prefix) + 1 :]
-        node, _, what = rest.partition("/")
-        kind = "value" if what.startswith("value/") else what
-        if kind not in ("state", "emcy", "value"):
-            return
-        try:
-            seq = json.loads(payload).get("seq")
-        except (ValueError, AttributeError):
-            return
-        if not isinstance(seq, int) or (kind != "value" and seq <= before):
-            return  # an event journaled already (a late joiner's history repeats the cache)
-        entry = Entry(timestamp, kind, key, node, seq, payload)
-        if kind == "value":
-            j.value(entry)
-        else:
-            j.append(entry)
+        e = heard_entry(self.prefix, self.heard.keys, key, payload, timestamp, before)
+        if e is not None and e.kind == "value":
+            j.value(e)
+        elif e is not None:
+            j.append(e)
 
     # ------------------------------------------------------------------ a hot-standby pair
     def set_mastering(self, mastering: bool) -> None:
@@ -404,8 +388,7 @@ class ZenohBridge:
                 sp.pub.put(payload, timestamp=stamp)
             except zenoh.ZError:
                 return
-            if self.journal is not None:  # the latest of each window (``journal.values_ms``)
-                self.journal.value(Entry(stamp, "value", sp.key, node.name, out.seq, payload))
+            sp.last_pub = (stamp, out.seq, payload)  # the journal's writer takes it
             sp.policy.published(value, quality, now)  # counts it, under the lock
             sp.last_seq = sv.seq
 
@@ -476,7 +459,10 @@ class ZenohBridge:
             if rec is not None:
                 payload = emcy_payload(node, rec, node.health.emcy_count)
                 self._put_event(
-                    s, self.link.emcy_pubs[node.name], emcy_key(self.prefix, node.name), payload,
+                    s,
+                    self.link.emcy_pubs[node.name],
+                    emcy_key(self.prefix, node.name),
+                    payload,
                     (node.name, "emcy"),
                 )
         else:
@@ -485,7 +471,10 @@ class ZenohBridge:
             if self._last_state.get(node.name) != fp:
                 self._last_state[node.name] = fp
                 self._put_event(
-                    s, self.link.state_pubs[node.name], state_key(self.prefix, node.name), d,
+                    s,
+                    self.link.state_pubs[node.name],
+                    state_key(self.prefix, node.name),
+                    d,
                     (node.name, "state"),
                 )
         self._sync_token(node)

@@ -62,3 +62,21 @@ def test_seq_of_every_key_goes_on_from_the_journal(tmp_path):
         assert again.seq_of("wire", "position", 1) == 1 + 99 and sp.seq_offset == 99
     finally:
         j2.stop()
+
+
+def test_the_writer_takes_each_value_keys_latest_sample_once_per_window(tmp_path):
+    from gateway.zenoh_bridge.journaling import published_values
+
+    bridge, j = bridge_with_journal(tmp_path)
+    try:
+        sp = bridge.pubs[("wire", "position")]
+        assert published_values(bridge.pubs) == []  # nothing published yet
+        sp.last_pub = (ntp64_of_time(1.8e9), 5, '{"seq": 5}')
+        sp.last_pub = (ntp64_of_time(1.8e9 + 1), 6, '{"seq": 6}')  # the latest wins
+        got = published_values(bridge.pubs)
+        assert [(e.key, e.node, e.seq, e.kind) for e in got] == [
+            (f"{P}/wire/value/position", "wire", 6, "value")
+        ]
+        assert published_values(bridge.pubs) == []  # taken once: not again next window
+    finally:
+        j.stop()
