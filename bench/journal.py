@@ -6,7 +6,9 @@
    gateway without a journal and with one (defaults: ``values_ms`` 1000), alternated in pairs
    (off, on, off, on...) so that drift of the machine hits both alike. CPU of the gateway
    process and p99 of frame -> Modbus and frame -> Zenoh side by side; the spread of the "off"
-   runs is the run-to-run spread.
+   runs is the run-to-run spread. With every value moving the publisher is behind and
+   coalesces: how many samples it publishes (and so its CPU) follows the machine's load, so
+   the CPU per value sample is given too.
 2. **Events per second the journal sustains**: ``Journal.append`` of EMCY-sized entries (a
    payload as the gateway publishes, 170 bytes) with a callback each, from one thread, as fast
    as it can: entries per second committed and called back, ``sync: normal`` and ``full``.
@@ -66,6 +68,12 @@ async def line_rate() -> dict[str, list[dict[str, Any]]]:
 def thread_cpu(r: dict[str, Any], name: str) -> float:
     """% of one core of the gateway's threads of that name in a line-rate run."""
     return sum(c for n, _tid, c in r["threads"] if n.startswith(name)) * 100
+
+
+def per_sample(r: dict[str, Any]) -> float:
+    """Gateway CPU per value sample the subscriber received, microseconds: the publisher
+    coalesces marks while it is behind, so total CPU follows how many samples it publishes."""
+    return r["cpu"] / r["value_samples_per_s"] * 1e6 if r["value_samples_per_s"] else float("nan")
 
 
 def value_call_us(n: int = 200_000) -> float:
@@ -195,6 +203,10 @@ async def run() -> Section:
         Row("zenoh-publish thread CPU, % of one core (it calls Journal.value), on / off",
             s([thread_cpu(r, "zenoh-publish") for r in on]), "off",
             s([thread_cpu(r, "zenoh-publish") for r in off]), digits=1),
+        Row("value samples/s at the subscriber, on / off", s(col(on, "value_samples_per_s")),
+            "off", s(col(off, "value_samples_per_s"))),
+        Row("gateway CPU per value sample (us: CPU / samples received), on / off",
+            s([per_sample(r) for r in on]), "off", s([per_sample(r) for r in off]), digits=1),
         Row("Journal.value per call (us, in this process)", s([value_call_us()]), digits=2),
     ]  # fmt: skip
     normal = await asyncio.to_thread(sustained, "normal")
