@@ -200,14 +200,14 @@ async def run() -> Section:
         Row("frames/s sent", s(col(on, "fps")), "off", s(col(off, "fps"))),
         Row("journal-writer thread CPU, % of one core (journal on)",
             s([thread_cpu(r, "journal-writer") for r in on]), digits=2),
-        Row("zenoh-publish thread CPU, % of one core (it calls Journal.value), on / off",
+        Row("zenoh-publish thread CPU, % of one core (it keeps SignalPub.last_pub), on / off",
             s([thread_cpu(r, "zenoh-publish") for r in on]), "off",
             s([thread_cpu(r, "zenoh-publish") for r in off]), digits=1),
         Row("value samples/s at the subscriber, on / off", s(col(on, "value_samples_per_s")),
             "off", s(col(off, "value_samples_per_s"))),
         Row("gateway CPU per value sample (us: CPU / samples received), on / off",
             s([per_sample(r) for r in on]), "off", s([per_sample(r) for r in off]), digits=1),
-        Row("Journal.value per call (us, in this process)", s([value_call_us()]), digits=2),
+        Row("Journal.value per call (us; a standby's heard values)", s([value_call_us()]), digits=2),
     ]  # fmt: skip
     normal = await asyncio.to_thread(sustained, "normal")
     full = await asyncio.to_thread(sustained, "full", APPEND_N // 10)
