@@ -44,7 +44,9 @@ LABEL org.opencontainers.image.title="canopen-gateway" \
       org.opencontainers.image.licenses="Apache-2.0" \
       org.opencontainers.image.base.name="${BASE_IMAGE}"
 RUN useradd --uid 10001 --user-group --no-create-home --home-dir /nonexistent \
-        --shell /usr/sbin/nologin gateway
+        --shell /usr/sbin/nologin gateway \
+    && mkdir -p /var/lib/canopen-gateway/journal \
+    && chown -R 10001:10001 /var/lib/canopen-gateway
 COPY --from=build /opt/venv /opt/venv
 COPY config/demo.yaml /etc/canopen-gateway/config.yaml
 COPY deploy/config/ /etc/canopen-gateway/
@@ -52,7 +54,11 @@ ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \
     CANOPEN_GATEWAY__HEALTH__HOST=0.0.0.0 \
-    CANOPEN_GATEWAY__HEALTH__PORT=8080
+    CANOPEN_GATEWAY__HEALTH__PORT=8080 \
+    CANOPEN_GATEWAY__JOURNAL__PATH=/var/lib/canopen-gateway/journal
+# The store and forward journal (docs/deploy.md): mount a volume here so that it outlives the
+# container.
+VOLUME ["/var/lib/canopen-gateway"]
 # Numeric, so that Kubernetes' runAsNonRoot can verify it without reading /etc/passwd.
 USER 10001:10001
 WORKDIR /tmp

@@ -1,7 +1,7 @@
 """``python -m bench [name ...]``: run the benchmarks (all by default) and write RESULTS.md.
 
 Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors, pair,
-plc-first. Running a subset prints its sections
+plc-first, journal. Running a subset prints its sections
 and leaves RESULTS.md as it is.
 
 Imports: bench.*.
@@ -22,6 +22,7 @@ from bench import (
     floors,
     hotpath,
     ingest,
+    journal,
     latency,
     linerate,
     modbus_rps,
@@ -48,6 +49,7 @@ BENCHES: dict[str, Callable[[], Awaitable[Section]]] = {
     "floors": floors.run,
     "pair": pair.run,
     "plc-first": plc_first.run,
+    "journal": journal.run,
 }
 HERE = pathlib.Path(__file__).resolve().parent
 

@@ -568,6 +568,7 @@ def _gateway_config(
     publish: str = "change",
     zenoh: bool = True,
     batch_ms: float | None = None,
+    journal: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     cfg = {
         "gateway": {"name": "linerate", "log_level": "warning"},
@@ -586,6 +587,8 @@ def _gateway_config(
     }  # fmt: skip
     if batch_ms is not None:  # else the gateway's default
         cfg["zenoh"]["batch_ms"] = batch_ms
+    if journal is not None:  # the store and forward journal (bench/journal.py)
+        cfg["journal"] = journal
     path.write_text(yaml.safe_dump(cfg), encoding="utf-8")
     return cfg
 
@@ -598,13 +601,16 @@ async def _gateway_phase(
     zenoh: bool = True,
     batch_ms: float | None = None,
     pipeline: str = "",
+    journal: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The gateway's phase of a scenario, or (``pipeline``: "bare", or "split" with its Modbus
     server in a second process) the bare pipeline's in its place."""
     server = SocketcandServer()
     server.serve_one()
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="bench-linerate-"))
-    cfg = _gateway_config(tmp / "gateway.yaml", server.port, publish, zenoh, batch_ms)
+    if journal is not None and "path" not in journal:
+        journal = {**journal, "path": str(tmp / "journal")}
+    cfg = _gateway_config(tmp / "gateway.yaml", server.port, publish, zenoh, batch_ms, journal)
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     log = open(tmp / "gateway.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
     argv = [sys.executable, "-m", "gateway", "run", "-c", str(tmp / "gateway.yaml")]

@@ -8,13 +8,14 @@ parts do not know each other except through the image and the command service.
 
 Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, commands, config, device.resolved,
 health, image, metrics, modbus.server, northbound (frames, regmap, summary), profiles.derived,
-sim (faults, motion, node, runner), startup, threads, turns, web (console, views), zenoh_bridge.bridge.
+sim (faults, motion, node, runner), startup, threads, turns, journal, web (console, views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
 
 import asyncio
 import gc
+import json
 import logging
 import time
 from typing import Any
@@ -25,19 +26,21 @@ from gateway import __version__
 from gateway.bus.can_backend import open_can_bus
 from gateway.bus.driver import BusDriver, BusOpenFailed
 from gateway.bus.master import Master
-from gateway.checks import check_config
+from gateway.checks import check_config, journal_path
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
 from gateway.device.resolved import ResolvedNode
 from gateway.health import pair_status
 from gateway.image import ProcessImage
+from gateway.journal import Entry, Journal, ntp64_of_time
 from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
 from gateway.northbound.frames import FrameDecoder
+from gateway.northbound.keys import audit_key, prefix_of
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
 from gateway.profiles.derived import text_rows_as_signals
-from gateway.startup import Listener, StartupError, ports_in_use, startup_step, zenoh_listeners
+from gateway.startup import StartupError, listeners_of, ports_in_use, startup_step
 from gateway.threads import ThreadRegistry
 from gateway.turns import LoopTurns
 from gateway.zenoh_bridge.bridge import ZenohBridge
@@ -136,6 +139,18 @@ class Gateway:
             else None
         )
         self.sim = SimulatedBus(cfg, self.nodes) if simulate and cfg.simulated_nodes() else None
+        jpath = journal_path(cfg)
+        self.journal = (
+            None
+            if jpath is None
+            else Journal(
+                jpath,
+                max_mb=cfg.journal.max_mb,
+                values_ms=cfg.journal.values_ms,
+                keep_days=cfg.journal.keep_days,
+                sync=cfg.journal.sync,
+            )
+        )
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
         self.health: Any = None
         self.web: Any = None
@@ -250,7 +265,7 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": nodes,
-        } | self._pair_status() | self._watchdog_status()
+        } | self._pair_status() | self._watchdog_status() | self._journal_status()
 
     def _pair_status(self) -> dict[str, Any]:
         """``role`` and ``peer`` of a hot-standby pair (None outside one)."""
@@ -266,6 +281,21 @@ class Gateway:
             claim=None if claim is None else (claim.priority, claim.node_id, claim.at_s),
             peer_heartbeat_s=self.master.peer_heartbeat_s,
             peer_node_id=redundancy.peer_node_id if redundancy is not None else None,
+        )
+
+    def _journal_status(self) -> dict[str, Any]:
+        """The journal's figures and last error (a full or slow disk shows here; the gateway
+        stays ready: it keeps serving without it)."""
+        return {} if self.journal is None else {"journal": self.journal.status()}
+
+    def audit(self, record: dict[str, Any]) -> None:
+        """A write or command done or refused (the command service's audit hook): journaled
+        under ``<prefix>/audit``."""
+        if self.journal is None:
+            return
+        self.journal.append(
+            Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
+                  record.get("node"), None, json.dumps(record).encode())
         )
 
     def _watchdog_status(self) -> dict[str, Any]:
@@ -339,31 +369,20 @@ class Gateway:
         where = blame(key, self.cfg.source, self.cfg.env_keys)
         return None if where == self.cfg.source else where
 
-    def _listeners(self) -> list[Listener]:
-        """Every port this gateway will listen on, with the key that sets it."""
-        cfg = self.cfg
-        out = []
-        if self.modbus is not None and cfg.modbus.plain:
-            out.append(Listener("modbus.port", cfg.modbus.host, cfg.modbus.port, f"{cfg.modbus.port} on {cfg.modbus.host}"))  # fmt: skip
-        if self.modbus is not None:
-            tls = cfg.modbus.tls
-            if tls is not None:
-                host = tls.host or cfg.modbus.host
-                out.append(Listener("modbus.tls.port", host, tls.port, f"{tls.port} on {host}"))
-        if self.zenoh is not None and cfg.zenoh.mode != "client":
-            out += zenoh_listeners("zenoh.listen", cfg.zenoh.listen)
-        if cfg.ascii is not None and cfg.ascii.enabled:
-            out.append(Listener("ascii.port", cfg.ascii.host, cfg.ascii.port, f"{cfg.ascii.port} on {cfg.ascii.host}"))  # fmt: skip
-        if cfg.health.port:
-            out.append(Listener("health.port", cfg.health.host, cfg.health.port, f"{cfg.health.port} on {cfg.health.host}"))  # fmt: skip
-        return out
-
     async def _start(self) -> None:
         cfg = self.cfg
         # every port before anything opens: one failed start names every port in use
-        busy = ports_in_use(self._listeners())
+        busy = ports_in_use(listeners_of(cfg, modbus=self.modbus is not None, zenoh=self.zenoh is not None))
         if busy is not None:
             raise busy
+        if self.journal is not None:
+            # first: the events of this run are committed before they are published
+            with startup_step("journal.path", cfg.journal.path):
+                await asyncio.to_thread(self.journal.open)
+            self.journal.start(self.threads)
+            if self.zenoh is not None:
+                self.zenoh.use_journal(self.journal)
+            self.commands.audit = self.audit
         if self.zenoh is not None:
             z = cfg.zenoh
             key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)
@@ -450,6 +469,7 @@ class Gateway:
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
                 frames=self.driver,
                 turns=self.turns,
+                journal=self.journal,
             )
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(
@@ -486,6 +506,9 @@ class Gateway:
                     c.decode_errors[(name, reason)] = n
             if node.health.emcy_count:
                 c.emcy[name] = node.health.emcy_count
+        if self.journal is not None:
+            jc = self.journal.counts
+            c.journal = {"written": jc.written, "dropped": jc.dropped, "removed": jc.removed}
         if self.zenoh is not None:
             c.zenoh_publications = self.zenoh.publications
             c.zenoh_refused = dict(self.zenoh.refused)
@@ -507,6 +530,9 @@ class Gateway:
             await self.health.stop()
             if self.web is not None:
                 self.web.stop()
+        if self.journal is not None:
+            # what waits is committed and its events queued for the bridge, which stops next
+            await asyncio.to_thread(self.journal.stop)
         if self.zenoh is not None:
             await self.zenoh.stop()
         if self.modbus is not None:

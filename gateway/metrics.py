@@ -28,6 +28,7 @@ Metric names carry the prefix ``canopen_gateway_``:
     zenoh_refused_total{operation}, modbus_watchdog_trips_total{reason}
     zenoh_queries_answered_total, zenoh_queries_busy_total, zenoh_query_queue_depth
     northbound_turns_refused_total (console and ASCII requests refused: too many waiting)
+    journal_entries_total{outcome} (written, dropped, removed: the store and forward journal)
     other_master_frames_total{kind}, other_sdo_client_requests_total{node}
     pair_takeovers_total, pair_negotiations_total, pair_role (a hot-standby pair)
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
@@ -158,6 +159,7 @@ class Counters:
     modbus_watchdog_trips: dict[str, int] = field(default_factory=dict)
     other_master: dict[str, int] = field(default_factory=dict)
     other_sdo_client: dict[str, int] = field(default_factory=dict)
+    journal: dict[str, int] = field(default_factory=dict)
 
     def copy(self) -> Counters:
         """A copy with label dicts of its own (the caller holds the lock that guards them)."""
@@ -358,6 +360,13 @@ class _GatewayCollector:
             "(set, sdo_write, nmt).",
             ["operation"],
             c.zenoh_refused,
+        )
+        yield labelled(
+            "journal_entries_total",
+            "Journal entries by outcome: written, dropped (slow or full disk), removed "
+            "(journal.max_mb, journal.keep_days).",
+            ["outcome"],
+            c.journal,
         )
         yield labelled(
             "modbus_watchdog_trips_total",

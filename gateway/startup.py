@@ -7,14 +7,14 @@ of them fails, the user needs the key of the configuration to change, not a trac
 files and Zenoh into a ``StartupError`` that carries the key, the value and the reason; the
 command line prints it as one line and exits 2 after the gateway has released what it opened.
 
-Before anything opens, ``ports_in_use(listeners)`` tries every TCP/UDP port the gateway will
+Before anything opens, ``ports_in_use(listeners_of(cfg, ...))`` tries every TCP/UDP port the gateway will
 listen on (Modbus, Zenoh listen endpoints, ASCII, health/web): all the ports that cannot be
 taken are reported together, one line each (``StartupError.also``), so one failed start says
 every port to change. A value an environment variable set is blamed on the variable
 (``StartupError.where``, filled in by the gateway, which knows the config).
 
 Imports: the standard library only (Zenoh's errors are recognised by their text, so this module
-does not import zenoh).
+does not import zenoh); config for its types.
 """
 
 from __future__ import annotations
@@ -25,7 +25,10 @@ import socket
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from gateway.config import Config
 
 #: What an errno of bind/connect/open means for a user, in words.
 _ERRNO_TEXT = {
@@ -104,6 +107,27 @@ def zenoh_listeners(key: str, endpoints: Iterable[str]) -> list[Listener]:
         if m is None or m.group(1) not in _ZENOH_UDP or int(m.group(3)) == 0:
             continue
         out.append(Listener(key, m.group(2), int(m.group(3)), endpoint, _ZENOH_UDP[m.group(1)]))
+    return out
+
+
+def listeners_of(cfg: Config, *, modbus: bool, zenoh: bool) -> list[Listener]:
+    """Every port a gateway of ``cfg`` will listen on (``modbus``, ``zenoh``: whether it serves
+    them), with the key that sets it."""
+    out = []
+    mb = cfg.modbus
+    if modbus and mb.plain:
+        out.append(Listener("modbus.port", mb.host, mb.port, f"{mb.port} on {mb.host}"))
+    if modbus and mb.tls is not None:
+        host = mb.tls.host or mb.host
+        out.append(Listener("modbus.tls.port", host, mb.tls.port, f"{mb.tls.port} on {host}"))
+    if zenoh and cfg.zenoh.mode != "client":
+        out += zenoh_listeners("zenoh.listen", cfg.zenoh.listen)
+    a = cfg.ascii
+    if a is not None and a.enabled:
+        out.append(Listener("ascii.port", a.host, a.port, f"{a.port} on {a.host}"))
+    h = cfg.health
+    if h.port:
+        out.append(Listener("health.port", h.host, h.port, f"{h.port} on {h.host}"))
     return out
 
 

@@ -19,7 +19,9 @@
   node and fits its type and range (``gateway.modbus.safe_outputs``);
 * no COB-ID has two uses (``gateway.bus.cob_ids``: the PDOs, EMCY, SDO and heartbeat of every
   node, the master's NMT, SYNC, heartbeat and LSS), named in one line with where each got it;
-  one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both).
+  one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both);
+* ``journal.path`` can be created and written (the one check here that touches the disk: it
+  creates the directory when missing).
 
 ``config_warnings(cfg)`` returns what runs but may not do what is meant, one ``(key path,
 text naming the node)`` each (``check`` prints them after its summary): a device's own TPDO
@@ -39,17 +41,19 @@ checks, raising ConfigError with every line; they return the config and its node
 Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, profiles,
 eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
 register map, the COB-IDs of the nodes (bus/cob_ids.py), a device file's COB-IDs and NodeID
-(eds/cob_ids.py) (no I/O but reading the files they name).
+(eds/cob_ids.py), journal (the path check) (no I/O but reading the files they name and the
+journal's directory).
 
 Imports: config, checks.pair, cia301, objref, bus.cob_ids, device (boot_steps, resolved,
 settings), eds (parse, pdos, cob_ids), profiles (layout, schema), modbus.safe_outputs (its
-rule only), northbound.regmap.
+rule only), northbound.regmap, journal.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from gateway.bus.cob_ids import clashes, gateway_uses, loops_back
@@ -63,6 +67,7 @@ from gateway.eds import EdsError, load_eds
 from gateway.eds.cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import eds_pdos, od_var, readable
+from gateway.journal import path_problem
 from gateway.modbus.safe_outputs import safe_output_problems
 from gateway.northbound.regmap import RegisterMapError, build_register_map
 from gateway.objref import ObjRef
@@ -393,6 +398,20 @@ def sync_wait_text(rn: ResolvedNode) -> str:
     )
 
 
+def journal_path(cfg: Config) -> Path | None:
+    """The journal's directory (``journal.path`` relative to the config file), or None."""
+    if cfg.journal.path is None:
+        return None
+    return cfg.base_dir / Path(cfg.journal.path).expanduser()
+
+
+def journal_problems(cfg: Config) -> list[Problem]:
+    """``journal.path`` must be a directory this process can create and write."""
+    path = journal_path(cfg)
+    why = None if path is None else path_problem(path)
+    return [] if why is None else [("journal.path", why)]
+
+
 def config_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
     """Every cross-check (see the module docstring), in a stable order."""
     out: list[Problem] = []
@@ -405,6 +424,7 @@ def config_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
     out += eds_problems(cfg, resolved)
     out += safe_output_problems(cfg, resolved)
     out += cob_id_problems(cfg, resolved)
+    out += journal_problems(cfg)
     seen: set[Problem] = set()
     unique = []
     for p in out:

@@ -25,9 +25,12 @@ Rules held here, once:
 
 The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``bus_tools``'.
 
+Every write and command is audited (``commands.audit``: who, what, outcome) when the app gives
+the service an ``audit`` sink.
+
 Imports: bus.master (the operations), bus.node.parts (the nodes), device.values (value
-codecs), commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
-profiles, cia301, commands.audit. Never modbus/ or zenoh_bridge/.
+codecs), commands.audit, commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
+profiles, cia301. Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.commands import bus_tools
-from gateway.commands.audit import WHO
+from gateway.commands.audit import WHO, AuditSink, acting_as, audited
 from gateway.commands.sdo_cache import SdoValueCache
 from gateway.commands.validation import (
     bit_names,
@@ -111,6 +114,9 @@ class CommandService:
         self._sdo_cache = SdoValueCache(master, self.sdo_cache_s)
         self._word_locks: dict[tuple[str, str], asyncio.Lock] = {}
         self._infos: dict[str, NodeInfo] = {}
+        #: every write and command (``audited``) is handed here with who, what and the
+        #: outcome (``commands.audit``); None: not audited
+        self.audit: AuditSink | None = None
 
     # ------------------------------------------------------------------ lookups
     def _part(self, name: str) -> NodeParts:
@@ -182,6 +188,7 @@ class CommandService:
         """Write a writable signal: an RPDO for process data, an SDO download otherwise."""
         await self.write_signals(node, {name: value})
 
+    @audited("write", lambda node, values, **_: (node, ",".join(values), values))
     async def write_signals(self, node: str, values: dict[str, Any], *, safe: bool = False) -> None:
         """Several signals; those of RPDOs go out together (e.g. set point + control word).
         ``safe``: the safe values of the output watchdog (see ``write_safe_outputs``)."""
@@ -237,7 +244,8 @@ class CommandService:
             if not values:
                 continue
             try:
-                await self.write_signals(node, values, safe=True)
+                with acting_as("watchdog"):
+                    await self.write_signals(node, values, safe=True)
             except GatewayError as exc:
                 done[node] = str(exc)
                 log.warning("safe outputs of %s not written: %s", node, exc)
@@ -259,6 +267,7 @@ class CommandService:
                 f" on those bits; writable: {bit_names(sig, writable_mask(sig)) or 'none'}",
             )
 
+    @audited("write_bits", lambda node, name, bits: (node, name, {"bits": bits}))
     async def write_bits(self, node: str, name: str, bits: dict[int, bool]) -> None:
         """Set or clear bits of a word signal (read-modify-write of the current value). A bit
         the profile does not mark writable may only be "written" with the value it has."""
@@ -402,6 +411,7 @@ class CommandService:
         t = type_ or self._od_type(p, o)
         return bytes(data) if t is None else decode_value(bytes(data), t)
 
+    @audited("sdo_write", lambda node, obj, value, type_=None: (node, str(obj), value))
     async def sdo_write(
         self, node: str, obj: str | ObjRef, value: Any, type_: str | None = None
     ) -> None:
@@ -452,6 +462,7 @@ class CommandService:
         """Which node ids are on the bus and what they are (``bus_tools.scan_bus``)."""
         return await bus_tools.scan_bus(self.master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
 
+    @audited("nmt", lambda node, command: (node, "nmt", command))
     def nmt(self, node: str, command: str) -> None:
         """NMT command to one node by name, or to all nodes with ``all``."""
         if command not in NMT_COMMANDS:

@@ -17,9 +17,10 @@ The package, one module per part, re-exported here (``from gateway.config import
 - ``model``: the sections of the file (pydantic models) and what each checks of itself;
 - ``load``: ``load_config`` / ``parse_config`` and the checks across entries of one file;
 - ``env``: the ``CANOPEN_GATEWAY__`` environment overrides and whom a problem blames;
-- ``errors``: ``ConfigError`` and how a problem is worded.
+- ``errors``: ``ConfigError`` and how a problem is worded;
+- ``journal``: the ``journal:`` section.
 
-Imports: model, load, env, errors (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
+Imports: model, load, env, errors, journal (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
 checks.
 """
 
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 from gateway.config.env import ENV_PREFIX, ENV_TEXT_KEYS, apply_env_overrides, blame, env_keys
 from gateway.config.errors import ConfigError, nearest_key
+from gateway.config.journal import JournalSection
 from gateway.config.load import load_config, parse_config, raw_section
 from gateway.config.model import (
     CAN_INTERFACE_MISSING,
@@ -68,6 +70,7 @@ __all__ = [
     "GatewaySection",
     "GuardingBitSettings",
     "HealthSection",
+    "JournalSection",
     "MasterSection",
     "ModbusSection",
     "ModbusTls",

@@ -1,12 +1,12 @@
 """The gateway's configuration as data: the pydantic models of every section of the YAML file
 (``gateway:``, ``can:``, ``master:``, ``nodes:``, ``modbus:``, ``zenoh:``, ``health:``,
-``web:``, ``ascii:``, ``simulate:``) with the rules one field or one section can check itself
+``web:``, ``ascii:``, ``simulate:``, ``journal:`` from ``config.journal``) with the rules one field or one section can check itself
 (ranges, patterns, key expressions, networks, TLS roles, token length).
 
 What a section cannot see (duplicates across nodes, names that refer to nodes, profiles and
 EDS files) is checked when the file is loaded (``config.load``).
 
-Imports: pydantic, gateway.objref, gateway.keyexpr, gateway.profiles.schema. Nothing of bus/,
+Imports: pydantic, gateway.objref, gateway.keyexpr, gateway.profiles.schema, config.journal. Nothing of bus/,
 modbus/, zenoh_bridge/, checks.
 """
 
@@ -26,6 +26,7 @@ from pydantic import (
 )
 
 from gateway import keyexpr
+from gateway.config.journal import JournalSection
 from gateway.objref import ObjRef
 from gateway.profiles.schema import HexInt, SignalType
 
@@ -509,6 +510,7 @@ class Config(_Model):
     web: WebSection = Field(default_factory=WebSection)
     ascii: AsciiSection | None = None  # CiA 309-3 ASCII gateway: off unless given
     simulate: SimulateSection = Field(default_factory=SimulateSection)
+    journal: JournalSection = Field(default_factory=JournalSection)  # store and forward
 
     #: where the file was loaded from (for resolving relative profile paths and messages)
     source: str = Field(default="<memory>", exclude=True)

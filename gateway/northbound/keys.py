@@ -87,6 +87,11 @@ def value_key(prefix: str, node: str, signal: str) -> str:
     return f"{prefix}/{node}/value/{signal}"
 
 
+def audit_key(prefix: str) -> str:
+    """The journal's audit of writes, answered by ``get <prefix>/audit?_time=[...]``."""
+    return f"{prefix}/audit"
+
+
 def state_key(prefix: str, node: str) -> str:
     return f"{prefix}/{node}/state"
 

@@ -30,6 +30,7 @@ host and port: pages and static files, a small JSON API, server-sent events, and
                                        (``gateway.web.monitor``): ``hello``, ``frames``,
                                        ``status``; filters ``?node=wire,5``, ``?kind=pdo,emcy``;
                                        400 for an unknown node or kind, 503 past 8 pages
+``GET /api/journal[.csv]``             the journal's entries of a range (``web.journal_log``)
 ``GET /api/sim``                       simulated nodes, their faults and who may inject them
 ``POST /api/sim/<name>/<action>``      fault injection into a node simulated in this process
                                        (``gateway.sim.faults``); see ``fault_rule``
@@ -45,8 +46,8 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), ratelimit, turns, sim.faults, commands.audit (acting_as)
-(names and errors; the injector itself is given by the application; the bus driver, for the
+web.events, web.journal_log, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), ratelimit, turns, sim.faults,
+commands.audit (who asked, for the audit) (names and errors; the injector itself is given by the application; the bus driver, for the
 monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
 
@@ -71,6 +72,7 @@ from gateway.ratelimit import RateLimitedLog
 from gateway.turns import LoopTurns
 from gateway.web.commissioning import Commissioning, error_doc, shown
 from gateway.web.events import KINDS, EventLog, EventLogHandler
+from gateway.web.journal_log import JournalLog
 from gateway.web.limits import ClientBudget
 from gateway.web.live import LiveHub, Subscriber, TooManyClients
 from gateway.web.monitor import FrameMonitor, FrameSource, TooManyPages
@@ -143,6 +145,7 @@ class WebConsole:
         faults: Any = None,
         frames: FrameSource | None = None,
         turns: LoopTurns | None = None,
+        journal: Any = None,
     ):
         #: what the pages and the API show, built from the console's config, image and commands
         self.model = model
@@ -159,8 +162,8 @@ class WebConsole:
         self.events = EventLog(self.commands.names())
         self._log_handler = EventLogHandler(self.events)
         self.read_budget = ClientBudget(READS_PER_S, READ_BURST)
-        #: ``gateway.sim.faults.FaultInjector`` when nodes are simulated in this process
-        self.faults = faults
+        self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS)
+        self.faults = faults  # sim.faults.FaultInjector when nodes are simulated in this process
         self._sampler: Any = None
         #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
         self.monitor = FrameMonitor(self.cfg, decoder, frames)
@@ -242,6 +245,8 @@ class WebConsole:
             return self._trend(request, path.removeprefix("/api/trend/"))
         if path == "/api/events":
             return self._events(request)
+        if path.startswith("/api/journal"):
+            return await self.journal_log.answer(request, path)
         if path == "/api/sim":
             return _json(HTTPStatus.OK, self._sim_doc())
         if path == "/monitor":

@@ -54,7 +54,7 @@ and tasks, and the bridge calls it through its public methods), ``housekeeping.p
 periodic refresh) and ``sender.py`` (the ``zenoh-publish`` and ``zenoh-events`` threads). The
 per-frame path (the image's listeners, ``_ValueBatch``, ``offer``) stays here.
 
-Imports: zenoh, commands, image, config, ratelimit, threads, profiles.schema, northbound.keys,
+Imports: zenoh, commands, image, config, journal, ratelimit, threads, profiles.schema, northbound.keys,
 northbound.scaling, zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a
 function passed in by the app) and nothing of bus/ (nodes are known through the command
 service).
@@ -75,12 +75,15 @@ import zenoh
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, SignalValue
+from gateway.journal import Entry, Journal
 from gateway.northbound.keys import emcy_key, prefix_of, state_key
 from gateway.northbound.scaling import Scaling
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadCount, ThreadRegistry
+from gateway.zenoh_bridge.history import HistoryService
 from gateway.zenoh_bridge.housekeeping import housekeeping_loop, refresh
+from gateway.zenoh_bridge.journaling import heard_entry, published_values, restore_seqs
 from gateway.zenoh_bridge.pair import HeardSeq, seq_offset
 from gateway.zenoh_bridge.payloads import (
     emcy_payload,
@@ -201,6 +204,9 @@ class ZenohBridge:
         self._events = ZenohSender(self.threads, "zenoh-events")
         self._last_state: dict[str, tuple[Any, ...]] = {}
         self._event_seq: dict[str, int] = {}
+        #: the store and forward journal (``use_journal``): events are committed there before
+        #: they are published; None: published at once
+        self.journal: Journal | None = None
         #: a hot-standby pair (``pair.py``): this gateway's (master node id, pair node id),
         #: whether it publishes (it masters the bus), the seq heard of the other one
         red = cfg.master.redundancy
@@ -276,6 +282,34 @@ class ZenohBridge:
     def node_alive(self, node: NodeImage) -> bool:
         """Whether the node's token is wanted: its values usable and this gateway publishing."""
         return node.usable() and self.publishing
+
+    # ------------------------------------------------------------------ the journal
+    def use_journal(self, journal: Journal) -> None:
+        """Journal what is published (before the session starts): events are committed
+        before they go out (write ahead), the writer takes the values each ``values_ms``
+        (``journaling.py``); every key's ``seq`` goes on above the highest it holds."""
+        self.journal = journal
+        self.queries.history = HistoryService(
+            journal, self.prefix, self.heard.keys, lambda: self.session
+        )
+        events = [k(self.prefix, n) for n in self.image.nodes for k in (state_key, emcy_key)]
+        restore_seqs(journal.last_seqs(), self._event_seq, events, self.pubs.values())
+        journal.values_from(lambda: published_values(self.pubs))
+
+    def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None:
+        """A sample of our prefix heard while standing by (a zenoh thread): its seq is kept
+        (``HeardSeq``) and, with a journal, the sample is journaled as the other member
+        published it, so this member's history covers the time before a take-over."""
+        before = max(self.heard.get(key), self._event_seq.get(key, 0))
+        self.heard.on_sample(key, payload)
+        j = self.journal
+        if j is None:
+            return
+        e = heard_entry(self.prefix, self.heard.keys, key, payload, timestamp, before)
+        if e is not None and e.kind == "value":
+            j.value(e)
+        elif e is not None:
+            j.append(e)
 
     # ------------------------------------------------------------------ a hot-standby pair
     def set_mastering(self, mastering: bool) -> None:
@@ -354,10 +388,12 @@ class ZenohBridge:
                 return
             out = sv if not sp.seq_offset else sv._replace(seq=sv.seq + sp.seq_offset)
             payload = value_json(sp.sig, out, quality, sp.scaling)
+            stamp = s.new_timestamp()
             try:
-                sp.pub.put(payload, timestamp=s.new_timestamp())
+                sp.pub.put(payload, timestamp=stamp)
             except zenoh.ZError:
                 return
+            sp.last_pub = (stamp, out.seq, payload)  # the journal's writer takes it
             sp.policy.published(value, quality, now)  # counts it, under the lock
             sp.last_seq = sv.seq
 
@@ -428,7 +464,11 @@ class ZenohBridge:
             if rec is not None:
                 payload = emcy_payload(node, rec, node.health.emcy_count)
                 self._put_event(
-                    s, self.link.emcy_pubs[node.name], emcy_key(self.prefix, node.name), payload
+                    s,
+                    self.link.emcy_pubs[node.name],
+                    emcy_key(self.prefix, node.name),
+                    payload,
+                    (node.name, "emcy"),
                 )
         else:
             d = state_payload(node)
@@ -436,19 +476,40 @@ class ZenohBridge:
             if self._last_state.get(node.name) != fp:
                 self._last_state[node.name] = fp
                 self._put_event(
-                    s, self.link.state_pubs[node.name], state_key(self.prefix, node.name), d
+                    s,
+                    self.link.state_pubs[node.name],
+                    state_key(self.prefix, node.name),
+                    d,
+                    (node.name, "state"),
                 )
         self._sync_token(node)
         refresh(self, node, self.clock())
 
-    def _put_event(self, s: zenoh.Session, pub: Any, key: str, payload: dict[str, Any]) -> None:
-        """Queue an event with the next ``seq`` of its key (1, 2, 3... since the gateway
-        started: a subscriber that sees a gap missed an event; in a pair, after the highest
-        the other gateway published)."""
+    def _put_event(
+        self,
+        s: zenoh.Session,
+        pub: Any,
+        key: str,
+        payload: dict[str, Any],
+        what: tuple[str, str],
+    ) -> None:
+        """Queue an event with the next ``seq`` of its key (1, 2, 3...: a subscriber that
+        sees a gap missed an event; with a journal, after the highest it holds; in a pair,
+        after the highest the other gateway published). With a journal it is published once
+        committed (write ahead: the journal's writer queues it for ``zenoh-events``)."""
         seq = max(self._event_seq.get(key, 0), self.heard.get(key)) + 1
         self._event_seq[key] = seq
         payload["seq"] = seq
-        self._events.put_event(pub, json.dumps(payload).encode(), s.new_timestamp())
+        data = json.dumps(payload).encode()
+        stamp = s.new_timestamp()
+        if self.journal is None:
+            self._events.put_event(pub, data, stamp)
+            return
+        node, kind = what
+        self.journal.append(
+            Entry(stamp, kind, key, node, seq, data),
+            lambda: self._events.put_event(pub, data, stamp),
+        )
 
     def _sync_token(self, node: NodeImage) -> None:
         """A token while the node's values are usable: operational, guarding-bit link OK."""

@@ -28,7 +28,10 @@ from gateway.zenoh_bridge.policy import ReportPolicy
 class SignalPub:
     """One published signal: its key, engineering scaling, report policy and publisher."""
 
-    __slots__ = ("sig", "key", "scaling", "policy", "lock", "pub", "last_seq", "seq_offset")
+    __slots__ = (
+        "sig", "key", "scaling", "policy", "lock", "pub", "last_seq", "seq_offset", "last_pub",
+        "journaled",
+    )  # fmt: skip
 
     def __init__(self, sig: Signal, key: str, scaling: Scaling, policy: ReportPolicy):
         self.sig = sig
@@ -40,6 +43,10 @@ class SignalPub:
         self.last_seq = 0  # seq of the last sample published
         #: added to the image's seq in the payload: a hot-standby pair's take-over (pair.py)
         self.seq_offset = 0
+        #: (timestamp, seq, payload) of the last sample published, set under the lock; what
+        #: the journal's writer last took of it (only it writes ``journaled``: journaling.py)
+        self.last_pub: tuple[Any, int, str] | None = None
+        self.journaled: tuple[Any, int, str] | None = None
 
 
 class PdoPub:
@@ -117,9 +124,7 @@ def plan_publications(
         by_node[name] = sps
         pps = []
         for number, names in rt.tpdo_records:
-            entries = [
-                (in_pdo[n][0], i, in_pdo[n][1]) for i, n in enumerate(names) if n in in_pdo
-            ]
+            entries = [(in_pdo[n][0], i, in_pdo[n][1]) for i, n in enumerate(names) if n in in_pdo]
             if entries:
                 pp = PdoPub(tpdo_key(prefix, name, number), names, entries)
                 pdo_pubs[(name, names)] = pp
@@ -130,9 +135,7 @@ def plan_publications(
             sps_of = [pubs[(name, n)] for n in names if (name, n) in pubs]
             every = tuple(sp for sp in sps_of if sp.policy.mode == "every")
             marks = tuple(sp for sp in sps_of if sp.policy.mode != "every")
-            routes[(name, names)] = (
-                (pdo_pub, *marks) if pdo_pub is not None else marks, every
-            )
+            routes[(name, names)] = ((pdo_pub, *marks) if pdo_pub is not None else marks, every)
     return plan
 
 
@@ -143,8 +146,6 @@ def value_keys(plan: PublicationPlan, prefix: str) -> dict[str, list[tuple[str, 
     for name, sps in plan.by_node.items():
         keys = [(sp.key, sp.sig) for sp in sps]
         for pp in plan.pdo_by_node.get(name, ()):
-            keys += [
-                (value_key(prefix, name, sig.name), sig) for sig, _i, _sc in pp.entries
-            ]
+            keys += [(value_key(prefix, name, sig.name), sig) for sig, _i, _sc in pp.entries]
         out[name] = keys
     return out

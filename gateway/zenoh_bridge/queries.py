@@ -21,8 +21,8 @@ session through a function and knows the published value keys and their scaling 
 construction.
 
 Imports: zenoh, commands, errors, image, config, ratelimit, threads, profiles.schema,
-profiles.derived, northbound.keys, northbound.scaling, payloads, access, worker. Nothing of bus/
-or modbus/.
+profiles.derived, northbound.keys, northbound.scaling, payloads, access, worker, history
+(``_time`` queries), commands.audit (who asked). Nothing of bus/ or modbus/.
 """
 
 from __future__ import annotations
@@ -64,6 +64,7 @@ from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.access import WriteGate
+from gateway.zenoh_bridge.history import HistoryService, Stamped, has_time_range
 from gateway.zenoh_bridge.payloads import (
     add_names,
     error_payload,
@@ -154,6 +155,8 @@ class QueryService:
     loop: asyncio.AbstractEventLoop | None = field(default=None, init=False)
     #: refused writes by operation (``zenoh_refused_total{operation}``)
     refused: dict[str, int] = field(default_factory=dict, init=False)
+    #: history by time range (``history.py``), set when the gateway has a journal
+    history: HistoryService | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
         self.published: Collection[tuple[str, str]] = frozenset(
@@ -223,6 +226,9 @@ class QueryService:
             query.drop()
 
     def _reply(self, query: zenoh.Query, key: str, result: Any) -> None:
+        if isinstance(result, Stamped):  # a journaled sample: its payload and its own time
+            query.reply(key, result.payload, encoding=JSON, timestamp=result.timestamp)
+            return
         s = self.session()
         query.reply(
             key,
@@ -268,8 +274,12 @@ class QueryService:
                 query.drop()
 
     def _read_replies(self, query: zenoh.Query, key: str) -> Replies | None:
-        """The replies of a read (wildcards, and what ``read_now`` answers), lazily; None for
-        a command (the event loop's)."""
+        """The replies of a read (history, wildcards, and what ``read_now`` answers), lazily;
+        None for a command (the event loop's)."""
+        if has_time_range(query):  # history by time range, from the journal
+            if self.history is None:
+                raise ValueError("_time: this gateway keeps no history (journal.path unset)")
+            return self.history.stamped_replies(query, key)
         if has_wildcard(key):
             return self._wildcard(key)
         payload = query.payload.to_bytes() if query.payload is not None else None

@@ -341,7 +341,6 @@ class ZenohSession:
             elif not on and token is not None:
                 del self.pair_tokens[key]
                 token.undeclare()
-        heard = bridge.heard
         if publishing and self.heard_sub is not None:
             sub, self.heard_sub = self.heard_sub, None
             sub.undeclare()
@@ -351,7 +350,9 @@ class ZenohSession:
             self.heard_sub = zenoh.ext.declare_advanced_subscriber(
                 s,
                 f"{self.prefix}/**",
-                lambda sample: heard.on_sample(str(sample.key_expr), sample.payload.to_bytes()),
+                lambda sample: bridge.on_heard(
+                    str(sample.key_expr), sample.payload.to_bytes(), sample.timestamp
+                ),
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
             )
 

@@ -677,6 +677,43 @@ async function initEvents() {
   for (const i of document.querySelectorAll('input[name="kind"]')) i.addEventListener("change", renderEvents);
   addEvents(doc.events);
   liveStream("/api/stream", { events: (d) => addEvents(d.events) });
+  const form = document.getElementById("journal-form");
+  form.addEventListener("submit", (ev) => { ev.preventDefault(); loadJournal(); });
+  sel.addEventListener("change", loadJournal);
+  loadJournal();
+}
+
+// The journal's entries of a range (GET /api/journal), and the CSV link of the same range.
+function journalQuery() {
+  const q = new URLSearchParams();
+  q.set("from", document.getElementById("jr-from").value.trim());
+  const to = document.getElementById("jr-to").value.trim();
+  if (to) q.set("to", to);
+  const node = document.getElementById("ev-node").value;
+  if (node) q.set("node", node);
+  q.set("kind", [...document.querySelectorAll('input[name="jkind"]:checked')].map((i) => i.value).join(",") || "none");
+  return q.toString();
+}
+
+async function loadJournal() {
+  const q = journalQuery();
+  document.getElementById("jr-csv").href = "/api/journal.csv?" + q;
+  const status = document.getElementById("jr-status");
+  const r = await fetch("/api/journal?" + q, { cache: "no-store" });
+  const doc = await r.json();
+  const tbody = document.querySelector("#journal tbody");
+  if (!r.ok) {
+    status.textContent = doc.message || r.statusText;
+    tbody.replaceChildren();
+    return;
+  }
+  status.textContent = `${doc.entries.length} entries` + (doc.truncated ? " (the first ones of the range: narrow it or export CSV)" : "");
+  tbody.replaceChildren(...doc.entries.map((e) => el("tr", { "data-kind": e.kind },
+    el("td", { class: "nowrap" }, fmtTime(e.ts)),
+    el("td", {}, badge(...(KIND_BADGE[e.kind] || [e.kind, "info"]))),
+    el("td", {}, e.node || ""),
+    el("td", {}, e.seq == null ? "" : String(e.seq)),
+    el("td", { class: "event-text" }, e.text))));
 }
 
 // ------------------------------------------------------------------ bus monitor

@@ -1,0 +1,164 @@
+"""The web console's journal: the events page's history from the store and forward journal
+(``gateway.journal``), which survives restarts, and its CSV export of a time range.
+
+=====================================  ==========================================================
+``GET /api/journal``                   journal entries in time order: ``?from=`` and ``?to=``
+                                       (``now(-1h)``, an RFC 3339 time; empty: open; default
+                                       the last hour), ``?node=``, ``?kind=state,emcy,audit``;
+                                       at most ``MAX_ROWS`` (``truncated`` says so); 409 when
+                                       the gateway has no journal
+``GET /api/journal.csv``               the same range as CSV (time, kind, node, key, seq,
+                                       text, payload), at most ``MAX_CSV_ROWS`` rows
+=====================================  ==========================================================
+
+Each entry gets a line of text in the words of the live event log (``text_of``). The reading is
+done in a worker thread (``asyncio.to_thread``): never on the event loop. Bad parameters get a
+400 with the words of what is allowed.
+
+Imports: health (request/response types), journal (the store and the time grammar). Never bus/,
+modbus/ or zenoh_bridge/.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import io
+import json
+import time
+from collections.abc import Callable, Iterable
+from datetime import UTC, datetime
+from http import HTTPStatus
+from typing import Any
+
+from gateway.health import JSON_TYPE, Request, Response
+from gateway.journal import Journal, Row, TimeRangeError, ntp64_of_time, time_of_ntp64
+from gateway.journal.timerange import parse_instant
+
+JOURNAL_KINDS = ("state", "emcy", "audit")
+MAX_ROWS = 2000  # per JSON answer
+MAX_CSV_ROWS = 200_000  # per export
+DEFAULT_SPAN_S = 3600.0
+
+
+def text_of(row: Row) -> str:
+    """An entry in one line, as the live event log words it."""
+    try:
+        doc = json.loads(row.payload)
+    except ValueError:
+        return row.payload.decode(errors="replace")
+    node = row.node or ""
+    if row.kind == "emcy":
+        return f"{node}: EMCY {doc.get('code')} {doc.get('text') or ''}".rstrip()
+    if row.kind == "state":
+        words = [f"NMT state {doc.get('nmt_state')}", f"lifecycle {doc.get('lifecycle')}"]
+        if "alive" in doc:
+            words.insert(0, "alive" if doc["alive"] else "lost")
+        return f"{node}: " + ", ".join(words)
+    if row.kind == "audit":
+        return (
+            f"{doc.get('who')}: {doc.get('op')} {node} {doc.get('what')} = "
+            f"{json.dumps(doc.get('value'))}: {doc.get('outcome')}"
+        )
+    return json.dumps(doc)
+
+
+def _iso(t: int) -> str:
+    return datetime.fromtimestamp(time_of_ntp64(t), UTC).isoformat(timespec="milliseconds")
+
+
+def _bad(message: str) -> Response:
+    body = json.dumps({"error": "bad_request", "message": message}).encode()
+    return Response(HTTPStatus.BAD_REQUEST, body, JSON_TYPE)
+
+
+class JournalLog:
+    """The two routes of the module docstring over one journal (None: none configured)."""
+
+    def __init__(
+        self,
+        journal: Journal | None,
+        nodes: Iterable[str],
+        *,
+        clock: Callable[[], float] = time.time,
+        headers: dict[str, str] | None = None,
+    ):
+        self.journal = journal
+        self.nodes = frozenset(nodes)
+        self.clock = clock
+        self.headers = headers or {}
+
+    async def answer(self, request: Request, path: str) -> Response | None:
+        if path not in ("/api/journal", "/api/journal.csv"):
+            return None
+        if self.journal is None:
+            body = {"error": "no_journal", "message": "no journal: set journal.path"}
+            return Response(HTTPStatus.CONFLICT, json.dumps(body).encode(), JSON_TYPE)
+        query = self._query(request)
+        if isinstance(query, Response):
+            return query
+        if path.endswith(".csv"):
+            return await asyncio.to_thread(self._csv, query)
+        rows = await asyncio.to_thread(self._rows, query, MAX_ROWS + 1)
+        doc = {
+            "kinds": list(JOURNAL_KINDS),
+            "entries": [self._doc(r) for r in rows[:MAX_ROWS]],
+            "truncated": len(rows) > MAX_ROWS,
+        }
+        return Response(HTTPStatus.OK, json.dumps(doc).encode(), JSON_TYPE, headers=self.headers)
+
+    def _query(self, request: Request) -> dict[str, Any] | Response:
+        q = request.query
+        now = self.clock()
+        try:
+            t_from = parse_instant(q["from"], now) if q.get("from") else now - DEFAULT_SPAN_S
+            t_to = parse_instant(q["to"], now) if q.get("to") else None
+        except TimeRangeError as exc:
+            return _bad(str(exc).replace("_time", "from/to"))
+        node = q.get("node") or None
+        if node is not None and node not in self.nodes:
+            return _bad(f"node: no node named {node!r}; nodes: {', '.join(sorted(self.nodes))}")
+        kinds = q["kind"].split(",") if q.get("kind") else list(JOURNAL_KINDS)
+        wrong = [k for k in kinds if k not in JOURNAL_KINDS]
+        if wrong:
+            return _bad(f"kind: {', '.join(wrong)} is not one of {', '.join(JOURNAL_KINDS)}")
+        return {
+            "t_from": ntp64_of_time(max(t_from, 0.0)),
+            "t_to": None if t_to is None else ntp64_of_time(max(t_to, 0.0)),
+            "node": node,
+            "kinds": kinds,
+        }
+
+    def _rows(self, query: dict[str, Any], limit: int) -> list[Row]:
+        assert self.journal is not None
+        out = []
+        for row in self.journal.read(**query):
+            out.append(row)
+            if len(out) >= limit:
+                break
+        return out
+
+    @staticmethod
+    def _doc(r: Row) -> dict[str, Any]:
+        return {
+            "ts": time_of_ntp64(r.t),
+            "kind": r.kind,
+            "node": r.node,
+            "key": r.key,
+            "seq": r.seq,
+            "text": text_of(r),
+        }
+
+    def _csv(self, query: dict[str, Any]) -> Response:
+        out = io.StringIO()
+        w = csv.writer(out)
+        w.writerow(["time", "kind", "node", "key", "seq", "text", "payload"])
+        for r in self._rows(query, MAX_CSV_ROWS):
+            payload = r.payload.decode(errors="replace")
+            w.writerow([_iso(r.t), r.kind, r.node or "", r.key, r.seq or "", text_of(r), payload])
+        return Response(
+            HTTPStatus.OK,
+            out.getvalue().encode(),
+            "text/csv; charset=utf-8",
+            headers={**self.headers, "Content-Disposition": 'attachment; filename="journal.csv"'},
+        )

@@ -1,0 +1,82 @@
+"""A pair's standby journals what it hears (``ZenohBridge.on_heard``): the other member's state
+and EMCY events as published, once each (a late joiner's history repeats the cache), its values
+in the value windows; nothing else. And the bridge's seq goes on from the journal
+(``use_journal``)."""
+
+from __future__ import annotations
+
+import json
+
+from gateway.journal import Journal, ntp64_of_time
+from tests.helpers import gateway_of, make_config
+
+P = "canopen/test"
+
+
+def bridge_with_journal(tmp_path):
+    cfg = make_config([{"name": "wire", "node_id": 1, "profile": "sgh10"}])
+    gw = gateway_of(cfg, simulate=False)
+    j = Journal(tmp_path / "j", values_ms=3_600_000)
+    j.start()
+    assert gw.zenoh is not None
+    gw.zenoh.use_journal(j)
+    return gw.zenoh, j
+
+
+def test_heard_events_and_values_are_journaled_once(tmp_path):
+    bridge, j = bridge_with_journal(tmp_path)
+
+    def hear(key, seq, t):
+        bridge.on_heard(key, json.dumps({"seq": seq}).encode(), ntp64_of_time(1.8e9 + t))
+
+    for seq in (1, 2, 3):
+        hear(f"{P}/wire/emcy", seq, seq)
+    for seq in (1, 2, 3):  # the history of the other one's advanced publisher, again
+        hear(f"{P}/wire/emcy", seq, seq)
+    hear(f"{P}/wire/state", 7, 4)
+    hear(f"{P}/wire/value/position", 40, 5)
+    hear(f"{P}/wire/value/position", 41, 6)
+    hear(f"{P}/wire/snapshot", 1, 7)  # not a published key of ours
+    bridge.on_heard(f"{P}/wire/emcy", b"not json", ntp64_of_time(1.8e9))
+    j.stop()
+    rows = [(r.kind, r.key, r.seq) for r in Journal(tmp_path / "j").read()]
+    assert rows == [
+        ("emcy", f"{P}/wire/emcy", 1),
+        ("emcy", f"{P}/wire/emcy", 2),
+        ("emcy", f"{P}/wire/emcy", 3),
+        ("state", f"{P}/wire/state", 7),
+        ("value", f"{P}/wire/value/position", 41),
+    ]
+    assert bridge.heard.get(f"{P}/wire/emcy") == 3
+
+
+def test_seq_of_every_key_goes_on_from_the_journal(tmp_path):
+    bridge, j = bridge_with_journal(tmp_path)
+    bridge.on_heard(f"{P}/wire/emcy", b'{"seq": 12}', ntp64_of_time(1.8e9))
+    bridge.on_heard(f"{P}/wire/value/position", b'{"seq": 99}', ntp64_of_time(1.8e9))
+    j.stop()
+    again, j2 = bridge_with_journal(tmp_path)
+    try:
+        assert again._event_seq[f"{P}/wire/emcy"] == 12
+        sp = again.pubs[("wire", "position")]
+        assert again.seq_of("wire", "position", 1) == 1 + 99 and sp.seq_offset == 99
+    finally:
+        j2.stop()
+
+
+def test_the_writer_takes_each_value_keys_latest_sample_once_per_window(tmp_path):
+    from gateway.zenoh_bridge.journaling import published_values
+
+    bridge, j = bridge_with_journal(tmp_path)
+    try:
+        sp = bridge.pubs[("wire", "position")]
+        assert published_values(bridge.pubs) == []  # nothing published yet
+        sp.last_pub = (ntp64_of_time(1.8e9), 5, '{"seq": 5}')
+        sp.last_pub = (ntp64_of_time(1.8e9 + 1), 6, '{"seq": 6}')  # the latest wins
+        got = published_values(bridge.pubs)
+        assert [(e.key, e.node, e.seq, e.kind) for e in got] == [
+            (f"{P}/wire/value/position", "wire", 6, "value")
+        ]
+        assert published_values(bridge.pubs) == []  # taken once: not again next window
+    finally:
+        j.stop()

@@ -1,0 +1,202 @@
+"""The journal's storage (gateway.journal.store) on a real SQLite file in a temporary
+directory: write ahead, group commit, seq across reopen, value windows, bounds, drops on a full
+disk, damaged files set aside, and the path check."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+
+from gateway.journal import Entry, Journal, ntp64_of_time, path_problem
+from gateway.journal.store import FILE_NAME, SCHEMA_VERSION
+from tests.helpers import wait_until_sync
+
+
+def ev(i: int, key: str = "p/n1/emcy", kind: str = "emcy", t0: float = 1.8e9) -> Entry:
+    return Entry(ntp64_of_time(t0 + i), kind, key, "n1", i, json.dumps({"seq": i}).encode())
+
+
+def started(tmp_path, **kw) -> Journal:
+    j = Journal(tmp_path / "j", **kw)
+    j.start()
+    return j
+
+
+def test_callbacks_run_after_their_commit_in_order(tmp_path):
+    j = started(tmp_path, values_ms=0)
+    seen: list[tuple[int, int]] = []
+    lock = threading.Lock()
+
+    def published(i: int) -> None:
+        # what a subscriber receives is already in the journal (write ahead)
+        rows = [r.seq for r in j.read(["p/n1/emcy"])]
+        with lock:
+            seen.append((i, rows[-1] if rows else 0))
+
+    for i in range(1, 301):
+        j.append(ev(i), lambda i=i: published(i))
+    wait_until_sync(lambda: len(seen) == 300, what="300 callbacks")
+    j.stop()
+    assert [i for i, _ in seen] == list(range(1, 301))
+    assert all(last >= i for i, last in seen)
+    assert j.counts.written == 300 and j.counts.dropped == 0
+    assert j.counts.commits < 300  # grouped
+
+
+def test_seq_per_key_survives_a_reopen(tmp_path):
+    j = started(tmp_path, values_ms=0)
+    for i in range(1, 6):
+        j.append(ev(i))
+    j.append(ev(3, key="p/n1/state", kind="state"))
+    j.stop()
+    again = Journal(tmp_path / "j")
+    again.open()
+    assert again.last_seqs() == {"p/n1/emcy": 5, "p/n1/state": 3}
+    again.stop()
+
+
+def test_values_keep_the_latest_sample_of_each_window(tmp_path):
+    j = Journal(tmp_path / "j", values_ms=3_600_000)  # one window for the whole test
+    j.start()
+    for i in range(1, 101):
+        j.value(ev(i, key="p/n1/value/position", kind="value"))
+    j.value(ev(7, key="p/n1/value/speed", kind="value"))
+    j.stop()  # the current window is committed at stop
+    rows = list(Journal(tmp_path / "j").read(kinds=["value"]))
+    assert sorted((r.key, r.seq) for r in rows) == [
+        ("p/n1/value/position", 100),
+        ("p/n1/value/speed", 7),
+    ]
+
+
+def test_read_is_in_time_order_with_bounds_and_chunks(tmp_path):
+    j = started(tmp_path, values_ms=0)
+    for i in (5, 1, 4, 2, 3):
+        j.append(ev(i))
+    j.stop()
+    r = Journal(tmp_path / "j")
+    assert [x.seq for x in r.read(chunk=2)] == [1, 2, 3, 4, 5]
+    lo, hi = ntp64_of_time(1.8e9 + 2), ntp64_of_time(1.8e9 + 4)
+    assert [x.seq for x in r.read(t_from=lo, t_to=hi, chunk=1)] == [2, 3, 4]
+    assert [x.seq for x in r.read(t_from=lo, t_to=hi, from_open=True, to_open=True)] == [3]
+
+
+def test_size_stays_bounded_under_a_flood(tmp_path):
+    j = started(tmp_path, values_ms=0, max_mb=0.5)
+    blob = b"x" * 200
+    for i in range(20_000):
+        j.append(Entry(ntp64_of_time(1.8e9 + i), "emcy", "p/n1/emcy", "n1", i, blob))
+    wait_until_sync(lambda: j.counts.written == 20_000, timeout_s=60, what="flood written")
+    j.stop()
+    size = (tmp_path / "j" / FILE_NAME).stat().st_size
+    assert size <= 0.5 * 1024 * 1024 * 1.25
+    assert j.counts.removed > 0
+    seqs = [r.seq for r in Journal(tmp_path / "j").read()]
+    assert seqs[-1] == 19_999 and seqs == sorted(seqs)  # the oldest went first
+    assert len(seqs) == 20_000 - j.counts.removed
+
+
+def test_a_full_disk_drops_entries_and_still_publishes(tmp_path, caplog):
+    j = Journal(tmp_path / "j", values_ms=0)
+    j.open()
+    j._con.execute("PRAGMA max_page_count=8")  # SQLite's own "database or disk is full"
+    j.start()
+    published = []
+    for i in range(1, 2001):
+        j.append(
+            Entry(ntp64_of_time(1.8e9 + i), "emcy", "k", "n1", i, b"y" * 500),
+            lambda i=i: published.append(i),
+        )
+    wait_until_sync(lambda: len(published) == 2000, what="every callback")
+    assert published == list(range(1, 2001))
+    assert j.counts.dropped > 0
+    # logged (at most once a minute); /healthz shows the error until a commit succeeds again
+    lines = [r.getMessage() for r in caplog.records if "not journaled" in r.getMessage()]
+    assert len(lines) == 1 and "database or disk is full" in lines[0]
+    j._con.execute("PRAGMA max_page_count=100000")  # room again
+    j.append(Entry(ntp64_of_time(1.8e9), "emcy", "k", "n1", 9999, b"z"))
+    wait_until_sync(lambda: j.status()["error"] is None, what="a commit that works")
+    j.stop()
+
+
+def test_a_slow_writer_drops_new_entries_but_keeps_their_order(tmp_path):
+    j = Journal(tmp_path / "j", values_ms=0, max_pending=3)
+    j.open()  # not started: nothing is written yet
+    out: list[int] = []
+    for i in range(1, 7):
+        j.append(ev(i), lambda i=i: out.append(i))
+    assert j.counts.dropped == 3
+    j.start()
+    wait_until_sync(lambda: len(out) == 6, what="callbacks")
+    j.stop()
+    assert out == [1, 2, 3, 4, 5, 6]
+    assert [r.seq for r in Journal(tmp_path / "j").read()] == [1, 2, 3]
+
+
+def _other_schema(path):
+    path.unlink()
+    con = sqlite3.connect(path)
+    con.execute("CREATE TABLE something(x)")
+    con.execute(f"PRAGMA user_version={SCHEMA_VERSION + 1}")
+    con.commit()
+    con.close()
+
+
+DAMAGES = {
+    "garbage": lambda path: path.write_bytes(b"this is no database" * 100),
+    "truncated": lambda path: path.write_bytes(path.read_bytes()[:1500]),
+    "schema": _other_schema,
+}
+
+
+def test_a_damaged_journal_is_set_aside_and_a_fresh_one_starts(tmp_path, caplog):
+    for name, damage in DAMAGES.items():
+        d = tmp_path / name
+        j = started(d, values_ms=0)
+        for i in range(1, 50):
+            j.append(ev(i))
+        j.stop()
+        path = d / "j" / FILE_NAME
+        damage(path)
+        before = path.read_bytes()
+        caplog.clear()
+        fresh = Journal(d / "j")
+        fresh.open()
+        assert fresh.set_aside is not None and fresh.set_aside.read_bytes() == before, name
+        assert list(fresh.read()) == [] and fresh.last_seqs() == {}
+        lines = [r.getMessage() for r in caplog.records if "damaged" in r.getMessage()]
+        assert len(lines) == 1 and str(path) in lines[0] and str(fresh.set_aside) in lines[0]
+        fresh.stop()
+
+
+def test_entries_older_than_keep_days_go(tmp_path):
+    now = [1.8e9]
+    j = Journal(tmp_path / "j", values_ms=0, keep_days=1, clock=lambda: now[0])
+    j.start()
+    for i in range(10):
+        j.append(ev(i * 3600))  # one an hour
+    wait_until_sync(lambda: j.counts.written == 10, what="written")
+    now[0] = 1.8e9 + 86400 + 4.5 * 3600  # hours 0..4 are older than a day
+    j._next_keep_check = 0.0
+    j.append(ev(100_000))
+    wait_until_sync(lambda: j.counts.written == 11, what="written")
+    j.stop()
+    assert j.counts.removed == 5
+    assert [r.seq for r in Journal(tmp_path / "j").read()][0] == 5 * 3600
+
+
+def test_path_problem_names_the_reason(tmp_path):
+    assert path_problem(tmp_path / "new" / "dir") is None
+    (tmp_path / "file").write_text("")
+    why = path_problem(tmp_path / "file" / "journal")
+    assert why is not None and "Not a directory" in why
+
+
+def test_sync_full_makes_every_commit_fsync(tmp_path):
+    for sync, level in (("normal", 1), ("full", 2)):
+        j = Journal(tmp_path / sync, sync=sync)
+        j.open()
+        assert j._con.execute("PRAGMA synchronous").fetchone()[0] == level
+        assert j._con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        j.stop()
