@@ -42,8 +42,8 @@ from gateway.bus.lss.service import LssService
 from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.lifecycle import LifecycleState
 from gateway.bus.node.parts import NodeParts, build_node_into
-from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
 from gateway.bus.pair.member import PairMember
+from gateway.bus.pair.side import MASTER_HEARTBEAT, PairSide
 from gateway.bus.producers import Periodic
 from gateway.bus.reader import (
     control_handler,
@@ -72,8 +72,6 @@ from gateway.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.master")
 
-#: the master's heartbeat: operational (CiA 301 7.2.8.3.2.2)
-MASTER_HEARTBEAT = b"\x05"
 #: another master / another SDO client is logged at most once per kind and this period
 PEER_LOG_PERIOD_S = 60.0
 
@@ -82,7 +80,7 @@ PEER_LOG_PERIOD_S = 60.0
 QUIET_LIMIT = 1024
 
 
-class Master:
+class Master(PairSide):
     """The driver of the configured nodes (see the module docstring).
 
     ``passive = True`` (commissioning tools: ``canopen-gateway sdo|nmt``): supervision and the
@@ -119,7 +117,11 @@ class Master:
         self.member: PairMember | None = None
         known = {n.node_id for n in cfg.nodes}
         if cfg.master.redundancy is not None and not passive:
-            self.member = PairMember(cfg, self._send_quiet, self.clock, self._role_changed, self._drain)
+            self.member = PairMember(
+                cfg, self._send_quiet, self.clock, self._role_changed, self._drain,
+                frames_heard=lambda: driver.rx_counters["frames_in"],
+                nodes_alive=lambda: any(p.node.alive for p in self.nodes.values()),
+            )  # fmt: skip
             known |= self.member.known_ids()
         #: True while this gateway masters the bus (always, outside a pair)
         self.mastering = self.member is None
@@ -168,16 +170,7 @@ class Master:
                         self._peer_frame(self._on_sdo_request, p))  # fmt: skip
         install(COB_NMT, "NMT", self._peer_frame(self._on_nmt_frame))
         if self.member is not None:
-            for cob in sorted(self.member.cob_ids):
-                install(cob, f"the pair's 0x{cob:03X}", self._peer_frame(self._on_pair_frame, cob))
-            for p in self.nodes.values():
-                for cob in p.node.outputs.cob_ids:
-                    if cob not in taken:  # an RPDO on its own TPDO's COB-ID: the TPDO is read
-                        install(cob, f"{p.name} RPDO heard",
-                                self._peer_frame(self._on_rpdo_heard, p, cob))  # fmt: skip
-            if self.member.peer_node_id:
-                install(COB_NMT_EC + self.member.peer_node_id, "the peer's heartbeat",
-                        self._peer_frame(self._on_peer_heartbeat))  # fmt: skip
+            self._install_pair_handlers(install, taken)
         elif self.cfg.master.heartbeat_ms:  # without one the master's node id is not on the bus
             install(COB_NMT_EC + self.cfg.master.node_id, "the master's heartbeat",
                     self._peer_frame(self._on_own_heartbeat))  # fmt: skip
@@ -257,6 +250,8 @@ class Master:
     def _bus_state(self, state: str, detail: str) -> None:
         if state == "down":
             self._post(self._on_bus_down)
+        if self.member is not None and state in ("down", "ok"):
+            self._post(self.member.on_link, state == "ok")
 
     # ------------------------------------------------------------------ event loop
     def _on_control(self, p: NodeParts, kind: str, data: bytes, wall: float, now: float) -> None:
@@ -269,7 +264,7 @@ class Master:
             outs = node.on_emcy(data, wall, now)
         else:
             if self.member is not None and not self.mastering:
-                self.member.on_sdo_response(p.node_id)
+                self.member.on_sdo_response(p.node_id, data)
             outs = node.on_sdo_response(data, now)
         self._execute(p, outs)
 
@@ -375,9 +370,7 @@ class Master:
                 "sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), COB_SYNC, b""
             )
         if self.member is not None:
-            own = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
-            self._produce("pair", own, self.member.own_heartbeat, MASTER_HEARTBEAT)
-            self.member.start(self.loop)
+            self.member.start(self.loop)  # its own heartbeat, its role
         self._producers["housekeeping"] = self.loop.call_later(
             self.warn.period_s, self._housekeeping
         )
@@ -403,7 +396,7 @@ class Master:
             return
         if self.member is not None:
             self.member.check()
-        if periodic.due(loop.time()) and (self.mastering or name == "pair"):
+        if periodic.due(loop.time()) and self.mastering:
             try:
                 self.driver.send(cob_id, data)
             except can.CanError:
@@ -487,61 +480,3 @@ class Master:
         if self.on_sdo is not None:
             self.on_sdo(name, op, self.loop.time() - t0, None)
         return result
-
-    # ------------------------------------------------------------------ a hot-standby pair
-    @property
-    def pair(self) -> FlyingMaster | None:
-        """The role machine of this gateway in a pair (None outside a pair)."""
-        return self.member.machine if self.member is not None else None
-
-    @property
-    def role(self) -> str | None:
-        """``active``, ``standby``, ``listening``, ``negotiating``; None outside a pair."""
-        return self.member.role if self.member is not None else None
-
-    @property
-    def peer_heartbeat_s(self) -> float | None:
-        """When the peer's own heartbeat was last heard (bus clock; None: not heard)."""
-        return self.member.peer_heartbeat_s if self.member is not None else None
-
-    def _send_quiet(self, cob_id: int, data: bytes) -> None:
-        try:
-            self.driver.send(cob_id, data)
-        except can.CanError:
-            pass
-
-    def _on_pair_frame(self, cob_id: int, data: bytes, wall: float, now: float) -> None:
-        member = self.member
-        assert member is not None
-        if cob_id == member.logical_heartbeat and self.mastering:
-            self._on_own_heartbeat(data, wall, now)  # someone else with the logical id?
-        learned = member.on_frame(cob_id, data, now)
-        if learned is not None and self.peers.admit(learned):
-            # the other gateway named its id in its claim: its own heartbeat is the peer's
-            self.driver.handlers[COB_NMT_EC + learned] = self._peer_frame(self._on_peer_heartbeat)
-
-    def _on_peer_heartbeat(self, data: bytes, wall: float, now: float) -> None:
-        if self.member is not None:
-            self.member.on_peer_heartbeat(now)
-
-    def _on_rpdo_heard(self, p: NodeParts, cob_id: int, data: bytes, wall: float, now: float) -> None:
-        if not self.mastering:
-            self._execute(p, p.node.on_rpdo_heard(cob_id, data, wall, now))
-
-    def _role_changed(self, change: RoleChanged) -> None:
-        now = self.clock()
-        level = logging.WARNING if Role.ACTIVE in (change.role, change.previous) else logging.INFO
-        log.log(level, "pair: %s -> %s (%s)", change.previous, change.role, change.reason)
-        if change.role is Role.ACTIVE:
-            self.mastering = True
-            # the logical master's heartbeat at once: the devices' consumers go on
-            self._send_quiet(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
-            assert self.member is not None
-            self.member.abort_left_open()
-            for p in self.nodes.values():
-                self._execute(p, p.node.take_over(now))
-        elif change.previous is Role.ACTIVE:
-            self.mastering = False
-            for p in self.nodes.values():
-                self._execute(p, p.node.stand_by(now))
-            self._waiting.fail_all(NotActive("this gateway stood down to standby"))
