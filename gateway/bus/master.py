@@ -119,7 +119,7 @@ class Master(PairSide):
         if cfg.master.redundancy is not None and not passive:
             self.member = PairMember(
                 cfg, self._send_quiet, self.clock, self._role_changed, self._drain,
-                frames_heard=lambda: driver.rx_counters["frames_in"],
+                last_frame_s=self._last_frame_s,
                 nodes_alive=lambda: any(p.node.alive for p in self.nodes.values()),
             )  # fmt: skip
             known |= self.member.known_ids()
@@ -246,6 +246,11 @@ class Master(PairSide):
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
         self.peer_log.info(("sdo_client", p.name), "%s", text)
+
+    def _last_frame_s(self) -> float | None:
+        """When the reader took its last frame, on the bus clock (None: none yet)."""
+        wall = self.driver.last_frame_wall
+        return self.driver.mono() - (self.driver.wall() - wall) if wall else None
 
     def _bus_state(self, state: str, detail: str) -> None:
         if state == "down":

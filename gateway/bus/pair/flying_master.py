@@ -10,8 +10,8 @@ Rule 1: every role change is a row of ``TRANSITIONS``; what a role does without 
 row of ``DOES``. A timer event the tables do not define raises ``PairError`` (our own misuse); a
 frame that means nothing in the current role is counted in ``ignored``.
 Rule 2: nothing here does I/O or reads a clock. The caller reports what it heard
-(``on_frame(cob_id, data, now)``), whether it hears the bus at all (``on_hearing(now, moved,
-nodes_alive)``: the driver's frame counter moved since the last report) and whether its bus is
+(``on_frame(cob_id, data, now)``), whether it hears the bus at all (``on_hearing(now,
+last_frame_s, nodes_alive)``: when the driver last received any frame) and whether its bus is
 open (``on_link(up, now)``), calls ``poll(now)`` at ``next_deadline_s()``, and does what the
 returned actions say (``Send`` a frame; ``RoleChanged`` tells it to start or stop mastering;
 ``Notice`` is a line for the log).
@@ -26,7 +26,7 @@ negotiates again).
 
 The roles (``*`` any claim, ``<`` a claim that wins against ours by (priority, node id): lower
 priority first, then lower node id; ``>`` one that loses; *traffic*: a frame of anyone but this
-gateway, the driver's frame counter moving)::
+gateway, after the active master's next heartbeat was due: the last frame's time)::
 
     role         heard / timer                        next         does
     listening    logical heartbeat, 71h *, 76h        standby      (an active master is there)
@@ -36,7 +36,8 @@ gateway, the driver's frame counter moving)::
     negotiating  time slot over                       active       sends 71h
     standby      72h                                  negotiating  waits its time slot
     standby      master silent, traffic heard         negotiating  sends 72h, waits its slot
-    standby      master silent, no traffic            isolated     sends nothing (cut off)
+    standby      master silent, no traffic twice      isolated     sends nothing (cut off)
+    standby      master silent, no traffic yet        standby      waits takeover_s more
     active       71h < in its own slot                standby      goes silent at once
     active       stalled (no event for takeover_s)    standby      goes silent at once
     active       another master, after a deaf spell   standby      (never a fail-back onto it)
@@ -140,6 +141,7 @@ DOES: dict[tuple[Role, Heard], str] = {
     **{
         (_S, h): "_alive" for h in (_H.LOGICAL_HEARTBEAT, _H.BETTER_CLAIM, _H.WORSE_CLAIM, _H.FORCE)
     },
+    (_S, _H.UNHEARD): "_wait_for_the_bus",
     (_A, _H.REQUEST): "_answer",
     (_A, _H.NEGOTIATION): "_join_slot",
     (_A, _H.FORCE): "_negotiate_again",
@@ -158,7 +160,7 @@ _MEETINGS = frozenset(
 #: what tells the standby the active master is alive
 _ALIVE = frozenset({_H.LOGICAL_HEARTBEAT, _H.BETTER_CLAIM, _H.WORSE_CLAIM, _H.FORCE})
 _TIMERS = frozenset(
-    {_H.DETECTION_OVER, _H.SLOT_OVER, _H.ACTIVE_SILENT, _H.DEAF, _H.CLAIM_DUE, _H.DETECT_DUE}
+    {_H.DETECTION_OVER, _H.SLOT_OVER, _H.ACTIVE_SILENT, _H.DEAF, _H.CLAIM_DUE, _H.DETECT_DUE, _H.UNHEARD}
 )
 
 
@@ -215,6 +217,7 @@ class FlyingMaster:
         self._claim_s: float | None = None  # while active: the end of its slot, then 71h
         self._detect_s: float | None = None  # while active: the next 76h
         self._forced_s: float | None = None  # when it last forced a negotiation
+        self._doubt = False  # standby: the master silent, the bus not heard since
 
     @property
     def active(self) -> bool:
@@ -253,17 +256,22 @@ class FlyingMaster:
             actions = self._fire(Heard.BUS_HEARD, now)
         return actions + self._fire(heard, now)
 
-    def on_hearing(self, now: float, moved: bool, nodes_alive: bool = False) -> list[Action]:
-        """The caller's report, every heartbeat period or so: did the driver receive any frame
-        since the last report (``moved``), and is any node alive by its own supervision. An
-        isolated gateway that hears the bus again listens; an active one that heard nothing
-        for ``takeover_s`` is *cut*, and stands down unless a node is still alive."""
+    def on_hearing(
+        self, now: float, last_frame_s: float | None, nodes_alive: bool = False
+    ) -> list[Action]:
+        """The caller's report, every heartbeat period or so: when the driver last received a
+        frame of anyone (``last_frame_s``, None: never), and whether any node is alive by its
+        own supervision. An isolated gateway that hears the bus again listens; a standby in
+        doubt that hears the bus after the master fell silent negotiates; an active one that
+        heard nothing for ``takeover_s`` is *cut*, and stands down unless a node is alive."""
         if not self.started:
             return []
-        if moved:
-            self.heard_s = now
+        if last_frame_s is not None and (self.heard_s is None or last_frame_s > self.heard_s):
+            self.heard_s = last_frame_s
             if self.role is Role.ISOLATED and self.link_up:
                 return self._fire(Heard.BUS_HEARD, now)
+            if self.role is Role.STANDBY and self._doubt and self._master_gone():
+                return self._fire(Heard.ACTIVE_SILENT, now)
             return []
         if self.role is not Role.ACTIVE or self._heard_within(now):
             return []
@@ -304,12 +312,19 @@ class FlyingMaster:
         if self._deadline_s is None or now < self._deadline_s:
             return []
         if self.role is Role.STANDBY:
-            heard = Heard.ACTIVE_SILENT if self._heard_within(now) else Heard.DEAF
+            heard = Heard.ACTIVE_SILENT if self._master_gone() else Heard.UNHEARD
+            heard = Heard.DEAF if heard is Heard.UNHEARD and self._doubt else heard
         else:
             heard = {Role.LISTENING: Heard.DETECTION_OVER, Role.NEGOTIATING: Heard.SLOT_OVER}[
                 self.role
             ]
         return self._fire(heard, now)
+
+    def _master_gone(self) -> bool:
+        """A frame was heard after the active master's next heartbeat was due: the bus is
+        alive and the master silent (frames before that may precede a cut cable)."""
+        ref = self.active_heard_s if self.active_heard_s is not None else float("-inf")
+        return self.heard_s is not None and self.heard_s > ref + self.timing.heartbeat
 
     def _heard_within(self, now: float) -> bool:
         return self.heard_s is not None and now - self.heard_s < self.timing.takeover_s
@@ -380,6 +395,14 @@ class FlyingMaster:
 
     def _alive(self, now: float) -> list[Action]:
         self._deadline_s = now + self.timing.takeover_s
+        self._doubt = False
+        return []
+
+    def _wait_for_the_bus(self, now: float) -> list[Action]:
+        """The master silent, nothing heard since: a dead master on a quiet bus or a cut
+        cable. Wait one more take-over time for any frame (then negotiate), else cut off."""
+        self._doubt = True
+        self._deadline_s = now + self.timing.takeover_s
         return []
 
     def _answer(self, now: float) -> list[Action]:
@@ -438,6 +461,7 @@ class FlyingMaster:
     def _enter(self, role: Role, heard: Heard, now: float) -> list[Action]:
         previous, self.role = self.role, role
         self._claim_s = self._detect_s = self._deadline_s = None
+        self._doubt = False
         actions: list[Action] = []
         reason = _REASONS.get(heard, heard.value)
         if role is Role.STANDBY:

@@ -3,7 +3,8 @@
 It owns what the pair needs beside the nodes: the role machine (``flying_master.py``) fed with
 the frames heard, the link and the time; its own heartbeat (700h + its pair id, every
 ``heartbeat_ms``) on whose beat it also reports to the machine whether the bus is heard at all
-(the driver's received-frame counter moved since the last beat: no work per frame) and checks
+(the time of the last frame the driver received, which its reader keeps anyway: no work
+per frame) and checks
 that this process ran on time; the role's timer on the event loop, re-armed only when the
 deadline comes earlier (a later deadline is found when the timer fires, so a standby that hears
 the logical heartbeat every period does not re-arm per frame); and what a standby learns that a
@@ -57,6 +58,7 @@ def pair_timing(cfg: Config) -> PairTiming:
         takeover_s=takeover_s,
         detect_s=takeover_s,
         detect_cycle_s=pair.detect_cycle_ms / 1000.0,
+        heartbeat_s=hb_s,
         priority_slot_s=pair.priority_slot_ms / 1000.0,
         device_slot_s=pair.device_slot_ms / 1000.0,
     )
@@ -80,7 +82,7 @@ class PairMember:
         on_role: Callable[[RoleChanged], None],
         before_poll: Callable[[], None] = lambda: None,
         *,
-        frames_heard: Callable[[], int] = lambda: 0,
+        last_frame_s: Callable[[], float | None] = lambda: None,
         nodes_alive: Callable[[], bool] = lambda: False,
     ):
         pair = cfg.master.redundancy
@@ -101,7 +103,7 @@ class PairMember:
         #: when the peer's own heartbeat was last heard (bus clock)
         self.peer_heartbeat_s: float | None = None
         self._send, self._clock, self._on_role = send, clock, on_role
-        self._frames_heard, self._nodes_alive = frames_heard, nodes_alive
+        self._last_frame_s, self._nodes_alive = last_frame_s, nodes_alive
         #: called (role, reason) on the event loop after the master took a role change
         self.role_listeners: list[Callable[[str, str], None]] = []
         self._before_poll = before_poll  # the master drains what was heard before a timeout
@@ -115,7 +117,6 @@ class PairMember:
         self.rearms = 0  # the role timer armed (for the standby's cost)
         self._beat: Periodic | None = None
         self._beat_timer: asyncio.TimerHandle | None = None
-        self._frames_seen = 0
         #: the loop's time when this member last ran: it runs every heartbeat period, so a
         #: longer gap than the take-over time means the process did not run (``check``)
         self._ran_s: float | None = None
@@ -155,7 +156,6 @@ class PairMember:
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
         self._ran_s = self._started_s = loop.time()
-        self._frames_seen = self._frames_heard()
         self._beat = Periodic(self.heartbeat_s, loop.time())
         self._do(self.machine.start(self._clock()))
         self._on_beat()
@@ -248,9 +248,7 @@ class PairMember:
         self._beat_timer = loop.call_at(beat.next_deadline(), self._on_beat)
 
     def _report_hearing(self) -> None:
-        frames = self._frames_heard()
-        moved, self._frames_seen = frames != self._frames_seen, frames
-        self._do(self.machine.on_hearing(self._clock(), moved, self._nodes_alive()))
+        self._do(self.machine.on_hearing(self._clock(), self._last_frame_s(), self._nodes_alive()))
 
     def _watch_peer(self, now: float) -> None:
         """The run-time warning: nothing of the peer heard for long (two members each on a

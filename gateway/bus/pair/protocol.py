@@ -57,6 +57,7 @@ class Heard(StrEnum):
     CLAIM_DUE = "time slot over while active"
     DETECT_DUE = "detect cycle over"
     ACTIVE_SILENT = "active master silent, traffic heard"
+    UNHEARD = "active master silent, nothing heard since"
     DEAF = "nothing heard"
     LINK_LOST = "bus down"
     BUS_HEARD = "traffic heard"
@@ -104,6 +105,11 @@ class PairTiming:
     detect_cycle_s: float = 4.0  # CiA 302-2 1F90h:06: the active one's 76h this often
     priority_slot_s: float = 0.2  # CiA 302-2 1F90h:04, per priority level
     device_slot_s: float = 0.002  # CiA 302-2 1F90h:05, per node id
+    heartbeat_s: float | None = None  # the logical heartbeat's period (None: takeover_s / 3)
+
+    @property
+    def heartbeat(self) -> float:
+        return self.heartbeat_s if self.heartbeat_s is not None else self.takeover_s / 3
 
     def slot_s(self, priority: int, node_id: int) -> float:
         """CiA 302-2 time slot: how long a candidate waits before it claims."""
