@@ -221,7 +221,8 @@ class Gateway:
         modbus_up = self.modbus is None or self.modbus.server is not None
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
-        ready = self.started and bus_ok and modbus_up and zenoh_up and not dead
+        out_of_pair = self.master.role == "duplicate"  # another device has our pair id
+        ready = self.started and bus_ok and modbus_up and zenoh_up and not dead and not out_of_pair
         return {
             "status": "ready" if ready else "not-ready",
             "ready": ready,
@@ -248,6 +249,8 @@ class Gateway:
             claim=None if claim is None else (claim.priority, claim.node_id, claim.at_s),
             peer_heartbeat_s=self.master.peer_heartbeat_s,
             peer_node_id=redundancy.peer_node_id if redundancy is not None else None,
+            master_id=self.master.pair_master_id,
+            conflict=self.master.pair_conflict,
         )
 
     def _watchdog_status(self) -> dict[str, Any]:
@@ -422,6 +425,7 @@ class Gateway:
         pair = self.master.pair
         if pair is not None:
             c.pair_takeovers, c.pair_negotiations = pair.takeovers, pair.negotiations
+            c.pair_duplicate_id_frames, c.pair_isolations = pair.duplicates, pair.isolations
         c.pair_role = PAIR_ROLE_CODES.get(self.master.role, 0)
         for name, node in self.image.nodes.items():
             for reason, n in (

@@ -27,7 +27,8 @@ Metric names carry the prefix ``canopen_gateway_``:
     modbus_requests_total{function}, modbus_exceptions_total{code}
     zenoh_refused_total{operation}, modbus_watchdog_trips_total{reason}
     other_master_frames_total{kind}, other_sdo_client_requests_total{node}
-    pair_takeovers_total, pair_negotiations_total, pair_role (a hot-standby pair)
+    pair_takeovers_total, pair_negotiations_total, pair_duplicate_id_frames_total,
+    pair_isolations_total, pair_role (a hot-standby pair)
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
     plus process_* (CPU, memory, open files) of this process.
 
@@ -141,7 +142,9 @@ class Counters:
     zenoh_publications: int = 0
     pair_takeovers: int = 0
     pair_negotiations: int = 0
-    pair_role: int = 0  # 0 no pair, 1 active, 2 standby, 3 listening / negotiating
+    pair_role: int = 0  # PAIR_ROLE_CODES: 0 no pair, 1 active, 2 standby, 3 listening / ...
+    pair_duplicate_id_frames: int = 0
+    pair_isolations: int = 0
     decode_errors: dict[tuple[str, str], int] = field(default_factory=dict)
     emcy: dict[str, int] = field(default_factory=dict)
     sdo_requests: dict[tuple[str, str], int] = field(default_factory=dict)
@@ -382,10 +385,20 @@ class _GatewayCollector:
             "Hot-standby pair: negotiations of the active master this gateway entered.",
             c.pair_negotiations,
         )
+        yield counter(
+            "pair_duplicate_id_frames_total",
+            "Hot-standby pair: frames of another device carrying this gateway's own pair id.",
+            c.pair_duplicate_id_frames,
+        )
+        yield counter(
+            "pair_isolations_total",
+            "Hot-standby pair: times this gateway was cut off (its bus down, or nothing heard).",
+            c.pair_isolations,
+        )
         yield GaugeMetricFamily(
             f"{NAMESPACE}_pair_role",
             "Role in a hot-standby pair: 0 no pair, 1 active, 2 standby, "
-            "3 listening / negotiating.",
+            "3 listening / negotiating, 4 isolated, 5 out (duplicate pair id).",
             value=c.pair_role,
         )
 

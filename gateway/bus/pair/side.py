@@ -81,6 +81,21 @@ class PairSide:
         return self.member.role if self.member is not None else None
 
     @property
+    def pair_master_id(self) -> int | None:
+        """The pair id of the master heard active (this gateway's own while active; None:
+        none heard within the take-over time, or outside a pair)."""
+        machine = self.member.machine if self.member is not None else None
+        if machine is None:
+            return None
+        if machine.active:
+            return machine.node_id
+        claim = machine.peer
+        heard = machine.active_heard_s
+        if claim is None or heard is None or machine.role.value != "standby":
+            return None
+        return claim.node_id if self.clock() - heard <= machine.timing.takeover_s else None
+
+    @property
     def pair_conflict(self) -> str | None:
         """What a device with this gateway's pair id was heard sending (None: nothing)."""
         return self.member.conflict if self.member is not None else None
