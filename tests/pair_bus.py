@@ -1,0 +1,351 @@
+"""A CAN bus shared by processes that says who sent every frame, and can cut or unplug one member.
+
+``PairBus`` is a small socketcand server on 127.0.0.1 (socketcand's ASCII protocol over TCP, the
+one python-can's ``socketcand`` interface speaks: ``< hi >``, ``< open NAME >`` / ``< ok >``,
+``< rawmode >`` / ``< ok >``, then ``< send ID LEN B0 B1 .. >`` from a client and
+``< frame ID SEC.USEC DATA >`` to it). It relays every frame a client sends to every other
+connected client, never back to its sender (no echo: SocketCAN without
+``receive_own_messages``). Each client is a *member*, named by the channel it opens: a gateway
+process configured with ``can: {interface: socketcand, host: 127.0.0.1, port: bus.port,
+channel: NAME}`` (``can_section(NAME)``) is member NAME; a test takes part with
+``open_bus(NAME)`` (python-can's own socketcand client, e.g. under a canopen ``LocalNode``).
+
+What a real bus cannot say, this one records: ``frames`` holds every frame that reached the
+relay, in relay order, with its sender and whether it was delivered to anyone.
+
+Faults, one member at a time:
+
+- ``cut(NAME)`` / ``mend(NAME)``: a cable cut. The connection stays open; the member hears
+  nothing and nothing it sends reaches anyone (recorded with ``delivered=False``). Its driver
+  cannot notice: its sends succeed.
+- ``unplug(NAME)`` / ``plug(NAME)``: the adapter lost. Its connection is closed (EOF, as a
+  socketcand daemon that restarts) and a reconnect of that name is closed at once, as soon as
+  it names its channel (``< open NAME >``), until ``plug(NAME)``.
+
+A new connection of a name already connected replaces the old one (closed), as one adapter per
+member. Threads: an accept thread; per member a reader (parses, records, relays: the relay
+order is the record order) and a writer (its own queue, so a member that stops reading, e.g. a
+frozen process, holds up no one). The only pause is the documented one of the handshake.
+
+Imports: python-can and the standard library.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import can
+
+#: python-can 4.6.1's socketcand client reads the last ``< ok >`` of the handshake with one
+#: ``recv`` and compares it whole: frames arriving in the same TCP read would fail its open, so
+#: a new member's first frames wait this long (queued meanwhile, none lost)
+HANDSHAKE_PAUSE_S = 0.2
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame as it reached the relay: ``t`` is ``time.monotonic()`` there; ``delivered`` is
+    False when its sender was cut (nobody heard it). ``dlc`` is the length the sender gave
+    (python-can's socketcand client sends a remote frame as its length and no data bytes)."""
+
+    t: float
+    sender: str
+    cob_id: int
+    data: bytes
+    delivered: bool
+    dlc: int = -1
+
+
+class _Member:
+    """One client connection: its socket and the queue its writer thread sends from."""
+
+    def __init__(self, name: str, conn: socket.socket):
+        self.name = name
+        self.conn = conn
+        self.out: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        self.closed = False
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        self.out.put(None)
+        with contextlib.suppress(OSError):
+            self.conn.shutdown(socket.SHUT_RDWR)
+        with contextlib.suppress(OSError):
+            self.conn.close()
+
+
+class PairBus:
+    """A socketcand-protocol server on 127.0.0.1 relaying frames between its clients. Each
+    client is a *member*, named by the channel it opens (``< open NAME >``): a gateway process
+    configured with ``can: {interface: socketcand, host: 127.0.0.1, port: bus.port, channel:
+    NAME}`` is member NAME."""
+
+    def __init__(self) -> None:
+        self._listener = socket.socket()
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._listener.bind(("127.0.0.1", 0))
+        self._listener.listen(16)
+        self.port: int = int(self._listener.getsockname()[1])
+        self.frames: list[Frame] = []
+        #: connections accepted (handshake done) per name: a reopen counts one more
+        self.joins: dict[str, int] = {}
+        #: connections refused (closed at once) per name while unplugged
+        self.refused: dict[str, int] = {}
+        self._lock = threading.Condition()
+        self._members: dict[str, _Member] = {}
+        self._cut: set[str] = set()
+        self._unplugged: set[str] = set()
+        self._closing = False
+        self._pending: set[socket.socket] = set()  # connections in their handshake
+        self._buses: list[can.BusABC] = []
+        self._threads: list[threading.Thread] = []
+        self._start(self._accept_loop, "pairbus-accept")
+
+    # ------------------------------------------------------------------ members
+    def can_section(self, name: str) -> dict[str, Any]:
+        """The ``can:`` config section that makes a gateway member ``name``."""
+        return {"interface": "socketcand", "host": "127.0.0.1", "port": self.port, "channel": name}
+
+    def open_bus(self, name: str) -> can.BusABC:
+        """A python-can bus in this process as member ``name`` (python-can's socketcand client),
+        shut down by ``close()``. Returns once the relay counts it connected."""
+        bus = can.Bus(interface="socketcand", host="127.0.0.1", port=self.port, channel=name)
+        self._buses.append(bus)
+        self._wait(lambda: name in self._members, 10.0, f"member {name} connected")
+        return bus
+
+    def connected(self, name: str) -> bool:
+        with self._lock:
+            return name in self._members
+
+    def cut(self, name: str) -> None:
+        """Cable cut: ``name`` hears nothing and what it sends reaches no one."""
+        with self._lock:
+            self._cut.add(name)
+
+    def mend(self, name: str) -> None:
+        with self._lock:
+            self._cut.discard(name)
+
+    def unplug(self, name: str) -> None:
+        """Adapter lost: close ``name``'s connection (the client reads EOF) and refuse its
+        reconnects until ``plug``."""
+        with self._lock:
+            self._unplugged.add(name)
+            member = self._members.pop(name, None)
+            self._lock.notify_all()
+        if member is not None:
+            member.close()
+
+    def plug(self, name: str) -> None:
+        with self._lock:
+            self._unplugged.discard(name)
+
+    # ------------------------------------------------------------------ what was sent
+    def sent_by(self, name: str, cob_id: int | None = None) -> list[Frame]:
+        """Frames ``name`` sent (delivered or not), optionally only those on ``cob_id``."""
+        with self._lock:
+            return [
+                f for f in self.frames
+                if f.sender == name and (cob_id is None or f.cob_id == cob_id)
+            ]
+
+    def wait_for(
+        self, pred: Callable[[Frame], bool], timeout_s: float = 10.0, after: int = 0
+    ) -> Frame:
+        """Block until a frame of index >= ``after`` satisfies ``pred``; return it. Raises
+        ``TimeoutError`` after ``timeout_s``. (``after=len(bus.frames)`` looks only ahead.)"""
+        deadline = time.monotonic() + timeout_s
+        i = after
+        with self._lock:
+            while True:
+                while i < len(self.frames):
+                    if pred(self.frames[i]):
+                        return self.frames[i]
+                    i += 1
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"no frame matched after index {after} in {timeout_s} s")
+                self._lock.wait(left)
+
+    def _wait(self, cond: Callable[[], bool], timeout_s: float, what: str) -> None:
+        with self._lock:
+            if not self._lock.wait_for(cond, timeout_s):
+                raise TimeoutError(f"timed out after {timeout_s} s waiting for {what}")
+
+    # ------------------------------------------------------------------ the relay
+    def _start(self, target: Callable[..., None], name: str, *args: Any) -> None:
+        t = threading.Thread(target=target, args=args, name=name, daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def _accept_loop(self) -> None:
+        while True:
+            try:
+                conn, _ = self._listener.accept()
+            except OSError:
+                return  # closed
+            if self._closing:
+                conn.close()
+                return
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._start(self._serve, "pairbus-client", conn)
+
+    def _serve(self, conn: socket.socket) -> None:
+        """Handshake, then read this member's frames until EOF."""
+        with self._lock:
+            self._pending.add(conn)
+        try:
+            name, rest = self._handshake(conn)
+        except (OSError, ConnectionError):
+            with contextlib.suppress(OSError):
+                conn.close()
+            return
+        finally:
+            with self._lock:
+                self._pending.discard(conn)
+        if name is None:
+            return
+        member = _Member(name, conn)
+        with self._lock:
+            old = self._members.get(name)
+            self._members[name] = member
+            self.joins[name] = self.joins.get(name, 0) + 1
+            self._lock.notify_all()
+        if old is not None:
+            old.close()
+        threading.current_thread().name = f"pairbus-rx-{name}"
+        self._start(self._write_loop, f"pairbus-tx-{name}", member)
+        self._read_loop(member, rest)
+        with self._lock:
+            if self._members.get(name) is member:
+                del self._members[name]
+                self._lock.notify_all()
+        member.close()
+
+    def _handshake(self, conn: socket.socket) -> tuple[str | None, bytes]:
+        """socketcand's greeting: the member's name and the bytes read past the handshake.
+        A name that is unplugged is closed as soon as it is named: (None, b"")."""
+        buf = b""
+
+        def expect(word: bytes) -> bytes:
+            nonlocal buf
+            while b">" not in buf:
+                chunk = conn.recv(256)
+                if not chunk:
+                    raise ConnectionError("client left during the handshake")
+                buf += chunk
+            msg, _, buf = buf.partition(b">")
+            parts = msg.replace(b"<", b" ").split()
+            if not parts or parts[0] != word:
+                raise ConnectionError(f"expected {word!r}, got {msg!r}")
+            return msg
+
+        conn.sendall(b"< hi >")
+        parts = expect(b"open").replace(b"<", b" ").split()
+        name = parts[1].decode("ascii", "replace") if len(parts) > 1 else ""
+        with self._lock:
+            refused = name in self._unplugged or self._closing
+            if refused:
+                self.refused[name] = self.refused.get(name, 0) + 1
+        if refused:
+            conn.close()
+            return None, b""
+        conn.sendall(b"< ok >")
+        expect(b"rawmode")
+        conn.sendall(b"< ok >")
+        return name, buf
+
+    def _write_loop(self, member: _Member) -> None:
+        # the handshake's pause (HANDSHAKE_PAUSE_S): frames for this member queue meanwhile
+        time.sleep(HANDSHAKE_PAUSE_S)
+        while True:
+            data = member.out.get()
+            if data is None:
+                return
+            try:
+                member.conn.sendall(data)
+            except OSError:
+                return
+
+    def _read_loop(self, member: _Member, buf: bytes) -> None:
+        while True:
+            *msgs, buf = buf.split(b">")
+            for m in msgs:
+                self._relay(member, m)
+            try:
+                chunk = member.conn.recv(65536)
+            except OSError:
+                return
+            if not chunk:
+                return
+            buf += chunk
+
+    def _relay(self, member: _Member, raw: bytes) -> None:
+        """One ``< send ID LEN B0 .. >`` from ``member``: record it, queue it to the others."""
+        parts = raw.replace(b"<", b" ").split()
+        if len(parts) < 3 or parts[0] != b"send":
+            return
+        try:
+            cob_id = int(parts[1], 16)
+            dlc = int(parts[2], 16)
+            data = bytes(int(b, 16) for b in parts[3:])
+        except ValueError:
+            return
+        with self._lock:
+            if self._members.get(member.name) is not member:
+                return  # replaced or unplugged meanwhile: its frames reach no one
+            cut = member.name in self._cut
+            others = [
+                m for n, m in self._members.items()
+                if m is not member and n not in self._cut
+            ]
+            delivered = not cut and bool(others)
+            self.frames.append(Frame(time.monotonic(), member.name, cob_id, data, delivered, dlc))
+            if delivered:
+                width = 8 if len(parts[1]) > 3 else 3
+                line = (
+                    f"< frame {cob_id:0{width}X} {time.time():.6f} {data.hex().upper()} >"
+                ).encode()
+                for m in others:
+                    m.out.put(line)
+            self._lock.notify_all()
+
+    # ------------------------------------------------------------------ stop
+    def close(self) -> None:
+        """Close the buses of ``open_bus``, every connection and the listener."""
+        for bus in self._buses:
+            with contextlib.suppress(Exception):
+                bus.shutdown()
+        self._buses.clear()
+        with self._lock:
+            self._closing = True
+            members = list(self._members.values())
+            self._members.clear()
+            pending = list(self._pending)
+            self._lock.notify_all()
+        for m in members:
+            m.close()
+        for conn in pending:
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RDWR)
+        with contextlib.suppress(OSError):
+            self._listener.shutdown(socket.SHUT_RDWR)
+        self._listener.close()
+        for t in self._threads:
+            t.join(timeout=2.0)
+
+    def __enter__(self) -> PairBus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
