@@ -115,6 +115,7 @@ class Master(PairSide):
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
         #: this gateway in a hot-standby pair (None: no pair)
         self.member: PairMember | None = None
+        self._last_frame: tuple[float, float | None] = (0.0, None)  # (wall, bus clock)
         known = {n.node_id for n in cfg.nodes}
         if cfg.master.redundancy is not None and not passive:
             self.member = PairMember(
@@ -248,9 +249,12 @@ class Master(PairSide):
         self.peer_log.info(("sdo_client", p.name), "%s", text)
 
     def _last_frame_s(self) -> float | None:
-        """When the reader took its last frame, on the bus clock (None: none yet)."""
+        """When the reader took its last frame, on the bus clock (None: none yet); turned once
+        per frame timestamp, so that the same frame always gives the same time."""
         wall = self.driver.last_frame_wall
-        return self.driver.mono() - (self.driver.wall() - wall) if wall else None
+        if wall != self._last_frame[0]:
+            self._last_frame = (wall, self.driver.mono() - (self.driver.wall() - wall) if wall else None)
+        return self._last_frame[1]
 
     def _bus_state(self, state: str, detail: str) -> None:
         if state == "down":

@@ -37,7 +37,8 @@ gateway, after the active master's next heartbeat was due: the last frame's time
     standby      72h                                  negotiating  waits its time slot
     standby      master silent, traffic heard         negotiating  sends 72h, waits its slot
     standby      master silent, no traffic twice      isolated     sends nothing (cut off)
-    standby      master silent, no traffic yet        standby      waits takeover_s more
+    standby      master silent, no traffic yet        standby      waits takeover_s more, looks
+                                                                   every heartbeat / 4
     active       71h < in its own slot                standby      goes silent at once
     active       stalled (no event for takeover_s)    standby      goes silent at once
     active       another master, after a deaf spell   standby      (never a fail-back onto it)
@@ -217,7 +218,8 @@ class FlyingMaster:
         self._claim_s: float | None = None  # while active: the end of its slot, then 71h
         self._detect_s: float | None = None  # while active: the next 76h
         self._forced_s: float | None = None  # when it last forced a negotiation
-        self._doubt = False  # standby: the master silent, the bus not heard since
+        #: standby: the master silent, the bus not heard since: until when it waits for a frame
+        self._doubt_until_s: float | None = None
 
     @property
     def active(self) -> bool:
@@ -270,7 +272,7 @@ class FlyingMaster:
             self.heard_s = last_frame_s
             if self.role is Role.ISOLATED and self.link_up:
                 return self._fire(Heard.BUS_HEARD, now)
-            if self.role is Role.STANDBY and self._doubt and self._master_gone():
+            if self.role is Role.STANDBY and self._doubt_until_s is not None and self._master_gone():
                 return self._fire(Heard.ACTIVE_SILENT, now)
             return []
         if self.role is not Role.ACTIVE or self._heard_within(now):
@@ -313,7 +315,8 @@ class FlyingMaster:
             return []
         if self.role is Role.STANDBY:
             heard = Heard.ACTIVE_SILENT if self._master_gone() else Heard.UNHEARD
-            heard = Heard.DEAF if heard is Heard.UNHEARD and self._doubt else heard
+            if heard is Heard.UNHEARD and self._doubt_until_s is not None:
+                heard = Heard.DEAF if now >= self._doubt_until_s else Heard.UNHEARD
         else:
             heard = {Role.LISTENING: Heard.DETECTION_OVER, Role.NEGOTIATING: Heard.SLOT_OVER}[
                 self.role
@@ -321,10 +324,11 @@ class FlyingMaster:
         return self._fire(heard, now)
 
     def _master_gone(self) -> bool:
-        """A frame was heard after the active master's next heartbeat was due: the bus is
-        alive and the master silent (frames before that may precede a cut cable)."""
+        """A frame was heard after the active master's next two heartbeats were due: the bus
+        is alive and the master silent (a frame before that may precede a cut cable, and one
+        late heartbeat must not make a cut look like a dead master)."""
         ref = self.active_heard_s if self.active_heard_s is not None else float("-inf")
-        return self.heard_s is not None and self.heard_s > ref + self.timing.heartbeat
+        return self.heard_s is not None and self.heard_s > ref + 2 * self.timing.heartbeat
 
     def _heard_within(self, now: float) -> bool:
         return self.heard_s is not None and now - self.heard_s < self.timing.takeover_s
@@ -395,14 +399,16 @@ class FlyingMaster:
 
     def _alive(self, now: float) -> list[Action]:
         self._deadline_s = now + self.timing.takeover_s
-        self._doubt = False
+        self._doubt_until_s = None
         return []
 
     def _wait_for_the_bus(self, now: float) -> list[Action]:
         """The master silent, nothing heard since: a dead master on a quiet bus or a cut
-        cable. Wait one more take-over time for any frame (then negotiate), else cut off."""
-        self._doubt = True
-        self._deadline_s = now + self.timing.takeover_s
+        cable. Wait one more take-over time for any frame (then negotiate), else cut off;
+        looking every quarter heartbeat meanwhile (the caller reports at each poll)."""
+        if self._doubt_until_s is None:
+            self._doubt_until_s = now + self.timing.takeover_s
+        self._deadline_s = min(self._doubt_until_s, now + self.timing.heartbeat / 4)
         return []
 
     def _answer(self, now: float) -> list[Action]:
@@ -460,8 +466,7 @@ class FlyingMaster:
 
     def _enter(self, role: Role, heard: Heard, now: float) -> list[Action]:
         previous, self.role = self.role, role
-        self._claim_s = self._detect_s = self._deadline_s = None
-        self._doubt = False
+        self._claim_s = self._detect_s = self._deadline_s = self._doubt_until_s = None
         actions: list[Action] = []
         reason = _REASONS.get(heard, heard.value)
         if role is Role.STANDBY:

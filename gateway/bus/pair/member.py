@@ -156,7 +156,9 @@ class PairMember:
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
         self._ran_s = self._started_s = loop.time()
-        self._beat = Periodic(self.heartbeat_s, loop.time())
+        # its own heartbeat from the second period on: a newcomer with the id of a member already
+        # on the bus hears that member's heartbeat first, and stays out without disturbing it
+        self._beat = Periodic(self.heartbeat_s, loop.time() + 2 * self.heartbeat_s)
         self._do(self.machine.start(self._clock()))
         self._on_beat()
 
