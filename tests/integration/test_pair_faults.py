@@ -215,7 +215,17 @@ def test_the_actives_cable_cut_hands_the_bus_over_and_mended_it_does_not_fail_ba
 
 # ------------------------------------------------------------------ an adapter lost
 
+#: python-can's socketcand client reads EOF as "no message" for ever (docs/redundancy.md): the
+#: driver must notice the closed connection and report the bus down, then reopen it
+NEEDS_EOF = pytest.mark.xfail(
+    reason="needs the CAN backend noticing a closed socketcand connection (the driver's part of "
+    "issue 39); without it the member is cut off only by hearing nothing, and never reconnects",
+    strict=False,
+)
 
+
+
+@NEEDS_EOF
 def test_the_actives_adapter_lost_hands_the_bus_over_and_back_it_joins_as_standby(plant: Plant) -> None:
     bus, a, b = plant.bus, plant.a, plant.b
     bus.unplug("A")
@@ -230,6 +240,7 @@ def test_the_actives_adapter_lost_hands_the_bus_over_and_back_it_joins_as_standb
     assert plant.logical_senders(back) == {"B"}
 
 
+@NEEDS_EOF
 def test_the_standbys_adapter_lost_isolates_it_and_back_it_joins_as_standby(plant: Plant) -> None:
     bus, a, b = plant.bus, plant.a, plant.b
     lost = plant.mark()
