@@ -43,7 +43,7 @@ from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRe
 from gateway.bus.node.lifecycle import LifecycleState
 from gateway.bus.node.parts import NodeParts, build_node_into
 from gateway.bus.pair.member import PairMember
-from gateway.bus.pair.side import MASTER_HEARTBEAT, PairSide
+from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide
 from gateway.bus.producers import Periodic
 from gateway.bus.reader import (
     control_handler,
@@ -113,8 +113,9 @@ class Master(PairSide):
         self._waiting = SdoWaiters()  # the SDO transfers clients await
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
-        #: this gateway in a hot-standby pair (None: no pair)
-        self.member: PairMember | None = None
+        #: this gateway in a hot-standby pair; outside one the null member (``NoPair``): the
+        #: master consults it the same way, and it always masters
+        self.member: PairMember | NoPair = NoPair()
         self._last_frame: tuple[float, float | None] = (0.0, None)  # (wall, bus clock)
         known = {n.node_id for n in cfg.nodes}
         if cfg.master.redundancy is not None and not passive:
@@ -125,9 +126,9 @@ class Master(PairSide):
             )  # fmt: skip
             known |= self.member.known_ids()
         #: True while this gateway masters the bus (always, outside a pair)
-        self.mastering = self.member is None
+        self.mastering = not self.in_pair
         #: role listeners: called (role, reason) on the event loop when the pair's role changes
-        self.role_listeners = self.member.role_listeners if self.member is not None else []
+        self.role_listeners = self.member.role_listeners
         self.standby_dropped = 0  # frames the nodes asked for while this gateway stood by
         #: other masters, other SDO clients, unconfigured node ids (event loop only)
         self.peers = BusPeers(
@@ -138,7 +139,7 @@ class Master(PairSide):
         self.peer_log = RateLimitedLog(log, period_s=PEER_LOG_PERIOD_S)
         #: LSS (CiA 305) on this connection to the bus, for the command service
         self.lss = LssService(driver.send, self._post, self.clock, driver.frame_time)
-        listening = self.member is not None  # a pair's member listens until it is active
+        listening = self.in_pair  # a pair's member listens until it is active
         for ncfg in cfg.nodes:
             parts = build_node_into(nodes[ncfg.name], image, passive, listening)
             self.nodes[ncfg.name] = parts
@@ -170,7 +171,7 @@ class Master(PairSide):
                 install(COB_SDO_RX + p.node_id, f"{p.name} SDO request",
                         self._peer_frame(self._on_sdo_request, p))  # fmt: skip
         install(COB_NMT, "NMT", self._peer_frame(self._on_nmt_frame))
-        if self.member is not None:
+        if self.in_pair:
             self._install_pair_handlers(install, taken)
         elif self.cfg.master.heartbeat_ms:  # without one the master's node id is not on the bus
             install(COB_NMT_EC + self.cfg.master.node_id, "the master's heartbeat",
@@ -202,8 +203,7 @@ class Master(PairSide):
 
     def _drain(self) -> None:
         self._drain_pending = False
-        if self.member is not None:
-            self.member.check()  # a stalled active gateway stands by before it acts
+        self.member.check()  # a stalled active gateway stands by before it acts
         inbox = self._inbox
         while inbox:
             fn, args = inbox.popleft()
@@ -242,7 +242,7 @@ class Master(PairSide):
             self.peer_log.warning(("other_master", "heartbeat"), "%s", text)
 
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
-        if self.member is not None and not self.mastering:
+        if not self.mastering:
             self.member.on_sdo_request(p.node_id, data)  # the active gateway's transfer
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
@@ -259,7 +259,7 @@ class Master(PairSide):
     def _bus_state(self, state: str, detail: str) -> None:
         if state == "down":
             self._post(self._on_bus_down)
-        if self.member is not None and state in ("down", "ok"):
+        if self.in_pair and state in ("down", "ok"):
             self._post(self.member.on_link, state == "ok")
 
     # ------------------------------------------------------------------ event loop
@@ -272,7 +272,7 @@ class Master(PairSide):
         elif kind == "emcy":
             outs = node.on_emcy(data, wall, now)
         else:
-            if self.member is not None and not self.mastering:
+            if not self.mastering:
                 self.member.on_sdo_response(p.node_id, data)
             outs = node.on_sdo_response(data, now)
         self._execute(p, outs)
@@ -288,8 +288,7 @@ class Master(PairSide):
     def _tick(self, p: NodeParts) -> None:
         self._timers.pop(p.name, None)
         self._due.pop(p.name, None)
-        if self.member is not None:
-            self.member.check()  # a stalled active gateway stands by before it acts
+        self.member.check()  # a stalled active gateway stands by before it acts
         if self._inbox:
             self._drain()  # heartbeats queued without a wake-up count before any timeout
         self._execute(p, p.node.tick(self.clock()))
@@ -378,8 +377,7 @@ class Master(PairSide):
             self._produce(
                 "sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), COB_SYNC, b""
             )
-        if self.member is not None:
-            self.member.start(self.loop)  # its own heartbeat, its role
+        self.member.start(self.loop)  # a pair's: its own heartbeat, its role
         self._producers["housekeeping"] = self.loop.call_later(
             self.warn.period_s, self._housekeeping
         )
@@ -389,8 +387,7 @@ class Master(PairSide):
 
     async def stop(self) -> None:
         self.lss.stop()
-        if self.member is not None:
-            self.member.stop()
+        self.member.stop()
         for t in [*self._timers.values(), *self._producers.values()]:
             t.cancel()
         self._producers.clear()
@@ -403,8 +400,7 @@ class Master(PairSide):
         loop = self.loop
         if loop is None:
             return
-        if self.member is not None:
-            self.member.check()
+        self.member.check()
         if periodic.due(loop.time()) and self.mastering:
             try:
                 self.driver.send(cob_id, data)
@@ -433,8 +429,7 @@ class Master(PairSide):
     def require_bus(self) -> None:
         if self.loop is None:  # the listeners start before the master sends its first frame
             raise BusDown("the gateway is starting")
-        if self.member is not None:
-            self.member.check()
+        self.member.check()
         if not self.mastering:
             role = self.role or "standby"
             raise NotActive(

@@ -33,12 +33,46 @@ log = logging.getLogger("gateway.master")
 MASTER_HEARTBEAT = b"\x05"
 
 
+class NoPair:
+    """The null member of a gateway outside a pair: it always masters the bus; the master
+    calls it where it calls a pair's member, and nothing happens."""
+
+    machine: FlyingMaster | None = None
+    role: str | None = None
+    conflict: str | None = None
+    peer_heartbeat_s: float | None = None
+
+    def __init__(self) -> None:
+        self.role_listeners: list[Callable[[str, str], None]] = []
+
+    def known_ids(self) -> set[int]:
+        return set()
+
+    def check(self) -> None:
+        pass
+
+    def start(self, loop: Any) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+    def on_link(self, up: bool) -> None:
+        pass
+
+    def on_sdo_request(self, node_id: int, data: bytes) -> None:
+        pass
+
+    def on_sdo_response(self, node_id: int, data: bytes = b"") -> None:
+        pass
+
+
 class PairSide:
     """The pair-only part of ``Master`` (the attributes below are the master's)."""
 
     cfg: Config
     driver: BusDriver
-    member: PairMember | None
+    member: PairMember | NoPair
     mastering: bool
     nodes: dict[str, NodeParts]
     peers: BusPeers
@@ -51,13 +85,18 @@ class PairSide:
     def _peer_frame(self, fn: Callable[..., None], *args: Any) -> Callable[[can.Message], None]:
         raise NotImplementedError
 
+    @property
+    def in_pair(self) -> bool:
+        """This gateway is a member of a hot-standby pair (``master.redundancy``)."""
+        return isinstance(self.member, PairMember)
+
     def _install_pair_handlers(
         self,
         install: Callable[[int, str, Callable[[can.Message], None]], None],
         taken: dict[int, str],
     ) -> None:
         member = self.member
-        assert member is not None
+        assert isinstance(member, PairMember)
         for cob in sorted(member.cob_ids):
             install(cob, f"the pair's 0x{cob:03X}", self._peer_frame(self._on_pair_frame, cob))
         for p in self.nodes.values():
@@ -72,19 +111,19 @@ class PairSide:
     @property
     def pair(self) -> FlyingMaster | None:
         """The role machine of this gateway in a pair (None outside a pair)."""
-        return self.member.machine if self.member is not None else None
+        return self.member.machine
 
     @property
     def role(self) -> str | None:
         """``active``, ``standby``, ``listening``, ``negotiating``, ``isolated``, ``duplicate``;
         None outside a pair."""
-        return self.member.role if self.member is not None else None
+        return self.member.role
 
     @property
     def pair_master_id(self) -> int | None:
         """The pair id of the master heard active (this gateway's own while active; None:
         none heard within the take-over time, or outside a pair)."""
-        machine = self.member.machine if self.member is not None else None
+        machine = self.member.machine
         if machine is None:
             return None
         if machine.active:
@@ -98,12 +137,12 @@ class PairSide:
     @property
     def pair_conflict(self) -> str | None:
         """What a device with this gateway's pair id was heard sending (None: nothing)."""
-        return self.member.conflict if self.member is not None else None
+        return self.member.conflict
 
     @property
     def peer_heartbeat_s(self) -> float | None:
         """When the peer's own heartbeat was last heard (bus clock; None: not heard)."""
-        return self.member.peer_heartbeat_s if self.member is not None else None
+        return self.member.peer_heartbeat_s
 
     def _send_quiet(self, cob_id: int, data: bytes) -> None:
         try:
@@ -113,7 +152,7 @@ class PairSide:
 
     def _on_pair_frame(self, cob_id: int, data: bytes, wall: float, now: float) -> None:
         member = self.member
-        assert member is not None
+        assert isinstance(member, PairMember)
         learned = member.on_frame(cob_id, data, now)
         handlers = self.driver.handlers
         if learned is not None and self.peers.admit(learned):
@@ -125,7 +164,7 @@ class PairSide:
             handlers[third] = self._peer_frame(self._on_pair_frame, third)
 
     def _on_peer_heartbeat(self, data: bytes, wall: float, now: float) -> None:
-        if self.member is not None:
+        if isinstance(self.member, PairMember):
             self.member.on_peer_heartbeat(now)
 
     def _on_rpdo_heard(
@@ -142,7 +181,7 @@ class PairSide:
             self.mastering = True
             # the logical master's heartbeat at once: the devices' consumers go on
             self._send_quiet(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
-            assert self.member is not None
+            assert isinstance(self.member, PairMember)
             self.member.abort_left_open()
             for p in self.nodes.values():
                 self._execute(p, p.node.take_over(now))
