@@ -123,6 +123,7 @@ class Master(PairSide):
                 cfg, self._send_quiet, self.clock, self._role_changed, self._drain,
                 last_frame_s=self._last_frame_s,
                 nodes_alive=lambda: any(p.node.alive for p in self.nodes.values()),
+                reader_busy=lambda: not driver.idle,
             )  # fmt: skip
             known |= self.member.known_ids()
         #: True while this gateway masters the bus (always, outside a pair)

@@ -44,6 +44,8 @@ log = logging.getLogger("gateway.master")
 
 #: the member's own heartbeat: operational (CiA 301 7.2.8.3.2.2)
 OWN_HEARTBEAT = b"\x05"
+#: a role deadline that comes while the reader is within a burst waits this long, this often
+DEFER_S, DEFER_MAX = 0.005, 4
 #: nothing heard of the peer this long (at least; 10 take-over times when longer): one warning
 PEER_SILENT_S = 10.0
 
@@ -84,6 +86,7 @@ class PairMember:
         *,
         last_frame_s: Callable[[], float | None] = lambda: None,
         nodes_alive: Callable[[], bool] = lambda: False,
+        reader_busy: Callable[[], bool] = lambda: False,
     ):
         pair = cfg.master.redundancy
         assert pair is not None
@@ -104,6 +107,8 @@ class PairMember:
         self.peer_heartbeat_s: float | None = None
         self._send, self._clock, self._on_role = send, clock, on_role
         self._last_frame_s, self._nodes_alive = last_frame_s, nodes_alive
+        self._reader_busy = reader_busy  # the reader is within a burst: frames still to come
+        self._deferred = 0
         #: called (role, reason) on the event loop after the master took a role change
         self.role_listeners: list[Callable[[str, str], None]] = []
         self._before_poll = before_poll  # the master drains what was heard before a timeout
@@ -193,7 +198,10 @@ class PairMember:
         return None
 
     def on_link(self, up: bool) -> None:
-        """This gateway's bus went down (the driver's ``on_state``) or is open again."""
+        """This gateway's bus went down (the driver's ``on_state``) or is open again (not
+        after ``stop``: a gateway that stops closes its bus)."""
+        if self._loop is None:
+            return
         self._do(self.machine.on_link(up, self._clock()))
 
     def on_peer_heartbeat(self, now: float) -> None:
@@ -308,6 +316,14 @@ class PairMember:
 
     def _tick(self) -> None:
         self._timer = None
+        loop = self._loop
+        if loop is not None and self._reader_busy() and self._deferred < DEFER_MAX:
+            # a burst is being read (e.g. after a relay's stall): what it brings counts before a
+            # timeout is judged; a few milliseconds at most, so that a busy bus defers nothing
+            self._deferred += 1
+            self._timer, self._timer_at = loop.call_at(loop.time() + DEFER_S, self._tick), 0.0
+            return
+        self._deferred = 0
         self.check()
         self._before_poll()  # what was heard counts before a timeout
         self._report_hearing()
