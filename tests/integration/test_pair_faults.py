@@ -185,6 +185,14 @@ def plant(tmp_path: Path) -> Iterator[Plant]:
         b = start_member(tmp_path, cfg, "B", B_ID, 1, A_ID)
         stack.callback(b.stop)
         wait_role(b, "standby", 15)
+        # settled: B's start (which starves the machine) is over when A's logical heartbeat
+        # has gone out twenty times since, with A still active and B standby
+        joined = len(bus.frames)
+        wait_until_sync(
+            lambda: sum(1 for f in bus.frames[joined:] if f.cob_id == COB_HB + LOGICAL) >= 20,
+            15, "twenty logical heartbeats after B's start",
+        )  # fmt: skip
+        assert (a.role(), b.role()) == ("active", "standby")
         p = Plant(bus, a, b, cfg, tmp_path)
         p.settled = p.mark()
         yield p
