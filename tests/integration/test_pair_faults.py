@@ -330,10 +330,15 @@ def test_a_worse_third_party_master_changes_nothing(plant: Plant) -> None:
         wait_until_sync(lambda: len(plant.bus.sent_by("A", 0x76)) >= 2, 15, "two of A's detect cycles")
         assert (a.role(), b.role()) == ("active", "standby")
         frames = [(f.sender, f.cob_id) for f in bus.frames[joined:] if f.cob_id in PAIR_COBS]
-        # T asked (73h), A answered (71h); on a starved machine B may have started a
-        # negotiation it dropped on the next logical heartbeat (72h), never more
         others = [x for x in frames if x[1] != 0x76]
-        assert others[:2] == [("T", 0x73), ("A", 0x71)] and set(others[2:]) <= {("B", 0x72)}
+        assert others[:2] == [("T", 0x73), ("A", 0x71)]  # T asked, A answered
+        assert t.sent[0x71] == 0 and t.sent[0x72] == 0 and t.sent[0x76] == 0  # T never claimed
+        if not (a.said("did not run") or b.said("did not run")):
+            # nothing else, unless this machine starved a gateway for longer than the take-over
+            # time (it then stands by and negotiates again: docs/redundancy.md) or the relay
+            # (B may start a negotiation it drops on the next logical heartbeat)
+            assert set(others[2:]) <= {("B", 0x72)}, others
+        assert len(others) <= 12, others
         assert plant.logical_senders(joined) == {"A"}
         assert not t.errors
     finally:
