@@ -1,6 +1,7 @@
 """``python -m bench [name ...]``: run the benchmarks (all by default) and write RESULTS.md.
 
-Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors, pair. Running a subset prints its sections
+Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors, pair,
+plc-first. Running a subset prints its sections
 and leaves RESULTS.md as it is.
 
 Imports: bench.*.
@@ -25,6 +26,7 @@ from bench import (
     linerate,
     modbus_rps,
     pair,
+    plc_first,
     scale,
     startup,
     zenoh_outage,
@@ -45,6 +47,7 @@ BENCHES: dict[str, Callable[[], Awaitable[Section]]] = {
     "costs": costs.run,
     "floors": floors.run,
     "pair": pair.run,
+    "plc-first": plc_first.run,
 }
 HERE = pathlib.Path(__file__).resolve().parent
 

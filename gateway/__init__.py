@@ -1,3 +1,6 @@
-"""CANopen to Modbus TCP and Zenoh edge gateway."""
+"""CANopen to Modbus TCP and Zenoh edge gateway.
+
+Imports: nothing (the version only).
+"""
 
 __version__ = "0.1.0"

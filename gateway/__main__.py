@@ -1,4 +1,7 @@
-"""``python -m gateway`` runs the command line."""
+"""``python -m gateway`` runs the command line.
+
+Imports: entry.
+"""
 
 from gateway.entry import main
 

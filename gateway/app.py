@@ -5,11 +5,16 @@ Modbus server, Zenoh bridge, health endpoint, and (for demos/tests) simulated de
 nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed to the master,
 Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
 parts do not know each other except through the image and the command service.
+
+Imports: every part: ascii.server, bus.driver, bus.master, checks, commands, config, device.resolved,
+health, image, metrics, modbus.server, northbound (frames, regmap, summary), profiles.derived,
+sim (faults, motion, node, runner), startup, threads, turns, web (console, views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
 
 import asyncio
+import gc
 import logging
 import time
 from typing import Any
@@ -31,8 +36,9 @@ from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
 from gateway.profiles.derived import text_rows_as_signals
-from gateway.startup import startup_step
+from gateway.startup import Listener, StartupError, ports_in_use, startup_step, zenoh_listeners
 from gateway.threads import ThreadRegistry
+from gateway.turns import LoopTurns
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
 log = logging.getLogger("gateway")
@@ -99,11 +105,18 @@ class Gateway:
         *,
         passive: bool = False,
         bus_must_open: bool = False,
+        freeze_gc: bool = False,
     ):
         #: every node resolved once (profile, settings, boot steps, codecs) for every part
         self.nodes = nodes
         #: a bus that cannot open stops the start (``BusOpenFailed``) instead of being retried
         self.bus_must_open = bus_must_open
+        #: once started, what was built is moved out of the collector's reach (``gc.freeze``):
+        #: a full collection of it took about 90 ms, a stall of every thread, the Modbus
+        #: server's included; the bursts of garbage a query burst leaves start such collections
+        self.freeze_gc = freeze_gc
+        #: the console's and the ASCII clients' turns on the event loop: the PLC first
+        self.turns = LoopTurns()
         check_config(cfg, self.nodes)  # the cross-checks of `canopen-gateway check` (ConfigError)
         self.cfg = cfg
         self.image = ProcessImage()
@@ -221,8 +234,12 @@ class Gateway:
         modbus_up = self.modbus is None or self.modbus.server is not None
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
+        # ready: the bus and the PLC side serve; the cloud side (Zenoh) counts only for a gateway
+        # without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's gateway out
+        # of service because the router is away. /healthz says "zenoh": false meanwhile.
+        northbound_up = modbus_up if self.modbus is not None else zenoh_up
         out_of_pair = self.master.role == "duplicate"  # another device has our pair id
-        ready = self.started and bus_ok and modbus_up and zenoh_up and not dead and not out_of_pair
+        ready = self.started and bus_ok and northbound_up and not dead and not out_of_pair
         return {
             "status": "ready" if ready else "not-ready",
             "ready": ready,
@@ -313,12 +330,42 @@ class Gateway:
         setting and its value), so the process can exit with nothing left open."""
         try:
             await self._start()
+        except StartupError as exc:  # the variable that set a key is blamed, not the file
+            await self.stop()
+            raise exc.blamed(self._env_var) from None
         except BaseException:
             await self.stop()
             raise
 
+    def _env_var(self, key: str) -> str | None:
+        where = blame(key, self.cfg.source, self.cfg.env_keys)
+        return None if where == self.cfg.source else where
+
+    def _listeners(self) -> list[Listener]:
+        """Every port this gateway will listen on, with the key that sets it."""
+        cfg = self.cfg
+        out = []
+        if self.modbus is not None and cfg.modbus.plain:
+            out.append(Listener("modbus.port", cfg.modbus.host, cfg.modbus.port, f"{cfg.modbus.port} on {cfg.modbus.host}"))  # fmt: skip
+        if self.modbus is not None:
+            tls = cfg.modbus.tls
+            if tls is not None:
+                host = tls.host or cfg.modbus.host
+                out.append(Listener("modbus.tls.port", host, tls.port, f"{tls.port} on {host}"))
+        if self.zenoh is not None and cfg.zenoh.mode != "client":
+            out += zenoh_listeners("zenoh.listen", cfg.zenoh.listen)
+        if cfg.ascii is not None and cfg.ascii.enabled:
+            out.append(Listener("ascii.port", cfg.ascii.host, cfg.ascii.port, f"{cfg.ascii.port} on {cfg.ascii.host}"))  # fmt: skip
+        if cfg.health.port:
+            out.append(Listener("health.port", cfg.health.host, cfg.health.port, f"{cfg.health.port} on {cfg.health.host}"))  # fmt: skip
+        return out
+
     async def _start(self) -> None:
         cfg = self.cfg
+        # every port before anything opens: one failed start names every port in use
+        busy = ports_in_use(self._listeners())
+        if busy is not None:
+            raise busy
         if self.zenoh is not None:
             z = cfg.zenoh
             key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)
@@ -346,7 +393,7 @@ class Gateway:
         if self.cfg.ascii is not None and self.cfg.ascii.enabled:
             from gateway.ascii.server import AsciiGateway
 
-            self.ascii = AsciiGateway(self.cfg, self.image, self.commands)
+            self.ascii = AsciiGateway(self.cfg, self.image, self.commands, self.turns)
             with startup_step("ascii.port", f"{self.cfg.ascii.port} on {self.cfg.ascii.host}"):
                 await self.ascii.start()
         if cfg.health.port:
@@ -354,6 +401,9 @@ class Gateway:
                 await self._start_health()
         await self.master.start()
         self.started = True
+        if self.freeze_gc:
+            gc.collect()
+            gc.freeze()
 
     def _start_simulated_devices(self) -> None:
         """The simulated devices' own connection to the configured bus: with ``bus_must_open``
@@ -401,6 +451,7 @@ class Gateway:
                 decoder=FrameDecoder(self.cfg, self.nodes),
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
                 frames=self.driver,
+                turns=self.turns,
             )
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(
@@ -409,6 +460,7 @@ class Gateway:
             self.status,
             self.metrics.registry,
             app=self.web,
+            turns=self.turns,
         )
         await self.health.start()
         self.metrics.set_refresh(self._copy_counters)
@@ -440,6 +492,10 @@ class Gateway:
         if self.zenoh is not None:
             c.zenoh_publications = self.zenoh.publications
             c.zenoh_refused = dict(self.zenoh.refused)
+            q = self.zenoh.queries
+            c.zenoh_queries_answered, c.zenoh_queries_busy = q.answered, q.busy
+            c.zenoh_query_queue_depth = q.worker.depth
+        c.northbound_turns_refused = self.turns.refused
         if self.modbus is not None:
             store = self.modbus.store
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}

@@ -4,6 +4,8 @@ Ctrl-C while Python still imports the gateway (the first few tenths of a second)
 that stops reading (``canopen-gateway check -c FILE | head -1``) end the program quietly,
 without a traceback: exit code 130 for Ctrl-C, 0 for the closed pipe. Everything else is
 ``gateway.cli``'s. Imports the standard library, then ``gateway.cli`` inside the guard.
+
+Imports: the standard library, then cli inside the guard.
 """
 
 from __future__ import annotations

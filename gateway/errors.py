@@ -2,6 +2,8 @@
 
 Each carries the words a user needs; adapters translate them into their protocol's error
 (Modbus exception code, Zenoh reply_err). Imports only the SDO abort text table.
+
+Imports: cia301 (the abort texts).
 """
 
 from __future__ import annotations
@@ -77,6 +79,17 @@ class ValueOutOfRange(GatewayError):
     def __init__(self, name: str, value: Any, allowed: str):
         self.name, self.value, self.allowed = name, value, allowed
         super().__init__(f"{name}: value {value!r} not allowed, expected {allowed}")
+
+
+class SupervisionWrite(ValueOutOfRange):
+    """A write that would defeat the gateway's supervision of a node (1017h, 100Ch/100Dh,
+    1016h of the master): refused with the reason, as a value out of range is."""
+
+    kind = "supervision_write"
+
+    def __init__(self, name: str, value: Any, why: str):
+        self.name, self.value, self.allowed = name, value, why
+        GatewayError.__init__(self, f"{name}: write of {value!r} refused: {why}")
 
 
 class ReadOnly(GatewayError):

@@ -23,14 +23,16 @@ not one). Requests are bounded: 8 KiB of head, ``read_timeout_s`` to send it.
 Other paths go to an optional ``app`` (the web console, ``gateway.web``): it gets a parsed
 ``Request`` (method, path, query, lower-case headers, a body of at most 64 KiB given by
 Content-Length) and returns a ``Response``, a ``Stream`` (written until the stream ends or the
-client goes away: server-sent events) or None (404). Without an app, or for the three paths
+client goes away: server-sent events) or None (404). With ``turns`` (``turns.LoopTurns``: the
+PLC first), each app request waits for its turn on the event loop before the app renders it;
+when too many wait, it is answered 503 ``busy`` with ``Retry-After``. Without an app, or for the three paths
 above, methods other than GET/HEAD are answered 405.
 
 Config (section ``health:`` of the gateway config): ``host`` (127.0.0.1), ``port`` (0 = off).
 Port 0 passed to ``HealthServer`` itself binds an ephemeral port (see ``.port``): the caller
 decides that 0 in the config means "do not start one".
 
-Imports: the standard library and prometheus_client only.
+Imports: the standard library, prometheus_client and turns only.
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ from typing import Any
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
+from gateway.turns import RETRY_AFTER_S, LoopTurns
+
 log = logging.getLogger(__name__)
 
 StatusFn = Callable[[], Mapping[str, Any] | Awaitable[Mapping[str, Any]]]
@@ -56,6 +60,11 @@ READY = "ready"
 NOT_READY = "not-ready"
 MAX_REQUEST_HEAD_BYTES = 8192
 MAX_REQUEST_BODY_BYTES = 65536
+#: connections accepted per loop iteration (asyncio accepts up to the backlog at once) and
+#: waiting in the kernel: a burst of clients is let in a few at a time, and the loop polls
+#: its other sockets (a PLC's) in between; the kernel holds the rest, a client whose
+#: connection is not taken yet tries again (TCP)
+ACCEPT_BACKLOG = 16
 JSON_TYPE = "application/json"
 TEXT_TYPE = "text/plain; charset=utf-8"
 HEALTH_PATHS = ("/healthz", "/livez", "/metrics")
@@ -215,6 +224,8 @@ class HealthServer:
     _: KW_ONLY
     read_timeout_s: float = 5.0
     app: App | None = None
+    #: the app's requests take turns on the event loop (the PLC first); None: they do not
+    turns: LoopTurns | None = None
     _server: asyncio.Server | None = field(default=None, init=False)
     _connections: set[asyncio.Task[None]] = field(default_factory=set, init=False)
 
@@ -234,7 +245,11 @@ class HealthServer:
         if self._server is not None:
             raise RuntimeError("health server already started")
         self._server = await asyncio.start_server(
-            self._on_connection, self.host, self.requested_port, limit=MAX_REQUEST_HEAD_BYTES
+            self._on_connection,
+            self.host,
+            self.requested_port,
+            limit=MAX_REQUEST_HEAD_BYTES,
+            backlog=ACCEPT_BACKLOG,
         )
         log.info(
             "health endpoint on %s (/healthz, /livez, /metrics%s)",
@@ -366,7 +381,13 @@ class HealthServer:
             client=_peer(writer),
         )
         try:
-            answer = await self.app(request)
+            if self.turns is None or await self.turns.turn():
+                answer = await self.app(request)
+            else:
+                busy = _error(path, HTTPStatus.SERVICE_UNAVAILABLE, "busy",
+                              "too many requests wait; ask again shortly")  # fmt: skip
+                answer = Response(busy.status, busy.body, busy.content_type,
+                                  {"Retry-After": str(RETRY_AFTER_S)})  # fmt: skip
         except Exception:
             log.exception("web request %s %s failed", method, path)
             answer = _error(path, HTTPStatus.INTERNAL_SERVER_ERROR, "internal", "internal error (see the log)")

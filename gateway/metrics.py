@@ -26,6 +26,8 @@ Metric names carry the prefix ``canopen_gateway_``:
     sdo_requests_total{node,op}, sdo_aborts_total{node,code}, sdo_latency_seconds{node}
     modbus_requests_total{function}, modbus_exceptions_total{code}
     zenoh_refused_total{operation}, modbus_watchdog_trips_total{reason}
+    zenoh_queries_answered_total, zenoh_queries_busy_total, zenoh_query_queue_depth
+    northbound_turns_refused_total (console and ASCII requests refused: too many waiting)
     other_master_frames_total{kind}, other_sdo_client_requests_total{node}
     pair_takeovers_total, pair_negotiations_total, pair_duplicate_id_frames_total,
     pair_isolations_total, pair_role (a hot-standby pair)
@@ -145,6 +147,10 @@ class Counters:
     pair_role: int = 0  # PAIR_ROLE_CODES: 0 no pair, 1 active, 2 standby, 3 listening / ...
     pair_duplicate_id_frames: int = 0
     pair_isolations: int = 0
+    zenoh_queries_answered: int = 0
+    zenoh_queries_busy: int = 0
+    zenoh_query_queue_depth: int = 0  # a gauge, read at scrape time
+    northbound_turns_refused: int = 0
     decode_errors: dict[tuple[str, str], int] = field(default_factory=dict)
     emcy: dict[str, int] = field(default_factory=dict)
     sdo_requests: dict[tuple[str, str], int] = field(default_factory=dict)
@@ -394,6 +400,27 @@ class _GatewayCollector:
             "pair_isolations_total",
             "Hot-standby pair: times this gateway was cut off (its bus down, or nothing heard).",
             c.pair_isolations,
+        )
+        yield counter(
+            "zenoh_queries_answered_total",
+            "Zenoh queries the queries' worker answered to their end (replies or reply_err).",
+            c.zenoh_queries_answered,
+        )
+        yield counter(
+            "zenoh_queries_busy_total",
+            "Zenoh queries refused with reply_err busy: the queue (or the commands) full.",
+            c.zenoh_queries_busy,
+        )
+        yield GaugeMetricFamily(
+            f"{NAMESPACE}_zenoh_query_queue_depth",
+            "Zenoh queries waiting for or being answered by the queries' worker.",
+            value=c.zenoh_query_queue_depth,
+        )
+        yield counter(
+            "northbound_turns_refused_total",
+            "Console requests (503) and ASCII lines (ERROR:102) refused: too many waiting for "
+            "a turn on the event loop.",
+            c.northbound_turns_refused,
         )
         yield GaugeMetricFamily(
             f"{NAMESPACE}_pair_role",

@@ -1,6 +1,8 @@
 """CANopen object addresses written as ``0x6004:00``.
 
 Knows only how to parse and format an (index, sub-index) pair. Imports nothing from the gateway.
+
+Imports: nothing of the gateway.
 """
 
 from __future__ import annotations

@@ -7,6 +7,12 @@ of them fails, the user needs the key of the configuration to change, not a trac
 files and Zenoh into a ``StartupError`` that carries the key, the value and the reason; the
 command line prints it as one line and exits 2 after the gateway has released what it opened.
 
+Before anything opens, ``ports_in_use(listeners)`` tries every TCP/UDP port the gateway will
+listen on (Modbus, Zenoh listen endpoints, ASCII, health/web): all the ports that cannot be
+taken are reported together, one line each (``StartupError.also``), so one failed start says
+every port to change. A value an environment variable set is blamed on the variable
+(``StartupError.where``, filled in by the gateway, which knows the config).
+
 Imports: the standard library only (Zenoh's errors are recognised by their text, so this module
 does not import zenoh).
 """
@@ -15,8 +21,10 @@ from __future__ import annotations
 
 import errno
 import re
-from collections.abc import Iterator
+import socket
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any
 
 #: What an errno of bind/connect/open means for a user, in words.
@@ -36,15 +44,94 @@ _ZENOH_TEXT = (
 
 
 class StartupError(Exception):
-    """A part of the gateway could not start: ``key`` of the config, its ``value``, ``reason``."""
+    """A part of the gateway could not start: ``key`` of the config, its ``value``, ``reason``.
 
-    def __init__(self, key: str, value: Any, reason: str):
+    ``where``: the environment variable that set the key (None: the config file did);
+    ``also``: the other parts that could not start either (every busy port at once)."""
+
+    def __init__(
+        self,
+        key: str,
+        value: Any,
+        reason: str,
+        *,
+        where: str | None = None,
+        also: Sequence[StartupError] = (),
+    ):
         self.key, self.value, self.reason = key, value, reason
+        self.where = where
+        self.also = list(also)
         super().__init__(f"{key}: {value} {reason}")
 
     def line(self, source: str) -> str:
-        """The one line the command line prints, naming the config file."""
-        return f"error: {source}: {self}"
+        """The line the command line prints for this part, naming the config file (or the
+        environment variable that set the key)."""
+        return f"error: {self.where or source}: {self}"
+
+    def lines(self, source: str) -> list[str]:
+        """One line for each part that could not start."""
+        return [e.line(source) for e in (self, *self.also)]
+
+    def blamed(self, blame: Any) -> StartupError:
+        """Each part's ``where`` from ``blame(key) -> the variable or None``; returns self."""
+        for e in (self, *self.also):
+            e.where = blame(e.key)
+        return self
+
+
+@dataclass(frozen=True)
+class Listener:
+    """A port the gateway will listen on: the config ``key``, how the value is ``shown``."""
+
+    key: str
+    host: str
+    port: int
+    shown: str
+    udp: bool = False
+
+
+#: Zenoh endpoint protocols and whether they listen on UDP (the others on TCP).
+_ZENOH_UDP = {"tcp": False, "tls": False, "ws": False, "udp": True, "quic": True}
+_ENDPOINT_RE = re.compile(r"^(\w+)/\[?([^\]]*?)\]?:(\d+)(?:[?#].*)?$")
+
+
+def zenoh_listeners(key: str, endpoints: Iterable[str]) -> list[Listener]:
+    """The IP ports of Zenoh listen endpoints (``tcp/127.0.0.1:7447``); other locators (unix
+    sockets, serial) and port 0 (any free port) are not tried."""
+    out = []
+    for endpoint in endpoints:
+        m = _ENDPOINT_RE.match(endpoint.strip())
+        if m is None or m.group(1) not in _ZENOH_UDP or int(m.group(3)) == 0:
+            continue
+        out.append(Listener(key, m.group(2), int(m.group(3)), endpoint, _ZENOH_UDP[m.group(1)]))
+    return out
+
+
+def _try_bind(listener: Listener) -> None:
+    kind = socket.SOCK_DGRAM if listener.udp else socket.SOCK_STREAM
+    infos = socket.getaddrinfo(listener.host or None, listener.port, type=kind)
+    family, _, _, _, address = infos[0]
+    with socket.socket(family, kind) as s:
+        # as the servers bind: a port whose last connection is in TIME_WAIT is free
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(address)
+
+
+def ports_in_use(listeners: Iterable[Listener]) -> StartupError | None:
+    """Every listener whose port cannot be taken now, as one ``StartupError`` (the first, the
+    others in ``also``), or None when all are free. Nothing is left open."""
+    problems = []
+    for listener in listeners:
+        try:
+            _try_bind(listener)
+        except socket.gaierror as exc:
+            problems.append(StartupError(listener.key, listener.shown, f"failed: {exc.strerror}"))
+        except OSError as exc:
+            problems.append(StartupError(listener.key, listener.shown, os_reason(exc)))
+    if not problems:
+        return None
+    first = problems[0]
+    return StartupError(first.key, first.value, first.reason, also=problems[1:])
 
 
 def zenoh_reason(message: str) -> str:

@@ -3,4 +3,6 @@ TCP, as a northbound adapter beside Modbus and Zenoh.
 
 ``protocol`` is the language without I/O (lines in, requests and answers out); ``server`` is the
 asyncio TCP server that runs it against the command service.
+
+Imports: nothing (its modules are imported by name: ascii.protocol, ascii.server).
 """

@@ -57,6 +57,7 @@ from gateway.errors import (
     NodeUnknown,
     SdoAbort,
     SdoTimeout,
+    SupervisionWrite,
     ValueOutOfRange,
 )
 
@@ -64,6 +65,9 @@ from gateway.errors import (
 NET = 1
 #: CiA 301 SDO abort code "SDO protocol timed out": the answer to an SDO without a reply
 SDO_TIMEOUT_ABORT = 0x05040000
+#: CiA 301 abort "data cannot be transferred or stored because of the present device state":
+#: the answer to a write that would defeat the gateway's supervision of the node
+SUPERVISION_WRITE_ABORT = 0x08000022
 #: CiA 301 "Data type does not match, length of service parameter does not match"
 TYPE_LENGTH_ABORT = 0x06070010
 
@@ -101,6 +105,8 @@ def answer_for_error(seq: int | None, exc: BaseException) -> str:
         return answer_error(seq, Iec.UNSUPPORTED_NODE)
     if isinstance(exc, Forbidden):
         return answer_error(seq, Iec.REQUEST_NOT_SUPPORTED)
+    if isinstance(exc, SupervisionWrite):
+        return answer_abort(seq, SUPERVISION_WRITE_ABORT)
     if isinstance(exc, ValueOutOfRange):
         return answer_error(seq, Iec.SYNTAX)
     if isinstance(exc, (NodeNotOperational, BusDown, GatewayError)):

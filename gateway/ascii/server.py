@@ -15,8 +15,13 @@ and answers are still written.
 A client that disconnects mid-request harms nothing: the request completes on the bus, its
 answer is dropped, and the connection's task ends.
 
+The PLC comes first: each line takes a turn on the event loop (``turns.LoopTurns``, shared
+with the web console) before it is handled, so many ASCII clients never hold a Modbus answer
+up for more than one line's work; when too many clients wait for a turn, the line is answered
+``ERROR:102`` (request not processed due to internal state) and the client may send it again.
+
 Imports: asyncio, commands, config, errors, image, objref, ascii.protocol, ascii.grammar,
-ascii.values, ratelimit. Never modbus/,
+ascii.values, ratelimit, turns. Never modbus/,
 zenoh_bridge/, web/ or bus/.
 """
 
@@ -27,7 +32,7 @@ import logging
 from typing import Any
 
 from gateway import __version__
-from gateway.ascii.grammar import LineSplitter, Overlong
+from gateway.ascii.grammar import Iec, LineSplitter, Overlong, peek_seq
 from gateway.ascii.protocol import (
     EventTracker,
     HealthSample,
@@ -35,22 +40,28 @@ from gateway.ascii.protocol import (
     SdoDownload,
     SdoUpload,
     Session,
+    answer_error,
     answer_for_error,
     answer_ok,
     answer_value,
 )
 from gateway.ascii.values import format_plain, format_value
 from gateway.commands import CommandService
+from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import NodeImage, ProcessImage
 from gateway.objref import ObjRef
 from gateway.ratelimit import RateLimitedLog
+from gateway.turns import LoopTurns
 
 log = logging.getLogger("gateway.ascii")
 
 #: lines waiting to be answered on one connection before it stops reading (back-pressure)
 MAX_PENDING_LINES = 64
+#: connections accepted per loop iteration and waiting in the kernel (a burst is let in a few
+#: at a time: the PLC first)
+ACCEPT_BACKLOG = 16
 #: event lines are not queued for a client with more than this unsent
 EVENT_BACKLOG_BYTES = 64 * 1024
 
@@ -58,8 +69,13 @@ EVENT_BACKLOG_BYTES = 64 * 1024
 class AsciiGateway:
     """``ascii:`` in the config: ``await start()`` / ``await stop()``."""
 
-    def __init__(self, cfg: Config, image: ProcessImage, commands: Any) -> None:
+    def __init__(
+        self, cfg: Config, image: ProcessImage, commands: Any, turns: LoopTurns | None = None
+    ) -> None:
         assert cfg.ascii is not None
+        #: turns on the event loop, shared with the other northbound clients (the PLC first;
+        #: the application gives its own, standing alone it has one without a gap)
+        self.turns = turns if turns is not None else LoopTurns(min_gap_s=0.0)
         self.section = cfg.ascii
         self.image = image
         self.commands: CommandService = commands
@@ -79,7 +95,7 @@ class AsciiGateway:
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
         self.server = await loop.create_server(
-            lambda: _Connection(self), self.section.host, self.section.port
+            lambda: _Connection(self), self.section.host, self.section.port, backlog=ACCEPT_BACKLOG
         )
         self.port = self.server.sockets[0].getsockname()[1]
         if self.section.events:
@@ -207,7 +223,11 @@ class _Connection(asyncio.Protocol):
             item = await self.lines.get()
             if item is None:
                 break
-            answers = await self._answer(item)
+            if await self.gw.turns.turn():
+                answers = await self._answer(item)
+            else:  # too many clients wait for a turn: this one may ask again
+                seq = item.seq if isinstance(item, Overlong) else peek_seq(item)
+                answers = [answer_error(seq, Iec.INTERNAL_STATE)]
             self._write(answers)
             if self.paused and self.lines.qsize() < MAX_PENDING_LINES // 2 and self.transport:
                 self.paused = False
@@ -226,7 +246,8 @@ class _Connection(asyncio.Protocol):
             self.gw.warn.warning("ascii_refused", "ASCII client %s: write or NMT refused (ascii.writes is false)", self.peer)  # fmt: skip
         if isinstance(result, list):
             return result
-        return [await self.gw.perform(result)]
+        with acting_as(f"ascii {self.peer}"):  # the audit of a write names the client
+            return [await self.gw.perform(result)]
 
     def _write(self, lines: list[str]) -> None:
         if lines and self.transport is not None and not self.transport.is_closing():

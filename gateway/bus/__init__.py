@@ -4,4 +4,6 @@ per-node owner (``node/``), SDO (``sdo/``), error control
 (``error_control/``), LSS (``lss/``), EMCY and the master's own periodic frames.
 
 Nothing in this package imports a northbound module (modbus, zenoh_bridge, web, ascii).
+
+Imports: nothing (its modules are imported by name).
 """

@@ -93,8 +93,11 @@ def interface_problem(interface: str) -> str | None:
     """None when python-can can load ``interface``; else what is wrong and what is allowed."""
     installed = ", ".join(installed_interfaces())
     if interface not in can.interfaces.BACKENDS:
+        # a misspelt name (virtul): the nearest installed one first, as for misspelt keys
+        near = difflib.get_close_matches(str(interface), list(can.interfaces.BACKENDS), n=1, cutoff=0.6)
+        hint = f"did you mean {near[0]!r}? " if near else ""
         return (
-            f"unknown CAN interface {interface!r} (not installed); "
+            f"unknown CAN interface {interface!r} (not installed); {hint}"
             f"installed python-can interfaces: {installed}"
         )
     try:

@@ -40,7 +40,6 @@ from gateway.bus.bus_peers import (
 from gateway.bus.driver import BusDriver
 from gateway.bus.lss.service import LssService
 from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
-from gateway.bus.node.lifecycle import LifecycleState
 from gateway.bus.node.parts import NodeParts, build_node_into
 from gateway.bus.pair.member import PairMember
 from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide
@@ -140,9 +139,9 @@ class Master(PairSide):
         self.peer_log = RateLimitedLog(log, period_s=PEER_LOG_PERIOD_S)
         #: LSS (CiA 305) on this connection to the bus, for the command service
         self.lss = LssService(driver.send, self._post, self.clock, driver.frame_time)
-        listening = self.in_pair  # a pair's member listens until it is active
+        listening = passive or self.in_pair  # a pair's member, until it is active
         for ncfg in cfg.nodes:
-            parts = build_node_into(nodes[ncfg.name], image, passive, listening)
+            parts = build_node_into(nodes[ncfg.name], image, listening)
             self.nodes[ncfg.name] = parts
             self.by_id[ncfg.node_id] = parts
         self._install_handlers()
@@ -270,6 +269,8 @@ class Master(PairSide):
             if not data:
                 return
             outs = node.on_nmt_ec(data[0], now)
+        elif kind == "rtr":  # another master's guarding RTR (heard while listening)
+            outs = node.on_guard_rtr(now)
         elif kind == "emcy":
             outs = node.on_emcy(data, wall, now)
         else:
@@ -335,12 +336,7 @@ class Master(PairSide):
                     log.log(o.level, "%s", text)
         if health:
             self.image.health_changed(p.image, "state")
-        node = p.node
-        p.steady = (
-            p.settings.supervision == "heartbeat"  # a deadline timer drains what is queued
-            and node.alive
-            and node.lifecycle.state is LifecycleState.OPERATIONAL
-        )
+        p.steady = p.node.steady  # a deadline timer drains what is queued
         self._schedule(p)
 
     def _schedule(self, p: NodeParts) -> None:

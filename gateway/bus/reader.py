@@ -49,6 +49,8 @@ def control_handler(
 
     def handle(msg: can.Message) -> None:
         if msg.is_remote_frame:
+            if kind == "nmt_ec":  # another master's guarding RTR: a listening node counts it
+                post(dispatch, p, "rtr", b"", msg.timestamp or time.time(), frame_time(msg))
             return
         data = bytes(msg.data)
         # a heartbeat repeating the previous one of a steady node changes nothing before

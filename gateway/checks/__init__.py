@@ -26,7 +26,8 @@ text naming the node)`` each (``check`` prints them after its summary): a device
 and RPDO on one COB-ID; an enabled SYNC-driven TPDO (transmission type 0..240) without a
 SYNC producer (``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the
 node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF whose
-``[DeviceComissioning] NodeID`` is not the node id it is used at.
+``[DeviceComissioning] NodeID`` is not the node id it is used at; in a hot-standby pair, a
+node that cannot survive the gateway's worst take-over (``checks.pair.takeover_warnings``).
 
 ``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
 hot-standby pair (``check -c A -c B``, docs/redundancy.md).
@@ -39,6 +40,10 @@ Pure: imports config, device.resolved (the resolution and its loaders), checks.p
 eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
 register map, the COB-IDs of the nodes (bus/cob_ids.py), a device file's COB-IDs and NodeID
 (eds/cob_ids.py) (no I/O but reading the files they name).
+
+Imports: config, checks.pair, cia301, objref, bus.cob_ids, device (boot_steps, resolved,
+settings), eds (parse, pdos, cob_ids), profiles (layout, schema), modbus.safe_outputs (its
+rule only), northbound.regmap.
 """
 
 from __future__ import annotations
@@ -48,7 +53,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from gateway.bus.cob_ids import clashes, gateway_uses, loops_back
-from gateway.checks.pair import pair_problems
+from gateway.checks.pair import pair_problems, takeover_warnings
 from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.device.boot_steps import ConfigStep
@@ -374,7 +379,7 @@ def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
             )
         for c, function, owner in foreign_cob_ids(eds, n.node_id):
             out.append((key, f"node {n.name}: {c.where(file)}: {foreign_text(c, function, owner)}"))
-    return out
+    return out + takeover_warnings(cfg, resolved)
 
 
 def sync_wait_text(rn: ResolvedNode) -> str:

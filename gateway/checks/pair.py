@@ -2,7 +2,12 @@
 ``pair_problems(a, b, nodes_a, nodes_b)``, one line per disagreement naming both files and the
 key path: the same CAN bus, logical master, nodes (their device description and profile by
 content) and Modbus layout; both with ``master.redundancy``, distinct own ids, ``peer_node_id``
-naming the other.
+naming the other; a bus two processes can share (not ``interface: virtual``).
+
+``takeover_warnings(cfg, nodes)`` (every ``check``, through ``config_warnings``): what cannot
+survive this gateway's worst take-over (``takeover_worst_ms``): a guarded node whose life time
+is shorter, a boot step writing the node's consumer of the logical master's heartbeat (1016h)
+with a shorter consumer time.
 
 Imports: config (types), device.resolved (types). No I/O but reading the device files to compare.
 """
@@ -21,6 +26,69 @@ from gateway.device.resolved import ResolvedNode
 PAIR_SHARED_CAN = ("interface", "channel", "bitrate")
 PAIR_SHARED_SLOTS = ("priority_slot_ms", "device_slot_ms")
 PAIR_SHARED_MODBUS = ("layout", "gateway_unit_id", "flat_unit_id", "flat_stride", "word_order")
+#: python-can interfaces whose bus lives in one process: two gateway processes never meet on it
+PRIVATE_BUSES = {"virtual": "each process's own in-process bus"}
+#: what to use instead (docs/redundancy.md, "A pair on one machine")
+SHARED_BUS_HINT = (
+    "use the plant's CAN interface (socketcan, pcan, kvaser, ...), or on one machine a bus "
+    "shared by processes: python-can-remote (interface: remote, channel: ws://127.0.0.1:PORT/) "
+    "or socketcand (interface: socketcand, host, port, channel)"
+)
+#: CiA 301 7.5.2.15: consumer heartbeat time object (1016h), bits 16..23 the producer's node id
+OBJ_CONSUMER_HEARTBEAT = 0x1016
+
+
+def takeover_worst_ms(cfg: Config) -> int | None:
+    """The longest the logical master may be silent when this gateway takes over (None: not in
+    a pair): its ``takeover_ms`` (default 3 x ``heartbeat_ms``), then its CiA 302-2 time slot
+    (priority x ``priority_slot_ms`` + node id x ``device_slot_ms``), and the heartbeat the old
+    active one may have been about to send (one ``heartbeat_ms``)."""
+    pair, hb = cfg.master.redundancy, cfg.master.heartbeat_ms
+    if pair is None:
+        return None
+    takeover = pair.takeover_ms if pair.takeover_ms is not None else 3 * hb
+    return takeover + pair.priority * pair.priority_slot_ms + pair.node_id * pair.device_slot_ms + hb
+
+
+def takeover_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[tuple[str, str]]:
+    """``(key path, text)`` per node that cannot survive this gateway's worst take-over."""
+    worst = takeover_worst_ms(cfg)
+    if worst is None:
+        return []
+    pair = cfg.master.redundancy
+    assert pair is not None
+    how = (
+        f"the worst take-over by this gateway (redundancy.node_id {pair.node_id}) is {worst} ms: "
+        f"takeover_ms + its slot + one heartbeat_ms"
+    )
+    out: list[tuple[str, str]] = []
+    for i, n in enumerate(cfg.nodes):
+        rn = nodes.get(n.name)
+        if rn is None:
+            continue
+        s = rn.settings
+        if s.supervision == "guarding" and s.life_time_ms < worst:
+            out.append((
+                f"nodes[{i}].guard_time_ms",
+                f"node {n.name}: node guarding life time {s.guard_time_ms} ms x "
+                f"{s.life_time_factor} = {s.life_time_ms} ms is shorter than {how}: its life "
+                f"guarding expires at a take-over; make guard_time_ms x life_time_factor at "
+                f"least {worst} ms, or supervise it by heartbeat",
+            ))  # fmt: skip
+        for step in rn.boot_steps:
+            v = step.value
+            if step.object.index != OBJ_CONSUMER_HEARTBEAT or not isinstance(v, int):
+                continue
+            consumer_ms, producer = v & 0xFFFF, (v >> 16) & 0x7F
+            if producer == cfg.master.node_id and 0 < consumer_ms < worst:
+                out.append((
+                    f"nodes[{i}].sdo",
+                    f"node {n.name}: boot step {step.object} sets its consumer of the logical "
+                    f"master's heartbeat (node {producer}) to {consumer_ms} ms, shorter than "
+                    f"{how}: it reports a heartbeat loss at a take-over; write a consumer time "
+                    f"of at least {worst} ms",
+                ))  # fmt: skip
+    return out
 
 
 def _differences(key: str, a: Any, b: Any) -> list[tuple[str, Any, Any]]:
@@ -57,6 +125,14 @@ def pair_problems(
         va, vb = getattr(a.can, k), getattr(b.can, k)
         if va != vb:
             differ(f"can.{k}", va, vb)
+    for cfg in (a, b) if a.can.interface != b.can.interface else (a,):
+        private = PRIVATE_BUSES.get(cfg.can.interface)
+        if private is not None:
+            out.append(
+                f"{both}: can.interface: {cfg.can.interface!r} in {cfg.source} is {private}: the "
+                f"two gateways of a pair would never hear each other (both would master the "
+                f"devices); {SHARED_BUS_HINT}"
+            )
     master_a = a.master.model_dump(exclude={"redundancy"})
     master_b = b.master.model_dump(exclude={"redundancy"})
     for key, va, vb in _differences("master", master_a, master_b):

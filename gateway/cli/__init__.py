@@ -144,7 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(exc.line, file=sys.stderr)
         return EXIT_CONFIG
     except StartupError as exc:  # a part of a gateway or a commissioning master did not start
-        print(exc.line(args.config), file=sys.stderr)
+        for line in exc.lines(args.config):
+            print(line, file=sys.stderr)
         return EXIT_CONFIG
     except KeyboardInterrupt:
         return 130

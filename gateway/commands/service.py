@@ -14,6 +14,10 @@ Rules held here, once:
   ``ValueOutOfRange`` naming the bits. A bit the gateway manages itself (the AP05 guarding
   bit) is ignored in a whole-word write. Bits of RPDO and SDO words alike are written by
   read-modify-write, one writer at a time per word;
+* a configuration write (SDO) is checked against the object's range (EDS LowLimit/HighLimit,
+  the profile's constraints) and refused when it would defeat the gateway's supervision of
+  the node (``validation.supervision_problem``); a refusal, and an accepted write of an error
+  control object, is logged at WARNING naming the write and its client (``audit.WHO``);
 * SDO-backed values read north come from a cache (``master.sdo_cache_ms``, default 1000 ms):
   a read younger than that is served from it, concurrent reads share one upload, a write
   through the gateway updates it, and a boot-up or loss of the node empties it
@@ -23,7 +27,7 @@ The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``b
 
 Imports: bus.master (the operations), bus.node.parts (the nodes), device.values (value
 codecs), commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
-profiles, cia301. Never modbus/ or zenoh_bridge/.
+profiles, cia301, commands.audit. Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -37,13 +41,23 @@ from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
 from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.commands import bus_tools
+from gateway.commands.audit import WHO
 from gateway.commands.sdo_cache import SdoValueCache
-from gateway.commands.validation import bit_names, check_sdo_type, check_value, writable_mask
+from gateway.commands.validation import (
+    bit_names,
+    check_sdo_type,
+    check_value,
+    config_range_problem,
+    is_supervision_object,
+    supervision_problem,
+    writable_mask,
+)
 from gateway.device.values import decode_value, encode_value
 from gateway.errors import (
     GatewayError,
     NodeUnknown,
     ReadOnly,
+    SupervisionWrite,
     Unmapped,
     ValueOutOfRange,
 )
@@ -189,6 +203,8 @@ class CommandService:
         sdo = {n: v for n, v in checked.items() if n not in pdo}
         for n, v in pdo.items():
             self._check_word(p, self.signal(node, n), v, p.image.output(n))
+        for n, v in sdo.items():  # every configuration write checked before any is sent
+            self._check_config_write(p, self.signal(node, n).object, v, n)
         if pdo:
             per_pdo: dict[int | None, dict[str, Any]] = {None: pdo}
             for ts in text_signals(p.lp.profile):
@@ -209,6 +225,7 @@ class CommandService:
                     await self._sdo_cache.write(p, sig, v)
             else:
                 await self._sdo_cache.write(p, sig, v)
+            self._log_config_write(p, sig.object, v)
 
     async def write_safe_outputs(self, plan: dict[str, dict[str, Any]]) -> dict[str, str]:
         """The output watchdog tripped: write each node's safe values (``plan``: node -> RPDO
@@ -270,7 +287,35 @@ class CommandService:
             if p.node.is_output(name):
                 self.master.write_outputs(node, {None: {name: word}})
             else:
+                self._check_config_write(p, sig.object, word, sig.name)
                 await self._sdo_cache.write(p, sig, check_value(sig, word))
+                self._log_config_write(p, sig.object, word)
+
+    def _check_config_write(self, p: NodeParts, obj: ObjRef, value: Any, name: str = "") -> None:
+        """An SDO write's value against the object's range and the node's supervision
+        (``validation``); a refusal that concerns supervision is logged naming the client."""
+        if not isinstance(value, int) or isinstance(value, bool):
+            return
+        shown = f"{name} ({obj})" if name else str(obj)
+        why = config_range_problem(p.lp, obj, value)
+        if why is not None:
+            raise ValueOutOfRange(shown, value, why)
+        master_id = self.master.cfg.master.node_id
+        why = supervision_problem(p.name, p.settings, p.boot_steps, master_id, obj, value)
+        if why is not None:
+            log.warning("%s: write %s = %s refused: %s", WHO.get(), shown, value, why)
+            raise SupervisionWrite(shown, value, why)
+
+    def _log_config_write(self, p: NodeParts, obj: ObjRef, value: Any) -> None:
+        """A write of an error control object that was sent: who changed what, at WARNING (the
+        console's event log shows it)."""
+        if is_supervision_object(obj):
+            kind = p.settings.supervision
+            how = "does not supervise it" if kind == "none" else f"supervises it by {kind}"
+            log.warning(
+                "%s wrote %s = %s on node %s (error control; the gateway %s)",
+                WHO.get(), obj, value, p.name, how,
+            )  # fmt: skip
 
     def _word_lock(self, node: str, name: str) -> asyncio.Lock:
         return self._word_locks.setdefault((node, name), asyncio.Lock())
@@ -378,10 +423,22 @@ class CommandService:
                 data = encode_value(value, t)
             except ValueError as exc:
                 raise ValueOutOfRange(str(o), value, str(exc)) from None
+        number = self._as_integer(p, o, data, type_)
+        self._check_config_write(p, o, number)
         await self.master.sdo(node, o, data)
+        self._log_config_write(p, o, number)
         sig = p.lp.profile.signal_for(o)
         if sig is not None:
             self._sdo_cache.forget(node, sig.name)
+
+    def _as_integer(self, p: NodeParts, o: ObjRef, data: bytes, type_: str | None) -> int | None:
+        """The integer an SDO download's bytes carry, by ``type_`` or the dictionary's type
+        (None: not an integer type). Bytes of another length than the type's are read as the
+        integer they hold, so a 4-byte 0 to a 16-bit 1017h is still a 0 to be checked."""
+        t = type_ or self._od_type(p, o)
+        if t is None or t not in TYPE_BITS or t.startswith("float") or not 0 < len(data) <= 8:
+            return None
+        return int.from_bytes(data, "little", signed=t.startswith("int"))
 
     def lss_busy(self) -> bool:
         """An LSS session is running."""

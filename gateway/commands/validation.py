@@ -5,16 +5,35 @@ profile's range (``check_value``); the bits of a word a client may change are th
 ``writable`` bits (``writable_mask``, named in refusals by ``bit_names``); an SDO value's
 ``type_`` is one of ``SDO_TYPES``. Pure: no I/O, no state.
 
-Imports: errors, profiles.schema.
+Every configuration write (an SDO download a client asks for) also passes two checks:
+
+* ``config_range_problem``: the object's range, from the EDS (LowLimit/HighLimit) and the
+  profile's ``constraints`` (the device manual's words the EDS cannot say: SGH10 manual
+  4.7.2.14, 1017h "0 or 10..65535");
+* ``supervision_problem``: a write that would defeat the gateway's supervision of the node is
+  refused (``SupervisionWrite``): 1017h on a node supervised by its heartbeat, 100Ch/100Dh
+  (or 1017h other than 0, which takes precedence, CiA 301 7.2.8.3.2) on a node supervised by
+  node guarding, and an entry of 1016h the boot configuration set to consume the master's
+  heartbeat: each may only be written with the value the gateway configured. The way to change
+  them is the node's configuration (``heartbeat_ms``, ``guard_time_ms``...).
+
+Imports: errors, profiles.schema, objref; profiles, device.settings and device.boot_steps for types.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 from gateway.errors import ValueOutOfRange
+from gateway.objref import ObjRef
 from gateway.profiles.schema import TYPE_BITS, Signal
+
+if TYPE_CHECKING:
+    from gateway.device.boot_steps import ConfigStep
+    from gateway.device.settings import NodeSettings
+    from gateway.profiles import LoadedProfile
 
 #: the types an SDO value may be read or written as (``type_`` of ``sdo_read`` / ``sdo_write``)
 SDO_TYPES = (*TYPE_BITS, "string", "bytes")
@@ -107,3 +126,86 @@ def bit_names(sig: Signal, mask: int) -> str:
             named = next((b.name for b in sig.bits if b.bit <= bit < b.bit + b.width), None)
             names.append(f"bit {bit}" + (f" ({named})" if named else ""))
     return ", ".join(names)
+
+
+# ---------------------------------------------------------------------- configuration writes
+#: CiA 301 7.5.2: the objects the gateway supervises a node by (SGH10 manual 4.7.2.9, 4.7.2.10,
+#: 4.7.2.14; POSI+ manual 002 4: 1016h, the device's consumer of another node's heartbeat)
+OBJ_GUARD_TIME = ObjRef(0x100C, 0x00)
+OBJ_LIFE_TIME_FACTOR = ObjRef(0x100D, 0x00)
+OBJ_HEARTBEAT_CONSUMER = 0x1016  # sub 1..127: bits 0-15 time (ms), bits 16-23 producer node id
+OBJ_HEARTBEAT_PRODUCER = ObjRef(0x1017, 0x00)
+SUPERVISION_OBJECTS = (OBJ_GUARD_TIME, OBJ_LIFE_TIME_FACTOR, OBJ_HEARTBEAT_PRODUCER)
+
+
+def is_supervision_object(obj: ObjRef) -> bool:
+    """1017h, 100Ch, 100Dh or an entry of 1016h: a write to it may change error control."""
+    return obj in SUPERVISION_OBJECTS or (obj.index == OBJ_HEARTBEAT_CONSUMER and obj.sub > 0)
+
+
+def config_range_problem(lp: LoadedProfile, obj: ObjRef, value: int) -> str | None:
+    """Why an integer ``value`` is outside what ``obj`` accepts (EDS LowLimit/HighLimit, the
+    profile's constraint), or None. An EDS whose limits say nothing (LowLimit > HighLimit, or
+    both 0, as placeholder files have) is not read as a limit."""
+    var = lp.od_var(obj)
+    lo, hi = getattr(var, "min", None), getattr(var, "max", None)
+    if lo is not None and hi is not None and (lo > hi or lo == hi == 0):
+        lo = hi = None
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        shown = f"{lo if lo is not None else ''}..{hi if hi is not None else ''}"
+        return f"{shown} (LowLimit/HighLimit of {obj} in {lp.eds_path.name})"
+    c = lp.profile.constraints.get(obj)
+    if c is not None and not c.admits(value):
+        note = f"; {c.note}" if c.note else ""
+        return f"{c.allowed} (profile {lp.profile.family}){note}"
+    return None
+
+
+def _configured(steps: Sequence[ConfigStep], obj: ObjRef, default: int) -> int:
+    """The value the boot configuration writes to ``obj`` (its last step), else ``default``."""
+    for step in reversed(steps):
+        if step.object == obj and isinstance(step.value, int):
+            return step.value
+    return default
+
+
+def supervision_problem(
+    node: str,
+    settings: NodeSettings,
+    steps: Sequence[ConfigStep],
+    master_node_id: int,
+    obj: ObjRef,
+    value: int,
+) -> str | None:
+    """Why writing ``value`` to ``obj`` would defeat the gateway's supervision of ``node``, or
+    None. A write of the value the gateway configured changes nothing and is allowed."""
+    kind = settings.supervision
+    keep: int | None = None
+    how = ""
+    if obj == OBJ_HEARTBEAT_PRODUCER and kind == "heartbeat":
+        keep = _configured(steps, obj, settings.heartbeat_ms)
+        how = f"by its heartbeat: 1017h = {keep} ms (heartbeat_ms in the config)"
+    elif obj == OBJ_HEARTBEAT_PRODUCER and kind == "guarding":
+        keep = 0
+        how = "by node guarding: 1017h = 0 (a heartbeat time takes precedence over guarding)"
+    elif obj == OBJ_GUARD_TIME and kind == "guarding":
+        keep = _configured(steps, obj, settings.guard_time_ms)
+        how = f"by node guarding: 100Ch = {keep} ms (guard_time_ms in the config)"
+    elif obj == OBJ_LIFE_TIME_FACTOR and kind == "guarding":
+        keep = _configured(steps, obj, settings.life_time_factor)
+        how = f"by node guarding: 100Dh = {keep} (life_time_factor in the config)"
+    elif obj.index == OBJ_HEARTBEAT_CONSUMER and obj.sub > 0:
+        configured = _configured(steps, obj, -1)
+        if configured < 0 or (configured >> 16) & 0xFF != master_node_id:
+            return None
+        keep = configured
+        how = (
+            f"watching the master's heartbeat: {obj} = {keep:#010x} (node {master_node_id}, "
+            f"{keep & 0xFFFF} ms; the node's sdo writes in the config)"
+        )
+    if keep is None or value == keep:
+        return None
+    return (
+        f"node {node} is supervised {how}; writing {value} would change that "
+        "(change the node's configuration instead)"
+    )

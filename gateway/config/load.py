@@ -156,6 +156,17 @@ def _pair_problems(cfg: Config) -> list[tuple[str, str]]:
                 "when it is missing",
             )
         )
+    hb = cfg.master.heartbeat_ms
+    if pair.takeover_ms is not None and hb > 0 and pair.takeover_ms < 2 * hb:
+        out.append(
+            (
+                "master.redundancy.takeover_ms",
+                f"{pair.takeover_ms} ms is under two logical heartbeats (2 x master.heartbeat_ms "
+                f"= {2 * hb} ms): one late heartbeat would look like a dead master and a lone "
+                f"gateway would flap between active and standby; allowed: at least {2 * hb} ms "
+                f"(default 3 x master.heartbeat_ms)",
+            )
+        )
     nodes = {n.node_id: i for i, n in enumerate(cfg.nodes)}
     for key, value in (("node_id", pair.node_id), ("peer_node_id", pair.peer_node_id)):
         if value is None:
@@ -187,6 +198,34 @@ def raw_section(
     return section if isinstance(section, dict) else None
 
 
+def yaml_error_line(source: str, text: str, exc: yaml.YAMLError) -> str:
+    """A YAML syntax error as one line at the line of the mistake, quoted. PyYAML marks where
+    it gave up (``problem_mark``: for ``port 5020`` without its colon, the next key, lines
+    later) and where the construct it was reading began (``context_mark``). The scanner's
+    context is the token in error (``port 5020``) and a flow collection's is its opening
+    bracket (left unclosed); a block collection's context is where the section began, so there
+    the problem mark is the line. A mark on a blank or comment line steps back to the last line
+    with text."""
+    problem_mark = getattr(exc, "problem_mark", None)
+    context_mark = getattr(exc, "context_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    context = getattr(exc, "context", None)
+    mark = problem_mark
+    token_context = isinstance(exc, yaml.scanner.ScannerError) or "flow" in str(context)
+    if token_context and context_mark is not None and (mark is None or context_mark.line <= mark.line):
+        mark = context_mark
+    if mark is None:
+        return f"{source}: YAML syntax error: {problem}"
+    lines = text.splitlines()
+    n = min(mark.line, len(lines) - 1)
+    while n > 0 and (not lines[n].strip() or lines[n].lstrip().startswith("#")):
+        n -= 1
+    where = f"line {n + 1}" + (f", column {mark.column + 1}" if n == mark.line else "")
+    why = f"{problem} ({context})" if context else problem
+    quoted = lines[n].strip() if lines else ""
+    return f"{source}: {where}: YAML syntax error: {why}: {quoted!r}"
+
+
 def load_config(
     path: str | os.PathLike[str],
     environ: Mapping[str, str] | None = None,
@@ -205,10 +244,7 @@ def load_config(
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ConfigError([f"{source}: {where}: YAML syntax error: {problem}"]) from None
+        raise ConfigError([yaml_error_line(source, text, exc)]) from None
     environ = os.environ if environ is None else environ
     if raw is None or raw == {}:
         raise ConfigError(

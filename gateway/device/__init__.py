@@ -9,4 +9,6 @@ ordered SDO writes of its boot configuration, ``values`` is the one encoding of 
 301 type in an SDO transfer.
 
 Below the bus in the layers: nothing here sends or receives a frame; it reads the device files.
+
+Imports: nothing (its modules are imported by name).
 """

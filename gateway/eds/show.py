@@ -115,8 +115,11 @@ def overlay_profile(eds: EdsFile, eds_ref: str) -> str:
     for o in objs:
         var = od_var(od, o)
         kind = "RPDO, written by the gateway" if o in r_objs else "TPDO, read"
+        # the description an EDS-only node's register map shows: the object's name and index
+        described = yaml.safe_dump(f"{object_name(od, o)} ({o})", allow_unicode=True, width=1000)
         text += (
             f"  - name: {names[o]}\n"
-            f'    object: "{o}"  # {object_name(od, o)}: {signal_type(var)}, {access_of(var)}, {kind}\n'
+            f'    object: "{o}"  # {signal_type(var)}, {access_of(var)}, {kind}\n'
+            f"    description: {described.splitlines()[0]}\n"
         )
     return head + text

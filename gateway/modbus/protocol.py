@@ -77,7 +77,8 @@ MBAP_MAX_LENGTH = 254
 #: requests of one connection processed at once; beyond, reading from it pauses
 MAX_IN_FLIGHT = 16
 
-LIFECYCLE_CODES = {"waiting": 0, "booting": 1, "configuring": 2, "operational": 3}
+#: a pair's standby says "unknown" for a node it did not hear started (bus.node.listening)
+LIFECYCLE_CODES = {"waiting": 0, "booting": 1, "configuring": 2, "operational": 3, "unknown": 4}
 
 
 class ModbusError(Exception):

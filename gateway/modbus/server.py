@@ -58,6 +58,7 @@ import logging
 from typing import Any
 
 from gateway.commands import CommandService
+from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 from gateway.errors import GatewayError
@@ -216,7 +217,9 @@ class _Connection(asyncio.Protocol):
         store.by_function[fc] = store.by_function.get(fc, 0) + 1
         try:
             self._authorise(fc)
-            response = await execute(store, unit, pdu, self.peer)
+            role = f" tls role {self.role or 'none'}" if self.access is not None else ""
+            with acting_as(f"modbus {self.peer}{role}"):  # the audit of a write names the client
+                response = await execute(store, unit, pdu, self.peer)
         except Exception as exc:  # noqa: BLE001 - every failure becomes an exception response
             code = exception_code(exc)
             store.count_exception(code)

@@ -14,6 +14,8 @@ step: its outcome does not change the node's lifecycle (the node is started eith
 its values are refused until a verification passes, from the boot-up on).
 
 Pure: imports gateway.profiles (layout) and gateway.objref; no I/O.
+
+Imports: cia301, objref, eds.pdos, profiles (layout).
 """
 
 from __future__ import annotations

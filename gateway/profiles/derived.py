@@ -7,6 +7,8 @@ data identifier bit set. ``text_signals`` names one text signal per row, e.g.
 ``set_point1_text``, so PLCs and cloud apps write a row as one string.
 
 Pure: imports the profile schema only.
+
+Imports: objref, profiles.schema.
 """
 
 from __future__ import annotations

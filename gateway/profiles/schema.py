@@ -11,6 +11,8 @@ code; an EDS alone is enough (``nodes[].eds``), a profile adds names and behavio
 
 This module knows the shape of a profile only; it imports nothing from the rest of the gateway
 but ``gateway.objref``.
+
+Imports: objref.
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), ratelimit, sim.faults
+web.events, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), ratelimit, turns, sim.faults, commands.audit (acting_as)
 (names and errors; the injector itself is given by the application; the bus driver, for the
 monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
@@ -63,10 +63,12 @@ from importlib import resources
 from typing import Any
 
 from gateway import __version__
+from gateway.commands.audit import acting_as
 from gateway.health import JSON_TYPE, Request, Response, Stream
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
 from gateway.ratelimit import RateLimitedLog
+from gateway.turns import LoopTurns
 from gateway.web.commissioning import Commissioning, error_doc, shown
 from gateway.web.events import KINDS, EventLog, EventLogHandler
 from gateway.web.limits import ClientBudget
@@ -140,6 +142,7 @@ class WebConsole:
         decoder: FrameDecoder,
         faults: Any = None,
         frames: FrameSource | None = None,
+        turns: LoopTurns | None = None,
     ):
         #: what the pages and the API show, built from the console's config, image and commands
         self.model = model
@@ -161,6 +164,7 @@ class WebConsole:
         self._sampler: Any = None
         #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
         self.monitor = FrameMonitor(self.cfg, decoder, frames)
+        self.turns = turns  # live updates take turns on the loop (API requests: in health)
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)
@@ -276,7 +280,7 @@ class WebConsole:
             return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": str(exc)})
 
         async def body(reader: Any, writer: Any) -> None:
-            await self.hub.pump(sub, self.render, reader, writer)
+            await self.hub.pump(sub, self.render, reader, writer, turns=self.turns)
 
         return Stream("text/event-stream", body)
 
@@ -335,7 +339,8 @@ class WebConsole:
                 f"no operation {op!r}; one of login, {', '.join(Commissioning.OPS)}"
             )
         try:
-            result = await self.commissioning.run(op, request.body)
+            with acting_as(f"web {request.client or '?'}"):  # the audit names the client
+                result = await self.commissioning.run(op, request.body)
         except Exception as exc:  # every failure becomes an answer with words
             status, doc = error_doc(exc)
             if status == HTTPStatus.INTERNAL_SERVER_ERROR:
@@ -484,7 +489,7 @@ class WebConsole:
             except TooManyPages as exc:  # another page came first since refusal()
                 writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
                 return
-            await self.monitor.pump(page, reader, writer)
+            await self.monitor.pump(page, reader, writer, turns=self.turns)
 
         return Stream("text/event-stream", body)
 

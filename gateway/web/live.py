@@ -18,7 +18,10 @@ gateway does ever waits for a browser. ``stream_sse`` is that pump, the bus moni
 Rule 3: everything here runs on the event loop, except ``_on_values`` (the reader thread).
 Health listeners are called on the event loop by the image's writer.
 
-Imports: image only (the rendering is given as a function by the console).
+The PLC comes first: with ``turns`` (``turns.LoopTurns``), each update is rendered in its turn
+on the event loop, one piece of northbound work per loop iteration.
+
+Imports: image, turns (the rendering is given as a function by the console).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from collections.abc import Callable
 from typing import Any
 
 from gateway.image import NodeImage, ProcessImage
+from gateway.turns import LoopTurns
 
 log = logging.getLogger("gateway.web")
 
@@ -227,6 +231,7 @@ class LiveHub:
         *,
         slow_limit_s: float = SLOW_CLIENT_LIMIT_S,
         max_buffered: int = MAX_BUFFERED_BYTES,
+        turns: LoopTurns | None = None,
     ) -> None:
         """Write ``sub``'s updates to ``writer`` until the client goes away (or is too slow):
         what changed, at most ``MAX_UPDATES_PER_S`` times a second, everything every
@@ -259,6 +264,7 @@ class LiveHub:
                 on_skip=skip,
                 slow_limit_s=slow_limit_s,
                 max_buffered=max_buffered,
+                turns=turns,
             )
         finally:
             self.unsubscribe(sub)
@@ -277,6 +283,7 @@ async def stream_sse(
     on_skip: Callable[[], None] | None = None,
     slow_limit_s: float = SLOW_CLIENT_LIMIT_S,
     max_buffered: int = MAX_BUFFERED_BYTES,
+    turns: LoopTurns | None = None,
 ) -> None:
     """The one server-sent-event pump of the console (the live pages and the bus monitor, Rule 2).
 
@@ -285,7 +292,8 @@ async def stream_sse(
     for nothing) when ``wake`` is set or the loop time ``due()`` has come, at most one write
     every ``interval_s``: what comes meanwhile joins the next write. A turn whose socket holds
     more than ``max_buffered`` bytes is skipped (``on_skip``), ``wake`` left set; after
-    ``slow_limit_s`` of skipped turns the client (``who``, in the log) is dropped."""
+    ``slow_limit_s`` of skipped turns the client (``who``, in the log) is dropped. With
+    ``turns``, each ``turn`` waits for its turn on the event loop (the PLC first)."""
     loop = asyncio.get_running_loop()
     transport = writer.transport
     gone = asyncio.ensure_future(reader.read(1))  # the browser sends nothing: EOF = gone
@@ -316,6 +324,10 @@ async def stream_sse(
                 last_send = now  # try again one interval later
                 continue
             slow_since = None
+            if turns is not None:
+                await turns.turn(bounded=False)
+                if gone.done() or transport.is_closing():
+                    break
             wake.clear()
             data = turn(now)
             if data:

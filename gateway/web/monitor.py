@@ -25,7 +25,8 @@ Frames the gateway sends are not tapped (they leave through the sender thread): 
 what the gateway receives, as ``canopen-gateway monitor`` on a second connection shows both.
 
 Imports: config, northbound.frames (the decoder, node and kind filters), web.live
-(the SSE framing, its limits and its pump, ``stream_sse``). Never bus/ (the driver is given as an object with a
+(the SSE framing, its limits and its pump, ``stream_sse``), turns (each write in its turn on the
+event loop: the PLC first). Never bus/ (the driver is given as an object with a
 ``add_tap`` / ``remove_tap``), modbus/ or zenoh_bridge/.
 """
 
@@ -39,6 +40,7 @@ from typing import Any, Protocol
 
 from gateway.config import Config
 from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
+from gateway.turns import LoopTurns
 from gateway.web.live import Handoff, sse, stream_sse
 
 log = logging.getLogger("gateway.web")
@@ -315,7 +317,11 @@ class FrameMonitor:
         }
 
     async def pump(
-        self, page: MonitorPage, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
+        self,
+        page: MonitorPage,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        turns: LoopTurns | None = None,
     ) -> None:
         """Write the page's lines until the browser goes away (or does not read for
         ``web.live.SLOW_CLIENT_LIMIT_S``): at most one write every ``SEND_INTERVAL_S``, a status at least
@@ -344,6 +350,7 @@ class FrameMonitor:
                 interval_s=SEND_INTERVAL_S,
                 who="bus monitor page",
                 first=sse("hello", self.hello(page)),
+                turns=turns,
             )
         finally:
             self.close(page)

@@ -24,8 +24,11 @@ turns /healthz not-ready, never silently):
   holds the values back;
 * a housekeeping task on the event loop publishes held-back samples (max rate) and quality
   changes that no frame announces (stale by age);
-* query callbacks run on zenoh threads and only hand the query to the event loop, where
-  ``QueryService`` answers it through the command service and finalises it.
+* query callbacks run on zenoh threads and only queue the query for the ``zenoh-queries``
+  thread (``worker.py``: bounded, fair between querying sessions, a full queue answered
+  ``busy``), where ``QueryService`` answers reads of the image a reply at a time, giving way
+  to the event loop (the Modbus server) between turns, and hands commands to the event loop
+  (the command service).
 
 Values and events go out through zenoh-ext advanced publishers (``zenoh.history``): each keeps
 the last samples of its key (1,000 per event key, the last value per value key by default),
@@ -250,6 +253,7 @@ class ZenohBridge:
         self.image.health_listeners.append(self._on_health)
         self._sender.start()
         self._events.start()
+        self.queries.start(self.threads)
 
     async def detach(self) -> None:
         """The session stops: no more listening; marked values and queued events go out first."""
@@ -261,6 +265,7 @@ class ZenohBridge:
             self.image.batch_listeners.remove(self._sender.wake_values)
         if self.on_pdo in self.image.pdo_listeners:
             self.image.pdo_listeners.remove(self.on_pdo)
+        await asyncio.to_thread(self.queries.stop)  # queries left are answered busy
         await asyncio.to_thread(self._sender.stop)  # marked values go out before the close
         await asyncio.to_thread(self._events.stop)  # and queued events
 

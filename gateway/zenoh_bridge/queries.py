@@ -1,20 +1,28 @@
 """Zenoh queries: every answer of the gateway's queryable on ``<prefix>/**``.
 
-The zenoh callback only hands the query to the event loop (``on_query``); there the command
-service answers it (SDO, set points, NMT), or the process image does (state, snapshot, latest
-value, catalogue), and the query is finalised with a reply or a ``reply_err``. Nothing a client
-sends may crash the gateway: a bad request is answered with its error kind. Writes (``set``,
-SDO download, ``nmt``) pass the write gate first (``zenoh.writes``, ``zenoh.write_allow``); a
-refused one is answered ``forbidden``, counted in ``refused`` (``zenoh_refused_total``) and
-logged at most once per period per operation. A key expression with wildcards gets the
-read-only answers it matches, never a command.
+The PLC comes first: no query is answered on the event loop, where the Modbus server runs. The
+zenoh callback (``on_query``) only queues the query in the queries' own worker
+(``worker.QueryWorker``, thread ``zenoh-queries``: bounded, round robin between querying
+sessions); a full queue is answered at once with ``reply_err`` ``busy`` and a ``retry_after_ms``
+hint, and counted. On the worker, the one dispatch point (``_job``) sends each query to its
+answer: reads the process image gives (state, snapshot, latest value, catalogue, wildcards) are
+produced there, one reply per step of a lazy iterator (``Replies``) so that a long answer gives
+way between replies; commands (SDO, set points, NMT, a value read by SDO) are handed to the
+event loop, where the command service runs them (at most ``COMMANDS_MAX`` at once, else
+``busy``), and the loop answers and finalises them. Every query is finalised with a reply or a
+``reply_err``. Nothing a client sends may crash the gateway: a bad request is answered with its
+error kind. Writes (``set``, SDO download, ``nmt``) pass the write gate first (``zenoh.writes``,
+``zenoh.write_allow``); a refused one is answered ``forbidden``, counted in ``refused``
+(``zenoh_refused_total``) and logged at most once per period per operation. A key expression
+with wildcards gets the read-only answers it matches, never a command.
 
 The publishing side (``bridge.py``) owns the session and the publishers; this side reads the
 session through a function and knows the published value keys and their scaling as given at
 construction.
 
-Imports: zenoh, commands, errors, image, config, ratelimit, profiles.schema, profiles.derived,
-northbound.keys, northbound.scaling, payloads, access. Nothing of bus/ or modbus/.
+Imports: zenoh, commands, errors, image, config, ratelimit, threads, profiles.schema,
+profiles.derived, northbound.keys, northbound.scaling, payloads, access, worker. Nothing of bus/
+or modbus/.
 """
 
 from __future__ import annotations
@@ -22,8 +30,9 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import threading
 import time
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import KW_ONLY, dataclass, field
 from typing import Any
 
@@ -31,6 +40,7 @@ import zenoh
 
 from gateway import __version__
 from gateway.commands import CommandService
+from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import Forbidden, GatewayError, NotActive
 from gateway.image import NodeImage, ProcessImage
@@ -52,6 +62,7 @@ from gateway.northbound.scaling import Scaling, engineering, to_raw
 from gateway.profiles.derived import text_rows_as_signals
 from gateway.profiles.schema import Signal
 from gateway.ratelimit import RateLimitedLog
+from gateway.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.payloads import (
     add_names,
@@ -64,11 +75,51 @@ from gateway.zenoh_bridge.payloads import (
     state_payload,
     value_payload,
 )
+from gateway.zenoh_bridge.worker import ANONYMOUS, QueryWorker
 
 log = logging.getLogger("gateway.zenoh")
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 REFUSAL_LOG_PERIOD_S = 10.0
+#: commands (SDO, set points, NMT) handed to the event loop and not answered yet: past it, busy
+COMMANDS_MAX = 32
+#: a read answer: its replies, (key, body) one at a time; a body of bytes or str goes out as it
+#: is, anything else as JSON. Produced lazily, never held whole (history: thousands of samples)
+Replies = Iterator[tuple[str, Any]]
+#: ``read_now``'s answer for a request that is not a read of the image
+NOT_A_READ: Any = object()
+
+
+class Busy(Exception):
+    """Refused for now: the queries' queue (or the commands in flight) is full."""
+
+    def __init__(self, message: str, retry_after_s: float) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+
+
+def busy_payload(key: str, exc: Busy) -> dict[str, Any]:
+    return {
+        "error": "busy",
+        "message": str(exc),
+        "key": key,
+        "retry_after_ms": max(1, round(exc.retry_after_s * 1000)),
+    }
+
+
+def lane_of(query: zenoh.Query) -> str:
+    """The querying session when the query says (``source_info``), else the anonymous lane."""
+    si = query.source_info
+    return ANONYMOUS if si is None else str(si.source_id.zid)
+
+
+def zenoh_who(query: zenoh.Query) -> str:
+    """Who a query's write is audited as: ``zenoh`` and the querier's id when it sent one."""
+    try:
+        info = query.source_info
+    except Exception:  # noqa: BLE001 - an unstable API: no id rather than no answer
+        info = None
+    return "zenoh" if info is None else f"zenoh {info.source_id.zid}"
 
 
 def write_operation(req: Request, payload: bytes | None) -> str | None:
@@ -111,70 +162,199 @@ class QueryService:
         self.gate = WriteGate(self.cfg.zenoh)
         self._refusal_log = RateLimitedLog(log, REFUSAL_LOG_PERIOD_S)
         self._answers: set[asyncio.Future[Any]] = set()
+        #: the queries' own worker (``worker.py``): the thread ``zenoh-queries``
+        self.worker: QueryWorker[zenoh.Query] = QueryWorker(self._job)
+        #: commands handed to the event loop and not answered yet (``COMMANDS_MAX``)
+        self._command_slots = threading.BoundedSemaphore(COMMANDS_MAX)
+        #: queries answered (a reply, or a reply_err other than busy) and refused busy, each
+        #: counted on the thread that answered it (``zenoh_queries_*_total``)
+        self._answered = ThreadCount()
+        self._busy = ThreadCount()
+        #: the catalogue as sent (JSON), built once: it is made of the configuration only, and
+        #: building it took about 18 ms, one reply that cannot give way
+        self._catalog_json: str | None = None
+
+    @property
+    def answered(self) -> int:
+        return self._answered.value
+
+    @property
+    def busy(self) -> int:
+        return self._busy.value
+
+    # ------------------------------------------------------------------ the worker
+    def start(self, threads: ThreadRegistry) -> None:
+        """The session starts: the catalogue is built, the worker's thread runs
+        (``zenoh-queries``)."""
+        self.catalog_json()
+        self.worker.start_thread(threads)
+
+    def catalog_json(self) -> str:
+        """The catalogue's reply, built at the first call (the start) and kept."""
+        if self._catalog_json is None:
+            self._catalog_json = json.dumps(self.catalog())
+        return self._catalog_json
+
+    def stop(self) -> None:
+        """The session stops (any thread but the loop: it joins the worker): queries not
+        answered yet get ``reply_err`` ``busy``."""
+        self.worker.stop()
+        for query in self.worker.drain():
+            self._refuse(query, Busy("the gateway's Zenoh session is stopping", 1.0))
 
     def on_query(self, query: zenoh.Query) -> None:
-        """Zenoh thread: hand over to the event loop; never block here."""
+        """Zenoh thread: queue the query for the worker, or answer ``busy``; never block here."""
         loop = self.loop
         if loop is None or loop.is_closed() or self.session() is None:
             query.drop()
             return
-        try:
-            loop.call_soon_threadsafe(self._spawn_answer, query)
-        except RuntimeError:
-            query.drop()
+        if not self.worker.submit(lane_of(query), query):
+            retry = self.worker.retry_after_s()
+            why = f"{self.worker.depth} queries are waiting; ask again in {retry:.2f} s"
+            self._refuse(query, Busy(why, retry))
 
-    def _spawn_answer(self, query: zenoh.Query) -> None:
-        fut = asyncio.ensure_future(self._answer(query))
-        self._answers.add(fut)
-        fut.add_done_callback(self._answers.discard)
+    def _refuse(self, query: zenoh.Query, exc: Busy) -> None:
+        self._busy.add()
+        try:
+            query.reply_err(json.dumps(busy_payload(str(query.key_expr), exc)), encoding=JSON)
+        except zenoh.ZError:
+            pass
+        finally:
+            query.drop()
 
     def _reply(self, query: zenoh.Query, key: str, result: Any) -> None:
         s = self.session()
         query.reply(
             key,
-            json.dumps(result),
+            result if isinstance(result, (bytes, str)) else json.dumps(result),
             encoding=JSON,
             timestamp=s.new_timestamp() if s is not None else None,
         )
 
-    async def _answer(self, query: zenoh.Query) -> None:
-        key = str(query.key_expr)
+    def _reply_err(self, query: zenoh.Query, key: str, exc: Exception) -> None:
+        if isinstance(exc, Busy):
+            self._busy.add()
+            body = busy_payload(key, exc)
+        else:
+            if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
+                log.error("zenoh query %s failed", key, exc_info=exc)
+            body = error_payload(exc, key)
         try:
-            if has_wildcard(key):
-                self._answer_wildcard(query, key)
+            query.reply_err(json.dumps(body), encoding=JSON)
+        except zenoh.ZError:
+            pass
+
+    def _job(self, query: zenoh.Query) -> Iterator[None]:
+        """The worker's job for one query: the one dispatch point. A read is answered here,
+        a reply per step; a command goes to the event loop, which answers and finalises it."""
+        key = str(query.key_expr)
+        handed = answered = False
+        try:
+            replies = self._read_replies(query, key)
+            if replies is None:
+                handed = self._hand_to_loop(query, key)
                 return
+            for rkey, body in replies:
+                self._reply(query, rkey, body)
+                yield
+            answered = True
+        except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
+            self._reply_err(query, key, exc)
+            answered = not isinstance(exc, Busy)
+        finally:
+            if not handed:
+                if answered:
+                    self._answered.add()
+                query.drop()
+
+    def _read_replies(self, query: zenoh.Query, key: str) -> Replies | None:
+        """The replies of a read (wildcards, and what ``read_now`` answers), lazily; None for
+        a command (the event loop's)."""
+        if has_wildcard(key):
+            return self._wildcard(key)
+        payload = query.payload.to_bytes() if query.payload is not None else None
+        req = parse_key(self.prefix, key)
+        if req.kind == "catalog":
+            return iter(((key, self.catalog_json()),))
+        doc = self.read_now(req, payload)
+        if doc is NOT_A_READ:
+            return None
+        return iter(((key, doc),))
+
+    def _hand_to_loop(self, query: zenoh.Query, key: str) -> bool:
+        """A command to the event loop (True: the loop answers and finalises it)."""
+        loop = self.loop
+        if loop is None or loop.is_closed():
+            raise Busy("the gateway is stopping", 1.0)
+        if not self._command_slots.acquire(blocking=False):
+            raise Busy(f"{COMMANDS_MAX} commands are running; ask again in 0.5 s", 0.5)
+        try:
+            loop.call_soon_threadsafe(self._spawn_command, query, key)
+        except RuntimeError:
+            self._command_slots.release()
+            raise Busy("the gateway is stopping", 1.0) from None
+        return True
+
+    def _spawn_command(self, query: zenoh.Query, key: str) -> None:
+        fut = asyncio.ensure_future(self._command(query, key))
+        self._answers.add(fut)
+        fut.add_done_callback(self._answers.discard)
+
+    async def _command(self, query: zenoh.Query, key: str) -> None:
+        """Event loop: run a command through the command service, answer, finalise."""
+        try:
             payload = query.payload.to_bytes() if query.payload is not None else None
             type_param = query.parameters.get("type")
-            result = await self.dispatch(key, payload, type_param)
+            with acting_as(zenoh_who(query)):  # the audit of a write names the asker
+                result = await self.dispatch(key, payload, type_param)
             self._reply(query, key, result)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
-            if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
-                log.exception("zenoh query %s failed", key)
-            try:
-                query.reply_err(json.dumps(error_payload(exc, key)), encoding=JSON)
-            except zenoh.ZError:
-                pass
+            self._reply_err(query, key, exc)
         finally:
+            self._answered.add()
+            self._command_slots.release()
             query.drop()
 
-    def _answer_wildcard(self, query: zenoh.Query, key: str) -> None:
+    def _wildcard(self, key: str) -> Replies:
         """A key expression with wildcards gets the read-only answers it matches (catalogue,
-        states, snapshots, latest values); commands and SDO never run on a wildcard."""
+        states, snapshots, latest values), one at a time; commands and SDO never run on a
+        wildcard."""
         ke = zenoh.KeyExpr(key)
         p = self.prefix
         if ke.intersects(catalog_key(p)):
-            self._reply(query, catalog_key(p), self.catalog())
+            yield catalog_key(p), self.catalog_json()
         for name, node in self.image.nodes.items():
             if ke.intersects(state_key(p, name)):
-                self._reply(query, state_key(p, name), state_payload(node))
+                yield state_key(p, name), state_payload(node)
             if ke.intersects(snapshot_key(p, name)):
-                self._reply(query, snapshot_key(p, name), self.snapshot(node))
+                yield snapshot_key(p, name), self.snapshot(node)
             for vkey, sig in self.value_keys.get(name, ()):
                 if ke.intersects(vkey):
-                    self._reply(query, vkey, self._value_now(node, sig))
+                    yield vkey, self._value_now(node, sig)
+
+    def read_now(self, req: Request, payload: bytes | None) -> Any:
+        """The answer of a read the process image gives at once (any thread: the image's
+        reads are snapshots): catalogue, snapshot, state, the latest value of a published or
+        output signal; ``NOT_A_READ`` for anything else (commands, reads by SDO)."""
+        if write_operation(req, payload) is not None:
+            return NOT_A_READ
+        if req.kind == "catalog":
+            return self.catalog()
+        if req.kind not in ("snapshot", "state", "value"):
+            return NOT_A_READ
+        rt = self.commands.node(req.node)
+        if req.kind == "snapshot":
+            return self.snapshot(rt.image)
+        if req.kind == "state":
+            return state_payload(rt.image)
+        sig = self.commands.signal(rt, req.signal)
+        if sig.transport == "sdo":
+            return NOT_A_READ
+        return self._value_now(rt.image, sig)
 
     async def dispatch(self, key: str, payload: bytes | None, type_param: str | None = None) -> Any:
-        """Answer one concrete query key (also usable without zenoh, e.g. from tests)."""
+        """Answer one concrete query key (event loop; also usable without zenoh, e.g. from
+        tests)."""
         req = parse_key(self.prefix, key)
         op = write_operation(req, payload)
         if op is not None:
@@ -184,14 +364,11 @@ class QueryService:
                 raise NotActive(
                     f"this gateway is the {master.role} one of a pair: write to the active one"
                 )
-        if req.kind == "catalog":
-            return self.catalog()
+        doc = self.read_now(req, payload)
+        if doc is not NOT_A_READ:
+            return doc
         rt = self.commands.node(req.node)
         node = rt.image
-        if req.kind == "snapshot":
-            return self.snapshot(node)
-        if req.kind == "state":
-            return state_payload(node)
         if req.kind == "nmt":
             cmd = nmt_command(payload)
             self.commands.nmt(req.node, cmd)

@@ -171,9 +171,8 @@ class ZenohSession:
                 self.prefix,
             )
         else:
-            log.warning(
-                "no Zenoh router reachable (%s); retrying in the background", self._open_failed
-            )
+            log.warning("%s", self.no_router(self._open_failed))
+            log.debug("Zenoh: %s", self._open_failed)
             self._tasks.append(asyncio.create_task(self.reopen(), name="zenoh-open"))
         self._tasks.append(asyncio.create_task(bridge.housekeeping(), name="zenoh-housekeeping"))
 
@@ -239,9 +238,8 @@ class ZenohSession:
                 session = await self.try_open()
             except zenoh.ZError as exc:
                 if attempt in (1, 10) or attempt % 60 == 0:
-                    log.warning(
-                        "Zenoh router still unreachable after %d attempts: %s", attempt, exc
-                    )
+                    log.warning("%s", self.no_router(exc, attempt + 1))
+                log.debug("Zenoh: %s", exc)
                 continue
             except PrefixInUse as exc:
                 if attempt in (1, 10) or attempt % 60 == 0:
@@ -254,6 +252,20 @@ class ZenohSession:
                 await asyncio.to_thread(session.close)
                 continue
             log.info("Zenoh session %s open (client), prefix %s", session.zid(), self.prefix)
+
+    def no_router(self, exc: BaseException | None, attempts: int = 1) -> str:
+        """One plain line for a client session that could not open: where it looked, how many
+        times, when it tries again; Zenoh's own text (with its Rust source locations) is logged
+        at DEBUG only. A refused login or TLS handshake is not told apart from an absent router
+        by Zenoh's error (both time out), so the line says what to check."""
+        where = ", ".join(self.cfg.zenoh.connect) or "(no zenoh.connect endpoint)"
+        tried = "" if attempts == 1 else f" after {attempts} attempts"
+        wait, every = REOPEN_SCHEDULE_S[min(attempts - 1, len(REOPEN_SCHEDULE_S) - 1)], REOPEN_SCHEDULE_S[-1]  # fmt: skip
+        again = f"retrying every {every:g} s" if wait == every else f"retrying in {wait:g} s, then less often, up to every {every:g} s"  # fmt: skip
+        return (
+            f"no Zenoh router at {where}{tried}: {again} (Modbus and the bus run meanwhile; "
+            "check the router, the address, zenoh.auth and zenoh.tls)"
+        )
 
     async def try_open(self) -> zenoh.Session:
         return await self.open_checked(zenoh_config(self.cfg))

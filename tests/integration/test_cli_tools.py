@@ -87,6 +87,17 @@ def test_check_accepts_interface_remote(tmp_path: Path) -> None:
     assert f"{path}: OK" in r.stdout
 
 
+def test_a_misspelt_interface_gets_a_did_you_mean_before_the_list() -> None:
+    problem = interface_problem("virtul")
+    assert problem is not None
+    assert problem.startswith(
+        "unknown CAN interface 'virtul' (not installed); did you mean 'virtual'? "
+        "installed python-can interfaces: "
+    )
+    far = interface_problem("zzzzzz")
+    assert far is not None and "did you mean" not in far
+
+
 def test_an_installed_name_whose_module_cannot_be_imported_is_not_usable(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -11,6 +11,7 @@ import asyncio
 import datetime as dt
 import logging
 import shutil
+import socket
 import ssl
 import subprocess
 from collections.abc import AsyncIterator
@@ -290,3 +291,32 @@ def test_role_made_by_openssl_is_read(tmp_path: Path) -> None:
     )  # fmt: skip
     cert = x509.load_pem_x509_certificate((tmp_path / "c.pem").read_bytes())
     assert certificate_role(cert.public_bytes(serialization.Encoding.DER)) == "Operator"
+
+
+async def test_a_busy_tls_port_is_named_by_its_own_key_with_the_plain_port(
+    pki: dict[str, Any],
+) -> None:
+    """Both Modbus ports taken: one start names both, the TLS one by ``modbus.tls.port``."""
+    from gateway.startup import StartupError
+
+    holders = []
+    for _ in range(2):
+        h = socket.socket()
+        h.bind(("127.0.0.1", 0))
+        h.listen()
+        holders.append(h)
+    plain, secure = (h.getsockname()[1] for h in holders)
+    cfg = make_config(
+        [DISPLAY], zenoh={"enabled": False}, modbus={"port": plain, "tls": tls_section(pki, port=secure)}
+    )
+    gw = gateway_of(cfg)
+    try:
+        with pytest.raises(StartupError) as err:
+            await gw.start()
+    finally:
+        for h in holders:
+            h.close()
+    assert [(e.key, e.value) for e in (err.value, *err.value.also)] == [
+        ("modbus.port", f"{plain} on 127.0.0.1"),
+        ("modbus.tls.port", f"{secure} on 127.0.0.1"),
+    ]

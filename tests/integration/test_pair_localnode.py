@@ -160,3 +160,35 @@ async def test_the_localnodes_heartbeat_consumer_never_misses_the_logical_master
         assert int.from_bytes(node.get_data(0x1016, 1), "little") == CONSUMER_1016
         assert node_operational(b, "enc")
         assert position_good(b)
+
+
+async def test_a_node_the_operator_put_pre_operational_is_adopted_so_by_the_new_active_one() -> None:
+    """The operator's NMT state is part of what the standby follows: the LocalNode put
+    PRE-OPERATIONAL through A (its NMT slave takes the command) stays so through the take-over;
+    B sends it no NMT start, no SDO boot step, and reports it as A did."""
+    async with pair_with_localnode() as (a, b, sent_a, sent_b, node, heard):
+        await wait_until(lambda: b.master.role == "standby", 5, "B standby")
+        await wait_until(lambda: b.image.nodes["enc"].health.lifecycle == "operational", 5, "B heard it started")
+        a.master.nmt("enc", "preop")  # the operator, through the active gateway
+        preop = b.image.nodes["enc"].health
+        await wait_until(lambda: preop.nmt_state.name == "PRE_OPERATIONAL", 5, "B hears it pre-operational")
+        assert node.nmt.state == "PRE-OPERATIONAL"
+        nmt_before, sdo_before = len(heard.nmt), len(heard.sdo_requests)
+
+        sent_a.silent = True  # A dies
+        a.master.mastering = False
+        await wait_until(lambda: b.master.role == "active", 5, "B takes over")
+        # several of B's logical heartbeats, and as many of the node's, after the take-over
+        n = sent_b.count(0x700 + LOGICAL)
+        await wait_until(lambda: sent_b.count(0x700 + LOGICAL) >= n + 5, 5, "B masters the bus")
+
+        assert heard.nmt[nmt_before:] == []  # no NMT start (nor anything else) to the device
+        assert heard.sdo_requests[sdo_before:] == []  # no boot step, no probe
+        assert node.nmt.state == "PRE-OPERATIONAL"
+        rt = b.master.nodes["enc"]
+        assert rt.lifecycle.state == "operational"  # adopted: managed by B, not reconfigured
+        h = b.image.nodes["enc"].health
+        assert h.alive and h.nmt_state.name == "PRE_OPERATIONAL" and h.loss_count == 0
+        assert h.lifecycle == a.image.nodes["enc"].health.lifecycle == "operational"
+        b.master.nmt("enc", "start")  # the operator's next command goes through B
+        await wait_until(lambda: node.nmt.state == "OPERATIONAL", 5, "started through B")

@@ -172,3 +172,105 @@ async def test_missing_password_file_names_its_key() -> None:
     assert err.value.key == "zenoh.auth.password_file"
     assert str(err.value.value).endswith("no-such-password.txt")
     assert err.value.reason == "does not exist"
+
+
+def _holders(n: int) -> list[socket.socket]:
+    """``n`` ports taken for real: sockets bound and listening on 127.0.0.1."""
+    out = []
+    for _ in range(n):
+        s = socket.socket()
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        out.append(s)
+    return out
+
+
+def test_every_port_in_use_is_named_in_one_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Modbus, Zenoh and health ports all taken: one start says all three, one line each, in
+    the order of the config's sections, and exits 2 (not three failed starts for three facts)."""
+    from gateway.cli import main
+
+    holders = _holders(3)
+    try:
+        modbus, zenoh, health = (h.getsockname()[1] for h in holders)
+        cfg = write_config(tmp_path / "busy.yaml", modbus=modbus, zenoh=zenoh, health=health)
+        code = main(["run", "-c", str(cfg), "--log-level", "warning"])
+    finally:
+        for h in holders:
+            h.close()
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.splitlines() == [
+        f"error: {cfg}: modbus.port: {modbus} on 127.0.0.1 is already in use "
+        "(another gateway or program listens there)",
+        f"error: {cfg}: zenoh.listen: tcp/127.0.0.1:{zenoh} is already in use "
+        "(another gateway or program listens there)",
+        f"error: {cfg}: health.port: {health} on 127.0.0.1 is already in use "
+        "(another gateway or program listens there)",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("key", "variable", "value"),
+    [
+        ("modbus", "CANOPEN_GATEWAY__MODBUS__PORT", "{port}"),
+        ("zenoh", "CANOPEN_GATEWAY__ZENOH__LISTEN", '["tcp/127.0.0.1:{port}"]'),
+        ("health", "CANOPEN_GATEWAY__HEALTH__PORT", "{port}"),
+    ],
+)
+def test_a_busy_port_set_by_a_variable_blames_the_variable(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    key: str,
+    variable: str,
+    value: str,
+) -> None:
+    """The file says a free port, the variable a busy one: the line names the variable (as
+    ``check`` does), not the file whose value is not the one in use."""
+    from gateway.cli import main
+
+    cfg = write_config(tmp_path / "plant.yaml", modbus=free_port(), zenoh=free_port(), health=free_port())
+    (holder,) = _holders(1)
+    port = holder.getsockname()[1]
+    monkeypatch.setenv(variable, value.format(port=port))
+    try:
+        code = main(["run", "-c", str(cfg), "--log-level", "warning"])
+    finally:
+        holder.close()
+    err = capsys.readouterr().err
+    assert code == 2, err
+    (line,) = err.splitlines()
+    assert line.startswith(f"error: {variable}: "), line
+    assert f"{port}" in line and "is already in use" in line
+    assert str(cfg) not in line
+
+
+async def test_a_prefix_in_use_set_by_a_variable_blames_the_variable(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The file gives its own prefix, ``CANOPEN_GATEWAY__ZENOH__PREFIX`` the running gateway's:
+    the one line names the variable."""
+    import asyncio
+
+    from gateway.cli import main
+
+    first = gateway_of(make_config([WIRE], zenoh={"prefix": "canopen/taken"}))
+    await first.start()
+    try:
+        cfg = write_config(tmp_path / "second.yaml", modbus=free_port(), zenoh=free_port(), health=free_port())  # fmt: skip
+        raw = yaml.safe_load(cfg.read_text(encoding="utf-8"))
+        raw["zenoh"].update(
+            {"prefix": "canopen/own", "refuse_duplicate_prefix": True, "connect": first.cfg.zenoh.listen}
+        )
+        cfg.write_text(yaml.safe_dump(raw), encoding="utf-8")
+        monkeypatch.setenv("CANOPEN_GATEWAY__ZENOH__PREFIX", "canopen/taken")
+        code = await asyncio.to_thread(main, ["run", "-c", str(cfg), "--log-level", "warning"])
+    finally:
+        await first.stop()
+    err = capsys.readouterr().err
+    assert code == 2, err
+    (line,) = [ln for ln in err.splitlines() if ln.startswith("error:")]
+    assert line.startswith("error: CANOPEN_GATEWAY__ZENOH__PREFIX: zenoh.prefix: another gateway")

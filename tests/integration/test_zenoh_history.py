@@ -6,6 +6,7 @@ measurement is bench/zenoh_outage.py; here every wait is on an event, bounded.)"
 
 from __future__ import annotations
 
+import asyncio
 import json
 import queue
 from typing import Any
@@ -177,6 +178,50 @@ async def test_without_heartbeats_the_gateway_starts_and_the_cache_still_serves(
         late = AdvancedClient(endpoint, f"{P}/wire/value/position")
         key, body = (await late.take(1))[0]
         assert key == position.key and body["value"] is not None
+    finally:
+        if late is not None:
+            late.close()
+        await gw.stop()
+        router.close()
+
+
+async def test_a_subscriber_that_starts_after_a_node_was_unplugged_gets_the_current_picture() -> (
+    None
+):
+    """The two ways docs/zenoh.md gives: ``get <prefix>/<node>/state`` answers the node as it is
+    now (lost), and an AdvancedSubscriber with history gets the cached state samples, the last
+    of which says the node is lost; no change of the node is needed for either."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_router(endpoint)
+    cfg = make_config(
+        [WIRE], simulate={"nodes": "all"}, zenoh={"listen": [], "connect": [endpoint]}
+    )
+    gw = gateway_of(cfg)
+    await gw.start()
+    late: AdvancedClient | None = None
+    try:
+        assert gw.sim is not None
+        await wait_until(lambda: gw.image.nodes["wire"].usable(), 8, "wire usable")
+        gw.sim.runner.call(lambda now: gw.sim.nodes["wire"].silence())  # unplugged
+        await wait_until(lambda: not gw.image.nodes["wire"].health.alive, 8, "wire lost")
+
+        late = AdvancedClient(endpoint, f"{P}/wire/state")
+        states: list[Any] = []
+
+        def lost_seen() -> bool:
+            while True:
+                try:
+                    states.append(late.samples.get_nowait()[1])
+                except queue.Empty:
+                    return bool(states) and states[-1]["alive"] is False
+
+        await wait_until(lost_seen, 10, "the cached state saying lost")
+
+        # off the event loop: the gateway answers queries there
+        session = late.session
+        replies = await asyncio.to_thread(lambda: list(session.get(f"{P}/wire/state", timeout=5.0)))
+        (now,) = [json.loads(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+        assert now["alive"] is False and now["node"] == "wire"
     finally:
         if late is not None:
             late.close()

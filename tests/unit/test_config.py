@@ -153,6 +153,32 @@ def test_yaml_syntax_error_names_the_line(tmp_path: Path) -> None:
     assert "YAML syntax error" in exc.value.problems[0] and "line" in exc.value.problems[0]
 
 
+def test_a_missing_colon_is_reported_at_its_own_line_and_quoted(tmp_path: Path) -> None:
+    """``port 5020`` without its colon: PyYAML gives up two lines later (at the next key); the
+    error points at the line of the mistake and quotes it."""
+    f = tmp_path / "plant.yaml"
+    f.write_text(
+        "can:\n  interface: virtual\n  channel: plant\n"
+        "modbus:\n  host: 127.0.0.1\n  port 5020\n\nzenoh:\n  mode: peer\n"
+    )
+    with pytest.raises(ConfigError) as exc:
+        load_config(f, environ={})
+    assert exc.value.problems == [
+        f"{f}: line 6, column 3: YAML syntax error: could not find expected ':' "
+        "(while scanning a simple key): 'port 5020'"
+    ]
+
+
+def test_an_unclosed_bracket_is_reported_where_it_opens(tmp_path: Path) -> None:
+    f = tmp_path / "plant.yaml"
+    f.write_text("zenoh:\n  listen: [tcp/127.0.0.1:7447\nmodbus:\n  port: 5020\n")
+    with pytest.raises(ConfigError) as exc:
+        load_config(f, environ={})
+    (line,) = exc.value.problems
+    assert line.startswith(f"{f}: line 2, column 11: YAML syntax error: ")
+    assert line.endswith("(while parsing a flow sequence): 'listen: [tcp/127.0.0.1:7447'")
+
+
 def test_environment_overrides_a_single_key() -> None:
     cfg = parse_config(
         {**GOOD, "nodes": [dict(n) for n in GOOD["nodes"]]},

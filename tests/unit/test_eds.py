@@ -285,6 +285,15 @@ def test_check_refuses_boot_values_outside_the_eds_limits() -> None:
     assert p == ["cfg.yaml: nodes[0].heartbeat_ms: 20000 for 0x1017:00 (producer heartbeat time (ms)) is outside 0..10000 (LowLimit/HighLimit in measure.eds)"]  # fmt: skip
 
 
+def test_check_refuses_an_sgh10_or_msk5000_heartbeat_of_5_ms_as_their_manuals_do() -> None:
+    """SGH10 manual 000 4.7.2.14 and MSK5000 manual 001 4.6.1.15: 1017h "0d, 10d ... 65535d"."""
+    for profile in ("sgh10", "msk5000"):
+        p = problems([{"name": "enc", "node_id": 1, "profile": profile, "heartbeat_ms": 5}])
+        assert p == [f"cfg.yaml: nodes[0].heartbeat_ms: 5 for 0x1017:00 (producer heartbeat time (ms)) is not allowed: 0 or 10..65535 (profile {profile}); producer heartbeat time in ms; 0 = off"]  # fmt: skip
+        ok = {"name": "enc", "node_id": 1, "profile": profile, "heartbeat_ms": 10}
+        parse_checked_config({"can": {"interface": "virtual", "channel": "x"}, "nodes": [ok]}, "cfg.yaml", environ={})  # fmt: skip
+
+
 def test_check_refuses_ap05_heartbeat_and_external_heartbeat_of_5_ms() -> None:
     p = problems(
         [{"name": "display", "node_id": 125, "profile": "ap05", "heartbeat_ms": 5,
@@ -411,3 +420,20 @@ def test_device_info_other_than_1018h_is_a_warning_and_that_number_is_not_compar
     assert expected_identity(load_node_profile(Node(eds=str(p)).cfg)) == ((ObjRef(0x1018, 2), 0x401),)
     _, warnings = lint_of(p)
     assert warnings == [f"{p}:{line_of(p, 'VendorNumber=0x00000ABD')}: [DeviceInfo]: VendorNumber=0xABD but 1018h:01 DefaultValue=0xABC: the identity check at boot does not compare it"]  # fmt: skip
+
+
+def test_profile_init_keeps_the_objects_name_and_index_as_each_signals_description(
+    tmp_path: Path,
+) -> None:
+    """A profile written by ``profile init`` describes each signal as the EDS-only node does
+    (``Temperatur (0x6401:01)``-like: the object's name and index), so the register map of a
+    node that got a profile does not lose the words its EDS gave it."""
+    target = tmp_path / "flow.yaml"
+    assert main(["profile", "init", "--eds", str(FLOW), "-o", str(target)]) == 0
+    cfg = parse_checked_config({"can": {"interface": "virtual", "channel": "x"}, "nodes": [{"name": "flow", "node_id": 6, "profile": str(target)}]}, environ={})  # fmt: skip
+    with_profile = load_node_profile(cfg.nodes[0], cfg.base_dir).profile
+    eds_only = load_node_profile(Node(eds=str(FLOW)).cfg).profile
+    by_object = {s.object: s.description for s in eds_only.signals}
+    for s in with_profile.signals:
+        assert s.description == by_object[s.object], s.name
+        assert s.description.endswith(f"({s.object})") and len(s.description) > len(f"({s.object})")

@@ -14,7 +14,8 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.checks import pair_problems
+from gateway.checks import config_warnings, pair_problems
+from gateway.config import ConfigError
 from tests.helpers import parse_checked_config as parse_config
 from tests.helpers import resolved
 
@@ -23,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def raw_pair() -> tuple[dict[str, Any], dict[str, Any]]:
     raw: dict[str, Any] = {
-        "can": {"interface": "virtual", "channel": "line1", "bitrate": 500000},
+        "can": {"interface": "remote", "channel": "ws://127.0.0.1:54701/", "bitrate": 500000},
         "master": {
             "node_id": 100,
             "heartbeat_ms": 100,
@@ -54,7 +55,7 @@ def test_two_configs_of_one_pair_agree() -> None:
 @pytest.mark.parametrize(
     ("change", "key"),
     [
-        (lambda b: b["can"].update(channel="line2"), "can.channel"),
+        (lambda b: b["can"].update(channel="ws://127.0.0.1:54702/"), "can.channel"),
         (lambda b: b["can"].update(interface="socketcan"), "can.interface"),
         (lambda b: b["can"].update(bitrate=250000), "can.bitrate"),
         (lambda b: b["master"].update(node_id=99), "master.node_id"),
@@ -173,3 +174,77 @@ def test_cli_check_of_a_pair_says_the_problems_of_each_file_first(tmp_path: Path
     assert bad.stderr.strip().splitlines() == [
         f"{fb}: master.redundancy.node_id: 1 is the node id of nodes[0]"
     ]
+
+
+# --------------------------------------------------------------------------- a bus to share
+
+
+def test_a_bus_two_processes_cannot_share_is_refused_naming_what_to_use() -> None:
+    a, b = raw_pair()
+    for raw in (a, b):
+        raw["can"] = {"interface": "virtual", "channel": "line1"}
+    (line,) = problems(a, b)
+    assert line.startswith("A.yaml, B.yaml: can.interface: 'virtual' in A.yaml is each process's own")
+    assert "interface: remote" in line and "socketcand" in line and "socketcan" in line
+
+
+# --------------------------------------------------------------------------- the take-over's worst case
+# hb 100 ms, takeover_ms default 300; A: priority 0, id 101: 300 + 0 + 202 + 100 = 602 ms;
+# B: priority 1, id 102: 300 + 200 + 204 + 100 = 804 ms
+
+
+def warnings(raw: dict[str, Any], source: str) -> list[tuple[str, str]]:
+    cfg = parse_config(raw, source, {})
+    return config_warnings(cfg, resolved(cfg))
+
+
+def test_takeover_ms_under_two_logical_heartbeats_is_refused_naming_the_key() -> None:
+    a, _ = raw_pair()
+    a["master"]["redundancy"]["takeover_ms"] = 199
+    with pytest.raises(ConfigError) as exc:
+        parse_config(a, "A.yaml", {})
+    (line,) = exc.value.problems
+    assert line.startswith("A.yaml: master.redundancy.takeover_ms: 199 ms is under two logical heartbeats")
+    assert "at least 200 ms" in line
+    a["master"]["redundancy"]["takeover_ms"] = 200
+    parse_config(a, "A.yaml", {})  # two heartbeats: accepted
+
+
+def test_a_guarded_node_whose_life_time_a_takeover_outlasts_is_a_warning_naming_both_times() -> None:
+    a, b = raw_pair()
+    for raw in (a, b):
+        raw["nodes"][0].update(supervision="guarding", guard_time_ms=100, life_time_factor=7)
+    assert [w for w in warnings(a, "A.yaml") if "life time" in w[1]] == []  # 700 >= 602
+    ((key, text),) = [w for w in warnings(b, "B.yaml") if "life time" in w[1]]
+    assert key == "nodes[0].guard_time_ms"
+    assert text.startswith("node wire: node guarding life time 100 ms x 7 = 700 ms is shorter than")
+    assert "the worst take-over by this gateway (redundancy.node_id 102) is 804 ms" in text
+    assert "at least 804 ms, or supervise it by heartbeat" in text
+
+
+def test_a_boot_step_writing_a_shorter_consumer_of_the_logical_heartbeat_is_a_warning() -> None:
+    a, _ = raw_pair()
+
+    def consumer(value: int) -> list[tuple[str, str]]:
+        a["nodes"] = [{"name": "enc", "node_id": 3, "profile": "posi_plus", "sdo": [{"object": "0x1016:01", "value": value}]}]
+        return [w for w in warnings(a, "A.yaml") if "consumer" in w[1]]
+
+    ((key, text),) = consumer((100 << 16) | 500)
+    assert key == "nodes[0].sdo"
+    assert "node enc: boot step 0x1016:01 sets its consumer of the logical master's heartbeat" in text
+    assert "(node 100) to 500 ms, shorter than the worst take-over" in text and "602 ms" in text
+    assert consumer((100 << 16) | 1000) == []
+    assert consumer((5 << 16) | 200) == []  # another producer's heartbeat
+
+
+def test_cli_check_of_a_pair_prints_the_takeover_warning_of_the_slower_member(tmp_path: Path) -> None:
+    a, b = raw_pair()
+    for raw in (a, b):
+        raw["nodes"][0].update(supervision="guarding", guard_time_ms=100, life_time_factor=7)
+    fa, fb = tmp_path / "A.yaml", tmp_path / "B.yaml"
+    fa.write_text(yaml.safe_dump(a))
+    fb.write_text(yaml.safe_dump(b))
+    ok = _run_check(fa, fb)
+    assert ok.returncode == 0, ok.stderr
+    lines = [line for line in ok.stdout.splitlines() if "life time" in line]
+    assert len(lines) == 1 and "804 ms" in lines[0] and lines[0].startswith("  warning: node wire:")

@@ -40,6 +40,7 @@ class GuardingBitCheck:
     state        event                                                            next      outputs
     ===========  ===============================================================  ========  =========
     any          next_bit (RPDO sent)                                             same      (expectation recorded)
+    any          heard (another master's RPDO, a new bit)                         same      (expectation recorded)
     any          status bit 8 == bit last sent                                    OK        LinkOk if not OK before
     UNKNOWN/OK   status bit 8 != bit last sent, more than N in a row               FAULT     LinkFault
     UNKNOWN/OK   poll, a toggle sent at t is unechoed and now > t + T              FAULT     LinkFault
@@ -86,6 +87,14 @@ class GuardingBitCheck:
             self.pending_since_s = now
         self.sent += 1
         return self.bit
+
+    def heard(self, bit: int, now: float) -> None:
+        """Another master sent ``bit`` (a pair's standby hears the active gateway's RPDO): the
+        expectation follows it as if sent here, so the echoes judge the link the same way and
+        a take-over toggles on from it."""
+        if bit != self.bit:
+            self.bit = bit
+            self.pending_since_s = now
 
     def on_status(self, bit: int, now: float) -> list[LinkOk | LinkFault]:
         """Bit 8 of a status word just received in a TPDO."""

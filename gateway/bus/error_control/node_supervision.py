@@ -31,6 +31,7 @@ GUARD_EXPECTS: dict[LifecycleState, NmtState | None] = {
     LifecycleState.BOOTING: None,  # found running: NMT pre-operational is on its way
     LifecycleState.CONFIGURING: NmtState.PRE_OPERATIONAL,  # SGH10 manual 4.2.1.1
     LifecycleState.OPERATIONAL: NmtState.OPERATIONAL,  # after our NMT start
+    LifecycleState.LISTENING: None,  # another master's: what it commands (NMT_EXPECTS) if heard
 }
 
 #: The state a node is meant to be in after an NMT command (None: it reboots, boot-up follows).
@@ -46,7 +47,7 @@ NMT_EXPECTS: dict[str, NmtState | None] = {
 class NodeSupervision:
     """Heartbeat consumer, node-guarding master, or nothing (``supervision: none``)."""
 
-    def __init__(self, s: NodeSettings, configure: bool = True, active: bool = True):
+    def __init__(self, s: NodeSettings, configure: bool = True):
         grace = s.boot_timeout_s if configure else None
         self.hb: HeartbeatConsumer | None = (
             HeartbeatConsumer(s.heartbeat_ms, s.heartbeat_multiple, grace)
@@ -58,7 +59,9 @@ class NodeSupervision:
             if s.supervision == "guarding"
             else None
         )
-        self.active = active  # False: a passive master sends no guarding RTR
+        #: False while the node only listens (lifecycle LISTENING): no guarding RTR, no life
+        #: time of ours; the other master's RTRs heard count instead (``on_rtr_heard``)
+        self.guarding = True
 
     @property
     def alive(self) -> bool:
@@ -67,7 +70,7 @@ class NodeSupervision:
         return sup is None or sup.alive
 
     def next_deadline(self) -> float | None:
-        if self.guard is not None and self.active:
+        if self.guard is not None and self.guarding:
             if not self.guard.active:
                 return 0.0  # the first poll activates guarding (its first RTR)
             return self.guard.next_deadline()
@@ -91,7 +94,7 @@ class NodeSupervision:
     def poll(self, now: float) -> tuple[bool, str | None]:
         """(send a guarding RTR now, reason if the node was just lost)."""
         rtr, lost = False, None
-        if self.guard is not None and self.active:
+        if self.guard is not None and self.guarding:
             for o in self.guard.poll(now):
                 if isinstance(o, SendGuardRtr):
                     rtr = True
@@ -119,8 +122,22 @@ class NodeSupervision:
         return self.guard is not None and self.guard.lost
 
     def on_lifecycle(self, state: LifecycleState) -> None:
+        self.guarding = state is not LifecycleState.LISTENING
         if self.guard is not None:
             self.guard.expect(GUARD_EXPECTS[state])
+
+    def on_rtr_heard(self) -> str | None:
+        """Another master's guarding RTR to the node while it only listens: the reason when
+        the node is lost by it (more RTRs than the life time factor unanswered), else None."""
+        if self.guard is None or self.guarding:
+            return None
+        lost = [o for o in self.guard.on_rtr_heard() if isinstance(o, NodeLost)]
+        return lost[0].reason if lost else None
+
+    def expect_state(self, state: NmtState | None) -> None:
+        """The node is adopted in ``state`` (a pair's take-over): guarding expects it."""
+        if self.guard is not None:
+            self.guard.expect(state)
 
     def on_nmt_command(self, command: str) -> None:
         if self.guard is not None:

@@ -315,7 +315,14 @@ class NodeGuardingMaster(Supervisor):
     ALIVE        poll, now > last valid answer + life time          LOST      NodeLost
     any          boot-up                                            UNKNOWN   BootUpSeen (toggle restarts at 0)
     not LOST     sign of life (SDO answer during configuration)     same      life time runs from now
+    ALIVE        another master's RTR heard (we only listen), more  LOST      NodeLost
+                 than life time factor of them without a valid answer
     ===========  =================================================  ========  ==========================
+
+    Listening (a pair's standby): the owner does not ``poll`` (no RTR, no life time of ours:
+    nobody may be guarding), it feeds the answers it hears (the toggle is followed) and the
+    other master's RTRs (``on_rtr_heard``): the node is lost when more RTRs than the life time
+    factor went unanswered, the life time counted in the other master's own guard cycles.
 
     DS-301: "if two consecutive responses have the same value of the toggle-bit, the new
     response should be handled as if it was not received": the expected toggle is always the
@@ -347,6 +354,7 @@ class NodeGuardingMaster(Supervisor):
         self.toggle_errors = 0
         self.state_errors = 0
         self.last_answer_valid: bool | None = None
+        self.unanswered_rtrs = 0  # another master's RTRs heard since the last valid answer
 
     # -- queries
     @property
@@ -415,8 +423,22 @@ class NodeGuardingMaster(Supervisor):
                 self.active = True
                 self.next_rtr_s = now + self.guard_time_s
             self.last_valid_s = now
+            self.unanswered_rtrs = 0
             out += self._become_alive(st)
         return out
+
+    def on_rtr_heard(self) -> list[Output]:
+        """Another master's guarding RTR to the node, heard while only listening."""
+        if self.state is not Liveness.ALIVE:
+            return []
+        self.unanswered_rtrs += 1
+        if self.unanswered_rtrs <= self.life_time_factor:
+            return []
+        return [
+            self._lose(
+                f"no valid guarding answer to {self.unanswered_rtrs} RTRs of the active master"
+            )
+        ]
 
     def on_sign_of_life(self, now: float) -> None:
         """Another frame of the node (an SDO answer while it is configured) shows it is there:

@@ -107,15 +107,17 @@ class LifecycleEvent(StrEnum):
     START_SENT = "NMT start sent"  # every step done, NMT start went out
     LOST = "lost"  # supervision lost the node
     WRONG_IDENTITY = "wrong identity"  # 1018h holds other values than the EDS
-    ADOPTED = "adopted"  # a pair's take-over: heard operational, taken as it is
-    STOOD_DOWN = "stood down"  # this gateway became a pair's standby: the node is not ours
+    LISTEN = "listen"  # another master manages the node (a pair's standby): only heard
+    ADOPTED = "adopted"  # a pair's take-over: heard started, taken as it is
+    TAKEN_OVER = "taken over"  # a pair's take-over: not heard started, found and configured
 
 
-_W, _B, _C, _O = (
+_W, _B, _C, _O, _L = (
     LifecycleState.WAITING,
     LifecycleState.BOOTING,
     LifecycleState.CONFIGURING,
     LifecycleState.OPERATIONAL,
+    LifecycleState.LISTENING,
 )
 _E = LifecycleEvent
 #: (state, event) -> next state: every state change of ``NodeLifecycle`` (its docstring shows
@@ -125,9 +127,11 @@ TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = trans
     ((_W,), (_E.FOUND,), _B),
     ((_B,), (_E.CONFIGURE,), _C),  # NMT pre-operational sent, or the boot-up said so (4.2.1.1)
     ((_C,), (_E.START_SENT,), _O),
-    ((_B, _C, _O), (_E.LOST, _E.STOOD_DOWN), _W),
+    ((_B, _C, _O), (_E.LOST,), _W),
     ((_C,), (_E.WRONG_IDENTITY,), _W),
-    ((_W,), (_E.ADOPTED,), _O),
+    ((_W, _B, _C, _O), (_E.LISTEN,), _L),
+    ((_L,), (_E.ADOPTED,), _O),
+    ((_L,), (_E.TAKEN_OVER,), _W),
 )
 
 
@@ -166,9 +170,16 @@ class NodeLifecycle:
     CONFIGURING  last step ok                                  CONFIGURING  action: NMT start
     CONFIGURING  NMT start sent                                OPERATIONAL  Configured
     not WAITING  lost (from supervision)                       WAITING      boot timeout re-armed
-    WAITING      adopted (a pair's take-over, heard operational)  OPERATIONAL  (nothing sent)
-    not WAITING  stood down (this gateway became a pair's standby)  WAITING    (nothing sent)
+    not LISTEN.  listen (a pair's standby: another master)     LISTENING    (nothing sent, ever)
+    LISTENING    boot-up, found, lost, poll, results           LISTENING    ignored (counted)
+    LISTENING    adopted (take-over, heard started)            OPERATIONAL  (nothing sent)
+    LISTENING    taken over (take-over, not heard started)     WAITING      boot timeout armed
     ===========  ============================================  ===========  =========================
+
+    LISTENING is the state of a node another master manages: a pair's standby listens to the
+    active gateway's work (``bus/node/listening.py`` keeps what it heard), and at a take-over
+    the node is either adopted as it runs (heard started: no NMT command, no SDO) or waits to be
+    found and configured as usual.
 
     After a boot-up the node is PRE-OPERATIONAL (SGH10 manual 4.2.1.1) and configuration starts
     at once. A node found already running may be OPERATIONAL, where COB-IDs and mappings cannot
@@ -299,6 +310,8 @@ class NodeLifecycle:
 
     def on_bootup(self, now: float) -> list[Change]:
         self.boots += 1
+        if self.state is LifecycleState.LISTENING:
+            return self._ignore("boot-up")  # the other master configures it
         self._recheck_at = None  # a boot-up is always checked (a device replaced, reflashed)
         out: list[Change] = []
         if self.state is not LifecycleState.BOOTING:
@@ -327,27 +340,30 @@ class NodeLifecycle:
         self._reset_progress()
         return [self._fire(LifecycleEvent.FOUND, "found running")]
 
-    def on_adopted(self, now: float) -> list[Change]:
-        """A pair's take-over: the node was heard OPERATIONAL under the other gateway; it is
-        taken as it is (no NMT command, no configuration)."""
-        if self.state is not LifecycleState.WAITING:
-            return self._ignore("adopted")
-        self._boot_deadline = None
-        self.last_error = None
-        self._reset_progress()
-        return [self._fire(LifecycleEvent.ADOPTED, "adopted operational at a take-over")]
-
-    def on_stood_down(self, now: float) -> list[Change]:
-        """This gateway became a pair's standby: the other gateway manages the node now."""
-        if self.state is LifecycleState.WAITING:
+    def on_listen(self, now: float) -> list[Change]:
+        """Another master manages the node (a pair's standby): from now on only heard."""
+        if self.state is LifecycleState.LISTENING:
             return []
         self._preop_pending = False
         self._reset_progress()
         self._boot_deadline = None
-        return [self._fire(LifecycleEvent.STOOD_DOWN, "this gateway stood down to standby")]
+        return [self._fire(LifecycleEvent.LISTEN, "another master manages it: listening")]
+
+    def on_take_over(self, now: float, adopt: bool) -> list[Change]:
+        """A pair's take-over: ``adopt`` (the node was heard started by the other master) takes
+        it as it runs, nothing sent; otherwise it is found and configured as usual."""
+        if self.state is not LifecycleState.LISTENING:
+            return self._ignore("take-over")
+        self.last_error = None
+        self._reset_progress()
+        if adopt:
+            self._boot_deadline = None
+            return [self._fire(LifecycleEvent.ADOPTED, "adopted as it runs at a take-over")]
+        self._arm_boot_timeout(now)
+        return [self._fire(LifecycleEvent.TAKEN_OVER, "taken over: found and configured as usual")]
 
     def on_lost(self, now: float) -> list[Change]:
-        if self.state is LifecycleState.WAITING:
+        if self.state in (LifecycleState.WAITING, LifecycleState.LISTENING):
             return self._ignore("lost")
         self.losses += 1
         self._preop_pending = False

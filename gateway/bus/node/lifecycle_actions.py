@@ -21,6 +21,9 @@ class LifecycleState(StrEnum):
     BOOTING = "booting"  # seen; an NMT command must go out before configuring
     CONFIGURING = "configuring"  # applying the SDO steps
     OPERATIONAL = "operational"  # configured and NMT start sent
+    #: another master manages the node (a pair's standby; a commissioning tool beside a
+    #: running master): it is only heard, nothing of its lifecycle acts
+    LISTENING = "listening"
 
 
 # -- actions (what the driver must do); NamedTuples so ``action[0]`` is the kind

@@ -1,10 +1,9 @@
 """One CANopen device as the master sees it: the single owner of the node's state.
 
-Rule 1: everything the gateway decides about one node lives here, in ``Node``: its lifecycle
-(boot-up, configuration, NMT start, probing), its supervision (heartbeat consumer or node
-guarding, the guarding-bit check, the RPDO keep-alive that feeds an external heartbeat), its
-SDO channel (one transfer at a time: boot steps, probes, value refreshes, commands), its output
-image (the last values sent in each RPDO, bits included) and its health in the process image
+Rule 1: everything the gateway decides about one node lives here, in ``Node``: its lifecycle,
+its supervision (heartbeat consumer or node guarding, the guarding-bit check, the RPDO
+keep-alive), its SDO channel (one transfer at a time: boot steps, probes, refreshes, commands),
+its output image (the last values sent in each RPDO) and its health in the process image
 (``NodeHealth``: only this class writes it). It writes the image's output section
 (``NodeImage.outputs``) too, in one assignment after each write or keep-alive: the one copy of
 the outputs that Modbus, Zenoh and the web console read.
@@ -24,18 +23,16 @@ when the channel is free (``_drive``), and while work is queued with no transfer
 channel's deadline is the moment it was queued (``SdoChannel.next_deadline``), so the driver
 ticks the node at once even on a path that forgot to drive.
 
-The decisions are tables: what the node-guarding master expects in each lifecycle state
-(``GUARD_EXPECTS``) and what an NMT command makes the node's expected state (``NMT_EXPECTS``),
-both in ``bus.error_control.node_supervision``; what a finished SDO transfer of its own
-purposes means (``sdo_done.SDO_DONE``).
+The decisions are tables: ``GUARD_EXPECTS`` and ``NMT_EXPECTS`` (node_supervision), ``SDO_DONE``.
+A node another master manages (a pair's standby) is in lifecycle LISTENING: ``bus.node.listening``.
 
 Truthfulness (docs/architecture.md, "Two flows", quality): a boot-up and a loss invalidate every value
 of the node (``health.fresh_since = None``); values are good again only when received after the
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
-Imports: bus.node.* (lifecycle, lifecycle_report, outputs, events, features, sdo_done),
-device.* (boot_steps, settings), bus.sdo.* (channel, client), bus.error_control.* (node_supervision,
+Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, events, features,
+sdo_done), device.* (boot_steps, settings), bus.sdo.* (channel, client), bus.error_control.* (node_supervision,
 guarding bit), bus.emcy, pdo.codec, pdo.verify, cia301, errors, image, states, objref, logging
 (levels of the log lines it returns). Never python-can, asyncio or a northbound module.
 """
@@ -49,6 +46,7 @@ from typing import Any
 from gateway.bus.emcy import EmcyHistory, decode_emcy
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.error_control.node_supervision import NodeSupervision
+from gateway.bus.node import listening
 from gateway.bus.node.events import HealthChanged, Note, Output, Refresh, SdoDone, Send
 from gateway.bus.node.features import NodeFeature
 from gateway.bus.node.features.guarding_bit import GuardingBitLink
@@ -64,6 +62,7 @@ from gateway.bus.node.lifecycle import (
     WriteStep,
 )
 from gateway.bus.node.lifecycle_report import lifecycle_reports
+from gateway.bus.node.listening import HeardLife
 from gateway.bus.node.outputs import OutputImage
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
@@ -100,16 +99,15 @@ class Node:
         expected_identity: Sequence[tuple[ObjRef, int]] = (),
         emcy_texts: dict[int, str] | None = None,
         guard_names: tuple[str | None, str | None] = (None, None),
-        passive: bool = False,
+        listening: bool = False,
         image: NodeImage | None = None,
     ):
-        """``features``: the device features, in the order they act (``bus.node.parts``); the
-        output image toggles the bit of their guarding-bit link, if any."""
+        """``features``: in the order they act (``bus.node.parts``). ``listening``: another
+        master manages the node (lifecycle LISTENING, ``bus.node.listening``)."""
         self.name = name
         self.node_id = node_id
         self.s = settings
         self.health = health
-        self.passive = passive
         self.tpdos = list(tpdos)
         self.rpdos = list(rpdos)
         self.emcy_texts = emcy_texts or {}
@@ -120,7 +118,11 @@ class Node:
             expected_device_type=expected_device_type,
             expected_identity=expected_identity,
         )
-        self.supervision = NodeSupervision(settings, configure, active=not passive)
+        self.supervision = NodeSupervision(settings, configure)
+        self.heard = HeardLife()  # what it heard of its life while listening
+        if listening:  # no RTR, no life time of ours (``NodeSupervision.on_lifecycle``)
+            self.lifecycle.on_listen(0.0)
+            self.supervision.on_lifecycle(LifecycleState.LISTENING)
         self.hb, self.guard = self.supervision.hb, self.supervision.guard  # read-only views
         self.features = list(features)  # bus/node/features/
         self._link = next((f for f in self.features if isinstance(f, GuardingBitLink)), None)
@@ -132,7 +134,7 @@ class Node:
         gb = settings.guarding_bit
         control = (self.control_signal, gb.control_bit) if gb and self.control_signal else None
         self.outputs = OutputImage(
-            name, self.rpdos, settings.keepalive_ms / 1000.0, self.gbit, control
+            name, self.rpdos, settings.keepalive_ms / 1e3, self.gbit, control
         )
         self.image = image  # its ``outputs`` section is written here only
         self._publish_outputs()
@@ -148,13 +150,22 @@ class Node:
         return self.health.alive
 
     @property
+    def listening(self) -> bool:
+        """Another master manages the node: it is only heard (lifecycle LISTENING)."""
+        return self.lifecycle.state is LifecycleState.LISTENING
+
+    @property
+    def steady(self) -> bool:
+        """A repeated heartbeat changes nothing before its consumer deadline (no wake-up)."""
+        steady = (LifecycleState.OPERATIONAL, LifecycleState.LISTENING)
+        return self.s.supervision == "heartbeat" and self.alive and self.lifecycle.state in steady
+
+    @property
     def refresh_plan(self) -> list[Refresh]:
-        """What ``refresh_on_start`` reads after NMT start (empty: nothing)."""
         return next((f.plan for f in self.features if isinstance(f, RefreshOnStart)), [])
 
     @property
     def mapping_mismatches(self) -> list[MappingMismatch]:
-        """What ``verify_mapping`` found different (empty: none, or not checked)."""
         return next((f.mismatches for f in self.features if isinstance(f, VerifyMapping)), [])
 
     def next_deadline(self) -> float | None:
@@ -180,15 +191,14 @@ class Node:
     def by_signal(self) -> dict[str, list[RpdoCodec]]:
         return self.outputs.by_signal
 
-    def sdo_busy(self) -> bool:
-        """A transfer is running or waiting."""
+    def sdo_busy(self) -> bool:  # a transfer is running or waiting
         return self.sdo.busy
 
     # ================================================================== events
     def start(self, now: float, probe: bool = True) -> list[Output]:
+        if self.listening:
+            return listening.report_heard(self)  # listening only: no boot timeout of ours to report
         self.health.lifecycle = str(self.lifecycle.state)
-        if self.passive:
-            return []  # listening only: no boot timeout of ours to report
         self.lifecycle.start(now)
         self.next_probe_s = now if probe else now + self.s.probe_period_s
         return self.tick(now)
@@ -232,15 +242,10 @@ class Node:
         out += self._set_nmt(state)
         if self.supervision.alive:
             out += self._set_alive(True, now)
-        h = self.health
-        if self.passive and state == NmtState.OPERATIONAL and h.fresh_since is None and h.alive:
-            # listening only (a pair's standby): the node was started by another master; no
-            # boot-up since it was heard operational, so what it sends from now on is fresh
-            h.fresh_since = now
-            out.append(HealthChanged("state"))
+        if self.listening:
+            return out + listening.on_state(self, state, now)
         if (
             self.lifecycle.state is LifecycleState.WAITING
-            and not self.passive
             and self.lifecycle.may_probe(now)  # a refused device waits for its recheck
         ):
             # alive but no boot-up seen (gateway restarted, node replugged): probe soon
@@ -266,7 +271,7 @@ class Node:
         h.current_errors = sorted(self.emcy.current)
         text = f"node {self.name} EMCY 0x{rec.code:04X} ({rec.text}) register 0x{rec.register:02X}"
         out: list[Output] = [Note(logging.WARNING, text), HealthChanged("emcy")]
-        if not self.passive and any([f.on_emcy(self, now) for f in self.features]):
+        if not self.listening and any([f.on_emcy(self, now) for f in self.features]):
             out += self._drive(now)  # start what a feature queued now if the channel is free
         return out
 
@@ -294,39 +299,38 @@ class Node:
         return token, self._drive(now)
 
     def on_nmt_command(self, command: str) -> None:
-        """An NMT command a client sent to this node: the state guarding expects follows it."""
+        """An NMT command to this node (a client's, or heard while listening)."""
         self.supervision.on_nmt_command(command)
+        if self.listening:
+            self.heard.on_nmt_command(command)
+
+    def on_guard_rtr(self, now: float) -> list[Output]:
+        """Another master's guarding RTR heard while listening (``on_rtr_heard``: lost?)."""
+        lost = self.supervision.on_rtr_heard()
+        return self._set_alive(False, now, lost) if lost is not None else []
 
     # ================================================================== a pair's roles
     def on_rpdo_heard(self, cob_id: int, data: bytes, wall: float, now: float) -> list[Output]:
-        """An RPDO of this node that the other gateway of a pair sent (this one listens): its
-        values become the output image, so a take-over goes on with them."""
-        if self.passive and self.outputs.heard(cob_id, data, now):
+        """An RPDO the other gateway sent: its values become the output image."""
+        if self.listening and self.outputs.heard(cob_id, data, now):
             self._publish_outputs((wall, now))
         return []
 
     def stand_by(self, now: float) -> list[Output]:
-        """This gateway became a pair's standby: listen only. Nothing of the lifecycle acts;
-        queued SDO work is dropped (the master sends nothing while standing by)."""
-        self.passive = True
+        """This gateway became a pair's standby: the node only listens, queued SDO work dropped."""
+        self.heard.stood_down(self.lifecycle.state)
         out = self._end_sdo_work(now, lambda j: False)
-        return out + self._lifecycle_changes(self.lifecycle.on_stood_down(now), now)
+        return out + self._lifecycle_changes(self.lifecycle.on_listen(now), now)
 
     def take_over(self, now: float) -> list[Output]:
-        """This gateway became the pair's active one. A node heard OPERATIONAL is adopted as it
-        is (no NMT command, no SDO boot step); any other is found and configured as usual."""
-        self.passive = False
-        h = self.health
-        out: list[Output] = []
-        heard_operational = h.alive and h.nmt_state == NmtState.OPERATIONAL
-        if heard_operational and self.lifecycle.state is LifecycleState.WAITING:
-            out += self._lifecycle_changes(self.lifecycle.on_adopted(now), now)
-            for f in self.features:
-                out += f.on_adopted(self, now)
-        else:
-            self.lifecycle.start(now)  # the boot timeout runs from the take-over
-            self.next_probe_s = now
-        return out + self.tick(now)
+        """The pair's take-over: a node heard started is adopted as it runs (``HeardLife``)."""
+        if not self.listening:
+            return self.tick(now)  # ours already: nothing to take over
+        adopt = self.heard.adopt_in(self.health.alive, self.health.nmt_state)
+        out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None), now)
+        if adopt is None:
+            self.next_probe_s = now  # found and configured as usual
+        return out + listening.adopted(self, adopt, now) + self.tick(now)
 
     def write_outputs(
         self,
@@ -339,11 +343,8 @@ class Node:
     ) -> list[Output]:
         """Set output values and send the RPDOs that carry them (one frame per RPDO).
 
-        ``per_pdo[None]`` applies to every RPDO mapping the signal, ``per_pdo[n]`` to RPDO n
-        only (an AP05 text row). Which RPDOs go out (unless ``send`` says): those carrying a
-        signal mapped only there; a signal mapped in several RPDOs (a shared control word)
-        alone goes out in the last of them. The image's output section then holds the new
-        values (one assignment; ``wall`` is the write's wall-clock time). Raises
+        ``per_pdo``: as ``OutputImage.set`` (which RPDOs go out, unless ``send`` says). The
+        image's output section then holds the new values (``wall``: the write's time). Raises
         NodeNotOperational (nothing changed) when the node is not operational. ``safe``: these
         are the safe values of the output watchdog (the node's ``outputs`` health says ``safe``
         until the next write)."""
@@ -389,8 +390,8 @@ class Node:
         out += self._set_alive(True, now)
         # a boot-up ends whatever transfer was running: the device forgot it
         out += self._end_sdo_work(now, lambda j: j.purpose == "user")
-        if self.passive:
-            return out
+        if self.listening:
+            return out + listening.on_restart(self)
         out += self._lifecycle_changes(self.lifecycle.on_bootup(now), now)
         out += self._drive(now)
         return out
@@ -409,7 +410,9 @@ class Node:
                 out += f.on_lost(self)
             text = f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})"
             out.append(Note(logging.WARNING, text))
-            if not self.passive:
+            if self.listening:
+                out += listening.on_restart(self)
+            else:
                 out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
                 self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss
         else:
@@ -432,6 +435,8 @@ class Node:
             if r.state is not None:
                 h.lifecycle = str(r.state)
                 self.supervision.on_lifecycle(r.state)
+                if r.state is LifecycleState.LISTENING:
+                    listening.report_heard(self)
             if r.last_error is not None:
                 h.last_error = r.last_error
             if r.last_sdo_abort is not None:
@@ -440,23 +445,18 @@ class Node:
                 self._wait_until = r.wait_until_s
             if r.configured:
                 h.fresh_since = now  # values are good again when received from now on
-                out += self._set_nmt_expected(NmtState.OPERATIONAL)
+                if self.supervision.hb is None and self.supervision.guard is None:
+                    out += self._set_nmt(NmtState.OPERATIONAL)  # no heartbeat will confirm it
                 for f in self.features:
                     out += f.on_configured(self, now)
         if changes:
             out.append(HealthChanged("state"))
         return out
 
-    def _set_nmt_expected(self, state: NmtState) -> list[Output]:
-        """After our NMT start the node is operational (its next heartbeat confirms it)."""
-        if self.supervision.hb is None and self.supervision.guard is None:
-            return self._set_nmt(state)
-        return []
-
     def _drive(self, now: float) -> list[Output]:
         """Start the next SDO transfer / NMT command when the channel is free."""
         out: list[Output] = []
-        while self.sdo.idle and not self.passive:
+        while self.sdo.idle and not self.listening:
             action = self.lifecycle.next_action(now)
             if isinstance(action, SendNmt):
                 out.append(Send(COB_NMT, bytes([action.command, self.node_id])))
@@ -539,7 +539,7 @@ class Node:
     def _keepalive_due(self) -> float | None:
         """Keep-alive RPDOs only in OPERATIONAL (RPDOs are not processed otherwise)."""
         h = self.health
-        if self.passive or not h.alive or h.nmt_state != NmtState.OPERATIONAL:
+        if self.listening or not h.alive or h.nmt_state != NmtState.OPERATIONAL:
             return None
         return self.outputs.keepalive_due(h.fresh_since)
 

@@ -113,7 +113,7 @@ def node_features(
     return features
 
 
-def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> NodeParts:
+def build_node(rn: ResolvedNode, image: NodeImage, listening: bool = False) -> NodeParts:
     """One node's parts from its resolution (settings, boot steps and codecs built once)."""
     rn.require()
     ncfg, lp, settings = rn.cfg, rn.lp, rn.settings
@@ -152,20 +152,17 @@ def build_node(rn: ResolvedNode, image: NodeImage, passive: bool = False) -> Nod
         expected_identity=expected_identity(lp) if ncfg.identity_check else (),
         emcy_texts=dict(lp.profile.emcy),
         guard_names=(control, status),
-        passive=passive,
+        listening=listening,
     )
     return NodeParts(ncfg, lp, image, settings, steps, tpdos, rpdos, node)
 
 
-def build_node_into(rn: ResolvedNode, image: ProcessImage, passive: bool, listening: bool) -> NodeParts:
+def build_node_into(rn: ResolvedNode, image: ProcessImage, listening: bool) -> NodeParts:
     """A node's image added to the process image, and its parts built on it. ``listening``:
-    a pair's member that is not active yet: the node only listens (passive) and its
-    supervision judges what it hears."""
+    another master manages the node (a pair's member not active yet, a commissioning tool):
+    its lifecycle starts LISTENING and its supervision judges what it hears."""
     ncfg, lp = rn.cfg, rn.lp
     names = [s.name for s in lp.profile.signals]
     ni = NodeImage(ncfg.name, ncfg.node_id, lp.family, names, rn.stale_after_s, ncfg.modbus.serve_stale)
     image.add_node(ni)
-    parts = build_node(rn, ni, passive or listening)
-    if listening:
-        parts.node.supervision.active = True
-    return parts
+    return build_node(rn, ni, listening)
