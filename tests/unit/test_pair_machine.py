@@ -316,7 +316,7 @@ def test_when_the_active_one_dies_the_standby_takes_over_within_a_second() -> No
     assert b.fm.role is Role.ACTIVE and b.fm.takeovers == 1
     gap = pair.first_heartbeat("B", since=last_a) - last_a
     assert gap <= 1.0
-    # counted from A's last frame (its heartbeat or its claim, at most a claim period apart)
+    # counted from A's last logical heartbeat (the standby's deadline), within one period
     silent_s = TIMING.takeover_s + TIMING.slot_s(1, 102)
     assert silent_s - 1e-9 <= gap <= silent_s + HEARTBEAT_S
     assert "silent" in b.roles[-2][2]
