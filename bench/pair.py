@@ -14,6 +14,10 @@ one's first, from the bus timestamps an observer connection receives (the relay'
 CPU: process CPU (``/proc/PID/stat`` utime + stime) of the standby and of the active gateway
 over the same window, once per round while both run.
 
+Then the same pair on a bus that attributes every frame to its sender (``bench.pair_faults``):
+the take-over after the active member's cable is cut and after its adapter is lost, what the
+pair does when the member comes back, and the standby / active CPU ratio there.
+
 Imports: bench.*, python-can, yaml, the standard library (the gateways run in subprocesses).
 """
 
@@ -75,7 +79,10 @@ class _Heard(can.Listener):
 class _Gateway:
     """One gateway process of the pair; its log (stdout and stderr) in a file."""
 
-    def __init__(self, workdir: pathlib.Path, cfg: pathlib.Path, node_id: int, priority: int, round_: int) -> None:
+    def __init__(
+        self, workdir: pathlib.Path, cfg: pathlib.Path, node_id: int, priority: int, round_: int,
+        extra_env: dict[str, str] | None = None,
+    ) -> None:  # fmt: skip
         self.node_id = node_id
         self.log_path = workdir / f"gw{node_id}-{round_}.log"
         env = {
@@ -83,6 +90,7 @@ class _Gateway:
             "CANOPEN_GATEWAY__MASTER__REDUNDANCY__NODE_ID": str(node_id),
             "CANOPEN_GATEWAY__MASTER__REDUNDANCY__PRIORITY": str(priority),
             "CANOPEN_GATEWAY__MODBUS__PORT": str(free_port()),
+            **(extra_env or {}),
         }
         self._log: IO[bytes] = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen(
@@ -152,7 +160,9 @@ def _port_open(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
-async def run(kills: int = 20, cpu_window_s: float = 3.0, settle_s: float = 2.0) -> Section:
+async def run(
+    kills: int = 20, cpu_window_s: float = 3.0, settle_s: float = 2.0, fault_rounds: int = 6
+) -> Section:
     sec = Section(
         key="pair",
         title="11. A hot-standby pair: take-over time and the standby's CPU",
@@ -165,7 +175,14 @@ async def run(kills: int = 20, cpu_window_s: float = 3.0, settle_s: float = 2.0)
             "new active one's first, at an observer connection; then the killed one starts again "
             "and joins as standby (the roles alternate). CPU: `/proc/PID/stat` utime + stime of "
             f"both gateways over the same {cpu_window_s:.0f} s window each round, "
-            f"{settle_s:.0f} s after the standby joined."
+            f"{settle_s:.0f} s after the standby joined. Then {fault_rounds} rounds on a "
+            "socketcand bus that attributes every frame to its sender (`tests/pair_bus.py`; "
+            "each gateway and the simulated devices a member of it): the active member's cable "
+            "cut (its connection open, nothing it sends arrives, it hears nothing) or its adapter "
+            "lost (the connection closed, reconnects refused), alternately, for 3 s, then "
+            "repaired and watched for 6 s; take-over = relay time from its last logical "
+            "heartbeat that reached the bus to the other member's first; CPU of both gateways "
+            "over the same 3 s window before each fault."
         ),
     )
     port = free_port()
@@ -251,4 +268,9 @@ async def run(kills: int = 20, cpu_window_s: float = 3.0, settle_s: float = 2.0)
         f"Over the {kills} take-overs: {emcy} EMCY 8130h (heartbeat consumer of the POSI+ "
         f"expired), {nmt_after - nmt_before} NMT commands on the bus."
     )
+    from bench import pair_faults  # it builds on this module's gateway process
+
+    rows, notes = pair_faults.rows_and_notes(pair_faults.measure(rounds=fault_rounds))
+    sec.rows += rows
+    sec.notes += notes
     return sec

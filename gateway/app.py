@@ -6,7 +6,7 @@ nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed
 Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
 parts do not know each other except through the image and the command service.
 
-Imports: every part: ascii.server, bus.driver, bus.master, checks, commands, config, device.resolved,
+Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, commands, config, device.resolved,
 health, image, metrics, modbus.server, northbound (frames, regmap, summary), profiles.derived,
 sim (faults, motion, node, runner), startup, threads, turns, web (console, views), zenoh_bridge.bridge.
 """
@@ -22,6 +22,7 @@ from typing import Any
 import can
 
 from gateway import __version__
+from gateway.bus.can_backend import open_can_bus
 from gateway.bus.driver import BusDriver, BusOpenFailed
 from gateway.bus.master import Master
 from gateway.checks import check_config
@@ -83,7 +84,7 @@ class SimulatedBus:
 
         if not self.nodes:
             return
-        self.bus = can.Bus(**self.cfg.can.bus_kwargs())
+        self.bus = open_can_bus(self.cfg.can.bus_kwargs())  # socketcand: ours, see can_backend
         self.runner = SimRunner(self.bus, list(self.nodes.values()))
         self.runner.start()
 

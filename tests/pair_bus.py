@@ -22,8 +22,10 @@ Faults, one member at a time:
   socketcand daemon that restarts) and a reconnect of that name is closed at once, as soon as
   it names its channel (``< open NAME >``), until ``plug(NAME)``.
 
-A new connection of a name already connected replaces the old one (closed), as one adapter per
-member. Threads: an accept thread; per member a reader (parses, records, relays: the relay
+A member may hold several connections (a gateway process whose simulated devices open the same
+``can:`` section): they hear each other, as sockets on one SocketCAN interface do (its local
+loopback), also while the member is cut, and they are one member for ``cut`` and ``unplug``.
+``delivered`` says whether another member heard a frame. Threads: an accept thread; per member a reader (parses, records, relays: the relay
 order is the record order) and a writer (its own queue, so a member that stops reading, e.g. a
 frozen process, holds up no one). The only pause is the documented one of the handshake.
 
@@ -51,9 +53,11 @@ HANDSHAKE_PAUSE_S = 0.2
 
 @dataclass(frozen=True)
 class Frame:
-    """One frame as it reached the relay: ``t`` is ``time.monotonic()`` there; ``delivered`` is
-    False when its sender was cut (nobody heard it). ``dlc`` is the length the sender gave
-    (python-can's socketcand client sends a remote frame as its length and no data bytes)."""
+    """One frame as it reached the relay: ``t`` is ``time.monotonic()`` there (the clock of
+    every process on this machine); ``delivered`` says whether another member heard it (False
+    when its sender was cut, or no other member was connected and uncut). ``dlc`` is the length
+    the sender gave (python-can's socketcand client sends a remote frame as its length and no
+    data bytes)."""
 
     t: float
     sender: str
@@ -101,7 +105,7 @@ class PairBus:
         #: connections refused (closed at once) per name while unplugged
         self.refused: dict[str, int] = {}
         self._lock = threading.Condition()
-        self._members: dict[str, _Member] = {}
+        self._conns: list[_Member] = []  # every connection past its handshake
         self._cut: set[str] = set()
         self._unplugged: set[str] = set()
         self._closing = False
@@ -118,14 +122,16 @@ class PairBus:
     def open_bus(self, name: str) -> can.BusABC:
         """A python-can bus in this process as member ``name`` (python-can's socketcand client),
         shut down by ``close()``. Returns once the relay counts it connected."""
+        with self._lock:
+            joins = self.joins.get(name, 0)
         bus = can.Bus(interface="socketcand", host="127.0.0.1", port=self.port, channel=name)
         self._buses.append(bus)
-        self._wait(lambda: name in self._members, 10.0, f"member {name} connected")
+        self._wait(lambda: self.joins.get(name, 0) > joins, 10.0, f"member {name} connected")
         return bus
 
     def connected(self, name: str) -> bool:
         with self._lock:
-            return name in self._members
+            return any(c.name == name for c in self._conns)
 
     def cut(self, name: str) -> None:
         """Cable cut: ``name`` hears nothing and what it sends reaches no one."""
@@ -141,10 +147,11 @@ class PairBus:
         reconnects until ``plug``."""
         with self._lock:
             self._unplugged.add(name)
-            member = self._members.pop(name, None)
+            gone = [c for c in self._conns if c.name == name]
+            self._conns = [c for c in self._conns if c.name != name]
             self._lock.notify_all()
-        if member is not None:
-            member.close()
+        for c in gone:
+            c.close()
 
     def plug(self, name: str) -> None:
         with self._lock:
@@ -163,7 +170,9 @@ class PairBus:
         self, pred: Callable[[Frame], bool], timeout_s: float = 10.0, after: int = 0
     ) -> Frame:
         """Block until a frame of index >= ``after`` satisfies ``pred``; return it. Raises
-        ``TimeoutError`` after ``timeout_s``. (``after=len(bus.frames)`` looks only ahead.)"""
+        ``TimeoutError`` after ``timeout_s``. (``after=len(bus.frames)`` looks only ahead.)
+        It blocks: from a coroutine on the loop of an in-process gateway, call it through
+        ``await asyncio.to_thread(bus.wait_for, pred, ...)`` (else the gateway stops too)."""
         deadline = time.monotonic() + timeout_s
         i = after
         with self._lock:
@@ -217,18 +226,15 @@ class PairBus:
             return
         member = _Member(name, conn)
         with self._lock:
-            old = self._members.get(name)
-            self._members[name] = member
+            self._conns = [*self._conns, member]
             self.joins[name] = self.joins.get(name, 0) + 1
             self._lock.notify_all()
-        if old is not None:
-            old.close()
         threading.current_thread().name = f"pairbus-rx-{name}"
         self._start(self._write_loop, f"pairbus-tx-{name}", member)
         self._read_loop(member, rest)
         with self._lock:
-            if self._members.get(name) is member:
-                del self._members[name]
+            if member in self._conns:
+                self._conns = [c for c in self._conns if c is not member]
                 self._lock.notify_all()
         member.close()
 
@@ -302,22 +308,23 @@ class PairBus:
         except ValueError:
             return
         with self._lock:
-            if self._members.get(member.name) is not member:
-                return  # replaced or unplugged meanwhile: its frames reach no one
-            cut = member.name in self._cut
-            others = [
-                m for n, m in self._members.items()
-                if m is not member and n not in self._cut
+            if member not in self._conns:
+                return  # unplugged meanwhile: its frames reach no one
+            name = member.name
+            cut = name in self._cut
+            to = [
+                c for c in self._conns
+                if c is not member and (c.name == name or not (cut or c.name in self._cut))
             ]
-            delivered = not cut and bool(others)
-            self.frames.append(Frame(time.monotonic(), member.name, cob_id, data, delivered, dlc))
-            if delivered:
+            delivered = any(c.name != name for c in to)
+            self.frames.append(Frame(time.monotonic(), name, cob_id, data, delivered, dlc))
+            if to:
                 width = 8 if len(parts[1]) > 3 else 3
                 line = (
                     f"< frame {cob_id:0{width}X} {time.time():.6f} {data.hex().upper()} >"
                 ).encode()
-                for m in others:
-                    m.out.put(line)
+                for c in to:
+                    c.out.put(line)
             self._lock.notify_all()
 
     # ------------------------------------------------------------------ stop
@@ -329,8 +336,7 @@ class PairBus:
         self._buses.clear()
         with self._lock:
             self._closing = True
-            members = list(self._members.values())
-            self._members.clear()
+            members, self._conns = self._conns, []
             pending = list(self._pending)
             self._lock.notify_all()
         for m in members:

@@ -14,8 +14,13 @@ opens, and the gateway would retry forever. ``can_section_problems`` checks the 
 documented ``:param`` names, plus python-can's common keys): a typo is an error naming the
 nearest key, instead of a key python-can ignores.
 
-Imports: python-can and the standard library only. Opens no bus and touches no hardware (it
-loads a backend's driver library to see that it is there, and opens no channel).
+``open_can_bus`` opens the configured bus: ``can.Bus(**can)``, except for ``interface:
+socketcand``, which gets ``gateway.bus.socketcand_bus.SocketcandBus`` (python-can's own
+socketcand bus never reports a lost connection: the one place we make up for it).
+
+Imports: python-can, bus.socketcand_bus and the standard library only. Apart from
+``open_can_bus``, opens no bus and touches no hardware (it loads a backend's driver library to
+see that it is there, and opens no channel).
 """
 
 from __future__ import annotations
@@ -211,3 +216,15 @@ def driver_problem(interface: str) -> str | None:
             return check()
         except ImportError as exc:
             return f"its python-can module cannot be loaded ({exc})"
+
+
+def open_can_bus(bus_kwargs: dict[str, Any]) -> can.BusABC:
+    """Open the bus of the ``can:`` section: ``can.Bus(**can)``, but ``interface: socketcand``
+    gets our ``SocketcandBus`` (same keys), whose receive raises when the server closed the
+    connection and whose open does not retry by itself (python-can's spins on both)."""
+    if bus_kwargs.get("interface") == "socketcand":
+        from gateway.bus.socketcand_bus import SocketcandBus
+
+        kwargs = {k: v for k, v in bus_kwargs.items() if k != "interface"}
+        return SocketcandBus(**kwargs)
+    return can.Bus(**bus_kwargs)

@@ -14,6 +14,17 @@ make; how often a consumer acts on that is its own business (the Zenoh publisher
 exponential backoff; the gateway keeps running. A bus that cannot be opened at start is retried
 the same way (only an interface name python-can does not know is fatal).
 
+A lost link is noticed by the reader within one wait (``RECV_WAIT_S``) whatever the interface:
+the backend's receive raises (SocketCAN's ENETDOWN/ENODEV, python-can-remote's closed
+WebSocket; for ``socketcand``, whose python-can bus never raises, ``bus.socketcand_bus`` does,
+opened by ``bus.can_backend.open_can_bus``), or the sender finds its sends refused in a way that
+means the link is gone (``LINK_LOST_ERRNOS`` at once; any other refusal but a full transmit
+queue ``SEND_FAILURES_DOWN`` times in a row) and tells the reader, which takes the bus down the
+same way: closed, state ``down`` through ``on_state``, reopened after the backoff. While it
+waits for the next attempt the reader sleeps (woken at once by ``close``). The backoff doubles
+with every attempt that brings no frame: it starts again from ``reopen_backoff_s`` once the
+reopened bus delivers one (a link that opens and fails at once is not retried every second).
+
 Bus state (``state``, mirrored in ``image.bus_state``, with the reason in ``last_error``):
 
 =======  ===================================================================================
@@ -36,7 +47,7 @@ counts in its own counter set.
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, bus.can_backend (quiet_imports), image (for counters), ratelimit, threads. Nothing northbound.
+Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), image (for counters), ratelimit, threads. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -52,7 +63,7 @@ from typing import Any
 
 import can
 
-from gateway.bus.can_backend import quiet_imports
+from gateway.bus.can_backend import open_can_bus, quiet_imports
 from gateway.image import ProcessImage
 from gateway.ratelimit import RateLimitedLog
 from gateway.threads import ThreadRegistry
@@ -89,14 +100,35 @@ BURST_MAX_FRAMES = 16
 #: clock (a few frames' processing at most separate the two)
 FRAME_TIME_AHEAD_S = 0.5
 
+#: the reader's wait for a frame between bursts: a link lost while the bus is quiet is noticed
+#: within it (and the reader wakes this often when nothing comes, no more)
+RECV_WAIT_S = 0.05
+#: a send refused with one of these says the link itself is gone: the bus goes down at once
+#: (a TCP transport closed, the interface down or unplugged); not ENOBUFS (a full queue)
+LINK_LOST_ERRNOS = frozenset({errno.EPIPE, errno.ECONNRESET, errno.ECONNABORTED, errno.ENOTCONN,
+                              errno.ESHUTDOWN, errno.EBADF, errno.ENETDOWN, errno.ENODEV, errno.ENXIO})
+#: sends refused in a row (for another reason than a full transmit queue, nothing sent
+#: between) that take the bus down: a vendor backend that gives no errno for a lost adapter
+SEND_FAILURES_DOWN = 5
+
 FrameHandler = Callable[[can.Message], None]
+
+
+def _errno(exc: BaseException) -> int | None:
+    """The errno of a refused send: python-can's backends raise ``CanError`` with it as
+    ``error_code`` (socketcan), others the ``OSError`` itself (python-can-remote)."""
+    if isinstance(exc, can.CanError) and exc.error_code is not None:
+        return exc.error_code
+    code = getattr(exc, "errno", None)
+    if code is None and exc.__cause__ is not None:
+        code = getattr(exc.__cause__, "errno", None)
+    return code if isinstance(code, int) else None
 
 
 def _tx_queue_full(exc: Exception) -> bool:
     """The interface refused a frame because its transmit queue is full (ENOBUFS: python-can's
     socketcan backend raises ``CanOperationError`` with that ``error_code``)."""
-    code = exc.error_code if isinstance(exc, can.CanError) else getattr(exc, "errno", None)
-    return code == errno.ENOBUFS
+    return _errno(exc) == errno.ENOBUFS
 
 
 class BusDriver:
@@ -121,7 +153,9 @@ class BusDriver:
         self.reopen_backoff_s = reopen_backoff_s
         self.reopen_backoff_max_s = max(reopen_backoff_max_s, reopen_backoff_s)
         self.error_hold_s = error_hold_s
-        self.on_state = on_state  # (state, detail), called on the reader thread
+        #: (state, detail) at every change, on the reader thread (on the caller's for the
+        #: outcome of ``open``: a bus down from the start is said too)
+        self.on_state = on_state
         self.handlers: dict[int, FrameHandler] = {}
         self.default_handler: FrameHandler | None = None
         #: called on the reader thread after a burst, when no received frame is left buffered,
@@ -142,7 +176,11 @@ class BusDriver:
         self._taps_lock = threading.Lock()  # writers of ``frame_taps`` only; the reader reads
         self.state = "down"
         self.last_error = ""
-        self.reopen_attempts = 0  # failed attempts since the bus went down
+        self.reopen_attempts = 0  # attempts since the bus last delivered a frame
+        #: (bus, reason): the sender found this bus's link gone (written by the sender thread
+        #: only, one assignment; the reader takes that bus down when it is still the open one)
+        self._send_lost: tuple[can.BusABC, str] | None = None
+        self._send_failures = 0  # refused in a row, not for a full queue (sender thread)
         self.reopens = 0  # successful reopens since start
         self.last_error_frame_s: float | None = None
         self.warn = RateLimitedLog(log)
@@ -174,7 +212,7 @@ class BusDriver:
         try:
             # a start that must open says why in its own line: python-can's retries stay quiet
             with quiet_imports(logging.CRITICAL) if must_open else contextlib.nullcontext():
-                self.bus = can.Bus(**self.bus_kwargs)
+                self.bus = open_can_bus(self.bus_kwargs)
         except Exception as exc:
             if must_open:
                 self._set_state("down", str(exc))
@@ -183,7 +221,7 @@ class BusDriver:
                 raise
             log.error("CAN bus cannot be opened: %s; retrying with backoff", exc)
             self.bus = None
-            self._set_state("down", str(exc))
+            self._set_state("down", str(exc), tell=True)  # down from the start: said all the same
         else:
             self._set_state("ok", "")
         self._running.set()
@@ -208,10 +246,12 @@ class BusDriver:
             try:
                 bus.shutdown()
             except Exception:  # noqa: BLE001 - a dying backend may raise anything
-                pass
+                # python-can-remote's raises on a connection its server closed: mark the bus
+                # shut all the same (else its finaliser tries again and warns)
+                can.BusABC.shutdown(bus)
 
-    def _set_state(self, state: str, detail: str) -> None:
-        changed = state != self.state
+    def _set_state(self, state: str, detail: str, tell: bool = False) -> None:
+        changed = tell or state != self.state
         self.state = state
         self.image.bus_state = state
         if detail:
@@ -289,16 +329,29 @@ class BusDriver:
                     return
                 continue
             bus = self.bus
-            if bus is None:
-                counters["bus_errors"] += 1
+            lost = self._send_lost
+            if bus is None or (lost is not None and lost[0] is bus):
+                counters["bus_errors"] += 1  # the link is gone: the reader is taking it down
                 continue
             try:
                 self._send_one(bus, msg)
             except Exception as exc:  # noqa: BLE001 - a refused frame must not end the sender
                 counters["bus_errors"] += 1
                 self.warn.warning("send", "CAN send failed: %s", exc)
+                self._send_refused(bus, exc)
                 continue
+            self._send_failures = 0
             counters["frames_out"] += 1
+
+    def _send_refused(self, bus: can.BusABC, exc: Exception) -> None:
+        """Count a refused send; tell the reader when it says the link is gone."""
+        code = _errno(exc)
+        if code == errno.ENOBUFS:
+            return  # a full transmit queue (bus off: its error frames say so), not a lost link
+        self._send_failures += 1
+        if code in LINK_LOST_ERRNOS or self._send_failures >= SEND_FAILURES_DOWN:
+            self._send_failures = 0
+            self._send_lost = (bus, f"send failed: {exc}")
 
     def _send_one(self, bus: can.BusABC, msg: can.Message) -> None:
         """Send one frame; one refused because the interface's transmit queue is full is sent
@@ -334,21 +387,20 @@ class BusDriver:
                     continue
                 bus = self.bus
                 assert bus is not None
+            lost = self._send_lost
+            if lost is not None and lost[0] is bus:
+                in_burst = False
+                self._bus_lost(lost[1])
+                continue
             try:
                 # within a burst: only what is already buffered; between bursts: wait
-                msg = bus.recv(timeout=0.0 if in_burst else 0.05)
+                msg = bus.recv(timeout=0.0 if in_burst else RECV_WAIT_S)
             except Exception as exc:  # noqa: BLE001 - any backend failure keeps us running
                 if not self._running.is_set():
                     break
                 counters["bus_errors"] += 1
-                log.error("CAN bus receive failed: %s; reopening", exc)
-                self._shutdown_bus()
-                # nothing is buffered any more: the bus clock follows the monotonic clock again
-                # (left "busy", it would stand still while the bus is down and no node could
-                # time out; a node silent through the outage would never be found lost)
-                self.clock_state = (True, self.clock_state[1])
                 in_burst = False
-                self._set_state("down", f"receive failed: {exc}")
+                self._bus_lost(f"receive failed: {exc}")
                 continue
             if msg is None:
                 # nothing left buffered: caught up with the bus
@@ -362,6 +414,8 @@ class BusDriver:
                 continue
             if not in_burst:
                 self._sync_clocks()  # at a burst's start (and every burst_max_frames in one)
+                if self.reopen_attempts:
+                    self.reopen_attempts = 0  # the bus delivers: the next loss starts over
             in_burst = True
             pending += 1
             self.clock_state = (False, msg.timestamp)  # one assignment (see __init__)
@@ -391,6 +445,17 @@ class BusDriver:
                 pending = 0
                 self._end_burst()
                 self._sync_clocks()
+
+    def _bus_lost(self, detail: str) -> None:
+        """The link is gone (receive raised, or the sender found it gone): close the bus, say
+        ``down`` (``on_state``); the reader reopens it after the backoff."""
+        log.error("CAN bus %s; reopening", detail)
+        self._shutdown_bus()
+        # nothing is buffered any more: the bus clock follows the monotonic clock again
+        # (left "busy", it would stand still while the bus is down and no node could
+        # time out; a node silent through the outage would never be found lost)
+        self.clock_state = (True, self.clock_state[1])
+        self._set_state("down", detail)
 
     def _sync_clocks(self) -> None:
         self._burst_mono = self.mono()
@@ -458,10 +523,10 @@ class BusDriver:
             self._closing.wait(min(0.05, max(0.0, deadline - self.mono())))
         if not self._running.is_set():
             return False
+        self.reopen_attempts += 1
         try:
-            self.bus = can.Bus(**self.bus_kwargs)
+            self.bus = open_can_bus(self.bus_kwargs)
         except Exception as exc:  # noqa: BLE001
-            self.reopen_attempts += 1
             self.warn.warning(
                 "reopen",
                 "CAN bus reopen failed: %s; next attempt in %.1f s",
@@ -470,7 +535,6 @@ class BusDriver:
             )
             self._set_state("down", f"reopen failed: {exc}")
             return False
-        self.reopen_attempts = 0
         self.reopens += 1
         self.last_error_frame_s = None
         log.info("CAN bus reopened")

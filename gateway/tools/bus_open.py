@@ -16,7 +16,7 @@ bus (``Gateway(..., bus_must_open=True)``: it opens the bus once and stops when 
 lost later is reopened by its driver, ``gateway.bus.driver``).
 
 Imports: python-can, gateway.config (blame), gateway.bus.can_backend (quiet_imports,
-driver_problem), gateway.bus.driver (BusOpenFailed).
+driver_problem, open_can_bus), gateway.bus.driver (BusOpenFailed).
 """
 
 from __future__ import annotations
@@ -28,9 +28,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-import can
-
-from gateway.bus.can_backend import driver_problem, quiet_imports
+from gateway.bus.can_backend import driver_problem, open_can_bus, quiet_imports
 from gateway.bus.driver import BusOpenFailed
 from gateway.config import Config, blame
 
@@ -120,7 +118,7 @@ def opening(cfg: Config) -> Iterator[None]:
 def open_bus(cfg: Config) -> Any:
     """The configured bus, opened for a tool of its own (``can.BusABC``)."""
     with opening(cfg):
-        return can.Bus(**cfg.can.bus_kwargs())
+        return open_can_bus(cfg.can.bus_kwargs())
 
 
 @contextmanager

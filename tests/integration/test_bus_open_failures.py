@@ -29,6 +29,12 @@ BUSES = {
         "can.channel: ws://127.0.0.1:",
         "nothing listens there",
     ),
+    # refused at once (python-can's own socketcand bus would retry for 10 s without a pause)
+    "socketcand": (
+        {"interface": "socketcand", "host": "127.0.0.1", "port": "{port}", "channel": "can0"},
+        "can.channel: can0, can.host: 127.0.0.1, can.port: ",
+        "nothing listens there",
+    ),
 }
 
 COMMANDS = {

@@ -12,7 +12,7 @@ import uuid
 
 import can
 
-from gateway.bus.driver import TX_RETRIES, BusDriver
+from gateway.bus.driver import SEND_FAILURES_DOWN, TX_RETRIES, BusDriver
 from gateway.image import ProcessImage
 from tests.helpers import wait_until_sync
 
@@ -71,5 +71,58 @@ def test_a_refusal_other_than_a_full_queue_is_not_retried() -> None:
         wait_until_sync(lambda: d.image.counters["frames_out"] == 1, what="frame 2 sent")
         assert attempts == [1, 2]
         assert d.image.counters["bus_errors"] == 1
+    finally:
+        d.close()
+
+
+def watched(refusals: list[Exception | None]) -> tuple[BusDriver, list[int], list[tuple[str, str]]]:
+    """``scripted`` with the states the driver reports (``on_state``) recorded."""
+    d, attempts = scripted(refusals)
+    states: list[tuple[str, str]] = []
+    d.on_state = lambda state, detail: states.append((state, detail))
+    d.reopen_backoff_s = 0.01
+    return d, attempts, states
+
+
+def test_a_send_refused_because_the_link_is_gone_takes_the_bus_down_and_it_is_reopened() -> None:
+    """python-can's socketcand bus after its server closed: ``BrokenPipeError`` (EPIPE); a
+    SocketCAN interface down or unplugged: ENETDOWN / ENODEV."""
+    d, attempts, states = watched([BrokenPipeError(errno.EPIPE, "Broken pipe")])
+    try:
+        d.send(0x77F, b"\x05")
+        wait_until_sync(lambda: ("ok", "") in states, what="the bus down and reopened")
+        assert states[0] == ("down", "send failed: [Errno 32] Broken pipe")
+        assert d.reopens == 1 and d.image.counters["bus_errors"] == 1
+        assert attempts == [5]
+    finally:
+        d.close()
+
+
+def test_refusals_without_errno_take_the_bus_down_after_several_in_a_row() -> None:
+    other = can.CanOperationError("adapter not found")  # a vendor backend: no errno
+    d, attempts, states = watched([other] * (SEND_FAILURES_DOWN - 1) + [None, other])
+    try:
+        for data in range(SEND_FAILURES_DOWN + 1):  # one sent between: the count starts over
+            d.send(0x77F, bytes([data]))
+        wait_until_sync(lambda: len(attempts) == SEND_FAILURES_DOWN + 1, what="every frame tried")
+        assert states == [] and d.state == "ok"
+        d.close()
+        d, attempts, states = watched([other] * SEND_FAILURES_DOWN)
+        for data in range(SEND_FAILURES_DOWN):
+            d.send(0x77F, bytes([data]))
+        wait_until_sync(lambda: states[:1] == [("down", "send failed: adapter not found")],
+                        what="the bus down")  # fmt: skip
+    finally:
+        d.close()
+
+
+def test_a_full_transmit_queue_never_takes_the_bus_down() -> None:
+    d, attempts, states = watched([ENOBUFS] * (3 * SEND_FAILURES_DOWN * (TX_RETRIES + 1)))
+    try:
+        for data in range(3 * SEND_FAILURES_DOWN):
+            d.send(0x77F, bytes([data]))
+        wait_until_sync(lambda: d.image.counters["bus_errors"] == 3 * SEND_FAILURES_DOWN,
+                        what="every frame refused")  # fmt: skip
+        assert states == [] and d.state == "ok"
     finally:
         d.close()
