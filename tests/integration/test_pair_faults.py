@@ -234,6 +234,7 @@ def test_the_actives_cable_cut_hands_the_bus_over_and_mended_it_does_not_fail_ba
 
 # ------------------------------------------------------------------ an adapter lost
 
+
 def test_the_actives_adapter_lost_hands_the_bus_over_and_back_it_joins_as_standby(plant: Plant) -> None:
     bus, a, b = plant.bus, plant.a, plant.b
     bus.unplug("A")
