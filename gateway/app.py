@@ -254,7 +254,8 @@ class Gateway:
         # without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's gateway out
         # of service because the router is away. /healthz says "zenoh": false meanwhile.
         northbound_up = modbus_up if self.modbus is not None else zenoh_up
-        ready = self.started and bus_ok and northbound_up and not dead
+        out_of_pair = self.master.role == "duplicate"  # another device has our pair id
+        ready = self.started and bus_ok and northbound_up and not dead and not out_of_pair
         return {
             "status": "ready" if ready else "not-ready",
             "ready": ready,
@@ -281,6 +282,8 @@ class Gateway:
             claim=None if claim is None else (claim.priority, claim.node_id, claim.at_s),
             peer_heartbeat_s=self.master.peer_heartbeat_s,
             peer_node_id=redundancy.peer_node_id if redundancy is not None else None,
+            master_id=self.master.pair_master_id,
+            conflict=self.master.pair_conflict,
         )
 
     def _journal_status(self) -> dict[str, Any]:
@@ -495,6 +498,7 @@ class Gateway:
         pair = self.master.pair
         if pair is not None:
             c.pair_takeovers, c.pair_negotiations = pair.takeovers, pair.negotiations
+            c.pair_duplicate_id_frames, c.pair_isolations = pair.duplicates, pair.isolations
         c.pair_role = PAIR_ROLE_CODES.get(self.master.role, 0)
         for name, node in self.image.nodes.items():
             for reason, n in (

@@ -157,11 +157,16 @@ def pair_status(
     claim: tuple[int, int, float] | None = None,
     peer_heartbeat_s: float | None = None,
     peer_node_id: int | None = None,
+    master_id: int | None = None,
+    conflict: str | None = None,
 ) -> dict[str, Any]:
     """The ``role`` and ``peer`` entries of /healthz: this gateway's role in a hot-standby pair
     and what it knows of the other gateway (both None outside a pair).
 
-    ``role`` is this gateway's (active, standby, listening, negotiating). The peer is known by
+    ``role`` is this gateway's (active, standby, listening, negotiating, isolated, duplicate),
+    ``master_id`` the pair id of the master heard active (a third-party CiA 302-2 master's
+    too; None: unknown), ``conflict`` what a device with this gateway's own pair id was heard
+    sending (None: nothing). The peer is known by
     what was heard of it, on the bus clock (``now_s``): ``claim`` its last active master
     response (priority, pair node id, time heard), ``peer_heartbeat_s`` when its own heartbeat
     (``master.redundancy.peer_node_id``) was last heard. A peer whose claim is younger than
@@ -186,6 +191,8 @@ def pair_status(
         peer_role = "unknown"
     return {
         "role": role,
+        "master_id": master_id,
+        "conflict": conflict,
         "peer": {
             "heard": peer_role != "unknown",
             "role": peer_role,

@@ -30,7 +30,8 @@ Metric names carry the prefix ``canopen_gateway_``:
     northbound_turns_refused_total (console and ASCII requests refused: too many waiting)
     journal_entries_total{outcome} (written, dropped, removed: the store and forward journal)
     other_master_frames_total{kind}, other_sdo_client_requests_total{node}
-    pair_takeovers_total, pair_negotiations_total, pair_role (a hot-standby pair)
+    pair_takeovers_total, pair_negotiations_total, pair_duplicate_id_frames_total,
+    pair_isolations_total, pair_role (a hot-standby pair)
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
     plus process_* (CPU, memory, open files) of this process.
 
@@ -144,7 +145,9 @@ class Counters:
     zenoh_publications: int = 0
     pair_takeovers: int = 0
     pair_negotiations: int = 0
-    pair_role: int = 0  # 0 no pair, 1 active, 2 standby, 3 listening / negotiating
+    pair_role: int = 0  # PAIR_ROLE_CODES: 0 no pair, 1 active, 2 standby, 3 listening / ...
+    pair_duplicate_id_frames: int = 0
+    pair_isolations: int = 0
     zenoh_queries_answered: int = 0
     zenoh_queries_busy: int = 0
     zenoh_query_queue_depth: int = 0  # a gauge, read at scrape time
@@ -398,6 +401,16 @@ class _GatewayCollector:
             c.pair_negotiations,
         )
         yield counter(
+            "pair_duplicate_id_frames_total",
+            "Hot-standby pair: frames of another device carrying this gateway's own pair id.",
+            c.pair_duplicate_id_frames,
+        )
+        yield counter(
+            "pair_isolations_total",
+            "Hot-standby pair: times this gateway was cut off (its bus down, or nothing heard).",
+            c.pair_isolations,
+        )
+        yield counter(
             "zenoh_queries_answered_total",
             "Zenoh queries the queries' worker answered to their end (replies or reply_err).",
             c.zenoh_queries_answered,
@@ -421,7 +434,7 @@ class _GatewayCollector:
         yield GaugeMetricFamily(
             f"{NAMESPACE}_pair_role",
             "Role in a hot-standby pair: 0 no pair, 1 active, 2 standby, "
-            "3 listening / negotiating.",
+            "3 listening / negotiating, 4 isolated, 5 out (duplicate pair id).",
             value=c.pair_role,
         )
 

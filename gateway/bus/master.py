@@ -41,8 +41,8 @@ from gateway.bus.driver import BusDriver
 from gateway.bus.lss.service import LssService
 from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.parts import NodeParts, build_node_into
-from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
 from gateway.bus.pair.member import PairMember
+from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide
 from gateway.bus.producers import Periodic
 from gateway.bus.reader import (
     control_handler,
@@ -71,8 +71,6 @@ from gateway.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.master")
 
-#: the master's heartbeat: operational (CiA 301 7.2.8.3.2.2)
-MASTER_HEARTBEAT = b"\x05"
 #: another master / another SDO client is logged at most once per kind and this period
 PEER_LOG_PERIOD_S = 60.0
 
@@ -81,7 +79,7 @@ PEER_LOG_PERIOD_S = 60.0
 QUIET_LIMIT = 1024
 
 
-class Master:
+class Master(PairSide):
     """The driver of the configured nodes (see the module docstring).
 
     ``passive = True`` (commissioning tools: ``canopen-gateway sdo|nmt``): supervision and the
@@ -114,16 +112,23 @@ class Master:
         self._waiting = SdoWaiters()  # the SDO transfers clients await
         #: on_sdo(node, op "read"|"write", latency_s, abort_code or None), e.g. for metrics
         self.on_sdo: Callable[[str, str, float, int | None], None] | None = None
-        #: this gateway in a hot-standby pair (None: no pair)
-        self.member: PairMember | None = None
+        #: this gateway in a hot-standby pair; outside one the null member (``NoPair``): the
+        #: master consults it the same way, and it always masters
+        self.member: PairMember | NoPair = NoPair()
+        self._last_frame: tuple[float, float | None] = (0.0, None)  # (wall, bus clock)
         known = {n.node_id for n in cfg.nodes}
         if cfg.master.redundancy is not None and not passive:
-            self.member = PairMember(cfg, self._send_quiet, self.clock, self._role_changed, self._drain)
+            self.member = PairMember(
+                cfg, self._send_quiet, self.clock, self._role_changed, self._drain,
+                last_frame_s=self._last_frame_s,
+                nodes_alive=lambda: any(p.node.alive for p in self.nodes.values()),
+                reader_busy=lambda: not driver.idle,
+            )  # fmt: skip
             known |= self.member.known_ids()
         #: True while this gateway masters the bus (always, outside a pair)
-        self.mastering = self.member is None
+        self.mastering = not self.in_pair
         #: role listeners: called (role, reason) on the event loop when the pair's role changes
-        self.role_listeners = self.member.role_listeners if self.member is not None else []
+        self.role_listeners = self.member.role_listeners
         self.standby_dropped = 0  # frames the nodes asked for while this gateway stood by
         #: other masters, other SDO clients, unconfigured node ids (event loop only)
         self.peers = BusPeers(
@@ -134,7 +139,7 @@ class Master:
         self.peer_log = RateLimitedLog(log, period_s=PEER_LOG_PERIOD_S)
         #: LSS (CiA 305) on this connection to the bus, for the command service
         self.lss = LssService(driver.send, self._post, self.clock, driver.frame_time)
-        listening = passive or self.member is not None  # a pair's member, until it is active
+        listening = passive or self.in_pair  # a pair's member, until it is active
         for ncfg in cfg.nodes:
             parts = build_node_into(nodes[ncfg.name], image, listening)
             self.nodes[ncfg.name] = parts
@@ -166,17 +171,8 @@ class Master:
                 install(COB_SDO_RX + p.node_id, f"{p.name} SDO request",
                         self._peer_frame(self._on_sdo_request, p))  # fmt: skip
         install(COB_NMT, "NMT", self._peer_frame(self._on_nmt_frame))
-        if self.member is not None:
-            for cob in sorted(self.member.cob_ids):
-                install(cob, f"the pair's 0x{cob:03X}", self._peer_frame(self._on_pair_frame, cob))
-            for p in self.nodes.values():
-                for cob in p.node.outputs.cob_ids:
-                    if cob not in taken:  # an RPDO on its own TPDO's COB-ID: the TPDO is read
-                        install(cob, f"{p.name} RPDO heard",
-                                self._peer_frame(self._on_rpdo_heard, p, cob))  # fmt: skip
-            if self.member.peer_node_id:
-                install(COB_NMT_EC + self.member.peer_node_id, "the peer's heartbeat",
-                        self._peer_frame(self._on_peer_heartbeat))  # fmt: skip
+        if self.in_pair:
+            self._install_pair_handlers(install, taken)
         elif self.cfg.master.heartbeat_ms:  # without one the master's node id is not on the bus
             install(COB_NMT_EC + self.cfg.master.node_id, "the master's heartbeat",
                     self._peer_frame(self._on_own_heartbeat))  # fmt: skip
@@ -207,8 +203,7 @@ class Master:
 
     def _drain(self) -> None:
         self._drain_pending = False
-        if self.member is not None:
-            self.member.check()  # a stalled active gateway stands by before it acts
+        self.member.check()  # a stalled active gateway stands by before it acts
         inbox = self._inbox
         while inbox:
             fn, args = inbox.popleft()
@@ -247,15 +242,25 @@ class Master:
             self.peer_log.warning(("other_master", "heartbeat"), "%s", text)
 
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
-        if self.member is not None and not self.mastering:
+        if not self.mastering:
             self.member.on_sdo_request(p.node_id, data)  # the active gateway's transfer
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
         self.peer_log.info(("sdo_client", p.name), "%s", text)
 
+    def _last_frame_s(self) -> float | None:
+        """When the reader took its last frame, on the bus clock (None: none yet); turned once
+        per frame timestamp, so that the same frame always gives the same time."""
+        wall = self.driver.last_frame_wall
+        if wall != self._last_frame[0]:
+            self._last_frame = (wall, self.driver.mono() - (self.driver.wall() - wall) if wall else None)
+        return self._last_frame[1]
+
     def _bus_state(self, state: str, detail: str) -> None:
         if state == "down":
             self._post(self._on_bus_down)
+        if self.in_pair and state in ("down", "ok"):
+            self._post(self.member.on_link, state == "ok")
 
     # ------------------------------------------------------------------ event loop
     def _on_control(self, p: NodeParts, kind: str, data: bytes, wall: float, now: float) -> None:
@@ -269,8 +274,8 @@ class Master:
         elif kind == "emcy":
             outs = node.on_emcy(data, wall, now)
         else:
-            if self.member is not None and not self.mastering:
-                self.member.on_sdo_response(p.node_id)
+            if not self.mastering:
+                self.member.on_sdo_response(p.node_id, data)
             outs = node.on_sdo_response(data, now)
         self._execute(p, outs)
 
@@ -285,8 +290,7 @@ class Master:
     def _tick(self, p: NodeParts) -> None:
         self._timers.pop(p.name, None)
         self._due.pop(p.name, None)
-        if self.member is not None:
-            self.member.check()  # a stalled active gateway stands by before it acts
+        self.member.check()  # a stalled active gateway stands by before it acts
         if self._inbox:
             self._drain()  # heartbeats queued without a wake-up count before any timeout
         self._execute(p, p.node.tick(self.clock()))
@@ -370,10 +374,7 @@ class Master:
             self._produce(
                 "sync", Periodic(self.cfg.master.sync_period_ms / 1000.0, t0), COB_SYNC, b""
             )
-        if self.member is not None:
-            own = Periodic(self.cfg.master.heartbeat_ms / 1000.0, t0)
-            self._produce("pair", own, self.member.own_heartbeat, MASTER_HEARTBEAT)
-            self.member.start(self.loop)
+        self.member.start(self.loop)  # a pair's: its own heartbeat, its role
         self._producers["housekeeping"] = self.loop.call_later(
             self.warn.period_s, self._housekeeping
         )
@@ -383,8 +384,7 @@ class Master:
 
     async def stop(self) -> None:
         self.lss.stop()
-        if self.member is not None:
-            self.member.stop()
+        self.member.stop()
         for t in [*self._timers.values(), *self._producers.values()]:
             t.cancel()
         self._producers.clear()
@@ -397,9 +397,8 @@ class Master:
         loop = self.loop
         if loop is None:
             return
-        if self.member is not None:
-            self.member.check()
-        if periodic.due(loop.time()) and (self.mastering or name == "pair"):
+        self.member.check()
+        if periodic.due(loop.time()) and self.mastering:
             try:
                 self.driver.send(cob_id, data)
             except can.CanError:
@@ -427,8 +426,7 @@ class Master:
     def require_bus(self) -> None:
         if self.loop is None:  # the listeners start before the master sends its first frame
             raise BusDown("the gateway is starting")
-        if self.member is not None:
-            self.member.check()
+        self.member.check()
         if not self.mastering:
             role = self.role or "standby"
             raise NotActive(
@@ -483,61 +481,3 @@ class Master:
         if self.on_sdo is not None:
             self.on_sdo(name, op, self.loop.time() - t0, None)
         return result
-
-    # ------------------------------------------------------------------ a hot-standby pair
-    @property
-    def pair(self) -> FlyingMaster | None:
-        """The role machine of this gateway in a pair (None outside a pair)."""
-        return self.member.machine if self.member is not None else None
-
-    @property
-    def role(self) -> str | None:
-        """``active``, ``standby``, ``listening``, ``negotiating``; None outside a pair."""
-        return self.member.role if self.member is not None else None
-
-    @property
-    def peer_heartbeat_s(self) -> float | None:
-        """When the peer's own heartbeat was last heard (bus clock; None: not heard)."""
-        return self.member.peer_heartbeat_s if self.member is not None else None
-
-    def _send_quiet(self, cob_id: int, data: bytes) -> None:
-        try:
-            self.driver.send(cob_id, data)
-        except can.CanError:
-            pass
-
-    def _on_pair_frame(self, cob_id: int, data: bytes, wall: float, now: float) -> None:
-        member = self.member
-        assert member is not None
-        if cob_id == member.logical_heartbeat and self.mastering:
-            self._on_own_heartbeat(data, wall, now)  # someone else with the logical id?
-        learned = member.on_frame(cob_id, data, now)
-        if learned is not None and self.peers.admit(learned):
-            # the other gateway named its id in its claim: its own heartbeat is the peer's
-            self.driver.handlers[COB_NMT_EC + learned] = self._peer_frame(self._on_peer_heartbeat)
-
-    def _on_peer_heartbeat(self, data: bytes, wall: float, now: float) -> None:
-        if self.member is not None:
-            self.member.on_peer_heartbeat(now)
-
-    def _on_rpdo_heard(self, p: NodeParts, cob_id: int, data: bytes, wall: float, now: float) -> None:
-        if not self.mastering:
-            self._execute(p, p.node.on_rpdo_heard(cob_id, data, wall, now))
-
-    def _role_changed(self, change: RoleChanged) -> None:
-        now = self.clock()
-        level = logging.WARNING if Role.ACTIVE in (change.role, change.previous) else logging.INFO
-        log.log(level, "pair: %s -> %s (%s)", change.previous, change.role, change.reason)
-        if change.role is Role.ACTIVE:
-            self.mastering = True
-            # the logical master's heartbeat at once: the devices' consumers go on
-            self._send_quiet(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
-            assert self.member is not None
-            self.member.abort_left_open()
-            for p in self.nodes.values():
-                self._execute(p, p.node.take_over(now))
-        elif change.previous is Role.ACTIVE:
-            self.mastering = False
-            for p in self.nodes.values():
-                self._execute(p, p.node.stand_by(now))
-            self._waiting.fail_all(NotActive("this gateway stood down to standby"))

@@ -81,6 +81,12 @@ class PairSection(_Model):
     )
     priority_slot_ms: int = Field(default=200, ge=0, le=10_000, description="CiA 302-2 1F90h:04")
     device_slot_ms: int = Field(default=2, ge=0, le=1000, description="CiA 302-2 1F90h:05")
+    detect_cycle_ms: int = Field(
+        default=4000,
+        ge=100,
+        le=600_000,
+        description="CiA 302-2 1F90h:06: the active gateway's multiple-master check (76h) period",
+    )
     peer_node_id: int | None = Field(
         default=None, ge=1, le=127, description="the other gateway's own id: its heartbeat is watched"
     )

@@ -86,9 +86,12 @@ PAIR_ROLE_CODES: dict[str | None, int] = {
     "standby": 2,
     "listening": 3,
     "negotiating": 3,
+    "isolated": 4,
+    "duplicate": 5,
 }
 PAIR_ROLE_DESCRIPTION = (
-    "hot-standby pair: 0 no pair, 1 active, 2 standby, 3 listening / negotiating"
+    "hot-standby pair: 0 no pair, 1 active, 2 standby, 3 listening / negotiating, "
+    "4 isolated (its bus down or silent), 5 out (another device has its pair id)"
 )
 GATEWAY_REGS = [
     (0, "bus_state", "uint16", "CAN bus: 0 down, 1 ok, 2 error passive / bus off"),
@@ -106,6 +109,9 @@ GATEWAY_REGS = [
     (18, "nodes_operational", "uint16", "nodes operational"),
     (19, "watchdog_trips", "uint32", "output watchdog trips (safe outputs written)"),
     (21, "pair_role", "uint16", PAIR_ROLE_DESCRIPTION),
+    (22, "pair_master_id", "uint16",
+     "hot-standby pair: the pair id of the master heard active (this gateway's own when it is "
+     "active; a third-party master's), 0 unknown"),
 ]
 NMT_DESCRIPTION = (
     "write 1 start, 2 stop, 128 pre-operational, 129 reset node, 130 reset communication; "

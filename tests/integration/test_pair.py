@@ -13,6 +13,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
+import can
 import pytest
 
 from gateway.app import Gateway, SimulatedBus
@@ -145,3 +146,18 @@ async def test_the_standby_takes_over_when_the_active_one_falls_silent() -> None
         rpdo2 = [d for c, d in sent_b.frames if c == 0x302]
         assert rpdo2 and int.from_bytes(rpdo2[-1][0:4], "little", signed=True) == 4321
         b.master.nmt("wire", "start")  # commands are B's now
+
+
+async def test_a_detection_of_master_capable_devices_is_answered_by_each_member_not_logged() -> None:
+    async with pair_running() as (a, b, sent_a, sent_b, _sim):
+        await wait_until(lambda: b.master.role == "standby", 5, "B standby")
+        unknown = (a.image.counters["unknown_cob_id"], b.image.counters["unknown_cob_id"])
+        probe = can.Bus(**a.cfg.can.bus_kwargs())  # a commissioning tool on the same bus
+        try:
+            probe.send(can.Message(arbitration_id=0x75, data=b"", is_extended_id=False))
+            await wait_until(lambda: sent_a.count(0x74) == 1 and sent_b.count(0x74) == 1, 5,
+                             "74h from each member")  # fmt: skip
+        finally:
+            probe.shutdown()
+        assert (0x74, bytes((0, 101))) in sent_a.frames and (0x74, bytes((1, 102))) in sent_b.frames
+        assert (a.image.counters["unknown_cob_id"], b.image.counters["unknown_cob_id"]) == unknown

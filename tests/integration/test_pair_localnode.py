@@ -36,7 +36,7 @@ LOGICAL = 100
 HB_MS = 100
 #: the device's consumer time for the logical master: the take-over with the defaults
 #: (docs/redundancy.md "Take-over": 300 ms + B's slot 1 x 200 + 102 x 2 ms, plus at most one
-#: claim period) must fit, so that the device never reports a heartbeat loss (EMCY 8130h)
+#: heartbeat period) must fit, so that the device never reports a heartbeat loss (EMCY 8130h)
 CONSUMER_MS = 1000
 # CiA 301 7.5.2.15: 1016h:01 = producer node id << 16 | consumer heartbeat time (ms)
 CONSUMER_1016 = (LOGICAL << 16) | CONSUMER_MS

@@ -1,8 +1,12 @@
 """The role machine of a hot-standby pair (CiA 302-2 flying master), on a fake bus and clock.
 
-A ``Pair`` joins machines by a fake bus: a frame one sends reaches every other machine at the
-same instant; an active machine's gateway produces the logical heartbeat every period. Gateways
-can be killed (silent, gone), frozen (silent, then back with their state) and restarted.
+A ``Pair`` joins machines by a fake bus: a frame one sends reaches every other machine that is
+up and not cut at the same instant; an active machine's gateway produces the logical heartbeat
+every period, every gateway its own heartbeat, and ``devices`` a device heartbeat (0x701) every
+200 ms. Every period each gateway reports whether it received anything (``on_hearing``: the
+time of the last frame the driver received). Gateways can be killed (silent, gone), frozen (silent, then
+back with their state), restarted, cut (they hear nothing and nothing they send arrives) and
+lose their adapter (``on_link(False)``).
 """
 
 from __future__ import annotations
@@ -15,11 +19,16 @@ import pytest
 from gateway.bus.pair.flying_master import (
     COB_ACTIVE_MASTER_REQUEST,
     COB_ACTIVE_MASTER_RESPONSE,
+    COB_CAPABLE_RESPONSE,
+    COB_DETECT_CAPABLE,
     COB_FORCE_NEGOTIATION,
     COB_HEARTBEAT,
     COB_NEGOTIATION_REQUEST,
+    DOES,
+    FLYING_MASTER_COB_IDS,
     TRANSITIONS,
     FlyingMaster,
+    Notice,
     PairError,
     PairTiming,
     Role,
@@ -29,13 +38,16 @@ from gateway.bus.pair.flying_master import (
 
 MASTER = 100
 HEARTBEAT_S = 0.1
-TIMING = PairTiming(
-    takeover_s=3 * HEARTBEAT_S, detect_s=3 * HEARTBEAT_S, claim_period_s=HEARTBEAT_S
-)
+DEVICE_PERIOD_S = 0.2
+TIMING = PairTiming(takeover_s=3 * HEARTBEAT_S, detect_s=3 * HEARTBEAT_S)
 
 
-def machine(node_id: int, priority: int, timing: PairTiming = TIMING) -> FlyingMaster:
-    return FlyingMaster(node_id=node_id, priority=priority, master_node_id=MASTER, timing=timing)
+def machine(
+    node_id: int, priority: int, timing: PairTiming = TIMING, **kw: object
+) -> FlyingMaster:
+    return FlyingMaster(
+        node_id=node_id, priority=priority, master_node_id=MASTER, timing=timing, **kw
+    )  # type: ignore[arg-type]
 
 
 @dataclass
@@ -43,8 +55,67 @@ class Gateway:
     name: str
     fm: FlyingMaster
     up: bool = True
+    cut: bool = False
     next_heartbeat_s: float = math.inf
+    next_own_s: float = 0.0
+    last_rx_s: float | None = None  # when it last received a frame (the driver's reader)
     roles: list[tuple[float, Role, str]] = field(default_factory=list)
+    notices: list[str] = field(default_factory=list)
+    nodes_alive: bool = False
+
+
+class ThirdParty:
+    """A CiA 302-2 flying master of another vendor, written from the behaviour the emotas stack
+    ships (not from our machine): 73h answered by the active one with 71h; a worse 71h heard
+    while active: 76h + 72h and its slot; 72h: its slot; 76h while active: 72h and its slot; at
+    its slot's end 71h unless a better 71h came first; active: 76h every 4 s and its heartbeat."""
+
+    def __init__(self, node_id: int, priority: int):
+        self.name, self.node_id, self.priority = "T", node_id, priority
+        self.active = False
+        self.slot_end: float | None = None
+        self.next_detect = math.inf
+        self.next_hb = math.inf
+        self.up = True
+
+    def slot(self, now: float) -> None:
+        if self.slot_end is None:
+            self.slot_end = now + self.priority * 0.2 + self.node_id * 0.002
+
+    def on_frame(self, cob: int, data: bytes, now: float) -> list[tuple[int, bytes]]:
+        me = bytes((self.priority, self.node_id))
+        if cob == COB_ACTIVE_MASTER_REQUEST and self.active:
+            return [(COB_ACTIVE_MASTER_RESPONSE, me)]
+        if cob == COB_ACTIVE_MASTER_RESPONSE and len(data) == 2:
+            if (data[0], data[1]) < (self.priority, self.node_id):
+                self.active, self.slot_end, self.next_hb = False, None, math.inf
+                return []
+            if self.active and self.slot_end is None:
+                self.slot(now)
+                return [(COB_FORCE_NEGOTIATION, b""), (COB_NEGOTIATION_REQUEST, b"")]
+        if cob == COB_NEGOTIATION_REQUEST:
+            self.slot(now)
+        if cob == COB_FORCE_NEGOTIATION and self.active and self.slot_end is None:
+            self.slot(now)
+            return [(COB_NEGOTIATION_REQUEST, b"")]
+        return []
+
+    def deadline(self) -> float:
+        return min(self.slot_end or math.inf, self.next_detect, self.next_hb)
+
+    def poll(self, now: float) -> list[tuple[int, bytes]]:
+        if self.slot_end is not None and now >= self.slot_end:
+            self.slot_end = None
+            self.active = True
+            self.next_detect, self.next_hb = now + 4.0, now
+            return [(COB_ACTIVE_MASTER_RESPONSE, bytes((self.priority, self.node_id)))]
+        if now >= self.next_hb:
+            self.next_hb = now + HEARTBEAT_S
+            return [(COB_HEARTBEAT + self.node_id, b"\x05")]
+        if now >= self.next_detect:
+            self.next_detect = now + 4.0
+            return [(COB_FORCE_NEGOTIATION, b"")]
+        return []
 
 
 @dataclass
@@ -54,27 +125,53 @@ class Pair:
     gateways: dict[str, Gateway] = field(default_factory=dict)
     now: float = 0.0
     log: list[tuple[float, str, int, bytes]] = field(default_factory=list)  # (t, sender, cob, data)
+    devices: bool = True
+    next_device_s: float = 0.0
+    third: ThirdParty | None = None
 
-    def add(self, name: str, node_id: int, priority: int) -> Gateway:
-        gw = Gateway(name, machine(node_id, priority))
+    def add(self, name: str, node_id: int, priority: int, **kw: object) -> Gateway:
+        gw = Gateway(name, machine(node_id, priority, **kw))
+        gw.next_own_s = self.now
         self.gateways[name] = gw
         self._act(gw, gw.fm.start(self.now))
         return gw
 
     def restart(self, name: str) -> Gateway:
         old = self.gateways[name].fm
-        return self.add(name, old.node_id, old.priority)
+        return self.add(name, old.node_id, old.priority, peer_id=old.peer_id)
+
+    def add_third_party(self, node_id: int, priority: int) -> ThirdParty:
+        self.third = ThirdParty(node_id, priority)
+        self.third.slot_end = self.now + 0.1 + priority * 0.2 + node_id * 0.002  # no answer: claim
+        self._send_third(COB_ACTIVE_MASTER_REQUEST, b"")
+        return self.third
+
+    def _send_third(self, cob_id: int, data: bytes) -> None:
+        self.log.append((self.now, "T", cob_id, data))
+        for gw in self.gateways.values():
+            if gw.up and not gw.cut:
+                gw.last_rx_s = self.now
+                self._act(gw, gw.fm.on_frame(cob_id, data, self.now))
 
     def _send(self, sender: Gateway, cob_id: int, data: bytes) -> None:
         self.log.append((self.now, sender.name, cob_id, data))
+        if sender.cut:
+            return  # nothing it sends arrives
         for gw in self.gateways.values():
-            if gw is not sender and gw.up:
+            if gw is not sender and gw.up and not gw.cut:
+                gw.last_rx_s = self.now
                 self._act(gw, gw.fm.on_frame(cob_id, data, self.now))
+        t = self.third
+        if t is not None and t.up:
+            for c, d in t.on_frame(cob_id, data, self.now):
+                self._send_third(c, d)
 
     def _act(self, gw: Gateway, actions: list) -> None:
         for a in actions:
             if isinstance(a, Send):
                 self._send(gw, a.cob_id, a.data)
+            elif isinstance(a, Notice):
+                gw.notices.append(a.text)
             elif isinstance(a, RoleChanged):
                 gw.roles.append((self.now, a.role, a.reason))
                 if a.role is Role.ACTIVE:
@@ -82,29 +179,51 @@ class Pair:
                 else:
                     gw.next_heartbeat_s = math.inf
 
+    def _events(self) -> list[tuple[float, int, str]]:
+        events: list[tuple[float, int, str]] = []
+        for gw in self.gateways.values():
+            if not gw.up:
+                continue
+            d = gw.fm.next_deadline_s()
+            if d is not None:
+                events.append((d, 0, gw.name))
+            events.append((gw.next_heartbeat_s, 1, gw.name))
+            events.append((gw.next_own_s, 2, gw.name))
+        if self.devices:
+            events.append((self.next_device_s, 3, ""))
+        if self.third is not None and self.third.up:
+            events.append((self.third.deadline(), 4, "T"))
+        return events
+
     def run_until(self, t_end: float) -> None:
         while True:
-            events = []
-            for gw in self.gateways.values():
-                if not gw.up:
-                    continue
-                d = gw.fm.next_deadline_s()
-                if d is not None:
-                    events.append((d, 0, gw))
-                events.append((gw.next_heartbeat_s, 1, gw))
-            if not events:
-                self.now = t_end
-                return
-            t, kind, gw = min(events, key=lambda e: (e[0], e[1], e[2].name))
+            events = self._events()
+            t, kind, name = min(events) if events else (math.inf, 0, "")
             if t > t_end:
                 self.now = t_end
                 return
             self.now = max(self.now, t)
+            if kind == 3:
+                self.next_device_s = self.now + DEVICE_PERIOD_S
+                for gw in self.gateways.values():
+                    gw.last_rx_s = gw.last_rx_s if gw.cut else self.now
+                continue
+            if kind == 4:
+                assert self.third is not None
+                for c, d in self.third.poll(self.now):
+                    self._send_third(c, d)
+                continue
+            gw = self.gateways[name]
             if kind == 0:
                 self._act(gw, gw.fm.poll(self.now))
-            else:
+            elif kind == 1:
                 gw.next_heartbeat_s = self.now + HEARTBEAT_S
                 self._send(gw, COB_HEARTBEAT + MASTER, b"\x05")
+            else:  # its own heartbeat, and its report of what it heard
+                gw.next_own_s = self.now + HEARTBEAT_S
+                self._act(gw, gw.fm.on_hearing(self.now, gw.last_rx_s, gw.nodes_alive))
+                if gw.fm.role is not Role.DUPLICATE:
+                    self._send(gw, COB_HEARTBEAT + gw.fm.node_id, b"\x05")
 
     def heartbeat_senders(self, since: float) -> set[str]:
         return {s for t, s, c, _ in self.log if c == COB_HEARTBEAT + MASTER and t >= since}
@@ -119,8 +238,15 @@ class Pair:
             if c == COB_HEARTBEAT + MASTER and s == sender and t >= since
         )
 
-    def sent(self, sender: str, cob_id: int) -> int:
-        return sum(1 for _, s, c, _ in self.log if s == sender and c == cob_id)
+    def sent(self, sender: str, cob_id: int, since: float = 0.0) -> int:
+        return sum(1 for t, s, c, _ in self.log if s == sender and c == cob_id and t >= since)
+
+    def pair_frames(self, since: float, sender: str | None = None) -> int:
+        return sum(
+            1
+            for t, s, c, _ in self.log
+            if c in FLYING_MASTER_COB_IDS and t >= since and sender in (None, s)
+        )
 
 
 def a_active_b_standby() -> tuple[Pair, Gateway, Gateway]:
@@ -157,7 +283,7 @@ def test_a_second_gateway_that_hears_the_active_one_stays_standby_and_sends_one_
     pair.run_until(30.0)
     assert b.fm.role is Role.STANDBY
     assert pair.sent("B", COB_ACTIVE_MASTER_REQUEST) == 1
-    assert {c for _, s, c, _ in pair.log if s == "B"} == {COB_ACTIVE_MASTER_REQUEST}
+    assert {c for _, s, c, _ in pair.log if s == "B"} == {COB_ACTIVE_MASTER_REQUEST, 0x700 + 102}
     assert pair.heartbeat_senders(since=1.0) == {"A"}
     assert b.fm.peer is not None and b.fm.peer.node_id == 101
 
@@ -190,9 +316,9 @@ def test_when_the_active_one_dies_the_standby_takes_over_within_a_second() -> No
     assert b.fm.role is Role.ACTIVE and b.fm.takeovers == 1
     gap = pair.first_heartbeat("B", since=last_a) - last_a
     assert gap <= 1.0
-    # counted from A's last frame (its heartbeat or its claim, at most a claim period apart)
+    # counted from A's last logical heartbeat (the standby's deadline), within one period
     silent_s = TIMING.takeover_s + TIMING.slot_s(1, 102)
-    assert silent_s <= gap <= silent_s + TIMING.claim_period_s
+    assert silent_s - 1e-9 <= gap <= silent_s + HEARTBEAT_S
     assert "silent" in b.roles[-2][2]
 
 
@@ -228,17 +354,21 @@ def test_a_frozen_active_one_is_replaced_and_when_thawed_one_sender_remains_at_o
     assert pair.heartbeat_senders(since=thawed_at + 0.5) == {"A"}
 
 
-def test_two_actives_that_hear_each_other_resolve_by_priority_in_one_claim_period() -> None:
+def test_two_actives_that_hear_each_other_resolve_by_priority_within_the_winners_slot() -> None:
     pair = Pair()
     a = pair.add("A", node_id=101, priority=0)
     pair.run_until(1.0)
     b = pair.add("B", node_id=102, priority=1)
     pair.run_until(2.0)
-    # a partition ends: both believed themselves active
+    # a partition ends: both believed themselves active (neither heard nothing meanwhile)
     b.fm.role = Role.ACTIVE
-    b.fm._deadline_s = pair.now
-    pair.run_until(2.0 + HEARTBEAT_S)
+    b.next_heartbeat_s = pair.now
+    pair.run_until(2.0 + TIMING.slot_s(0, 101) + HEARTBEAT_S)
     assert (a.fm.role, b.fm.role) == (Role.ACTIVE, Role.STANDBY)
+    # CiA 302-2: A heard another sender of the logical heartbeat and forced a negotiation
+    assert a.fm.forced == 1 and pair.sent("A", COB_FORCE_NEGOTIATION, since=2.0) == 1
+    assert pair.pair_frames(since=2.0) <= 5  # 76h, 72h (A), 72h (B), 71h (A)
+    assert any("negotiation forced" in n for n in a.notices)
 
 
 def test_a_standby_that_keeps_hearing_the_logical_heartbeat_never_negotiates() -> None:
@@ -259,6 +389,7 @@ def test_the_takeover_edge_is_exactly_the_takeover_time() -> None:
     fm.start(0.0)
     fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", 1.0)
     assert fm.poll(math.nextafter(1.0 + TIMING.takeover_s, 0)) == []
+    fm.on_hearing(1.25, last_frame_s=1.25)  # a device heard after the next heartbeat was due
     actions = fm.poll(1.0 + TIMING.takeover_s)
     assert fm.role is Role.NEGOTIATING
     assert Send("send", COB_NEGOTIATION_REQUEST, b"") in actions
@@ -267,26 +398,64 @@ def test_the_takeover_edge_is_exactly_the_takeover_time() -> None:
 # ------------------------------------------------------------------ answers and edges
 
 
-@pytest.mark.parametrize(
-    "cob_id", [COB_ACTIVE_MASTER_REQUEST, COB_NEGOTIATION_REQUEST, COB_FORCE_NEGOTIATION]
-)
-def test_the_active_one_answers_requests_with_its_claim(cob_id: int) -> None:
-    fm = machine(101, 0)
+def active_machine(node_id: int = 101, priority: int = 0, **kw: object) -> FlyingMaster:
+    fm = machine(node_id, priority, **kw)
     fm.start(0.0)
-    fm.poll(10.0)
-    fm.poll(20.0)
+    fm.poll(1.0)
+    fm.poll(2.0)
     assert fm.role is Role.ACTIVE
-    assert fm.on_frame(cob_id, b"", 21.0) == [
-        Send("send", COB_ACTIVE_MASTER_RESPONSE, bytes((0, 101)))
+    return fm
+
+
+CLAIM = Send("send", COB_ACTIVE_MASTER_RESPONSE, bytes((0, 101)))
+
+
+def test_the_active_one_answers_73h_with_one_claim() -> None:
+    fm = active_machine()
+    assert fm.on_frame(COB_ACTIVE_MASTER_REQUEST, b"", 2.5) == [CLAIM]
+    assert fm.role is Role.ACTIVE
+
+
+def test_the_active_one_answers_72h_with_one_claim_at_the_end_of_its_slot_and_stays() -> None:
+    fm = active_machine()
+    assert fm.on_frame(COB_NEGOTIATION_REQUEST, b"", 2.5) == []
+    assert fm.on_frame(COB_NEGOTIATION_REQUEST, b"", 2.6) == []  # within the slot: nothing new
+    slot_end = 2.5 + TIMING.slot_s(0, 101)
+    assert fm.next_deadline_s() == pytest.approx(slot_end)
+    assert fm.poll(slot_end) == [CLAIM]
+    assert fm.role is Role.ACTIVE and fm.next_deadline_s() == pytest.approx(2.0 + 4.0)
+
+
+def test_76h_makes_the_active_one_negotiate_again_with_one_72h_then_its_claim() -> None:
+    fm = active_machine()
+    assert fm.on_frame(COB_FORCE_NEGOTIATION, b"", 2.5) == [
+        Send("send", COB_NEGOTIATION_REQUEST, b"")
     ]
-    assert fm.role is Role.ACTIVE
+    assert fm.on_frame(COB_FORCE_NEGOTIATION, b"", 2.55) == []
+    assert fm.poll(2.5 + TIMING.slot_s(0, 101)) == [CLAIM]
+
+
+def test_the_active_one_sends_76h_every_detect_cycle_and_no_periodic_claim() -> None:
+    fm = active_machine()
+    sent = [a for t in range(21, 200) for a in fm.poll(t / 10)]  # 2.1 .. 19.9 s
+    assert sent == [Send("send", COB_FORCE_NEGOTIATION, b"")] * 4  # at 6, 10, 14, 18 s
+
+
+def test_75h_is_answered_with_74h_by_every_capable_member_but_one_cut_off() -> None:
+    fm = machine(102, 1)
+    fm.start(0.0)
+    answer = Send("send", COB_CAPABLE_RESPONSE, bytes((1, 102)))
+    assert fm.on_frame(COB_DETECT_CAPABLE, b"", 0.1) == [answer]
+    fm.on_link(False, 0.2)
+    assert fm.role is Role.ISOLATED
+    assert fm.on_frame(COB_DETECT_CAPABLE, b"", 0.3) == []  # link down: it hears nothing
 
 
 def test_our_own_claim_and_heartbeat_echoed_by_the_bus_change_nothing() -> None:
-    fm = machine(101, 0)
-    fm.start(0.0)
-    fm.poll(10.0)
-    fm.poll(20.0)
+    fm = active_machine(echo=True)
+    assert fm.on_frame(COB_HEARTBEAT + 101, b"\x05", 21.0) == []
+    assert fm.ignored == 1
+    fm.ignored = 0
     assert fm.on_frame(COB_ACTIVE_MASTER_RESPONSE, bytes((0, 101)), 21.0) == []
     assert fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", 21.0) == []
     assert fm.role is Role.ACTIVE and fm.ignored == 2
@@ -344,3 +513,207 @@ def test_a_stall_means_nothing_to_a_standby() -> None:
     fm.start(0.0)
     fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", 0.1)
     assert fm.on_stall(5.0) == [] and fm.role is Role.STANDBY and fm.stalls == 0
+
+
+# ------------------------------------------------------------------ the link
+
+
+def test_a_standby_whose_cable_is_cut_is_isolated_sends_nothing_and_rejoins_as_standby() -> None:
+    pair, a, b = a_active_b_standby()
+    b.cut = True
+    pair.run_until(8.0)
+    assert b.fm.role is Role.ISOLATED and b.fm.negotiations == 0
+    assert "cut off" in b.roles[-1][2]
+    assert pair.pair_frames(since=5.0, sender="B") == 0  # no 72h, no 71h: it did not negotiate
+    assert a.fm.role is Role.ACTIVE
+    b.cut = False  # mended
+    pair.run_until(12.0)
+    assert (a.fm.role, b.fm.role) == (Role.ACTIVE, Role.STANDBY)
+    assert [r for _, r, _ in b.roles[-3:]] == [Role.ISOLATED, Role.LISTENING, Role.STANDBY]
+    assert pair.heartbeat_senders(since=5.0) == {"A"}
+
+
+def test_an_active_one_whose_cable_is_cut_stands_down_and_never_fails_back() -> None:
+    pair, a, b = a_active_b_standby()
+    a.cut = True
+    cut_at = pair.now
+    pair.run_until(8.0)
+    assert a.fm.role is Role.ISOLATED and a.fm.isolations == 1
+    assert b.fm.role is Role.ACTIVE and b.fm.takeovers == 1
+    stood_down = next(t for t, r, _ in a.roles if r is Role.ISOLATED)
+    assert stood_down - cut_at <= TIMING.takeover_s + 2 * HEARTBEAT_S  # reported every period
+    a.cut = False  # mended: A has the better priority, and stays out
+    pair.run_until(20.0)
+    assert (a.fm.role, b.fm.role) == (Role.STANDBY, Role.ACTIVE)
+    assert pair.heartbeat_senders(since=9.0) == {"B"}
+    assert pair.sent("A", COB_ACTIVE_MASTER_RESPONSE, since=cut_at) == 0
+
+
+def test_an_active_one_cut_while_its_nodes_seem_alive_yields_when_the_bus_returns() -> None:
+    """Its nodes' supervision has not expired yet: it keeps mastering (into nothing), marked
+    cut; when the bus returns and it meets the new active one it stands by, whatever its
+    priority: no fail-back onto the member that was cut off."""
+    pair, a, b = a_active_b_standby()
+    a.nodes_alive = True
+    a.cut = True
+    pair.run_until(6.5)
+    assert a.fm.role is Role.ACTIVE and a.fm.was_cut
+    assert b.fm.role is Role.ACTIVE
+    a.cut = False
+    pair.run_until(7.0)
+    assert (a.fm.role, b.fm.role) == (Role.STANDBY, Role.ACTIVE)
+    assert "no fail-back onto it" in next(why for t, r, why in a.roles if t >= 6.5)
+    assert pair.heartbeat_senders(since=6.6) == {"B"}
+    assert pair.sent("A", COB_ACTIVE_MASTER_RESPONSE, since=5.0) == 0
+
+
+def test_an_active_one_that_loses_its_adapter_stands_down_at_once() -> None:
+    pair, a, b = a_active_b_standby()
+    a.cut = True  # an adapter lost: nothing in, nothing out, and the driver says down
+    pair._act(a, a.fm.on_link(False, pair.now))
+    assert a.fm.role is Role.ISOLATED and a.next_heartbeat_s == math.inf
+    assert a.roles[-1][2] == "this gateway's CAN bus is down"
+    pair.run_until(8.0)
+    assert b.fm.role is Role.ACTIVE
+    pair._act(a, a.fm.on_link(True, pair.now))  # reopened: it listens once it hears the bus
+    a.cut = False
+    pair.run_until(12.0)
+    assert (a.fm.role, b.fm.role) == (Role.STANDBY, Role.ACTIVE)
+
+
+def test_a_standby_that_loses_its_adapter_is_isolated_and_back_joins_as_standby() -> None:
+    pair, a, b = a_active_b_standby()
+    b.cut = True
+    pair._act(b, b.fm.on_link(False, pair.now))
+    assert b.fm.role is Role.ISOLATED
+    pair.run_until(8.0)
+    assert b.fm.role is Role.ISOLATED  # it heard nothing while the link was down
+    pair._act(b, b.fm.on_link(True, pair.now))
+    b.cut = False
+    pair.run_until(10.0)
+    assert (a.fm.role, b.fm.role) == (Role.ACTIVE, Role.STANDBY)
+    assert pair.pair_frames(since=5.0, sender="B") == 1  # its 73h when it listened again
+
+
+def test_a_standby_whose_active_dies_on_a_silent_bus_cannot_tell_and_stays_isolated() -> None:
+    """Every device talks only when asked (guarded): with the active one gone the standby
+    hears nobody, exactly as with its own cable cut: it stays out until it hears the bus."""
+    pair, a, b = a_active_b_standby()
+    pair.devices = False
+    a.up = False
+    pair.run_until(10.0)
+    assert b.fm.role is Role.ISOLATED and b.fm.negotiations == 0
+    pair.devices = True  # a device talks (a boot-up, a heartbeat): the bus is there
+    pair.run_until(12.0)
+    assert b.fm.role is Role.ACTIVE
+
+
+def test_a_lone_gateway_starting_on_a_silent_bus_still_claims_and_keeps_it_while_heard() -> None:
+    pair = Pair(devices=False)
+    a = pair.add("A", node_id=101, priority=0)
+    pair.run_until(0.6)
+    assert a.fm.role is Role.ACTIVE  # at start it claims (as CiA 302-2), even unheard
+    pair.devices = True  # its devices answer the master: it keeps the bus
+    pair.run_until(10.0)
+    assert a.fm.role is Role.ACTIVE and a.fm.isolations == 0
+
+
+def test_both_members_back_from_a_whole_bus_outage_find_each_other_by_their_own_heartbeats() -> None:
+    pair, a, b = a_active_b_standby()
+    pair.devices = False
+    for gw in (a, b):
+        pair._act(gw, gw.fm.on_link(False, pair.now))
+    assert (a.fm.role, b.fm.role) == (Role.ISOLATED, Role.ISOLATED)
+    for gw in (a, b):
+        pair._act(gw, gw.fm.on_link(True, pair.now))
+    pair.run_until(10.0)
+    assert {a.fm.role, b.fm.role} == {Role.ACTIVE, Role.STANDBY}
+
+
+# ------------------------------------------------------------------ duplicate ids
+
+
+def test_a_member_with_the_id_of_a_standby_stays_out_and_the_active_one_keeps_the_bus() -> None:
+    pair, a, b = a_active_b_standby()
+    c = pair.add("C", node_id=102, priority=1)  # B's environment forgotten: B's id again
+    pair.run_until(8.0)
+    # the first to hear the other goes out and is silent from then on; the other stays standby
+    out = c if c.fm.role is Role.DUPLICATE else b
+    assert {b.fm.role, c.fm.role} == {Role.DUPLICATE, Role.STANDBY}
+    assert a.fm.role is Role.ACTIVE
+    assert out.fm.conflict == (
+        "another device uses this gateway's pair id 102: heard a heartbeat on 0x766"
+    )
+    out_at = next(t for t, r, _ in out.roles if r is Role.DUPLICATE)
+    assert {cob for t, s, cob, _ in pair.log if s == out.name and t > out_at} == set()
+    assert pair.heartbeat_senders(since=5.0) == {"A"}
+
+
+def test_an_active_member_that_hears_its_own_pair_id_keeps_the_bus_and_says_so_once() -> None:
+    fm = active_machine()
+    assert fm.on_frame(COB_HEARTBEAT + 101, b"\x05", 3.0) == [
+        Notice(
+            "notice",
+            "duplicate",
+            "pair: another device uses this gateway's pair id 101: heard a heartbeat on 0x765; "
+            "this gateway keeps the bus",
+        )
+    ]
+    fm.on_frame(COB_ACTIVE_MASTER_RESPONSE, bytes((3, 101)), 3.1)
+    assert fm.role is Role.ACTIVE and fm.duplicates == 2
+
+
+def test_a_foreign_logical_heartbeat_forces_at_most_one_negotiation_per_detect_cycle() -> None:
+    fm = active_machine()
+    sent: list[Send] = []
+    t = 2.0
+    while t < 12.0:  # a device stuck sending the logical master's heartbeat every 100 ms
+        t += HEARTBEAT_S
+        sent += [a for a in fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", t) if isinstance(a, Send)]
+        sent += [a for a in fm.poll(t) if isinstance(a, Send)]
+    forces = [a for a in sent if a.cob_id == COB_FORCE_NEGOTIATION]
+    assert fm.forced == 3 and fm.role is Role.ACTIVE  # at 2.1, 6.1, 10.1 s
+    assert len(forces) <= 3 + 3  # and the detect cycle's own 76h
+
+
+# ------------------------------------------------------------------ a third-party master
+
+
+def test_a_better_third_party_master_makes_both_members_standby_in_a_handful_of_frames() -> None:
+    pair = Pair()
+    a = pair.add("A", node_id=101, priority=1, peer_id=102)
+    pair.run_until(1.0)
+    b = pair.add("B", node_id=102, priority=2, peer_id=101)
+    pair.run_until(5.0)
+    pair.add_third_party(node_id=5, priority=0)
+    pair.run_until(7.0)
+    assert (a.fm.role, b.fm.role) == (Role.STANDBY, Role.STANDBY)
+    assert a.fm.third_party is not None and a.fm.third_party.node_id == 5
+    assert pair.pair_frames(since=5.0) <= 10
+    settled = pair.now
+    pair.run_until(30.0)  # its heartbeat keeps both standby; its 76h every 4 s is all
+    assert (a.fm.role, b.fm.role) == (Role.STANDBY, Role.STANDBY)
+    assert pair.pair_frames(since=settled, sender="A") == 0
+    assert pair.pair_frames(since=settled, sender="B") == 0
+    assert pair.heartbeat_senders(since=settled) == set()
+
+
+def test_a_worse_third_party_master_changes_nothing() -> None:
+    pair = Pair()
+    a = pair.add("A", node_id=101, priority=0, peer_id=102)
+    pair.run_until(1.0)
+    b = pair.add("B", node_id=102, priority=1, peer_id=101)
+    pair.run_until(5.0)
+    t = pair.add_third_party(node_id=5, priority=9)
+    pair.run_until(30.0)
+    assert (a.fm.role, b.fm.role) == (Role.ACTIVE, Role.STANDBY) and not t.active
+    detect_checks = pair.sent("A", COB_FORCE_NEGOTIATION, since=5.0)
+    assert detect_checks == 6  # A's 76h every 4 s
+    assert pair.pair_frames(since=5.0) - detect_checks == 2  # T's 73h, A's 71h: nothing else
+    assert pair.heartbeat_senders(since=5.0) == {"A"}
+
+
+def test_every_role_change_and_every_answer_is_a_row_of_the_tables() -> None:
+    assert set(DOES).isdisjoint(TRANSITIONS)
+    assert {r for r, _ in TRANSITIONS} == set(Role) - {Role.DUPLICATE}
+    assert all(hasattr(FlyingMaster, name) for name in DOES.values())

@@ -1,16 +1,23 @@
 """This gateway as a member of a hot-standby pair, as the master drives it.
 
 It owns what the pair needs beside the nodes: the role machine (``flying_master.py``) fed with
-the frames heard and the time, its timer on the event loop, the frames it asks for, and what a
-standby learns that a take-over needs: an SDO transfer the other gateway left open (a request
-heard without its answer) and the peer's id and own heartbeat. A role change goes to the master
-(``on_role``), which owns the nodes and starts or stops mastering them.
+the frames heard, the link and the time; its own heartbeat (700h + its pair id, every
+``heartbeat_ms``) on whose beat it also reports to the machine whether the bus is heard at all
+(the time of the last frame the driver received, which its reader keeps anyway: no work
+per frame) and checks
+that this process ran on time; the role's timer on the event loop, re-armed only when the
+deadline comes earlier (a later deadline is found when the timer fires, so a standby that hears
+the logical heartbeat every period does not re-arm per frame); and what a standby learns that a
+take-over needs: an SDO transfer the other gateway left open (a request heard without its answer,
+and the object of the initiate request that opened it) and the peer's own heartbeat. A role
+change goes to the master (``on_role``), which owns the nodes and starts or stops mastering them.
 
 Rule: everything runs on the event loop (the master hands it frames from its one inbox); it
 does no blocking I/O; the master's ``send`` and ``clock`` are its only ways out and in.
 
-Imports: bus.pair.flying_master, bus.sdo.client (the abort frame), cia301, config (types), asyncio (its timer), logging and the
-standard library. Never a northbound module.
+Imports: bus.pair.flying_master, bus.producers (its heartbeat's schedule), bus.sdo.client (the
+abort frame), cia301, config (types), asyncio (its timers), logging and the standard library.
+Never a northbound module.
 """
 
 from __future__ import annotations
@@ -22,15 +29,25 @@ from collections.abc import Callable
 from gateway.bus.pair.flying_master import (
     FLYING_MASTER_COB_IDS,
     FlyingMaster,
+    Notice,
     PairTiming,
+    Role,
     RoleChanged,
     Send,
 )
+from gateway.bus.producers import Periodic
 from gateway.bus.sdo.client import abort_frame
 from gateway.cia301 import COB_NMT_EC, COB_SDO_RX, SDO_ABORT_TIMEOUT
 from gateway.config import Config
 
 log = logging.getLogger("gateway.master")
+
+#: the member's own heartbeat: operational (CiA 301 7.2.8.3.2.2)
+OWN_HEARTBEAT = b"\x05"
+#: a role deadline that comes while the reader is within a burst waits this long, this often
+DEFER_S, DEFER_MAX = 0.005, 4
+#: nothing heard of the peer this long (at least; 10 take-over times when longer): one warning
+PEER_SILENT_S = 10.0
 
 
 def pair_timing(cfg: Config) -> PairTiming:
@@ -42,10 +59,18 @@ def pair_timing(cfg: Config) -> PairTiming:
     return PairTiming(
         takeover_s=takeover_s,
         detect_s=takeover_s,
-        claim_period_s=hb_s,
+        detect_cycle_s=pair.detect_cycle_ms / 1000.0,
+        heartbeat_s=hb_s,
         priority_slot_s=pair.priority_slot_ms / 1000.0,
         device_slot_s=pair.device_slot_ms / 1000.0,
     )
+
+
+def _initiates(data: bytes) -> bool:
+    """An SDO client request that opens a transfer (CiA 301 7.2.4.3): initiate download (ccs 1)
+    or upload (ccs 2), block download (ccs 6, cs 0) or block upload (ccs 5, cs 0)."""
+    ccs = data[0] >> 5
+    return ccs in (1, 2) or (ccs == 6 and not data[0] & 0x01) or (ccs == 5 and not data[0] & 0x03)
 
 
 class PairMember:
@@ -58,6 +83,10 @@ class PairMember:
         clock: Callable[[], float],
         on_role: Callable[[RoleChanged], None],
         before_poll: Callable[[], None] = lambda: None,
+        *,
+        last_frame_s: Callable[[], float | None] = lambda: None,
+        nodes_alive: Callable[[], bool] = lambda: False,
+        reader_busy: Callable[[], bool] = lambda: False,
     ):
         pair = cfg.master.redundancy
         assert pair is not None
@@ -66,7 +95,10 @@ class PairMember:
             priority=pair.priority,
             master_node_id=cfg.master.node_id,
             timing=pair_timing(cfg),
+            echo=bool(cfg.can.bus_kwargs().get("receive_own_messages")),
+            peer_id=pair.peer_node_id,
         )
+        self.heartbeat_s = cfg.master.heartbeat_ms / 1000.0
         self.logical_heartbeat = COB_NMT_EC + cfg.master.node_id
         self.own_heartbeat = COB_NMT_EC + pair.node_id
         #: the other gateway's own id: configured, or learned from its claim (71h)
@@ -74,28 +106,51 @@ class PairMember:
         #: when the peer's own heartbeat was last heard (bus clock)
         self.peer_heartbeat_s: float | None = None
         self._send, self._clock, self._on_role = send, clock, on_role
+        self._last_frame_s, self._nodes_alive = last_frame_s, nodes_alive
+        self._reader_busy = reader_busy  # the reader is within a burst: frames still to come
+        self._deferred = 0
         #: called (role, reason) on the event loop after the master took a role change
         self.role_listeners: list[Callable[[str, str], None]] = []
         self._before_poll = before_poll  # the master drains what was heard before a timeout
-        #: node id -> the first bytes of an SDO request the other gateway sent that no answer
-        #: has followed yet (a transfer it may leave open)
-        self._sdo_heard: dict[int, bytes] = {}
+        #: node id -> (index, sub) of the last initiate request the other gateway sent
+        self._sdo_object: dict[int, tuple[int, int]] = {}
+        self._sdo_open: set[int] = set()  # node ids with a request heard and no answer yet
+        self._sdo_block: set[int] = set()  # node ids within a block download (raw segments)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.TimerHandle | None = None
-        #: the loop's time when this member last ran: while active it runs every claim period,
-        #: so a longer gap than the take-over time means the process did not run (``check``)
+        self._timer_at = 0.0
+        self.rearms = 0  # the role timer armed (for the standby's cost)
+        self._beat: Periodic | None = None
+        self._beat_timer: asyncio.TimerHandle | None = None
+        #: the loop's time when this member last ran: it runs every heartbeat period, so a
+        #: longer gap than the take-over time means the process did not run (``check``)
         self._ran_s: float | None = None
+        self._started_s = 0.0
+        self._noticed: set[str] = set()  # notice keys logged in this role
+        self.peer_silent = False  # the run-time warning: nothing heard of the peer for long
 
     # ------------------------------------------------------------------ queries
     @property
     def role(self) -> str:
-        """``active``, ``standby``, ``listening``, ``negotiating``."""
+        """``active``, ``standby``, ``listening``, ``negotiating``, ``isolated``, ``duplicate``."""
         return str(self.machine.role)
 
     @property
+    def conflict(self) -> str | None:
+        """What a device with this gateway's pair id was heard sending (None: nothing)."""
+        return self.machine.conflict
+
+    @property
     def cob_ids(self) -> frozenset[int]:
-        """What the reader hands this member: the CiA 302-2 frames and the logical heartbeat."""
-        return FLYING_MASTER_COB_IDS | {self.logical_heartbeat}
+        """What the reader hands this member: the CiA 302-2 frames, the logical heartbeat and
+        (without the echo) the heartbeat of this gateway's own pair id: another device's."""
+        own = set() if self.machine.echo else {self.own_heartbeat}
+        return FLYING_MASTER_COB_IDS | {self.logical_heartbeat} | own
+
+    def watched_heartbeat(self) -> int | None:
+        """The COB-ID of a third-party master's heartbeat the standby watches (None: none)."""
+        third = self.machine.third_party
+        return COB_NMT_EC + third.node_id if third is not None else None
 
     def known_ids(self) -> set[int]:
         """The node ids of the pair's members (not unconfigured nodes that talk)."""
@@ -105,8 +160,12 @@ class PairMember:
     # ------------------------------------------------------------------ start / stop
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
-        self._ran_s = loop.time()
+        self._ran_s = self._started_s = loop.time()
+        # its own heartbeat from the second period on: a newcomer with the id of a member already
+        # on the bus hears that member's heartbeat first, and stays out without disturbing it
+        self._beat = Periodic(self.heartbeat_s, loop.time() + 2 * self.heartbeat_s)
         self._do(self.machine.start(self._clock()))
+        self._on_beat()
 
     def check(self) -> None:
         """Before this gateway acts on the bus (a node's timer, a producer): if it did not run
@@ -121,9 +180,10 @@ class PairMember:
             self._do(self.machine.on_stall(self._clock()))
 
     def stop(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
+        for t in (self._timer, self._beat_timer):
+            if t is not None:
+                t.cancel()
+        self._timer = self._beat_timer = None
         self._loop = None
 
     # ------------------------------------------------------------------ events (event loop)
@@ -133,59 +193,138 @@ class PairMember:
         self._do(self.machine.on_frame(cob_id, data, now))
         peer = self.machine.peer
         if peer is not None and self.peer_node_id is None:
-            self.peer_node_id = peer.node_id
+            self.peer_node_id = self.machine.peer_id = peer.node_id
             return peer.node_id
         return None
+
+    def on_link(self, up: bool) -> None:
+        """This gateway's bus went down (the driver's ``on_state``) or is open again (not
+        after ``stop``: a gateway that stops closes its bus)."""
+        if self._loop is None:
+            return
+        self._do(self.machine.on_link(up, self._clock()))
 
     def on_peer_heartbeat(self, now: float) -> None:
         self.peer_heartbeat_s = now
 
     def on_sdo_request(self, node_id: int, data: bytes) -> None:
         """The other gateway's SDO request to a node (heard while standing by)."""
-        self._sdo_heard[node_id] = bytes(data[:4])
+        if not data:
+            return
+        if node_id in self._sdo_block:
+            pass  # a block download's segments carry a sequence number, not a command
+        elif data[0] >> 5 == 4:  # the client aborted: the transfer is over
+            self._sdo_object.pop(node_id, None)
+            self._sdo_open.discard(node_id)
+            return
+        elif _initiates(data):
+            if len(data) >= 4:
+                self._sdo_object[node_id] = (int.from_bytes(data[1:3], "little"), data[3])
+            if data[0] >> 5 == 6:
+                self._sdo_block.add(node_id)
+        self._sdo_open.add(node_id)
 
-    def on_sdo_response(self, node_id: int) -> None:
-        self._sdo_heard.pop(node_id, None)  # answered: not left open by this frame
+    def on_sdo_response(self, node_id: int, data: bytes = b"") -> None:
+        """The node answered: no request is left unanswered (the object stays: segments may
+        follow); a block download's end answer (A1h) or an abort (80h) ends the transfer."""
+        self._sdo_open.discard(node_id)
+        if data[:1] in (b"\xa1", b"\x80"):
+            self._sdo_block.discard(node_id)
 
     def abort_left_open(self) -> None:
-        """At a take-over: each SDO transfer the other gateway left open is aborted once."""
-        heard, self._sdo_heard = self._sdo_heard, {}
-        for node_id, head in heard.items():
-            if len(head) < 4:
-                continue
-            index, sub = int.from_bytes(head[1:3], "little"), head[3]
+        """At a take-over: each SDO transfer the other gateway left open is aborted once,
+        naming the object of the initiate request heard (0000h/0 when none was heard)."""
+        open_ids, self._sdo_open = self._sdo_open, set()
+        for node_id in sorted(open_ids):
+            index, sub = self._sdo_object.get(node_id, (0, 0))
             # SDO protocol timed out (CiA 301 7.2.4.3.17): the transfer's client is gone
             self._send(COB_SDO_RX + node_id, abort_frame(index, sub, SDO_ABORT_TIMEOUT))
-            log.info("pair: SDO transfer left open on node id %d aborted", node_id)
+            log.info("pair: SDO transfer of %04Xh:%d left open on node id %d aborted",
+                     index, sub, node_id)  # fmt: skip
+        self._sdo_object.clear()
+        self._sdo_block.clear()
 
     # ------------------------------------------------------------------ inside
-    def _do(self, actions: list[Send | RoleChanged]) -> None:
+    def _on_beat(self) -> None:
+        """Every heartbeat period: ran on time?, is the bus heard?, its own heartbeat."""
+        loop, beat = self._loop, self._beat
+        if loop is None or beat is None:
+            return
+        self.check()
+        self._report_hearing()
+        if beat.due(loop.time()) and self.machine.role is not Role.DUPLICATE:
+            self._send(self.own_heartbeat, OWN_HEARTBEAT)  # isolated too: the peer finds it
+        self._watch_peer(loop.time())
+        self._beat_timer = loop.call_at(beat.next_deadline(), self._on_beat)
+
+    def _report_hearing(self) -> None:
+        self._do(self.machine.on_hearing(self._clock(), self._last_frame_s(), self._nodes_alive()))
+
+    def _watch_peer(self, now: float) -> None:
+        """The run-time warning: nothing of the peer heard for long (two members each on a
+        private bus, e.g. ``interface: virtual``, both active)."""
+        limit = max(PEER_SILENT_S, 10 * self.machine.timing.takeover_s)
+        heard = [t for t in (self.peer_heartbeat_s, getattr(self.machine.peer, "at_s", None))
+                 if t is not None]  # fmt: skip
+        last = max(heard) if heard else None
+        silent = (self._clock() - last if last is not None else now - self._started_s) > limit
+        if silent and not self.peer_silent:
+            who = f"pair id {self.peer_node_id}" if self.peer_node_id else "another member"
+            log.warning(
+                "pair: nothing heard of the peer (%s) for %.0f s: both members must be on one "
+                "bus (interface virtual is private to each process)", who, limit,
+            )  # fmt: skip
+        self.peer_silent = silent
+
+    def _do(self, actions: list[Send | RoleChanged | Notice]) -> None:
         for a in actions:
             if isinstance(a, Send):
                 self._send(a.cob_id, a.data)
-                continue
-            self._on_role(a)
-            for listener in self.role_listeners:
-                try:
-                    listener(str(a.role), a.reason)
-                except Exception:  # noqa: BLE001 - a listener must not stop the take-over
-                    log.exception("role listener failed")
+            elif isinstance(a, Notice):
+                if a.key not in self._noticed:
+                    self._noticed.add(a.key)
+                    log.warning("%s", a.text)
+            else:
+                self._noticed.clear()
+                self._role_changed(a)
         self._schedule()
 
+    def _role_changed(self, change: RoleChanged) -> None:
+        self._on_role(change)
+        for listener in self.role_listeners:
+            try:
+                listener(str(change.role), change.reason)
+            except Exception:  # noqa: BLE001 - a listener must not stop the take-over
+                log.exception("role listener failed")
+
     def _schedule(self) -> None:
+        """Arm the role's timer when its deadline came earlier; a later one is found when the
+        timer fires (``_tick`` polls, then arms for what is due next)."""
         loop = self._loop
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
         deadline = self.machine.next_deadline_s()
         if loop is None or deadline is None:
             return
         # the machine's deadlines are on the bus clock, which may lag the loop's clock
         lag = max(0.0, loop.time() - self._clock())
-        self._timer = loop.call_at(max(deadline + lag, loop.time()), self._tick)
+        at = max(deadline + lag, loop.time())
+        if self._timer is not None:
+            if self._timer_at <= at:
+                return
+            self._timer.cancel()
+        self._timer, self._timer_at = loop.call_at(at, self._tick), at
+        self.rearms += 1
 
     def _tick(self) -> None:
         self._timer = None
+        loop = self._loop
+        if loop is not None and self._reader_busy() and self._deferred < DEFER_MAX:
+            # a burst is being read (e.g. after a relay's stall): what it brings counts before a
+            # timeout is judged; a few milliseconds at most, so that a busy bus defers nothing
+            self._deferred += 1
+            self._timer, self._timer_at = loop.call_at(loop.time() + DEFER_S, self._tick), 0.0
+            return
+        self._deferred = 0
         self.check()
         self._before_poll()  # what was heard counts before a timeout
+        self._report_hearing()
         self._do(self.machine.poll(self._clock()))
