@@ -6,7 +6,8 @@ process (a plain socket, no Modbus library in the way) reads 3 input registers o
 10 ms and records the time of each answer. Another process is the load: a Zenoh peer connected
 to the gateway fires bursts of concurrent ``get`` (each burst waits until every get has ended:
 answered, refused or timed out) or a steady rate of them, or HTTP clients ask the console's
-API concurrently. Per load, the PLC's answers during the load (from its first request to the
+API concurrently; the gateway keeps a journal (in a temporary directory), and the last load is
+bursts of history gets (``_time``) answered from it. Per load, the PLC's answers during the load (from its first request to the
 end of its last burst) give p99 and maximum, beside the idle figure of the same run; the
 gateway's resident memory (VmRSS of the bench process, which is the gateway's) is read before
 the first load and after the last.
@@ -25,6 +26,7 @@ import logging
 import os
 import socket
 import struct
+import tempfile
 import threading
 import time
 import urllib.request
@@ -55,6 +57,10 @@ LOADS: list[tuple[str, str, str, int, float]] = [
      0, 200),
     ("4 bursts of 200 concurrent console `GET /api/overview`", "http", "/api/overview", 200, 4),
     ("4 bursts of 200 concurrent console `GET /api/node/wire`", "http", "/api/node/wire", 200, 4),
+    # last: the journal has collected the values of every load before (one sample per signal
+    # and second), so each answer is hundreds of samples read from SQLite
+    (f"4 bursts of 100 concurrent history gets `{PREFIX}/**?_time=[now(-1h)..]`", "burst",
+     f"{PREFIX}/**?_time=[now(-1h)..]", 100, 4),
 ]  # fmt: skip
 _MBAP_READ = struct.Struct(">HHHBBHH")
 
@@ -218,7 +224,7 @@ def _rss_mib() -> float:
     return float("nan")
 
 
-def _config(endpoint: str, modbus_port: int, http_port: int) -> Any:
+def _config(endpoint: str, modbus_port: int, http_port: int, journal: str) -> Any:
     return parse_config(
         {
             "gateway": {"name": "bench", "log_level": "warning"},
@@ -236,6 +242,7 @@ def _config(endpoint: str, modbus_port: int, http_port: int) -> Any:
             "zenoh": {"mode": "peer", "listen": [endpoint]},
             "health": {"host": "127.0.0.1", "port": http_port},
             "simulate": {"nodes": "all"},
+            "journal": {"path": journal},
         },
         environ={},
     )  # fmt: skip
@@ -266,7 +273,8 @@ async def _measure(plc: Worker, load: Worker, port: int, what: tuple[str, str, s
 async def run() -> Section:
     logging.getLogger("gateway").setLevel(logging.ERROR)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cfg = _config(endpoint, free_port(), free_port())
+    journal_dir = tempfile.TemporaryDirectory(prefix="bench-plc-first-")
+    cfg = _config(endpoint, free_port(), free_port(), journal_dir.name)
     gw = gateway_of(cfg, freeze_gc=FREEZE_GC)  # as ``canopen-gateway run`` does
     await gw.start()
     pauses: list[float] = []
@@ -325,6 +333,7 @@ async def run() -> Section:
             if w is not None:
                 w.close()
         await gw.stop()
+        journal_dir.cleanup()
     return Section(
         key="plc-first",
         title="13. The PLC first: Modbus answers during bursts of queries",
