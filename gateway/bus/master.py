@@ -423,15 +423,20 @@ class Master(PairSide):
     def part(self, name: str) -> NodeParts:
         return self.nodes[name]
 
-    def require_bus(self) -> None:
-        if self.loop is None:  # the listeners start before the master sends its first frame
-            raise BusDown("the gateway is starting")
+    def require_active(self) -> None:
+        """The role gate of every command: a member of a pair that does not master the bus
+        refuses (``NotActive``); outside a pair it always masters."""
         self.member.check()
         if not self.mastering:
             role = self.role or "standby"
             raise NotActive(
                 f"this gateway is the {role} one of a pair: send commands to the active one"
             )
+
+    def require_bus(self) -> None:
+        if self.loop is None:  # the listeners start before the master sends its first frame
+            raise BusDown("the gateway is starting")
+        self.require_active()
         if self.driver.state == "down":
             raise BusDown(self.driver.last_error or "CAN bus is down")
 

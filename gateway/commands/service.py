@@ -118,6 +118,22 @@ class CommandService:
         #: outcome (``commands.audit``); None: not audited
         self.audit: AuditSink | None = None
 
+    # ------------------------------------------------------------------ the role (read only)
+    @property
+    def role(self) -> str | None:
+        """This gateway's role in a hot-standby pair (``active``, ``standby``...; None
+        outside a pair): what adapters show, never what they decide by."""
+        return self.master.role
+
+    @property
+    def pair_master_id(self) -> int | None:
+        return self.master.pair_master_id
+
+    def require_active(self) -> None:
+        """Refuse (``NotActive``) unless this gateway masters the bus: the one role gate of
+        every command (the master's own), for an adapter that refuses before it reads a value."""
+        self.master.require_active()
+
     # ------------------------------------------------------------------ lookups
     def _part(self, name: str) -> NodeParts:
         p = self.master.nodes.get(name)

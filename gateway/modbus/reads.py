@@ -287,9 +287,9 @@ class ImageReads:
             )
             return int(digits or 0)
         if name == "pair_role":
-            return PAIR_ROLE_CODES.get(self.commands.master.role, 0)
+            return PAIR_ROLE_CODES.get(self.commands.role, 0)
         if name == "pair_master_id":
-            return self.commands.master.pair_master_id or 0
+            return self.commands.pair_master_id or 0
         if name == "watchdog_trips":
             return 0 if self.watchdog is None else sum(self.watchdog.trips.values()) & 0xFFFFFFFF
         nodes = self.image.nodes.values()

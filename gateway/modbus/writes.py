@@ -17,7 +17,7 @@ from collections.abc import Awaitable
 from typing import Any
 
 from gateway.config import Config
-from gateway.errors import NotActive, ValueOutOfRange
+from gateway.errors import ValueOutOfRange
 from gateway.modbus.protocol import ExceptionCode, ModbusError, T, from_registers
 from gateway.modbus.reads import ImageReads
 from gateway.northbound.regmap import TABLE_NAMES, Point, Table
@@ -65,11 +65,7 @@ class ImageWrites:
         if why is not None:
             self.warn.warning(("refused", peer, why), "Modbus write from %s refused: %s", peer, why)
             raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
-        master = self.commands.master
-        if not master.mastering:
-            raise NotActive(
-                f"this gateway is the {master.role} one of a pair: write to the active one"
-            )
+        self.commands.require_active()
 
     async def _bounded(self, op: Awaitable[T]) -> T:
         """Wait for the device at most ``write_timeout_s``; the operation itself is never cut

@@ -42,7 +42,7 @@ from gateway import __version__
 from gateway.commands import CommandService
 from gateway.commands.audit import acting_as
 from gateway.config import Config
-from gateway.errors import Forbidden, GatewayError, NotActive
+from gateway.errors import Forbidden, GatewayError
 from gateway.image import NodeImage, ProcessImage
 from gateway.northbound.keys import (
     Request,
@@ -369,11 +369,7 @@ class QueryService:
         op = write_operation(req, payload)
         if op is not None:
             self._authorize(op, req.node, key)
-            master = self.commands.master
-            if not master.mastering:  # a pair's standby: the active one takes writes
-                raise NotActive(
-                    f"this gateway is the {master.role} one of a pair: write to the active one"
-                )
+            self.commands.require_active()  # a pair's standby: the active one takes writes
         doc = self.read_now(req, payload)
         if doc is not NOT_A_READ:
             return doc
