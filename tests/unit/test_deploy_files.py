@@ -366,7 +366,9 @@ def test_compose_gateways_each_keep_the_journal_in_a_named_volume_of_their_own(n
 
 def k8s_journal_claims(kustomization_dir: Path) -> tuple[list[dict], set[str]]:
     kustomization = load_yaml(kustomization_dir / "kustomization.yaml")
-    docs = [d for name in kustomization["resources"] for d in load_yaml_all(kustomization_dir / name)]
+    docs = [
+        d for name in kustomization["resources"] for d in load_yaml_all(kustomization_dir / name)
+    ]
     claims = {d["metadata"]["name"] for d in docs if d["kind"] == "PersistentVolumeClaim"}
     return [d for d in docs if d["kind"] == "Deployment"], claims
 
