@@ -390,3 +390,10 @@ def test_k8s_gateways_each_keep_the_journal_on_a_claim_of_their_own_writable_by_
         assert claim in claims
         used.append(claim)
     assert len(used) == len(deployments) == len(set(used)) >= 1
+
+
+def test_systemd_unit_keeps_the_journal_in_its_state_directory():
+    unit = unit_settings(DEPLOY / "systemd/canopen-gateway.service")
+    assert unit["StateDirectory"] == ["canopen-gateway"]  # /var/lib/canopen-gateway, kept
+    env = dict(item.split("=", 1) for line in unit["Environment"] for item in line.split())
+    assert env["CANOPEN_GATEWAY__JOURNAL__PATH"] == JOURNAL_PATH
