@@ -9,11 +9,16 @@
 #    is reachable here, so a Debian bookworm rootfs is made with debootstrap and cached as a
 #    tarball in $BASE_CACHE (outside the repository) for the next run.
 # 3. Builds the gateway image from the Dockerfile on that base.
-# 4. Runs it with host networking and the demo config; waits (bounded) for /healthz to answer 200;
-#    runs the image's own HEALTHCHECK; scrapes /metrics and expects received CAN frames counted;
-#    reads a position input register twice over Modbus TCP and expects a change; subscribes
-#    with a Zenoh peer and expects samples; stops the container with SIGTERM and expects it gone
-#    within 2 s. The container is removed whatever happens.
+# 4. Runs it with host networking, the demo config, a read-only root file system and a named
+#    volume at /var/lib/canopen-gateway (as compose does); waits (bounded) for /healthz to answer
+#    200; runs the image's own HEALTHCHECK; scrapes /metrics and expects received CAN frames
+#    counted; reads a position input register twice over Modbus TCP and expects a change;
+#    subscribes with a Zenoh peer and expects samples; expects /healthz to show the journal
+#    (journal.path, set by the image) writing into the volume; stops the container with SIGTERM
+#    and expects it gone within 2 s.
+# 5. Starts a new container on the same volume and expects the journal kept: /healthz shows it
+#    again and a Zenoh `_time` query answers the state events journaled before the first stop.
+#    The containers and the volume are removed whatever happens.
 #
 # Idempotent: every step skips what is already there. Needs root (apt, rootful podman). Exits
 # non-zero with a "FAIL:" line on the first failed check. Ports 5020 (Modbus), 7447 (Zenoh) and
@@ -31,6 +36,10 @@ PY=${PY:-$ROOT/.venv/bin/python}
 CLI=${CLI:-$ROOT/.venv/bin/canopen-gateway}
 CONFIG=config/demo.yaml  # the image copies it to /etc/canopen-gateway/config.yaml
 CONTAINER=canopen-gateway-test-$$
+VOLUME=canopen-gateway-test-journal-$$  # the journal's volume, kept across both containers
+STATE_DIR=/var/lib/canopen-gateway       # the image's VOLUME
+JOURNAL_DIR=$STATE_DIR/journal           # journal.path, set by the image
+HISTORY_KEY='canopen/demo/*/state'       # the demo config's gateway.name is demo
 HEALTH_TIMEOUT_S=${HEALTH_TIMEOUT_S:-60}
 STOP_LIMIT_S=2
 # The vfs storage driver and runc work where overlayfs and crun do not (crun fails on
@@ -128,6 +137,9 @@ cleanup() {
   if "${PODMAN[@]}" container exists "$CONTAINER" 2>/dev/null; then
     "${PODMAN[@]}" rm -f -t 0 "$CONTAINER" >/dev/null 2>&1 || true
   fi
+  if "${PODMAN[@]}" volume exists "$VOLUME" 2>/dev/null; then
+    "${PODMAN[@]}" volume rm -f "$VOLUME" >/dev/null 2>&1 || true
+  fi
   rm -rf "${LOGDIR:-}"
 }
 trap cleanup EXIT
@@ -162,24 +174,39 @@ quiet_podman() {
 }
 LOGDIR=$(mktemp -d)
 
-step "starting $CONTAINER (the image's own config: $CONFIG)"
-quiet_podman run -d --name "$CONTAINER" --network host \
-  --ulimit nofile=20000:20000 --ulimit nproc=4096:4096 \
-  -e CANOPEN_GATEWAY__HEALTH__HOST=127.0.0.1 \
-  -e CANOPEN_GATEWAY__HEALTH__PORT="$HEALTH_PORT" \
-  -e CANOPEN_GATEWAY__MODBUS__PORT="$MODBUS_PORT" \
-  -e CANOPEN_GATEWAY__ZENOH__LISTEN="[\"$ZENOH_ENDPOINT\"]" \
-  "$IMAGE" >/dev/null || fail "podman run failed"
+# The named volume is created by the first run from the image's content there (owned by 10001).
+start_container() {
+  quiet_podman run -d --name "$CONTAINER" --network host --read-only \
+    -v "$VOLUME:$STATE_DIR" \
+    --ulimit nofile=20000:20000 --ulimit nproc=4096:4096 \
+    -e CANOPEN_GATEWAY__HEALTH__HOST=127.0.0.1 \
+    -e CANOPEN_GATEWAY__HEALTH__PORT="$HEALTH_PORT" \
+    -e CANOPEN_GATEWAY__MODBUS__PORT="$MODBUS_PORT" \
+    -e CANOPEN_GATEWAY__ZENOH__LISTEN="[\"$ZENOH_ENDPOINT\"]" \
+    "$IMAGE" >/dev/null || fail "podman run failed"
+}
 
-step "waiting up to ${HEALTH_TIMEOUT_S}s for http://127.0.0.1:$HEALTH_PORT/healthz to answer 200"
-deadline=$((SECONDS + HEALTH_TIMEOUT_S))
-until "$PY" "$ROOT/deploy/livecheck.py" wait-healthy "http://127.0.0.1:$HEALTH_PORT/healthz" 2 \
-  >"$LOGDIR/health.out"; do
-  [[ $("${PODMAN[@]}" inspect --format '{{.State.Running}}' "$CONTAINER") == true ]] \
-    || show_logs_and_fail "the container exited before it became ready"
-  ((SECONDS < deadline)) || { cat "$LOGDIR/health.out"; show_logs_and_fail "not ready in time"; }
-done
-cat "$LOGDIR/health.out"
+wait_ready() {
+  step "waiting up to ${HEALTH_TIMEOUT_S}s for http://127.0.0.1:$HEALTH_PORT/healthz to answer 200"
+  local deadline=$((SECONDS + HEALTH_TIMEOUT_S))
+  until "$PY" "$ROOT/deploy/livecheck.py" wait-healthy "http://127.0.0.1:$HEALTH_PORT/healthz" 2 \
+    >"$LOGDIR/health.out"; do
+    [[ $("${PODMAN[@]}" inspect --format '{{.State.Running}}' "$CONTAINER") == true ]] \
+      || show_logs_and_fail "the container exited before it became ready"
+    ((SECONDS < deadline)) || { cat "$LOGDIR/health.out"; show_logs_and_fail "not ready in time"; }
+  done
+  cat "$LOGDIR/health.out"
+}
+
+check_journal() {
+  step "/healthz shows the journal in $JOURNAL_DIR (volume $VOLUME) writing"
+  "$PY" "$ROOT/deploy/livecheck.py" journal "http://127.0.0.1:$HEALTH_PORT/healthz" "$JOURNAL_DIR" \
+    || show_logs_and_fail "no journal writing in $JOURNAL_DIR"
+}
+
+step "starting $CONTAINER (the image's own config: $CONFIG; read-only, volume $VOLUME)"
+start_container
+wait_ready
 
 step "running the image's HEALTHCHECK"
 "${PODMAN[@]}" image inspect --format '{{json .Config.Healthcheck}}' "$IMAGE" | grep -q healthz \
@@ -199,6 +226,10 @@ step "subscribing with a Zenoh peer connected to $ZENOH_ENDPOINT"
 "$PY" "$ROOT/deploy/livecheck.py" zenoh-samples "$ZENOH_ENDPOINT" \
   || show_logs_and_fail "Zenoh check failed"
 
+check_journal
+# The journal's entries up to now: the next container must still answer them.
+BEFORE_STOP=$(date -u +%Y-%m-%dT%H:%M:%SZ)
+
 step "podman stop -t 10 (SIGTERM), expecting exit within ${STOP_LIMIT_S}s"
 t0=$(date +%s.%N)
 quiet_podman stop -t 10 "$CONTAINER" >/dev/null || fail "podman stop failed"
@@ -210,6 +241,22 @@ echo "stopped in ${elapsed_s}s, exit code $exit_code"
   || show_logs_and_fail "SIGTERM took ${elapsed_s}s (limit ${STOP_LIMIT_S}s)"
 [[ $exit_code == 0 || $exit_code == 143 ]] \
   || show_logs_and_fail "exit code $exit_code after SIGTERM (expected 0)"
+
+# --- 5. the journal outlives the container -----------------------------------------------------
+step "the volume $VOLUME holds the journal"
+mountpoint=$("${PODMAN[@]}" volume inspect --format '{{.Mountpoint}}' "$VOLUME")
+stat -c '%u:%g %a %n' "$mountpoint" "$mountpoint/journal" "$mountpoint/journal/journal.sqlite3" \
+  || fail "no journal.sqlite3 in the volume $VOLUME ($mountpoint)"
+
+step "a new container on the same volume"
+quiet_podman rm "$CONTAINER" >/dev/null || fail "podman rm failed"
+start_container
+wait_ready
+check_journal
+
+step "the journal kept what it had: get $HISTORY_KEY?_time=[..$BEFORE_STOP]"
+"$PY" "$ROOT/deploy/livecheck.py" history "$ZENOH_ENDPOINT" "$HISTORY_KEY" "$BEFORE_STOP" \
+  || show_logs_and_fail "the new container answers no history from before the first one stopped"
 
 cleanup
 echo

@@ -28,9 +28,11 @@ echo "== compose schema: deploy/docker-compose.fleet.yml"
 echo "== compose schema: deploy/docker-compose.pair.yml"
 "$bin/check-jsonschema" --builtin-schema vendor.compose-spec deploy/docker-compose.pair.yml
 echo "== kubernetes schemas: deploy/k8s"
-"$bin/kubernetes-validate" --strict --quiet deploy/k8s/deployment.yaml deploy/k8s/configmap.yaml
+"$bin/kubernetes-validate" --strict --quiet deploy/k8s/deployment.yaml deploy/k8s/configmap.yaml \
+  deploy/k8s/journal-pvc.yaml
 echo "== kubernetes schemas: deploy/k8s/pair"
-"$bin/kubernetes-validate" --strict --quiet deploy/k8s/pair/configmap.yaml deploy/k8s/pair/gateway-a.yaml deploy/k8s/pair/gateway-b.yaml
+"$bin/kubernetes-validate" --strict --quiet deploy/k8s/pair/configmap.yaml deploy/k8s/pair/gateway-a.yaml \
+  deploy/k8s/pair/gateway-b.yaml deploy/k8s/pair/journal-pvc.yaml
 echo "ok -- kubernetes manifests"
 if command -v shellcheck >/dev/null; then
   echo "== shellcheck deploy/*.sh"

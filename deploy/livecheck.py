@@ -9,6 +9,8 @@ peer) with bounded waits, prints what it saw and exits 0 on success, 1 with a re
     livecheck.py metrics URL                      # /metrics has counted CAN frames
     livecheck.py modbus-changes HOST PORT UNIT:ADDRESS:COUNT
     livecheck.py zenoh-samples tcp/127.0.0.1:7447 [KEYEXPR]
+    livecheck.py journal URL PATH                 # /healthz shows the journal at PATH, writing
+    livecheck.py history tcp/127.0.0.1:7447 KEYEXPR UNTIL   # get KEYEXPR?_time=[..UNTIL] answers
 
 Polling with sleeps is acceptable here: this script waits on another process in a container,
 not on code in its own process. Imports: the standard library, pymodbus, zenoh and prometheus_client (from .venv);
@@ -152,6 +154,61 @@ def zenoh_samples(endpoint: str, key_expr: str, want: int = 3, timeout_s: float 
     return True
 
 
+def journal_writing(url: str, path: str, timeout_s: float = 20.0) -> bool:
+    """``/healthz`` (200 or 503) has the ``journal`` block of the directory ``path`` (its
+    database file in it), with entries written and no error."""
+    deadline = time.monotonic() + timeout_s
+    last: object = "no answer"
+    while time.monotonic() < deadline:
+        try:
+            with urllib.request.urlopen(url, timeout=2) as response:
+                body = json.loads(response.read())
+        except urllib.error.HTTPError as error:
+            body = json.loads(error.read() or b"{}")
+        except (OSError, ValueError) as error:
+            last = repr(error)
+            time.sleep(0.5)
+            continue
+        last = body.get("journal")
+        if isinstance(last, dict) and str(last.get("path")).rpartition("/")[0] == path.rstrip("/"):
+            if last.get("error") is not None:
+                print(f"journal: {last}")
+                return False
+            if last.get("written", 0) > 0:
+                print(f"journal: {last}")
+                return True
+        time.sleep(0.5)
+    print(f"journal: after {timeout_s:.0f} s /healthz shows {last!r}, expected path {path} written")
+    return False
+
+
+def zenoh_history(endpoint: str, key_expr: str, until: str, timeout_s: float = 10.0) -> bool:
+    """``get <key_expr>?_time=[..<until>]`` answers at least one journaled sample, no error."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    selector = f"{key_expr}?_time=[..{until}]"
+    seqs: dict[str, list[int]] = {}
+    with zenoh.open(conf) as session:
+        for reply in session.get(selector, timeout=timeout_s):
+            if reply.ok is None:
+                print(f"history: {selector}: reply_err {reply.err.payload.to_string()}")
+                return False
+            body = json.loads(reply.ok.payload.to_bytes())
+            seqs.setdefault(str(reply.ok.key_expr), []).append(body.get("seq"))
+    if not seqs:
+        print(f"history: {selector}: no reply")
+        return False
+    count = sum(len(s) for s in seqs.values())
+    last = ", ".join(f"{k} up to seq {max(s, default=None)}" for k, s in sorted(seqs.items())[:3])
+    print(f"history: {selector}: {count} samples of {len(seqs)} keys ({last}, ...)")
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -168,6 +225,13 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("zenoh-samples")
     p.add_argument("endpoint")
     p.add_argument("key_expr", nargs="?", default="canopen/**")
+    p = sub.add_parser("journal")
+    p.add_argument("url")
+    p.add_argument("path")
+    p = sub.add_parser("history")
+    p.add_argument("endpoint")
+    p.add_argument("key_expr")
+    p.add_argument("until", help="the range's end: an RFC 3339 time")
     args = parser.parse_args(argv)
 
     if args.command == "free-port":
@@ -187,6 +251,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if asyncio.run(modbus_changes(args.host, args.port, args.register)) else 1
     if args.command == "zenoh-samples":
         return 0 if zenoh_samples(args.endpoint, args.key_expr) else 1
+    if args.command == "journal":
+        return 0 if journal_writing(args.url, args.path) else 1
+    if args.command == "history":
+        return 0 if zenoh_history(args.endpoint, args.key_expr, args.until) else 1
     return 2
 
 

@@ -283,7 +283,7 @@ def test_pair_compose_runs_two_gateways_of_one_image_and_config_with_own_ids():
     compose = load_yaml(DEPLOY / "docker-compose.pair.yml")
     services = compose["services"]
     a, b = services["gateway-a"], services["gateway-b"]
-    assert a["image"] == b["image"] and a["volumes"] == b["volumes"]
+    assert a["image"] == b["image"] and a["volumes"][0] == b["volumes"][0]  # the config
     assert a["network_mode"] == b["network_mode"] == "host"
     source = a["volumes"][0].rsplit(":", 2)[0]
     assert re.fullmatch(r"\$\{GATEWAY_CONFIG:-\./config/pair\.yaml\}", source)
@@ -330,3 +330,70 @@ def test_k8s_pair_is_two_deployments_on_two_machines_with_the_pairs_config(k8s_p
     cfg_a, cfg_b = pair_configs(envs)
     assert (cfg_a.master.redundancy.priority, cfg_b.master.redundancy.priority) == (0, 1)
     assert pair_problems(cfg_a, cfg_b, resolved(cfg_a), resolved(cfg_b)) == []
+
+
+# --- the journal's volume -----------------------------------------------------------------------
+STATE_DIR = "/var/lib/canopen-gateway"
+JOURNAL_PATH = f"{STATE_DIR}/journal"
+
+
+def test_the_image_puts_the_journal_in_its_volume():
+    text = (ROOT / "Dockerfile").read_text(encoding="utf-8")
+    assert f"CANOPEN_GATEWAY__JOURNAL__PATH={JOURNAL_PATH}" in text
+    assert f'VOLUME ["{STATE_DIR}"]' in text
+    assert f"chown -R 10001:10001 {STATE_DIR}" in text  # what a fresh named volume copies
+
+
+@pytest.mark.parametrize(
+    "name", ["docker-compose.yml", "docker-compose.pair.yml", "docker-compose.fleet.yml"]
+)
+def test_compose_gateways_each_keep_the_journal_in_a_named_volume_of_their_own(name):
+    compose = load_yaml(DEPLOY / name)
+    gateways = {
+        n: s
+        for n, s in compose["services"].items()
+        if s["image"].startswith("canopen-gateway") and "command" not in s and "entrypoint" not in s
+    }
+    assert gateways
+    used = []
+    for service, svc in gateways.items():
+        assert svc["read_only"] is True
+        (volume,) = [v.split(":")[0] for v in svc["volumes"] if v.split(":")[1] == STATE_DIR]
+        assert volume in compose["volumes"], f"{service}: {volume} is not a named volume"
+        used.append(volume)
+    assert len(set(used)) == len(used), "each gateway its own journal"
+
+
+def k8s_journal_claims(kustomization_dir: Path) -> tuple[list[dict], set[str]]:
+    kustomization = load_yaml(kustomization_dir / "kustomization.yaml")
+    docs = [
+        d for name in kustomization["resources"] for d in load_yaml_all(kustomization_dir / name)
+    ]
+    claims = {d["metadata"]["name"] for d in docs if d["kind"] == "PersistentVolumeClaim"}
+    return [d for d in docs if d["kind"] == "Deployment"], claims
+
+
+@pytest.mark.parametrize("where", ["k8s", "k8s/pair"])
+def test_k8s_gateways_each_keep_the_journal_on_a_claim_of_their_own_writable_by_10001(where):
+    deployments, claims = k8s_journal_claims(DEPLOY / where)
+    used = []
+    for deployment in deployments:
+        pod = deployment["spec"]["template"]["spec"]
+        assert pod["securityContext"]["fsGroup"] == 10001
+        container = pod["containers"][0]
+        assert container["securityContext"]["readOnlyRootFilesystem"] is True
+        env = {e["name"]: e.get("value") for e in container["env"]}
+        assert env["CANOPEN_GATEWAY__JOURNAL__PATH"] == JOURNAL_PATH
+        (mount,) = [m for m in container["volumeMounts"] if m["mountPath"] == STATE_DIR]
+        volumes = {v["name"]: v for v in pod["volumes"]}
+        claim = volumes[mount["name"]]["persistentVolumeClaim"]["claimName"]
+        assert claim in claims
+        used.append(claim)
+    assert len(used) == len(deployments) == len(set(used)) >= 1
+
+
+def test_systemd_unit_keeps_the_journal_in_its_state_directory():
+    unit = unit_settings(DEPLOY / "systemd/canopen-gateway.service")
+    assert unit["StateDirectory"] == ["canopen-gateway"]  # /var/lib/canopen-gateway, kept
+    env = dict(item.split("=", 1) for line in unit["Environment"] for item in line.split())
+    assert env["CANOPEN_GATEWAY__JOURNAL__PATH"] == JOURNAL_PATH
