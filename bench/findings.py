@@ -238,7 +238,7 @@ def findings(sections: list[Section]) -> Section:
         "**Modbus throughput** meets the target against pymodbus' own server with a SimDevice. "
         "The cost per request is mostly outside the datastore: the profile of the server under "
         "one client shows the asyncio transport's `write` and `read` and the event loop itself "
-        "ahead of `ImageDatastore.read`, and about 40% of the CPU per request is system time "
+        "ahead of `ImageReads.read`, and about 40% of the CPU per request is system time "
         "(TCP loopback on this virtual machine)."
     )
     backlog = f.row("scale", "half rate: receive backlog")

@@ -167,7 +167,8 @@ class Counters:
     def copy(self) -> Counters:
         """A copy with label dicts of its own (the caller holds the lock that guards them)."""
         own: dict[str, Any] = {
-            f.name: v.copy() if isinstance(v := getattr(self, f.name), dict) else v for f in fields(self)
+            f.name: v.copy() if isinstance(v := getattr(self, f.name), dict) else v
+            for f in fields(self)
         }
         return Counters(**own)
 
@@ -306,161 +307,111 @@ class _GatewayCollector:
 
     @staticmethod
     def _families(c: Counters, nodes: list[NodeSample], *, uptime_s: float) -> Iterator[Metric]:
-        def counter(name: str, doc: str, value: int) -> CounterMetricFamily:
-            return CounterMetricFamily(f"{NAMESPACE}_{name}", doc, value=value)
-
-        def labelled(name: str, doc: str, labels: list[str], counts: dict) -> CounterMetricFamily:
-            family = CounterMetricFamily(f"{NAMESPACE}_{name}", doc, labels=labels)
-            for key, value in sorted(counts.items()):
-                family.add_metric(list(key) if isinstance(key, tuple) else [key], value)
-            return family
-
-        yield counter("frames_in_total", "CAN frames received.", c.frames_in)
-        yield counter("frames_out_total", "CAN frames sent.", c.frames_out)
-        yield counter(
-            "can_bursts_total",
-            "Bursts of received CAN frames the reader handled (one wake-up each).",
-            c.bursts,
-        )
-        yield counter("bus_errors_total", "CAN error frames and failed sends.", c.bus_errors)
-        yield counter(
-            "zenoh_publications_total", "Samples published on Zenoh.", c.zenoh_publications
-        )
-        yield labelled(
-            "decode_errors_total",
-            "Frames that could not be decoded, by node and reason.",
-            ["node", "reason"],
-            c.decode_errors,
-        )
-        yield labelled("emcy_total", "EMCY messages received, by node.", ["node"], c.emcy)
-        yield labelled(
-            "sdo_requests_total",
-            "SDO transfers started, by node and op (read/write).",
-            ["node", "op"],
-            c.sdo_requests,
-        )
-        yield labelled(
-            "sdo_aborts_total",
-            "SDO transfers aborted, by node and abort code (CiA 301).",
-            ["node", "code"],
-            c.sdo_aborts,
-        )
-        yield labelled(
-            "modbus_requests_total",
-            "Modbus TCP requests, by function.",
-            ["function"],
-            c.modbus_requests,
-        )
-        yield labelled(
-            "modbus_exceptions_total",
-            "Modbus exception responses sent, by exception code.",
-            ["code"],
-            c.modbus_exceptions,
-        )
-        yield labelled(
-            "zenoh_refused_total",
-            "Zenoh writes refused by zenoh.writes / zenoh.write_allow, by operation "
-            "(set, sdo_write, nmt).",
-            ["operation"],
-            c.zenoh_refused,
-        )
-        yield labelled(
-            "journal_entries_total",
-            "Journal entries by outcome: written, dropped (slow or full disk), removed "
-            "(journal.max_mb, journal.keep_days).",
-            ["outcome"],
-            c.journal,
-        )
-        yield labelled(
-            "modbus_watchdog_trips_total",
-            "Modbus output watchdog trips (safe outputs written), by reason (timeout, disconnect).",
-            ["reason"],
-            c.modbus_watchdog_trips,
-        )
-        yield labelled(
-            "other_master_frames_total",
-            "Frames of another master: NMT commands this gateway did not send (kind nmt), "
-            "heartbeats on its own COB-ID it did not send (kind heartbeat).",
-            ["kind"],
-            c.other_master,
-        )
-        yield labelled(
-            "other_sdo_client_requests_total",
-            "SDO requests of other clients (commissioning tools) to a node, by node.",
-            ["node"],
-            c.other_sdo_client,
-        )
-        yield counter(
-            "pair_takeovers_total",
-            "Hot-standby pair: times this gateway took the bus over from a silent active one.",
-            c.pair_takeovers,
-        )
-        yield counter(
-            "pair_negotiations_total",
-            "Hot-standby pair: negotiations of the active master this gateway entered.",
-            c.pair_negotiations,
-        )
-        yield counter(
-            "pair_duplicate_id_frames_total",
-            "Hot-standby pair: frames of another device carrying this gateway's own pair id.",
-            c.pair_duplicate_id_frames,
-        )
-        yield counter(
-            "pair_isolations_total",
-            "Hot-standby pair: times this gateway was cut off (its bus down, or nothing heard).",
-            c.pair_isolations,
-        )
-        yield counter(
-            "zenoh_queries_answered_total",
-            "Zenoh queries the queries' worker answered to their end (replies or reply_err).",
-            c.zenoh_queries_answered,
-        )
-        yield counter(
-            "zenoh_queries_busy_total",
-            "Zenoh queries refused with reply_err busy: the queue (or the commands) full.",
-            c.zenoh_queries_busy,
-        )
-        yield GaugeMetricFamily(
-            f"{NAMESPACE}_zenoh_query_queue_depth",
-            "Zenoh queries waiting for or being answered by the queries' worker.",
-            value=c.zenoh_query_queue_depth,
-        )
-        yield counter(
-            "northbound_turns_refused_total",
-            "Console requests (503) and ASCII lines (ERROR:102) refused: too many waiting for "
-            "a turn on the event loop.",
-            c.northbound_turns_refused,
-        )
-        yield GaugeMetricFamily(
-            f"{NAMESPACE}_pair_role",
-            "Role in a hot-standby pair: 0 no pair, 1 active, 2 standby, "
-            "3 listening / negotiating, 4 isolated, 5 out (duplicate pair id).",
-            value=c.pair_role,
-        )
-
-        state = GaugeMetricFamily(
-            f"{NAMESPACE}_node_nmt_state",
-            "NMT state as the heartbeat state byte: 0 boot-up, 4 stopped, 5 operational, "
-            "127 pre-operational, -1 unknown.",
-            labels=["node"],
-        )
-        alive = GaugeMetricFamily(
-            f"{NAMESPACE}_node_alive",
-            "1 while the node's heartbeat or guarding is answered in time, else 0.",
-            labels=["node"],
-        )
-        age = GaugeMetricFamily(
-            f"{NAMESPACE}_node_data_age_seconds",
-            "Seconds since the node's last process data (+Inf: never).",
-            labels=["node"],
-        )
-        for n in nodes:
-            state.add_metric([n.node], nmt_state_code(n.nmt_state))
-            alive.add_metric([n.node], 1.0 if n.alive else 0.0)
-            age.add_metric([n.node], math.inf if n.data_age_s is None else n.data_age_s)
-        yield state
-        yield alive
-        yield age
+        for kind, name, doc, attr, labels in _COUNTER_FAMILIES:
+            value = getattr(c, attr)
+            if kind == "gauge":
+                yield GaugeMetricFamily(f"{NAMESPACE}_{name}", doc, value=value)
+            elif not labels:
+                yield CounterMetricFamily(f"{NAMESPACE}_{name}", doc, value=value)
+            else:
+                family = CounterMetricFamily(f"{NAMESPACE}_{name}", doc, labels=list(labels))
+                for key, count in sorted(value.items()):
+                    family.add_metric(list(key) if isinstance(key, tuple) else [key], count)
+                yield family
+        yield from _node_families(nodes)
         yield GaugeMetricFamily(
             f"{NAMESPACE}_uptime_seconds", "Seconds since the gateway started.", value=uptime_s
         )
+
+
+#: The families read from ``Counters``, in exposition order: (kind, name, help, the Counters
+#: field, labels). A counter with labels reads a dict keyed by the label values.
+_COUNTER_FAMILIES: tuple[tuple[str, str, str, str, tuple[str, ...]], ...] = (
+    ("counter", "frames_in_total", "CAN frames received.", "frames_in", ()),
+    ("counter", "frames_out_total", "CAN frames sent.", "frames_out", ()),
+    ("counter", "can_bursts_total",
+     "Bursts of received CAN frames the reader handled (one wake-up each).", "bursts", ()),
+    ("counter", "bus_errors_total", "CAN error frames and failed sends.", "bus_errors", ()),
+    ("counter", "zenoh_publications_total", "Samples published on Zenoh.",
+     "zenoh_publications", ()),
+    ("counter", "decode_errors_total", "Frames that could not be decoded, by node and reason.",
+     "decode_errors", ("node", "reason")),
+    ("counter", "emcy_total", "EMCY messages received, by node.", "emcy", ("node",)),
+    ("counter", "sdo_requests_total", "SDO transfers started, by node and op (read/write).",
+     "sdo_requests", ("node", "op")),
+    ("counter", "sdo_aborts_total", "SDO transfers aborted, by node and abort code (CiA 301).",
+     "sdo_aborts", ("node", "code")),
+    ("counter", "modbus_requests_total", "Modbus TCP requests, by function.",
+     "modbus_requests", ("function",)),
+    ("counter", "modbus_exceptions_total", "Modbus exception responses sent, by exception code.",
+     "modbus_exceptions", ("code",)),
+    ("counter", "zenoh_refused_total",
+     "Zenoh writes refused by zenoh.writes / zenoh.write_allow, by operation "
+     "(set, sdo_write, nmt).", "zenoh_refused", ("operation",)),
+    ("counter", "journal_entries_total",
+     "Journal entries by outcome: written, dropped (slow or full disk), removed "
+     "(journal.max_mb, journal.keep_days).", "journal", ("outcome",)),
+    ("counter", "modbus_watchdog_trips_total",
+     "Modbus output watchdog trips (safe outputs written), by reason (timeout, disconnect).",
+     "modbus_watchdog_trips", ("reason",)),
+    ("counter", "other_master_frames_total",
+     "Frames of another master: NMT commands this gateway did not send (kind nmt), "
+     "heartbeats on its own COB-ID it did not send (kind heartbeat).", "other_master", ("kind",)),
+    ("counter", "other_sdo_client_requests_total",
+     "SDO requests of other clients (commissioning tools) to a node, by node.",
+     "other_sdo_client", ("node",)),
+    ("counter", "pair_takeovers_total",
+     "Hot-standby pair: times this gateway took the bus over from a silent active one.",
+     "pair_takeovers", ()),
+    ("counter", "pair_negotiations_total",
+     "Hot-standby pair: negotiations of the active master this gateway entered.",
+     "pair_negotiations", ()),
+    ("counter", "pair_duplicate_id_frames_total",
+     "Hot-standby pair: frames of another device carrying this gateway's own pair id.",
+     "pair_duplicate_id_frames", ()),
+    ("counter", "pair_isolations_total",
+     "Hot-standby pair: times this gateway was cut off (its bus down, or nothing heard).",
+     "pair_isolations", ()),
+    ("counter", "zenoh_queries_answered_total",
+     "Zenoh queries the queries' worker answered to their end (replies or reply_err).",
+     "zenoh_queries_answered", ()),
+    ("counter", "zenoh_queries_busy_total",
+     "Zenoh queries refused with reply_err busy: the queue (or the commands) full.",
+     "zenoh_queries_busy", ()),
+    ("gauge", "zenoh_query_queue_depth",
+     "Zenoh queries waiting for or being answered by the queries' worker.",
+     "zenoh_query_queue_depth", ()),
+    ("counter", "northbound_turns_refused_total",
+     "Console requests (503) and ASCII lines (ERROR:102) refused: too many waiting for "
+     "a turn on the event loop.", "northbound_turns_refused", ()),
+    ("gauge", "pair_role",
+     "Role in a hot-standby pair: 0 no pair, 1 active, 2 standby, "
+     "3 listening / negotiating, 4 isolated, 5 out (duplicate pair id).", "pair_role", ()),
+)  # fmt: skip
+
+
+def _node_families(nodes: list[NodeSample]) -> Iterator[Metric]:
+    """The per-node gauges: NMT state, alive, data age."""
+    state = GaugeMetricFamily(
+        f"{NAMESPACE}_node_nmt_state",
+        "NMT state as the heartbeat state byte: 0 boot-up, 4 stopped, 5 operational, "
+        "127 pre-operational, -1 unknown.",
+        labels=["node"],
+    )
+    alive = GaugeMetricFamily(
+        f"{NAMESPACE}_node_alive",
+        "1 while the node's heartbeat or guarding is answered in time, else 0.",
+        labels=["node"],
+    )
+    age = GaugeMetricFamily(
+        f"{NAMESPACE}_node_data_age_seconds",
+        "Seconds since the node's last process data (+Inf: never).",
+        labels=["node"],
+    )
+    for n in nodes:
+        state.add_metric([n.node], nmt_state_code(n.nmt_state))
+        alive.add_metric([n.node], 1.0 if n.alive else 0.0)
+        age.add_metric([n.node], math.inf if n.data_age_s is None else n.data_age_s)
+    yield state
+    yield alive
+    yield age

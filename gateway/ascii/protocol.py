@@ -298,6 +298,13 @@ def parse_request(line: str) -> Request | None:
         net, node = numbers
     elif len(numbers) == 1:
         node = numbers[0]
+    return _command(seq, net, node, numbers, cmd, args)
+
+
+def _command(
+    seq: int, net: int | None, node: int | None, numbers: list[int], cmd: str, args: list[str]
+) -> Request:
+    """The request of command word ``cmd`` with its ``args``, after ``[seq] [net] [node]``."""
 
     def need(count: int | tuple[int, ...]) -> None:
         counts = (count,) if isinstance(count, int) else count

@@ -38,63 +38,92 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action="version", version=f"canopen-gateway {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_gateway_commands(sub)
+    _add_commissioning_commands(sub)
+    _add_file_commands(sub)
+    _add_bus_commands(sub)
+    return p
 
-    def with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
-        sp.add_argument("-c", "--config", required=True, metavar="FILE", help="configuration YAML")
-        return sp
 
-    sp = with_config(sub.add_parser("run", help="run the gateway"))
+def _with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    sp.add_argument("-c", "--config", required=True, metavar="FILE", help="configuration YAML")
+    return sp
+
+
+def _add_gateway_commands(sub: argparse._SubParsersAction) -> None:
+    """run, check, registers, keys, simulate, fault."""
+    sp = _with_config(sub.add_parser("run", help="run the gateway"))
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
     sp.add_argument("--no-simulate", action="store_true", help="ignore the simulate: section")
     sp.set_defaults(fn=cmd_run)
 
-    sp = sub.add_parser("check", help="validate a configuration (or the two of a pair) and summarise it")
+    sp = sub.add_parser(
+        "check", help="validate a configuration (or the two of a pair) and summarise it"
+    )
     sp.add_argument("-c", "--config", required=True, action="append", metavar="FILE",
                     help="configuration YAML; twice: the two configs of a hot-standby pair, compared")  # fmt: skip
     sp.set_defaults(fn=cmd_check)
 
-    sp = with_config(sub.add_parser("registers", help="print the Modbus register map"))
+    sp = _with_config(sub.add_parser("registers", help="print the Modbus register map"))
     sp.add_argument("--csv", action="store_true", help="CSV instead of a Markdown table")
     sp.set_defaults(fn=cmd_registers)
 
-    sp = with_config(sub.add_parser("keys", help="print the Zenoh key expressions"))
+    sp = _with_config(sub.add_parser("keys", help="print the Zenoh key expressions"))
     sp.set_defaults(fn=cmd_keys)
 
-    sp = with_config(sub.add_parser("simulate", help="run only the simulated devices of a config"))
-    sp.add_argument("--nodes", help="comma-separated node names (default: simulate: section, else all)")
+    sp = _with_config(sub.add_parser("simulate", help="run only the simulated devices of a config"))
+    sp.add_argument(
+        "--nodes", help="comma-separated node names (default: simulate: section, else all)"
+    )
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
     sp.set_defaults(fn=cmd_simulate)
 
-    sp = with_config(
+    sp = _with_config(
         sub.add_parser("fault", help="inject a fault into a running gateway's simulated node")
     )
     sp.add_argument("node", nargs="?", help="simulated node name (none: list nodes and actions)")
-    sp.add_argument("action", nargs="?", help="unplug, plug, heartbeat-off, heartbeat-on, emcy, emcy-clear")
-    sp.add_argument("--url", help="the running gateway's web address (default: from health: of the config)")
+    sp.add_argument(
+        "action", nargs="?", help="unplug, plug, heartbeat-off, heartbeat-on, emcy, emcy-clear"
+    )
+    sp.add_argument(
+        "--url", help="the running gateway's web address (default: from health: of the config)"
+    )
     sp.set_defaults(fn=cmd_fault)
 
-    sp = with_config(sub.add_parser("sdo", help="read or write an object by SDO (commissioning)"))
+
+def _add_commissioning_commands(sub: argparse._SubParsersAction) -> None:
+    """sdo, nmt."""
+    sp = _with_config(sub.add_parser("sdo", help="read or write an object by SDO (commissioning)"))
     sp.add_argument("op", choices=["read", "write"])
     sp.add_argument("node", help="node name or id")
     sp.add_argument("object", help="object, e.g. 0x6004:00")
     sp.add_argument("value", nargs="?", help="value to write")
-    sp.add_argument("--type", help="data type (uint8, int16, uint32, string, ...); default from the EDS")
+    sp.add_argument(
+        "--type", help="data type (uint8, int16, uint32, string, ...); default from the EDS"
+    )
     sp.add_argument("--timeout", type=float, default=1.0, help="SDO timeout in seconds")
     sp.set_defaults(fn=cmd_sdo)
 
-    sp = with_config(sub.add_parser("nmt", help="send an NMT command"))
+    sp = _with_config(sub.add_parser("nmt", help="send an NMT command"))
     sp.add_argument("command", choices=["start", "stop", "preop", "reset", "reset-comm"])
     sp.add_argument("node", help="node name, id, or 'all'")
     sp.set_defaults(fn=cmd_nmt)
 
+
+def _add_file_commands(sub: argparse._SubParsersAction) -> None:
+    """eds show|lint, profile init."""
     sp = sub.add_parser("eds", help="inspect an EDS or DCF (checked as when loaded)")
     eds_sub = sp.add_subparsers(dest="eds_command", required=True, metavar="ACTION")
     show = eds_sub.add_parser("show", help="print the objects and the PDO mappings as tables")
     show.add_argument("file", metavar="FILE", help="EDS or DCF file")
     show.add_argument("--node-id", type=int, help="resolve $NODEID for this node id")
-    show.add_argument("--strict", action="store_true", help="list the warnings instead (as eds lint)")
+    show.add_argument(
+        "--strict", action="store_true", help="list the warnings instead (as eds lint)"
+    )
     show.set_defaults(fn=cmd_eds_show)
-    lint = eds_sub.add_parser("lint", help="list every deviation from CiA 306 (exit 1 warnings, 2 unusable)")
+    lint = eds_sub.add_parser(
+        "lint", help="list every deviation from CiA 306 (exit 1 warnings, 2 unusable)"
+    )
     lint.add_argument("file", metavar="FILE", help="EDS or DCF file")
     lint.set_defaults(fn=cmd_eds_lint)
 
@@ -102,33 +131,52 @@ def build_parser() -> argparse.ArgumentParser:
     prof_sub = sp.add_subparsers(dest="profile_command", required=True, metavar="ACTION")
     init = prof_sub.add_parser("init", help="write an editable overlay profile from an EDS")
     init.add_argument("--eds", required=True, metavar="FILE", help="EDS or DCF file")
-    init.add_argument("-o", "--output", metavar="FILE", help="profile .yaml to write (default: stdout)")
+    init.add_argument(
+        "-o", "--output", metavar="FILE", help="profile .yaml to write (default: stdout)"
+    )
     init.add_argument("--force", action="store_true", help="overwrite an existing file")
     init.set_defaults(fn=cmd_profile_init)
 
-    sp = with_config(sub.add_parser("lss", help="LSS commissioning (CiA 305)"))
+
+def _add_bus_commands(sub: argparse._SubParsersAction) -> None:
+    """lss, scan, monitor."""
+    sp = _with_config(sub.add_parser("lss", help="LSS commissioning (CiA 305)"))
     sp.add_argument(
         "action",
-        choices=["inquire", "set-node-id", "set-bitrate", "store", "switch-global", "switch-selective", "auto-id"],
+        choices=[
+            "inquire",
+            "set-node-id",
+            "set-bitrate",
+            "store",
+            "switch-global",
+            "switch-selective",
+            "auto-id",
+        ],
     )
     sp.add_argument("args", nargs="*", help="action arguments (see docs/canopen.md)")
     sp.set_defaults(fn=cmd_lss)
 
-    sp = with_config(sub.add_parser("scan", help="which node ids are on the bus, and what they are"))
-    sp.add_argument("--active", action="store_true", help="also read 1000h, 1008h, 1018h of ids 1..127")
+    sp = _with_config(
+        sub.add_parser("scan", help="which node ids are on the bus, and what they are")
+    )
+    sp.add_argument(
+        "--active", action="store_true", help="also read 1000h, 1008h, 1018h of ids 1..127"
+    )
     sp.add_argument("--listen", type=float, default=1.5, metavar="S", help="passive listening time")
-    sp.add_argument("--timeout", type=float, default=0.1, metavar="S", help="SDO timeout of --active")
+    sp.add_argument(
+        "--timeout", type=float, default=0.1, metavar="S", help="SDO timeout of --active"
+    )
     sp.set_defaults(fn=cmd_scan)
 
-    sp = with_config(sub.add_parser("monitor", help="print the bus traffic in CANopen words"))
-    sp.add_argument("--node", action="append", metavar="NAME|ID", help="only these nodes (repeat or comma)")
+    sp = _with_config(sub.add_parser("monitor", help="print the bus traffic in CANopen words"))
+    sp.add_argument(
+        "--node", action="append", metavar="NAME|ID", help="only these nodes (repeat or comma)"
+    )
     sp.add_argument("--kind", action="append", metavar="KIND",
                     help="only these kinds: nmt, sync, time, emcy, pdo, sdo, heartbeat, lss, other")  # fmt: skip
     sp.add_argument("--count", type=int, help="stop after this many lines")
     sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     sp.set_defaults(fn=cmd_monitor)
-
-    return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -254,24 +254,38 @@ def build_boot_steps(
     Derived writes of 1.-4. that 5. or 6. write again are left out (the explicit value wins).
     Objects are checked against the EDS: a missing object or a read-only one the profile wants
     changed raises ValueError naming it. Types come from the EDS (1A00h:00 is UNSIGNED8, so it
-    is written with one byte).
+    is written with one byte). One function per step below, in this order.
     """
-    p = lp.profile
     b = _Builder(lp)
-    node_id = node.node_id
-    supervision = supervision or p.boot.supervision
-    hb_ms = p.boot.heartbeat_ms if heartbeat_ms is None else heartbeat_ms
-    gt_ms = p.boot.guard_time_ms if guard_time_ms is None else guard_time_ms
-    ltf = p.boot.life_time_factor if life_time_factor is None else life_time_factor
+    _step1_supervision(b, supervision, heartbeat_ms, guard_time_ms, life_time_factor)
+    _step2_external_heartbeat(b, node)
+    _step3_pdo_variant(b, node)
+    _step4_pdos(b, node)
+    _step5_profile_writes(b)
+    _step6_node_writes(b, node)
+    return b.result()
 
-    # 1. supervision
+
+def _step1_supervision(
+    b: _Builder,
+    supervision: str | None,
+    heartbeat_ms: int | None,
+    guard_time_ms: int | None,
+    life_time_factor: int | None,
+) -> None:
+    """1. supervision: producer heartbeat 1017h, or node guarding 100Ch/100Dh with 1017h = 0."""
+    boot = b.lp.profile.boot
+    supervision = supervision or boot.supervision
+    hb_ms = boot.heartbeat_ms if heartbeat_ms is None else heartbeat_ms
+    gt_ms = boot.guard_time_ms if guard_time_ms is None else guard_time_ms
+    ltf = boot.life_time_factor if life_time_factor is None else life_time_factor
     if supervision == "heartbeat":
         b.add(
             OBJ_HEARTBEAT_PRODUCER, hb_ms, "producer heartbeat time (ms)", "heartbeat", derived=True,
             source="heartbeat_ms" if heartbeat_ms is not None else "",
         )  # fmt: skip
     elif supervision == "guarding":
-        if lp.od_var(OBJ_HEARTBEAT_PRODUCER) is not None:
+        if b.lp.od_var(OBJ_HEARTBEAT_PRODUCER) is not None:
             b.add(
                 OBJ_HEARTBEAT_PRODUCER,
                 0,
@@ -284,37 +298,42 @@ def build_boot_steps(
         b.add(OBJ_LIFE_TIME_FACTOR, ltf, "life time factor", "guarding", derived=True,
               source="life_time_factor" if life_time_factor is not None else "")  # fmt: skip
 
-    # 2. external heartbeat (AP05 manual 5.5.4 / 5.7.2.31)
+
+def _step2_external_heartbeat(b: _Builder, node: NodeSettingsLike) -> None:
+    """2. the external heartbeat source, then interval (AP05 manual 5.5.4 / 5.7.2.31)."""
+    p = b.lp.profile
     ext = getattr(node, "external_heartbeat", None)
     feat = p.features.get("external_heartbeat")
-    if ext is not None and ext.interval_ms:
-        if feat is None:
-            raise ValueError(
-                f"external_heartbeat: profile {p.family} has no feature external_heartbeat"
-            )
-        codes = {str(v): int(k) for k, v in (feat.get("sources") or {0: "rpdo", 1: "sync"}).items()}
-        if ext.source not in codes:
-            raise ValueError(
-                f"external_heartbeat.source: {ext.source!r} not one of {sorted(codes)}"
-            )
-        b.add(
-            ObjRef.parse(feat["source"]),
-            codes[ext.source],
-            f"external heartbeat source = {ext.source}",
-            "external_heartbeat",
-            derived=True,
-            source="external_heartbeat.source",
+    if ext is None or not ext.interval_ms:
+        return
+    if feat is None:
+        raise ValueError(
+            f"external_heartbeat: profile {p.family} has no feature external_heartbeat"
         )
-        b.add(
-            ObjRef.parse(feat["interval"]),
-            int(ext.interval_ms),
-            "external heartbeat interval (ms)",
-            "external_heartbeat",
-            derived=True,
-            source="external_heartbeat.interval_ms",
-        )
+    codes = {str(v): int(k) for k, v in (feat.get("sources") or {0: "rpdo", 1: "sync"}).items()}
+    if ext.source not in codes:
+        raise ValueError(f"external_heartbeat.source: {ext.source!r} not one of {sorted(codes)}")
+    b.add(
+        ObjRef.parse(feat["source"]),
+        codes[ext.source],
+        f"external heartbeat source = {ext.source}",
+        "external_heartbeat",
+        derived=True,
+        source="external_heartbeat.source",
+    )
+    b.add(
+        ObjRef.parse(feat["interval"]),
+        int(ext.interval_ms),
+        "external heartbeat interval (ms)",
+        "external_heartbeat",
+        derived=True,
+        source="external_heartbeat.interval_ms",
+    )
 
-    # 3. PDO layout selector (BEI 2005h)
+
+def _step3_pdo_variant(b: _Builder, node: NodeSettingsLike) -> None:
+    """3. the PDO layout selector (BEI 2005h) when a variant is chosen."""
+    p = b.lp.profile
     variant = getattr(node, "pdo_variant", None)
     if p.pdo_variants is not None and variant is not None:
         b.add(
@@ -326,12 +345,14 @@ def build_boot_steps(
             source="pdo_variant",
         )
 
-    # 4. PDOs. The node's tpdo:/rpdo: settings: the CiA 301 sequence from the node's layout
-    #    (gateway.profiles.layout resolved it; the codecs are compiled from the same layout).
-    #    The profile's own TPDOs: transmission type and event timer, and the same sequence when
-    #    the profile has remappable_tpdo (or a non-default inhibit time).
-    tpdos, rpdos = p.layout(variant)
-    remap = p.features.get("remappable_tpdo")
+
+def _step4_pdos(b: _Builder, node: NodeSettingsLike) -> None:
+    """4. PDOs. The node's tpdo:/rpdo: settings: the CiA 301 sequence from the node's layout
+    (gateway.profiles.layout resolved it; the codecs are compiled from the same layout).
+    The profile's own TPDOs: transmission type and event timer, and the same sequence when
+    the profile has remappable_tpdo (or a non-default inhibit time)."""
+    p = b.lp.profile
+    tpdos, rpdos = p.layout(getattr(node, "pdo_variant", None))
     settings: dict[str, Any] = {
         "tpdo": getattr(node, "tpdo", None) or {},
         "rpdo": getattr(node, "rpdo", None) or {},
@@ -342,71 +363,99 @@ def build_boot_steps(
         for number in sorted(set(by_number) | set(settings[k])):
             pdo = by_number.get(number)
             setting = settings[k].get(number)
-            comm, mapping = pdo_objects(p, k, number)
             if setting is not None:
-                where = f"{k}.{number}"
-                if pdo is None:  # enabled: false
-                    held = default_value(lp.od_var(ObjRef(comm, 0x01)), node_id)
-                    if held is None:
-                        held = default_cob_id(k, number) + node_id if number <= 4 else 0
-                    b.add(
-                        ObjRef(comm, 0x01),
-                        int(held) | COB_ID_INVALID,
-                        f"{k.upper()}{number} disabled (COB-ID bit 31 = 1)",
-                        where,
-                        source=f"{where}.enabled",
-                    )
-                    continue
-                params: list[tuple[int, int, str, str]] = []
-                if setting.transmission is not None:
-                    params.append((0x02, pdo.transmission_type, "transmission type", f"{where}.transmission"))  # fmt: skip
-                if k == "tpdo" and setting.inhibit_ms is not None:
-                    params.append((0x03, pdo.inhibit_time_100us or 0, "inhibit time (100 us)", f"{where}.inhibit_ms"))  # fmt: skip
-                if setting.event_timer_ms is not None:
-                    params.append((0x05, pdo.event_timer_ms or 0, "event timer (ms)", f"{where}.event_timer_ms"))  # fmt: skip
-                if k == "tpdo" and setting.sync_start is not None:
-                    params.append((0x06, pdo.sync_start or 0, "SYNC start value", f"{where}.sync_start"))  # fmt: skip
-                _pdo_sequence(b, k, pdo, comm, mapping, node_id, where, params=params,
-                              remap=setting.mapping is not None or pdo.origin == "config")  # fmt: skip
-                continue
-            if k != "tpdo" or pdo is None or pdo.origin != "profile":
-                continue  # an EDS PDO as the device holds it: nothing to write
-            where = f"tpdos[{pdo.number}]"
-            b.add(
-                ObjRef(comm, 0x02),
-                pdo.transmission_type,
-                f"TPDO{pdo.number} transmission type",
-                where,
-                derived=True,
-            )
-            if pdo.event_timer_ms is not None:
-                b.add(
-                    ObjRef(comm, 0x05),
-                    pdo.event_timer_ms,
-                    f"TPDO{pdo.number} event timer (ms)",
-                    where,
-                    derived=True,
-                )
-            inhibit = pdo.inhibit_time_100us
-            inhibit_var = lp.od_var(ObjRef(comm, 0x03)) if inhibit is not None else None
-            write_inhibit = (
-                inhibit is not None
-                and inhibit_var is not None
-                and not (inhibit_var.default is not None and int(inhibit_var.default) == inhibit)
-            )
-            if inhibit is not None and inhibit_var is None and inhibit != 0:
-                raise ValueError(f"{where}: {ObjRef(comm, 0x03)} is not in {lp.eds_path.name}")
-            if not (remap is not None or write_inhibit):
-                continue
-            inhibit_param = (
-                [(0x03, int(inhibit), "inhibit time (100 us)", where)] if write_inhibit else []  # type: ignore[arg-type]
-            )
-            _pdo_sequence(b, k, pdo, comm, mapping, node_id, where, params=inhibit_param,
-                          remap=remap is not None)  # fmt: skip
+                _node_pdo(b, k, number, pdo, setting, node.node_id)
+            elif k == "tpdo" and pdo is not None and pdo.origin == "profile":
+                _profile_tpdo(b, pdo, node.node_id)
+            # else: an EDS PDO as the device holds it: nothing to write
 
-    # 5. the profile's boot writes, 6. the node's own writes
+
+def _node_pdo(
+    b: _Builder,
+    k: Literal["tpdo", "rpdo"],
+    number: int,
+    pdo: Pdo | None,
+    setting: Any,
+    node_id: int,
+) -> None:
+    """4. one PDO the node's ``tpdo:``/``rpdo:`` settings name: disabled (``enabled: false``,
+    only the COB-ID with bit 31 set), else the CiA 301 sequence with the parameters given."""
+    comm, mapping = pdo_objects(b.lp.profile, k, number)
+    where = f"{k}.{number}"
+    if pdo is None:  # enabled: false
+        held = default_value(b.lp.od_var(ObjRef(comm, 0x01)), node_id)
+        if held is None:
+            held = default_cob_id(k, number) + node_id if number <= 4 else 0
+        b.add(
+            ObjRef(comm, 0x01),
+            int(held) | COB_ID_INVALID,
+            f"{k.upper()}{number} disabled (COB-ID bit 31 = 1)",
+            where,
+            source=f"{where}.enabled",
+        )
+        return
+    params: list[tuple[int, int, str, str]] = []
+    if setting.transmission is not None:
+        params.append((0x02, pdo.transmission_type, "transmission type", f"{where}.transmission"))  # fmt: skip
+    if k == "tpdo" and setting.inhibit_ms is not None:
+        params.append((0x03, pdo.inhibit_time_100us or 0, "inhibit time (100 us)", f"{where}.inhibit_ms"))  # fmt: skip
+    if setting.event_timer_ms is not None:
+        params.append((0x05, pdo.event_timer_ms or 0, "event timer (ms)", f"{where}.event_timer_ms"))  # fmt: skip
+    if k == "tpdo" and setting.sync_start is not None:
+        params.append((0x06, pdo.sync_start or 0, "SYNC start value", f"{where}.sync_start"))  # fmt: skip
+    _pdo_sequence(b, k, pdo, comm, mapping, node_id, where, params=params,
+                  remap=setting.mapping is not None or pdo.origin == "config")  # fmt: skip
+
+
+def _profile_tpdo(b: _Builder, pdo: Pdo, node_id: int) -> None:
+    """4. one TPDO of the profile's own layout: transmission type 180xh:02 and event timer
+    180xh:05; the CiA 301 sequence when the profile has ``remappable_tpdo`` or the inhibit
+    time differs from the EDS default."""
+    lp = b.lp
+    comm, mapping = pdo_objects(lp.profile, "tpdo", pdo.number)
+    where = f"tpdos[{pdo.number}]"
+    b.add(
+        ObjRef(comm, 0x02),
+        pdo.transmission_type,
+        f"TPDO{pdo.number} transmission type",
+        where,
+        derived=True,
+    )
+    if pdo.event_timer_ms is not None:
+        b.add(
+            ObjRef(comm, 0x05),
+            pdo.event_timer_ms,
+            f"TPDO{pdo.number} event timer (ms)",
+            where,
+            derived=True,
+        )
+    inhibit = pdo.inhibit_time_100us
+    inhibit_var = lp.od_var(ObjRef(comm, 0x03)) if inhibit is not None else None
+    write_inhibit = (
+        inhibit is not None
+        and inhibit_var is not None
+        and not (inhibit_var.default is not None and int(inhibit_var.default) == inhibit)
+    )
+    if inhibit is not None and inhibit_var is None and inhibit != 0:
+        raise ValueError(f"{where}: {ObjRef(comm, 0x03)} is not in {lp.eds_path.name}")
+    remap = lp.profile.features.get("remappable_tpdo")
+    if not (remap is not None or write_inhibit):
+        return
+    inhibit_param = (
+        [(0x03, int(inhibit), "inhibit time (100 us)", where)] if write_inhibit else []  # type: ignore[arg-type]
+    )
+    _pdo_sequence(b, "tpdo", pdo, comm, mapping, node_id, where, params=inhibit_param,
+                  remap=remap is not None)  # fmt: skip
+
+
+def _step5_profile_writes(b: _Builder) -> None:
+    """5. the profile's ``boot.sdo`` writes."""
+    p = b.lp.profile
     for i, w in enumerate(p.boot.sdo):
         b.add_explicit(w, f"profile {p.family} boot.sdo[{i}]")
+
+
+def _step6_node_writes(b: _Builder, node: NodeSettingsLike) -> None:
+    """6. the node config's ``sdo`` writes."""
     for i, w in enumerate(getattr(node, "sdo", ()) or ()):
         b.add_explicit(w, f"node sdo[{i}]", source=f"sdo[{i}]")
-    return b.result()

@@ -87,7 +87,9 @@ class _Ctx:
         line = (sec.line_of(key) if key else sec.line) if sec is not None else 0
         self.warnings.append(EdsProblem(self.path, line, sec.name if sec else "", message))
 
-    def number(self, sec: Section, key: str, *, relative_ok: bool = False) -> tuple[int, bool] | None:
+    def number(
+        self, sec: Section, key: str, *, relative_ok: bool = False
+    ) -> tuple[int, bool] | None:
         """The number at ``key`` (None when absent or empty); a warning when it is not one."""
         raw = sec.get(key)
         if raw is None or raw == "":
@@ -112,7 +114,9 @@ class _Ctx:
         return value, rel
 
 
-def _value(ctx: _Ctx, sec: Section, key: str, data_type: int) -> tuple[object, str | None, bool] | None:
+def _value(
+    ctx: _Ctx, sec: Section, key: str, data_type: int
+) -> tuple[object, str | None, bool] | None:
     """(value, raw text kept for $NODEID, relative) of DefaultValue / ParameterValue /
     LowLimit / HighLimit as ``data_type``; None when absent or unreadable (warning)."""
     raw = sec.get(key)
@@ -221,7 +225,9 @@ def _object_type(ctx: _Ctx, sec: Section, has_subs: bool) -> int:
     return ot
 
 
-def _compact(ctx: _Ctx, sec: Section, index: int, name: str, ot: int, sections: dict[str, Section]) -> ODArray | ODRecord:
+def _compact(
+    ctx: _Ctx, sec: Section, index: int, name: str, ot: int, sections: dict[str, Section]
+) -> ODArray | ODRecord:
     """CiA 306 4.5.2.3: ``CompactSubObj=n``: sub 00h = n, subs 01h..n like the object."""
     n = ctx.number(sec, "CompactSubObj")
     count = max(0, min(n[0] if n else 0, 0xFE))
@@ -250,7 +256,9 @@ def _compact(ctx: _Ctx, sec: Section, index: int, name: str, ot: int, sections: 
 def _device_info(ctx: _Ctx, od: canopen.ObjectDictionary, sections: dict[str, Section]) -> None:
     info = sections.get("deviceinfo")
     if info is None:
-        ctx.warnings.append(EdsProblem(ctx.path, 1, "DeviceInfo", "section [DeviceInfo] is missing"))
+        ctx.warnings.append(
+            EdsProblem(ctx.path, 1, "DeviceInfo", "section [DeviceInfo] is missing")
+        )
         return
     di = od.device_information
     for rate in (10, 20, 50, 125, 250, 500, 800, 1000):
@@ -314,6 +322,39 @@ def _identity_agrees(ctx: _Ctx, od: canopen.ObjectDictionary, sections: dict[str
             ctx.warn(info, key, f"{key}=0x{given:X} but 1018h:{sub:02X} {what}=0x{held:X}: the identity check at boot does not compare it")  # fmt: skip
 
 
+def _commissioning(
+    ctx: _Ctx, od: canopen.ObjectDictionary, sections: dict[str, Section], node_id: int | None
+) -> None:
+    """[DeviceComissioning]: the bit rate, and the node id unless the caller gives one."""
+    com = sections.get("devicecomissioning") or sections.get("devicecommissioning")
+    if com is None:
+        return
+    rate = ctx.number(com, "Baudrate")
+    if rate is not None and rate[0]:
+        od.bitrate = rate[0] * 1000
+    if node_id is None:
+        nid = ctx.number(com, "NodeID")
+        if nid is not None and 1 <= nid[0] <= 127:
+            ctx.node_id = nid[0]
+    od.node_id = ctx.node_id
+
+
+def _dummy_usage(ctx: _Ctx, od: canopen.ObjectDictionary, sections: dict[str, Section]) -> None:
+    """[DummyUsage]: a const variable at index 0001h..0007h per dummy type the device maps."""
+    dummy = sections.get("dummyusage")
+    if dummy is None:
+        return
+    for i in range(1, 8):
+        got = ctx.number(dummy, f"Dummy{i:04X}")
+        if got is not None and got[0] not in (0, 1):
+            ctx.warn(dummy, f"Dummy{i:04X}", f"Dummy{i:04X}={dummy.get(f'Dummy{i:04X}')}: must be 0 or 1")  # fmt: skip
+        if got is not None and got[0]:
+            var = ODVariable(f"Dummy{i:04d}", i, 0)
+            var.data_type = i
+            var.access_type = "const"
+            od.add_object(var)
+
+
 def build_dictionary(
     sections: dict[str, Section], path: str, node_id: int | None = None
 ) -> tuple[canopen.ObjectDictionary, list[EdsProblem]]:
@@ -335,27 +376,8 @@ def build_dictionary(
         else:
             ctx.warn(sec, None, "unknown section: neither an object ([6401], [6401sub2]) nor a CiA 306 section; ignored")  # fmt: skip
     _device_info(ctx, od, sections)
-    com = sections.get("devicecomissioning") or sections.get("devicecommissioning")
-    if com is not None:
-        rate = ctx.number(com, "Baudrate")
-        if rate is not None and rate[0]:
-            od.bitrate = rate[0] * 1000
-        if node_id is None:
-            nid = ctx.number(com, "NodeID")
-            if nid is not None and 1 <= nid[0] <= 127:
-                ctx.node_id = nid[0]
-        od.node_id = ctx.node_id
-    dummy = sections.get("dummyusage")
-    if dummy is not None:
-        for i in range(1, 8):
-            got = ctx.number(dummy, f"Dummy{i:04X}")
-            if got is not None and got[0] not in (0, 1):
-                ctx.warn(dummy, f"Dummy{i:04X}", f"Dummy{i:04X}={dummy.get(f'Dummy{i:04X}')}: must be 0 or 1")  # fmt: skip
-            if got is not None and got[0]:
-                var = ODVariable(f"Dummy{i:04d}", i, 0)
-                var.data_type = i
-                var.access_type = "const"
-                od.add_object(var)
+    _commissioning(ctx, od, sections, node_id)
+    _dummy_usage(ctx, od, sections)
     for index, sec in sorted(objects.items()):
         own = sorted(subs.get(index, []), key=lambda x: (x[0], x[1].line))
         ot = _object_type(ctx, sec, bool(own))

@@ -8,14 +8,13 @@ the refusal of a pair's standby and the write timeout), Read Device Identificati
 boot). ``ImageDatastore`` holds the three and the request counters the server keeps.
 
 Imports: commands, config, image, modbus.device_identity, modbus.identity, modbus.protocol,
-modbus.reads, modbus.watchdog, modbus.writes, northbound.regmap, ratelimit.
+modbus.reads, modbus.writes, northbound.regmap, ratelimit.
 """
 
 from __future__ import annotations
 
 import logging
 import struct
-from typing import Any
 
 from gateway.commands import CommandService
 from gateway.config import Config
@@ -43,16 +42,17 @@ from gateway.modbus.protocol import (
     unpack_bits,
 )
 from gateway.modbus.reads import ImageReads
-from gateway.modbus.watchdog import OutputWatchdog
 from gateway.modbus.writes import ImageWrites
-from gateway.northbound.regmap import RegisterMap, Table
+from gateway.northbound.regmap import RegisterMap
 from gateway.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.modbus")
 
 
 class ImageDatastore:
-    """Reads from the image, writes through the command service, by the register map."""
+    """The three roles that serve a request, by the register map (``reads``: from the image;
+    ``writes``: through the command service; ``identity``: Read Device Identification), and the
+    request counters the server keeps. ``execute`` calls the roles directly."""
 
     def __init__(
         self, regmap: RegisterMap, image: ProcessImage, commands: CommandService, cfg: Config
@@ -68,53 +68,8 @@ class ImageDatastore:
         self.writes = ImageWrites(self.reads, cfg, self.warn)
         self.identity = DeviceIdentity(regmap, image, commands, cfg.gateway.name, self.warn)
 
-    @property
-    def watchdog(self) -> OutputWatchdog | None:
-        """The output watchdog the server feeds (its trips are a gateway register)."""
-        return self.reads.watchdog
-
-    @watchdog.setter
-    def watchdog(self, watchdog: OutputWatchdog | None) -> None:
-        self.reads.watchdog = watchdog
-
     def count_exception(self, code: ExceptionCode) -> None:
         self.exceptions[int(code)] = self.exceptions.get(int(code), 0) + 1
-
-    async def read(self, unit: int, table: Table, address: int, count: int) -> list[Any]:
-        """Registers (ints) or bits (bools) of ``count`` consecutive addresses."""
-        return await self.reads.read(unit, table, address, count)
-
-    def read_now(self, unit: int, table: Table, address: int, count: int) -> list[int] | None:
-        """Registers all served from the image, at once (``ImageReads.read_now``)."""
-        return self.reads.read_now(unit, table, address, count)
-
-    async def identification(self, unit: int) -> dict[int, bytes]:
-        """The Read Device Identification objects of a unit (``modbus.identity``)."""
-        return await self.identity.identification(unit)
-
-    def write_refusal(self, peer: str | None) -> str | None:
-        """Why a client at this address may not write, or None (``ImageWrites.write_refusal``)."""
-        return self.writes.write_refusal(peer)
-
-    def check_access(self, peer: str | None) -> None:
-        """Write protection and the standby's refusal (``ImageWrites.check_access``)."""
-        self.writes.check_access(peer)
-
-    async def write_registers(
-        self, unit: int, address: int, values: list[int], peer: str | None
-    ) -> None:
-        await self.writes.write_registers(unit, address, values, peer)
-
-    async def write_coils(
-        self, unit: int, address: int, values: list[bool], peer: str | None
-    ) -> None:
-        await self.writes.write_coils(unit, address, values, peer)
-
-    async def mask_write(
-        self, unit: int, address: int, and_mask: int, or_mask: int, peer: str | None
-    ) -> None:
-        """FC 22 (``ImageWrites.mask_write``)."""
-        await self.writes.mask_write(unit, address, and_mask, or_mask, peer)
 
 
 # ---------------------------------------------------------------------- one request
@@ -140,7 +95,7 @@ def execute_now(store: ImageDatastore, unit: int, pdu: bytes) -> bytes | None:
     body = pdu[1:]
     _check(store, unit, fc, body)
     address, qty = struct.unpack(">HH", body)
-    values = store.read_now(unit, READ_TABLE[fc], address, qty)
+    values = store.reads.read_now(unit, READ_TABLE[fc], address, qty)
     if values is None:
         return None
     data = struct.pack(f">{len(values)}H", *values)
@@ -153,10 +108,10 @@ async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None
     _check(store, unit, fc, body)
     if fc == ENCAPSULATED_INTERFACE:
         code, object_id = parse_identification(body)
-        return identification_response(await store.identification(unit), code, object_id)
+        return identification_response(await store.identity.identification(unit), code, object_id)
     if fc in READ_TABLE:
         address, qty = struct.unpack(">HH", body)
-        values = await store.read(unit, READ_TABLE[fc], address, qty)
+        values = await store.reads.read(unit, READ_TABLE[fc], address, qty)
         if fc in (READ_COILS, READ_DISCRETE_INPUTS):
             data = pack_bits(values)
         else:
@@ -164,29 +119,31 @@ async def execute(store: ImageDatastore, unit: int, pdu: bytes, peer: str | None
         return bytes((fc, len(data))) + data
     if fc == WRITE_COIL:
         address, value = struct.unpack(">HH", body)
-        await store.write_coils(unit, address, [value == COIL_ON], peer)
+        await store.writes.write_coils(unit, address, [value == COIL_ON], peer)
         return pdu  # the normal response is an echo of the request (6.5)
     if fc == WRITE_REGISTER:
         address, value = struct.unpack(">HH", body)
-        await store.write_registers(unit, address, [value], peer)
+        await store.writes.write_registers(unit, address, [value], peer)
         return pdu  # echo (6.6)
     if fc == WRITE_COILS:
         address, qty, byte_count = struct.unpack_from(">HHB", body)
-        await store.write_coils(unit, address, unpack_bits(body[5:], qty), peer)
+        await store.writes.write_coils(unit, address, unpack_bits(body[5:], qty), peer)
         return bytes((fc,)) + body[:4]
     if fc == WRITE_REGISTERS:
         address, qty, byte_count = struct.unpack_from(">HHB", body)
-        await store.write_registers(
+        await store.writes.write_registers(
             unit, address, list(struct.unpack_from(f">{qty}H", body, 5)), peer
         )
         return bytes((fc,)) + body[:4]
     if fc == MASK_WRITE_REGISTER:
         address, and_mask, or_mask = struct.unpack(">HHH", body)
-        await store.mask_write(unit, address, and_mask, or_mask, peer)
+        await store.writes.mask_write(unit, address, and_mask, or_mask, peer)
         return pdu  # echo (6.16)
     # READ_WRITE_REGISTERS: the write is performed before the read (6.17)
     r_addr, r_qty, w_addr, w_qty, _ = struct.unpack_from(">HHHHB", body)
-    await store.write_registers(unit, w_addr, list(struct.unpack_from(f">{w_qty}H", body, 9)), peer)
-    values = await store.read(unit, "hr", r_addr, r_qty)
+    await store.writes.write_registers(
+        unit, w_addr, list(struct.unpack_from(f">{w_qty}H", body, 9)), peer
+    )
+    values = await store.reads.read(unit, "hr", r_addr, r_qty)
     data = struct.pack(f">{len(values)}H", *values)
     return bytes((fc, len(data))) + data

@@ -4,7 +4,7 @@ Three layers, each testable on its own, each in its module:
 
 * ``modbus.protocol.check_request`` (pure): is a request PDU well formed for its function code? Quantity and
   length rules of the Modbus Application Protocol V1.1b3, section 6.
-* ``modbus.datastore.ImageDatastore``: reads are computed from the process image at the moment of the request
+* ``modbus.datastore.execute`` on the roles of an ``ImageDatastore``: reads are computed from the process image at the moment of the request
   (a 32-bit value read in one request comes from one PDO, never torn); writes go through the
   command service and are answered when the RPDO was sent or the device confirmed the SDO.
 * ``_Connection`` (here, an asyncio protocol): MBAP framing (Modbus Messaging on TCP/IP Implementation
@@ -32,11 +32,11 @@ resynchronised in a TCP stream: it is dropped and that connection closed; other 
 affected.
 
 The output watchdog (``modbus.watchdog_ms``, ``watchdog_on_disconnect``) is fed here, by
-clients allowed to write only (decided once per connection: ``ImageDatastore.write_refusal``
+clients allowed to write only (decided once per connection: ``ImageWrites.write_refusal``
 for ``read_only`` and ``allowed_networks``, and on TLS a role with ``write`` access): their
 requests, their connections and disconnections. Its machine is
-``modbus.watchdog.OutputWatchdog``, its timer a ``loop.call_at`` at the machine's next
-deadline, and a trip writes the nodes' safe outputs (``modbus.safe_outputs``) through the
+``modbus.watchdog.OutputWatchdog``, driven beside the server by ``OutputWatchdogDriver``
+(here): its timer a ``loop.call_at`` at the machine's next deadline, and a trip writes the nodes' safe outputs (``modbus.safe_outputs``) through the
 command service. On the standby of a hot-standby pair it stands by (``set_mastering``): no
 timer, no trip, nothing logged per period.
 
@@ -114,10 +114,16 @@ class _Connection(asyncio.Protocol):
                 "Modbus/TLS client %s connected, role %s: %s",
                 self.peer, self.role or "none", self.access,
             )  # fmt: skip
-        self.writer = self.access in (None, "write") and self.store.write_refusal(self.peer) is None
+        self.writer = (
+            self.access in (None, "write") and self.store.writes.write_refusal(self.peer) is None
+        )
         if self.writer:
-            self.owner.watchdog.on_writer_connect(asyncio.get_running_loop().time())
-        log.debug("Modbus client %s connected (%s)", self.peer, "may write" if self.writer else "reads only")
+            self.owner.output_watchdog.writer_connected()
+        log.debug(
+            "Modbus client %s connected (%s)",
+            self.peer,
+            "may write" if self.writer else "reads only",
+        )
 
     def _authorise(self, fc: int) -> None:
         """A TLS client's role: ``read`` may not write, ``none`` may do nothing (0x01)."""
@@ -127,7 +133,10 @@ class _Connection(asyncio.Protocol):
         what = "a write" if fc in WRITES else "a request"
         why = f"{what} (function {fc}) needs a role with write access; role {self.role or 'none'} has {access}"
         self.store.warn.warning(
-            ("role", self.peer, self.role, access), "Modbus/TLS client %s refused: %s", self.peer, why
+            ("role", self.peer, self.role, access),
+            "Modbus/TLS client %s refused: %s",
+            self.peer,
+            why,
         )
         raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
 
@@ -137,7 +146,7 @@ class _Connection(asyncio.Protocol):
         self.buf.clear()
         log.debug("Modbus client %s disconnected", self.peer)
         if self.writer:
-            self.owner.writer_gone()
+            self.owner.output_watchdog.writer_gone()
 
     def data_received(self, data: bytes) -> None:
         self.buf += data
@@ -207,7 +216,7 @@ class _Connection(asyncio.Protocol):
         """A request of a client that may write, while it is connected (an answer after the
         client went is no sign of life), feeds the output watchdog."""
         if self.writer and self.transport is not None:
-            self.owner.request_seen()
+            self.owner.output_watchdog.request_seen()
 
     async def _serve(self, tid: int, unit: int, pdu: bytes) -> None:
         store = self.store
@@ -259,84 +268,14 @@ class ModbusGateway:
         self.tls_server: asyncio.Server | None = None
         self.tls_port = cfg.modbus.tls.port if cfg.modbus.tls is not None else 0
         self.connections: set[_Connection] = set()
-        # the output watchdog: its machine, the safe values it writes, its timer and task
-        self.watchdog = OutputWatchdog(
-            cfg.modbus.watchdog_ms / 1000.0, cfg.modbus.watchdog_on_disconnect
-        )
-        self.safe_plan: dict[str, dict[str, Any]] = {}
-        if self.watchdog.enabled:
-            for n in cfg.nodes:
-                values = safe_outputs(nodes[n.name].lp, n)
-                if values:
-                    self.safe_plan[n.name] = values
-        self.store.watchdog = self.watchdog
-        self.last_safe: dict[str, str] = {}  # per node: "safe" or why not, at the last trip
-        self._wd_timer: asyncio.TimerHandle | None = None
-        self._wd_tasks: set[asyncio.Task[None]] = set()
-        self._stopping = False
-
-    # ------------------------------------------------------------------ output watchdog
-    def request_seen(self) -> None:
-        """Every request of a client that may write (any unit, any function, any outcome)
-        feeds the watchdog."""
-        wd = self.watchdog
-        if not wd.enabled:
-            return
-        wd.on_request(asyncio.get_running_loop().time())
-        if self._wd_timer is None:
-            self._wd_schedule()
+        # the output watchdog: its machine (its trips are a gateway register) and its driver
+        self.output_watchdog = OutputWatchdogDriver(cfg, nodes, commands)
+        self.watchdog = self.output_watchdog.machine
+        self.store.reads.watchdog = self.watchdog
 
     def set_mastering(self, mastering: bool) -> None:
-        """The gateway started or stopped mastering the bus (a hot-standby pair's role; the
-        app calls it at start and at every role change). On the standby the watchdog is
-        STANDBY (commands refuse: no safe outputs to write, no timer); when the gateway becomes
-        active it starts fresh, armed by the first request of a client that may write."""
-        if mastering == (self.watchdog.state is not WatchdogState.STANDBY):
-            return
-        self.watchdog.on_mastering(mastering)
-        if self._wd_timer is not None:
-            self._wd_timer.cancel()
-            self._wd_timer = None
-
-    def writer_gone(self) -> None:
-        if self._stopping:
-            return  # the gateway stops: its clients did not go away
-        reason = self.watchdog.on_writer_disconnect(asyncio.get_running_loop().time())
-        if reason is not None:
-            self._trip(reason)
-
-    def _wd_schedule(self) -> None:
-        deadline = self.watchdog.next_deadline()
-        if deadline is not None and self.server is not None:
-            self._wd_timer = asyncio.get_running_loop().call_at(deadline, self._wd_tick)
-
-    def _wd_tick(self) -> None:
-        self._wd_timer = None
-        reason = self.watchdog.tick(asyncio.get_running_loop().time())
-        if reason is not None:
-            self._trip(reason)
-        else:
-            self._wd_schedule()  # a request came since: the deadline moved
-
-    def _trip(self, reason: str) -> None:
-        ms = self.cfg.modbus.watchdog_ms
-        if reason == TIMEOUT:
-            why = f"no request of a client allowed to write for {ms} ms"
-        elif ms:
-            why = f"the last client allowed to write disconnected; no request of one for {ms} ms"
-        else:
-            why = "the last client allowed to write disconnected"
-        log.warning(
-            "Modbus output watchdog tripped (%s): writing the safe outputs of %s",
-            why,
-            ", ".join(self.safe_plan) or "no node (none has a safe value)",
-        )
-        task = asyncio.get_running_loop().create_task(self._write_safe())
-        self._wd_tasks.add(task)
-        task.add_done_callback(self._wd_tasks.discard)
-
-    async def _write_safe(self) -> None:
-        self.last_safe = await self.commands.write_safe_outputs(self.safe_plan)
+        """The gateway started or stopped mastering the bus (``OutputWatchdogDriver``)."""
+        self.output_watchdog.set_mastering(mastering)
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -352,6 +291,7 @@ class ModbusGateway:
                 self.cfg.modbus.port,
                 reuse_address=True,
             )
+            self.output_watchdog.serving = True
             if self.port == 0:
                 self.port = self.server.sockets[0].getsockname()[1]
             log.info("Modbus TCP listening on %s:%d", self.cfg.modbus.host, self.port)
@@ -368,15 +308,13 @@ class ModbusGateway:
             self.tls_port = self.tls_server.sockets[0].getsockname()[1]
             if self.server is None:
                 self.server = self.tls_server
+                self.output_watchdog.serving = True
             log.info("Modbus/TCP Security (TLS) listening on %s:%d", host, self.tls_port)
 
     async def stop(self) -> None:
         if self.server is None:
             return
-        self._stopping = True
-        if self._wd_timer is not None:
-            self._wd_timer.cancel()
-            self._wd_timer = None
+        self.output_watchdog.stop()
         self.server.close()
         if self.tls_server is not None and self.tls_server is not self.server:
             self.tls_server.close()
@@ -393,3 +331,106 @@ class ModbusGateway:
             await self.tls_server.wait_closed()
         self.server = None
         self.tls_server = None
+
+
+# ---------------------------------------------------------------------- the output watchdog
+class OutputWatchdogDriver:
+    """Drives the output watchdog's machine (``modbus.watchdog.OutputWatchdog``) on the event
+    loop, beside the server: the connections of clients that may write report their requests,
+    connections and disconnections here; its timer is a ``loop.call_at`` at the machine's next
+    deadline (armed only while the server serves); a trip writes the nodes' safe outputs
+    (``modbus.safe_outputs``) through the command service."""
+
+    def __init__(
+        self, cfg: Config, nodes: dict[str, ResolvedNode], commands: CommandService
+    ) -> None:
+        self.commands = commands
+        self.watchdog_ms = cfg.modbus.watchdog_ms
+        self.machine = OutputWatchdog(
+            cfg.modbus.watchdog_ms / 1000.0, cfg.modbus.watchdog_on_disconnect
+        )
+        self.safe_plan: dict[str, dict[str, Any]] = {}
+        if self.machine.enabled:
+            for n in cfg.nodes:
+                values = safe_outputs(nodes[n.name].lp, n)
+                if values:
+                    self.safe_plan[n.name] = values
+        self.last_safe: dict[str, str] = {}  # per node: "safe" or why not, at the last trip
+        self.serving = False  # the server listens: the timer may be armed
+        self._timer: asyncio.TimerHandle | None = None
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._stopping = False
+
+    def writer_connected(self) -> None:
+        self.machine.on_writer_connect(asyncio.get_running_loop().time())
+
+    def request_seen(self) -> None:
+        """Every request of a client that may write (any unit, any function, any outcome)
+        feeds the watchdog."""
+        wd = self.machine
+        if not wd.enabled:
+            return
+        wd.on_request(asyncio.get_running_loop().time())
+        if self._timer is None:
+            self._schedule()
+
+    def set_mastering(self, mastering: bool) -> None:
+        """The gateway started or stopped mastering the bus (a hot-standby pair's role; the
+        app calls it at start and at every role change). On the standby the watchdog is
+        STANDBY (commands refuse: no safe outputs to write, no timer); when the gateway becomes
+        active it starts fresh, armed by the first request of a client that may write."""
+        if mastering == (self.machine.state is not WatchdogState.STANDBY):
+            return
+        self.machine.on_mastering(mastering)
+        self._cancel_timer()
+
+    def writer_gone(self) -> None:
+        if self._stopping:
+            return  # the gateway stops: its clients did not go away
+        reason = self.machine.on_writer_disconnect(asyncio.get_running_loop().time())
+        if reason is not None:
+            self._trip(reason)
+
+    def stop(self) -> None:
+        """The server stops: no timer, and its clients' disconnections are no trip."""
+        self._stopping = True
+        self.serving = False
+        self._cancel_timer()
+
+    def _cancel_timer(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def _schedule(self) -> None:
+        deadline = self.machine.next_deadline()
+        if deadline is not None and self.serving:
+            self._timer = asyncio.get_running_loop().call_at(deadline, self._tick)
+
+    def _tick(self) -> None:
+        self._timer = None
+        reason = self.machine.tick(asyncio.get_running_loop().time())
+        if reason is not None:
+            self._trip(reason)
+        else:
+            self._schedule()  # a request came since: the deadline moved
+
+    def _trip(self, reason: str) -> None:
+        ms = self.watchdog_ms
+        if reason == TIMEOUT:
+            why = f"no request of a client allowed to write for {ms} ms"
+        elif ms:
+            why = f"the last client allowed to write disconnected; no request of one for {ms} ms"
+        else:
+            why = "the last client allowed to write disconnected"
+        log.warning(
+            "Modbus output watchdog tripped (%s): writing the safe outputs of %s",
+            why,
+            ", ".join(self.safe_plan) or "no node (none has a safe value)",
+        )
+        task = asyncio.get_running_loop().create_task(self._write_safe())
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _write_safe(self) -> None:
+        self.last_safe = await self.commands.write_safe_outputs(self.safe_plan)

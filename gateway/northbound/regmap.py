@@ -35,7 +35,7 @@ import io
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
-from gateway.config import Config
+from gateway.config import Config, NodeConfig
 from gateway.device.resolved import ResolvedNode
 from gateway.northbound.scaling import scaled, unscaled_step
 from gateway.profiles import LoadedProfile
@@ -109,9 +109,13 @@ GATEWAY_REGS = [
     (18, "nodes_operational", "uint16", "nodes operational"),
     (19, "watchdog_trips", "uint32", "output watchdog trips (safe outputs written)"),
     (21, "pair_role", "uint16", PAIR_ROLE_DESCRIPTION),
-    (22, "pair_master_id", "uint16",
-     "hot-standby pair: the pair id of the master heard active (this gateway's own when it is "
-     "active; a third-party master's), 0 unknown"),
+    (
+        22,
+        "pair_master_id",
+        "uint16",
+        "hot-standby pair: the pair id of the master heard active (this gateway's own when it is "
+        "active; a third-party master's), 0 unknown",
+    ),
 ]
 NMT_DESCRIPTION = (
     "write 1 start, 2 stop, 128 pre-operational, 129 reset node, 130 reset communication; "
@@ -362,9 +366,10 @@ def _bit_descriptions(sig: Signal) -> dict[int, str] | None:
 
 
 def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode]) -> RegisterMap:
+    """The gateway's registers, then per node (in config order) its block: diagnostics, NMT,
+    signals (with their bits), the derived text rows."""
     rm = RegisterMap()
     flat = cfg.modbus.layout == "flat"
-    stride = cfg.modbus.flat_stride
     gw_unit = cfg.modbus.flat_unit_id if flat else cfg.modbus.gateway_unit_id
     rm.units[gw_unit] = None
     for off, name, typ, desc in GATEWAY_REGS:
@@ -375,121 +380,135 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode]) -> RegisterM
             "modbus",
         )
     for k, ncfg in enumerate(cfg.nodes, start=1):
-        key = f"nodes[{k - 1}]"
-        lp = nodes[ncfg.name].lp
-        if flat:
-            unit, base = cfg.modbus.flat_unit_id, k * stride
-        else:
-            unit = ncfg.modbus.unit_id or ncfg.node_id
-            base = 0
-            rm.units[unit] = ncfg.name
-        limit = base + stride if flat else 0x10000
-
-        def add(
-            p: Point, key: str = key, base: int = base, limit: int = limit, node: str = ncfg.name
-        ) -> None:
-            if p.end > limit:
-                raise RegisterMapError(
-                    "modbus.flat_stride",
-                    f"node {node} needs addresses up to {p.end - base} in its block, "
-                    f"more than flat_stride {stride}",
-                )
-            rm.add(p, key)
-
-        n = ncfg.name
-        for off, name, typ, desc in NODE_DIAG:
-            add(Point(unit, "ir", base + off, _REG_COUNT[typ], "diag", name, typ, "ro", n, description=desc))  # fmt: skip
-        for off, name, desc in NODE_DIAG_BITS:
-            add(Point(unit, "di", base + off, 1, "diag_bit", name, "bool", "ro", n, bit=off, description=desc))  # fmt: skip
-        add(Point(unit, "hr", base + NMT_REGISTER, 1, "nmt", "nmt_command", "uint16", "rw", n, description=NMT_DESCRIPTION))  # fmt: skip
-        mapped = _mapped_objects(lp, ncfg.pdo_variant)
-        inputs = tpdo_objects(lp.profile, ncfg.pdo_variant)
-        next_addr = {"ir": base + SIGNAL_BASE, "hr": base + SIGNAL_BASE}
-        next_bit = {"di": base + SIGNAL_BASE, "co": base + SIGNAL_BASE}
-        for sig in lp.profile.signals:
-            if sig.transport == "pdo" and sig.object not in mapped:
-                continue
-            ov = ncfg.signals.get(sig.name)
-            skey = f"{key}.signals.{sig.name}" if ov else key
-            writable = sig.access in ("rw", "wo")
-            table: Table = "hr" if (writable or sig.transport == "sdo") else "ir"
-            rtype = _REG_TYPE[sig.type_name]
-            scale = ov.scale if ov and ov.scale is not None else sig.scale
-            offset = ov.offset if ov and ov.offset is not None else sig.offset
-            engineering = bool(ov and ov.as_float) and rtype != "string"
-            if engineering and rtype in _TIME_TEXT:
-                raise RegisterMapError(
-                    f"{key}.signals.{sig.name}.as_float",
-                    f"{sig.name} is a {rtype}: as_float applies to numbers only",
-                )
-            if engineering:
-                rtype = "float32"
-            count = ((sig.length or 0) + 1) // 2 if rtype == "string" else _REG_COUNT[rtype]
-            word_order = (ov.word_order if ov and ov.word_order else None) or cfg.modbus.word_order
-            if ov is not None and ov.address is not None:
-                addr = base + ov.address
-            else:
-                addr = next_addr[table]
-                next_addr[table] = addr + count
-            point = Point(
-                unit,
-                table,
-                addr,
-                count,
-                "signal",
-                sig.name,
-                rtype,
-                "rw" if writable else "ro",
-                n,
-                word_order=word_order,
-                scale=scale,
-                offset=offset,
-                engineering=engineering,
-                unit_text=(ov.unit if ov and ov.unit is not None else sig.unit),
-                transport=sig.transport_name,
-                description=_description(sig, scale, offset, engineering),
-            )
-            add(point, skey)
-            if table == "hr" and sig.transport == "pdo" and sig.object in inputs:
-                # in a TPDO too: the device's own value, read-only, beside the output
-                addr = next_addr["ir"]
-                next_addr["ir"] = addr + count
-                desc = f"(the device's value, by TPDO; the output is holding register {point.address})"
-                desc = f"{point.description} {desc}".lstrip()
-                add(replace(point, table="ir", address=addr, access="ro", description=desc), skey)
-            bits = _bit_descriptions(sig)
-            if bits is None:
-                continue
-            btable: Table = "co" if writable else "di"
-            width = sig.bit_length
-            start = next_bit[btable]
-            next_bit[btable] = start + width
-            for b in range(width):
-                add(
-                    Point(
-                        unit,
-                        btable,
-                        start + b,
-                        1,
-                        "bit",
-                        sig.name,
-                        "bool",
-                        "rw" if writable else "ro",
-                        n,
-                        bit=b,
-                        transport=sig.transport_name,
-                        description=bits.get(b, f"(bit {b} not used)"),
-                    ),
-                    key,
-                )
-        for ts in text_signals(lp.profile):
-            # AP05 alpha-numeric rows as one string point each (profiles/derived.py)
-            count = (ts.length + 1) // 2
-            addr = next_addr["hr"]
-            next_addr["hr"] = addr + count
-            head = lp.profile.signal(ts.head)
-            add(
-                Point(unit, "hr", addr, count, "signal", ts.name, "string", "rw", n,
-                      transport="pdo", description=ts.as_signal(head).description)
-            )  # fmt: skip
+        _add_node(rm, cfg, ncfg, nodes[ncfg.name].lp, k)
     return rm
+
+
+@dataclass
+class _Block:
+    """One node's block of registers being laid out: its unit, base address and limit, the
+    config key of its points and the next free address of each table."""
+
+    rm: RegisterMap
+    unit: int
+    base: int
+    limit: int
+    stride: int
+    key: str
+    node: str
+    next_addr: dict[str, int] = field(default_factory=dict)
+
+    def add(self, p: Point, key: str | None = None) -> None:
+        if p.end > self.limit:
+            raise RegisterMapError(
+                "modbus.flat_stride",
+                f"node {self.node} needs addresses up to {p.end - self.base} in its block, "
+                f"more than flat_stride {self.stride}",
+            )
+        self.rm.add(p, self.key if key is None else key)
+
+    def take(self, table: str, count: int) -> int:
+        """The next free address of ``table`` for ``count`` registers (or bits)."""
+        addr = self.next_addr[table]
+        self.next_addr[table] = addr + count
+        return addr
+
+
+def _add_node(rm: RegisterMap, cfg: Config, ncfg: NodeConfig, lp: LoadedProfile, k: int) -> None:
+    """The ``k``-th node's block: diagnostics, NMT register, signals, text rows."""
+    flat = cfg.modbus.layout == "flat"
+    stride = cfg.modbus.flat_stride
+    if flat:
+        unit, base = cfg.modbus.flat_unit_id, k * stride
+    else:
+        unit = ncfg.modbus.unit_id or ncfg.node_id
+        base = 0
+        rm.units[unit] = ncfg.name
+    limit = base + stride if flat else 0x10000
+    blk = _Block(rm, unit, base, limit, stride, f"nodes[{k - 1}]", ncfg.name)
+    blk.next_addr = {t: base + SIGNAL_BASE for t in ("ir", "hr", "di", "co")}
+    n = ncfg.name
+    for off, name, typ, desc in NODE_DIAG:
+        blk.add(Point(unit, "ir", base + off, _REG_COUNT[typ], "diag", name, typ, "ro", n, description=desc))  # fmt: skip
+    for off, name, desc in NODE_DIAG_BITS:
+        blk.add(Point(unit, "di", base + off, 1, "diag_bit", name, "bool", "ro", n, bit=off, description=desc))  # fmt: skip
+    blk.add(Point(unit, "hr", base + NMT_REGISTER, 1, "nmt", "nmt_command", "uint16", "rw", n, description=NMT_DESCRIPTION))  # fmt: skip
+    mapped = _mapped_objects(lp, ncfg.pdo_variant)
+    inputs = tpdo_objects(lp.profile, ncfg.pdo_variant)
+    for sig in lp.profile.signals:
+        if sig.transport == "pdo" and sig.object not in mapped:
+            continue
+        _add_signal(blk, cfg, ncfg, sig, sig.transport == "pdo" and sig.object in inputs)
+    for ts in text_signals(lp.profile):
+        # AP05 alpha-numeric rows as one string point each (profiles/derived.py)
+        count = (ts.length + 1) // 2
+        addr = blk.take("hr", count)
+        head = lp.profile.signal(ts.head)
+        blk.add(
+            Point(unit, "hr", addr, count, "signal", ts.name, "string", "rw", n,
+                  transport="pdo", description=ts.as_signal(head).description)
+        )  # fmt: skip
+
+
+def _add_signal(blk: _Block, cfg: Config, ncfg: NodeConfig, sig: Signal, in_tpdo: bool) -> None:
+    """One signal's point (and its read-only twin when an output is in a TPDO too), then its
+    bits; the node's ``signals:`` overrides applied."""
+    key = blk.key
+    ov = ncfg.signals.get(sig.name)
+    skey = f"{key}.signals.{sig.name}" if ov else key
+    writable = sig.access in ("rw", "wo")
+    table: Table = "hr" if (writable or sig.transport == "sdo") else "ir"
+    rtype = _REG_TYPE[sig.type_name]
+    scale = ov.scale if ov and ov.scale is not None else sig.scale
+    offset = ov.offset if ov and ov.offset is not None else sig.offset
+    engineering = bool(ov and ov.as_float) and rtype != "string"
+    if engineering and rtype in _TIME_TEXT:
+        raise RegisterMapError(
+            f"{key}.signals.{sig.name}.as_float",
+            f"{sig.name} is a {rtype}: as_float applies to numbers only",
+        )
+    if engineering:
+        rtype = "float32"
+    count = ((sig.length or 0) + 1) // 2 if rtype == "string" else _REG_COUNT[rtype]
+    word_order = (ov.word_order if ov and ov.word_order else None) or cfg.modbus.word_order
+    if ov is not None and ov.address is not None:
+        addr = blk.base + ov.address
+    else:
+        addr = blk.take(table, count)
+    point = Point(
+        blk.unit,
+        table,
+        addr,
+        count,
+        "signal",
+        sig.name,
+        rtype,
+        "rw" if writable else "ro",
+        blk.node,
+        word_order=word_order,
+        scale=scale,
+        offset=offset,
+        engineering=engineering,
+        unit_text=(ov.unit if ov and ov.unit is not None else sig.unit),
+        transport=sig.transport_name,
+        description=_description(sig, scale, offset, engineering),
+    )
+    blk.add(point, skey)
+    if table == "hr" and in_tpdo:
+        # in a TPDO too: the device's own value, read-only, beside the output
+        addr = blk.take("ir", count)
+        desc = f"(the device's value, by TPDO; the output is holding register {point.address})"
+        desc = f"{point.description} {desc}".lstrip()
+        blk.add(replace(point, table="ir", address=addr, access="ro", description=desc), skey)
+    bits = _bit_descriptions(sig)
+    if bits is None:
+        return
+    btable: Table = "co" if writable else "di"
+    width = sig.bit_length
+    start = blk.take(btable, width)
+    for b in range(width):
+        blk.add(
+            Point(blk.unit, btable, start + b, 1, "bit", sig.name, "bool",
+                  "rw" if writable else "ro", blk.node, bit=b, transport=sig.transport_name,
+                  description=bits.get(b, f"(bit {b} not used)")),
+        )  # fmt: skip

@@ -140,6 +140,22 @@ def apply_pdo_writes(
             "cob_written": False,
             "map_written": False,
         }
+    _replay_writes(state, profile, kind, writes)
+    out: list[Pdo] = []
+    for number in sorted(state):
+        pdo = _pdo_after_writes(kind, number, state[number])
+        if pdo is not None:
+            out.append(pdo)
+    return out
+
+
+def _replay_writes(
+    state: dict[int, dict[str, Any]],
+    profile: Profile,
+    kind: Kind,
+    writes: Iterable[tuple[ObjRef, Any]],
+) -> None:
+    """Each write to a PDO's COB-ID (sub 01h) or mapping into ``state`` (per PDO number)."""
     by_comm, by_map = _pdo_index_lookup(profile, kind)
     for obj, value in writes:
         number = by_comm(obj.index) if obj.sub == 0x01 else None
@@ -157,7 +173,9 @@ def apply_pdo_writes(
         try:
             v = int(value, 0) if isinstance(value, str) else int(value)
         except ValueError:
-            raise PdoMappingError(f"{kind.upper()}{number}: {obj} = {value!r} is not a number") from None
+            raise PdoMappingError(
+                f"{kind.upper()}{number}: {obj} = {value!r} is not a number"
+            ) from None
         if not is_map:
             st["cob"] = v
             st["cob_written"] = True
@@ -167,46 +185,46 @@ def apply_pdo_writes(
         else:
             st["entries"][obj.sub] = v
             st["map_written"] = True
-    out: list[Pdo] = []
-    for number in sorted(state):
-        st = state[number]
-        base: Pdo | None = st["pdo"]
-        if base is None and not (st["cob_written"] and st["map_written"]):
-            continue
-        if st["cob"] & COB_ID_INVALID or st["count"] == 0:
-            continue
-        if base is not None and not st["cob_written"] and not st["map_written"]:
-            out.append(base)
-            continue
-        mapping = []
-        for i in range(1, st["count"] + 1):
-            raw = st["entries"].get(i)
-            if raw is None:
-                raise PdoMappingError(
-                    f"{kind.upper()}{number}: mapping sub-index {i} is enabled but never written"
-                )
-            obj, bits = decode_entry(raw)
-            mapping.append({"object": obj, "bits": bits})
-        fields: dict[str, Any] = {
-            "number": number,
-            "cob_id": st["cob"] & COB_ID_MASK_11BIT,
-            "add_node_id": False,
-            "mapping": mapping,
-            "origin": base.origin if base is not None and not st["map_written"] else "config",
-        }
-        if base is not None:
-            fields.update(
-                transmission_type=base.transmission_type,
-                event_timer_ms=base.event_timer_ms,
-                inhibit_time_100us=base.inhibit_time_100us,
-                sync_start=base.sync_start,
-                description=base.description,
+
+
+def _pdo_after_writes(kind: Kind, number: int, st: dict[str, Any]) -> Pdo | None:
+    """The PDO ``number`` as its replayed ``st`` leaves it; None when the device does not send
+    it (COB-ID bit 31, no entries, or a new PDO not given both a COB-ID and a mapping)."""
+    base: Pdo | None = st["pdo"]
+    if base is None and not (st["cob_written"] and st["map_written"]):
+        return None
+    if st["cob"] & COB_ID_INVALID or st["count"] == 0:
+        return None
+    if base is not None and not st["cob_written"] and not st["map_written"]:
+        return base
+    mapping = []
+    for i in range(1, st["count"] + 1):
+        raw = st["entries"].get(i)
+        if raw is None:
+            raise PdoMappingError(
+                f"{kind.upper()}{number}: mapping sub-index {i} is enabled but never written"
             )
-        try:
-            out.append(Pdo.model_validate(fields))
-        except ValueError as exc:
-            raise PdoMappingError(f"{kind.upper()}{number}: {exc}") from None
-    return out
+        obj, bits = decode_entry(raw)
+        mapping.append({"object": obj, "bits": bits})
+    fields: dict[str, Any] = {
+        "number": number,
+        "cob_id": st["cob"] & COB_ID_MASK_11BIT,
+        "add_node_id": False,
+        "mapping": mapping,
+        "origin": base.origin if base is not None and not st["map_written"] else "config",
+    }
+    if base is not None:
+        fields.update(
+            transmission_type=base.transmission_type,
+            event_timer_ms=base.event_timer_ms,
+            inhibit_time_100us=base.inhibit_time_100us,
+            sync_start=base.sync_start,
+            description=base.description,
+        )
+    try:
+        return Pdo.model_validate(fields)
+    except ValueError as exc:
+        raise PdoMappingError(f"{kind.upper()}{number}: {exc}") from None
 
 
 def pdo_from_eds(p: EdsPdo) -> Pdo:
@@ -249,7 +267,9 @@ def parse_mapping_entry(text: str, od: Any, where: str) -> PdoEntry:
     known = object_bits(od, obj)
     if known is None:
         if obj.index < 0x1000:
-            raise PdoMappingError(f"{where}: {obj} is not a dummy data type (0x0001..0x0007 and the like)")
+            raise PdoMappingError(
+                f"{where}: {obj} is not a dummy data type (0x0001..0x0007 and the like)"
+            )
         if bits is None:
             raise PdoMappingError(
                 f"{where}: {obj} is not in the EDS or has no fixed size; give 'index:sub/bits'"
@@ -276,12 +296,15 @@ def pdo_setting(
     base = current if current is not None else (pdo_from_eds(eds_pdo) if eds_pdo else None)
     if setting.mapping is not None:
         mapping = [
-            parse_mapping_entry(m, od, f"{where}.mapping[{i}]") for i, m in enumerate(setting.mapping)
+            parse_mapping_entry(m, od, f"{where}.mapping[{i}]")
+            for i, m in enumerate(setting.mapping)
         ]
     elif base is not None:
         mapping = list(base.mapping)
     else:
-        raise PdoMappingError(f"{where}: {kind.upper()}{number} is not in the EDS; give its mapping")
+        raise PdoMappingError(
+            f"{where}: {kind.upper()}{number} is not in the EDS; give its mapping"
+        )
     if setting.cob_id is not None:
         cob = setting.cob_id
     elif eds_pdo is not None and (eds_pdo.cob_id & COB_ID_MASK_11BIT):
@@ -297,7 +320,9 @@ def pdo_setting(
     if setting.inhibit_ms is not None:
         inhibit = round(setting.inhibit_ms * 10)
         if abs(inhibit - setting.inhibit_ms * 10) > 1e-9:
-            raise PdoMappingError(f"{where}.inhibit_ms: {setting.inhibit_ms} is not a multiple of 0.1 ms")
+            raise PdoMappingError(
+                f"{where}.inhibit_ms: {setting.inhibit_ms} is not a multiple of 0.1 ms"
+            )
     fields: dict[str, Any] = {
         "number": number,
         "cob_id": cob & COB_ID_MASK_11BIT,

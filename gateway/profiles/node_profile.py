@@ -47,7 +47,7 @@ from gateway.profiles.loader import (
     read_eds,
     with_eds,
 )
-from gateway.profiles.schema import Profile, Signal
+from gateway.profiles.schema import Pdo, Profile, Signal
 
 
 class NodeLike(Protocol):
@@ -119,6 +119,29 @@ def _load_node(key: str, node: NodeLike, base_dir: Path | None) -> LoadedProfile
 
 
 def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+    """The node's profile on its EDS, its PDO layout as the node's settings leave it, the
+    signals that layout maps, the layout's warnings and the staleness of an unsupervised node."""
+    base = _base_profile(node, base_dir)
+    prof = base.profile
+    tpdos, rpdos, lay, explicit = _layout(node, base)
+    if node.configure:
+        tpdos, rpdos = _apply_node_settings(node, base, tpdos, rpdos)
+    signals = _signals(base, tpdos, rpdos, explicit)
+    warnings: list[str] = []
+    for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
+        for p in pdos:
+            if p.origin == "eds":  # a layout of the profile or the config is checked with its key
+                warnings += lay.warnings.get((kind, p.number), [])
+    update: dict[str, Any] = {"signals": signals}
+    if prof.pdo_variants is None:
+        update.update(tpdos=tpdos, rpdos=rpdos)
+    stale_ms, notes = _unsupervised_notes(node, base, tpdos)
+    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, base.od,
+                         tuple(warnings), stale_ms, tuple(notes))  # fmt: skip
+
+
+def _base_profile(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+    """The named profile on its (or the node's) EDS, else a bare profile made of the EDS."""
     if node.profile:
         base = load_profile(node.profile, base_dir)
         if node.eds:
@@ -128,22 +151,25 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
         elif base.profile.eds is None:
             raise ProfileError(f"{base.path}: names no eds; give the node's eds")
         # a DCF carries the values the device holds: read its ParameterValues
-    else:
-        if not node.eds:
-            raise ProfileError("a node needs a profile, an eds, or both")
-        eds_path = resolve_eds_path(node.eds, base_dir)
-        eds = read_eds(eds_path)
-        profile = Profile(
-            family=slug(eds_path.stem) or "device",
-            title=eds.product_name,
-            eds=eds_path.name,
-            signals=[],
-            boot=device_supervision(eds.od),
-        )
-        base = with_eds(profile, eds_path, eds_path, eds.od)
+        return base
+    if not node.eds:
+        raise ProfileError("a node needs a profile, an eds, or both")
+    eds_path = resolve_eds_path(node.eds, base_dir)
+    eds = read_eds(eds_path)
+    profile = Profile(
+        family=slug(eds_path.stem) or "device",
+        title=eds.product_name,
+        eds=eds_path.name,
+        signals=[],
+        boot=device_supervision(eds.od),
+    )
+    return with_eds(profile, eds_path, eds_path, eds.od)
+
+
+def _layout(node: NodeLike, base: LoadedProfile) -> tuple[list[Pdo], list[Pdo], EdsLayout, bool]:
+    """The PDOs before the node's settings: the profile's layout (``explicit``) or the EDS's;
+    an EDS PDO the gateway cannot decode raises unless the node's settings name it."""
     prof = base.profile
-    od = base.od
-    node_id = node.node_id
     explicit = bool(prof.tpdos or prof.rpdos or prof.pdo_variants)
     if explicit:
         variant = node.pdo_variant
@@ -152,46 +178,65 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
         tpdos, rpdos = prof.layout(variant)
         lay = EdsLayout([], [], {}, {})
     else:
-        lay = eds_layout(od, node_id, base.eds_path)
+        lay = eds_layout(base.od, node.node_id, base.eds_path)
         tpdos, rpdos = lay.tpdos, lay.rpdos
     for (kind, number), why in lay.refused.items():
         if number not in ((node.tpdo if kind == "tpdo" else node.rpdo) or {}):
             raise ProfileError(why)  # unless the node's tpdo:/rpdo: settings remap or disable it
-    if node.configure:
-        if (node.tpdo or node.rpdo) and prof.pdo_variants is not None:
-            raise ProfileError(
-                f"profile {prof.family} chooses its PDO layout by {prof.pdo_variants.selector} "
-                "(pdo_variant); tpdo:/rpdo: cannot remap it"
-            )
-        for kind, settings in (("tpdo", node.tpdo), ("rpdo", node.rpdo)):
-            try:
-                remapped = apply_settings(kind, tpdos if kind == "tpdo" else rpdos, settings or {},  # type: ignore[arg-type]
-                                     eds_pdos(od, node_id, kind), od, node_id, kind)  # type: ignore[arg-type]  # fmt: skip
-            except PdoMappingError as exc:
-                head, _, rest = str(exc).partition(": ")
-                raise ProfileError(rest or str(exc), key=head) from None
-            if kind == "tpdo":
-                tpdos = remapped
-            else:
-                rpdos = remapped
+    return tpdos, rpdos, lay, explicit
+
+
+def _apply_node_settings(
+    node: NodeLike, base: LoadedProfile, tpdos: list[Pdo], rpdos: list[Pdo]
+) -> tuple[list[Pdo], list[Pdo]]:
+    """The node's ``tpdo:``/``rpdo:`` settings, then the PDO objects its and the profile's
+    ``sdo`` writes set, applied to the layout."""
+    prof, od, node_id = base.profile, base.od, node.node_id
+    if (node.tpdo or node.rpdo) and prof.pdo_variants is not None:
+        raise ProfileError(
+            f"profile {prof.family} chooses its PDO layout by {prof.pdo_variants.selector} "
+            "(pdo_variant); tpdo:/rpdo: cannot remap it"
+        )
+    for kind, settings in (("tpdo", node.tpdo), ("rpdo", node.rpdo)):
         try:
-            writes = [
-                (ObjRef.parse(w.object), w.value)
-                for w in [*prof.boot.sdo, *node.sdo]
-                if is_pdo_object(ObjRef.parse(w.object))
-            ]
-            if writes:
-                tpdos = apply_pdo_writes(prof, "tpdo", tpdos, node_id, writes)
-                rpdos = apply_pdo_writes(prof, "rpdo", rpdos, node_id, writes)
+            remapped = apply_settings(kind, tpdos if kind == "tpdo" else rpdos, settings or {},  # type: ignore[arg-type]
+                                 eds_pdos(od, node_id, kind), od, node_id, kind)  # type: ignore[arg-type]  # fmt: skip
         except PdoMappingError as exc:
-            raise ProfileError(str(exc), key="") from None
+            head, _, rest = str(exc).partition(": ")
+            raise ProfileError(rest or str(exc), key=head) from None
+        if kind == "tpdo":
+            tpdos = remapped
+        else:
+            rpdos = remapped
+    try:
+        writes = [
+            (ObjRef.parse(w.object), w.value)
+            for w in [*prof.boot.sdo, *node.sdo]
+            if is_pdo_object(ObjRef.parse(w.object))
+        ]
+        if writes:
+            tpdos = apply_pdo_writes(prof, "tpdo", tpdos, node_id, writes)
+            rpdos = apply_pdo_writes(prof, "rpdo", rpdos, node_id, writes)
+    except PdoMappingError as exc:
+        raise ProfileError(str(exc), key="") from None
+    return tpdos, rpdos
+
+
+def _signals(
+    base: LoadedProfile, tpdos: list[Pdo], rpdos: list[Pdo], explicit: bool
+) -> list[Signal]:
+    """The profile's signals (an SDO signal the node's layout maps becomes a PDO one), then one
+    signal per object the layout maps that no signal names (not for the profile's own layout)."""
+    prof = base.profile
     own_t, own_r = layout_objects(prof)
     t_objs = {e.object for p in tpdos for e in p.mapping if e.object.index >= 0x1000}
     r_objs = {e.object for p in rpdos for e in p.mapping if e.object.index >= 0x1000}
     signals: list[Signal] = []
     for s in prof.signals:
-        if s.transport == "sdo" and (s.object in t_objs or s.object in r_objs) and not (
-            s.object in own_t or s.object in own_r
+        if (
+            s.transport == "sdo"
+            and (s.object in t_objs or s.object in r_objs)
+            and not (s.object in own_t or s.object in own_r)
         ):
             # mapped by the node's configuration (e.g. MSK5000 5122h:01 by the 4.3.1.2 remap)
             s = s.model_copy(update={"transport": "pdo"})
@@ -204,53 +249,62 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
         for e in p.mapping:
             if e.object.index >= 0x1000 and e.object not in named and e.object not in new:
                 new.append(e.object)
-    warnings: list[str] = []
-    for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
-        for p in pdos:
-            if p.origin == "eds":  # a layout of the profile or the config is checked with its key
-                warnings += lay.warnings.get((kind, p.number), [])
-    names = unique_names(od, new, {s.name for s in signals})
+    names = unique_names(base.od, new, {s.name for s in signals})
     for o in new:
-        var = base.od_var(o)
-        if var is None:
-            continue  # not in the EDS: reported by the check of the layout
-        typ = signal_type(var)
-        if typ is None:
-            continue  # REAL64, DOMAIN...: decoded at its offset and dropped (warned above)
-        widths = {e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o}
-        if var.data_type in FLOAT_TYPES and TYPE_BITS.get(var.data_type) not in widths:
-            continue  # a float mapped with another length has no value (warned above)
-        length = None
-        if typ in ("string", "bytes"):
-            bits = next(e.bits for p in [*tpdos, *rpdos] for e in p.mapping if e.object == o)
-            length = max(1, bits // 8)
-        signals.append(
-            Signal(
-                name=names[o],
-                object=o,
-                type=typ,  # type: ignore[arg-type]
-                access="rw" if o in r_objs else "ro",
-                transport="pdo",
-                length=length,
-                description=f"{object_name(od, o)} ({o})",
-            )
-        )
-    update: dict[str, Any] = {"signals": signals}
-    if prof.pdo_variants is None:
-        update.update(tpdos=tpdos, rpdos=rpdos)
-    stale_ms: int | None = None
-    notes: list[str] = []
-    if not node.profile and getattr(node, "supervision", None) is None and prof.boot.supervision == "none":
-        stale_ms = stale_after_from_event_timers(tpdos)
-        age = (
-            f"its values go stale {stale_ms} ms after their last TPDO "
-            f"({STALE_EVENT_TIMER_MULTIPLE} x the longest TPDO event timer)"
-            if stale_ms
-            else "no TPDO has an event timer, so its values never go stale by age"
-        )
-        notes.append(
-            f"{base.eds_path.name} has neither 1017h (heartbeat) nor 100Ch/100Dh (node guarding): "
-            f"a lost device cannot be detected otherwise; {age}"
-        )
-    return LoadedProfile(prof.model_copy(update=update), base.path, base.eds_path, od, tuple(warnings),
-                         stale_ms, tuple(notes))  # fmt: skip
+        signal = _mapped_signal(base, o, names[o], [*tpdos, *rpdos], o in r_objs)
+        if signal is not None:
+            signals.append(signal)
+    return signals
+
+
+def _mapped_signal(
+    base: LoadedProfile, o: ObjRef, name: str, pdos: list[Pdo], writable: bool
+) -> Signal | None:
+    """The signal of an object a PDO maps and no signal names; None when it has no value."""
+    var = base.od_var(o)
+    if var is None:
+        return None  # not in the EDS: reported by the check of the layout
+    typ = signal_type(var)
+    if typ is None:
+        return None  # REAL64, DOMAIN...: decoded at its offset and dropped (warned above)
+    widths = {e.bits for p in pdos for e in p.mapping if e.object == o}
+    if var.data_type in FLOAT_TYPES and TYPE_BITS.get(var.data_type) not in widths:
+        return None  # a float mapped with another length has no value (warned above)
+    length = None
+    if typ in ("string", "bytes"):
+        bits = next(e.bits for p in pdos for e in p.mapping if e.object == o)
+        length = max(1, bits // 8)
+    return Signal(
+        name=name,
+        object=o,
+        type=typ,  # type: ignore[arg-type]
+        access="rw" if writable else "ro",
+        transport="pdo",
+        length=length,
+        description=f"{object_name(base.od, o)} ({o})",
+    )
+
+
+def _unsupervised_notes(
+    node: NodeLike, base: LoadedProfile, tpdos: list[Pdo]
+) -> tuple[int | None, list[str]]:
+    """For an EDS-only node without heartbeat or guarding: the derived ``stale_after_ms`` and
+    the note that says so."""
+    prof = base.profile
+    if (
+        node.profile
+        or getattr(node, "supervision", None) is not None
+        or prof.boot.supervision != "none"
+    ):
+        return None, []
+    stale_ms = stale_after_from_event_timers(tpdos)
+    age = (
+        f"its values go stale {stale_ms} ms after their last TPDO "
+        f"({STALE_EVENT_TIMER_MULTIPLE} x the longest TPDO event timer)"
+        if stale_ms
+        else "no TPDO has an event timer, so its values never go stale by age"
+    )
+    return stale_ms, [
+        f"{base.eds_path.name} has neither 1017h (heartbeat) nor 100Ch/100Dh (node guarding): "
+        f"a lost device cannot be detected otherwise; {age}"
+    ]

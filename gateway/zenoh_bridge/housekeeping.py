@@ -1,26 +1,50 @@
 """The Zenoh bridge's housekeeping on the event loop: held-back samples whose time has come
 (``max_rate_hz``) and quality changes that no frame announces (stale by age), per node every
 period (``HOUSEKEEPING_PERIOD_S``, shorter when a maximum rate needs it), and per node when its
-health changes. Publication itself is the bridge's (``offer``, ``offer_pdo``, under each
+health changes. Publication itself is the host's (``offer``, ``offer_pdo``, under each
 publication's lock).
 
-Imports: image, zenoh_bridge.bridge (types only). Never zenoh, modbus/ nor bus/.
+Imports: image; zenoh_bridge.plan for types only (its host is the ``HousekeepingHost``
+Protocol, not the bridge). Never zenoh, modbus/ nor bus/.
 """
 
 from __future__ import annotations
 
 import asyncio
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 from gateway.image import NodeImage
 
 if TYPE_CHECKING:
-    from gateway.zenoh_bridge.bridge import ZenohBridge
+    from gateway.image import ProcessImage
+    from gateway.zenoh_bridge.plan import PdoPub, SignalPub
 
 HOUSEKEEPING_PERIOD_S = 0.1
 
 
-def refresh(bridge: ZenohBridge, node: NodeImage, now: float) -> None:
+class HousekeepingHost(Protocol):
+    """What the housekeeping needs of its host (``ZenohBridge``): the nodes, the planned
+    publications by node, whether a session is open, the clock, and the two publications."""
+
+    @property
+    def image(self) -> ProcessImage: ...
+    @property
+    def pubs(self) -> Mapping[Any, SignalPub]: ...
+    @property
+    def by_node(self) -> Mapping[str, Sequence[SignalPub]]: ...
+    @property
+    def pdo_by_node(self) -> Mapping[str, Sequence[PdoPub]]: ...
+    @property
+    def session(self) -> object | None: ...
+    @property
+    def clock(self) -> Callable[[], float]: ...
+
+    def offer(self, node: NodeImage, sp: SignalPub, now: float) -> None: ...
+    def offer_pdo(self, node: NodeImage, pp: PdoPub, now: float, again: bool = False) -> None: ...
+
+
+def refresh(bridge: HousekeepingHost, node: NodeImage, now: float) -> None:
     """Held-back samples whose time has come, and quality changes without a new frame."""
     for pp in bridge.pdo_by_node.get(node.name, ()):
         if pp.last_seq:
@@ -38,7 +62,7 @@ def refresh(bridge: ZenohBridge, node: NodeImage, now: float) -> None:
             bridge.offer(node, sp, now)
 
 
-async def housekeeping_loop(bridge: ZenohBridge) -> None:
+async def housekeeping_loop(bridge: HousekeepingHost) -> None:
     """Refresh every node each period while a session is open (event loop, until cancelled)."""
     period = HOUSEKEEPING_PERIOD_S
     rates = [sp.policy.min_interval_s for sp in bridge.pubs.values() if sp.policy.min_interval_s]

@@ -3,11 +3,12 @@
 duplicate-prefix check (``PrefixInUse``), the background re-open in client mode, the
 declarations of publishers, tokens and queryable once a session is open, and the stop. It
 holds the session, the event and raw-PDO publishers, the liveliness tokens and its tasks (the
-re-open, the housekeeping); it reads the bridge's public attributes only (what to publish, the
-pair's state) and calls its public hooks (``attach``, ``detach``, ``on_pdo``,
-``housekeeping``, ``node_alive``). None of it runs per frame.
+re-open, the housekeeping); it knows its host by ``SessionHost``, a Protocol of what it reads
+(what to publish, the pair's state) and of the hooks it calls (``attach``, ``detach``,
+``on_pdo``, ``on_heard``, ``housekeeping``, ``node_alive``). None of it runs per frame.
 
-Imports: zenoh, config, northbound.keys, zenoh_bridge.pair, zenoh_bridge.bridge (types only).
+Imports: zenoh, config, northbound.keys, zenoh_bridge.pair; commands, image, zenoh_bridge.plan
+and zenoh_bridge.queries for types only (its host is the ``SessionHost`` Protocol, not the bridge).
 Never modbus/ nor bus/.
 """
 
@@ -17,8 +18,8 @@ import asyncio
 import json
 import logging
 import time
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 import zenoh.ext
@@ -28,7 +29,10 @@ from gateway.northbound.keys import GATEWAY_TOKEN, alive_key, emcy_key, pdo_key,
 from gateway.zenoh_bridge.pair import active_key, member_key, refusal
 
 if TYPE_CHECKING:
-    from gateway.zenoh_bridge.bridge import ZenohBridge
+    from gateway.commands import NodeInfo
+    from gateway.image import NodeImage, ProcessImage
+    from gateway.zenoh_bridge.plan import PdoPub, SignalPub
+    from gateway.zenoh_bridge.queries import QueryService
 
 log = logging.getLogger("gateway.zenoh")
 
@@ -58,6 +62,42 @@ DUPLICATE_CHECK_TIMEOUT_S = 2.0
 #: alone, this far apart
 DUPLICATE_CHECK_ATTEMPTS = 3
 DUPLICATE_CHECK_PAUSE_S = 0.15
+
+
+class _Nodes(Protocol):
+    def node(self, name: str) -> NodeInfo: ...
+
+
+class SessionHost(Protocol):
+    """What the session needs of its host (``ZenohBridge``): what to declare (the planned
+    publications, the nodes, the queries' service), the pair's state, and the hooks it calls
+    when the session starts and stops, a PDO passes or the other member is heard."""
+
+    @property
+    def cfg(self) -> Config: ...
+    @property
+    def prefix(self) -> str: ...
+    @property
+    def image(self) -> ProcessImage: ...
+    @property
+    def commands(self) -> _Nodes: ...  # the nodes' PDO COB-IDs (raw PDOs)
+    @property
+    def pubs(self) -> Mapping[Any, SignalPub]: ...
+    @property
+    def pdo_pubs(self) -> Mapping[Any, PdoPub]: ...
+    @property
+    def queries(self) -> QueryService: ...
+    @property
+    def member(self) -> tuple[int, int] | None: ...
+    @property
+    def publishing(self) -> bool: ...
+
+    def attach(self) -> None: ...
+    async def detach(self) -> None: ...
+    async def housekeeping(self) -> None: ...
+    def node_alive(self, node: NodeImage) -> bool: ...
+    def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None: ...
+    def on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None: ...
 
 
 class PrefixInUse(RuntimeError):
@@ -115,7 +155,7 @@ class ZenohSession:
     """The session of one bridge, from open to stop (event loop; ``other_gateway`` on a worker
     thread). ``clock`` and ``sleep`` are injectable (retries, waits)."""
 
-    def __init__(self, bridge: ZenohBridge, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, bridge: SessionHost, clock: Callable[[], float] = time.monotonic) -> None:
         self.bridge = bridge
         self.cfg = bridge.cfg
         self.prefix = bridge.prefix
@@ -281,7 +321,9 @@ class ZenohSession:
             key,
             encoding=JSON,
             cache=zenoh.ext.CacheConfig(cache),
-            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=hb_ms / 1000.0, sporadic_heartbeat=None)
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(
+                heartbeat=hb_ms / 1000.0, sporadic_heartbeat=None
+            )
             if hb_ms
             else None,
             publisher_detection=True,
