@@ -21,7 +21,7 @@ class SdoAbort(GatewayError):
     kind = "sdo_abort"
 
     def __init__(self, code: int, node: str | None = None, obj: str | None = None):
-        from gateway.cia301 import abort_text
+        from gateway.canopen.cia301 import abort_text
 
         self.code = code
         self.text = abort_text(code)

@@ -44,7 +44,7 @@ register map, the COB-IDs of the nodes (bus/cob_ids.py), a device file's COB-IDs
 (eds/cob_ids.py), journal (the path check) (no I/O but reading the files they name and the
 journal's directory).
 
-Imports: config, checks.pair, cia301, objref, bus.cob_ids, device (boot_steps, resolved,
+Imports: config, checks.pair, canopen.cia301, canopen.objref, bus.cob_ids, device (boot_steps, resolved,
 settings), eds (parse, pdos, cob_ids), profiles (layout, schema), modbus.safe_outputs (its
 rule only), northbound.regmap, journal.
 """
@@ -57,8 +57,9 @@ from pathlib import Path
 from typing import Any
 
 from gateway.bus.cob_ids import clashes, gateway_uses, loops_back
+from gateway.canopen.cia301 import TYPE_BITS, TYPE_NAMES
+from gateway.canopen.objref import ObjRef
 from gateway.checks.pair import pair_problems, takeover_warnings
-from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.device.boot_steps import ConfigStep
 from gateway.device.resolved import Resolved, ResolvedNode, load_resolved, parse_resolved
@@ -70,7 +71,6 @@ from gateway.eds.pdos import eds_pdos, od_var, readable
 from gateway.journal import path_problem
 from gateway.modbus.safe_outputs import safe_output_problems
 from gateway.northbound.regmap import RegisterMapError, build_register_map
-from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS

@@ -29,8 +29,8 @@ Every write and command is audited (``commands.audit``: who, what, outcome) when
 the service an ``audit`` sink.
 
 Imports: bus.master (the operations), bus.node.parts (the nodes), device.values (value
-codecs), commands.audit, commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
-profiles, cia301. Never modbus/ or zenoh_bridge/.
+codecs), commands.audit, commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, canopen.objref,
+profiles, canopen.cia301. Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ from typing import Any
 
 from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
-from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
+from gateway.canopen.cia301 import NMT_COMMANDS, TYPE_NAMES
+from gateway.canopen.objref import ObjRef
 from gateway.commands import bus_tools
 from gateway.commands.audit import WHO, AuditSink, acting_as, audited
 from gateway.commands.sdo_cache import SdoValueCache
@@ -65,7 +66,6 @@ from gateway.errors import (
     ValueOutOfRange,
 )
 from gateway.image import NodeImage, SentOutputs, SignalValue
-from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import TextSignal, text_signals
 from gateway.profiles.schema import TYPE_BITS, Signal

@@ -16,9 +16,9 @@ from gateway.bus.node.lifecycle import Configured, LifecycleState, NodeLifecycle
 from gateway.bus.node.lifecycle_report import Report, lifecycle_reports
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
+from gateway.canopen.objref import ObjRef
 from gateway.device.boot_steps import ConfigStep
 from gateway.image import NodeHealth
-from gateway.objref import ObjRef
 from gateway.pdo.verify import MappingRead
 
 GATEWAY = Path(__file__).resolve().parents[2] / "gateway"

@@ -7,7 +7,7 @@ than the expected one as an error (DS-301), so the expectation must follow the n
 node being configured after its boot-up answers PRE-OPERATIONAL, which is right, not a fault.
 
 Imports: bus.error_control.supervision, bus.node.lifecycle (its states), device.settings,
-states. No I/O, no clock.
+canopen.states. No I/O, no clock.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from gateway.bus.error_control.supervision import (
     WrongState,
 )
 from gateway.bus.node.lifecycle import LifecycleState
+from gateway.canopen.states import REPORTED_STATES, NmtState
 from gateway.device.settings import NodeSettings
-from gateway.states import REPORTED_STATES, NmtState
 
 #: What a node-guarding answer must report in each lifecycle state. None = any valid state.
 GUARD_EXPECTS: dict[LifecycleState, NmtState | None] = {

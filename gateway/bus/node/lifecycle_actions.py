@@ -1,7 +1,7 @@
 """What the lifecycle of a node speaks in (``bus/node/lifecycle.py``): its states, the
 actions it asks the driver for, and the changes it reports. Plain values, no behaviour.
 
-Imports: gateway.device.boot_steps (the step type), gateway.cia301, gateway.objref and the
+Imports: gateway.device.boot_steps (the step type), gateway.canopen.cia301, gateway.canopen.objref and the
 standard library.
 """
 
@@ -11,9 +11,9 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal, NamedTuple
 
-from gateway.cia301 import SDO_ABORT_NO_OBJECT, SDO_ABORT_NO_SUBINDEX
+from gateway.canopen.cia301 import SDO_ABORT_NO_OBJECT, SDO_ABORT_NO_SUBINDEX
+from gateway.canopen.objref import ObjRef
 from gateway.device.boot_steps import ConfigStep
-from gateway.objref import ObjRef
 
 
 class LifecycleState(StrEnum):

@@ -22,7 +22,7 @@ What the node does with it (its diagnostics, an adoption) is done by the functio
 which ``Node`` calls.
 
 Imports: bus.node.lifecycle_actions (its states), bus.node.events, bus.node.node (the type
-only), states. No I/O, no clock.
+only), canopen.states. No I/O, no clock.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 from gateway.bus.node.events import HealthChanged, Output
 from gateway.bus.node.lifecycle_actions import LifecycleState
-from gateway.states import NmtState
+from gateway.canopen.states import NmtState
 
 if TYPE_CHECKING:
     from gateway.bus.node.node import Node

@@ -33,7 +33,7 @@ right after NMT start (RTR where the PDO allows it, else one SDO upload per mapp
 
 Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, events, features,
 sdo_done), device.* (boot_steps, settings), bus.sdo.* (channel, client), bus.error_control.* (node_supervision,
-guarding bit), bus.emcy, pdo.codec, pdo.verify, cia301, errors, image, states, objref, logging
+guarding bit), bus.emcy (the history), canopen.emcy (the decoding), pdo.codec, pdo.verify, canopen.cia301, errors, image, canopen.states, canopen.objref, logging
 (levels of the log lines it returns). Never python-can, asyncio or a northbound module.
 """
 
@@ -43,7 +43,7 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from gateway.bus.emcy import EmcyHistory, decode_emcy
+from gateway.bus.emcy import EmcyHistory
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.error_control.node_supervision import NodeSupervision
 from gateway.bus.node import listening
@@ -67,15 +67,16 @@ from gateway.bus.node.outputs import OutputImage
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
 from gateway.bus.sdo.client import SdoTransfer
-from gateway.cia301 import COB_NMT, COB_NMT_EC
+from gateway.canopen.cia301 import COB_NMT, COB_NMT_EC
+from gateway.canopen.emcy import decode_emcy
+from gateway.canopen.objref import ObjRef
+from gateway.canopen.states import LinkState, NmtState
 from gateway.device.boot_steps import ConfigStep
 from gateway.device.settings import NodeSettings
 from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth, NodeImage
-from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
 from gateway.pdo.verify import MappingMismatch
-from gateway.states import LinkState, NmtState
 
 OBJ_DEVICE_TYPE = ObjRef(0x1000, 0x00)
 

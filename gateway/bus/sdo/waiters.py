@@ -3,7 +3,7 @@
 
 Owned by the master, used on the event loop only.
 
-Imports: bus.node.events (SdoDone), errors, objref, asyncio.
+Imports: bus.node.events (SdoDone), errors, canopen.objref, asyncio.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from __future__ import annotations
 import asyncio
 
 from gateway.bus.node.events import SdoDone
+from gateway.canopen.objref import ObjRef
 from gateway.errors import GatewayError, SdoAbort, SdoTimeout
-from gateway.objref import ObjRef
 
 
 class SdoWaiters:
