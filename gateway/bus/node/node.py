@@ -31,10 +31,9 @@ of the node (``health.fresh_since = None``); values are good again only when rec
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
-Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, events, features,
-sdo_done), device.* (boot_steps, settings), bus.sdo.* (channel, client), bus.error_control.* (node_supervision,
-guarding bit), bus.emcy (the history), canopen.emcy (the decoding), pdo.codec, pdo.verify, canopen.cia301, errors, image, canopen.states, canopen.objref, logging
-(levels of the log lines it returns). Never python-can, asyncio or a northbound module.
+Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, events, features, sdo_done),
+device.* (boot_steps, settings), bus.sdo.*, bus.error_control.*, bus.emcy (the history), pdo.codec,
+pdo.verify, canopen.* (cia301, emcy, states, objref), errors, image, logging (log levels). Never python-can, asyncio or a northbound module.
 """
 
 from __future__ import annotations
