@@ -3,7 +3,7 @@
 Each carries the words a user needs; adapters translate them into their protocol's error
 (Modbus exception code, Zenoh reply_err). Imports only the SDO abort text table.
 
-Imports: cia301 (the abort texts).
+Imports: canopen.cia301 (the abort texts).
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ up for more than one line's work; when too many clients wait for a turn, the lin
 ``ERROR:102`` (request not processed due to internal state) and the client may send it again.
 
 Imports: asyncio, commands, config, errors, image, canopen.objref, ascii.protocol, ascii.grammar,
-ascii.values, ratelimit, turns. Never modbus/,
+ascii.values, runtime.ratelimit, runtime.turns. Never modbus/,
 zenoh_bridge/, web/ or bus/.
 """
 
@@ -52,8 +52,8 @@ from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import NodeImage, ProcessImage
-from gateway.ratelimit import RateLimitedLog
-from gateway.turns import LoopTurns
+from gateway.runtime.ratelimit import RateLimitedLog
+from gateway.runtime.turns import LoopTurns
 
 log = logging.getLogger("gateway.ascii")
 

@@ -19,7 +19,7 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
   decides whether this gateway masters the bus; while it does not (``mastering`` False) the
   nodes only listen (``Node.stand_by``) and every frame a node would send is dropped here.
 
-Imports: bus.* (bus.pair.member: a pair), device.resolved, pdo.codec, canopen.cia301, image, errors, config, canopen.objref, ratelimit, python-can.
+Imports: bus.* (bus.pair.member: a pair), device.resolved, pdo.codec, canopen.cia301, image, errors, config, canopen.objref, runtime.ratelimit, python-can.
 Nothing northbound.
 """
 
@@ -67,7 +67,7 @@ from gateway.device.resolved import ResolvedNode
 from gateway.errors import BusDown, NodeNotOperational, NotActive, SdoAbort
 from gateway.image import ProcessImage
 from gateway.pdo.codec import TpdoCodec
-from gateway.ratelimit import RateLimitedLog
+from gateway.runtime.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.master")
 

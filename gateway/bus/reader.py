@@ -18,7 +18,7 @@ run on the reader thread for every frame of their COB-ID:
 driver's bus clock of a frame.
 
 Imports: canopen.connection_set (COB-ID words), bus.node.parts (types), canopen.cia301, pdo.codec (types), image
-(types), ratelimit (types), python-can (types) and the standard library.
+(types), runtime.ratelimit (types), python-can (types) and the standard library.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from gateway.canopen.cia301 import COB_LSS_MASTER, COB_SYNC
 from gateway.canopen.connection_set import describe_cob_id, talking_node_id
 from gateway.image import ProcessImage
 from gateway.pdo.codec import TpdoCodec
-from gateway.ratelimit import RateLimitedLog
+from gateway.runtime.ratelimit import RateLimitedLog
 
 Handler = Callable[[can.Message], None]
 Post = Callable[..., None]

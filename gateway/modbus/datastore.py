@@ -8,7 +8,7 @@ the refusal of a pair's standby and the write timeout), Read Device Identificati
 boot). ``ImageDatastore`` holds the three and the request counters the server keeps.
 
 Imports: commands, config, image, modbus.device_identity, modbus.identity, modbus.protocol,
-modbus.reads, modbus.watchdog, modbus.writes, northbound.regmap, ratelimit.
+modbus.reads, modbus.watchdog, modbus.writes, northbound.regmap, runtime.ratelimit.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ from gateway.modbus.reads import ImageReads
 from gateway.modbus.watchdog import OutputWatchdog
 from gateway.modbus.writes import ImageWrites
 from gateway.northbound.regmap import RegisterMap, Table
-from gateway.ratelimit import RateLimitedLog
+from gateway.runtime.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.modbus")
 

@@ -4,7 +4,7 @@ while the gateway does not master the bus of its hot-standby pair (``NotActive``
 the write timeout (``modbus.write_timeout_s``). A write is answered when the RPDO was queued
 or the device confirmed the SDO.
 
-Imports: config, errors, modbus.protocol, modbus.reads, northbound.regmap, ratelimit,
+Imports: config, errors, modbus.protocol, modbus.reads, northbound.regmap, runtime.ratelimit,
 canopen.states.
 """
 
@@ -22,7 +22,7 @@ from gateway.errors import ValueOutOfRange
 from gateway.modbus.protocol import ExceptionCode, ModbusError, T, from_registers
 from gateway.modbus.reads import ImageReads
 from gateway.northbound.regmap import TABLE_NAMES, Point, Table
-from gateway.ratelimit import RateLimitedLog
+from gateway.runtime.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.modbus")
 
