@@ -38,8 +38,8 @@ from gateway.bus.bus_peers import (
     BusPeers,
 )
 from gateway.bus.driver import BusDriver
+from gateway.bus.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.lss.service import LssService
-from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.parts import NodeParts, build_node_into
 from gateway.bus.pair.member import PairMember
 from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide

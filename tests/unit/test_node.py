@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.bus.node.events import Note, Send, ValuesRead
+from gateway.bus.events import Note, Send, ValuesRead
 from gateway.bus.node.parts import NodeParts, build_node
 from gateway.canopen.states import LinkState, NmtState
 from gateway.image import NodeImage, Quality, SignalValue

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
-from gateway.bus.node.events import Send
+from gateway.bus.events import Send
 from gateway.bus.node.lifecycle import (
     TRANSITIONS,
     LifecycleEvent,

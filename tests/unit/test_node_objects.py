@@ -10,7 +10,7 @@ import logging
 from pathlib import Path
 from types import SimpleNamespace
 
-from gateway.bus.node.events import Note
+from gateway.bus.events import Note
 from gateway.bus.node.features.verify_mapping import VerifyMapping
 from gateway.bus.node.lifecycle import Configured, LifecycleState, NodeLifecycle, StepFailed
 from gateway.bus.node.lifecycle_report import Report, lifecycle_reports
