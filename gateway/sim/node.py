@@ -57,7 +57,7 @@ from gateway.canopen.objref import ObjRef
 from gateway.canopen.states import NmtState
 from gateway.profiles import LoadedProfile, expected_identity
 from gateway.sim.auto_inputs import mapped_inputs
-from gateway.sim.cob_ids import emcy_cob, receive_map, sdo_tx_cob
+from gateway.sim.device_cob_ids import emcy_cob, receive_map, sdo_tx_cob
 from gateway.sim.device_faults import DeviceFaults
 from gateway.sim.emcy import EmcyProducer
 from gateway.sim.error_control import ErrorControl
@@ -485,7 +485,7 @@ class SimNode:
             b.on_rpdo(number, data, now)
 
     # ======================================================================================
-    # COB-ID dispatch (cob_ids.py)
+    # COB-ID dispatch (device_cob_ids.py)
     # ======================================================================================
     def listening(self) -> frozenset[int] | None:
         """The 11-bit COB-IDs of the frames ``handle`` acts on: NMT, its guarding RTR, SYNC,

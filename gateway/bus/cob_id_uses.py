@@ -45,7 +45,7 @@ from gateway.canopen.objref import ObjRef
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 from gateway.eds import EdsError, load_eds
-from gateway.eds.cob_ids import file_cob_ids
+from gateway.eds.file_cob_ids import file_cob_ids
 from gateway.profiles.layout import pdo_objects
 
 MASTER = "the master"
