@@ -7,8 +7,8 @@ Modbus, Zenoh, the web console and the simulator. The only module that knows eve
 parts do not know each other except through the image and the command service.
 
 Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, commands, config, device.resolved,
-health, image, metrics, modbus.server, northbound (frames, regmap, summary), profiles.derived,
-sim (faults, motion, node, runner), startup, threads, turns, journal, web (console, views), zenoh_bridge.bridge.
+http.server, http.metrics, image, modbus.server, northbound (frames, regmap, summary), profiles.derived,
+sim (faults, motion, node, runner), runtime (startup, threads, turns), journal, web (console, views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
@@ -30,19 +30,19 @@ from gateway.checks import check_config, journal_path
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
 from gateway.device.resolved import ResolvedNode
-from gateway.health import pair_status
+from gateway.http.metrics import modbus_function_label
+from gateway.http.server import pair_status
 from gateway.image import ProcessImage
 from gateway.journal import Entry, Journal, ntp64_of_time
-from gateway.metrics import modbus_function_label
 from gateway.modbus.server import ModbusGateway
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.keys import audit_key, prefix_of
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
 from gateway.profiles.derived import text_rows_as_signals
-from gateway.startup import StartupError, listeners_of, ports_in_use, startup_step
-from gateway.threads import ThreadRegistry
-from gateway.turns import LoopTurns
+from gateway.runtime.startup import StartupError, listeners_of, ports_in_use, startup_step
+from gateway.runtime.threads import ThreadRegistry
+from gateway.runtime.turns import LoopTurns
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
 log = logging.getLogger("gateway")
@@ -437,8 +437,8 @@ class Gateway:
             raise
 
     async def _start_health(self) -> None:
-        from gateway.health import HealthServer
-        from gateway.metrics import Metrics, NodeSample
+        from gateway.http.metrics import Metrics, NodeSample
+        from gateway.http.server import HealthServer
 
         self.metrics = Metrics()
 

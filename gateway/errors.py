@@ -3,7 +3,7 @@
 Each carries the words a user needs; adapters translate them into their protocol's error
 (Modbus exception code, Zenoh reply_err). Imports only the SDO abort text table.
 
-Imports: cia301 (the abort texts).
+Imports: canopen.cia301 (the abort texts).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ class SdoAbort(GatewayError):
     kind = "sdo_abort"
 
     def __init__(self, code: int, node: str | None = None, obj: str | None = None):
-        from gateway.cia301 import abort_text
+        from gateway.canopen.cia301 import abort_text
 
         self.code = code
         self.text = abort_text(code)

@@ -5,7 +5,7 @@ its health (NMT state, supervision, guarding-bit link, last EMCY, data age). The
 here; Modbus and Zenoh read here and are told of changes through listeners. Values of one PDO are
 written together (one immutable record, one assignment), so a reader never sees half an update.
 
-Imports: gateway.states only; nothing of bus/, modbus/, zenoh_bridge/ (they import this).
+Imports: gateway.canopen.states only; nothing of bus/, modbus/, zenoh_bridge/ (they import this).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any, NamedTuple
 
-from gateway.states import LinkState, NmtState
+from gateway.canopen.states import LinkState, NmtState
 
 
 class Quality(IntEnum):

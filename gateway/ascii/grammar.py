@@ -3,7 +3,7 @@
 ``MAX_LINE_BYTES`` refused whole), the sequence number of a line, and its tokens (``tokenize``:
 ``#`` comments, quoted visible strings).
 
-Imports: gateway.code_text (the base of ``Iec``) and the standard library. Nothing of bus/,
+Imports: gateway.canopen.code_text (the base of ``Iec``) and the standard library. Nothing of bus/,
 commands or a transport.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from gateway.code_text import CodeText
+from gateway.canopen.code_text import CodeText
 
 #: a request line longer than this (without its line end) is refused with ERROR:101
 MAX_LINE_BYTES = 1024

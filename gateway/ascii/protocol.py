@@ -210,7 +210,7 @@ class Write(_NodeRequest):
 
 @dataclass(frozen=True)
 class Nmt(_NodeRequest):
-    command: str  # a key of gateway.states.NMT_COMMANDS
+    command: str  # a key of gateway.canopen.states.NMT_COMMANDS
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,8 @@ with the web console) before it is handled, so many ASCII clients never hold a M
 up for more than one line's work; when too many clients wait for a turn, the line is answered
 ``ERROR:102`` (request not processed due to internal state) and the client may send it again.
 
-Imports: asyncio, commands, config, errors, image, objref, ascii.protocol, ascii.grammar,
-ascii.values, ratelimit, turns. Never modbus/,
+Imports: asyncio, commands, config, errors, image, canopen.objref, ascii.protocol, ascii.grammar,
+ascii.values, runtime.ratelimit, runtime.turns. Never modbus/,
 zenoh_bridge/, web/ or bus/.
 """
 
@@ -46,14 +46,14 @@ from gateway.ascii.protocol import (
     answer_value,
 )
 from gateway.ascii.values import format_plain, format_value
+from gateway.canopen.objref import ObjRef
 from gateway.commands import CommandService
 from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import NodeImage, ProcessImage
-from gateway.objref import ObjRef
-from gateway.ratelimit import RateLimitedLog
-from gateway.turns import LoopTurns
+from gateway.runtime.ratelimit import RateLimitedLog
+from gateway.runtime.turns import LoopTurns
 
 log = logging.getLogger("gateway.ascii")
 

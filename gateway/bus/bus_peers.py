@@ -30,7 +30,8 @@ Sans-I/O: the master calls it on the event loop (one owner), with the time; it r
 text of a line to log or None, and keeps counts for /healthz, the web console and /metrics.
 COB-ID functions: CiA 301 7.3.3 (pre-defined connection set).
 
-Imports: gateway.cia301, gateway.states and the standard library only.
+Imports: gateway.canopen.cia301, gateway.canopen.connection_set, gateway.canopen.states and the
+standard library only.
 """
 
 from __future__ import annotations
@@ -40,58 +41,17 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from gateway.cia301 import COB_NMT, COB_NMT_EC, COB_SDO_RX, COB_SYNC
-from gateway.states import NMT_BY_CODE, NmtState
+from gateway.canopen.cia301 import COB_NMT, COB_NMT_EC, COB_SDO_RX, COB_SYNC
+from gateway.canopen.connection_set import describe_cob_id, talking_node_id
+from gateway.canopen.states import NMT_BY_CODE, NmtState
 
-# CiA 301 7.3.3, pre-defined connection set: function code (COB-ID bits 10..7) -> name
 NMT_COB_ID = COB_NMT
 SYNC_COB_ID = COB_SYNC
 SDO_REQUEST_BASE = COB_SDO_RX  # SDO client -> server (RSDO of the node)
 HEARTBEAT_BASE = COB_NMT_EC
-_FUNCTIONS = {
-    0x080: "EMCY",
-    0x180: "TPDO1",
-    0x200: "RPDO1",
-    0x280: "TPDO2",
-    0x300: "RPDO2",
-    0x380: "TPDO3",
-    0x400: "RPDO3",
-    0x480: "TPDO4",
-    0x500: "RPDO4",
-    0x580: "SDO answer",
-    0x600: "SDO request",
-    0x700: "heartbeat",
-}
-#: functions a node sends itself: its id is talking when we see them
-_SENT_BY_NODE = frozenset({0x080, 0x180, 0x280, 0x380, 0x480, 0x580, 0x700})
 #: our frames waiting for their echo, at most (the oldest goes first): an echo window (1 s) of
 #: NMT commands to every node one by one (127) and heartbeats every 10 ms (100) fits
 ECHO_PENDING_MAX = 256
-
-
-def describe_cob_id(cob_id: int) -> str:
-    """``TPDO1 of node id 1`` for 0x181; ``NMT``, ``SYNC``, ``LSS``; else ``COB-ID 0x7A0``."""
-    if cob_id == NMT_COB_ID:
-        return "NMT"
-    if cob_id == SYNC_COB_ID:
-        return "SYNC"
-    if cob_id == 0x100:
-        return "TIME"
-    if cob_id in (0x7E4, 0x7E5):
-        return "LSS"
-    base, node_id = cob_id & 0x780, cob_id & 0x7F
-    name = _FUNCTIONS.get(base)
-    if name is None or node_id == 0:
-        return f"COB-ID 0x{cob_id:03X}"
-    return f"{name} of node id {node_id}"
-
-
-def talking_node_id(cob_id: int) -> int | None:
-    """The node id that sent this frame, when its COB-ID is one a node sends itself."""
-    base, node_id = cob_id & 0x780, cob_id & 0x7F
-    if base in _SENT_BY_NODE and node_id:
-        return node_id
-    return None
 
 
 def _state_name(byte: int) -> str:

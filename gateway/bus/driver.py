@@ -41,13 +41,13 @@ other backends follow): class bits in the CAN-ID, controller status in data byte
 Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
 event loop sends is queued to it, so a blocking backend never blocks the loop; a frame refused
 because the interface's transmit queue is full, ENOBUFS, is sent again a few times, a few ms
-apart, before it is counted as a bus error). Both are supervised (``gateway.threads``); each
+apart, before it is counted as a bus error). Both are supervised (``gateway.runtime.threads``); each
 counts in its own counter set.
 
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), image (for counters), ratelimit, threads. Nothing northbound.
+Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), image (for counters), runtime.ratelimit, runtime.threads. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -65,8 +65,8 @@ import can
 
 from gateway.bus.can_backend import open_can_bus, quiet_imports
 from gateway.image import ProcessImage
-from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadRegistry
+from gateway.runtime.ratelimit import RateLimitedLog
+from gateway.runtime.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.bus")
 

@@ -19,7 +19,7 @@ It owns what the nodes must not: python-can (through ``BusDriver``), time and th
   decides whether this gateway masters the bus; while it does not (``mastering`` False) the
   nodes only listen (``Node.stand_by``) and every frame a node would send is dropped here.
 
-Imports: bus.* (bus.pair.member: a pair), device.resolved, pdo.codec, cia301, image, errors, config, objref, ratelimit, python-can.
+Imports: bus.* (bus.pair.member: a pair), device.resolved, pdo.codec, canopen.cia301, image, errors, config, canopen.objref, runtime.ratelimit, python-can.
 Nothing northbound.
 """
 
@@ -38,8 +38,8 @@ from gateway.bus.bus_peers import (
     BusPeers,
 )
 from gateway.bus.driver import BusDriver
+from gateway.bus.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.lss.service import LssService
-from gateway.bus.node.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.node.parts import NodeParts, build_node_into
 from gateway.bus.pair.member import PairMember
 from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide
@@ -51,7 +51,7 @@ from gateway.bus.reader import (
     unknown_handler,
 )
 from gateway.bus.sdo.waiters import SdoWaiters
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     COB_EMCY,
     COB_LSS_SLAVE,
     COB_NMT,
@@ -61,13 +61,13 @@ from gateway.cia301 import (
     COB_SYNC,
     NMT_COMMANDS,
 )
+from gateway.canopen.objref import ObjRef
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 from gateway.errors import BusDown, NodeNotOperational, NotActive, SdoAbort
 from gateway.image import ProcessImage
-from gateway.objref import ObjRef
 from gateway.pdo.codec import TpdoCodec
-from gateway.ratelimit import RateLimitedLog
+from gateway.runtime.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.master")
 

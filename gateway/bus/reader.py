@@ -17,8 +17,8 @@ run on the reader thread for every frame of their COB-ID:
 ``post`` is the master's one hand-off to the event loop (``Master._post``); ``frame_time`` its
 driver's bus clock of a frame.
 
-Imports: bus.bus_peers (COB-ID words), bus.node.parts (types), cia301, pdo.codec (types), image
-(types), ratelimit (types), python-can (types) and the standard library.
+Imports: canopen.connection_set (COB-ID words), bus.node.parts (types), canopen.cia301, pdo.codec (types), image
+(types), runtime.ratelimit (types), python-can (types) and the standard library.
 """
 
 from __future__ import annotations
@@ -29,12 +29,12 @@ from typing import Any
 
 import can
 
-from gateway.bus.bus_peers import describe_cob_id, talking_node_id
 from gateway.bus.node.parts import NodeParts
-from gateway.cia301 import COB_LSS_MASTER, COB_SYNC
+from gateway.canopen.cia301 import COB_LSS_MASTER, COB_SYNC
+from gateway.canopen.connection_set import describe_cob_id, talking_node_id
 from gateway.image import ProcessImage
 from gateway.pdo.codec import TpdoCodec
-from gateway.ratelimit import RateLimitedLog
+from gateway.runtime.ratelimit import RateLimitedLog
 
 Handler = Callable[[can.Message], None]
 Post = Callable[..., None]

@@ -39,12 +39,12 @@ from typing import Any
 import can
 import canopen
 
-from gateway.bus.bus_peers import talking_node_id
 from gateway.bus.driver import BusDriver
 from gateway.bus.tap_bus import TapBus
+from gateway.canopen.connection_set import talking_node_id
+from gateway.canopen.states import NmtState
 from gateway.config import Config
 from gateway.profiles import builtin_profiles, load_profile
-from gateway.states import NmtState
 
 #: CiA 301 device type (1000h) bits 0..15: the device profile number
 PROFILE_NAMES = {301: "CiA 301", 401: "DS-401 I/O", 402: "DS-402 drive", 406: "DS-406 encoder",

@@ -17,7 +17,7 @@
 * a signal's declared type is the EDS DataType; a signal declared as a PDO signal is in a PDO;
 * every safe output value (``safe_value``, ``nodes[].safe_outputs``) names an RPDO output of its
   node and fits its type and range (``gateway.modbus.safe_outputs``);
-* no COB-ID has two uses (``gateway.bus.cob_ids``: the PDOs, EMCY, SDO and heartbeat of every
+* no COB-ID has two uses (``gateway.bus.cob_id_uses``: the PDOs, EMCY, SDO and heartbeat of every
   node, the master's NMT, SYNC, heartbeat and LSS), named in one line with where each got it;
   one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both);
 * ``journal.path`` can be created and written (the one check here that touches the disk: it
@@ -40,12 +40,12 @@ checks, raising ConfigError with every line; they return the config and its node
 
 Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, profiles,
 eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
-register map, the COB-IDs of the nodes (bus/cob_ids.py), a device file's COB-IDs and NodeID
-(eds/cob_ids.py), journal (the path check) (no I/O but reading the files they name and the
+register map, the COB-IDs of the nodes (bus/cob_id_uses.py), a device file's COB-IDs and NodeID
+(eds/file_cob_ids.py), journal (the path check) (no I/O but reading the files they name and the
 journal's directory).
 
-Imports: config, checks.pair, cia301, objref, bus.cob_ids, device (boot_steps, resolved,
-settings), eds (parse, pdos, cob_ids), profiles (layout, schema), modbus.safe_outputs (its
+Imports: config, checks.pair, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
+settings), eds (parse, pdos, file_cob_ids), profiles (layout, schema), modbus.safe_outputs (its
 rule only), northbound.regmap, journal.
 """
 
@@ -56,21 +56,21 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from gateway.bus.cob_ids import clashes, gateway_uses, loops_back
+from gateway.bus.cob_id_uses import clashes, gateway_uses, loops_back
+from gateway.canopen.cia301 import TYPE_BITS, TYPE_NAMES
+from gateway.canopen.objref import ObjRef
 from gateway.checks.pair import pair_problems, takeover_warnings
-from gateway.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.device.boot_steps import ConfigStep
 from gateway.device.resolved import Resolved, ResolvedNode, load_resolved, parse_resolved
 from gateway.device.settings import external_heartbeat_problem
 from gateway.eds import EdsError, load_eds
-from gateway.eds.cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
+from gateway.eds.file_cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import eds_pdos, od_var, readable
 from gateway.journal import path_problem
 from gateway.modbus.safe_outputs import safe_output_problems
 from gateway.northbound.regmap import RegisterMapError, build_register_map
-from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS

@@ -7,7 +7,7 @@ This module holds the parser and ``main``; the commands are in its modules: ``se
 simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``eds`` (eds,
 profile), ``bus_tools`` (scan, monitor, lss, fault); ``load`` loads a command's configuration.
 
-Imports: gateway (version), gateway.config (ConfigError), gateway.startup (StartupError),
+Imports: gateway (version), gateway.config (ConfigError), gateway.runtime.startup (StartupError),
 gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, eds, bus_tools.
 """
 
@@ -25,7 +25,7 @@ from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
 from gateway.cli.serve import cmd_run, cmd_simulate
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
 from gateway.config import ConfigError
-from gateway.startup import StartupError
+from gateway.runtime.startup import StartupError
 from gateway.tools.bus_open import BusOpenError
 
 __all__ = ["EXIT_CONFIG", "EXIT_FAILED", "_count", "build_parser", "format_sdo_int", "main"]

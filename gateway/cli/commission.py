@@ -3,7 +3,7 @@ gateway when the bus lives inside it (``gateway.tools.beside``), else with a pas
 their own on the bus (no server, no heartbeat, no SYNC, no configuration of the nodes).
 
 Imports: gateway.app, gateway.errors, gateway.tools.beside, gateway.tools.bus_open, gateway.device.resolved,
-gateway.cia301, gateway.objref, gateway.config, cli.load.
+gateway.canopen.cia301, gateway.canopen.objref, gateway.config, cli.load.
 """
 
 from __future__ import annotations
@@ -154,8 +154,8 @@ def format_sdo_int(value: int, type_: str | None) -> str:
 
 def _sdo_type(cfg: Config, nodes: dict[str, ResolvedNode], name: str, obj: str) -> str | None:
     """The type of ``obj`` on node ``name``: the profile signal's, else the EDS's."""
-    from gateway.cia301 import TYPE_NAMES
-    from gateway.objref import ObjRef
+    from gateway.canopen.cia301 import TYPE_NAMES
+    from gateway.canopen.objref import ObjRef
 
     node = next(n for n in cfg.nodes if n.name == name)
     lp = nodes[node.name].lp

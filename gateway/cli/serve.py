@@ -1,7 +1,7 @@
 """The long-running commands: ``run`` (the gateway) and ``simulate`` (only the simulated
 devices of a config), each until SIGINT / SIGTERM, with the logging they set up.
 
-Imports: gateway.app, gateway.config (blame), gateway.startup, gateway.zenoh_bridge.session (PrefixInUse),
+Imports: gateway.app, gateway.config (blame), gateway.runtime.startup, gateway.zenoh_bridge.session (PrefixInUse),
 gateway.tools.bus_open, cli.load.
 """
 
@@ -73,7 +73,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     cfg, nodes = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
-    from gateway.startup import StartupError
+    from gateway.runtime.startup import StartupError
     from gateway.zenoh_bridge.session import PrefixInUse
 
     # a bus that cannot open at start: one line, exit 2 (cli.main); opened once, by the gateway

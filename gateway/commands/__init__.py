@@ -1,6 +1,6 @@
 """The command service, split by role: ``service`` (``CommandService``, the one way south and
 the only writer of device values), ``validation`` (the checks of a value before it is sent),
-``sdo_cache`` (the SDO values read north) and ``bus_tools`` (LSS inquire, the bus scan).
+``sdo_cache`` (the SDO values read north) and ``bus_inquiry`` (LSS inquire, the bus scan).
 
 Imports: commands.service, commands.validation. Never modbus/ or zenoh_bridge/.
 """

@@ -23,14 +23,14 @@ Rules held here, once:
   through the gateway updates it, and a boot-up or loss of the node empties it
   (``sdo_cache``).
 
-The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``bus_tools``'.
+The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``bus_inquiry``'.
 
 Every write and command is audited (``commands.audit``: who, what, outcome) when the app gives
 the service an ``audit`` sink.
 
 Imports: bus.master (the operations), bus.node.parts (the nodes), device.values (value
-codecs), commands.audit, commands.bus_tools, commands.sdo_cache, commands.validation, errors, image, objref,
-profiles, cia301. Never modbus/ or zenoh_bridge/.
+codecs), commands.audit, commands.bus_inquiry, commands.sdo_cache, commands.validation, errors, image, canopen.objref,
+profiles, canopen.cia301. Never modbus/ or zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -42,8 +42,9 @@ from typing import Any
 
 from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
-from gateway.cia301 import NMT_COMMANDS, TYPE_NAMES
-from gateway.commands import bus_tools
+from gateway.canopen.cia301 import NMT_COMMANDS, TYPE_NAMES
+from gateway.canopen.objref import ObjRef
+from gateway.commands import bus_inquiry
 from gateway.commands.audit import WHO, AuditSink, acting_as, audited
 from gateway.commands.sdo_cache import SdoValueCache
 from gateway.commands.validation import (
@@ -65,7 +66,6 @@ from gateway.errors import (
     ValueOutOfRange,
 )
 from gateway.image import NodeImage, SentOutputs, SignalValue
-from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import TextSignal, text_signals
 from gateway.profiles.schema import TYPE_BITS, Signal
@@ -471,12 +471,12 @@ class CommandService:
         return self.master.lss.busy()
 
     async def lss_inquire(self, address: tuple[int, int, int, int] | None = None) -> dict[str, Any]:
-        """LSS inquire of the slave at ``address``, else of every slave (``bus_tools``)."""
-        return await bus_tools.lss_inquire(self.master, address)
+        """LSS inquire of the slave at ``address``, else of every slave (``bus_inquiry``)."""
+        return await bus_inquiry.lss_inquire(self.master, address)
 
     async def scan_bus(self, *, listen_s: float = 1.0, sdo_timeout_s: float = 0.1) -> dict[str, Any]:
-        """Which node ids are on the bus and what they are (``bus_tools.scan_bus``)."""
-        return await bus_tools.scan_bus(self.master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
+        """Which node ids are on the bus and what they are (``bus_inquiry.scan_bus``)."""
+        return await bus_inquiry.scan_bus(self.master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
 
     @audited("nmt", lambda node, command: (node, "nmt", command))
     def nmt(self, node: str, command: str) -> None:

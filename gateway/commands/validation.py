@@ -17,7 +17,7 @@ Every configuration write (an SDO download a client asks for) also passes two ch
   heartbeat: each may only be written with the value the gateway configured. The way to change
   them is the node's configuration (``heartbeat_ms``, ``guard_time_ms``...).
 
-Imports: errors, profiles.schema, objref; profiles, device.settings and device.boot_steps for types.
+Imports: errors, profiles.schema, canopen.objref; profiles, device.settings and device.boot_steps for types.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from gateway.canopen.objref import ObjRef
 from gateway.errors import ValueOutOfRange
-from gateway.objref import ObjRef
 from gateway.profiles.schema import TYPE_BITS, Signal
 
 if TYPE_CHECKING:

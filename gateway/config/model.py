@@ -6,7 +6,7 @@
 What a section cannot see (duplicates across nodes, names that refer to nodes, profiles and
 EDS files) is checked when the file is loaded (``config.load``).
 
-Imports: pydantic, gateway.objref, gateway.keyexpr, gateway.profiles.schema, config.journal. Nothing of bus/,
+Imports: pydantic, gateway.canopen.objref, gateway.keyexpr, gateway.profiles.schema, config.journal. Nothing of bus/,
 modbus/, zenoh_bridge/, checks.
 """
 
@@ -26,8 +26,8 @@ from pydantic import (
 )
 
 from gateway import keyexpr
+from gateway.canopen.objref import ObjRef
 from gateway.config.journal import JournalSection
-from gateway.objref import ObjRef
 from gateway.profiles.schema import HexInt, SignalType
 
 

@@ -3,7 +3,7 @@ and its node settings (supervision, TPDO transmission, PDO remapping, the profil
 user's writes). ``build_boot_steps`` is the one place the CiA 301 PDO sequence is written; the
 lifecycle (``bus/node/lifecycle.py``) plays the steps, the codecs follow the same layout.
 
-Imports: gateway.cia301, gateway.objref, gateway.device.values, gateway.eds.pdos, gateway.profiles (layout,
+Imports: gateway.canopen.cia301, gateway.canopen.objref, gateway.device.values, gateway.eds.pdos, gateway.profiles (layout,
 schema; LoadedProfile for types only) and the standard library. No I/O, no clock.
 """
 
@@ -13,10 +13,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, Protocol
 
-from gateway.cia301 import COB_ID_INVALID, TYPE_NAMES
+from gateway.canopen.cia301 import COB_ID_INVALID, TYPE_NAMES
+from gateway.canopen.objref import ObjRef
 from gateway.device.values import encode_value
 from gateway.eds.pdos import default_value
-from gateway.objref import ObjRef
 from gateway.profiles.layout import pdo_cob_id, pdo_objects
 from gateway.profiles.schema import Pdo, default_cob_id
 

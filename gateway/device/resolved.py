@@ -14,7 +14,7 @@ A node whose boot configuration cannot be built (an object missing from the EDS,
 does not fit) is resolved with ``boot_error`` set and no steps or codecs: ``check`` reports it,
 and the master refuses it (``ResolvedNode.require``).
 
-Imports: cia301, config (types and loaders), profiles, profiles.layout, objref, device.settings,
+Imports: canopen.cia301, config (types and loaders), profiles, profiles.layout, canopen.objref, device.settings,
 device.boot_steps, pdo.codec, pdo.refresh, pdo.verify. Nothing northbound, no I/O but reading
 the device files.
 """
@@ -26,11 +26,11 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from gateway.cia301 import TRANSMISSION_SYNC
+from gateway.canopen.cia301 import TRANSMISSION_SYNC
+from gateway.canopen.objref import ObjRef
 from gateway.config import Config, ConfigError, NodeConfig, load_config, parse_config
 from gateway.device.boot_steps import ConfigStep, build_boot_steps
 from gateway.device.settings import NodeSettings, resolve_node_settings
-from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec, compile_node
 from gateway.pdo.refresh import Refresh, refresh_plan
 from gateway.pdo.verify import MappingRead, mapping_reads

@@ -8,7 +8,7 @@ Also the external-heartbeat rule (AP05 manual 5.5.4): how often the gateway feed
 device's watchdog (``external_keepalive_ms``, for the running gateway) and whether that is
 often enough (``external_heartbeat_problem``, for ``check``).
 
-Imports: objref. Nothing northbound, no I/O.
+Imports: canopen.objref. Nothing northbound, no I/O.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 
 
 @dataclass(frozen=True)

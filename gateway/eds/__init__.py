@@ -7,11 +7,11 @@ section (``EdsFile.warnings``). ``lint(eds)`` adds what the file's own enabled P
 in the gateway (``pdos.mapping_findings``): an error where the gateway would decode a PDO
 wrongly (an object the file does not define, more than 64 bits), a warning where a signal is
 skipped, and a warning for each COB-ID written absolute that is another node's pre-defined one
-(``cob_ids``: ``0x181`` in a file for any node but node 1, a DCF's own NodeID excepted). ``pdos.eds_pdos`` lists the TPDOs and RPDOs of the dictionary (communication and
+(``file_cob_ids``: ``0x181`` in a file for any node but node 1, a DCF's own NodeID excepted). ``pdos.eds_pdos`` lists the TPDOs and RPDOs of the dictionary (communication and
 mapping objects 1400h-1BFFh, ``$NODEID`` resolved), ``pdos.unique_names`` names the mapped
 objects (ParameterName slugs, unique per node), ``show.render`` prints a dictionary and its PDOs.
 
-Imports: its own modules (parse, build, pdos, cob_ids), canopen, gateway.objref and the standard
+Imports: its own modules (parse, build, pdos, file_cob_ids), canopen, gateway.canopen.objref and the standard
 library. Nothing else of the gateway (the profile loader imports this package, not the other
 way round).
 """
@@ -24,11 +24,11 @@ from pathlib import Path
 
 import canopen
 
+from gateway.canopen.objref import ObjRef
 from gateway.eds.build import build_dictionary
-from gateway.eds.cob_ids import dcf_node_id, foreign_cob_id_problems
+from gateway.eds.file_cob_ids import dcf_node_id, foreign_cob_id_problems
 from gateway.eds.parse import EdsError, EdsProblem, EdsText, read_sections, read_text
 from gateway.eds.pdos import PdoFinding, eds_pdo_findings
-from gateway.objref import ObjRef
 
 __all__ = ["EdsError", "EdsFile", "EdsProblem", "Lint", "dictionary_for_node", "lint", "load_eds"]
 

@@ -10,8 +10,8 @@ Names: the ParameterName of the object (of the sub-object for ARRAY/RECORD entri
 the object's name when the sub-object's name alone says little) as a snake_case slug; slugs
 that two objects of a node share, or that are empty, fall back to ``<slug>_<index>_<sub>``.
 
-Imports: canopen (dictionary types), gateway.cia301 (COB-ID bits, PDO indices, data types),
-gateway.objref, gateway.eds.parse.
+Imports: canopen (dictionary types), gateway.canopen.cia301 (COB-ID bits, PDO indices, data types),
+gateway.canopen.objref, gateway.eds.parse.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any, Literal
 import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     COB_ID_INVALID,
     PDO_COMM_BASE,
     PDO_MAP_BASE,
@@ -34,8 +34,8 @@ from gateway.cia301 import (
     TYPE_BITS,
     TYPE_NAMES,
 )
+from gateway.canopen.objref import ObjRef
 from gateway.eds.parse import DATA_TYPES
-from gateway.objref import ObjRef
 
 Kind = Literal["tpdo", "rpdo"]
 

@@ -5,7 +5,7 @@ limits) and the PDOs (COB-ID, transmission, event timer, mapping) as Markdown ta
 ``overlay_profile(eds, eds_ref)``: an editable overlay profile (YAML text) naming the signals
 the gateway derives from the EDS, with the fields a user may add.
 
-Imports: canopen (dictionary types), gateway.cia301, gateway.eds, gateway.objref.
+Imports: canopen (dictionary types), gateway.canopen.cia301, gateway.eds, gateway.canopen.objref.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from typing import Any
 import yaml
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 
-from gateway.cia301 import COB_ID_INVALID
+from gateway.canopen.cia301 import COB_ID_INVALID
+from gateway.canopen.objref import ObjRef
 from gateway.eds import EdsFile
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import (
@@ -28,7 +29,6 @@ from gateway.eds.pdos import (
     slug,
     unique_names,
 )
-from gateway.objref import ObjRef
 
 
 def _vars(eds: EdsFile) -> list[tuple[ObjRef, ODVariable]]:

@@ -28,7 +28,7 @@ Rules held here, once:
 Times are Zenoh's (NTP64: seconds since 1970 << 32 | fraction), stored with ``T_BIAS``
 subtracted so that they fit SQLite's signed 64-bit integers in order.
 
-Imports: the standard library, ratelimit, threads. Never zenoh (timestamps are taken by duck
+Imports: the standard library, runtime.ratelimit, runtime.threads. Never zenoh (timestamps are taken by duck
 type: ``get_time_as_ntp64``, ``get_id``), nor any adapter.
 """
 
@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadRegistry
+from gateway.runtime.ratelimit import RateLimitedLog
+from gateway.runtime.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.journal")
 

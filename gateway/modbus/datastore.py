@@ -8,7 +8,7 @@ the refusal of a pair's standby and the write timeout), Read Device Identificati
 boot). ``ImageDatastore`` holds the three and the request counters the server keeps.
 
 Imports: commands, config, image, modbus.device_identity, modbus.identity, modbus.protocol,
-modbus.reads, modbus.writes, northbound.regmap, ratelimit.
+modbus.reads, modbus.writes, northbound.regmap, runtime.ratelimit.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from gateway.modbus.protocol import (
 from gateway.modbus.reads import ImageReads
 from gateway.modbus.writes import ImageWrites
 from gateway.northbound.regmap import RegisterMap
-from gateway.ratelimit import RateLimitedLog
+from gateway.runtime.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.modbus")
 

@@ -3,7 +3,7 @@
 first identification request after it), and the objects of a unit built from them by
 ``modbus.identity``.
 
-Imports: commands, errors, image, modbus.identity, northbound.regmap, ratelimit.
+Imports: commands, errors, image, modbus.identity, northbound.regmap, runtime.ratelimit.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from gateway.errors import GatewayError, NotActive, SdoAbort
 from gateway.image import ProcessImage
 from gateway.modbus.identity import IDENTITY_OBJECTS, gateway_objects, node_objects
 from gateway.northbound.regmap import RegisterMap
-from gateway.ratelimit import RateLimitedLog
+from gateway.runtime.ratelimit import RateLimitedLog
 
 
 class DeviceIdentity:

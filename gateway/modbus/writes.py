@@ -4,8 +4,8 @@ while the gateway does not master the bus of its hot-standby pair (``NotActive``
 the write timeout (``modbus.write_timeout_s``). A write is answered when the RPDO was queued
 or the device confirmed the SDO.
 
-Imports: config, errors, modbus.protocol, modbus.reads, northbound.regmap, ratelimit,
-states.
+Imports: config, errors, modbus.protocol, modbus.reads, northbound.regmap, runtime.ratelimit,
+canopen.states.
 """
 
 from __future__ import annotations
@@ -16,13 +16,13 @@ import logging
 from collections.abc import Awaitable
 from typing import Any
 
+from gateway.canopen.states import NMT_BY_CODE
 from gateway.config import Config
 from gateway.errors import ValueOutOfRange
 from gateway.modbus.protocol import ExceptionCode, ModbusError, T, from_registers
 from gateway.modbus.reads import ImageReads
 from gateway.northbound.regmap import TABLE_NAMES, Point, Table
-from gateway.ratelimit import RateLimitedLog
-from gateway.states import NMT_BY_CODE
+from gateway.runtime.ratelimit import RateLimitedLog
 
 log = logging.getLogger("gateway.modbus")
 

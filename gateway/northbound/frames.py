@@ -8,8 +8,8 @@ names and engineering values (the codecs of the resolved nodes, ``gateway.device
 mapping the boot configuration leaves in the device, as the gateway decodes it), SYNC, TIME and LSS. A frame of an unconfigured node id is named by its
 function. Pure: no bus, no clock.
 
-Imports: config, profiles, pdo.codec, device.resolved (types), bus.emcy, cia301, bus.bus_peers,
-states, objref.
+Imports: config, profiles, pdo.codec, device.resolved (types), canopen.emcy, canopen.cia301, canopen.connection_set,
+canopen.states, canopen.objref.
 """
 
 from __future__ import annotations
@@ -18,15 +18,15 @@ from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.bus_peers import describe_cob_id
-from gateway.bus.emcy import decode_emcy
-from gateway.cia301 import abort_text
+from gateway.canopen.cia301 import abort_text
+from gateway.canopen.connection_set import describe_cob_id
+from gateway.canopen.emcy import decode_emcy
+from gateway.canopen.objref import ObjRef
+from gateway.canopen.states import NMT_BY_CODE, NmtState
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
-from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
 from gateway.profiles import LoadedProfile
-from gateway.states import NMT_BY_CODE, NmtState
 
 #: the kinds ``monitor --kind`` filters by
 KINDS = ("nmt", "sync", "time", "emcy", "pdo", "sdo", "heartbeat", "lss", "other")

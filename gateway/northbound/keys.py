@@ -19,7 +19,7 @@ Under a prefix (default ``canopen/<gateway name>``, ``zenoh.prefix`` in the conf
 | ``<prefix>/<node>/nmt`` | query | NMT command (payload: start, stop, preop, reset, reset-comm) |
 | ``<prefix>/catalog`` | query | every node and signal: type, unit, scaling, Modbus address |
 
-Imports: config, profiles, objref, device.resolved. Never zenoh, bus/, modbus/.
+Imports: config, profiles, canopen.objref, device.resolved. Never zenoh, bus/, modbus/.
 """
 
 from __future__ import annotations
@@ -29,9 +29,9 @@ from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Literal
 
+from gateway.canopen.objref import ObjRef
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
-from gateway.objref import ObjRef
 from gateway.profiles.derived import text_signals
 from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal

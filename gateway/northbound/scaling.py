@@ -5,12 +5,12 @@ Zenoh publishes and takes engineering values, the Modbus register map shows engi
 and serves ``as_float`` points as float32 engineering values, the web console shows and takes
 them: all through these functions.
 
-The time types are not scaled: their raw value is the CiA 301 48-bit word (``gateway.cia301``);
+The time types are not scaled: their raw value is the CiA 301 48-bit word (``gateway.canopen.cia301``);
 the engineering value of a TIME_OF_DAY is its ISO 8601 text in UTC
 (``"2026-11-27T08:30:00.250Z"``), of a TIME_DIFFERENCE its milliseconds; Modbus serves them as
 Unix milliseconds / milliseconds (``time_register_ms``).
 
-Imports: cia301 (time layout), config (SignalOverride), profiles.schema (Signal). Nothing else
+Imports: canopen.cia301 (time layout), config (SignalOverride), profiles.schema (Signal). Nothing else
 of the gateway.
 """
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from gateway.cia301 import TIME_EPOCH_UNIX_MS, time_ms, time_word
+from gateway.canopen.cia301 import TIME_EPOCH_UNIX_MS, time_ms, time_word
 from gateway.config import SignalOverride
 from gateway.profiles.schema import Signal
 

@@ -6,7 +6,7 @@ A summary is taken at one instant (``now``, monotonic): the data age and the wor
 quality are computed once, so two adapters never disagree on what "operational" or "usable"
 means. The words each adapter uses for a state (``QUALITY_TEXT``, the Modbus codes) are theirs.
 
-Imports: image, states. Nothing of bus/ or of an adapter.
+Imports: image, canopen.states. Nothing of bus/ or of an adapter.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import time
 from collections.abc import Collection
 from dataclasses import dataclass, fields
 
+from gateway.canopen.states import LinkState, NmtState
 from gateway.image import EmcyRecord, NodeHealth, NodeImage, Quality
-from gateway.states import LinkState, NmtState
 
 #: quality as every adapter writes it in text
 QUALITY_TEXT = {Quality.GOOD: "good", Quality.STALE: "stale", Quality.BAD: "bad"}

@@ -14,7 +14,7 @@ read-back alone (wrong for devices whose mapping objects do not show the layout 
 as the POSI+ with its PDO type object 2005h, manual 002 5; ``verify_mapping`` compares where
 the mapping objects do describe it).
 
-Imports: cia301, profiles (schema), objref. Nothing northbound.
+Imports: canopen.cia301, profiles (schema), canopen.objref. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -24,15 +24,15 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     OCTET_STRING,
     REAL32,
     REAL64,
     SIGNED_TYPES,
     VISIBLE_STRING,
 )
-from gateway.cia301 import TYPE_BITS as _CIA_TYPE_BITS
-from gateway.objref import ObjRef
+from gateway.canopen.cia301 import TYPE_BITS as _CIA_TYPE_BITS
+from gateway.canopen.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import PdoMappingError, pdo_cob_id
 from gateway.profiles.layout import apply_pdo_writes as _apply_pdo_writes

@@ -6,7 +6,7 @@ gateway would wait forever for values it may serve as good. So right after NMT s
 by RTR when the PDO allows remote requests (COB-ID bit 30 = 0), else by one SDO upload per
 mapped object. Types 252/253 (on RTR only) are asked by RTR. Cyclic and SYNC PDOs need nothing.
 
-Imports: pdo.codec, cia301, objref. No I/O.
+Imports: pdo.codec, canopen.cia301, canopen.objref. No I/O.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.cia301 import COB_ID_NO_RTR, TRANSMISSION_EVENT, TRANSMISSION_RTR_ONLY
-from gateway.objref import ObjRef
+from gateway.canopen.cia301 import COB_ID_NO_RTR, TRANSMISSION_EVENT, TRANSMISSION_RTR_ONLY
+from gateway.canopen.objref import ObjRef
 from gateway.pdo.codec import TpdoCodec, pdo_objects
 
 

@@ -13,9 +13,9 @@ and started, and calls ``compare_mapping`` when the last answer is in. It is not
 step: its outcome does not change the node's lifecycle (the node is started either way; only
 its values are refused until a verification passes, from the boot-up on).
 
-Pure: imports gateway.profiles (layout) and gateway.objref; no I/O.
+Pure: imports gateway.profiles (layout) and gateway.canopen.objref; no I/O.
 
-Imports: cia301, objref, eds.pdos, profiles (layout).
+Imports: canopen.cia301, canopen.objref, eds.pdos, profiles (layout).
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT
+from gateway.canopen.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT
+from gateway.canopen.objref import ObjRef
 from gateway.eds.pdos import decode_entry, entry_value
-from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile
 from gateway.profiles.layout import pdo_cob_id, pdo_objects
 

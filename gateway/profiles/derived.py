@@ -8,14 +8,14 @@ data identifier bit set. ``text_signals`` names one text signal per row, e.g.
 
 Pure: imports the profile schema only.
 
-Imports: objref, profiles.schema.
+Imports: canopen.objref, profiles.schema.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.profiles.schema import Profile, Signal
 
 

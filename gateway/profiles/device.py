@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any
 
 import canopen
 
+from gateway.canopen.objref import ObjRef
 from gateway.eds.pdos import od_var
-from gateway.objref import ObjRef
 from gateway.profiles.schema import Boot, Pdo
 
 if TYPE_CHECKING:

@@ -14,7 +14,7 @@ of every PDO the node's settings name from this layout, the codecs (``gateway.pd
 compiled from it, ``verify_mapping`` compares the device with it, the register map and the
 Zenoh keys serve its objects.
 
-Imports: gateway.profiles.schema, gateway.eds.pdos, gateway.cia301, gateway.objref. No I/O.
+Imports: gateway.profiles.schema, gateway.eds.pdos, gateway.canopen.cia301, gateway.canopen.objref. No I/O.
 """
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ from typing import Any, Literal, Protocol
 
 from pydantic import ValidationError
 
-from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_11BIT
+from gateway.canopen.cia301 import COB_ID_INVALID, COB_ID_MASK_11BIT
+from gateway.canopen.objref import ObjRef
 from gateway.eds.pdos import (
     EdsPdo,
     decode_entry,
@@ -32,7 +33,6 @@ from gateway.eds.pdos import (
     object_bits,
     od_var,
 )
-from gateway.objref import ObjRef
 from gateway.profiles.schema import Pdo, PdoEntry, Profile, default_cob_id
 
 Kind = Literal["tpdo", "rpdo"]

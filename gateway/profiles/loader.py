@@ -20,10 +20,10 @@ import canopen
 import yaml
 from pydantic import ValidationError
 
-from gateway.cia301 import COB_ID_INVALID
+from gateway.canopen.cia301 import COB_ID_INVALID
+from gateway.canopen.objref import ObjRef
 from gateway.eds import EdsError, EdsFile, dictionary_for_node, load_eds
 from gateway.eds.pdos import access_of, eds_pdos, mapping_findings, od_var, signal_type
-from gateway.objref import ObjRef
 from gateway.profiles.layout import pdo_from_eds
 from gateway.profiles.schema import Pdo, Profile, Signal
 

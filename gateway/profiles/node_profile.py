@@ -4,7 +4,7 @@ settings and PDO writes (``profiles.layout``), and a signal for every mapped obj
 from the EDS where the profile names none). Results are cached by the node's settings.
 
 Imports: profiles.loader, profiles.device, profiles.layout, profiles.schema, gateway.eds.pdos,
-cia301, objref. Nothing of bus/, modbus/, zenoh_bridge/, config (the node is read through
+canopen.cia301, canopen.objref. Nothing of bus/, modbus/, zenoh_bridge/, config (the node is read through
 ``NodeLike``).
 """
 
@@ -15,7 +15,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
-from gateway.cia301 import TYPE_BITS
+from gateway.canopen.cia301 import TYPE_BITS
+from gateway.canopen.objref import ObjRef
 from gateway.eds.pdos import (
     FLOAT_TYPES,
     eds_pdos,
@@ -24,7 +25,6 @@ from gateway.eds.pdos import (
     slug,
     unique_names,
 )
-from gateway.objref import ObjRef
 from gateway.profiles.device import (
     STALE_EVENT_TIMER_MULTIPLE,
     device_supervision,

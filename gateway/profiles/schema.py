@@ -10,9 +10,9 @@ profile without ``tpdos``/``rpdos`` takes the PDO layout of the EDS. Adding a de
 code; an EDS alone is enough (``nodes[].eds``), a profile adds names and behaviour.
 
 This module knows the shape of a profile only; it imports nothing from the rest of the gateway
-but ``gateway.objref``.
+but ``gateway.canopen.objref``.
 
-Imports: objref.
+Imports: canopen.objref.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PlainSerializer, model_validator
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 
 
 def _parse_obj(v: Any) -> ObjRef:
@@ -51,7 +51,7 @@ def _parse_int(v: Any) -> int:
 HexInt = Annotated[int, BeforeValidator(_parse_int)]
 
 #: Data types a signal may have; sizes in bits. ``string`` is ASCII (VISIBLE_STRING); the time
-#: types hold the CiA 301 48-bit word (``gateway.cia301`` converts it).
+#: types hold the CiA 301 48-bit word (``gateway.canopen.cia301`` converts it).
 SignalType = Literal[
     "bool",
     "int8",

@@ -6,13 +6,13 @@ and runs the simulator features of its profile's features (features/). ``SimRunn
 (runner.py) drives nodes on a python-can bus in a background thread.
 
 Used by tests, demos and commissioning. Imports: gateway.profiles, gateway.eds (default values),
-gateway.objref, python-can, canopen (EDS types only), gateway.states. Nothing of bus/, modbus/
+gateway.canopen.objref, python-can, canopen (EDS types only), gateway.canopen.states. Nothing of bus/, modbus/
 or zenoh_bridge/.
 """
 
 from typing import Any
 
-from gateway.states import NmtState
+from gateway.canopen.states import NmtState
 
 _EXPORTS = {
     "MotionConfig": "gateway.sim.motion",

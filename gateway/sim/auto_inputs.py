@@ -6,7 +6,7 @@ default mapping); ``auto_value`` turns the model's position into a value of an o
 type (REAL: position / 100; BOOLEAN: toggles every 1000 counts; integers: wrapped to the type's
 width).
 
-Imports: gateway.cia301 (data types), gateway.objref, sim.objects, sim.pdo. Nothing of bus/,
+Imports: gateway.canopen.cia301 (data types), gateway.canopen.objref, sim.objects, sim.pdo. Nothing of bus/,
 modbus/, zenoh_bridge/.
 """
 
@@ -15,8 +15,8 @@ from __future__ import annotations
 from typing import Any
 
 import gateway.sim.pdo as pdo
-from gateway.cia301 import BOOLEAN, NUMERIC_TYPES, REAL32, REAL64, SIGNED_TYPES, TYPE_BITS
-from gateway.objref import ObjRef
+from gateway.canopen.cia301 import BOOLEAN, NUMERIC_TYPES, REAL32, REAL64, SIGNED_TYPES, TYPE_BITS
+from gateway.canopen.objref import ObjRef
 from gateway.sim.objects import ObjectValues, PersistentStore
 
 #: numeric data types the default motion drives (REAL64 too: the simulator writes it)

@@ -14,7 +14,7 @@ no guarding answers); it sees its node as ``ErrorControlHost`` (a Protocol):
 
 Sans-I/O as its node: it sends through ``host.send`` and reads no clock.
 
-Imports: gateway.cia301 (COB_NMT_EC), gateway.states (NmtState); sim.emcy, sim.hints and
+Imports: gateway.canopen.cia301 (COB_NMT_EC), gateway.canopen.states (NmtState); sim.emcy, sim.hints and
 sim.objects for types only. Nothing of bus/, modbus/,
 zenoh_bridge/.
 """
@@ -24,8 +24,8 @@ from __future__ import annotations
 from collections.abc import Collection
 from typing import TYPE_CHECKING, Protocol
 
-from gateway.cia301 import COB_NMT_EC
-from gateway.states import NmtState
+from gateway.canopen.cia301 import COB_NMT_EC
+from gateway.canopen.states import NmtState
 
 if TYPE_CHECKING:
     from gateway.sim.emcy import EmcyProducer

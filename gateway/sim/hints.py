@@ -45,7 +45,7 @@ Calibration (position = direction x model + offset + application offset):
   offset_objects: [obj, ...]        show model - position after a calibration (6509h)
   direction: {object, bit}          bit set = counting direction inverted
 
-Imports: gateway.objref, gateway.sim.motion.
+Imports: gateway.canopen.objref, gateway.sim.motion.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.motion import MotionConfig
 
 

@@ -12,7 +12,7 @@ node (``SimNode._initialise``, ``SimNode.set_nmt_state``) applies what they retu
   adopt a pending node id, keep 1001h / 1003h (``reload_objects``) and show the faults still
   active again.
 
-Imports: gateway.cia301 (NMT commands), gateway.states (NmtState), sim.objects. Nothing of bus/,
+Imports: gateway.canopen.cia301 (NMT commands), gateway.canopen.states (NmtState), sim.objects. Nothing of bus/,
 modbus/, zenoh_bridge/.
 """
 
@@ -20,9 +20,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from gateway.cia301 import NmtCommand
+from gateway.canopen.cia301 import NmtCommand
+from gateway.canopen.states import NmtState
 from gateway.sim.objects import ObjectValues, PersistentStore
-from gateway.states import NmtState
 
 ResetKind = Literal["power", "node", "communication"]
 

@@ -32,8 +32,8 @@ Each part owns its state and the node changes it only through the part's methods
 the node through a Protocol of what it uses (``ErrorControlHost``, ``TpdoHost``, ``ObjectHost``,
 ``FaultHost``) and never sets the node's fields.
 
-Imports: python-can (Message only), gateway.cia301, gateway.states, gateway.profiles
-(LoadedProfile, expected_identity), gateway.objref and the other gateway.sim modules. Nothing of
+Imports: python-can (Message only), gateway.canopen.cia301, gateway.canopen.states, gateway.profiles
+(LoadedProfile, expected_identity), gateway.canopen.objref and the other gateway.sim modules. Nothing of
 bus/, modbus/, zenoh_bridge/.
 """
 
@@ -47,16 +47,17 @@ import can
 import gateway.sim.nmt as nmt
 import gateway.sim.object_access as object_access
 import gateway.sim.pdo as pdo
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     COB_ID_MASK_11BIT,
     COB_ID_NO_RTR,
     COB_NMT,
     COB_NMT_EC,
 )
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
+from gateway.canopen.states import NmtState
 from gateway.profiles import LoadedProfile, expected_identity
 from gateway.sim.auto_inputs import mapped_inputs
-from gateway.sim.cob_ids import emcy_cob, receive_map, sdo_tx_cob
+from gateway.sim.device_cob_ids import emcy_cob, receive_map, sdo_tx_cob
 from gateway.sim.device_faults import DeviceFaults
 from gateway.sim.emcy import EmcyProducer
 from gateway.sim.error_control import ErrorControl
@@ -72,7 +73,6 @@ from gateway.sim.objects import (
 from gateway.sim.process import ProcessModel
 from gateway.sim.sdo import SdoServer
 from gateway.sim.tpdo_producer import TpdoProducer
-from gateway.states import NmtState
 
 # Due times are sums of float periods (0.2 + 0.1 > 0.3): a timer is due within this margin.
 _EPS_S = 1e-9
@@ -485,7 +485,7 @@ class SimNode:
             b.on_rpdo(number, data, now)
 
     # ======================================================================================
-    # COB-ID dispatch (cob_ids.py)
+    # COB-ID dispatch (device_cob_ids.py)
     # ======================================================================================
     def listening(self) -> frozenset[int] | None:
         """The 11-bit COB-IDs of the frames ``handle`` acts on: NMT, its guarding RTR, SYNC,

@@ -20,7 +20,7 @@ Module-level functions taking the node as ``ObjectHost`` (a Protocol: what they 
   are writable in PRE-OPERATIONAL only; 1017h reschedules the heartbeat; the profile's preset
   or calibration trigger calibrates the position (SGH10 manual 3.2, AP05 manual 4.4).
 
-Imports: gateway.cia301 (COB-ID bits), gateway.objref, gateway.states, sim.objects (abort
+Imports: gateway.canopen.cia301 (COB-ID bits), gateway.canopen.objref, gateway.canopen.states, sim.objects (abort
 codes), sim.pdo; gateway.profiles and the other sim parts for types only. Nothing of bus/, modbus/,
 zenoh_bridge/.
 """
@@ -30,8 +30,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, Protocol
 
 import gateway.sim.pdo as pdo
-from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT, SYNC_GENERATOR
-from gateway.objref import ObjRef
+from gateway.canopen.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT, SYNC_GENERATOR
+from gateway.canopen.objref import ObjRef
+from gateway.canopen.states import NmtState
 from gateway.sim.objects import (
     ABORT_NO_DATA,
     ABORT_RANGE,
@@ -41,7 +42,6 @@ from gateway.sim.objects import (
     PersistentStore,
     SdoAbortError,
 )
-from gateway.states import NmtState
 
 if TYPE_CHECKING:
     from gateway.profiles import LoadedProfile

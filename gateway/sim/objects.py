@@ -8,7 +8,7 @@ PDO transfers and raises :class:`SdoAbortError` with the DS-301 abort code when 
 refused. It knows nothing of NMT, PDO rules or device features (node.py does).
 
 Imports: canopen (object dictionary types only), gateway.eds.pdos (default_value),
-gateway.objref.
+gateway.canopen.objref.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from typing import Any
 from canopen import objectdictionary as od
 from canopen.objectdictionary import datatypes as dt
 
+from gateway.canopen.objref import ObjRef
 from gateway.eds.pdos import default_value
-from gateway.objref import ObjRef
 
 # DS-301 7.2.4.3.17 SDO abort codes used by the server (also listed in SGH10 manual 4.4.1.3)
 ABORT_TOGGLE = 0x05030000  # toggle bit not alternated

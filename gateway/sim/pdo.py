@@ -6,7 +6,7 @@ unpacks RPDO data into them, and checks writes to these objects against the DS-3
 (a COB-ID is changed only while the PDO is invalid, bit 31; a mapping only while the PDO is
 invalid and sub-index 0 is 0). It sends nothing and keeps no timers (node.py does).
 
-Imports: gateway.cia301, gateway.sim.objects, gateway.objref.
+Imports: gateway.canopen.cia301, gateway.sim.objects, gateway.canopen.objref.
 """
 
 from __future__ import annotations
@@ -14,14 +14,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     COB_ID_EXTENDED,
     COB_ID_INVALID,
     COB_ID_MASK_29BIT,
     PDO_COMM_BASE,
     PDO_MAP_BASE,
 )
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.objects import (
     ABORT_NOT_MAPPABLE,
     ABORT_PDO_LENGTH,

@@ -7,13 +7,13 @@ added to the model by a preset or a referencing run) and the time of its last sa
 position a device shows is "direction x model + calibration offset + application offset"
 (SGH10 manual 3.2, AP05 manual 4.4). Sans-I/O: ``now`` is the node's clock.
 
-Imports: gateway.objref, sim.auto_inputs, sim.hints, sim.motion, sim.objects. Nothing of bus/,
+Imports: gateway.canopen.objref, sim.auto_inputs, sim.hints, sim.motion, sim.objects. Nothing of bus/,
 modbus/, zenoh_bridge/.
 """
 
 from __future__ import annotations
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.auto_inputs import auto_value
 from gateway.sim.hints import SimHints
 from gateway.sim.motion import Motion

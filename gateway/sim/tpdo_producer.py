@@ -21,7 +21,7 @@ object changes). It implements (SGH10 manual 000/003 section numbers):
 TPDOs go out in OPERATIONAL only: the node calls ``enter_operational`` / ``leave_operational``
 on its NMT changes. Sans-I/O as its node: it sends through ``host.send`` and reads no clock.
 
-Imports: gateway.cia301 (COB-ID bits), gateway.states (NmtState), sim.pdo; sim.features,
+Imports: gateway.canopen.cia301 (COB-ID bits), gateway.canopen.states (NmtState), sim.pdo; sim.features,
 sim.hints and sim.objects for types only. Nothing of bus/, modbus/, zenoh_bridge/.
 """
 
@@ -31,8 +31,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import gateway.sim.pdo as pdo
-from gateway.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT
-from gateway.states import NmtState
+from gateway.canopen.cia301 import COB_ID_INVALID, COB_ID_MASK_29BIT
+from gateway.canopen.states import NmtState
 
 if TYPE_CHECKING:
     from gateway.sim.features import SimFeature

@@ -18,7 +18,7 @@ before such a command opens the bus:
 Other interfaces (socketcan, pcan, remote, ...) are shared by every process: the command opens
 the bus beside the gateway, as before.
 
-Imports: zenoh, config, objref, northbound.keys. Nothing of bus/ or modbus/.
+Imports: zenoh, config, canopen.objref, northbound.keys. Nothing of bus/ or modbus/.
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ from typing import Any
 
 import zenoh
 
+from gateway.canopen.objref import ObjRef
 from gateway.config import Config
 from gateway.northbound.keys import catalog_key, nmt_key, sdo_key
-from gateway.objref import ObjRef
 
 #: how long to wait for a running gateway to answer (loopback: a few ms when one runs)
 FIND_TIMEOUT_S = 1.5

@@ -31,8 +31,8 @@ I/O, parses the arguments and prints. When the config simulates nodes (``simulat
 run in this process on the same bus, so the commands can be tried without hardware.
 
 Imports: python-can, gateway.bus.lss.master, gateway.tools.lss_session, gateway.tools.bus_open, gateway.device.resolved,
-gateway.bus.sdo.client, gateway.config, gateway.profiles, gateway.objref,
-gateway.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
+gateway.bus.sdo.client, gateway.config, gateway.profiles, gateway.canopen.objref,
+gateway.canopen.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ import can
 
 from gateway.bus.lss import master as lss
 from gateway.bus.sdo.client import SdoTransfer
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     COB_NMT,
     COB_NMT_EC,
     COB_SDO_RX,
@@ -56,9 +56,9 @@ from gateway.cia301 import (
     NmtCommand,
     abort_text,
 )
+from gateway.canopen.objref import ObjRef
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
-from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, ProfileError, load_profile
 from gateway.tools.bus_open import open_bus
 from gateway.tools.lss_session import (

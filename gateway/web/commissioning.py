@@ -13,7 +13,7 @@ at a time. LSS inquiry switches every LSS slave
 (or the one at ``address``) to the LSS configuration state and back to waiting; it does not
 change NMT states or node ids.
 
-Imports: commands, errors, objref, config, cia301, profiles.schema, northbound.scaling. Never
+Imports: commands, errors, canopen.objref, config, canopen.cia301, profiles.schema, northbound.scaling. Never
 bus/, tools/ or python-can.
 """
 
@@ -25,7 +25,8 @@ import logging
 from http import HTTPStatus
 from typing import Any
 
-from gateway.cia301 import NMT_COMMANDS
+from gateway.canopen.cia301 import NMT_COMMANDS
+from gateway.canopen.objref import ObjRef
 from gateway.commands import SDO_TYPES, CommandService
 from gateway.config import Config
 from gateway.errors import (
@@ -40,7 +41,6 @@ from gateway.errors import (
     SdoTimeout,
 )
 from gateway.northbound.scaling import Scaling, to_raw
-from gateway.objref import ObjRef
 
 log = logging.getLogger("gateway.web")
 

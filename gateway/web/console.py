@@ -1,4 +1,4 @@
-"""The web console's HTTP routes, served by the health server (``gateway.health``) on the same
+"""The web console's HTTP routes, served by the health server (``gateway.http.server``) on the same
 host and port: pages and static files, a small JSON API, server-sent events, and (with
 ``web.writes: true``) the commissioning API behind a token.
 
@@ -45,8 +45,8 @@ overview stream ``events`` events (new entries of the event log).
 
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
-Imports: health (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.journal_log, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), ratelimit, turns, sim.faults,
+Imports: http.server (request/response types), web.live, web.views, web.commissioning, web.trends,
+web.events, web.journal_log, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), runtime.ratelimit, runtime.turns, sim.faults,
 commands.audit (who asked, for the audit) (names and errors; the injector itself is given by the application; the bus driver, for the
 monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
@@ -65,11 +65,11 @@ from typing import Any
 
 from gateway import __version__
 from gateway.commands.audit import acting_as
-from gateway.health import JSON_TYPE, Request, Response, Stream
+from gateway.http.server import JSON_TYPE, Request, Response, Stream
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
-from gateway.ratelimit import RateLimitedLog
-from gateway.turns import LoopTurns
+from gateway.runtime.ratelimit import RateLimitedLog
+from gateway.runtime.turns import LoopTurns
 from gateway.web.commissioning import Commissioning, error_doc, shown
 from gateway.web.events import KINDS, EventLog, EventLogHandler
 from gateway.web.journal_log import JournalLog

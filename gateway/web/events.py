@@ -10,7 +10,7 @@ Where events come from (nothing new is detected here; it records what the gatewa
 - ``EventLogHandler``: a ``logging.Handler`` on the ``gateway`` logger at WARNING. Its ``emit``
   only formats the record's message and appends it (kinds ``warning`` and ``error``); the
   gateway's recurring problems are already rate-limited where they are logged
-  (``gateway.ratelimit``), so the ring is not flooded by one noisy frame. A record is filed
+  (``gateway.runtime.ratelimit``), so the ring is not flooded by one noisy frame. A record is filed
   under a node when its message names a configured node as a word.
 
 Rule: ``append`` is the one writer path, under a lock, because log records arrive from any

@@ -15,7 +15,7 @@ Each entry gets a line of text in the words of the live event log (``text_of``).
 done in a worker thread (``asyncio.to_thread``): never on the event loop. Bad parameters get a
 400 with the words of what is allowed.
 
-Imports: health (request/response types), journal (the store and the time grammar). Never bus/,
+Imports: http.server (request/response types), journal (the store and the time grammar). Never bus/,
 modbus/ or zenoh_bridge/.
 """
 
@@ -31,7 +31,7 @@ from datetime import UTC, datetime
 from http import HTTPStatus
 from typing import Any
 
-from gateway.health import JSON_TYPE, Request, Response
+from gateway.http.server import JSON_TYPE, Request, Response
 from gateway.journal import Journal, Row, TimeRangeError, ntp64_of_time, time_of_ntp64
 from gateway.journal.timerange import parse_instant
 

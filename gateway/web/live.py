@@ -21,7 +21,7 @@ Health listeners are called on the event loop by the image's writer.
 The PLC comes first: with ``turns`` (``turns.LoopTurns``), each update is rendered in its turn
 on the event loop, one piece of northbound work per loop iteration.
 
-Imports: image, turns (the rendering is given as a function by the console).
+Imports: image, runtime.turns (the rendering is given as a function by the console).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from collections.abc import Callable
 from typing import Any
 
 from gateway.image import NodeImage, ProcessImage
-from gateway.turns import LoopTurns
+from gateway.runtime.turns import LoopTurns
 
 log = logging.getLogger("gateway.web")
 

@@ -25,7 +25,7 @@ Frames the gateway sends are not tapped (they leave through the sender thread): 
 what the gateway receives, as ``canopen-gateway monitor`` on a second connection shows both.
 
 Imports: config, northbound.frames (the decoder, node and kind filters), web.live
-(the SSE framing, its limits and its pump, ``stream_sse``), turns (each write in its turn on the
+(the SSE framing, its limits and its pump, ``stream_sse``), runtime.turns (each write in its turn on the
 event loop: the PLC first). Never bus/ (the driver is given as an object with a
 ``add_tap`` / ``remove_tap``), modbus/ or zenoh_bridge/.
 """
@@ -40,7 +40,7 @@ from typing import Any, Protocol
 
 from gateway.config import Config
 from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
-from gateway.turns import LoopTurns
+from gateway.runtime.turns import LoopTurns
 from gateway.web.live import Handoff, sse, stream_sse
 
 log = logging.getLogger("gateway.web")

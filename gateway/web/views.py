@@ -8,8 +8,8 @@ keys from the key scheme, both pure functions of the config. Gateway-wide figure
 Zenoh) come from an ``overview_fn`` given by the application, which alone knows those parts.
 
 Runs on the event loop. Imports: image, commands (types), config, northbound.regmap, northbound.keys,
-northbound.scaling and northbound.summary (pure modules, no protocol library), cia301 (the
-error register bits), profiles.schema, profiles.layout, states. Never modbus/, zenoh_bridge/ or bus/.
+northbound.scaling and northbound.summary (pure modules, no protocol library), canopen.cia301 (the
+error register bits), profiles.schema, profiles.layout, canopen.states. Never modbus/, zenoh_bridge/ or bus/.
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.cia301 import register_bits
+from gateway.canopen.cia301 import register_bits
+from gateway.canopen.states import LinkState, NmtState
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, Quality
@@ -29,7 +30,6 @@ from gateway.northbound.scaling import Scaling, bits_of, engineering
 from gateway.northbound.summary import QUALITY_TEXT, summarize, worst_quality
 from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal
-from gateway.states import LinkState, NmtState
 
 #: Bits of an average CAN 2.0A frame with 8 data bytes, stuff bits not counted (ISO 11898-1:
 #: SOF 1, identifier 11, RTR/IDE/r0 3, DLC 4, data 64, CRC 15 + delimiter 1, ACK 2, EOF 7,

@@ -54,7 +54,7 @@ and tasks, and the bridge calls it through its public methods), ``housekeeping.p
 periodic refresh) and ``sender.py`` (the ``zenoh-publish`` and ``zenoh-events`` threads). The
 per-frame path (the image's listeners, ``_ValueBatch``, ``offer``) stays here.
 
-Imports: zenoh, commands, image, config, journal, ratelimit, threads, profiles.schema, northbound.keys,
+Imports: zenoh, commands, image, config, journal, runtime.ratelimit, runtime.threads, profiles.schema, northbound.keys,
 northbound.scaling, zenoh_bridge.*. Never modbus/ (the catalogue gets Modbus addresses through a
 function passed in by the app) and nothing of bus/ (nodes are known through the command
 service).
@@ -79,8 +79,8 @@ from gateway.journal import Entry, Journal
 from gateway.northbound.keys import emcy_key, prefix_of, state_key
 from gateway.northbound.scaling import Scaling
 from gateway.profiles.schema import Signal
-from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadCount, ThreadRegistry
+from gateway.runtime.ratelimit import RateLimitedLog
+from gateway.runtime.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.history import HistoryService
 from gateway.zenoh_bridge.housekeeping import housekeeping_loop, refresh
 from gateway.zenoh_bridge.journaling import heard_entry, published_values, restore_seqs

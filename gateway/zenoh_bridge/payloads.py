@@ -7,7 +7,7 @@ take engineering values too and are turned back into raw values here,
 or ``{"raw": v}`` passes a raw device value through. Everything a client may send that does not
 parse raises ``ValueError`` with a message saying what was expected.
 
-Imports: image, errors, cia301, northbound.scaling, northbound.summary, profiles.schema, config (types only). Never zenoh, bus/, modbus/.
+Imports: image, errors, canopen.cia301, northbound.scaling, northbound.summary, profiles.schema, config (types only). Never zenoh, bus/, modbus/.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.cia301 import NMT_COMMANDS, TIME_TYPES
+from gateway.canopen.cia301 import NMT_COMMANDS, TIME_TYPES
 from gateway.errors import GatewayError, SdoAbort
 from gateway.image import EmcyRecord, NodeImage, Quality, SignalValue
 from gateway.northbound.scaling import Scaling, bits_of, engineering

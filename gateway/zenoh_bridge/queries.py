@@ -20,7 +20,7 @@ The publishing side (``bridge.py``) owns the session and the publishers; this si
 session through a function and knows the published value keys and their scaling as given at
 construction.
 
-Imports: zenoh, commands, errors, image, config, ratelimit, threads, profiles.schema,
+Imports: zenoh, commands, errors, image, config, runtime.ratelimit, runtime.threads, profiles.schema,
 profiles.derived, northbound.keys, northbound.scaling, payloads, access, worker, history
 (``_time`` queries), commands.audit (who asked). Nothing of bus/ or modbus/.
 """
@@ -61,8 +61,8 @@ from gateway.northbound.keys import (
 from gateway.northbound.scaling import Scaling, engineering, to_raw
 from gateway.profiles.derived import text_rows_as_signals
 from gateway.profiles.schema import Signal
-from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadCount, ThreadRegistry
+from gateway.runtime.ratelimit import RateLimitedLog
+from gateway.runtime.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.access import WriteGate
 from gateway.zenoh_bridge.history import HistoryService, Stamped, has_time_range
 from gateway.zenoh_bridge.payloads import (

@@ -36,7 +36,7 @@ Started through the gateway's ``ThreadRegistry``: a thread that dies is reported
 Clocks: ``clock`` and ``wait`` are injectable (tests use a fake clock); ``stop`` ends a window
 being waited for at once.
 
-Imports: threads. Never zenoh (it calls ``put`` on the publishers it is given), modbus/ nor
+Imports: runtime.threads. Never zenoh (it calls ``put`` on the publishers it is given), modbus/ nor
 bus/.
 """
 
@@ -49,7 +49,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from gateway.threads import ThreadRegistry
+from gateway.runtime.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.zenoh")
 

@@ -30,7 +30,7 @@ Figures (read by any thread, written here under the lock): ``answered`` (jobs th
 their end), ``busy`` (refused at ``submit``), ``depth`` (jobs waiting or running), and
 ``retry_after_s`` (when a refused client should ask again: the depth times the mean job time).
 
-Imports: ratelimit, threads, the standard library.
+Imports: runtime.ratelimit, runtime.threads, the standard library.
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ from collections.abc import Callable, Hashable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
-from gateway.ratelimit import RateLimitedLog
-from gateway.threads import ThreadRegistry
+from gateway.runtime.ratelimit import RateLimitedLog
+from gateway.runtime.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.zenoh")
 

@@ -25,14 +25,14 @@ import canopen
 import pytest
 from canopen.objectdictionary import datatypes as dt
 
-from gateway.cia301 import TYPE_NAMES
+from gateway.canopen.cia301 import TYPE_NAMES
+from gateway.canopen.objref import ObjRef
 from gateway.cli import main
 from gateway.config import ConfigError
 from gateway.eds import lint, load_eds
 from gateway.eds.parse import read_text
 from gateway.modbus.protocol import from_registers, to_registers
 from gateway.northbound.regmap import build_register_map
-from gateway.objref import ObjRef
 from gateway.pdo.codec import compile_node
 from gateway.profiles import ProfileError, load_node_profile
 from tests.helpers import parse_checked_config, with_nodes

@@ -20,8 +20,8 @@ import canopen
 import yaml
 
 from gateway.app import Gateway
+from gateway.canopen.states import NmtState
 from gateway.cli import main
-from gateway.states import NmtState
 from tests.helpers import free_port, gateway_of, make_config, unique_channel, wait_until
 
 EDS = Path(__file__).resolve().parents[1] / "data" / "eds" / "io401.eds"

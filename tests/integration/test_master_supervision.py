@@ -11,8 +11,8 @@ from typing import Any
 import can
 
 from gateway.app import Gateway
+from gateway.canopen.states import NmtState
 from gateway.image import Quality
-from gateway.states import NmtState
 from tests.helpers import master_running as running
 from tests.helpers import node_operational as operational
 from tests.helpers import wait_until

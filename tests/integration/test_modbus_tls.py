@@ -297,7 +297,7 @@ async def test_a_busy_tls_port_is_named_by_its_own_key_with_the_plain_port(
     pki: dict[str, Any],
 ) -> None:
     """Both Modbus ports taken: one start names both, the TLS one by ``modbus.tls.port``."""
-    from gateway.startup import StartupError
+    from gateway.runtime.startup import StartupError
 
     holders = []
     for _ in range(2):

@@ -20,9 +20,9 @@ import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import Gateway
+from gateway.canopen.states import NmtState
 from gateway.image import Quality
 from gateway.profiles import load_profile
-from gateway.states import NmtState
 from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient, sample_where
 

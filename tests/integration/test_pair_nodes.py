@@ -14,9 +14,9 @@ from contextlib import asynccontextmanager
 from typing import Any
 
 from gateway.app import Gateway, SimulatedBus
+from gateway.canopen.states import LinkState, NmtState
 from gateway.config import parse_config
 from gateway.northbound.summary import summarize
-from gateway.states import LinkState, NmtState
 from tests.helpers import gateway_of, make_config, node_operational, simulated_bus, wait_until
 from tests.integration.test_pair import LOGICAL, Sent
 

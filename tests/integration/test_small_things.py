@@ -15,10 +15,10 @@ from pathlib import Path
 import pytest
 
 from gateway.bus.error_control.supervision import InvalidStateByte, ToggleError, WrongState
+from gateway.canopen.states import NmtState
 from gateway.cli import _count
 from gateway.config import ConfigError, parse_config
 from gateway.entry import main as entry_main
-from gateway.states import NmtState
 from tests.helpers import free_port, master_running
 
 REPO = Path(__file__).resolve().parents[2]

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.startup import StartupError
+from gateway.runtime.startup import StartupError
 from tests.helpers import (
     free_port,
     gateway_of,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.pdo.codec import PdoMappingError, apply_pdo_writes, compile_node, pdo_objects
 from gateway.profiles import load_profile
 

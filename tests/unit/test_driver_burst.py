@@ -11,7 +11,7 @@ import can
 
 from gateway.bus.driver import BusDriver
 from gateway.image import ProcessImage
-from gateway.threads import ThreadRegistry
+from gateway.runtime.threads import ThreadRegistry
 from gateway.zenoh_bridge.sender import ZenohSender
 
 WAIT_S = 5.0

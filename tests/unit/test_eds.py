@@ -8,12 +8,12 @@ from typing import Any
 
 import pytest
 
+from gateway.canopen.objref import ObjRef
 from gateway.cli import main
 from gateway.config import ConfigError
 from gateway.device.boot_steps import build_boot_steps
 from gateway.eds import lint, load_eds
 from gateway.northbound.regmap import build_register_map
-from gateway.objref import ObjRef
 from gateway.pdo.verify import MappingRead, compare_mapping, mapping_reads
 from gateway.profiles import ProfileError, load_node_profile
 from tests.helpers import edited_copy, line_of, parse_checked_config, with_nodes

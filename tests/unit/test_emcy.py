@@ -8,11 +8,9 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.bus.emcy import (
+from gateway.bus.emcy import EmcyHistory, ErrorRaised, ErrorsCleared
+from gateway.canopen.emcy import (
     Emcy,
-    EmcyHistory,
-    ErrorRaised,
-    ErrorsCleared,
     decode_emcy,
     emcy_text,
     generic_text,

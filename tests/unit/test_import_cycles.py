@@ -76,3 +76,28 @@ def test_no_module_of_gateway_takes_part_in_an_import_cycle() -> None:
     for name in graph:
         graph[name] = {m for m in graph[name] if not name.startswith(m + ".")}
     assert _cycle(graph) is None, " -> ".join(_cycle(graph) or [])
+
+
+def _package(name: str, modules: dict[str, Path]) -> str:
+    return name if modules[name].name == "__init__.py" else name.rpartition(".")[0]
+
+
+def test_no_two_packages_of_gateway_import_each_other() -> None:
+    """Packages neither of which holds the other (``bus.node`` and ``bus.sdo``, ``bus`` and
+    ``canopen``) depend one way at most: what both read lives where both can read it (the
+    bus's output vocabulary in ``bus/events.py``), and a part is told what it should expect
+    rather than importing its caller (the supervision is told the NMT state to expect)."""
+    modules = _modules()
+    known = set(modules)
+    packages = {_package(n, modules) for n in modules}
+    uses: set[tuple[str, str]] = set()
+    for name, path in modules.items():
+        for target in _top_level_imports(path, name, known):
+            a, b = _package(name, modules), _package(target, modules)
+            for pa in packages:
+                for pb in packages:
+                    if (a == pa or a.startswith(pa + ".")) and (b == pb or b.startswith(pb + ".")):
+                        if not (pa == pb or pa.startswith(pb + ".") or pb.startswith(pa + ".")):
+                            uses.add((pa, pb))
+    both = sorted(f"{a} <-> {b}" for a, b in uses if (b, a) in uses and a < b)
+    assert not both, both

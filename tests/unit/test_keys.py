@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from gateway.canopen.objref import ObjRef
 from gateway.cli import main
 from gateway.config import parse_config
 from gateway.northbound.keys import (
@@ -20,7 +21,6 @@ from gateway.northbound.keys import (
     short_text,
     tpdo_key,
 )
-from gateway.objref import ObjRef
 from tests.helpers import with_nodes
 
 P = "canopen/line1"

@@ -29,11 +29,11 @@ from gateway.bus.node.lifecycle import (
     WriteStep,
     WrongDevice,
 )
-from gateway.cia301 import SDO_ABORT_TEXTS, abort_text
+from gateway.canopen.cia301 import SDO_ABORT_TEXTS, abort_text
+from gateway.canopen.objref import ObjRef
 from gateway.device.boot_steps import ConfigStep, build_boot_steps
 from gateway.device.values import encode_value
 from gateway.errors import SdoAbort
-from gateway.objref import ObjRef
 from gateway.profiles import LoadedProfile, load_profile
 from gateway.profiles.schema import BootWrite, Pdo
 

@@ -14,11 +14,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.bus.node.outputs import OutputImage
+from gateway.canopen.objref import ObjRef
 from gateway.commands import check_value
 from gateway.config import NodeConfig
 from gateway.eds import lint, load_eds
 from gateway.errors import ValueOutOfRange
-from gateway.objref import ObjRef
 from gateway.pdo.codec import (
     Field,
     FieldValueError,

@@ -16,11 +16,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.bus.node.events import Note, Send, ValuesRead
+from gateway.bus.events import Note, Send, ValuesRead
 from gateway.bus.node.parts import NodeParts, build_node
+from gateway.canopen.states import LinkState, NmtState
 from gateway.image import NodeImage, Quality, SignalValue
 from gateway.profiles import expected_identity
-from gateway.states import LinkState, NmtState
 from tests.helpers import make_config, resolved
 
 
@@ -573,7 +573,7 @@ def test_queued_sdo_work_is_never_left_waiting_for_an_unrelated_deadline(events:
                 raw = bytes([cmd]) + job.obj.index.to_bytes(2, "little") + bytes([job.obj.sub])
                 h.node.on_sdo_response(raw + bytes([arg, 0, 0, 0]), now)
             elif kind == "sdo_req":
-                from gateway.objref import ObjRef
+                from gateway.canopen.objref import ObjRef
 
                 h.node.request_sdo(ObjRef(0x1018, 1), None if arg else b"\x01", now)
             elif kind == "tick":

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
-from gateway.bus.node.events import Send
+from gateway.bus.events import Send
 from gateway.bus.node.lifecycle import (
     TRANSITIONS,
     LifecycleEvent,
@@ -26,9 +26,9 @@ from gateway.bus.node.lifecycle import (
 )
 from gateway.bus.node.listening import HeardLife
 from gateway.bus.node.parts import build_node
-from gateway.cia301 import NMT_COMMANDS
+from gateway.canopen.cia301 import NMT_COMMANDS
+from gateway.canopen.states import LinkState, NmtState
 from gateway.image import NodeImage
-from gateway.states import LinkState, NmtState
 from tests.helpers import make_config, resolved
 from tests.unit.test_node import Harness
 

@@ -10,15 +10,15 @@ import logging
 from pathlib import Path
 from types import SimpleNamespace
 
-from gateway.bus.node.events import Note
+from gateway.bus.events import Note
 from gateway.bus.node.features.verify_mapping import VerifyMapping
 from gateway.bus.node.lifecycle import Configured, LifecycleState, NodeLifecycle, StepFailed
 from gateway.bus.node.lifecycle_report import Report, lifecycle_reports
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
+from gateway.canopen.objref import ObjRef
 from gateway.device.boot_steps import ConfigStep
 from gateway.image import NodeHealth
-from gateway.objref import ObjRef
 from gateway.pdo.verify import MappingRead
 
 GATEWAY = Path(__file__).resolve().parents[2] / "gateway"

@@ -12,7 +12,7 @@ from gateway.bus.pair.flying_master import (
     RoleChanged,
 )
 from gateway.bus.pair.member import PairMember
-from gateway.cia301 import COB_SDO_RX
+from gateway.canopen.cia301 import COB_SDO_RX
 from tests.helpers import make_config
 
 OWN = 0x700 + 101

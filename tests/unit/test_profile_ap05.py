@@ -15,7 +15,7 @@ import struct
 import canopen
 import pytest
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.profiles import import_eds, load_profile
 from gateway.profiles.schema import Pdo, Signal, default_cob_id
 

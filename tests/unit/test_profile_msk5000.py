@@ -9,7 +9,7 @@ from __future__ import annotations
 import canopen.objectdictionary.datatypes as dt
 import pytest
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.profiles import PROFILE_DIR, import_eds, load_profile
 
 U8, U16, U32 = dt.UNSIGNED8, dt.UNSIGNED16, dt.UNSIGNED32

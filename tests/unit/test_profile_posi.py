@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 from canopen.objectdictionary import datatypes as dt
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.profiles import PROFILE_DIR, import_eds, load_profile
 
 U8, U16, U32, I16, I32, STR = (

@@ -11,7 +11,7 @@ import struct
 import pytest
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.profiles import PROFILE_DIR, LoadedProfile, import_eds, load_profile
 from gateway.profiles.schema import KNOWN_FEATURES
 

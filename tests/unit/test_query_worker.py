@@ -7,7 +7,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Iterator
 
-from gateway.threads import ThreadRegistry
+from gateway.runtime.threads import ThreadRegistry
 from gateway.zenoh_bridge.worker import RETRY_MAX_S, RETRY_MIN_S, QueryWorker
 from tests.helpers import wait_until_sync
 

@@ -7,12 +7,12 @@ from types import SimpleNamespace
 from typing import Any
 
 import gateway.sim.nmt as nmt
-from gateway.cia301 import NmtCommand
+from gateway.canopen.cia301 import NmtCommand
+from gateway.canopen.states import NmtState
 from gateway.sim.device_faults import DeviceFaults
 from gateway.sim.error_control import ErrorControl
 from gateway.sim.hints import SimHints
 from gateway.sim.objects import PersistentStore
-from gateway.states import NmtState
 
 
 class FakeValues:

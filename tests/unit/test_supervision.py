@@ -24,7 +24,7 @@ from gateway.bus.error_control.supervision import (
     ToggleError,
     WrongState,
 )
-from gateway.states import LinkState, NmtState
+from gateway.canopen.states import LinkState, NmtState
 
 PRE_OP = 0x7F  # SGH10 manual 4.5.3: 127 = PRE-OPERATIONAL
 OPERATIONAL = 0x05

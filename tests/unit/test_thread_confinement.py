@@ -287,7 +287,7 @@ def switch_interval(seconds: float) -> Iterator[None]:
 
 
 def test_a_count_made_on_several_threads_is_exact() -> None:
-    from gateway.threads import ThreadCount
+    from gateway.runtime.threads import ThreadCount
 
     count = ThreadCount()
     start = threading.Barrier(3)

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.ascii.values import format_plain
-from gateway.cia301 import MS_PER_DAY, TIME_EPOCH_UNIX_MS, time_fields, time_ms, time_word
+from gateway.canopen.cia301 import MS_PER_DAY, TIME_EPOCH_UNIX_MS, time_fields, time_ms, time_word
 from gateway.config import ConfigError
 from gateway.device.values import decode_value, encode_value
 from gateway.image import Quality, SignalValue

@@ -8,10 +8,10 @@ from __future__ import annotations
 import logging
 import threading
 
+from gateway.canopen.states import NmtState
 from gateway.image import EmcyRecord, NodeImage, ProcessImage, Quality
 from gateway.northbound.scaling import Scaling
 from gateway.profiles import load_profile
-from gateway.states import NmtState
 from gateway.web.events import EventLog, EventLogHandler
 from gateway.web.limits import ClientBudget
 from gateway.web.trends import TrendStore, is_trend_signal

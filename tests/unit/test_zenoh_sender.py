@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from gateway.threads import ThreadRegistry
+from gateway.runtime.threads import ThreadRegistry
 from gateway.zenoh_bridge.sender import ZenohSender
 from tests.helpers import gateway_of, make_config, wait_until, wait_until_sync
 

@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 import zenoh
 
-from gateway import threads
 from gateway.image import SignalView
+from gateway.runtime import threads
 from gateway.zenoh_bridge.bridge import _ValueBatch
 from gateway.zenoh_bridge.session import REOPEN_SCHEDULE_S
 from tests.helpers import gateway_of, make_config, wait_until

@@ -1,14 +1,14 @@
 """The process-data link check by the guarding bit (AP05 manual 5.5.5, 5.3.2, 5.3.3), as a
 plain state machine: no I/O, no clock (``now`` is given; the caller uses the bus clock).
 
-Imports: the standard library and gateway.states.
+Imports: the standard library and gateway.canopen.states.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gateway.states import LinkState
+from gateway.canopen.states import LinkState
 
 
 @dataclass(frozen=True)

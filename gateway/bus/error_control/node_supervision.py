@@ -1,13 +1,14 @@
 """A node's supervision (``NodeSupervision``, the node's ``supervision``): heartbeat consumer or
-node-guarding master (``bus.error_control.supervision``), with what each lifecycle step and each
-NMT command makes the node expected to report.
+node-guarding master (``bus.error_control.supervision``), with what each NMT command makes the node
+expected to report, and what the node's lifecycle says it expects.
 
 Rule: the tables below are the code. Node guarding treats a valid answer with another state
 than the expected one as an error (DS-301), so the expectation must follow the node's life: a
 node being configured after its boot-up answers PRE-OPERATIONAL, which is right, not a fault.
 
-Imports: bus.error_control.supervision, bus.node.lifecycle (its states), device.settings,
-states. No I/O, no clock.
+Imports: bus.error_control.supervision, device.settings, canopen.states. No I/O, no clock. Not the
+node's lifecycle: the node tells it the state to expect (``bus.node.lifecycle_actions``,
+``GUARD_EXPECTS``).
 """
 
 from __future__ import annotations
@@ -21,18 +22,8 @@ from gateway.bus.error_control.supervision import (
     ToggleError,
     WrongState,
 )
-from gateway.bus.node.lifecycle import LifecycleState
+from gateway.canopen.states import REPORTED_STATES, NmtState
 from gateway.device.settings import NodeSettings
-from gateway.states import REPORTED_STATES, NmtState
-
-#: What a node-guarding answer must report in each lifecycle state. None = any valid state.
-GUARD_EXPECTS: dict[LifecycleState, NmtState | None] = {
-    LifecycleState.WAITING: None,  # not configured by us yet: whatever it reports
-    LifecycleState.BOOTING: None,  # found running: NMT pre-operational is on its way
-    LifecycleState.CONFIGURING: NmtState.PRE_OPERATIONAL,  # SGH10 manual 4.2.1.1
-    LifecycleState.OPERATIONAL: NmtState.OPERATIONAL,  # after our NMT start
-    LifecycleState.LISTENING: None,  # another master's: what it commands (NMT_EXPECTS) if heard
-}
 
 #: The state a node is meant to be in after an NMT command (None: it reboots, boot-up follows).
 NMT_EXPECTS: dict[str, NmtState | None] = {
@@ -121,10 +112,12 @@ class NodeSupervision:
     def guard_lost(self) -> bool:
         return self.guard is not None and self.guard.lost
 
-    def on_lifecycle(self, state: LifecycleState) -> None:
-        self.guarding = state is not LifecycleState.LISTENING
+    def on_lifecycle(self, expects: NmtState | None, listening: bool) -> None:
+        """The node's lifecycle changed: guarding expects ``expects`` (None: any valid state);
+        while the node only ``listening``, no guarding RTR and no life time of ours."""
+        self.guarding = not listening
         if self.guard is not None:
-            self.guard.expect(GUARD_EXPECTS[state])
+            self.guard.expect(expects)
 
     def on_rtr_heard(self) -> str | None:
         """Another master's guarding RTR to the node while it only listens: the reason when
@@ -143,8 +136,8 @@ class NodeSupervision:
         if self.guard is not None:
             self.guard.expect(NMT_EXPECTS[command])
 
-    def on_sign_of_life(self, now: float, state: LifecycleState) -> None:
-        """Another frame of the node (an SDO answer) while it is being configured: a node
+    def on_sign_of_life(self, now: float, configuring: bool) -> None:
+        """Another frame of the node (an SDO answer) while it is being ``configuring``: a node
         answering its configuration is not lost, however long the configuration takes."""
-        if self.guard is not None and state in (LifecycleState.BOOTING, LifecycleState.CONFIGURING):
+        if self.guard is not None and configuring:
             self.guard.on_sign_of_life(now)

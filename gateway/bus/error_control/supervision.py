@@ -15,7 +15,7 @@ measured from ``t0`` expires strictly *after* ``t0 + T``. At ``now == t0 + T`` t
 alive; at the next representable instant it is lost. Scheduled sends are due *at* their time
 (``now >= due``).
 
-Imports: the standard library and gateway.states (the one NmtState / LinkState). Must not
+Imports: the standard library and gateway.canopen.states (the one NmtState / LinkState). Must not
 import python-can, canopen, asyncio, logging or any other gateway module.
 """
 
@@ -24,8 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 
-from gateway.states import REPORTED_STATES as _REPORTED_STATES
-from gateway.states import NmtState
+from gateway.canopen.states import REPORTED_STATES as _REPORTED_STATES
+from gateway.canopen.states import NmtState
 
 # --------------------------------------------------------------------------- NMT states
 

@@ -10,7 +10,7 @@ its manual section (the numbers of the protocol, shared with the simulated slave
 Rule 2: no I/O, no clock. ``LssMaster.send`` returns the frames to put on 7E5h; the caller feeds
 7E4h frames to ``on_frame`` and calls ``poll(now)`` for the answer timeout.
 
-Imports: gateway.cia301 (the LSS COB-IDs), gateway.cia305 (the command specifiers, the bit
+Imports: gateway.canopen.cia301 (the LSS COB-IDs), gateway.canopen.cia305 (the command specifiers, the bit
 timing table, the frame layout) and the standard library. Must not import python-can, canopen
 or other gateway modules.
 """
@@ -21,8 +21,8 @@ import struct
 from dataclasses import dataclass
 from enum import StrEnum
 
-from gateway.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
-from gateway.cia305 import (
+from gateway.canopen.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
+from gateway.canopen.cia305 import (
     BIT_TIMING_KBPS,
     BIT_TIMING_TABLE_DS301,
     CS_ACTIVATE_BIT_TIMING,

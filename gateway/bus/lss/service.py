@@ -8,7 +8,7 @@ event loop (``Master._post``, the one hand-off) and wakes it at its deadline.
 Rule 2: one LSS session at a time (a lock): an inquiry switches the slave(s) to configuration,
 asks, and switches them back to waiting, whatever happens in between.
 
-Imports: bus.lss.master, cia301, errors, python-can (the message type), asyncio. Nothing
+Imports: bus.lss.master, canopen.cia301, errors, python-can (the message type), asyncio. Nothing
 northbound.
 """
 
@@ -31,7 +31,7 @@ from gateway.bus.lss.master import (
     switch_state_global,
     switch_state_selective,
 )
-from gateway.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
+from gateway.canopen.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
 from gateway.errors import LssFailed
 
 

@@ -16,7 +16,7 @@ The steps themselves (``ConfigStep``, ``build_boot_steps``) come from ``device/b
 the states, actions and changes it speaks in from ``bus/node/lifecycle_actions.py``.
 
 Imports: gateway.device.boot_steps (the step type), gateway.bus.node.lifecycle_actions,
-gateway.bus.transitions (the table's rows), gateway.cia301, gateway.objref and the standard library.
+gateway.bus.transitions (the table's rows), gateway.canopen.cia301, gateway.canopen.objref and the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
 
@@ -45,9 +45,9 @@ from gateway.bus.node.lifecycle_actions import (
     WrongDevice,
 )
 from gateway.bus.transitions import transition_table
-from gateway.cia301 import NmtCommand, abort_text
+from gateway.canopen.cia301 import NmtCommand, abort_text
+from gateway.canopen.objref import ObjRef
 from gateway.device.boot_steps import ConfigStep
-from gateway.objref import ObjRef
 
 #: what the lifecycle speaks in is defined in ``lifecycle_actions`` and read from here too
 __all__ = [

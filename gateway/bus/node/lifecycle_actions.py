@@ -1,8 +1,9 @@
 """What the lifecycle of a node speaks in (``bus/node/lifecycle.py``): its states, the
-actions it asks the driver for, and the changes it reports. Plain values, no behaviour.
+actions it asks the driver for, and the changes it reports; what node guarding expects in each
+state (``GUARD_EXPECTS``, told to the supervision). Plain values, no behaviour.
 
-Imports: gateway.device.boot_steps (the step type), gateway.cia301, gateway.objref and the
-standard library.
+Imports: gateway.device.boot_steps (the step type), gateway.canopen.cia301, gateway.canopen.objref,
+gateway.canopen.states and the standard library.
 """
 
 from __future__ import annotations
@@ -11,9 +12,10 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal, NamedTuple
 
-from gateway.cia301 import SDO_ABORT_NO_OBJECT, SDO_ABORT_NO_SUBINDEX
+from gateway.canopen.cia301 import SDO_ABORT_NO_OBJECT, SDO_ABORT_NO_SUBINDEX
+from gateway.canopen.objref import ObjRef
+from gateway.canopen.states import NmtState
 from gateway.device.boot_steps import ConfigStep
-from gateway.objref import ObjRef
 
 
 class LifecycleState(StrEnum):
@@ -25,6 +27,26 @@ class LifecycleState(StrEnum):
     #: running master): it is only heard, nothing of its lifecycle acts
     LISTENING = "listening"
 
+    @property
+    def guard_expects(self) -> NmtState | None:
+        """What a node-guarding answer must report in this state (``GUARD_EXPECTS``)."""
+        return GUARD_EXPECTS[self]
+
+    @property
+    def answers_configuration(self) -> bool:
+        """The node answers its configuration now: its SDO answers are signs of life."""
+        return self in (LifecycleState.BOOTING, LifecycleState.CONFIGURING)
+
+
+#: What a node-guarding answer must report in each lifecycle state. None = any valid state.
+#: The supervision (``bus.error_control.node_supervision``) is told it at each change.
+GUARD_EXPECTS: dict[LifecycleState, NmtState | None] = {
+    LifecycleState.WAITING: None,  # not configured by us yet: whatever it reports
+    LifecycleState.BOOTING: None,  # found running: NMT pre-operational is on its way
+    LifecycleState.CONFIGURING: NmtState.PRE_OPERATIONAL,  # SGH10 manual 4.2.1.1
+    LifecycleState.OPERATIONAL: NmtState.OPERATIONAL,  # after our NMT start
+    LifecycleState.LISTENING: None,  # another master's: what it commands (NMT_EXPECTS) if heard
+}
 
 # -- actions (what the driver must do); NamedTuples so ``action[0]`` is the kind
 

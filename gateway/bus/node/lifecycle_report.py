@@ -10,7 +10,7 @@ bounds the rest.
 
 Pure: changes in, reports out; it writes nothing, no I/O and no clock.
 
-Imports: bus.node.events, bus.node.lifecycle, gateway.cia301, logging.
+Imports: bus.events, bus.node.lifecycle, gateway.canopen.cia301, logging.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from gateway.bus.node.events import Note
+from gateway.bus.events import Note
 from gateway.bus.node.lifecycle import (
     IDENTITY_NAMES,
     BootTimeout,
@@ -32,7 +32,7 @@ from gateway.bus.node.lifecycle import (
     StepSkipped,
     WrongDevice,
 )
-from gateway.cia301 import abort_text
+from gateway.canopen.cia301 import abort_text
 
 
 @dataclass(frozen=True)

@@ -21,17 +21,17 @@ boot-up, loss, NMT reset / reset communication no (the other master configures i
 What the node does with it (its diagnostics, an adoption) is done by the functions below,
 which ``Node`` calls.
 
-Imports: bus.node.lifecycle_actions (its states), bus.node.events, bus.node.node (the type
-only), states. No I/O, no clock.
+Imports: bus.node.lifecycle_actions (its states), bus.events, bus.node.node (the type
+only), canopen.states. No I/O, no clock.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from gateway.bus.node.events import HealthChanged, Output
+from gateway.bus.events import HealthChanged, Output
 from gateway.bus.node.lifecycle_actions import LifecycleState
-from gateway.states import NmtState
+from gateway.canopen.states import NmtState
 
 if TYPE_CHECKING:
     from gateway.bus.node.node import Node

@@ -23,7 +23,7 @@ when the channel is free (``_drive``), and while work is queued with no transfer
 channel's deadline is the moment it was queued (``SdoChannel.next_deadline``), so the driver
 ticks the node at once even on a path that forgot to drive.
 
-The decisions are tables: ``GUARD_EXPECTS`` and ``NMT_EXPECTS`` (node_supervision), ``SDO_DONE``.
+The decisions are tables: ``GUARD_EXPECTS`` (lifecycle_actions), ``NMT_EXPECTS`` (node_supervision), ``SDO_DONE``.
 A node another master manages (a pair's standby) is in lifecycle LISTENING: ``bus.node.listening``.
 
 Truthfulness (docs/architecture.md, "Two flows", quality): a boot-up and a loss invalidate every value
@@ -31,10 +31,9 @@ of the node (``health.fresh_since = None``); values are good again only when rec
 gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
 right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
 
-Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, events, features,
-sdo_done), device.* (boot_steps, settings), bus.sdo.* (channel, client), bus.error_control.* (node_supervision,
-guarding bit), bus.emcy, pdo.codec, pdo.verify, cia301, errors, image, states, objref, logging
-(levels of the log lines it returns). Never python-can, asyncio or a northbound module.
+Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, features, sdo_done), bus.events,
+device.* (boot_steps, settings), bus.sdo.*, bus.error_control.*, bus.emcy (the history), pdo.codec,
+pdo.verify, canopen.* (cia301, emcy, states, objref), errors, image, logging (log levels). Never python-can, asyncio or a northbound module.
 """
 
 from __future__ import annotations
@@ -43,11 +42,11 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from gateway.bus.emcy import EmcyHistory, decode_emcy
+from gateway.bus.emcy import EmcyHistory
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
 from gateway.bus.error_control.node_supervision import NodeSupervision
+from gateway.bus.events import HealthChanged, Note, Output, Refresh, SdoDone, Send
 from gateway.bus.node import listening
-from gateway.bus.node.events import HealthChanged, Note, Output, Refresh, SdoDone, Send
 from gateway.bus.node.features import NodeFeature
 from gateway.bus.node.features.guarding_bit import GuardingBitLink
 from gateway.bus.node.features.refresh import RefreshOnStart
@@ -67,15 +66,16 @@ from gateway.bus.node.outputs import OutputImage
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
 from gateway.bus.sdo.client import SdoTransfer
-from gateway.cia301 import COB_NMT, COB_NMT_EC
+from gateway.canopen.cia301 import COB_NMT, COB_NMT_EC
+from gateway.canopen.emcy import decode_emcy
+from gateway.canopen.objref import ObjRef
+from gateway.canopen.states import LinkState, NmtState
 from gateway.device.boot_steps import ConfigStep
 from gateway.device.settings import NodeSettings
 from gateway.errors import NodeNotOperational
 from gateway.image import NodeHealth, NodeImage
-from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
 from gateway.pdo.verify import MappingMismatch
-from gateway.states import LinkState, NmtState
 
 OBJ_DEVICE_TYPE = ObjRef(0x1000, 0x00)
 
@@ -122,7 +122,7 @@ class Node:
         self.heard = HeardLife()  # what it heard of its life while listening
         if listening:  # no RTR, no life time of ours (``NodeSupervision.on_lifecycle``)
             self.lifecycle.on_listen(0.0)
-            self.supervision.on_lifecycle(LifecycleState.LISTENING)
+            self.supervision.on_lifecycle(LifecycleState.LISTENING.guard_expects, listening=True)
         self.hb, self.guard = self.supervision.hb, self.supervision.guard  # read-only views
         self.features = list(features)  # bus/node/features/
         self._link = next((f for f in self.features if isinstance(f, GuardingBitLink)), None)
@@ -284,7 +284,7 @@ class Node:
         out: list[Output] = [*frames]
         if finished is not None:
             out += self._sdo_finished(finished, now)
-        self.supervision.on_sign_of_life(now, self.lifecycle.state)
+        self.supervision.on_sign_of_life(now, self.lifecycle.state.answers_configuration)
         return out
 
     def on_bus_down(self, now: float) -> list[Output]:
@@ -434,7 +434,7 @@ class Node:
             out.append(r.note)
             if r.state is not None:
                 h.lifecycle = str(r.state)
-                self.supervision.on_lifecycle(r.state)
+                self.supervision.on_lifecycle(r.state.guard_expects, r.state is LifecycleState.LISTENING)
                 if r.state is LifecycleState.LISTENING:
                     listening.report_heard(self)
             if r.last_error is not None:

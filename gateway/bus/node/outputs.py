@@ -12,7 +12,7 @@ external heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes 
 It also keeps the record of the writes (``published``: the values of each RPDO, the time of
 the last write, the number of writes) that the node puts in the process image.
 
-Imports: pdo.codec, bus.node.events, bus.error_control.guarding_bit (the guarding-bit check),
+Imports: pdo.codec, bus.events, bus.error_control.guarding_bit (the guarding-bit check),
 errors, image (the record). No I/O.
 """
 
@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck
-from gateway.bus.node.events import Send
+from gateway.bus.events import Send
 from gateway.errors import Unmapped, ValueOutOfRange
 from gateway.image import SentOutputs
 from gateway.pdo.codec import FieldValueError, RpdoCodec, TpdoCodec

@@ -5,7 +5,7 @@ thread writes a record, and the ``NodeParts`` that hold it all for the master's 
 and services (``bus/master.py``).
 
 Imports: bus.node.* (node, features), device.* (boot_steps, settings), bus.error_control.guarding_bit,
-device.resolved, image, objref, pdo.codec, pdo.verify, profiles, config.
+device.resolved, image, canopen.objref, pdo.codec, pdo.verify, profiles, config.
 Nothing northbound, no python-can (the frames are the master's).
 """
 
@@ -23,12 +23,12 @@ from gateway.bus.node.features.rtr_poll import RtrPoll
 from gateway.bus.node.features.sync_wait import SyncWait
 from gateway.bus.node.features.verify_mapping import VerifyMapping
 from gateway.bus.node.node import Node
+from gateway.canopen.objref import ObjRef
 from gateway.config import NodeConfig
 from gateway.device.boot_steps import ConfigStep
 from gateway.device.resolved import NamedNode, ResolvedNode
 from gateway.device.settings import NodeSettings
 from gateway.image import NodeImage, ProcessImage, RxCell
-from gateway.objref import ObjRef
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
 from gateway.pdo.verify import MappingMismatch
 from gateway.profiles import LoadedProfile, expected_identity

@@ -8,7 +8,7 @@ Each entry tells its node's lifecycle the result and returns an ``SdoOutcome``: 
 the lifecycle's changes and what else the node (``bus/node/node.py``, ``_sdo_finished``) must
 do; the node applies it. Nothing here writes the node; no I/O and no clock.
 
-Imports: bus.node.events, bus.node.lifecycle, logging; bus.sdo.channel and bus.sdo.client for
+Imports: bus.events, bus.node.lifecycle, logging; bus.sdo.channel and bus.sdo.client for
 types only.
 """
 
@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
-from gateway.bus.node.events import Note, Output, SdoDone
+from gateway.bus.events import Note, Output, SdoDone
 from gateway.bus.node.lifecycle import Change, LifecycleState, NodeLifecycle
 
 if TYPE_CHECKING:

@@ -67,7 +67,7 @@ The time slot is CiA 302-2's: ``priority * priority_slot_s + node_id * device_sl
 (1F90h:04, 1F90h:05); the defaults here are shorter than 1F90h's (1500 ms, 10 ms) so that a
 take-over fits in a second.
 
-Imports: bus.pair.protocol (its vocabulary), bus.transitions (the table's rows), cia301 (the heartbeat's COB-ID) and
+Imports: bus.pair.protocol (its vocabulary), bus.transitions (the table's rows), canopen.cia301 (the heartbeat's COB-ID) and
 the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
@@ -94,7 +94,7 @@ from gateway.bus.pair.protocol import (
     wins,
 )
 from gateway.bus.transitions import transition_table
-from gateway.cia301 import COB_NMT_EC as COB_HEARTBEAT  # heartbeat, + node id
+from gateway.canopen.cia301 import COB_NMT_EC as COB_HEARTBEAT  # heartbeat, + node id
 
 __all__ = [
     "COB_ACTIVE_MASTER_REQUEST",

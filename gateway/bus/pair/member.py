@@ -16,7 +16,7 @@ Rule: everything runs on the event loop (the master hands it frames from its one
 does no blocking I/O; the master's ``send`` and ``clock`` are its only ways out and in.
 
 Imports: bus.pair.flying_master, bus.producers (its heartbeat's schedule), bus.sdo.client (the
-abort frame), cia301, config (types), asyncio (its timers), logging and the standard library.
+abort frame), canopen.cia301, config (types), asyncio (its timers), logging and the standard library.
 Never a northbound module.
 """
 
@@ -37,7 +37,7 @@ from gateway.bus.pair.flying_master import (
 )
 from gateway.bus.producers import Periodic
 from gateway.bus.sdo.client import abort_frame
-from gateway.cia301 import COB_NMT_EC, COB_SDO_RX, SDO_ABORT_TIMEOUT
+from gateway.canopen.cia301 import COB_NMT_EC, COB_SDO_RX, SDO_ABORT_TIMEOUT
 from gateway.config import Config
 
 log = logging.getLogger("gateway.master")

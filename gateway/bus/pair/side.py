@@ -6,7 +6,7 @@ the role changes. ``mastering`` is the one role gate of the master's send path a
 command service (``require_bus``); ``role`` and ``pair`` are the read-only views adapters read.
 
 Imports: bus.pair.member, bus.pair.flying_master, bus.node (types), bus.sdo.waiters (types),
-bus.driver / bus.bus_peers (types), cia301, config (types), errors, python-can, logging.
+bus.driver / bus.bus_peers (types), canopen.cia301, config (types), errors, python-can, logging.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from gateway.bus.node.parts import NodeParts
 from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
 from gateway.bus.pair.member import PairMember
 from gateway.bus.sdo.waiters import SdoWaiters
-from gateway.cia301 import COB_NMT_EC
+from gateway.canopen.cia301 import COB_NMT_EC
 from gateway.config import Config
 from gateway.errors import NotActive
 

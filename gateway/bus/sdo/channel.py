@@ -5,7 +5,7 @@ The channel runs ``sdo_client.SdoTransfer`` machines and tells its owner (``bus.
 when one finishes; what a finished transfer means (a boot step, a probe, a command) is the
 owner's business. No I/O, no clock: frames out, ``now`` in.
 
-Imports: bus.sdo.client, bus.node.events, cia301, objref.
+Imports: bus.sdo.client, bus.events, canopen.cia301, canopen.objref.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.node.events import Send
+from gateway.bus.events import Send
 from gateway.bus.sdo.client import SdoTransfer
-from gateway.cia301 import COB_SDO_RX
-from gateway.objref import ObjRef
+from gateway.canopen.cia301 import COB_SDO_RX
+from gateway.canopen.objref import ObjRef
 
 
 @dataclass

@@ -40,7 +40,7 @@ with another command specifier is the server's protocol error: the transfer is a
 (05040001h) and it is counted (``protocol_errors``); a phase change the table does not define
 is a bug of ours and raises ``SdoStateError``.
 
-Imports: gateway.cia301 (the command specifiers) and the standard library.
+Imports: gateway.canopen.cia301 (the command specifiers) and the standard library.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ import struct
 from collections.abc import Callable
 from enum import StrEnum
 
-from gateway.cia301 import SdoCcs, SdoScs
+from gateway.canopen.cia301 import SdoCcs, SdoScs
 
 # CiA 301 table 22: abort codes the client itself sends
 ABORT_TOGGLE = 0x05030000  # toggle bit not alternated

@@ -3,16 +3,16 @@
 
 Owned by the master, used on the event loop only.
 
-Imports: bus.node.events (SdoDone), errors, objref, asyncio.
+Imports: bus.events (SdoDone), errors, canopen.objref, asyncio.
 """
 
 from __future__ import annotations
 
 import asyncio
 
-from gateway.bus.node.events import SdoDone
+from gateway.bus.events import SdoDone
+from gateway.canopen.objref import ObjRef
 from gateway.errors import GatewayError, SdoAbort, SdoTimeout
-from gateway.objref import ObjRef
 
 
 class SdoWaiters:

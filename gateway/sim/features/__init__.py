@@ -26,7 +26,7 @@ next reset communication adopts), ``raise_emcy(code, register, mfr, now=)`` /
 ``direction_sign()``, ``calibrate(preset, now)``, ``motion``, ``hints`` (SimHints: ``position``
 the position object; ``extra`` holds the profile's other ``sim:`` keys), ``feature(name)``.
 
-Imports: python-can types and gateway.objref only (the node, sim.node, is referenced for
+Imports: python-can types and gateway.canopen.objref only (the node, sim.node, is referenced for
 typing only).
 """
 
@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import can
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 
 if TYPE_CHECKING:
     from gateway.sim.node import SimNode

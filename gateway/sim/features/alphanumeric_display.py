@@ -15,14 +15,14 @@ Parameters (profile ``features: alphanumeric_display:``): mode_object, mode_valu
 data_identifier_bit, status_data_identifier_bit, text_length, rows {n: {rpdo, chars_1_4,
 chars_5_6}}, acknowledge_control_bits, acknowledged_status_bits.
 
-Imports: gateway.objref, gateway.sim.features.
+Imports: gateway.canopen.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 _BLANK = {1: "", 2: "---"}  # 4.1.2: no valid set point

@@ -13,7 +13,7 @@ On any other node id 5F0Ah:02 is an ordinary parameter.
 Parameters (profile ``features: auto_id:``): object, node_id_object, factory_node_id,
 reply_cob_id; option key_press.
 
-Imports: python-can (Message), gateway.objref, gateway.sim.features, gateway.sim.objects.
+Imports: python-can (Message), gateway.canopen.objref, gateway.sim.features, gateway.sim.objects.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any
 
 import can
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import ABORT_RANGE
 

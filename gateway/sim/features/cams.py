@@ -11,14 +11,14 @@ Choices where the manual is silent, after DS-406: a disabled cam reads 0 whateve
 a low limit above the high limit makes a cam that wraps through the end of the measuring range
 (active when position >= low or position <= high).
 
-Imports: gateway.sim.features, gateway.objref.
+Imports: gateway.sim.features, gateway.canopen.objref.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 

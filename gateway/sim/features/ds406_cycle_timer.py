@@ -4,14 +4,14 @@ SGH10 manual 4.7.2.31 (and MSK5000 4.6.1): writing either object changes both. O
 whose profile names the feature get this coupling: on a CiA 401 I/O module 6200h is a digital
 output and must stay independent of the TPDO1 event timer.
 
-Imports: gateway.objref, the feature base class (sim.features), sim.node (types).
+Imports: gateway.canopen.objref, the feature base class (sim.features), sim.node (types).
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 if TYPE_CHECKING:

@@ -10,14 +10,14 @@ reset). Only a later NMT start brings it back.
 Parameters (profile ``features: external_heartbeat:``): interval, source (objects), sources
 (value -> "rpdo" / "sync").
 
-Imports: gateway.objref, gateway.sim.features.
+Imports: gateway.canopen.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 OPERATIONAL = 0x05

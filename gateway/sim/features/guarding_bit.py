@@ -8,7 +8,7 @@ a gateway's guarding-bit check is tested.
 
 Parameters (profile ``features: guarding_bit:``): control, control_bit, status, status_bit.
 
-Imports: gateway.objref, gateway.sim.features, gateway.sim.pdo.
+Imports: gateway.canopen.objref, gateway.sim.features, gateway.sim.pdo.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Any
 
 import gateway.sim.pdo as pdo
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 

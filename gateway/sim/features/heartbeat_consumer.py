@@ -17,7 +17,7 @@ What the node does, as a table of (event -> reaction):
 The manual names no NMT reaction (the device has no 1029h), so the NMT state does not change.
 The EMCY code and error register bits come from the feature parameters.
 
-Imports: python-can (Message), gateway.sim.features, gateway.objref.
+Imports: python-can (Message), gateway.sim.features, gateway.canopen.objref.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from typing import Any
 
 import can
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 COB_HEARTBEAT_BASE = 0x700  # DS-301 NMT error control (boot-up / heartbeat)

@@ -25,7 +25,7 @@ Anything else on 7E5h is ignored, as are services not allowed in the current sta
 (manual Table 10). Bit timing table (4.6.2.2): 0 1000, 1 800, 2 500, 3 250, 4 125, 6 50,
 7 20 kbit/s; a simulator has no physical bit rate, ``bitrate_kbps`` reports the active one.
 
-Imports: python-can (Message), gateway.cia301 (the LSS COB-IDs), gateway.cia305 (the command
+Imports: python-can (Message), gateway.canopen.cia301 (the LSS COB-IDs), gateway.canopen.cia305 (the command
 specifiers, the bit timing table, the frame layout), gateway.sim.features.
 """
 
@@ -36,8 +36,8 @@ from typing import Any
 
 import can
 
-from gateway import cia305
-from gateway.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
+from gateway.canopen import cia305
+from gateway.canopen.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
 from gateway.sim.features import SimFeature, register
 
 #: SGH10 manual 4.6.2.2: the bit timing indices a slave takes when its profile does not list

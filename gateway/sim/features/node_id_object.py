@@ -24,7 +24,7 @@ As a table of (event -> effect):
 The node id object always reads the node id in effect after a reset, unless a new value was
 written since. A simulator has no physical bit rate: the effective one is ``bitrate_kbps``.
 
-Imports: python-can (Message), gateway.cia301, gateway.sim.features, gateway.sim.objects, gateway.objref.
+Imports: python-can (Message), gateway.canopen.cia301, gateway.sim.features, gateway.sim.objects, gateway.canopen.objref.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from typing import Any
 
 import can
 
-from gateway.cia301 import NmtCommand
-from gateway.objref import ObjRef
+from gateway.canopen.cia301 import NmtCommand
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import ABORT_RANGE
 

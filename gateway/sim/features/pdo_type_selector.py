@@ -11,7 +11,7 @@ Writes of a selector value the manual does not list (anything but 00h, 02h, 20h,
 POSI+) are refused with SDO abort 06090030h (value range exceeded). With software 1.01
 (6507h bytes 2,3 < 0102h) the selector is not storable and returns to 00h at every reset.
 
-Imports: gateway.sim.features, gateway.sim.pdo, gateway.sim.objects, gateway.objref.
+Imports: gateway.sim.features, gateway.sim.pdo, gateway.sim.objects, gateway.canopen.objref.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from __future__ import annotations
 from typing import Any
 
 import gateway.sim.pdo as pdo
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import ABORT_RANGE
 

@@ -33,14 +33,14 @@ sensor_error (manual Tables 19-21 and 31; see the profile notes on 3200h vs FF20
 On entering OPERATIONAL TPDO1 is sent once (the communication example 5.3.1.3 shows TPDO1 of
 both devices right after "all operational", with the factory event timer 0).
 
-Imports: gateway.objref, gateway.sim.features.
+Imports: gateway.canopen.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 OPERATIONAL = 0x05

@@ -17,14 +17,14 @@ What the manual says (MSK5000CAN manual 3 NOTICE, 3.2, 4.6.1.22, 4.6.1.29, 4.6.1
 Object addresses come from the feature parameters (``command``, ``calibration``, ``offset``,
 ``position``, ``not_referenced_flag``...), with the MSK5000CAN objects as defaults.
 
-Imports: gateway.objref, gateway.sim.features.
+Imports: gateway.canopen.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 # MSK5000CAN manual 4.4.1.3 Table 8: 08000024h "No data available"

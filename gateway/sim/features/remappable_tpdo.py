@@ -20,7 +20,7 @@ The node builds each TPDO from the current 1A0xh values, so a reactivated PDO ca
 layout from its next transmission. This module keeps no state of its own: the step reached is
 what the objects say (see :meth:`RemappableTpdo.state`).
 
-Imports: python-can (Message), gateway.cia301, gateway.objref, gateway.sim.features, gateway.sim.objects.
+Imports: python-can (Message), gateway.canopen.cia301, gateway.canopen.objref, gateway.sim.features, gateway.sim.objects.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from typing import Any
 
 import can
 
-from gateway.cia301 import COB_ID_INVALID
-from gateway.objref import ObjRef
+from gateway.canopen.cia301 import COB_ID_INVALID
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 from gateway.sim.objects import bit_size, type_size
 

@@ -10,14 +10,14 @@ node leaves OPERATIONAL. The speed is 6030h:01 in units of 6005h:02 x 0.01 mm/s.
 Also kept here: 5122h:01 bit 2 "Speed check (v > 5 m/s)" (4.6.1.23), the fixed hardware limit
 (profile sim hint ``hardware_speed_limit_mm_s``).
 
-Imports: gateway.objref, gateway.sim.features.
+Imports: gateway.canopen.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 _OPERATIONAL = 0x05  # NMT state byte (manual 4.5.3)

@@ -15,14 +15,14 @@ EMCY 0000h (4.5.1), and 1001h bit 0 stays set while any error persists.
 Parameters (profile ``features: work_areas:``): state, low_limit, high_limit (lists of objects),
 state_bits {out_of_range, above_high_limit, below_low_limit}, alarms, alarm_bits, emcy (codes).
 
-Imports: gateway.objref, gateway.sim.features.
+Imports: gateway.canopen.objref, gateway.sim.features.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.sim.features import SimFeature, register
 
 _EVAL_PERIOD_S = 0.005  # how often tick() re-evaluates the areas between TPDOs / SDO reads

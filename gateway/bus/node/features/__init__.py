@@ -14,7 +14,7 @@ A node has the features its profile and settings ask for (``Node.features``, bui
 ``guarding_bit`` (``guarding_bit``), SYNC-driven TPDOs without a SYNC producer
 (``sync_wait``). The order is the order they act in.
 
-Imports: bus.node.events; image, bus.sdo.channel and bus.sdo.client for types only. Never
+Imports: bus.events; image, bus.sdo.channel and bus.sdo.client for types only. Never
 python-can, asyncio or a northbound module.
 """
 
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Protocol
 
-from gateway.bus.node.events import Output
+from gateway.bus.events import Output
 
 if TYPE_CHECKING:
     from gateway.bus.sdo.channel import SdoChannel, SdoJob

@@ -4,7 +4,7 @@ for it) and the device echoes it in the status word of its TPDO; the link is OK 
 echoes follow, FAULT after the tolerance (missed status words or time), UNKNOWN after a boot-up
 or a loss until the next echo. The node's health says it (``NodeHealth.link``).
 
-Imports: bus.node.features, bus.node.events, bus.error_control.guarding_bit, states. No I/O.
+Imports: bus.node.features, bus.events, bus.error_control.guarding_bit, canopen.states. No I/O.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from __future__ import annotations
 import logging
 
 from gateway.bus.error_control.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
-from gateway.bus.node.events import HealthChanged, Note, Output
+from gateway.bus.events import HealthChanged, Note, Output
 from gateway.bus.node.features import NodeContext, NodeFeature
-from gateway.states import LinkState
+from gateway.canopen.states import LinkState
 
 
 class GuardingBitLink(NodeFeature):

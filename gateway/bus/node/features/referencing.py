@@ -3,7 +3,7 @@ referenced, and the reference is lost at power-on. The gateway reads the referen
 after configuration, after an EMCY and after a client writes the referencing command, and
 flags the position signal invalid (quality ``bad``) while it is not referenced.
 
-Imports: bus.node.features, bus.node.events, objref, image (the node's health it marks);
+Imports: bus.node.features, bus.events, canopen.objref, image (the node's health it marks);
 bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
@@ -12,10 +12,10 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, Any
 
-from gateway.bus.node.events import HealthChanged, Note, Output
+from gateway.bus.events import HealthChanged, Note, Output
 from gateway.bus.node.features import NodeContext, NodeFeature
+from gateway.canopen.objref import ObjRef
 from gateway.image import NodeHealth
-from gateway.objref import ObjRef
 
 if TYPE_CHECKING:
     from gateway.bus.sdo.channel import SdoJob

@@ -2,7 +2,7 @@
 (by RTR where the PDO allows it, else one SDO upload per mapped object; the plan is
 ``pdo.refresh``), so values are good without waiting for a change.
 
-Imports: bus.node.features, bus.node.events, device.values, pdo.refresh;
+Imports: bus.node.features, bus.events, device.values, pdo.refresh;
 bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from gateway.bus.node.events import Output, Send, ValuesRead
+from gateway.bus.events import Output, Send, ValuesRead
 from gateway.bus.node.features import NodeContext, NodeFeature
 from gateway.device.values import decode_value
 from gateway.pdo.refresh import Refresh

@@ -1,17 +1,17 @@
 """Setting ``rtr_poll_ms``: ask every TPDO by RTR at that period while the node is operational
 (for devices whose TPDOs are sent only on request).
 
-Imports: bus.node.features, bus.node.events, pdo.codec, states. No I/O.
+Imports: bus.node.features, bus.events, pdo.codec, canopen.states. No I/O.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from gateway.bus.node.events import Output, Send
+from gateway.bus.events import Output, Send
 from gateway.bus.node.features import NodeContext, NodeFeature
+from gateway.canopen.states import NmtState
 from gateway.pdo.codec import TpdoCodec
-from gateway.states import NmtState
 
 
 class RtrPoll(NodeFeature):

@@ -5,7 +5,7 @@ start the node's ``last_error`` says so ("waiting for SYNC-driven TPDOs: no SYNC
 with a log line; when such a TPDO arrives after all (another master's SYNC), the text is taken
 back at the node's next tick (a steady heartbeat-supervised node ticks at its consumer deadline).
 
-Imports: bus.node.features, bus.node.events, pdo.codec (types), logging. No I/O.
+Imports: bus.node.features, bus.events, pdo.codec (types), logging. No I/O.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 
-from gateway.bus.node.events import HealthChanged, Note, Output
+from gateway.bus.events import HealthChanged, Note, Output
 from gateway.bus.node.features import NodeContext, NodeFeature
 from gateway.pdo.codec import TpdoCodec
 

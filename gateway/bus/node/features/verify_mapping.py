@@ -2,7 +2,7 @@
 them with the layout the codecs decode (``pdo.verify``); until they match, the node's PDO
 signals are not served (flagged invalid), and a mismatch says where.
 
-Imports: bus.node.features, bus.node.events, pdo.verify, objref;
+Imports: bus.node.features, bus.events, pdo.verify, canopen.objref;
 bus.sdo.channel and bus.sdo.client for types only. No I/O.
 """
 
@@ -12,9 +12,9 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
-from gateway.bus.node.events import HealthChanged, Note, Output
+from gateway.bus.events import HealthChanged, Note, Output
 from gateway.bus.node.features import NodeContext, NodeFeature
-from gateway.objref import ObjRef
+from gateway.canopen.objref import ObjRef
 from gateway.pdo.verify import MappingMismatch, MappingRead, compare_mapping
 
 if TYPE_CHECKING:

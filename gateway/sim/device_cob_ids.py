@@ -8,7 +8,7 @@ written for another node id holds that node's).
 ``receive_map`` is derived again whenever a COB-ID, a PDO parameter or the node id changes (the
 node drops its copy then).
 
-Imports: gateway.cia301 (COB-IDs and their bits), sim.objects, sim.pdo. Nothing of bus/,
+Imports: gateway.canopen.cia301 (COB-IDs and their bits), sim.objects, sim.pdo. Nothing of bus/,
 modbus/, zenoh_bridge/.
 """
 
@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 import gateway.sim.pdo as pdo
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     COB_EMCY,
     COB_ID_INVALID,
     COB_ID_MASK_11BIT,

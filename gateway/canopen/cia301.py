@@ -8,7 +8,7 @@ every other module imports it from here (the device manuals repeat these tables:
 4.2.1.2 table 3 and AP05 manual 5.2.1.2 table 23 for NMT, SGH10 manual 4.4.1.3 table 8 for the
 abort codes). Device-specific numbers stay with the device's profile.
 
-Imports: canopen.objectdictionary.datatypes (the data type codes), gateway.code_text (the base
+Imports: canopen.objectdictionary.datatypes (the data type codes), gateway.canopen.code_text (the base
 of the enums whose members carry a text). Nothing else of the gateway.
 """
 
@@ -18,7 +18,7 @@ from enum import IntEnum
 
 from canopen.objectdictionary import datatypes as dt
 
-from gateway.code_text import CodeText
+from gateway.canopen.code_text import CodeText
 
 # --------------------------------------------------------------------------- function codes
 # CiA 301 7.3.3 pre-defined connection set (11-bit CAN-ID = function code + node id)
@@ -205,6 +205,7 @@ def time_word(total_ms: int) -> int:
         raise ValueError(f"{total_ms} ms is outside 0..{(TIME_DAYS_MAX + 1) * MS_PER_DAY - 1} ms")
     return days << TIME_DAYS_SHIFT | ms
 
+
 # --------------------------------------------------------------------------- EMCY
 # CiA 301 7.5.2.2 (object 1001h, carried in byte 2 of every EMCY frame)
 #: error register (1001h) bits
@@ -218,7 +219,6 @@ ERROR_REGISTER_BITS: dict[int, str] = {
     6: "reserved",
     7: "manufacturer specific",
 }
-
 
 
 def register_bits(register: int) -> list[str]:

@@ -57,7 +57,7 @@ from prometheus_client import (
 )
 from prometheus_client.metrics_core import CounterMetricFamily, GaugeMetricFamily, Metric
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("gateway.metrics")  # the name users see in log lines
 
 NAMESPACE = "canopen_gateway"
 CONTENT_TYPE = CONTENT_TYPE_LATEST

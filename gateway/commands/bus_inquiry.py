@@ -2,7 +2,7 @@
 inquire (CiA 305) and the scan of which node ids are on the bus and what they are.
 
 Imports: bus.lss.master (its errors), bus.master (the master), bus.scan (the scan beside the
-master), device.values (value codecs), errors, objref, python-can (its error type).
+master), device.values (value codecs), errors, canopen.objref, python-can (its error type).
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from gateway.bus.lss.master import LssBusy, LssStateError
 from gateway.bus.master import Master
 from gateway.bus.scan import Found, scan_beside
 from gateway.bus.scan import report as scan_report
+from gateway.canopen.objref import ObjRef
 from gateway.device.values import decode_value
 from gateway.errors import BusDown, GatewayError, LssConflict
-from gateway.objref import ObjRef
 
 
 async def lss_inquire(

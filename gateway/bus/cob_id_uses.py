@@ -19,7 +19,7 @@ its ``tpdo:``/``rpdo:`` ``cob_id``, a profile's ``boot.sdo`` write, the pre-defi
 receivers for one COB-ID; a device's own TPDO and RPDO on one COB-ID (``loops_back``) is a
 warning.
 
-Imports: cia301, config (types), objref, eds (a file's COB-IDs), profiles.layout, device.resolved, bus.pair.flying_master (the CiA 302-2 COB-IDs of a pair).
+Imports: canopen.cia301, config (types), canopen.objref, eds (a file's COB-IDs), profiles.layout, device.resolved, bus.pair.flying_master (the CiA 302-2 COB-IDs of a pair).
 No I/O but reading the device files (cached).
 """
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from gateway.bus.pair.flying_master import FLYING_MASTER_COB_IDS
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     COB_EMCY,
     COB_LSS_MASTER,
     COB_LSS_SLAVE,
@@ -41,11 +41,11 @@ from gateway.cia301 import (
     COB_SYNC,
     COB_TPDO,
 )
+from gateway.canopen.objref import ObjRef
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 from gateway.eds import EdsError, load_eds
-from gateway.eds.cob_ids import file_cob_ids
-from gateway.objref import ObjRef
+from gateway.eds.file_cob_ids import file_cob_ids
 from gateway.profiles.layout import pdo_objects
 
 MASTER = "the master"

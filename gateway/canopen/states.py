@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from gateway import cia301
+from gateway.canopen import cia301
 
 
 class NmtState(IntEnum):

@@ -8,7 +8,7 @@ default SDO server 1200h:01/02, RPDOs 1400h..15FFh:01, TPDOs 1800h..19FFh:01) as
 DCF's ParameterValue, else the DefaultValue); ``foreign_cob_ids`` the valid absolute ones that
 are another node's pre-defined COB-ID; ``dcf_node_id`` the ``[DeviceComissioning] NodeID``.
 
-Imports: gateway.cia301, gateway.objref, gateway.eds.parse; gateway.eds (EdsFile) for types only.
+Imports: gateway.canopen.cia301, gateway.canopen.objref, gateway.eds.parse; gateway.eds (EdsFile) for types only.
 """
 
 from __future__ import annotations
@@ -16,15 +16,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from gateway.cia301 import (
+from gateway.canopen.cia301 import (
     COB_ID_EXTENDED,
     COB_ID_INVALID,
     COB_ID_MASK_11BIT,
     PDO_COMM_BASE,
     predefined_owner,
 )
+from gateway.canopen.objref import ObjRef
 from gateway.eds.parse import EdsProblem, parse_int
-from gateway.objref import ObjRef
 
 if TYPE_CHECKING:
     from gateway.eds import EdsFile

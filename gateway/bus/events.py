@@ -1,4 +1,6 @@
-"""What a node machine (``bus.node.node.Node``) returns to its driver: the outputs of every event.
+"""The bus's output vocabulary: what a node machine (``bus.node.node.Node``), its SDO channel
+(``bus.sdo``) and their parts return to the driver, the outputs of every event. Here, beside both
+packages, so neither imports the other for it.
 
 Imports: pdo.refresh (the plan's record, re-exported), objref. No I/O.
 """

@@ -32,7 +32,7 @@ Config (section ``health:`` of the gateway config): ``host`` (127.0.0.1), ``port
 Port 0 passed to ``HealthServer`` itself binds an ephemeral port (see ``.port``): the caller
 decides that 0 in the config means "do not start one".
 
-Imports: the standard library, prometheus_client and turns only.
+Imports: the standard library, prometheus_client and runtime.turns only.
 """
 
 from __future__ import annotations
@@ -50,9 +50,9 @@ from typing import Any
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
-from gateway.turns import RETRY_AFTER_S, LoopTurns
+from gateway.runtime.turns import RETRY_AFTER_S, LoopTurns
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("gateway.health")  # the name users see in log lines
 
 StatusFn = Callable[[], Mapping[str, Any] | Awaitable[Mapping[str, Any]]]
 
