@@ -384,7 +384,9 @@ def test_guarded_devices_are_not_guarded_by_the_standby_and_guarding_goes_on_aft
 # ------------------------------------------------------------------ the operator's NMT state
 
 
-def test_a_node_the_operator_put_pre_operational_is_adopted_pre_operational_after_a_kill(plant: Plant) -> None:
+def test_the_operators_nmt_state_is_adopted_a_node_put_pre_operational_stays_so_after_a_kill(
+    plant: Plant,
+) -> None:
     bus, a, b = plant.bus, plant.a, plant.b
     before = plant.mark()
     modbus_write(a, plant.cfg, "wire", "nmt_command", 128)  # the operator, through A's Modbus
@@ -404,6 +406,7 @@ def test_a_node_the_operator_put_pre_operational_is_adopted_pre_operational_afte
     assert device_states(plant, "display", plant.settled) == {b"\x05"}
     detail = node_detail(b, "wire")
     assert detail["alive"] and detail["nmt_state"] == "pre_operational", detail
+    assert detail["lifecycle"] == "operational", detail  # adopted: managed, in the operator's state
 
 
 # ------------------------------------------------------------------ a cable cut
