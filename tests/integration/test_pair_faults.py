@@ -9,7 +9,11 @@ third-party CiA 302-2 master (tests/flying_master_302.py, written from the shipp
 behaviour) joins as a member of its own. Roles are read from each gateway's ``/healthz``.
 
 Every test starts with A (priority 0) active and the devices configured, and B (priority 1)
-standby; over every run no gateway sends an NMT command after that and no device boots again.
+standby; over every run no gateway sends an NMT command after that (but the operator's own, in
+its row) and no device boots again. The guarded row runs every process on a bus carrying remote
+frames (``RTR_BUS``: socketcand's protocol has none). Synchronised on the frames and on
+``/healthz``; a member the machine starved may log a stall (``did not run``), which the rows
+tolerate where the docs say what it then does.
 """
 
 from __future__ import annotations
