@@ -340,11 +340,14 @@ def test_the_active_gateway_freezes_and_thawed_it_stands_by_before_it_sends_anyt
     logical_heartbeats(bus, plant.mark(), 20, "after the thaw")
     # thawed, A sent its own heartbeat and nothing else: no logical heartbeat, SYNC, RPDO, SDO
     assert {f.cob_id for f in bus.frames[thawed:] if f.sender == "A"} <= {COB_HB + A_ID}
-    assert plant.logical_senders(thawed) == {"B"}
     assert sdo_requests(plant, "B", frozen) == [] and sdo_requests(plant, "A", frozen) == []
     for node in NODES:
         assert device_states(plant, node, plant.settled) == {b"\x05"}, node
-    assert b.said("active ->") == 0
+    if not b.said("did not run"):
+        # unless this machine starved B for longer than the take-over time (it then stands by
+        # and negotiates again: docs/redundancy.md), B alone masters the bus from the thaw on
+        assert plant.logical_senders(thawed) == {"B"}
+        assert b.said("active ->") == 0
 
 
 # ------------------------------------------------------------------ guarded devices
