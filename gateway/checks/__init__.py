@@ -345,6 +345,15 @@ def cob_id_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
     return out
 
 
+#: socketcand's ASCII protocol (rawmode ``< send ID LEN DATA >``) has no remote frame: a guarding
+#: RTR arrives as a data frame of no data, which no device answers
+GUARDING_OVER_SOCKETCAND = (
+    "node guarding needs remote frames (RTR), which socketcand's protocol cannot carry: the node "
+    "would be counted lost; supervise it by heartbeat (supervision: heartbeat) or use another "
+    "CAN interface"
+)
+
+
 def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
     """What runs but may not do what is meant (see the module docstring)."""
     out: list[Problem] = []
@@ -367,6 +376,8 @@ def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
         key = f"nodes[{i}]"
         if rn.sync_tpdos and not sync:
             out.append((key, f"node {n.name}: {sync_wait_text(rn)}"))
+        if rn.settings.supervision == "guarding" and cfg.can.interface == "socketcand":
+            out.append((f"{key}.supervision", f"node {n.name}: {GUARDING_OVER_SOCKETCAND}"))
         try:
             eds = load_eds(rn.lp.eds_path)
         except EdsError:

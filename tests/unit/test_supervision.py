@@ -404,3 +404,23 @@ def test_heartbeat_and_guarding_answer_the_liveness_queries_of_one_base(make) ->
     lost = [o for o in sup.poll(just_after(sup.deadline_s)) if isinstance(o, NodeLost)]
     assert len(lost) == 1 and sup.lost and not sup.alive and sup.state is Liveness.LOST
     assert sup.losses == 1 and sup.deadline_s is None
+
+
+@pytest.mark.parametrize("first_toggle", [0, 1])
+def test_a_listener_joining_a_guarded_bus_follows_the_toggle_it_hears_first(first_toggle: int) -> None:
+    """A pair's standby that joins while the active master guards the node hears an answer of
+    either toggle first: it is where that master's guarding is, not a toggle error; from then
+    on the toggle must alternate."""
+    g = NodeGuardingMaster(100, 3)  # never polled: another master sends the RTRs
+    first = [o for o in g.on_response(OPERATIONAL | first_toggle << 7, 1.0) if isinstance(o, ToggleError)]
+    assert first == [] and g.alive and g.toggle_errors == 0
+    assert [o for o in g.on_response(OPERATIONAL | (first_toggle ^ 1) << 7, 1.1) if isinstance(o, ToggleError)] == []
+    repeated = g.on_response(OPERATIONAL | (first_toggle ^ 1) << 7, 1.2)
+    assert [o for o in repeated if isinstance(o, ToggleError)] and g.toggle_errors == 1
+
+
+def test_the_guarding_master_still_wants_toggle_0_first() -> None:
+    """The master that activates guarding (its first RTR) expects toggle 0 (DS-301)."""
+    g = NodeGuardingMaster(100, 3)
+    g.poll(1.0)
+    assert [o for o in g.on_response(OPERATIONAL | 0x80, 1.01) if isinstance(o, ToggleError)]

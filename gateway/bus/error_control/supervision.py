@@ -320,7 +320,8 @@ class NodeGuardingMaster(Supervisor):
     ===========  =================================================  ========  ==========================
 
     Listening (a pair's standby): the owner does not ``poll`` (no RTR, no life time of ours:
-    nobody may be guarding), it feeds the answers it hears (the toggle is followed) and the
+    nobody may be guarding), it feeds the answers it hears (the toggle is followed from the first
+    one heard, whichever it carries: the other master's guarding may be anywhere) and the
     other master's RTRs (``on_rtr_heard``): the node is lost when more RTRs than the life time
     factor went unanswered, the life time counted in the other master's own guard cycles.
 
@@ -399,6 +400,10 @@ class NodeGuardingMaster(Supervisor):
         raw_state = byte & 0x7F
         out: list[Output] = []
         valid = True
+        if not self.active and self.answers == 1:
+            # the first answer heard while another master guards the node (a pair's standby
+            # joining a running bus): its toggle is where that master's guarding is, not an error
+            self.expected_toggle = toggle
         if toggle != self.expected_toggle:
             self.toggle_errors += 1
             out.append(ToggleError(self.expected_toggle, toggle, self.toggle_errors))
