@@ -567,8 +567,8 @@ def test_queued_sdo_work_is_never_left_waiting_for_an_unrelated_deadline(events:
                 h.node.on_nmt_ec(arg, now)
             elif kind == "emcy":
                 h.node.on_emcy(arg, 0.0, now)
-            elif kind == "sdo_answer" and h.node.sdo.active is not None:
-                job, _tr = h.node.sdo.active
+            elif kind == "sdo_answer" and h.node.sdo.running is not None:
+                job, _tr = h.node.sdo.running
                 cmd = 0x60 if job.data is not None else 0x4F
                 raw = bytes([cmd]) + job.obj.index.to_bytes(2, "little") + bytes([job.obj.sub])
                 h.node.on_sdo_response(raw + bytes([arg, 0, 0, 0]), now)

@@ -164,9 +164,9 @@ def guarding(gt_ms: int = 100, factor: int = 3, t0: float = 0.0) -> NodeGuarding
 class TestNodeGuardingMaster:
     def test_first_poll_activates_guarding_with_an_rtr(self) -> None:
         g = NodeGuardingMaster(100, 3)
-        assert not g.active
+        assert not g.guarding_started
         assert g.poll(5.0) == [SendGuardRtr()]
-        assert g.active and g.rtr_sent == 1
+        assert g.guarding_started and g.rtr_sent == 1
 
     def test_rtr_every_guard_time_due_exactly_at_its_time(self) -> None:
         g = guarding(t0=0.0)

@@ -62,7 +62,7 @@ class NodeSupervision:
 
     def next_deadline(self) -> float | None:
         if self.guard is not None and self.guarding:
-            if not self.guard.active:
+            if not self.guard.guarding_started:
                 return 0.0  # the first poll activates guarding (its first RTR)
             return self.guard.next_deadline()
         return self.hb.next_deadline() if self.hb is not None else None

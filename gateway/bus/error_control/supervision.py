@@ -346,7 +346,7 @@ class NodeGuardingMaster(Supervisor):
         self.guard_time_s: float = guard_time_ms / 1000.0
         self.life_time_s: float = guard_time_ms * life_time_factor / 1000.0
         self.expected_state: NmtState | None = None
-        self.active = False
+        self.guarding_started = False
         self.expected_toggle = 0  # DS-301: first answer after activation carries toggle 0
         self.last_valid_s: float | None = None  # or activation / boot-up time
         self.next_rtr_s: float | None = None
@@ -361,7 +361,7 @@ class NodeGuardingMaster(Supervisor):
     @property
     def deadline_s(self) -> float | None:
         """Last instant without a valid answer at which the node still counts as not lost."""
-        if not self.active or self.state is Liveness.LOST or self.last_valid_s is None:
+        if not self.guarding_started or self.state is Liveness.LOST or self.last_valid_s is None:
             return None
         return self.last_valid_s + self.life_time_s
 
@@ -376,9 +376,9 @@ class NodeGuardingMaster(Supervisor):
     # -- events
     def poll(self, now: float) -> list[Output]:
         out: list[Output] = []
-        if not self.active:
+        if not self.guarding_started:
             # SGH10 manual 4.5.2: guarding is enabled by the master's first RTR.
-            self.active = True
+            self.guarding_started = True
             self.last_valid_s = now
             self.next_rtr_s = now
         if self._expired(now):
@@ -400,7 +400,7 @@ class NodeGuardingMaster(Supervisor):
         raw_state = byte & 0x7F
         out: list[Output] = []
         valid = True
-        if not self.active and self.answers == 1:
+        if not self.guarding_started and self.answers == 1:
             # the first answer heard while another master guards the node (a pair's standby
             # joining a running bus): its toggle is where that master's guarding is, not an error
             self.expected_toggle = toggle
@@ -424,8 +424,8 @@ class NodeGuardingMaster(Supervisor):
             valid = False
         self.last_answer_valid = valid
         if valid:
-            if not self.active:
-                self.active = True
+            if not self.guarding_started:
+                self.guarding_started = True
                 self.next_rtr_s = now + self.guard_time_s
             self.last_valid_s = now
             self.unanswered_rtrs = 0
@@ -448,7 +448,7 @@ class NodeGuardingMaster(Supervisor):
     def on_sign_of_life(self, now: float) -> None:
         """Another frame of the node (an SDO answer while it is configured) shows it is there:
         the life time runs from now. Guarding answers stay the only way to become ALIVE."""
-        if self.active and self.state is not Liveness.LOST and self.last_valid_s is not None:
+        if self.guarding_started and self.state is not Liveness.LOST and self.last_valid_s is not None:
             self.last_valid_s = max(self.last_valid_s, now)
 
     def on_bootup(self, now: float) -> list[Output]:
@@ -456,6 +456,6 @@ class NodeGuardingMaster(Supervisor):
         self.bootups += 1
         self.expected_toggle = 0
         self.state = Liveness.UNKNOWN
-        if self.active:
+        if self.guarding_started:
             self.last_valid_s = now
         return [BootUpSeen(), *self._report(NmtState.PRE_OPERATIONAL)]

@@ -39,7 +39,7 @@ class SdoChannel:
         self.timeout_s = timeout_s
         self.retries = retries
         self.jobs: deque[SdoJob] = deque()
-        self.active: Finished | None = None
+        self.running: Finished | None = None
         self._tokens = 0
         # when work waiting in ``jobs`` became startable (nothing running): the owner's next
         # deadline, so queued work never waits for an unrelated timer (None: nothing waits)
@@ -48,22 +48,22 @@ class SdoChannel:
     # -- queries
     @property
     def idle(self) -> bool:
-        return self.active is None
+        return self.running is None
 
     @property
     def busy(self) -> bool:
-        return self.active is not None or bool(self.jobs)
+        return self.running is not None or bool(self.jobs)
 
     def next_deadline(self) -> float | None:
         """The running transfer's timeout; with none running and work queued, the moment the
         work was queued (i.e. due now): queued work is started by the owner's next tick."""
-        if self.active is not None:
-            return self.active[1].next_deadline()
+        if self.running is not None:
+            return self.running[1].next_deadline()
         return self._ready_since if self.jobs else None
 
     def find(self, purpose: str) -> SdoJob | None:
-        if self.active is not None and self.active[0].purpose == purpose:
-            return self.active[0]
+        if self.running is not None and self.running[0].purpose == purpose:
+            return self.running[0]
         return next((j for j in self.jobs if j.purpose == purpose), None)
 
     # -- queue
@@ -77,7 +77,7 @@ class SdoChannel:
         """Queue a transfer at ``now``; the owner starts it when the channel is free."""
         token = self.token()
         self.jobs.append(SdoJob(token, obj, data, purpose, arg))
-        if self.active is None and self._ready_since is None:
+        if self.running is None and self._ready_since is None:
             self._ready_since = now
         return token
 
@@ -88,45 +88,45 @@ class SdoChannel:
 
     # -- transfers
     def start(self, job: SdoJob, now: float) -> list[Send]:
-        assert self.active is None
+        assert self.running is None
         tr = SdoTransfer(
             job.obj.index, job.obj.sub, job.data, timeout_s=self.timeout_s, retries=self.retries
         )
-        self.active = (job, tr)
+        self.running = (job, tr)
         self._ready_since = None
         return self._frames(tr.start(now))
 
     def start_next(self, now: float) -> list[Send]:
-        if self.active is None and self.jobs:
+        if self.running is None and self.jobs:
             return self.start(self.jobs.popleft(), now)
         return []
 
     def on_response(self, data: bytes, now: float) -> tuple[list[Send], Finished | None]:
-        if self.active is None:
+        if self.running is None:
             return [], None
-        return self._step(self.active[1].on_response(data, now), now)
+        return self._step(self.running[1].on_response(data, now), now)
 
     def poll(self, now: float) -> tuple[list[Send], Finished | None]:
-        if self.active is None:
+        if self.running is None:
             return [], None
-        return self._step(self.active[1].poll(now), now)
+        return self._step(self.running[1].poll(now), now)
 
     def cancel_active(self, now: float) -> SdoJob | None:
         """End the running transfer without an abort frame (the device rebooted)."""
-        if self.active is None:
+        if self.running is None:
             return None
-        job, tr = self.active
+        job, tr = self.running
         tr.cancel(send_abort=False)
-        self.active = None
+        self.running = None
         if self.jobs:
             self._ready_since = now
         return job
 
     def _step(self, frames: list[bytes], now: float) -> tuple[list[Send], Finished | None]:
-        assert self.active is not None
+        assert self.running is not None
         out = self._frames(frames)
-        if self.active[1].done:
-            finished, self.active = self.active, None
+        if self.running[1].done:
+            finished, self.running = self.running, None
             if self.jobs:  # the next one is startable from now
                 self._ready_since = now
             return out, finished
