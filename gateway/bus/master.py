@@ -299,15 +299,12 @@ class Master(PairSide):
         health = False
         for o in outs:
             if isinstance(o, Send):
-                if not self.mastering:
+                sent = self._send_as_master(o.cob_id, o.data, rtr=o.rtr, dlc=o.dlc,
+                                            record=o.cob_id == COB_NMT)  # fmt: skip
+                if sent is None:
                     self.standby_dropped += 1  # a pair's standby sends nothing of the nodes'
+                if not sent:
                     continue
-                try:
-                    self.driver.send(o.cob_id, o.data, rtr=o.rtr, dlc=o.dlc)
-                except can.CanError:
-                    continue
-                if o.cob_id == COB_NMT:
-                    self.peers.sent(o.cob_id, o.data, self.clock())
                 if o.rpdo:
                     for listener in self.image.pdo_listeners:
                         listener(p.image, o.cob_id, o.data)
@@ -398,16 +395,29 @@ class Master(PairSide):
         if loop is None:
             return
         self.member.check()
-        if periodic.due(loop.time()) and self.mastering:
-            try:
-                self.driver.send(cob_id, data)
-            except can.CanError:
-                pass
-            else:
-                self.peers.sent(cob_id, data, self.clock())
+        if periodic.due(loop.time()):
+            self._send_as_master(cob_id, data, record=True)
         self._producers[name] = loop.call_at(
             periodic.next_deadline(), self._produce, name, periodic, cob_id, data
         )
+
+    def _send_as_master(
+        self, cob_id: int, data: bytes, *, rtr: bool = False, dlc: int | None = None,
+        record: bool = False,
+    ) -> bool | None:
+        """The one gate of what this gateway sends as the bus's NMT master (the nodes' frames,
+        the logical heartbeat, SYNC): None, nothing sent, while a pair's member does not master
+        the bus; False when the bus refused it; True when queued (``record``: kept for telling
+        our own frames from another master's)."""
+        if not self.mastering:
+            return None
+        try:
+            self.driver.send(cob_id, data, rtr=rtr, dlc=dlc)
+        except can.CanError:
+            return False
+        if record:
+            self.peers.sent(cob_id, data, self.clock())
+        return True
 
     def _housekeeping(self) -> None:
         """Summary lines of the rate-limited logs, once per period."""

@@ -30,3 +30,12 @@ def test_no_adapter_reads_the_masters_role_state() -> None:
 def test_the_master_refuses_commands_in_one_place() -> None:
     text = (ROOT / "bus" / "master.py").read_text(encoding="utf-8")
     assert text.count("raise NotActive(") == 1
+
+
+def test_the_master_sends_as_master_through_one_gate() -> None:
+    """What the master sends as the bus's master (the nodes' frames, the logical heartbeat,
+    SYNC) passes ``_send_as_master``, the one place of its send path that reads the role."""
+    text = (ROOT / "bus" / "master.py").read_text(encoding="utf-8")
+    body = text.split("def _send_as_master", 1)[1].split("\n    def ", 1)[0]
+    assert "if not self.mastering" in body
+    assert text.count("self.driver.send(") == 2  # the gate's, and nmt()'s after require_bus
