@@ -129,10 +129,11 @@ def _wait(cond: Any, timeout_s: float, what: str) -> None:
         time.sleep(0.02)
 
 
-def _config(workdir: pathlib.Path, port: int) -> pathlib.Path:
+def _config(workdir: pathlib.Path, can: dict[str, Any]) -> pathlib.Path:
+    """The pair's one config file (each member's own id from its environment) on bus ``can``."""
     raw: dict[str, Any] = {
         "gateway": {"name": "pair"},
-        "can": {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"},
+        "can": can,
         "master": {
             "node_id": LOGICAL,
             "heartbeat_ms": HB_MS,
@@ -191,7 +192,7 @@ async def run(
     cpu_active: list[float] = []
     with tempfile.TemporaryDirectory(prefix="bench-pair-") as tmp:
         workdir = pathlib.Path(tmp)
-        cfg = _config(workdir, port)
+        cfg = _config(workdir, {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"})
         relay = subprocess.Popen(
             [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"pair{port}", "-H", "127.0.0.1", "-p", str(port)],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

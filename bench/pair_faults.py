@@ -19,7 +19,7 @@ sends that reaches it; what the faulted member sent meanwhile (logical heartbeat
 cable); and after the repair: who masters the bus (a fail-back onto the member that was cut
 off), NMT commands and SDO requests the gateways sent (a reconfiguration of the devices).
 
-Imports: bench.*, tests.pair_bus (the relay), yaml, the standard library (the gateways run in
+Imports: bench.* (bench.pair: the config, the gateway processes), tests.pair_bus (the relay), the standard library (the gateways run in
 subprocesses).
 """
 
@@ -31,11 +31,8 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
-import yaml
-
-from bench.pair import CONSUMER_MS, HB_MS, IDS, LOGICAL, REPO, _Gateway, _wait
+from bench.pair import IDS, LOGICAL, REPO, _config, _Gateway, _wait
 from bench.report import Row
 from bench.rig import NMT_EC_BASE
 from bench.startup import stop
@@ -66,32 +63,6 @@ class FaultResults:
     rounds: list[FaultRound] = field(default_factory=list)
     cpu_standby: list[float] = field(default_factory=list)
     cpu_active: list[float] = field(default_factory=list)
-
-
-def _config(workdir: pathlib.Path, bus: PairBus) -> pathlib.Path:
-    raw: dict[str, Any] = {
-        "gateway": {"name": "pair"},
-        "can": bus.can_section("devices"),
-        "master": {
-            "node_id": LOGICAL,
-            "heartbeat_ms": HB_MS,
-            "sync_period_ms": 100,
-            "heartbeat_timeout_multiple": 5,
-            "redundancy": {"node_id": IDS[0]},
-        },
-        "nodes": [
-            {"name": "wire", "node_id": 1, "profile": "sgh10", "heartbeat_ms": 200},
-            {"name": "display", "node_id": 2, "profile": "ap05", "heartbeat_ms": 200},
-            {"name": "enc", "node_id": 3, "profile": "posi_plus", "heartbeat_ms": 200,
-             "sdo": [{"object": "0x1016:01", "value": (LOGICAL << 16) | CONSUMER_MS}]},  # CiA 301 7.5.2.15
-        ],  # fmt: skip
-        "modbus": {"port": 0},
-        "zenoh": {"enabled": False},
-        "simulate": {"nodes": "all"},
-    }
-    path = workdir / "pair.yaml"
-    path.write_text(yaml.safe_dump(raw), encoding="utf-8")
-    return path
 
 
 def _masters(bus: PairBus, since: float) -> set[str]:
@@ -147,7 +118,7 @@ def measure(
     out = FaultResults()
     with tempfile.TemporaryDirectory(prefix="bench-pair-faults-") as tmp, PairBus() as bus:
         workdir = pathlib.Path(tmp)
-        cfg = _config(workdir, bus)
+        cfg = _config(workdir, bus.can_section("devices"))
         sim = subprocess.Popen(
             [sys.executable, "-m", "gateway", "simulate", "-c", str(cfg)],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

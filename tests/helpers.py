@@ -207,6 +207,26 @@ def gateway_process(config: Any, *args: str) -> Any:
     )
 
 
+def stop_process(proc: Any, *, thaw: bool = False) -> None:
+    """End a process a test started: SIGTERM, then SIGKILL after 10 s; ``thaw``: a process the
+    test may have frozen (SIGSTOP) is sent SIGCONT first, or it could not act on the SIGTERM."""
+    import os
+    import signal
+    import subprocess
+
+    if proc.poll() is None:
+        if thaw:
+            os.kill(proc.pid, signal.SIGCONT)
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    if proc.stdout is not None:
+        proc.stdout.close()
+
+
 def wait_ready(proc: Any, timeout_s: float = 60.0) -> str:
     """The summary line a gateway process prints once everything listens (bounded wait)."""
     import selectors

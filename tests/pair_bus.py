@@ -8,7 +8,8 @@ connected client, never back to its sender (no echo: SocketCAN without
 ``receive_own_messages``). Each client is a *member*, named by the channel it opens: a gateway
 process configured with ``can: {interface: socketcand, host: 127.0.0.1, port: bus.port,
 channel: NAME}`` (``can_section(NAME)``) is member NAME; a test takes part with
-``open_bus(NAME)`` (python-can's own socketcand client, e.g. under a canopen ``LocalNode``).
+``open_bus(NAME)`` (the gateway's socketcand client, a python-can bus, e.g. under a canopen
+``LocalNode``).
 
 What a real bus cannot say, this one records: ``frames`` holds every frame that reached the
 relay, in relay order, with its sender and whether it was delivered to anyone.
@@ -27,9 +28,9 @@ A member may hold several connections (a gateway process whose simulated devices
 loopback), also while the member is cut, and they are one member for ``cut`` and ``unplug``.
 ``delivered`` says whether another member heard a frame. Threads: an accept thread; per member a reader (parses, records, relays: the relay
 order is the record order) and a writer (its own queue, so a member that stops reading, e.g. a
-frozen process, holds up no one). The only pause is the documented one of the handshake.
+frozen process, holds up no one). It never pauses.
 
-Imports: python-can and the standard library.
+Imports: python-can, gateway.bus.socketcand_bus (the client of every member) and the standard library.
 """
 
 from __future__ import annotations
@@ -45,10 +46,7 @@ from typing import Any
 
 import can
 
-#: python-can 4.6.1's socketcand client reads the last ``< ok >`` of the handshake with one
-#: ``recv`` and compares it whole: frames arriving in the same TCP read would fail its open, so
-#: a new member's first frames wait this long (queued meanwhile, none lost)
-HANDSHAKE_PAUSE_S = 0.2
+from gateway.bus.socketcand_bus import SocketcandBus
 
 
 @dataclass(frozen=True)
@@ -120,11 +118,12 @@ class PairBus:
         return {"interface": "socketcand", "host": "127.0.0.1", "port": self.port, "channel": name}
 
     def open_bus(self, name: str) -> can.BusABC:
-        """A python-can bus in this process as member ``name`` (python-can's socketcand client),
-        shut down by ``close()``. Returns once the relay counts it connected."""
+        """A python-can bus in this process as member ``name`` (the socketcand client a gateway
+        opens, ``gateway.bus.socketcand_bus``), shut down by ``close()``. Returns once the relay
+        counts it connected."""
         with self._lock:
             joins = self.joins.get(name, 0)
-        bus = can.Bus(interface="socketcand", host="127.0.0.1", port=self.port, channel=name)
+        bus = SocketcandBus(channel=name, host="127.0.0.1", port=self.port)
         self._buses.append(bus)
         self._wait(lambda: self.joins.get(name, 0) > joins, 10.0, f"member {name} connected")
         return bus
@@ -272,8 +271,8 @@ class PairBus:
         return name, buf
 
     def _write_loop(self, member: _Member) -> None:
-        # the handshake's pause (HANDSHAKE_PAUSE_S): frames for this member queue meanwhile
-        time.sleep(HANDSHAKE_PAUSE_S)
+        # every member is the gateway's socketcand client, which takes frames that arrive with
+        # the handshake's last ``< ok >`` (python-can 4.6.1's own client fails its open then)
         while True:
             data = member.out.get()
             if data is None:

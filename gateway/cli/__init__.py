@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from gateway import __version__
 from gateway.cli.bus_tools import cmd_fault, cmd_lss, cmd_monitor, cmd_scan
@@ -37,12 +37,16 @@ def build_parser() -> argparse.ArgumentParser:
         description="CANopen to Modbus TCP and Zenoh edge gateway.",
     )
     p.add_argument("--version", action="version", version=f"canopen-gateway {__version__}")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    _add_gateway_commands(sub)
-    _add_commissioning_commands(sub)
-    _add_file_commands(sub)
-    _add_bus_commands(sub)
+    add = p.add_subparsers(dest="command", required=True, metavar="COMMAND").add_parser
+    _add_gateway_commands(add)
+    _add_commissioning_commands(add)
+    _add_file_commands(add)
+    _add_bus_commands(add)
     return p
+
+
+#: a subcommand's parser added to the command line (``add_subparsers().add_parser``)
+AddParser = Callable[..., argparse.ArgumentParser]
 
 
 def _with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -50,28 +54,28 @@ def _with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
     return sp
 
 
-def _add_gateway_commands(sub: argparse._SubParsersAction) -> None:
+def _add_gateway_commands(add: AddParser) -> None:
     """run, check, registers, keys, simulate, fault."""
-    sp = _with_config(sub.add_parser("run", help="run the gateway"))
+    sp = _with_config(add("run", help="run the gateway"))
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
     sp.add_argument("--no-simulate", action="store_true", help="ignore the simulate: section")
     sp.set_defaults(fn=cmd_run)
 
-    sp = sub.add_parser(
+    sp = add(
         "check", help="validate a configuration (or the two of a pair) and summarise it"
     )
     sp.add_argument("-c", "--config", required=True, action="append", metavar="FILE",
                     help="configuration YAML; twice: the two configs of a hot-standby pair, compared")  # fmt: skip
     sp.set_defaults(fn=cmd_check)
 
-    sp = _with_config(sub.add_parser("registers", help="print the Modbus register map"))
+    sp = _with_config(add("registers", help="print the Modbus register map"))
     sp.add_argument("--csv", action="store_true", help="CSV instead of a Markdown table")
     sp.set_defaults(fn=cmd_registers)
 
-    sp = _with_config(sub.add_parser("keys", help="print the Zenoh key expressions"))
+    sp = _with_config(add("keys", help="print the Zenoh key expressions"))
     sp.set_defaults(fn=cmd_keys)
 
-    sp = _with_config(sub.add_parser("simulate", help="run only the simulated devices of a config"))
+    sp = _with_config(add("simulate", help="run only the simulated devices of a config"))
     sp.add_argument(
         "--nodes", help="comma-separated node names (default: simulate: section, else all)"
     )
@@ -79,7 +83,7 @@ def _add_gateway_commands(sub: argparse._SubParsersAction) -> None:
     sp.set_defaults(fn=cmd_simulate)
 
     sp = _with_config(
-        sub.add_parser("fault", help="inject a fault into a running gateway's simulated node")
+        add("fault", help="inject a fault into a running gateway's simulated node")
     )
     sp.add_argument("node", nargs="?", help="simulated node name (none: list nodes and actions)")
     sp.add_argument(
@@ -91,9 +95,9 @@ def _add_gateway_commands(sub: argparse._SubParsersAction) -> None:
     sp.set_defaults(fn=cmd_fault)
 
 
-def _add_commissioning_commands(sub: argparse._SubParsersAction) -> None:
+def _add_commissioning_commands(add: AddParser) -> None:
     """sdo, nmt."""
-    sp = _with_config(sub.add_parser("sdo", help="read or write an object by SDO (commissioning)"))
+    sp = _with_config(add("sdo", help="read or write an object by SDO (commissioning)"))
     sp.add_argument("op", choices=["read", "write"])
     sp.add_argument("node", help="node name or id")
     sp.add_argument("object", help="object, e.g. 0x6004:00")
@@ -104,32 +108,32 @@ def _add_commissioning_commands(sub: argparse._SubParsersAction) -> None:
     sp.add_argument("--timeout", type=float, default=1.0, help="SDO timeout in seconds")
     sp.set_defaults(fn=cmd_sdo)
 
-    sp = _with_config(sub.add_parser("nmt", help="send an NMT command"))
+    sp = _with_config(add("nmt", help="send an NMT command"))
     sp.add_argument("command", choices=["start", "stop", "preop", "reset", "reset-comm"])
     sp.add_argument("node", help="node name, id, or 'all'")
     sp.set_defaults(fn=cmd_nmt)
 
 
-def _add_file_commands(sub: argparse._SubParsersAction) -> None:
+def _add_file_commands(add: AddParser) -> None:
     """eds show|lint, profile init."""
-    sp = sub.add_parser("eds", help="inspect an EDS or DCF (checked as when loaded)")
-    eds_sub = sp.add_subparsers(dest="eds_command", required=True, metavar="ACTION")
-    show = eds_sub.add_parser("show", help="print the objects and the PDO mappings as tables")
+    sp = add("eds", help="inspect an EDS or DCF (checked as when loaded)")
+    eds_add = sp.add_subparsers(dest="eds_command", required=True, metavar="ACTION").add_parser
+    show = eds_add("show", help="print the objects and the PDO mappings as tables")
     show.add_argument("file", metavar="FILE", help="EDS or DCF file")
     show.add_argument("--node-id", type=int, help="resolve $NODEID for this node id")
     show.add_argument(
         "--strict", action="store_true", help="list the warnings instead (as eds lint)"
     )
     show.set_defaults(fn=cmd_eds_show)
-    lint = eds_sub.add_parser(
+    lint = eds_add(
         "lint", help="list every deviation from CiA 306 (exit 1 warnings, 2 unusable)"
     )
     lint.add_argument("file", metavar="FILE", help="EDS or DCF file")
     lint.set_defaults(fn=cmd_eds_lint)
 
-    sp = sub.add_parser("profile", help="device profiles (overlays on an EDS)")
-    prof_sub = sp.add_subparsers(dest="profile_command", required=True, metavar="ACTION")
-    init = prof_sub.add_parser("init", help="write an editable overlay profile from an EDS")
+    sp = add("profile", help="device profiles (overlays on an EDS)")
+    prof_add = sp.add_subparsers(dest="profile_command", required=True, metavar="ACTION").add_parser
+    init = prof_add("init", help="write an editable overlay profile from an EDS")
     init.add_argument("--eds", required=True, metavar="FILE", help="EDS or DCF file")
     init.add_argument(
         "-o", "--output", metavar="FILE", help="profile .yaml to write (default: stdout)"
@@ -138,9 +142,9 @@ def _add_file_commands(sub: argparse._SubParsersAction) -> None:
     init.set_defaults(fn=cmd_profile_init)
 
 
-def _add_bus_commands(sub: argparse._SubParsersAction) -> None:
+def _add_bus_commands(add: AddParser) -> None:
     """lss, scan, monitor."""
-    sp = _with_config(sub.add_parser("lss", help="LSS commissioning (CiA 305)"))
+    sp = _with_config(add("lss", help="LSS commissioning (CiA 305)"))
     sp.add_argument(
         "action",
         choices=[
@@ -157,7 +161,7 @@ def _add_bus_commands(sub: argparse._SubParsersAction) -> None:
     sp.set_defaults(fn=cmd_lss)
 
     sp = _with_config(
-        sub.add_parser("scan", help="which node ids are on the bus, and what they are")
+        add("scan", help="which node ids are on the bus, and what they are")
     )
     sp.add_argument(
         "--active", action="store_true", help="also read 1000h, 1008h, 1018h of ids 1..127"
@@ -168,7 +172,7 @@ def _add_bus_commands(sub: argparse._SubParsersAction) -> None:
     )
     sp.set_defaults(fn=cmd_scan)
 
-    sp = _with_config(sub.add_parser("monitor", help="print the bus traffic in CANopen words"))
+    sp = _with_config(add("monitor", help="print the bus traffic in CANopen words"))
     sp.add_argument(
         "--node", action="append", metavar="NAME|ID", help="only these nodes (repeat or comma)"
     )

@@ -67,8 +67,12 @@ class Sent:
 
 
 @asynccontextmanager
-async def pair_running() -> AsyncIterator[tuple[Gateway, Gateway, Sent, Sent, SimulatedBus]]:
-    cfg_a, cfg_b = pair_configs()
+async def pair_running(
+    cfgs: tuple[Any, Any] | None = None, *, standby: bool = False
+) -> AsyncIterator[tuple[Gateway, Gateway, Sent, Sent, SimulatedBus]]:
+    """A started, B started after A configured the devices (``standby``: and until B stands
+    by); ``cfgs``: the pair's two configs (default ``pair_configs()``)."""
+    cfg_a, cfg_b = cfgs if cfgs is not None else pair_configs()
     sim = simulated_bus(cfg_a, names=["wire", "display"])
     sim.start()
     a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
@@ -78,6 +82,8 @@ async def pair_running() -> AsyncIterator[tuple[Gateway, Gateway, Sent, Sent, Si
         for name in ("wire", "display"):
             await wait_until(lambda n=name: node_operational(a, n), 10, f"A configures {name}")
         await b.start()
+        if standby:
+            await wait_until(lambda: b.master.role == "standby", 5, "B standby")
         yield a, b, sent_a, sent_b, sim
     finally:
         await b.stop()

@@ -40,7 +40,7 @@ from pymodbus.client import ModbusTcpClient
 from gateway.config import load_config
 from gateway.northbound.regmap import build_register_map
 from tests.flying_master_302 import FlyingMaster302
-from tests.helpers import free_port, wait_ready, wait_until_sync, with_nodes
+from tests.helpers import free_port, stop_process, wait_ready, wait_until_sync, with_nodes
 from tests.pair_bus import PairBus
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -77,16 +77,7 @@ class Member:
         return self.log.read_text().count(text)
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            os.kill(self.proc.pid, signal.SIGCONT)  # a frozen member is thawed to terminate
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
+        stop_process(self.proc, thaw=True)  # a frozen member is thawed to terminate
 
 
 #: the guarded row's wire: node guarding, life time 200 ms x 5 = 1 s, longer than this pair's

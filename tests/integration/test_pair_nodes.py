@@ -9,16 +9,14 @@ more (``Sent.silent``) and doing nothing of its own (``mastering`` False).
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from typing import Any
 
-from gateway.app import Gateway, SimulatedBus
+from gateway.app import Gateway
 from gateway.canopen.states import LinkState, NmtState
 from gateway.config import parse_config
 from gateway.northbound.summary import summarize
-from tests.helpers import gateway_of, make_config, node_operational, simulated_bus, wait_until
-from tests.integration.test_pair import LOGICAL, Sent
+from tests.helpers import make_config, wait_until
+from tests.integration.test_pair import LOGICAL, Sent, pair_running
 
 HB_MS = 100
 #: fields both members must report alike for a node both hear operational (the "both serve
@@ -43,26 +41,9 @@ def configs(wire: dict[str, Any] | None = None) -> tuple[Any, Any]:
     return parse_config(a, environ={}), parse_config(b, environ={})
 
 
-@asynccontextmanager
-async def pair(
-    wire: dict[str, Any] | None = None,
-) -> AsyncIterator[tuple[Gateway, Gateway, Sent, Sent, SimulatedBus]]:
-    cfg_a, cfg_b = configs(wire)
-    sim = simulated_bus(cfg_a, names=["wire", "display"])
-    sim.start()
-    a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
-    sent_a, sent_b = Sent(a), Sent(b)
-    try:
-        await a.start()
-        for name in ("wire", "display"):
-            await wait_until(lambda n=name: node_operational(a, n), 10, f"A configures {name}")
-        await b.start()
-        await wait_until(lambda: b.master.role == "standby", 5, "B standby")
-        yield a, b, sent_a, sent_b, sim
-    finally:
-        await b.stop()
-        await a.stop()
-        sim.stop()
+def pair(wire: dict[str, Any] | None = None) -> Any:
+    """The in-process pair of ``test_pair`` on these configs, B standing by."""
+    return pair_running(configs(wire), standby=True)
 
 
 def kill(a: Gateway, sent_a: Sent) -> None:

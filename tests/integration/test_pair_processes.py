@@ -41,7 +41,7 @@ from pymodbus.client import ModbusTcpClient
 
 from gateway.config import load_config
 from gateway.northbound.regmap import Point, build_register_map
-from tests.helpers import free_port, wait_ready, wait_until_sync, with_nodes
+from tests.helpers import free_port, stop_process, wait_ready, wait_until_sync, with_nodes
 
 pytest.importorskip("can_remote")
 
@@ -138,16 +138,7 @@ class Gw:
     def stop(self) -> None:
         if self.client is not None:
             self.client.close()
-        if self.proc.poll() is None:
-            os.kill(self.proc.pid, signal.SIGCONT)
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
+        stop_process(self.proc, thaw=True)
 
 
 def write_config(tmp: Path, port: int) -> Path:
@@ -193,15 +184,7 @@ def started(argv: list[str], **kw: Any) -> Iterator[subprocess.Popen[str]]:
     try:
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if proc.stdout is not None:
-            proc.stdout.close()
+        stop_process(proc)
 
 
 def point(cfg: Path, node: str, name: str) -> Point:

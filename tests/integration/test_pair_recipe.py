@@ -26,7 +26,7 @@ from typing import Any
 
 import pytest
 
-from tests.helpers import free_port, wait_ready, wait_until_sync
+from tests.helpers import free_port, stop_process, wait_ready, wait_until_sync
 
 pytest.importorskip("can_remote")
 
@@ -69,15 +69,7 @@ def process(argv: list[str], env: dict[str, str], cwd: Path, **kw: Any) -> Itera
     try:
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if proc.stdout is not None:
-            proc.stdout.close()
+        stop_process(proc)
 
 
 def healthz(url: str) -> dict[str, Any]:
