@@ -18,9 +18,11 @@ The package, one module per part, re-exported here (``from gateway.config import
 - ``load``: ``load_config`` / ``parse_config`` and the checks across entries of one file;
 - ``env``: the ``CANOPEN_GATEWAY__`` environment overrides and whom a problem blames;
 - ``errors``: ``ConfigError`` and how a problem is worded;
-- ``journal``: the ``journal:`` section.
+- ``journal``: the ``journal:`` section;
+- ``node``: the ``nodes:`` entries and ``NodeConfig.setup``, the record the device knowledge
+  reads.
 
-Imports: model, load, env, errors, journal (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
+Imports: model, node, load, env, errors, journal (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
 checks.
 """
 
@@ -36,19 +38,11 @@ from gateway.config.model import (
     AsciiSection,
     CanSection,
     Config,
-    ExternalHeartbeat,
     GatewaySection,
-    GuardingBitSettings,
     HealthSection,
     MasterSection,
     ModbusSection,
     ModbusTls,
-    NodeConfig,
-    NodeModbus,
-    Obj,
-    PdoSetting,
-    SdoWrite,
-    SignalOverride,
     SimulateSection,
     WebSection,
     ZenohAuth,
@@ -56,6 +50,16 @@ from gateway.config.model import (
     ZenohSection,
     ZenohTls,
     ZenohWriteRule,
+)
+from gateway.config.node import (
+    ExternalHeartbeat,
+    GuardingBitSettings,
+    NodeConfig,
+    NodeModbus,
+    Obj,
+    PdoSetting,
+    SdoWrite,
+    SignalOverride,
 )
 
 __all__ = [

@@ -4,21 +4,23 @@ user's writes). ``build_boot_steps`` is the one place the CiA 301 PDO sequence i
 lifecycle (``bus/node/lifecycle.py``) plays the steps, the codecs follow the same layout.
 
 Imports: gateway.canopen.cia301, gateway.canopen.objref, gateway.device.values, gateway.eds.pdos, gateway.profiles (layout,
-schema; LoadedProfile for types only) and the standard library. No I/O, no clock.
+node_setup, schema; LoadedProfile for types only) and the standard library. No I/O, no clock. The
+node is read as a ``NodeSetup`` (``gateway.config.NodeConfig.setup`` builds it).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal
 
 from gateway.canopen.cia301 import COB_ID_INVALID, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
 from gateway.device.values import encode_value
 from gateway.eds.pdos import default_value
 from gateway.profiles.layout import pdo_cob_id, pdo_objects
-from gateway.profiles.schema import Pdo, default_cob_id
+from gateway.profiles.node_setup import NodeSetup, PdoSetup, SdoSetup
+from gateway.profiles.schema import BootWrite, Pdo, default_cob_id
 
 if TYPE_CHECKING:
     from gateway.profiles import LoadedProfile
@@ -64,28 +66,6 @@ OBJ_GUARD_TIME = ObjRef(0x100C, 0x00)  # UNSIGNED16, ms; SGH10 manual 4.7.2.9
 OBJ_LIFE_TIME_FACTOR = ObjRef(0x100D, 0x00)  # UNSIGNED8; SGH10 manual 4.7.2.10
 
 
-class WriteLike(Protocol):
-    """A profile ``boot.sdo`` entry or a node config ``sdo`` entry."""
-
-    @property
-    def object(self) -> ObjRef: ...
-    @property
-    def value(self) -> Any: ...
-    @property
-    def type(self) -> str | None: ...
-
-
-class NodeSettingsLike(Protocol):
-    """What the builder reads of a node's configuration (``gateway.config.NodeConfig``)."""
-
-    @property
-    def node_id(self) -> int: ...
-    @property
-    def pdo_variant(self) -> int | None: ...
-    @property
-    def sdo(self) -> Sequence[Any]: ...
-
-
 @dataclass
 class _Builder:
     lp: LoadedProfile
@@ -125,7 +105,7 @@ class _Builder:
             self.derived.add(len(self.steps))
         self.steps.append(ConfigStep(obj, value, type_name, description, source=source))
 
-    def add_explicit(self, w: Any, where: str, source: str = "") -> None:
+    def add_explicit(self, w: BootWrite | SdoSetup, where: str, source: str = "") -> None:
         """A write from the profile's boot.sdo or the node's sdo list."""
         obj = ObjRef.parse(w.object)
         od_type, var = self.od_type(obj, where)
@@ -135,8 +115,7 @@ class _Builder:
             )
         type_name = w.type or od_type
         value = _coerce(w.value, type_name, f"{where} ({obj})")
-        note = getattr(w, "note", "") or ""
-        self.steps.append(ConfigStep(obj, value, type_name, note or where, source=source))
+        self.steps.append(ConfigStep(obj, value, type_name, w.note or where, source=source))
 
     def result(self) -> list[ConfigStep]:
         """Steps, dropping derived plain writes that an explicit write sets again later."""
@@ -225,14 +204,7 @@ def _pdo_sequence(
     b.add(ObjRef(comm, 0x01), cob_id, f"{name} on (COB-ID bit 31 = 0)", where, source=f"{where}.cob_id")  # fmt: skip
 
 
-def build_boot_steps(
-    lp: LoadedProfile,
-    node: NodeSettingsLike,
-    supervision: str | None = None,
-    heartbeat_ms: int | None = None,
-    guard_time_ms: int | None = None,
-    life_time_factor: int | None = None,
-) -> list[ConfigStep]:
+def build_boot_steps(lp: LoadedProfile, node: NodeSetup) -> list[ConfigStep]:
     """The ordered SDO writes that configure a node at boot.
 
     1. supervision: producer heartbeat 1017h; or node guarding 100Ch/100Dh with 1017h = 0
@@ -257,7 +229,7 @@ def build_boot_steps(
     is written with one byte). One function per step below, in this order.
     """
     b = _Builder(lp)
-    _step1_supervision(b, supervision, heartbeat_ms, guard_time_ms, life_time_factor)
+    _step1_supervision(b, node)
     _step2_external_heartbeat(b, node)
     _step3_pdo_variant(b, node)
     _step4_pdos(b, node)
@@ -266,16 +238,12 @@ def build_boot_steps(
     return b.result()
 
 
-def _step1_supervision(
-    b: _Builder,
-    supervision: str | None,
-    heartbeat_ms: int | None,
-    guard_time_ms: int | None,
-    life_time_factor: int | None,
-) -> None:
+def _step1_supervision(b: _Builder, node: NodeSetup) -> None:
     """1. supervision: producer heartbeat 1017h, or node guarding 100Ch/100Dh with 1017h = 0."""
     boot = b.lp.profile.boot
-    supervision = supervision or boot.supervision
+    supervision = node.supervision or boot.supervision
+    heartbeat_ms, guard_time_ms = node.heartbeat_ms, node.guard_time_ms
+    life_time_factor = node.life_time_factor
     hb_ms = boot.heartbeat_ms if heartbeat_ms is None else heartbeat_ms
     gt_ms = boot.guard_time_ms if guard_time_ms is None else guard_time_ms
     ltf = boot.life_time_factor if life_time_factor is None else life_time_factor
@@ -299,10 +267,10 @@ def _step1_supervision(
               source="life_time_factor" if life_time_factor is not None else "")  # fmt: skip
 
 
-def _step2_external_heartbeat(b: _Builder, node: NodeSettingsLike) -> None:
+def _step2_external_heartbeat(b: _Builder, node: NodeSetup) -> None:
     """2. the external heartbeat source, then interval (AP05 manual 5.5.4 / 5.7.2.31)."""
     p = b.lp.profile
-    ext = getattr(node, "external_heartbeat", None)
+    ext = node.external_heartbeat
     feat = p.features.get("external_heartbeat")
     if ext is None or not ext.interval_ms:
         return
@@ -331,10 +299,10 @@ def _step2_external_heartbeat(b: _Builder, node: NodeSettingsLike) -> None:
     )
 
 
-def _step3_pdo_variant(b: _Builder, node: NodeSettingsLike) -> None:
+def _step3_pdo_variant(b: _Builder, node: NodeSetup) -> None:
     """3. the PDO layout selector (BEI 2005h) when a variant is chosen."""
     p = b.lp.profile
-    variant = getattr(node, "pdo_variant", None)
+    variant = node.pdo_variant
     if p.pdo_variants is not None and variant is not None:
         b.add(
             p.pdo_variants.selector,
@@ -346,17 +314,14 @@ def _step3_pdo_variant(b: _Builder, node: NodeSettingsLike) -> None:
         )
 
 
-def _step4_pdos(b: _Builder, node: NodeSettingsLike) -> None:
+def _step4_pdos(b: _Builder, node: NodeSetup) -> None:
     """4. PDOs. The node's tpdo:/rpdo: settings: the CiA 301 sequence from the node's layout
     (gateway.profiles.layout resolved it; the codecs are compiled from the same layout).
     The profile's own TPDOs: transmission type and event timer, and the same sequence when
     the profile has remappable_tpdo (or a non-default inhibit time)."""
     p = b.lp.profile
-    tpdos, rpdos = p.layout(getattr(node, "pdo_variant", None))
-    settings: dict[str, Any] = {
-        "tpdo": getattr(node, "tpdo", None) or {},
-        "rpdo": getattr(node, "rpdo", None) or {},
-    }
+    tpdos, rpdos = p.layout(node.pdo_variant)
+    settings = {"tpdo": node.tpdo, "rpdo": node.rpdo}
     for kind, pdos in (("tpdo", tpdos), ("rpdo", rpdos)):
         k: Literal["tpdo", "rpdo"] = kind  # type: ignore[assignment]
         by_number = {x.number: x for x in pdos}
@@ -375,7 +340,7 @@ def _node_pdo(
     k: Literal["tpdo", "rpdo"],
     number: int,
     pdo: Pdo | None,
-    setting: Any,
+    setting: PdoSetup,
     node_id: int,
 ) -> None:
     """4. one PDO the node's ``tpdo:``/``rpdo:`` settings name: disabled (``enabled: false``,
@@ -455,7 +420,7 @@ def _step5_profile_writes(b: _Builder) -> None:
         b.add_explicit(w, f"profile {p.family} boot.sdo[{i}]")
 
 
-def _step6_node_writes(b: _Builder, node: NodeSettingsLike) -> None:
+def _step6_node_writes(b: _Builder, node: NodeSetup) -> None:
     """6. the node config's ``sdo`` writes."""
-    for i, w in enumerate(getattr(node, "sdo", ()) or ()):
+    for i, w in enumerate(node.sdo):
         b.add_explicit(w, f"node sdo[{i}]", source=f"sdo[{i}]")

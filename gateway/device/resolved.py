@@ -93,15 +93,9 @@ class ResolvedNode(NamedNode):
 def resolve_node(cfg: Config, ncfg: NodeConfig, lp: LoadedProfile) -> ResolvedNode:
     """One node on its loaded profile ``lp``."""
     settings = resolve_node_settings(cfg.master, ncfg, lp.profile)
+    setup = ncfg.setup
     try:
-        steps = build_boot_steps(
-            lp,
-            ncfg,
-            ncfg.supervision,
-            ncfg.heartbeat_ms,
-            ncfg.guard_time_ms,
-            ncfg.life_time_factor,
-        )
+        steps = build_boot_steps(lp, setup)
         # The decoder follows the mapping the boot configuration leaves in the device.
         writes = [(st.object, st.value) for st in steps] if ncfg.configure else []
         tpdos, rpdos = compile_node(lp, ncfg.node_id, ncfg.pdo_variant, writes)
@@ -114,7 +108,7 @@ def resolve_node(cfg: Config, ncfg: NodeConfig, lp: LoadedProfile) -> ResolvedNo
     )
     verify = (
         tuple(mapping_reads(lp, ncfg.node_id, ncfg.pdo_variant))
-        if ncfg.configure and node_verifies_mapping(lp, ncfg, ncfg.eds_only)
+        if ncfg.configure and node_verifies_mapping(lp, setup)
         else ()
     )
     sync = sync_driven_tpdos(lp, ncfg.pdo_variant, tpdos, writes)
@@ -189,7 +183,7 @@ def resolve_nodes(cfg: Config) -> tuple[dict[str, ResolvedNode], list[Problem]]:
     for i, ncfg in enumerate(cfg.nodes):
         key = f"nodes[{i}]"
         try:
-            lp = load_node_profile(ncfg, cfg.base_dir)
+            lp = load_node_profile(ncfg.setup, cfg.base_dir)
         except ProfileError as exc:
             if exc.key is not None:
                 problems.append((f"{key}.{exc.key}" if exc.key else key, str(exc)))

@@ -8,15 +8,19 @@ Also the external-heartbeat rule (AP05 manual 5.5.4): how often the gateway feed
 device's watchdog (``external_keepalive_ms``, for the running gateway) and whether that is
 often enough (``external_heartbeat_problem``, for ``check``).
 
-Imports: canopen.objref. Nothing northbound, no I/O.
+Imports: canopen.objref; config and profiles.schema for types only. Nothing northbound, no I/O.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 from gateway.canopen.objref import ObjRef
+
+if TYPE_CHECKING:
+    from gateway.config import MasterSection, NodeConfig
+    from gateway.profiles.schema import Profile
 
 
 @dataclass(frozen=True)
@@ -93,9 +97,9 @@ def external_heartbeat_problem(
     return None
 
 
-def resolve_node_settings(master: Any, node: Any, profile: Any) -> NodeSettings:
-    """Settings of ``node`` (a NodeConfig) with profile ``profile`` under ``master``
-    (the MasterSection). Raises ValueError for a combination that cannot run."""
+def resolve_node_settings(master: MasterSection, node: NodeConfig, profile: Profile) -> NodeSettings:
+    """Settings of ``node`` with profile ``profile`` under ``master``. Raises ValueError for a
+    combination that cannot run."""
     boot = profile.boot
     supervision = node.supervision or boot.supervision
     hb_ms = node.heartbeat_ms if node.heartbeat_ms is not None else boot.heartbeat_ms
@@ -135,9 +139,9 @@ def resolve_node_settings(master: Any, node: Any, profile: Any) -> NodeSettings:
         external_heartbeat_ms=eh_ms,
         external_heartbeat_source=eh_source,
         keepalive_ms=min(periods) if periods else 0.0,
-        refresh_on_start=getattr(node, "refresh_on_start", True),
+        refresh_on_start=node.refresh_on_start,
         rtr_poll_ms=node.rtr_poll_ms,
-        sync_producer=bool(master.sync_period_ms or getattr(master, "sync_external", False)),
+        sync_producer=bool(master.sync_period_ms or master.sync_external),
     )
 
 

@@ -8,16 +8,18 @@ access and transport the profile leaves out are taken from the EDS and the PDO l
 ``load_node_profile(node, base_dir)`` is what the rest of the gateway uses for a configured
 node: the profile (or none: an EDS-only node) on the node's EDS or DCF, its PDO layout after the
 node's ``tpdo:``/``rpdo:`` settings and PDO writes (``layout``), and a signal for every mapped
-object (derived from the EDS where the profile names none). One result, used by the boot-step
+object (derived from the EDS where the profile names none). The node is read as a ``NodeSetup``
+(``node_setup``), the config-free record ``gateway.config.NodeConfig.setup`` builds. One result, used by the boot-step
 builder, the codecs, the register map, the Zenoh keys and the simulator.
 
 By role: ``loader`` (a profile file on its EDS), ``node_profile`` (one configured node),
-``device`` (what the file says of the device: supervision, identity, mapping check), ``layout``
-(PDO layouts), ``schema`` (the YAML model), ``derived`` (signals derived from a profile). This
-package re-exports the public names of the first three, so callers import them from
+``device`` (what the file says of the device: supervision, identity, mapping check),
+``node_setup`` (what is read of a node's configuration), ``layout`` (PDO layouts), ``schema``
+(the YAML model), ``derived`` (signals derived from a profile). This package re-exports the
+public names of the first four, so callers import them from
 ``gateway.profiles``.
 
-Imports: profiles.loader, profiles.node_profile, profiles.device. Nothing of bus/, modbus/,
+Imports: profiles.loader, profiles.node_profile, profiles.device, profiles.node_setup. Nothing of bus/, modbus/,
 zenoh_bridge/, config.
 """
 
@@ -37,13 +39,17 @@ from gateway.profiles.loader import (
     load_profile,
     resolve_profile_path,
 )
-from gateway.profiles.node_profile import NodeLike, load_node_profile, resolve_eds_path
+from gateway.profiles.node_profile import load_node_profile, resolve_eds_path
+from gateway.profiles.node_setup import ExternalHeartbeatSetup, NodeSetup, PdoSetup, SdoSetup
 
 __all__ = [
     "PROFILE_DIR",
     "STALE_EVENT_TIMER_MULTIPLE",
     "LoadedProfile",
-    "NodeLike",
+    "ExternalHeartbeatSetup",
+    "NodeSetup",
+    "PdoSetup",
+    "SdoSetup",
     "ProfileError",
     "builtin_profiles",
     "device_supervision",

@@ -3,14 +3,14 @@
 (``expected_identity``) and whether the gateway verifies its PDO mapping
 (``node_verifies_mapping``).
 
-Imports: profiles.schema, gateway.eds.pdos (od_var), objref, canopen; profiles.loader for types
-only. Nothing of bus/, modbus/, zenoh_bridge/, config.
+Imports: profiles.schema, gateway.eds.pdos (od_var), objref, canopen; profiles.loader and
+profiles.node_setup for types only. Nothing of bus/, modbus/, zenoh_bridge/, config.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import canopen
 
@@ -20,6 +20,7 @@ from gateway.profiles.schema import Boot, Pdo
 
 if TYPE_CHECKING:
     from gateway.profiles.loader import LoadedProfile
+    from gateway.profiles.node_setup import NodeSetup
 
 
 #: an EDS-only node without supervision: values are stale after this many event timer periods
@@ -92,12 +93,11 @@ def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
     return tuple(out)
 
 
-def node_verifies_mapping(lp: LoadedProfile, node: Any, eds_only: bool) -> bool:
+def node_verifies_mapping(lp: LoadedProfile, node: NodeSetup) -> bool:
     """``verify_mapping``: the node's setting, else on for EDS-only nodes and for profiles
     that ask for it; never for a profile whose mapping objects do not describe the layout."""
-    setting = getattr(node, "verify_mapping", None)
     if lp.profile.verify_mapping is False:
         return False
-    if setting is not None:
-        return bool(setting)
-    return eds_only or bool(lp.profile.verify_mapping)
+    if node.verify_mapping is not None:
+        return node.verify_mapping
+    return node.eds_only or bool(lp.profile.verify_mapping)

@@ -14,13 +14,13 @@ of every PDO the node's settings name from this layout, the codecs (``gateway.pd
 compiled from it, ``verify_mapping`` compares the device with it, the register map and the
 Zenoh keys serve its objects.
 
-Imports: gateway.profiles.schema, gateway.eds.pdos, gateway.canopen.cia301, gateway.canopen.objref. No I/O.
+Imports: gateway.profiles.schema, gateway.profiles.node_setup, gateway.eds.pdos, gateway.canopen.cia301, gateway.canopen.objref. No I/O.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import Any, Literal, Protocol
+from typing import Any, Literal
 
 from pydantic import ValidationError
 
@@ -33,6 +33,7 @@ from gateway.eds.pdos import (
     object_bits,
     od_var,
 )
+from gateway.profiles.node_setup import PdoSetup
 from gateway.profiles.schema import Pdo, PdoEntry, Profile, default_cob_id
 
 Kind = Literal["tpdo", "rpdo"]
@@ -40,25 +41,6 @@ Kind = Literal["tpdo", "rpdo"]
 
 class PdoMappingError(ValueError):
     """The configuration leaves a PDO with a mapping the gateway cannot decode."""
-
-
-class PdoSettingLike(Protocol):
-    """A node's ``tpdo:``/``rpdo:`` entry (``gateway.config.PdoSetting``)."""
-
-    @property
-    def enabled(self) -> bool: ...
-    @property
-    def cob_id(self) -> int | None: ...
-    @property
-    def transmission(self) -> int | None: ...
-    @property
-    def event_timer_ms(self) -> int | None: ...
-    @property
-    def inhibit_ms(self) -> float | None: ...
-    @property
-    def sync_start(self) -> int | None: ...
-    @property
-    def mapping(self) -> list[str] | None: ...
 
 
 def pdo_cob_id(kind: str, pdo: Pdo, node_id: int) -> int:
@@ -283,7 +265,7 @@ def parse_mapping_entry(text: str, od: Any, where: str) -> PdoEntry:
 def pdo_setting(
     kind: Kind,
     number: int,
-    setting: PdoSettingLike,
+    setting: PdoSetup,
     current: Pdo | None,
     eds_pdo: EdsPdo | None,
     od: Any,
@@ -349,7 +331,7 @@ def pdo_setting(
 def apply_settings(
     kind: Kind,
     pdos: Sequence[Pdo],
-    settings: Mapping[int, PdoSettingLike],
+    settings: Mapping[int, PdoSetup],
     eds: Sequence[EdsPdo],
     od: Any,
     node_id: int,

@@ -4,16 +4,14 @@ settings and PDO writes (``profiles.layout``), and a signal for every mapped obj
 from the EDS where the profile names none). Results are cached by the node's settings.
 
 Imports: profiles.loader, profiles.device, profiles.layout, profiles.schema, gateway.eds.pdos,
-canopen.cia301, canopen.objref. Nothing of bus/, modbus/, zenoh_bridge/, config (the node is read through
-``NodeLike``).
+canopen.cia301, canopen.objref, profiles.node_setup (the node is read as a ``NodeSetup``). Nothing of
+bus/, modbus/, zenoh_bridge/, config.
 """
 
 from __future__ import annotations
 
-import json
-from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 from gateway.canopen.cia301 import TYPE_BITS
 from gateway.canopen.objref import ObjRef
@@ -32,7 +30,6 @@ from gateway.profiles.device import (
 )
 from gateway.profiles.layout import (
     PdoMappingError,
-    PdoSettingLike,
     apply_pdo_writes,
     apply_settings,
     is_pdo_object,
@@ -47,49 +44,8 @@ from gateway.profiles.loader import (
     read_eds,
     with_eds,
 )
-from gateway.profiles.schema import Pdo, Profile, Signal
-
-
-class NodeLike(Protocol):
-    """What the loader reads of a node's configuration (``gateway.config.NodeConfig``)."""
-
-    @property
-    def node_id(self) -> int: ...
-    @property
-    def profile(self) -> str | None: ...
-    @property
-    def eds(self) -> str | None: ...
-    @property
-    def pdo_variant(self) -> int | None: ...
-    @property
-    def configure(self) -> bool: ...
-    @property
-    def sdo(self) -> Sequence[Any]: ...
-    @property
-    def tpdo(self) -> Mapping[int, PdoSettingLike]: ...
-    @property
-    def rpdo(self) -> Mapping[int, PdoSettingLike]: ...
-
-
-def _node_key(node: NodeLike, base_dir: Path | None) -> str:
-    def dump(v: Any) -> Any:
-        return v.model_dump(mode="json") if hasattr(v, "model_dump") else str(v)
-
-    return json.dumps(
-        {
-            "profile": node.profile,
-            "eds": node.eds,
-            "node_id": node.node_id,
-            "variant": node.pdo_variant,
-            "configure": node.configure,
-            "sdo": [dump(w) for w in node.sdo],
-            "tpdo": {str(k): dump(v) for k, v in (node.tpdo or {}).items()},
-            "rpdo": {str(k): dump(v) for k, v in (node.rpdo or {}).items()},
-            "base": str(base_dir),
-        },
-        sort_keys=True,
-        default=str,
-    )
+from gateway.profiles.node_setup import NodeSetup, SdoSetup
+from gateway.profiles.schema import BootWrite, Pdo, Profile, Signal
 
 
 def resolve_eds_path(eds: str, base_dir: Path | None) -> Path:
@@ -99,15 +55,15 @@ def resolve_eds_path(eds: str, base_dir: Path | None) -> Path:
     return p.resolve()
 
 
-def load_node_profile(node: NodeLike, base_dir: Path | None = None) -> LoadedProfile:
+def load_node_profile(node: NodeSetup, base_dir: Path | None = None) -> LoadedProfile:
     """The complete profile of one configured node (see the module docstring)."""
-    return _load_node(_node_key(node, base_dir), node, base_dir)
+    return _load_node(node.cache_key(base_dir), node, base_dir)
 
 
 _NODE_CACHE: dict[str, LoadedProfile] = {}
 
 
-def _load_node(key: str, node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+def _load_node(key: str, node: NodeSetup, base_dir: Path | None) -> LoadedProfile:
     hit = _NODE_CACHE.get(key)
     if hit is not None:
         return hit
@@ -118,7 +74,7 @@ def _load_node(key: str, node: NodeLike, base_dir: Path | None) -> LoadedProfile
     return lp
 
 
-def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+def _resolve_node(node: NodeSetup, base_dir: Path | None) -> LoadedProfile:
     """The node's profile on its EDS, its PDO layout as the node's settings leave it, the
     signals that layout maps, the layout's warnings and the staleness of an unsupervised node."""
     base = _base_profile(node, base_dir)
@@ -140,7 +96,7 @@ def _resolve_node(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
                          tuple(warnings), stale_ms, tuple(notes))  # fmt: skip
 
 
-def _base_profile(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
+def _base_profile(node: NodeSetup, base_dir: Path | None) -> LoadedProfile:
     """The named profile on its (or the node's) EDS, else a bare profile made of the EDS."""
     if node.profile:
         base = load_profile(node.profile, base_dir)
@@ -166,7 +122,7 @@ def _base_profile(node: NodeLike, base_dir: Path | None) -> LoadedProfile:
     return with_eds(profile, eds_path, eds_path, eds.od)
 
 
-def _layout(node: NodeLike, base: LoadedProfile) -> tuple[list[Pdo], list[Pdo], EdsLayout, bool]:
+def _layout(node: NodeSetup, base: LoadedProfile) -> tuple[list[Pdo], list[Pdo], EdsLayout, bool]:
     """The PDOs before the node's settings: the profile's layout (``explicit``) or the EDS's;
     an EDS PDO the gateway cannot decode raises unless the node's settings name it."""
     prof = base.profile
@@ -181,13 +137,13 @@ def _layout(node: NodeLike, base: LoadedProfile) -> tuple[list[Pdo], list[Pdo], 
         lay = eds_layout(base.od, node.node_id, base.eds_path)
         tpdos, rpdos = lay.tpdos, lay.rpdos
     for (kind, number), why in lay.refused.items():
-        if number not in ((node.tpdo if kind == "tpdo" else node.rpdo) or {}):
+        if number not in (node.tpdo if kind == "tpdo" else node.rpdo):
             raise ProfileError(why)  # unless the node's tpdo:/rpdo: settings remap or disable it
     return tpdos, rpdos, lay, explicit
 
 
 def _apply_node_settings(
-    node: NodeLike, base: LoadedProfile, tpdos: list[Pdo], rpdos: list[Pdo]
+    node: NodeSetup, base: LoadedProfile, tpdos: list[Pdo], rpdos: list[Pdo]
 ) -> tuple[list[Pdo], list[Pdo]]:
     """The node's ``tpdo:``/``rpdo:`` settings, then the PDO objects its and the profile's
     ``sdo`` writes set, applied to the layout."""
@@ -199,7 +155,7 @@ def _apply_node_settings(
         )
     for kind, settings in (("tpdo", node.tpdo), ("rpdo", node.rpdo)):
         try:
-            remapped = apply_settings(kind, tpdos if kind == "tpdo" else rpdos, settings or {},  # type: ignore[arg-type]
+            remapped = apply_settings(kind, tpdos if kind == "tpdo" else rpdos, settings,  # type: ignore[arg-type]
                                  eds_pdos(od, node_id, kind), od, node_id, kind)  # type: ignore[arg-type]  # fmt: skip
         except PdoMappingError as exc:
             head, _, rest = str(exc).partition(": ")
@@ -209,11 +165,8 @@ def _apply_node_settings(
         else:
             rpdos = remapped
     try:
-        writes = [
-            (ObjRef.parse(w.object), w.value)
-            for w in [*prof.boot.sdo, *node.sdo]
-            if is_pdo_object(ObjRef.parse(w.object))
-        ]
+        everything: list[BootWrite | SdoSetup] = [*prof.boot.sdo, *node.sdo]
+        writes = [(w.object, w.value) for w in everything if is_pdo_object(w.object)]
         if writes:
             tpdos = apply_pdo_writes(prof, "tpdo", tpdos, node_id, writes)
             rpdos = apply_pdo_writes(prof, "rpdo", rpdos, node_id, writes)
@@ -286,16 +239,12 @@ def _mapped_signal(
 
 
 def _unsupervised_notes(
-    node: NodeLike, base: LoadedProfile, tpdos: list[Pdo]
+    node: NodeSetup, base: LoadedProfile, tpdos: list[Pdo]
 ) -> tuple[int | None, list[str]]:
     """For an EDS-only node without heartbeat or guarding: the derived ``stale_after_ms`` and
     the note that says so."""
     prof = base.profile
-    if (
-        node.profile
-        or getattr(node, "supervision", None) is not None
-        or prof.boot.supervision != "none"
-    ):
+    if node.profile or node.supervision is not None or prof.boot.supervision != "none":
         return None, []
     stale_ms = stale_after_from_event_timers(tpdos)
     age = (

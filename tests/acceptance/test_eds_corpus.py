@@ -237,7 +237,7 @@ def test_every_pdo_signal_agrees_with_the_register_map(eds: Path) -> None:
     raw: dict[str, Any] = {"can": {"interface": "virtual", "channel": "x"},
                            "nodes": [{"name": "dev", "node_id": NODE_ID, "eds": str(eds)}]}  # fmt: skip
     cfg = parse_checked_config(raw, "cfg.yaml", environ={})
-    lp = load_node_profile(cfg.nodes[0])
+    lp = load_node_profile(cfg.nodes[0].setup)
     points = {(p.table, p.name): p for p in build_register_map(*with_nodes(cfg)).node_points("dev") if p.kind == "signal"}
     tpdos, rpdos = compile_node(lp, NODE_ID)
     codecs = {("tpdo", c.number): c for c in tpdos} | {("rpdo", c.number): c for c in rpdos}
@@ -323,7 +323,7 @@ def test_damaged_corpus_files_never_give_a_traceback(tmp_path: Path) -> None:
         raw: dict[str, Any] = {"can": {"interface": "virtual", "channel": "x"},
                                "nodes": [{"name": "dev", "node_id": NODE_ID, "eds": str(path)}]}  # fmt: skip
         try:
-            load_node_profile(parse_checked_config(raw, "cfg.yaml", environ={}).nodes[0])
+            load_node_profile(parse_checked_config(raw, "cfg.yaml", environ={}).nodes[0].setup)
         except ProfileError as exc:
             refused += 1
             assert REFUSAL.match(str(exc)), str(exc)

@@ -54,7 +54,7 @@ def io_variant(tmp_path: Path, name: str, *, domain_in_tpdo2: bool = False, drop
 
 async def test_an_unserved_object_is_skipped_and_the_other_signals_decode_at_their_offsets(tmp_path: Path) -> None:
     eds = io_variant(tmp_path, "io_domain.eds", domain_in_tpdo2=True)
-    lp = load_node_profile(NodeConfig.model_validate({"name": "io", "node_id": 5, "eds": str(eds)}))
+    lp = load_node_profile(NodeConfig.model_validate({"name": "io", "node_id": 5, "eds": str(eds)}).setup)
     assert [(str(e.object), e.bits) for e in lp.profile.tpdos[1].mapping] == [("0x6100:02", 16), ("0x2002:00", 32), ("0x6401:01", 16)]  # fmt: skip
     assert "0x2002:00" not in {str(s.object) for s in lp.profile.signals}
     assert any("[1A01sub2]: TPDO2 entry 0x2002:00/32 (DOMAIN) is not a type the gateway serves: skipped" in w for w in lp.warnings), lp.warnings  # fmt: skip
@@ -89,7 +89,7 @@ def test_a_mapped_real64_is_served_as_a_signal_of_its_pdo(tmp_path: Path, capsys
 def test_supervision_follows_the_device(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     def settings(eds: Path, **kw: object) -> tuple[str, int | None, list[str]]:
         n = NodeConfig.model_validate({"name": "io", "node_id": 5, "eds": str(eds), **kw})
-        lp = load_node_profile(n)
+        lp = load_node_profile(n.setup)
         cfg = make_config([{"name": "io", "node_id": 5, "eds": str(eds), **kw}])
         s = resolve_node_settings(cfg.master, n, lp.profile)
         return s.supervision, lp.stale_after_ms, list(lp.notes)
@@ -102,7 +102,7 @@ def test_supervision_follows_the_device(tmp_path: Path, capsys: pytest.CaptureFi
     )
     guarded.write_text(text, encoding="utf-8")
     n = NodeConfig.model_validate({"name": "io", "node_id": 5, "eds": str(guarded)})
-    boot_cfg = load_node_profile(n).profile.boot
+    boot_cfg = load_node_profile(n.setup).profile.boot
     assert (boot_cfg.supervision, boot_cfg.guard_time_ms, boot_cfg.life_time_factor) == ("guarding", 200, 2)
     bare = io_variant(tmp_path, "bare.eds", drop=("1017",))
     sup, stale_ms, notes = settings(bare)
@@ -120,7 +120,7 @@ def test_supervision_follows_the_device(tmp_path: Path, capsys: pytest.CaptureFi
 @pytest.mark.skipif(not CORPUS.is_dir(), reason="no EDS corpus")
 def test_faulhaber_with_node_guarding_only_is_accepted_with_the_one_line_node_entry(tmp_path: Path) -> None:
     eds = CORPUS / "KITmedical__kacanopen__605.3150.51-V-EK-2-60.eds"
-    lp = load_node_profile(NodeConfig.model_validate({"name": "motor", "node_id": 5, "eds": str(eds)}))
+    lp = load_node_profile(NodeConfig.model_validate({"name": "motor", "node_id": 5, "eds": str(eds)}).setup)
     assert lp.profile.boot.supervision == "guarding"
     cfg = tmp_path / "c.yaml"
     cfg.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: motor, node_id: 5, eds: '{eds}'}}\n")  # fmt: skip

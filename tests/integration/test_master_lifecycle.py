@@ -166,10 +166,7 @@ async def test_msk5000_tpdo_remapped_by_node_sdo_writes_is_decoded_by_the_new_ma
 
 def boot_table(lp: Any, node: Any) -> str:
     """The Markdown table docs/canopen.md shows for one node's boot configuration."""
-    sup = node.supervision or lp.profile.boot.supervision
-    steps = build_boot_steps(
-        lp, node, sup, node.heartbeat_ms, node.guard_time_ms, node.life_time_factor
-    )
+    steps = build_boot_steps(lp, node.setup)
     lines = ["| object | value | type | why |", "| --- | --- | --- | --- |"]
     for st in steps:
         v = st.value

@@ -59,7 +59,7 @@ def test_a_deviation_is_a_warning_with_file_line_and_section_and_the_file_loads(
     assert path == str(p)
     sec_line = line_of(p, f"[{section}]")
     assert sec_line <= int(line) <= sec_line + 10
-    assert load_node_profile(Node(eds=str(p)).cfg).profile.signal("analogue_input_1") is not None
+    assert load_node_profile(Node(eds=str(p)).cfg.setup).profile.signal("analogue_input_1") is not None
 
 
 def test_cia306_defaults_missing_object_type_any_number_notation_hex_reals(tmp_path: Path) -> None:
@@ -95,10 +95,10 @@ def test_an_enabled_pdo_the_gateway_would_decode_wrongly_is_refused_in_one_line(
     line = line_of(p, "[1A01sub2]")
     assert errors == [f"{p}:{line}: [1A01sub2]: TPDO2: 1A01h:00 counts entry 02h, which has no value"]
     with pytest.raises(ProfileError) as err:
-        load_node_profile(Node(eds=str(p)).cfg)
+        load_node_profile(Node(eds=str(p)).cfg.setup)
     assert str(err.value) == errors[0]
     # the node's own settings may disable that PDO: then the file serves the rest
-    lp = load_node_profile(Node(eds=str(p), tpdo={2: {"enabled": False}}).cfg)
+    lp = load_node_profile(Node(eds=str(p), tpdo={2: {"enabled": False}}).cfg.setup)
     assert [x.number for x in lp.profile.tpdos] == [1]
     long = edited_copy(tmp_path, IO, "DefaultValue=0x64010110", "DefaultValue=0x64010140", "long.eds")
     errors, _ = lint_of(long)
@@ -155,7 +155,7 @@ class Node:
 
 
 def test_signals_of_an_eds_only_node_come_from_its_enabled_pdos() -> None:
-    lp = load_node_profile(Node(eds=str(IO)).cfg)
+    lp = load_node_profile(Node(eds=str(IO)).cfg.setup)
     sigs = {s.name: (str(s.object), s.type, s.access) for s in lp.profile.signals}
     assert sigs == {
         "read_input_1h_to_8h": ("0x6000:01", "uint8", "ro"),
@@ -184,12 +184,12 @@ def test_a_dcf_is_read_like_its_eds_with_the_parameter_values_of_the_commissioni
         encoding="utf-8",
     )  # fmt: skip
     assert load_eds(dcf).is_dcf
-    lp = load_node_profile(Node(eds=str(dcf)).cfg)
+    lp = load_node_profile(Node(eds=str(dcf)).cfg.setup)
     assert [(p.number, p.event_timer_ms) for p in lp.profile.tpdos] == [(1, 250), (2, 100)]
 
 
 def test_a_disabled_pdo_enabled_by_the_config_is_served() -> None:
-    lp = load_node_profile(Node(eds=str(IO), tpdo={3: {"enabled": True}}).cfg)
+    lp = load_node_profile(Node(eds=str(IO), tpdo={3: {"enabled": True}}).cfg.setup)
     assert [p.number for p in lp.profile.tpdos] == [1, 2, 3]
     assert lp.profile.tpdos[2].cob_id == 0x385
     assert lp.profile.signal("analogue_input_2").object == ObjRef(0x6401, 2)
@@ -207,8 +207,8 @@ def test_config_remap_is_one_cia301_sequence_and_the_codec_follows_it() -> None:
     from gateway.pdo.codec import compile_node
 
     n = Node(eds=str(IO), tpdo={1: {"mapping": ["0x6401:01", "0x0005:00", "0x6000:01"], "inhibit_ms": 1.5}}).cfg  # fmt: skip
-    lp = load_node_profile(n)
-    steps = [(str(s.object), s.value) for s in build_boot_steps(lp, n) if s.object.index >= 0x1400]
+    lp = load_node_profile(n.setup)
+    steps = [(str(s.object), s.value) for s in build_boot_steps(lp, n.setup) if s.object.index >= 0x1400]
     assert steps == [
         ("0x1800:01", 0x80000185), ("0x1800:03", 15), ("0x1A00:00", 0), ("0x1A00:01", 0x64010110),
         ("0x1A00:02", 0x00050008), ("0x1A00:03", 0x60000108), ("0x1A00:00", 3), ("0x1800:01", 0x185),
@@ -234,7 +234,7 @@ def test_msk5000_manual_remap_in_the_config_serves_every_mapped_object() -> None
 
 
 def test_verify_compare_names_the_pdo_expected_and_held() -> None:
-    lp = load_node_profile(Node(eds=str(FLOW)).cfg)
+    lp = load_node_profile(Node(eds=str(FLOW)).cfg.setup)
     reads = mapping_reads(lp, 5)
     held: dict[ObjRef, int | None] = {r.object: r.expected for r in reads}
     assert compare_mapping(reads, held) == []
@@ -337,7 +337,7 @@ def test_check_refuses_a_pdo_signal_in_no_pdo_and_a_layout_not_the_eds_mapping(t
 def test_overlay_profile_names_units_and_scaling_on_derived_signals(tmp_path: Path) -> None:
     prof = overlay(tmp_path, "signals:\n  - {name: pressure, object: '0x6401:01', unit: bar, scale: 0.01}\n")
     cfg = parse_checked_config({"can": {"interface": "virtual", "channel": "x"}, "nodes": [{"name": "io", "node_id": 5, "profile": prof}]}, environ={})  # fmt: skip
-    lp = load_node_profile(cfg.nodes[0], cfg.base_dir)
+    lp = load_node_profile(cfg.nodes[0].setup, cfg.base_dir)
     s = lp.profile.signal("pressure")
     assert (s.type, s.access, s.transport, s.unit) == ("int16", "ro", "pdo", "bar")
     assert "analogue_input_1" not in {x.name for x in lp.profile.signals}
@@ -351,7 +351,7 @@ def test_eds_show_and_profile_init(tmp_path: Path, capsys: pytest.CaptureFixture
     target = tmp_path / "flow.yaml"
     assert main(["profile", "init", "--eds", str(FLOW), "-o", str(target)]) == 0
     cfg = parse_checked_config({"can": {"interface": "virtual", "channel": "x"}, "nodes": [{"name": "flow", "node_id": 6, "profile": str(target)}]}, environ={})  # fmt: skip
-    lp = load_node_profile(cfg.nodes[0], cfg.base_dir)
+    lp = load_node_profile(cfg.nodes[0].setup, cfg.base_dir)
     assert [s.name for s in lp.profile.signals] == ["temperatur", "durchfluss", "status", "zahler", "sollwert"]
     bad = edited_copy(tmp_path, IO, "[6401sub2]", "[6401sbu2]")
     assert main(["eds", "show", str(bad)]) == 0
@@ -372,7 +372,7 @@ def test_simulator_serves_an_eds_it_has_never_seen() -> None:
 
     from gateway.sim.node import SimNode
 
-    lp = load_node_profile(Node(eds=str(IO)).cfg)
+    lp = load_node_profile(Node(eds=str(IO)).cfg.setup)
     sim = SimNode(lp, 5)
     boot = sim.power_on(0.0)
     assert [(m.arbitration_id, bytes(m.data)) for m in boot] == [(0x705, b"\x00")]
@@ -391,7 +391,7 @@ def test_simulator_serves_an_eds_it_has_never_seen() -> None:
 def test_simulator_answers_a_utf8_device_name_by_sdo() -> None:
     from gateway.sim.node import SimNode
 
-    sim = SimNode(load_node_profile(Node(eds=str(FLOW)).cfg), 6)
+    sim = SimNode(load_node_profile(Node(eds=str(FLOW)).cfg.setup), 6)
     sim.power_on(0.0)
     assert sim.sdo_read_local("0x1008:00") == "Durchflussmesser Größe 3 – µ"
 
@@ -399,17 +399,17 @@ def test_simulator_answers_a_utf8_device_name_by_sdo() -> None:
 def test_expected_identity_is_vendor_and_product_and_a_dcf_serial(tmp_path: Path) -> None:
     from gateway.profiles import expected_identity
 
-    lp = load_node_profile(Node(eds=str(IO)).cfg)
+    lp = load_node_profile(Node(eds=str(IO)).cfg.setup)
     assert expected_identity(lp) == ((ObjRef(0x1018, 1), 0xABC), (ObjRef(0x1018, 2), 0x401))
     text = IO.read_text(encoding="utf-8")
     head, rest = text.split("[1018sub4]", 1)
     section, tail = rest.split("\n\n", 1)
     dcf = tmp_path / "io.dcf"
     dcf.write_text(head + "[1018sub4]" + section + "\nParameterValue=0x00C0FFEE\n\n" + tail, encoding="utf-8")
-    lp = load_node_profile(Node(eds=str(dcf)).cfg)
+    lp = load_node_profile(Node(eds=str(dcf)).cfg.setup)
     assert expected_identity(lp)[-1] == (ObjRef(0x1018, 4), 0xC0FFEE)
     anonymous = edited_copy(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=", "anon.eds")
-    assert expected_identity(load_node_profile(Node(eds=str(anonymous)).cfg)) == ()
+    assert expected_identity(load_node_profile(Node(eds=str(anonymous)).cfg.setup)) == ()
 
 
 def test_device_info_other_than_1018h_is_a_warning_and_that_number_is_not_compared(tmp_path: Path) -> None:
@@ -417,7 +417,7 @@ def test_device_info_other_than_1018h_is_a_warning_and_that_number_is_not_compar
 
     p = edited_copy(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=0x00000ABD")
     # the file contradicts itself on the vendor: only the product is checked at boot
-    assert expected_identity(load_node_profile(Node(eds=str(p)).cfg)) == ((ObjRef(0x1018, 2), 0x401),)
+    assert expected_identity(load_node_profile(Node(eds=str(p)).cfg.setup)) == ((ObjRef(0x1018, 2), 0x401),)
     _, warnings = lint_of(p)
     assert warnings == [f"{p}:{line_of(p, 'VendorNumber=0x00000ABD')}: [DeviceInfo]: VendorNumber=0xABD but 1018h:01 DefaultValue=0xABC: the identity check at boot does not compare it"]  # fmt: skip
 
@@ -431,8 +431,8 @@ def test_profile_init_keeps_the_objects_name_and_index_as_each_signals_descripti
     target = tmp_path / "flow.yaml"
     assert main(["profile", "init", "--eds", str(FLOW), "-o", str(target)]) == 0
     cfg = parse_checked_config({"can": {"interface": "virtual", "channel": "x"}, "nodes": [{"name": "flow", "node_id": 6, "profile": str(target)}]}, environ={})  # fmt: skip
-    with_profile = load_node_profile(cfg.nodes[0], cfg.base_dir).profile
-    eds_only = load_node_profile(Node(eds=str(FLOW)).cfg).profile
+    with_profile = load_node_profile(cfg.nodes[0].setup, cfg.base_dir).profile
+    eds_only = load_node_profile(Node(eds=str(FLOW)).cfg.setup).profile
     by_object = {s.object: s.description for s in eds_only.signals}
     for s in with_profile.signals:
         assert s.description == by_object[s.object], s.name

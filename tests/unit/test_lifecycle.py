@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import struct
-from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -34,7 +33,13 @@ from gateway.canopen.objref import ObjRef
 from gateway.device.boot_steps import ConfigStep, build_boot_steps
 from gateway.device.values import encode_value
 from gateway.errors import SdoAbort
-from gateway.profiles import LoadedProfile, load_profile
+from gateway.profiles import (
+    ExternalHeartbeatSetup,
+    LoadedProfile,
+    NodeSetup,
+    SdoSetup,
+    load_profile,
+)
 from gateway.profiles.schema import BootWrite, Pdo
 
 W = LifecycleState.WAITING
@@ -371,10 +376,8 @@ class TestStepEncoding:
 # --------------------------------------------------------------------------- builder
 
 
-def node(node_id: int = 1, **kw: object) -> SimpleNamespace:
-    return SimpleNamespace(
-        node_id=node_id, pdo_variant=kw.pop("pdo_variant", None), sdo=kw.pop("sdo", []), **kw
-    )
+def node(node_id: int = 1, **kw: Any) -> NodeSetup:
+    return NodeSetup(node_id=node_id, **kw)
 
 
 def with_tpdos(
@@ -461,7 +464,7 @@ class TestBuildBootSteps:
         assert not [s for s in steps if 0x1A00 <= s.object.index <= 0x1BFF]
 
     def test_guarding_disables_heartbeat_and_sets_guard_time_and_factor(self) -> None:
-        steps = build_boot_steps(load_profile("sgh10"), node(1), "guarding", None, 250, 4)
+        steps = build_boot_steps(load_profile("sgh10"), node(1, supervision="guarding", guard_time_ms=250, life_time_factor=4))
         assert [(s.object, s.value, s.type) for s in steps[:3]] == [
             (ObjRef(0x1017, 0), 0, "uint16"),
             (ObjRef(0x100C, 0), 250, "uint16"),
@@ -469,11 +472,11 @@ class TestBuildBootSteps:
         ]
 
     def test_no_supervision_writes_no_supervision_objects(self) -> None:
-        steps = build_boot_steps(load_profile("sgh10"), node(1), "none")
+        steps = build_boot_steps(load_profile("sgh10"), node(1, supervision="none"))
         assert not [s for s in steps if s.object.index in (0x1017, 0x100C, 0x100D)]
 
     def test_heartbeat_time_from_node_settings(self) -> None:
-        steps = build_boot_steps(load_profile("sgh10"), node(1), "heartbeat", 250)
+        steps = build_boot_steps(load_profile("sgh10"), node(1, supervision="heartbeat", heartbeat_ms=250))
         assert steps[0].object == ObjRef(0x1017, 0) and steps[0].value == 250
 
     def test_tpdo_transmission_type_and_event_timer_from_layout(self) -> None:
@@ -514,10 +517,10 @@ class TestBuildBootSteps:
 
     def test_explicit_writes_override_derived_ones_and_keep_order(self) -> None:
         lp = load_profile("sgh10")
-        extra = [
-            SimpleNamespace(object=ObjRef(0x1017, 0), value=500, type=None),
-            SimpleNamespace(object=ObjRef(0x6200, 0), value="0x14", type=None),
-        ]
+        extra = (
+            SdoSetup(ObjRef(0x1017, 0), 500),
+            SdoSetup(ObjRef(0x6200, 0), "0x14"),
+        )
         steps = build_boot_steps(lp, node(1, sdo=extra))
         objs = [s.object for s in steps]
         assert objs.count(ObjRef(0x1017, 0)) == 1
@@ -528,18 +531,18 @@ class TestBuildBootSteps:
 
     def test_signature_text_is_sent_as_its_ascii_bytes(self) -> None:
         lp = load_profile("posi_plus")
-        extra = [SimpleNamespace(object=ObjRef(0x1010, 1), value="save", type=None)]
+        extra = (SdoSetup(ObjRef(0x1010, 1), "save"),)
         (step,) = build_boot_steps(lp, node(1, sdo=extra))[-1:]
         assert step.value == 0x65766173  # "save", BEI manual 1010h
         assert step.data == b"save"
 
     def test_write_to_missing_object_names_it(self) -> None:
-        extra = [SimpleNamespace(object=ObjRef(0x1234, 7), value=1, type=None)]
+        extra = (SdoSetup(ObjRef(0x1234, 7), 1),)
         with pytest.raises(ValueError, match=r"node sdo\[0\]: 0x1234:07 is not in sgh10.eds"):
             build_boot_steps(load_profile("sgh10"), node(1, sdo=extra))
 
     def test_write_to_read_only_object_names_it(self) -> None:
-        extra = [SimpleNamespace(object=ObjRef(0x1000, 0), value=1, type=None)]
+        extra = (SdoSetup(ObjRef(0x1000, 0), 1),)
         with pytest.raises(ValueError, match=r"node sdo\[0\]: 0x1000:00 is read-only"):
             build_boot_steps(load_profile("sgh10"), node(1, sdo=extra))
 
@@ -553,7 +556,7 @@ class TestBuildBootSteps:
 
     def test_external_heartbeat_source_then_interval(self) -> None:
         lp = load_profile("ap05")
-        ext = SimpleNamespace(interval_ms=200, source="rpdo")
+        ext = ExternalHeartbeatSetup(interval_ms=200, source="rpdo")
         steps = build_boot_steps(lp, node(125, external_heartbeat=ext))
         assert [(s.object, s.value) for s in steps[1:3]] == [
             (ObjRef(0x5F09, 2), 0),  # AP05 manual 5F09h:02: 0 = triggered by an RPDO
@@ -561,7 +564,7 @@ class TestBuildBootSteps:
         ]
 
     def test_external_heartbeat_needs_the_feature(self) -> None:
-        ext = SimpleNamespace(interval_ms=200, source="rpdo")
+        ext = ExternalHeartbeatSetup(interval_ms=200, source="rpdo")
         with pytest.raises(ValueError, match="no feature external_heartbeat"):
             build_boot_steps(load_profile("sgh10"), node(1, external_heartbeat=ext))
 

@@ -49,7 +49,7 @@ def node(eds: Path) -> NodeConfig:
 def test_real32_mapped_in_16_bits_is_not_served_and_warned_with_file_line_and_pdo(tmp_path: Path) -> None:
     # measure.eds TPDO1: temperatur 2000h REAL32 /32, durchfluss 2001h REAL32 /32 -> 2000h /16
     eds = edited_copy(tmp_path, FLOW, "DefaultValue=0x20000020", "DefaultValue=0x20000010")
-    lp = load_node_profile(node(eds))
+    lp = load_node_profile(node(eds).setup)
     names = {s.name for s in lp.profile.signals}
     assert "temperatur" not in names and "durchfluss" in names
     at = f"{eds}:{line_of(eds, '[1A00sub1]')}: [1A00sub1]: TPDO1 entry 0x2000:00/16"
@@ -64,7 +64,7 @@ def test_real32_mapped_in_16_bits_is_not_served_and_warned_with_file_line_and_pd
 
 
 def test_a_float_of_another_length_decodes_as_nothing_on_both_paths() -> None:
-    lp = load_node_profile(node(FLOW))
+    lp = load_node_profile(node(FLOW).setup)
     for fmt, entries in (("aligned", [(0x2000, 16), (0x2001, 32)]), ("bits", [(0x2000, 12), (0x2001, 32)])):
         pdo = Pdo(number=1, mapping=[{"object": ObjRef(i, 0), "bits": b} for i, b in entries])
         fields = compile_fields(lp, pdo)
@@ -192,7 +192,7 @@ def test_output_image_refuses_a_value_its_rpdo_cannot_carry_and_changes_nothing(
 
 
 def test_a_write_is_range_checked_against_the_mapped_width() -> None:
-    lp = load_node_profile(node(IO))
+    lp = load_node_profile(node(IO).setup)
     sig = lp.profile.signal("analogue_output_1")
     assert check_value(sig, 3000) == 3000
     with pytest.raises(ValueOutOfRange) as exc:
@@ -215,7 +215,7 @@ def test_two_spellings_of_one_sub_section_the_first_counts_and_the_second_warns(
     assert at in [str(w) for w in lint(loaded).warnings]
     assert not any("SubNumber" in str(w) for w in loaded.warnings)  # 9 sub-indices, as it says
     assert loaded.line_of(ObjRef(0x1601, 2)) == line_of(eds, "[1601sub2]")
-    lp = load_node_profile(node(eds))
+    lp = load_node_profile(node(eds).setup)
     assert [(str(e.object), e.bits) for e in lp.profile.rpdos[1].mapping] == [("0x6300:01", 16), ("0x6411:01", 16)]  # fmt: skip
 
 
@@ -230,7 +230,7 @@ def test_two_spellings_the_padded_one_first_counts_too(tmp_path: Path) -> None:
 
 
 def test_a_real32_beyond_its_range_is_refused_before_the_image_changes() -> None:
-    lp = load_node_profile(node(FLOW))
+    lp = load_node_profile(node(FLOW).setup)
     sig = lp.profile.signal("durchfluss")
     with pytest.raises(ValueOutOfRange):
         check_value(sig, 1e39)

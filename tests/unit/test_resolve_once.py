@@ -46,14 +46,14 @@ def test_a_command_resolves_each_node_once(
     """Loading and checking the config, then what the command builds from it (the summary,
     the register map, the key listing), read one resolution: each node's profile is looked
     up once."""
-    looked_up: list[str] = []
-    real = node_profile._node_key
+    looked_up: list[int] = []
+    real = node_profile._load_node
 
-    def counting(node: Any, base_dir: Any) -> str:
-        looked_up.append(node.name)
-        return real(node, base_dir)
+    def counting(key: str, node: Any, base_dir: Any) -> Any:
+        looked_up.append(node.node_id)
+        return real(key, node, base_dir)
 
-    monkeypatch.setattr(node_profile, "_node_key", counting)
+    monkeypatch.setattr(node_profile, "_load_node", counting)
     assert main([command, "-c", str(DEMO)]) == 0
     capsys.readouterr()
     names = sorted(set(looked_up))

@@ -36,7 +36,7 @@ def test_profile_safe_value_and_node_override(tmp_path: Path) -> None:
     )
     cfg = config([{"name": "io", "node_id": 5, "profile": prof, "safe_outputs": {"aout": 7}}])
     node = cfg.nodes[0]
-    assert safe_outputs(load_node_profile(node, cfg.base_dir), node) == {"dout": 0x0F, "aout": 7}
+    assert safe_outputs(load_node_profile(node.setup, cfg.base_dir), node) == {"dout": 0x0F, "aout": 7}
 
 
 def test_check_names_a_profile_safe_value_out_of_range(tmp_path: Path) -> None:
@@ -52,4 +52,4 @@ def test_check_names_a_profile_safe_value_out_of_range(tmp_path: Path) -> None:
 def test_a_node_without_safe_values_has_none() -> None:
     cfg = config([{"name": "io", "node_id": 5, "eds": str(IO)}])
     node = cfg.nodes[0]
-    assert safe_outputs(load_node_profile(node, cfg.base_dir), node) == {}
+    assert safe_outputs(load_node_profile(node.setup, cfg.base_dir), node) == {}

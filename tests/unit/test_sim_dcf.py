@@ -17,7 +17,7 @@ NODE = 10
 
 def sim_of_dcf() -> SimNode:
     cfg = make_config([{"name": "io", "node_id": NODE, "eds": str(DCF)}])
-    node = SimNode(load_node_profile(cfg.nodes[0], cfg.base_dir), NODE)
+    node = SimNode(load_node_profile(cfg.nodes[0].setup, cfg.base_dir), NODE)
     node.power_on(0.0)
     return node
 
@@ -60,7 +60,7 @@ def variant(tmp_path: Path, *edits: tuple[str, str]) -> Path:
 
 def sim_of(path: Path) -> SimNode:
     cfg = make_config([{"name": "io", "node_id": NODE, "eds": str(path)}])
-    node = SimNode(load_node_profile(cfg.nodes[0], cfg.base_dir), NODE)
+    node = SimNode(load_node_profile(cfg.nodes[0].setup, cfg.base_dir), NODE)
     node.power_on(0.0)
     return node
 

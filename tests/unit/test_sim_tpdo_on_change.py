@@ -22,7 +22,7 @@ TPDO2 = 0x280 + NODE
 
 def started(inhibit_100us: int | None = None, **options: Any) -> SimNode:
     cfg = make_config([{"name": "io", "node_id": NODE, "eds": str(DCF)}])
-    node = SimNode(load_node_profile(cfg.nodes[0], cfg.base_dir), NODE, options=options)
+    node = SimNode(load_node_profile(cfg.nodes[0].setup, cfg.base_dir), NODE, options=options)
     node.power_on(0.0)
     if inhibit_100us is not None:
         node.set(0x1801, 3, inhibit_100us)

@@ -192,7 +192,7 @@ def test_zenoh_writes_of_time_types_take_iso_text_and_milliseconds() -> None:
 
 # --------------------------------------------------------------------------- PDO codecs
 def test_tpdos_with_real64_integer48_and_time_of_day_decode_as_cia301_lays_them_out() -> None:
-    lp = load_node_profile(cfg().nodes[0])
+    lp = load_node_profile(cfg().nodes[0].setup)
     tpdos, rpdos = compile_node(lp, 5)
     t = {c.number: c for c in tpdos}
     assert t[1].names == ("energy",) and t[1].decode(struct.pack("<d", -2.5e-300)) == (-2.5e-300,)
