@@ -264,8 +264,8 @@ class PairMember:
         """The run-time warning: nothing of the peer heard for long (two members each on a
         private bus, e.g. ``interface: virtual``, both active)."""
         limit = max(PEER_SILENT_S, 10 * self.machine.timing.takeover_s)
-        heard = [t for t in (self.peer_heartbeat_s, getattr(self.machine.peer, "at_s", None))
-                 if t is not None]  # fmt: skip
+        claim = self.machine.peer
+        heard = [t for t in (self.peer_heartbeat_s, claim.at_s if claim else None) if t is not None]
         last = max(heard) if heard else None
         silent = (self._clock() - last if last is not None else now - self._started_s) > limit
         if silent and not self.peer_silent:

@@ -130,7 +130,7 @@ class PairSide:
             return machine.node_id
         claim = machine.peer
         heard = machine.active_heard_s
-        if claim is None or heard is None or machine.role.value != "standby":
+        if claim is None or heard is None or machine.role is not Role.STANDBY:
             return None
         return claim.node_id if self.clock() - heard <= machine.timing.takeover_s else None
 
