@@ -224,7 +224,7 @@ class PairMember:
                 self._sdo_block.add(node_id)
         self._sdo_open.add(node_id)
 
-    def on_sdo_response(self, node_id: int, data: bytes = b"") -> None:
+    def on_sdo_response(self, node_id: int, data: bytes) -> None:
         """The node answered: no request is left unanswered (the object stays: segments may
         follow); a block download's end answer (A1h) or an abort (80h) ends the transfer."""
         self._sdo_open.discard(node_id)
