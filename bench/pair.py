@@ -76,7 +76,7 @@ class _Heard(can.Listener):
             return list(self.logical)
 
 
-class _Gateway:
+class PairGateway:
     """One gateway process of the pair; its log (stdout and stderr) in a file."""
 
     def __init__(
@@ -121,7 +121,7 @@ class _Gateway:
         self._log.close()
 
 
-def _wait(cond: Any, timeout_s: float, what: str) -> None:
+def wait_for(cond: Any, timeout_s: float, what: str) -> None:
     deadline = time.monotonic() + timeout_s
     while not cond():
         if time.monotonic() > deadline:
@@ -129,7 +129,7 @@ def _wait(cond: Any, timeout_s: float, what: str) -> None:
         time.sleep(0.02)
 
 
-def _config(workdir: pathlib.Path, can: dict[str, Any]) -> pathlib.Path:
+def pair_config(workdir: pathlib.Path, can: dict[str, Any]) -> pathlib.Path:
     """The pair's one config file (each member's own id from its environment) on bus ``can``."""
     raw: dict[str, Any] = {
         "gateway": {"name": "pair"},
@@ -192,17 +192,17 @@ async def run(
     cpu_active: list[float] = []
     with tempfile.TemporaryDirectory(prefix="bench-pair-") as tmp:
         workdir = pathlib.Path(tmp)
-        cfg = _config(workdir, {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"})
+        cfg = pair_config(workdir, {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"})
         relay = subprocess.Popen(
             [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"pair{port}", "-H", "127.0.0.1", "-p", str(port)],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )  # fmt: skip
-        gateways: dict[int, _Gateway] = {}
+        gateways: dict[int, PairGateway] = {}
         sim = None
         bus = None
         notifier = None
         try:
-            _wait(lambda: _port_open(port), 10, "the python-can-remote relay listens")
+            wait_for(lambda: _port_open(port), 10, "the python-can-remote relay listens")
             bus = can.Bus(interface="remote", channel=f"ws://127.0.0.1:{port}/")
             heard = _Heard()
             notifier = can.Notifier(bus, [heard])
@@ -211,13 +211,13 @@ async def run(
                 cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             )  # fmt: skip
             priority = {IDS[0]: 0, IDS[1]: 1}
-            active = _Gateway(workdir, cfg, IDS[0], 0, 0)
+            active = PairGateway(workdir, cfg, IDS[0], 0, 0)
             gateways[IDS[0]] = active
-            _wait(lambda: active.said("pair: negotiating -> active"), 30, "the first gateway active")
-            _wait(lambda: active.said("node enc: configuring -> operational"), 30, "the devices configured")
-            standby = _Gateway(workdir, cfg, IDS[1], 1, 0)
+            wait_for(lambda: active.said("pair: negotiating -> active"), 30, "the first gateway active")
+            wait_for(lambda: active.said("node enc: configuring -> operational"), 30, "the devices configured")
+            standby = PairGateway(workdir, cfg, IDS[1], 1, 0)
             gateways[IDS[1]] = standby
-            _wait(lambda: standby.said("pair: listening -> standby"), 30, "the second gateway standby")
+            wait_for(lambda: standby.said("pair: listening -> standby"), 30, "the second gateway standby")
             nmt_before = heard.nmt
             for round_ in range(1, kills + 1):
                 # CPU of both over the same window, both running and settled (the standby has
@@ -230,15 +230,15 @@ async def run(
                 cpu_standby.append(100 * (s1 - s0) / cpu_window_s)
                 before = len(heard.stamps())
                 active.kill()
-                _wait(lambda gw=standby: gw.said("pair: negotiating -> active"), 10, "the standby takes over")
-                _wait(lambda b=before: len(heard.stamps()) >= b + 3, 5, "the new active one's heartbeats")
+                wait_for(lambda gw=standby: gw.said("pair: negotiating -> active"), 10, "the standby takes over")
+                wait_for(lambda b=before: len(heard.stamps()) >= b + 3, 5, "the new active one's heartbeats")
                 stamps = heard.stamps()[max(0, before - 3) :]
                 takeover_s[standby.node_id].append(max(y - x for x, y in zip(stamps, stamps[1:], strict=False)))
                 killed = active.node_id
                 active = standby
-                standby = _Gateway(workdir, cfg, killed, priority[killed], round_)
+                standby = PairGateway(workdir, cfg, killed, priority[killed], round_)
                 gateways[killed] = standby
-                _wait(lambda gw=standby: gw.said("pair: listening -> standby"), 30, "the restarted gateway standby")
+                wait_for(lambda gw=standby: gw.said("pair: listening -> standby"), 30, "the restarted gateway standby")
             nmt_after = heard.nmt
             emcy = heard.emcy_8130
         finally:

@@ -32,7 +32,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 
-from bench.pair import IDS, LOGICAL, REPO, _config, _Gateway, _wait
+from bench.pair import IDS, LOGICAL, REPO, PairGateway, pair_config, wait_for
 from bench.report import Row
 from bench.rig import NMT_EC_BASE
 from bench.startup import stop
@@ -118,21 +118,21 @@ def measure(
     out = FaultResults()
     with tempfile.TemporaryDirectory(prefix="bench-pair-faults-") as tmp, PairBus() as bus:
         workdir = pathlib.Path(tmp)
-        cfg = _config(workdir, bus.can_section("devices"))
+        cfg = pair_config(workdir, bus.can_section("devices"))
         sim = subprocess.Popen(
             [sys.executable, "-m", "gateway", "simulate", "-c", str(cfg)],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )  # fmt: skip
-        gws: dict[str, _Gateway] = {}
+        gws: dict[str, PairGateway] = {}
         try:
             for (node_id, member), prio in zip(MEMBERS.items(), (0, 1), strict=True):
                 env = {"CANOPEN_GATEWAY__CAN__CHANNEL": member}
-                gws[member] = _Gateway(workdir, cfg, node_id, prio, 0, extra_env=env)
-                _wait(lambda m=member: any(f.sender == m for f in bus.frames[-200:]), 30,
+                gws[member] = PairGateway(workdir, cfg, node_id, prio, 0, extra_env=env)
+                wait_for(lambda m=member: any(f.sender == m for f in bus.frames[-200:]), 30,
                       f"gateway {member} on the bus")  # fmt: skip
-                _wait(lambda: _settled(bus, 1.0) == "a", 30, "gateway a mastering the bus")
+                wait_for(lambda: _settled(bus, 1.0) == "a", 30, "gateway a mastering the bus")
             for i in range(rounds):
-                _wait(lambda: _settled(bus, 1.0) is not None, 20, "one member mastering the bus")
+                wait_for(lambda: _settled(bus, 1.0) is not None, 20, "one member mastering the bus")
                 time.sleep(1.0)  # both settled: the standby's start-up is not counted
                 active = _settled(bus, 0.5) or "a"
                 standby = (GATEWAYS - {active}).pop()

@@ -85,6 +85,22 @@ class _Member:
             self.conn.close()
 
 
+def expect_line(conn: socket.socket, buf: bytes, word: bytes) -> tuple[list[bytes], bytes]:
+    """A socketcand server's read of the client's next handshake line ``< WORD ... >``, ``buf``
+    the bytes already read: (the line's words, the bytes read past it). Raises
+    ``ConnectionError`` when the client leaves or sends another line."""
+    while b">" not in buf:
+        chunk = conn.recv(256)
+        if not chunk:
+            raise ConnectionError("client left during the handshake")
+        buf += chunk
+    msg, _, rest = buf.partition(b">")
+    parts = msg.replace(b"<", b" ").split()
+    if not parts or parts[0] != word:
+        raise ConnectionError(f"expected {word!r}, got {msg!r}")
+    return parts, rest
+
+
 class PairBus:
     """A socketcand-protocol server on 127.0.0.1 relaying frames between its clients. Each
     client is a *member*, named by the channel it opens (``< open NAME >``): a gateway process
@@ -240,23 +256,8 @@ class PairBus:
     def _handshake(self, conn: socket.socket) -> tuple[str | None, bytes]:
         """socketcand's greeting: the member's name and the bytes read past the handshake.
         A name that is unplugged is closed as soon as it is named: (None, b"")."""
-        buf = b""
-
-        def expect(word: bytes) -> bytes:
-            nonlocal buf
-            while b">" not in buf:
-                chunk = conn.recv(256)
-                if not chunk:
-                    raise ConnectionError("client left during the handshake")
-                buf += chunk
-            msg, _, buf = buf.partition(b">")
-            parts = msg.replace(b"<", b" ").split()
-            if not parts or parts[0] != word:
-                raise ConnectionError(f"expected {word!r}, got {msg!r}")
-            return msg
-
         conn.sendall(b"< hi >")
-        parts = expect(b"open").replace(b"<", b" ").split()
+        parts, buf = expect_line(conn, b"", b"open")
         name = parts[1].decode("ascii", "replace") if len(parts) > 1 else ""
         with self._lock:
             refused = name in self._unplugged or self._closing
@@ -266,7 +267,7 @@ class PairBus:
             conn.close()
             return None, b""
         conn.sendall(b"< ok >")
-        expect(b"rawmode")
+        _, buf = expect_line(conn, buf, b"rawmode")
         conn.sendall(b"< ok >")
         return name, buf
 

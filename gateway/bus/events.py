@@ -2,7 +2,7 @@
 (``bus.sdo``) and their parts return to the driver, the outputs of every event. Here, beside both
 packages, so neither imports the other for it.
 
-Imports: pdo.refresh (the plan's record, re-exported), objref. No I/O.
+Imports: pdo.refresh (the plan's record, re-exported) and the standard library. No I/O.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ survive this gateway's worst take-over (``takeover_worst_ms``): a guarded node w
 is shorter, a boot step writing the node's consumer of the logical master's heartbeat (1016h)
 with a shorter consumer time.
 
-Imports: config (types), device.resolved (types). No I/O but reading the device files to compare.
+Imports: bus.pair.member (the pair's times), config (types), device.resolved (types). No I/O but reading the device files to compare.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 from typing import Any
 
+from gateway.bus.pair.member import pair_timing
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -43,11 +44,11 @@ def takeover_worst_ms(cfg: Config) -> int | None:
     a pair): its ``takeover_ms`` (default 3 x ``heartbeat_ms``), then its CiA 302-2 time slot
     (priority x ``priority_slot_ms`` + node id x ``device_slot_ms``), and the heartbeat the old
     active one may have been about to send (one ``heartbeat_ms``)."""
-    pair, hb = cfg.master.redundancy, cfg.master.heartbeat_ms
+    pair = cfg.master.redundancy
     if pair is None:
         return None
-    takeover = pair.takeover_ms if pair.takeover_ms is not None else 3 * hb
-    return takeover + pair.priority * pair.priority_slot_ms + pair.node_id * pair.device_slot_ms + hb
+    t = pair_timing(cfg)  # the times the role machine runs on
+    return round(1000 * (t.takeover_s + t.slot_s(pair.priority, pair.node_id) + t.heartbeat))
 
 
 def takeover_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[tuple[str, str]]:

@@ -26,18 +26,24 @@ LOGICAL = 100
 HB_MS = 100
 
 
-def pair_configs(**master: Any) -> tuple[Any, Any]:
+def pair_configs(wire: dict[str, Any] | None = None) -> tuple[Any, Any]:
+    """The pair's two configs: the SGH10 ``wire`` (with these keys more) and an AP05."""
     base = make_config(
         [
-            {"name": "wire", "node_id": 1, "profile": "sgh10"},
+            {"name": "wire", "node_id": 1, "profile": "sgh10", **(wire or {})},
             {"name": "display", "node_id": 2, "profile": "ap05"},
         ],
-        master={"node_id": LOGICAL, "heartbeat_ms": HB_MS, "sync_period_ms": 0, **master},
+        master={"node_id": LOGICAL, "heartbeat_ms": HB_MS, "sync_period_ms": 0},
         modbus={"enabled": False},
         zenoh={"enabled": False},
     )
     raw = base.model_dump(exclude_none=True)
     raw["simulate"] = {"nodes": []}
+    return member_configs(raw)
+
+
+def member_configs(raw: dict[str, Any]) -> tuple[Any, Any]:
+    """One raw config as the pair's two members: A (pair id 101, priority 0) and B (102, 1)."""
     a = {**raw, "master": {**raw["master"], "redundancy": {"node_id": 101, "priority": 0}}}
     b = {**raw, "master": {**raw["master"], "redundancy": {"node_id": 102, "priority": 1}}}
     return parse_config(a, environ={}), parse_config(b, environ={})

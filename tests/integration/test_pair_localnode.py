@@ -24,11 +24,10 @@ import can
 import canopen
 
 from gateway.app import Gateway
-from gateway.config import parse_config
 from gateway.image import Quality
 from tests.helpers import gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_eds_devices import Heartbeat, boot, local_node
-from tests.integration.test_pair import Sent
+from tests.integration.test_pair import Sent, member_configs
 
 EDS = Path(__file__).resolve().parents[2] / "gateway" / "profiles" / "posi_plus.eds"
 NODE_ID = 3
@@ -66,8 +65,7 @@ class LogicalHeartbeats(can.Listener):
 
 def pair_configs() -> tuple[Any, Any]:
     base = make_config(
-        [
-{"name": "enc", "node_id": NODE_ID, "profile": "posi_plus"}],
+        [{"name": "enc", "node_id": NODE_ID, "profile": "posi_plus"}],
         master={"node_id": LOGICAL, "heartbeat_ms": HB_MS, "sync_period_ms": 0, "probe_at_start": False},
         modbus={"enabled": False},
         zenoh={"enabled": False},
@@ -75,9 +73,7 @@ def pair_configs() -> tuple[Any, Any]:
     )
     raw = base.model_dump(exclude_none=True)
     raw["nodes"][0]["sdo"] = [{"object": "0x1016:01", "value": CONSUMER_1016}]
-    a = {**raw, "master": {**raw["master"], "redundancy": {"node_id": 101, "priority": 0}}}
-    b = {**raw, "master": {**raw["master"], "redundancy": {"node_id": 102, "priority": 1}}}
-    return parse_config(a, environ={}), parse_config(b, environ={})
+    return member_configs(raw)
 
 
 class Tpdo1(threading.Thread):

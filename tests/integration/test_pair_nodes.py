@@ -13,37 +13,18 @@ from typing import Any
 
 from gateway.app import Gateway
 from gateway.canopen.states import LinkState, NmtState
-from gateway.config import parse_config
 from gateway.northbound.summary import summarize
-from tests.helpers import make_config, wait_until
-from tests.integration.test_pair import LOGICAL, Sent, pair_running
+from tests.helpers import wait_until
+from tests.integration.test_pair import LOGICAL, Sent, pair_configs, pair_running
 
-HB_MS = 100
 #: fields both members must report alike for a node both hear operational (the "both serve
 #: the same" table of docs/redundancy.md)
 SAME = ("nmt_state", "alive", "operational", "usable", "lifecycle", "supervision", "link")
 
 
-def configs(wire: dict[str, Any] | None = None) -> tuple[Any, Any]:
-    base = make_config(
-        [
-            {"name": "wire", "node_id": 1, "profile": "sgh10", **(wire or {})},
-            {"name": "display", "node_id": 2, "profile": "ap05"},
-        ],
-        master={"node_id": LOGICAL, "heartbeat_ms": HB_MS, "sync_period_ms": 0},
-        modbus={"enabled": False},
-        zenoh={"enabled": False},
-    )
-    raw = base.model_dump(exclude_none=True)
-    raw["simulate"] = {"nodes": []}
-    a = {**raw, "master": {**raw["master"], "redundancy": {"node_id": 101, "priority": 0}}}
-    b = {**raw, "master": {**raw["master"], "redundancy": {"node_id": 102, "priority": 1}}}
-    return parse_config(a, environ={}), parse_config(b, environ={})
-
-
 def pair(wire: dict[str, Any] | None = None) -> Any:
     """The in-process pair of ``test_pair`` on these configs, B standing by."""
-    return pair_running(configs(wire), standby=True)
+    return pair_running(pair_configs(wire), standby=True)
 
 
 def kill(a: Gateway, sent_a: Sent) -> None:

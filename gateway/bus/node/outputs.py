@@ -73,9 +73,10 @@ class OutputImage:
         values = [next(named) if f.signal else old[i] for i, f in enumerate(codec.fields)]
         self.values[codec.number] = values
         self.last_sent_s[codec.number] = now
-        i = codec.index_of(self.control[0]) if self.gbit and self.control else None
-        if i is not None and self.gbit is not None and self.control is not None:
-            self.gbit.heard((int(values[i]) >> self.control[1]) & 1, now)  # the link check follows
+        if self.gbit is not None and self.control is not None:
+            i = codec.index_of(self.control[0])
+            if i is not None:  # the link check follows the bit the other master sent
+                self.gbit.heard((int(values[i]) >> self.control[1]) & 1, now)
         return True
 
     def is_output(self, name: str) -> bool:

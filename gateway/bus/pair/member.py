@@ -224,7 +224,7 @@ class PairMember:
                 self._sdo_block.add(node_id)
         self._sdo_open.add(node_id)
 
-    def on_sdo_response(self, node_id: int, data: bytes = b"") -> None:
+    def on_sdo_response(self, node_id: int, data: bytes) -> None:
         """The node answered: no request is left unanswered (the object stays: segments may
         follow); a block download's end answer (A1h) or an abort (80h) ends the transfer."""
         self._sdo_open.discard(node_id)
@@ -264,8 +264,8 @@ class PairMember:
         """The run-time warning: nothing of the peer heard for long (two members each on a
         private bus, e.g. ``interface: virtual``, both active)."""
         limit = max(PEER_SILENT_S, 10 * self.machine.timing.takeover_s)
-        heard = [t for t in (self.peer_heartbeat_s, getattr(self.machine.peer, "at_s", None))
-                 if t is not None]  # fmt: skip
+        claim = self.machine.peer
+        heard = [t for t in (self.peer_heartbeat_s, claim.at_s if claim else None) if t is not None]
         last = max(heard) if heard else None
         silent = (self._clock() - last if last is not None else now - self._started_s) > limit
         if silent and not self.peer_silent:

@@ -2,8 +2,10 @@
 does, as a base class of ``Master``. It installs the pair's receivers (the CiA 302-2 frames, the
 logical heartbeat, the peer's and a third-party master's heartbeats, the RPDOs the active
 gateway sends), feeds the member (``member.py``) and starts or stops mastering the nodes when
-the role changes. ``mastering`` is the one role gate of the master's send path and of the
-command service (``require_bus``); ``role`` and ``pair`` are the read-only views adapters read.
+the role changes. ``mastering`` is the one role gate of the master's send path
+(``_send_as_master``) and of the command service (``require_active``, which ``require_bus``
+calls); ``role``, ``pair`` and the ``pair_*`` properties are read-only views (the app's health
+and metrics, the command service's ``role``).
 
 Imports: bus.pair.member, bus.pair.flying_master, bus.node (types), bus.sdo.waiters (types),
 bus.driver / bus.bus_peers (types), canopen.cia301, config (types), errors, python-can, logging.
@@ -63,7 +65,7 @@ class NoPair:
     def on_sdo_request(self, node_id: int, data: bytes) -> None:
         pass
 
-    def on_sdo_response(self, node_id: int, data: bytes = b"") -> None:
+    def on_sdo_response(self, node_id: int, data: bytes) -> None:
         pass
 
 
@@ -130,7 +132,7 @@ class PairSide:
             return machine.node_id
         claim = machine.peer
         heard = machine.active_heard_s
-        if claim is None or heard is None or machine.role.value != "standby":
+        if claim is None or heard is None or machine.role is not Role.STANDBY:
             return None
         return claim.node_id if self.clock() - heard <= machine.timing.takeover_s else None
 
