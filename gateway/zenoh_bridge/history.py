@@ -19,6 +19,7 @@ Imports: zenoh, journal, northbound.keys. Nothing of bus/ or modbus/.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass
@@ -99,17 +100,7 @@ class HistoryService:
         first = next(rows, None)  # parses the range: a bad selector raises here
         s = self.session()
         own_id = bytes(s.new_timestamp().get_id()) if s is not None else bytes(16)
-        return self._stamped(first, rows, own_id)
-
-    @staticmethod
-    def _stamped(
-        first: tuple[str, bytes, int, bytes | None] | None,
-        rows: Iterator[tuple[str, bytes, int, bytes | None]],
-        own_id: bytes,
-    ) -> Iterator[tuple[str, Stamped]]:
-        if first is None:
-            return
-        k, payload, t, tid = first
-        yield k, Stamped(payload, zenoh_timestamp(t, tid, own_id))
-        for k, payload, t, tid in rows:
-            yield k, Stamped(payload, zenoh_timestamp(t, tid, own_id))
+        return (
+            (k, Stamped(payload, zenoh_timestamp(t, tid, own_id)))
+            for k, payload, t, tid in itertools.chain(() if first is None else (first,), rows)
+        )
