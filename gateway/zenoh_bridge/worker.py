@@ -153,7 +153,8 @@ class QueryWorker(Generic[T]):
             if item is not None:
                 ln.started = self.clock()
                 job = ln.current = self._start(item)
-            ended = job is None or self._advance(job)  # (a lane in the round has one or other)
+            # (job is never None here: a lane in the round has a job or a waiting item)
+            ended = job is None or self._advance(job)
             ok = job is not None
         except Exception as exc:  # noqa: BLE001 - logged, the job dropped, the thread goes on
             self.failed += 1
