@@ -1,4 +1,4 @@
-"""Benchmark 13, the store and forward journal (``journal.path``):
+"""Benchmark 14, the store and forward journal (``journal.path``):
 
 1. **Line rate, journal off against on**: the line-rate scenario (``bench.linerate``: 60 SGH10
    on a saturated 1 Mbit/s bus through socketcand, every value moving every frame, a PLC-like
@@ -77,8 +77,9 @@ def per_sample(r: dict[str, Any]) -> float:
 
 
 def value_call_us(n: int = 200_000) -> float:
-    """The cost of ``Journal.value`` per call on the publishing thread (a dict assignment
-    under a lock), microseconds."""
+    """The cost of ``Journal.value`` per call (a dict assignment under a lock), microseconds:
+    what a pair's standby pays for each value sample it hears (``ZenohBridge.on_heard``, on a
+    zenoh thread); the publishing gateway does not call it (``Journal.values_from``)."""
     j = Journal(pathlib.Path(tempfile.mkdtemp(prefix="bench-journal-")), values_ms=1000)
     e = Entry(1 << 62, "value", f"{PREFIX}/wire/value/position", "wire", 1, b"{}")
     keys = [f"{PREFIX}/n{i}/value/position" for i in range(120)]
@@ -177,7 +178,7 @@ def backfill(n: int = BACKFILL_N) -> dict[str, float]:
 async def run() -> Section:
     sec = Section(
         key="journal",
-        title="13. Store and forward: the journal's cost at line rate, its rate, a backfill",
+        title="14. Store and forward: the journal's cost at line rate, its rate, a backfill",
         method=__doc__.split("\n\n", 1)[1].split("Imports:")[0].strip(),
     )
     s = Summary.of

@@ -325,8 +325,6 @@ async def run() -> Section:
         rows.append(Row("gateway RSS before the loads, MiB", Summary.of([rss0]), digits=1))
         rows.append(Row("gateway RSS after the loads, MiB", Summary.of([rss1]), digits=1,
                         target="+ <= 2 MiB", met=rss1 - rss0 <= 2.0))  # fmt: skip
-        m = gw.metrics_text() if hasattr(gw, "metrics_text") else ""
-        notes += [line for line in m.splitlines() if line.startswith("zenoh_queries")]
     finally:
         gc.callbacks.remove(on_gc)
         for w in (plc, load):

@@ -16,6 +16,7 @@ Imports: errors. Never an adapter, never the journal (the sink is a function giv
 from __future__ import annotations
 
 import functools
+import inspect
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -76,12 +77,21 @@ def record(op: str, node: str, what: str, value: Any, exc: BaseException | None)
     }
 
 
+@contextmanager
+def _auditing(sink: AuditSink, op: str, describe: Describe, args: Any, kw: Any) -> Iterator[None]:
+    """One record for the call made inside: its outcome, or the exception it raised."""
+    try:
+        yield
+    except Exception as exc:
+        sink(record(op, *describe(*args, **kw), exc))
+        raise
+    sink(record(op, *describe(*args, **kw), None))
+
+
 def audited(op: str, describe: Describe) -> Callable[[F], F]:
     """Mark a method of the command service (async or not) as a write to audit."""
 
     def deco(fn: F) -> F:
-        import inspect
-
         if inspect.iscoroutinefunction(fn):
 
             @functools.wraps(fn)
@@ -89,13 +99,8 @@ def audited(op: str, describe: Describe) -> Callable[[F], F]:
                 sink = self.audit
                 if sink is None:
                     return await fn(self, *args, **kw)
-                try:
-                    result = await fn(self, *args, **kw)
-                except Exception as exc:
-                    sink(record(op, *describe(*args, **kw), exc))
-                    raise
-                sink(record(op, *describe(*args, **kw), None))
-                return result
+                with _auditing(sink, op, describe, args, kw):
+                    return await fn(self, *args, **kw)
 
             return cast(F, run_async)
 
@@ -104,13 +109,8 @@ def audited(op: str, describe: Describe) -> Callable[[F], F]:
             sink = self.audit
             if sink is None:
                 return fn(self, *args, **kw)
-            try:
-                result = fn(self, *args, **kw)
-            except Exception as exc:
-                sink(record(op, *describe(*args, **kw), exc))
-                raise
-            sink(record(op, *describe(*args, **kw), None))
-            return result
+            with _auditing(sink, op, describe, args, kw):
+                return fn(self, *args, **kw)
 
         return cast(F, run)
 

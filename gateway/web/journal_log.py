@@ -24,6 +24,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import io
+import itertools
 import json
 import time
 from collections.abc import Callable, Iterable
@@ -131,12 +132,7 @@ class JournalLog:
 
     def _rows(self, query: dict[str, Any], limit: int) -> list[Row]:
         assert self.journal is not None
-        out = []
-        for row in self.journal.read(**query):
-            out.append(row)
-            if len(out) >= limit:
-                break
-        return out
+        return list(itertools.islice(self.journal.read(**query), limit))
 
     @staticmethod
     def _doc(r: Row) -> dict[str, Any]:

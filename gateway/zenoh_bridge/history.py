@@ -8,7 +8,7 @@ this gateway's clock when the query is answered.
 
 One reply per entry, in time order: the payload as published (with its ``seq``) and the
 original Zenoh timestamp (an audit entry: its time, with this session's id). Replies are
-produced lazily (``replies``: an iterator over rows read from SQLite a chunk at a time), so an
+produced lazily (``rows``: an iterator over rows read from SQLite a chunk at a time), so an
 answer of any length never sits in memory; ``stamped_replies`` hands them to the queries'
 worker (``zenoh_bridge/worker.py``), which sends them in turns beside every other query and
 never on the event loop (reading the disk takes time). A selector this gateway cannot read, or a
@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import zenoh
 
-from gateway.journal import Journal, parse_time_range
+from gateway.journal import Journal, Row, parse_time_range
 from gateway.northbound.keys import audit_key
 
 TIME_PARAM = "_time"
@@ -70,8 +70,9 @@ class HistoryService:
             return []
         return [k for k in known if ke.intersects(zenoh.KeyExpr(k))]
 
-    def replies(self, key: str, time_param: str) -> Iterator[tuple[str, bytes, int, bytes | None]]:
-        """(key, payload, NTP64 time, timestamp id) of each entry in the range, in time order."""
+    def rows(self, key: str, time_param: str) -> Iterator[Row]:
+        """The journal's rows of the range, in time order, read lazily; a bad selector or a key
+        without history raises here, at the call."""
         tr = parse_time_range(time_param, self.clock())
         keys = self.matching(key)
         if not keys:
@@ -80,36 +81,19 @@ class HistoryService:
                 f"{self.prefix}/<node>/emcy, {self.prefix}/<node>/value/<signal> and "
                 f"{audit_key(self.prefix)}"
             )
-        for row in self.journal.read(
+        return self.journal.read(
             keys,
             t_from=tr.start,
             t_to=tr.end,
             from_open=tr.start_excl,
             to_open=tr.end_excl,
-        ):
-            yield row.key, row.payload, row.t, row.tid
+        )
 
     def stamped_replies(self, query: zenoh.Query, key: str) -> Iterator[tuple[str, Stamped]]:
         """Every entry of the query's range as the queries' worker sends it, a reply per step
         (``zenoh_bridge/worker.py``: in turns, giving way to the event loop): its key and
-        its payload with its original timestamp. The range is read (and a bad one refused)
-        before the first reply."""
-        time_param = query.parameters.get(TIME_PARAM) or ""
-        rows = self.replies(key, time_param)
-        first = next(rows, None)  # parses the range: a bad selector raises here
+        its payload with its original timestamp. A bad range is refused before any reply."""
+        rows = self.rows(key, query.parameters.get(TIME_PARAM) or "")
         s = self.session()
         own_id = bytes(s.new_timestamp().get_id()) if s is not None else bytes(16)
-        return self._stamped(first, rows, own_id)
-
-    @staticmethod
-    def _stamped(
-        first: tuple[str, bytes, int, bytes | None] | None,
-        rows: Iterator[tuple[str, bytes, int, bytes | None]],
-        own_id: bytes,
-    ) -> Iterator[tuple[str, Stamped]]:
-        if first is None:
-            return
-        k, payload, t, tid = first
-        yield k, Stamped(payload, zenoh_timestamp(t, tid, own_id))
-        for k, payload, t, tid in rows:
-            yield k, Stamped(payload, zenoh_timestamp(t, tid, own_id))
+        return ((r.key, Stamped(r.payload, zenoh_timestamp(r.t, r.tid, own_id))) for r in rows)

@@ -115,12 +115,10 @@ def lane_of(query: zenoh.Query) -> str:
 
 
 def zenoh_who(query: zenoh.Query) -> str:
-    """Who a query's write is audited as: ``zenoh`` and the querier's id when it sent one."""
-    try:
-        info = query.source_info
-    except Exception:  # noqa: BLE001 - an unstable API: no id rather than no answer
-        info = None
-    return "zenoh" if info is None else f"zenoh {info.source_id.zid}"
+    """Who a query's write is audited as: ``zenoh`` and the querier's id when it sent one
+    (the id its lane is named by)."""
+    lane = lane_of(query)
+    return "zenoh" if lane == ANONYMOUS else f"zenoh {lane}"
 
 
 def write_operation(req: Request, payload: bytes | None) -> str | None:

@@ -300,8 +300,11 @@ class ZenohSession:
         by Zenoh's error (both time out), so the line says what to check."""
         where = ", ".join(self.cfg.zenoh.connect) or "(no zenoh.connect endpoint)"
         tried = "" if attempts == 1 else f" after {attempts} attempts"
-        wait, every = REOPEN_SCHEDULE_S[min(attempts - 1, len(REOPEN_SCHEDULE_S) - 1)], REOPEN_SCHEDULE_S[-1]  # fmt: skip
-        again = f"retrying every {every:g} s" if wait == every else f"retrying in {wait:g} s, then less often, up to every {every:g} s"  # fmt: skip
+        wait = REOPEN_SCHEDULE_S[min(attempts - 1, len(REOPEN_SCHEDULE_S) - 1)]
+        every = REOPEN_SCHEDULE_S[-1]
+        again = f"retrying every {every:g} s"
+        if wait != every:
+            again = f"retrying in {wait:g} s, then less often, up to every {every:g} s"
         return (
             f"no Zenoh router at {where}{tried}: {again} (Modbus and the bus run meanwhile; "
             "check the router, the address, zenoh.auth and zenoh.tls)"

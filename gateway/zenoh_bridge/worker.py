@@ -108,7 +108,6 @@ class QueryWorker(Generic[T]):
         self.answered = 0
         self.busy = 0
         self.failed = 0
-        self._last_failed = False  # the worker thread's own: the job just advanced failed
         self._job_s = 0.005  # mean time of a job, first guess
         self._errlog = RateLimitedLog(log, 10.0)
 
@@ -149,21 +148,24 @@ class QueryWorker(Generic[T]):
             item = None
             if ln.current is None:
                 item = ln.waiting.popleft()
-        failed = False
-        if item is not None:
-            ln.started = self.clock()
-            try:
-                ln.current = self._start(item)
-            except Exception as exc:  # noqa: BLE001 - a bad job must not stop the others
-                failed = self._failed(exc)
-        ended = failed or ln.current is None or self._advance(ln.current)
+        job = ln.current
+        try:
+            if item is not None:
+                ln.started = self.clock()
+                job = ln.current = self._start(item)
+            # (job is never None here: a lane in the round has a job or a waiting item)
+            ended = job is None or self._advance(job)
+            ok = job is not None
+        except Exception as exc:  # noqa: BLE001 - logged, the job dropped, the thread goes on
+            self.failed += 1
+            self._errlog.warning(("job", type(exc).__name__), "a Zenoh query failed: %r", exc)
+            ended, ok = True, False
         with self._lock:
             if ended:
-                if ln.current is not None and not self._last_failed:
+                if ok:
                     self.answered += 1
                     self._job_s += (self.clock() - ln.started - self._job_s) / 8.0
                 ln.current = None
-                self._last_failed = False
                 self._depth -= 1
             if ln.current is not None or ln.waiting:
                 self._round.append(lane)
@@ -172,21 +174,14 @@ class QueryWorker(Generic[T]):
         return True
 
     def _advance(self, job: Iterator[Any]) -> bool:
-        """Up to ``per_turn`` units of the job; True when it ended (or failed)."""
+        """Up to ``per_turn`` units of the job; True when it ended (an exception it raises
+        goes to ``step``)."""
         try:
             for _ in range(self.per_turn):
                 next(job)
         except StopIteration:
             return True
-        except Exception as exc:  # noqa: BLE001 - logged, the job dropped, the thread goes on
-            self._last_failed = self._failed(exc)
-            return True
         return False
-
-    def _failed(self, exc: Exception) -> bool:
-        self.failed += 1
-        self._errlog.warning(("job", type(exc).__name__), "a Zenoh query failed: %r", exc)
-        return True
 
     def run(self) -> None:
         """The thread's loop: a turn, give way, again; sleep while there is nothing to do."""

@@ -14,7 +14,7 @@ from typing import Any
 import zenoh
 
 from gateway.app import Gateway
-from tests.helpers import gateway_of, make_config, wait_until
+from tests.helpers import gateway_of, make_config, wait_until, wait_until_sync
 from tests.integration.test_zenoh_history import raise_and_clear
 from tests.zenoh_client import ZClient
 
@@ -41,6 +41,16 @@ def history(session: zenoh.Session, selector: str) -> list[tuple[str, Any, str]]
         else:
             out.append(("error", json.loads(r.err.payload.to_bytes()), ""))
     return out
+
+
+async def history_of(session: zenoh.Session, selector: str, n: int) -> list[tuple[str, Any, str]]:
+    """``history`` once it holds ``n`` replies or more (asked again until then, bounded)."""
+
+    def enough() -> list[tuple[str, Any, str]] | None:
+        replies = history(session, selector)
+        return replies if len(replies) >= n else None
+
+    return await asyncio.to_thread(wait_until_sync, enough, 10, f"{n} replies to {selector}")
 
 
 async def started(cfg: Any) -> Gateway:
@@ -107,15 +117,7 @@ async def test_seq_goes_on_after_a_restart_and_values_have_a_history(tmp_path) -
     z = ZClient(cfg.zenoh.listen)
     try:
         raise_and_clear(gw, 1)
-        replies: list[Any] = []
-
-        async def two_more() -> bool:
-            replies[:] = await asyncio.to_thread(history, z.session, f"{P}/wire/emcy?_time=[..]")
-            return len(replies) >= 6
-
-        for _ in range(500):
-            if await two_more():
-                break
+        replies = await history_of(z.session, f"{P}/wire/emcy?_time=[..]", 6)
         assert [b["seq"] for _, b, _ in replies] == [1, 2, 3, 4, 5, 6]
         states = await asyncio.to_thread(history, z.session, f"{P}/wire/state?_time=[..]")
         seqs = [b["seq"] for _, b, _ in states]
@@ -141,15 +143,7 @@ async def test_writes_are_audited_with_who_what_and_the_outcome(tmp_path) -> Non
         bad = await z.get_one(f"{P}/wire/sdo/6000/00", payload="4", timeout_s=10)
         failed = await z.get_one(f"{P}/wire/sdo/1000/00", payload="1")  # read-only: aborted
         assert not failed.ok
-        audit: list[Any] = []
-
-        async def three() -> bool:
-            audit[:] = await asyncio.to_thread(history, z.session, f"{P}/audit?_time=[now(-1m)..]")
-            return len(audit) >= 3
-
-        for _ in range(500):
-            if await three():
-                break
+        audit = await history_of(z.session, f"{P}/audit?_time=[now(-1m)..]", 3)
         bodies = [b for _, b, _ in audit]
         assert [(b["op"], b["node"], b["what"]) for b in bodies] == [
             ("nmt", "wire", "nmt"),

@@ -44,6 +44,16 @@ class Pending:
         session.get(selector, handler, timeout=timeout_s)
 
 
+async def plc_read(port: int) -> Any:
+    """A PLC's request: input registers 0..2 of unit 1, on a connection of its own."""
+    plc = AsyncModbusTcpClient("127.0.0.1", port=port, timeout=3)
+    await plc.connect()
+    try:
+        return await plc.read_input_registers(0, count=3, device_id=1)
+    finally:
+        plc.close()
+
+
 @asynccontextmanager
 async def manual_worker(**sections: Any) -> AsyncIterator[tuple[Gateway, ZClient]]:
     """A started gateway whose queries' worker the test turns by hand, and a Zenoh peer."""
@@ -69,12 +79,7 @@ async def test_a_queued_query_does_not_run_while_a_modbus_request_is_answered() 
         snapshot = Pending(z.session, f"{P}/wire/snapshot")
         await wait_until(lambda: worker.depth == 2, 5, "both queries queued")
 
-        plc = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
-        await plc.connect()
-        try:
-            rr = await plc.read_input_registers(0, count=3, device_id=1)
-        finally:
-            plc.close()
+        rr = await plc_read(gw.modbus.port)
         assert not rr.isError() and len(rr.registers) == 3
         # the PLC was answered; the queries have not run
         assert worker.depth == 2 and worker.answered == 0
@@ -193,12 +198,7 @@ async def test_console_and_ascii_clients_refused_a_turn_get_busy_and_the_plc_its
         assert await asyncio.wait_for(reader.readuntil(b"\r\n"), 5) == b"[7] ERROR:102\r\n"
         writer.close()
 
-        plc = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.port, timeout=3)
-        await plc.connect()
-        try:
-            rr = await plc.read_input_registers(0, count=3, device_id=1)
-        finally:
-            plc.close()
+        rr = await plc_read(gw.modbus.port)
         assert not rr.isError()
         assert gw.turns.refused == 2
 
