@@ -24,7 +24,7 @@ def started(tmp_path, **kw) -> Journal:
 
 
 def test_callbacks_run_after_their_commit_in_order(tmp_path):
-    j = started(tmp_path, values_ms=0)
+    j = Journal(tmp_path / "j", values_ms=0)
     seen: list[tuple[int, int]] = []
     lock = threading.Lock()
 
@@ -34,7 +34,11 @@ def test_callbacks_run_after_their_commit_in_order(tmp_path):
         with lock:
             seen.append((i, rows[-1] if rows else 0))
 
+    # the first half waits in the queue before the writer starts (one group for certain), the
+    # second half is appended while the writer runs
     for i in range(1, 301):
+        if i == 151:
+            j.start()
         j.append(ev(i), lambda i=i: published(i))
     wait_until_sync(lambda: len(seen) == 300, what="300 callbacks")
     j.stop()
