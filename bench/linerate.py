@@ -30,7 +30,8 @@ second), RSS; then, after the measurement, a py-spy profile of the gateway under
 (top functions per thread) when py-spy is installed. Everything listens on 127.0.0.1 and stops
 by itself.
 
-Imports: bench.*, python-can, the standard library; the gateway only as a process.
+Imports: bench.*, tests.pair_bus (the socketcand handshake), python-can, the standard library;
+the gateway only as a process.
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ from bench.report import Row, Section
 from bench.rig import free_port
 from bench.stats import Summary, percentile
 from bench.workers import Worker, start_poller, start_subscriber
+from tests.pair_bus import expect_line
 
 N_NODES = 60
 PERIOD_S = 0.0135  # TPDO1 + TPDO2 of every node
@@ -101,23 +103,10 @@ class SocketcandServer:
         self.listener.settimeout(60)
         conn, _ = self.listener.accept()
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        buf = b""
-
-        def expect(word: bytes) -> None:
-            nonlocal buf
-            while b">" not in buf:
-                chunk = conn.recv(256)
-                if not chunk:
-                    raise ConnectionError("client left during the handshake")
-                buf += chunk
-            msg, _, buf = buf.partition(b">")
-            if word not in msg:
-                raise ConnectionError(f"expected {word!r}, got {msg!r}")
-
         conn.sendall(b"< hi >")
-        expect(b"open")
+        _, buf = expect_line(conn, b"", b"open")
         conn.sendall(b"< ok >")
-        expect(b"rawmode")
+        expect_line(conn, buf, b"rawmode")
         conn.sendall(b"< ok >")
         # python-can reads the "< ok >" alone (one recv, compared whole): frames sent in the
         # same TCP read would fail its handshake, so the first frames wait a moment
