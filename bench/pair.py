@@ -18,7 +18,8 @@ Then the same pair on a bus that attributes every frame to its sender (``bench.p
 the take-over after the active member's cable is cut and after its adapter is lost, what the
 pair does when the member comes back, and the standby / active CPU ratio there.
 
-Imports: bench.*, python-can, yaml, the standard library (the gateways run in subprocesses).
+Imports: bench.*, tests.helpers (the python-can-remote server), python-can, yaml, the standard
+library (the gateways run in subprocesses).
 """
 
 from __future__ import annotations
@@ -26,7 +27,6 @@ from __future__ import annotations
 import os
 import pathlib
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -41,6 +41,7 @@ from bench.report import Row, Section
 from bench.rig import NMT_EC_BASE, free_port
 from bench.startup import stop
 from bench.stats import Summary, paired_ratios
+from tests.helpers import port_open, start_can_remote
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 LOGICAL = 100
@@ -156,11 +157,6 @@ def pair_config(workdir: pathlib.Path, can: dict[str, Any]) -> pathlib.Path:
     return path
 
 
-def _port_open(port: int) -> bool:
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) == 0
-
-
 async def run(
     kills: int = 20, cpu_window_s: float = 3.0, settle_s: float = 2.0, fault_rounds: int = 6
 ) -> Section:
@@ -193,16 +189,13 @@ async def run(
     with tempfile.TemporaryDirectory(prefix="bench-pair-") as tmp:
         workdir = pathlib.Path(tmp)
         cfg = pair_config(workdir, {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"})
-        relay = subprocess.Popen(
-            [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"pair{port}", "-H", "127.0.0.1", "-p", str(port)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )  # fmt: skip
+        relay = start_can_remote(port, f"pair{port}")
         gateways: dict[int, PairGateway] = {}
         sim = None
         bus = None
         notifier = None
         try:
-            wait_for(lambda: _port_open(port), 10, "the python-can-remote relay listens")
+            wait_for(lambda: port_open(port), 10, "the python-can-remote relay listens")
             bus = can.Bus(interface="remote", channel=f"ws://127.0.0.1:{port}/")
             heard = _Heard()
             notifier = can.Notifier(bus, [heard])

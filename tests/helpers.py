@@ -29,6 +29,42 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def port_open(port: int) -> bool:
+    """Something listens on 127.0.0.1:``port``."""
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def start_can_remote(port: int, channel: str) -> Any:
+    """python-can-remote's server on the virtual bus ``channel``, in a process of its own on
+    127.0.0.1:``port`` (not yet listening: wait for ``port_open``)."""
+    import subprocess
+    import sys
+
+    return subprocess.Popen(
+        [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", channel,
+         "-H", "127.0.0.1", "-p", str(port)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+
+
+def wait_can_remote(proc: Any, port: int) -> None:
+    """Until ``start_can_remote``'s server listens (bounded); it must not have exited."""
+    wait_until_sync(lambda: port_open(port) or proc.poll() is not None, 30, f"port {port}")
+    assert proc.poll() is None, f"python-can-remote on port {port} exited: {proc.returncode}"
+
+
+@contextmanager
+def can_remote_server(port: int, channel: str) -> Iterator[Any]:
+    """``start_can_remote``, listening when entered; ended on exit."""
+    proc = start_can_remote(port, channel)
+    try:
+        wait_can_remote(proc, port)
+        yield proc
+    finally:
+        stop_process(proc)
+
+
 def unique_channel() -> str:
     return f"test-{uuid.uuid4().hex[:10]}"
 

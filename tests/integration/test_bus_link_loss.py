@@ -15,9 +15,7 @@ A cut cable (connection open, frames lost) is not a lost connection: the driver 
 from __future__ import annotations
 
 import asyncio
-import socket
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import AsyncIterator, Callable, Iterator
@@ -28,7 +26,14 @@ import can
 import pytest
 
 from gateway.bus.socketcand_bus import SocketcandBus
-from tests.helpers import free_port, master_running, wait_until, wait_until_sync
+from tests.helpers import (
+    free_port,
+    master_running,
+    start_can_remote,
+    wait_can_remote,
+    wait_until,
+    wait_until_sync,
+)
 from tests.pair_bus import Frame, PairBus
 
 MASTER_HEARTBEAT = 0x700 + 127  # the gateway's own heartbeat (master.node_id 127)
@@ -138,25 +143,13 @@ async def test_a_cut_cable_is_not_a_lost_connection_the_driver_stays_ok(pair: Pa
 async def remote_server(port: int, channel: str) -> AsyncIterator[subprocess.Popen[bytes]]:
     """python-can-remote's server in a process of its own, listening (waited for off the loop:
     an in-process gateway's loop keeps running)."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", channel,
-         "-H", "127.0.0.1", "-p", str(port)],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+    proc = start_can_remote(port, channel)
     try:
-        await asyncio.to_thread(wait_until_sync, lambda: _listening(port), 30, "the server")
+        await asyncio.to_thread(wait_can_remote, proc, port)
         yield proc
     finally:
         proc.kill()
         proc.wait(timeout=10)
-
-
-def _listening(port: int) -> bool:
-    try:
-        socket.create_connection(("127.0.0.1", port), timeout=1).close()
-    except OSError:
-        return False
-    return True
 
 
 async def test_a_remote_can_server_killed_takes_the_bus_down_and_it_reopens_when_back() -> None:

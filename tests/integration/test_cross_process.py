@@ -3,38 +3,22 @@ another, sharing a CAN bus through python-can-remote (as the compose demo does).
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import yaml
 
 from gateway.config import load_config
-from tests.helpers import free_port, gateway_of, wait_until
+from tests.helpers import free_port, gateway_of, start_can_remote, wait_can_remote, wait_until
 
 pytest.importorskip("can_remote")
 
 
-def _wait_port(port: int, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.05)
-    raise AssertionError(f"port {port} did not open")
-
-
 async def test_gateway_serves_devices_simulated_in_another_process(tmp_path: Path) -> None:
     port = free_port()
-    server = subprocess.Popen(
-        [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"xp{port}", "-H", "127.0.0.1", "-p", str(port)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    server = start_can_remote(port, f"xp{port}")
     raw = {
         "gateway": {"name": "xp"},
         "can": {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"},
@@ -51,7 +35,7 @@ async def test_gateway_serves_devices_simulated_in_another_process(tmp_path: Pat
     sim = None
     gw = None
     try:
-        _wait_port(port)
+        wait_can_remote(server, port)
         sim = subprocess.Popen(
             [sys.executable, "-m", "gateway", "simulate", "-c", str(cfg_file)],
             stdout=subprocess.PIPE,

@@ -9,7 +9,6 @@ from __future__ import annotations
 import asyncio
 import os
 import signal
-import socket
 import struct
 import subprocess
 import sys
@@ -24,7 +23,7 @@ import yaml
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.image import Quality
-from tests.helpers import free_port, wait_until
+from tests.helpers import free_port, start_can_remote, wait_can_remote, wait_until
 from tests.integration.test_eds_devices import IO, Heartbeat, boot
 from tests.zenoh_client import ZClient, sample_where
 
@@ -43,26 +42,11 @@ class Frames(can.Listener):
         self.event.set()
 
 
-def _wait_port(port: int, proc: subprocess.Popen[bytes]) -> None:
-    deadline = time.monotonic() + 10.0
-    while time.monotonic() < deadline and proc.poll() is None:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.05)
-    raise AssertionError(f"CAN server on port {port} did not open")
-
-
 async def test_eds_only_node_served_by_a_gateway_process_over_python_can_remote(
     tmp_path: Path,
 ) -> None:
     can_port, zenoh_port = free_port(), free_port()
-    server = subprocess.Popen(
-        [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"eds{can_port}",
-         "-H", "127.0.0.1", "-p", str(can_port)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+    server = start_can_remote(can_port, f"eds{can_port}")
     channel = f"ws://127.0.0.1:{can_port}/"
     raw = {
         "gateway": {"name": "edsxp"},
@@ -79,7 +63,7 @@ async def test_eds_only_node_served_by_a_gateway_process_over_python_can_remote(
     hb: Heartbeat | None = None
     z: ZClient | None = None
     try:
-        _wait_port(can_port, server)  # type: ignore[arg-type]
+        wait_can_remote(server, can_port)
         gw = subprocess.Popen(
             [sys.executable, "-m", "gateway", "run", "-c", str(cfg)],
             stdout=subprocess.PIPE,

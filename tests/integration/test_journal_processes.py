@@ -16,7 +16,6 @@ import os
 import queue
 import signal
 import subprocess
-import sys
 import threading
 from pathlib import Path
 from typing import Any
@@ -27,8 +26,14 @@ import yaml
 import zenoh
 
 from gateway.journal import Journal
-from tests.helpers import free_port, gateway_process, wait_ready, wait_until_sync
-from tests.integration.test_cross_process import _wait_port
+from tests.helpers import (
+    free_port,
+    gateway_process,
+    start_can_remote,
+    wait_can_remote,
+    wait_ready,
+    wait_until_sync,
+)
 from tests.zenoh_client import open_router, session_config
 
 pytest.importorskip("can_remote")
@@ -49,13 +54,8 @@ class Bus:
 
     def __init__(self) -> None:
         self.port = free_port()
-        self.server = subprocess.Popen(
-            [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"jp{self.port}",
-             "-H", "127.0.0.1", "-p", str(self.port)],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )  # fmt: skip
-        _wait_port(self.port)
+        self.server = start_can_remote(self.port, f"jp{self.port}")
+        wait_can_remote(self.server, self.port)
         self.bus = can.Bus(interface="remote", channel=self.url)
 
     @property

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import struct
 import subprocess
 import sys
@@ -41,7 +40,14 @@ from pymodbus.client import ModbusTcpClient
 
 from gateway.config import load_config
 from gateway.northbound.regmap import Point, build_register_map
-from tests.helpers import free_port, stop_process, wait_ready, wait_until_sync, with_nodes
+from tests.helpers import (
+    can_remote_server,
+    free_port,
+    stop_process,
+    wait_ready,
+    wait_until_sync,
+    with_nodes,
+)
 
 pytest.importorskip("can_remote")
 
@@ -170,14 +176,6 @@ def write_config(tmp: Path, port: int) -> Path:
     return path
 
 
-def _wait_port(port: int) -> None:
-    def opened() -> bool:
-        with socket.socket() as s:
-            return s.connect_ex(("127.0.0.1", port)) == 0
-
-    wait_until_sync(opened, 10, f"port {port}")
-
-
 @contextmanager
 def started(argv: list[str], **kw: Any) -> Iterator[subprocess.Popen[str]]:
     proc = subprocess.Popen(argv, cwd=ROOT, text=True, **kw)
@@ -244,12 +242,7 @@ def test_a_pair_of_processes_survives_kill_restart_and_freeze(tmp_path: Path) ->
     set_point2, control = point(cfg, "display", "set_point2"), point(cfg, "display", "control_word")
     logical = COB_HB + LOGICAL
     with ExitStack() as stack:
-        stack.enter_context(
-            started([sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"pair{port}",
-                     "-H", "127.0.0.1", "-p", str(port)],
-                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
-        )
-        _wait_port(port)
+        stack.enter_context(can_remote_server(port, f"pair{port}"))
         bus = can.Bus(interface="remote", channel=f"ws://127.0.0.1:{port}/")
         stack.callback(bus.shutdown)
         seen = Observer()
