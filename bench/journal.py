@@ -16,7 +16,8 @@
    events of one key; a Zenoh client in this process asks ``<key>?_time=[..]`` and the time
    from the get to its last reply is measured (all 10,000 in seq order is checked).
 
-Imports: bench.*, gateway.journal (the store, for 2 and to fill 3), zenoh, the standard library;
+Imports: bench.*, gateway.journal (the store, for 2 and to fill 3), zenoh, tests.zenoh_client (the
+session's config), the standard library;
 the gateway only as a process.
 """
 
@@ -41,6 +42,7 @@ from bench.report import Row, Section
 from bench.rig import free_port
 from bench.stats import Summary
 from gateway.journal import Entry, Journal, ntp64_of_time
+from tests.zenoh_client import session_config
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 PAIRS = 3
@@ -144,11 +146,7 @@ def backfill(n: int = BACKFILL_N) -> dict[str, float]:
         [sys.executable, "-m", "gateway", "run", "-c", str(tmp / "gw.yaml")],
         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
     )  # fmt: skip
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("connect/endpoints", json.dumps([listen]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf = session_config("peer", connect=[listen])
     session = None
     try:
         assert proc.stdout is not None

@@ -14,14 +14,14 @@ the first load and after the last.
 
 ``python -m bench plc-first`` (or ``python -m bench.plc_first``) prints the section.
 
-Imports: bench.*, gateway.config, the standard library (zenoh in the load process only).
+Imports: bench.*, gateway.config, the standard library (zenoh and tests.zenoh_client in the load
+process only).
 """
 
 from __future__ import annotations
 
 import asyncio
 import gc
-import json
 import logging
 import os
 import socket
@@ -131,13 +131,10 @@ class QueryLoad:
     def __init__(self, endpoint: str) -> None:
         import zenoh
 
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"peer"')
-        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        conf.insert_json5("listen/endpoints", "[]")
-        conf.insert_json5("scouting/multicast/enabled", "false")
+        from tests.zenoh_client import session_config
+
         self.zenoh = zenoh
-        self.session = zenoh.open(conf)
+        self.session = zenoh.open(session_config("peer", connect=[endpoint]))
         self.info = {"zid": str(self.session.info.zid())}
         self.errors: dict[str, str] = {}  # the first error text of each kind
 
