@@ -1,7 +1,6 @@
 """CANopen facts (CiA 301 V4.2) in one place: function codes of the pre-defined connection set,
-PDO COB-ID bits, NMT command specifiers, data type codes with their sizes, the error register bits,
-SDO command specifiers, SDO abort codes and
-their texts.
+PDO COB-ID bits, the error-control objects, NMT command specifiers, data type codes with their
+sizes, the error register bits, SDO command specifiers, SDO abort codes and their texts.
 
 Rule: a number that CiA 301 defines is written here once, named, with the section it comes from;
 every other module imports it from here (the device manuals repeat these tables: SGH10 manual
@@ -303,7 +302,9 @@ SDO_ABORT_TEXTS: dict[int, str] = {
 }
 SDO_ABORT_TIMEOUT = 0x05040000
 SDO_ABORT_NO_OBJECT = 0x06020000
+SDO_ABORT_TYPE_LENGTH = 0x06070010  # data type does not match, length does not match
 SDO_ABORT_NO_SUBINDEX = 0x06090011
+SDO_ABORT_DEVICE_STATE = 0x08000022  # not stored because of the present device state
 
 
 def abort_text(code: int) -> str:
