@@ -29,7 +29,7 @@ bytes in decimal) and ``<net> <node> ERROR <code> (<text>)`` for the error contr
 (200 lost guarding message, 202 heartbeat started, 203 heartbeat lost), as Lely's gateway
 prints them.
 
-Imports: the standard library, gateway.errors, ascii.grammar (error codes,
+Imports: the standard library, gateway.errors, canopen.cia301 (the SDO abort codes), ascii.grammar (error codes,
 lines, tokens), ascii.values (data types and their text). Nothing of bus/, commands or a
 transport.
 """
@@ -49,11 +49,9 @@ from gateway.ascii.values import (
     encode_value,
     parse_int,
 )
+from gateway.canopen.cia301 import SDO_ABORT_DEVICE_STATE, SDO_ABORT_TIMEOUT, SDO_ABORT_TYPE_LENGTH
 from gateway.errors import (
-    BusDown,
     Forbidden,
-    GatewayError,
-    NodeNotOperational,
     NodeUnknown,
     SdoAbort,
     SdoTimeout,
@@ -63,13 +61,6 @@ from gateway.errors import (
 
 #: the one CAN network of this gateway, as CiA 309-3 numbers networks (1..65535)
 NET = 1
-#: CiA 301 SDO abort code "SDO protocol timed out": the answer to an SDO without a reply
-SDO_TIMEOUT_ABORT = 0x05040000
-#: CiA 301 abort "data cannot be transferred or stored because of the present device state":
-#: the answer to a write that would defeat the gateway's supervision of the node
-SUPERVISION_WRITE_ABORT = 0x08000022
-#: CiA 301 "Data type does not match, length of service parameter does not match"
-TYPE_LENGTH_ABORT = 0x06070010
 
 
 # --------------------------------------------------------------------------- answers
@@ -98,20 +89,19 @@ def answer_for_error(seq: int | None, exc: BaseException) -> str:
     if isinstance(exc, SdoAbort):
         return answer_abort(seq, exc.code)
     if isinstance(exc, (SdoTimeout, TimeoutError)):
-        return answer_abort(seq, SDO_TIMEOUT_ABORT)
+        return answer_abort(seq, SDO_ABORT_TIMEOUT)  # an SDO without a reply
     if isinstance(exc, LengthMismatch):
-        return answer_abort(seq, TYPE_LENGTH_ABORT)
+        return answer_abort(seq, SDO_ABORT_TYPE_LENGTH)
     if isinstance(exc, NodeUnknown):
         return answer_error(seq, Iec.UNSUPPORTED_NODE)
     if isinstance(exc, Forbidden):
         return answer_error(seq, Iec.REQUEST_NOT_SUPPORTED)
     if isinstance(exc, SupervisionWrite):
-        return answer_abort(seq, SUPERVISION_WRITE_ABORT)
+        # a write that would defeat the gateway's supervision of the node
+        return answer_abort(seq, SDO_ABORT_DEVICE_STATE)
     if isinstance(exc, ValueOutOfRange):
         return answer_error(seq, Iec.SYNTAX)
-    if isinstance(exc, (NodeNotOperational, BusDown, GatewayError)):
-        return answer_error(seq, Iec.INTERNAL_STATE)
-    return answer_error(seq, Iec.INTERNAL_STATE)
+    return answer_error(seq, Iec.INTERNAL_STATE)  # not operational, bus down, any other failure
 
 
 # --------------------------------------------------------------------------- events

@@ -1,7 +1,6 @@
 """CANopen facts (CiA 301 V4.2) in one place: function codes of the pre-defined connection set,
-PDO COB-ID bits, NMT command specifiers, data type codes with their sizes, the error register bits,
-SDO command specifiers, SDO abort codes and
-their texts.
+PDO COB-ID bits, the error-control objects, NMT command specifiers, data type codes with their
+sizes, the error register bits, SDO command specifiers, SDO abort codes and their texts.
 
 Rule: a number that CiA 301 defines is written here once, named, with the section it comes from;
 every other module imports it from here (the device manuals repeat these tables: SGH10 manual
@@ -9,7 +8,8 @@ every other module imports it from here (the device manuals repeat these tables:
 abort codes). Device-specific numbers stay with the device's profile.
 
 Imports: canopen.objectdictionary.datatypes (the data type codes), gateway.canopen.code_text (the base
-of the enums whose members carry a text). Nothing else of the gateway.
+of the enums whose members carry a text), gateway.canopen.objref (the error-control objects).
+Nothing else of the gateway.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from enum import IntEnum
 from canopen.objectdictionary import datatypes as dt
 
 from gateway.canopen.code_text import CodeText
+from gateway.canopen.objref import ObjRef
 
 # --------------------------------------------------------------------------- function codes
 # CiA 301 7.3.3 pre-defined connection set (11-bit CAN-ID = function code + node id)
@@ -79,6 +80,14 @@ TRANSMISSION_RTR_ONLY = (252, 253)
 #: SYNC producer such a TPDO is never sent
 TRANSMISSION_SYNC = range(0, 241)
 TRANSMISSION_EVENT = (254, 255)
+
+# --------------------------------------------------------------------------- error control
+# CiA 301 7.5.2: the objects a node is configured and supervised by (SGH10 manual 4.7.2.9,
+# 4.7.2.10, 4.7.2.14; POSI+ manual 002 4: 1016h)
+OBJ_GUARD_TIME = ObjRef(0x100C, 0x00)  # UNSIGNED16, ms
+OBJ_LIFE_TIME_FACTOR = ObjRef(0x100D, 0x00)  # UNSIGNED8
+OBJ_HEARTBEAT_CONSUMER = 0x1016  # sub 1..127: bits 0-15 time (ms), bits 16-23 producer node id
+OBJ_HEARTBEAT_PRODUCER = ObjRef(0x1017, 0x00)  # UNSIGNED16, ms
 
 # --------------------------------------------------------------------------- NMT
 
@@ -293,7 +302,9 @@ SDO_ABORT_TEXTS: dict[int, str] = {
 }
 SDO_ABORT_TIMEOUT = 0x05040000
 SDO_ABORT_NO_OBJECT = 0x06020000
+SDO_ABORT_TYPE_LENGTH = 0x06070010  # data type does not match, length does not match
 SDO_ABORT_NO_SUBINDEX = 0x06090011
+SDO_ABORT_DEVICE_STATE = 0x08000022  # not stored because of the present device state
 
 
 def abort_text(code: int) -> str:

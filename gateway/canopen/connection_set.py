@@ -3,30 +3,29 @@
 ``describe_cob_id(0x181)`` is ``TPDO1 of node id 1``; ``talking_node_id(0x181)`` is 1 (a node
 sends its own TPDOs, EMCY, SDO answers and heartbeat). Pure functions of the COB-ID.
 
-Imports: canopen.cia301 (the COB-IDs) and the standard library only.
+Imports: canopen.cia301 (the COB-IDs and the table of the connection set) and the standard library only.
 """
 
 from __future__ import annotations
 
-from gateway.canopen.cia301 import COB_NMT, COB_SYNC
+from gateway.canopen.cia301 import (
+    COB_EMCY,
+    COB_LSS_MASTER,
+    COB_LSS_SLAVE,
+    COB_NMT,
+    COB_NMT_EC,
+    COB_SDO_TX,
+    COB_SYNC,
+    COB_TIME,
+    COB_TPDO,
+    PREDEFINED_FUNCTIONS,
+)
 
-#: CiA 301 7.3.3, pre-defined connection set: function code (COB-ID bits 10..7) -> name
-_FUNCTIONS = {
-    0x080: "EMCY",
-    0x180: "TPDO1",
-    0x200: "RPDO1",
-    0x280: "TPDO2",
-    0x300: "RPDO2",
-    0x380: "TPDO3",
-    0x400: "RPDO3",
-    0x480: "TPDO4",
-    0x500: "RPDO4",
-    0x580: "SDO answer",
-    0x600: "SDO request",
-    0x700: "heartbeat",
-}
+#: CiA 301 7.3.3, pre-defined connection set: function code (COB-ID bits 10..7) -> name (the
+#: device's SDO response said as the bus logs say it: an answer)
+_FUNCTIONS = {**PREDEFINED_FUNCTIONS, COB_SDO_TX: "SDO answer"}
 #: functions a node sends itself: its id is talking when we see them
-_SENT_BY_NODE = frozenset({0x080, 0x180, 0x280, 0x380, 0x480, 0x580, 0x700})
+_SENT_BY_NODE = frozenset({COB_EMCY, *COB_TPDO, COB_SDO_TX, COB_NMT_EC})
 
 
 def describe_cob_id(cob_id: int) -> str:
@@ -35,9 +34,9 @@ def describe_cob_id(cob_id: int) -> str:
         return "NMT"
     if cob_id == COB_SYNC:
         return "SYNC"
-    if cob_id == 0x100:
+    if cob_id == COB_TIME:
         return "TIME"
-    if cob_id in (0x7E4, 0x7E5):
+    if cob_id in (COB_LSS_SLAVE, COB_LSS_MASTER):
         return "LSS"
     base, node_id = cob_id & 0x780, cob_id & 0x7F
     name = _FUNCTIONS.get(base)

@@ -17,7 +17,7 @@ Every configuration write (an SDO download a client asks for) also passes two ch
   heartbeat: each may only be written with the value the gateway configured. The way to change
   them is the node's configuration (``heartbeat_ms``, ``guard_time_ms``...).
 
-Imports: errors, profiles.schema, canopen.objref; profiles, device.settings and device.boot_steps for types.
+Imports: errors, profiles.schema, canopen.cia301 (the error-control objects), canopen.objref; profiles, device.settings and device.boot_steps for types.
 """
 
 from __future__ import annotations
@@ -26,6 +26,12 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from gateway.canopen.cia301 import (
+    OBJ_GUARD_TIME,
+    OBJ_HEARTBEAT_CONSUMER,
+    OBJ_HEARTBEAT_PRODUCER,
+    OBJ_LIFE_TIME_FACTOR,
+)
 from gateway.canopen.objref import ObjRef
 from gateway.errors import ValueOutOfRange
 from gateway.profiles.schema import TYPE_BITS, Signal
@@ -129,12 +135,8 @@ def bit_names(sig: Signal, mask: int) -> str:
 
 
 # ---------------------------------------------------------------------- configuration writes
-#: CiA 301 7.5.2: the objects the gateway supervises a node by (SGH10 manual 4.7.2.9, 4.7.2.10,
-#: 4.7.2.14; POSI+ manual 002 4: 1016h, the device's consumer of another node's heartbeat)
-OBJ_GUARD_TIME = ObjRef(0x100C, 0x00)
-OBJ_LIFE_TIME_FACTOR = ObjRef(0x100D, 0x00)
-OBJ_HEARTBEAT_CONSUMER = 0x1016  # sub 1..127: bits 0-15 time (ms), bits 16-23 producer node id
-OBJ_HEARTBEAT_PRODUCER = ObjRef(0x1017, 0x00)
+#: the objects the gateway supervises a node by (cia301's error-control objects; 1016h's entries
+#: are tested by index)
 SUPERVISION_OBJECTS = (OBJ_GUARD_TIME, OBJ_LIFE_TIME_FACTOR, OBJ_HEARTBEAT_PRODUCER)
 
 

@@ -14,7 +14,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
-from gateway.canopen.cia301 import COB_ID_INVALID, TYPE_NAMES
+from gateway.canopen.cia301 import (
+    COB_ID_INVALID,
+    OBJ_GUARD_TIME,
+    OBJ_HEARTBEAT_PRODUCER,
+    OBJ_LIFE_TIME_FACTOR,
+    TYPE_NAMES,
+)
 from gateway.canopen.objref import ObjRef
 from gateway.device.values import encode_value
 from gateway.eds.pdos import default_value
@@ -58,12 +64,6 @@ class ConfigStep:
         )
         text = f"{self.object} = {shown} {self.type}"
         return f"{text}: {self.description}" if self.description else text
-
-
-#: DS-301 communication objects the builder writes (types per DS-301).
-OBJ_HEARTBEAT_PRODUCER = ObjRef(0x1017, 0x00)  # UNSIGNED16, ms; SGH10 manual 4.7.2.14
-OBJ_GUARD_TIME = ObjRef(0x100C, 0x00)  # UNSIGNED16, ms; SGH10 manual 4.7.2.9
-OBJ_LIFE_TIME_FACTOR = ObjRef(0x100D, 0x00)  # UNSIGNED8; SGH10 manual 4.7.2.10
 
 
 @dataclass

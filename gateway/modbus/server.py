@@ -356,10 +356,10 @@ class OutputWatchdogDriver:
                 if values:
                     self.safe_plan[n.name] = values
         self.last_safe: dict[str, str] = {}  # per node: "safe" or why not, at the last trip
-        self.serving = False  # the server listens: the timer may be armed
+        #: the server listens: the timer may be armed, a client's disconnection counts
+        self.serving = False
         self._timer: asyncio.TimerHandle | None = None
         self._tasks: set[asyncio.Task[None]] = set()
-        self._stopping = False
 
     def writer_connected(self) -> None:
         self.machine.on_writer_connect(asyncio.get_running_loop().time())
@@ -385,15 +385,14 @@ class OutputWatchdogDriver:
         self._cancel_timer()
 
     def writer_gone(self) -> None:
-        if self._stopping:
-            return  # the gateway stops: its clients did not go away
+        if not self.serving:
+            return  # the server stops: its clients did not go away
         reason = self.machine.on_writer_disconnect(asyncio.get_running_loop().time())
         if reason is not None:
             self._trip(reason)
 
     def stop(self) -> None:
         """The server stops: no timer, and its clients' disconnections are no trip."""
-        self._stopping = True
         self.serving = False
         self._cancel_timer()
 

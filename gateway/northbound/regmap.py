@@ -396,7 +396,11 @@ class _Block:
     stride: int
     key: str
     node: str
-    next_addr: dict[str, int] = field(default_factory=dict)
+    #: each table's addresses start at the block's SIGNAL_BASE
+    next_addr: dict[str, int] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.next_addr = {t: self.base + SIGNAL_BASE for t in ("ir", "hr", "di", "co")}
 
     def add(self, p: Point, key: str | None = None) -> None:
         if p.end > self.limit:
@@ -426,7 +430,6 @@ def _add_node(rm: RegisterMap, cfg: Config, ncfg: NodeConfig, lp: LoadedProfile,
         rm.units[unit] = ncfg.name
     limit = base + stride if flat else 0x10000
     blk = _Block(rm, unit, base, limit, stride, f"nodes[{k - 1}]", ncfg.name)
-    blk.next_addr = {t: base + SIGNAL_BASE for t in ("ir", "hr", "di", "co")}
     n = ncfg.name
     for off, name, typ, desc in NODE_DIAG:
         blk.add(Point(unit, "ir", base + off, _REG_COUNT[typ], "diag", name, typ, "ro", n, description=desc))  # fmt: skip

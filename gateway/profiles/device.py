@@ -3,7 +3,7 @@
 (``expected_identity``) and whether the gateway verifies its PDO mapping
 (``node_verifies_mapping``).
 
-Imports: profiles.schema, gateway.eds.pdos (od_var), objref, canopen; profiles.loader and
+Imports: profiles.schema, gateway.eds.pdos (od_var), cia301 (the error-control objects), objref, canopen; profiles.loader and
 profiles.node_setup for types only. Nothing of bus/, modbus/, zenoh_bridge/, config.
 """
 
@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import canopen
 
+from gateway.canopen.cia301 import OBJ_GUARD_TIME, OBJ_HEARTBEAT_PRODUCER, OBJ_LIFE_TIME_FACTOR
 from gateway.canopen.objref import ObjRef
 from gateway.eds.pdos import od_var
 from gateway.profiles.schema import Boot, Pdo
@@ -44,16 +45,16 @@ def device_supervision(od: canopen.ObjectDictionary) -> Boot:
         ok = var is not None and var.data_type in (0x5, 0x6, 0x7) and var.access_type in ("rw", "wo", "rww", "rwr")
         return var if ok else None
 
-    hb = settable(ObjRef(0x1017, 0))
+    hb = settable(OBJ_HEARTBEAT_PRODUCER)
     if hb is not None:
         lo, hi = hb.min, hb.max  # a file whose limits exclude 100 ms: the nearest allowed time
         if isinstance(lo, int) and isinstance(hi, int) and 0 < hi and lo <= hi and not lo <= 100 <= hi:
             return Boot(heartbeat_ms=min(max(100, lo, 1), hi, 65535))
         return Boot()
-    gt, ltf = settable(ObjRef(0x100C, 0)), settable(ObjRef(0x100D, 0))
-    if gt is not None and ltf is not None and (0x1017 not in od or od_var(od, ObjRef(0x1017, 0)) is None):
-        gt_ms = gt.default if gt is not None and isinstance(gt.default, int) and 0 < gt.default <= 65535 else 100
-        lt = ltf.default if ltf is not None and isinstance(ltf.default, int) and 0 < ltf.default <= 255 else 3
+    gt, ltf = settable(OBJ_GUARD_TIME), settable(OBJ_LIFE_TIME_FACTOR)
+    if gt is not None and ltf is not None and od_var(od, OBJ_HEARTBEAT_PRODUCER) is None:
+        gt_ms = gt.default if isinstance(gt.default, int) and 0 < gt.default <= 65535 else 100
+        lt = ltf.default if isinstance(ltf.default, int) and 0 < ltf.default <= 255 else 3
         return Boot(supervision="guarding", guard_time_ms=gt_ms, life_time_factor=lt)
     return Boot(supervision="none")
 

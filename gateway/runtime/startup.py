@@ -22,7 +22,7 @@ from __future__ import annotations
 import errno
 import re
 import socket
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -75,7 +75,7 @@ class StartupError(Exception):
         """One line for each part that could not start."""
         return [e.line(source) for e in (self, *self.also)]
 
-    def blamed(self, blame: Any) -> StartupError:
+    def blamed(self, blame: Callable[[str], str | None]) -> StartupError:
         """Each part's ``where`` from ``blame(key) -> the variable or None``; returns self."""
         for e in (self, *self.also):
             e.where = blame(e.key)

@@ -17,7 +17,6 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
-import can
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
@@ -25,7 +24,7 @@ from gateway.app import Gateway
 from gateway.checks import check_config
 from gateway.config import ConfigError
 from tests.helpers import free_port, gateway_of, make_config, wait_until, with_nodes
-from tests.integration.test_eds_devices import IO, Heartbeat, SdoLog, boot, local_node
+from tests.integration.test_eds_devices import IO, SdoLog, gateway_with
 from tests.integration.test_modbus_tls import SET_POINT1, Pki, client_for, secure_gateway
 from tests.zenoh_client import ZClient, sample_where
 
@@ -39,34 +38,12 @@ UNIT_AP05 = 125  # the AP05 display of the TLS tests (tests/integration/test_mod
 
 @asynccontextmanager
 async def io_gateway(modbus: dict[str, Any], **sections: Any) -> AsyncIterator[tuple[Gateway, SdoLog]]:
-    cfg = make_config(
-        [{"name": "io", "node_id": UNIT, "eds": str(IO), "heartbeat_ms": 300, "safe_outputs": SAFE}],
-        simulate={"nodes": []},
-        master={"probe_at_start": False},
-        modbus=modbus,
-        **sections,
-    )
-    net, node = local_node(IO, UNIT, cfg.can.channel)
-    sniffer = can.Bus(interface="virtual", channel=cfg.can.channel)
-    frames = SdoLog(UNIT)  # records every frame on the bus
-    notifier = can.Notifier(sniffer, [frames])
-    gw = gateway_of(cfg)
-    await gw.start()
-    hb = Heartbeat(sniffer, node)
-    try:
-        boot(node)
-        hb.start()
-        await wait_until(lambda: gw.image.nodes["io"].operational(), 8, "io operational")
+    """The IO module (python canopen's LocalNode from its EDS) with its safe outputs, and every
+    frame on the bus recorded (test_eds_devices.gateway_with)."""
+    async with gateway_with(
+        IO, UNIT, "io", {"safe_outputs": SAFE}, sections={"modbus": modbus, **sections}
+    ) as (gw, _node, _sniffer, frames):
         yield gw, frames
-    finally:
-        hb.stop.set()
-        if hb.is_alive():
-            hb.join()
-        await gw.stop()
-        notifier.stop()
-        sniffer.shutdown()
-        node.nmt.stop_heartbeat()
-        net.disconnect()
 
 
 def sent(frames: SdoLog, cob_id: int) -> list[bytes]:

@@ -16,8 +16,6 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
-import can
-import canopen
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
@@ -25,7 +23,7 @@ from pymodbus.pdu import ExceptionResponse
 from gateway.app import Gateway
 from gateway.errors import SupervisionWrite, ValueOutOfRange
 from tests.helpers import edited_copy, free_port, gateway_of, make_config, wait_until
-from tests.integration.test_ascii_gateway import Heartbeat, boot
+from tests.integration.test_eds_devices import gateway_with
 from tests.integration.test_web_http import post
 from tests.zenoh_client import ZClient
 
@@ -34,6 +32,9 @@ SPARE = {"name": "spare", "node_id": 2, "profile": "sgh10", "supervision": "none
 P = "canopen/test"
 TOKEN = "plant-floor-token-42"
 ILLEGAL_VALUE = 0x03
+# test_eds_devices.gateway_with: python canopen's LocalNode from an EDS as node 5, named io (the
+# test sends its boot-up and heartbeat), with neither Modbus nor Zenoh
+LOCAL = {"modbus": {"enabled": False}, "zenoh": {"enabled": False}}
 IO401 = Path(__file__).resolve().parents[1] / "data" / "eds" / "io401.eds"
 
 
@@ -160,43 +161,6 @@ async def test_heartbeat_time_outside_the_manuals_range_is_refused_and_a_change_
         assert changed[0].endswith("(error control; the gateway does not supervise it)")
 
 
-@asynccontextmanager
-async def local_node(
-    eds: Path, node: dict[str, Any]
-) -> AsyncIterator[tuple[Gateway, canopen.LocalNode]]:
-    """The gateway and python canopen's LocalNode from ``eds`` as node 5 (the test sends its
-    boot-up and heartbeat)."""
-    cfg = make_config(
-        [{"name": "io", "node_id": 5, **({} if "profile" in node else {"eds": str(eds)}), **node}],
-        simulate={"nodes": []},
-        master={"probe_at_start": False},
-        modbus={"enabled": False},
-        zenoh={"enabled": False},
-    )
-    with eds.open(encoding="utf-8") as fp:
-        od = canopen.import_od(fp, 5)
-    net = canopen.Network()
-    net.connect(interface="virtual", channel=cfg.can.channel)
-    dev = canopen.LocalNode(5, od)
-    net.add_node(dev)
-    bus = can.Bus(interface="virtual", channel=cfg.can.channel)
-    gw = gateway_of(cfg)
-    await gw.start()
-    hb = Heartbeat(bus, dev)
-    try:
-        boot(dev)
-        hb.start()
-        await wait_until(lambda: gw.image.nodes["io"].operational(), 8, "io operational")
-        yield gw, dev
-    finally:
-        hb.stop.set()
-        if hb.is_alive():
-            hb.join(timeout=2)
-        await gw.stop()
-        net.disconnect()
-        bus.shutdown()
-
-
 async def test_localnode_keeps_its_heartbeat_and_limits_from_its_eds_hold(tmp_path: Path) -> None:
     """An EDS-only node on another stack: 1017h other than the configured 300 ms is refused
     before anything is sent; an EDS LowLimit/HighLimit (1800h:05 10..1000 here) bounds every
@@ -208,7 +172,7 @@ async def test_localnode_keeps_its_heartbeat_and_limits_from_its_eds_hold(tmp_pa
         "[1800sub5]\nParameterName=Event timer\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\n"
         "LowLimit=10\nHighLimit=1000\n",
     )
-    async with local_node(eds, {"heartbeat_ms": 300}) as (gw, dev):
+    async with gateway_with(eds, 5, "io", {"heartbeat_ms": 300}, sections=LOCAL) as (gw, dev, _b, _l):
         assert int.from_bytes(dev.get_data(0x1017, 0), "little") == 300
         for value in (0, 5, 1000):
             with pytest.raises(SupervisionWrite):
@@ -229,7 +193,8 @@ async def test_a_consumer_of_the_masters_heartbeat_set_at_boot_is_kept(tmp_path:
 
     watching = (127 << 16) | 1500
     node = {"profile": "posi_plus", "sdo": [{"object": "0x1016:01", "value": watching}]}
-    async with local_node(load_profile("posi_plus").eds_path, node) as (gw, dev):
+    eds = load_profile("posi_plus").eds_path
+    async with gateway_with(eds, 5, "io", node, sections=LOCAL) as (gw, dev, _b, _l):
         assert int.from_bytes(dev.get_data(0x1016, 1), "little") == watching
         with pytest.raises(SupervisionWrite, match="watching the master's heartbeat"):
             await gw.commands.sdo_write("io", "0x1016:01", 0)
