@@ -9,7 +9,8 @@ survive this gateway's worst take-over (``takeover_worst_ms``): a guarded node w
 is shorter, a boot step writing the node's consumer of the logical master's heartbeat (1016h)
 with a shorter consumer time.
 
-Imports: bus.pair.member (the pair's times), config (types), device.resolved (types). No I/O but reading the device files to compare.
+Imports: bus.pair.member (the pair's times), canopen.cia301, config (types), device.resolved
+(types). No I/O but reading the device files to compare.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import hashlib
 from typing import Any
 
 from gateway.bus.pair.member import pair_timing
+from gateway.canopen.cia301 import OBJ_HEARTBEAT_CONSUMER
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -35,8 +37,6 @@ SHARED_BUS_HINT = (
     "shared by processes: python-can-remote (interface: remote, channel: ws://127.0.0.1:PORT/) "
     "or socketcand (interface: socketcand, host, port, channel)"
 )
-#: CiA 301 7.5.2.15: consumer heartbeat time object (1016h), bits 16..23 the producer's node id
-OBJ_CONSUMER_HEARTBEAT = 0x1016
 
 
 def takeover_worst_ms(cfg: Config) -> int | None:
@@ -78,7 +78,7 @@ def takeover_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[tuple
             ))  # fmt: skip
         for step in rn.boot_steps:
             v = step.value
-            if step.object.index != OBJ_CONSUMER_HEARTBEAT or not isinstance(v, int):
+            if step.object.index != OBJ_HEARTBEAT_CONSUMER or not isinstance(v, int):
                 continue
             consumer_ms, producer = v & 0xFFFF, (v >> 16) & 0x7F
             if producer == cfg.master.node_id and 0 < consumer_ms < worst:
