@@ -53,15 +53,12 @@ from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import NodeImage, ProcessImage
 from gateway.runtime.ratelimit import RateLimitedLog
-from gateway.runtime.turns import LoopTurns
+from gateway.runtime.turns import ACCEPT_BACKLOG, LoopTurns
 
 log = logging.getLogger("gateway.ascii")
 
 #: lines waiting to be answered on one connection before it stops reading (back-pressure)
 MAX_PENDING_LINES = 64
-#: connections accepted per loop iteration and waiting in the kernel (a burst is let in a few
-#: at a time: the PLC first)
-ACCEPT_BACKLOG = 16
 #: event lines are not queued for a client with more than this unsent
 EVENT_BACKLOG_BYTES = 64 * 1024
 

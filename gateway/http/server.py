@@ -50,7 +50,7 @@ from typing import Any
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
-from gateway.runtime.turns import RETRY_AFTER_S, LoopTurns
+from gateway.runtime.turns import ACCEPT_BACKLOG, RETRY_AFTER_S, LoopTurns
 
 log = logging.getLogger("gateway.health")  # the name users see in log lines
 
@@ -60,11 +60,6 @@ READY = "ready"
 NOT_READY = "not-ready"
 MAX_REQUEST_HEAD_BYTES = 8192
 MAX_REQUEST_BODY_BYTES = 65536
-#: connections accepted per loop iteration (asyncio accepts up to the backlog at once) and
-#: waiting in the kernel: a burst of clients is let in a few at a time, and the loop polls
-#: its other sockets (a PLC's) in between; the kernel holds the rest, a client whose
-#: connection is not taken yet tries again (TCP)
-ACCEPT_BACKLOG = 16
 JSON_TYPE = "application/json"
 TEXT_TYPE = "text/plain; charset=utf-8"
 HEALTH_PATHS = ("/healthz", "/livez", "/metrics")

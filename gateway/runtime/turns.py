@@ -32,6 +32,10 @@ MIN_GAP_S = 0.001
 WAITING_MAX = 256
 #: what a refused client is told: ask again after this many seconds
 RETRY_AFTER_S = 1
+#: connections a northbound server (HTTP, ASCII) accepts per loop iteration and leaves waiting
+#: in the kernel: a burst of clients is let in a few at a time, and the loop polls its other
+#: sockets (a PLC's) in between; a client whose connection is not taken yet tries again (TCP)
+ACCEPT_BACKLOG = 16
 
 
 class LoopTurns:
