@@ -7,15 +7,14 @@ Modbus, Zenoh, the web console and the simulator. The only module that knows eve
 parts do not know each other except through the image and the command service.
 
 Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, commands, config, device.resolved,
-http.server, http.metrics, image, modbus.server, northbound (frames, regmap, summary), profiles.derived,
-sim (faults, motion, node, runner), runtime (startup, threads, turns), journal, web (console, views), zenoh_bridge.bridge.
+http.server, http.metrics, image, modbus.server, northbound (frames, regmap, summary, audit_values), profiles.derived,
+sim (faults, motion, node, runner), runtime (startup, threads, turns), journal (store, auditlog), web (console, views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
 
 import asyncio
 import gc
-import json
 import logging
 import time
 from typing import Any
@@ -33,8 +32,10 @@ from gateway.device.resolved import ResolvedNode
 from gateway.http.metrics import modbus_function_label
 from gateway.http.server import pair_status
 from gateway.image import ProcessImage
-from gateway.journal import Entry, Journal, ntp64_of_time
+from gateway.journal import Journal, JournalInUse
+from gateway.journal.auditlog import AuditLog
 from gateway.modbus.server import ModbusGateway
+from gateway.northbound.audit_values import engineering_record
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.keys import audit_key, prefix_of
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
@@ -291,16 +292,6 @@ class Gateway:
         stays ready: it keeps serving without it)."""
         return {} if self.journal is None else {"journal": self.journal.status()}
 
-    def audit(self, record: dict[str, Any]) -> None:
-        """A write or command done or refused (the command service's audit hook): journaled
-        under ``<prefix>/audit``."""
-        if self.journal is None:
-            return
-        self.journal.append(
-            Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
-                  record.get("node"), None, json.dumps(record).encode())
-        )
-
     def _watchdog_status(self) -> dict[str, Any]:
         if self.modbus is None or not self.modbus.watchdog.enabled:
             return {}
@@ -379,13 +370,18 @@ class Gateway:
         if busy is not None:
             raise busy
         if self.journal is not None:
-            # first: the events of this run are committed before they are published
+            # first: what the gateway hears is journaled whatever the cloud does
             with startup_step("journal.path", cfg.journal.path):
-                await asyncio.to_thread(self.journal.open)
+                try:
+                    await asyncio.to_thread(self.journal.open)
+                except JournalInUse as exc:  # a second gateway on one journal.path
+                    raise StartupError("journal.path", self.journal.directory, exc.reason) from None
             self.journal.start(self.threads)
             if self.zenoh is not None:
                 self.zenoh.use_journal(self.journal)
-            self.commands.audit = self.audit
+            self.commands.audit = AuditLog(
+                self.journal, audit_key(prefix_of(cfg)), lambda r: engineering_record(r, self.commands)
+            )
         if self.zenoh is not None:
             z = cfg.zenoh
             key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)
@@ -512,7 +508,8 @@ class Gateway:
                 c.emcy[name] = node.health.emcy_count
         if self.journal is not None:
             jc = self.journal.counts
-            c.journal = {"written": jc.written, "dropped": jc.dropped, "removed": jc.removed}
+            c.journal = {"written": jc.written, "dropped": jc.dropped, "removed": jc.removed,
+                         "refused": jc.refused, "published_unjournaled": jc.unjournaled}
         if self.zenoh is not None:
             c.zenoh_publications = self.zenoh.publications
             c.zenoh_refused = dict(self.zenoh.refused)

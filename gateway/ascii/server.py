@@ -132,7 +132,7 @@ class AsciiGateway:
         self.requests += 1
         try:
             if isinstance(call, NmtCommand):
-                self.commands.nmt("all" if call.node_id == 0 else self.by_id[call.node_id], call.command)
+                await self.commands.nmt("all" if call.node_id == 0 else self.by_id[call.node_id], call.command)
                 return answer_ok(call.seq)
             name = self.by_id[call.node_id]
             obj = ObjRef(call.index, call.sub)

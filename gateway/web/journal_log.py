@@ -33,8 +33,15 @@ from http import HTTPStatus
 from typing import Any
 
 from gateway.http.server import JSON_TYPE, Request, Response
-from gateway.journal import Journal, Row, TimeRangeError, ntp64_of_time, time_of_ntp64
-from gateway.journal.timerange import parse_instant
+from gateway.journal import (
+    Journal,
+    Row,
+    TimeRangeError,
+    ntp64_of_ns,
+    parse_instant_ns,
+    time_of_ntp64,
+)
+from gateway.journal.clock import NANOS
 
 JOURNAL_KINDS = ("state", "emcy", "audit")
 MAX_ROWS = 2000  # per JSON answer
@@ -110,12 +117,13 @@ class JournalLog:
 
     def _query(self, request: Request) -> dict[str, Any] | Response:
         q = request.query
-        now = self.clock()
+        now = round(self.clock() * NANOS)
         try:
-            t_from = parse_instant(q["from"], now) if q.get("from") else now - DEFAULT_SPAN_S
-            t_to = parse_instant(q["to"], now) if q.get("to") else None
-        except TimeRangeError as exc:
-            return _bad(str(exc).replace("_time", "from/to"))
+            t_from = parse_instant_ns(q["from"], now) if q.get("from") else now - round(DEFAULT_SPAN_S * NANOS)
+            t_to = parse_instant_ns(q["to"], now) if q.get("to") else None
+        except TimeRangeError as exc:  # its words name the forms of one instant
+            name = "from" if q.get("from") and str(exc).find(repr(q["from"])) >= 0 else "to"
+            return _bad(str(exc).replace("_time", name, 1))
         node = q.get("node") or None
         if node is not None and node not in self.nodes:
             return _bad(f"node: no node named {node!r}; nodes: {', '.join(sorted(self.nodes))}")
@@ -124,8 +132,8 @@ class JournalLog:
         if wrong:
             return _bad(f"kind: {', '.join(wrong)} is not one of {', '.join(JOURNAL_KINDS)}")
         return {
-            "t_from": ntp64_of_time(max(t_from, 0.0)),
-            "t_to": None if t_to is None else ntp64_of_time(max(t_to, 0.0)),
+            "t_from": ntp64_of_ns(max(t_from, 0)),
+            "t_to": None if t_to is None else ntp64_of_ns(max(t_to, 0)),
             "node": node,
             "kinds": kinds,
         }

@@ -63,8 +63,8 @@ service).
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -75,23 +75,19 @@ import zenoh
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, SignalValue
-from gateway.journal import Entry, Journal
+from gateway.journal import HybridClock, Journal
+from gateway.journal.clock import NANOS
 from gateway.northbound.keys import emcy_key, prefix_of, state_key
 from gateway.northbound.scaling import Scaling
 from gateway.profiles.schema import Signal
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadCount, ThreadRegistry
+from gateway.zenoh_bridge.events import EventLog
 from gateway.zenoh_bridge.history import HistoryService
 from gateway.zenoh_bridge.housekeeping import housekeeping_loop, refresh
-from gateway.zenoh_bridge.journaling import heard_entry, published_values, restore_seqs
+from gateway.zenoh_bridge.journaling import ValueHistory, heard_entry, restore_seqs, value_keys_of
 from gateway.zenoh_bridge.pair import HeardSeq, seq_offset
-from gateway.zenoh_bridge.payloads import (
-    emcy_payload,
-    pdo_json,
-    state_fingerprint,
-    state_payload,
-    value_json,
-)
+from gateway.zenoh_bridge.payloads import pdo_json, value_json
 from gateway.zenoh_bridge.plan import PdoPub, SignalPub, plan_publications, value_keys
 from gateway.zenoh_bridge.queries import QueryService
 from gateway.zenoh_bridge.sender import ZenohSender
@@ -201,11 +197,15 @@ class ZenohBridge:
             self._values.flush,
             batch_s=cfg.zenoh.batch_ms / 1000.0,
         )
-        self._events = ZenohSender(self.threads, "zenoh-events")
-        self._last_state: dict[str, tuple[Any, ...]] = {}
-        self._event_seq: dict[str, int] = {}
-        #: the store and forward journal (``use_journal``): events are committed there before
-        #: they are published; None: published at once
+        #: the id of this gateway's timestamps, and their clock (``journal.HybridClock``: the
+        #: journal's once there is one): events and the journal are stamped without a session
+        self.stamp_id = bytes([1]) + os.urandom(15)
+        self.hlc = HybridClock()
+        self._events = ZenohSender(
+            self.threads, "zenoh-events", pub_of=self._event_pub, timestamp=self.timestamp
+        )
+        #: the store and forward journal (``use_journal``): events and values are journaled
+        #: whether a session is open or not, events published once committed (200 ms at most)
         self.journal: Journal | None = None
         #: a hot-standby pair (``pair.py``): this gateway's (master node id, pair node id),
         #: whether it publishes (it masters the bus), the seq heard of the other one
@@ -214,10 +214,17 @@ class ZenohBridge:
             (cfg.master.node_id, red.node_id) if red is not None else None
         )
         self.publishing = True
+        self.event_keys = {
+            k(self.prefix, n): (k, n) for n in image.nodes for k in (state_key, emcy_key)
+        }
         self.heard = HeardSeq(
             [*(sp.key for sp in self.pubs.values()), *(pp.key for pp in self.pdo_pubs.values())]
-            + [k(self.prefix, n) for n in image.nodes for k in (state_key, emcy_key)]
+            + list(self.event_keys)
         )
+        #: state and EMCY events: seq, stamp, journal, publication (``events.py``)
+        self.events = EventLog(self.prefix, self._events, self.heard, self.hlc)
+        #: the value keys the journal keeps a history of (``journaling.py``)
+        self.value_history = value_keys_of(self.prefix, self.by_node, self.pdo_pubs)
         self.queries = QueryService(
             cfg,
             image,
@@ -285,22 +292,30 @@ class ZenohBridge:
 
     # ------------------------------------------------------------------ the journal
     def use_journal(self, journal: Journal) -> None:
-        """Journal what is published (before the session starts): events are committed
-        before they go out (write ahead), the writer takes the values each ``values_ms``
-        (``journaling.py``); every key's ``seq`` goes on above the highest it holds."""
+        """Journal what the gateway hears and publishes (before the session starts): events
+        are journaled as they happen and published once committed (``events.py``), the writer
+        takes the values each ``values_ms`` from the image (``journaling.py``); every key's
+        ``seq`` goes on above the highest the journal ever handed out."""
         self.journal = journal
+        self.hlc = journal.hlc
+        self.events.use_journal(journal, self.event_keys)
+        self._events.journal_wait = journal.wait
+        self._events.on_unjournaled = journal.note_unjournaled
+        restore_seqs(journal.last_seqs(), self.value_history)
+        history = ValueHistory(self.image, self.value_history, lambda: self.publishing, lambda: self.hlc)
+        journal.values_from(history.window)
         self.queries.history = HistoryService(
-            journal, self.prefix, self.heard.keys, lambda: self.session
+            journal,
+            self.prefix,
+            [*self.event_keys, *(vk.key for vk in self.value_history)],
+            self.stamp_id,
         )
-        events = [k(self.prefix, n) for n in self.image.nodes for k in (state_key, emcy_key)]
-        restore_seqs(journal.last_seqs(), self._event_seq, events, self.pubs.values())
-        journal.values_from(lambda: published_values(self.pubs))
 
     def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None:
         """A sample of our prefix heard while standing by (a zenoh thread): its seq is kept
         (``HeardSeq``) and, with a journal, the sample is journaled as the other member
         published it, so this member's history covers the time before a take-over."""
-        before = max(self.heard.get(key), self._event_seq.get(key, 0))
+        before = self.events.before_heard(key)
         self.heard.on_sample(key, payload)
         j = self.journal
         if j is None:
@@ -310,6 +325,22 @@ class ZenohBridge:
             j.value(e)
         elif e is not None:
             j.append(e)
+
+    def timestamp(self, ns: int) -> zenoh.Timestamp:
+        """The Zenoh timestamp of a stamp (``hlc``) with this gateway's id."""
+        return zenoh.Timestamp(zenoh.NTP64(ns // NANOS, ns % NANOS), self.stamp_id)
+
+    def _event_pub(self, key: str) -> Any:
+        """The publisher of an event key, None while no session is open (``zenoh-events``)."""
+        if self.link.session is None or not self.publishing:
+            return None
+        kind, node = self.event_keys[key]
+        pubs = self.link.state_pubs if kind is state_key else self.link.emcy_pubs
+        return pubs.get(node)
+
+    def events_ready(self) -> None:
+        """The session's publishers are declared: events kept meanwhile go out."""
+        self._events.resend()
 
     # ------------------------------------------------------------------ a hot-standby pair
     def set_mastering(self, mastering: bool) -> None:
@@ -393,7 +424,7 @@ class ZenohBridge:
                 sp.pub.put(payload, timestamp=stamp)
             except zenoh.ZError:
                 return
-            sp.last_pub = (stamp, out.seq, payload)  # the journal's writer takes it
+            sp.last_pub = (out.seq, payload)  # the journal's value history may keep it
             sp.policy.published(value, quality, now)  # counts it, under the lock
             sp.last_seq = sv.seq
 
@@ -455,61 +486,13 @@ class ZenohBridge:
 
     # ------------------------------------------------------------------ events
     def _on_health(self, node: NodeImage, what: str) -> None:
-        """Called on the event loop when a node's health changes or an EMCY arrives."""
-        s = self.session
-        if s is None or not self.publishing:
+        """Called on the event loop when a node's health changes or an EMCY arrives: the
+        event is journaled and published (``events.py``) whether a session is open or not."""
+        if not self.publishing:
             return
-        if what == "emcy":
-            rec = node.health.last_emcy
-            if rec is not None:
-                payload = emcy_payload(node, rec, node.health.emcy_count)
-                self._put_event(
-                    s,
-                    self.link.emcy_pubs[node.name],
-                    emcy_key(self.prefix, node.name),
-                    payload,
-                    (node.name, "emcy"),
-                )
-        else:
-            d = state_payload(node)
-            fp = state_fingerprint(d)
-            if self._last_state.get(node.name) != fp:
-                self._last_state[node.name] = fp
-                self._put_event(
-                    s,
-                    self.link.state_pubs[node.name],
-                    state_key(self.prefix, node.name),
-                    d,
-                    (node.name, "state"),
-                )
+        self.events.on_health(node, what)
         self._sync_token(node)
         refresh(self, node, self.clock())
-
-    def _put_event(
-        self,
-        s: zenoh.Session,
-        pub: Any,
-        key: str,
-        payload: dict[str, Any],
-        what: tuple[str, str],
-    ) -> None:
-        """Queue an event with the next ``seq`` of its key (1, 2, 3...: a subscriber that
-        sees a gap missed an event; with a journal, after the highest it holds; in a pair,
-        after the highest the other gateway published). With a journal it is published once
-        committed (write ahead: the journal's writer queues it for ``zenoh-events``)."""
-        seq = max(self._event_seq.get(key, 0), self.heard.get(key)) + 1
-        self._event_seq[key] = seq
-        payload["seq"] = seq
-        data = json.dumps(payload).encode()
-        stamp = s.new_timestamp()
-        if self.journal is None:
-            self._events.put_event(pub, data, stamp)
-            return
-        node, kind = what
-        self.journal.append(
-            Entry(stamp, kind, key, node, seq, data),
-            lambda: self._events.put_event(pub, data, stamp),
-        )
 
     def _sync_token(self, node: NodeImage) -> None:
         """A token while the node's values are usable: operational, guarding-bit link OK."""

@@ -5,7 +5,7 @@ declarations of publishers, tokens and queryable once a session is open, and the
 holds the session, the event and raw-PDO publishers, the liveliness tokens and its tasks (the
 re-open, the housekeeping); it knows its host by ``SessionHost``, a Protocol of what it reads
 (what to publish, the pair's state) and of the hooks it calls (``attach``, ``detach``,
-``on_pdo``, ``on_heard``, ``housekeeping``, ``node_alive``). None of it runs per frame.
+``on_pdo``, ``on_heard``, ``housekeeping``, ``node_alive``, ``events_ready``). None of it runs per frame.
 
 Imports: zenoh, config, northbound.keys, zenoh_bridge.pair; commands, image, zenoh_bridge.plan
 and zenoh_bridge.queries for types only (its host is the ``SessionHost`` Protocol, not the bridge).
@@ -98,6 +98,7 @@ class SessionHost(Protocol):
     def node_alive(self, node: NodeImage) -> bool: ...
     def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None: ...
     def on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None: ...
+    def events_ready(self) -> None: ...
 
 
 class PrefixInUse(RuntimeError):
@@ -365,6 +366,7 @@ class ZenohSession:
         self.up = True
         for node in bridge.image.nodes.values():
             self.sync_token(node.name, bridge.node_alive(node))
+        bridge.events_ready()  # events made while no session was open go out now
 
     def declare_pair(self, s: zenoh.Session) -> None:
         """A hot-standby pair (``pair.py``): the member token always, the active token while

@@ -6,6 +6,7 @@ in the value windows; nothing else. And the bridge's seq goes on from the journa
 from __future__ import annotations
 
 import json
+import time
 
 from gateway.journal import Journal, ntp64_of_time
 from tests.helpers import gateway_of, make_config
@@ -57,26 +58,31 @@ def test_seq_of_every_key_goes_on_from_the_journal(tmp_path):
     j.stop()
     again, j2 = bridge_with_journal(tmp_path)
     try:
-        assert again._event_seq[f"{P}/wire/emcy"] == 12
+        assert again.events.seq[f"{P}/wire/emcy"] == 12
         sp = again.pubs[("wire", "position")]
         assert again.seq_of("wire", "position", 1) == 1 + 99 and sp.seq_offset == 99
     finally:
         j2.stop()
 
 
-def test_the_writer_takes_each_value_keys_latest_sample_once_per_window(tmp_path):
-    from gateway.zenoh_bridge.journaling import published_values
+def test_the_value_history_takes_each_changed_value_once_from_the_image(tmp_path):
+    """Whether a session is open or not: the writer's window reads the image."""
+    from gateway.journal import HybridClock
+    from gateway.zenoh_bridge.journaling import ValueHistory
 
     bridge, j = bridge_with_journal(tmp_path)
     try:
-        sp = bridge.pubs[("wire", "position")]
-        assert published_values(bridge.pubs) == []  # nothing published yet
-        sp.last_pub = (ntp64_of_time(1.8e9), 5, '{"seq": 5}')
-        sp.last_pub = (ntp64_of_time(1.8e9 + 1), 6, '{"seq": 6}')  # the latest wins
-        got = published_values(bridge.pubs)
-        assert [(e.key, e.node, e.seq, e.kind) for e in got] == [
-            (f"{P}/wire/value/position", "wire", 6, "value")
-        ]
-        assert published_values(bridge.pubs) == []  # taken once: not again next window
+        assert bridge.session is None
+        history = ValueHistory(bridge.image, bridge.value_history, lambda: True, HybridClock)
+        assert history.window() == []  # nothing received yet
+        node = bridge.image.nodes["wire"]
+        _, names = next(r for r in bridge.commands.node("wire").tpdo_records if "position" in r[1])
+        for _ in range(5):  # five frames, none published (no session)
+            node.put(names, tuple(0 for _ in names), 1.8e9, time.monotonic())
+        got = history.window()
+        position = [e for e in got if e.key == f"{P}/wire/value/position"]
+        assert [(e.node, e.seq, e.kind) for e in position] == [("wire", 5, "value")]
+        assert json.loads(position[0].payload)["seq"] == 5
+        assert [e for e in history.window() if e.key == position[0].key] == []  # taken once
     finally:
         j.stop()
