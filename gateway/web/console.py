@@ -65,7 +65,7 @@ from typing import Any
 
 from gateway import __version__
 from gateway.commands.audit import acting_as
-from gateway.http.server import JSON_TYPE, Request, Response, Stream
+from gateway.http.server import JSON_TYPE, Chunked, Request, Response, Stream
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
 from gateway.runtime.ratelimit import RateLimitedLog
@@ -162,7 +162,7 @@ class WebConsole:
         self.events = EventLog(self.commands.names())
         self._log_handler = EventLogHandler(self.events)
         self.read_budget = ClientBudget(READS_PER_S, READ_BURST)
-        self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS)
+        self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS, turns=turns)
         self.faults = faults  # sim.faults.FaultInjector when nodes are simulated in this process
         self._sampler: Any = None
         #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
@@ -201,7 +201,7 @@ class WebConsole:
             await asyncio.sleep(max(0.0, next_at - loop.time()))
 
     # ------------------------------------------------------------------ routing
-    async def __call__(self, request: Request) -> Response | Stream | None:
+    async def __call__(self, request: Request) -> Response | Stream | Chunked | None:
         path = request.path
         if path.startswith("/api/commission/"):
             return await self._commission(request, path.removeprefix("/api/commission/"))
