@@ -404,14 +404,7 @@ class HealthServer:
         if isinstance(answer, Chunked):
             return await self._send_chunked(writer, answer, head_only=method == "HEAD")
         if isinstance(answer, Stream):
-            head = (
-                "HTTP/1.1 200 OK\r\n"
-                f"Content-Type: {answer.content_type}\r\n"
-                "Cache-Control: no-store\r\nConnection: close\r\n"
-                + "".join(f"{k}: {v}\r\n" for k, v in answer.headers.items())
-                + "\r\n"
-            )
-            writer.write(head.encode("latin-1"))
+            writer.write(_stream_head(answer.content_type, answer.headers))
             await writer.drain()
             await answer.body(reader, writer)
             return
@@ -428,14 +421,8 @@ class HealthServer:
     async def _send_chunked(writer: asyncio.StreamWriter, answer: Chunked, *, head_only: bool) -> None:
         chunks = answer.chunks
         try:
-            head = (
-                "HTTP/1.1 200 OK\r\n"
-                f"Content-Type: {answer.content_type}\r\n"
-                "Transfer-Encoding: chunked\r\nCache-Control: no-store\r\nConnection: close\r\n"
-                + "".join(f"{k}: {v}\r\n" for k, v in answer.headers.items())
-                + "\r\n"
-            )
-            writer.write(head.encode("latin-1"))
+            headers = {"Transfer-Encoding": "chunked", **answer.headers}
+            writer.write(_stream_head(answer.content_type, headers))
             await writer.drain()
             if head_only:
                 return
@@ -490,6 +477,17 @@ class HealthServer:
         )
         writer.write(head.encode("latin-1") + b"\r\n" + (b"" if head_only else body))
         await writer.drain()
+
+
+def _stream_head(content_type: str, headers: Mapping[str, str]) -> bytes:
+    """The head of an answer without a length (the connection is closed after it)."""
+    return (
+        "HTTP/1.1 200 OK\r\n"
+        f"Content-Type: {content_type}\r\n"
+        "Cache-Control: no-store\r\nConnection: close\r\n"
+        + "".join(f"{k}: {v}\r\n" for k, v in headers.items())
+        + "\r\n"
+    ).encode("latin-1")
 
 
 def _peer(writer: asyncio.StreamWriter) -> str:
