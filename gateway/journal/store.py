@@ -284,6 +284,12 @@ class Journal:
         if now:
             fn()
 
+    def upkeep_now(self) -> None:
+        """The writer looks for expired entries at its next step (after the clock changed)."""
+        self.disk.next_keep = 0.0
+        with self._cond:
+            self._cond.notify()
+
     def note_unjournaled(self) -> None:
         """An event was published before its commit (the bound on waiting for it passed)."""
         self.counts.unjournaled += 1

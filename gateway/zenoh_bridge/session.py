@@ -357,10 +357,11 @@ class ZenohSession:
                 )
         if self.cfg.zenoh.raw_pdo:
             self.declare_raw_pdo(s)
+        # the queryable first: a client that sees the gateway's token may ask at once
+        self.queryable = s.declare_queryable(f"{self.prefix}/**", bridge.queries.on_query)
         self.tokens[GATEWAY_TOKEN] = s.liveliness().declare_token(
             alive_key(self.prefix, GATEWAY_TOKEN)
         )
-        self.queryable = s.declare_queryable(f"{self.prefix}/**", bridge.queries.on_query)
         self.declare_pair(s)
         self.session = s
         self.up = True
