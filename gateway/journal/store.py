@@ -199,7 +199,8 @@ class Journal:
                 return  # its connection is still in use: the process ends with it
             self._thread = None
         self._running = False
-        self.disk.write_marks(force=True)
+        if self.disk.con is not None:  # opened (never the copy beside another's database)
+            self.disk.write_marks(force=True)
         self.disk.close()
         self._lock.release()
 

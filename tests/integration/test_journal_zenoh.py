@@ -179,3 +179,25 @@ async def test_bad_selectors_get_reply_err_naming_what_is_wrong(tmp_path) -> Non
     finally:
         z.close()
         await gw.stop()
+
+
+async def test_publish_pdo_keeps_a_value_history_per_signal(tmp_path) -> None:
+    """``publish: pdo`` puts one sample per TPDO on ``<node>/tpdo/<n>``; the journal keeps each
+    signal's values on its value key all the same (the tpdo key has no history: empty)."""
+    cfg = make_config(
+        [WIRE],
+        simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}},
+        zenoh={"publish": "pdo"},
+        journal={"path": str(tmp_path / "journal"), "values_ms": 100},
+    )
+    gw = await started(cfg)
+    z = ZClient(cfg.zenoh.listen)
+    try:
+        values = await history_of(z.session, f"{P}/wire/value/position?_time=[now(-1m)..]", 2)
+        assert all(k == f"{P}/wire/value/position" and "value" in b for k, b, _ in values)
+        seqs = [b["seq"] for _, b, _ in values]
+        assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+        assert await asyncio.to_thread(history, z.session, f"{P}/wire/tpdo/1?_time=[..]") == []
+    finally:
+        z.close()
+        await gw.stop()

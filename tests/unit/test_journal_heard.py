@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import time
 
-from gateway.journal import Journal, ntp64_of_time
+from gateway.journal import Entry, Journal, ntp64_of_time, parse_time_range
 from tests.helpers import gateway_of, make_config
 
 P = "canopen/test"
@@ -51,6 +51,20 @@ def test_heard_events_and_values_are_journaled_once(tmp_path):
     assert bridge.heard.get(f"{P}/wire/emcy") == 3
 
 
+def test_a_heard_seq_out_of_range_is_refused_and_the_writer_goes_on(tmp_path):
+    bridge, j = bridge_with_journal(tmp_path)
+    try:
+        for seq in (2**64, 2**63, -1, True):
+            bridge.on_heard(f"{P}/wire/emcy", json.dumps({"seq": seq}).encode(), ntp64_of_time(1.7e9))
+        bridge.on_heard(f"{P}/wire/emcy", b'{"seq": 3}', ntp64_of_time(1.7e9 + 1))
+        assert j.wait(j.append(Entry(ntp64_of_time(1.7e9 + 2), "emcy", "k", None, 1, b"{}")), 10)
+        assert bridge.heard.get(f"{P}/wire/emcy") == 3  # the others never counted
+        assert j.counts.refused == 3 and j.status()["journaling"]  # -1 is no event: not offered
+        assert [r.seq for r in j.read([f"{P}/wire/emcy"])] == [3]
+    finally:
+        j.stop()
+
+
 def test_seq_of_every_key_goes_on_from_the_journal(tmp_path):
     bridge, j = bridge_with_journal(tmp_path)
     bridge.on_heard(f"{P}/wire/emcy", b'{"seq": 12}', ntp64_of_time(1.8e9))
@@ -84,5 +98,43 @@ def test_the_value_history_takes_each_changed_value_once_from_the_image(tmp_path
         assert [(e.node, e.seq, e.kind) for e in position] == [("wire", 5, "value")]
         assert json.loads(position[0].payload)["seq"] == 5
         assert [e for e in history.window() if e.key == position[0].key] == []  # taken once
+    finally:
+        j.stop()
+
+
+def test_a_history_answer_stops_at_its_time_limit_and_says_where_to_resume(tmp_path):
+    """Zenoh does not tell a queryable that its getter gave up: the answer stops after the
+    limit (a fake clock) with where the rest starts, exclusive of what was sent."""
+    from gateway.journal import TimeRange
+    from gateway.zenoh_bridge.history import AnswerCut, HistoryService
+
+    bridge, j = bridge_with_journal(tmp_path)
+    try:
+        t = ntp64_of_time(1.7e9)
+        last = 0
+        for seq in range(1, 6):
+            last = j.append(Entry(t + seq * 2**32, "emcy", f"{P}/wire/emcy", "wire", seq, b"{}"))
+        assert j.wait(last, 10)
+        now = [0.0]
+
+        def clock() -> float:
+            now[0] += 1.0  # each reply takes a second
+            return now[0]
+
+        service = HistoryService(j, P, [f"{P}/wire/emcy"], b"\x01" * 16, clock=clock, limit_s=2.5)
+
+        class Query:
+            parameters = {"_time": "[..]"}
+
+        sent = []
+        try:
+            for _key, stamped in service.stamped_replies(Query(), f"{P}/wire/emcy"):  # type: ignore[arg-type]
+                sent.append(stamped)
+        except AnswerCut as cut:
+            rest = parse_time_range(f"]{cut.resume}..]", 0)
+            assert isinstance(rest, TimeRange) and cut.body("k")["error"] == "cut"
+        assert len(sent) == 2
+        lo, _ = rest.ntp64_bounds()
+        assert [r.seq for r in j.read(t_from=lo)] == [3, 4, 5]  # the rest, nothing twice
     finally:
         j.stop()
