@@ -18,10 +18,11 @@ turns /healthz not-ready, never silently):
   never follows a newer one;
   publications are counted per signal under that lock (raw PDOs per thread,
   ``threads.ThreadCount``) and summed when read;
-* events (state, EMCY) are computed on the event loop when the master reports them and put by
-  the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
+* events (state, EMCY) are computed on the event loop when the master reports them
+  (``events.py``: their ``seq`` and stamp, the journal, whether a session is open or not) and
+  put by the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
   INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop nor
-  holds the values back;
+  holds the values back; with a journal each is published once committed, 200 ms at most;
 * a housekeeping task on the event loop publishes held-back samples (max rate) and quality
   changes that no frame announces (stale by age);
 * query callbacks run on zenoh threads and only queue the query for the ``zenoh-queries``
@@ -48,7 +49,8 @@ reachable, the gateway starts anyway and the bridge retries in the background (a
 re-declares publishers, queryable and liveliness tokens.
 
 The bridge is composed of: ``plan.py`` (what to publish, planned once: ``SignalPub``,
-``PdoPub``, the reader's routes), ``session.py`` (``ZenohSession``, the session's lifecycle:
+``PdoPub``, the reader's routes), ``events.py`` (``EventLog``), ``journaling.py`` (the value
+history the journal keeps), ``session.py`` (``ZenohSession``, the session's lifecycle:
 open, duplicate check, re-open, declarations, stop; it holds the session, publishers, tokens
 and tasks, and the bridge calls it through its public methods), ``housekeeping.py`` (the
 periodic refresh) and ``sender.py`` (the ``zenoh-publish`` and ``zenoh-events`` threads). The
