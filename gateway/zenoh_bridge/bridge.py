@@ -201,7 +201,9 @@ class ZenohBridge:
         )
         #: the id of this gateway's timestamps, and their clock (``journal.HybridClock``: the
         #: journal's once there is one): events and the journal are stamped without a session
-        self.stamp_id = bytes([1]) + os.urandom(15)
+        #: (the session's too, ``zid``: ``zenoh.json5`` ``id``, else a random one of 16 bytes)
+        self.zid = str(cfg.zenoh.json5.get("id") or "1" + os.urandom(16).hex()[1:]).lower()
+        self.stamp_id = bytes.fromhex(self.zid.rjust(len(self.zid) + len(self.zid) % 2, "0"))[::-1]
         self.hlc = HybridClock()
         self._events = ZenohSender(
             self.threads, "zenoh-events", pub_of=self._event_pub, timestamp=self.timestamp

@@ -171,10 +171,10 @@ class ZenohSender:
 
     def _put(self, key: str, payload: bytes, ns: int) -> bool:
         """Put one event; False when its key has no publisher (no session)."""
-        pub = self.pub_of(key)
-        if pub is None:
-            return False
         try:
+            pub = self.pub_of(key)
+            if pub is None:
+                return False
             pub.put(payload, timestamp=self.timestamp(ns))
             self.sent += 1
         except Exception as exc:  # noqa: BLE001 - one failed put must not stop the events

@@ -91,6 +91,8 @@ class SessionHost(Protocol):
     def member(self) -> tuple[int, int] | None: ...
     @property
     def publishing(self) -> bool: ...
+    @property
+    def zid(self) -> str: ...
 
     def attach(self) -> None: ...
     async def detach(self) -> None: ...
@@ -105,10 +107,13 @@ class PrefixInUse(RuntimeError):
     """Another gateway is announced under our prefix: two gateways must not share one."""
 
 
-def zenoh_config(cfg: Config) -> zenoh.Config:
-    """The session configuration: our keys first, then ``zenoh.json5`` (raw keys) on top."""
+def zenoh_config(cfg: Config, zid: str | None = None) -> zenoh.Config:
+    """The session configuration: our keys first (``zid``: the session's id, the one the
+    gateway's own timestamps carry), then ``zenoh.json5`` (raw keys) on top."""
     z = cfg.zenoh
     conf = zenoh.Config()
+    if zid is not None:
+        conf.insert_json5("id", json.dumps(zid))
     conf.insert_json5("mode", json.dumps(z.mode))
     if z.mode == "peer":  # a client does not listen
         conf.insert_json5("listen/endpoints", json.dumps(z.listen))
@@ -183,7 +188,7 @@ class ZenohSession:
         the app before the bus starts. Raises ``PrefixInUse`` (the session is closed then) or,
         in peer mode, zenoh.ZError when the session cannot be opened at all."""
         self.loop = self.bridge.queries.loop = asyncio.get_running_loop()
-        conf = zenoh_config(self.cfg)  # a bad config raises here, before anything runs
+        conf = zenoh_config(self.cfg, self.bridge.zid)  # a bad config raises here, before anything runs
         self.last_attempt_s = self.clock()
         try:
             self._opened = await self.open_checked(conf)
@@ -312,7 +317,7 @@ class ZenohSession:
         )
 
     async def try_open(self) -> zenoh.Session:
-        return await self.open_checked(zenoh_config(self.cfg))
+        return await self.open_checked(zenoh_config(self.cfg, self.bridge.zid))
 
     def publisher(self, s: zenoh.Session, key: str, cache: int, **qos: Any) -> Any:
         """An advanced publisher (cache, miss detection, publisher detection), or a plain one

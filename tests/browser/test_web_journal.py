@@ -31,13 +31,18 @@ async def started(tmp_path: Path) -> tuple[Gateway, str]:
 
 
 def journal_rows(driver: Any) -> list[tuple[str, str, str]]:
+    """The rows shown ([] while the table is being replaced: the caller asks again)."""
+    from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.common.by import By
 
-    rows = driver.find_elements(By.CSS_SELECTOR, "#journal tbody tr[data-kind]")
-    return [
-        (r.get_attribute("data-kind"), *(c.text for c in r.find_elements(By.TAG_NAME, "td")[3:5]))
-        for r in rows
-    ]
+    try:
+        rows = driver.find_elements(By.CSS_SELECTOR, "#journal tbody tr[data-kind]")
+        return [
+            (r.get_attribute("data-kind"), *(c.text for c in r.find_elements(By.TAG_NAME, "td")[3:5]))
+            for r in rows
+        ]
+    except StaleElementReferenceException:
+        return []
 
 
 async def test_the_journal_section_lists_a_range_and_links_its_csv(browser: Any, tmp_path) -> None:  # noqa: F811

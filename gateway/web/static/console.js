@@ -695,12 +695,16 @@ function journalQuery() {
   return q.toString();
 }
 
+let journalAsked = 0; // the last range asked for: an older answer that comes later is dropped
+
 async function loadJournal() {
+  const asked = ++journalAsked;
   const q = journalQuery();
   document.getElementById("jr-csv").href = "/api/journal.csv?" + q;
   const status = document.getElementById("jr-status");
   const r = await fetch("/api/journal?" + q, { cache: "no-store" });
   const doc = await r.json();
+  if (asked !== journalAsked) return;
   const tbody = document.querySelector("#journal tbody");
   if (!r.ok) {
     status.textContent = doc.message || r.statusText;
