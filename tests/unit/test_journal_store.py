@@ -5,6 +5,7 @@ disk, damaged files set aside, and the path check."""
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import threading
 import time
@@ -230,3 +231,19 @@ def test_sync_full_makes_every_commit_fsync(tmp_path):
         assert j.disk.con.execute("PRAGMA synchronous").fetchone()[0] == level
         assert j.disk.con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
         j.stop()
+
+
+def test_damaged_files_set_aside_are_pruned_by_age_and_count(tmp_path):
+    d = tmp_path / "j"
+    d.mkdir()
+    now = time.time()
+    for i, age_days in enumerate((0.1, 0.2, 0.3, 0.4, 40.0)):  # five set aside, one very old
+        p = d / f"{FILE_NAME}.damaged-2026010{i}T000000Z"
+        p.write_bytes(b"x")
+        (d / f"{p.name}-wal").write_bytes(b"w")
+        os.utime(p, (now - age_days * 86400, now - age_days * 86400))
+    j = Journal(d, keep_days=30)
+    j.open()
+    j.stop()
+    left = sorted(p.name for p in d.iterdir() if ".damaged-" in p.name)
+    assert left == [f"{FILE_NAME}.damaged-2026010{i}T000000Z{s}" for i in range(3) for s in ("", "-wal")]
