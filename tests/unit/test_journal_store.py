@@ -247,3 +247,27 @@ def test_damaged_files_set_aside_are_pruned_by_age_and_count(tmp_path):
     j.stop()
     left = sorted(p.name for p in d.iterdir() if ".damaged-" in p.name)
     assert left == [f"{FILE_NAME}.damaged-2026010{i}T000000Z{s}" for i in range(3) for s in ("", "-wal")]
+
+
+def test_a_version_1_journal_is_upgraded_in_place_with_its_seq_marks(tmp_path):
+    d = tmp_path / "j"
+    d.mkdir()
+    con = sqlite3.connect(d / FILE_NAME)
+    con.executescript(
+        "CREATE TABLE entries(id INTEGER PRIMARY KEY, t INTEGER NOT NULL, kind TEXT NOT NULL,"
+        " key TEXT NOT NULL, node TEXT, seq INTEGER, payload BLOB NOT NULL, tid BLOB);"
+        "CREATE INDEX entries_key_t ON entries(key, t); CREATE INDEX entries_t ON entries(t);"
+        "PRAGMA user_version=1;"
+    )
+    for i in range(1, 8):
+        e = ev(i)
+        con.execute("INSERT INTO entries(t, kind, key, node, seq, payload) VALUES (?, ?, ?, ?, ?, ?)",
+                    (e.stamp - (1 << 63), e.kind, e.key, e.node, e.seq, e.payload))  # fmt: skip
+    con.commit()
+    con.close()
+    j = Journal(d, values_ms=0)
+    j.open()
+    assert j.set_aside is None and j.last_seqs() == {"p/n1/emcy": 7}
+    assert j.disk.con.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+    j.stop()
+    assert [r.seq for r in Journal(d).read()] == list(range(1, 8))
