@@ -12,6 +12,7 @@ from gateway.journal import Entry, Journal, ntp64_of_time, parse_time_range
 from tests.helpers import gateway_of, make_config
 
 P = "canopen/test"
+T0 = time.time() - 3600.0  # an hour ago: within keep_days (the writer removes older entries)
 
 
 def bridge_with_journal(tmp_path):
@@ -55,9 +56,9 @@ def test_a_heard_seq_out_of_range_is_refused_and_the_writer_goes_on(tmp_path):
     bridge, j = bridge_with_journal(tmp_path)
     try:
         for seq in (2**64, 2**63, -1, True):
-            bridge.on_heard(f"{P}/wire/emcy", json.dumps({"seq": seq}).encode(), ntp64_of_time(1.7e9))
-        bridge.on_heard(f"{P}/wire/emcy", b'{"seq": 3}', ntp64_of_time(1.7e9 + 1))
-        assert j.wait(j.append(Entry(ntp64_of_time(1.7e9 + 2), "emcy", "k", None, 1, b"{}")), 10)
+            bridge.on_heard(f"{P}/wire/emcy", json.dumps({"seq": seq}).encode(), ntp64_of_time(T0))
+        bridge.on_heard(f"{P}/wire/emcy", b'{"seq": 3}', ntp64_of_time(T0 + 1))
+        assert j.wait(j.append(Entry(ntp64_of_time(T0 + 2), "emcy", "k", None, 1, b"{}")), 10)
         assert bridge.heard.get(f"{P}/wire/emcy") == 3  # the others never counted
         assert j.counts.refused == 3 and j.status()["journaling"]  # -1 is no event: not offered
         assert [r.seq for r in j.read([f"{P}/wire/emcy"])] == [3]
@@ -110,7 +111,7 @@ def test_a_history_answer_stops_at_its_time_limit_and_says_where_to_resume(tmp_p
 
     bridge, j = bridge_with_journal(tmp_path)
     try:
-        t = ntp64_of_time(1.7e9)
+        t = ntp64_of_time(T0)
         last = 0
         for seq in range(1, 6):
             last = j.append(Entry(t + seq * 2**32, "emcy", f"{P}/wire/emcy", "wire", seq, b"{}"))
