@@ -1,14 +1,15 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile|fault``.
+"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile|fault|schema``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback; so are a CAN bus that cannot be opened and a start that fails. Imports everything it drives; nothing imports this package.
 
 This module holds the parser and ``main``; the commands are in its modules: ``serve`` (run,
 simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``eds`` (eds,
-profile), ``bus_tools`` (scan, monitor, lss, fault); ``load`` loads a command's configuration.
+profile), ``bus_tools`` (scan, monitor, lss, fault), ``plant`` (schema: what the plant's own
+tools read); ``load`` loads a command's configuration.
 
 Imports: gateway (version), gateway.config (ConfigError), gateway.runtime.startup (StartupError),
-gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, eds, bus_tools.
+gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, eds, bus_tools, plant.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from gateway.cli.bus_tools import cmd_fault, cmd_lss, cmd_monitor, cmd_scan
 from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
+from gateway.cli.plant import cmd_schema
 from gateway.cli.serve import cmd_run, cmd_simulate
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
 from gateway.config import ConfigError
@@ -42,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_commissioning_commands(add)
     _add_file_commands(add)
     _add_bus_commands(add)
+    _add_plant_commands(add)
     return p
 
 
@@ -181,6 +184,15 @@ def _add_bus_commands(add: AddParser) -> None:
     sp.add_argument("--count", type=int, help="stop after this many lines")
     sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     sp.set_defaults(fn=cmd_monitor)
+
+
+def _add_plant_commands(add: AddParser) -> None:
+    """schema."""
+    sp = add("schema", help="print the JSON Schema of the configuration (or of a device profile)")
+    sp.add_argument(
+        "--profile", action="store_true", help="the schema of a device profile YAML instead"
+    )
+    sp.set_defaults(fn=cmd_schema)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
