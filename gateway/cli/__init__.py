@@ -72,7 +72,11 @@ def _add_gateway_commands(add: AddParser) -> None:
     sp.set_defaults(fn=cmd_check)
 
     sp = _with_config(add("registers", help="print the Modbus register map"))
-    sp.add_argument("--csv", action="store_true", help="CSV instead of a Markdown table")
+    sp.add_argument("--format", choices=["markdown", "csv", "modicon", "kepware"],
+                    help="markdown (default); csv; modicon: 6-digit Modicon addresses and IEC "
+                    "types; kepware: a KEPServerEX tag import of one unit (--unit)")  # fmt: skip
+    sp.add_argument("--csv", action="store_true", help="the same as --format csv")
+    sp.add_argument("--unit", type=int, metavar="N", help="only the registers of this unit id")
     sp.set_defaults(fn=cmd_registers)
 
     sp = _with_config(add("keys", help="print the Zenoh key expressions"))
