@@ -23,7 +23,7 @@ from gateway.cli.bus_tools import cmd_fault, cmd_lss, cmd_monitor, cmd_scan
 from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
-from gateway.cli.plant import cmd_schema
+from gateway.cli.plant import cmd_dcf, cmd_schema
 from gateway.cli.serve import cmd_run, cmd_simulate
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
 from gateway.config import ConfigError
@@ -191,12 +191,19 @@ def _add_bus_commands(add: AddParser) -> None:
 
 
 def _add_plant_commands(add: AddParser) -> None:
-    """schema."""
+    """schema, dcf."""
     sp = add("schema", help="print the JSON Schema of the configuration (or of a device profile)")
     sp.add_argument(
         "--profile", action="store_true", help="the schema of a device profile YAML instead"
     )
     sp.set_defaults(fn=cmd_schema)
+
+    sp = _with_config(add("dcf", help="write a node's CiA 306 DCF as the gateway configures it"))
+    sp.add_argument("--node", metavar="NAME", help="the node (config name)")
+    sp.add_argument("--all", action="store_true", help="every node: <name>.dcf in -o DIR")
+    sp.add_argument("-o", "--output", metavar="FILE|DIR", help="file (default: stdout); a directory with --all")
+    sp.add_argument("--bitrate", type=int, metavar="KBIT", help="the bus's bit rate in kbit/s (default: can.bitrate)")
+    sp.set_defaults(fn=cmd_dcf)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
