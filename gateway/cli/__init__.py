@@ -15,7 +15,6 @@ gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, eds, bu
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Callable, Sequence
 
 from gateway import __version__
@@ -24,7 +23,7 @@ from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
 from gateway.cli.plant import cmd_dcf, cmd_schema
-from gateway.cli.serve import cmd_run, cmd_simulate
+from gateway.cli.serve import cmd_run, cmd_simulate, error_line
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
 from gateway.config import ConfigError
 from gateway.runtime.startup import StartupError
@@ -57,10 +56,17 @@ def _with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
     return sp
 
 
+def _with_log_format(sp: argparse.ArgumentParser) -> None:
+    sp.add_argument("--log-format", choices=["text", "json"],
+                    help="log lines as text or one JSON object per line (default: "
+                    "CANOPEN_GATEWAY_LOG_FORMAT, else text)")  # fmt: skip
+
+
 def _add_gateway_commands(add: AddParser) -> None:
     """run, check, registers, keys, simulate, fault."""
     sp = _with_config(add("run", help="run the gateway"))
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    _with_log_format(sp)
     sp.add_argument("--no-simulate", action="store_true", help="ignore the simulate: section")
     sp.set_defaults(fn=cmd_run)
 
@@ -87,6 +93,7 @@ def _add_gateway_commands(add: AddParser) -> None:
         "--nodes", help="comma-separated node names (default: simulate: section, else all)"
     )
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    _with_log_format(sp)
     sp.set_defaults(fn=cmd_simulate)
 
     sp = _with_config(
@@ -213,14 +220,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.fn(args))
     except ConfigError as exc:
         for line in exc.problems:
-            print(line, file=sys.stderr)
+            error_line(args, line)
         return EXIT_CONFIG
     except BusOpenError as exc:  # every command that opens the bus (gateway.tools.bus_open)
-        print(exc.line, file=sys.stderr)
+        error_line(args, exc.line)
         return EXIT_CONFIG
     except StartupError as exc:  # a part of a gateway or a commissioning master did not start
         for line in exc.lines(args.config):
-            print(line, file=sys.stderr)
+            error_line(args, line)
         return EXIT_CONFIG
     except KeyboardInterrupt:
         return 130
