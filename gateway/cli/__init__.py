@@ -1,11 +1,11 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile|fault|schema``.
+"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|decode|lss|eds|profile|fault|schema|dcf``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback; so are a CAN bus that cannot be opened and a start that fails. Imports everything it drives; nothing imports this package.
 
 This module holds the parser and ``main``; the commands are in its modules: ``serve`` (run,
 simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``eds`` (eds,
-profile), ``bus_tools`` (scan, monitor, lss, fault), ``plant`` (schema: what the plant's own
+profile), ``bus_tools`` (scan, monitor, decode, lss, fault), ``plant`` (schema, dcf: what the plant's own
 tools read); ``load`` loads a command's configuration.
 
 Imports: gateway (version), gateway.config (ConfigError), gateway.runtime.startup (StartupError),
@@ -18,7 +18,7 @@ import argparse
 from collections.abc import Callable, Sequence
 
 from gateway import __version__
-from gateway.cli.bus_tools import cmd_fault, cmd_lss, cmd_monitor, cmd_scan
+from gateway.cli.bus_tools import cmd_decode, cmd_fault, cmd_lss, cmd_monitor, cmd_scan
 from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
@@ -157,7 +157,7 @@ def _add_file_commands(add: AddParser) -> None:
 
 
 def _add_bus_commands(add: AddParser) -> None:
-    """lss, scan, monitor."""
+    """lss, scan, monitor, decode."""
     sp = _with_config(add("lss", help="LSS commissioning (CiA 305)"))
     sp.add_argument(
         "action",
@@ -194,7 +194,13 @@ def _add_bus_commands(add: AddParser) -> None:
                     help="only these kinds: nmt, sync, time, emcy, pdo, sdo, heartbeat, lss, other")  # fmt: skip
     sp.add_argument("--count", type=int, help="stop after this many lines")
     sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    sp.add_argument("--record", metavar="FILE",
+                    help="also write every frame to FILE (.asc, .blf, .trc, .log, .csv: python-can's writers)")  # fmt: skip
     sp.set_defaults(fn=cmd_monitor)
+
+    sp = _with_config(add("decode", help="print a recorded trace in CANopen words, one line per frame"))
+    sp.add_argument("file", metavar="FILE", help="a trace python-can reads (.asc, .blf, .trc, .log, .csv, ...)")
+    sp.set_defaults(fn=cmd_decode)
 
 
 def _add_plant_commands(add: AddParser) -> None:
