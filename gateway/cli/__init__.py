@@ -21,7 +21,7 @@ from gateway import __version__
 from gateway.cli.bus_tools import cmd_decode, cmd_fault, cmd_lss, cmd_monitor, cmd_scan
 from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
-from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
+from gateway.cli.load import CONFIG_ENV, DEFAULT_CONFIG, EXIT_CONFIG, EXIT_FAILED, default_config
 from gateway.cli.plant import cmd_dcf, cmd_schema
 from gateway.cli.serve import cmd_run, cmd_simulate, error_line
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
@@ -51,8 +51,11 @@ def build_parser() -> argparse.ArgumentParser:
 AddParser = Callable[..., argparse.ArgumentParser]
 
 
+CONFIG_HELP = f"configuration YAML (default: ${CONFIG_ENV}, else {DEFAULT_CONFIG})"
+
+
 def _with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    sp.add_argument("-c", "--config", required=True, metavar="FILE", help="configuration YAML")
+    sp.add_argument("-c", "--config", metavar="FILE", help=CONFIG_HELP)
     return sp
 
 
@@ -73,8 +76,8 @@ def _add_gateway_commands(add: AddParser) -> None:
     sp = add(
         "check", help="validate a configuration (or the two of a pair) and summarise it"
     )
-    sp.add_argument("-c", "--config", required=True, action="append", metavar="FILE",
-                    help="configuration YAML; twice: the two configs of a hot-standby pair, compared")  # fmt: skip
+    sp.add_argument("-c", "--config", action="append", metavar="FILE",
+                    help=f"{CONFIG_HELP}; twice: the two configs of a hot-standby pair, compared")  # fmt: skip
     sp.set_defaults(fn=cmd_check)
 
     sp = _with_config(add("registers", help="print the Modbus register map"))
@@ -223,6 +226,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        if "config" in args and not args.config:  # -c left out: the environment, /etc
+            path = default_config()
+            args.config = [path] if args.command == "check" else path
         return int(args.fn(args))
     except ConfigError as exc:
         for line in exc.problems:
