@@ -172,6 +172,7 @@ def _add_bus_commands(add: AddParser) -> None:
             "switch-global",
             "switch-selective",
             "auto-id",
+            "fast-scan",
         ],
     )
     sp.add_argument("args", nargs="*", help="action arguments (see docs/canopen.md)")
