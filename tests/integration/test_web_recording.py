@@ -22,7 +22,7 @@ async def test_a_recording_downloads_as_a_trace_that_decode_reads(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     async with gateway() as (gw, device, addr):
-        request = asyncio.ensure_future(http(f"http://{addr}/api/monitor/record?seconds=2&format=blf"))
+        request = asyncio.ensure_future(http(f"http://{addr}/api/monitor/record?seconds=1&format=blf"))
         await wait_until(lambda: len(gw.driver.frame_taps) == 1, 5, "the recording's tap")
         for msg in SCRIPT:
             device.send(msg)
