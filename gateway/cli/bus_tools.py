@@ -1,6 +1,7 @@
 """The commands that work on the bus beside or without a gateway: ``scan`` and ``monitor`` (a
 bus of their own, with the simulated devices of the config when the bus is in-process and no
-gateway runs), ``lss`` (gateway.tools.lss) and ``fault`` (into a running gateway's simulated
+gateway runs; ``monitor --record FILE`` writes a trace), ``decode`` (a recorded trace in
+CANopen words), ``lss`` (gateway.tools.lss) and ``fault`` (into a running gateway's simulated
 node).
 
 Imports: gateway.app (SimulatedBus), gateway.tools (beside, bus_open, lss, monitor), gateway.bus.scan,
@@ -94,7 +95,7 @@ def cmd_scan(args: argparse.Namespace) -> int:
 
 def cmd_monitor(args: argparse.Namespace) -> int:
     from gateway.northbound.frames import FrameDecoder, kind_filter, node_filter
-    from gateway.tools.monitor import monitor
+    from gateway.tools.monitor import monitor, recorder
 
     cfg, resolved = load_for_bus(args.config)
     try:
@@ -104,16 +105,40 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
     decoder = FrameDecoder(cfg, resolved)
+    record = None
+    if args.record:
+        try:
+            record = recorder(args.record)
+        except (ValueError, OSError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return EXIT_CONFIG
     bus, sim = _tool_bus(cfg, resolved, "monitor")
     try:
         monitor(bus, decoder, sys.stdout, nodes=nodes, kinds=kinds, count=args.count,
-                duration_s=args.duration)  # fmt: skip
+                duration_s=args.duration, record=record)  # fmt: skip
     except KeyboardInterrupt:
         pass
     finally:
         bus.shutdown()
         if sim is not None:
             sim.stop()
+        if record is not None:
+            record.stop()
+            print(f"recorded {args.record}", file=sys.stderr)
+    return 0
+
+
+def cmd_decode(args: argparse.Namespace) -> int:
+    """``decode -c CONFIG FILE``: a recorded trace in CANopen words, one line per frame."""
+    from gateway.northbound.frames import FrameDecoder
+    from gateway.tools.monitor import decode_file
+
+    cfg, resolved = load(args.config)
+    try:
+        decode_file(args.file, FrameDecoder(cfg, resolved), sys.stdout)
+    except (OSError, ValueError, NotImplementedError) as exc:
+        print(f"error: {args.file}: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
     return 0
 
 

@@ -20,7 +20,8 @@ The package, one module per part, re-exported here (``from gateway.config import
 - ``errors``: ``ConfigError`` and how a problem is worded;
 - ``journal``: the ``journal:`` section;
 - ``node``: the ``nodes:`` entries and ``NodeConfig.setup``, the record the device knowledge
-  reads.
+  reads;
+- ``keyexpr``: a Zenoh key expression of the file checked (without zenoh).
 
 Imports: model, node, load, env, errors, journal (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
 checks.

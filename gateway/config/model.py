@@ -7,7 +7,7 @@
 What a section cannot see (duplicates across nodes, names that refer to nodes, profiles and
 EDS files) is checked when the file is loaded (``config.load``).
 
-Imports: pydantic, gateway.keyexpr, config.journal, config.node (the ``nodes:`` entries). Nothing of bus/,
+Imports: pydantic, config.keyexpr, config.journal, config.node (the ``nodes:`` entries). Nothing of bus/,
 modbus/, zenoh_bridge/, checks.
 """
 
@@ -25,7 +25,7 @@ from pydantic import (
     model_validator,
 )
 
-from gateway import keyexpr
+from gateway.config import keyexpr
 from gateway.config.journal import JournalSection
 from gateway.config.node import NodeConfig
 

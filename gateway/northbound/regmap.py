@@ -225,13 +225,18 @@ class RegisterMap:
     def lookup(self, unit: int, table: Table, address: int) -> Point | None:
         return self.index.get((unit, table), {}).get(address)
 
+    def only_unit(self, unit: int) -> RegisterMap:
+        """The points of one unit id (a listing of one device)."""
+        return RegisterMap([p for p in self.points if p.unit == unit], {}, {unit: self.units.get(unit)})
+
     def node_points(self, node: str) -> list[Point]:
         return [p for p in self.points if p.node == node]
 
     # ------------------------------------------------------------------ rendering
     HEADER = ["unit_id", "table", "address", "type", "access", "node", "signal", "unit", "scaling", "description"]  # fmt: skip
 
-    def _sorted(self) -> list[Point]:
+    def sorted_points(self) -> list[Point]:
+        """Every point by unit, table (input, holding, discrete input, coil) and address."""
         return sorted(self.points, key=lambda p: (p.unit, TABLE_ORDER[p.table], p.address))
 
     @staticmethod
@@ -252,7 +257,7 @@ class RegisterMap:
     def rows(self) -> list[list[str]]:
         """One row per point: every register value and every single bit (the CSV)."""
         out = []
-        for p in self._sorted():
+        for p in self.sorted_points():
             name = p.name if p.kind != "bit" else f"{p.name}.bit{p.bit}"
             address = str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}"
             out.append(self._row(p, address, name, p.description))
@@ -261,7 +266,7 @@ class RegisterMap:
     def grouped_rows(self) -> list[list[str]]:
         """Like ``rows`` but the bits of one word in one row (the Markdown table)."""
         out: list[list[str]] = []
-        pts = self._sorted()
+        pts = self.sorted_points()
         i = 0
         while i < len(pts):
             p = pts[i]

@@ -194,6 +194,8 @@ def test_systemd_unit_runs_the_gateway_hardened():
     }.items():
         assert unit[key] == [value], key
     assert "AF_CAN" in unit["RestrictAddressFamilies"][0].split()
+    # the gateway says READY=1 and pings the watchdog (gateway.runtime.sd_notify)
+    assert unit["Type"] == ["notify"] and int(unit["WatchdogSec"][0]) > 0
 
 
 def test_can0_network_file_sets_the_bit_rate():
