@@ -4,7 +4,7 @@ gateway runs; ``monitor --record FILE`` writes a trace), ``decode`` (a recorded 
 CANopen words), ``lss`` (gateway.tools.lss) and ``fault`` (into a running gateway's simulated
 node).
 
-Imports: gateway.app (SimulatedBus), gateway.tools (beside, bus_open, lss, monitor), gateway.bus.scan,
+Imports: gateway.app (SimulatedBus), gateway.tools (beside, bus_open, lss, monitor), gateway.bus.scan, gateway.bus.trace,
 gateway.northbound.frames, gateway.sim.faults_client, gateway.config, gateway.device.resolved (types),
 cli.load.
 """
@@ -94,8 +94,9 @@ def cmd_scan(args: argparse.Namespace) -> int:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
+    from gateway.bus.trace import trace_writer
     from gateway.northbound.frames import FrameDecoder, kind_filter, node_filter
-    from gateway.tools.monitor import monitor, recorder
+    from gateway.tools.monitor import monitor
 
     cfg, resolved = load_for_bus(args.config)
     try:
@@ -108,7 +109,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     record = None
     if args.record:
         try:
-            record = recorder(args.record)
+            record = trace_writer(args.record)
         except (ValueError, OSError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_CONFIG

@@ -55,18 +55,6 @@ def decode_file(path: str, decoder: FrameDecoder, out: TextIO) -> int:
     return n
 
 
-def recorder(path: str) -> can.Listener:
-    """python-can's writer of FILE's format (its suffix); ValueError naming the formats."""
-    suffix = path.rsplit(".", 1)[-1].lower() if "." in path else ""
-    if f".{suffix}" not in RECORD_FORMATS:
-        raise ValueError(f"--record {path}: the file's suffix says the format: {', '.join(RECORD_FORMATS)}")
-    return can.Logger(path)
-
-
-#: the trace formats a recording is written in (python-can's writers), by suffix
-RECORD_FORMATS = (".asc", ".blf", ".trc", ".log", ".csv")
-
-
 def monitor(
     bus: can.BusABC,
     decoder: FrameDecoder,

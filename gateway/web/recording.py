@@ -13,7 +13,7 @@ waits its seconds, removes the tap and has the file written in a worker thread
 Frames the gateway sends are not tapped (as on the monitor page): the recording is what the
 gateway receives.
 
-Imports: python-can (the writers), http.server (request/response types), web.monitor
+Imports: python-can, bus.trace (the trace writer), http.server (request/response types), web.monitor
 (FrameSource, the driver as a tap source).
 """
 
@@ -29,6 +29,7 @@ from pathlib import Path
 
 import can
 
+from gateway.bus.trace import trace_writer
 from gateway.http.server import Request, Response
 from gateway.web.monitor import FrameSource
 
@@ -63,7 +64,7 @@ def write_trace(frames: list[can.Message], fmt: str) -> bytes:
     """The frames as a file of python-can's writer for ``fmt`` (its suffix)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"trace.{fmt}"
-        writer = can.Logger(str(path))
+        writer = trace_writer(str(path))
         for msg in frames:
             writer.on_message_received(msg)
         writer.stop()

@@ -75,13 +75,14 @@ def run_monitor_while_sending(channel: str, run: object) -> None:
 def test_a_recording_in_each_format_decodes_back_to_the_frames(
     config: Path, tmp_path: Path, suffix: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    from gateway.bus.trace import trace_writer
     from gateway.northbound.frames import FrameDecoder
-    from gateway.tools.monitor import monitor, recorder
+    from gateway.tools.monitor import monitor
     from tests.helpers import load_checked_config, with_nodes
 
     cfg, nodes = with_nodes(load_checked_config(config))
     trace = tmp_path / f"trace{suffix}"
-    record = recorder(str(trace))
+    record = trace_writer(str(trace))
     bus = can.Bus(interface="virtual", channel=cfg.can.channel)
     decoder = FrameDecoder(cfg, nodes)
     sink = io.StringIO()
