@@ -11,6 +11,9 @@ and print what broke.
   (the bits of ``ignore`` aside: the guarding bit), and it sends none the old one never sent.
 * ``left_open_aborted_first(frames, node_id, sender)``: the new active member's first frame to
   a node's SDO server (600h + node id) is an abort, when the old one left a transfer open.
+* ``safe_in_time(last_write_s, safe_s, now_s, watchdog_s, takeover_s)``: with the output
+  watchdog on, the safe outputs went out no sooner than ``watchdog_s`` after the PLC's last
+  write and no later than ``watchdog_s`` + one take-over after it (times on one clock).
 
 Imports: gateway.bus.node.outputs (the image's type), gateway.canopen.cia301, the standard
 library.
@@ -73,6 +76,21 @@ def left_open_aborted_first(frames: Iterable[tuple[str, Frame]], node_id: int, s
         if who == sender and cob == COB_SDO_RX + node_id:
             return [] if data[:1] == b"\x80" else [f"first SDO request to node {node_id} is {data.hex()}, not an abort"]
     return [f"no SDO request of {sender} to node {node_id}: the transfer left open was not aborted"]
+
+
+def safe_in_time(
+    last_write_s: float, safe_s: float | None, now_s: float, watchdog_s: float, takeover_s: float
+) -> list[str]:
+    """``safe_s``: when the first frame with the safe values went out after the PLC's last
+    write at ``last_write_s`` (None: none yet, at ``now_s``)."""
+    due = last_write_s + watchdog_s + takeover_s
+    if safe_s is None:
+        return [f"no safe outputs {now_s - last_write_s:.3f} s after the last write"] if now_s > due else []
+    if safe_s < last_write_s + watchdog_s:
+        return [f"safe outputs {safe_s - last_write_s:.3f} s after the last write: sooner than the watchdog"]
+    if safe_s > due:
+        return [f"safe outputs {safe_s - last_write_s:.3f} s after the last write: later than watchdog + take-over"]
+    return []
 
 
 def as_frames(sent: Iterable[Any]) -> list[Frame]:

@@ -16,6 +16,7 @@ from gateway.modbus.watchdog import (
     WatchdogEvent,
     WatchdogState,
 )
+from tests.pair_invariants import safe_in_time
 
 T0 = 1000.0
 
@@ -246,6 +247,13 @@ def test_a_take_over_counts_from_the_plcs_last_write_heard_on_the_bus() -> None:
     assert wd.state is WatchdogState.ARMED and wd.next_deadline() == T0 + 0.5
     assert wd.tick(math.nextafter(T0 + 0.5, 0)) is None
     assert wd.tick(T0 + 0.5) == TIMEOUT
+    assert safe_in_time(T0, T0 + 0.5, T0 + 0.5, watchdog_s=0.5, takeover_s=0.3) == []
+    # a take-over later than the watchdog: safe at its first tick, within watchdog + take-over
+    late = OutputWatchdog(0.5, on_disconnect=False)
+    late.on_mastering(False)
+    late.on_mastering(True, written_s=T0)
+    assert late.tick(T0 + 0.8) == TIMEOUT
+    assert safe_in_time(T0, T0 + 0.8, T0 + 0.8, watchdog_s=0.5, takeover_s=0.3) == []
 
 
 def test_a_take_over_counts_from_the_later_of_a_request_to_it_and_a_write_heard() -> None:
