@@ -203,5 +203,6 @@ async def test_a_segmented_download_cut_by_the_active_ones_death_is_aborted_by_t
         assert left_open_aborted_first([("B", f) for f in sent_b.frames[taken:]], 3, "B") == []
         abort = next(d for c, d in sent_b.frames[taken:] if c == 0x603)
         assert abort == bytes((0x80, 0x00, 0x20, 0x00, 0x00, 0x00, 0x04, 0x05))  # 2000h:00, 05040000h
+        await wait_until(lambda: len(heard.sdo_requests) > since, 5, "the device heard the abort")
         assert [d for _, d in heard.sdo_requests[since:]] == [abort]  # the device got it, once
         write.cancel()
