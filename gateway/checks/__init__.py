@@ -28,8 +28,8 @@ text naming the node)`` each (``check`` prints them after its summary): a device
 and RPDO on one COB-ID; an enabled SYNC-driven TPDO (transmission type 0..240) without a
 SYNC producer (``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the
 node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF whose
-``[DeviceComissioning] NodeID`` is not the node id it is used at; in a hot-standby pair, a
-node that cannot survive the gateway's worst take-over (``checks.pair.takeover_warnings``).
+``[DeviceComissioning] NodeID`` is not the node id it is used at; in a hot-standby pair, each
+device timeout the gateway's worst take-over can outlast (``checks.takeover``).
 
 ``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
 hot-standby pair (``check -c A -c B``, docs/redundancy.md).
@@ -38,13 +38,13 @@ Every function takes the nodes as resolved once (``gateway.device.resolved``). `
 ``parse_checked`` read and validate a config, resolve its nodes in the same pass and run these
 checks, raising ConfigError with every line; they return the config and its nodes.
 
-Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, profiles,
+Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, checks.takeover, profiles,
 eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
 register map, the COB-IDs of the nodes (bus/cob_id_uses.py), a device file's COB-IDs and NodeID
 (eds/file_cob_ids.py), journal (the path check) (no I/O but reading the files they name and the
 journal's directory).
 
-Imports: config, checks.pair, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
+Imports: config, checks.pair, checks.takeover, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
 settings), eds (parse, pdos, file_cob_ids), profiles (layout, schema), modbus.safe_outputs (its
 rule only), northbound.regmap, journal.
 """
@@ -59,7 +59,8 @@ from typing import Any
 from gateway.bus.cob_id_uses import clashes, gateway_uses, loops_back
 from gateway.canopen.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
-from gateway.checks.pair import pair_problems, takeover_warnings
+from gateway.checks.pair import pair_problems
+from gateway.checks.takeover import takeover_warnings
 from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.device.boot_steps import ConfigStep
 from gateway.device.resolved import Resolved, ResolvedNode, load_resolved, parse_resolved

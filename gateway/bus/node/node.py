@@ -133,8 +133,8 @@ class Node:
         self.emcy = EmcyHistory()
         gb = settings.guarding_bit
         control = (self.control_signal, gb.control_bit) if gb and self.control_signal else None
-        self.outputs = OutputImage(
-            name, self.rpdos, settings.keepalive_ms / 1e3, self.gbit, control
+        self.outputs = OutputImage(  # a pair's member (listening at first): ``pair``
+            name, self.rpdos, settings.keepalive_ms / 1e3, self.gbit, control, pair=listening
         )
         self.image = image  # its ``outputs`` section is written here only
         self._publish_outputs()
@@ -219,9 +219,10 @@ class Node:
             out += f.tick(self, now)
         if self._wait_until is not None and now >= self._wait_until:
             self._wait_until = None
-        due = self._keepalive_due()
-        if due is not None and now >= due:
-            out += self._keepalive(now)
+        if (due := self._keepalive_due()) is not None and now >= due:
+            self.health.rpdo_sent += 1
+            out.append(self.outputs.keepalive(now))
+            self._publish_outputs()  # the guarding bit of the control word as sent
         due = self._probe_due_s()
         if due is not None and now >= due:
             out += self._probe(now)
@@ -311,9 +312,11 @@ class Node:
 
     # ================================================================== a pair's roles
     def on_rpdo_heard(self, cob_id: int, data: bytes, wall: float, now: float) -> list[Output]:
-        """An RPDO the other gateway sent: its values become the output image."""
-        if self.listening and self.outputs.heard(cob_id, data, now):
-            self._publish_outputs((wall, now))
+        """An RPDO the other gateway sent: its values become the output image (a write heard
+        counts as one: the output watchdog of a take-over counts from it)."""
+        wrote = self.outputs.heard(cob_id, data, now) if self.listening else None
+        if wrote is not None:
+            self._publish_outputs((wall, now) if wrote else None)
         return []
 
     def stand_by(self, now: float) -> list[Output]:
@@ -330,6 +333,8 @@ class Node:
         out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None), now)
         if adopt is None:
             self.next_probe_s = now  # found and configured as usual
+        else:
+            self.outputs.resume(now)  # keep-alives go on at once
         return out + listening.adopted(self, adopt, now) + self.tick(now)
 
     def write_outputs(
@@ -445,6 +450,7 @@ class Node:
                 self._wait_until = r.wait_until_s
             if r.configured:
                 h.fresh_since = now  # values are good again when received from now on
+                self.outputs.own()  # configured here: every RPDO's content is ours
                 if self.supervision.hb is None and self.supervision.guard is None:
                     out += self._set_nmt(NmtState.OPERATIONAL)  # no heartbeat will confirm it
                 for f in self.features:
@@ -542,9 +548,3 @@ class Node:
         if self.listening or not h.alive or h.nmt_state != NmtState.OPERATIONAL:
             return None
         return self.outputs.keepalive_due(h.fresh_since)
-
-    def _keepalive(self, now: float) -> list[Output]:
-        self.health.rpdo_sent += 1
-        out: list[Output] = [self.outputs.keepalive(now)]
-        self._publish_outputs()  # the guarding bit of the control word as sent
-        return out
