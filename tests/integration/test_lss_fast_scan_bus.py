@@ -42,7 +42,7 @@ def test_fast_scan_gives_identical_unconfigured_devices_node_ids_lowest_address_
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
     path = config(tmp_path)
     known = ["vendor=0x195", "product=0xFFFFFFFF", "revision=0xFFFFFFFF"]
-    assert main(["lss", "-c", str(path), "fast-scan", "10", "count=2", "store", *known, "wait=0.02"]) == 0
+    assert main(["lss", "-c", str(path), "fast-scan", "10", "count=2", "store", *known, "wait=0.05"]) == 0
     out = capsys.readouterr().out.splitlines()
     found = [line for line in out if line.startswith("found ")]
     assert [f.split()[1] for f in found] == ["0x195:0xFFFFFFFF:0xFFFFFFFF:0xF01", "0x195:0xFFFFFFFF:0xFFFFFFFF:0x2300"]
