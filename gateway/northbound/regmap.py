@@ -57,7 +57,7 @@ NMT_REGISTER = 0
 
 #: node diagnostics in input registers: (offset, name, type, description)
 NODE_DIAG = [
-    (0, "quality", "uint16", "worst quality of the node's process data: 0 good, 1 stale (node lost, not operational, link fault or data older than stale_after_ms), 2 bad (never received or flagged invalid by the device)"),
+    (0, "quality", "uint16", "worst quality of the node's process data: 0 good, 1 stale (node lost, not operational, link fault or data older than stale_after_ms), 2 bad (never received, flagged invalid by the device, or nothing to serve: the node's PDOs map nothing)"),
     (1, "nmt_state", "uint16", "NMT state: 0 boot-up, 4 stopped, 5 operational, 127 pre-operational, 65535 unknown"),
     (2, "alive", "uint16", "1 while heartbeat / node guarding is OK"),
     (3, "lifecycle", "uint16", "0 waiting (never seen, or lost: waiting for boot-up), 1 booting, 2 configuring, 3 operational, 4 unknown (a pair's standby: the node not heard started)"),

@@ -167,6 +167,11 @@ function presenceBadge(r) {
   return r.presence === "alive" ? badge("alive", "good") : badge(r.presence, r.presence === "lost" ? "bad" : "stale");
 }
 
+// The node's status (its worst process quality); a node whose PDOs map nothing says why it is bad.
+function statusCell(r) {
+  return r.quality_note ? el("span", {}, badge(r.quality), " " + r.quality_note) : badge(r.quality);
+}
+
 function linkBadge(word) {
   if (word === "ok") return badge("ok", "good");
   if (word === "fault") return badge("fault", "bad");
@@ -189,7 +194,7 @@ function renderNodes(rows) {
       ["name", el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name)],
       ["node_id", String(r.node_id), "num"],
       ["profile", el("span", { title: r.title }, r.profile)],
-      ["quality", badge(r.quality)],
+      ["quality", statusCell(r)],
       ["presence", presenceBadge(r)],
       ["nmt_state", r.nmt_state],
       ["lifecycle", r.outputs === "safe" ? el("span", {}, r.lifecycle + " ", badge("outputs: safe", "stale")) : r.lifecycle],
@@ -222,7 +227,7 @@ function renderNodeRow(r) {
   document.getElementById("node-title").textContent = `Node ${r.name} (id ${r.node_id}, ${r.profile})`;
   document.title = `canopen-gateway: ${r.name}`;
   setFacts(document.getElementById("node-state"), [
-    ["Status", badge(r.quality)],
+    ["Status", statusCell(r)],
     ["Presence", presenceBadge(r)],
     ["NMT state", r.nmt_state],
     ["Lifecycle", r.lifecycle],
