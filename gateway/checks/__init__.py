@@ -33,6 +33,9 @@ node that cannot survive the gateway's worst take-over (``checks.pair.takeover_w
 node whose PDOs map nothing (no process data: named with the objects its file marks
 PDO-mappable).
 
+``config_notes(cfg)``: what the gateway will not check, one ``(key path, text)`` each (``check``
+prints them as notes): a part of a device's identity its file gives nothing to compare with.
+
 ``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
 hot-standby pair (``check -c A -c B``, docs/redundancy.md).
 
@@ -73,7 +76,7 @@ from gateway.eds.pdos import eds_pdos, mappable_objects, object_name, od_var, re
 from gateway.journal import path_problem
 from gateway.modbus.safe_outputs import safe_output_problems
 from gateway.northbound.regmap import RegisterMapError, build_register_map
-from gateway.profiles import LoadedProfile
+from gateway.profiles import LoadedProfile, identity_check
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS
 from gateway.profiles.schema import Pdo
@@ -441,6 +444,18 @@ def no_process_data_text(rn: ResolvedNode) -> str:
     return f"{head}, e.g. `{example}`; PDO-mappable in {file}: {named}{more}"
 
 
+def config_notes(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
+    """What the gateway will not check (``check`` prints them as notes): a part of a device's
+    identity (1018h) its file gives nothing to compare with (``profiles.identity_check``)."""
+    out: list[Problem] = []
+    for i, n in enumerate(cfg.nodes):
+        rn = nodes.get(n.name)
+        if rn is None or not n.identity_check:
+            continue
+        out += [(f"nodes[{i}].identity_check", f"node {n.name}: {text}") for text in identity_check(rn.lp).not_checked]  # fmt: skip
+    return out
+
+
 def journal_path(cfg: Config) -> Path | None:
     """The journal's directory (``journal.path`` relative to the config file), or None."""
     if cfg.journal.path is None:
@@ -504,6 +519,7 @@ __all__ = [
     "boot_problems",
     "check_config",
     "cob_id_problems",
+    "config_notes",
     "config_problems",
     "config_warnings",
     "eds_problems",

@@ -237,6 +237,41 @@ async def test_identity_check_false_configures_any_device() -> None:
         net.disconnect()
 
 
+async def test_a_file_with_the_vendor_alone_refuses_a_device_of_another_vendor_and_says_what_it_cannot_check(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    import logging
+
+    from tests.helpers import edited_copy
+
+    eds = edited_copy(tmp_path, IO, "ProductNumber=0x00000401", "ProductNumber=", "vendor.eds")
+    path = tmp_path / "c.yaml"
+    path.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: io, node_id: 5, eds: '{eds}'}}\n")  # fmt: skip
+    assert main(["check", "-c", str(path)]) == 0
+    note = "node io: 0x1018:02 (product) not checked: vendor.eds gives no ProductNumber in [DeviceInfo]; only 0x1018:01 (vendor) is compared"  # fmt: skip
+    assert f"  note: {note}" in capsys.readouterr().out.splitlines()
+    caplog.set_level(logging.INFO, logger="gateway")
+    cfg = make_config([{"name": "io", "node_id": 5, "eds": str(eds)}], simulate={"nodes": []},
+                      master={"probe_at_start": False})  # fmt: skip
+    net, node = local_node(IO, 5, cfg.can.channel)
+    node.set_data(0x1018, 1, struct.pack("<I", 0xDEF))  # a device of another vendor
+    gw = gateway_of(cfg)
+    await gw.start()
+    try:
+        boot(node)
+        io = gw.image.nodes["io"]
+        await wait_until(lambda: io.health.last_error.startswith("wrong device"), 8, "identity refused")
+        assert io.health.last_error == "wrong device: vendor 0xDEF, expected vendor 0xABC (1018h against the EDS): not configured"  # fmt: skip
+        rt = gw.master.nodes["io"]
+        assert rt.lifecycle.state == "waiting" and rt.lifecycle.configurations == 0
+        assert not io.operational()  # never started
+    finally:
+        await gw.stop()
+        net.disconnect()
+    said = [r.getMessage() for r in caplog.records if "not checked" in r.getMessage()]
+    assert said == [f"node io (id 5): {note.removeprefix('node io: ')}"]
+
+
 def test_a_node_whose_pdos_map_nothing_is_warned_of_with_the_objects_it_may_map(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
