@@ -79,20 +79,26 @@ def test_sdo_read_of_an_unknown_node_is_an_argument_error(
     )
 
 
-def test_a_token_of_digits_gets_our_words() -> None:
+def test_a_token_of_digits_is_refused_by_one_rule_from_the_file_and_from_the_environment() -> None:
+    rule = (
+        "a token of digits only is refused, in the file (quoted or not) as in "
+        'CANOPEN_GATEWAY__WEB__TOKEN: mix in letters (token: "a long random text")'
+    )
     with pytest.raises(ConfigError) as exc:
         parse_config({"web": {"writes": True, "token": 123456789012345}}, "cfg.yaml", environ={})
-    assert exc.value.problems == [
-        "cfg.yaml: web.token: YAML read a number here; a token is text: put it in quotes "
-        '(token: "0123456789012")'
-    ]
-    # from the environment it is taken as written, leading zero included
+    assert exc.value.problems == [f"cfg.yaml: web.token: YAML read a number here; {rule}"]
+    with pytest.raises(ConfigError) as exc:
+        parse_config({"web": {"writes": True, "token": "0123456789012"}}, "cfg.yaml", environ={})
+    assert exc.value.problems == [f"cfg.yaml: web.token: {rule}"]
+    # the same value from the environment: the same rule, blamed on the variable
+    with pytest.raises(ConfigError) as exc:
+        parse_config({"web": {"writes": True}}, "cfg.yaml", environ={"CANOPEN_GATEWAY__WEB__TOKEN": "0123456789012"})
+    assert exc.value.problems == [f"CANOPEN_GATEWAY__WEB__TOKEN: web.token: {rule}"]
+    # taken as written, leading zero included, when it has letters
     cfg = parse_config(
-        {"web": {"writes": True}},
-        "cfg.yaml",
-        environ={"CANOPEN_GATEWAY__WEB__TOKEN": "0123456789012"},
+        {"web": {"writes": True}}, "cfg.yaml", environ={"CANOPEN_GATEWAY__WEB__TOKEN": "0123456789012x"}
     )
-    assert cfg.web.token == "0123456789012"
+    assert cfg.web.token == "0123456789012x"
 
 
 def test_counts_and_supervision_findings_read_as_words() -> None:
