@@ -46,7 +46,7 @@ def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tupl
 
     sim = None
     if beside.in_process_bus(cfg):
-        running = beside.find_running_gateway(cfg)
+        running = beside.find_local_gateway(cfg) or beside.find_running_gateway(cfg)
         line = beside.refusal(cfg, command)
         if running is not None:
             running.close()

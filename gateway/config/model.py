@@ -308,6 +308,16 @@ class AsciiSection(_Model):
     )
 
 
+class CommandSocketSection(_Model):
+    """The command line's local way into the running gateway when its bus is in-process
+    (``can.interface: virtual``): a Unix socket only this user can open (``gateway/command_socket``)."""
+
+    enabled: bool = Field(default=True, description="listen on it (with an in-process bus)")
+    path: str | None = Field(
+        default=None, description="default: the user's runtime directory, named by the config file"
+    )
+
+
 class HealthSection(_Model):
     host: str = "127.0.0.1"
     port: int = Field(default=0, ge=0, le=65535, description="0 = off")
@@ -385,6 +395,7 @@ class Config(_Model):
     health: HealthSection = Field(default_factory=HealthSection)
     web: WebSection = Field(default_factory=WebSection)
     ascii: AsciiSection | None = None  # CiA 309-3 ASCII gateway: off unless given
+    command_socket: CommandSocketSection = Field(default_factory=CommandSocketSection)
     simulate: SimulateSection = Field(default_factory=SimulateSection)
     journal: JournalSection = Field(default_factory=JournalSection)  # store and forward
 
