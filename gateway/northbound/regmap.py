@@ -205,6 +205,8 @@ class RegisterMap:
     #: (unit, table) -> {address: point} for every address a point covers
     index: dict[tuple[int, Table], dict[int, Point]] = field(default_factory=dict)
     units: dict[int, str | None] = field(default_factory=dict)  # unit -> node name (None: gateway)
+    #: the config key that placed each point (a clash names both keys)
+    keys: dict[Point, str] = field(default_factory=dict, repr=False)
 
     def add(self, p: Point, key: str) -> None:
         idx = self.index.setdefault((p.unit, p.table), {})
@@ -212,15 +214,17 @@ class RegisterMap:
             other = idx.get(a)
             if other is not None:
                 where = f"{other.node}.{other.name}" if other.node else other.name
+                placed = self.keys.get(other)
                 raise RegisterMapError(
                     key,
                     f"{TABLE_NAMES[p.table]} {a} of unit {p.unit} is used twice: "
-                    f"{p.node}.{p.name} and {where}",
+                    f"{p.node}.{p.name} ({key}) and {where}" + (f" ({placed})" if placed else ""),
                 )
             if a > 0xFFFF:
                 raise RegisterMapError(key, f"address {a} of {p.node}.{p.name} is beyond 65535")
             idx[a] = p
         self.points.append(p)
+        self.keys[p] = key
 
     def lookup(self, unit: int, table: Table, address: int) -> Point | None:
         return self.index.get((unit, table), {}).get(address)
