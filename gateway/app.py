@@ -194,6 +194,10 @@ class Gateway:
         if self.health is not None and self.health.port:
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
+        if self.journal is not None:
+            parts.append(f"journal {self.journal.path}")
+        if self.command_socket.path is not None:
+            parts.append(f"command socket {self.command_socket.path}")
         nodes = ", ".join(
             f"{n.name}={n.device}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
             for n in self.cfg.nodes
@@ -354,6 +358,9 @@ class Gateway:
             # first: the events of this run are committed before they are published
             with startup_step("journal.path", cfg.journal.path):
                 await asyncio.to_thread(self.journal.open)
+            j = cfg.journal
+            values = f"values every {j.values_ms} ms" if j.values_ms else "events only"
+            log.info("journal on: %s (%s, kept %g days, at most %g MB)", self.journal.path, values, j.keep_days, j.max_mb)  # fmt: skip
             self.journal.start(self.threads)
             if self.zenoh is not None:
                 self.zenoh.use_journal(self.journal)
