@@ -1,7 +1,7 @@
 """The small things a new user meets in the first hour: a closed pipe (``check | head -1``) and
 Ctrl-C during start-up end the program without a traceback; an unknown node is an argument
-error (exit 2); a token of digits gets our words; log lines read as sentences; the console
-has a favicon."""
+error (exit 2); a token of digits is refused by one rule; log lines read as sentences; the
+console has a favicon; the start-up line names the journal."""
 
 from __future__ import annotations
 
@@ -133,3 +133,23 @@ async def test_console_serves_a_favicon() -> None:
             assert (status, ctype) == (200, "image/svg+xml") and body.startswith(b"<svg")
         _, _, page = await asyncio.to_thread(fetch, "/")
         assert b'<link rel="icon" href="/static/favicon.svg"' in page
+
+
+async def test_the_start_up_line_and_the_log_say_the_journal_is_on_and_where(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    import logging
+
+    from tests.helpers import gateway_of, make_config
+
+    caplog.set_level(logging.INFO, logger="gateway")
+    cfg = make_config([{"name": "wire", "node_id": 1, "profile": "sgh10"}], zenoh={"enabled": False},
+                      journal={"path": str(tmp_path / "journal"), "values_ms": 0})  # fmt: skip
+    gw = gateway_of(cfg)
+    await gw.start()
+    try:
+        where = tmp_path / "journal" / "journal.sqlite3"
+        assert f" | journal {where} | " in gw.summary()
+    finally:
+        await gw.stop()
+    assert f"journal on: {where} (events only, kept 30 days, at most 256 MB)" in caplog.messages
