@@ -398,6 +398,7 @@ class Gateway:
         if cfg.health.port:
             with startup_step("health.port", f"{cfg.health.port} on {cfg.health.host}"):
                 await self._start_health()
+            self.command_socket.facts["health_port"] = self.health.port  # `fault` finds it
         await self.command_socket.start()  # never stops a start: a warning when it cannot open
         await self.master.start()
         self.started = True

@@ -90,7 +90,7 @@ def _add_gateway_commands(add: AddParser) -> None:
         "action", nargs="?", help="unplug, plug, heartbeat-off, heartbeat-on, emcy, emcy-clear"
     )
     sp.add_argument(
-        "--url", help="the running gateway's web address (default: from health: of the config)"
+        "--url", help="the running gateway's web address (default: the port it says through its command socket, else health: of the config)"
     )
     sp.set_defaults(fn=cmd_fault)
 

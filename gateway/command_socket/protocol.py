@@ -11,7 +11,7 @@ directory is this user's alone (mode 0700), the socket too (0600): only the gate
 
 Language: one JSON object per line each way (UTF-8, ``\\n``), answered in order:
 
-    {"op": "hello"}                                              -> {"ok": true, "gateway": NAME, "config": PATH, "pid": N}
+    {"op": "hello"}                                              -> {"ok": true, "gateway": NAME, "config": PATH, "pid": N, "health_port": P}
     {"op": "sdo_read", "node": N, "object": "0x1008:00", "type": T|null}   -> {"ok": true, "value": V}
     {"op": "sdo_write", "node": N, "object": O, "value": "4", "type": T|null} -> {"ok": true}
     {"op": "nmt", "node": N|"all", "command": "stop"}          -> {"ok": true}

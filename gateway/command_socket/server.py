@@ -65,6 +65,9 @@ class CommandSocket:
         self._inode: int | None = None
         self.warn = RateLimitedLog(log)
         self.requests = 0
+        #: what ``hello`` tells beside the gateway's name (the application's: ``health_port``,
+        #: the web port it listens on, which ``canopen-gateway fault`` posts to)
+        self.facts: dict[str, Any] = {}
 
     async def start(self) -> None:
         path = self.path
@@ -181,7 +184,7 @@ class CommandSocket:
             return answer_error("bad_request", 'a line is one JSON object with an "op"')
         if op == "hello":
             config = str(Path(self.cfg.source).resolve())
-            return {"ok": True, "gateway": self.cfg.gateway.name, "config": config, "pid": os.getpid()}  # fmt: skip
+            return {"ok": True, "gateway": self.cfg.gateway.name, "config": config, "pid": os.getpid(), **self.facts}  # fmt: skip
         self.requests += 1
         try:
             with acting_as(who):  # the audit of a write names the command line

@@ -121,6 +121,8 @@ class LocalGateway:
         self.sock = sock
         self.reader = sock.makefile("rb")
         self.endpoint = f"its command socket {path}"
+        #: what the gateway said of itself (name, config, pid, ``health_port``)
+        self.hello: dict[str, Any] = {}
 
     def close(self) -> None:
         self.reader.close()
@@ -164,11 +166,11 @@ def find_local_gateway(cfg: Config, timeout_s: float = QUERY_TIMEOUT_S) -> Local
             continue
         gw = LocalGateway(sock, path)
         try:
-            hello = gw.ask({"op": "hello"})
+            gw.hello = gw.ask({"op": "hello"})
         except (RemoteError, ValueError):
             gw.close()
             continue
-        if hello.get("gateway") == cfg.gateway.name:
+        if gw.hello.get("gateway") == cfg.gateway.name:
             return gw
         gw.close()
     return None

@@ -261,3 +261,26 @@ async def test_scan_beside_a_gateway_that_serves_its_commissioning_page_points_a
     assert len(lines) == 1, lines
     assert f"use its web console's commissioning page (http://127.0.0.1:{gw.cfg.health.port}/commissioning);" in lines[0]
     assert "CANOPEN_GATEWAY__WEB__WRITES" not in lines[0]
+
+
+async def test_fault_finds_the_web_port_a_variable_moved_through_the_command_socket(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The gateway runs with its health port moved by a variable of its own shell; `fault` in
+    another shell, with the file alone, reaches it without --url."""
+    import asyncio
+
+    from gateway.app import Gateway
+    from gateway.checks import load_checked
+    from gateway.cli import main
+
+    cfg_file = demo_like(tmp_path / "f.yaml", zenoh={"enabled": False})
+    moved = free_port()
+    gw = Gateway(*load_checked(cfg_file, environ={"CANOPEN_GATEWAY__HEALTH__PORT": str(moved)}))
+    await gw.start()
+    try:
+        assert gw.health.port == moved
+        assert await asyncio.to_thread(main, ["fault", "-c", str(cfg_file), "wire", "heartbeat-off"]) == 0
+        assert capsys.readouterr().out.startswith("wire: heartbeat-off done")
+    finally:
+        await gw.stop()
