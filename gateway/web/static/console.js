@@ -844,8 +844,18 @@ async function initMonitor() {
   monitorOpen();
 }
 
+// ------------------------------------------------------------------ not found (a node page of no node)
+async function initNotFound() {
+  const ov = await getJSON("/api/overview");
+  header(ov);
+  const asked = decodeURIComponent(location.pathname.replace(/^\/node\//, ""));
+  if (location.pathname.startsWith("/node/")) document.getElementById("nf-what").textContent = `No node named “${asked}” is configured on this gateway.`;
+  document.getElementById("nf-nodes").replaceChildren(...ov.nodes.map((r) =>
+    el("li", {}, el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name), ` (id ${r.node_id}, ${r.profile})`)));
+}
+
 // ------------------------------------------------------------------ start
-const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor };
+const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor, notfound: initNotFound };
 INIT[page]().catch((err) => {
   setConn("error");
   const main = document.querySelector("main");
