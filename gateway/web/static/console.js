@@ -700,13 +700,21 @@ function journalQuery() {
   return q.toString();
 }
 
+// Answers may come back out of order (the page's first load, then a submit): only the answer
+// of the latest request is shown, and the table says which query it shows (data-query).
+let journalRequests = 0;
+
 async function loadJournal() {
   const q = journalQuery();
+  const mine = ++journalRequests;
   document.getElementById("jr-csv").href = "/api/journal.csv?" + q;
   const status = document.getElementById("jr-status");
   const r = await fetch("/api/journal?" + q, { cache: "no-store" });
   const doc = await r.json();
-  const tbody = document.querySelector("#journal tbody");
+  if (mine !== journalRequests) return; // a later request's answer is the one shown
+  const table = document.getElementById("journal");
+  const tbody = table.querySelector("tbody");
+  table.dataset.query = q;
   if (!r.ok) {
     status.textContent = doc.message || r.statusText;
     tbody.replaceChildren();
