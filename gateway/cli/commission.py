@@ -27,6 +27,7 @@ async def _with_master(cfg: Config, nodes: dict[str, ResolvedNode], fn: Any) -> 
     cfg.modbus.enabled = False
     cfg.zenoh.enabled = False
     cfg.ascii = None
+    cfg.command_socket.enabled = False  # the command is the one that would use it
     cfg.health.port = 0
     cfg.master.probe_at_start = False
     # no heartbeat and no SYNC of its own: beside a gateway they would be a second master's

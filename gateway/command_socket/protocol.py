@@ -19,7 +19,7 @@ Language: one JSON object per line each way (UTF-8, ``\\n``), answered in order:
 An error is ``{"ok": false, "error": KIND, "message": TEXT}`` with the command service's kind
 (``gateway.errors``) and words. A value that is bytes travels as ``{"hex": "0a 0b"}``.
 
-Imports: hashlib, json, os, pathlib, config (types only).
+Imports: hashlib, json, os, socket, struct, pathlib, config (types only).
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import socket
+import struct
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -38,6 +40,8 @@ if TYPE_CHECKING:
 MAX_LINE_BYTES = 64 * 1024
 #: the operations of the language
 OPERATIONS = ("hello", "sdo_read", "sdo_write", "nmt")
+#: Linux ``struct ucred`` (pid, uid, gid), what SO_PEERCRED gives
+_UCRED = struct.Struct("3i")
 
 
 def runtime_dirs(environ: Mapping[str, str] | None = None) -> list[Path]:
@@ -83,6 +87,22 @@ def socket_paths(cfg: Config, environ: Mapping[str, str] | None = None) -> list[
     # the gateway's choice: XDG_RUNTIME_DIR when set, else the directory under /tmp
     ordered = dirs if xdg_set else [dirs[-1], *dirs[:-1]]
     return [d / name for d in ordered]
+
+
+def peer_credentials(sock: socket.socket | None) -> tuple[int, int]:
+    """(pid, uid) of the process at the other end of a Unix socket, as the kernel gives them
+    (0 and our uid when the platform cannot say: the socket's mode is the guard then). Each
+    side checks the other: the gateway its client, the command line the gateway."""
+    peercred = getattr(socket, "SO_PEERCRED", None)
+    if sock is None or peercred is None:
+        return 0, os.getuid()
+    pid, uid, _gid = _UCRED.unpack(sock.getsockopt(socket.SOL_SOCKET, peercred, _UCRED.size))
+    return pid, uid
+
+
+def trusted(uid: int) -> bool:
+    """Whether a process of ``uid`` may be at the other end: this user, or root."""
+    return uid in (os.getuid(), 0)
 
 
 # --------------------------------------------------------------------------- lines

@@ -14,7 +14,7 @@ At start a socket file left by a gateway that died is removed; one another runni
 answers on is left alone (a warning; this gateway runs without it): the socket never stops
 a start. At stop the file is removed when it is still this gateway's.
 
-Imports: asyncio, json, logging, os, socket, struct, pathlib, commands (the service, audit),
+Imports: asyncio, json, logging, os, socket, stat, pathlib, commands (the service, audit),
 config, errors, command_socket.protocol, runtime.ratelimit, runtime.turns.
 """
 
@@ -26,7 +26,6 @@ import logging
 import os
 import socket
 import stat
-import struct
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +33,9 @@ from gateway.command_socket.protocol import (
     MAX_LINE_BYTES,
     answer_error,
     line,
+    peer_credentials,
     socket_paths,
+    trusted,
     value_from_json,
     value_to_json,
 )
@@ -46,10 +47,6 @@ from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.turns import ACCEPT_BACKLOG, LoopTurns
 
 log = logging.getLogger("gateway.command_socket")
-
-#: Linux ``struct ucred`` (pid, uid, gid), what SO_PEERCRED gives
-_UCRED = struct.Struct("3i")
-
 
 class CommandSocket:
     """``await start()`` / ``await stop()``; ``path`` is where it listens (None: it does not)."""
@@ -150,8 +147,8 @@ class CommandSocket:
         assert task is not None
         self.tasks.add(task)
         try:
-            pid, uid = _credentials(writer.get_extra_info("socket"))
-            if uid not in (os.getuid(), 0):  # the mode says so already; the kernel says who
+            pid, uid = peer_credentials(writer.get_extra_info("socket"))
+            if not trusted(uid):  # the mode says so already; the kernel says who
                 self.warn.warning(("uid", uid), "command socket: a process of user %d refused", uid)
                 return
             who = "command line" + (f" (pid {pid})" if pid else "")
@@ -206,13 +203,3 @@ class CommandSocket:
         except Exception as exc:  # nothing a client sends may crash the gateway
             self.warn.warning(("internal", type(exc).__name__), "command socket request failed: %r", exc)  # fmt: skip
             return answer_error("error", f"{type(exc).__name__}: {exc}")
-
-
-def _credentials(sock: socket.socket | None) -> tuple[int, int]:
-    """(pid, uid) of the process at the other end, as the kernel gives them (0, our uid when
-    the platform cannot say: the socket's mode is the guard then)."""
-    peercred = getattr(socket, "SO_PEERCRED", None)
-    if sock is None or peercred is None:
-        return 0, os.getuid()
-    pid, uid, _gid = _UCRED.unpack(sock.getsockopt(socket.SOL_SOCKET, peercred, _UCRED.size))
-    return pid, uid

@@ -40,7 +40,9 @@ from gateway.canopen.objref import ObjRef
 from gateway.command_socket.protocol import (
     MAX_LINE_BYTES,
     line,
+    peer_credentials,
     socket_paths,
+    trusted,
     value_from_json,
 )
 from gateway.config import Config
@@ -162,6 +164,9 @@ def find_local_gateway(cfg: Config, timeout_s: float = QUERY_TIMEOUT_S) -> Local
         try:
             sock.connect(str(path))
         except OSError:
+            sock.close()
+            continue
+        if not trusted(peer_credentials(sock)[1]):  # a socket another user put there: not ours
             sock.close()
             continue
         gw = LocalGateway(sock, path)
