@@ -6,8 +6,8 @@ nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed
 Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
 parts do not know each other except through the image and the command service.
 
-Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, commands, config, device.resolved,
-http.server, http.metrics, image, modbus.server, northbound (frames, regmap, summary), profiles.derived,
+Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, command_socket, commands, config, device.resolved,
+http.server, http.metrics, image, modbus.server, northbound (catalog, frames, regmap, summary),
 sim (faults, motion, node, runner), runtime (startup, threads, turns), journal, web (console, views), zenoh_bridge.bridge.
 """
 
@@ -27,6 +27,7 @@ from gateway.bus.can_backend import open_can_bus
 from gateway.bus.driver import BusDriver, BusOpenFailed
 from gateway.bus.master import Master
 from gateway.checks import check_config, journal_path
+from gateway.command_socket import CommandSocket
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
 from gateway.device.resolved import ResolvedNode
@@ -35,11 +36,11 @@ from gateway.http.server import pair_status
 from gateway.image import ProcessImage
 from gateway.journal import Entry, Journal, ntp64_of_time
 from gateway.modbus.server import ModbusGateway
+from gateway.northbound.catalog import build_catalog
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.keys import audit_key, prefix_of
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
-from gateway.profiles.derived import text_rows_as_signals
 from gateway.runtime.startup import StartupError, listeners_of, ports_in_use, startup_step
 from gateway.runtime.threads import ThreadRegistry
 from gateway.runtime.turns import LoopTurns
@@ -152,6 +153,8 @@ class Gateway:
             )
         )
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
+        #: the command line's way in when the bus is in-process (``command_socket``)
+        self.command_socket = CommandSocket(cfg, self.commands, self.turns)
         self.health: Any = None
         self.web: Any = None
         self.started = False
@@ -171,38 +174,7 @@ class Gateway:
     def catalog(self) -> dict[str, Any]:
         """Every node and signal: type, unit, scaling, Modbus address (for cloud discovery)."""
         rm = self.modbus.regmap if self.modbus else build_register_map(self.cfg, self.nodes)
-        addr: dict[tuple[str, str], list[dict[str, Any]]] = {}
-        for p in rm.points:
-            if p.node and p.kind in ("signal", "bit"):
-                addr.setdefault((p.node, p.name), []).append(
-                    {"unit_id": p.unit, "table": p.table, "address": p.address, "count": p.count}
-                    | ({"bit": p.bit} if p.bit is not None else {})
-                )
-        nodes = {}
-        for name in self.commands.names():
-            rt = self.commands.node(name)
-            sigs = {}
-            profile = rt.lp.profile
-            for s in [*profile.signals, *text_rows_as_signals(profile)]:  # with the AP05 text rows
-                sigs[s.name] = {
-                    "object": str(s.object),
-                    "type": s.type,
-                    "access": s.access,
-                    "transport": s.transport,
-                    "unit": s.unit,
-                    "scale": s.scale,
-                    "offset": s.offset,
-                    "description": s.description,
-                    "bits": {b.name: b.bit for b in s.bits},
-                    "modbus": addr.get((name, s.name), []),
-                }
-            nodes[name] = {
-                "node_id": rt.node_id,
-                "profile": rt.lp.family,
-                "title": rt.lp.profile.title,
-                "signals": sigs,
-            }
-        return {"gateway": self.cfg.gateway.name, "version": __version__, "nodes": nodes}
+        return build_catalog(self.cfg.gateway.name, self.commands, rm)
 
     def summary(self) -> str:
         parts = [f"canopen-gateway {__version__} '{self.cfg.gateway.name}'"]
@@ -222,6 +194,10 @@ class Gateway:
         if self.health is not None and self.health.port:
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
+        if self.journal is not None:
+            parts.append(f"journal {self.journal.path}")
+        if self.command_socket.path is not None:
+            parts.append(f"command socket {self.command_socket.path}")
         nodes = ", ".join(
             f"{n.name}={n.device}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
             for n in self.cfg.nodes
@@ -382,6 +358,9 @@ class Gateway:
             # first: the events of this run are committed before they are published
             with startup_step("journal.path", cfg.journal.path):
                 await asyncio.to_thread(self.journal.open)
+            j = cfg.journal
+            values = f"values every {j.values_ms} ms" if j.values_ms else "events only"
+            log.info("journal on: %s (%s, kept %g days, at most %g MB)", self.journal.path, values, j.keep_days, j.max_mb)  # fmt: skip
             self.journal.start(self.threads)
             if self.zenoh is not None:
                 self.zenoh.use_journal(self.journal)
@@ -419,6 +398,8 @@ class Gateway:
         if cfg.health.port:
             with startup_step("health.port", f"{cfg.health.port} on {cfg.health.host}"):
                 await self._start_health()
+            self.command_socket.facts["health_port"] = self.health.port  # `fault` finds it
+        await self.command_socket.start()  # never stops a start: a warning when it cannot open
         await self.master.start()
         self.started = True
         if self.freeze_gc:
@@ -528,6 +509,7 @@ class Gateway:
 
     async def stop(self) -> None:
         self.started = False
+        await self.command_socket.stop()
         if self.ascii is not None:
             await self.ascii.stop()
         if self.health is not None:

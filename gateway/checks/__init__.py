@@ -29,7 +29,11 @@ and RPDO on one COB-ID; an enabled SYNC-driven TPDO (transmission type 0..240) w
 SYNC producer (``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the
 node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF whose
 ``[DeviceComissioning] NodeID`` is not the node id it is used at; in a hot-standby pair, each
-device timeout the gateway's worst take-over can outlast (``checks.takeover``).
+device timeout the gateway's worst take-over can outlast (``checks.takeover``); a node whose
+PDOs map nothing (no process data: named with the objects its file marks PDO-mappable).
+
+``config_notes(cfg)``: what the gateway will not check, one ``(key path, text)`` each (``check``
+prints them as notes): a part of a device's identity its file gives nothing to compare with.
 
 ``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
 hot-standby pair (``check -c A -c B``, docs/redundancy.md).
@@ -68,11 +72,11 @@ from gateway.device.settings import external_heartbeat_problem
 from gateway.eds import EdsError, load_eds
 from gateway.eds.file_cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES
-from gateway.eds.pdos import eds_pdos, od_var, readable
+from gateway.eds.pdos import eds_pdos, mappable_objects, object_name, od_var, readable
 from gateway.journal import path_problem
 from gateway.modbus.safe_outputs import safe_output_problems
 from gateway.northbound.regmap import RegisterMapError, build_register_map
-from gateway.profiles import LoadedProfile
+from gateway.profiles import LoadedProfile, identity_check
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS
 from gateway.profiles.schema import Pdo
@@ -377,6 +381,8 @@ def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
         key = f"nodes[{i}]"
         if rn.sync_tpdos and not sync:
             out.append((key, f"node {n.name}: {sync_wait_text(rn)}"))
+        if not any(s.transport == "pdo" for s in rn.lp.profile.signals):
+            out.append((f"{key}.tpdo", f"node {n.name}: {no_process_data_text(rn)}"))
         if rn.settings.supervision == "guarding" and cfg.can.interface == "socketcand":
             out.append((f"{key}.supervision", f"node {n.name}: {GUARDING_OVER_SOCKETCAND}"))
         try:
@@ -408,6 +414,46 @@ def sync_wait_text(rn: ResolvedNode) -> str:
         f"configured: the device never sends {them}; set master.sync_period_ms, or "
         "master.sync_external: true when another master sends SYNC"
     )
+
+
+#: how many PDO-mappable objects the warning of a node without process data names
+MAPPABLE_NAMED = 8
+
+
+def no_process_data_text(rn: ResolvedNode) -> str:
+    """``serves no process data: map one with `tpdo:` ...``, naming the objects its file marks
+    PDO-mappable (a node whose PDOs map nothing: Modbus input register 0 says bad)."""
+    lp = rn.lp
+    file = lp.eds_path.name
+    head = (
+        "serves no process data: map one with `tpdo:` (its PDOs map nothing, so its Modbus "
+        "quality, input register 0, says bad)"
+    )
+    objs = mappable_objects(lp.od, "tpdo")
+    application = [o for o in objs if o.index >= 0x2000]  # before 1001h, the SDO COB-IDs...
+    objs = application or objs
+    if not objs:
+        return (
+            f"{head}; but {file} marks no object PDO-mappable (PDOMapping=1): where the "
+            "device's manual says it maps one, correct the file; else read its objects by SDO "
+            "(canopen-gateway sdo read, or signals with transport: sdo in an overlay profile)"
+        )
+    named = ", ".join(f"{o} ({object_name(lp.od, o)})" for o in objs[:MAPPABLE_NAMED])
+    more = f" and {len(objs) - MAPPABLE_NAMED} more (canopen-gateway eds show {file})" if len(objs) > MAPPABLE_NAMED else ""  # fmt: skip
+    example = f'tpdo: {{1: {{mapping: ["{objs[0]}"]}}}}'
+    return f"{head}, e.g. `{example}`; PDO-mappable in {file}: {named}{more}"
+
+
+def config_notes(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
+    """What the gateway will not check (``check`` prints them as notes): a part of a device's
+    identity (1018h) its file gives nothing to compare with (``profiles.identity_check``)."""
+    out: list[Problem] = []
+    for i, n in enumerate(cfg.nodes):
+        rn = nodes.get(n.name)
+        if rn is None or not n.identity_check:
+            continue
+        out += [(f"nodes[{i}].identity_check", f"node {n.name}: {text}") for text in identity_check(rn.lp).not_checked]  # fmt: skip
+    return out
 
 
 def journal_path(cfg: Config) -> Path | None:
@@ -473,6 +519,7 @@ __all__ = [
     "boot_problems",
     "check_config",
     "cob_id_problems",
+    "config_notes",
     "config_problems",
     "config_warnings",
     "eds_problems",

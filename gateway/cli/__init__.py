@@ -1,15 +1,15 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|decode|lss|eds|profile|fault|schema|dcf``.
+"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|get|sub|scan|monitor|decode|lss|eds|profile|fault|schema|dcf``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback; so are a CAN bus that cannot be opened and a start that fails. Imports everything it drives; nothing imports this package.
 
 This module holds the parser and ``main``; the commands are in its modules: ``serve`` (run,
-simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``eds`` (eds,
-profile), ``bus_tools`` (scan, monitor, decode, lss, fault), ``plant`` (schema, dcf: what the plant's own
-tools read); ``load`` loads a command's configuration.
+simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``cloud`` (get,
+sub), ``eds`` (eds, profile), ``bus_tools`` (scan, monitor, decode, lss, fault), ``plant``
+(schema, dcf: what the plant's own tools read); ``load`` loads a command's configuration.
 
 Imports: gateway (version), gateway.config (ConfigError), gateway.runtime.startup (StartupError),
-gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, eds, bus_tools, plant.
+gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, cloud, eds, bus_tools, plant.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from collections.abc import Callable, Sequence
 
 from gateway import __version__
 from gateway.cli.bus_tools import cmd_decode, cmd_fault, cmd_lss, cmd_monitor, cmd_scan
+from gateway.cli.cloud import cmd_get, cmd_sub
 from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
 from gateway.cli.load import CONFIG_ENV, DEFAULT_CONFIG, EXIT_CONFIG, EXIT_FAILED, default_config
@@ -107,13 +108,13 @@ def _add_gateway_commands(add: AddParser) -> None:
         "action", nargs="?", help="unplug, plug, heartbeat-off, heartbeat-on, emcy, emcy-clear"
     )
     sp.add_argument(
-        "--url", help="the running gateway's web address (default: from health: of the config)"
+        "--url", help="the running gateway's web address (default: the port it says through its command socket, else health: of the config)"
     )
     sp.set_defaults(fn=cmd_fault)
 
 
 def _add_commissioning_commands(add: AddParser) -> None:
-    """sdo, nmt."""
+    """sdo, nmt; get, sub (Zenoh)."""
     sp = _with_config(add("sdo", help="read or write an object by SDO (commissioning)"))
     sp.add_argument("op", choices=["read", "write"])
     sp.add_argument("node", help="node name or id")
@@ -129,6 +130,17 @@ def _add_commissioning_commands(add: AddParser) -> None:
     sp.add_argument("command", choices=["start", "stop", "preop", "reset", "reset-comm"])
     sp.add_argument("node", help="node name, id, or 'all'")
     sp.set_defaults(fn=cmd_nmt)
+
+    key_help = "key expression under the config's prefix (wire/value/position, */state); /KEY as written"
+    sp = _with_config(add("get", help="ask the gateway's Zenoh keys as the cloud does (one line per reply)"))
+    sp.add_argument("key", metavar="KEY", help=key_help + "; ?_time=... for history")
+    sp.add_argument("--timeout", type=float, default=5.0, metavar="S", help="wait for replies")
+    sp.set_defaults(fn=cmd_get)
+    sp = _with_config(add("sub", help="print the samples of the gateway's Zenoh keys (one line each)"))
+    sp.add_argument("key", metavar="KEY", help=key_help)
+    sp.add_argument("--count", type=int, help="stop after this many samples")
+    sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    sp.set_defaults(fn=cmd_sub)
 
 
 def _add_file_commands(add: AddParser) -> None:

@@ -27,7 +27,22 @@ def cmd_fault(args: argparse.Namespace) -> int:
     if args.node is not None and args.action is None:
         print("error: fault NODE ACTION: give an action too (or neither, to list)", file=sys.stderr)
         return EXIT_CONFIG
+    if args.url is None:  # the port the gateway of this config listens on, wherever it was set
+        cfg.health.port = _running_health_port(cfg) or cfg.health.port
     return run_fault(cfg, args.node, args.action, args.url)
+
+
+def _running_health_port(cfg: Config) -> int | None:
+    """The web port of the gateway running this config, as its command socket says (it may
+    have been moved by a variable of its own shell); None when none answers there."""
+    from gateway.tools import beside
+
+    running = beside.find_local_gateway(cfg) if beside.in_process_bus(cfg) else None
+    if running is None:
+        return None
+    running.close()
+    port = running.hello.get("health_port")
+    return port if isinstance(port, int) and port else None
 
 
 def cmd_lss(args: argparse.Namespace) -> int:
@@ -47,7 +62,7 @@ def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tupl
 
     sim = None
     if beside.in_process_bus(cfg):
-        running = beside.find_running_gateway(cfg)
+        running = beside.find_local_gateway(cfg) or beside.find_running_gateway(cfg)
         line = beside.refusal(cfg, command)
         if running is not None:
             running.close()

@@ -1,9 +1,9 @@
 """The commands that say what a configuration compiles to: ``check`` (validated, each node
-summarised, what may not do what is meant, the warnings of each EDS; given two configs, also
+summarised, what may not do what is meant, what it will not check, the warnings of each EDS; given two configs, also
 compared as a hot-standby pair), ``registers`` (the Modbus register map) and ``keys`` (the
 Zenoh key expressions).
 
-Imports: gateway.device.resolved, gateway.checks (config_warnings, pair_problems), gateway.config
+Imports: gateway.device.resolved, gateway.checks (config_warnings, config_notes, pair_problems), gateway.config
 (ConfigError), gateway.eds,
 gateway.northbound.regmap, gateway.northbound.plc_tags, gateway.northbound.keys, cli.load.
 """
@@ -51,7 +51,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
-    from gateway.checks import config_warnings
+    from gateway.checks import config_notes, config_warnings
 
     print(f"{path}: OK")
     if cfg.ascii is not None and cfg.ascii.enabled:
@@ -71,6 +71,8 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
             print(f"  warning: node {n.name}: {note}")
     for _key, text in config_warnings(cfg, nodes):
         print(f"  warning: {text}")
+    for _key, text in config_notes(cfg, nodes):
+        print(f"  note: {text}")
     _print_eds_warnings(cfg, nodes)
 
 

@@ -38,6 +38,7 @@ from gateway.config.model import (
     WEB_TOKEN_MIN_LENGTH,
     AsciiSection,
     CanSection,
+    CommandSocketSection,
     Config,
     GatewaySection,
     HealthSection,
@@ -65,6 +66,7 @@ from gateway.config.node import (
 
 __all__ = [
     "AsciiSection",
+    "CommandSocketSection",
     "CAN_INTERFACE_MISSING",
     "CanSection",
     "Config",

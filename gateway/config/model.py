@@ -308,6 +308,16 @@ class AsciiSection(_Model):
     )
 
 
+class CommandSocketSection(_Model):
+    """The command line's local way into the running gateway when its bus is in-process
+    (``can.interface: virtual``): a Unix socket only this user can open (``gateway/command_socket``)."""
+
+    enabled: bool = Field(default=True, description="listen on it (with an in-process bus)")
+    path: str | None = Field(
+        default=None, description="default: the user's runtime directory, named by the config file"
+    )
+
+
 class HealthSection(_Model):
     host: str = "127.0.0.1"
     port: int = Field(default=0, ge=0, le=65535, description="0 = off")
@@ -315,6 +325,12 @@ class HealthSection(_Model):
 
 #: the smallest web token accepted: guessing one must not be a matter of minutes
 WEB_TOKEN_MIN_LENGTH = 12
+#: the one rule for a token of digits only, whether the file or CANOPEN_GATEWAY__WEB__TOKEN
+#: gives it (quoted or not): refused, it is a number anyone may guess
+WEB_TOKEN_DIGITS = (
+    "a token of digits only is refused, in the file (quoted or not) as in "
+    "CANOPEN_GATEWAY__WEB__TOKEN: mix in letters (token: \"a long random text\")"
+)
 
 
 class WebSection(_Model):
@@ -333,10 +349,14 @@ class WebSection(_Model):
     @classmethod
     def _token_text(cls, v: Any) -> Any:
         if isinstance(v, (int, float)) and not isinstance(v, bool):
-            raise ValueError(
-                "YAML read a number here; a token is text: put it in quotes "
-                "(token: \"0123456789012\")"
-            )
+            raise ValueError(f"YAML read a number here; {WEB_TOKEN_DIGITS}")
+        return v
+
+    @field_validator("token")
+    @classmethod
+    def _token_not_digits(cls, v: str | None) -> str | None:
+        if v is not None and v.isdigit():  # one rule, from the file or the environment
+            raise ValueError(WEB_TOKEN_DIGITS)
         return v
 
     @model_validator(mode="after")
@@ -348,6 +368,7 @@ class WebSection(_Model):
             )
         if self.token is not None and len(self.token) < WEB_TOKEN_MIN_LENGTH:
             raise ValueError(f"token: at least {WEB_TOKEN_MIN_LENGTH} characters")
+
         return self
 
 
@@ -374,6 +395,7 @@ class Config(_Model):
     health: HealthSection = Field(default_factory=HealthSection)
     web: WebSection = Field(default_factory=WebSection)
     ascii: AsciiSection | None = None  # CiA 309-3 ASCII gateway: off unless given
+    command_socket: CommandSocketSection = Field(default_factory=CommandSocketSection)
     simulate: SimulateSection = Field(default_factory=SimulateSection)
     journal: JournalSection = Field(default_factory=JournalSection)  # store and forward
 

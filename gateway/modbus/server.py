@@ -73,6 +73,7 @@ from gateway.modbus.protocol import (
     ExceptionCode,
     ModbusError,
     exception_code,
+    read_range,
 )
 from gateway.modbus.safe_outputs import safe_outputs
 from gateway.modbus.security import Access, access_of, tls_context
@@ -241,6 +242,13 @@ class _Connection(asyncio.Protocol):
                     )  # fmt: skip
             elif not isinstance(exc, (ModbusError, GatewayError, ValueError)):
                 store.warn.warning(("error", type(exc).__name__), "error serving Modbus: %r", exc)
+            else:  # a refused read: in words once a period per client, unit, function and code
+                words = code.name.lower().replace("_", " ")
+                store.warn.warning(
+                    ("read", self.peer, unit, fc, int(code)),
+                    "Modbus read from %s refused: unit %d, function %d, %s: 0x%02X (%s): %s",
+                    self.peer, unit, fc, read_range(fc, pdu), int(code), words, exc,
+                )  # fmt: skip
             response = bytes(((fc | 0x80) & 0xFF, int(code)))
         self._feed_watchdog()  # again when answered: a slow write is no silence
         if self.transport is not None and not self.transport.is_closing():

@@ -220,8 +220,8 @@ class WebConsole:
             return self._file("index.html")
         if path.startswith("/node/"):
             name = path.removeprefix("/node/")
-            if name not in self.model.meta:
-                return self._not_found(f"no node named {name!r}")
+            if name not in self.model.meta:  # a browser gets a page (404), not JSON
+                return self._file("notfound.html", HTTPStatus.NOT_FOUND)
             return self._file("node.html")
         if path == "/commissioning":
             return self._file("commission.html") if self.writes else None
@@ -263,12 +263,12 @@ class WebConsole:
     def _not_found(self, message: str) -> Response:
         return _json(HTTPStatus.NOT_FOUND, {"error": "not_found", "message": message})
 
-    def _file(self, name: str) -> Response | None:
+    def _file(self, name: str, status: HTTPStatus = HTTPStatus.OK) -> Response | None:
         body = self.static.get(name)
         if body is None:
             return None
         ext = name[name.rfind(".") :]
-        return Response(HTTPStatus.OK, body, CONTENT_TYPES[ext], headers=SECURITY_HEADERS)
+        return Response(status, body, CONTENT_TYPES[ext], headers=SECURITY_HEADERS)
 
     def _overview_doc(self) -> dict[str, Any]:
         return {

@@ -279,6 +279,16 @@ def pair_configs(envs: list[dict[str, str]]) -> list:
     return [load_config(DEPLOY / "config/pair.yaml", environ=env) for env in envs]
 
 
+def test_the_pair_config_gives_each_gateway_no_warning():
+    """deploy/config/pair.yaml as gateway A and as gateway B load it: `check` warns of nothing
+    (a SYNC producer for the SYNC-driven TPDOs, a take-over every node survives)."""
+    from gateway.checks import config_warnings
+
+    b = {f"{PAIR_ENV}NODE_ID": "121", f"{PAIR_ENV}PRIORITY": "1", f"{PAIR_ENV}PEER_NODE_ID": "120"}
+    for cfg in pair_configs([{}, b]):
+        assert config_warnings(cfg, resolved(cfg)) == []
+
+
 def test_pair_compose_runs_two_gateways_of_one_image_and_config_with_own_ids():
     from gateway.checks import pair_problems
 

@@ -26,10 +26,9 @@ ticks the node at once even on a path that forgot to drive.
 The decisions are tables: ``GUARD_EXPECTS`` (lifecycle_actions), ``NMT_EXPECTS`` (node_supervision), ``SDO_DONE``.
 A node another master manages (a pair's standby) is in lifecycle LISTENING: ``bus.node.listening``.
 
-Truthfulness (docs/architecture.md, "Two flows", quality): a boot-up and a loss invalidate every value
-of the node (``health.fresh_since = None``); values are good again only when received after the
-gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
-right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
+Truthfulness (docs/architecture.md, "Two flows"): a boot-up and a loss invalidate every value of
+the node (``fresh_since = None``; a loss says why in ``last_error`` at once); values are good
+again only when received after the gateway's NMT start; change-only TPDOs are read right after.
 
 Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, features, sdo_done), bus.events,
 device.* (boot_steps, settings), bus.sdo.*, bus.error_control.*, bus.emcy (the history), pdo.codec,
@@ -413,14 +412,15 @@ class Node:
             out += self._set_nmt(NmtState.UNKNOWN)
             for f in self.features:
                 out += f.on_lost(self)
-            text = f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})"
-            out.append(Note(logging.WARNING, text))
+            h.last_error = f"lost ({reason or self.s.supervision})"
+            out.append(Note(logging.WARNING, f"node {self.name} (id {self.node_id}) {h.last_error}"))
             if self.listening:
                 out += listening.on_restart(self)
             else:
                 out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
                 self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss
         else:
+            h.last_error = "" if h.last_error.startswith("lost (") else h.last_error  # loss over
             out.append(Note(logging.INFO, f"node {self.name} (id {self.node_id}) alive"))
         out.append(HealthChanged("state"))
         return out
