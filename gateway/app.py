@@ -212,7 +212,7 @@ class Gateway:
             if self.cfg.modbus.plain:
                 parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
             if self.modbus.tls_server is not None:
-                parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
+                parts.append(f"Modbus/TLS {self.modbus.tls_server.socks[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
             z = self.cfg.zenoh
             endpoints = z.connect if z.mode == "client" else z.listen + z.connect  # a client listens nowhere
@@ -525,6 +525,7 @@ class Gateway:
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}
             c.modbus_requests = {modbus_function_label(fc): n for fc, n in store.by_function.items()}
             c.modbus_watchdog_trips = dict(self.modbus.watchdog.trips)
+            c.modbus_connections, c.modbus_connections_closed = self.modbus.admission.counts()
 
     async def stop(self) -> None:
         self.started = False

@@ -1,7 +1,7 @@
 """The long-running commands: ``run`` (the gateway) and ``simulate`` (only the simulated
 devices of a config), each until SIGINT / SIGTERM, with the logging they set up.
 
-Imports: gateway.app, gateway.config (blame), gateway.runtime.startup, gateway.zenoh_bridge.session (PrefixInUse),
+Imports: gateway.app, gateway.config (blame), gateway.runtime.startup, gateway.runtime.fdlimit, gateway.zenoh_bridge.session (PrefixInUse),
 gateway.tools.bus_open, cli.load.
 """
 
@@ -67,13 +67,26 @@ async def run_until_signal(
         logging.getLogger("gateway").info("stopped in %.0f ms", (time.monotonic() - t0) * 1000)
 
 
+#: file descriptors of a gateway beyond its client connections: listeners, the CAN bus, Zenoh's
+#: sockets and threads' pipes, the journal, the console's connections and streams
+BASE_FILES = 256
+
+
+def files_needed(cfg: Any) -> int:
+    """Open files a gateway of ``cfg`` may need with every connection cap reached."""
+    return BASE_FILES + (cfg.modbus.max_connections if cfg.modbus.enabled else 0)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from gateway.app import Gateway
     from gateway.tools.bus_open import gateway_bus
 
     cfg, nodes = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
+    from gateway.runtime.fdlimit import raise_file_limit
     from gateway.runtime.startup import StartupError
+
+    raise_file_limit(files_needed(cfg))
     from gateway.zenoh_bridge.session import PrefixInUse
 
     # a bus that cannot open at start: one line, exit 2 (cli.main); opened once, by the gateway

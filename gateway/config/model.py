@@ -107,6 +107,18 @@ class MasterSection(_Model):
     redundancy: PairSection | None = None
 
 
+#: the default of ``allowed_networks``: this machine only
+LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
+
+
+def _check_networks(networks: list[str]) -> None:
+    for n in networks:
+        try:
+            ipaddress.ip_network(n, strict=False)
+        except ValueError as exc:
+            raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+
+
 class ModbusTls(_Model):
     """Modbus/TCP Security (TLS, mutual X.509 authentication, roles): a second listener."""
 
@@ -125,9 +137,15 @@ class ModbusTls(_Model):
     default_role: str | None = Field(
         default=None, description="role of a client whose certificate has none; none: refused"
     )
+    crl: str | None = Field(
+        default=None,
+        description="certificate revocation list(s) of the CA (PEM): a revoked client is refused",
+    )
 
     @model_validator(mode="after")
     def _roles(self) -> ModbusTls:
+        if self.crl and not self.ca:
+            raise ValueError("crl needs ca (the CA file whose revocations it lists)")
         if self.require_client_cert and not self.ca:
             raise ValueError("require_client_cert: true needs ca (the CA file that signs clients)")
         if self.default_role is not None and self.default_role not in self.roles:
@@ -149,7 +167,22 @@ class ModbusSection(_Model):
     flat_stride: int = Field(default=200, ge=50, le=10000)
     word_order: Literal["big", "little"] = "big"
     read_only: bool = False
-    allowed_networks: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
+    allowed_networks: list[str] = Field(default_factory=lambda: list(LOOPBACK_NETWORKS))
+    max_connections: int = Field(
+        default=64,
+        ge=1,
+        le=10_000,
+        description="Modbus connections at once (plain and TLS together); past it a new one is closed",
+    )
+    max_connections_per_client: int = Field(
+        default=8, ge=1, le=10_000, description="connections at once from one client address"
+    )
+    idle_timeout_s: float = Field(
+        default=300.0,
+        ge=0,
+        le=86_400,
+        description="a connection that sends nothing this long is closed; 0 = never",
+    )
     write_timeout_s: float = Field(default=2.0, gt=0, le=60)
     watchdog_ms: int = Field(
         default=0,
@@ -167,11 +200,12 @@ class ModbusSection(_Model):
     def _nets(self) -> ModbusSection:
         if not self.plain and self.tls is None:
             raise ValueError("plain: false needs tls (nothing would serve Modbus)")
-        for n in self.allowed_networks:
-            try:
-                ipaddress.ip_network(n, strict=False)
-            except ValueError as exc:
-                raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+        if self.max_connections_per_client > self.max_connections:
+            raise ValueError(
+                f"max_connections_per_client ({self.max_connections_per_client}) is above "
+                f"max_connections ({self.max_connections})"
+            )
+        _check_networks(self.allowed_networks)
         return self
 
 
@@ -269,6 +303,10 @@ class ZenohSection(_Model):
     write_allow: list[ZenohWriteRule] = Field(
         default_factory=list, description="with writes on: only what a rule allows; empty = all"
     )
+    reads: Literal["catalog", "all"] = Field(
+        default="catalog",
+        description="SDO uploads by query: catalog = only the objects the catalogue lists, all = any",
+    )
     auth: ZenohAuth | None = None
     access_control: dict[str, Any] | None = Field(
         default=None, description="zenoh's access_control section (rules, subjects, policies)"
@@ -306,6 +344,15 @@ class AsciiSection(_Model):
     events: bool = Field(
         default=False, description="event lines (BOOT_UP, EMCY, heartbeat) to every client"
     )
+    allowed_networks: list[str] = Field(
+        default_factory=lambda: list(LOOPBACK_NETWORKS),
+        description="client addresses served; any other connection is closed at once",
+    )
+
+    @model_validator(mode="after")
+    def _nets(self) -> AsciiSection:
+        _check_networks(self.allowed_networks)
+        return self
 
 
 class HealthSection(_Model):

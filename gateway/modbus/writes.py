@@ -4,14 +4,13 @@ while the gateway does not master the bus of its hot-standby pair (``NotActive``
 the write timeout (``modbus.write_timeout_s``). A write is answered when the RPDO was queued
 or the device confirmed the SDO.
 
-Imports: config, errors, modbus.protocol, modbus.reads, northbound.regmap, runtime.ratelimit,
-canopen.states.
+Imports: config, errors, modbus.protocol, modbus.reads, northbound.regmap, northbound.networks,
+runtime.ratelimit, canopen.states.
 """
 
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import logging
 from collections.abc import Awaitable
 from typing import Any
@@ -21,6 +20,7 @@ from gateway.config import Config
 from gateway.errors import ValueOutOfRange
 from gateway.modbus.protocol import ExceptionCode, ModbusError, T, from_registers
 from gateway.modbus.reads import ImageReads
+from gateway.northbound.networks import Networks
 from gateway.northbound.regmap import TABLE_NAMES, Point, Table
 from gateway.runtime.ratelimit import RateLimitedLog
 
@@ -35,7 +35,7 @@ class ImageWrites:
         self.regmap = reads.regmap
         self.commands = reads.commands
         self.read_only = cfg.modbus.read_only
-        self.allowed = [ipaddress.ip_network(n, strict=False) for n in cfg.modbus.allowed_networks]
+        self.allowed = Networks(cfg.modbus.allowed_networks)
         self.write_timeout_s = cfg.modbus.write_timeout_s
         self.warn = warn
 
@@ -47,13 +47,7 @@ class ImageWrites:
             return "the gateway is read-only (modbus.read_only)"
         if peer is None:
             return None
-        try:
-            ip = ipaddress.ip_address(peer.split("%", 1)[0])
-        except ValueError:
-            return f"client address {peer!r} not understood"
-        if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
-            ip = ip.ipv4_mapped
-        if not any(ip in net for net in self.allowed):
+        if peer not in self.allowed:
             return f"client {peer} is not in modbus.allowed_networks"
         return None
 
