@@ -251,13 +251,18 @@ class Gateway:
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
         # ready: the bus and the PLC side serve; the cloud side (Zenoh) counts only for a gateway
-        # without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's gateway out
-        # of service because the router is away. /healthz says "zenoh": false meanwhile.
+        # without Modbus, or when our prefix is announced by another (docs/deploy.md, Readiness)
         northbound_up = modbus_up if self.modbus is not None else zenoh_up
-        out_of_pair = self.master.role == "duplicate"  # another device has our pair id
-        ready = self.started and bus_ok and northbound_up and not dead and not out_of_pair
+        zenoh_error = self.zenoh.link.problem if self.zenoh is not None else None
+        reasons = [why for why, bad in (
+            ("starting", not self.started), (f"CAN bus {self.driver.state}", not bus_ok),
+            ("northbound side not serving", not northbound_up), (f"threads failed: {dead}", bool(dead)),
+            ("another device has this gateway's pair id", self.master.role == "duplicate"),
+            (f"zenoh: {zenoh_error}", zenoh_error is not None)) if bad]  # fmt: skip
+        ready = not reasons
         return {
             "status": "ready" if ready else "not-ready",
+            "reasons": reasons,
             "ready": ready,
             "threads": {"failed": dead},
             "bus": {"state": self.driver.state, "detail": self.driver.last_error},
@@ -266,7 +271,7 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": nodes,
-        } | self._pair_status() | self._watchdog_status() | self._journal_status()
+        } | self._pair_status() | (self.modbus.watchdog_status() if self.modbus else {}) | self._journal_status()
 
     def _pair_status(self) -> dict[str, Any]:
         """``role`` and ``peer`` of a hot-standby pair (None outside one)."""
@@ -300,12 +305,6 @@ class Gateway:
             Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
                   record.get("node"), None, json.dumps(record).encode())
         )
-
-    def _watchdog_status(self) -> dict[str, Any]:
-        if self.modbus is None or not self.modbus.watchdog.enabled:
-            return {}
-        wd = self.modbus.watchdog
-        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}}
 
     def overview(self) -> dict[str, Any]:
         """Gateway-wide figures for the web console's overview (counters become rates there)."""
@@ -395,7 +394,7 @@ class Gateway:
                 for k, v in (getattr(z, section).model_dump() if getattr(z, section) else {}).items()
                 if isinstance(v, str) and k.endswith(("_file", "certificate", "key"))
             }
-            # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
+            # before the bus; a prefix another announces leaves Zenoh closed (ZenohSession.problem)
             with startup_step(key, ", ".join(where), files):
                 await self.zenoh.open()
         if self.sim is not None:

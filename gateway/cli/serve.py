@@ -1,7 +1,7 @@
 """The long-running commands: ``run`` (the gateway) and ``simulate`` (only the simulated
 devices of a config), each until SIGINT / SIGTERM, with the logging they set up.
 
-Imports: gateway.app, gateway.config (blame), gateway.runtime.startup, gateway.runtime.fdlimit, gateway.zenoh_bridge.session (PrefixInUse),
+Imports: gateway.app, gateway.runtime.startup, gateway.runtime.fdlimit,
 gateway.tools.bus_open, cli.load.
 """
 
@@ -17,7 +17,6 @@ from collections.abc import Callable
 from typing import Any
 
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus
-from gateway.config import blame
 
 
 def setup_logging(level: str) -> None:
@@ -87,7 +86,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     from gateway.runtime.startup import StartupError
 
     raise_file_limit(files_needed(cfg))
-    from gateway.zenoh_bridge.session import PrefixInUse
 
     # a bus that cannot open at start: one line, exit 2 (cli.main); opened once, by the gateway
     gw = Gateway(cfg, nodes, simulate=not args.no_simulate, bus_must_open=True, freeze_gc=True)
@@ -97,10 +95,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     except StartupError as exc:  # a port in use, a file missing: one line, everything closed
         for line in exc.lines(args.config):  # every port in use, one line each
             print(line, file=sys.stderr)
-        return EXIT_CONFIG
-    except PrefixInUse as exc:  # a configuration problem: two gateways under one prefix
-        where = blame("zenoh.prefix", args.config, cfg.env_keys)  # or the variable that set it
-        print(f"error: {where}: zenoh.prefix: {exc}", file=sys.stderr)
         return EXIT_CONFIG
     except OSError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -313,7 +313,8 @@ class ZenohSection(_Model):
     )
     history: ZenohHistory = Field(default_factory=ZenohHistory)
     refuse_duplicate_prefix: bool = Field(
-        default=True, description="refuse to start when a gateway already runs under our prefix"
+        default=True,
+        description="keep Zenoh closed (and retry) while another announces a gateway under our prefix",
     )
     json5: dict[str, Any] = Field(
         default_factory=dict, description="raw zenoh config keys, e.g. {'transport/link/tls/..': ..}"

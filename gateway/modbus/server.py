@@ -63,6 +63,7 @@ import asyncio
 import logging
 import socket
 from collections.abc import Callable
+from typing import Any
 
 from gateway.commands import CommandService
 from gateway.commands.audit import acting_as
@@ -333,6 +334,11 @@ class ModbusGateway:
     def set_mastering(self, mastering: bool) -> None:
         """The gateway started or stopped mastering the bus (``OutputWatchdogDriver``)."""
         self.output_watchdog.set_mastering(mastering)
+
+    def watchdog_status(self) -> dict[str, Any]:
+        """``modbus_watchdog`` of /healthz while the output watchdog is on."""
+        wd = self.watchdog
+        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}} if wd.enabled else {}
 
     async def start(self) -> None:
         if self.watchdog.enabled and self.cfg.modbus.read_only:
