@@ -34,6 +34,7 @@ from gateway.config.journal import JournalSection
 from gateway.config.load import load_config, parse_config, raw_section
 from gateway.config.model import (
     CAN_INTERFACE_MISSING,
+    LOOPBACK_NETWORKS,
     WEB_TOKEN_MIN_LENGTH,
     AsciiSection,
     CanSection,
@@ -50,6 +51,7 @@ from gateway.config.model import (
     ZenohSection,
     ZenohTls,
     ZenohWriteRule,
+    placeholder_problem,
 )
 from gateway.config.node import (
     ExternalHeartbeat,
@@ -85,6 +87,7 @@ __all__ = [
     "SdoWrite",
     "SignalOverride",
     "SimulateSection",
+    "LOOPBACK_NETWORKS",
     "WEB_TOKEN_MIN_LENGTH",
     "WebSection",
     "ZenohAuth",
@@ -92,6 +95,7 @@ __all__ = [
     "ZenohSection",
     "ZenohTls",
     "ZenohWriteRule",
+    "placeholder_problem",
     "apply_env_overrides",
     "blame",
     "env_keys",

@@ -248,6 +248,20 @@ class ZenohWriteRule(_Model):
         return self
 
 
+#: passwords the examples of this project and of Zenoh's documentation wrote: never a real one
+PLACEHOLDER_PASSWORDS = frozenset({"change-me", "changeme", "change_me"})
+
+
+def placeholder_problem(secret: str) -> str | None:
+    """Why ``secret`` cannot be a password (the placeholder of the examples), or None."""
+    if secret.strip().lower() in PLACEHOLDER_PASSWORDS:
+        return (
+            f"{secret.strip()!r} is the placeholder of the examples, not a password: generate "
+            "one (deploy/zenoh/make-secrets.sh) and give it by password_file"
+        )
+    return None
+
+
 class ZenohAuth(_Model):
     """Zenoh user/password authentication (zenoh's ``transport/auth/usrpwd``)."""
 
@@ -257,6 +271,14 @@ class ZenohAuth(_Model):
     dictionary_file: str | None = Field(
         default=None, description="user:password lines: who may connect to this gateway (peer)"
     )
+
+    @field_validator("password")
+    @classmethod
+    def _not_a_placeholder(cls, v: str | None) -> str | None:
+        why = placeholder_problem(v) if v is not None else None
+        if why:
+            raise ValueError(why)
+        return v
 
     @model_validator(mode="after")
     def _pairs(self) -> ZenohAuth:
@@ -374,7 +396,16 @@ class WebSection(_Model):
     )
     token: str | None = Field(
         default=None,
-        description="password of the commissioning page; or CANOPEN_GATEWAY__WEB__TOKEN",
+        description="the operators' password (journal, bus monitor, SDO reads, faults, "
+        "commissioning); or CANOPEN_GATEWAY__WEB__TOKEN",
+    )
+    token_file: str | None = Field(
+        default=None, description="a file holding the token (first line), instead of token"
+    )
+    allowed_hosts: list[str] | None = Field(
+        default=None,
+        description="Host header names the console answers (DNS rebinding); default: the bind "
+        "address, the address a request arrived at, localhost and this machine's names; '*' = any",
     )
 
     @field_validator("token", mode="before")
@@ -389,10 +420,12 @@ class WebSection(_Model):
 
     @model_validator(mode="after")
     def _token(self) -> WebSection:
-        if self.writes and not self.token:
+        if self.token is not None and self.token_file is not None:
+            raise ValueError("token and token_file: give one, not both")
+        if self.writes and not self.token and not self.token_file:
             raise ValueError(
-                "writes: true needs a token (web.token, or the environment variable "
-                "CANOPEN_GATEWAY__WEB__TOKEN)"
+                "writes: true needs a token (web.token, web.token_file, or the environment "
+                "variable CANOPEN_GATEWAY__WEB__TOKEN)"
             )
         if self.token is not None and len(self.token) < WEB_TOKEN_MIN_LENGTH:
             raise ValueError(f"token: at least {WEB_TOKEN_MIN_LENGTH} characters")

@@ -378,7 +378,7 @@ class QueryService:
             self.commands.nmt(req.node, cmd)
             return {"ok": True, "node": req.node, "nmt": cmd}
         if req.kind == "sdo":
-            return await self._sdo(req, payload, type_param)
+            return await self._sdo(req, payload, type_param, key)
         if req.kind == "value":
             sig = self.commands.signal(rt, req.signal)
             if sig.transport == "sdo":
@@ -410,8 +410,11 @@ class QueryService:
         """Raise ``Forbidden`` (counted, logged at most once per period per operation) unless
         the configuration allows this write."""
         why = self.gate.refusal(operation, node, key)
-        if why is None:
-            return
+        if why is not None:
+            self._refuse_op(operation, key, why)
+
+    def _refuse_op(self, operation: str, key: str, why: str) -> None:
+        """Raise ``Forbidden``: counted by operation, logged at most once per period."""
         self.refused[operation] = self.refused.get(operation, 0) + 1
         self._refusal_log.warning(
             ("zenoh_refused", operation),
@@ -423,13 +426,17 @@ class QueryService:
         )
         raise Forbidden(why)
 
-    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None) -> Any:
+    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None, key: str) -> Any:
         assert req.obj is not None
         obj = str(req.obj)
         if payload:
             value, typ = sdo_write_body(payload)
             await self.commands.sdo_write(req.node, req.obj, value, typ or type_param)
             return {"ok": True, "node": req.node, "object": obj, "value": reply_value(value)}
+        listed = {sig.object for sig in self.commands.node(req.node).lp.profile.signals}
+        why = self.gate.read_refusal(req.node, req.obj, listed)  # zenoh.reads
+        if why is not None:
+            self._refuse_op("sdo_read", key, why)
         value = await self.commands.sdo_read(req.node, req.obj, type_param)
         return {"node": req.node, "object": obj, "value": reply_value(value)}
 

@@ -1,0 +1,56 @@
+"""Checks of the secrets a configuration names by file (``canopen-gateway check`` and every
+start): the web console's token (``web.token_file``: readable, at least
+``WEB_TOKEN_MIN_LENGTH`` characters) and the Zenoh password (``zenoh.auth.password_file``:
+not the placeholder of the examples). A secret given in the file itself or by an environment
+variable is checked by the config's own model.
+
+A missing ``zenoh.auth.password_file`` is reported when the gateway starts (its Zenoh step
+names the key); a missing ``web.token_file`` here, since the console cannot run without it.
+
+Imports: config. Reads the files it checks, nothing else.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from gateway.config import WEB_TOKEN_MIN_LENGTH, Config, placeholder_problem
+
+Problem = tuple[str, str]
+
+
+def secret_path(cfg: Config, value: str) -> Path:
+    """A file setting's path: relative to the config file unless absolute."""
+    p = Path(value).expanduser()
+    return p if p.is_absolute() else cfg.base_dir / p
+
+
+def read_secret(path: Path) -> str:
+    """The secret a file holds: its first line, without surrounding blanks (OSError as
+    ``open`` raises it)."""
+    text = path.read_text(encoding="utf-8")
+    return text.splitlines()[0].strip() if text.strip() else ""
+
+
+def secret_problems(cfg: Config) -> list[Problem]:
+    out: list[Problem] = []
+    if cfg.web.token_file is not None:
+        path = secret_path(cfg, cfg.web.token_file)
+        try:
+            token = read_secret(path)
+        except OSError as exc:
+            out.append(("web.token_file", f"cannot read {path}: {exc.strerror or exc}"))
+        else:
+            if len(token) < WEB_TOKEN_MIN_LENGTH:
+                out.append(("web.token_file", f"{path} holds fewer than {WEB_TOKEN_MIN_LENGTH} "
+                                              "characters: a token is at least that long"))  # fmt: skip
+    auth = cfg.zenoh.auth if cfg.zenoh.enabled else None
+    if auth is not None and auth.password_file is not None:
+        path = secret_path(cfg, auth.password_file)
+        try:
+            why = placeholder_problem(read_secret(path)) if path.is_file() else None
+        except OSError:
+            why = None  # the start names an unreadable file, with the key
+        if why:
+            out.append(("zenoh.auth.password_file", f"{path}: {why}"))
+    return out
