@@ -12,30 +12,15 @@ Imports: config. Reads the files it checks, nothing else.
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from gateway.config import WEB_TOKEN_MIN_LENGTH, Config, placeholder_problem
+from gateway.config import WEB_TOKEN_MIN_LENGTH, Config, placeholder_problem, read_secret
 
 Problem = tuple[str, str]
-
-
-def secret_path(cfg: Config, value: str) -> Path:
-    """A file setting's path: relative to the config file unless absolute."""
-    p = Path(value).expanduser()
-    return p if p.is_absolute() else cfg.base_dir / p
-
-
-def read_secret(path: Path) -> str:
-    """The secret a file holds: its first line, without surrounding blanks (OSError as
-    ``open`` raises it)."""
-    text = path.read_text(encoding="utf-8")
-    return text.splitlines()[0].strip() if text.strip() else ""
 
 
 def secret_problems(cfg: Config) -> list[Problem]:
     out: list[Problem] = []
     if cfg.web.token_file is not None:
-        path = secret_path(cfg, cfg.web.token_file)
+        path = cfg.path_of(cfg.web.token_file)
         try:
             token = read_secret(path)
         except OSError as exc:
@@ -46,7 +31,7 @@ def secret_problems(cfg: Config) -> list[Problem]:
                                               "characters: a token is at least that long"))  # fmt: skip
     auth = cfg.zenoh.auth if cfg.zenoh.enabled else None
     if auth is not None and auth.password_file is not None:
-        path = secret_path(cfg, auth.password_file)
+        path = cfg.path_of(auth.password_file)
         try:
             why = placeholder_problem(read_secret(path)) if path.is_file() else None
         except OSError:

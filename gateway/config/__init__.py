@@ -52,6 +52,7 @@ from gateway.config.model import (
     ZenohTls,
     ZenohWriteRule,
     placeholder_problem,
+    read_secret,
 )
 from gateway.config.node import (
     ExternalHeartbeat,
@@ -96,6 +97,7 @@ __all__ = [
     "ZenohTls",
     "ZenohWriteRule",
     "placeholder_problem",
+    "read_secret",
     "apply_env_overrides",
     "blame",
     "env_keys",

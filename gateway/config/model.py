@@ -480,6 +480,24 @@ class Config(_Model):
     def base_dir(self) -> Path:
         return Path(self.source).parent if self.source != "<memory>" else Path.cwd()
 
+    def path_of(self, value: str) -> Path:
+        """A file setting's path: relative to the config file unless absolute."""
+        p = Path(value).expanduser()
+        return p if p.is_absolute() else self.base_dir / p
+
+    def web_token(self) -> str | None:
+        """The console's token: ``web.token``, or the first line of ``web.token_file`` (OSError
+        when it cannot be read; ``canopen-gateway check`` and every start check it first)."""
+        if self.web.token_file is None:
+            return self.web.token
+        return read_secret(self.path_of(self.web.token_file))
+
+
+def read_secret(path: Path) -> str:
+    """The secret a file holds: its first line, without surrounding blanks."""
+    text = path.read_text(encoding="utf-8")
+    return text.splitlines()[0].strip() if text.strip() else ""
+
 
 #: A config that opens the bus must say which one: the in-process ``virtual`` bus is not a
 #: silent default (``can.interface`` must be written; checked by the commands that open the bus).

@@ -161,6 +161,8 @@ class _Connection(asyncio.Protocol):
             self.peer,
             why,
         )
+        if fc in WRITES:
+            self.store.writes.commands.refusals.refused("modbus_write", "", f"function {fc}", None, why)
         raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
 
     def _arm_idle(self, now: float) -> None:
@@ -275,8 +277,8 @@ class _Connection(asyncio.Protocol):
         fc = pdu[0]
         store.by_function[fc] = store.by_function.get(fc, 0) + 1
         try:
-            self._authorise(fc)
             with acting_as(self.who):  # the audit names the client (and its certificate)
+                self._authorise(fc)
                 response = await execute(store, unit, pdu, self.peer)
         except Exception as exc:  # noqa: BLE001 - every failure becomes an exception response
             code = exception_code(exc)

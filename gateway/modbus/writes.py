@@ -51,13 +51,16 @@ class ImageWrites:
             return f"client {peer} is not in modbus.allowed_networks"
         return None
 
-    def check_access(self, peer: str | None) -> None:
-        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged); then the
-        standby of a hot-standby pair refuses every write before it reads or checks a value
-        (``NotActive``: 0x06 server device busy, the PLC retries on the active one)."""
+    def check_access(self, peer: str | None, unit: int, table: str, address: int, values: Any) -> None:
+        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged and audited);
+        then the standby of a hot-standby pair refuses every write before it reads or checks
+        a value (``NotActive``: 0x06 server device busy, the PLC retries on the active one)."""
         why = self.write_refusal(peer)
         if why is not None:
             self.warn.warning(("refused", peer, why), "Modbus write from %s refused: %s", peer, why)
+            self.commands.refusals.refused(
+                "modbus_write", f"unit {unit}", f"{TABLE_NAMES[table]} {address}", values, why
+            )
             raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
         self.commands.require_active()
 
@@ -98,7 +101,7 @@ class ImageWrites:
     async def write_registers(
         self, unit: int, address: int, values: list[int], peer: str | None
     ) -> None:
-        self.check_access(peer)
+        self.check_access(peer, unit, "hr", address, values)
         points = self._points_for(unit, "hr", address, len(values))
         nmt: list[tuple[str, str]] = []
         by_node: dict[str, dict[str, Any]] = {}
@@ -136,7 +139,7 @@ class ImageWrites:
     async def write_coils(
         self, unit: int, address: int, values: list[bool], peer: str | None
     ) -> None:
-        self.check_access(peer)
+        self.check_access(peer, unit, "co", address, values)
         points = self._points_for(unit, "co", address, len(values))
         grouped: dict[tuple[str, str], dict[int, bool]] = {}
         transport: dict[tuple[str, str], str] = {}
@@ -157,7 +160,7 @@ class ImageWrites:
         self, unit: int, address: int, and_mask: int, or_mask: int, peer: str | None
     ) -> None:
         """FC 22: result = (current AND and_mask) OR (or_mask AND NOT and_mask), 6.16."""
-        self.check_access(peer)
+        self.check_access(peer, unit, "hr", address, {"and_mask": and_mask, "or_mask": or_mask})
         self._points_for(unit, "hr", address, 1)
         current = (await self.reads.read(unit, "hr", address, 1))[0]
         value = (current & and_mask) | (or_mask & ~and_mask & 0xFFFF)
