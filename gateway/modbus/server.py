@@ -250,6 +250,8 @@ class _Connection(asyncio.Protocol):
         """Answer a register read served from the image right here (with nothing else in
         flight, so answers keep the order of the requests); False: ``_serve`` it in a task."""
         store = self.store
+        if pdu[0] in WRITES:
+            return False  # a write is served (and refused, audited) by its task
         try:
             self._authorise(pdu[0])
             response = execute_now(store, unit, pdu)
