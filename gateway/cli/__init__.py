@@ -1,10 +1,10 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile|fault``.
+"""Command line: ``canopen-gateway run|demo|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile|fault``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback; so are a CAN bus that cannot be opened and a start that fails. Imports everything it drives; nothing imports this package.
 
 This module holds the parser and ``main``; the commands are in its modules: ``serve`` (run,
-simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``eds`` (eds,
+demo, simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``eds`` (eds,
 profile), ``bus_tools`` (scan, monitor, lss, fault); ``load`` loads a command's configuration.
 
 Imports: gateway (version), gateway.config (ConfigError), gateway.runtime.startup (StartupError),
@@ -22,7 +22,7 @@ from gateway.cli.bus_tools import cmd_fault, cmd_lss, cmd_monitor, cmd_scan
 from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
-from gateway.cli.serve import cmd_run, cmd_simulate
+from gateway.cli.serve import cmd_demo, cmd_run, cmd_simulate
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
 from gateway.config import ConfigError
 from gateway.runtime.startup import StartupError
@@ -55,11 +55,15 @@ def _with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def _add_gateway_commands(add: AddParser) -> None:
-    """run, check, registers, keys, simulate, fault."""
+    """run, demo, check, registers, keys, simulate, fault."""
     sp = _with_config(add("run", help="run the gateway"))
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
     sp.add_argument("--no-simulate", action="store_true", help="ignore the simulate: section")
     sp.set_defaults(fn=cmd_run)
+
+    sp = add("demo", help="run the gateway on the demo configuration (simulated devices)")
+    sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    sp.set_defaults(fn=cmd_demo)
 
     sp = add(
         "check", help="validate a configuration (or the two of a pair) and summarise it"

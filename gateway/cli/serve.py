@@ -1,5 +1,11 @@
-"""The long-running commands: ``run`` (the gateway) and ``simulate`` (only the simulated
-devices of a config), each until SIGINT / SIGTERM, with the logging they set up.
+"""The long-running commands: ``run`` (the gateway), ``demo`` (the gateway on the demo
+configuration) and ``simulate`` (only the simulated devices of a config), each until SIGINT /
+SIGTERM, with the logging they set up.
+
+A gateway never pretends: ``run`` without its configuration file exits 2 with one line naming
+the path and saying to mount or write one; the demo (simulated devices) runs only when asked
+for, by ``demo`` or ``CANOPEN_GATEWAY_DEMO=1`` (the demo configuration: ``config/demo.yaml`` of
+a checkout, or the file ``CANOPEN_GATEWAY_DEMO_CONFIG`` names; the image sets it).
 
 Imports: gateway.app, gateway.runtime.startup, gateway.runtime.fdlimit,
 gateway.tools.bus_open, cli.load.
@@ -10,6 +16,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import sys
 import time
@@ -76,10 +83,37 @@ def files_needed(cfg: Any) -> int:
     return BASE_FILES + (cfg.modbus.max_connections if cfg.modbus.enabled else 0)
 
 
+#: ``CANOPEN_GATEWAY_DEMO=1``: ``run`` runs the demo; ``..._DEMO_CONFIG``: the demo's file
+DEMO_ENV = "CANOPEN_GATEWAY_DEMO"
+DEMO_CONFIG_ENV = "CANOPEN_GATEWAY_DEMO_CONFIG"
+DEMO_CONFIG = "config/demo.yaml"  # a checkout's
+
+
+def demo_config() -> str:
+    return os.environ.get(DEMO_CONFIG_ENV) or DEMO_CONFIG
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The gateway on the demo configuration: simulated devices, asked for by name."""
+    args.config = demo_config()
+    args.no_simulate = False
+    return cmd_run(args)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from gateway.app import Gateway
     from gateway.tools.bus_open import gateway_bus
 
+    if os.environ.get(DEMO_ENV, "").strip() in ("1", "true", "yes"):
+        args.config = demo_config()
+    if not os.path.isfile(args.config):
+        print(
+            f"error: {args.config}: no configuration file there: mount yours at this path "
+            f"(docker run -v \"$PWD/gateway.yaml:{args.config}:ro\" ..., docs/deploy.md) or "
+            f"write one; the demo runs only when asked for (canopen-gateway demo, or {DEMO_ENV}=1)",
+            file=sys.stderr,
+        )
+        return EXIT_CONFIG
     cfg, nodes = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level)
     from gateway.runtime.fdlimit import raise_file_limit

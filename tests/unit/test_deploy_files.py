@@ -293,7 +293,10 @@ def test_dockerfile_contract():
     assert "ARG BASE_IMAGE=python:3.11-slim" in text
     assert "python3 -m venv" in text
     assert re.search(r"^USER \d+:\d+$", text, re.M), "runs as a numeric non-root user"
-    assert f"COPY config/demo.yaml {CONFIG_PATH}" in text
+    # no config of its own: the demo beside it, run only when asked for (CLI: demo_config)
+    assert CONFIG_PATH not in re.findall(r"^COPY \S+ (\S+)$", text, re.M)
+    assert "COPY config/demo.yaml /etc/canopen-gateway/demo.yaml" in text
+    assert "CANOPEN_GATEWAY_DEMO_CONFIG=/etc/canopen-gateway/demo.yaml" in text
     assert 'ENTRYPOINT ["canopen-gateway"]' in text
     assert f'CMD ["run", "-c", "{CONFIG_PATH}"]' in text
     assert "CANOPEN_GATEWAY__HEALTH__PORT=8080" in text
