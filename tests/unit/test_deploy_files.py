@@ -182,9 +182,12 @@ def unit_settings(path: Path) -> dict[str, list[str]]:
 
 def test_systemd_unit_runs_the_gateway_hardened():
     unit = unit_settings(DEPLOY / "systemd/canopen-gateway.service")
+    # the config stays root's (0600): the service reads the copy systemd hands it
+    assert unit["LoadCredential"] == ["config.yaml:/etc/canopen-gateway/config.yaml"]
     assert unit["ExecStart"] == [
-        "/opt/canopen-gateway/bin/canopen-gateway run -c /etc/canopen-gateway/config.yaml"
+        "/opt/canopen-gateway/bin/canopen-gateway run -c ${CREDENTIALS_DIRECTORY}/config.yaml"
     ]
+    assert int(unit["LimitNOFILE"][0]) >= 8192  # room above the connection caps
     for key, value in {
         "NoNewPrivileges": "yes",
         "ProtectSystem": "strict",
