@@ -205,13 +205,17 @@ class Operators:
                 "without web.token this is served to clients on the gateway's own machine only; "
                 "set web.token (or web.token_file) to use it from elsewhere",
             )  # fmt: skip
-        if self._given(request, cookie_ok) is None:
-            how = "Authorization: Bearer <web token>" + (" or log in (POST /api/login)" if cookie_ok else "")
-            return _answer(HTTPStatus.UNAUTHORIZED, "unauthorized", f"send {how}",
-                           {"WWW-Authenticate": 'Bearer realm="canopen-gateway"'})  # fmt: skip
+        given = self._given(request, cookie_ok)
         if self.verified(request, cookie_ok):
             self.guard.succeeded(client)
             return None
+        if given is None or given[0] == "cookie":
+            # no credentials, or the cookie of another token (it changed since the login):
+            # log in again; a stale cookie is not a guess (it cannot be guessed faster than
+            # the token), so an open page after a token change does not block its address
+            how = "Authorization: Bearer <web token>" + (" or log in (POST /api/login)" if cookie_ok else "")
+            return _answer(HTTPStatus.UNAUTHORIZED, "unauthorized", f"send {how}",
+                           {"WWW-Authenticate": 'Bearer realm="canopen-gateway"'})  # fmt: skip
         return self._wrong(request)
 
     def _wrong(self, request: Request) -> Response:

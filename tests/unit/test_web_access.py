@@ -91,6 +91,10 @@ def test_with_a_token_they_need_it_by_header_or_by_the_login_cookie() -> None:
     cookie = login.headers["Set-Cookie"].split(";")[0]
     assert TOKEN not in cookie and "HttpOnly" in login.headers["Set-Cookie"]
     assert ops.check(req(cookie=cookie)) is None
+    for _ in range(2 * FAILURES_LIMIT):  # an open page whose cookie is of an older token
+        stale = ops.check(req(cookie="canopen_gateway_session=" + "0" * 64))
+        assert stale is not None and stale.status == HTTPStatus.UNAUTHORIZED
+    assert ops.guard.wait_s("10.0.0.9") == 0  # not counted as guesses: the address is not blocked
     assert ops.check(req(cookie=cookie), cookie_ok=False).status == HTTPStatus.UNAUTHORIZED  # type: ignore[union-attr]
     assert ops.who(req(token=TOKEN)) == "web 10.0.0.9 token"
     assert ops.who(req()) == "web 10.0.0.9"
