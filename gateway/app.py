@@ -184,7 +184,7 @@ class Gateway:
             if self.cfg.modbus.plain:
                 parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
             if self.modbus.tls_server is not None:
-                parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
+                parts.append(f"Modbus/TLS {self.modbus.tls_server.socks[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
             z = self.cfg.zenoh
             endpoints = z.connect if z.mode == "client" else z.listen + z.connect  # a client listens nowhere
@@ -227,13 +227,18 @@ class Gateway:
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
         # ready: the bus and the PLC side serve; the cloud side (Zenoh) counts only for a gateway
-        # without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's gateway out
-        # of service because the router is away. /healthz says "zenoh": false meanwhile.
+        # without Modbus, or when our prefix is announced by another (docs/deploy.md, Readiness)
         northbound_up = modbus_up if self.modbus is not None else zenoh_up
-        out_of_pair = self.master.role == "duplicate"  # another device has our pair id
-        ready = self.started and bus_ok and northbound_up and not dead and not out_of_pair
+        zenoh_error = self.zenoh.link.problem if self.zenoh is not None else None
+        reasons = [why for why, bad in (
+            ("starting", not self.started), (f"CAN bus {self.driver.state}", not bus_ok),
+            ("northbound side not serving", not northbound_up), (f"threads failed: {dead}", bool(dead)),
+            ("another device has this gateway's pair id", self.master.role == "duplicate"),
+            (f"zenoh: {zenoh_error}", zenoh_error is not None)) if bad]  # fmt: skip
+        ready = not reasons
         return {
             "status": "ready" if ready else "not-ready",
+            "reasons": reasons,
             "ready": ready,
             "threads": {"failed": dead},
             "bus": {"state": self.driver.state, "detail": self.driver.last_error},
@@ -242,7 +247,7 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": nodes,
-        } | self._pair_status() | self._watchdog_status() | self._journal_status()
+        } | self._pair_status() | (self.modbus.watchdog_status() if self.modbus else {}) | self._journal_status()
 
     def _pair_status(self) -> dict[str, Any]:
         """``role`` and ``peer`` of a hot-standby pair (None outside one)."""
@@ -276,12 +281,6 @@ class Gateway:
             Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
                   record.get("node"), None, json.dumps(record).encode())
         )
-
-    def _watchdog_status(self) -> dict[str, Any]:
-        if self.modbus is None or not self.modbus.watchdog.enabled:
-            return {}
-        wd = self.modbus.watchdog
-        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}}
 
     def overview(self) -> dict[str, Any]:
         """Gateway-wide figures for the web console's overview (counters become rates there)."""
@@ -374,7 +373,7 @@ class Gateway:
                 for k, v in (getattr(z, section).model_dump() if getattr(z, section) else {}).items()
                 if isinstance(v, str) and k.endswith(("_file", "certificate", "key"))
             }
-            # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
+            # before the bus; a prefix another announces leaves Zenoh closed (ZenohSession.problem)
             with startup_step(key, ", ".join(where), files):
                 await self.zenoh.open()
         if self.sim is not None:
@@ -506,6 +505,7 @@ class Gateway:
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}
             c.modbus_requests = {modbus_function_label(fc): n for fc, n in store.by_function.items()}
             c.modbus_watchdog_trips = dict(self.modbus.watchdog.trips)
+            c.modbus_connections, c.modbus_connections_closed = self.modbus.admission.counts()
 
     async def stop(self) -> None:
         self.started = False

@@ -21,7 +21,9 @@
   node, the master's NMT, SYNC, heartbeat and LSS), named in one line with where each got it;
   one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both);
 * ``journal.path`` can be created and written (the one check here that touches the disk: it
-  creates the directory when missing).
+  creates the directory when missing);
+* the secrets named by file are usable (``checks.secrets``: ``web.token_file``, a
+  ``zenoh.auth.password_file`` that is not the examples' placeholder).
 
 ``config_warnings(cfg)`` returns what runs but may not do what is meant, one ``(key path,
 text naming the node)`` each (``check`` prints them after its summary): a device's own TPDO
@@ -48,7 +50,7 @@ register map, the COB-IDs of the nodes (bus/cob_id_uses.py), a device file's COB
 (eds/file_cob_ids.py), journal (the path check) (no I/O but reading the files they name and the
 journal's directory).
 
-Imports: config, checks.pair, checks.takeover, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
+Imports: config, checks.pair, checks.takeover, checks.secrets, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
 settings), eds (parse, pdos, file_cob_ids), profiles (layout, schema), modbus.safe_outputs (its
 rule only), northbound.regmap, journal.
 """
@@ -64,6 +66,7 @@ from gateway.bus.cob_id_uses import clashes, gateway_uses, loops_back
 from gateway.canopen.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
 from gateway.checks.pair import pair_problems
+from gateway.checks.secrets import secret_problems
 from gateway.checks.takeover import takeover_warnings
 from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.device.boot_steps import ConfigStep
@@ -483,6 +486,7 @@ def config_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
     out += safe_output_problems(cfg, resolved)
     out += cob_id_problems(cfg, resolved)
     out += journal_problems(cfg)
+    out += secret_problems(cfg)
     seen: set[Problem] = set()
     unique = []
     for p in out:

@@ -35,6 +35,7 @@ from gateway.config.journal import JournalSection
 from gateway.config.load import load_config, parse_config, raw_section
 from gateway.config.model import (
     CAN_INTERFACE_MISSING,
+    LOOPBACK_NETWORKS,
     WEB_TOKEN_MIN_LENGTH,
     AsciiSection,
     CanSection,
@@ -52,6 +53,8 @@ from gateway.config.model import (
     ZenohSection,
     ZenohTls,
     ZenohWriteRule,
+    placeholder_problem,
+    read_secret,
 )
 from gateway.config.node import (
     ExternalHeartbeat,
@@ -88,6 +91,7 @@ __all__ = [
     "SdoWrite",
     "SignalOverride",
     "SimulateSection",
+    "LOOPBACK_NETWORKS",
     "WEB_TOKEN_MIN_LENGTH",
     "WebSection",
     "ZenohAuth",
@@ -95,6 +99,8 @@ __all__ = [
     "ZenohSection",
     "ZenohTls",
     "ZenohWriteRule",
+    "placeholder_problem",
+    "read_secret",
     "apply_env_overrides",
     "blame",
     "env_keys",
