@@ -6,8 +6,8 @@ nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed
 Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
 parts do not know each other except through the image and the command service.
 
-Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, commands, config, device.resolved,
-http.server, http.metrics, image, modbus.server, northbound (frames, regmap, summary, audit_values), profiles.derived,
+Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, command_socket, commands, config, device.resolved,
+http.server, http.metrics, image, modbus.server, northbound (audit_values, catalog, frames, regmap, summary),
 sim (faults, motion, node, runner), runtime (startup, threads, turns), journal (store, auditlog), web (console, views), zenoh_bridge.bridge.
 """
 
@@ -26,6 +26,7 @@ from gateway.bus.can_backend import open_can_bus
 from gateway.bus.driver import BusDriver, BusOpenFailed
 from gateway.bus.master import Master
 from gateway.checks import check_config, journal_path
+from gateway.command_socket import CommandSocket
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
 from gateway.device.resolved import ResolvedNode
@@ -36,11 +37,11 @@ from gateway.journal import Journal, JournalInUse
 from gateway.journal.auditlog import AuditLog
 from gateway.modbus.server import ModbusGateway
 from gateway.northbound.audit_values import engineering_record
+from gateway.northbound.catalog import build_catalog
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.keys import audit_key, prefix_of
 from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
 from gateway.northbound.summary import summarize
-from gateway.profiles.derived import text_rows_as_signals
 from gateway.runtime.startup import StartupError, listeners_of, ports_in_use, startup_step
 from gateway.runtime.threads import ThreadRegistry
 from gateway.runtime.turns import LoopTurns
@@ -153,6 +154,8 @@ class Gateway:
             )
         )
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
+        #: the command line's way in when the bus is in-process (``command_socket``)
+        self.command_socket = CommandSocket(cfg, self.commands, self.turns)
         self.health: Any = None
         self.web: Any = None
         self.started = False
@@ -172,38 +175,7 @@ class Gateway:
     def catalog(self) -> dict[str, Any]:
         """Every node and signal: type, unit, scaling, Modbus address (for cloud discovery)."""
         rm = self.modbus.regmap if self.modbus else build_register_map(self.cfg, self.nodes)
-        addr: dict[tuple[str, str], list[dict[str, Any]]] = {}
-        for p in rm.points:
-            if p.node and p.kind in ("signal", "bit"):
-                addr.setdefault((p.node, p.name), []).append(
-                    {"unit_id": p.unit, "table": p.table, "address": p.address, "count": p.count}
-                    | ({"bit": p.bit} if p.bit is not None else {})
-                )
-        nodes = {}
-        for name in self.commands.names():
-            rt = self.commands.node(name)
-            sigs = {}
-            profile = rt.lp.profile
-            for s in [*profile.signals, *text_rows_as_signals(profile)]:  # with the AP05 text rows
-                sigs[s.name] = {
-                    "object": str(s.object),
-                    "type": s.type,
-                    "access": s.access,
-                    "transport": s.transport,
-                    "unit": s.unit,
-                    "scale": s.scale,
-                    "offset": s.offset,
-                    "description": s.description,
-                    "bits": {b.name: b.bit for b in s.bits},
-                    "modbus": addr.get((name, s.name), []),
-                }
-            nodes[name] = {
-                "node_id": rt.node_id,
-                "profile": rt.lp.family,
-                "title": rt.lp.profile.title,
-                "signals": sigs,
-            }
-        return {"gateway": self.cfg.gateway.name, "version": __version__, "nodes": nodes}
+        return build_catalog(self.cfg.gateway.name, self.commands, rm)
 
     def summary(self) -> str:
         parts = [f"canopen-gateway {__version__} '{self.cfg.gateway.name}'"]
@@ -213,7 +185,7 @@ class Gateway:
             if self.cfg.modbus.plain:
                 parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
             if self.modbus.tls_server is not None:
-                parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
+                parts.append(f"Modbus/TLS {self.modbus.tls_server.socks[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
             z = self.cfg.zenoh
             endpoints = z.connect if z.mode == "client" else z.listen + z.connect  # a client listens nowhere
@@ -223,6 +195,10 @@ class Gateway:
         if self.health is not None and self.health.port:
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
+        if self.journal is not None:
+            parts.append(f"journal {self.journal.path}")
+        if self.command_socket.path is not None:
+            parts.append(f"command socket {self.command_socket.path}")
         nodes = ", ".join(
             f"{n.name}={n.device}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
             for n in self.cfg.nodes
@@ -252,13 +228,18 @@ class Gateway:
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
         # ready: the bus and the PLC side serve; the cloud side (Zenoh) counts only for a gateway
-        # without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's gateway out
-        # of service because the router is away. /healthz says "zenoh": false meanwhile.
+        # without Modbus, or when our prefix is announced by another (docs/deploy.md, Readiness)
         northbound_up = modbus_up if self.modbus is not None else zenoh_up
-        out_of_pair = self.master.role == "duplicate"  # another device has our pair id
-        ready = self.started and bus_ok and northbound_up and not dead and not out_of_pair
+        zenoh_error = self.zenoh.link.problem if self.zenoh is not None else None
+        reasons = [why for why, bad in (
+            ("starting", not self.started), (f"CAN bus {self.driver.state}", not bus_ok),
+            ("northbound side not serving", not northbound_up), (f"threads failed: {dead}", bool(dead)),
+            ("another device has this gateway's pair id", self.master.role == "duplicate"),
+            (f"zenoh: {zenoh_error}", zenoh_error is not None)) if bad]  # fmt: skip
+        ready = not reasons
         return {
             "status": "ready" if ready else "not-ready",
+            "reasons": reasons,
             "ready": ready,
             "threads": {"failed": dead},
             "bus": {"state": self.driver.state, "detail": self.driver.last_error},
@@ -267,7 +248,7 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": nodes,
-        } | self._pair_status() | self._watchdog_status() | self._journal_status()
+        } | self._pair_status() | (self.modbus.watchdog_status() if self.modbus else {}) | self._journal_status()
 
     def _pair_status(self) -> dict[str, Any]:
         """``role`` and ``peer`` of a hot-standby pair (None outside one)."""
@@ -291,12 +272,6 @@ class Gateway:
         """The journal's figures and last error (a full or slow disk shows here; the gateway
         stays ready: it keeps serving without it)."""
         return {} if self.journal is None else {"journal": self.journal.status()}
-
-    def _watchdog_status(self) -> dict[str, Any]:
-        if self.modbus is None or not self.modbus.watchdog.enabled:
-            return {}
-        wd = self.modbus.watchdog
-        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}}
 
     def overview(self) -> dict[str, Any]:
         """Gateway-wide figures for the web console's overview (counters become rates there)."""
@@ -376,6 +351,9 @@ class Gateway:
                     await asyncio.to_thread(self.journal.open)
                 except JournalInUse as exc:  # a second gateway on one journal.path
                     raise StartupError("journal.path", self.journal.directory, exc.reason) from None
+            j = cfg.journal
+            values = f"values every {j.values_ms} ms" if j.values_ms else "events only"
+            log.info("journal on: %s (%s, kept %g days, at most %g MB)", self.journal.path, values, j.keep_days, j.max_mb)  # fmt: skip
             self.journal.start(self.threads)
             if self.zenoh is not None:
                 self.zenoh.use_journal(self.journal)
@@ -391,7 +369,7 @@ class Gateway:
                 for k, v in (getattr(z, section).model_dump() if getattr(z, section) else {}).items()
                 if isinstance(v, str) and k.endswith(("_file", "certificate", "key"))
             }
-            # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
+            # before the bus; a prefix another announces leaves Zenoh closed (ZenohSession.problem)
             with startup_step(key, ", ".join(where), files):
                 await self.zenoh.open()
         if self.sim is not None:
@@ -415,6 +393,8 @@ class Gateway:
         if cfg.health.port:
             with startup_step("health.port", f"{cfg.health.port} on {cfg.health.host}"):
                 await self._start_health()
+            self.command_socket.facts["health_port"] = self.health.port  # `fault` finds it
+        await self.command_socket.start()  # never stops a start: a warning when it cannot open
         await self.master.start()
         self.started = True
         if self.freeze_gc:
@@ -522,9 +502,11 @@ class Gateway:
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}
             c.modbus_requests = {modbus_function_label(fc): n for fc, n in store.by_function.items()}
             c.modbus_watchdog_trips = dict(self.modbus.watchdog.trips)
+            c.modbus_connections, c.modbus_connections_closed = self.modbus.admission.counts()
 
     async def stop(self) -> None:
         self.started = False
+        await self.command_socket.stop()
         if self.ascii is not None:
             await self.ascii.stop()
         if self.health is not None:

@@ -196,6 +196,10 @@ class BusDriver:
         self._burst_mono = mono()
         self._burst_wall = wall()
         self.rx_counters = image.counters.counter_set()  # reader thread only
+        #: the reader's rounds: one per wait that found nothing (every RECV_WAIT_S on a quiet
+        #: bus), per burst start and per wait to reopen; reader thread only. A count that
+        #: stands still is a reader stuck (systemd's watchdog, ``runtime.sd_notify``)
+        self.reader_turns = 0
         self.tx_counters = image.counters.counter_set()  # sender thread only
         self._tx: queue.SimpleQueue[can.Message | None] = queue.SimpleQueue()
         self._sender: threading.Thread | None = None
@@ -404,6 +408,7 @@ class BusDriver:
                 continue
             if msg is None:
                 # nothing left buffered: caught up with the bus
+                self.reader_turns += 1
                 self.clock_state = (True, self.clock_state[1])
                 if in_burst:
                     in_burst = False
@@ -458,6 +463,7 @@ class BusDriver:
         self._set_state("down", detail)
 
     def _sync_clocks(self) -> None:
+        self.reader_turns += 1
         self._burst_mono = self.mono()
         self._burst_wall = self.wall()
 
@@ -521,6 +527,7 @@ class BusDriver:
         while self._running.is_set() and self.mono() < deadline:
             # woken at once by close(); the deadline is judged on the injectable clock
             self._closing.wait(min(0.05, max(0.0, deadline - self.mono())))
+            self.reader_turns += 1
         if not self._running.is_set():
             return False
         self.reopen_attempts += 1

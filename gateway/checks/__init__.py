@@ -21,15 +21,21 @@
   node, the master's NMT, SYNC, heartbeat and LSS), named in one line with where each got it;
   one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both);
 * ``journal.path`` can be created and written (the one check here that touches the disk: it
-  creates the directory when missing).
+  creates the directory when missing);
+* the secrets named by file are usable (``checks.secrets``: ``web.token_file``, a
+  ``zenoh.auth.password_file`` that is not the examples' placeholder).
 
 ``config_warnings(cfg)`` returns what runs but may not do what is meant, one ``(key path,
 text naming the node)`` each (``check`` prints them after its summary): a device's own TPDO
 and RPDO on one COB-ID; an enabled SYNC-driven TPDO (transmission type 0..240) without a
 SYNC producer (``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the
 node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF whose
-``[DeviceComissioning] NodeID`` is not the node id it is used at; in a hot-standby pair, a
-node that cannot survive the gateway's worst take-over (``checks.pair.takeover_warnings``).
+``[DeviceComissioning] NodeID`` is not the node id it is used at; in a hot-standby pair, each
+device timeout the gateway's worst take-over can outlast (``checks.takeover``); a node whose
+PDOs map nothing (no process data: named with the objects its file marks PDO-mappable).
+
+``config_notes(cfg)``: what the gateway will not check, one ``(key path, text)`` each (``check``
+prints them as notes): a part of a device's identity its file gives nothing to compare with.
 
 ``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
 hot-standby pair (``check -c A -c B``, docs/redundancy.md).
@@ -38,13 +44,13 @@ Every function takes the nodes as resolved once (``gateway.device.resolved``). `
 ``parse_checked`` read and validate a config, resolve its nodes in the same pass and run these
 checks, raising ConfigError with every line; they return the config and its nodes.
 
-Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, profiles,
+Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, checks.takeover, profiles,
 eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
 register map, the COB-IDs of the nodes (bus/cob_id_uses.py), a device file's COB-IDs and NodeID
 (eds/file_cob_ids.py), journal (the path check) (no I/O but reading the files they name and the
 journal's directory).
 
-Imports: config, checks.pair, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
+Imports: config, checks.pair, checks.takeover, checks.secrets, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
 settings), eds (parse, pdos, file_cob_ids), profiles (layout, schema), modbus.safe_outputs (its
 rule only), northbound.regmap, journal.
 """
@@ -59,7 +65,9 @@ from typing import Any
 from gateway.bus.cob_id_uses import clashes, gateway_uses, loops_back
 from gateway.canopen.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
-from gateway.checks.pair import pair_problems, takeover_warnings
+from gateway.checks.pair import pair_problems
+from gateway.checks.secrets import secret_problems
+from gateway.checks.takeover import takeover_warnings
 from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.device.boot_steps import ConfigStep
 from gateway.device.resolved import Resolved, ResolvedNode, load_resolved, parse_resolved
@@ -67,11 +75,11 @@ from gateway.device.settings import external_heartbeat_problem
 from gateway.eds import EdsError, load_eds
 from gateway.eds.file_cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES
-from gateway.eds.pdos import eds_pdos, od_var, readable
+from gateway.eds.pdos import eds_pdos, mappable_objects, object_name, od_var, readable
 from gateway.journal import path_problem
 from gateway.modbus.safe_outputs import safe_output_problems
 from gateway.northbound.regmap import RegisterMapError, build_register_map
-from gateway.profiles import LoadedProfile
+from gateway.profiles import LoadedProfile, identity_check
 from gateway.profiles.layout import pdo_objects
 from gateway.profiles.schema import TYPE_BITS as SIGNAL_BITS
 from gateway.profiles.schema import Pdo
@@ -376,6 +384,8 @@ def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
         key = f"nodes[{i}]"
         if rn.sync_tpdos and not sync:
             out.append((key, f"node {n.name}: {sync_wait_text(rn)}"))
+        if not any(s.transport == "pdo" for s in rn.lp.profile.signals):
+            out.append((f"{key}.tpdo", f"node {n.name}: {no_process_data_text(rn)}"))
         if rn.settings.supervision == "guarding" and cfg.can.interface == "socketcand":
             out.append((f"{key}.supervision", f"node {n.name}: {GUARDING_OVER_SOCKETCAND}"))
         try:
@@ -409,6 +419,46 @@ def sync_wait_text(rn: ResolvedNode) -> str:
     )
 
 
+#: how many PDO-mappable objects the warning of a node without process data names
+MAPPABLE_NAMED = 8
+
+
+def no_process_data_text(rn: ResolvedNode) -> str:
+    """``serves no process data: map one with `tpdo:` ...``, naming the objects its file marks
+    PDO-mappable (a node whose PDOs map nothing: Modbus input register 0 says bad)."""
+    lp = rn.lp
+    file = lp.eds_path.name
+    head = (
+        "serves no process data: map one with `tpdo:` (its PDOs map nothing, so its Modbus "
+        "quality, input register 0, says bad)"
+    )
+    objs = mappable_objects(lp.od, "tpdo")
+    application = [o for o in objs if o.index >= 0x2000]  # before 1001h, the SDO COB-IDs...
+    objs = application or objs
+    if not objs:
+        return (
+            f"{head}; but {file} marks no object PDO-mappable (PDOMapping=1): where the "
+            "device's manual says it maps one, correct the file; else read its objects by SDO "
+            "(canopen-gateway sdo read, or signals with transport: sdo in an overlay profile)"
+        )
+    named = ", ".join(f"{o} ({object_name(lp.od, o)})" for o in objs[:MAPPABLE_NAMED])
+    more = f" and {len(objs) - MAPPABLE_NAMED} more (canopen-gateway eds show {file})" if len(objs) > MAPPABLE_NAMED else ""  # fmt: skip
+    example = f'tpdo: {{1: {{mapping: ["{objs[0]}"]}}}}'
+    return f"{head}, e.g. `{example}`; PDO-mappable in {file}: {named}{more}"
+
+
+def config_notes(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
+    """What the gateway will not check (``check`` prints them as notes): a part of a device's
+    identity (1018h) its file gives nothing to compare with (``profiles.identity_check``)."""
+    out: list[Problem] = []
+    for i, n in enumerate(cfg.nodes):
+        rn = nodes.get(n.name)
+        if rn is None or not n.identity_check:
+            continue
+        out += [(f"nodes[{i}].identity_check", f"node {n.name}: {text}") for text in identity_check(rn.lp).not_checked]  # fmt: skip
+    return out
+
+
 def journal_path(cfg: Config) -> Path | None:
     """The journal's directory (``journal.path`` relative to the config file), or None."""
     if cfg.journal.path is None:
@@ -436,6 +486,7 @@ def config_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
     out += safe_output_problems(cfg, resolved)
     out += cob_id_problems(cfg, resolved)
     out += journal_problems(cfg)
+    out += secret_problems(cfg)
     seen: set[Problem] = set()
     unique = []
     for p in out:
@@ -472,6 +523,7 @@ __all__ = [
     "boot_problems",
     "check_config",
     "cob_id_problems",
+    "config_notes",
     "config_problems",
     "config_warnings",
     "eds_problems",

@@ -20,7 +20,8 @@ The package, one module per part, re-exported here (``from gateway.config import
 - ``errors``: ``ConfigError`` and how a problem is worded;
 - ``journal``: the ``journal:`` section;
 - ``node``: the ``nodes:`` entries and ``NodeConfig.setup``, the record the device knowledge
-  reads.
+  reads;
+- ``keyexpr``: a Zenoh key expression of the file checked (without zenoh).
 
 Imports: model, node, load, env, errors, journal (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
 checks.
@@ -34,9 +35,11 @@ from gateway.config.journal import JournalSection
 from gateway.config.load import load_config, parse_config, raw_section
 from gateway.config.model import (
     CAN_INTERFACE_MISSING,
+    LOOPBACK_NETWORKS,
     WEB_TOKEN_MIN_LENGTH,
     AsciiSection,
     CanSection,
+    CommandSocketSection,
     Config,
     GatewaySection,
     HealthSection,
@@ -50,6 +53,8 @@ from gateway.config.model import (
     ZenohSection,
     ZenohTls,
     ZenohWriteRule,
+    placeholder_problem,
+    read_secret,
 )
 from gateway.config.node import (
     ExternalHeartbeat,
@@ -64,6 +69,7 @@ from gateway.config.node import (
 
 __all__ = [
     "AsciiSection",
+    "CommandSocketSection",
     "CAN_INTERFACE_MISSING",
     "CanSection",
     "Config",
@@ -85,6 +91,7 @@ __all__ = [
     "SdoWrite",
     "SignalOverride",
     "SimulateSection",
+    "LOOPBACK_NETWORKS",
     "WEB_TOKEN_MIN_LENGTH",
     "WebSection",
     "ZenohAuth",
@@ -92,6 +99,8 @@ __all__ = [
     "ZenohSection",
     "ZenohTls",
     "ZenohWriteRule",
+    "placeholder_problem",
+    "read_secret",
     "apply_env_overrides",
     "blame",
     "env_keys",

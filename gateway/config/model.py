@@ -7,7 +7,7 @@
 What a section cannot see (duplicates across nodes, names that refer to nodes, profiles and
 EDS files) is checked when the file is loaded (``config.load``).
 
-Imports: pydantic, gateway.keyexpr, config.journal, config.node (the ``nodes:`` entries). Nothing of bus/,
+Imports: pydantic, config.keyexpr, config.journal, config.node (the ``nodes:`` entries). Nothing of bus/,
 modbus/, zenoh_bridge/, checks.
 """
 
@@ -25,7 +25,7 @@ from pydantic import (
     model_validator,
 )
 
-from gateway import keyexpr
+from gateway.config import keyexpr
 from gateway.config.journal import JournalSection
 from gateway.config.node import NodeConfig
 
@@ -107,6 +107,18 @@ class MasterSection(_Model):
     redundancy: PairSection | None = None
 
 
+#: the default of ``allowed_networks``: this machine only
+LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
+
+
+def _check_networks(networks: list[str]) -> None:
+    for n in networks:
+        try:
+            ipaddress.ip_network(n, strict=False)
+        except ValueError as exc:
+            raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+
+
 class ModbusTls(_Model):
     """Modbus/TCP Security (TLS, mutual X.509 authentication, roles): a second listener."""
 
@@ -125,9 +137,15 @@ class ModbusTls(_Model):
     default_role: str | None = Field(
         default=None, description="role of a client whose certificate has none; none: refused"
     )
+    crl: str | None = Field(
+        default=None,
+        description="certificate revocation list(s) of the CA (PEM): a revoked client is refused",
+    )
 
     @model_validator(mode="after")
     def _roles(self) -> ModbusTls:
+        if self.crl and not self.ca:
+            raise ValueError("crl needs ca (the CA file whose revocations it lists)")
         if self.require_client_cert and not self.ca:
             raise ValueError("require_client_cert: true needs ca (the CA file that signs clients)")
         if self.default_role is not None and self.default_role not in self.roles:
@@ -149,7 +167,22 @@ class ModbusSection(_Model):
     flat_stride: int = Field(default=200, ge=50, le=10000)
     word_order: Literal["big", "little"] = "big"
     read_only: bool = False
-    allowed_networks: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
+    allowed_networks: list[str] = Field(default_factory=lambda: list(LOOPBACK_NETWORKS))
+    max_connections: int = Field(
+        default=64,
+        ge=1,
+        le=10_000,
+        description="Modbus connections at once (plain and TLS together); past it a new one is closed",
+    )
+    max_connections_per_client: int = Field(
+        default=8, ge=1, le=10_000, description="connections at once from one client address"
+    )
+    idle_timeout_s: float = Field(
+        default=300.0,
+        ge=0,
+        le=86_400,
+        description="a connection that sends nothing this long is closed; 0 = never",
+    )
     write_timeout_s: float = Field(default=2.0, gt=0, le=60)
     watchdog_ms: int = Field(
         default=0,
@@ -167,11 +200,12 @@ class ModbusSection(_Model):
     def _nets(self) -> ModbusSection:
         if not self.plain and self.tls is None:
             raise ValueError("plain: false needs tls (nothing would serve Modbus)")
-        for n in self.allowed_networks:
-            try:
-                ipaddress.ip_network(n, strict=False)
-            except ValueError as exc:
-                raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+        if self.max_connections_per_client > self.max_connections:
+            raise ValueError(
+                f"max_connections_per_client ({self.max_connections_per_client}) is above "
+                f"max_connections ({self.max_connections})"
+            )
+        _check_networks(self.allowed_networks)
         return self
 
 
@@ -214,6 +248,20 @@ class ZenohWriteRule(_Model):
         return self
 
 
+#: passwords the examples of this project and of Zenoh's documentation wrote: never a real one
+PLACEHOLDER_PASSWORDS = frozenset({"change-me", "changeme", "change_me"})
+
+
+def placeholder_problem(secret: str) -> str | None:
+    """Why ``secret`` cannot be a password (the placeholder of the examples), or None."""
+    if secret.strip().lower() in PLACEHOLDER_PASSWORDS:
+        return (
+            f"{secret.strip()!r} is the placeholder of the examples, not a password: generate "
+            "one (deploy/zenoh/make-secrets.sh) and give it by password_file"
+        )
+    return None
+
+
 class ZenohAuth(_Model):
     """Zenoh user/password authentication (zenoh's ``transport/auth/usrpwd``)."""
 
@@ -223,6 +271,14 @@ class ZenohAuth(_Model):
     dictionary_file: str | None = Field(
         default=None, description="user:password lines: who may connect to this gateway (peer)"
     )
+
+    @field_validator("password")
+    @classmethod
+    def _not_a_placeholder(cls, v: str | None) -> str | None:
+        why = placeholder_problem(v) if v is not None else None
+        if why:
+            raise ValueError(why)
+        return v
 
     @model_validator(mode="after")
     def _pairs(self) -> ZenohAuth:
@@ -269,13 +325,18 @@ class ZenohSection(_Model):
     write_allow: list[ZenohWriteRule] = Field(
         default_factory=list, description="with writes on: only what a rule allows; empty = all"
     )
+    reads: Literal["catalog", "all"] = Field(
+        default="catalog",
+        description="SDO uploads by query: catalog = only the objects the catalogue lists, all = any",
+    )
     auth: ZenohAuth | None = None
     access_control: dict[str, Any] | None = Field(
         default=None, description="zenoh's access_control section (rules, subjects, policies)"
     )
     history: ZenohHistory = Field(default_factory=ZenohHistory)
     refuse_duplicate_prefix: bool = Field(
-        default=True, description="refuse to start when a gateway already runs under our prefix"
+        default=True,
+        description="keep Zenoh closed (and retry) while another announces a gateway under our prefix",
     )
     json5: dict[str, Any] = Field(
         default_factory=dict, description="raw zenoh config keys, e.g. {'transport/link/tls/..': ..}"
@@ -306,6 +367,25 @@ class AsciiSection(_Model):
     events: bool = Field(
         default=False, description="event lines (BOOT_UP, EMCY, heartbeat) to every client"
     )
+    allowed_networks: list[str] = Field(
+        default_factory=lambda: list(LOOPBACK_NETWORKS),
+        description="client addresses served; any other connection is closed at once",
+    )
+
+    @model_validator(mode="after")
+    def _nets(self) -> AsciiSection:
+        _check_networks(self.allowed_networks)
+        return self
+
+
+class CommandSocketSection(_Model):
+    """The command line's local way into the running gateway when its bus is in-process
+    (``can.interface: virtual``): a Unix socket only this user can open (``gateway/command_socket``)."""
+
+    enabled: bool = Field(default=True, description="listen on it (with an in-process bus)")
+    path: str | None = Field(
+        default=None, description="default: the user's runtime directory, named by the config file"
+    )
 
 
 class HealthSection(_Model):
@@ -315,6 +395,12 @@ class HealthSection(_Model):
 
 #: the smallest web token accepted: guessing one must not be a matter of minutes
 WEB_TOKEN_MIN_LENGTH = 12
+#: the one rule for a token of digits only, whether the file or CANOPEN_GATEWAY__WEB__TOKEN
+#: gives it (quoted or not): refused, it is a number anyone may guess
+WEB_TOKEN_DIGITS = (
+    "a token of digits only is refused, in the file (quoted or not) as in "
+    "CANOPEN_GATEWAY__WEB__TOKEN: mix in letters (token: \"a long random text\")"
+)
 
 
 class WebSection(_Model):
@@ -326,28 +412,44 @@ class WebSection(_Model):
     )
     token: str | None = Field(
         default=None,
-        description="password of the commissioning page; or CANOPEN_GATEWAY__WEB__TOKEN",
+        description="the operators' password (journal, bus monitor, SDO reads, faults, "
+        "commissioning); or CANOPEN_GATEWAY__WEB__TOKEN",
+    )
+    token_file: str | None = Field(
+        default=None, description="a file holding the token (first line), instead of token"
+    )
+    allowed_hosts: list[str] | None = Field(
+        default=None,
+        description="Host header names the console answers (DNS rebinding); default: the bind "
+        "address, the address a request arrived at, localhost and this machine's names; '*' = any",
     )
 
     @field_validator("token", mode="before")
     @classmethod
     def _token_text(cls, v: Any) -> Any:
         if isinstance(v, (int, float)) and not isinstance(v, bool):
-            raise ValueError(
-                "YAML read a number here; a token is text: put it in quotes "
-                "(token: \"0123456789012\")"
-            )
+            raise ValueError(f"YAML read a number here; {WEB_TOKEN_DIGITS}")
+        return v
+
+    @field_validator("token")
+    @classmethod
+    def _token_not_digits(cls, v: str | None) -> str | None:
+        if v is not None and v.isdigit():  # one rule, from the file or the environment
+            raise ValueError(WEB_TOKEN_DIGITS)
         return v
 
     @model_validator(mode="after")
     def _token(self) -> WebSection:
-        if self.writes and not self.token:
+        if self.token is not None and self.token_file is not None:
+            raise ValueError("token and token_file: give one, not both")
+        if self.writes and not self.token and not self.token_file:
             raise ValueError(
-                "writes: true needs a token (web.token, or the environment variable "
-                "CANOPEN_GATEWAY__WEB__TOKEN)"
+                "writes: true needs a token (web.token, web.token_file, or the environment "
+                "variable CANOPEN_GATEWAY__WEB__TOKEN)"
             )
         if self.token is not None and len(self.token) < WEB_TOKEN_MIN_LENGTH:
             raise ValueError(f"token: at least {WEB_TOKEN_MIN_LENGTH} characters")
+
         return self
 
 
@@ -374,6 +476,7 @@ class Config(_Model):
     health: HealthSection = Field(default_factory=HealthSection)
     web: WebSection = Field(default_factory=WebSection)
     ascii: AsciiSection | None = None  # CiA 309-3 ASCII gateway: off unless given
+    command_socket: CommandSocketSection = Field(default_factory=CommandSocketSection)
     simulate: SimulateSection = Field(default_factory=SimulateSection)
     journal: JournalSection = Field(default_factory=JournalSection)  # store and forward
 
@@ -398,6 +501,24 @@ class Config(_Model):
     @property
     def base_dir(self) -> Path:
         return Path(self.source).parent if self.source != "<memory>" else Path.cwd()
+
+    def path_of(self, value: str) -> Path:
+        """A file setting's path: relative to the config file unless absolute."""
+        p = Path(value).expanduser()
+        return p if p.is_absolute() else self.base_dir / p
+
+    def web_token(self) -> str | None:
+        """The console's token: ``web.token``, or the first line of ``web.token_file`` (OSError
+        when it cannot be read; ``canopen-gateway check`` and every start check it first)."""
+        if self.web.token_file is None:
+            return self.web.token
+        return read_secret(self.path_of(self.web.token_file))
+
+
+def read_secret(path: Path) -> str:
+    """The secret a file holds: its first line, without surrounding blanks."""
+    text = path.read_text(encoding="utf-8")
+    return text.splitlines()[0].strip() if text.strip() else ""
 
 
 #: A config that opens the bus must say which one: the in-process ``virtual`` bus is not a

@@ -81,7 +81,7 @@ async def test_a_router_rule_denying_the_audit_holds_against_a_wildcard_history_
         [WIRE],
         simulate={"nodes": "all"},
         zenoh={"mode": "client", "listen": [], "connect": [endpoint], "writes": True,
-               "auth": {"user": "gateway", "password": USERS["gateway"]}},
+               "auth": {"user": "gateway-line1", "password": USERS["gateway-line1"]}},
         journal={"path": str(tmp_path / "journal")},
     )  # fmt: skip
     gw = gateway_of(cfg)

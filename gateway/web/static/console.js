@@ -66,6 +66,31 @@ async function getJSON(path) {
   return r.json();
 }
 
+// Operators' endpoints (journal, bus monitor, SDO reads, faults): with a token set on the
+// gateway they need it. unlockOperator() asks for it once, logs in (POST /api/login sets a
+// session cookie, which EventSource and links send too) and keeps it for the commissioning page.
+const TOKEN_KEY = "canopen-gateway-token";
+
+async function unlockOperator() {
+  const s = await getJSON("/api/session");
+  if (s.allowed) return true;
+  if (!s.token_required) return false; // not from this machine without a token: the answer says why
+  for (;;) {
+    const token = sessionStorage.getItem(TOKEN_KEY) || window.prompt("The operators' token of this gateway (web.token):");
+    if (!token) return false;
+    const r = await fetch("/api/login", { method: "POST", headers: { "Authorization": "Bearer " + token } });
+    if (r.ok) { sessionStorage.setItem(TOKEN_KEY, token); return true; }
+    sessionStorage.removeItem(TOKEN_KEY);
+    if (r.status !== 403) return false; // 429: too many wrong tokens; the next answer says so
+  }
+}
+
+async function operatorFetch(url, opts) {
+  let r = await fetch(url, opts);
+  if ((r.status === 401 || r.status === 403) && await unlockOperator()) r = await fetch(url, opts);
+  return r;
+}
+
 function setConn(text) {
   const c = document.getElementById("conn");
   if (c) c.textContent = text;
@@ -167,6 +192,11 @@ function presenceBadge(r) {
   return r.presence === "alive" ? badge("alive", "good") : badge(r.presence, r.presence === "lost" ? "bad" : "stale");
 }
 
+// The node's status (its worst process quality); a node whose PDOs map nothing says why it is bad.
+function statusCell(r) {
+  return r.quality_note ? el("span", {}, badge(r.quality), " " + r.quality_note) : badge(r.quality);
+}
+
 function linkBadge(word) {
   if (word === "ok") return badge("ok", "good");
   if (word === "fault") return badge("fault", "bad");
@@ -189,7 +219,7 @@ function renderNodes(rows) {
       ["name", el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name)],
       ["node_id", String(r.node_id), "num"],
       ["profile", el("span", { title: r.title }, r.profile)],
-      ["quality", badge(r.quality)],
+      ["quality", statusCell(r)],
       ["presence", presenceBadge(r)],
       ["nmt_state", r.nmt_state],
       ["lifecycle", r.outputs === "safe" ? el("span", {}, r.lifecycle + " ", badge("outputs: safe", "stale")) : r.lifecycle],
@@ -222,7 +252,7 @@ function renderNodeRow(r) {
   document.getElementById("node-title").textContent = `Node ${r.name} (id ${r.node_id}, ${r.profile})`;
   document.title = `canopen-gateway: ${r.name}`;
   setFacts(document.getElementById("node-state"), [
-    ["Status", badge(r.quality)],
+    ["Status", statusCell(r)],
     ["Presence", presenceBadge(r)],
     ["NMT state", r.nmt_state],
     ["Lifecycle", r.lifecycle],
@@ -337,7 +367,6 @@ async function initNode() {
 }
 
 // ------------------------------------------------------------------ commissioning
-const TOKEN_KEY = "canopen-gateway-token";
 const SDO_TYPES = ["", "bool", "int8", "uint8", "int16", "uint16", "int24", "uint24", "int32", "uint32", "int64", "uint64", "float32", "string", "bytes"];
 
 async function commission(op, body) {
@@ -565,7 +594,7 @@ function addReadButtons(node) {
 async function readObject(node, name, button) {
   button.disabled = true;
   try {
-    const r = await fetch(`/api/read/${encodeURIComponent(node)}/${encodeURIComponent(name)}`, {
+    const r = await operatorFetch(`/api/read/${encodeURIComponent(node)}/${encodeURIComponent(name)}`, {
       method: "POST", headers: { "Content-Type": "application/json" }, body: "{}",
     });
     let d;
@@ -607,12 +636,11 @@ async function initFaults(node) {
     const b = el("button", { type: "button", class: "secondary", "data-fault": action, title: text }, action);
     b.addEventListener("click", async () => {
       const headers = { "Content-Type": "application/json", "X-Canopen-Client": "console" };
-      if (sim.rule === "token") headers["Authorization"] = "Bearer " + (sessionStorage.getItem(TOKEN_KEY) || "");
-      const r = await fetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
+      const r = await operatorFetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
       let d;
       try { d = await r.json(); } catch (e) { d = { message: "HTTP " + r.status }; }
       result.className = "result " + (r.ok ? "ok" : "err");
-      result.textContent = r.ok ? `${action}: done: ${text}` : `refused (HTTP ${r.status}): ${d.message || ""}` + (r.status === 401 ? " (unlock on the Commissioning page first)" : "");
+      result.textContent = r.ok ? `${action}: done: ${text}` : `refused (HTTP ${r.status}): ${d.message || ""}`;
       if (r.ok) show(d.state);
     });
     box.append(b);
@@ -695,17 +723,21 @@ function journalQuery() {
   return q.toString();
 }
 
-let journalAsked = 0; // the last range asked for: an older answer that comes later is dropped
+// Answers may come back out of order (the page's first load, then a submit): only the answer
+// of the latest request is shown, and the table says which query it shows (data-query).
+let journalRequests = 0;
 
 async function loadJournal() {
-  const asked = ++journalAsked;
   const q = journalQuery();
+  const mine = ++journalRequests;
   document.getElementById("jr-csv").href = "/api/journal.csv?" + q;
   const status = document.getElementById("jr-status");
-  const r = await fetch("/api/journal?" + q, { cache: "no-store" });
+  const r = await operatorFetch("/api/journal?" + q, { cache: "no-store" });
   const doc = await r.json();
-  if (asked !== journalAsked) return;
-  const tbody = document.querySelector("#journal tbody");
+  if (mine !== journalRequests) return; // a later request's answer is the one shown
+  const table = document.getElementById("journal");
+  const tbody = table.querySelector("tbody");
+  table.dataset.query = q;
   if (!r.ok) {
     status.textContent = doc.message || r.statusText;
     tbody.replaceChildren();
@@ -840,11 +872,28 @@ async function initMonitor() {
   for (const i of document.querySelectorAll('input[name="mkind"]')) i.addEventListener("change", monitorRefilter);
   document.getElementById("mon-pause").addEventListener("click", monitorPause);
   document.getElementById("mon-clear").addEventListener("click", () => document.querySelector("#frames tbody").replaceChildren());
+  if (!await unlockOperator()) {
+    const r = await fetch("/api/monitor/stream", { method: "HEAD" });
+    document.getElementById("mon-status").textContent = r.ok ? "" : "The bus monitor is for operators: " +
+      (r.status === 403 ? "without web.token it is served to the gateway's own machine only." : "the token was not given.");
+    setConn("locked");
+    return;
+  }
   monitorOpen();
 }
 
+// ------------------------------------------------------------------ not found (a node page of no node)
+async function initNotFound() {
+  const ov = await getJSON("/api/overview");
+  header(ov);
+  const asked = decodeURIComponent(location.pathname.replace(/^\/node\//, ""));
+  if (location.pathname.startsWith("/node/")) document.getElementById("nf-what").textContent = `No node named “${asked}” is configured on this gateway.`;
+  document.getElementById("nf-nodes").replaceChildren(...ov.nodes.map((r) =>
+    el("li", {}, el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name), ` (id ${r.node_id}, ${r.profile})`)));
+}
+
 // ------------------------------------------------------------------ start
-const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor };
+const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor, notfound: initNotFound };
 INIT[page]().catch((err) => {
   setConn("error");
   const main = document.querySelector("main");
