@@ -25,7 +25,8 @@ waits for the next attempt the reader sleeps (woken at once by ``close``). The b
 with every attempt that brings no frame: it starts again from ``reopen_backoff_s`` once the
 reopened bus delivers one (a link that opens and fails at once is not retried every second).
 
-Bus state (``state``, mirrored in ``image.bus_state``, with the reason in ``last_error``):
+Bus state (``state``, mirrored in ``image.bus_states[network]``, with the reason in
+``last_error``; one driver per CAN network, ``bus.network``):
 
 =======  ===================================================================================
 ok       frames flow; the controller is error active (or nothing says otherwise)
@@ -47,7 +48,8 @@ counts in its own counter set.
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), image (for counters), runtime.ratelimit, runtime.threads. Nothing northbound.
+Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), config (DEFAULT_NETWORK),
+image, runtime.ratelimit, runtime.threads. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -64,6 +66,7 @@ from typing import Any
 import can
 
 from gateway.bus.can_backend import open_can_bus, quiet_imports
+from gateway.config import DEFAULT_NETWORK
 from gateway.image import ProcessImage
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadRegistry
@@ -147,7 +150,12 @@ class BusDriver:
         threads: ThreadRegistry | None = None,
         mono: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
+        network: str = DEFAULT_NETWORK,
+        named: bool = False,
     ):
+        #: its CAN network (state in ``image.bus_states``); ``named``: threads and logs name it
+        self.network, self.where = network, f" (network {network})" if named else ""
+        self._suffix = f"-{network}" if named else ""
         self.bus_kwargs = bus_kwargs
         self.image = image
         self.reopen_backoff_s = reopen_backoff_s
@@ -219,15 +227,15 @@ class BusDriver:
                 raise BusOpenFailed(exc) from exc
             if isinstance(exc, FATAL_OPEN_ERRORS):
                 raise
-            log.error("CAN bus cannot be opened: %s; retrying with backoff", exc)
+            log.error("CAN bus%s cannot be opened: %s; retrying with backoff", self.where, exc)
             self.bus = None
             self._set_state("down", str(exc), tell=True)  # down from the start: said all the same
         else:
             self._set_state("ok", "")
         self._running.set()
         self._closing.clear()
-        self._thread = self.threads.start("can-reader", self._run)
-        self._sender = self.threads.start("can-sender", self._send_loop)
+        self._thread = self.threads.start("can-reader" + self._suffix, self._run)
+        self._sender = self.threads.start("can-sender" + self._suffix, self._send_loop)
 
     def close(self) -> None:
         self._running.clear()
@@ -253,7 +261,7 @@ class BusDriver:
     def _set_state(self, state: str, detail: str, tell: bool = False) -> None:
         changed = tell or state != self.state
         self.state = state
-        self.image.bus_state = state
+        self.image.set_bus_state(self.network, state)
         if detail:
             self.last_error = detail
         if changed and self.on_state is not None:
@@ -449,7 +457,7 @@ class BusDriver:
     def _bus_lost(self, detail: str) -> None:
         """The link is gone (receive raised, or the sender found it gone): close the bus, say
         ``down`` (``on_state``); the reader reopens it after the backoff."""
-        log.error("CAN bus %s; reopening", detail)
+        log.error("CAN bus%s %s; reopening", self.where, detail)
         self._shutdown_bus()
         # nothing is buffered any more: the bus clock follows the monotonic clock again
         # (left "busy", it would stand still while the bus is down and no node could
@@ -505,7 +513,7 @@ class BusDriver:
 
     def _enter_error(self, what: str) -> None:
         if self.state != "error" or self.last_error != what:
-            log.warning("CAN controller reports %s", what)
+            log.warning("CAN controller%s reports %s", self.where, what)
         self._set_state("error", what)
 
     def _maybe_recovered(self) -> None:
@@ -529,14 +537,13 @@ class BusDriver:
         except Exception as exc:  # noqa: BLE001
             self.warn.warning(
                 "reopen",
-                "CAN bus reopen failed: %s; next attempt in %.1f s",
-                exc,
+                "CAN bus%s reopen failed: %s; next attempt in %.1f s", self.where, exc,
                 self.backoff_s(self.reopen_attempts + 1),
             )
             self._set_state("down", f"reopen failed: {exc}")
             return False
         self.reopens += 1
         self.last_error_frame_s = None
-        log.info("CAN bus reopened")
+        log.info("CAN bus%s reopened", self.where)
         self._set_state("ok", "")
         return True

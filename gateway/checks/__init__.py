@@ -1,7 +1,9 @@
 """Checks across the config, the profiles / EDS files and the register map
 (``canopen-gateway check``, and every start of the gateway).
 
-``config_problems(cfg)`` returns one ``(key path, what is allowed)`` per problem:
+``config_problems(cfg)`` returns one ``(key path, what is allowed)`` per problem (the checks of
+one bus run on each network's config, ``Config.network_view``, their keys under its
+``networks[k].``):
 
 * the register map compiles (no address used twice, blocks fit);
 * protocol feasibility, e.g. an AP05 external heartbeat (AP05 manual 5.5.4, 5F09h) that the
@@ -355,7 +357,14 @@ GUARDING_OVER_SOCKETCAND = (
 
 
 def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
-    """What runs but may not do what is meant (see the module docstring)."""
+    """What runs but may not do what is meant (see the module docstring), each network's."""
+    return [
+        (view.qualify(k), m) for view in cfg.network_views() for k, m in _bus_warnings(view, nodes)
+    ]
+
+
+def _bus_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
+    """``config_warnings`` of one network's config."""
     out: list[Problem] = []
     resolved = nodes
     for first, later in clashes(gateway_uses(cfg, resolved)):
@@ -428,13 +437,13 @@ def config_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
     out: list[Problem] = []
     resolved = nodes
     try:
-        build_register_map(cfg, resolved)
+        build_register_map(cfg, resolved)  # one map for every network's nodes
     except RegisterMapError as exc:
-        out.append((exc.key, str(exc)))
-    out += protocol_problems(cfg, resolved)
-    out += eds_problems(cfg, resolved)
-    out += safe_output_problems(cfg, resolved)
-    out += cob_id_problems(cfg, resolved)
+        out.append((cfg.qualify(exc.key), str(exc)))
+    for view in cfg.network_views():  # what one bus holds: each network's alone
+        found = protocol_problems(view, resolved) + eds_problems(view, resolved)
+        found += safe_output_problems(view, resolved) + cob_id_problems(view, resolved)
+        out += [(view.qualify(k), m) for k, m in found]
     out += journal_problems(cfg)
     seen: set[Problem] = set()
     unique = []

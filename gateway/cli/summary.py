@@ -57,7 +57,18 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
     if cfg.ascii is not None and cfg.ascii.enabled:
         gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
         print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
-    for n in cfg.nodes:
+    for number, view in enumerate(cfg.network_views(), start=1):
+        if cfg.networks is not None:
+            _print_network(view, number)
+        _print_nodes(cfg, view, nodes)
+    for _key, text in config_warnings(cfg, nodes):
+        print(f"  warning: {text}")
+    _print_eds_warnings(cfg, nodes)
+
+
+def _print_nodes(cfg: Any, view: Any, nodes: Any) -> None:
+    """One line per node of a network (``view``), and its profile's notes."""
+    for n in view.nodes:
         lp = nodes[n.name].lp
         pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
         sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
@@ -69,9 +80,15 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
         )
         for note in lp.notes:
             print(f"  warning: node {n.name}: {note}")
-    for _key, text in config_warnings(cfg, nodes):
-        print(f"  warning: {text}")
-    _print_eds_warnings(cfg, nodes)
+
+
+def _print_network(view: Any, number: int) -> None:
+    """``network line1 (net 1): socketcan can0, 500000 bit/s, master node id 127``."""
+    (net,) = view.network_sections()
+    can = view.can.words()
+    rate = f", {can['bitrate']} bit/s" if can["bitrate"] else ""
+    print(f"  network {net.name} (net {number}): {can['interface']} {can['channel']}{rate}, "
+          f"master node id {view.master.node_id}" + ("" if view.nodes else ", no nodes"))  # fmt: skip
 
 
 def _print_eds_warnings(cfg: Any, nodes: Any) -> None:

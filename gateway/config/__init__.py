@@ -31,9 +31,10 @@ from __future__ import annotations
 from gateway.config.env import ENV_PREFIX, ENV_TEXT_KEYS, apply_env_overrides, blame, env_keys
 from gateway.config.errors import ConfigError, nearest_key
 from gateway.config.journal import JournalSection
-from gateway.config.load import load_config, parse_config, raw_section
+from gateway.config.load import load_config, parse_config, raw_list, raw_section
 from gateway.config.model import (
     CAN_INTERFACE_MISSING,
+    DEFAULT_NETWORK,
     WEB_TOKEN_MIN_LENGTH,
     AsciiSection,
     CanSection,
@@ -43,6 +44,7 @@ from gateway.config.model import (
     MasterSection,
     ModbusSection,
     ModbusTls,
+    NetworkSection,
     SimulateSection,
     WebSection,
     ZenohAuth,
@@ -66,6 +68,8 @@ __all__ = [
     "AsciiSection",
     "CAN_INTERFACE_MISSING",
     "CanSection",
+    "DEFAULT_NETWORK",
+    "NetworkSection",
     "Config",
     "ConfigError",
     "ENV_PREFIX",
@@ -96,6 +100,7 @@ __all__ = [
     "blame",
     "env_keys",
     "load_config",
+    "raw_list",
     "raw_section",
     "nearest_key",
     "parse_config",

@@ -1,8 +1,17 @@
 """The gateway's configuration as data: the pydantic models of every section of the YAML file
-(``gateway:``, ``can:``, ``master:``, ``nodes:``, ``modbus:``, ``zenoh:``, ``health:``,
-``web:``, ``ascii:``, ``simulate:``, ``journal:`` from ``config.journal``, ``nodes:`` from
-``config.node``) with the rules one field or one section can check itself
+(``gateway:``, ``can:``, ``master:``, ``nodes:``, ``networks:``, ``modbus:``, ``zenoh:``,
+``health:``, ``web:``, ``ascii:``, ``simulate:``, ``journal:`` from ``config.journal``,
+``nodes:`` from ``config.node``) with the rules one field or one section can check itself
 (ranges, patterns, key expressions, networks, TLS roles, token length).
+
+Several CAN networks: ``networks:`` lists them, each with its own ``can:``, ``master:`` and
+``nodes:``; the single-network form (top-level ``can:``, ``master:``, ``nodes:``) is one network
+named ``default``. ``Config.network_sections()`` gives the networks of either form;
+``Config.network_view(name)`` a config of one network (its ``can``, ``master`` and ``nodes``,
+the shared sections as they are), which the parts of one network (its driver and master, the
+commissioning tools, the checks of one bus) read as they read a single-network config. In the
+``networks:`` form ``Config.nodes`` is every network's nodes (names are unique in the gateway)
+and ``can`` / ``master`` are the first network's.
 
 What a section cannot see (duplicates across nodes, names that refer to nodes, profiles and
 EDS files) is checked when the file is loaded (``config.load``).
@@ -21,7 +30,9 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    SerializerFunctionWrapHandler,
     field_validator,
+    model_serializer,
     model_validator,
 )
 
@@ -51,6 +62,10 @@ class CanSection(BaseModel):
     def bus_kwargs(self) -> dict[str, Any]:
         kw = self.model_dump(exclude={"reopen_backoff_s"}, exclude_none=True)
         return kw
+
+    def words(self) -> dict[str, Any]:
+        """The bus as the console and the catalogue show it: interface, channel, bitrate."""
+        return {"interface": self.interface, "channel": str(self.channel), "bitrate": self.bitrate}
 
 
 class PairSection(_Model):
@@ -364,11 +379,30 @@ class SimulateSection(_Model):
     )
 
 
+#: the one network of the single-network form (top-level ``can``, ``master``, ``nodes``)
+DEFAULT_NETWORK = "default"
+#: the sections a network has of its own (``networks[].can`` ...; top-level in the other form)
+NETWORK_KEYS = ("can", "master", "nodes")
+
+
+class NetworkSection(_Model):
+    """One CAN network of the gateway (``networks[]``): its bus, its master and its nodes, as
+    the top-level ``can:``, ``master:`` and ``nodes:`` of the single-network form."""
+
+    name: str = Field(pattern=r"^[a-z0-9_\-]+$", description="in logs, /healthz, metrics, the console")
+    can: CanSection = Field(default_factory=CanSection)
+    master: MasterSection = Field(default_factory=MasterSection)
+    nodes: list[NodeConfig] = Field(default_factory=list)
+
+
 class Config(_Model):
     gateway: GatewaySection = Field(default_factory=GatewaySection)
     can: CanSection = Field(default_factory=CanSection)
     master: MasterSection = Field(default_factory=MasterSection)
     nodes: list[NodeConfig] = Field(default_factory=list)
+    #: several CAN networks, each with its own can, master and nodes (None: the single form);
+    #: at most 8 (the gateway block of unit 247 has a register per network, docs/modbus.md)
+    networks: list[NetworkSection] | None = Field(default=None, max_length=8)
     modbus: ModbusSection = Field(default_factory=ModbusSection)
     zenoh: ZenohSection = Field(default_factory=ZenohSection)
     health: HealthSection = Field(default_factory=HealthSection)
@@ -382,6 +416,91 @@ class Config(_Model):
     #: key path -> the environment variable that set it (``config.env.env_keys``): a problem
     #: found after loading is blamed on the variable, as one found while loading is
     env_keys: dict[str, str] = Field(default_factory=dict, exclude=True)
+    #: a view of one network of the ``networks:`` form (``network_view``): its key paths start
+    #: ``networks[k].``; empty for a whole config
+    key_prefix: str = Field(default="", exclude=True)
+
+    @model_validator(mode="after")
+    def _flatten(self) -> Config:
+        """``networks:``: ``nodes`` are every network's, ``can`` and ``master`` the first's
+        (given together with the top-level keys, the loader refuses the file)."""
+        nets = self.networks
+        if nets and not (NETWORK_KEYS_SET & self.model_fields_set):
+            self.nodes = [n for net in nets for n in net.nodes]
+            self.can = nets[0].can
+            self.master = nets[0].master
+        return self
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """Written back as it was read: the ``networks:`` form without the top-level copies."""
+        out = handler(self)
+        if isinstance(out, dict):
+            for key in NETWORK_KEYS if self.networks is not None else ("networks",):
+                out.pop(key, None)
+        return out
+
+    # ------------------------------------------------------------------ networks
+    def network_sections(self) -> list[NetworkSection]:
+        """The networks of either form (the single form: one named ``default``, whose sections
+        are the top-level ones, the same objects)."""
+        if self.networks is not None:
+            return list(self.networks)
+        return [
+            NetworkSection.model_construct(
+                name=DEFAULT_NETWORK, can=self.can, master=self.master, nodes=self.nodes
+            )
+        ]
+
+    def network_names(self) -> list[str]:
+        return [net.name for net in self.network_sections()]
+
+    def network_view(self, name: str) -> Config:
+        """The config of network ``name`` alone: its ``can``, ``master`` and ``nodes``; the
+        shared sections are this config's (the same objects). The config itself when it has
+        one network only. KeyError for an unknown name."""
+        for k, net in enumerate(self.network_sections()):
+            if net.name == name:
+                return self if self.networks is None or self.key_prefix else self._view(k, net)
+        raise KeyError(name)
+
+    def _view(self, k: int, net: NetworkSection) -> Config:
+        return self.model_copy(update={
+            "can": net.can, "master": net.master, "nodes": net.nodes, "networks": [net],
+            "key_prefix": f"{self.key_prefix}networks[{k}].",
+        })  # fmt: skip
+
+    def network_views(self) -> list[Config]:
+        """``network_view`` of every network, in configured order."""
+        return [self.network_view(name) for name in self.network_names()]
+
+    def network_of(self, node: str) -> str:
+        """The name of the network node ``node`` is on (KeyError: no such node)."""
+        for net in self.network_sections():
+            if any(n.name == node for n in net.nodes):
+                return net.name
+        raise KeyError(node)
+
+    def qualify(self, key: str) -> str:
+        """A key path of this config as the file spells it: a network view's ``nodes[0]``,
+        ``can.x``, ``master.x`` under its ``networks[k].``; a whole ``networks:`` config's
+        ``nodes[i]`` (every network's nodes in order) as ``networks[k].nodes[j]``."""
+        head = key.split(".", 1)[0].split("[", 1)[0]
+        if head not in NETWORK_KEYS:
+            return key
+        if self.key_prefix:
+            return self.key_prefix + key
+        if self.networks is None or head != "nodes" or not key.startswith("nodes["):
+            return key
+        index, _, rest = key[len("nodes["):].partition("]")
+        if not index.isdigit():
+            return key
+        i = int(index)
+        for k, net in enumerate(self.networks):
+            if i < len(net.nodes):
+                return f"networks[{k}].nodes[{i}]{rest}"
+            i -= len(net.nodes)
+        return key
 
     def node(self, name: str) -> NodeConfig:
         for n in self.nodes:
@@ -398,6 +517,9 @@ class Config(_Model):
     @property
     def base_dir(self) -> Path:
         return Path(self.source).parent if self.source != "<memory>" else Path.cwd()
+
+
+NETWORK_KEYS_SET = frozenset(NETWORK_KEYS)
 
 
 #: A config that opens the bus must say which one: the in-process ``virtual`` bus is not a

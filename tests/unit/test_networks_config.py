@@ -1,0 +1,157 @@
+"""Several CAN networks in one config (``networks:``): the single-network form is one network
+named ``default``; each network's sections are checked as a single network's, under its key
+path; the refusals are one line each (file, key path, what is allowed)."""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+from typing import Any
+
+import pytest
+
+from gateway.config import ConfigError
+from gateway.northbound.regmap import build_register_map
+from tests.helpers import parse_checked, parse_checked_config, resolved
+
+
+def node(name: str, node_id: int, **kw: Any) -> dict[str, Any]:
+    return {"name": name, "node_id": node_id, "profile": "sgh10", **kw}
+
+
+def net(name: str, *nodes: dict[str, Any], **kw: Any) -> dict[str, Any]:
+    return {"name": name, "can": {"interface": "virtual", "channel": f"t-{name}"},
+            "nodes": list(nodes), **kw}  # fmt: skip
+
+
+TWO = {
+    "gateway": {"name": "t"},
+    "networks": [
+        net("line1", node("wire", 1), master={"node_id": 127, "heartbeat_ms": 500}),
+        net("line2", node("drive1", 1, modbus={"unit_id": 101}), master={"node_id": 126}),
+    ],
+}
+
+
+def problems(raw: dict[str, Any], environ: dict[str, str] | None = None) -> list[str]:
+    with pytest.raises(ConfigError) as exc:  # overrides are applied to a copy: TWO stays as it is
+        parse_checked_config(copy.deepcopy(raw), "cfg.yaml", environ=environ or {})
+    return exc.value.problems
+
+
+def test_the_single_network_form_is_one_network_named_default() -> None:
+    cfg = parse_checked_config({"can": {"interface": "virtual"}, "nodes": [node("wire", 1)]}, environ={})
+    assert cfg.network_names() == ["default"]
+    assert cfg.network_view("default") is cfg
+    assert cfg.network_of("wire") == "default"
+
+
+def test_each_network_has_its_own_can_master_and_nodes_and_names_are_gateway_wide() -> None:
+    cfg = parse_checked_config(TWO, "cfg.yaml", environ={})
+    assert cfg.network_names() == ["line1", "line2"]
+    assert [n.name for n in cfg.nodes] == ["wire", "drive1"]
+    line2 = cfg.network_view("line2")
+    assert (line2.can.channel, line2.master.node_id, [n.name for n in line2.nodes]) == (
+        "t-line2", 126, ["drive1"]
+    )
+    assert cfg.network_of("drive1") == "line2"
+    assert line2.qualify("master.heartbeat_ms") == "networks[1].master.heartbeat_ms"
+
+
+def test_a_config_written_back_reads_as_it_was_written() -> None:
+    cfg = parse_checked_config(TWO, "cfg.yaml", environ={})
+    again = parse_checked_config(cfg.model_dump(mode="json", exclude_none=True), environ={})
+    assert again.network_names() == ["line1", "line2"]
+    single = parse_checked_config({"can": {"interface": "virtual"}, "nodes": [node("w", 1)]}, environ={})
+    assert "networks" not in single.model_dump()
+
+
+@pytest.mark.parametrize("key", ["can", "master", "nodes"])
+def test_networks_with_a_top_level_key_of_the_single_form_is_refused_naming_both(key: str) -> None:
+    value: Any = [] if key == "nodes" else {}
+    (line,) = problems({**TWO, key: value})
+    assert line.startswith(f"cfg.yaml: {key}: the single-network form's {key}: cannot be given with networks:")
+
+
+def test_two_networks_of_one_name_are_refused_naming_it() -> None:
+    raw = {"networks": [net("line1", node("a", 1)), {**net("line1", node("b", 2)), "can": {"channel": "other"}}]}
+    assert problems(raw) == ["cfg.yaml: networks[1].name: duplicate network name 'line1' (also networks[0])"]
+
+
+def test_a_node_name_twice_in_the_gateway_is_refused_naming_it() -> None:
+    raw = {"networks": [net("line1", node("wire", 1)), net("line2", node("wire", 2))]}
+    assert problems(raw) == [
+        "cfg.yaml: networks[1].nodes[0].name: duplicate name 'wire' (also networks[0].nodes[0]); "
+        "node names are unique in the gateway"
+    ]
+
+
+def test_one_node_id_on_two_networks_is_two_devices_but_one_modbus_unit_is_refused() -> None:
+    raw = {"networks": [net("line1", node("wire", 1)), net("line2", node("drive1", 1))]}
+    assert problems(raw) == [
+        "cfg.yaml: networks[1].nodes[0].modbus.unit_id: nodes 'wire' (networks[0].nodes[0]) and "
+        "'drive1' (networks[1].nodes[0]) are both on Modbus unit 1 (modbus.unit_id defaults to the "
+        "node id): give one of them its own modbus.unit_id"
+    ]
+
+
+def test_a_node_id_twice_on_one_network_is_refused() -> None:
+    raw = {"networks": [net("line1", node("a", 1), node("b", 1, modbus={"unit_id": 9}))]}
+    assert problems(raw) == ["cfg.yaml: networks[0].nodes[1].node_id: duplicate node_id 1 (also networks[0].nodes[0])"]
+
+
+def test_two_networks_on_one_bus_are_refused() -> None:
+    raw = {"networks": [net("line1", node("a", 1)), {**net("line2", node("b", 2)), "can": {"interface": "virtual", "channel": "t-line1"}}]}
+    (line,) = problems(raw)
+    assert line.startswith("cfg.yaml: networks[1].can: the same bus as networks[0]")
+
+
+def test_a_network_name_is_lower_case_letters_digits_dash_and_underscore() -> None:
+    (line,) = problems({"networks": [net("Line 1", node("a", 1))]})
+    assert line.startswith("cfg.yaml: networks[0].name: got 'Line 1', must match")
+
+
+def test_the_checks_of_one_bus_run_per_network_under_its_key() -> None:
+    """A COB-ID is one bus's: node 1's heartbeat on line1 is no clash with line2's master, a
+    master with node 1's id on line2 is, named under networks[1]."""
+    raw = {"networks": [
+        net("line1", node("a", 1)),
+        net("line2", node("c", 1, modbus={"unit_id": 101}), master={"node_id": 1}),
+    ]}  # fmt: skip
+    (line,) = problems(raw)
+    assert line.startswith("cfg.yaml: networks[1].")
+    assert "0x701" in line
+
+
+def test_a_pair_is_checked_per_network() -> None:
+    raw = {"networks": [net("line1", node("a", 1), master={"redundancy": {"node_id": 1}})]}
+    assert problems(raw) == [
+        "cfg.yaml: networks[0].master.redundancy.node_id: 1 is the node id of nodes[0]"
+    ]
+
+
+def test_an_environment_variable_sets_a_key_of_a_network_and_is_blamed() -> None:
+    env = {"CANOPEN_GATEWAY__NETWORKS__1__MASTER__NODE_ID": "200"}
+    assert problems(TWO, env) == [
+        "CANOPEN_GATEWAY__NETWORKS__1__MASTER__NODE_ID: networks[1].master.node_id: got 200, must be <= 127"
+    ]
+
+
+def test_the_register_csv_names_each_points_network_and_the_gateway_block_each_bus() -> None:
+    loaded = parse_checked(TWO, "cfg.yaml", environ={})
+    rows = list(csv.DictReader(io.StringIO(build_register_map(*loaded).to_csv())))
+    assert {r["network"] for r in rows if r["node"] == "drive1"} == {"line2"}
+    gateway = {(r["address"], r["signal"], r["network"]) for r in rows if r["unit_id"] == "247"}
+    assert {("23", "networks", ""), ("24", "bus_state", "line1"), ("25", "bus_state", "line2"),
+            ("32", "pair_role", "line1"), ("33", "pair_role", "line2")} <= gateway  # fmt: skip
+
+
+def test_each_node_is_resolved_with_its_networks_master() -> None:
+    """Supervision settings come from the node's own network's master section."""
+    raw = {"networks": [
+        net("line1", node("a", 1), master={"heartbeat_timeout_multiple": 2}),
+        net("line2", node("b", 1, modbus={"unit_id": 101}), master={"heartbeat_timeout_multiple": 4}),
+    ]}  # fmt: skip
+    nodes = resolved(parse_checked_config(raw, environ={}))
+    assert (nodes["a"].settings.heartbeat_multiple, nodes["b"].settings.heartbeat_multiple) == (2, 4)
