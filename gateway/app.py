@@ -11,7 +11,8 @@ parts do not know each other except through the image and the command service.
 Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, bus.network, checks,
 commands, config, device.resolved, http (health, server, metrics), image, modbus.server,
 northbound (catalog, frames, gateway_block, keys, regmap, summary), sim (faults, motion, node,
-runner), runtime (startup, threads, turns), journal, web (console, views), zenoh_bridge.bridge.
+runner), runtime (startup, threads, turns), journal, web (console, monitor, views),
+zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
@@ -27,9 +28,9 @@ import can
 
 from gateway import __version__
 from gateway.bus.can_backend import open_can_bus
-from gateway.bus.driver import BusDriver, BusOpenFailed
+from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
-from gateway.bus.network import Network, Networks
+from gateway.bus.network import Network, NetworkOpenFailed, Networks
 from gateway.checks import check_config, journal_path
 from gateway.commands import CommandService
 from gateway.config import Config, ConfigError, blame
@@ -70,11 +71,10 @@ class SimulatedBus:
         wanted = names if names is not None else [n.name for n in cfg.simulated_nodes()]
         self.nodes: dict[str, Any] = {}
         #: each network's config and the names of its simulated nodes, in configured order
-        self.networks: list[tuple[Config, list[str]]] = []
-        for view in cfg.network_views():
-            mine = [n.name for n in view.nodes if n.name in wanted]
-            if mine:
-                self.networks.append((view, mine))
+        self.networks: list[tuple[Config, list[str]]] = [
+            (view, mine) for view in cfg.network_views()
+            if (mine := [n.name for n in view.nodes if n.name in wanted])
+        ]  # fmt: skip
         for n in cfg.nodes:
             if n.name not in wanted:
                 continue
@@ -121,9 +121,9 @@ class SimulatedBus:
     def stop(self) -> None:
         for runner in {id(r): r for r in self.runners.values()}.values():
             runner.stop()
-        self.runners.clear()
         for bus in self.buses:
             bus.shutdown()
+        self.runners.clear()
         self.buses.clear()
 
 
@@ -278,9 +278,11 @@ class Gateway:
 
     def audit(self, record: dict[str, Any]) -> None:
         """A write or command done or refused (the command service's audit hook): journaled
-        under ``<prefix>/audit``."""
+        under ``<prefix>/audit``, with the node's network."""
         if self.journal is None:
             return
+        node = record.get("node")
+        record["network"] = self.cfg.network_of(node) if node in self.image.nodes else None
         self.journal.append(
             Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
                   record.get("node"), None, json.dumps(record).encode())
@@ -385,7 +387,7 @@ class Gateway:
                     self._start_simulated_devices(view)
         for net in self.networks:  # each network's bus, its reader and sender
             with startup_step(net.cfg.qualify("can.interface"), net.cfg.can.interface):
-                await asyncio.to_thread(net.driver.open, must_open=self.bus_must_open)
+                await asyncio.to_thread(net.open, must_open=self.bus_must_open)
         # every listener before the master sends its first frame: a start that fails on a port
         # in use must leave the devices as they were (no NMT command, no SDO, no heartbeat)
         if self.modbus is not None:
@@ -417,7 +419,7 @@ class Gateway:
             self.sim.start_network(view)
         except Exception as exc:
             if self.bus_must_open:
-                raise BusOpenFailed(exc) from exc
+                raise NetworkOpenFailed(exc, view) from exc
             raise
 
     async def _start_health(self) -> None:
@@ -443,20 +445,20 @@ class Gateway:
         if self.cfg.web.enabled:
             from gateway.sim.faults import FaultInjector
             from gateway.web.console import WebConsole
+            from gateway.web.monitor import FrameMonitor, NetworkMonitors
             from gateway.web.views import ConsoleModel
 
-            regmap = (
-                self.modbus.regmap
-                if self.modbus is not None
-                else build_register_map(self.cfg, self.nodes)
-            )
+            regmap = self.modbus.regmap if self.modbus else build_register_map(self.cfg, self.nodes)
+            monitors = {  # a bus monitor per network: node ids are a network's own
+                net.name: FrameMonitor(net.cfg, FrameDecoder(net.cfg, self.nodes), net.driver)
+                for net in self.networks
+            }
             self.web = WebConsole(
                 ConsoleModel(self.cfg, self.image, self.commands, self.overview, regmap=regmap),
-                decoder=FrameDecoder(self.cfg, self.nodes),
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
-                frames=self.driver,
                 turns=self.turns,
                 journal=self.journal,
+                monitors=NetworkMonitors(monitors),
             )
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(

@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
-from gateway.bus.driver import BusDriver
+from gateway.bus.driver import BusDriver, BusOpenFailed
 from gateway.bus.master import Master
 from gateway.bus.node.parts import NodeParts
 from gateway.canopen.objref import ObjRef
@@ -31,6 +31,15 @@ from gateway.device.resolved import ResolvedNode
 from gateway.errors import NetworkUnknown, NodeUnknown, NotActive
 from gateway.image import ProcessImage
 from gateway.runtime.threads import ThreadRegistry
+
+
+class NetworkOpenFailed(BusOpenFailed):
+    """The bus of one network could not be opened by a start that needs it: ``cfg`` is that
+    network's config (its ``can:`` is what the one line names)."""
+
+    def __init__(self, cause: BaseException, cfg: Config):
+        super().__init__(cause)
+        self.cfg = cfg
 
 
 class Network:
@@ -73,6 +82,14 @@ class Network:
     def detail(self) -> str:
         """Why the bus is down or in error (the last reason it gave)."""
         return self.driver.last_error
+
+    def open(self, *, must_open: bool = False) -> None:
+        """Open the bus and start its reader and sender (``BusDriver.open``); a bus that must
+        open and cannot raises ``NetworkOpenFailed`` naming this network."""
+        try:
+            self.driver.open(must_open=must_open)
+        except BusOpenFailed as exc:
+            raise NetworkOpenFailed(exc.cause, self.cfg) from exc
 
     def bus_doc(self) -> dict[str, Any]:
         """``{"state", "detail"}`` as /healthz says it (``ok`` when the bus is up)."""

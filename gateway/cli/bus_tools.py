@@ -14,7 +14,7 @@ import argparse
 import sys
 from typing import Any
 
-from gateway.cli.load import EXIT_CONFIG, load, load_for_bus
+from gateway.cli.load import EXIT_CONFIG, load, load_for_bus, on_network
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -22,7 +22,7 @@ from gateway.device.resolved import ResolvedNode
 def cmd_fault(args: argparse.Namespace) -> int:
     from gateway.sim.faults_client import run_fault
 
-    cfg, _ = load(args.config)
+    cfg, _ = on_network(load(args.config), args.network, "fault", args.node)
     if args.node is not None and args.action is None:
         print("error: fault NODE ACTION: give an action too (or neither, to list)", file=sys.stderr)
         return EXIT_CONFIG
@@ -32,7 +32,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
 def cmd_lss(args: argparse.Namespace) -> int:
     from gateway.tools.lss import run_lss
 
-    cfg, nodes = load(args.config)
+    cfg, nodes = on_network(load(args.config), args.network, "lss")
     return run_lss(cfg, nodes, args)
 
 
@@ -51,7 +51,7 @@ def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tupl
         if running is not None:
             running.close()
             line = line or (
-                f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway "
+                f"error: {cfg.source}: {cfg.qualify('can.interface')}: virtual: the bus lives inside the gateway "
                 f"running at {running.endpoint}, so `{command}` cannot join it; give both a bus "
                 "they share (can.interface: remote, docs/canopen.md)"
             )
@@ -74,7 +74,7 @@ def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tupl
 def cmd_scan(args: argparse.Namespace) -> int:
     from gateway.bus.scan import report, scan
 
-    cfg, nodes = load_for_bus(args.config)
+    cfg, nodes = on_network(load_for_bus(args.config), args.network, "scan")
     bus, sim = _tool_bus(cfg, nodes, "scan")
     try:
         found = scan(
@@ -96,7 +96,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     from gateway.northbound.frames import FrameDecoder, kind_filter, node_filter
     from gateway.tools.monitor import monitor
 
-    cfg, resolved = load_for_bus(args.config)
+    cfg, resolved = on_network(load_for_bus(args.config), args.network, "monitor")
     try:
         nodes = node_filter(cfg, _split(args.node))
         kinds = kind_filter(_split(args.kind))

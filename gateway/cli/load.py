@@ -1,6 +1,7 @@
 """How a command of the command line loads its configuration: checked as at every start
 (``gateway.checks``: validated, its nodes resolved once and cross-checked) and, for a command that opens the CAN bus, with an interface python-can
-can load; the exit codes of the command line.
+can load; the network a command that opens one bus works on (``--network``: ``on_network``);
+the exit codes of the command line.
 
 Imports: gateway.checks, gateway.config, gateway.device.resolved, gateway.bus.can_backend (inside the bus check).
 """
@@ -8,6 +9,7 @@ Imports: gateway.checks, gateway.config, gateway.device.resolved, gateway.bus.ca
 from __future__ import annotations
 
 import os
+import sys
 from typing import Any
 
 from gateway.checks import load_checked
@@ -81,3 +83,26 @@ def _can_problems(source: str, key: str, section: dict[str, Any], named: bool) -
         f"{blame(k, source, from_env)}: {k}: {why}"
         for k, why in ((key + k.removeprefix("can"), why) for k, why in can_section_problems(section))
     ]
+
+
+def on_network(loaded: Resolved, network: str | None, command: str, node: str | None = None) -> Resolved:
+    """The config of one network (``Config.network_view``: its can, master and nodes) and its
+    nodes, for a command that opens one bus: ``network`` (``--network``), or the only one;
+    with several networks and none named, the command is refused in one line with their names
+    (exit 2), and the network of ``node`` when a node name is given."""
+    cfg, nodes = loaded
+    names = cfg.network_names()
+    if network is None and len(names) == 1:
+        network = names[0]
+    if network not in names:
+        if network is None:
+            on = ""
+            if node is not None and node in nodes:
+                on = f"; node {node} is on network {cfg.network_of(node)}"
+            why = f"the config has {len(names)} networks: give --network NAME (one of: {', '.join(names)}){on}"
+        else:
+            why = f"no network named {network!r}; networks: {', '.join(names)}"
+        print(f"error: {cfg.source}: {command}: {why}", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+    view = cfg.network_view(network)
+    return Resolved(view, {n.name: nodes[n.name] for n in view.nodes})

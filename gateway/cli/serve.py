@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus
+from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus, on_network
 from gateway.config import blame
 
 
@@ -99,7 +99,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from gateway.app import SimulatedBus
     from gateway.tools.bus_open import opening
 
-    cfg, nodes = load_for_bus(args.config)
+    loaded = load_for_bus(args.config)
+    cfg, nodes = loaded if args.network is None else on_network(loaded, args.network, "simulate")
     setup_logging(args.log_level or cfg.gateway.log_level)
     names = args.nodes.split(",") if args.nodes else [n.name for n in cfg.simulated_nodes()]
     if not names:
@@ -107,12 +108,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     sim = SimulatedBus(cfg, nodes, names)
 
     async def start() -> None:
-        with opening(cfg):  # a bus that cannot open: one line, exit 2 (cli.main)
-            sim.start()
+        for view, _ in sim.networks:  # each network's devices on its own bus
+            with opening(view):  # a bus that cannot open: one line, exit 2 (cli.main)
+                sim.start_network(view)
 
     async def stop() -> None:
         sim.stop()
 
-    line = f"simulating {', '.join(f'{n}@{sim.nodes[n].node_id}' for n in sim.nodes)} on {cfg.can.bus_kwargs()}"
+    line = "; ".join(
+        f"simulating {', '.join(f'{n}@{sim.nodes[n].node_id}' for n in names)} on {view.can.bus_kwargs()}"
+        for view, names in sim.networks
+    )
     asyncio.run(run_until_signal(start, stop, line))
     return 0

@@ -163,7 +163,7 @@ def refusal(cfg: Config, command: str) -> str | None:
     # sdo and nmt go through the gateway's Zenoh API when it has one; scan and monitor never do
     via_zenoh = "; enable zenoh (this command then goes through it)" if command.split()[0] in ("sdo", "nmt") else ""
     return (
-        f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway running "
+        f"error: {cfg.source}: {cfg.qualify('can.interface')}: virtual: the bus lives inside the gateway running "
         f"at {url}, so `{command}` would act on a private copy of the devices; use {page}"
         f"{via_zenoh}; or give both a bus they share (can.interface: remote, docs/canopen.md)"
     )
@@ -181,6 +181,6 @@ def _page_served(url: str) -> bool:
 def private_note(cfg: Config) -> str:
     names = ", ".join(n.name for n in cfg.simulated_nodes()) or "none"
     return (
-        f"note: {cfg.source}: can.interface: virtual and no gateway runs on this config: acting "
+        f"note: {cfg.source}: {cfg.qualify('can.interface')}: virtual and no gateway runs on this config: acting "
         f"on this command's own simulated devices ({names})"
     )

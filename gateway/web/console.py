@@ -28,8 +28,9 @@ host and port: pages and static files, a small JSON API, server-sent events, and
 ``GET /monitor``                       bus monitor page (``static/monitor.html``)
 ``GET /api/monitor/stream``            server-sent events of the bus monitor
                                        (``gateway.web.monitor``): ``hello``, ``frames``,
-                                       ``status``; filters ``?node=wire,5``, ``?kind=pdo,emcy``;
-                                       400 for an unknown node or kind, 503 past 8 pages
+                                       ``status``; ``?network=line2`` (default the first),
+                                       filters ``?node=wire,5``, ``?kind=pdo,emcy``; 400 for an
+                                       unknown network, node or kind, 503 past 8 pages
 ``GET /api/journal[.csv]``             the journal's entries of a range (``web.journal_log``)
 ``GET /api/sim``                       simulated nodes, their faults and who may inject them
 ``POST /api/sim/<name>/<action>``      fault injection into a node simulated in this process
@@ -75,7 +76,7 @@ from gateway.web.events import KINDS, EventLog, EventLogHandler
 from gateway.web.journal_log import JournalLog
 from gateway.web.limits import ClientBudget
 from gateway.web.live import LiveHub, Subscriber, TooManyClients
-from gateway.web.monitor import FrameMonitor, FrameSource, TooManyPages
+from gateway.web.monitor import FrameMonitor, FrameSource, NetworkMonitors
 from gateway.web.pages import fill_pages
 from gateway.web.trends import TREND_PERIOD_S, TrendStore
 from gateway.web.views import ConsoleModel
@@ -141,11 +142,12 @@ class WebConsole:
         self,
         model: ConsoleModel,
         *,
-        decoder: FrameDecoder,
+        decoder: FrameDecoder | None = None,
         faults: Any = None,
         frames: FrameSource | None = None,
         turns: LoopTurns | None = None,
         journal: Any = None,
+        monitors: NetworkMonitors | None = None,
     ):
         #: what the pages and the API show, built from the console's config, image and commands
         self.model = model
@@ -165,13 +167,17 @@ class WebConsole:
         self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS)
         self.faults = faults  # sim.faults.FaultInjector when nodes are simulated in this process
         self._sampler: Any = None
-        #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
-        self.monitor = FrameMonitor(self.cfg, decoder, frames)
+        #: the bus monitor of each network (``frames``: the one bus driver of a single network)
+        if monitors is None:
+            assert decoder is not None, "a decoder for the bus monitor, or the monitors"
+            monitors = NetworkMonitors({"": FrameMonitor(self.cfg, decoder, frames)})
+        self.monitors = monitors
+        self.monitor = self.monitors.first
         self.turns = turns  # live updates take turns on the loop (API requests: in health)
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)
-        self.monitor.attach(loop)
+        self.monitors.attach(loop)
         for node in self.image.nodes.values():
             self.events.watch(node)
         self.image.health_listeners.append(self.events.on_health)
@@ -180,7 +186,7 @@ class WebConsole:
 
     def stop(self) -> None:
         self.hub.detach()
-        self.monitor.detach()
+        self.monitors.detach()
         if self.events.on_health in self.image.health_listeners:
             self.image.health_listeners.remove(self.events.on_health)
         logging.getLogger("gateway").removeHandler(self._log_handler)
@@ -252,7 +258,7 @@ class WebConsole:
         if path == "/monitor":
             return self._file("monitor.html")
         if path == "/api/monitor/stream":
-            return self._monitor_stream(request)
+            return self.monitors.stream(request, self.turns)
         return None
 
     def _not_found(self, message: str) -> Response:
@@ -471,32 +477,6 @@ class WebConsole:
         if text is not None:
             doc["text"] = text
         return _json(HTTPStatus.OK, doc)
-
-    # ------------------------------------------------------------------ bus monitor
-    def _monitor_stream(self, request: Request) -> Response | Stream:
-        try:
-            nodes, kinds = self.monitor.parse_filters(
-                request.query.get("node", "").split(","), request.query.get("kind", "").split(",")
-            )
-        except ValueError as exc:
-            message = str(exc).replace("--node ", "node: ").replace("--kind ", "kind: ")
-            return _json(HTTPStatus.BAD_REQUEST, {"error": "bad_request", "message": message})
-        if request.method == "HEAD":
-            return Response(HTTPStatus.OK, b"", "text/event-stream")
-        refused = self.monitor.refusal()
-        if refused is not None:
-            return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": refused})
-
-        async def body(reader: Any, writer: Any) -> None:
-            # opened here, not before the headers are written: a page is closed by its pump
-            try:
-                page = self.monitor.open(nodes, kinds)
-            except TooManyPages as exc:  # another page came first since refusal()
-                writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
-                return
-            await self.monitor.pump(page, reader, writer, turns=self.turns)
-
-        return Stream("text/event-stream", body)
 
     # ------------------------------------------------------------------ fault injection
     def fault_rule(self) -> str:

@@ -209,10 +209,10 @@ class ZenohBridge:
         self.journal: Journal | None = None
         #: a hot-standby pair (``pair.py``): this gateway's (master node id, pair node id),
         #: whether it publishes (it masters the bus), the seq heard of the other one
-        red = cfg.master.redundancy
-        self.member: tuple[int, int] | None = (
-            (cfg.master.node_id, red.node_id) if red is not None else None
-        )
+        self.member: tuple[int, int] | None = next(  # a pair per network: the first one's
+            ((v.master.node_id, red.node_id) for v in cfg.network_views()
+             if (red := v.master.redundancy) is not None), None,
+        )  # fmt: skip
         self.publishing = True
         self.heard = HeardSeq(
             [*(sp.key for sp in self.pubs.values()), *(pp.key for pp in self.pdo_pubs.values())]
