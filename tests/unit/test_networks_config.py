@@ -7,10 +7,12 @@ from __future__ import annotations
 import copy
 import csv
 import io
+from pathlib import Path
 from typing import Any
 
 import pytest
 
+from gateway.cli import main
 from gateway.config import ConfigError
 from gateway.northbound.regmap import build_register_map
 from tests.helpers import parse_checked, parse_checked_config, resolved
@@ -155,3 +157,45 @@ def test_each_node_is_resolved_with_its_networks_master() -> None:
     ]}  # fmt: skip
     nodes = resolved(parse_checked_config(raw, environ={}))
     assert (nodes["a"].settings.heartbeat_multiple, nodes["b"].settings.heartbeat_multiple) == (2, 4)
+
+
+TWO_NETWORKS = str(Path(__file__).resolve().parents[2] / "config" / "two-networks.yaml")
+
+
+def test_the_example_of_two_networks_checks_and_lists_each_networks_nodes(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["check", "-c", TWO_NETWORKS]) == 0
+    out = capsys.readouterr().out
+    assert "network line1 (net 1): virtual two-networks-line1, 500000 bit/s" in out
+    assert "network line2 (net 2): virtual two-networks-line2, 250000 bit/s" in out
+    assert main(["keys", "-c", TWO_NETWORKS]) == 0
+    assert "# node rotary: posi_plus, node id 1, network line2" in capsys.readouterr().out
+
+
+def test_check_refuses_networks_with_a_top_level_key_before_anything_opens(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    f = tmp_path / "both.yaml"
+    f.write_text("can: {interface: virtual}\nnetworks:\n  - {name: line1, can: {interface: virtual}}\n")
+    assert main(["check", "-c", str(f)]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"{f}: can: the single-network form's can: cannot be given with networks:")
+
+
+@pytest.mark.parametrize("argv", [["scan"], ["monitor"], ["lss", "inquire"], ["nmt", "start", "wire"],
+                                  ["sdo", "read", "wire", "0x1008:00"], ["fault"]])  # fmt: skip
+def test_a_command_that_opens_a_bus_needs_network_with_several_and_names_them(
+    argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "-c", TWO_NETWORKS])
+    assert exc.value.code == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert "the config has 2 networks: give --network NAME (one of: line1, line2)" in line
+
+
+def test_an_unknown_network_is_refused_with_the_names(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["scan", "-c", TWO_NETWORKS, "--network", "line3"])
+    assert "no network named 'line3'; networks: line1, line2" in capsys.readouterr().err
