@@ -194,13 +194,14 @@ class Gateway:
         self._role_changed(self.master.role or "", "start")
 
     def _role_changed(self, role: str, reason: str) -> None:
-        """The pair's role changed (and once at construction): tell the adapters whether
-        this gateway masters the bus (a pair per network: one of them at least)."""
+        """The pair's role changed (and once at construction): tell the adapters whether this
+        gateway masters the bus (a pair per network: Zenoh publishes the networks it masters)."""
         mastering = any(net.master.mastering for net in self.networks)
         if self.modbus is not None:
             self.modbus.set_mastering(mastering)
         if self.zenoh is not None:
-            self.zenoh.set_mastering(mastering)
+            silent = [n for net in self.networks if not net.master.mastering for n in net.master.nodes]
+            self.zenoh.set_mastering(mastering, frozenset(silent))
 
     def catalog(self) -> dict[str, Any]:
         """Every network, node and signal: type, unit, scaling, Modbus address (for cloud
