@@ -34,7 +34,8 @@ node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF who
 node that cannot survive the gateway's worst take-over (``checks.pair.takeover_warnings``).
 
 ``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
-hot-standby pair (``check -c A -c B``, docs/redundancy.md).
+hot-standby pair (``check -c A -c B``, docs/redundancy.md); ``pair_of_networks`` does it
+network by network.
 
 Every function takes the nodes as resolved once (``gateway.device.resolved``). ``load_checked`` /
 ``parse_checked`` read and validate a config, resolve its nodes in the same pass and run these
@@ -462,6 +463,26 @@ def check_config(cfg: Config, nodes: dict[str, ResolvedNode]) -> Config:
     return cfg
 
 
+def pair_of_networks(
+    a: Config, b: Config, nodes_a: dict[str, ResolvedNode], nodes_b: dict[str, ResolvedNode]
+) -> list[str]:
+    """The two configs of a pair compared network by network (``pair_problems`` of each
+    network's config, its keys under ``networks[k].``): they must have the same networks."""
+    both = f"{a.source}, {b.source}"
+    if a.network_names() != b.network_names():
+        return [f"{both}: networks: {', '.join(a.network_names())} in {a.source}, "
+                f"{', '.join(b.network_names())} in {b.source}: a pair has the same networks"]  # fmt: skip
+    out: list[str] = []
+    for name in a.network_names():
+        va, vb = a.network_view(name), b.network_view(name)
+        for line in pair_problems(va, vb, nodes_a, nodes_b):
+            key, _, rest = line.removeprefix(f"{both}: ").partition(": ")
+            qualified = f"{both}: {va.qualify(key)}: {rest}"
+            if qualified not in out:
+                out.append(qualified)
+    return out
+
+
 def parse_checked(raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None) -> Resolved:
     """The config validated, its nodes resolved and cross-checked: ConfigError otherwise."""
     loaded = parse_resolved(raw, source, environ)
@@ -485,6 +506,7 @@ __all__ = [
     "config_warnings",
     "eds_problems",
     "load_checked",
+    "pair_of_networks",
     "pair_problems",
     "parse_checked",
     "protocol_problems",

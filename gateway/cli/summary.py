@@ -3,7 +3,7 @@ summarised, what may not do what is meant, the warnings of each EDS; given two c
 compared as a hot-standby pair), ``registers`` (the Modbus register map) and ``keys`` (the
 Zenoh key expressions).
 
-Imports: gateway.device.resolved, gateway.checks (config_warnings, pair_problems), gateway.config
+Imports: gateway.device.resolved, gateway.checks (config_warnings, pair_of_networks), gateway.config
 (ConfigError), gateway.eds,
 gateway.northbound.regmap, gateway.northbound.keys, cli.load.
 """
@@ -21,7 +21,7 @@ from gateway.config import ConfigError
 def cmd_check(args: argparse.Namespace) -> int:
     """One config as at every start; two (``-c A -c B``): each so, then compared as the two
     configs of a hot-standby pair (``gateway.checks.pair_problems``)."""
-    from gateway.checks import pair_problems
+    from gateway.checks import pair_of_networks
 
     paths = [args.config] if isinstance(args.config, str) else list(args.config)
     if len(paths) == 1:
@@ -41,7 +41,7 @@ def cmd_check(args: argparse.Namespace) -> int:
         loaded.append((path, cfg, nodes))
     if len(loaded) == 2:
         (_, a, nodes_a), (_, b, nodes_b) = loaded
-        problems += pair_problems(a, b, nodes_a, nodes_b)
+        problems += pair_of_networks(a, b, nodes_a, nodes_b)  # a pair per network
     if problems:
         raise ConfigError(problems)
     for path, cfg, nodes in loaded:
