@@ -14,11 +14,12 @@ it held the one master), and an operation on a network (NMT to all, LSS, the sca
 named, the first by default.
 
 Imports: bus.driver, bus.master, bus.node.parts (types), config, device.resolved (types),
-canopen.objref (types), image, runtime.threads, errors.
+canopen.objref (types), image, runtime.threads, errors, logging.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
@@ -31,6 +32,8 @@ from gateway.device.resolved import ResolvedNode
 from gateway.errors import NetworkUnknown, NodeUnknown, NotActive
 from gateway.image import ProcessImage
 from gateway.runtime.threads import ThreadRegistry
+
+log = logging.getLogger("gateway.master")
 
 
 class NetworkOpenFailed(BusOpenFailed):
@@ -72,6 +75,11 @@ class Network:
         )
         for n in cfg.nodes:  # before any thread runs: the network each node's values come from
             image.nodes[n.name].network = self.name
+        if named:  # several networks: a pair's role change says which network's
+            self.master.role_listeners.append(self._role_said)
+
+    def _role_said(self, role: str, reason: str) -> None:
+        log.info("network %s: pair role %s (%s)", self.name, role, reason)
 
     @property
     def state(self) -> str:
@@ -108,8 +116,8 @@ class Networks:
         self.nodes: dict[str, NodeParts] = {
             name: p for net in networks for name, p in net.master.nodes.items()
         }
-        #: the whole config (its shared sections: modbus, zenoh...); a network's own is its
-        #: ``Network.cfg``
+        #: the first network (the only one of a single-network gateway): the default of the
+        #: operations on a network (LSS, the scan) and of the gateway-wide pair registers
         self.first = networks[0]
 
     def __iter__(self) -> Iterator[Network]:

@@ -457,8 +457,9 @@ class Config(_Model):
 
     def network_view(self, name: str) -> Config:
         """The config of network ``name`` alone: its ``can``, ``master`` and ``nodes``; the
-        shared sections are this config's (the same objects). The config itself when it has
-        one network only. KeyError for an unknown name."""
+        shared sections are this config's (the same objects). The config itself in the
+        single-network form, or when it is a network's view already. KeyError for an unknown
+        name."""
         for k, net in enumerate(self.network_sections()):
             if net.name == name:
                 return self if self.networks is None or self.key_prefix else self._view(k, net)
@@ -467,7 +468,7 @@ class Config(_Model):
     def _view(self, k: int, net: NetworkSection) -> Config:
         return self.model_copy(update={
             "can": net.can, "master": net.master, "nodes": net.nodes, "networks": [net],
-            "key_prefix": f"{self.key_prefix}networks[{k}].",
+            "key_prefix": f"networks[{k}].",
         })  # fmt: skip
 
     def network_views(self) -> list[Config]:

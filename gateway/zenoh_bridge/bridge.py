@@ -302,7 +302,7 @@ class ZenohBridge:
         """A sample of our prefix heard while standing by (a zenoh thread): its seq is kept
         (``HeardSeq``) and, with a journal, journaled as the other member published it, so
         this member's history covers the time before a take-over."""
-        if self.publishing and key.removeprefix(self.prefix + "/").split("/", 1)[0] not in self.silent:
+        if self.silent and key.removeprefix(self.prefix + "/").split("/", 1)[0] not in self.silent:
             return  # its own sample: it masters this node's network (a pair per network)
         before = max(self.heard.get(key), self._event_seq.get(key, 0))
         self.heard.on_sample(key, payload)

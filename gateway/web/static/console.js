@@ -779,7 +779,7 @@ function monitorQuery() {
   const kinds = all.filter((i) => i.checked).map((i) => i.value);
   const q = new URLSearchParams();
   const net = document.getElementById("mon-network");
-  if (net && net.value) q.set("network", net.value);
+  if (net && net.value && !net.closest("label").hidden) q.set("network", net.value);
   if (node) q.set("node", node);
   if (kinds.length < all.length) q.set("kind", kinds.join(","));
   return { q, node, kinds: new Set(kinds) };
