@@ -1,14 +1,18 @@
 """Two CAN networks in one in-process gateway (two virtual buses, the devices simulated on each):
 one Network per bus, each with its driver, master and threads; what is shown north names each
 network: /healthz, the metrics' ``network`` label, unit 247's registers per network, the
-catalogue, a node's state; the command service routes by node name to the node's network."""
+catalogue, a node's state, the audit; the command service routes by node name to the node's
+network."""
 
 from __future__ import annotations
 
 import asyncio
+import json
 import threading
+from pathlib import Path
 from typing import Any
 
+from gateway.journal import Journal
 from gateway.northbound.gateway_block import NETWORK_BUS_STATE, NETWORK_PAIR_ROLE, NETWORKS_REGISTER
 from gateway.zenoh_bridge.payloads import state_payload
 from tests.helpers import (
@@ -20,7 +24,7 @@ from tests.helpers import (
 )
 
 
-def two_networks() -> Any:
+def two_networks(**sections: Any) -> Any:
     def net(name: str, node: dict[str, Any]) -> dict[str, Any]:
         return {"name": name, "can": {"interface": "virtual", "channel": unique_channel()},
                 "master": {"heartbeat_ms": 200, "heartbeat_timeout_multiple": 3}, "nodes": [node]}  # fmt: skip
@@ -34,6 +38,7 @@ def two_networks() -> Any:
         "zenoh": {"enabled": False},
         "health": {"port": free_port()},
         "simulate": {"nodes": "all"},
+        **sections,
     }, environ={})  # fmt: skip
 
 
@@ -72,9 +77,18 @@ async def test_each_network_has_its_own_bus_threads_and_master_and_is_named_nort
         assert 'canopen_gateway_can_frames_in_total{network="line2"}' in text
 
 
-async def test_nmt_to_all_of_one_network_reaches_only_its_nodes() -> None:
-    cfg = two_networks()
+async def test_nmt_to_all_of_one_network_reaches_only_its_nodes_and_the_audit_names_it(
+    tmp_path: Path,
+) -> None:
+    cfg = two_networks(journal={"path": str(tmp_path / "j")})
     async with modbus_gateway(cfg, [(good("wire"), "wire"), (good("rotary"), "rotary")]) as (gw, _):
         gw.commands.nmt("all", "stop", "line2")  # one broadcast (node id 0) on line2's bus
         await wait_until(lambda: not gw.image.nodes["rotary"].operational(), 5, "rotary stopped")
         assert gw.image.nodes["wire"].operational()
+        gw.commands.nmt("rotary", "start")
+
+        def audited() -> list[dict[str, Any]]:
+            return [json.loads(r.payload) for r in Journal(tmp_path / "j").read(kinds=["audit"])]
+
+        await wait_until(lambda: any(a["node"] == "rotary" for a in audited()), 5, "the audit")
+        assert next(a for a in audited() if a["node"] == "rotary")["network"] == "line2"
