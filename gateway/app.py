@@ -1,18 +1,17 @@
 """Builds the running gateway from a config: one ``bus.network.Network`` per CAN network (its
 bus driver and master), the process image, the command service (which routes by node name to
-each node's network), Modbus server, Zenoh bridge, health endpoint, and (for demos/tests)
-simulated devices, each network's on its own bus.
+each node's network), Modbus server, Zenoh bridge, health endpoint, the command socket, and (for demos/tests)
+simulated devices (``sim.buses.SimulatedBus``), each network's on its own bus.
 
 ``Gateway(cfg, nodes)`` then ``await start()`` / ``await stop()``: ``nodes`` are the config's
 nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed to the master,
 Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
 parts do not know each other except through the image and the command service.
 
-Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, bus.network, checks,
+Imports: every part: ascii.server, bus.driver, bus.master, bus.network, checks, command_socket,
 commands, config, device.resolved, http (health, server, metrics), image, modbus.server,
-northbound (catalog, frames, gateway_block, keys, regmap, summary), sim (faults, motion, node,
-runner), runtime (startup, threads, turns), journal, web (console, monitor, views),
-zenoh_bridge.bridge.
+northbound (catalog, frames, gateway_block, keys, regmap, summary), sim (buses, faults), runtime
+(startup, threads, turns), journal, web (console, monitor, views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
@@ -24,16 +23,14 @@ import logging
 import time
 from typing import Any
 
-import can
-
 from gateway import __version__
-from gateway.bus.can_backend import open_can_bus
 from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
 from gateway.bus.network import Network, NetworkOpenFailed, Networks
 from gateway.checks import check_config, journal_path
+from gateway.command_socket import CommandSocket
 from gateway.commands import CommandService
-from gateway.config import Config, ConfigError, blame
+from gateway.config import Config, blame
 from gateway.device.resolved import ResolvedNode
 from gateway.http.health import bus_reasons, network_overview, network_status, pair_of
 from gateway.http.metrics import modbus_function_label
@@ -49,82 +46,10 @@ from gateway.northbound.summary import health_doc
 from gateway.runtime.startup import StartupError, listeners_of, ports_in_use, startup_step
 from gateway.runtime.threads import ThreadRegistry
 from gateway.runtime.turns import LoopTurns
+from gateway.sim.buses import SimulatedBus
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
 log = logging.getLogger("gateway")
-
-
-class SimulatedBus:
-    """Simulated nodes of a config, each network's on its own connection to that network's bus
-    (one ``SimRunner`` per network)."""
-
-    def __init__(
-        self,
-        cfg: Config,
-        nodes: dict[str, ResolvedNode],
-        names: list[str] | None = None,
-    ):
-        from gateway.sim.motion import MotionConfig
-        from gateway.sim.node import SimNode
-
-        self.cfg = cfg
-        wanted = names if names is not None else [n.name for n in cfg.simulated_nodes()]
-        self.nodes: dict[str, Any] = {}
-        #: each network's config and the names of its simulated nodes, in configured order
-        self.networks: list[tuple[Config, list[str]]] = [
-            (view, mine) for view in cfg.network_views()
-            if (mine := [n.name for n in view.nodes if n.name in wanted])
-        ]  # fmt: skip
-        for n in cfg.nodes:
-            if n.name not in wanted:
-                continue
-            # a motion or an option the simulator refuses is a config error naming its key
-            key = f"simulate.motion.{n.name}"
-            try:
-                MotionConfig.from_dict(cfg.simulate.motion.get(n.name))
-                key = f"simulate.options.{n.name}"
-                self.nodes[n.name] = SimNode(
-                    nodes[n.name].lp,
-                    n.node_id,
-                    motion=cfg.simulate.motion.get(n.name),
-                    options=cfg.simulate.options.get(n.name),
-                )
-            except (ValueError, TypeError) as exc:
-                raise ConfigError([f"{blame(key, cfg.source, cfg.env_keys)}: {key}: {exc}"]) from exc
-        self.buses: list[can.BusABC] = []
-        self.runners: dict[str, Any] = {}  # node name -> the runner of its network
-
-    @property
-    def runner(self) -> Any:
-        """The first network's runner (None: not started); ``runner_of`` a node's."""
-        return next(iter(self.runners.values()), None)
-
-    def runner_of(self, name: str) -> Any:
-        """The runner of node ``name``'s network (None: not started)."""
-        return self.runners.get(name)
-
-    def start(self) -> None:
-        """Open each network's bus and run its simulated nodes there."""
-        for view, _ in self.networks:
-            self.start_network(view)
-
-    def start_network(self, view: Config) -> None:
-        from gateway.sim.runner import SimRunner
-
-        mine = next(names for v, names in self.networks if v is view)
-        bus = open_can_bus(view.can.bus_kwargs())  # socketcand: ours, see can_backend
-        self.buses.append(bus)
-        runner = SimRunner(bus, [self.nodes[n] for n in mine])
-        runner.start()
-        self.runners.update(dict.fromkeys(mine, runner))
-
-    def stop(self) -> None:
-        for runner in {id(r): r for r in self.runners.values()}.values():
-            runner.stop()
-        for bus in self.buses:
-            bus.shutdown()
-        self.runners.clear()
-        self.buses.clear()
 
 
 class Gateway:
@@ -185,6 +110,8 @@ class Gateway:
             )
         )
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
+        #: the command line's way in when the bus is in-process (``command_socket``)
+        self.command_socket = CommandSocket(cfg, self.commands, self.turns)
         self.health: Any = None
         self.web: Any = None
         self.started = False
@@ -229,6 +156,10 @@ class Gateway:
         if self.health is not None and self.health.port:
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
+        if self.journal is not None:
+            parts.append(f"journal {self.journal.path}")
+        if self.command_socket.path is not None:
+            parts.append(f"command socket {self.command_socket.path}")
         nodes = ", ".join(
             f"{n.name}={n.device}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
             + (f" on {self.cfg.network_of(n.name)}" if self.cfg.networks is not None else "")
@@ -366,6 +297,9 @@ class Gateway:
             # first: the events of this run are committed before they are published
             with startup_step("journal.path", cfg.journal.path):
                 await asyncio.to_thread(self.journal.open)
+            j = cfg.journal
+            values = f"values every {j.values_ms} ms" if j.values_ms else "events only"
+            log.info("journal on: %s (%s, kept %g days, at most %g MB)", self.journal.path, values, j.keep_days, j.max_mb)  # fmt: skip
             self.journal.start(self.threads)
             if self.zenoh is not None:
                 self.zenoh.use_journal(self.journal)
@@ -405,6 +339,8 @@ class Gateway:
         if cfg.health.port:
             with startup_step("health.port", f"{cfg.health.port} on {cfg.health.host}"):
                 await self._start_health()
+            self.command_socket.facts["health_port"] = self.health.port  # `fault` finds it
+        await self.command_socket.start()  # never stops a start: a warning when it cannot open
         for net in self.networks:
             await net.master.start()
         self.started = True
@@ -529,6 +465,7 @@ class Gateway:
 
     async def stop(self) -> None:
         self.started = False
+        await self.command_socket.stop()
         if self.ascii is not None:
             await self.ascii.stop()
         if self.health is not None:

@@ -36,8 +36,7 @@ error    the controller reported error passive or bus off in an error frame; bac
 down     the backend raised or is closed; the reader reopens it with backoff
 =======  ===================================================================================
 
-Error frames are decoded by the SocketCAN layout (linux/can/error.h, also what python-can's
-other backends follow): class bits in the CAN-ID, controller status in data byte 1.
+Error frames are decoded by ``bus.error_frames`` (the SocketCAN layout, linux/can/error.h).
 
 Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
 event loop sends is queued to it, so a blocking backend never blocks the loop; a frame refused
@@ -48,7 +47,7 @@ counts in its own counter set.
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), config (DEFAULT_NETWORK),
+Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), bus.error_frames, config (DEFAULT_NETWORK),
 image, runtime.ratelimit, runtime.threads. Nothing northbound.
 """
 
@@ -66,20 +65,13 @@ from typing import Any
 import can
 
 from gateway.bus.can_backend import open_can_bus, quiet_imports
+from gateway.bus.error_frames import ERROR_ACTIVE, controller_report
 from gateway.config import DEFAULT_NETWORK
 from gateway.image import ProcessImage
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.bus")
-
-# linux/can/error.h: error classes (CAN-ID bits of an error frame) and controller status bits
-CAN_ERR_CRTL = 0x00000004  # controller problems, details in data[1]
-CAN_ERR_BUSOFF = 0x00000040  # bus off
-CAN_ERR_RESTARTED = 0x00000100  # controller restarted
-CAN_ERR_CRTL_RX_PASSIVE = 0x10  # reached error passive status on receive
-CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
-CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
 
 FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface: a config error
 
@@ -204,6 +196,10 @@ class BusDriver:
         self._burst_mono = mono()
         self._burst_wall = wall()
         self.rx_counters = image.counters.counter_set()  # reader thread only
+        #: the reader's rounds: one per wait that found nothing (every RECV_WAIT_S on a quiet
+        #: bus), per burst start and per wait to reopen; reader thread only. A count that
+        #: stands still is a reader stuck (systemd's watchdog, ``runtime.sd_notify``)
+        self.reader_turns = 0
         self.tx_counters = image.counters.counter_set()  # sender thread only
         self._tx: queue.SimpleQueue[can.Message | None] = queue.SimpleQueue()
         self._sender: threading.Thread | None = None
@@ -412,6 +408,7 @@ class BusDriver:
                 continue
             if msg is None:
                 # nothing left buffered: caught up with the bus
+                self.reader_turns += 1
                 self.clock_state = (True, self.clock_state[1])
                 if in_burst:
                     in_burst = False
@@ -466,6 +463,7 @@ class BusDriver:
         self._set_state("down", detail)
 
     def _sync_clocks(self) -> None:
+        self.reader_turns += 1
         self._burst_mono = self.mono()
         self._burst_wall = self.wall()
 
@@ -494,22 +492,18 @@ class BusDriver:
                 self.warn.warning("burst", "burst listener %r failed: %s", listener, exc)
 
     def _error_frame(self, msg: can.Message) -> None:
-        """Controller state from an error frame (linux/can/error.h layout)."""
+        """Controller state from an error frame (``bus.error_frames``)."""
         self.last_error_frame_s = self.mono()
-        cls = msg.arbitration_id
-        data = bytes(msg.data).ljust(8, b"\0")
-        ctrl = data[1] if cls & CAN_ERR_CRTL else 0
-        if cls & CAN_ERR_BUSOFF:
-            self._enter_error("bus off")
-        elif ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
-            side = "transmit" if ctrl & CAN_ERR_CRTL_TX_PASSIVE else "receive"
-            self._enter_error(f"error passive ({side})")
-        elif cls & CAN_ERR_RESTARTED or ctrl & CAN_ERR_CRTL_ACTIVE:
+        said = controller_report(msg)
+        if said is None:
+            data = bytes(msg.data).ljust(8, b"\0").hex(" ")
+            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", msg.arbitration_id, data)
+        elif said == ERROR_ACTIVE:
             if self.state == "error":
-                log.info("CAN controller error active again")
+                log.info("CAN controller%s error active again", self.where)
                 self._set_state("ok", "")
         else:
-            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", cls, data.hex(" "))
+            self._enter_error(said)
 
     def _enter_error(self, what: str) -> None:
         if self.state != "error" or self.last_error != what:
@@ -529,6 +523,7 @@ class BusDriver:
         while self._running.is_set() and self.mono() < deadline:
             # woken at once by close(); the deadline is judged on the injectable clock
             self._closing.wait(min(0.05, max(0.0, deadline - self.mono())))
+            self.reader_turns += 1
         if not self._running.is_set():
             return False
         self.reopen_attempts += 1

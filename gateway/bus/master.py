@@ -41,6 +41,7 @@ from gateway.bus.driver import BusDriver
 from gateway.bus.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.lss.service import LssService
 from gateway.bus.node.parts import NodeParts, build_node_into
+from gateway.bus.pair.heard_sdo import HeardSdo
 from gateway.bus.pair.member import PairMember
 from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide
 from gateway.bus.producers import Periodic
@@ -130,6 +131,7 @@ class Master(PairSide):
         #: role listeners: called (role, reason) on the event loop when the pair's role changes
         self.role_listeners = self.member.role_listeners
         self.standby_dropped = 0  # frames the nodes asked for while this gateway stood by
+        self.heard_sdo = HeardSdo()  # the other gateway's SDO transfers, heard standing by
         #: other masters, other SDO clients, unconfigured node ids (event loop only)
         self.peers = BusPeers(
             cfg.master.node_id,
@@ -243,7 +245,7 @@ class Master(PairSide):
 
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
         if not self.mastering:
-            self.member.on_sdo_request(p.node_id, data)  # the active gateway's transfer
+            self.heard_sdo.on_request(p.node_id, data)  # the active gateway's transfer
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
         self.peer_log.info(("sdo_client", p.name), "%s", text)
@@ -275,7 +277,7 @@ class Master(PairSide):
             outs = node.on_emcy(data, wall, now)
         else:
             if not self.mastering:
-                self.member.on_sdo_response(p.node_id, data)
+                self.heard_sdo.on_response(p.node_id, data)
             outs = node.on_sdo_response(data, now)
         self._execute(p, outs)
 

@@ -4,13 +4,11 @@ key path: the same CAN bus, logical master, nodes (their device description and 
 content) and Modbus layout; both with ``master.redundancy``, distinct own ids, ``peer_node_id``
 naming the other; a bus two processes can share (not ``interface: virtual``).
 
-``takeover_warnings(cfg, nodes)`` (every ``check``, through ``config_warnings``): what cannot
-survive this gateway's worst take-over (``takeover_worst_ms``): a guarded node whose life time
-is shorter, a boot step writing the node's consumer of the logical master's heartbeat (1016h)
-with a shorter consumer time.
+``takeover_worst_ms(cfg)``: this gateway's worst take-over, which the device timeouts are
+held against (``checks.takeover``).
 
-Imports: bus.pair.member (the pair's times), canopen.cia301, config (types), device.resolved
-(types). No I/O but reading the device files to compare.
+Imports: bus.pair.member (the pair's times), config (types), device.resolved (types). No I/O
+but reading the device files to compare.
 """
 
 from __future__ import annotations
@@ -19,7 +17,6 @@ import hashlib
 from typing import Any
 
 from gateway.bus.pair.member import pair_timing
-from gateway.canopen.cia301 import OBJ_HEARTBEAT_CONSUMER
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -49,47 +46,6 @@ def takeover_worst_ms(cfg: Config) -> int | None:
         return None
     t = pair_timing(cfg)  # the times the role machine runs on
     return round(1000 * (t.takeover_s + t.slot_s(pair.priority, pair.node_id) + t.heartbeat))
-
-
-def takeover_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[tuple[str, str]]:
-    """``(key path, text)`` per node that cannot survive this gateway's worst take-over."""
-    worst = takeover_worst_ms(cfg)
-    if worst is None:
-        return []
-    pair = cfg.master.redundancy
-    assert pair is not None
-    how = (
-        f"the worst take-over by this gateway (redundancy.node_id {pair.node_id}) is {worst} ms: "
-        f"takeover_ms + its slot + one heartbeat_ms"
-    )
-    out: list[tuple[str, str]] = []
-    for i, n in enumerate(cfg.nodes):
-        rn = nodes.get(n.name)
-        if rn is None:
-            continue
-        s = rn.settings
-        if s.supervision == "guarding" and s.life_time_ms < worst:
-            out.append((
-                f"nodes[{i}].guard_time_ms",
-                f"node {n.name}: node guarding life time {s.guard_time_ms} ms x "
-                f"{s.life_time_factor} = {s.life_time_ms} ms is shorter than {how}: its life "
-                f"guarding expires at a take-over; make guard_time_ms x life_time_factor at "
-                f"least {worst} ms, or supervise it by heartbeat",
-            ))  # fmt: skip
-        for step in rn.boot_steps:
-            v = step.value
-            if step.object.index != OBJ_HEARTBEAT_CONSUMER or not isinstance(v, int):
-                continue
-            consumer_ms, producer = v & 0xFFFF, (v >> 16) & 0x7F
-            if producer == cfg.master.node_id and 0 < consumer_ms < worst:
-                out.append((
-                    f"nodes[{i}].sdo",
-                    f"node {n.name}: boot step {step.object} sets its consumer of the logical "
-                    f"master's heartbeat (node {producer}) to {consumer_ms} ms, shorter than "
-                    f"{how}: it reports a heartbeat loss at a take-over; write a consumer time "
-                    f"of at least {worst} ms",
-                ))  # fmt: skip
-    return out
 
 
 def _differences(key: str, a: Any, b: Any) -> list[tuple[str, Any, Any]]:

@@ -1,7 +1,7 @@
 """How a command of the command line loads its configuration: checked as at every start
 (``gateway.checks``: validated, its nodes resolved once and cross-checked) and, for a command that opens the CAN bus, with an interface python-can
-can load; the network a command that opens one bus works on (``--network``: ``on_network``);
-the exit codes of the command line.
+can load; where the configuration is when ``-c`` is left out; the network a command that opens
+one bus works on (``--network``: ``on_network``); the exit codes of the command line.
 
 Imports: gateway.checks, gateway.config, gateway.device.resolved, gateway.bus.can_backend (inside the bus check).
 """
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Mapping
 from typing import Any
 
 from gateway.checks import load_checked
@@ -18,6 +19,24 @@ from gateway.device.resolved import Resolved
 
 EXIT_CONFIG = 2
 EXIT_FAILED = 1
+
+#: where a command finds its configuration when ``-c`` is left out: this variable, else the file
+CONFIG_ENV = "CANOPEN_GATEWAY_CONFIG"
+DEFAULT_CONFIG = "/etc/canopen-gateway/config.yaml"
+
+
+def default_config(environ: Mapping[str, str] | None = None, default: str = DEFAULT_CONFIG) -> str:
+    """The configuration of a command given no ``-c``: ``$CANOPEN_GATEWAY_CONFIG``, else
+    ``/etc/canopen-gateway/config.yaml`` when it exists; else ConfigError naming both."""
+    env = os.environ if environ is None else environ
+    given = env.get(CONFIG_ENV, "").strip()
+    if given:
+        return given
+    if os.path.isfile(default):
+        return default
+    raise ConfigError(
+        [f"error: no configuration: give -c FILE, or set {CONFIG_ENV}=FILE, or install one at {default}"]
+    )
 
 
 def load(path: str) -> Resolved:

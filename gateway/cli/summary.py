@@ -1,11 +1,11 @@
 """The commands that say what a configuration compiles to: ``check`` (validated, each node
-summarised, what may not do what is meant, the warnings of each EDS; given two configs, also
+summarised, what may not do what is meant, what it will not check, the warnings of each EDS; given two configs, also
 compared as a hot-standby pair), ``registers`` (the Modbus register map) and ``keys`` (the
 Zenoh key expressions).
 
-Imports: gateway.device.resolved, gateway.checks (config_warnings, pair_of_networks), gateway.config
+Imports: gateway.device.resolved, gateway.checks (config_warnings, config_notes, pair_of_networks), gateway.config
 (ConfigError), gateway.eds,
-gateway.northbound.regmap, gateway.northbound.keys, cli.load.
+gateway.northbound.regmap, gateway.northbound.plc_tags, gateway.northbound.keys, cli.load.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
-    from gateway.checks import config_warnings
+    from gateway.checks import config_notes, config_warnings
 
     print(f"{path}: OK")
     if cfg.ascii is not None and cfg.ascii.enabled:
@@ -63,6 +63,8 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
         _print_nodes(cfg, view, nodes)
     for _key, text in config_warnings(cfg, nodes):
         print(f"  warning: {text}")
+    for _key, text in config_notes(cfg, nodes):
+        print(f"  note: {text}")
     _print_eds_warnings(cfg, nodes)
 
 
@@ -127,12 +129,42 @@ def _count(n: int, noun: str) -> str:
 
 
 def cmd_registers(args: argparse.Namespace) -> int:
+    """The register map as Markdown, CSV, Modicon CSV or a KEPServerEX tag import
+    (``gateway.northbound.plc_tags``); ``--unit`` keeps one unit id's registers."""
+    from gateway.northbound import plc_tags
     from gateway.northbound.regmap import build_register_map
 
     cfg, nodes = load(args.config)
     rm = build_register_map(cfg, nodes)
-    sys.stdout.write(rm.to_csv() if args.csv else rm.to_markdown())
+    fmt = args.format or ("csv" if args.csv else "markdown")
+    if args.csv and fmt != "csv":
+        raise ConfigError([f"registers: --csv and --format {fmt}: give one"])
+    units = sorted(rm.units)
+    unit = args.unit
+    if unit is not None and unit not in rm.units:
+        raise ConfigError([f"registers: --unit {unit}: no such unit id; units: {_units(rm)}"])
+    if fmt == "kepware" and unit is None:
+        if len(units) != 1:
+            raise ConfigError(
+                [f"registers --format kepware: one device (unit id) per file: give --unit N; "
+                 f"units: {_units(rm)}"]
+            )  # fmt: skip
+        unit = units[0]
+    if fmt == "kepware":
+        assert unit is not None
+        text = plc_tags.to_kepware(rm, unit)
+    elif fmt == "modicon":
+        text = plc_tags.to_modicon(rm, unit)
+    else:
+        shown = rm if unit is None else rm.only_unit(unit)
+        text = shown.to_csv() if fmt == "csv" else shown.to_markdown()
+    sys.stdout.write(text)
     return 0
+
+
+def _units(rm: Any) -> str:
+    """``1 (wire), 2 (magnet), 247 (gateway)``."""
+    return ", ".join(f"{u} ({rm.units[u] or 'gateway'})" for u in sorted(rm.units))
 
 
 def cmd_keys(args: argparse.Namespace) -> int:

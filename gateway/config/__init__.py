@@ -19,10 +19,12 @@ The package, one module per part, re-exported here (``from gateway.config import
 - ``env``: the ``CANOPEN_GATEWAY__`` environment overrides and whom a problem blames;
 - ``errors``: ``ConfigError`` and how a problem is worded;
 - ``journal``: the ``journal:`` section;
+- ``zenoh``: the ``zenoh:`` section;
 - ``node``: the ``nodes:`` entries and ``NodeConfig.setup``, the record the device knowledge
-  reads.
+  reads;
+- ``keyexpr``: a Zenoh key expression of the file checked (without zenoh).
 
-Imports: model, node, load, env, errors, journal (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
+Imports: model, node, load, env, errors, journal, zenoh (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
 checks.
 """
 
@@ -38,6 +40,7 @@ from gateway.config.model import (
     WEB_TOKEN_MIN_LENGTH,
     AsciiSection,
     CanSection,
+    CommandSocketSection,
     Config,
     GatewaySection,
     HealthSection,
@@ -47,11 +50,6 @@ from gateway.config.model import (
     NetworkSection,
     SimulateSection,
     WebSection,
-    ZenohAuth,
-    ZenohHistory,
-    ZenohSection,
-    ZenohTls,
-    ZenohWriteRule,
 )
 from gateway.config.node import (
     ExternalHeartbeat,
@@ -63,9 +61,11 @@ from gateway.config.node import (
     SdoWrite,
     SignalOverride,
 )
+from gateway.config.zenoh import ZenohAuth, ZenohHistory, ZenohSection, ZenohTls, ZenohWriteRule
 
 __all__ = [
     "AsciiSection",
+    "CommandSocketSection",
     "CAN_INTERFACE_MISSING",
     "CanSection",
     "DEFAULT_NETWORK",

@@ -1,7 +1,7 @@
 """The gateway's configuration as data: the pydantic models of every section of the YAML file
 (``gateway:``, ``can:``, ``master:``, ``nodes:``, ``networks:``, ``modbus:``, ``zenoh:``,
 ``health:``, ``web:``, ``ascii:``, ``simulate:``, ``journal:`` from ``config.journal``,
-``nodes:`` from ``config.node``) with the rules one field or one section can check itself
+``nodes:`` from ``config.node``, ``zenoh:`` from ``config.zenoh``) with the rules one field or one section can check itself
 (ranges, patterns, key expressions, networks, TLS roles, token length).
 
 Several CAN networks: ``networks:`` lists them, each with its own ``can:``, ``master:`` and
@@ -16,7 +16,8 @@ and ``can`` / ``master`` are the first network's.
 What a section cannot see (duplicates across nodes, names that refer to nodes, profiles and
 EDS files) is checked when the file is loaded (``config.load``).
 
-Imports: pydantic, gateway.keyexpr, config.journal, config.node (the ``nodes:`` entries). Nothing of bus/,
+Imports: pydantic, config.journal, config.node (the ``nodes:`` entries), config.zenoh.
+Nothing of bus/,
 modbus/, zenoh_bridge/, checks.
 """
 
@@ -36,9 +37,9 @@ from pydantic import (
     model_validator,
 )
 
-from gateway import keyexpr
 from gateway.config.journal import JournalSection
 from gateway.config.node import NodeConfig
+from gateway.config.zenoh import ZenohSection
 
 
 class _Model(BaseModel):
@@ -190,126 +191,6 @@ class ModbusSection(_Model):
         return self
 
 
-class ZenohTls(_Model):
-    """TLS of the Zenoh links (``tls/`` endpoints), passed to zenoh's ``transport/link/tls``."""
-
-    root_ca_certificate: str | None = Field(default=None, description="CA file to trust (PEM)")
-    listen_certificate: str | None = Field(default=None, description="our certificate (PEM)")
-    listen_private_key: str | None = Field(default=None, description="its private key (PEM)")
-    connect_certificate: str | None = Field(default=None, description="client cert for mTLS")
-    connect_private_key: str | None = Field(default=None, description="its private key (PEM)")
-    enable_mtls: bool | None = None
-    verify_name_on_connect: bool | None = None
-
-
-#: what a Zenoh client may be allowed to do south (``zenoh.write_allow[].operations``)
-ZenohWriteOperation = Literal["set", "sdo_write", "nmt"]
-ZENOH_WRITE_OPERATIONS: tuple[ZenohWriteOperation, ...] = ("set", "sdo_write", "nmt")
-
-
-class ZenohWriteRule(_Model):
-    """One allow rule of ``zenoh.write_allow``: a write is allowed when it matches every list
-    given (an empty list matches everything)."""
-
-    operations: list[ZenohWriteOperation] = Field(
-        default_factory=lambda: list(ZENOH_WRITE_OPERATIONS),
-        description="set (set/<signal>, set), sdo_write (SDO download), nmt",
-    )
-    nodes: list[str] = Field(default_factory=list, description="node names; empty = every node")
-    keys: list[str] = Field(
-        default_factory=list, description="key expressions the query key must be in; empty = any"
-    )
-
-    @model_validator(mode="after")
-    def _keys(self) -> ZenohWriteRule:
-        for k in self.keys:
-            why = keyexpr.problem(k)
-            if why:
-                raise ValueError(f"keys: {why}")
-        return self
-
-
-class ZenohAuth(_Model):
-    """Zenoh user/password authentication (zenoh's ``transport/auth/usrpwd``)."""
-
-    user: str | None = Field(default=None, description="the name this gateway logs in with")
-    password: str | None = Field(default=None, description="its password (or password_file)")
-    password_file: str | None = Field(default=None, description="file holding the password")
-    dictionary_file: str | None = Field(
-        default=None, description="user:password lines: who may connect to this gateway (peer)"
-    )
-
-    @model_validator(mode="after")
-    def _pairs(self) -> ZenohAuth:
-        if self.password is not None and self.password_file is not None:
-            raise ValueError("password and password_file: give one, not both")
-        has_pw = self.password is not None or self.password_file is not None
-        if self.user is None and has_pw:
-            raise ValueError("user is missing (a password needs a user)")
-        if self.user is not None and not has_pw:
-            raise ValueError(f"user {self.user!r} has no password (password or password_file)")
-        if self.user is None and self.dictionary_file is None:
-            raise ValueError("empty: give user and password, or dictionary_file, or remove auth")
-        return self
-
-
-class ZenohHistory(_Model):
-    """What the advanced publishers keep for subscribers that missed samples (router down, WAN
-    link lost, late joiners): samples per key, and the heartbeat that lets them see a miss."""
-
-    events: int = Field(default=1000, ge=0, le=1_000_000, description="per state/EMCY key; 0 = none")
-    values: int = Field(default=1, ge=0, le=10_000, description="per value key; 0 = none")
-    heartbeat_ms: int = Field(default=500, ge=0, le=60_000, description="0 = no miss detection")
-
-
-class ZenohSection(_Model):
-    enabled: bool = True
-    mode: Literal["peer", "client"] = "peer"
-    listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    connect: list[str] = Field(default_factory=list)
-    prefix: str | None = None
-    multicast_scouting: bool = False
-    #: change / every: a sample per signal on its value key; pdo: a sample per received PDO
-    #: with all its signals on ``<node>/tpdo/<n>`` (a signal's own publish still applies)
-    publish: Literal["change", "every", "pdo"] = "change"
-    batch_ms: float = Field(
-        default=1.0,
-        ge=0,
-        le=100,
-        description="values of frames received within this window go out together (0 = per burst)",
-    )
-    raw_pdo: bool = False
-    tls: ZenohTls | None = None
-    writes: bool = Field(default=False, description="off: every set, SDO download, NMT refused")
-    write_allow: list[ZenohWriteRule] = Field(
-        default_factory=list, description="with writes on: only what a rule allows; empty = all"
-    )
-    auth: ZenohAuth | None = None
-    access_control: dict[str, Any] | None = Field(
-        default=None, description="zenoh's access_control section (rules, subjects, policies)"
-    )
-    history: ZenohHistory = Field(default_factory=ZenohHistory)
-    refuse_duplicate_prefix: bool = Field(
-        default=True, description="refuse to start when a gateway already runs under our prefix"
-    )
-    json5: dict[str, Any] = Field(
-        default_factory=dict, description="raw zenoh config keys, e.g. {'transport/link/tls/..': ..}"
-    )
-
-    @model_validator(mode="after")
-    def _writes(self) -> ZenohSection:
-        if self.write_allow and not self.writes:
-            raise ValueError("write_allow has no effect while writes is off: set writes: on")
-        if self.prefix is not None:
-            why = keyexpr.problem(self.prefix.rstrip("/"))
-            if why or "*" in self.prefix or "$" in self.prefix:
-                raise ValueError(f"prefix: {why or 'no wildcards in a prefix'}")
-        return self
-
-    def key_prefix(self, gateway_name: str) -> str:
-        return self.prefix if self.prefix else f"canopen/{gateway_name}"
-
-
 class AsciiSection(_Model):
     """The CiA 309-3 ASCII gateway on TCP (``gateway/ascii``). Off unless the section is given;
     ``enabled: false`` turns a given section off."""
@@ -323,6 +204,16 @@ class AsciiSection(_Model):
     )
 
 
+class CommandSocketSection(_Model):
+    """The command line's local way into the running gateway when its bus is in-process
+    (``can.interface: virtual``): a Unix socket only this user can open (``gateway/command_socket``)."""
+
+    enabled: bool = Field(default=True, description="listen on it (with an in-process bus)")
+    path: str | None = Field(
+        default=None, description="default: the user's runtime directory, named by the config file"
+    )
+
+
 class HealthSection(_Model):
     host: str = "127.0.0.1"
     port: int = Field(default=0, ge=0, le=65535, description="0 = off")
@@ -330,6 +221,12 @@ class HealthSection(_Model):
 
 #: the smallest web token accepted: guessing one must not be a matter of minutes
 WEB_TOKEN_MIN_LENGTH = 12
+#: the one rule for a token of digits only, whether the file or CANOPEN_GATEWAY__WEB__TOKEN
+#: gives it (quoted or not): refused, it is a number anyone may guess
+WEB_TOKEN_DIGITS = (
+    "a token of digits only is refused, in the file (quoted or not) as in "
+    "CANOPEN_GATEWAY__WEB__TOKEN: mix in letters (token: \"a long random text\")"
+)
 
 
 class WebSection(_Model):
@@ -348,10 +245,14 @@ class WebSection(_Model):
     @classmethod
     def _token_text(cls, v: Any) -> Any:
         if isinstance(v, (int, float)) and not isinstance(v, bool):
-            raise ValueError(
-                "YAML read a number here; a token is text: put it in quotes "
-                "(token: \"0123456789012\")"
-            )
+            raise ValueError(f"YAML read a number here; {WEB_TOKEN_DIGITS}")
+        return v
+
+    @field_validator("token")
+    @classmethod
+    def _token_not_digits(cls, v: str | None) -> str | None:
+        if v is not None and v.isdigit():  # one rule, from the file or the environment
+            raise ValueError(WEB_TOKEN_DIGITS)
         return v
 
     @model_validator(mode="after")
@@ -363,6 +264,7 @@ class WebSection(_Model):
             )
         if self.token is not None and len(self.token) < WEB_TOKEN_MIN_LENGTH:
             raise ValueError(f"token: at least {WEB_TOKEN_MIN_LENGTH} characters")
+
         return self
 
 
@@ -408,6 +310,7 @@ class Config(_Model):
     health: HealthSection = Field(default_factory=HealthSection)
     web: WebSection = Field(default_factory=WebSection)
     ascii: AsciiSection | None = None  # CiA 309-3 ASCII gateway: off unless given
+    command_socket: CommandSocketSection = Field(default_factory=CommandSocketSection)
     simulate: SimulateSection = Field(default_factory=SimulateSection)
     journal: JournalSection = Field(default_factory=JournalSection)  # store and forward
 

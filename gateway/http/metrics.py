@@ -39,15 +39,18 @@ Metric names carry the prefix ``canopen_gateway_``:
     network_pair_role{network}, network_other_master_frames_total{network,kind}
     (the unlabelled frames_*, bus_errors_total and pair_* above are the gateway's totals, the
     first network's pair)
+    build_info{version,python} (always 1: the package version and the Python that runs it)
     plus process_* (CPU, memory, open files) of this process.
 
-Imports: prometheus_client and the standard library only; nothing of bus/, modbus/, zenoh_bridge/.
+Imports: prometheus_client, gateway (__version__) and the standard library; nothing of bus/,
+modbus/, zenoh_bridge/.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import platform
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -62,6 +65,8 @@ from prometheus_client import (
     generate_latest,
 )
 from prometheus_client.metrics_core import CounterMetricFamily, GaugeMetricFamily, Metric
+
+from gateway import __version__
 
 log = logging.getLogger("gateway.metrics")  # the name users see in log lines
 
@@ -340,6 +345,19 @@ class _GatewayCollector:
         yield GaugeMetricFamily(
             f"{NAMESPACE}_uptime_seconds", "Seconds since the gateway started.", value=uptime_s
         )
+        yield _build_info()
+
+
+def _build_info() -> Metric:
+    """``canopen_gateway_build_info{version="0.1.0", python="3.11.7"} 1``: what runs, as the
+    Prometheus convention writes it (a gauge of 1 whose labels carry the facts)."""
+    family = GaugeMetricFamily(
+        f"{NAMESPACE}_build_info",
+        "The gateway's package version and the Python version running it (always 1).",
+        labels=["version", "python"],
+    )
+    family.add_metric([__version__, platform.python_version()], 1)
+    return family
 
 
 #: The families read from ``Counters``, in exposition order: (kind, name, help, the Counters

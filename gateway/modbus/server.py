@@ -73,6 +73,7 @@ from gateway.modbus.protocol import (
     ExceptionCode,
     ModbusError,
     exception_code,
+    read_range,
 )
 from gateway.modbus.safe_outputs import safe_outputs
 from gateway.modbus.security import Access, access_of, tls_context
@@ -241,6 +242,13 @@ class _Connection(asyncio.Protocol):
                     )  # fmt: skip
             elif not isinstance(exc, (ModbusError, GatewayError, ValueError)):
                 store.warn.warning(("error", type(exc).__name__), "error serving Modbus: %r", exc)
+            else:  # a refused read: in words once a period per client, unit, function and code
+                words = code.name.lower().replace("_", " ")
+                store.warn.warning(
+                    ("read", self.peer, unit, fc, int(code)),
+                    "Modbus read from %s refused: unit %d, function %d, %s: 0x%02X (%s): %s",
+                    self.peer, unit, fc, read_range(fc, pdu), int(code), words, exc,
+                )  # fmt: skip
             response = bytes(((fc | 0x80) & 0xFF, int(code)))
         self._feed_watchdog()  # again when answered: a slow write is no silence
         if self.transport is not None and not self.transport.is_closing():
@@ -269,7 +277,7 @@ class ModbusGateway:
         self.tls_port = cfg.modbus.tls.port if cfg.modbus.tls is not None else 0
         self.connections: set[_Connection] = set()
         # the output watchdog: its machine (its trips are a gateway register) and its driver
-        self.output_watchdog = OutputWatchdogDriver(cfg, nodes, commands)
+        self.output_watchdog = OutputWatchdogDriver(cfg, nodes, commands, image)
         self.watchdog = self.output_watchdog.machine
         self.store.reads.watchdog = self.watchdog
 
@@ -342,9 +350,11 @@ class OutputWatchdogDriver:
     (``modbus.safe_outputs``) through the command service."""
 
     def __init__(
-        self, cfg: Config, nodes: dict[str, ResolvedNode], commands: CommandService
+        self, cfg: Config, nodes: dict[str, ResolvedNode], commands: CommandService,
+        image: ProcessImage,
     ) -> None:
         self.commands = commands
+        self.image = image  # its output records: the writes made or heard (a pair's take-over)
         self.watchdog_ms = cfg.modbus.watchdog_ms
         self.machine = OutputWatchdog(
             cfg.modbus.watchdog_ms / 1000.0, cfg.modbus.watchdog_on_disconnect
@@ -378,11 +388,15 @@ class OutputWatchdogDriver:
         """The gateway started or stopped mastering the bus (a hot-standby pair's role; the
         app calls it at start and at every role change). On the standby the watchdog is
         STANDBY (commands refuse: no safe outputs to write, no timer); when the gateway becomes
-        active it starts fresh, armed by the first request of a client that may write."""
+        active it counts from the PLC's last sign: a request of a client that may write to
+        this gateway, or the last write to an output made or heard on the bus (the nodes'
+        output records, on the bus clock: the loop's monotonic clock); none: as at start."""
         if mastering == (self.machine.state is not WatchdogState.STANDBY):
             return
-        self.machine.on_mastering(mastering)
+        written = [n.outputs.monotonic for n in self.image.nodes.values() if n.outputs.seq]
+        self.machine.on_mastering(mastering, max(written, default=None))
         self._cancel_timer()
+        self._schedule()  # armed from the PLC's last sign: due now, or later
 
     def writer_gone(self) -> None:
         if not self.serving:

@@ -2,7 +2,8 @@
 networks (number, bus, nodes) and every node with its network and every signal with its type,
 unit, scaling and Modbus addresses.
 
-Pure: built from the config, the command service's read-only node infos and the register map.
+Pure: built from the config, the command service's read-only node infos and the register map
+(nothing of the bus), at the moment it is asked for.
 
 Imports: gateway (version), config, northbound.regmap, profiles.derived. Not the command
 service (it imports the bus): its node infos are read through ``NodeInfos``.

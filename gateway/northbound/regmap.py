@@ -61,7 +61,7 @@ NMT_REGISTER = 0
 
 #: node diagnostics in input registers: (offset, name, type, description)
 NODE_DIAG = [
-    (0, "quality", "uint16", "worst quality of the node's process data: 0 good, 1 stale (node lost, not operational, link fault or data older than stale_after_ms), 2 bad (never received or flagged invalid by the device)"),
+    (0, "quality", "uint16", "worst quality of the node's process data: 0 good, 1 stale (node lost, not operational, link fault or data older than stale_after_ms), 2 bad (never received, flagged invalid by the device, or nothing to serve: the node's PDOs map nothing)"),
     (1, "nmt_state", "uint16", "NMT state: 0 boot-up, 4 stopped, 5 operational, 127 pre-operational, 65535 unknown"),
     (2, "alive", "uint16", "1 while heartbeat / node guarding is OK"),
     (3, "lifecycle", "uint16", "0 waiting (never seen, or lost: waiting for boot-up), 1 booting, 2 configuring, 3 operational, 4 unknown (a pair's standby: the node not heard started)"),
@@ -174,6 +174,8 @@ class RegisterMap:
     units: dict[int, str | None] = field(default_factory=dict)  # unit -> node name (None: gateway)
     networks: dict[str, str] = field(default_factory=dict)  # node name -> its CAN network
     several_networks: bool = False  # the Markdown table shows the network column
+    #: the config key that placed each point (a clash names both keys)
+    keys: dict[Point, str] = field(default_factory=dict, repr=False)
 
     def add(self, p: Point, key: str) -> None:
         idx = self.index.setdefault((p.unit, p.table), {})
@@ -181,18 +183,27 @@ class RegisterMap:
             other = idx.get(a)
             if other is not None:
                 where = f"{other.node}.{other.name}" if other.node else other.name
+                placed = self.keys.get(other)
                 raise RegisterMapError(
                     key,
                     f"{TABLE_NAMES[p.table]} {a} of unit {p.unit} is used twice: "
-                    f"{p.node}.{p.name} and {where}",
+                    f"{p.node}.{p.name} ({key}) and {where}" + (f" ({placed})" if placed else ""),
                 )
             if a > 0xFFFF:
                 raise RegisterMapError(key, f"address {a} of {p.node}.{p.name} is beyond 65535")
             idx[a] = p
         self.points.append(p)
+        self.keys[p] = key
 
     def lookup(self, unit: int, table: Table, address: int) -> Point | None:
         return self.index.get((unit, table), {}).get(address)
+
+    def only_unit(self, unit: int) -> RegisterMap:
+        """The points of one unit id (a listing of one device)."""
+        return RegisterMap(
+            [p for p in self.points if p.unit == unit], {}, {unit: self.units.get(unit)},
+            networks=self.networks, several_networks=self.several_networks,
+        )  # fmt: skip
 
     def node_points(self, node: str) -> list[Point]:
         return [p for p in self.points if p.node == node]
@@ -200,7 +211,8 @@ class RegisterMap:
     # ------------------------------------------------------------------ rendering
     HEADER = ["unit_id", "table", "address", "type", "access", "node", "signal", "unit", "scaling", "description"]  # fmt: skip
 
-    def _sorted(self) -> list[Point]:
+    def sorted_points(self) -> list[Point]:
+        """Every point by unit, table (input, holding, discrete input, coil) and address."""
         return sorted(self.points, key=lambda p: (p.unit, TABLE_ORDER[p.table], p.address))
 
     @staticmethod
@@ -222,7 +234,7 @@ class RegisterMap:
     def rows(self) -> list[list[str]]:
         """One row per point: every register value and every single bit (the CSV)."""
         out = []
-        for p in self._sorted():
+        for p in self.sorted_points():
             name = p.name if p.kind != "bit" else f"{p.name}.bit{p.bit}"
             address = str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}"
             out.append(self._row(p, address, name, p.description))
@@ -235,7 +247,7 @@ class RegisterMap:
     def _grouped(self) -> list[tuple[Point, list[str]]]:
         """``grouped_rows`` with the (first) point of each row."""
         out: list[tuple[Point, list[str]]] = []
-        pts = self._sorted()
+        pts = self.sorted_points()
         i = 0
         while i < len(pts):
             p = pts[i]
@@ -289,7 +301,7 @@ class RegisterMap:
         w = csv.writer(buf, lineterminator="\n")
         w.writerow([*self.HEADER, "network"])
         w.writerows(
-            [*row, self.network_of(p)] for p, row in zip(self._sorted(), self.rows(), strict=True)
+            [*row, self.network_of(p)] for p, row in zip(self.sorted_points(), self.rows(), strict=True)
         )
         return buf.getvalue()
 
@@ -372,7 +384,6 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode]) -> RegisterM
         rm.networks[ncfg.name] = cfg.network_of(ncfg.name)
         _add_node(rm, cfg, ncfg, nodes[ncfg.name].lp, k)
     return rm
-
 
 
 @dataclass

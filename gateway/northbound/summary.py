@@ -75,10 +75,19 @@ _HEALTH_TYPES = {h.name: h.type for h in fields(NodeHealth)}
 HEALTH_FIELDS = tuple(f.name for f in fields(NodeSummary) if f.type == _HEALTH_TYPES.get(f.name))
 
 
+def serves_values(node: NodeImage, process: Collection[str]) -> bool:
+    """Whether the node serves any process data: signals its TPDOs carry (``process``) or
+    outputs its RPDOs carry. A node whose PDOs map nothing serves no value."""
+    return bool(process) or bool(node.output_slots)
+
+
 def worst_quality(node: NodeImage, process: Collection[str], now: float) -> Quality:
     """The worst quality of ``process`` (the signals the node's TPDOs carry) from one snapshot;
-    a node without process signals is good while operational, else stale."""
+    a node with outputs only is good while operational, else stale; a node whose PDOs map
+    nothing is bad: it has no value to serve, so no reader may take it as good."""
     if not process:
+        if not serves_values(node, process):
+            return Quality.BAD
         return Quality.GOOD if node.operational() else Quality.STALE
     snap = node.snapshot()
     return max(node.quality(snap[n], now) for n in process)

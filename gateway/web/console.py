@@ -26,6 +26,8 @@ host and port: pages and static files, a small JSON API, server-sent events, and
                                        ``Content-Type: application/json``; ``READS_PER_S`` per
                                        client (burst ``READ_BURST``), else 429 + ``Retry-After``
 ``GET /monitor``                       bus monitor page (``static/monitor.html``)
+``GET /api/monitor/record``            a trace file of a network's bus (``?network=``, default
+                                       the first; ``gateway.web.recording``)
 ``GET /api/monitor/stream``            server-sent events of the bus monitor
                                        (``gateway.web.monitor``): ``hello``, ``frames``,
                                        ``status``; ``?network=line2`` (default the first),
@@ -47,7 +49,7 @@ overview stream ``events`` events (new entries of the event log).
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
 Imports: http.server (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.journal_log, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), runtime.ratelimit, runtime.turns, sim.faults,
+web.events, web.journal_log, web.limits, web.monitor, web.recording, web.pages, northbound.scaling, northbound.frames (the decoder's type), runtime.ratelimit, runtime.turns, sim.faults,
 commands.audit (who asked, for the audit) (names and errors; the injector itself is given by the application; the bus driver, for the
 monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
@@ -78,6 +80,7 @@ from gateway.web.limits import ClientBudget
 from gateway.web.live import LiveHub, Subscriber, TooManyClients
 from gateway.web.monitor import FrameMonitor, FrameSource, NetworkMonitors
 from gateway.web.pages import fill_pages
+from gateway.web.recording import BusRecorder
 from gateway.web.trends import TREND_PERIOD_S, TrendStore
 from gateway.web.views import ConsoleModel
 
@@ -173,6 +176,8 @@ class WebConsole:
             monitors = NetworkMonitors({"": FrameMonitor(self.cfg, decoder, frames)})
         self.monitors = monitors
         self.monitor = self.monitors.first
+        #: the recordings of each network's bus (``GET /api/monitor/record?network=``)
+        self.recorder = BusRecorder(self.monitors.sources(), self.cfg.gateway.name, SECURITY_HEADERS)
         self.turns = turns  # live updates take turns on the loop (API requests: in health)
 
     def start(self, loop: Any) -> None:
@@ -223,8 +228,8 @@ class WebConsole:
             return self._file("index.html")
         if path.startswith("/node/"):
             name = path.removeprefix("/node/")
-            if name not in self.model.meta:
-                return self._not_found(f"no node named {name!r}")
+            if name not in self.model.meta:  # a browser gets a page (404), not JSON
+                return self._file("notfound.html", HTTPStatus.NOT_FOUND)
             return self._file("node.html")
         if path == "/commissioning":
             return self._file("commission.html") if self.writes else None
@@ -259,17 +264,19 @@ class WebConsole:
             return self._file("monitor.html")
         if path == "/api/monitor/stream":
             return self.monitors.stream(request, self.turns)
+        if path == "/api/monitor/record":
+            return await self.recorder.answer(request)
         return None
 
     def _not_found(self, message: str) -> Response:
         return _json(HTTPStatus.NOT_FOUND, {"error": "not_found", "message": message})
 
-    def _file(self, name: str) -> Response | None:
+    def _file(self, name: str, status: HTTPStatus = HTTPStatus.OK) -> Response | None:
         body = self.static.get(name)
         if body is None:
             return None
         ext = name[name.rfind(".") :]
-        return Response(HTTPStatus.OK, body, CONTENT_TYPES[ext], headers=SECURITY_HEADERS)
+        return Response(status, body, CONTENT_TYPES[ext], headers=SECURITY_HEADERS)
 
     def _overview_doc(self) -> dict[str, Any]:
         return {
@@ -381,12 +388,8 @@ class WebConsole:
     def _registers_csv(self) -> Response:
         body = self.model.regmap.to_csv().encode()
         name = f"{self.cfg.gateway.name}-registers.csv".replace('"', "")
-        return Response(
-            HTTPStatus.OK,
-            body,
-            "text/csv; charset=utf-8",
-            headers={**SECURITY_HEADERS, "Content-Disposition": f'attachment; filename="{name}"'},
-        )
+        headers = {**SECURITY_HEADERS, "Content-Disposition": f'attachment; filename="{name}"'}
+        return Response(HTTPStatus.OK, body, "text/csv; charset=utf-8", headers=headers)
 
     @staticmethod
     def _after(request: Request) -> int | Response:
@@ -423,10 +426,8 @@ class WebConsole:
                     {"error": "bad_request", "message": f"kind: {', '.join(wrong)} is not one of {', '.join(KINDS)}"},
                 )
         found = self.events.since(after, node, kinds)
-        return _json(
-            HTTPStatus.OK,
-            {"seq": self.events.seq, "kinds": list(KINDS), "events": [e.doc() for e in found]},
-        )
+        doc = {"seq": self.events.seq, "kinds": list(KINDS), "events": [e.doc() for e in found]}
+        return _json(HTTPStatus.OK, doc)
 
     async def _read(self, request: Request, rest: str) -> Response:
         """SDO upload of one configuration object (see the module docstring)."""

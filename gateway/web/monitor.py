@@ -378,6 +378,10 @@ class NetworkMonitors:
     def names(self) -> list[str]:
         return list(self.by_network)
 
+    def sources(self) -> dict[str, FrameSource | None]:
+        """Each network's tap source (its bus driver), by network name."""
+        return {name: m.source for name, m in self.by_network.items()}
+
     def attach(self, loop: asyncio.AbstractEventLoop) -> None:
         for m in self.by_network.values():
             m.attach(loop)

@@ -27,7 +27,7 @@ from gateway.image import NodeImage, ProcessImage, Quality
 from gateway.northbound.keys import is_published, is_writable, prefix_of, set_key, value_key
 from gateway.northbound.regmap import RegisterMap
 from gateway.northbound.scaling import Scaling, bits_of, engineering
-from gateway.northbound.summary import QUALITY_TEXT, summarize, worst_quality
+from gateway.northbound.summary import QUALITY_TEXT, serves_values, summarize, worst_quality
 from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal
 
@@ -50,6 +50,8 @@ LINK_WORDS = {
     LinkState.UNKNOWN: "unknown",
 }
 
+#: beside the status of a node whose PDOs map nothing (``canopen-gateway check`` warns of it)
+NO_PROCESS_DATA = "no process data: its PDOs map nothing"
 #: Modbus tables as the node page abbreviates them (its caption spells them out)
 TABLE_SHORT = {"ir": "IR", "hr": "HR", "di": "DI", "co": "coil"}
 
@@ -206,7 +208,12 @@ class ConsoleModel:
                     round(100.0 * frames_s * BITS_PER_FRAME / bitrate, 1) if bitrate else None
                 ),
                 "nodes": len(self.image.nodes),
-                "nodes_usable": sum(1 for n in self.image.nodes.values() if n.usable()),
+                # usable values: a node whose PDOs map nothing has none to use
+                "nodes_usable": sum(
+                    1
+                    for n in self.image.nodes.values()
+                    if n.usable() and serves_values(n, self.process.get(n.name, ()))
+                ),
             }
         )
         return doc
@@ -246,6 +253,8 @@ class ConsoleModel:
             "profile": info.lp.family,
             "title": info.lp.profile.title,
             "quality": QUALITY_TEXT[q],
+            # why a node that answers is bad all the same: nothing to serve
+            "quality_note": "" if serves_values(node, self.process.get(name, ())) else NO_PROCESS_DATA,
             "alive": s.alive,
             "presence": s.presence,
             "usable": s.usable,

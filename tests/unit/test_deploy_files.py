@@ -194,6 +194,8 @@ def test_systemd_unit_runs_the_gateway_hardened():
     }.items():
         assert unit[key] == [value], key
     assert "AF_CAN" in unit["RestrictAddressFamilies"][0].split()
+    # the gateway says READY=1 and pings the watchdog (gateway.runtime.sd_notify)
+    assert unit["Type"] == ["notify"] and int(unit["WatchdogSec"][0]) > 0
 
 
 def test_can0_network_file_sets_the_bit_rate():
@@ -275,6 +277,16 @@ PAIR_ENV = "CANOPEN_GATEWAY__MASTER__REDUNDANCY__"
 def pair_configs(envs: list[dict[str, str]]) -> list:
     """deploy/config/pair.yaml as each gateway of the pair loads it (its environment applied)."""
     return [load_config(DEPLOY / "config/pair.yaml", environ=env) for env in envs]
+
+
+def test_the_pair_config_gives_each_gateway_no_warning():
+    """deploy/config/pair.yaml as gateway A and as gateway B load it: `check` warns of nothing
+    (a SYNC producer for the SYNC-driven TPDOs, a take-over every node survives)."""
+    from gateway.checks import config_warnings
+
+    b = {f"{PAIR_ENV}NODE_ID": "121", f"{PAIR_ENV}PRIORITY": "1", f"{PAIR_ENV}PEER_NODE_ID": "120"}
+    for cfg in pair_configs([{}, b]):
+        assert config_warnings(cfg, resolved(cfg)) == []
 
 
 def test_pair_compose_runs_two_gateways_of_one_image_and_config_with_own_ids():

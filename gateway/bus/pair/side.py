@@ -7,8 +7,9 @@ the role changes. ``mastering`` is the one role gate of the master's send path
 calls); ``role``, ``pair`` and the ``pair_*`` properties are read-only views (the app's health
 and metrics, the command service's ``role``).
 
-Imports: bus.pair.member, bus.pair.flying_master, bus.node (types), bus.sdo.waiters (types),
-bus.driver / bus.bus_peers (types), canopen.cia301, config (types), errors, python-can, logging.
+Imports: bus.pair.member, bus.pair.flying_master, bus.pair.heard_sdo (types), bus.node (types),
+bus.sdo.waiters (types), bus.driver / bus.bus_peers (types), canopen.cia301, config (types),
+errors, python-can, logging.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from gateway.bus.bus_peers import BusPeers
 from gateway.bus.driver import BusDriver
 from gateway.bus.node.parts import NodeParts
 from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
+from gateway.bus.pair.heard_sdo import HeardSdo
 from gateway.bus.pair.member import PairMember
 from gateway.bus.sdo.waiters import SdoWaiters
 from gateway.canopen.cia301 import COB_NMT_EC
@@ -62,12 +64,6 @@ class NoPair:
     def on_link(self, up: bool) -> None:
         pass
 
-    def on_sdo_request(self, node_id: int, data: bytes) -> None:
-        pass
-
-    def on_sdo_response(self, node_id: int, data: bytes) -> None:
-        pass
-
 
 class PairSide:
     """The pair-only part of ``Master`` (the attributes below are the master's)."""
@@ -79,6 +75,7 @@ class PairSide:
     nodes: dict[str, NodeParts]
     peers: BusPeers
     clock: Callable[[], float]
+    heard_sdo: HeardSdo
     _waiting: SdoWaiters
 
     def _execute(self, p: NodeParts, outs: list[Any]) -> None:
@@ -183,8 +180,9 @@ class PairSide:
             self.mastering = True
             # the logical master's heartbeat at once: the devices' consumers go on
             self._send_quiet(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
-            assert isinstance(self.member, PairMember)
-            self.member.abort_left_open()
+            for cob_id, frame, text in self.heard_sdo.abort_left_open():  # before any request
+                self._send_quiet(cob_id, frame)
+                log.info("%s", text)
             for p in self.nodes.values():
                 self._execute(p, p.node.take_over(now))
         elif change.previous is Role.ACTIVE:

@@ -206,6 +206,11 @@ function presenceBadge(r) {
   return r.presence === "alive" ? badge("alive", "good") : badge(r.presence, r.presence === "lost" ? "bad" : "stale");
 }
 
+// The node's status (its worst process quality); a node whose PDOs map nothing says why it is bad.
+function statusCell(r) {
+  return r.quality_note ? el("span", {}, badge(r.quality), " " + r.quality_note) : badge(r.quality);
+}
+
 function linkBadge(word) {
   if (word === "ok") return badge("ok", "good");
   if (word === "fault") return badge("fault", "bad");
@@ -229,7 +234,7 @@ function renderNodes(rows) {
       ["name", el("span", {}, el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name), on)],
       ["node_id", String(r.node_id), "num"],
       ["profile", el("span", { title: r.title }, r.profile)],
-      ["quality", badge(r.quality)],
+      ["quality", statusCell(r)],
       ["presence", presenceBadge(r)],
       ["nmt_state", r.nmt_state],
       ["lifecycle", r.outputs === "safe" ? el("span", {}, r.lifecycle + " ", badge("outputs: safe", "stale")) : r.lifecycle],
@@ -262,7 +267,7 @@ function renderNodeRow(r) {
   document.getElementById("node-title").textContent = `Node ${r.name} (id ${r.node_id}, ${r.profile})`;
   document.title = `canopen-gateway: ${r.name}`;
   setFacts(document.getElementById("node-state"), [
-    ["Status", badge(r.quality)],
+    ["Status", statusCell(r)],
     ["Presence", presenceBadge(r)],
     ["NMT state", r.nmt_state],
     ["Lifecycle", r.lifecycle],
@@ -740,13 +745,21 @@ function journalQuery() {
   return q.toString();
 }
 
+// Answers may come back out of order (the page's first load, then a submit): only the answer
+// of the latest request is shown, and the table says which query it shows (data-query).
+let journalRequests = 0;
+
 async function loadJournal() {
   const q = journalQuery();
+  const mine = ++journalRequests;
   document.getElementById("jr-csv").href = "/api/journal.csv?" + q;
   const status = document.getElementById("jr-status");
   const r = await fetch("/api/journal?" + q, { cache: "no-store" });
   const doc = await r.json();
-  const tbody = document.querySelector("#journal tbody");
+  if (mine !== journalRequests) return; // a later request's answer is the one shown
+  const table = document.getElementById("journal");
+  const tbody = table.querySelector("tbody");
+  table.dataset.query = q;
   if (!r.ok) {
     status.textContent = doc.message || r.statusText;
     tbody.replaceChildren();
@@ -891,8 +904,10 @@ async function initMonitor() {
       sel.append(el("option", { value: r.name, selected: r.name === wanted }, `${r.name} (id ${r.node_id})`));
     }
   };
+  const recNet = document.getElementById("rec-network"); // the recording is of the network shown
   fillNodes();
-  netSel.addEventListener("change", () => { fillNodes(); document.querySelector("#frames tbody").replaceChildren(); monitorRefilter(); });
+  recNet.value = netSel.value;
+  netSel.addEventListener("change", () => { fillNodes(); recNet.value = netSel.value; document.querySelector("#frames tbody").replaceChildren(); monitorRefilter(); });
   sel.addEventListener("change", monitorRefilter);
   for (const i of document.querySelectorAll('input[name="mkind"]')) i.addEventListener("change", monitorRefilter);
   document.getElementById("mon-pause").addEventListener("click", monitorPause);
@@ -900,8 +915,18 @@ async function initMonitor() {
   monitorOpen();
 }
 
+// ------------------------------------------------------------------ not found (a node page of no node)
+async function initNotFound() {
+  const ov = await getJSON("/api/overview");
+  header(ov);
+  const asked = decodeURIComponent(location.pathname.replace(/^\/node\//, ""));
+  if (location.pathname.startsWith("/node/")) document.getElementById("nf-what").textContent = `No node named “${asked}” is configured on this gateway.`;
+  document.getElementById("nf-nodes").replaceChildren(...ov.nodes.map((r) =>
+    el("li", {}, el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name), ` (id ${r.node_id}, ${r.profile})`)));
+}
+
 // ------------------------------------------------------------------ start
-const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor };
+const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor, notfound: initNotFound };
 INIT[page]().catch((err) => {
   setConn("error");
   const main = document.querySelector("main");
