@@ -127,18 +127,6 @@ def with_systemd(gw: Any) -> tuple[Callable[[], Any], Callable[[], Any]]:
 
     notifier = SystemdNotifier.from_env()
     tasks: list[asyncio.Task[None]] = []
-    turns: dict[str, int] = {}  # network name -> its reader's rounds when last asked
-
-    def readers_go_round() -> bool:
-        """Every network's reader went round since the last ask, and none died (one stuck
-        reader is a gateway systemd restarts, whichever network it reads)."""
-        moved = []
-        for net in gw.networks:
-            now = net.driver.reader_turns
-            moved.append(turns.get(net.name) != now)
-            turns[net.name] = now
-        dead = [name for name in gw.threads.failures() if name.startswith("can-reader")]
-        return all(moved) and not dead
 
     def status() -> str:
         doc = gw.status()
@@ -152,7 +140,7 @@ def with_systemd(gw: Any) -> tuple[Callable[[], Any], Callable[[], Any]]:
         notifier.send("STATUS=starting")
         await gw.start()
         notifier.ready(f"{status()}; {gw.summary()}")
-        tasks.append(asyncio.get_running_loop().create_task(notifier.supervise(readers_go_round, status)))
+        tasks.append(asyncio.get_running_loop().create_task(notifier.supervise(readers_go_round(gw), status)))
 
     async def stop() -> None:
         notifier.stopping()
@@ -162,6 +150,24 @@ def with_systemd(gw: Any) -> tuple[Callable[[], Any], Callable[[], Any]]:
         notifier.close()
 
     return start, stop
+
+
+def readers_go_round(gw: Any) -> Callable[[], bool]:
+    """systemd's watchdog's question of a gateway: every network's CAN reader went round since
+    the last ask, and none died (one stuck reader is a gateway systemd restarts, whichever
+    network it reads)."""
+    turns: dict[str, int] = {}  # network name -> its reader's rounds when last asked
+
+    def alive() -> bool:
+        moved = []
+        for net in gw.networks:
+            now = net.driver.reader_turns
+            moved.append(turns.get(net.name) != now)
+            turns[net.name] = now
+        dead = [name for name in gw.threads.failures() if name.startswith("can-reader")]
+        return all(moved) and not dead
+
+    return alive
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:

@@ -184,7 +184,8 @@ def test_check_refuses_networks_with_a_top_level_key_before_anything_opens(
 
 
 @pytest.mark.parametrize("argv", [["scan"], ["monitor"], ["lss", "inquire"], ["nmt", "start", "wire"],
-                                  ["sdo", "read", "wire", "0x1008:00"], ["fault"]])  # fmt: skip
+                                  ["sdo", "read", "wire", "0x1008:00"], ["fault"],
+                                  ["decode", "bus.asc"]])  # fmt: skip
 def test_a_command_that_opens_a_bus_needs_network_with_several_and_names_them(
     argv: list[str], capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -199,3 +200,42 @@ def test_an_unknown_network_is_refused_with_the_names(capsys: pytest.CaptureFixt
     with pytest.raises(SystemExit):
         main(["scan", "-c", TWO_NETWORKS, "--network", "line3"])
     assert "no network named 'line3'; networks: line1, line2" in capsys.readouterr().err
+
+
+def test_checks_warnings_and_notes_are_each_networks_under_its_key() -> None:
+    """A SYNC-driven TPDO without SYNC on its own network is warned of there only (line1 makes
+    SYNC, line2 does not); a part of the identity a file cannot give is noted under the node's
+    networks[k].nodes[j]."""
+    from gateway.checks import config_notes, config_warnings
+
+    raw = {"networks": [
+        net("line1", node("wire", 1), master={"sync_period_ms": 100}),
+        net("line2", node("drive1", 1, modbus={"unit_id": 101})),
+    ]}  # fmt: skip
+    cfg, nodes = parse_checked(raw, "cfg.yaml", environ={})
+    warnings = config_warnings(cfg, nodes)
+    assert [(k, m.split(":")[0]) for k, m in warnings] == [("networks[1].nodes[0]", "node drive1")]
+    assert "TPDO2 is SYNC-driven" in warnings[0][1]
+    assert [k for k, _ in config_notes(cfg, nodes)] == [
+        "networks[0].nodes[0].identity_check", "networks[1].nodes[0].identity_check"]  # fmt: skip
+
+
+def test_plc_tag_imports_of_two_networks_keep_their_columns_and_name_each_networks_registers(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Modicon's columns are a fixed interface (no network column: a node's name is unique,
+    a network's gateway register says its network in its description); a KEPServerEX tag of
+    a network's gateway register carries the network's name, so every tag stays unique."""
+    assert main(["registers", "-c", TWO_NETWORKS, "--format", "modicon"]) == 0
+    rows = list(csv.reader(io.StringIO(capsys.readouterr().out)))
+    assert ",".join(rows[0]) == "unit_id,modicon,words,iec_type,word_order,node,signal,unit,description"
+    line2_bus = next(r for r in rows if r[:2] == ["247", "300026"])  # input register 25
+    assert line2_bus[5:7] == ["(gateway)", "bus_state"] and "network 2 of 2 (line2)" in line2_bus[8]
+    assert main(["registers", "-c", TWO_NETWORKS, "--format", "kepware", "--unit", "247"]) == 0
+    tags = [r[0] for r in csv.reader(io.StringIO(capsys.readouterr().out))][1:]
+    assert len(tags) == len(set(tags))
+    assert {"gateway_bus_state", "gateway_line1_bus_state", "gateway_line2_bus_state",
+            "gateway_line1_pair_role", "gateway_line2_pair_role"} <= set(tags)  # fmt: skip
+    assert main(["registers", "-c", TWO_NETWORKS, "--csv", "--unit", "101"]) == 0
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert rows and {r["network"] for r in rows} == {"line2"}  # one unit's listing keeps the column
