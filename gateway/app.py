@@ -146,7 +146,7 @@ class Gateway:
             if self.cfg.modbus.plain:
                 parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
             if self.modbus.tls_server is not None:
-                parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
+                parts.append(f"Modbus/TLS {self.modbus.tls_server.socks[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
             z = self.cfg.zenoh
             endpoints = z.connect if z.mode == "client" else z.listen + z.connect  # a client listens nowhere
@@ -176,15 +176,19 @@ class Gateway:
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
         # ready: every bus and the PLC side serve; the cloud side (Zenoh) counts only for a
-        # gateway without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's
-        # gateway out of service because the router is away. /healthz says "zenoh": false.
+        # gateway without Modbus, or when our prefix is announced by another (docs/deploy.md,
+        # Readiness): a probe must not take a PLC's gateway out of service because the router
+        # is away. /healthz says "zenoh": false.
         northbound_up = modbus_up if self.modbus is not None else zenoh_up
+        zenoh_error = self.zenoh.link.problem if self.zenoh is not None else None
         buses = bus_reasons(self.networks)
         reasons = ([] if self.started else ["starting"]) + buses
         reasons += [f"network {net.name}: another device has this gateway's pair id"
                     for net in self.networks if net.master.role == "duplicate"]  # fmt: skip
-        if not northbound_up:
+        if not northbound_up and not (self.modbus is None and zenoh_error is not None):
             reasons.append("Modbus is not serving" if self.modbus is not None else "Zenoh is down")
+        if zenoh_error is not None:
+            reasons.append(f"zenoh: {zenoh_error}")
         reasons += [f"thread {name} died: {why}" for name, why in dead.items()]
         first = self.networks.first
         several = {"state": self.image.bus_state, "detail": "; ".join(buses)}
@@ -201,7 +205,7 @@ class Gateway:
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
             "nodes": {name: health_doc(node) for name, node in self.image.nodes.items()},
-        } | pair_of(first.master) | self._watchdog_status() | self._journal_status()
+        } | pair_of(first.master) | (self.modbus.watchdog_status() if self.modbus else {}) | self._journal_status()
 
     def _journal_status(self) -> dict[str, Any]:
         """The journal's figures and last error (a full or slow disk shows here; the gateway
@@ -219,12 +223,6 @@ class Gateway:
             Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
                   record.get("node"), None, json.dumps(record).encode())
         )
-
-    def _watchdog_status(self) -> dict[str, Any]:
-        if self.modbus is None or not self.modbus.watchdog.enabled:
-            return {}
-        wd = self.modbus.watchdog
-        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}}
 
     def overview(self) -> dict[str, Any]:
         """Gateway-wide figures for the web console's overview (counters become rates there);
@@ -313,7 +311,7 @@ class Gateway:
                 for k, v in (getattr(z, section).model_dump() if getattr(z, section) else {}).items()
                 if isinstance(v, str) and k.endswith(("_file", "certificate", "key"))
             }
-            # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
+            # before the bus; a prefix another announces leaves Zenoh closed (ZenohSession.problem)
             with startup_step(key, ", ".join(where), files):
                 await self.zenoh.open()
         if self.sim is not None:
@@ -449,6 +447,7 @@ class Gateway:
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}
             c.modbus_requests = {modbus_function_label(fc): n for fc, n in store.by_function.items()}
             c.modbus_watchdog_trips = dict(self.modbus.watchdog.trips)
+            c.modbus_connections, c.modbus_connections_closed = self.modbus.admission.counts()
 
     def _copy_network_counters(self, c: Any) -> None:
         """The metrics of each network (label ``network``): frames, errors, reopens, bus state,

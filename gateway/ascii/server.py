@@ -16,13 +16,18 @@ and answers are still written.
 A client that disconnects mid-request harms nothing: the request completes on the bus, its
 answer is dropped, and the connection's task ends.
 
+Only clients in ``ascii.allowed_networks`` (default: this machine) are served: a connection
+from any other address is closed at once, counted (``refused_clients``) and logged with the
+address (rate-limited). A write or NMT command refused by ``ascii.writes`` is logged and
+audited (``commands.audit``).
+
 The PLC comes first: each line takes a turn on the event loop (``turns.LoopTurns``, shared
 with the web console) before it is handled, so many ASCII clients never hold a Modbus answer
 up for more than one line's work; when too many clients wait for a turn, the line is answered
 ``ERROR:102`` (request not processed due to internal state) and the client may send it again.
 
 Imports: asyncio, commands, config, errors, image, canopen.objref, ascii.protocol, ascii.grammar,
-ascii.values, runtime.ratelimit, runtime.turns. Never modbus/,
+ascii.values, northbound.networks, runtime.ratelimit, runtime.turns. Never modbus/,
 zenoh_bridge/, web/ or bus/.
 """
 
@@ -53,6 +58,7 @@ from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import NodeImage, ProcessImage
+from gateway.northbound.networks import Networks
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.turns import ACCEPT_BACKLOG, LoopTurns
 
@@ -93,6 +99,8 @@ class AsciiGateway:
         self.requests = 0  # SDO and NMT requests performed
         self.errors = 0  # of those, answered with an error
         self.refused = 0  # writes and NMT commands refused by ``ascii.writes``
+        self.allowed = Networks(self.section.allowed_networks)
+        self.refused_clients = 0  # connections closed: not in ``ascii.allowed_networks``
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -201,6 +209,16 @@ class _Connection(asyncio.Protocol):
         self.transport = transport
         peer = transport.get_extra_info("peername")
         self.peer = f"{peer[0]}:{peer[1]}" if peer else "?"
+        if not peer or str(peer[0]) not in self.gw.allowed:
+            self.gw.refused_clients += 1
+            self.gw.warn.warning(
+                "ascii_client_refused",
+                "ASCII client %s refused: not in ascii.allowed_networks (%s); %d refused so far",
+                peer[0] if peer else "?", self.gw.allowed, self.gw.refused_clients,
+            )  # fmt: skip
+            self.transport = None
+            transport.close()
+            return
         self.gw.connections.add(self)
         self.task = asyncio.get_running_loop().create_task(self._serve())
         self.gw.tasks.add(self.task)
@@ -262,6 +280,9 @@ class _Connection(asyncio.Protocol):
         if self.session.refused != refused:
             self.gw.refused += 1
             self.gw.warn.warning("ascii_refused", "ASCII client %s: write or NMT refused (ascii.writes is false)", self.peer)  # fmt: skip
+            with acting_as(f"ascii {self.peer}"):
+                line = item if isinstance(item, str) else "(line too long)"
+                self.gw.commands.refusals.refused("ascii_write", "", line, None, "ascii.writes is false")
         if isinstance(result, list):
             return result
         with acting_as(f"ascii {self.peer}"):  # the audit of a write names the client

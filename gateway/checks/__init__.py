@@ -23,7 +23,9 @@ one bus run on each network's config, ``Config.network_view``, their keys under 
   node, the master's NMT, SYNC, heartbeat and LSS), named in one line with where each got it;
   one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both);
 * ``journal.path`` can be created and written (the one check here that touches the disk: it
-  creates the directory when missing).
+  creates the directory when missing);
+* the secrets named by file are usable (``checks.secrets``: ``web.token_file``, a
+  ``zenoh.auth.password_file`` that is not the examples' placeholder).
 
 ``config_warnings(cfg)`` (what runs but may not do what is meant) and ``config_notes(cfg)``
 (what the gateway will not check) are ``checks.warnings``'s, re-exported here.
@@ -36,12 +38,12 @@ Every function takes the nodes as resolved once (``gateway.device.resolved``). `
 ``parse_checked`` read and validate a config, resolve its nodes in the same pass and run these
 checks, raising ConfigError with every line; they return the config and its nodes.
 
-Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, checks.warnings, profiles,
+Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, checks.warnings, checks.secrets, profiles,
 eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
 register map, the COB-IDs of the nodes (bus/cob_id_uses.py), journal (the path check) (no I/O but reading the files they name and the
 journal's directory).
 
-Imports: config, checks.pair, checks.warnings, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
+Imports: config, checks.pair, checks.warnings, checks.secrets, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
 settings), eds (parse, pdos), profiles (layout, schema), modbus.safe_outputs (its
 rule only), northbound.regmap, journal.
 """
@@ -57,6 +59,7 @@ from gateway.bus.cob_id_uses import clashes, gateway_uses, loops_back
 from gateway.canopen.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
 from gateway.checks.pair import pair_problems
+from gateway.checks.secrets import secret_problems
 from gateway.checks.warnings import config_notes, config_warnings
 from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.device.boot_steps import ConfigStep
@@ -368,6 +371,7 @@ def config_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
         found += safe_output_problems(view, resolved) + cob_id_problems(view, resolved)
         out += [(view.qualify(k), m) for k, m in found]
     out += journal_problems(cfg)
+    out += secret_problems(cfg)
     seen: set[Problem] = set()
     unique = []
     for p in out:

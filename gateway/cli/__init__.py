@@ -1,12 +1,13 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|get|sub|scan|monitor|decode|lss|eds|profile|fault|schema|dcf``.
+"""Command line: ``canopen-gateway run|demo|check|registers|keys|simulate|sdo|nmt|get|sub|scan|monitor|decode|lss|eds|profile|fault|schema|dcf``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback; so are a CAN bus that cannot be opened and a start that fails. Imports everything it drives; nothing imports this package.
 
 This module holds the parser and ``main``; the commands are in its modules: ``serve`` (run,
-simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``cloud`` (get,
-sub), ``eds`` (eds, profile), ``bus_tools`` (scan, monitor, decode, lss, fault), ``plant``
-(schema, dcf: what the plant's own tools read); ``load`` loads a command's configuration.
+demo, simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``cloud``
+(get, sub), ``eds`` (eds, profile), ``bus_tools`` (scan, monitor, decode, lss, fault),
+``plant`` (schema, dcf: what the plant's own tools read); ``load`` loads a command's
+configuration.
 
 Imports: gateway (version), gateway.config (ConfigError), gateway.runtime.startup (StartupError),
 gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, cloud, eds, bus_tools, plant.
@@ -24,7 +25,7 @@ from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
 from gateway.cli.load import CONFIG_ENV, DEFAULT_CONFIG, EXIT_CONFIG, EXIT_FAILED, default_config
 from gateway.cli.plant import cmd_dcf, cmd_schema
-from gateway.cli.serve import cmd_run, cmd_simulate, error_line
+from gateway.cli.serve import cmd_demo, cmd_run, cmd_simulate, demo_requested, error_line
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
 from gateway.config import ConfigError
 from gateway.runtime.startup import StartupError
@@ -75,12 +76,16 @@ def _with_log_format(sp: argparse.ArgumentParser) -> None:
 
 
 def _add_gateway_commands(add: AddParser) -> None:
-    """run, check, registers, keys, simulate, fault."""
+    """run, demo, check, registers, keys, simulate, fault."""
     sp = _with_config(add("run", help="run the gateway"))
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
     _with_log_format(sp)
     sp.add_argument("--no-simulate", action="store_true", help="ignore the simulate: section")
     sp.set_defaults(fn=cmd_run)
+
+    sp = add("demo", help="run the gateway on the demo configuration (simulated devices)")
+    sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    sp.set_defaults(fn=cmd_demo)
 
     sp = add(
         "check", help="validate a configuration (or the two of a pair) and summarise it"
@@ -255,7 +260,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        if "config" in args and not args.config:  # -c left out: the environment, /etc
+        if "config" in args and not args.config and not (args.command == "run" and demo_requested()):
+            # -c left out: the environment, /etc (``run`` of the demo needs none)
             path = default_config()
             args.config = [path] if args.command == "check" else path
         return int(args.fn(args))

@@ -1,11 +1,17 @@
-"""The long-running commands: ``run`` (the gateway) and ``simulate`` (only the simulated
-devices of a config), each until SIGINT / SIGTERM, with the logging they set up: text, or JSON
-lines with ``--log-format json`` / ``CANOPEN_GATEWAY_LOG_FORMAT=json`` (the start-up banner
-and the lines of a start that fails too).
+"""The long-running commands: ``run`` (the gateway), ``demo`` (the gateway on the demo
+configuration) and ``simulate`` (only the simulated devices of a config), each until SIGINT /
+SIGTERM, with the logging they set up: text, or JSON lines with ``--log-format json`` /
+``CANOPEN_GATEWAY_LOG_FORMAT=json`` (the start-up banner and the lines of a start that fails
+too).
 
-Imports: gateway.app, gateway.sim.buses, gateway.config (blame, ConfigError), gateway.runtime.startup,
-gateway.runtime.logformat (text or JSON lines), gateway.runtime.sd_notify (systemd),
-gateway.zenoh_bridge.session (PrefixInUse),
+A gateway never pretends: ``run`` without its configuration file exits 2 with one line naming
+the path and saying to mount or write one; the demo (simulated devices) runs only when asked
+for, by ``demo`` or ``CANOPEN_GATEWAY_DEMO=1`` (the demo configuration: ``config/demo.yaml`` of
+a checkout, or the file ``CANOPEN_GATEWAY_DEMO_CONFIG`` names; the image sets it).
+
+Imports: gateway.app, gateway.sim.buses, gateway.config (ConfigError), gateway.runtime.startup,
+gateway.runtime.fdlimit, gateway.runtime.logformat (text or JSON lines),
+gateway.runtime.sd_notify (systemd),
 gateway.tools.bus_open, cli.load.
 """
 
@@ -14,6 +20,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import sys
 import time
@@ -21,7 +28,7 @@ from collections.abc import Callable
 from typing import Any
 
 from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus, on_network
-from gateway.config import ConfigError, blame
+from gateway.config import ConfigError
 from gateway.runtime.logformat import TEXT_FORMAT, JsonFormatter, json_line, log_format
 
 
@@ -88,15 +95,59 @@ def error_line(args: argparse.Namespace, line: str) -> None:
     print(json_line(line, "error") if json_mode else line, file=sys.stderr)
 
 
+#: file descriptors of a gateway beyond its client connections: listeners, the CAN bus, Zenoh's
+#: sockets and threads' pipes, the journal, the console's connections and streams
+BASE_FILES = 256
+
+
+def files_needed(cfg: Any) -> int:
+    """Open files a gateway of ``cfg`` may need with every connection cap reached."""
+    return BASE_FILES + (cfg.modbus.max_connections if cfg.modbus.enabled else 0)
+
+
+#: ``CANOPEN_GATEWAY_DEMO=1``: ``run`` runs the demo; ``..._DEMO_CONFIG``: the demo's file
+DEMO_ENV = "CANOPEN_GATEWAY_DEMO"
+DEMO_CONFIG_ENV = "CANOPEN_GATEWAY_DEMO_CONFIG"
+DEMO_CONFIG = "config/demo.yaml"  # a checkout's
+
+
+def demo_config() -> str:
+    return os.environ.get(DEMO_CONFIG_ENV) or DEMO_CONFIG
+
+
+def demo_requested() -> bool:
+    """``CANOPEN_GATEWAY_DEMO=1``: ``run`` runs the demo, whatever its ``-c`` says."""
+    return os.environ.get(DEMO_ENV, "").strip() in ("1", "true", "yes")
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The gateway on the demo configuration: simulated devices, asked for by name."""
+    args.config = demo_config()
+    args.no_simulate = False
+    return cmd_run(args)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from gateway.app import Gateway
     from gateway.tools.bus_open import gateway_bus
 
     fmt = resolve_log_format(args)
+    if demo_requested():
+        args.config = demo_config()
+    if not os.path.isfile(args.config):
+        error_line(
+            args,
+            f"error: {args.config}: no configuration file there: mount yours at this path "
+            f"(docker run -v \"$PWD/gateway.yaml:{args.config}:ro\" ..., docs/deploy.md) or "
+            f"write one; the demo runs only when asked for (canopen-gateway demo, or {DEMO_ENV}=1)",
+        )
+        return EXIT_CONFIG
     cfg, nodes = load_for_bus(args.config)
     setup_logging(args.log_level or cfg.gateway.log_level, fmt)
+    from gateway.runtime.fdlimit import raise_file_limit
     from gateway.runtime.startup import StartupError
-    from gateway.zenoh_bridge.session import PrefixInUse
+
+    raise_file_limit(files_needed(cfg))
 
     # a bus that cannot open at start: one line, exit 2 (cli.main); opened once, by the gateway
     gw = Gateway(cfg, nodes, simulate=not args.no_simulate, bus_must_open=True, freeze_gc=True)
@@ -108,10 +159,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     except StartupError as exc:  # a port in use, a file missing: one line, everything closed
         for line in exc.lines(args.config):  # every port in use, one line each
             error_line(args, line)
-        return EXIT_CONFIG
-    except PrefixInUse as exc:  # a configuration problem: two gateways under one prefix
-        where = blame("zenoh.prefix", args.config, cfg.env_keys)  # or the variable that set it
-        error_line(args, f"error: {where}: zenoh.prefix: {exc}")
         return EXIT_CONFIG
     except OSError as exc:
         error_line(args, f"error: {exc}")

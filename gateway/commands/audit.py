@@ -3,9 +3,20 @@
 abort code, the text).
 
 Who: each adapter says it once per request with ``acting_as`` (a context variable, so the
-command service's signatures do not change and each asyncio task has its own): ``modbus
-<client address>[ tls role <role>]``, ``zenoh <source id>``, ``web <client address>``,
-``ascii <client address>``, ``watchdog`` for the safe outputs, ``unknown`` when nobody said.
+command service's signatures do not change and each asyncio task has its own), and only what
+it has authenticated or seen itself: ``modbus <client address>[ tls role <role> subject
+<certificate subject>]``, ``zenoh`` (a query does not say who sent it: the router's logins and
+access control decide who may), ``web <client address>[ token]`` (``token``: the request
+carried the operators' token), ``ascii <client address:port>``, ``watchdog`` for the safe
+outputs, ``unknown`` when nobody said. What a client says of itself (Zenoh's ``source_info``,
+an ``X-Canopen-Client`` header) is never the identity: it is kept as ``hint``, marked as said
+by the client.
+
+Writes refused before they reach the service (a write gate: Modbus ``allowed_networks`` or
+``read_only``, ``zenoh.writes``, ``ascii.writes``) and wrong web tokens are audited too
+(``RefusalAudit``): ``outcome`` ``refused: <why>``, at most one record per client, operation
+and reason every ``REFUSAL_PERIOD_S`` (the next one says how many were not recorded), so a
+client that hammers a gate cannot push older entries out of a bounded journal.
 
 The service marks its write operations with ``audited`` and hands each record to its ``audit``
 sink (the app journals it); with no sink nothing is recorded and nothing is built.
@@ -26,6 +37,10 @@ from typing import Any, TypeVar, cast
 from gateway.errors import GatewayError, SdoAbort
 
 WHO: ContextVar[str] = ContextVar("who", default="unknown")
+#: what the client said of itself (never checked): recorded as ``hint``
+HINT: ContextVar[str | None] = ContextVar("hint", default=None)
+#: refusals of one client, operation and reason are audited at most once per period
+REFUSAL_PERIOD_S = 10.0
 
 F = TypeVar("F", bound=Callable[..., Any])
 Describe = Callable[..., tuple[str, str, Any]]  # the operation's arguments -> node, what, value
@@ -33,13 +48,15 @@ AuditSink = Callable[[dict[str, Any]], None]  # takes one record (``record``)
 
 
 @contextmanager
-def acting_as(who: str) -> Iterator[None]:
-    """Writes made inside are audited as asked by ``who``."""
-    token = WHO.set(who)
+def acting_as(who: str, hint: str | None = None) -> Iterator[None]:
+    """Writes made inside are audited as asked by ``who`` (what the adapter authenticated or
+    saw itself); ``hint``: what the client said of itself, recorded as such."""
+    token, hint_token = WHO.set(who), HINT.set(hint)
     try:
         yield
     finally:
         WHO.reset(token)
+        HINT.reset(hint_token)
 
 
 def outcome_of(exc: BaseException | None) -> str:
@@ -66,7 +83,7 @@ def _plain(value: Any) -> Any:
 
 
 def record(op: str, node: str, what: str, value: Any, exc: BaseException | None) -> dict[str, Any]:
-    return {
+    doc = {
         "ts": time.time(),
         "who": WHO.get(),
         "op": op,
@@ -75,6 +92,46 @@ def record(op: str, node: str, what: str, value: Any, exc: BaseException | None)
         "value": _plain(value),
         "outcome": outcome_of(exc),
     }
+    hint = HINT.get()
+    if hint is not None:
+        doc["hint"] = f"{hint} (said by the client, not verified)"
+    return doc
+
+
+class RefusalAudit:
+    """Refused writes and failed logins as audit records, at most one per (who, operation,
+    reason) and period; ``sink()`` is read at each refusal (None: not audited)."""
+
+    def __init__(
+        self,
+        sink: Callable[[], AuditSink | None],
+        clock: Callable[[], float] = time.monotonic,
+        period_s: float = REFUSAL_PERIOD_S,
+        max_kinds: int = 4096,
+    ) -> None:
+        self.sink = sink
+        self.clock = clock
+        self.period_s = period_s
+        self.max_kinds = max_kinds
+        self._last: dict[tuple[str, str, str], tuple[float, int]] = {}  # -> (at, not recorded)
+
+    def refused(self, op: str, node: str, what: str, value: Any, why: str) -> None:
+        sink = self.sink()
+        if sink is None:
+            return
+        kind, now = (WHO.get(), op, why), self.clock()
+        at, skipped = self._last.get(kind, (None, 0))
+        if at is not None and now - at < self.period_s:
+            self._last[kind] = (at, skipped + 1)
+            return
+        if len(self._last) >= self.max_kinds:
+            self._last.clear()  # a flood of distinct clients: forget, never grow
+        self._last[kind] = (now, 0)
+        doc = record(op, node, what, value, None)
+        doc["outcome"] = f"refused: {why}"
+        if skipped:
+            doc["outcome"] += f" ({skipped} more like it not recorded in the {self.period_s:g} s before)"
+        sink(doc)
 
 
 @contextmanager

@@ -45,7 +45,7 @@ from gateway.bus.node.parts import NodeParts
 from gateway.canopen.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
 from gateway.commands import bus_inquiry
-from gateway.commands.audit import WHO, AuditSink, acting_as, audited
+from gateway.commands.audit import WHO, AuditSink, RefusalAudit, acting_as, audited
 from gateway.commands.sdo_cache import SdoValueCache
 from gateway.commands.validation import (
     bit_names,
@@ -121,6 +121,8 @@ class CommandService:
         #: every write and command (``audited``) is handed here with who, what and the
         #: outcome (``commands.audit``); None: not audited
         self.audit: AuditSink | None = None
+        #: writes the adapters' gates refused, and failed logins: audited too (rate-limited)
+        self.refusals = RefusalAudit(lambda: self.audit)
 
     # ------------------------------------------------------------------ the role (read only)
     @property

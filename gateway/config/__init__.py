@@ -37,6 +37,7 @@ from gateway.config.load import load_config, parse_config, raw_list, raw_section
 from gateway.config.model import (
     CAN_INTERFACE_MISSING,
     DEFAULT_NETWORK,
+    LOOPBACK_NETWORKS,
     WEB_TOKEN_MIN_LENGTH,
     AsciiSection,
     CanSection,
@@ -50,6 +51,7 @@ from gateway.config.model import (
     NetworkSection,
     SimulateSection,
     WebSection,
+    read_secret,
 )
 from gateway.config.node import (
     ExternalHeartbeat,
@@ -61,7 +63,14 @@ from gateway.config.node import (
     SdoWrite,
     SignalOverride,
 )
-from gateway.config.zenoh import ZenohAuth, ZenohHistory, ZenohSection, ZenohTls, ZenohWriteRule
+from gateway.config.zenoh import (
+    ZenohAuth,
+    ZenohHistory,
+    ZenohSection,
+    ZenohTls,
+    ZenohWriteRule,
+    placeholder_problem,
+)
 
 __all__ = [
     "AsciiSection",
@@ -89,6 +98,7 @@ __all__ = [
     "SdoWrite",
     "SignalOverride",
     "SimulateSection",
+    "LOOPBACK_NETWORKS",
     "WEB_TOKEN_MIN_LENGTH",
     "WebSection",
     "ZenohAuth",
@@ -96,6 +106,8 @@ __all__ = [
     "ZenohSection",
     "ZenohTls",
     "ZenohWriteRule",
+    "placeholder_problem",
+    "read_secret",
     "apply_env_overrides",
     "blame",
     "env_keys",

@@ -123,6 +123,18 @@ class MasterSection(_Model):
     redundancy: PairSection | None = None
 
 
+#: the default of ``allowed_networks``: this machine only
+LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
+
+
+def _check_networks(networks: list[str]) -> None:
+    for n in networks:
+        try:
+            ipaddress.ip_network(n, strict=False)
+        except ValueError as exc:
+            raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+
+
 class ModbusTls(_Model):
     """Modbus/TCP Security (TLS, mutual X.509 authentication, roles): a second listener."""
 
@@ -141,9 +153,15 @@ class ModbusTls(_Model):
     default_role: str | None = Field(
         default=None, description="role of a client whose certificate has none; none: refused"
     )
+    crl: str | None = Field(
+        default=None,
+        description="certificate revocation list(s) of the CA (PEM): a revoked client is refused",
+    )
 
     @model_validator(mode="after")
     def _roles(self) -> ModbusTls:
+        if self.crl and not self.ca:
+            raise ValueError("crl needs ca (the CA file whose revocations it lists)")
         if self.require_client_cert and not self.ca:
             raise ValueError("require_client_cert: true needs ca (the CA file that signs clients)")
         if self.default_role is not None and self.default_role not in self.roles:
@@ -165,7 +183,22 @@ class ModbusSection(_Model):
     flat_stride: int = Field(default=200, ge=50, le=10000)
     word_order: Literal["big", "little"] = "big"
     read_only: bool = False
-    allowed_networks: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
+    allowed_networks: list[str] = Field(default_factory=lambda: list(LOOPBACK_NETWORKS))
+    max_connections: int = Field(
+        default=64,
+        ge=1,
+        le=10_000,
+        description="Modbus connections at once (plain and TLS together); past it a new one is closed",
+    )
+    max_connections_per_client: int = Field(
+        default=8, ge=1, le=10_000, description="connections at once from one client address"
+    )
+    idle_timeout_s: float = Field(
+        default=300.0,
+        ge=0,
+        le=86_400,
+        description="a connection that sends nothing this long is closed; 0 = never",
+    )
     write_timeout_s: float = Field(default=2.0, gt=0, le=60)
     watchdog_ms: int = Field(
         default=0,
@@ -183,11 +216,12 @@ class ModbusSection(_Model):
     def _nets(self) -> ModbusSection:
         if not self.plain and self.tls is None:
             raise ValueError("plain: false needs tls (nothing would serve Modbus)")
-        for n in self.allowed_networks:
-            try:
-                ipaddress.ip_network(n, strict=False)
-            except ValueError as exc:
-                raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+        if self.max_connections_per_client > self.max_connections:
+            raise ValueError(
+                f"max_connections_per_client ({self.max_connections_per_client}) is above "
+                f"max_connections ({self.max_connections})"
+            )
+        _check_networks(self.allowed_networks)
         return self
 
 
@@ -202,6 +236,15 @@ class AsciiSection(_Model):
     events: bool = Field(
         default=False, description="event lines (BOOT_UP, EMCY, heartbeat) to every client"
     )
+    allowed_networks: list[str] = Field(
+        default_factory=lambda: list(LOOPBACK_NETWORKS),
+        description="client addresses served; any other connection is closed at once",
+    )
+
+    @model_validator(mode="after")
+    def _nets(self) -> AsciiSection:
+        _check_networks(self.allowed_networks)
+        return self
 
 
 class CommandSocketSection(_Model):
@@ -238,7 +281,16 @@ class WebSection(_Model):
     )
     token: str | None = Field(
         default=None,
-        description="password of the commissioning page; or CANOPEN_GATEWAY__WEB__TOKEN",
+        description="the operators' password (journal, bus monitor, SDO reads, faults, "
+        "commissioning); or CANOPEN_GATEWAY__WEB__TOKEN",
+    )
+    token_file: str | None = Field(
+        default=None, description="a file holding the token (first line), instead of token"
+    )
+    allowed_hosts: list[str] | None = Field(
+        default=None,
+        description="Host header names the console answers (DNS rebinding); default: the bind "
+        "address, the address a request arrived at, localhost and this machine's names; '*' = any",
     )
 
     @field_validator("token", mode="before")
@@ -257,10 +309,12 @@ class WebSection(_Model):
 
     @model_validator(mode="after")
     def _token(self) -> WebSection:
-        if self.writes and not self.token:
+        if self.token is not None and self.token_file is not None:
+            raise ValueError("token and token_file: give one, not both")
+        if self.writes and not self.token and not self.token_file:
             raise ValueError(
-                "writes: true needs a token (web.token, or the environment variable "
-                "CANOPEN_GATEWAY__WEB__TOKEN)"
+                "writes: true needs a token (web.token, web.token_file, or the environment "
+                "variable CANOPEN_GATEWAY__WEB__TOKEN)"
             )
         if self.token is not None and len(self.token) < WEB_TOKEN_MIN_LENGTH:
             raise ValueError(f"token: at least {WEB_TOKEN_MIN_LENGTH} characters")
@@ -421,6 +475,24 @@ class Config(_Model):
     @property
     def base_dir(self) -> Path:
         return Path(self.source).parent if self.source != "<memory>" else Path.cwd()
+
+    def path_of(self, value: str) -> Path:
+        """A file setting's path: relative to the config file unless absolute."""
+        p = Path(value).expanduser()
+        return p if p.is_absolute() else self.base_dir / p
+
+    def web_token(self) -> str | None:
+        """The console's token: ``web.token``, or the first line of ``web.token_file`` (OSError
+        when it cannot be read; ``canopen-gateway check`` and every start check it first)."""
+        if self.web.token_file is None:
+            return self.web.token
+        return read_secret(self.path_of(self.web.token_file))
+
+
+def read_secret(path: Path) -> str:
+    """The secret a file holds: its first line, without surrounding blanks."""
+    text = path.read_text(encoding="utf-8")
+    return text.splitlines()[0].strip() if text.strip() else ""
 
 
 NETWORK_KEYS_SET = frozenset(NETWORK_KEYS)

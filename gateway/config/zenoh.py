@@ -1,8 +1,8 @@
 """The ``zenoh:`` section: the Zenoh session (mode, endpoints, prefix, TLS, authentication,
 access control), what the bridge publishes and keeps for late subscribers (``history``), and
-the writes it takes (``writes``, ``write_allow``: the rules each write must match); with the
-rules one section can check itself (key expressions, a password with its user, a prefix
-without wildcards).
+the writes and SDO reads it takes (``writes``, ``write_allow``: the rules each write must
+match; ``reads``); with the rules one section can check itself (key expressions, a password
+with its user and never the examples' placeholder, a prefix without wildcards).
 
 Imports: pydantic, config.keyexpr (the key expressions' check). Nothing of zenoh_bridge/.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from gateway.config import keyexpr
 
@@ -59,6 +59,20 @@ class ZenohWriteRule(_Model):
         return self
 
 
+#: passwords the examples of this project and of Zenoh's documentation wrote: never a real one
+PLACEHOLDER_PASSWORDS = frozenset({"change-me", "changeme", "change_me"})
+
+
+def placeholder_problem(secret: str) -> str | None:
+    """Why ``secret`` cannot be a password (the placeholder of the examples), or None."""
+    if secret.strip().lower() in PLACEHOLDER_PASSWORDS:
+        return (
+            f"{secret.strip()!r} is the placeholder of the examples, not a password: generate "
+            "one (deploy/zenoh/make-secrets.sh) and give it by password_file"
+        )
+    return None
+
+
 class ZenohAuth(_Model):
     """Zenoh user/password authentication (zenoh's ``transport/auth/usrpwd``)."""
 
@@ -68,6 +82,14 @@ class ZenohAuth(_Model):
     dictionary_file: str | None = Field(
         default=None, description="user:password lines: who may connect to this gateway (peer)"
     )
+
+    @field_validator("password")
+    @classmethod
+    def _not_a_placeholder(cls, v: str | None) -> str | None:
+        why = placeholder_problem(v) if v is not None else None
+        if why:
+            raise ValueError(why)
+        return v
 
     @model_validator(mode="after")
     def _pairs(self) -> ZenohAuth:
@@ -114,13 +136,18 @@ class ZenohSection(_Model):
     write_allow: list[ZenohWriteRule] = Field(
         default_factory=list, description="with writes on: only what a rule allows; empty = all"
     )
+    reads: Literal["catalog", "all"] = Field(
+        default="catalog",
+        description="SDO uploads by query: catalog = only the objects the catalogue lists, all = any",
+    )
     auth: ZenohAuth | None = None
     access_control: dict[str, Any] | None = Field(
         default=None, description="zenoh's access_control section (rules, subjects, policies)"
     )
     history: ZenohHistory = Field(default_factory=ZenohHistory)
     refuse_duplicate_prefix: bool = Field(
-        default=True, description="refuse to start when a gateway already runs under our prefix"
+        default=True,
+        description="keep Zenoh closed (and retry) while another announces a gateway under our prefix",
     )
     json5: dict[str, Any] = Field(
         default_factory=dict, description="raw zenoh config keys, e.g. {'transport/link/tls/..': ..}"

@@ -26,6 +26,7 @@ Metric names carry the prefix ``canopen_gateway_``:
     sdo_requests_total{node,op}, sdo_aborts_total{node,code}, sdo_latency_seconds{node}
     modbus_requests_total{function}, modbus_exceptions_total{code}
     zenoh_refused_total{operation}, modbus_watchdog_trips_total{reason}
+    modbus_connections, modbus_connections_closed_total{reason}
     zenoh_queries_answered_total, zenoh_queries_busy_total, zenoh_query_queue_depth
     northbound_turns_refused_total (console and ASCII requests refused: too many waiting)
     journal_entries_total{outcome} (written, dropped, removed: the store and forward journal)
@@ -171,6 +172,8 @@ class Counters:
     modbus_exceptions: dict[str, int] = field(default_factory=dict)
     zenoh_refused: dict[str, int] = field(default_factory=dict)
     modbus_watchdog_trips: dict[str, int] = field(default_factory=dict)
+    modbus_connections_closed: dict[str, int] = field(default_factory=dict)
+    modbus_connections: int = 0  # a gauge, read at scrape time
     other_master: dict[str, int] = field(default_factory=dict)
     other_sdo_client: dict[str, int] = field(default_factory=dict)
     journal: dict[str, int] = field(default_factory=dict)
@@ -387,6 +390,13 @@ _COUNTER_FAMILIES: tuple[tuple[str, str, str, str, tuple[str, ...]], ...] = (
     ("counter", "journal_entries_total",
      "Journal entries by outcome: written, dropped (slow or full disk), removed "
      "(journal.max_mb, journal.keep_days).", "journal", ("outcome",)),
+    ("gauge", "modbus_connections", "Modbus TCP connections open (plain and TLS).",
+     "modbus_connections", ()),
+    ("counter", "modbus_connections_closed_total",
+     "Modbus connections the gateway closed, by reason: per_client (modbus."
+     "max_connections_per_client), total (modbus.max_connections), evicted (its place given to a "
+     "client in modbus.allowed_networks), idle (modbus.idle_timeout_s).",
+     "modbus_connections_closed", ("reason",)),
     ("counter", "modbus_watchdog_trips_total",
      "Modbus output watchdog trips (safe outputs written), by reason (timeout, disconnect).",
      "modbus_watchdog_trips", ("reason",)),

@@ -22,11 +22,14 @@ not one). Requests are bounded: 8 KiB of head, ``read_timeout_s`` to send it.
 
 Other paths go to an optional ``app`` (the web console, ``gateway.web``): it gets a parsed
 ``Request`` (method, path, query, lower-case headers, a body of at most 64 KiB given by
-Content-Length) and returns a ``Response``, a ``Stream`` (written until the stream ends or the
+Content-Length, the client's address and the local address the request arrived at) and returns a ``Response``, a ``Stream`` (written until the stream ends or the
 client goes away: server-sent events) or None (404). With ``turns`` (``turns.LoopTurns``: the
 PLC first), each app request waits for its turn on the event loop before the app renders it;
 when too many wait, it is answered 503 ``busy`` with ``Retry-After``. Without an app, or for the three paths
-above, methods other than GET/HEAD are answered 405.
+above, methods other than GET/HEAD are answered 405. The three paths above answer whatever the
+``Host`` header (probes and scrapes name the address they reach); the app checks it. A
+``Content-Length`` that is not ASCII digits, or given twice, and a ``Host`` given twice are
+answered 400 (RFC 9112 6.3, 3.2), never an exception.
 
 Config (section ``health:`` of the gateway config): ``host`` (127.0.0.1), ``port`` (0 = off).
 Port 0 passed to ``HealthServer`` itself binds an ephemeral port (see ``.port``): the caller
@@ -63,6 +66,8 @@ MAX_REQUEST_BODY_BYTES = 65536
 JSON_TYPE = "application/json"
 TEXT_TYPE = "text/plain; charset=utf-8"
 HEALTH_PATHS = ("/healthz", "/livez", "/metrics")
+#: headers a request may carry once (RFC 9112 6.3: a repeated Content-Length is an error)
+SINGLE_HEADERS = frozenset({"content-length", "host"})
 
 
 @dataclass(frozen=True)
@@ -76,6 +81,7 @@ class Request:
     headers: Mapping[str, str] = field(default_factory=dict)
     body: bytes = b""
     client: str = ""  # the peer's address (per-client limits of the app)
+    local: str = ""  # the address the request arrived at (the app's Host check)
 
 
 @dataclass(frozen=True)
@@ -338,29 +344,24 @@ class HealthServer:
         header_lines: list[str],
     ) -> None:
         assert self.app is not None
-        headers: dict[str, str] = {}
-        for line in header_lines:
-            name, sep, value = line.partition(":")
-            if sep:
-                headers[name.strip().lower()] = value.strip()
+        headers, twice = _headers(header_lines)
+        if twice is not None:
+            return await self._refuse(
+                writer, path, HTTPStatus.BAD_REQUEST, "bad_request", f"{twice} given twice"
+            )
         if "transfer-encoding" in headers:
             return await self._refuse(
                 writer, path, HTTPStatus.LENGTH_REQUIRED, "length_required", "send a Content-Length body"
             )
         length_text = headers.get("content-length", "0")
-        if not length_text.isdigit():
+        if not (length_text.isascii() and length_text.isdigit()):
             return await self._refuse(
                 writer, path, HTTPStatus.BAD_REQUEST, "bad_request", "bad Content-Length"
             )
         length = int(length_text)
         if length > MAX_REQUEST_BODY_BYTES:
-            return await self._refuse(
-                writer,
-                path,
-                HTTPStatus.REQUEST_ENTITY_TOO_LARGE,
-                "too_large",
-                f"body larger than {MAX_REQUEST_BODY_BYTES} bytes",
-            )
+            too_large = f"body larger than {MAX_REQUEST_BODY_BYTES} bytes"
+            return await self._refuse(writer, path, HTTPStatus.REQUEST_ENTITY_TOO_LARGE, "too_large", too_large)
         try:
             body = await asyncio.wait_for(reader.readexactly(length), self.read_timeout_s)
         except TimeoutError:
@@ -374,6 +375,7 @@ class HealthServer:
             headers=headers,
             body=body,
             client=_peer(writer),
+            local=_peer(writer, "sockname"),
         )
         try:
             if self.turns is None or await self.turns.turn():
@@ -451,8 +453,22 @@ class HealthServer:
         await writer.drain()
 
 
-def _peer(writer: asyncio.StreamWriter) -> str:
-    peer = writer.get_extra_info("peername")
+def _headers(lines: list[str]) -> tuple[dict[str, str], str | None]:
+    """The header fields by lower-case name, and the name of a field that may be given once
+    but came twice (``SINGLE_HEADERS``), else None."""
+    headers: dict[str, str] = {}
+    for line in lines:
+        name, sep, value = line.partition(":")
+        if sep:
+            name = name.strip().lower()
+            if name in SINGLE_HEADERS and name in headers:
+                return headers, name
+            headers[name] = value.strip()
+    return headers, None
+
+
+def _peer(writer: asyncio.StreamWriter, which: str = "peername") -> str:
+    peer = writer.get_extra_info(which)
     return str(peer[0]) if isinstance(peer, tuple) and peer else ""
 
 

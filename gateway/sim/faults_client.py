@@ -83,7 +83,7 @@ def run_fault(cfg: Config, node: str | None, action: str | None, url: str | None
         if action not in ACTIONS:
             print(f"error: no fault {action!r}; one of {', '.join(ACTIONS)}", file=sys.stderr)
             return 2
-        code, doc = _call(f"{base}/api/sim/{node}/{action}", cfg.web.token, post=True)
+        code, doc = _call(f"{base}/api/sim/{node}/{action}", cfg.web_token(), post=True)
     except (urllib.error.URLError, OSError) as exc:
         reason = getattr(exc, "reason", exc)
         print(

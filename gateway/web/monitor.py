@@ -28,7 +28,7 @@ Several CAN networks: one ``FrameMonitor`` per network (``NetworkMonitors``), th
 ``?network=`` chooses.
 
 Imports: config, http.server (the request and its answers), northbound.frames (the decoder,
-node and kind filters), web.live
+node and kind filters), web.access (the per-client slots of the pages), web.live
 (the SSE framing, its limits and its pump, ``stream_sse``), runtime.turns (each write in its turn on the
 event loop: the PLC first). Never bus/ (the driver is given as an object with a
 ``add_tap`` / ``remove_tap``), modbus/ or zenoh_bridge/.
@@ -48,6 +48,7 @@ from gateway.config import Config
 from gateway.http.server import Request, Response, Stream
 from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
 from gateway.runtime.turns import LoopTurns
+from gateway.web.access import ClientSlots
 from gateway.web.live import Handoff, sse, stream_sse
 
 log = logging.getLogger("gateway.web")
@@ -390,9 +391,17 @@ class NetworkMonitors:
         for m in self.by_network.values():
             m.detach()
 
-    def stream(self, request: Request, turns: LoopTurns | None) -> Response | Stream:
+    def stream(
+        self,
+        request: Request,
+        turns: LoopTurns | None,
+        gate: Callable[[Request], Response | None],
+        slots: ClientSlots,
+    ) -> Response | Stream:
         """``GET /api/monitor/stream[?network=&node=&kind=]``: the network's frames as
-        server-sent events; 400 for an unknown network, node or kind, 503 past the pages."""
+        server-sent events; 400 for an unknown network, node or kind, the ``gate``'s answer
+        (the operators' token), 503 past the pages or past the client's own (``slots``:
+        per client address, every network's pages together)."""
         name = request.query.get("network") or None
         monitor = self.first if name is None else self.by_network.get(name)
         try:
@@ -404,20 +413,31 @@ class NetworkMonitors:
         except ValueError as exc:
             message = str(exc).replace("--node ", "node: ").replace("--kind ", "kind: ")
             return _json(HTTPStatus.BAD_REQUEST, {"error": "bad_request", "message": message})
+        refused = gate(request)
+        if refused is not None:
+            return refused
         if request.method == "HEAD":
             return Response(HTTPStatus.OK, b"", "text/event-stream")
-        refused = monitor.refusal()
-        if refused is not None:
-            return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": refused})
+        busy = monitor.refusal()
+        client = request.client
+        if busy is None and slots.full(client):
+            busy = f"at most {slots.per_client} monitor pages per client address"
+        if busy is not None:
+            return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": busy})
 
         async def body(reader: Any, writer: Any) -> None:
             # opened here, not before the headers are written: a page is closed by its pump
-            try:
-                page = monitor.open(nodes, kinds)
-            except TooManyPages as exc:  # another page came first since refusal()
-                writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
+            if not slots.take(client):  # another page of this client came first
                 return
-            await monitor.pump(page, reader, writer, turns=turns)
+            try:
+                try:
+                    page = monitor.open(nodes, kinds)
+                except TooManyPages as exc:  # another page came first since refusal()
+                    writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
+                    return
+                await monitor.pump(page, reader, writer, turns=turns)
+            finally:
+                slots.give(client)
 
         return Stream("text/event-stream", body)
 

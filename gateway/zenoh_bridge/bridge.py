@@ -41,10 +41,10 @@ Writes (``set``, SDO download, ``nmt``) pass ``zenoh.writes`` / ``zenoh.write_al
 logged (rate-limited), and nothing goes on the bus.
 
 The session is opened before the bus (``open``): when a gateway with the same prefix is
-already announced on the Zenoh network (its ``<prefix>/alive/_gateway`` token), ``open``
-raises ``PrefixInUse`` and the gateway does not start. In client mode, with no router
-reachable, the gateway starts anyway and the bridge retries in the background (attempts start
-0.5 s, 1 s, 2 s, then every 5 s apart). After a router restart zenoh reconnects by itself and
+already announced on the Zenoh network (its ``<prefix>/alive/_gateway`` token), the session
+stays closed (``ZenohSession.problem`` says why, /healthz names it) and is retried in the
+background while Modbus and the bus run. In client mode, with no router reachable, the gateway
+starts anyway and the bridge retries in the background (0.5 s, 1 s, 2 s, then every 5 s). After a router restart zenoh reconnects by itself and
 re-declares publishers, queryable and liveliness tokens.
 
 The bridge is composed of: ``plan.py`` (what to publish, planned once: ``SignalPub``,

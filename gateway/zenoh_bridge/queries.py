@@ -114,11 +114,11 @@ def lane_of(query: zenoh.Query) -> str:
     return ANONYMOUS if si is None else str(si.source_id.zid)
 
 
-def zenoh_who(query: zenoh.Query) -> str:
-    """Who a query's write is audited as: ``zenoh`` and the querier's id when it sent one
-    (the id its lane is named by)."""
+def zenoh_hint(query: zenoh.Query) -> str | None:
+    """What a query says of its sender: the session id it chose to send (``source_info``),
+    recorded by the audit as a hint, never as the identity (a query does not authenticate)."""
     lane = lane_of(query)
-    return "zenoh" if lane == ANONYMOUS else f"zenoh {lane}"
+    return None if lane == ANONYMOUS else f"zenoh session {lane}"
 
 
 def write_operation(req: Request, payload: bytes | None) -> str | None:
@@ -313,7 +313,7 @@ class QueryService:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else None
             type_param = query.parameters.get("type")
-            with acting_as(zenoh_who(query)):  # the audit of a write names the asker
+            with acting_as("zenoh", zenoh_hint(query)):  # the audit: the querier's id a hint
                 result = await self.dispatch(key, payload, type_param)
             self._reply(query, key, result)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
@@ -378,7 +378,7 @@ class QueryService:
             self.commands.nmt(req.node, cmd)
             return {"ok": True, "node": req.node, "nmt": cmd}
         if req.kind == "sdo":
-            return await self._sdo(req, payload, type_param)
+            return await self._sdo(req, payload, type_param, key)
         if req.kind == "value":
             sig = self.commands.signal(rt, req.signal)
             if sig.transport == "sdo":
@@ -410,9 +410,13 @@ class QueryService:
         """Raise ``Forbidden`` (counted, logged at most once per period per operation) unless
         the configuration allows this write."""
         why = self.gate.refusal(operation, node, key)
-        if why is None:
-            return
+        if why is not None:
+            self._refuse_op(operation, node, key, why)
+
+    def _refuse_op(self, operation: str, node: str, key: str, why: str) -> None:
+        """Raise ``Forbidden``: counted by operation, logged at most once per period, audited."""
         self.refused[operation] = self.refused.get(operation, 0) + 1
+        self.commands.refusals.refused(operation, node, key, None, why)
         self._refusal_log.warning(
             ("zenoh_refused", operation),
             "Zenoh %s refused on %s: %s (refused so far: %d)",
@@ -423,13 +427,17 @@ class QueryService:
         )
         raise Forbidden(why)
 
-    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None) -> Any:
+    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None, key: str) -> Any:
         assert req.obj is not None
         obj = str(req.obj)
         if payload:
             value, typ = sdo_write_body(payload)
             await self.commands.sdo_write(req.node, req.obj, value, typ or type_param)
             return {"ok": True, "node": req.node, "object": obj, "value": reply_value(value)}
+        listed = {sig.object for sig in self.commands.node(req.node).lp.profile.signals}
+        why = self.gate.read_refusal(req.node, req.obj, listed)  # zenoh.reads
+        if why is not None:
+            self._refuse_op("sdo_read", req.node, key, why)
         value = await self.commands.sdo_read(req.node, req.obj, type_param)
         return {"node": req.node, "object": obj, "value": reply_value(value)}
 

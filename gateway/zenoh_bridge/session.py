@@ -1,6 +1,7 @@
 """The Zenoh session's lifecycle, an object of its own (``ZenohSession``) that ``ZenohBridge``
 (``bridge.py``) composes: the session configuration from ours, opening with the
-duplicate-prefix check (``PrefixInUse``), the background re-open in client mode, the
+duplicate-prefix check (``PrefixInUse``: an error for Zenoh only, the gateway starts without
+its session, says why in ``problem`` and retries), the background re-open, the
 declarations of publishers, tokens and queryable once a session is open, and the stop. It
 holds the session, the event and raw-PDO publishers, the liveliness tokens and its tasks (the
 re-open, the housekeeping); it knows its host by ``SessionHost``, a Protocol of what it reads
@@ -103,7 +104,8 @@ class SessionHost(Protocol):
 
 
 class PrefixInUse(RuntimeError):
-    """Another gateway is announced under our prefix: two gateways must not share one."""
+    """Another participant announces a gateway under our prefix: two gateways must not share
+    one. The session stays closed while it does (``ZenohSession.problem``)."""
 
 
 def zenoh_config(cfg: Config) -> zenoh.Config:
@@ -176,18 +178,26 @@ class ZenohSession:
         self.pair_tokens: dict[str, Any] = {}
         self.heard_sub: Any = None
         self._opened: zenoh.Session | None = None  # open, checked, not declared yet
-        self._open_failed: zenoh.ZError | None = None
+        self._open_failed: zenoh.ZError | PrefixInUse | None = None
+        #: why the session is not open when that needs a person (another participant
+        #: announces our prefix), None otherwise; /healthz names it
+        self.problem: str | None = None
         self._tasks: list[asyncio.Task[Any]] = []
 
     async def open(self) -> None:
         """Open the session and make sure no other gateway runs under our prefix; called by
-        the app before the bus starts. Raises ``PrefixInUse`` (the session is closed then) or,
-        in peer mode, zenoh.ZError when the session cannot be opened at all."""
+        the app before the bus starts. Another participant announcing our prefix
+        (``PrefixInUse``) is an error for Zenoh only: the session stays closed, ``problem``
+        says why and ``start`` retries in the background. Raises zenoh.ZError in peer mode
+        when the session cannot be opened at all."""
         self.loop = self.bridge.queries.loop = asyncio.get_running_loop()
         conf = zenoh_config(self.cfg)  # a bad config raises here, before anything runs
         self.last_attempt_s = self.clock()
         try:
             self._opened = await self.open_checked(conf)
+        except PrefixInUse as exc:
+            self.problem = str(exc)
+            self._open_failed = exc
         except zenoh.ZError as exc:
             if self.cfg.zenoh.mode != "client":
                 raise
@@ -212,6 +222,10 @@ class ZenohSession:
                 self.cfg.zenoh.mode,
                 self.prefix,
             )
+        elif isinstance(self._open_failed, PrefixInUse):
+            log.error("%s; Zenoh stays closed meanwhile and the gateway retries (Modbus and "
+                      "the bus run)", self._open_failed)  # fmt: skip
+            self._tasks.append(asyncio.create_task(self.reopen(), name="zenoh-open"))
         else:
             log.warning("%s", self.no_router(self._open_failed))
             log.debug("Zenoh: %s", self._open_failed)
@@ -231,9 +245,10 @@ class ZenohSession:
                 other = await asyncio.to_thread(self.other_gateway, session)
                 if other:
                     raise PrefixInUse(
-                        f"another gateway already runs under Zenoh prefix {self.prefix} "
-                        f"(token {other} is present): give this gateway its own gateway.name "
-                        "or zenoh.prefix, or stop the other one"
+                        f"another participant announces a gateway under Zenoh prefix "
+                        f"{self.prefix} (token {other} is present): give this gateway its own "
+                        "gateway.name or zenoh.prefix, or stop the other one (on a router "
+                        "with the shipped access control only this gateway's user may)"
                     )
         except BaseException:
             await asyncio.to_thread(session.close)
@@ -268,8 +283,9 @@ class ZenohSession:
         return refusal(tokens, self.prefix, self.bridge.member)
 
     async def reopen(self) -> None:
-        """Client mode: open the session in the background; attempts *start* on the schedule
-        (an attempt itself takes up to the connect timeout)."""
+        """Open the session in the background (client mode without a router, or our prefix
+        announced by another participant); attempts *start* on the schedule (an attempt
+        itself takes up to the connect timeout)."""
         attempt = 0
         while self.session is None:
             period = REOPEN_SCHEDULE_S[min(attempt, len(REOPEN_SCHEDULE_S) - 1)]
@@ -284,6 +300,7 @@ class ZenohSession:
                 log.debug("Zenoh: %s", exc)
                 continue
             except PrefixInUse as exc:
+                self.problem = str(exc)
                 if attempt in (1, 10) or attempt % 60 == 0:
                     log.error("%s; retrying", exc)
                 continue
@@ -293,7 +310,8 @@ class ZenohSession:
                 log.warning("Zenoh declarations failed: %s", exc)
                 await asyncio.to_thread(session.close)
                 continue
-            log.info("Zenoh session %s open (client), prefix %s", session.zid(), self.prefix)
+            self.problem = None
+            log.info("Zenoh session %s open (%s), prefix %s", session.zid(), self.cfg.zenoh.mode, self.prefix)
 
     def no_router(self, exc: BaseException | None, attempts: int = 1) -> str:
         """One plain line for a client session that could not open: where it looked, how many

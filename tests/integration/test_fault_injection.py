@@ -153,6 +153,6 @@ async def test_the_event_log_says_where_a_fault_came_from() -> None:
         await fault(base, "wire", "emcy")
         _, _, body = await http(base + "/api/events?kind=warning&node=wire")
         texts = [e["text"] for e in json.loads(body)["events"]]
-    assert "simulated fault: wire heartbeat-off (from the command line, canopen-gateway fault)" in texts
-    assert "simulated fault: wire heartbeat-on (from the web console)" in texts
-    assert "simulated fault: wire emcy (from the HTTP API, client 127.0.0.1)" in texts
+    assert "simulated fault: wire heartbeat-off (from web 127.0.0.1, canopen-gateway fault as its client says)" in texts
+    assert "simulated fault: wire heartbeat-on (from web 127.0.0.1, the web console as its client says)" in texts
+    assert "simulated fault: wire emcy (from web 127.0.0.1, the HTTP API)" in texts

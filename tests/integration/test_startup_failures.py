@@ -255,31 +255,3 @@ def test_a_busy_port_set_by_a_variable_blames_the_variable(
     assert f"{port}" in line and "is already in use" in line
     assert line.endswith(f"; choose another port in {variable}")  # where the value came from
     assert str(cfg) not in line
-
-
-async def test_a_prefix_in_use_set_by_a_variable_blames_the_variable(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """The file gives its own prefix, ``CANOPEN_GATEWAY__ZENOH__PREFIX`` the running gateway's:
-    the one line names the variable."""
-    import asyncio
-
-    from gateway.cli import main
-
-    first = gateway_of(make_config([WIRE], zenoh={"prefix": "canopen/taken"}))
-    await first.start()
-    try:
-        cfg = write_config(tmp_path / "second.yaml", modbus=free_port(), zenoh=free_port(), health=free_port())  # fmt: skip
-        raw = yaml.safe_load(cfg.read_text(encoding="utf-8"))
-        raw["zenoh"].update(
-            {"prefix": "canopen/own", "refuse_duplicate_prefix": True, "connect": first.cfg.zenoh.listen}
-        )
-        cfg.write_text(yaml.safe_dump(raw), encoding="utf-8")
-        monkeypatch.setenv("CANOPEN_GATEWAY__ZENOH__PREFIX", "canopen/taken")
-        code = await asyncio.to_thread(main, ["run", "-c", str(cfg), "--log-level", "warning"])
-    finally:
-        await first.stop()
-    err = capsys.readouterr().err
-    assert code == 2, err
-    (line,) = [ln for ln in err.splitlines() if ln.startswith("error:")]
-    assert line.startswith("error: CANOPEN_GATEWAY__ZENOH__PREFIX: zenoh.prefix: another gateway")

@@ -66,6 +66,31 @@ async function getJSON(path) {
   return r.json();
 }
 
+// Operators' endpoints (journal, bus monitor, SDO reads, faults): with a token set on the
+// gateway they need it. unlockOperator() asks for it once, logs in (POST /api/login sets a
+// session cookie, which EventSource and links send too) and keeps it for the commissioning page.
+const TOKEN_KEY = "canopen-gateway-token";
+
+async function unlockOperator() {
+  const s = await getJSON("/api/session");
+  if (s.allowed) return true;
+  if (!s.token_required) return false; // not from this machine without a token: the answer says why
+  for (;;) {
+    const token = sessionStorage.getItem(TOKEN_KEY) || window.prompt("The operators' token of this gateway (web.token):");
+    if (!token) return false;
+    const r = await fetch("/api/login", { method: "POST", headers: { "Authorization": "Bearer " + token } });
+    if (r.ok) { sessionStorage.setItem(TOKEN_KEY, token); return true; }
+    sessionStorage.removeItem(TOKEN_KEY);
+    if (r.status !== 403) return false; // 429: too many wrong tokens; the next answer says so
+  }
+}
+
+async function operatorFetch(url, opts) {
+  let r = await fetch(url, opts);
+  if ((r.status === 401 || r.status === 403) && await unlockOperator()) r = await fetch(url, opts);
+  return r;
+}
+
 function setConn(text) {
   const c = document.getElementById("conn");
   if (c) c.textContent = text;
@@ -382,7 +407,6 @@ async function initNode() {
 }
 
 // ------------------------------------------------------------------ commissioning
-const TOKEN_KEY = "canopen-gateway-token";
 const SDO_TYPES = ["", "bool", "int8", "uint8", "int16", "uint16", "int24", "uint24", "int32", "uint32", "int64", "uint64", "float32", "string", "bytes"];
 
 async function commission(op, body) {
@@ -615,7 +639,7 @@ function addReadButtons(node) {
 async function readObject(node, name, button) {
   button.disabled = true;
   try {
-    const r = await fetch(`/api/read/${encodeURIComponent(node)}/${encodeURIComponent(name)}`, {
+    const r = await operatorFetch(`/api/read/${encodeURIComponent(node)}/${encodeURIComponent(name)}`, {
       method: "POST", headers: { "Content-Type": "application/json" }, body: "{}",
     });
     let d;
@@ -657,12 +681,11 @@ async function initFaults(node) {
     const b = el("button", { type: "button", class: "secondary", "data-fault": action, title: text }, action);
     b.addEventListener("click", async () => {
       const headers = { "Content-Type": "application/json", "X-Canopen-Client": "console" };
-      if (sim.rule === "token") headers["Authorization"] = "Bearer " + (sessionStorage.getItem(TOKEN_KEY) || "");
-      const r = await fetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
+      const r = await operatorFetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
       let d;
       try { d = await r.json(); } catch (e) { d = { message: "HTTP " + r.status }; }
       result.className = "result " + (r.ok ? "ok" : "err");
-      result.textContent = r.ok ? `${action}: done: ${text}` : `refused (HTTP ${r.status}): ${d.message || ""}` + (r.status === 401 ? " (unlock on the Commissioning page first)" : "");
+      result.textContent = r.ok ? `${action}: done: ${text}` : `refused (HTTP ${r.status}): ${d.message || ""}`;
       if (r.ok) show(d.state);
     });
     box.append(b);
@@ -754,7 +777,7 @@ async function loadJournal() {
   const mine = ++journalRequests;
   document.getElementById("jr-csv").href = "/api/journal.csv?" + q;
   const status = document.getElementById("jr-status");
-  const r = await fetch("/api/journal?" + q, { cache: "no-store" });
+  const r = await operatorFetch("/api/journal?" + q, { cache: "no-store" });
   const doc = await r.json();
   if (mine !== journalRequests) return; // a later request's answer is the one shown
   const table = document.getElementById("journal");
@@ -912,6 +935,13 @@ async function initMonitor() {
   for (const i of document.querySelectorAll('input[name="mkind"]')) i.addEventListener("change", monitorRefilter);
   document.getElementById("mon-pause").addEventListener("click", monitorPause);
   document.getElementById("mon-clear").addEventListener("click", () => document.querySelector("#frames tbody").replaceChildren());
+  if (!await unlockOperator()) {
+    const r = await fetch("/api/monitor/stream", { method: "HEAD" });
+    document.getElementById("mon-status").textContent = r.ok ? "" : "The bus monitor is for operators: " +
+      (r.status === 403 ? "without web.token it is served to the gateway's own machine only." : "the token was not given.");
+    setConn("locked");
+    return;
+  }
   monitorOpen();
 }
 
