@@ -211,3 +211,58 @@ def test_hex_numbers_and_object_addresses_as_files_write_them_validate(
     assert problems(config_validator, doc) == []
     assert problems(config_validator, changed("nodes.1.tpdo", {1: {"cob_id": 0x800}}))
     assert problems(config_validator, changed("nodes.1.tpdo", {"one": {}}))
+
+
+#: the keys of a closed gateway: connection caps, the CRL, the console's hosts and token file,
+#: Zenoh's reads and password file, the ASCII gateway's networks, the command socket
+SECURED = {
+    "modbus": {"max_connections": 32, "max_connections_per_client": 4, "idle_timeout_s": 120,
+               "allowed_networks": ["10.1.0.0/24"],
+               "tls": {"cert": "tls/gw.pem", "key": "tls/gw.key", "ca": "tls/ca.pem", "crl": "tls/ca.crl"}},
+    "web": {"allowed_hosts": ["gw.plant.example", "10.1.0.5:8080"], "token_file": "secrets/web-token"},
+    "zenoh": {"reads": "all", "auth": {"user": "gw1", "password_file": "secrets/zenoh-password"}},
+    "ascii": {"allowed_networks": ["10.1.0.0/24"]},
+    "command_socket": {"enabled": True, "path": "run/gw.sock"},
+}  # fmt: skip
+
+
+def secured(doc: dict[str, Any], **change: dict[str, Any]) -> dict[str, Any]:
+    """``doc`` with the SECURED sections merged in, then ``change`` (section -> keys) over them."""
+    out = copy.deepcopy(doc)
+    for section, keys in SECURED.items():
+        out[section] = {**out.get(section, {}), **copy.deepcopy(keys), **change.get(section, {})}
+    return out
+
+
+@pytest.mark.parametrize("form", ["single", "networks"])
+def test_schema_takes_the_keys_of_a_closed_gateway_in_both_forms(
+    config_validator: Draft202012Validator, form: str
+) -> None:
+    doc = secured(DEMO if form == "single" else TWO)
+    assert problems(config_validator, doc) == []
+    assert not check_refuses(doc)
+
+
+@pytest.mark.parametrize("form", ["single", "networks"])
+@pytest.mark.parametrize(
+    ("mistake", "change"),
+    [
+        ("no connection at all", {"modbus": {"max_connections": 0}}),
+        ("a negative idle timeout", {"modbus": {"idle_timeout_s": -1}}),
+        ("a misspelt cap", {"modbus": {"max_conections": 8}}),
+        ("a CRL without its CA", {"modbus": {"tls": {"cert": "gw.pem", "key": "gw.key", "crl": "ca.crl"}}}),
+        ("Zenoh reads that do not exist", {"zenoh": {"reads": "some"}}),
+        ("the examples' password", {"zenoh": {"auth": {"user": "gw1", "password": "Change-Me"}}}),
+        ("a password and its file", {"zenoh": {"auth": {"user": "gw1", "password": "s3cret-pw",
+                                                        "password_file": "pw"}}}),
+        ("a token and its file", {"web": {"token": "a-long-enough-token", "token_file": "t"}}),
+        ("one allowed host as text", {"web": {"allowed_hosts": "gw.plant.example"}}),
+        ("ASCII networks as text", {"ascii": {"allowed_networks": "10.1.0.0/24"}}),
+    ],
+)
+def test_schema_refuses_what_check_refuses_of_a_closed_gateway(
+    config_validator: Draft202012Validator, form: str, mistake: str, change: dict[str, Any]
+) -> None:
+    doc = secured(DEMO if form == "single" else TWO, **change)
+    assert problems(config_validator, doc), f"the schema accepts {mistake}"
+    assert check_refuses(doc), f"check accepts {mistake}"
