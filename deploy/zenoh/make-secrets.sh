@@ -17,7 +17,7 @@
 set -euo pipefail
 
 DIR=${SECRETS_DIR:-$(dirname "$0")/secrets}
-DEFAULT_LOGINS=(viewer operator gateway-line1 gateway-line2 gateway-demo gateway-press-line-3)
+DEFAULT_LOGINS=(viewer operator gateway-line1 gateway-line2 gateway-demo gateway-press-line-3 gateway-two-networks)
 GATEWAY_UID=10001
 
 logins=("$@")

@@ -25,7 +25,8 @@ waits for the next attempt the reader sleeps (woken at once by ``close``). The b
 with every attempt that brings no frame: it starts again from ``reopen_backoff_s`` once the
 reopened bus delivers one (a link that opens and fails at once is not retried every second).
 
-Bus state (``state``, mirrored in ``image.bus_state``, with the reason in ``last_error``):
+Bus state (``state``, mirrored in ``image.bus_states[network]``, with the reason in
+``last_error``; one driver per CAN network, ``bus.network``):
 
 =======  ===================================================================================
 ok       frames flow; the controller is error active (or nothing says otherwise)
@@ -35,8 +36,7 @@ error    the controller reported error passive or bus off in an error frame; bac
 down     the backend raised or is closed; the reader reopens it with backoff
 =======  ===================================================================================
 
-Error frames are decoded by the SocketCAN layout (linux/can/error.h, also what python-can's
-other backends follow): class bits in the CAN-ID, controller status in data byte 1.
+Error frames are decoded by ``bus.error_frames`` (the SocketCAN layout, linux/can/error.h).
 
 Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
 event loop sends is queued to it, so a blocking backend never blocks the loop; a frame refused
@@ -47,7 +47,8 @@ counts in its own counter set.
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), image (for counters), runtime.ratelimit, runtime.threads. Nothing northbound.
+Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), bus.error_frames, config (DEFAULT_NETWORK),
+image, runtime.ratelimit, runtime.threads. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -64,19 +65,13 @@ from typing import Any
 import can
 
 from gateway.bus.can_backend import open_can_bus, quiet_imports
+from gateway.bus.error_frames import ERROR_ACTIVE, controller_report
+from gateway.config import DEFAULT_NETWORK
 from gateway.image import ProcessImage
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.bus")
-
-# linux/can/error.h: error classes (CAN-ID bits of an error frame) and controller status bits
-CAN_ERR_CRTL = 0x00000004  # controller problems, details in data[1]
-CAN_ERR_BUSOFF = 0x00000040  # bus off
-CAN_ERR_RESTARTED = 0x00000100  # controller restarted
-CAN_ERR_CRTL_RX_PASSIVE = 0x10  # reached error passive status on receive
-CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
-CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
 
 FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface: a config error
 
@@ -147,7 +142,12 @@ class BusDriver:
         threads: ThreadRegistry | None = None,
         mono: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
+        network: str = DEFAULT_NETWORK,
+        named: bool = False,
     ):
+        #: its CAN network (state in ``image.bus_states``); ``named``: threads and logs name it
+        self.network, self.where = network, f" (network {network})" if named else ""
+        self._suffix = f"-{network}" if named else ""
         self.bus_kwargs = bus_kwargs
         self.image = image
         self.reopen_backoff_s = reopen_backoff_s
@@ -223,15 +223,15 @@ class BusDriver:
                 raise BusOpenFailed(exc) from exc
             if isinstance(exc, FATAL_OPEN_ERRORS):
                 raise
-            log.error("CAN bus cannot be opened: %s; retrying with backoff", exc)
+            log.error("CAN bus%s cannot be opened: %s; retrying with backoff", self.where, exc)
             self.bus = None
             self._set_state("down", str(exc), tell=True)  # down from the start: said all the same
         else:
             self._set_state("ok", "")
         self._running.set()
         self._closing.clear()
-        self._thread = self.threads.start("can-reader", self._run)
-        self._sender = self.threads.start("can-sender", self._send_loop)
+        self._thread = self.threads.start("can-reader" + self._suffix, self._run)
+        self._sender = self.threads.start("can-sender" + self._suffix, self._send_loop)
 
     def close(self) -> None:
         self._running.clear()
@@ -257,7 +257,7 @@ class BusDriver:
     def _set_state(self, state: str, detail: str, tell: bool = False) -> None:
         changed = tell or state != self.state
         self.state = state
-        self.image.bus_state = state
+        self.image.set_bus_state(self.network, state)
         if detail:
             self.last_error = detail
         if changed and self.on_state is not None:
@@ -454,7 +454,7 @@ class BusDriver:
     def _bus_lost(self, detail: str) -> None:
         """The link is gone (receive raised, or the sender found it gone): close the bus, say
         ``down`` (``on_state``); the reader reopens it after the backoff."""
-        log.error("CAN bus %s; reopening", detail)
+        log.error("CAN bus%s %s; reopening", self.where, detail)
         self._shutdown_bus()
         # nothing is buffered any more: the bus clock follows the monotonic clock again
         # (left "busy", it would stand still while the bus is down and no node could
@@ -492,26 +492,22 @@ class BusDriver:
                 self.warn.warning("burst", "burst listener %r failed: %s", listener, exc)
 
     def _error_frame(self, msg: can.Message) -> None:
-        """Controller state from an error frame (linux/can/error.h layout)."""
+        """Controller state from an error frame (``bus.error_frames``)."""
         self.last_error_frame_s = self.mono()
-        cls = msg.arbitration_id
-        data = bytes(msg.data).ljust(8, b"\0")
-        ctrl = data[1] if cls & CAN_ERR_CRTL else 0
-        if cls & CAN_ERR_BUSOFF:
-            self._enter_error("bus off")
-        elif ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
-            side = "transmit" if ctrl & CAN_ERR_CRTL_TX_PASSIVE else "receive"
-            self._enter_error(f"error passive ({side})")
-        elif cls & CAN_ERR_RESTARTED or ctrl & CAN_ERR_CRTL_ACTIVE:
+        said = controller_report(msg)
+        if said is None:
+            data = bytes(msg.data).ljust(8, b"\0").hex(" ")
+            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", msg.arbitration_id, data)
+        elif said == ERROR_ACTIVE:
             if self.state == "error":
-                log.info("CAN controller error active again")
+                log.info("CAN controller%s error active again", self.where)
                 self._set_state("ok", "")
         else:
-            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", cls, data.hex(" "))
+            self._enter_error(said)
 
     def _enter_error(self, what: str) -> None:
         if self.state != "error" or self.last_error != what:
-            log.warning("CAN controller reports %s", what)
+            log.warning("CAN controller%s reports %s", self.where, what)
         self._set_state("error", what)
 
     def _maybe_recovered(self) -> None:
@@ -536,14 +532,13 @@ class BusDriver:
         except Exception as exc:  # noqa: BLE001
             self.warn.warning(
                 "reopen",
-                "CAN bus reopen failed: %s; next attempt in %.1f s",
-                exc,
+                "CAN bus%s reopen failed: %s; next attempt in %.1f s", self.where, exc,
                 self.backoff_s(self.reopen_attempts + 1),
             )
             self._set_state("down", f"reopen failed: {exc}")
             return False
         self.reopens += 1
         self.last_error_frame_s = None
-        log.info("CAN bus reopened")
+        log.info("CAN bus%s reopened", self.where)
         self._set_state("ok", "")
         return True

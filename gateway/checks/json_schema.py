@@ -10,15 +10,22 @@ models alone cannot:
 * numbers the files may write in hex (``cob_id: 0x181``, ``"0x181"``, ``"181h"``) and object
   addresses (``"0x6004:00"``) keep their ranges and accept the written forms;
 * mappings keyed by numbers (``tpdo: {1: ...}``, ``emcy: {0x1000: ...}``) name their keys;
+* either form of the CAN networks: a top-level ``can:`` (one network), or ``networks:``, each
+  with its name and its own ``can:``, and then no top-level ``can:``, ``master:`` or ``nodes:``;
 * ``can:`` takes, per interface, the keys python-can's bus class of that interface takes on this
   install (what ``check`` holds the section to, ``gateway.bus.can_backend``), and must name its
   interface; a node names a profile or an EDS;
+* the rules between keys of one section the loader holds a file to: ``web.token`` or
+  ``web.token_file``, not both (``zenoh.auth.password`` / ``password_file`` alike), never the
+  examples' placeholder as ``zenoh.auth.password``, ``modbus.tls.crl`` only with its ``ca``;
 * a profile's ``features`` are the known feature names.
 
-What one file cannot say of itself (duplicate node ids, a profile that does not exist, an
-object the EDS lacks) stays ``check``'s.
+What one file cannot say of itself (duplicate node ids, network names or buses, two nodes on
+one Modbus unit, a profile that does not exist, an object the EDS lacks) stays ``check``'s, and
+so do the rules JSON Schema cannot compare or parse (``modbus.max_connections_per_client`` at
+most ``modbus.max_connections``, ``allowed_networks`` entries that are IP networks).
 
-Imports: gateway.config (Config), gateway.profiles.schema (Profile, KNOWN_FEATURES),
+Imports: gateway.config (Config, model: NETWORK_KEYS, zenoh: PLACEHOLDER_PASSWORDS), gateway.profiles.schema (Profile, KNOWN_FEATURES),
 gateway.bus.can_backend (interface_keys, TIMING_KEYS), python-can (the interface names), pydantic.
 """
 
@@ -33,6 +40,8 @@ from pydantic_core import core_schema
 
 from gateway.bus.can_backend import TIMING_KEYS, interface_keys
 from gateway.config import Config
+from gateway.config.model import NETWORK_KEYS
+from gateway.config.zenoh import PLACEHOLDER_PASSWORDS
 from gateway.profiles.schema import KNOWN_FEATURES, Profile
 
 DRAFT = "https://json-schema.org/draft/2020-12/schema"
@@ -145,14 +154,57 @@ def _can_section(section: dict[str, Any]) -> dict[str, Any]:
     return section
 
 
+def _networks(schema: dict[str, Any], network: dict[str, Any]) -> None:
+    """Either form: the single network's top-level ``can:`` (with ``master:`` and ``nodes:``),
+    or ``networks:``, a list of 1 to 8 networks each with its name and its own ``can:``, and
+    then none of the top-level three (the loader's refusals, ``config.networks``)."""
+    nets = schema["properties"]["networks"]
+    (listed,) = [branch for branch in nets.pop("anyOf") if branch.get("type") == "array"]
+    nets.pop("default", None)
+    nets.update(listed, minItems=1, description="several CAN networks, each with its own can:, "
+                "master: and nodes: (instead of the top-level ones)")  # fmt: skip
+    network["required"] = ["name", "can"]
+    schema.pop("required", None)
+    schema["if"] = {"required": ["networks"]}
+    schema["then"] = {"properties": {key: False for key in NETWORK_KEYS}}
+    schema["else"] = {"required": ["can"]}
+
+
+def _not_both(a: str, b: str) -> dict[str, Any]:
+    """Keys ``a`` and ``b`` not both given (a null is not given)."""
+    return {"not": {"properties": {a: {"type": "string"}, b: {"type": "string"}}, "required": [a, b]}}
+
+
+def _placeholder_text() -> str:
+    """The examples' placeholder passwords (``config.zenoh.placeholder_problem``), in any case
+    and with blanks around, as one pattern (ECMA-262 has no flag for case)."""
+    def any_case(word: str) -> str:
+        return "".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else f"[{c}]" for c in word)
+    return r"^\s*(" + "|".join(any_case(p) for p in sorted(PLACEHOLDER_PASSWORDS)) + r")\s*$"
+
+
+def _section_rules(defs: dict[str, Any]) -> None:
+    """The rules between keys of one section (see the module docstring)."""
+    defs["WebSection"]["allOf"] = [_not_both("token", "token_file")]
+    auth = defs["ZenohAuth"]
+    auth["allOf"] = [_not_both("password", "password_file")]
+    (text,) = [b for b in auth["properties"]["password"]["anyOf"] if b.get("type") == "string"]
+    text["not"] = {"pattern": _placeholder_text()}  # never the examples' change-me
+    defs["ModbusTls"]["allOf"] = [{
+        "if": {"properties": {"crl": {"type": "string"}}, "required": ["crl"]},
+        "then": {"properties": {"ca": {"type": "string"}}, "required": ["ca"]},
+    }]  # fmt: skip
+
+
 def config_schema() -> dict[str, Any]:
     """The schema of a gateway configuration file."""
     schema = _ranges(Config.model_json_schema(schema_generator=_Generator))
-    for internal in ("source", "env_keys"):  # set by the loader, never written in a file
+    for internal in ("source", "env_keys", "key_prefix"):  # the loader's, never in a file
         schema["properties"].pop(internal, None)
     defs = schema["$defs"]
     _can_section(defs["CanSection"])
-    schema["required"] = ["can"]
+    _networks(schema, defs["NetworkSection"])
+    _section_rules(defs)
     defs["NodeConfig"]["anyOf"] = [{"required": ["profile"]}, {"required": ["eds"]}]
     return {
         "$schema": DRAFT,

@@ -56,9 +56,17 @@ AddParser = Callable[..., argparse.ArgumentParser]
 CONFIG_HELP = f"configuration YAML (default: ${CONFIG_ENV}, else {DEFAULT_CONFIG})"
 
 
-def _with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
+def _with_config(sp: argparse.ArgumentParser, *, network: str | None = None) -> argparse.ArgumentParser:
+    """``-c FILE``; ``network``: the command opens one network's bus, ``--network NAME``
+    (needed when the config has several; ``network`` says what it does with it)."""
     sp.add_argument("-c", "--config", metavar="FILE", help=CONFIG_HELP)
+    if network is not None:
+        sp.add_argument("--network", metavar="NAME", help=network)
     return sp
+
+
+#: ``--network``'s help of the commands that open one network's bus
+ONE_NETWORK = "the CAN network (networks[].name) to work on; needed when the config has several"
 
 
 def _with_log_format(sp: argparse.ArgumentParser) -> None:
@@ -97,7 +105,10 @@ def _add_gateway_commands(add: AddParser) -> None:
     sp = _with_config(add("keys", help="print the Zenoh key expressions"))
     sp.set_defaults(fn=cmd_keys)
 
-    sp = _with_config(add("simulate", help="run only the simulated devices of a config"))
+    sp = _with_config(
+        add("simulate", help="run only the simulated devices of a config"),
+        network="only this network's devices (default: every network's, each on its own bus)",
+    )
     sp.add_argument(
         "--nodes", help="comma-separated node names (default: simulate: section, else all)"
     )
@@ -106,7 +117,7 @@ def _add_gateway_commands(add: AddParser) -> None:
     sp.set_defaults(fn=cmd_simulate)
 
     sp = _with_config(
-        add("fault", help="inject a fault into a running gateway's simulated node")
+        add("fault", help="inject a fault into a running gateway's simulated node"), network=ONE_NETWORK
     )
     sp.add_argument("node", nargs="?", help="simulated node name (none: list nodes and actions)")
     sp.add_argument(
@@ -120,7 +131,7 @@ def _add_gateway_commands(add: AddParser) -> None:
 
 def _add_commissioning_commands(add: AddParser) -> None:
     """sdo, nmt; get, sub (Zenoh)."""
-    sp = _with_config(add("sdo", help="read or write an object by SDO (commissioning)"))
+    sp = _with_config(add("sdo", help="read or write an object by SDO (commissioning)"), network=ONE_NETWORK)
     sp.add_argument("op", choices=["read", "write"])
     sp.add_argument("node", help="node name or id")
     sp.add_argument("object", help="object, e.g. 0x6004:00")
@@ -131,7 +142,7 @@ def _add_commissioning_commands(add: AddParser) -> None:
     sp.add_argument("--timeout", type=float, default=1.0, help="SDO timeout in seconds")
     sp.set_defaults(fn=cmd_sdo)
 
-    sp = _with_config(add("nmt", help="send an NMT command"))
+    sp = _with_config(add("nmt", help="send an NMT command"), network=ONE_NETWORK)
     sp.add_argument("command", choices=["start", "stop", "preop", "reset", "reset-comm"])
     sp.add_argument("node", help="node name, id, or 'all'")
     sp.set_defaults(fn=cmd_nmt)
@@ -178,7 +189,7 @@ def _add_file_commands(add: AddParser) -> None:
 
 def _add_bus_commands(add: AddParser) -> None:
     """lss, scan, monitor, decode."""
-    sp = _with_config(add("lss", help="LSS commissioning (CiA 305)"))
+    sp = _with_config(add("lss", help="LSS commissioning (CiA 305)"), network=ONE_NETWORK)
     sp.add_argument(
         "action",
         choices=[
@@ -196,7 +207,7 @@ def _add_bus_commands(add: AddParser) -> None:
     sp.set_defaults(fn=cmd_lss)
 
     sp = _with_config(
-        add("scan", help="which node ids are on the bus, and what they are")
+        add("scan", help="which node ids are on the bus, and what they are"), network=ONE_NETWORK
     )
     sp.add_argument(
         "--active", action="store_true", help="also read 1000h, 1008h, 1018h of ids 1..127"
@@ -207,7 +218,7 @@ def _add_bus_commands(add: AddParser) -> None:
     )
     sp.set_defaults(fn=cmd_scan)
 
-    sp = _with_config(add("monitor", help="print the bus traffic in CANopen words"))
+    sp = _with_config(add("monitor", help="print the bus traffic in CANopen words"), network=ONE_NETWORK)
     sp.add_argument(
         "--node", action="append", metavar="NAME|ID", help="only these nodes (repeat or comma)"
     )
@@ -219,7 +230,10 @@ def _add_bus_commands(add: AddParser) -> None:
                     help="also write every frame to FILE (.asc, .blf, .trc, .log, .csv: python-can's writers)")  # fmt: skip
     sp.set_defaults(fn=cmd_monitor)
 
-    sp = _with_config(add("decode", help="print a recorded trace in CANopen words, one line per frame"))
+    sp = _with_config(
+        add("decode", help="print a recorded trace in CANopen words, one line per frame"),
+        network="the CAN network the trace was recorded on; needed when the config has several",
+    )
     sp.add_argument("file", metavar="FILE", help="a trace python-can reads (.asc, .blf, .trc, .log, .csv, ...)")
     sp.set_defaults(fn=cmd_decode)
 
@@ -236,7 +250,9 @@ def _add_plant_commands(add: AddParser) -> None:
     sp.add_argument("--node", metavar="NAME", help="the node (config name)")
     sp.add_argument("--all", action="store_true", help="every node: <name>.dcf in -o DIR")
     sp.add_argument("-o", "--output", metavar="FILE|DIR", help="file (default: stdout); a directory with --all")
-    sp.add_argument("--bitrate", type=int, metavar="KBIT", help="the bus's bit rate in kbit/s (default: can.bitrate)")
+    sp.add_argument("--bitrate", type=int, metavar="KBIT",
+                    help="the bus's bit rate in kbit/s (default: can.bitrate of the node's network)")  # fmt: skip
+    sp.add_argument("--network", metavar="NAME", help="with --all: only this network's nodes")
     sp.set_defaults(fn=cmd_dcf)
 
 

@@ -4,7 +4,7 @@ gateway runs; ``monitor --record FILE`` writes a trace), ``decode`` (a recorded 
 CANopen words), ``lss`` (gateway.tools.lss) and ``fault`` (into a running gateway's simulated
 node).
 
-Imports: gateway.app (SimulatedBus), gateway.tools (beside, bus_open, lss, monitor), gateway.bus.scan, gateway.bus.trace,
+Imports: gateway.sim.buses (SimulatedBus), gateway.tools (beside, bus_open, lss, monitor), gateway.bus.scan, gateway.bus.trace,
 gateway.northbound.frames, gateway.sim.faults_client, gateway.config, gateway.device.resolved (types),
 cli.load.
 """
@@ -15,7 +15,7 @@ import argparse
 import sys
 from typing import Any
 
-from gateway.cli.load import EXIT_CONFIG, load, load_for_bus
+from gateway.cli.load import EXIT_CONFIG, load, load_for_bus, on_network
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -23,12 +23,15 @@ from gateway.device.resolved import ResolvedNode
 def cmd_fault(args: argparse.Namespace) -> int:
     from gateway.sim.faults_client import run_fault
 
-    cfg, _ = load(args.config)
+    loaded = load(args.config)
+    cfg, _ = on_network(loaded, args.network, "fault", args.node)
     if args.node is not None and args.action is None:
         print("error: fault NODE ACTION: give an action too (or neither, to list)", file=sys.stderr)
         return EXIT_CONFIG
     if args.url is None:  # the port the gateway of this config listens on, wherever it was set
-        cfg.health.port = _running_health_port(cfg) or cfg.health.port
+        # asked of the whole config: the gateway has its socket when a bus of any network is
+        # in-process, whichever network --network names
+        cfg.health.port = _running_health_port(loaded.cfg) or cfg.health.port
     return run_fault(cfg, args.node, args.action, args.url)
 
 
@@ -48,7 +51,7 @@ def _running_health_port(cfg: Config) -> int | None:
 def cmd_lss(args: argparse.Namespace) -> int:
     from gateway.tools.lss import run_lss
 
-    cfg, nodes = load(args.config)
+    cfg, nodes = on_network(load(args.config), args.network, "lss")
     return run_lss(cfg, nodes, args)
 
 
@@ -56,7 +59,7 @@ def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tupl
     """The bus a listening tool (scan, monitor) opens, and the simulated devices it runs when
     the bus is in-process and no gateway runs on it; exits 2 in one line when a gateway runs
     on an in-process bus (a second process cannot join it)."""
-    from gateway.app import SimulatedBus
+    from gateway.sim.buses import SimulatedBus
     from gateway.tools import beside
     from gateway.tools.bus_open import BusOpenError, open_bus, opening
 
@@ -67,7 +70,7 @@ def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tupl
         if running is not None:
             running.close()
             line = line or (
-                f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway "
+                f"error: {cfg.source}: {cfg.qualify('can.interface')}: virtual: the bus lives inside the gateway "
                 f"running at {running.endpoint}, so `{command}` cannot join it; give both a bus "
                 "they share (can.interface: remote, docs/canopen.md)"
             )
@@ -90,7 +93,7 @@ def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tupl
 def cmd_scan(args: argparse.Namespace) -> int:
     from gateway.bus.scan import report, scan
 
-    cfg, nodes = load_for_bus(args.config)
+    cfg, nodes = on_network(load_for_bus(args.config), args.network, "scan")
     bus, sim = _tool_bus(cfg, nodes, "scan")
     try:
         found = scan(
@@ -113,7 +116,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     from gateway.northbound.frames import FrameDecoder, kind_filter, node_filter
     from gateway.tools.monitor import monitor
 
-    cfg, resolved = load_for_bus(args.config)
+    cfg, resolved = on_network(load_for_bus(args.config), args.network, "monitor")
     try:
         nodes = node_filter(cfg, _split(args.node))
         kinds = kind_filter(_split(args.kind))
@@ -149,7 +152,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
     from gateway.northbound.frames import FrameDecoder
     from gateway.tools.monitor import decode_file
 
-    cfg, resolved = load(args.config)
+    cfg, resolved = on_network(load(args.config), args.network, "decode")  # node ids: a network's
     try:
         decode_file(args.file, FrameDecoder(cfg, resolved), sys.stdout)
     except (OSError, ValueError, NotImplementedError) as exc:

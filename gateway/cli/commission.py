@@ -14,7 +14,7 @@ import asyncio
 import sys
 from typing import Any
 
-from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus
+from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus, on_network
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -94,7 +94,7 @@ def _through(cfg: Config, running: Any, fn: Any) -> tuple[int, Any]:
 def cmd_sdo(args: argparse.Namespace) -> int:
     from gateway.errors import GatewayError
 
-    cfg, nodes = load_for_bus(args.config)
+    cfg, nodes = on_network(load_for_bus(args.config), args.network, f"sdo {args.op}", args.node)
     name = node_name(cfg, args.node)
     cfg.master.sdo_timeout_s = args.timeout
     if args.op == "write" and args.value is None:
@@ -172,7 +172,7 @@ def _sdo_type(cfg: Config, nodes: dict[str, ResolvedNode], name: str, obj: str) 
 
 
 def cmd_nmt(args: argparse.Namespace) -> int:
-    cfg, nodes = load_for_bus(args.config)
+    cfg, nodes = on_network(load_for_bus(args.config), args.network, "nmt", args.node)
     name = "all" if args.node == "all" else node_name(cfg, args.node)
     running = _beside(cfg, "nmt")
     if running is not None:

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from gateway.cli.load import load
+from gateway.cli.load import load, on_network
 from gateway.config import ConfigError
 
 
@@ -27,8 +27,10 @@ def cmd_schema(args: argparse.Namespace) -> int:
 
 
 def cmd_dcf(args: argparse.Namespace) -> int:
-    """``dcf -c CONFIG --node NAME [-o FILE]`` or ``dcf -c CONFIG --all -o DIR``."""
-    cfg, nodes = load(args.config)
+    """``dcf -c CONFIG --node NAME [-o FILE]`` or ``dcf -c CONFIG --all -o DIR [--network N]``."""
+    loaded = load(args.config)
+    full = loaded.cfg
+    cfg, nodes = loaded if args.network is None else on_network(loaded, args.network, "dcf")
     names = [n.name for n in cfg.nodes]
     if args.all == (args.node is not None):
         raise ConfigError(["dcf: give --node NAME or --all (nodes: " + ", ".join(names) + ")"])
@@ -36,9 +38,12 @@ def cmd_dcf(args: argparse.Namespace) -> int:
         raise ConfigError(["dcf --all: give -o DIR (a <node>.dcf per node is written there)"])
     if args.node is not None and args.node not in nodes:
         raise ConfigError([f"dcf: --node {args.node}: no such node; nodes: " + ", ".join(names)])
-    bitrate_kbps = _bitrate_kbps(cfg, args.bitrate)
+    if args.all and args.bitrate is not None and len(cfg.network_names()) > 1:
+        raise ConfigError([f"dcf --all --bitrate: {cfg.source} has {len(cfg.network_names())} networks, "
+                           "each a bus of its own: give --network NAME with --bitrate (one of: "
+                           f"{', '.join(cfg.network_names())})"])  # fmt: skip
     if args.node is not None:
-        text = node_dcf(cfg, nodes[args.node], bitrate_kbps)
+        text = node_dcf(full, nodes[args.node], args.bitrate)
         if args.output:
             Path(args.output).write_text(text, encoding="utf-8")
             print(f"wrote {args.output}", file=sys.stderr)
@@ -47,33 +52,42 @@ def cmd_dcf(args: argparse.Namespace) -> int:
         return 0
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    for name in names:
+    texts = {name: node_dcf(full, nodes[name], args.bitrate) for name in names}  # every one, then write
+    for name, text in texts.items():
         path = out / f"{name}.dcf"
-        path.write_text(node_dcf(cfg, nodes[name], bitrate_kbps), encoding="utf-8")
+        path.write_text(text, encoding="utf-8")
         print(f"wrote {path}", file=sys.stderr)
     return 0
 
 
 def _bitrate_kbps(cfg: Any, given: int | None) -> int:
-    """The bus's bit rate in kbit/s: ``--bitrate``, else ``can.bitrate``; a DCF never guesses
-    it (SocketCAN's is set by ``ip link``, outside the config)."""
+    """The bus's bit rate in kbit/s: ``--bitrate``, else ``can.bitrate`` (of the node's network:
+    ``cfg`` is its view); a DCF never guesses it (SocketCAN's is set by ``ip link``, outside the
+    config)."""
     if given is not None:
         return given
     if cfg.can.bitrate is None:
+        key = cfg.qualify("can.bitrate")
         raise ConfigError(
-            [f"{cfg.source}: can.bitrate: not set (the interface's own, e.g. SocketCAN's `ip link`), "
-             "and a DCF says the bit rate: set can.bitrate or give --bitrate KBIT (e.g. 500)"]
+            [f"{cfg.source}: {key}: not set (the interface's own, e.g. SocketCAN's `ip link`), "
+             f"and a DCF says the bit rate: set {key} or give --bitrate KBIT (e.g. 500)"]
         )  # fmt: skip
     return round(cfg.can.bitrate / 1000)
 
 
-def node_dcf(cfg: Any, rn: Any, bitrate_kbps: int) -> str:
-    """One resolved node's DCF (``gateway.device.dcf.write_dcf``)."""
+def node_dcf(cfg: Any, rn: Any, bitrate: int | None) -> str:
+    """One resolved node's DCF (``gateway.device.dcf.write_dcf``): ``[DeviceComissioning]`` of
+    the node's own network (``cfg`` the whole config): its bit rate (``bitrate`` in kbit/s, else
+    its ``can.bitrate``), its number, and its name (with one network, the gateway's)."""
     from gateway.device.dcf import Commissioning, write_dcf
     from gateway.eds import read_text
 
     node = rn.require()
     steps = node.boot_steps if node.cfg.configure else []
-    who = Commissioning(node.node_id, node.name, bitrate_kbps, cfg.gateway.name)
+    network = cfg.network_of(node.name)
+    view = cfg.network_view(network)
+    number = cfg.network_names().index(network) + 1
+    name = cfg.gateway.name if cfg.networks is None else network
+    who = Commissioning(node.node_id, node.name, _bitrate_kbps(view, bitrate), name, number)
     path = node.lp.eds_path
     return write_dcf(read_text(path), path.name, steps, who, node.lp.od)

@@ -9,7 +9,7 @@ the path and saying to mount or write one; the demo (simulated devices) runs onl
 for, by ``demo`` or ``CANOPEN_GATEWAY_DEMO=1`` (the demo configuration: ``config/demo.yaml`` of
 a checkout, or the file ``CANOPEN_GATEWAY_DEMO_CONFIG`` names; the image sets it).
 
-Imports: gateway.app, gateway.config (ConfigError), gateway.runtime.startup,
+Imports: gateway.app, gateway.sim.buses, gateway.config (ConfigError), gateway.runtime.startup,
 gateway.runtime.fdlimit, gateway.runtime.logformat (text or JSON lines),
 gateway.runtime.sd_notify (systemd),
 gateway.tools.bus_open, cli.load.
@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus
+from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus, on_network
 from gateway.config import ConfigError
 from gateway.runtime.logformat import TEXT_FORMAT, JsonFormatter, json_line, log_format
 
@@ -168,28 +168,26 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def with_systemd(gw: Any) -> tuple[Callable[[], Any], Callable[[], Any]]:
     """The gateway's start and stop, telling systemd (``NOTIFY_SOCKET``): READY=1 once
-    started (every listener open), STATUS= lines, WATCHDOG=1 while the event loop and the
-    CAN reader go round, STOPPING=1 when the stop begins (``gateway.runtime.sd_notify``)."""
+    started (every listener open), STATUS= lines, WATCHDOG=1 while the event loop and every
+    network's CAN reader go round, STOPPING=1 when the stop begins (``gateway.runtime.sd_notify``)."""
     from gateway.runtime.sd_notify import SystemdNotifier
 
     notifier = SystemdNotifier.from_env()
     tasks: list[asyncio.Task[None]] = []
-    turns = [-1]
-
-    def reader_goes_round() -> bool:
-        now, turns[0] = turns[0], gw.driver.reader_turns
-        return now != turns[0] and "can-reader" not in gw.threads.failures()
 
     def status() -> str:
         doc = gw.status()
         up = sum(1 for n in doc["nodes"].values() if n["operational"])
-        return f"{'ready' if doc['ready'] else 'not ready'}: {up}/{len(doc['nodes'])} nodes operational, bus {doc['bus']['state']}"
+        nets = doc["networks"]
+        buses = (f"bus {doc['bus']['state']}" if len(nets) == 1 else
+                 "buses " + ", ".join(f"{name} {n['bus']['state']}" for name, n in nets.items()))  # fmt: skip
+        return f"{'ready' if doc['ready'] else 'not ready'}: {up}/{len(doc['nodes'])} nodes operational, {buses}"
 
     async def start() -> None:
         notifier.send("STATUS=starting")
         await gw.start()
         notifier.ready(f"{status()}; {gw.summary()}")
-        tasks.append(asyncio.get_running_loop().create_task(notifier.supervise(reader_goes_round, status)))
+        tasks.append(asyncio.get_running_loop().create_task(notifier.supervise(readers_go_round(gw), status)))
 
     async def stop() -> None:
         notifier.stopping()
@@ -201,12 +199,31 @@ def with_systemd(gw: Any) -> tuple[Callable[[], Any], Callable[[], Any]]:
     return start, stop
 
 
+def readers_go_round(gw: Any) -> Callable[[], bool]:
+    """systemd's watchdog's question of a gateway: every network's CAN reader went round since
+    the last ask, and none died (one stuck reader is a gateway systemd restarts, whichever
+    network it reads)."""
+    turns: dict[str, int] = {}  # network name -> its reader's rounds when last asked
+
+    def alive() -> bool:
+        moved = []
+        for net in gw.networks:
+            now = net.driver.reader_turns
+            moved.append(turns.get(net.name) != now)
+            turns[net.name] = now
+        dead = [name for name in gw.threads.failures() if name.startswith("can-reader")]
+        return all(moved) and not dead
+
+    return alive
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from gateway.app import SimulatedBus
+    from gateway.sim.buses import SimulatedBus
     from gateway.tools.bus_open import opening
 
     fmt = resolve_log_format(args)
-    cfg, nodes = load_for_bus(args.config)
+    loaded = load_for_bus(args.config)
+    cfg, nodes = loaded if args.network is None else on_network(loaded, args.network, "simulate")
     setup_logging(args.log_level or cfg.gateway.log_level, fmt)
     names = args.nodes.split(",") if args.nodes else [n.name for n in cfg.simulated_nodes()]
     if not names:
@@ -214,13 +231,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     sim = SimulatedBus(cfg, nodes, names)
 
     async def start() -> None:
-        with opening(cfg):  # a bus that cannot open: one line, exit 2 (cli.main)
-            sim.start()
+        for view, _ in sim.networks:  # each network's devices on its own bus
+            with opening(view):  # a bus that cannot open: one line, exit 2 (cli.main)
+                sim.start_network(view)
 
     async def stop() -> None:
         sim.stop()
 
-    line = f"simulating {', '.join(f'{n}@{sim.nodes[n].node_id}' for n in sim.nodes)} on {cfg.can.bus_kwargs()}"
+    line = "; ".join(
+        f"simulating {', '.join(f'{n}@{sim.nodes[n].node_id}' for n in names)} on {view.can.bus_kwargs()}"
+        for view, names in sim.networks
+    )
     line = json_line(line) if fmt == "json" else line
     asyncio.run(run_until_signal(start, stop, line))
     return 0

@@ -3,7 +3,7 @@ summarised, what may not do what is meant, what it will not check, the warnings 
 compared as a hot-standby pair), ``registers`` (the Modbus register map) and ``keys`` (the
 Zenoh key expressions).
 
-Imports: gateway.device.resolved, gateway.checks (config_warnings, config_notes, pair_problems), gateway.config
+Imports: gateway.device.resolved, gateway.checks (config_warnings, config_notes, pair_of_networks), gateway.config
 (ConfigError), gateway.eds,
 gateway.northbound.regmap, gateway.northbound.plc_tags, gateway.northbound.keys, cli.load.
 """
@@ -21,7 +21,7 @@ from gateway.config import ConfigError
 def cmd_check(args: argparse.Namespace) -> int:
     """One config as at every start; two (``-c A -c B``): each so, then compared as the two
     configs of a hot-standby pair (``gateway.checks.pair_problems``)."""
-    from gateway.checks import pair_problems
+    from gateway.checks import pair_of_networks
 
     paths = [args.config] if isinstance(args.config, str) else list(args.config)
     if len(paths) == 1:
@@ -41,7 +41,7 @@ def cmd_check(args: argparse.Namespace) -> int:
         loaded.append((path, cfg, nodes))
     if len(loaded) == 2:
         (_, a, nodes_a), (_, b, nodes_b) = loaded
-        problems += pair_problems(a, b, nodes_a, nodes_b)
+        problems += pair_of_networks(a, b, nodes_a, nodes_b)  # a pair per network
     if problems:
         raise ConfigError(problems)
     for path, cfg, nodes in loaded:
@@ -57,7 +57,20 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
     if cfg.ascii is not None and cfg.ascii.enabled:
         gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
         print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
-    for n in cfg.nodes:
+    for number, view in enumerate(cfg.network_views(), start=1):
+        if cfg.networks is not None:
+            _print_network(view, number)
+        _print_nodes(cfg, view, nodes)
+    for _key, text in config_warnings(cfg, nodes):
+        print(f"  warning: {text}")
+    for _key, text in config_notes(cfg, nodes):
+        print(f"  note: {text}")
+    _print_eds_warnings(cfg, nodes)
+
+
+def _print_nodes(cfg: Any, view: Any, nodes: Any) -> None:
+    """One line per node of a network (``view``), and its profile's notes."""
+    for n in view.nodes:
         lp = nodes[n.name].lp
         pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
         sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
@@ -69,11 +82,15 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
         )
         for note in lp.notes:
             print(f"  warning: node {n.name}: {note}")
-    for _key, text in config_warnings(cfg, nodes):
-        print(f"  warning: {text}")
-    for _key, text in config_notes(cfg, nodes):
-        print(f"  note: {text}")
-    _print_eds_warnings(cfg, nodes)
+
+
+def _print_network(view: Any, number: int) -> None:
+    """``network line1 (net 1): socketcan can0, 500000 bit/s, master node id 127``."""
+    (net,) = view.network_sections()
+    can = view.can.words()
+    rate = f", {can['bitrate']} bit/s" if can["bitrate"] else ""
+    print(f"  network {net.name} (net {number}): {can['interface']} {can['channel']}{rate}, "
+          f"master node id {view.master.node_id}" + ("" if view.nodes else ", no nodes"))  # fmt: skip
 
 
 def _print_eds_warnings(cfg: Any, nodes: Any) -> None:

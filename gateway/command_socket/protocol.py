@@ -71,6 +71,13 @@ def socket_name(cfg: Config) -> str | None:
     return f"{cfg.gateway.name[:40]}-{digest}.sock"
 
 
+def in_process_bus(cfg: Config) -> bool:
+    """Whether a bus of this config lives inside the gateway's process (``can.interface:
+    virtual``): of any of its networks (a network's view: of that network). The gateway opens
+    its socket then, and a command on such a bus looks for it."""
+    return any(net.can.interface == "virtual" for net in cfg.network_sections())
+
+
 def socket_paths(cfg: Config, environ: Mapping[str, str] | None = None) -> list[Path]:
     """Where this config's socket is: the gateway listens on the first, a command tries each.
     Empty when the socket is off (``command_socket.enabled: false``) or cannot be named."""

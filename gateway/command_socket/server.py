@@ -32,6 +32,7 @@ from typing import Any
 from gateway.command_socket.protocol import (
     MAX_LINE_BYTES,
     answer_error,
+    in_process_bus,
     line,
     peer_credentials,
     socket_paths,
@@ -55,7 +56,7 @@ class CommandSocket:
         self.cfg = cfg
         self.commands = commands
         self.turns = turns
-        paths = socket_paths(cfg) if cfg.can.interface == "virtual" else []
+        paths = socket_paths(cfg) if in_process_bus(cfg) else []  # a bus of any network
         self.path: Path | None = paths[0] if paths else None
         self.server: asyncio.base_events.Server | None = None
         self.tasks: set[asyncio.Task[Any]] = set()

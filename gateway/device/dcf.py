@@ -1,5 +1,6 @@
 """A node's DCF (CiA 306 device configuration file) as the gateway configures it: the device's
-EDS (or DCF) as written, with ``[DeviceComissioning]`` (node id, name, bit rate in kbit/s) and
+EDS (or DCF) as written, with ``[DeviceComissioning]`` (node id, name, bit rate in kbit/s, the
+network's number and name) and
 the ``ParameterValue`` of every object its boot configuration writes (``boot_steps``: 1017h or
 guarding 100Ch/100Dh, the PDO communication and mapping objects the profile and the node's
 ``tpdo:``/``rpdo:`` set, the profile's ``boot.sdo`` and the node's ``sdo:``), each the value the
@@ -43,6 +44,8 @@ class Commissioning:
     node_name: str
     bitrate_kbps: int
     network_name: str
+    #: the network's number (CiA 309-3's net: 1.. in configured order; 1 with one network)
+    net_number: int = 1
 
 
 def final_values(steps: Iterable[ConfigStep]) -> dict[ObjRef, ConfigStep]:
@@ -139,7 +142,7 @@ def write_dcf(eds_text: str, eds_name: str, steps: Iterable[ConfigStep], who: Co
         if obj not in done:
             out += ["", *_compact_section(obj, step, od)]
     out += ["", f"[{COMMISSIONING}]", f"NodeID={who.node_id}", f"NodeName={who.node_name}",
-            f"Baudrate={who.bitrate_kbps}", "NetNumber=1", f"NetworkName={who.network_name}",
+            f"Baudrate={who.bitrate_kbps}", f"NetNumber={who.net_number}", f"NetworkName={who.network_name}",
             "CANopenManager=0"]  # fmt: skip
     return newline.join(out) + newline
 

@@ -34,6 +34,12 @@ Metric names carry the prefix ``canopen_gateway_``:
     pair_takeovers_total, pair_negotiations_total, pair_duplicate_id_frames_total,
     pair_isolations_total, pair_role (a hot-standby pair)
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
+    per CAN network (``network``: its name, ``default`` in the single-network form):
+    can_frames_in_total{network}, can_frames_out_total{network}, can_bus_errors_total{network},
+    can_bus_reopens_total{network}, can_bus_state{network} (0 down, 1 ok, 2 error),
+    network_pair_role{network}, network_other_master_frames_total{network,kind}
+    (the unlabelled frames_*, bus_errors_total and pair_* above are the gateway's totals, the
+    first network's pair)
     build_info{version,python} (always 1: the package version and the Python that runs it)
     plus process_* (CPU, memory, open files) of this process.
 
@@ -171,6 +177,14 @@ class Counters:
     other_master: dict[str, int] = field(default_factory=dict)
     other_sdo_client: dict[str, int] = field(default_factory=dict)
     journal: dict[str, int] = field(default_factory=dict)
+    # per CAN network, keyed by its name (other masters: by (network, kind))
+    can_frames_in: dict[str, int] = field(default_factory=dict)
+    can_frames_out: dict[str, int] = field(default_factory=dict)
+    can_bus_errors: dict[str, int] = field(default_factory=dict)
+    can_bus_reopens: dict[str, int] = field(default_factory=dict)
+    can_bus_state: dict[str, int] = field(default_factory=dict)  # a gauge, read at scrape time
+    network_pair_role: dict[str, int] = field(default_factory=dict)  # a gauge
+    network_other_master: dict[tuple[str, str], int] = field(default_factory=dict)
 
     def copy(self) -> Counters:
         """A copy with label dicts of its own (the caller holds the lock that guards them)."""
@@ -317,12 +331,16 @@ class _GatewayCollector:
     def _families(c: Counters, nodes: list[NodeSample], *, uptime_s: float) -> Iterator[Metric]:
         for kind, name, doc, attr, labels in _COUNTER_FAMILIES:
             value = getattr(c, attr)
-            if kind == "gauge":
+            if kind == "gauge" and not labels:
                 yield GaugeMetricFamily(f"{NAMESPACE}_{name}", doc, value=value)
             elif not labels:
                 yield CounterMetricFamily(f"{NAMESPACE}_{name}", doc, value=value)
             else:
-                family = CounterMetricFamily(f"{NAMESPACE}_{name}", doc, labels=list(labels))
+                family: GaugeMetricFamily | CounterMetricFamily = (
+                    GaugeMetricFamily(f"{NAMESPACE}_{name}", doc, labels=list(labels))
+                    if kind == "gauge"
+                    else CounterMetricFamily(f"{NAMESPACE}_{name}", doc, labels=list(labels))
+                )
                 for key, count in sorted(value.items()):
                     family.add_metric(list(key) if isinstance(key, tuple) else [key], count)
                 yield family
@@ -415,6 +433,23 @@ _COUNTER_FAMILIES: tuple[tuple[str, str, str, str, tuple[str, ...]], ...] = (
     ("gauge", "pair_role",
      "Role in a hot-standby pair: 0 no pair, 1 active, 2 standby, "
      "3 listening / negotiating, 4 isolated, 5 out (duplicate pair id).", "pair_role", ()),
+    ("counter", "can_frames_in_total", "CAN frames received, by network.", "can_frames_in",
+     ("network",)),
+    ("counter", "can_frames_out_total", "CAN frames sent, by network.", "can_frames_out",
+     ("network",)),
+    ("counter", "can_bus_errors_total", "CAN error frames and failed sends, by network.",
+     "can_bus_errors", ("network",)),
+    ("counter", "can_bus_reopens_total",
+     "Times the CAN bus was opened again after it was lost, by network.", "can_bus_reopens",
+     ("network",)),
+    ("gauge", "can_bus_state", "CAN bus state by network: 0 down, 1 ok, 2 error passive / "
+     "bus off.", "can_bus_state", ("network",)),
+    ("gauge", "network_pair_role",
+     "Role in the network's hot-standby pair (as pair_role), by network.", "network_pair_role",
+     ("network",)),
+    ("counter", "network_other_master_frames_total",
+     "Frames of another master (as other_master_frames_total), by network and kind.",
+     "network_other_master", ("network", "kind")),
 )  # fmt: skip
 
 

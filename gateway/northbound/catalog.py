@@ -1,9 +1,12 @@
-"""The catalogue: every node and signal of a gateway with its type, unit, scaling and Modbus
-address, for cloud discovery (Zenoh ``<prefix>/catalog``). Pure: read from the command
-service's node views (nothing of the bus) and the register map, at the moment it is asked for.
+"""The catalogue of a gateway (Zenoh ``<prefix>/catalog``, for cloud discovery): its CAN
+networks (number, bus, nodes) and every node with its network and every signal with its type,
+unit, scaling and Modbus addresses.
 
-Imports: gateway (version), northbound.regmap, profiles.derived (the AP05 text rows as
-signals); the command service's node views are seen as a Protocol (``NodeViews``).
+Pure: built from the config, the command service's read-only node infos and the register map
+(nothing of the bus), at the moment it is asked for.
+
+Imports: gateway (version), config, northbound.regmap, profiles.derived. Not the command
+service (it imports the bus): its node infos are read through ``NodeInfos``.
 """
 
 from __future__ import annotations
@@ -11,21 +14,24 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from gateway import __version__
+from gateway.config import Config
 from gateway.northbound.regmap import RegisterMap
 from gateway.profiles.derived import text_rows_as_signals
 
 
-class NodeViews(Protocol):
-    """What the catalogue reads of the command service: its nodes' read-only views."""
+class NodeInfos(Protocol):
+    """What the catalogue reads of the command service: the node names and each node's
+    read-only info (``commands.NodeInfo``: node id, profile)."""
 
     def names(self) -> list[str]: ...
+
     def node(self, name: str) -> Any: ...
 
 
-def build_catalog(gateway_name: str, commands: NodeViews, regmap: RegisterMap) -> dict[str, Any]:
-    """``{"gateway", "version", "nodes": {name: {"node_id", "profile", "title", "signals"}}}``."""
+def build_catalog(cfg: Config, commands: NodeInfos, rm: RegisterMap) -> dict[str, Any]:
+    """Every network, node and signal (see the module docstring)."""
     addr: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for p in regmap.points:
+    for p in rm.points:
         if p.node and p.kind in ("signal", "bit"):
             addr.setdefault((p.node, p.name), []).append(
                 {"unit_id": p.unit, "table": p.table, "address": p.address, "count": p.count}
@@ -51,8 +57,15 @@ def build_catalog(gateway_name: str, commands: NodeViews, regmap: RegisterMap) -
             }
         nodes[name] = {
             "node_id": rt.node_id,
+            "network": cfg.network_of(name),
             "profile": rt.lp.family,
             "title": rt.lp.profile.title,
             "signals": sigs,
         }
-    return {"gateway": gateway_name, "version": __version__, "nodes": nodes}
+    networks = {
+        view.network_names()[0]: {
+            "number": number, "can": view.can.words(), "nodes": [n.name for n in view.nodes]
+        }
+        for number, view in enumerate(cfg.network_views(), start=1)
+    }  # fmt: skip
+    return {"gateway": cfg.gateway.name, "version": __version__, "networks": networks, "nodes": nodes}

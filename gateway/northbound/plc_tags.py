@@ -8,14 +8,17 @@ protocol address 0 is ...001. A value of several registers starts at its first r
 * ``modicon``: ``unit_id,modicon,words,iec_type,word_order,node,signal,unit,description``, one
   row per value or bit; ``iec_type`` the IEC 61131-3 elementary type (BOOL, INT, UINT, DINT,
   UDINT, LINT, ULINT, REAL, LREAL, STRING); ``word_order`` (big: high word first) for values of
-  several registers.
+  several registers. The columns are fixed (no ``network`` column, unlike ``--format csv``): a
+  node's name is unique in the gateway, and a gateway register of one CAN network names it in
+  its description.
 * ``kepware``: a KEPServerEX tag import (CSV) for its Modbus TCP/IP Ethernet driver, one device
   (unit id) per file: the columns of KEPServerEX's own tag export; ``Address`` the Modicon
   address (a string ``4xxxxx.nH``: n bytes, high byte first, the driver's string syntax);
   ``Data Type`` the driver's names (Boolean, Short, Word, Long, DWord, LLong, QWord, Float,
   Double, String); ``Client Access`` RO or R/W; ``Scan Rate`` in ms (process data and
   diagnostics 100, configuration objects read by SDO 1000). Tag names are unique in the file,
-  made of the node and signal names (KEPServerEX allows letters, digits and ``_``); a name two
+  made of the node and signal names (a gateway register of one CAN network: ``gateway_``, the
+  network's name, the register's; KEPServerEX allows letters, digits and ``_``); a name two
   points share (a node's ``alive`` is an input register and a discrete input) carries the
   table (``_IR``, ``_DI``, ``_HR``, ``_CO``). The driver's word order is one setting per device
   (``First word low``): a point whose order differs from the map's says so in its description.
@@ -116,7 +119,8 @@ def kepware_word_order(rm: RegisterMap, unit: int) -> str:
 
 def tag_names(points: list[Point]) -> list[str]:
     """Unique tag names: ``<node>_<signal>`` (``gateway_<name>`` for the gateway's registers,
-    ``_bit<n>`` for a bit), the table added where two points would share one."""
+    ``gateway_<network>_<name>`` for those of one CAN network, ``_bit<n>`` for a bit), the
+    table added where two points would share one."""
     base = [_tag(p) for p in points]
     shared = {n for n, c in Counter(base).items() if c > 1}
     names = [f"{n}_{TABLE_SUFFIX[p.table]}" if n in shared else n for n, p in zip(base, points, strict=True)]
@@ -129,7 +133,8 @@ def tag_names(points: list[Point]) -> list[str]:
 
 
 def _tag(p: Point) -> str:
-    text = f"{p.node or 'gateway'}_{p.name}" + (f"_bit{p.bit}" if p.kind == "bit" else "")
+    owner = p.node or ("gateway" if p.network is None else f"gateway_{p.network}")  # a network's register
+    text = f"{owner}_{p.name}" + (f"_bit{p.bit}" if p.kind == "bit" else "")
     return re.sub(r"[^A-Za-z0-9_]", "_", text)
 
 

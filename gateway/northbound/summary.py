@@ -14,6 +14,7 @@ from __future__ import annotations
 import time
 from collections.abc import Collection
 from dataclasses import dataclass, fields
+from typing import Any
 
 from gateway.canopen.states import LinkState, NmtState
 from gateway.image import EmcyRecord, NodeHealth, NodeImage, Quality
@@ -111,3 +112,21 @@ def summarize(
         pdo_errors=rx.pdo_too_short + rx.pdo_too_long,
         quality=None if process is None else worst_quality(node, process, now),
     )
+
+
+def health_doc(node: NodeImage) -> dict[str, Any]:
+    """A node as ``/healthz`` says it: its network, health and data age."""
+    s = summarize(node)
+    age = s.data_age_s
+    return {
+        "node_id": s.node_id,
+        "network": node.network,
+        "alive": s.alive,
+        "operational": s.operational,
+        "nmt_state": s.nmt_state.name.lower(),
+        "lifecycle": s.lifecycle,
+        "link": s.link.name.lower(),
+        "data_age_s": None if age is None else round(age, 3),
+        "last_error": s.last_error,
+        "outputs": s.outputs,
+    }

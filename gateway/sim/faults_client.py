@@ -68,7 +68,10 @@ def run_fault(cfg: Config, node: str | None, action: str | None, url: str | None
                 print(f"error: {base} has no fault injection (an older gateway?)", file=sys.stderr)
                 return 1
             print(doc.get("rule_text", ""))
+            mine = {n.name for n in cfg.nodes}  # the network's (--network), or every node
             for name, state in (doc.get("nodes") or {}).items():
+                if name not in mine:
+                    continue
                 words = [
                     "unplugged" if state["unplugged"] else "plugged",
                     "heartbeat on" if state["heartbeat"] else "heartbeat off",

@@ -45,6 +45,9 @@ from gateway.command_socket.protocol import (
     trusted,
     value_from_json,
 )
+from gateway.command_socket.protocol import (
+    in_process_bus as in_process_bus,  # the tools ask it here too
+)
 from gateway.config import Config
 from gateway.northbound.keys import catalog_key, nmt_key, sdo_key
 
@@ -59,10 +62,6 @@ class RemoteError(Exception):
     def __init__(self, kind: str, message: str):
         self.kind = kind
         super().__init__(message)
-
-
-def in_process_bus(cfg: Config) -> bool:
-    return cfg.can.interface == "virtual"
 
 
 def _port_in_use(host: str, port: int) -> bool:
@@ -246,7 +245,7 @@ def refusal(cfg: Config, command: str) -> str | None:
         else ""
     )
     return (
-        f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway running "
+        f"error: {cfg.source}: {cfg.qualify('can.interface')}: virtual: the bus lives inside the gateway running "
         f"at {url}, so `{command}` would act on a private copy of the devices; use {page}"
         f"{via_zenoh}; or give both a bus they share (can.interface: remote, docs/canopen.md)"
     )
@@ -277,6 +276,6 @@ def _page_served(url: str) -> bool:
 def private_note(cfg: Config) -> str:
     names = ", ".join(n.name for n in cfg.simulated_nodes()) or "none"
     return (
-        f"note: {cfg.source}: can.interface: virtual and no gateway runs on this config: acting "
+        f"note: {cfg.source}: {cfg.qualify('can.interface')}: virtual and no gateway runs on this config: acting "
         f"on this command's own simulated devices ({names})"
     )

@@ -31,11 +31,14 @@ host and port: pages and static files, a small JSON API, server-sent events, and
                                        ``Content-Type: application/json``; ``READS_PER_S`` per
                                        client (burst ``READ_BURST``), else 429 + ``Retry-After``
 ``GET /monitor``                       bus monitor page (``static/monitor.html``)
-``GET /api/monitor/record``            a trace file of the bus (``gateway.web.recording``)
+``GET /api/monitor/record``            a trace file of a network's bus (``?network=``, default
+                                       the first; ``gateway.web.recording``)
 ``GET /api/monitor/stream``            server-sent events of the bus monitor
                                        (``gateway.web.monitor``): ``hello``, ``frames``,
-                                       ``status``; filters ``?node=wire,5``, ``?kind=pdo,emcy``;
-                                       400 for an unknown node or kind, 503 past 8 pages
+                                       ``status``; ``?network=line2`` (default the first),
+                                       filters ``?node=wire,5``, ``?kind=pdo,emcy``; 400 for an
+                                       unknown network, node or kind, 503 past 8 pages of a
+                                       network or ``MONITOR_PER_CLIENT`` of one client
 ``GET /api/journal[.csv|.json]``       the journal's entries of a range (``web.journal_log``);
                                        the exports streamed (chunked); an operators' endpoint
 ``GET /api/sim``                       simulated nodes, their faults and who may inject them
@@ -45,10 +48,11 @@ host and port: pages and static files, a small JSON API, server-sent events, and
 
 Who may use what (``web.access``): every path checks the ``Host`` header first (421 for a
 name the console does not answer for: DNS rebinding); the operators' endpoints (the journal,
-the bus monitor's stream, SDO reads, fault injection: ``web.fault_routes``) need the token when
+the bus monitor's stream and recording of every network, SDO reads, fault injection: ``web.fault_routes``) need the token when
 one is set and are served to this machine only when none is; wrong tokens are throttled per
 client address (429). Live pages and monitor pages are capped per client address
-(``LIVE_PER_CLIENT``, ``MONITOR_PER_CLIENT``) as well as in total.
+(``LIVE_PER_CLIENT``; ``MONITOR_PER_CLIENT``, every network's pages together) as well as in
+total.
 
 The node page's stream also carries ``trend`` events (new samples, once a second) and the
 overview stream ``events`` events (new entries of the event log).
@@ -88,7 +92,7 @@ from gateway.web.fault_routes import FaultRoutes
 from gateway.web.journal_log import JournalLog
 from gateway.web.limits import ClientBudget
 from gateway.web.live import LiveHub, Subscriber, TooManyClients
-from gateway.web.monitor import FrameMonitor, FrameSource, TooManyPages
+from gateway.web.monitor import FrameMonitor, FrameSource, NetworkMonitors
 from gateway.web.pages import fill_pages
 from gateway.web.recording import BusRecorder
 from gateway.web.trends import TREND_PERIOD_S, TrendStore
@@ -151,11 +155,12 @@ class WebConsole:
         self,
         model: ConsoleModel,
         *,
-        decoder: FrameDecoder,
+        decoder: FrameDecoder | None = None,
         faults: Any = None,
         frames: FrameSource | None = None,
         turns: LoopTurns | None = None,
         journal: Any = None,
+        monitors: NetworkMonitors | None = None,
     ):
         #: what the pages and the API show, built from the console's config, image and commands
         self.model = model
@@ -179,19 +184,24 @@ class WebConsole:
         self.read_budget = ClientBudget(READS_PER_S, READ_BURST)
         self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS, turns=turns)
         #: fault injection (``web.fault_routes``): ``faults`` is sim.faults.FaultInjector
-        #: when nodes are simulated in this process
-        self.fault_routes = FaultRoutes(
-            faults, self.cfg.can.bus_kwargs().get("interface") == "virtual", self.writes, self.operators
-        )
+        #: when nodes are simulated in this process; "virtual" only when every network's bus is
+        #: (a simulated node on any real bus sends real frames)
+        virtual = all(n.can.bus_kwargs().get("interface") == "virtual" for n in self.cfg.network_sections())
+        self.fault_routes = FaultRoutes(faults, virtual, self.writes, self.operators)
         self._sampler: Any = None
-        #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
-        self.monitor = FrameMonitor(self.cfg, decoder, frames)
-        self.recorder = BusRecorder(frames, self.cfg.gateway.name, SECURITY_HEADERS)
+        #: the bus monitor of each network (``frames``: the one bus driver of a single network)
+        if monitors is None:
+            assert decoder is not None, "a decoder for the bus monitor, or the monitors"
+            monitors = NetworkMonitors({"": FrameMonitor(self.cfg, decoder, frames)})
+        self.monitors = monitors
+        self.monitor = self.monitors.first
+        #: the recordings of each network's bus (``GET /api/monitor/record?network=``)
+        self.recorder = BusRecorder(self.monitors.sources(), self.cfg.gateway.name, SECURITY_HEADERS)
         self.turns = turns  # live updates take turns on the loop (API requests: in health)
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)
-        self.monitor.attach(loop)
+        self.monitors.attach(loop)
         for node in self.image.nodes.values():
             self.events.watch(node)
         self.image.health_listeners.append(self.events.on_health)
@@ -200,7 +210,7 @@ class WebConsole:
 
     def stop(self) -> None:
         self.hub.detach()
-        self.monitor.detach()
+        self.monitors.detach()
         if self.events.on_health in self.image.health_listeners:
             self.image.health_listeners.remove(self.events.on_health)
         logging.getLogger("gateway").removeHandler(self._log_handler)
@@ -279,7 +289,8 @@ class WebConsole:
         if path == "/monitor":
             return self._file("monitor.html")
         if path == "/api/monitor/stream":
-            return self._monitor_stream(request)
+            # every frame of a network's bus: an operators' endpoint, pages capped per client
+            return self.monitors.stream(request, self.turns, self.operators.check, self.monitor_slots)
         if path == "/api/monitor/record":  # every frame of the bus: an operators' endpoint
             return self.operators.check(request) or await self.recorder.answer(request)
         return None
@@ -489,39 +500,3 @@ class WebConsole:
             doc["text"] = text
         return _json(HTTPStatus.OK, doc)
 
-    # ------------------------------------------------------------------ bus monitor
-    def _monitor_stream(self, request: Request) -> Response | Stream:
-        try:
-            nodes, kinds = self.monitor.parse_filters(
-                request.query.get("node", "").split(","), request.query.get("kind", "").split(",")
-            )
-        except ValueError as exc:
-            message = str(exc).replace("--node ", "node: ").replace("--kind ", "kind: ")
-            return _json(HTTPStatus.BAD_REQUEST, {"error": "bad_request", "message": message})
-        refused = self.operators.check(request)
-        if refused is not None:
-            return refused
-        if request.method == "HEAD":
-            return Response(HTTPStatus.OK, b"", "text/event-stream")
-        busy = self.monitor.refusal()
-        client = request.client
-        if busy is None and self.monitor_slots.full(client):
-            busy = f"at most {MONITOR_PER_CLIENT} monitor pages per client address"
-        if busy is not None:
-            return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": busy})
-
-        async def body(reader: Any, writer: Any) -> None:
-            # opened here, not before the headers are written: a page is closed by its pump
-            if not self.monitor_slots.take(client):
-                return
-            try:
-                try:
-                    page = self.monitor.open(nodes, kinds)
-                except TooManyPages as exc:  # another page came first since refusal()
-                    writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
-                    return
-                await self.monitor.pump(page, reader, writer, turns=self.turns)
-            finally:
-                self.monitor_slots.give(client)
-
-        return Stream("text/event-stream", body)

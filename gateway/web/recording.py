@@ -1,8 +1,11 @@
-"""The console's bus recording (``GET /api/monitor/record?seconds=S&format=asc``): the frames
-the gateway receives on its bus for S seconds (at most ``MAX_SECONDS``), downloaded as a trace
+"""The console's bus recording (``GET /api/monitor/record?seconds=S&format=asc[&network=N]``):
+the frames the gateway receives on one network's bus (``network``, the first by default; 400
+for a network it does not have) for S seconds (at most ``MAX_SECONDS``), downloaded as a trace
 file in python-can's writer of the format asked for (.asc Vector ASCII, .blf Vector binary,
 .trc PCAN-View, .log candump, .csv), the same files as ``canopen-gateway monitor --record``;
-``canopen-gateway decode -c CONFIG FILE`` reads them back in CANopen words.
+``canopen-gateway decode -c CONFIG FILE`` reads them back in CANopen words (``--network`` the
+recorded one: node ids are a network's own). With several networks the file's name carries the
+network's (``<gateway>-<network>-bus-<time>.asc``).
 
 Rule 1 (the CAN reader thread): the tap only appends the ``can.Message`` to the recording's
 list, bounded (``MAX_FRAMES``: later frames are counted, not kept), under a lock; it is
@@ -74,13 +77,21 @@ def write_trace(frames: list[can.Message], fmt: str) -> bytes:
 class BusRecorder:
     """The recordings of the console (see the module docstring)."""
 
-    def __init__(self, source: FrameSource | None, gateway_name: str, headers: dict[str, str]):
-        self.source = source
+    def __init__(
+        self, sources: dict[str, FrameSource | None], gateway_name: str, headers: dict[str, str]
+    ):
+        #: each network's bus driver (a tap source), in configured order
+        self.sources = sources
         self.name = gateway_name
         self.headers = headers
         self.running = 0
 
     async def answer(self, request: Request) -> Response:
+        network = request.query.get("network") or next(iter(self.sources), "")
+        if network not in self.sources:
+            return _json(HTTPStatus.BAD_REQUEST, "bad_request",
+                         f"network: no network named {network!r}; networks: {', '.join(self.sources)}")  # fmt: skip
+        source = self.sources[network]
         fmt = request.query.get("format", "asc").lower().lstrip(".")
         try:
             seconds = float(request.query.get("seconds", DEFAULT_SECONDS))
@@ -89,22 +100,23 @@ class BusRecorder:
         if fmt not in FORMATS or not 0 < seconds <= MAX_SECONDS:
             return _json(HTTPStatus.BAD_REQUEST, "bad_request",
                          f"format: one of {', '.join(FORMATS)}; seconds: more than 0, at most {MAX_SECONDS:g}")  # fmt: skip
-        if self.source is None:
+        if source is None:
             return _json(HTTPStatus.SERVICE_UNAVAILABLE, "busy", "this gateway has no bus to record")
         if self.running >= MAX_RECORDINGS:
             return _json(HTTPStatus.SERVICE_UNAVAILABLE, "busy", f"at most {MAX_RECORDINGS} recordings at a time")
         recording = Recording()
         self.running += 1
         started = time.time()
-        self.source.add_tap(recording.on_frame)
+        source.add_tap(recording.on_frame)
         try:
             await asyncio.sleep(seconds)
         finally:
-            self.source.remove_tap(recording.on_frame)
+            source.remove_tap(recording.on_frame)
             self.running -= 1
         body = await asyncio.to_thread(write_trace, recording.take(), fmt)
         stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(started))
-        name = f"{self.name}-bus-{stamp}.{fmt}".replace('"', "")
+        which = f"{network}-" if len(self.sources) > 1 else ""
+        name = f"{self.name}-{which}bus-{stamp}.{fmt}".replace('"', "")
         headers = {**self.headers, "Content-Disposition": f'attachment; filename="{name}"',
                    "X-Frames-Dropped": str(recording.dropped)}  # fmt: skip
         return Response(HTTPStatus.OK, body, "application/octet-stream", headers=headers)

@@ -44,9 +44,8 @@ logged (rate-limited), and nothing goes on the bus.
 The session is opened before the bus (``open``): when a gateway with the same prefix is
 already announced on the Zenoh network (its ``<prefix>/alive/_gateway`` token), the session
 stays closed (``ZenohSession.problem`` says why, /healthz names it) and is retried in the
-background while Modbus and the bus run. In client mode, with no router
-reachable, the gateway starts anyway and the bridge retries in the background (attempts start
-0.5 s, 1 s, 2 s, then every 5 s apart). After a router restart zenoh reconnects by itself and
+background while Modbus and the bus run. In client mode, with no router reachable, the gateway
+starts anyway and the bridge retries in the background (0.5 s, 1 s, 2 s, then every 5 s). After a router restart zenoh reconnects by itself and
 re-declares publishers, queryable and liveliness tokens.
 
 The bridge is composed of: ``plan.py`` (what to publish, planned once: ``SignalPub``,
@@ -93,7 +92,7 @@ from gateway.zenoh_bridge.pair import HeardSeq, seq_offset
 from gateway.zenoh_bridge.payloads import pdo_json, value_json
 from gateway.zenoh_bridge.plan import PdoPub, SignalPub, plan_publications, value_keys
 from gateway.zenoh_bridge.queries import QueryService
-from gateway.zenoh_bridge.sender import ZenohSender
+from gateway.zenoh_bridge.sender import WITHHELD, ZenohSender
 from gateway.zenoh_bridge.session import ZenohSession
 
 log = logging.getLogger("gateway.zenoh")
@@ -195,10 +194,7 @@ class ZenohBridge:
         #: most, and while marks keep coming at least, every ``zenoh.batch_ms``),
         #: ``zenoh-events`` the events (BLOCK: a congested link must not hold values back)
         self._sender = ZenohSender(
-            self.threads,
-            "zenoh-publish",
-            self._values.flush,
-            batch_s=cfg.zenoh.batch_ms / 1000.0,
+            self.threads, "zenoh-publish", self._values.flush, batch_s=cfg.zenoh.batch_ms / 1000.0
         )
         #: the id of this gateway's timestamps, and their clock (``journal.HybridClock``: the
         #: journal's once there is one): events and the journal are stamped without a session
@@ -214,11 +210,13 @@ class ZenohBridge:
         self.journal: Journal | None = None
         #: a hot-standby pair (``pair.py``): this gateway's (master node id, pair node id),
         #: whether it publishes (it masters the bus), the seq heard of the other one
-        red = cfg.master.redundancy
-        self.member: tuple[int, int] | None = (
-            (cfg.master.node_id, red.node_id) if red is not None else None
-        )
+        self.member: tuple[int, int] | None = next(  # a pair per network: the first one's
+            ((v.master.node_id, red.node_id) for v in cfg.network_views()
+             if (red := v.master.redundancy) is not None), None,
+        )  # fmt: skip
         self.publishing = True
+        #: a pair per network: the nodes of the networks it stands by on while it masters another
+        self.silent: frozenset[str] = frozenset()
         self.event_keys = {
             k(self.prefix, n): (k, n) for n in image.nodes for k in (state_key, emcy_key)
         }
@@ -291,9 +289,14 @@ class ZenohBridge:
         """The periodic refresh (``housekeeping.py``), until cancelled."""
         await housekeeping_loop(self)
 
+    def publishes(self, node: str) -> bool:
+        """Whether this gateway publishes (and journals from its image) the node's samples: it
+        masters the node's network (in a pair, the other member's are heard and journaled)."""
+        return self.publishing and node not in self.silent
+
     def node_alive(self, node: NodeImage) -> bool:
         """Whether the node's token is wanted: its values usable and this gateway publishing."""
-        return node.usable() and self.publishing
+        return node.usable() and self.publishes(node.name)
 
     # ------------------------------------------------------------------ the journal
     def use_journal(self, journal: Journal) -> None:
@@ -307,7 +310,7 @@ class ZenohBridge:
         self._events.journal_wait = journal.wait
         self._events.on_unjournaled = journal.note_unjournaled
         restore_seqs(journal.last_seqs(), self.value_history)
-        history = ValueHistory(self.image, self.value_history, lambda: self.publishing, lambda: self.hlc)
+        history = ValueHistory(self.image, self.value_history, self.publishes, lambda: self.hlc)
         journal.values_from(history.window)
         self.queries.history = HistoryService(
             journal,
@@ -318,8 +321,10 @@ class ZenohBridge:
 
     def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None:
         """A sample of our prefix heard while standing by (a zenoh thread): its seq is kept
-        (``HeardSeq``) and, with a journal, the sample is journaled as the other member
-        published it, so this member's history covers the time before a take-over."""
+        (``HeardSeq``) and, with a journal, journaled as the other member published it, so
+        this member's history covers the time before a take-over."""
+        if self.silent and key.removeprefix(self.prefix + "/").split("/", 1)[0] not in self.silent:
+            return  # its own sample: it masters this node's network (a pair per network)
         before = self.events.before_heard(key)
         self.heard.on_sample(key, payload)
         j = self.journal
@@ -336,10 +341,13 @@ class ZenohBridge:
         return zenoh.Timestamp(zenoh.NTP64(ns // NANOS, ns % NANOS), self.stamp_id)
 
     def _event_pub(self, key: str) -> Any:
-        """The publisher of an event key, None while no session is open (``zenoh-events``)."""
-        if self.link.session is None or not self.publishing:
+        """The publisher of an event key (``zenoh-events``): None while no session is open,
+        ``WITHHELD`` while this gateway does not publish its node (a pair's other member does)."""
+        if self.link.session is None:
             return None
         kind, node = self.event_keys[key]
+        if not self.publishes(node):
+            return WITHHELD
         pubs = self.link.state_pubs if kind is state_key else self.link.emcy_pubs
         return pubs.get(node)
 
@@ -348,15 +356,17 @@ class ZenohBridge:
         self._events.resend()
 
     # ------------------------------------------------------------------ a hot-standby pair
-    def set_mastering(self, mastering: bool) -> None:
+    def set_mastering(self, mastering: bool, silent: frozenset[str] = frozenset()) -> None:
         """This gateway started or stopped mastering the bus (event loop; the app calls it at
         construction and at every role change of a pair). Standing by, it stops publishing
         and hears what the other one publishes; taking over, each key goes on above the
-        highest seq heard (``pair.py``), then it publishes again."""
-        if mastering == self.publishing:
+        highest seq heard (``pair.py``), then it publishes again, but the ``silent`` nodes."""
+        silent = silent if mastering else frozenset()  # standing by on all: none publishes
+        if mastering == self.publishing and silent == self.silent:
             return
+        taken = self.silent - silent if self.publishing else frozenset(self.image.nodes) - silent
         if mastering:
-            for node in self.image.nodes.values():
+            for node in (self.image.nodes[name] for name in taken):
                 for sp in self.by_node.get(node.name, ()):
                     with sp.lock:
                         own = node.signals[sp.sig.name].seq
@@ -366,7 +376,7 @@ class ZenohBridge:
                         r = node.records.get(pp.names)
                         own = r[3] if r is not None else 0
                         pp.seq_offset = seq_offset(pp.seq_offset, self.heard.get(pp.key), own)
-        self.publishing = mastering
+        self.publishing, self.silent = mastering, silent
         s = self.session
         if s is not None:
             self.link.declare_pair(s)
@@ -380,7 +390,7 @@ class ZenohBridge:
         sp = self.pubs.get((node, name))
         if sp is None:
             return own
-        if self.publishing:
+        if self.publishes(node):
             return own + sp.seq_offset
         return max(own + sp.seq_offset, self.heard.get(sp.key))
 
@@ -395,7 +405,7 @@ class ZenohBridge:
         """A PDO's raw bytes (the image's PDO listener, with ``zenoh.raw_pdo``)."""
         s = self.link.session  # per frame: no property call
         pub = self.link.raw_pubs.get((node.name, cob_id))
-        if s is None or pub is None or not self.publishing:
+        if s is None or pub is None or not self.publishing or node.name in self.silent:
             return
         try:
             pub.put(data, timestamp=s.new_timestamp())
@@ -412,7 +422,7 @@ class ZenohBridge:
         if type(sp) is PdoPub:  # a PDO marked in the batch (``publish: pdo``)
             return self.offer_pdo(node, sp, now)
         s = self.link.session
-        if s is None or sp.pub is None or not self.publishing:
+        if s is None or sp.pub is None or not self.publishing or node.name in self.silent:
             return
         with sp.lock:
             sv = node.signals[sp.sig.name]
@@ -438,7 +448,7 @@ class ZenohBridge:
         one published, or (``again``) its qualities changed since. Any thread, under the PDO's
         lock: one record read once, so the signals of a sample are of one frame."""
         s = self.link.session
-        if s is None or pp.pub is None or not self.publishing:
+        if s is None or pp.pub is None or not self.publishing or node.name in self.silent:
             return
         with pp.lock:
             r = node.records.get(pp.names)
@@ -463,7 +473,7 @@ class ZenohBridge:
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
-        if self.link.session is None or not self.publishing:
+        if self.link.session is None or not self.publishing or node.name in self.silent:
             return
         route = self._routes.get((node.name, names))
         if route is not None:  # a TPDO's record: what to mark and publish, planned
@@ -493,7 +503,7 @@ class ZenohBridge:
     def _on_health(self, node: NodeImage, what: str) -> None:
         """Called on the event loop when a node's health changes or an EMCY arrives: the
         event is journaled and published (``events.py``) whether a session is open or not."""
-        if not self.publishing:
+        if not self.publishes(node.name):
             return
         self.events.on_health(node, what)
         self._sync_token(node)

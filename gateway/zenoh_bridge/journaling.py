@@ -9,7 +9,8 @@
   when the last sample published is of this frame, else the same JSON built from the image;
   its ``seq`` is the one the key shows (the image's plus the key's offset); its stamp is the
   journal's clock at the window. A gateway that stands by in a pair journals what it hears
-  instead (``heard_entry``), not its own image;
+  instead (``heard_entry``), not its own image (with a pair per network, of the nodes of the
+  networks it stands by on);
 * ``restore_seqs``: at start, every value key's ``seq`` goes on above the highest the journal
   ever handed out on it (``SignalPub.seq_offset``, ``PdoPub.seq_offset``);
 * ``heard_entry``: a sample a pair's standby hears of the other member, as a journal entry
@@ -69,22 +70,23 @@ class ValueHistory:
         self,
         image: ProcessImage,
         keys: list[ValueKey],
-        publishing: Callable[[], bool],
+        publishes: Callable[[str], bool],
         hlc: Callable[[], HybridClock],
     ) -> None:
         self.image = image
         self.keys = keys
-        self.publishing = publishing
+        #: whether this gateway publishes a node (else it journals what it hears of it)
+        self.publishes = publishes
         self.hlc = hlc
 
     def window(self) -> list[Entry]:
         """The journal writer's window (its thread): each changed value once."""
-        if not self.publishing():
-            return []
         now = time.monotonic()
         hlc = self.hlc()
         out = []
         for vk in self.keys:
+            if not self.publishes(vk.node):
+                continue
             node = self.image.nodes[vk.node]
             sv = node.signals[vk.sig.name]
             if not sv.seq:

@@ -31,7 +31,10 @@ subscriber's values back. Events are rare; their thread sleeps in between.
   (``on_unjournaled``). The publisher of its key is looked up when it is put (``pub_of``):
   while no session is open (client mode without a router) events wait in a backlog (at most
   ``BACKLOG_MAX``, the oldest dropped first and counted) and go out in order, before any newer
-  one, once the session's publishers are declared (``resend``).
+  one, once the session's publishers are declared (``resend``). An event whose key this
+  gateway no longer publishes when its turn comes (``pub_of`` answers ``WITHHELD``: a pair's
+  other member masters its node's network now) is not published, only counted (``withheld``):
+  it is journaled, and it never holds back the events of the keys this gateway publishes.
 
 Not here: ``publish: every`` samples (one per frame, put by the reader as the frame is handled)
 and the housekeeping's rare puts on the event loop (quality changes no frame announces,
@@ -68,6 +71,8 @@ _STOP = None  # queue item: end the thread
 EVENT_WAIT_S = 0.2
 #: events kept while no session is open, at most
 BACKLOG_MAX = 10_000
+#: ``pub_of``'s answer for a key this gateway does not publish (a pair's other member does)
+WITHHELD = object()
 
 
 class ZenohSender:
@@ -101,8 +106,10 @@ class ZenohSender:
         self._last_flush_s = float("-inf")  # ``clock`` time the last flush started
         self.sent = 0  # events put
         self.failed = 0  # events whose put failed
+        self.withheld = 0  # events of keys this gateway no longer publishes (``WITHHELD``)
         self.flushes = 0  # value flushes run
-        #: events: the publisher of a key (None: no session), the timestamp of a stamp (ns)
+        #: events: the publisher of a key (None: no session; ``WITHHELD``), the timestamp of
+        #: a stamp (ns)
         self.pub_of: Callable[[str], Any] = pub_of or (lambda key: None)
         self.timestamp: Callable[[int], Any] = timestamp or (lambda ns: None)
         #: events: wait for a journal ticket (ticket, timeout) -> committed in time; and the
@@ -175,6 +182,9 @@ class ZenohSender:
             pub = self.pub_of(key)
             if pub is None:
                 return False
+            if pub is WITHHELD:
+                self.withheld += 1
+                return True
             pub.put(payload, timestamp=self.timestamp(ns))
             self.sent += 1
         except Exception as exc:  # noqa: BLE001 - one failed put must not stop the events

@@ -94,6 +94,8 @@ class SessionHost(Protocol):
     def publishing(self) -> bool: ...
     @property
     def zid(self) -> str: ...
+    @property
+    def silent(self) -> frozenset[str]: ...
 
     def attach(self) -> None: ...
     async def detach(self) -> None: ...
@@ -412,10 +414,11 @@ class ZenohSession:
             elif not on and token is not None:
                 del self.pair_tokens[key]
                 token.undeclare()
-        if publishing and self.heard_sub is not None:
+        hears = not publishing or bool(bridge.silent)  # a pair per network: part stands by
+        if not hears and self.heard_sub is not None:
             sub, self.heard_sub = self.heard_sub, None
             sub.undeclare()
-        elif not publishing and self.heard_sub is None:
+        elif hears and self.heard_sub is None:
             # with history: what the other one published before this gateway started (its
             # advanced publishers' caches, e.g. the last state events) counts as heard too
             self.heard_sub = zenoh.ext.declare_advanced_subscriber(

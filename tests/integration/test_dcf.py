@@ -123,3 +123,25 @@ def test_eds_only_nodes_of_third_party_files_carry_their_boot_steps(tmp_path: Pa
     assert len([d for d in done if d.endswith(".eds")]) >= 4, done
     assert len([d for d in done if d.endswith(".dcf")]) >= 2, done  # a DCF's commissioning replaced
     print("corpus files:", ", ".join(done))
+
+
+def test_each_nodes_dcf_says_its_own_networks_bit_rate_number_and_name(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """config/two-networks.yaml: line1 at 500 kbit/s, line2 at 250; a node's DCF is of its
+    network (python canopen reads its bit rate back); --bitrate is one bus's, so --all with
+    several networks needs --network."""
+    two = ROOT / "config" / "two-networks.yaml"
+    assert main(["dcf", "-c", str(two), "--all", "-o", str(tmp_path / "all")]) == 0
+    for name, bitrate, number, network in (("wire", 500, 1, "line1"), ("rotary", 250, 2, "line2")):
+        text = (tmp_path / "all" / f"{name}.dcf").read_text(encoding="utf-8").replace("\r\n", "\n")
+        assert f"\nBaudrate={bitrate}\nNetNumber={number}\nNetworkName={network}\n" in text, name
+        assert canopen.import_od(str(tmp_path / "all" / f"{name}.dcf")).bitrate == bitrate * 1000
+    capsys.readouterr()
+    assert main(["dcf", "-c", str(two), "--all", "--bitrate", "125", "-o", str(tmp_path / "x")]) == 2
+    assert "has 2 networks, each a bus of its own: give --network NAME with --bitrate" in capsys.readouterr().err
+    assert main(["dcf", "-c", str(two), "--all", "--network", "line2", "--bitrate", "125", "-o", str(tmp_path / "l2")]) == 0
+    assert sorted(p.name for p in (tmp_path / "l2").iterdir()) == ["magnet.dcf", "rotary.dcf"]
+    assert "\nBaudrate=125\nNetNumber=2\n" in (tmp_path / "l2" / "magnet.dcf").read_text(encoding="utf-8").replace("\r\n", "\n")
+    assert main(["dcf", "-c", str(two), "--node", "display"]) == 0  # one node: its network's
+    assert "\nBaudrate=500\nNetNumber=1\nNetworkName=line1\n" in capsys.readouterr().out.replace("\r\n", "\n")  # the AP05 file: CRLF

@@ -62,7 +62,7 @@ def test_fast_scan_without_unconfigured_devices_fails_in_words(
 
 
 def test_python_canopens_master_finds_the_unconfigured_device_on_our_simulator(tmp_path: Path) -> None:
-    from gateway.app import SimulatedBus
+    from gateway.sim.buses import SimulatedBus
 
     raw = yaml.safe_load(config(tmp_path).read_text(encoding="utf-8"))
     del raw["simulate"]["options"]["enc_b"]  # one unconfigured device: python canopen's master

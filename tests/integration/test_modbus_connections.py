@@ -3,7 +3,8 @@ caps are closed at once (``modbus.max_connections``, ``max_connections_per_clien
 in ``allowed_networks`` gets the place of an idle stranger when the gateway is full, an idle
 connection is closed (``idle_timeout_s``), and a flood of 1,100 idle connections from one
 address under the systemd default file limit (1024) leaves the PLC served, ``/livez`` answering
-and no traceback in the log."""
+and no traceback in the log. One Modbus server serves every CAN network's units: its caps count
+every connection, whatever network the units it reads are on."""
 
 from __future__ import annotations
 
@@ -22,7 +23,15 @@ import pytest
 import yaml
 from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 
-from tests.helpers import free_port, make_config, modbus_gateway, stop_process, wait_until
+from tests.helpers import (
+    free_port,
+    make_config,
+    modbus_gateway,
+    parse_checked_config,
+    stop_process,
+    unique_channel,
+    wait_until,
+)
 
 WIRE = [{"name": "wire", "node_id": 1, "profile": "sgh10"}]
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,6 +65,36 @@ async def test_past_its_own_cap_a_client_is_closed_at_once_and_others_are_served
             assert not await asyncio.to_thread(closed_by_peer, held[0], 0.2)
             rr = await plc.read_input_registers(0, count=2, device_id=1)
             assert not rr.isError()
+            assert gw.modbus.admission.closed_by_reason == {"per_client": 1}
+        finally:
+            for s in [*held, extra]:
+                s.close()
+
+
+async def test_the_caps_hold_for_a_gateway_of_two_networks_and_both_networks_are_served() -> None:
+    def net(name: str, node: dict[str, object]) -> dict[str, object]:
+        return {"name": name, "can": {"interface": "virtual", "channel": unique_channel()},
+                "master": {"heartbeat_ms": 200, "heartbeat_timeout_multiple": 3}, "nodes": [node]}  # fmt: skip
+
+    cfg = parse_checked_config({
+        "gateway": {"name": "two"},
+        "networks": [net("line1", WIRE[0]),
+                     net("line2", {"name": "rotary", "node_id": 1, "profile": "posi_plus",
+                                   "modbus": {"unit_id": 101}})],
+        "modbus": {"port": free_port(), "max_connections_per_client": 2, "max_connections": 8},
+        "zenoh": {"enabled": False},
+        "simulate": {"nodes": "all"},
+    }, environ={})  # fmt: skip
+    usable = [(lambda gw, n=n: gw.image.nodes[n].usable(), n) for n in ("wire", "rotary")]
+    async with modbus_gateway(cfg, usable) as (gw, plc):
+        port = gw.modbus.port
+        held = [await asyncio.to_thread(connect_from, "127.0.0.2", port) for _ in range(2)]
+        extra = await asyncio.to_thread(connect_from, "127.0.0.2", port)
+        try:
+            assert await asyncio.to_thread(closed_by_peer, extra)
+            for unit in (1, 101):  # wire on line1, rotary on line2
+                rr = await plc.read_input_registers(0, count=2, device_id=unit)
+                assert not rr.isError(), unit
             assert gw.modbus.admission.closed_by_reason == {"per_client": 1}
         finally:
             for s in [*held, extra]:

@@ -2,7 +2,9 @@
 (the probes' paths answer any), the operators' endpoints (journal, bus monitor, SDO reads,
 fault injection) need the token when one is set (by header, or the cookie of ``/api/login``),
 wrong tokens are throttled per address with ``Retry-After``, live pages are capped per client
-address, and a malformed or repeated ``Content-Length`` is a 400 without a traceback."""
+address, and a malformed or repeated ``Content-Length`` is a 400 without a traceback. With
+several CAN networks every network's monitor stream and recording is behind the token, and
+a client's monitor pages are counted across networks."""
 
 from __future__ import annotations
 
@@ -16,15 +18,38 @@ from typing import Any
 import pytest
 
 from gateway.web.access import FAILURES_LIMIT
-from gateway.web.console import LIVE_PER_CLIENT
-from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
+from gateway.web.console import LIVE_PER_CLIENT, MONITOR_PER_CLIENT
+from tests.helpers import (
+    free_port,
+    gateway_of,
+    make_config,
+    node_operational,
+    parse_checked_config,
+    unique_channel,
+    wait_until,
+)
 
 TOKEN = "plant-floor-token-42"
 
 
+def two_networks(**web: Any) -> Any:
+    """wire on line1, rotary on line2, each on its own virtual bus, every device simulated."""
+    def net(name: str, node: dict[str, Any]) -> dict[str, Any]:
+        return {"name": name, "can": {"interface": "virtual", "channel": unique_channel()},
+                "master": {"heartbeat_ms": 200, "heartbeat_timeout_multiple": 3}, "nodes": [node]}  # fmt: skip
+
+    return parse_checked_config({
+        "gateway": {"name": "two"},
+        "networks": [net("line1", {"name": "wire", "node_id": 1, "profile": "sgh10"}),
+                     net("line2", {"name": "rotary", "node_id": 5, "profile": "posi_plus"})],
+        "modbus": {"enabled": False}, "zenoh": {"enabled": False},
+        "health": {"port": free_port()}, "web": web, "simulate": {"nodes": "all"},
+    }, environ={})  # fmt: skip
+
+
 @asynccontextmanager
-async def console(**web: Any) -> AsyncIterator[Any]:
-    cfg = make_config(
+async def console(cfg: Any = None, **web: Any) -> AsyncIterator[Any]:
+    cfg = cfg or make_config(
         [{"name": "wire", "node_id": 1, "profile": "sgh10"}],
         health={"port": free_port()}, web=web,
         modbus={"enabled": False}, zenoh={"enabled": False},
@@ -138,6 +163,48 @@ async def test_one_client_cannot_take_every_live_page() -> None:
             writer.write(f"GET /api/stream HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
             assert b" 200 " in await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
             held.append(writer)
+        finally:
+            for w in held:
+                w.close()
+
+
+async def test_every_networks_monitor_and_recording_need_the_token() -> None:
+    async with console(two_networks(token=TOKEN)) as gw:
+        port = gw.health.port
+        bearer = {"Authorization": f"Bearer {TOKEN}"}
+        for network in ("line1", "line2"):
+            for path in (f"/api/monitor/stream?network={network}",
+                         f"/api/monitor/record?network={network}&seconds=1"):  # fmt: skip
+                assert (await request(port, "GET", path))[0] == 401, path
+            code, headers, _ = await request(port, "HEAD", f"/api/monitor/stream?network={network}", bearer)
+            assert code == 200 and headers["content-type"] == "text/event-stream"
+        code, _, body = await request(port, "GET", "/api/monitor/stream?network=line3")
+        assert code == 400 and b"line1, line2" in body  # a wrong name is told before the token
+        code, headers, _ = await request(port, "GET", "/api/monitor/record?network=line2&seconds=1", bearer)
+        assert code == 200 and "two-line2-bus-" in headers["content-disposition"]
+
+
+async def test_a_clients_monitor_pages_are_counted_across_networks() -> None:
+    async with console(two_networks()) as gw:
+        port = gw.health.port
+        held = []
+
+        async def monitor_page(network: str, source: str) -> bytes:
+            reader, writer = await open_conn(port, source)
+            writer.write(f"GET /api/monitor/stream?network={network} HTTP/1.1\r\n"
+                         f"Host: 127.0.0.1:{port}\r\n\r\n".encode())  # fmt: skip
+            held.append(writer)
+            head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 5)
+            if b" 200 " in head:  # the page is open once its hello came
+                await asyncio.wait_for(reader.readuntil(b"event: hello"), 5)
+            return head
+
+        try:
+            for _ in range(MONITOR_PER_CLIENT):
+                assert b" 200 " in await monitor_page("line1", "127.0.0.2")
+            code, _, body = await request(port, "GET", "/api/monitor/stream?network=line2", source="127.0.0.2")
+            assert code == 503 and b"per client address" in body
+            assert b" 200 " in await monitor_page("line2", "127.0.0.3")  # another client gets one
         finally:
             for w in held:
                 w.close()

@@ -108,6 +108,23 @@ def test_off_or_without_a_file_there_is_no_socket(tmp_path: Path) -> None:
     assert CommandSocket(shared, Commands(), LoopTurns()).path is None  # type: ignore[arg-type]
 
 
+def test_with_several_networks_a_bus_of_any_network_in_process_opens_the_socket(tmp_path: Path) -> None:
+    def networks(*interfaces: str) -> Any:
+        nets = [{"name": f"n{k}", "can": {"interface": i, "channel": f"ws://x/{k}" if i == "remote" else f"c{k}"}}
+                for k, i in enumerate(interfaces)]  # fmt: skip
+        return parse_config({"gateway": {"name": "line"}, "networks": nets}, str(tmp_path / "line.yaml"), environ={})
+
+    mixed = networks("remote", "virtual")  # the second network's bus lives in the gateway
+    assert CommandSocket(mixed, Commands(), LoopTurns()).path is not None  # type: ignore[arg-type]
+    assert CommandSocket(networks("remote", "remote"), Commands(), LoopTurns()).path is None  # type: ignore[arg-type]
+    # a command given --network asks of its network's bus; the socket is the gateway's one
+    from gateway.tools.beside import in_process_bus
+
+    first, second = (mixed.network_view(n) for n in ("n0", "n1"))
+    assert (in_process_bus(first), in_process_bus(second)) == (False, True)
+    assert socket_paths(second) == socket_paths(mixed)
+
+
 async def test_answers_carry_values_bytes_and_the_command_services_words(tmp_path: Path) -> None:
     commands = Commands()
     cs = CommandSocket(config(tmp_path), commands, LoopTurns())  # type: ignore[arg-type]

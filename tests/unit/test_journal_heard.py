@@ -88,7 +88,7 @@ def test_the_value_history_takes_each_changed_value_once_from_the_image(tmp_path
     bridge, j = bridge_with_journal(tmp_path)
     try:
         assert bridge.session is None
-        history = ValueHistory(bridge.image, bridge.value_history, lambda: True, HybridClock)
+        history = ValueHistory(bridge.image, bridge.value_history, lambda node: True, HybridClock)
         assert history.window() == []  # nothing received yet
         node = bridge.image.nodes["wire"]
         _, names = next(r for r in bridge.commands.node("wire").tpdo_records if "position" in r[1])

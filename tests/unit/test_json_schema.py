@@ -153,8 +153,54 @@ def check_refuses(doc: dict[str, Any]) -> bool:
         parse_config(doc, "demo.yaml", environ={})
     except ConfigError:
         return True
-    section = doc["can"]
-    return bool(interface_problem(section["interface"]) or can_section_problems(section))
+    nets = doc.get("networks")
+    sections = [net.get("can") for net in nets] if nets is not None else [doc.get("can")]
+    return any(
+        not isinstance(section, dict) or "interface" not in section  # named: load_for_bus
+        or bool(interface_problem(section["interface"]) or can_section_problems(section))
+        for section in sections
+    )
+
+
+TWO = yaml.safe_load((ROOT / "config/two-networks.yaml").read_text(encoding="utf-8"))
+
+
+def networks_changed(change: Any) -> dict[str, Any]:
+    """config/two-networks.yaml with ``change(doc)`` applied."""
+    doc = copy.deepcopy(TWO)
+    change(doc)
+    return doc
+
+
+@pytest.mark.parametrize(
+    ("mistake", "doc"),
+    [
+        ("networks: with a top-level can:", networks_changed(lambda d: d.update(can=d["networks"][0]["can"]))),
+        ("networks: with a top-level nodes:", networks_changed(lambda d: d.update(nodes=[]))),
+        ("networks: with a top-level master:", networks_changed(lambda d: d.update(master={"node_id": 1}))),
+        ("an empty networks:", networks_changed(lambda d: d.update(networks=[]))),
+        ("a network without its can:", networks_changed(lambda d: d["networks"][1].pop("can"))),
+        ("a network without a name", networks_changed(lambda d: d["networks"][1].pop("name"))),
+        ("a network name in capitals", networks_changed(lambda d: d["networks"][0].update(name="Line1"))),
+        ("a misspelt key of a network", networks_changed(lambda d: d["networks"][0].update(nodess=[]))),
+        ("a key a network's CAN interface does not take",
+         networks_changed(lambda d: d["networks"][1]["can"].update(chanel="x"))),
+        ("a misspelt key of the command socket", changed("command_socket", {"enable": False})),
+    ],
+)
+def test_schema_refuses_what_check_refuses_of_networks(
+    config_validator: Draft202012Validator, mistake: str, doc: dict[str, Any]
+) -> None:
+    assert problems(config_validator, doc), f"the schema accepts {mistake}"
+    assert check_refuses(doc), f"check accepts {mistake}"
+
+
+def test_schema_takes_both_forms_and_the_command_socket(config_validator: Draft202012Validator) -> None:
+    assert problems(config_validator, TWO) == []
+    assert problems(config_validator, DEMO) == []
+    sock = changed("command_socket", {"enabled": False, "path": "run/gw.sock"})
+    assert problems(config_validator, sock) == [] and not check_refuses(sock)
+    assert problems(config_validator, networks_changed(lambda d: d.pop("networks")))  # no bus at all
 
 
 def test_hex_numbers_and_object_addresses_as_files_write_them_validate(
@@ -165,3 +211,58 @@ def test_hex_numbers_and_object_addresses_as_files_write_them_validate(
     assert problems(config_validator, doc) == []
     assert problems(config_validator, changed("nodes.1.tpdo", {1: {"cob_id": 0x800}}))
     assert problems(config_validator, changed("nodes.1.tpdo", {"one": {}}))
+
+
+#: the keys of a closed gateway: connection caps, the CRL, the console's hosts and token file,
+#: Zenoh's reads and password file, the ASCII gateway's networks, the command socket
+SECURED = {
+    "modbus": {"max_connections": 32, "max_connections_per_client": 4, "idle_timeout_s": 120,
+               "allowed_networks": ["10.1.0.0/24"],
+               "tls": {"cert": "tls/gw.pem", "key": "tls/gw.key", "ca": "tls/ca.pem", "crl": "tls/ca.crl"}},
+    "web": {"allowed_hosts": ["gw.plant.example", "10.1.0.5:8080"], "token_file": "secrets/web-token"},
+    "zenoh": {"reads": "all", "auth": {"user": "gw1", "password_file": "secrets/zenoh-password"}},
+    "ascii": {"allowed_networks": ["10.1.0.0/24"]},
+    "command_socket": {"enabled": True, "path": "run/gw.sock"},
+}  # fmt: skip
+
+
+def secured(doc: dict[str, Any], **change: dict[str, Any]) -> dict[str, Any]:
+    """``doc`` with the SECURED sections merged in, then ``change`` (section -> keys) over them."""
+    out = copy.deepcopy(doc)
+    for section, keys in SECURED.items():
+        out[section] = {**out.get(section, {}), **copy.deepcopy(keys), **change.get(section, {})}
+    return out
+
+
+@pytest.mark.parametrize("form", ["single", "networks"])
+def test_schema_takes_the_keys_of_a_closed_gateway_in_both_forms(
+    config_validator: Draft202012Validator, form: str
+) -> None:
+    doc = secured(DEMO if form == "single" else TWO)
+    assert problems(config_validator, doc) == []
+    assert not check_refuses(doc)
+
+
+@pytest.mark.parametrize("form", ["single", "networks"])
+@pytest.mark.parametrize(
+    ("mistake", "change"),
+    [
+        ("no connection at all", {"modbus": {"max_connections": 0}}),
+        ("a negative idle timeout", {"modbus": {"idle_timeout_s": -1}}),
+        ("a misspelt cap", {"modbus": {"max_conections": 8}}),
+        ("a CRL without its CA", {"modbus": {"tls": {"cert": "gw.pem", "key": "gw.key", "crl": "ca.crl"}}}),
+        ("Zenoh reads that do not exist", {"zenoh": {"reads": "some"}}),
+        ("the examples' password", {"zenoh": {"auth": {"user": "gw1", "password": "Change-Me"}}}),
+        ("a password and its file", {"zenoh": {"auth": {"user": "gw1", "password": "s3cret-pw",
+                                                        "password_file": "pw"}}}),
+        ("a token and its file", {"web": {"token": "a-long-enough-token", "token_file": "t"}}),
+        ("one allowed host as text", {"web": {"allowed_hosts": "gw.plant.example"}}),
+        ("ASCII networks as text", {"ascii": {"allowed_networks": "10.1.0.0/24"}}),
+    ],
+)
+def test_schema_refuses_what_check_refuses_of_a_closed_gateway(
+    config_validator: Draft202012Validator, form: str, mistake: str, change: dict[str, Any]
+) -> None:
+    doc = secured(DEMO if form == "single" else TWO, **change)
+    assert problems(config_validator, doc), f"the schema accepts {mistake}"
+    assert check_refuses(doc), f"check accepts {mistake}"

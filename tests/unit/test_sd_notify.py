@@ -1,6 +1,6 @@
 """systemd notification without a library (``gateway.runtime.sd_notify``) on a real AF_UNIX
 datagram socket: the watchdog is ours only when WATCHDOG_PID is unset or our pid, its period
-half of WATCHDOG_USEC; no ping while the CAN reader stands still; an abstract socket name
+half of WATCHDOG_USEC; no ping while the CAN reader (any network's) stands still; an abstract socket name
 (``@name``); nothing at all without NOTIFY_SOCKET. And the JSON log lines
 (``gateway.runtime.logformat``): the fields, the node a line concerns, a bad
 CANOPEN_GATEWAY_LOG_FORMAT named."""
@@ -54,6 +54,28 @@ async def test_pings_only_while_alive_and_status_only_when_it_changes(tmp_path: 
     assert got.count("STATUS=ok") == 1  # sent once, not at every turn
     assert turns[:4] == [True, False, False, True]  # the two pings: the 1st and 4th turns
     assert got[-2:] == ["STOPPING=1", "STATUS=stopping"]
+
+
+def test_the_watchdog_needs_every_networks_reader_to_go_round() -> None:
+    """With several CAN networks one stuck reader (or a dead one) is a gateway systemd
+    restarts: the others going round do not hide it."""
+    from types import SimpleNamespace
+
+    from gateway.cli.serve import readers_go_round
+
+    line1, line2 = (SimpleNamespace(name=n, driver=SimpleNamespace(reader_turns=0)) for n in ("line1", "line2"))
+    failures: dict[str, str] = {}
+    alive = readers_go_round(SimpleNamespace(networks=[line1, line2], threads=SimpleNamespace(failures=lambda: failures)))
+    assert alive()  # the first ask: nothing to compare with yet
+    line1.driver.reader_turns += 1
+    assert not alive()  # line2's reader stood still
+    line1.driver.reader_turns += 1
+    line2.driver.reader_turns += 1
+    assert alive()
+    line1.driver.reader_turns += 1
+    line2.driver.reader_turns += 1
+    failures["can-reader-line2"] = "OSError"
+    assert not alive()
 
 
 def record(msg: str, *args: object, **extra: object) -> logging.LogRecord:

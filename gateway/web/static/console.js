@@ -123,23 +123,62 @@ function peerFacts(seen, kind) {
     el("span", {}, badge(k, kind), ` ${v.detail} (${v.count}×) `)));
 }
 
+function busState(can) {
+  return can.state === "ok" ? badge("ok", "good") : can.state === "error" ? badge("error", "stale") : badge(can.state || "down", "bad");
+}
+
+function busLoad(percent, bitrate) {
+  return percent === null || percent === undefined
+    ? "bit rate not configured" : `about ${percent} % of ${bitrate / 1000} kbit/s`;
+}
+
+// Several CAN networks (networks:): one card per network, its bus, load, peers and nodes.
+function renderNetworks(o) {
+  const nets = Object.entries(o.networks || {});
+  const first = document.getElementById("ov-bus").closest("section");
+  if (nets.length < 2) return false;
+  let after = first;
+  for (const [name, n] of nets) {
+    let card = document.querySelector(`section[data-network="${CSS.escape(name)}"]`);
+    if (!card) {
+      card = el("section", { class: "card", "data-network": name, "aria-label": "CAN network " + name },
+        el("h2", {}, `CAN network ${name} (net ${n.number})`), el("dl", { class: "facts" }));
+      after.after(card);
+    }
+    after = card;
+    const r = n.rates || {};
+    setFacts(card.querySelector("dl"), [
+      ["Interface", `${n.interface} ${n.channel}`],
+      ["State", el("span", {}, busState(n), n.detail ? " " + n.detail : "")],
+      ["Frames in", `${fmtNumber(r.frames_in || 0)} /s (${n.frames_in} total)`],
+      ["Frames out", `${fmtNumber(r.frames_out || 0)} /s (${n.frames_out} total)`],
+      ["Bus load", busLoad(n.bus_load_percent, n.bitrate)],
+      ["Reopens", String(n.reopens || 0)],
+      ["Other masters", peerFacts((n.peers || {}).other_master, "bad")],
+      ["Pair", (n.pair || {}).role ? pairRole(n.pair.role) : "none"],
+      ["Nodes", (n.nodes || []).join(", ") || "none"],
+      ["Monitor", el("a", { href: "/monitor?network=" + encodeURIComponent(name) }, "bus monitor of " + name)],
+    ]);
+  }
+  first.hidden = true;
+  return true;
+}
+
 function renderOverview(o) {
   const can = o.can || {};
   const rates = o.rates || {};
-  const state = can.state === "ok" ? badge("ok", "good") : can.state === "error" ? badge("error", "stale") : badge(can.state || "down", "bad");
+  const state = busState(can);
   setFacts(document.getElementById("ov-gateway"), [
     ["Uptime", fmtUptime(o.uptime_s || 0)],
     ["Nodes", `${o.nodes_usable} of ${o.nodes} usable`],
     ["Threads", Object.keys(o.threads_failed || {}).length ? "failed: " + Object.keys(o.threads_failed).join(", ") : "all running"],
   ]);
-  const load = o.bus_load_percent === null || o.bus_load_percent === undefined
-    ? "bit rate not configured" : `about ${o.bus_load_percent} % of ${o.bitrate / 1000} kbit/s`;
-  setFacts(document.getElementById("ov-bus"), [
+  if (!renderNetworks(o)) setFacts(document.getElementById("ov-bus"), [
     ["Interface", `${can.interface} ${can.channel}`],
     ["State", el("span", {}, state, can.detail ? " " + can.detail : "")],
     ["Frames in", `${fmtNumber(rates.frames_in || 0)} /s (${o.frames_in} total)`],
     ["Frames out", `${fmtNumber(rates.frames_out || 0)} /s (${o.frames_out} total)`],
-    ["Bus load", load],
+    ["Bus load", busLoad(o.bus_load_percent, o.bitrate)],
     ["Error frames", String(o.bus_errors)],
     ["Reopens", String(can.reopens || 0)],
     ["Undecodable", `${o.decode_errors} frames, ${o.unknown_cob_id} unknown COB-IDs`],
@@ -215,8 +254,9 @@ function renderNodes(rows) {
       tbody.append(tr);
     }
     const emcy = r.last_emcy ? el("span", {}, el("span", { class: "code" }, r.last_emcy.code), " " + r.last_emcy.text) : el("span", { class: "muted" }, "none");
+    const on = document.querySelector("section[data-network]") ? el("span", { class: "muted" }, " on " + r.network) : "";
     const cells = [
-      ["name", el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name)],
+      ["name", el("span", {}, el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name), on)],
       ["node_id", String(r.node_id), "num"],
       ["profile", el("span", { title: r.title }, r.profile)],
       ["quality", statusCell(r)],
@@ -427,6 +467,11 @@ async function initCommission() {
   }
   for (const sel of document.querySelectorAll(".type-select")) {
     sel.replaceChildren(...SDO_TYPES.map((t) => el("option", { value: t }, t || "from the EDS")));
+  }
+  const networks = Object.keys(ov.overview.networks || {}); // LSS and the scan: one bus each
+  for (const sel of document.querySelectorAll(".network-select")) {
+    sel.replaceChildren(...networks.map((n) => el("option", { value: n }, n)));
+    sel.closest("label").hidden = networks.length < 2;
   }
   const details = {};
   async function loadSignals() {
@@ -769,6 +814,8 @@ function monitorQuery() {
   const all = [...document.querySelectorAll('input[name="mkind"]')];
   const kinds = all.filter((i) => i.checked).map((i) => i.value);
   const q = new URLSearchParams();
+  const net = document.getElementById("mon-network");
+  if (net && net.value && !net.closest("label").hidden) q.set("network", net.value);
   if (node) q.set("node", node);
   if (kinds.length < all.length) q.set("kind", kinds.join(","));
   return { q, node, kinds: new Set(kinds) };
@@ -866,8 +913,24 @@ async function initMonitor() {
   const ov = await getJSON("/api/overview");
   header(ov);
   const sel = document.getElementById("mon-node");
-  const wanted = new URLSearchParams(location.search).get("node");
-  for (const r of ov.nodes) sel.append(el("option", { value: r.name, selected: r.name === wanted }, `${r.name} (id ${r.node_id})`));
+  const params = new URLSearchParams(location.search);
+  const wanted = params.get("node");
+  const networks = Object.keys(ov.overview.networks || {});
+  const netSel = document.getElementById("mon-network");
+  const byName = Object.fromEntries(ov.nodes.map((r) => [r.name, r]));
+  const net0 = params.get("network") || (wanted && byName[wanted] ? byName[wanted].network : networks[0]);
+  for (const n of networks) netSel.append(el("option", { value: n, selected: n === net0 }, n));
+  netSel.closest("label").hidden = networks.length < 2; // a page watches one network's bus
+  const fillNodes = () => {
+    sel.replaceChildren(el("option", { value: "" }, "all nodes"));
+    for (const r of ov.nodes.filter((r) => networks.length < 2 || r.network === netSel.value)) {
+      sel.append(el("option", { value: r.name, selected: r.name === wanted }, `${r.name} (id ${r.node_id})`));
+    }
+  };
+  const recNet = document.getElementById("rec-network"); // the recording is of the network shown
+  fillNodes();
+  recNet.value = netSel.value;
+  netSel.addEventListener("change", () => { fillNodes(); recNet.value = netSel.value; document.querySelector("#frames tbody").replaceChildren(); monitorRefilter(); });
   sel.addEventListener("change", monitorRefilter);
   for (const i of document.querySelectorAll('input[name="mkind"]')) i.addEventListener("change", monitorRefilter);
   document.getElementById("mon-pause").addEventListener("click", monitorPause);
