@@ -139,3 +139,44 @@ def test_a_history_answer_stops_at_its_time_limit_and_says_where_to_resume(tmp_p
         assert [r.seq for r in j.read(t_from=lo)] == [3, 4, 5]  # the rest, nothing twice
     finally:
         j.stop()
+
+
+def test_a_pair_per_network_journals_its_own_network_from_the_bus_and_the_other_as_heard(tmp_path):
+    """Active on line1 and standby on line2, with no session open: line1's node's events and
+    values are journaled from the bus side (its state names its network), line2's node only as
+    heard of the other member; a heard sample of line1's node is its own, not journaled again."""
+    from gateway.zenoh_bridge.journaling import ValueHistory
+    from tests.helpers import parse_checked_config, unique_channel
+
+    def net(name: str, node: dict[str, object]) -> dict[str, object]:
+        return {"name": name, "can": {"interface": "virtual", "channel": unique_channel()},
+                "nodes": [node]}  # fmt: skip
+
+    cfg = parse_checked_config({"networks": [
+        net("line1", {"name": "wire", "node_id": 1, "profile": "sgh10"}),
+        net("line2", {"name": "rotary", "node_id": 1, "profile": "sgh10", "modbus": {"unit_id": 101}}),
+    ], "modbus": {"enabled": False}}, environ={})  # fmt: skip
+    bridge = gateway_of(cfg, simulate=False).zenoh
+    assert bridge is not None and bridge.session is None
+    j = Journal(tmp_path / "j", values_ms=3_600_000)
+    j.start()
+    try:
+        bridge.use_journal(j)
+        bridge.set_mastering(True, frozenset({"rotary"}))
+        p, nodes = bridge.prefix, bridge.image.nodes
+        for name in ("wire", "rotary"):
+            bridge._on_health(nodes[name], "state")
+        history = ValueHistory(bridge.image, bridge.value_history, bridge.publishes, lambda: bridge.hlc)
+        for name in ("wire", "rotary"):
+            _, names = next(r for r in bridge.commands.node(name).tpdo_records if "position" in r[1])
+            nodes[name].put(names, tuple(0 for _ in names), 1.8e9, time.monotonic())
+        assert {e.node for e in history.window()} == {"wire"}
+        heard = json.dumps({"seq": 7, "network": "line2"}).encode()
+        bridge.on_heard(f"{p}/rotary/state", heard, ntp64_of_time(T0))
+        bridge.on_heard(f"{p}/wire/state", b'{"seq": 50}', ntp64_of_time(T0))  # its own network
+    finally:
+        j.stop()
+    rows = {(r.key, r.seq): json.loads(r.payload) for r in Journal(tmp_path / "j").read(kinds=["state"])}
+    assert sorted(rows) == [(f"{p}/rotary/state", 7), (f"{p}/wire/state", 1)]
+    assert rows[f"{p}/wire/state", 1]["network"] == "line1"
+    assert bridge.heard.get(f"{p}/wire/state") == 0

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from gateway.runtime.threads import ThreadRegistry
-from gateway.zenoh_bridge.sender import EVENT_WAIT_S, ZenohSender
+from gateway.zenoh_bridge.sender import EVENT_WAIT_S, WITHHELD, ZenohSender
 from tests.helpers import gateway_of, make_config, wait_until, wait_until_sync
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -225,6 +225,27 @@ def test_events_made_without_a_session_go_out_in_order_once_it_is_open() -> None
     finally:
         sender.stop()
     assert sender.sent == 4 and not sender.backlog
+
+
+def test_an_event_of_a_key_this_gateway_no_longer_publishes_never_holds_the_others_back() -> None:
+    """Kept while no session was open, an event of a node whose network the pair's other member
+    masters by the time the session opens (``WITHHELD``) is counted, not published, and the
+    events behind it go out."""
+    log: list[str] = []
+    pubs: dict[str, Any] = {}
+    sender = ZenohSender(ThreadRegistry(), "zenoh-events", pub_of=pubs.get)
+    sender.start()
+    try:
+        for key in ("rotary", "wire", "rotary", "wire"):
+            sender.put_event(key, b"{}", 1)
+        wait_until_sync(lambda: len(sender.backlog) == 4, 5, "4 events kept")
+        pubs["wire"], pubs["rotary"] = Pub("wire", log), WITHHELD  # line2 stood by meanwhile
+        sender.resend()
+        sender.put_event("wire", b"{}", 2)
+        wait_until_sync(lambda: len(log) == 3, 5, "wire's 3 events out")
+    finally:
+        sender.stop()
+    assert log == ["wire"] * 3 and sender.withheld == 2 and not sender.backlog
 
 
 async def test_values_are_put_on_the_publish_thread_never_on_the_can_reader() -> None:
