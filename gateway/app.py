@@ -10,15 +10,15 @@ parts do not know each other except through the image and the command service.
 
 Imports: every part: ascii.server, bus.driver, bus.master, bus.network, checks, command_socket,
 commands, config, device.resolved, http (health, server, metrics), image, modbus.server,
-northbound (catalog, frames, gateway_block, keys, regmap, summary), sim (buses, faults), runtime
-(startup, threads, turns), journal, web (console, monitor, views), zenoh_bridge.bridge.
+northbound (audit_values, catalog, frames, gateway_block, keys, regmap, summary), sim (buses,
+faults), runtime (startup, threads, turns), journal (store, auditlog), web (console, monitor,
+views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
 
 import asyncio
 import gc
-import json
 import logging
 import time
 from typing import Any
@@ -35,8 +35,10 @@ from gateway.device.resolved import ResolvedNode
 from gateway.http.health import bus_reasons, network_overview, network_status, pair_of
 from gateway.http.metrics import modbus_function_label
 from gateway.image import ProcessImage
-from gateway.journal import Entry, Journal, ntp64_of_time
+from gateway.journal import Journal, JournalInUse
+from gateway.journal.auditlog import AuditLog
 from gateway.modbus.server import ModbusGateway
+from gateway.northbound.audit_values import engineering_record
 from gateway.northbound.catalog import build_catalog
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.gateway_block import BUS_STATE_CODES, PAIR_ROLE_CODES
@@ -212,17 +214,12 @@ class Gateway:
         stays ready: it keeps serving without it)."""
         return {} if self.journal is None else {"journal": self.journal.status()}
 
-    def audit(self, record: dict[str, Any]) -> None:
-        """A write or command done or refused (the command service's audit hook): journaled
-        under ``<prefix>/audit``, with the node's network."""
-        if self.journal is None:
-            return
+    def audit_record(self, record: dict[str, Any]) -> dict[str, Any]:
+        """An audit record as journaled under ``<prefix>/audit`` (the command service's audit
+        sink shapes it so): with the node's network and the engineering values of a write."""
         node = record.get("node")
-        record["network"] = self.cfg.network_of(node) if node in self.image.nodes else None
-        self.journal.append(
-            Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
-                  record.get("node"), None, json.dumps(record).encode())
-        )
+        network = self.cfg.network_of(node) if node in self.image.nodes else None
+        return engineering_record(record | {"network": network}, self.commands)
 
     def overview(self) -> dict[str, Any]:
         """Gateway-wide figures for the web console's overview (counters become rates there);
@@ -292,16 +289,21 @@ class Gateway:
         if busy is not None:
             raise busy
         if self.journal is not None:
-            # first: the events of this run are committed before they are published
+            # first: what the gateway hears is journaled whatever the cloud does
             with startup_step("journal.path", cfg.journal.path):
-                await asyncio.to_thread(self.journal.open)
+                try:
+                    await asyncio.to_thread(self.journal.open)
+                except JournalInUse as exc:  # a second gateway on one journal.path
+                    raise StartupError("journal.path", self.journal.directory, exc.reason) from None
             j = cfg.journal
             values = f"values every {j.values_ms} ms" if j.values_ms else "events only"
             log.info("journal on: %s (%s, kept %g days, at most %g MB)", self.journal.path, values, j.keep_days, j.max_mb)  # fmt: skip
             self.journal.start(self.threads)
             if self.zenoh is not None:
                 self.zenoh.use_journal(self.journal)
-            self.commands.audit = self.audit
+            self.commands.audit = AuditLog(
+                self.journal, audit_key(prefix_of(cfg)), self.audit_record
+            )
         if self.zenoh is not None:
             z = cfg.zenoh
             key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)
@@ -434,7 +436,8 @@ class Gateway:
                 c.emcy[name] = node.health.emcy_count
         if self.journal is not None:
             jc = self.journal.counts
-            c.journal = {"written": jc.written, "dropped": jc.dropped, "removed": jc.removed}
+            c.journal = {"written": jc.written, "dropped": jc.dropped, "removed": jc.removed,
+                         "refused": jc.refused, "published_unjournaled": jc.unjournaled}
         if self.zenoh is not None:
             c.zenoh_publications = self.zenoh.publications
             c.zenoh_refused = dict(self.zenoh.refused)

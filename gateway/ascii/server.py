@@ -157,9 +157,9 @@ class AsciiGateway:
         try:
             if isinstance(call, NmtCommand):
                 if call.node_id == 0:  # every node of that network
-                    self.commands.nmt("all", call.command, self.nets[call.net])
+                    await self.commands.nmt("all", call.command, self.nets[call.net])
                 else:
-                    self.commands.nmt(self.by_id[call.net, call.node_id], call.command)
+                    await self.commands.nmt(self.by_id[call.net, call.node_id], call.command)
                 return answer_ok(call.seq)
             name = self.by_id[call.net, call.node_id]
             obj = ObjRef(call.index, call.sub)

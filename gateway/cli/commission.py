@@ -184,7 +184,7 @@ def cmd_nmt(args: argparse.Namespace) -> int:
         return 0
 
     async def op(gw: Any) -> None:
-        gw.commands.nmt(name, args.command)
+        await gw.commands.nmt(name, args.command)
 
     asyncio.run(_with_master(cfg, nodes, op))
     print(f"NMT {args.command} sent to {name}")

@@ -194,7 +194,7 @@ class CommandSocket:
                     await self.commands.sdo_write(req["node"], req["object"], value, req.get("type"))  # fmt: skip
                     return {"ok": True}
                 if op == "nmt":
-                    self.commands.nmt(req["node"], req["command"])
+                    await self.commands.nmt(req["node"], req["command"])
                     return {"ok": True}
             return answer_error("bad_request", f"unknown op {op!r}: hello, sdo_read, sdo_write, nmt")
         except GatewayError as exc:

@@ -224,7 +224,7 @@ class CommandService:
         """Write a writable signal: an RPDO for process data, an SDO download otherwise."""
         await self.write_signals(node, {name: value})
 
-    @audited("write", lambda node, values, **_: (node, ",".join(values), values))
+    @audited("write", lambda _svc, node, values, **_: (node, ",".join(values), values))
     async def write_signals(self, node: str, values: dict[str, Any], *, safe: bool = False) -> None:
         """Several signals; those of RPDOs go out together (e.g. set point + control word).
         ``safe``: the safe values of the output watchdog (see ``write_safe_outputs``)."""
@@ -303,7 +303,7 @@ class CommandService:
                 f" on those bits; writable: {bit_names(sig, writable_mask(sig)) or 'none'}",
             )
 
-    @audited("write_bits", lambda node, name, bits: (node, name, {"bits": bits}))
+    @audited("write_bits", lambda _svc, node, name, bits: (node, name, {"bits": bits}))
     async def write_bits(self, node: str, name: str, bits: dict[int, bool]) -> None:
         """Set or clear bits of a word signal (read-modify-write of the current value). A bit
         the profile does not mark writable may only be "written" with the value it has."""
@@ -447,7 +447,7 @@ class CommandService:
         t = type_ or self._od_type(p, o)
         return bytes(data) if t is None else decode_value(bytes(data), t)
 
-    @audited("sdo_write", lambda node, obj, value, type_=None: (node, str(obj), value))
+    @audited("sdo_write", lambda svc, node, obj, value, type_=None: svc.sdo_audit(node, obj, value, type_))
     async def sdo_write(
         self, node: str, obj: str | ObjRef, value: Any, type_: str | None = None
     ) -> None:
@@ -477,6 +477,26 @@ class CommandService:
         if sig is not None:
             self._sdo_cache.forget(node, sig.name)
 
+    def sdo_audit(self, node: str, obj: str | ObjRef, value: Any, type_: str | None) -> tuple[Any, ...]:
+        """An SDO download as audited: the object, the value as its type reads it (a number
+        for a number, whether it came as bytes or as a value) and the bytes beside it."""
+        what = str(obj)
+        try:
+            o = ObjRef.parse(obj)
+            what = str(o)
+            t = type_ or self._od_type(self._part(node), o)
+            data = bytes(value) if isinstance(value, (bytes, bytearray)) else None
+            if t is None:
+                return node, what, value, data
+            if data is None:
+                v = value
+                if isinstance(v, str) and t not in ("string", "bytes"):
+                    v = float(v) if t.startswith("float") else int(v, 0)
+                data = encode_value(v, t)
+            return node, what, decode_value(data, t), data
+        except (GatewayError, ValueError, TypeError, OverflowError, KeyError):
+            return node, what, value, value if isinstance(value, (bytes, bytearray)) else None
+
     def _as_integer(self, p: NodeParts, o: ObjRef, data: bytes, type_: str | None) -> int | None:
         """The integer an SDO download's bytes carry, by ``type_`` or the dictionary's type
         (None: not an integer type). Bytes of another length than the type's are read as the
@@ -505,8 +525,8 @@ class CommandService:
         master = self.networks.named(network).master
         return await bus_inquiry.scan_bus(master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
 
-    @audited("nmt", lambda node, command, network=None: (node, "nmt", command))
-    def nmt(self, node: str, command: str, network: str | None = None) -> None:
+    @audited("nmt", lambda _svc, node, command, network=None: (node, "nmt", command))
+    async def nmt(self, node: str, command: str, network: str | None = None) -> None:
         """NMT command to one node by name, or with ``all`` to every node of ``network``
         (None: of every network)."""
         if command not in NMT_COMMANDS:

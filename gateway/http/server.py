@@ -22,8 +22,11 @@ not one). Requests are bounded: 8 KiB of head, ``read_timeout_s`` to send it.
 
 Other paths go to an optional ``app`` (the web console, ``gateway.web``): it gets a parsed
 ``Request`` (method, path, query, lower-case headers, a body of at most 64 KiB given by
-Content-Length, the client's address and the local address the request arrived at) and returns a ``Response``, a ``Stream`` (written until the stream ends or the
-client goes away: server-sent events) or None (404). With ``turns`` (``turns.LoopTurns``: the
+Content-Length, the client's address and the local address the request arrived at) and returns
+a ``Response``, a ``Stream`` (written until the stream ends or the client goes away: server-sent
+events), a ``Chunked`` answer (HTTP/1.1 chunked encoding: each chunk written and drained before
+the next is asked for, so an export of any length takes constant memory; the iterator closed
+when the client goes away) or None (404). With ``turns`` (``turns.LoopTurns``: the
 PLC first), each app request waits for its turn on the event loop before the app renders it;
 when too many wait, it is answered 503 ``busy`` with ``Retry-After``. Without an app, or for the three paths
 above, methods other than GET/HEAD are answered 405. The three paths above answer whatever the
@@ -46,7 +49,7 @@ import inspect
 import json
 import logging
 import urllib.parse
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
 from dataclasses import KW_ONLY, dataclass, field
 from http import HTTPStatus
 from typing import Any
@@ -114,7 +117,18 @@ class Stream:
     headers: Mapping[str, str] = field(default_factory=dict)
 
 
-App = Callable[[Request], Awaitable[Response | Stream | None]]
+@dataclass(frozen=True)
+class Chunked:
+    """An answer of unknown length in HTTP/1.1 chunked encoding: the headers, then each bytes
+    ``chunks`` yields as one chunk (written and drained before the next is asked for), then the
+    last chunk. The iterator is closed when the client goes away."""
+
+    content_type: str
+    chunks: AsyncIterator[bytes]
+    headers: Mapping[str, str] = field(default_factory=dict)
+
+
+App = Callable[[Request], Awaitable[Response | Stream | Chunked | None]]
 
 
 def build_status(
@@ -390,15 +404,10 @@ class HealthServer:
             answer = _error(path, HTTPStatus.INTERNAL_SERVER_ERROR, "internal", "internal error (see the log)")
         if answer is None:
             answer = _error(path, HTTPStatus.NOT_FOUND, "not_found", "not found")
+        if isinstance(answer, Chunked):
+            return await self._send_chunked(writer, answer, head_only=method == "HEAD")
         if isinstance(answer, Stream):
-            head = (
-                "HTTP/1.1 200 OK\r\n"
-                f"Content-Type: {answer.content_type}\r\n"
-                "Cache-Control: no-store\r\nConnection: close\r\n"
-                + "".join(f"{k}: {v}\r\n" for k, v in answer.headers.items())
-                + "\r\n"
-            )
-            writer.write(head.encode("latin-1"))
+            writer.write(_stream_head(answer.content_type, answer.headers))
             await writer.drain()
             await answer.body(reader, writer)
             return
@@ -410,6 +419,26 @@ class HealthServer:
             head_only=method == "HEAD",
             extra_headers=answer.headers,
         )
+
+    @staticmethod
+    async def _send_chunked(writer: asyncio.StreamWriter, answer: Chunked, *, head_only: bool) -> None:
+        chunks = answer.chunks
+        try:
+            headers = {"Transfer-Encoding": "chunked", **answer.headers}
+            writer.write(_stream_head(answer.content_type, headers))
+            await writer.drain()
+            if head_only:
+                return
+            async for data in chunks:
+                if data:
+                    writer.write(b"%x\r\n%s\r\n" % (len(data), data))
+                    await writer.drain()  # the client reads it: memory stays constant
+            writer.write(b"0\r\n\r\n")
+            await writer.drain()
+        finally:
+            aclose = getattr(chunks, "aclose", None)
+            if aclose is not None:
+                await aclose()
 
     async def _health(self) -> tuple[HTTPStatus, bytes]:
         try:
@@ -451,6 +480,17 @@ class HealthServer:
         )
         writer.write(head.encode("latin-1") + b"\r\n" + (b"" if head_only else body))
         await writer.drain()
+
+
+def _stream_head(content_type: str, headers: Mapping[str, str]) -> bytes:
+    """The head of an answer without a length (the connection is closed after it)."""
+    return (
+        "HTTP/1.1 200 OK\r\n"
+        f"Content-Type: {content_type}\r\n"
+        "Cache-Control: no-store\r\nConnection: close\r\n"
+        + "".join(f"{k}: {v}\r\n" for k, v in headers.items())
+        + "\r\n"
+    ).encode("latin-1")
 
 
 def _headers(lines: list[str]) -> tuple[dict[str, str], str | None]:

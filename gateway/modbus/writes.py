@@ -124,7 +124,7 @@ class ImageWrites:
                     raise ValueOutOfRange(p.name, value, "ASCII text") from None
             by_node.setdefault(p.node, {})[p.name] = value
         for node, cmd in nmt:
-            self.commands.nmt(node, cmd)
+            await self.commands.nmt(node, cmd)
         if by_node:
             await self._bounded(self._write_signals(by_node))
 

@@ -140,7 +140,7 @@ class Commissioning:
         if op == "sdo-write":
             return await self.sdo_write(doc)
         if op == "nmt":
-            return self.nmt(doc)
+            return await self.nmt(doc)
         if op == "set":
             return await self.set(doc)
         if op == "lss-inquire":
@@ -174,12 +174,12 @@ class Commissioning:
         await self.commands.sdo_write(node, obj, value, typ)
         return {"ok": True, "node": node, "object": str(obj), "value": shown(value)}
 
-    def nmt(self, doc: dict[str, Any]) -> dict[str, Any]:
+    async def nmt(self, doc: dict[str, Any]) -> dict[str, Any]:
         node = _text(doc, "node", "a node name or all")
         if node != "all":
             self.commands.node(node)
         command = _text(doc, "command", "one of " + ", ".join(NMT_COMMANDS))
-        self.commands.nmt(node, command)
+        await self.commands.nmt(node, command)
         return {"ok": True, "node": node, "command": command}
 
     async def set(self, doc: dict[str, Any]) -> dict[str, Any]:

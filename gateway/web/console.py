@@ -39,7 +39,8 @@ host and port: pages and static files, a small JSON API, server-sent events, and
                                        filters ``?node=wire,5``, ``?kind=pdo,emcy``; 400 for an
                                        unknown network, node or kind, 503 past 8 pages of a
                                        network or ``MONITOR_PER_CLIENT`` of one client
-``GET /api/journal[.csv]``             the journal's entries of a range (``web.journal_log``)
+``GET /api/journal[.csv|.json]``       the journal's entries of a range (``web.journal_log``);
+                                       the exports streamed (chunked); an operators' endpoint
 ``GET /api/sim``                       simulated nodes, their faults and who may inject them
 ``POST /api/sim/<name>/<action>``      fault injection into a node simulated in this process
                                        (``gateway.sim.faults``); see ``web.fault_routes``
@@ -79,7 +80,7 @@ from typing import Any
 
 from gateway import __version__
 from gateway.commands.audit import acting_as
-from gateway.http.server import JSON_TYPE, Request, Response, Stream
+from gateway.http.server import JSON_TYPE, Chunked, Request, Response, Stream
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
 from gateway.runtime.ratelimit import RateLimitedLog
@@ -181,7 +182,7 @@ class WebConsole:
         self.events = EventLog(self.commands.names())
         self._log_handler = EventLogHandler(self.events)
         self.read_budget = ClientBudget(READS_PER_S, READ_BURST)
-        self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS)
+        self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS, turns=turns)
         #: fault injection (``web.fault_routes``): ``faults`` is sim.faults.FaultInjector
         #: when nodes are simulated in this process; "virtual" only when every network's bus is
         #: (a simulated node on any real bus sends real frames)
@@ -230,7 +231,7 @@ class WebConsole:
             await asyncio.sleep(max(0.0, next_at - loop.time()))
 
     # ------------------------------------------------------------------ routing
-    async def __call__(self, request: Request) -> Response | Stream | None:
+    async def __call__(self, request: Request) -> Response | Stream | Chunked | None:
         path = request.path
         refused = self.hosts.refusal(request)  # DNS rebinding: 421 for another name
         if refused is not None:

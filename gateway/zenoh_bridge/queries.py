@@ -64,7 +64,7 @@ from gateway.profiles.schema import Signal
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.access import WriteGate
-from gateway.zenoh_bridge.history import HistoryService, Stamped, has_time_range
+from gateway.zenoh_bridge.history import AnswerCut, HistoryService, Stamped, has_time_range
 from gateway.zenoh_bridge.payloads import (
     add_names,
     error_payload,
@@ -77,6 +77,10 @@ from gateway.zenoh_bridge.payloads import (
     value_payload,
 )
 from gateway.zenoh_bridge.worker import ANONYMOUS, QueryWorker
+
+#: a history answer's lane (beside its session's short queries) and its replies per turn
+HISTORY_LANE = "history"
+HISTORY_PER_TURN = 16
 
 log = logging.getLogger("gateway.zenoh")
 
@@ -209,7 +213,12 @@ class QueryService:
         if loop is None or loop.is_closed() or self.session() is None:
             query.drop()
             return
-        if not self.worker.submit(lane_of(query), query):
+        lane: Any = lane_of(query)
+        if has_time_range(query):  # a long answer: its own lane, never ahead of short ones
+            ok = self.worker.submit((lane, HISTORY_LANE), query, HISTORY_PER_TURN)
+        else:
+            ok = self.worker.submit(lane, query)
+        if not ok:
             retry = self.worker.retry_after_s()
             why = f"{self.worker.depth} queries are waiting; ask again in {retry:.2f} s"
             self._refuse(query, Busy(why, retry))
@@ -239,6 +248,8 @@ class QueryService:
         if isinstance(exc, Busy):
             self._busy.add()
             body = busy_payload(key, exc)
+        elif isinstance(exc, AnswerCut):
+            body = exc.body(key)
         else:
             if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
                 log.error("zenoh query %s failed", key, exc_info=exc)
@@ -375,7 +386,7 @@ class QueryService:
         node = rt.image
         if req.kind == "nmt":
             cmd = nmt_command(payload)
-            self.commands.nmt(req.node, cmd)
+            await self.commands.nmt(req.node, cmd)
             return {"ok": True, "node": req.node, "nmt": cmd}
         if req.kind == "sdo":
             return await self._sdo(req, payload, type_param, key)

@@ -6,7 +6,7 @@ declarations of publishers, tokens and queryable once a session is open, and the
 holds the session, the event and raw-PDO publishers, the liveliness tokens and its tasks (the
 re-open, the housekeeping); it knows its host by ``SessionHost``, a Protocol of what it reads
 (what to publish, the pair's state) and of the hooks it calls (``attach``, ``detach``,
-``on_pdo``, ``on_heard``, ``housekeeping``, ``node_alive``). None of it runs per frame.
+``on_pdo``, ``on_heard``, ``housekeeping``, ``node_alive``, ``events_ready``). None of it runs per frame.
 
 Imports: zenoh, config, northbound.keys, zenoh_bridge.pair; commands, image, zenoh_bridge.plan
 and zenoh_bridge.queries for types only (its host is the ``SessionHost`` Protocol, not the bridge).
@@ -93,6 +93,8 @@ class SessionHost(Protocol):
     @property
     def publishing(self) -> bool: ...
     @property
+    def zid(self) -> str: ...
+    @property
     def silent(self) -> frozenset[str]: ...
 
     def attach(self) -> None: ...
@@ -101,6 +103,7 @@ class SessionHost(Protocol):
     def node_alive(self, node: NodeImage) -> bool: ...
     def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None: ...
     def on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None: ...
+    def events_ready(self) -> None: ...
 
 
 class PrefixInUse(RuntimeError):
@@ -108,10 +111,13 @@ class PrefixInUse(RuntimeError):
     one. The session stays closed while it does (``ZenohSession.problem``)."""
 
 
-def zenoh_config(cfg: Config) -> zenoh.Config:
-    """The session configuration: our keys first, then ``zenoh.json5`` (raw keys) on top."""
+def zenoh_config(cfg: Config, zid: str | None = None) -> zenoh.Config:
+    """The session configuration: our keys first (``zid``: the session's id, the one the
+    gateway's own timestamps carry), then ``zenoh.json5`` (raw keys) on top."""
     z = cfg.zenoh
     conf = zenoh.Config()
+    if zid is not None:
+        conf.insert_json5("id", json.dumps(zid))
     conf.insert_json5("mode", json.dumps(z.mode))
     if z.mode == "peer":  # a client does not listen
         conf.insert_json5("listen/endpoints", json.dumps(z.listen))
@@ -191,7 +197,7 @@ class ZenohSession:
         says why and ``start`` retries in the background. Raises zenoh.ZError in peer mode
         when the session cannot be opened at all."""
         self.loop = self.bridge.queries.loop = asyncio.get_running_loop()
-        conf = zenoh_config(self.cfg)  # a bad config raises here, before anything runs
+        conf = zenoh_config(self.cfg, self.bridge.zid)  # a bad config raises here, before anything runs
         self.last_attempt_s = self.clock()
         try:
             self._opened = await self.open_checked(conf)
@@ -331,7 +337,7 @@ class ZenohSession:
         )
 
     async def try_open(self) -> zenoh.Session:
-        return await self.open_checked(zenoh_config(self.cfg))
+        return await self.open_checked(zenoh_config(self.cfg, self.bridge.zid))
 
     def publisher(self, s: zenoh.Session, key: str, cache: int, **qos: Any) -> Any:
         """An advanced publisher (cache, miss detection, publisher detection), or a plain one
@@ -376,15 +382,17 @@ class ZenohSession:
                 )
         if self.cfg.zenoh.raw_pdo:
             self.declare_raw_pdo(s)
+        # the queryable first: a client that sees the gateway's token may ask at once
+        self.queryable = s.declare_queryable(f"{self.prefix}/**", bridge.queries.on_query)
         self.tokens[GATEWAY_TOKEN] = s.liveliness().declare_token(
             alive_key(self.prefix, GATEWAY_TOKEN)
         )
-        self.queryable = s.declare_queryable(f"{self.prefix}/**", bridge.queries.on_query)
         self.declare_pair(s)
         self.session = s
         self.up = True
         for node in bridge.image.nodes.values():
             self.sync_token(node.name, bridge.node_alive(node))
+        bridge.events_ready()  # events made while no session was open go out now
 
     def declare_pair(self, s: zenoh.Session) -> None:
         """A hot-standby pair (``pair.py``): the member token always, the active token while

@@ -82,10 +82,10 @@ async def test_nmt_to_all_of_one_network_reaches_only_its_nodes_and_the_audit_na
 ) -> None:
     cfg = two_networks(journal={"path": str(tmp_path / "j")})
     async with modbus_gateway(cfg, [(good("wire"), "wire"), (good("rotary"), "rotary")]) as (gw, _):
-        gw.commands.nmt("all", "stop", "line2")  # one broadcast (node id 0) on line2's bus
+        await gw.commands.nmt("all", "stop", "line2")  # one broadcast (node id 0) on line2's bus
         await wait_until(lambda: not gw.image.nodes["rotary"].operational(), 5, "rotary stopped")
         assert gw.image.nodes["wire"].operational()
-        gw.commands.nmt("rotary", "start")
+        await gw.commands.nmt("rotary", "start")
 
         def audited() -> list[dict[str, Any]]:
             return [json.loads(r.payload) for r in Journal(tmp_path / "j").read(kinds=["audit"])]

@@ -284,7 +284,7 @@ async def test_the_cloud_sees_one_gateway_across_a_take_over() -> None:
         # events go on from the highest seq A published, also of events published before B
         # started (B learnt them from A's cache)
         display_state = f"{P}/display/state"
-        a_last = a.zenoh._event_seq[display_state]
+        a_last = a.zenoh.events.seq[display_state]
         assert a_last >= 1
         drain(states)
         b.master.nmt("display", "preop")

@@ -2,8 +2,8 @@
 eclipse-zenoh session with a users file of the test's own: every gateway prefix of the shipped
 configurations (config/, deploy/) belongs to that gateway's login alone. A ``viewer`` login
 reads (subscribes, gets, sees liveliness) but cannot put a value, announce a gateway
-(``alive/_gateway``), answer a query or send a command under any of them; the ``operator`` login
-sends commands; each gateway's login publishes under its prefix and no other, and an
+(``alive/_gateway``), answer a query, send a command or ask the audit under any of them; the
+``operator`` login sends commands and asks the audit; each gateway's login publishes under its prefix and no other, and an
 advanced subscriber gets the history of an advanced publisher through the router."""
 
 from __future__ import annotations
@@ -136,6 +136,30 @@ def test_a_viewer_cannot_speak_for_any_shipped_gateway(router: str) -> None:
         round_trip(intruder)
         with pytest.raises(queue.Empty):
             seen.get(timeout=0.3)
+    finally:
+        for s in sessions:
+            s.close()
+
+
+def test_only_the_operator_may_ask_a_shipped_gateways_audit(router: str) -> None:
+    viewer, operator = open_as(router, "viewer"), open_as(router, "operator")
+    sessions, held = [viewer, operator], []
+    try:
+        asked: list[str] = []
+        for prefix in shipped_prefixes():
+            gateway = open_as(router, gateway_user(prefix))
+            sessions.append(gateway)
+            held.append(gateway.declare_queryable(
+                f"{prefix}/**",
+                lambda q: (asked.append(str(q.key_expr)), q.reply(str(q.key_expr), "audit"), q.drop()),
+            ))  # fmt: skip
+            round_trip(gateway)
+        # every prefix asked at once: the denied gets end together, at their timeout
+        denied = [viewer.get(f"{p}/audit?_time=[..]", timeout=1.0) for p in shipped_prefixes()]
+        allowed = [operator.get(f"{p}/audit?_time=[..]", timeout=2.0) for p in shipped_prefixes()]
+        assert [[r.ok.payload.to_string() for r in a if r.ok] for a in allowed] == [["audit"]] * len(allowed)
+        assert [list(d) for d in denied] == [[]] * len(denied)
+        assert sorted(asked) == [f"{p}/audit" for p in shipped_prefixes()]  # the operator's only
     finally:
         for s in sessions:
             s.close()

@@ -74,9 +74,14 @@ async def test_the_journal_survives_a_restart_is_filtered_and_exports_csv(tmp_pa
         code, headers, body = await http(f"{base}/api/journal.csv?kind=emcy&from=now(-1h)&to=now()", token=TOKEN)
         assert code == 200 and headers["Content-Type"].startswith("text/csv")
         assert "attachment" in headers["Content-Disposition"]
+        assert headers["Transfer-Encoding"] == "chunked"  # streamed, whatever its length
         rows = list(csv.DictReader(io.StringIO(body.decode())))
         assert [int(r["seq"]) for r in rows] == [1, 2, 3, 4]
         assert json.loads(rows[0]["payload"])["code"] == "0xFF05"
+        code, headers, body = await http(f"{base}/api/journal.json?kind=emcy&from=now(-30m)", token=TOKEN)
+        assert code == 200 and headers["Transfer-Encoding"] == "chunked"
+        exported = json.loads(body)
+        assert [e["seq"] for e in exported] == [1, 2, 3, 4] and exported[0]["payload"]["code"] == "0xFF05"
 
         code, _, body = await http(f"{base}/healthz")
         status = json.loads(body)["journal"]
@@ -88,9 +93,12 @@ async def test_the_journal_survives_a_restart_is_filtered_and_exports_csv(tmp_pa
             ("kind=warning", "kind: warning is not one of state, emcy, audit"),
             ("node=ghost", "no node named 'ghost'"),
             ("from=yesterday", "is not a time"),
+            ("to=[now(-1h)..]", "is not a time"),
         ):
             code, _, body = await http(f"{base}/api/journal?{query}", token=TOKEN)
-            assert code == 400 and words in json.loads(body)["message"], body
+            message = json.loads(body)["message"]
+            assert code == 400 and words in message, body
+            assert "[" not in message.split("allowed", 1)[-1]  # from=/to= take one instant
     finally:
         await gw.stop()
 

@@ -36,7 +36,7 @@ class Commands:
     async def sdo_write(self, node: str, obj: str, value: Any, type_: str | None = None) -> None:
         self.calls.append(("sdo_write", node, obj, value, type_))
 
-    def nmt(self, node: str, command: str) -> None:
+    async def nmt(self, node: str, command: str) -> None:
         if node == "display":
             raise NodeNotOperational("display", "not alive (lost or never booted)")
         self.calls.append(("nmt", node, command))
