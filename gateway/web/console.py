@@ -80,7 +80,7 @@ from typing import Any
 
 from gateway import __version__
 from gateway.commands.audit import acting_as
-from gateway.http.server import JSON_TYPE, Chunked, Request, Response, Stream
+from gateway.http.server import JSON_TYPE, Chunked, Request, Response, Stream, StreamOut
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
 from gateway.runtime.ratelimit import RateLimitedLog
@@ -328,12 +328,12 @@ class WebConsole:
         except TooManyClients as exc:
             return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": str(exc)})
 
-        async def body(reader: Any, writer: Any) -> None:
+        async def body(out: StreamOut) -> None:
             if not self.live_slots.take(client):  # another page of it came first
                 self.hub.unsubscribe(sub)
                 return
             try:
-                await self.hub.pump(sub, self.render, reader, writer, turns=self.turns)
+                await self.hub.pump(sub, self.render, out, turns=self.turns)
             finally:
                 self.live_slots.give(client)
 
