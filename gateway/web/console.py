@@ -12,7 +12,8 @@ host and port: pages and static files, a small JSON API, server-sent events, and
 ``GET /api/stream[?node=<name>]``      server-sent events: ``overview`` + ``nodes``, or
                                        ``node`` + ``values`` of one node (``gateway.web.live``)
 ``POST /api/commission/<operation>``   ``login``, ``sdo-read``, ``sdo-write``, ``nmt``, ``set``,
-                                       ``lss-inquire`` (JSON body); 404 unless writes are on;
+                                       ``lss-inquire``, ``lss-fast-scan``, ``scan`` (JSON
+                                       body); 404 unless writes are on;
                                        401 without ``Authorization: Bearer <token>``, 403 with a
                                        wrong one; 400 with a message for a bad body
 ``POST /api/login``                    the token as ``Authorization: Bearer``: the session cookie
