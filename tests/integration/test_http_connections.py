@@ -137,3 +137,11 @@ async def test_past_max_connections_an_idle_one_makes_room_else_503() -> None:
         assert got.startswith(b"HTTP/1.1 503 ") and b"Retry-After: 1\r\n" in got
         assert s.refused_connections == 1
         busy_writer.close()
+
+
+async def test_an_http11_request_without_a_host_or_with_two_is_400_and_http10_needs_none() -> None:
+    async with server() as s:
+        for head in (b"GET /api/x HTTP/1.1\r\n\r\n", b"GET /api/x HTTP/1.1\r\nHost: a\r\nHost: b\r\n\r\n"):
+            got = await exchange(s.port, head)
+            assert got.startswith(b"HTTP/1.1 400 ") and b'"bad_request"' in got and b"Host" in got
+        assert (await exchange(s.port, b"GET /x HTTP/1.0\r\n\r\n")).endswith(b"GET /x 0\n")
