@@ -176,7 +176,7 @@ class HttpConnection:
                 self.idle = False
             if deadline is None:
                 deadline = loop.time() + self.read_timeout_s
-            head += data[: MAX_REQUEST_HEAD_BYTES + 1 - len(head)]
+            head += data[: max(0, MAX_REQUEST_HEAD_BYTES + 1 - len(head))]
             self.h11.receive_data(data)  # b"": the client closed its side
 
     async def _body(self, path: str) -> bytes | Response:
