@@ -98,7 +98,11 @@ def plain(value: Any) -> Any:
 
 
 def record(op: str, what: tuple[Any, ...], exc: BaseException | None) -> dict[str, Any]:
-    """``what``: (node, what, value) or (node, what, value, raw)."""
+    """``what``: (node, what, value) or (node, what, value, raw), and last, where a field of
+    the record is not the node's (an NMT command to ``all`` of one network), a dict of it."""
+    extra: dict[str, Any] = what[-1] if what and isinstance(what[-1], dict) else {}
+    if extra:
+        what = what[:-1]
     node, name, value = what[:3]
     outcome, detail = outcome_of(exc)
     rec = {
@@ -112,6 +116,7 @@ def record(op: str, what: tuple[Any, ...], exc: BaseException | None) -> dict[st
     }
     if len(what) > 3:
         rec["raw"] = plain(what[3])
+    rec.update(extra)
     if detail is not None:
         rec["detail"] = detail
     hint = HINT.get()

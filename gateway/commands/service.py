@@ -525,7 +525,11 @@ class CommandService:
         master = self.networks.named(network).master
         return await bus_inquiry.scan_bus(master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
 
-    @audited("nmt", lambda _svc, node, command, network=None: (node, "nmt", command))
+    @audited(
+        "nmt",
+        lambda _svc, node, command, network=None: (node, "nmt", command)
+        + (({"network": network},) if network is not None else ()),
+    )
     async def nmt(self, node: str, command: str, network: str | None = None) -> None:
         """NMT command to one node by name, or with ``all`` to every node of ``network``
         (None: of every network)."""
