@@ -219,7 +219,9 @@ class Gateway:
         """An audit record as journaled under ``<prefix>/audit`` (the command service's audit
         sink shapes it so): with the node's network and the engineering values of a write."""
         node = record.get("node")
-        network = self.cfg.network_of(node) if node in self.image.nodes else None
+        network = record.get("network") or (
+            self.cfg.network_of(node) if node in self.image.nodes else None
+        )  # a command to "all" of one network names it itself
         return engineering_record(record | {"network": network}, self.commands)
 
     def overview(self) -> dict[str, Any]:

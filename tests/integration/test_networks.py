@@ -92,3 +92,4 @@ async def test_nmt_to_all_of_one_network_reaches_only_its_nodes_and_the_audit_na
 
         await wait_until(lambda: any(a["node"] == "rotary" for a in audited()), 5, "the audit")
         assert next(a for a in audited() if a["node"] == "rotary")["network"] == "line2"
+        assert next(a for a in audited() if a["node"] == "all")["network"] == "line2"
