@@ -244,6 +244,7 @@ class Master(PairSide):
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
         if not self.mastering:
             self.member.on_sdo_request(p.node_id, data)  # the active gateway's transfer
+            self._execute(p, p.node.on_sdo_heard(now))  # a node being configured?
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
         self.peer_log.info(("sdo_client", p.name), "%s", text)

@@ -19,17 +19,15 @@ Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the t
 ``ValuesRead``, ``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when
 ``tick`` is next due; the driver sleeps until the earliest deadline of all nodes.
 Rule 3: queued work never waits for an unrelated timer. A handler that queues SDO work starts it
-when the channel is free (``_drive``), and while work is queued with no transfer running the
-channel's deadline is the moment it was queued (``SdoChannel.next_deadline``), so the driver
-ticks the node at once even on a path that forgot to drive.
-
-The decisions are tables: ``GUARD_EXPECTS`` (lifecycle_actions), ``NMT_EXPECTS`` (node_supervision), ``SDO_DONE``.
-A node another master manages (a pair's standby) is in lifecycle LISTENING: ``bus.node.listening``.
+when the channel is free (``_drive``); while work is queued and no transfer runs, the channel's
+deadline is when it was queued (``SdoChannel.next_deadline``): the node is ticked at once.
+The decisions are tables: ``GUARD_EXPECTS`` (lifecycle_actions), ``NMT_EXPECTS`` (node_supervision),
+``SDO_DONE``; a node another master manages (a pair's standby) is in lifecycle LISTENING:
+``bus.node.listening``.
 
 Truthfulness (docs/architecture.md, "Two flows", quality): a boot-up and a loss invalidate every value
-of the node (``health.fresh_since = None``); values are good again only when received after the
-gateway's NMT start (``fresh_since`` = that instant). TPDOs that send only on change are read
-right after NMT start (RTR where the PDO allows it, else one SDO upload per mapped object).
+(``health.fresh_since = None``); values are good again only when received after the gateway's NMT
+start (``fresh_since`` = that instant). Change-only TPDOs are read right after NMT start.
 
 Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, features, sdo_done), bus.events,
 device.* (boot_steps, settings), bus.sdo.*, bus.error_control.*, bus.emcy (the history), pdo.codec,
@@ -84,12 +82,7 @@ class Node:
     """The state of one node (see the module docstring)."""
 
     def __init__(
-        self,
-        name: str,
-        node_id: int,
-        settings: NodeSettings,
-        health: NodeHealth,
-        *,
+        self, name: str, node_id: int, settings: NodeSettings, health: NodeHealth, *,
         boot_steps: Sequence[ConfigStep] = (),
         configure: bool = True,
         tpdos: Sequence[TpdoCodec] = (),
@@ -237,13 +230,14 @@ class Node:
             Note(logging.WARNING, f"node {self.name}: {p}", ("guard", self.name, p.split(":")[0]))
             for p in problems
         ]
-        if state is None:
-            return out
+        if state is None:  # not valid (a toggle or state error): the state it reports still tells
+            return out + listening.heard_invalid(self, byte, now)
         out += self._set_nmt(state)
         if self.supervision.alive:
             out += self._set_alive(True, now)
         if self.listening:
             return out + listening.on_state(self, state, now)
+        out += listening.watch_fall(self, state, now)  # adopted at a take-over: fallen?
         if (
             self.lifecycle.state is LifecycleState.WAITING
             and self.lifecycle.may_probe(now)  # a refused device waits for its recheck
@@ -301,8 +295,7 @@ class Node:
     def on_nmt_command(self, command: str) -> None:
         """An NMT command to this node (a client's, or heard while listening)."""
         self.supervision.on_nmt_command(command)
-        if self.listening:
-            self.heard.on_nmt_command(command)
+        self.heard.on_nmt_command(command)
 
     def on_guard_rtr(self, now: float) -> list[Output]:
         """Another master's guarding RTR heard while listening (``on_rtr_heard``: lost?)."""
@@ -316,21 +309,26 @@ class Node:
             self._publish_outputs((wall, now))
         return []
 
-    def stand_by(self, now: float) -> list[Output]:
-        """This gateway became a pair's standby: the node only listens, queued SDO work dropped."""
-        self.heard.stood_down(self.lifecycle.state)
-        out = self._end_sdo_work(now, lambda j: False)
-        return out + self._lifecycle_changes(self.lifecycle.on_listen(now), now)
+    def on_sdo_heard(self, now: float) -> list[Output]:
+        """Another client's SDO request to the node heard (the other master's, listening)."""
+        return listening.on_sdo_heard(self, now)
 
-    def take_over(self, now: float) -> list[Output]:
-        """The pair's take-over: a node heard started is adopted as it runs (``HeardLife``)."""
+    def stand_by(self, now: float, fresh: bool = False) -> list[Output]:
+        """A pair's standby: the node only listens, queued SDO work dropped (``fresh``: back
+        from its own outage, it listens as a fresh joiner)."""
+        self.heard.stood_down(self.lifecycle.state, self.health.nmt_state, fresh)
+        out = self._end_sdo_work(now, lambda j: False)
+        return out + self._lifecycle_changes(self.lifecycle.on_listen(now), now) + listening.report_heard(self)
+
+    def take_over(self, now: float, master_heard: bool = True) -> list[Output]:
+        """The pair's take-over: a node heard started is adopted as it runs (``listening``)."""
         if not self.listening:
             return self.tick(now)  # ours already: nothing to take over
-        adopt = self.heard.adopt_in(self.health.alive, self.health.nmt_state)
+        adopt, sent = listening.take_over(self, now, master_heard)
         out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None), now)
         if adopt is None:
             self.next_probe_s = now  # found and configured as usual
-        return out + listening.adopted(self, adopt, now) + self.tick(now)
+        return out + listening.adopted(self, adopt, now) + sent + self.tick(now)
 
     def write_outputs(
         self,
@@ -411,7 +409,7 @@ class Node:
             text = f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})"
             out.append(Note(logging.WARNING, text))
             if self.listening:
-                out += listening.on_restart(self)
+                out += listening.on_lost(self)  # gone, or this gateway deaf: not a restart
             else:
                 out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
                 self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss

@@ -160,6 +160,10 @@ _MEETINGS = frozenset(
 )
 #: what tells the standby the active master is alive
 _ALIVE = frozenset({_H.LOGICAL_HEARTBEAT, _H.BETTER_CLAIM, _H.WORSE_CLAIM, _H.FORCE})
+#: what says this gateway was out (its own outage): it comes back as a fresh joiner
+_OUTAGES = frozenset(
+    {_H.LINK_LOST, _H.DEAF, _H.BUS_HEARD, _H.STALLED, _H.MET_AFTER_CUT, _H.OWN_ID}
+)
 _TIMERS = frozenset(
     {_H.DETECTION_OVER, _H.SLOT_OVER, _H.ACTIVE_SILENT, _H.DEAF, _H.CLAIM_DUE, _H.DETECT_DUE, _H.UNHEARD}
 )
@@ -220,10 +224,18 @@ class FlyingMaster:
         self._forced_s: float | None = None  # when it last forced a negotiation
         #: standby: the master silent, the bus not heard since: until when it waits for a frame
         self._doubt_until_s: float | None = None
+        self._listened_s = float("inf")  # when it last began listening
 
     @property
     def active(self) -> bool:
         return self.role is Role.ACTIVE
+
+    @property
+    def master_heard(self) -> bool:
+        """An active master was heard since this gateway last began listening (its start, or
+        back from an outage): a take-over replaces it (not a first start of the bus)."""
+        heard = self.active_heard_s
+        return heard is not None and heard >= self._listened_s
 
     def next_deadline_s(self) -> float | None:
         """When ``poll`` must run next (``None``: no timer in this role)."""
@@ -242,6 +254,7 @@ class FlyingMaster:
         if self.started:
             raise PairError("the pair machine is started once")
         self.started = True
+        self._listened_s = now
         self._deadline_s = now + self.timing.detect_s
         return [Send("send", COB_ACTIVE_MASTER_REQUEST, b"")]
 
@@ -487,6 +500,7 @@ class FlyingMaster:
             self._detect_s = now + self.timing.detect_cycle_s
             actions.append(self.claim_frame())
         elif role is Role.LISTENING:
+            self._listened_s = now
             self._deadline_s = now + self.timing.detect_s
             actions.append(Send("send", COB_ACTIVE_MASTER_REQUEST, b""))
         elif role is Role.ISOLATED:
@@ -495,7 +509,7 @@ class FlyingMaster:
                 reason = f"nothing heard on the bus for {self._ms(self.timing.takeover_s)}: cut off"
         else:  # DUPLICATE
             reason = f"{self.conflict}: this gateway stays out"
-        return [RoleChanged("role", role, previous, reason), *actions]
+        return [RoleChanged("role", role, previous, reason, heard in _OUTAGES), *actions]
 
 
 _REASONS: dict[Heard, str] = {

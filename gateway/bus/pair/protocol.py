@@ -77,12 +77,15 @@ class Send(NamedTuple):
 
 
 class RoleChanged(NamedTuple):
-    """The role changed: start (``active``) or stop mastering the bus; ``reason`` for the log."""
+    """The role changed: start (``active``) or stop mastering the bus; ``reason`` for the log.
+    ``fresh``: this gateway comes back from (or enters) an outage of its own (cut off, unable
+    to send, stalled): what it knew of the nodes is forgotten, it listens as a fresh joiner."""
 
     kind: Literal["role"]
     role: Role
     previous: Role
     reason: str
+    fresh: bool = False
 
 
 class Notice(NamedTuple):

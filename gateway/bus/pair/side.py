@@ -185,10 +185,13 @@ class PairSide:
             self._send_quiet(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
             assert isinstance(self.member, PairMember)
             self.member.abort_left_open()
+            heard = self.member.machine.master_heard
             for p in self.nodes.values():
-                self._execute(p, p.node.take_over(now))
-        elif change.previous is Role.ACTIVE:
+                self._execute(p, p.node.take_over(now, heard))
+        elif change.previous is Role.ACTIVE or change.fresh:
+            # back from its own outage (cut off, unable to send, stalled): a fresh joiner
             self.mastering = False
             for p in self.nodes.values():
-                self._execute(p, p.node.stand_by(now))
-            self._waiting.fail_all(NotActive("this gateway stood down to standby"))
+                self._execute(p, p.node.stand_by(now, change.fresh))
+            if change.previous is Role.ACTIVE:
+                self._waiting.fail_all(NotActive(f"this gateway stood down ({change.role})"))
