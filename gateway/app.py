@@ -284,6 +284,7 @@ class Gateway:
             peer_node_id=redundancy.peer_node_id if redundancy is not None else None,
             master_id=self.master.pair_master_id,
             conflict=self.master.pair_conflict,
+            peer_role=pair.peer_role(self.master.clock()),
         )
 
     def _journal_status(self) -> dict[str, Any]:

@@ -29,14 +29,12 @@ Bus state (``state``, mirrored in ``image.bus_state``, with the reason in ``last
 
 =======  ===================================================================================
 ok       frames flow; the controller is error active (or nothing says otherwise)
-error    the controller reported error passive or bus off in an error frame; back to ok on an
-         "error active" / "restarted" error frame, or when frames are received and no error
-         frame came for ``error_hold_s``
+error    this gateway's frames cannot go out (``bus/controller.py``, its causes): the
+         controller reported bus off or error passive (an error frame, or python-can's
+         ``bus.state``), or the interface refused a frame (its transmit queue full after the
+         retries, or another refusal); back to ok when every cause has cleared
 down     the backend raised or is closed; the reader reopens it with backoff
 =======  ===================================================================================
-
-Error frames are decoded by the SocketCAN layout (linux/can/error.h, also what python-can's
-other backends follow): class bits in the CAN-ID, controller status in data byte 1.
 
 Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
 event loop sends is queued to it, so a blocking backend never blocks the loop; a frame refused
@@ -47,7 +45,7 @@ counts in its own counter set.
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), image (for counters), runtime.ratelimit, runtime.threads. Nothing northbound.
+Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), bus.controller, image (for counters), runtime.ratelimit, runtime.threads. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -64,19 +62,12 @@ from typing import Any
 import can
 
 from gateway.bus.can_backend import open_can_bus, quiet_imports
+from gateway.bus.controller import ControllerState
 from gateway.image import ProcessImage
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.bus")
-
-# linux/can/error.h: error classes (CAN-ID bits of an error frame) and controller status bits
-CAN_ERR_CRTL = 0x00000004  # controller problems, details in data[1]
-CAN_ERR_BUSOFF = 0x00000040  # bus off
-CAN_ERR_RESTARTED = 0x00000100  # controller restarted
-CAN_ERR_CRTL_RX_PASSIVE = 0x10  # reached error passive status on receive
-CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
-CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
 
 FATAL_OPEN_ERRORS = (can.CanInterfaceNotImplementedError,)  # unknown interface: a config error
 
@@ -99,6 +90,8 @@ BURST_MAX_FRAMES = 16
 #: a frame stamped this far after the reader last looked at the clocks is not of this machine's
 #: clock (a few frames' processing at most separate the two)
 FRAME_TIME_AHEAD_S = 0.5
+#: nor one stamped this long before (the reader's backlog after a stall is shorter)
+FRAME_AGE_MAX_S = 5.0
 
 #: the reader's wait for a frame between bursts: a link lost while the bus is quiet is noticed
 #: within it (and the reader wakes this often when nothing comes, no more)
@@ -152,7 +145,8 @@ class BusDriver:
         self.image = image
         self.reopen_backoff_s = reopen_backoff_s
         self.reopen_backoff_max_s = max(reopen_backoff_max_s, reopen_backoff_s)
-        self.error_hold_s = error_hold_s
+        #: whether its frames can go out (the causes of state ``error``; reader thread)
+        self.controller = ControllerState(mono, error_hold_s)
         #: (state, detail) at every change, on the reader thread (on the caller's for the
         #: outcome of ``open``: a bus down from the start is said too)
         self.on_state = on_state
@@ -182,7 +176,6 @@ class BusDriver:
         self._send_lost: tuple[can.BusABC, str] | None = None
         self._send_failures = 0  # refused in a row, not for a full queue (sender thread)
         self.reopens = 0  # successful reopens since start
-        self.last_error_frame_s: float | None = None
         self.warn = RateLimitedLog(log)
         #: (idle, wall-clock timestamp of the frame being processed): the bus clock's state,
         #: written by the reader thread only, always as one tuple (``bus_clock`` reads it on
@@ -193,8 +186,7 @@ class BusDriver:
         self.wall = wall
         #: both clocks as the reader read them at the start of a burst (``frame_time`` turns a
         #: frame's wall-clock timestamp into the bus clock without reading a clock)
-        self._burst_mono = mono()
-        self._burst_wall = wall()
+        self._burst = (mono(), wall())  # one assignment: the loop reads it too (``stamp``)
         self.rx_counters = image.counters.counter_set()  # reader thread only
         self.tx_counters = image.counters.counter_set()  # sender thread only
         self._tx: queue.SimpleQueue[can.Message | None] = queue.SimpleQueue()
@@ -275,7 +267,7 @@ class BusDriver:
         if idle or not last_frame_wall:
             return now
         lag = self.wall() - last_frame_wall
-        return now - lag if 0 < lag < 3600 else now
+        return now - lag if 0 < lag < FRAME_AGE_MAX_S else now  # a wall clock stepped: now
 
     @property
     def idle(self) -> bool:
@@ -288,16 +280,20 @@ class BusDriver:
         return self.clock_state[1]
 
     def frame_time(self, msg: can.Message) -> float:
-        """A frame's receive time on the monotonic clock. Its timestamp is this machine's wall
-        clock (python-can's backends stamp frames on receipt), turned with both clocks as the
-        reader read them at the start of the burst (per frame: no clock read); a frame
-        without a timestamp, one from the future, or one more than an hour old is stamped now."""
-        ts = msg.timestamp
+        """A frame's receive time on the monotonic clock (``stamp`` of its timestamp)."""
+        return self.stamp(msg.timestamp)
+
+    def stamp(self, ts: float) -> float:
+        """A frame timestamp on the monotonic clock. It is a wall clock (python-can's backends
+        stamp frames on receipt; a socketcand server with its own), turned with both clocks as
+        the reader read them at the start of the burst (per frame: no clock read); none, one
+        from the future or older than ``FRAME_AGE_MAX_S`` (a wall clock stepped) is now."""
         if ts:
-            t = self._burst_mono - (self._burst_wall - ts)
+            mono, wall = self._burst
+            t = mono - (wall - ts)
             # received before the reader's last look at the clocks (it looks at every burst and
-            # every burst_max_frames), at most an hour before: else not of this clock
-            if -3600.0 < t - self._burst_mono < FRAME_TIME_AHEAD_S:
+            # every burst_max_frames), not long before: else not of this clock
+            if -FRAME_AGE_MAX_S < t - mono < FRAME_TIME_AHEAD_S:
                 return t
         return self.mono()
 
@@ -341,14 +337,20 @@ class BusDriver:
                 self._send_refused(bus, exc)
                 continue
             self._send_failures = 0
+            if self.controller.sending is not None:
+                self.controller.sending = None  # it goes out again
             counters["frames_out"] += 1
 
     def _send_refused(self, bus: can.BusABC, exc: Exception) -> None:
-        """Count a refused send; tell the reader when it says the link is gone."""
+        """Count a refused send: its frames cannot go out (state ``error``, taken by the reader
+        at its next look); tell the reader when it says the link is gone."""
         code = _errno(exc)
         if code == errno.ENOBUFS:
-            return  # a full transmit queue (bus off: its error frames say so), not a lost link
+            self.controller.sending = f"transmit queue full: {exc}"
+            return  # a full transmit queue (bus off, no ack), not a lost link
         self._send_failures += 1
+        if code not in LINK_LOST_ERRNOS:
+            self.controller.sending = f"send refused: {exc}"
         if code in LINK_LOST_ERRNOS or self._send_failures >= SEND_FAILURES_DOWN:
             self._send_failures = 0
             self._send_lost = (bus, f"send failed: {exc}")
@@ -411,6 +413,7 @@ class BusDriver:
                 if pending:
                     pending = 0
                     self._end_burst()
+                self._look(bus)
                 continue
             if not in_burst:
                 self._sync_clocks()  # at a burst's start (and every burst_max_frames in one)
@@ -424,7 +427,8 @@ class BusDriver:
                 self._error_frame(msg)
                 continue
             if self.state == "error":
-                self._maybe_recovered()
+                self.controller.on_frame()  # no error frame for the hold time: that cause ends
+                self._apply_controller()
             counters["frames_in"] += 1
             taps = self.frame_taps  # one read: another thread may replace it meanwhile
             if taps:
@@ -445,6 +449,7 @@ class BusDriver:
                 pending = 0
                 self._end_burst()
                 self._sync_clocks()
+                self._look(bus)
 
     def _bus_lost(self, detail: str) -> None:
         """The link is gone (receive raised, or the sender found it gone): close the bus, say
@@ -458,8 +463,7 @@ class BusDriver:
         self._set_state("down", detail)
 
     def _sync_clocks(self) -> None:
-        self._burst_mono = self.mono()
-        self._burst_wall = self.wall()
+        self._burst = (self.mono(), self.wall())
 
     def add_tap(self, tap: FrameHandler) -> None:
         """Call ``tap`` on the reader thread with every frame received from now on."""
@@ -486,32 +490,28 @@ class BusDriver:
                 self.warn.warning("burst", "burst listener %r failed: %s", listener, exc)
 
     def _error_frame(self, msg: can.Message) -> None:
-        """Controller state from an error frame (linux/can/error.h layout)."""
-        self.last_error_frame_s = self.mono()
-        cls = msg.arbitration_id
-        data = bytes(msg.data).ljust(8, b"\0")
-        ctrl = data[1] if cls & CAN_ERR_CRTL else 0
-        if cls & CAN_ERR_BUSOFF:
-            self._enter_error("bus off")
-        elif ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
-            side = "transmit" if ctrl & CAN_ERR_CRTL_TX_PASSIVE else "receive"
-            self._enter_error(f"error passive ({side})")
-        elif cls & CAN_ERR_RESTARTED or ctrl & CAN_ERR_CRTL_ACTIVE:
-            if self.state == "error":
-                log.info("CAN controller error active again")
-                self._set_state("ok", "")
-        else:
-            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", cls, data.hex(" "))
+        """Controller state from an error frame (``ControllerState.on_error_frame``)."""
+        if not self.controller.on_error_frame(msg):
+            data = bytes(msg.data).ljust(8, b"\0")
+            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", msg.arbitration_id, data.hex(" "))
+        self._apply_controller()
 
-    def _enter_error(self, what: str) -> None:
-        if self.state != "error" or self.last_error != what:
-            log.warning("CAN controller reports %s", what)
-        self._set_state("error", what)
+    def _look(self, bus: can.BusABC) -> None:
+        """Between bursts: the sender's refusals and python-can's bus state."""
+        self.controller.look(bus)
+        self._apply_controller()
 
-    def _maybe_recovered(self) -> None:
-        last = self.last_error_frame_s
-        if last is None or self.mono() - last >= self.error_hold_s:
-            log.info("CAN frames flow without error frames for %.1f s: bus ok", self.error_hold_s)
+    def _apply_controller(self) -> None:
+        """State ``error`` while a cause holds, ``ok`` when none does (never over ``down``)."""
+        if self.state == "down":
+            return
+        what = self.controller.error
+        if what is not None:
+            if self.state != "error" or self.last_error != what:
+                log.warning("CAN controller reports %s: this gateway's frames cannot go out", what)
+            self._set_state("error", what)
+        elif self.state == "error":
+            log.info("CAN bus ok again: frames go out, no error reported")
             self._set_state("ok", "")
 
     def _reopen(self) -> bool:
@@ -536,7 +536,7 @@ class BusDriver:
             self._set_state("down", f"reopen failed: {exc}")
             return False
         self.reopens += 1
-        self.last_error_frame_s = None
+        self.controller.reset()
         log.info("CAN bus reopened")
         self._set_state("ok", "")
         return True

@@ -66,15 +66,17 @@ def test_an_absurd_timestamp_falls_back_to_the_monotonic_clock() -> None:
 def test_error_passive_clears_only_after_the_hold_time_without_error_frames() -> None:
     c = Clocks()
     d = driver(c)
-    d.error_hold_s = 0.2
+    d.controller.error_hold_s = 0.2
     d.state = "ok"
     d._error_frame(can.Message(arbitration_id=0x04, data=bytes([0, 0x10]), is_error_frame=True))
     assert d.state == "error"
     c.mono += 0.19
-    d._maybe_recovered()  # frames flow, but within the hold time
+    d.controller.on_frame()  # frames flow, but within the hold time
+    d._apply_controller()
     assert d.state == "error"
     c.mono += 0.01
-    d._maybe_recovered()
+    d.controller.on_frame()
+    d._apply_controller()
     assert d.state == "ok"
 
 

@@ -59,8 +59,11 @@ class NoPair:
     def stop(self) -> None:
         pass
 
-    def on_link(self, up: bool) -> None:
+    def on_link(self, state: str) -> None:
         pass
+
+    def hand_over(self) -> bool:
+        return False
 
     def on_sdo_request(self, node_id: int, data: bytes) -> None:
         pass
@@ -167,7 +170,7 @@ class PairSide:
 
     def _on_peer_heartbeat(self, data: bytes, wall: float, now: float) -> None:
         if isinstance(self.member, PairMember):
-            self.member.on_peer_heartbeat(now)
+            self.member.on_peer_heartbeat(data, now)  # its role: a hand-over?
 
     def _on_rpdo_heard(
         self, p: NodeParts, cob_id: int, data: bytes, wall: float, now: float
