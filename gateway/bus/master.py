@@ -40,6 +40,7 @@ from gateway.bus.bus_peers import (
 from gateway.bus.driver import BusDriver
 from gateway.bus.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.lss.service import LssService
+from gateway.bus.node import listening
 from gateway.bus.node.parts import NodeParts, build_node_into
 from gateway.bus.pair.member import PairMember, talk_period_s
 from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide
@@ -245,7 +246,7 @@ class Master(PairSide):
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
         if not self.mastering:
             self.member.on_sdo_request(p.node_id, data)  # the active gateway's transfer
-            self._execute(p, p.node.on_sdo_heard(now))  # a node being configured?
+            self._execute(p, listening.on_sdo_heard(p.node, now))  # a node being configured?
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
         self.peer_log.info(("sdo_client", p.name), "%s", text)

@@ -409,3 +409,36 @@ def test_a_node_that_falls_right_after_its_adoption_is_started_again_later_ones_
     h.run_until(t + 8.0)  # error, the node lost, found by a probe and configured as usual
     later = nmt_and_sdo_after(h, t + 5.0)
     assert later and later[0].cob_id == 0x603 and len(nmt_and_sdo_after(h, t)) == 1 + len(later)
+
+
+# --------------------------------------------------------------------------- a split of the bus healed
+
+
+def test_a_pair_members_node_lost_while_running_and_heard_running_again_resumes_without_nmt_or_sdo() -> None:
+    """The bus split between the member and the node (the other member mastered it meanwhile),
+    then healed: no boot-up was heard, the node reports OPERATIONAL: its configuration is
+    intact, it is taken as it runs. Not probed while lost (a probe answered would reconfigure)."""
+    h = running()
+    h.take_over()  # the member that was standby masters the node (as after any take-over)
+    t = h.now
+    h.run_until(t + 1.0)
+    h.device.powered = False  # the split: the node hears nothing of this member, nor it of it
+    h.run_until(t + 3.0)
+    assert not h.image.health.alive and h.node.lifecycle.resumable
+    h.device.powered = True  # healed
+    h.run_until(t + 5.0)
+    assert nmt_and_sdo_after(h, t) == []
+    assert h.node.lifecycle.state is LifecycleState.OPERATIONAL and h.image.health.alive
+    assert h.image.health.loss_count == 1 and h.device.state == NmtState.OPERATIONAL
+
+
+def test_a_resumable_node_that_booted_meanwhile_is_configured_as_usual() -> None:
+    h = running()
+    h.take_over()
+    t = h.now
+    h.device.powered = False
+    h.run_until(t + 2.0)
+    h.device.powered = True
+    h.bootup(t + 2.1)  # it restarted: its configuration is gone
+    h.run_until(t + 6.0)
+    assert h.nmt_start_time(after=t) > t and [s for _, s in h.sent if s.cob_id == 0x603]

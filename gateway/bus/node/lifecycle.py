@@ -110,6 +110,7 @@ class LifecycleEvent(StrEnum):
     LISTEN = "listen"  # another master manages the node (a pair's standby): only heard
     ADOPTED = "adopted"  # a pair's take-over: heard started, taken as it is
     TAKEN_OVER = "taken over"  # a pair's take-over: not heard started, found and configured
+    RESUMED = "resumed"  # lost while operational, heard operational again, no boot-up: as it runs
 
 
 _W, _B, _C, _O, _L = (
@@ -131,6 +132,7 @@ TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = trans
     ((_C,), (_E.WRONG_IDENTITY,), _W),
     ((_W, _B, _C, _O), (_E.LISTEN,), _L),
     ((_L,), (_E.ADOPTED,), _O),
+    ((_W,), (_E.RESUMED,), _O),
     ((_L,), (_E.TAKEN_OVER,), _W),
 )
 
@@ -174,6 +176,8 @@ class NodeLifecycle:
     LISTENING    boot-up, found, lost, poll, results           LISTENING    ignored (counted)
     LISTENING    adopted (take-over, heard started)            OPERATIONAL  (nothing sent)
     LISTENING    taken over (take-over, not heard started)     WAITING      boot timeout armed
+    WAITING      resumed (lost while OPERATIONAL, no boot-up    OPERATIONAL  (nothing sent)
+                 since, heard OPERATIONAL: ``resumable``)
     ===========  ============================================  ===========  =========================
 
     LISTENING is the state of a node another master manages: a pair's standby listens to the
@@ -226,6 +230,9 @@ class NodeLifecycle:
         self.backoff = backoff or Backoff()
         self.expected_device_type = expected_device_type
         self.state: LifecycleState = LifecycleState.WAITING
+        #: lost while OPERATIONAL and no boot-up since: its configuration is intact (a split
+        #: of the bus healed, a cable mended); heard OPERATIONAL again it may be ``on_resumed``
+        self.resumable = False
         self.last_error: str | None = None
         self.step_index = 0
         self.attempt = 0  # failures of the current step
@@ -310,6 +317,7 @@ class NodeLifecycle:
 
     def on_bootup(self, now: float) -> list[Change]:
         self.boots += 1
+        self.resumable = False
         if self.state is LifecycleState.LISTENING:
             return self._ignore("boot-up")  # the other master configures it
         self._recheck_at = None  # a boot-up is always checked (a device replaced, reflashed)
@@ -336,7 +344,7 @@ class NodeLifecycle:
             delay = self._refuse(now)
             return [WrongDevice(self.expected_device_type, device_type, delay)]
         self._boot_deadline = None
-        self._preop_pending = True
+        self._preop_pending, self.resumable = True, False
         self._reset_progress()
         return [self._fire(LifecycleEvent.FOUND, "found running")]
 
@@ -344,10 +352,19 @@ class NodeLifecycle:
         """Another master manages the node (a pair's standby): from now on only heard."""
         if self.state is LifecycleState.LISTENING:
             return []
-        self._preop_pending = False
+        self._preop_pending = self.resumable = False
         self._reset_progress()
         self._boot_deadline = None
         return [self._fire(LifecycleEvent.LISTEN, "another master manages it: listening")]
+
+    def on_resumed(self, now: float) -> list[Change]:
+        """A node lost while OPERATIONAL is heard OPERATIONAL again with no boot-up since: its
+        configuration is intact (no reset), it is taken as it runs; nothing is sent."""
+        if self.state is not LifecycleState.WAITING or not self.resumable:
+            return self._ignore("resumed")
+        self.resumable = False
+        self._boot_deadline = None
+        return [self._fire(LifecycleEvent.RESUMED, "heard operational again, no boot-up: taken as it runs")]
 
     def on_take_over(self, now: float, adopt: bool) -> list[Change]:
         """A pair's take-over: ``adopt`` (the node was heard started by the other master) takes
@@ -365,6 +382,7 @@ class NodeLifecycle:
     def on_lost(self, now: float) -> list[Change]:
         if self.state in (LifecycleState.WAITING, LifecycleState.LISTENING):
             return self._ignore("lost")
+        self.resumable = self.state is LifecycleState.OPERATIONAL
         self.losses += 1
         self._preop_pending = False
         self._reset_progress()

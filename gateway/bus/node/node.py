@@ -112,7 +112,7 @@ class Node:
             expected_identity=expected_identity,
         )
         self.supervision = NodeSupervision(settings, configure)
-        self.heard = HeardLife()  # what it heard of its life while listening
+        self.heard, self.resumes = HeardLife(), listening  # a pair's: what it heard; resumes
         if listening:  # no RTR, no life time of ours (``NodeSupervision.on_lifecycle``)
             self.lifecycle.on_listen(0.0)
             self.supervision.on_lifecycle(LifecycleState.LISTENING.guard_expects, listening=True)
@@ -238,18 +238,22 @@ class Node:
         if self.listening:
             return out + listening.on_state(self, state, now)
         out += listening.watch_fall(self, state, now)  # adopted at a take-over: fallen?
-        if (
-            self.lifecycle.state is LifecycleState.WAITING
-            and self.lifecycle.may_probe(now)  # a refused device waits for its recheck
-        ):
-            # alive but no boot-up seen (gateway restarted, node replugged): probe soon
-            if self.sdo.find("probe") is None and (
-                self._last_probe_end_s is None
-                or now - self._last_probe_end_s >= min(1.0, self.s.probe_period_s)
-            ):
-                out += self._probe(now)
-                out += self._drive(now)
+        if self.lifecycle.state is LifecycleState.WAITING:
+            out += self._found_alive(state, now)
         return out
+
+    def _found_alive(self, state: NmtState, now: float) -> list[Output]:
+        """Alive, no boot-up seen (gateway restarted, node replugged): probe soon (not a refused
+        device before its recheck); a pair's node lost running and heard so again resumes."""
+        if self.resumes and self.lifecycle.resumable and state == NmtState.OPERATIONAL:
+            self.health.fresh_since = now  # a split healed: no NMT, no SDO; fresh from now on
+            return self._lifecycle_changes(self.lifecycle.on_resumed(now), now) + listening.adopted(self, state, now)
+        last = self._last_probe_end_s
+        if self.lifecycle.may_probe(now) and self.sdo.find("probe") is None and (
+            last is None or now - last >= min(1.0, self.s.probe_period_s)
+        ):
+            return self._probe(now) + self._drive(now)
+        return []
 
     def on_emcy(self, data: bytes, wall_ts: float, now: float) -> list[Output]:
         h = self.health
@@ -308,10 +312,6 @@ class Node:
         if self.listening and self.outputs.heard(cob_id, data, now):
             self._publish_outputs((wall, now))
         return []
-
-    def on_sdo_heard(self, now: float) -> list[Output]:
-        """Another client's SDO request to the node heard (the other master's, listening)."""
-        return listening.on_sdo_heard(self, now)
 
     def stand_by(self, now: float, fresh: bool = False) -> list[Output]:
         """A pair's standby: the node only listens, queued SDO work dropped (``fresh``: back
@@ -491,6 +491,8 @@ class Node:
         of a refused device (``NodeLifecycle.recheck_at_s``)."""
         if self.lifecycle.state is not LifecycleState.WAITING or self.next_probe_s is None:
             return None
+        if self.resumes and self.lifecycle.resumable and self.s.supervision != "none":
+            return None  # lost running: it says itself when it is back (no probe to reconfigure)
         recheck = self.lifecycle.recheck_at_s
         return self.next_probe_s if recheck is None else max(self.next_probe_s, recheck)
 
