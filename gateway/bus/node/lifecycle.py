@@ -96,6 +96,9 @@ class Backoff:
 #: boot-up, or when a probe finds it running after this delay: 1 min, 2 min, 4 min ... 16 min
 #: (not at each of its heartbeats: every check sends it NMT pre-operational and reads 1018h).
 RECHECK_BACKOFF = Backoff(initial_s=60.0, factor=2.0, max_s=960.0)
+#: a pair's node lost while running and heard back not running is probed this much later: a
+#: healed split resolves within it (the member that mastered it may start it again)
+RESUME_WAIT_S = 1.0
 
 
 class LifecycleEvent(StrEnum):
@@ -357,18 +360,26 @@ class NodeLifecycle:
         self._boot_deadline = None
         return [self._fire(LifecycleEvent.LISTEN, "another master manages it: listening")]
 
+    def heard_not_running(self, now: float) -> None:
+        """A resumable node is heard, not OPERATIONAL (it fell, or restarted unheard): it is
+        probed, found and configured as usual, but ``RESUME_WAIT_S`` later: the other member
+        of a healed split may start it meanwhile (then it resumes)."""
+        if self.resumable and self._recheck_at is None:
+            self._recheck_at = now + RESUME_WAIT_S
+
     def on_resumed(self, now: float) -> list[Change]:
         """A node lost while OPERATIONAL is heard OPERATIONAL again with no boot-up since: its
         configuration is intact (no reset), it is taken as it runs; nothing is sent."""
         if self.state is not LifecycleState.WAITING or not self.resumable:
             return self._ignore("resumed")
         self.resumable = False
-        self._boot_deadline = None
+        self._boot_deadline = self._recheck_at = None
         return [self._fire(LifecycleEvent.RESUMED, "heard operational again, no boot-up: taken as it runs")]
 
-    def on_take_over(self, now: float, adopt: bool) -> list[Change]:
+    def on_take_over(self, now: float, adopt: bool, resumable: bool = False) -> list[Change]:
         """A pair's take-over: ``adopt`` (the node was heard started by the other master) takes
-        it as it runs, nothing sent; otherwise it is found and configured as usual."""
+        it as it runs, nothing sent; otherwise it is found and configured as usual, unless it
+        is ``resumable`` (nothing heard of it yet: heard OPERATIONAL, it resumes as it runs)."""
         if self.state is not LifecycleState.LISTENING:
             return self._ignore("take-over")
         self.last_error = None
@@ -377,6 +388,7 @@ class NodeLifecycle:
             self._boot_deadline = None
             return [self._fire(LifecycleEvent.ADOPTED, "adopted as it runs at a take-over")]
         self._arm_boot_timeout(now)
+        self.resumable = resumable
         return [self._fire(LifecycleEvent.TAKEN_OVER, "taken over: found and configured as usual")]
 
     def on_lost(self, now: float) -> list[Change]:

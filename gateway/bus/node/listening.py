@@ -33,7 +33,9 @@ missed: a frame lost).
 At a take-over (``take_over``): ``started`` and ``held`` are adopted in the state they report
 (nothing sent), ``fell`` is adopted and sent NMT start (nothing else), ``quiet`` is adopted as
 it is when an active master was heard keeping it so (the operator's state, missed), else, and
-``booting`` / ``unknown`` / not alive, found and configured as usual. For a while after an
+``booting`` / not alive, found and configured as usual; ``unknown`` (nothing heard of it since
+a loss or an outage) waits to be heard: OPERATIONAL, it resumes as it runs, else it is found
+and configured as usual. For a while after an
 adoption (``FALL_WATCH``: the node's next report) a node that reports a fall with no command of
 ours is started the same way (its device-side timeout expired during the take-over).
 
@@ -198,18 +200,21 @@ def _start_again(node: Node, why: str) -> list[Output]:
     ]
 
 
-def take_over(node: Node, now: float, master_heard: bool) -> tuple[NmtState | None, list[Output]]:
-    """A take-over: the NMT state the node is adopted in (None: found and configured as usual),
-    and what goes out to it (an NMT start for one that fell: nothing else)."""
+def take_over(node: Node, now: float, master_heard: bool) -> tuple[NmtState | None, list[Output], bool]:
+    """A take-over: the NMT state the node is adopted in (None: found and configured as usual,
+    or, nothing heard of it since listening began, taken as it runs once heard OPERATIONAL:
+    ``node.lifecycle.resumable``), and what goes out to it (an NMT start for one that fell:
+    nothing else)."""
     h = node.health
     adopt = node.heard.adopt_in(h.alive, h.nmt_state, master_heard)
     if adopt is None:
-        return None, []
-    if adopt == NmtState.OPERATIONAL:  # adopted running: a fall reported soon is the take-over's
+        return None, [], node.heard.life is Life.UNKNOWN
+    if adopt == NmtState.OPERATIONAL and node.heard.life is Life.STARTED:
+        # adopted running (not held by the operator): a fall reported soon is the take-over's
         node.heard.fall_watch_until_s = now + fall_watch_s(node)
     if node.heard.life is Life.FELL:
-        return adopt, _start_again(node, f"found {adopt.name.lower()} at the take-over, fallen by itself")
-    return adopt, []
+        return adopt, _start_again(node, f"found {adopt.name.lower()} at the take-over, fallen by itself"), False
+    return adopt, [], False
 
 
 def fall_watch_s(node: Node) -> float:
@@ -229,12 +234,26 @@ def watch_fall(node: Node, state: NmtState, now: float) -> list[Output]:
     until = node.heard.fall_watch_until_s
     if until is None:
         return []
-    if now > until:
+    if now > until or node.lifecycle.state is not LifecycleState.OPERATIONAL:  # over, or lost since
         node.heard.fall_watch_until_s = None
         return []
     if state in (NmtState.PRE_OPERATIONAL, NmtState.STOPPED):
         return _start_again(node, f"fell {state.name.lower()} by itself after the take-over")
     return []
+
+
+def commanded(node: Node, command: str) -> None:
+    """An NMT command to the node, heard while listening or sent by this gateway (a node of
+    ours running is started: the operator's pre-operational / stop holds it)."""
+    if not node.listening and node.lifecycle.state is LifecycleState.OPERATIONAL:
+        node.heard.life = Life.STARTED
+    node.heard.on_nmt_command(command)
+
+
+def resumes_in(node: Node, state: NmtState) -> bool:
+    """A pair's node lost while running, heard again with no boot-up, resumes in ``state``:
+    OPERATIONAL, or the state the operator held it in (its command was ours)."""
+    return state == NmtState.OPERATIONAL or (node.heard.life is Life.HELD and state in ADOPTABLE)
 
 
 def heard_invalid(node: Node, byte: int, now: float) -> list[Output]:

@@ -245,12 +245,12 @@ class Node:
     def _found_alive(self, state: NmtState, now: float) -> list[Output]:
         """Alive, no boot-up seen (gateway restarted, node replugged): probe soon (not a refused
         device before its recheck); a pair's node lost running and heard so again resumes."""
-        if self.resumes and self.lifecycle.resumable and state == NmtState.OPERATIONAL:
+        if self.resumes and self.lifecycle.resumable and listening.resumes_in(self, state):
             self.health.fresh_since = now  # a split healed: no NMT, no SDO; fresh from now on
             return self._lifecycle_changes(self.lifecycle.on_resumed(now), now) + listening.adopted(self, state, now)
-        last = self._last_probe_end_s
+        self.lifecycle.heard_not_running(now)  # lost running, back fallen: probed a little later
         if self.lifecycle.may_probe(now) and self.sdo.find("probe") is None and (
-            last is None or now - last >= min(1.0, self.s.probe_period_s)
+            (last := self._last_probe_end_s) is None or now - last >= min(1.0, self.s.probe_period_s)
         ):
             return self._probe(now) + self._drive(now)
         return []
@@ -299,7 +299,7 @@ class Node:
     def on_nmt_command(self, command: str) -> None:
         """An NMT command to this node (a client's, or heard while listening)."""
         self.supervision.on_nmt_command(command)
-        self.heard.on_nmt_command(command)
+        listening.commanded(self, command)
 
     def on_guard_rtr(self, now: float) -> list[Output]:
         """Another master's guarding RTR heard while listening (``on_rtr_heard``: lost?)."""
@@ -324,8 +324,8 @@ class Node:
         """The pair's take-over: a node heard started is adopted as it runs (``listening``)."""
         if not self.listening:
             return self.tick(now)  # ours already: nothing to take over
-        adopt, sent = listening.take_over(self, now, master_heard)
-        out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None), now)
+        adopt, sent, resumes = listening.take_over(self, now, master_heard)
+        out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None, resumes), now)
         if adopt is None:
             self.next_probe_s = now  # found and configured as usual
         return out + listening.adopted(self, adopt, now) + sent + self.tick(now)
@@ -488,12 +488,12 @@ class Node:
 
     def _probe_due_s(self) -> float | None:
         """When the next probe is due: in WAITING at ``next_probe_s``, not before the recheck
-        of a refused device (``NodeLifecycle.recheck_at_s``)."""
+        of a refused device, or the wait of a resumable one (``NodeLifecycle.recheck_at_s``)."""
         if self.lifecycle.state is not LifecycleState.WAITING or self.next_probe_s is None:
             return None
-        if self.resumes and self.lifecycle.resumable and self.s.supervision != "none":
-            return None  # lost running: it says itself when it is back (no probe to reconfigure)
         recheck = self.lifecycle.recheck_at_s
+        if self.resumes and self.lifecycle.resumable and recheck is None and self.s.supervision != "none":
+            return None  # lost running: it says itself when it is back (no probe to reconfigure)
         return self.next_probe_s if recheck is None else max(self.next_probe_s, recheck)
 
     def _sdo_finished(self, finished: tuple[SdoJob, SdoTransfer], now: float) -> list[Output]:

@@ -36,6 +36,9 @@ gateway, after the active master's next heartbeat was due: the last frame's time
     role         heard / timer                        next         does
     listening    logical heartbeat, 71h *, 76h        standby      (an active master is there)
     listening    72h                                  negotiating  waits its time slot
+    listening    72h, back from an outage             listening    lets them claim: listens
+                                                                   its detection time again
+                                                                   and the last claim's slot
     listening    detection time over (counted from    negotiating  sends 72h, waits its slot
                  its bus's first frame; a silent bus:
                  a detect cycle)
@@ -165,6 +168,7 @@ DOES: dict[tuple[Role, Heard], str] = {
         (_S, h): "_alive" for h in (_H.LOGICAL_HEARTBEAT, _H.BETTER_CLAIM, _H.WORSE_CLAIM, _H.FORCE)
     },
     (_S, _H.UNHEARD): "_wait_for_the_bus",
+    (_L, _H.NEGOTIATION_WHILE_BACK): "_let_them_claim",
     (_A, _H.REQUEST): "duties.answer",
     (_A, _H.NEGOTIATION): "duties.join_slot",
     (_A, _H.FORCE): "duties.negotiate_again",
@@ -234,6 +238,7 @@ class FlyingMaster:
         self.hearing = Hearing(timing)
         self.link_up = True
         self.sending = True  # its driver says its frames can go out (not bus off, queue free)
+        self.back = False  # listening back from an outage of its own (not at its start)
         #: heard nothing for takeover_s while active: it may have missed a take-over
         self.was_cut = False
         #: what a device with our own pair id was heard sending (None: nothing)
@@ -324,6 +329,8 @@ class FlyingMaster:
             return []
         self.hearing.heard(now)
         self.peer_state = (data[0], now)
+        if self.role is Role.ISOLATED and self.link_up and self.sending:
+            return self._fire(Heard.BUS_HEARD, now)
         claim = self.peer
         if (
             self.role is Role.STANDBY
@@ -465,6 +472,8 @@ class FlyingMaster:
     def _fire(self, heard: Heard, now: float) -> list[Action]:
         if self.role is Role.ACTIVE and self.was_cut and heard in _MEETINGS:
             heard = Heard.MET_AFTER_CUT
+        elif self.role is Role.LISTENING and self.back and heard is Heard.NEGOTIATION:
+            heard = Heard.NEGOTIATION_WHILE_BACK  # no fail-back onto a member that was out
         if heard in _ALIVE:
             self.hearing.master(now)
         key = (self.role, heard)
@@ -487,6 +496,16 @@ class FlyingMaster:
     def _alive(self, now: float) -> list[Action]:
         self._deadline_s = now + self.timing.takeover_s
         self._doubt_until_s = None
+        return []
+
+    def _let_them_claim(self, now: float) -> list[Action]:
+        """Back from an outage, it hears another gateway negotiate: that one has been on the
+        bus and knows it; it claims first (the detection time runs again, and the slot of the
+        last claim heard), and this one joins it as standby."""
+        last = self.peer
+        slot = self.timing.slot_s(last.priority, last.node_id) if last is not None else 0.0
+        self.hearing.first_s = now
+        self._deadline_s = now + self.timing.detect_s + slot
         return []
 
     def _wait_for_the_bus(self, now: float) -> list[Action]:
@@ -528,7 +547,8 @@ class FlyingMaster:
             self.duties.begin(now)
             actions.append(self.duties.claim_frame())
         elif role is Role.LISTENING:
-            self.hearing.listen(now, delivered=heard is Heard.BUS_HEARD)
+            self.back = heard is Heard.BUS_HEARD
+            self.hearing.listen(now, delivered=self.back)
             self._deadline_s = self.hearing.detection_due_s(now)
             actions.append(Send("send", COB_ACTIVE_MASTER_REQUEST, b""))
         elif role is Role.ISOLATED:

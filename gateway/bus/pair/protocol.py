@@ -49,6 +49,7 @@ class Heard(StrEnum):
     MET_AFTER_CUT = "another master, met after a deaf spell"
     OWN_ID = "our own pair id from another device"
     NEGOTIATION = "72h"
+    NEGOTIATION_WHILE_BACK = "72h, this gateway back from an outage"  # it lets them claim
     REQUEST = "73h"
     DETECT_CAPABLE = "75h"
     FORCE = "76h"
