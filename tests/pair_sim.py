@@ -10,7 +10,7 @@ Faults, each of one member unless said: ``cut`` (it hears nothing, nothing it se
 ``mute`` (it hears, nothing it sends arrives, its driver unaware), ``unplug`` (its bus down:
 the driver says so), ``kill`` / ``restart``, ``freeze`` / ``thaw`` (it does not run, then runs
 on with its old state), ``split`` (the bus in two halves: A with device 1, B with device 3),
-``lose`` (its next frames reach no one), ``step`` (its wall clock steps: frame times are what
+``lose`` (its next frames reach no one), ``stop`` (SIGTERM: a planned hand-over), ``step`` (its wall clock steps: frame times are what
 the driver makes of a socketcand server's stamps, ``BusDriver.stamp``), the operator's NMT
 command and a PLC write (through the member the operator or PLC picks).
 
@@ -373,8 +373,7 @@ class Sim:
 
     def _check_nmt(self, dev: Dev, sender: str, command: int, before: NmtState, operator: bool) -> None:
         if operator:
-            dev.operator = {0x01: None, 0x80: "preop", 0x02: "stop"}.get(command, dev.operator)
-            return
+            return  # its intent is recorded when sent (``operator_nmt``)
         if before == NmtState.OPERATIONAL:
             self.violations.append(f"{self.now:.3f}: {sender} sent NMT {command:02X}h to operational node {dev.node_id}")
         elif command == 0x01 and dev.operator is not None and sender in dev.knowers:
@@ -393,7 +392,9 @@ class Sim:
         knowers = {name} | {o.name for o in self.members.values() if o is not m and self._reaches(m.half, o)}
         if name in self.cut or name in self.mute:
             knowers = {name}
-        self.devices[node_id].knowers = knowers
+        dev = self.devices[node_id]
+        dev.knowers = knowers
+        dev.operator = {"start": None, "preop": "preop", "stop": "stop"}.get(command, dev.operator)
         return True
 
     def plc_write(self, name: str) -> bool:
@@ -405,13 +406,25 @@ class Sim:
             m.refused += 1
             return False
         since = self.silent_since.get(name)
-        others = self.masters() - {name}
+        # another master it hears (its half of a split bus): it could have known
+        near = {d for d, dev in self.devices.items() if not self.split or dev.half == m.half}
+        others = {s for _, s, d in self.logical if d in near and s != name}
         if since is not None and self.now - since > ALLOW_S and others:
             self.violations.append(
                 f"{self.now:.3f}: {name} acknowledged a write while its frames reached no one since "
                 f"{since:.3f} and {sorted(others)} mastered the bus"
             )
         return True
+
+    def stop(self, name: str) -> None:
+        """SIGTERM: ``PairMember.hand_over`` (an active member whose peer stands by stops
+        mastering and says so in its own heartbeat), then the process ends."""
+        m = self.members[name]
+        if m.up and m.frozen_at is None and m.fm.peer_role(self.now) == "standby":
+            self._act(m, m.fm.hand_over(self.now))
+            if not m.fm.active:
+                self._send(m, 0x700 + m.pair_id, bytes((m.fm.own_state,)))
+        m.up = False
 
     # ------------------------------------------------------------------ faults
     def fault(self) -> None:

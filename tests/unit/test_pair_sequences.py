@@ -4,7 +4,7 @@ and the real nodes, and scripted devices, on a fake bus and clock).
 
 The rules are the faults a plant meets, in any order and any overlap: a cable cut and mended,
 a transmitter muted (its frames lost, its driver unaware) and back, an adapter unplugged and
-plugged, a member killed and restarted, frozen and thawed, the bus split in two halves and
+plugged, a member killed (or stopped: a planned hand-over) and restarted, frozen and thawed, the bus split in two halves and
 healed, a member's next frames lost, its wall clock stepped, the operator's NMT command, a
 PLC write, and time passing. The invariants are the rule of docs/redundancy.md: a pair never
 does to a device what one healthy gateway would not do (no NMT command other than the
@@ -87,6 +87,15 @@ class PairUnderFaults(RuleBasedStateMachine):
     def kill(self, name: str) -> None:
         if name not in self.killed:
             self.sim.members[name].up = False
+            self.killed.add(name)
+            self.frozen.discard(name)
+            self.sim.fault()
+
+    @rule(name=NAMES)
+    def stop(self, name: str) -> None:
+        """SIGTERM (a rolling update): the active member hands the bus over, then ends."""
+        if name not in self.killed:
+            self.sim.stop(name)
             self.killed.add(name)
             self.frozen.discard(name)
             self.sim.fault()
@@ -253,3 +262,25 @@ def test_found_a_split_healed_while_two_actives_resolve_no_node_is_reconfigured_
     a second before configuring it: it heard it running and resumed it."""
     replay(("mute", {"name": "B"}), ("split_bus", {}), ("time_passes", {"seconds": 0.5}),
            ("time_passes", {"seconds": 1.0}))  # fmt: skip
+
+
+def test_found_the_operators_hold_of_a_node_lost_in_a_split_is_kept_through_the_heal() -> None:
+    """B took its half over and lost node 1 there; the operator's hold is not ended by a loss:
+    at the heal B resumed it pre-operational instead of configuring and starting it."""
+    replay(("operator_nmt", {"name": "A", "command": "preop", "node_id": 1}), ("split_bus", {}),
+           ("time_passes", {"seconds": 1.0}), ("unplug", {"name": "A"}))  # fmt: skip
+
+
+def test_found_the_operators_command_to_a_node_lost_in_a_split_holds_it() -> None:
+    """A lost node 3 in the split, won the heal, and the operator put node 3 pre-operational
+    through it before A heard it again: held, it resumes so."""
+    replay(("split_bus", {}), ("time_passes", {"seconds": 1.0}), ("heal_bus", {}),
+           ("operator_nmt", {"name": "A", "command": "preop", "node_id": 3}))  # fmt: skip
+
+
+def test_found_a_heartbeat_crossing_the_operators_command_does_not_end_the_hold() -> None:
+    """The node's heartbeat sent as the operator's NMT pre-operational went out still said
+    OPERATIONAL; A restarted at once said it is not active: B took the bus over at once and
+    adopted the node held, no NMT start."""
+    replay(("time_passes", {"seconds": 0.05}), ("operator_nmt", {"name": "A", "command": "preop", "node_id": 1}),
+           ("kill", {"name": "A"}))  # fmt: skip

@@ -17,9 +17,9 @@ was heard, columns the life before)::
     NMT start (to it or to all)    started  started  started  started  started  started
     NMT pre-operational / stop     unknown  held     held     held     quiet    booting
     boot-up, NMT reset (-comm)     booting  booting  booting  booting  booting  booting
-    OPERATIONAL reported           started  started  started  started  started  booting*
+    OPERATIONAL reported           started  started  held**   started  started  booting*
     PRE-OPERATIONAL / STOPPED      quiet    fell     held     fell     quiet    booting
-    lost (silent: gone, or deaf)   unknown  unknown  unknown  unknown  unknown  unknown
+    lost (silent: gone, or deaf)   unknown  unknown  held     unknown  unknown  unknown
     another client's SDO request   unknown  started  held     booting  booting  booting
 
 ``started`` runs under the other master; ``held`` is the operator's pre-operational / stopped
@@ -28,14 +28,16 @@ state of a started node (the command heard); ``fell`` left OPERATIONAL with no c
 came back, after it); ``booting`` is being configured by the other master (a boot-up or reset
 heard, or its SDO requests to a node not known started). (*) A booting node heard OPERATIONAL
 is started once no SDO request to it was heard for ``SETTLE_S`` (its NMT start may have been
-missed: a frame lost).
+missed: a frame lost). (**) Only a start ends the operator's hold: a heartbeat sent as the
+command went out still says OPERATIONAL; a held node is adopted in the state it reports.
 
 At a take-over (``take_over``): ``started`` and ``held`` are adopted in the state they report
 (nothing sent), ``fell`` is adopted and sent NMT start (nothing else), ``quiet`` is adopted as
 it is when an active master was heard keeping it so (the operator's state, missed), else, and
 ``booting`` / not alive, found and configured as usual; ``unknown`` (nothing heard of it since
-a loss or an outage) waits to be heard: OPERATIONAL, it resumes as it runs, else it is found
-and configured as usual. For a while after an
+a loss or an outage) or ``held`` and lost waits to be heard: OPERATIONAL (or held, as the
+operator left it) it resumes as it runs, else it is found and configured as usual. A loss
+does not end the operator's hold: only a start or a boot-up does. For a while after an
 adoption (``FALL_WATCH``: the node's next report) a node that reports a fall with no command of
 ours is started the same way (its device-side timeout expired during the take-over).
 
@@ -84,9 +86,9 @@ LIFE: dict[str, dict[Life, Life]] = {
     "start": dict.fromkeys(Life, _S),
     "hold": {_U: _U, _S: _H, _H: _H, _F: _H, _Q: _Q, _B: _B},
     "restart": dict.fromkeys(Life, _B),
-    "operational": {_U: _S, _S: _S, _H: _S, _F: _S, _Q: _S, _B: _B},
+    "operational": {_U: _S, _S: _S, _H: _H, _F: _S, _Q: _S, _B: _B},
     "fallen": {_U: _Q, _S: _F, _H: _H, _F: _F, _Q: _Q, _B: _B},
-    "lost": dict.fromkeys(Life, _U),
+    "lost": {**dict.fromkeys(Life, _U), _H: _H},  # the operator's hold ends by a start or a boot-up
     "sdo": {_U: _U, _S: _S, _H: _H, _F: _B, _Q: _B, _B: _B},
 }
 #: what an NMT command heard is in ``LIFE``
@@ -207,8 +209,8 @@ def take_over(node: Node, now: float, master_heard: bool) -> tuple[NmtState | No
     nothing else)."""
     h = node.health
     adopt = node.heard.adopt_in(h.alive, h.nmt_state, master_heard)
-    if adopt is None:
-        return None, [], node.heard.life is Life.UNKNOWN
+    if adopt is None:  # nothing heard of it since a loss: it is waited for (held: so kept)
+        return None, [], node.heard.life in (Life.UNKNOWN, Life.HELD)
     if adopt == NmtState.OPERATIONAL and node.heard.life is Life.STARTED:
         # adopted running (not held by the operator): a fall reported soon is the take-over's
         node.heard.fall_watch_until_s = now + fall_watch_s(node)
@@ -245,8 +247,9 @@ def watch_fall(node: Node, state: NmtState, now: float) -> list[Output]:
 def commanded(node: Node, command: str) -> None:
     """An NMT command to the node, heard while listening or sent by this gateway (a node of
     ours running is started: the operator's pre-operational / stop holds it)."""
-    if not node.listening and node.lifecycle.state is LifecycleState.OPERATIONAL:
-        node.heard.life = Life.STARTED
+    lc = node.lifecycle
+    if not node.listening and (lc.state is LifecycleState.OPERATIONAL or lc.resumable):
+        node.heard.life = Life.STARTED  # ours and started (running, or lost while it ran)
     node.heard.on_nmt_command(command)
 
 
