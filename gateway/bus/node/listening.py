@@ -35,7 +35,7 @@ At a take-over (``take_over``): ``started`` and ``held`` are adopted in the stat
 (nothing sent), ``fell`` is adopted and sent NMT start (nothing else), ``quiet`` is adopted as
 it is when an active master was heard keeping it so (the operator's state, missed), else, and
 ``booting`` / not alive, found and configured as usual; ``unknown`` (nothing heard of it since
-a loss or an outage) or ``held`` and lost waits to be heard: OPERATIONAL (or held, as the
+a loss or an outage) or ``held`` and lost, when a master was heard, waits to be heard: OPERATIONAL (or held, as the
 operator left it) it resumes as it runs, else it is found and configured as usual. A loss
 does not end the operator's hold: only a start or a boot-up does. For a while after an
 adoption (``FALL_WATCH``: the node's next report) a node that reports a fall with no command of
@@ -209,8 +209,8 @@ def take_over(node: Node, now: float, master_heard: bool) -> tuple[NmtState | No
     nothing else)."""
     h = node.health
     adopt = node.heard.adopt_in(h.alive, h.nmt_state, master_heard)
-    if adopt is None:  # nothing heard of it since a loss: it is waited for (held: so kept)
-        return None, [], node.heard.life in (Life.UNKNOWN, Life.HELD)
+    if adopt is None:  # nothing heard of it since a loss (a master was): waited for, not probed
+        return None, [], master_heard and node.heard.life in (Life.UNKNOWN, Life.HELD)
     if adopt == NmtState.OPERATIONAL and node.heard.life is Life.STARTED:
         # adopted running (not held by the operator): a fall reported soon is the take-over's
         node.heard.fall_watch_until_s = now + fall_watch_s(node)
