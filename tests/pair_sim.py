@@ -326,7 +326,11 @@ class Sim:
         t = self._stamp(m, sent_s)
         m.last_rx = (t, self.now)
         if cob_id in FLYING_MASTER_COB_IDS or cob_id in (0x700 + LOGICAL, 0x700 + m.pair_id):
+            met = m.fm.meetings
             self._act(m, m.fm.on_frame(cob_id, data, t))
+            if m.fm.meetings != met and m.mastering:  # ``PairSide._on_pair_frame``
+                for node in m.nodes.values():
+                    listening.another_master(node)
         elif cob_id == 0x700 + m.peer_id:
             self._act(m, m.fm.on_peer_heartbeat(data, t))
         elif cob_id - 0x700 in m.nodes and data:

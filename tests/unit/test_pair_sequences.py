@@ -284,3 +284,19 @@ def test_found_a_heartbeat_crossing_the_operators_command_does_not_end_the_hold(
     adopted the node held, no NMT start."""
     replay(("time_passes", {"seconds": 0.05}), ("operator_nmt", {"name": "A", "command": "preop", "node_id": 1}),
            ("kill", {"name": "A"}))  # fmt: skip
+
+
+def test_found_a_member_that_took_its_half_at_a_first_start_adopts_the_others_running_node() -> None:
+    """B, restarted in its half of a split bus, took it over as at a first start (no master
+    heard there); healed, it heard node 1 running (A had started it, no boot-up since): it took
+    it as it runs instead of finding and configuring it."""
+    replay(("kill", {"name": "B"}), ("split_bus", {}), ("restart", {"name": "B"}),
+           ("time_passes", {"seconds": 1.0}), ("unplug", {"name": "A"}))  # fmt: skip
+
+
+def test_found_a_probe_answered_at_the_heal_of_a_split_waits_to_hear_the_node_first() -> None:
+    """A, restarted alone in its half, probed node 3 (in B's half) into the split; at the heal
+    the probe was answered: it waited a second to hear the node's state (running under B:
+    resumed) instead of sending it NMT pre-operational."""
+    replay(("split_bus", {}), ("stop", {"name": "A"}), ("restart", {"name": "A"}),
+           ("time_passes", {"seconds": 0.5}), ("time_passes", {"seconds": 0.5}))  # fmt: skip

@@ -96,8 +96,7 @@ class Backoff:
 #: boot-up, or when a probe finds it running after this delay: 1 min, 2 min, 4 min ... 16 min
 #: (not at each of its heartbeats: every check sends it NMT pre-operational and reads 1018h).
 RECHECK_BACKOFF = Backoff(initial_s=60.0, factor=2.0, max_s=960.0)
-#: a pair's node lost while running and heard back not running is probed this much later: a
-#: healed split resolves within it (the member that mastered it may start it again)
+#: a pair's node heard or found with no boot-up seen waits this long to be heard running
 RESUME_WAIT_S = 1.0
 
 
@@ -113,7 +112,7 @@ class LifecycleEvent(StrEnum):
     LISTEN = "listen"  # another master manages the node (a pair's standby): only heard
     ADOPTED = "adopted"  # a pair's take-over: heard started, taken as it is
     TAKEN_OVER = "taken over"  # a pair's take-over: not heard started, found and configured
-    RESUMED = "resumed"  # lost while operational, heard operational again, no boot-up: as it runs
+    RESUMED = "resumed"  # a pair's, heard operational with no boot-up seen: taken as it runs
 
 
 _W, _B, _C, _O, _L = (
@@ -179,8 +178,7 @@ class NodeLifecycle:
     LISTENING    boot-up, found, lost, poll, results           LISTENING    ignored (counted)
     LISTENING    adopted (take-over, heard started)            OPERATIONAL  (nothing sent)
     LISTENING    taken over (take-over, not heard started)     WAITING      boot timeout armed
-    WAITING      resumed (lost while OPERATIONAL, no boot-up    OPERATIONAL  (nothing sent)
-                 since, heard OPERATIONAL: ``resumable``)
+    WAITING      resumed (a pair's: OPERATIONAL, no boot-up)    OPERATIONAL  (nothing sent)
     ===========  ============================================  ===========  =========================
 
     LISTENING is the state of a node another master manages: a pair's standby listens to the
@@ -233,9 +231,7 @@ class NodeLifecycle:
         self.backoff = backoff or Backoff()
         self.expected_device_type = expected_device_type
         self.state: LifecycleState = LifecycleState.WAITING
-        #: lost while OPERATIONAL and no boot-up since: its configuration is intact (a split
-        #: of the bus healed, a cable mended); heard OPERATIONAL again it may be ``on_resumed``
-        self.resumable = False
+        self.resumable = False  # lost while OPERATIONAL, no boot-up since: its configuration intact
         self.last_error: str | None = None
         self.step_index = 0
         self.attempt = 0  # failures of the current step
@@ -360,17 +356,23 @@ class NodeLifecycle:
         self._boot_deadline = None
         return [self._fire(LifecycleEvent.LISTEN, "another master manages it: listening")]
 
-    def heard_not_running(self, now: float) -> None:
-        """A resumable node is heard, not OPERATIONAL (it fell, or restarted unheard): it is
-        probed, found and configured as usual, but ``RESUME_WAIT_S`` later: the other member
-        of a healed split may start it meanwhile (then it resumes)."""
-        if self.resumable and self._recheck_at is None:
+    def wait_before_probe(self, now: float) -> None:
+        """A pair's node heard alive, no boot-up seen, not running: probed ``RESUME_WAIT_S``
+        later (the member of a healed split that runs it may start it: it resumes)."""
+        if self.state is LifecycleState.WAITING and self._recheck_at is None:
             self._recheck_at = now + RESUME_WAIT_S
 
+    def hold_found(self, now: float) -> bool:
+        """A pair's probe answered: True while it waits ``RESUME_WAIT_S`` (since the loss) to
+        hear the node's state before it counts as found (running: resumed)."""
+        if self._recheck_at is None:
+            self._recheck_at = now + RESUME_WAIT_S
+        return now < self._recheck_at
+
     def on_resumed(self, now: float) -> list[Change]:
-        """A node lost while OPERATIONAL is heard OPERATIONAL again with no boot-up since: its
-        configuration is intact (no reset), it is taken as it runs; nothing is sent."""
-        if self.state is not LifecycleState.WAITING or not self.resumable:
+        """A pair's node waiting is heard OPERATIONAL with no boot-up seen: the pair started it,
+        its configuration is intact: taken as it runs, nothing sent. Not a refused device."""
+        if self.state is not LifecycleState.WAITING or self.refusals:
             return self._ignore("resumed")
         self.resumable = False
         self._boot_deadline = self._recheck_at = None
@@ -388,13 +390,14 @@ class NodeLifecycle:
             self._boot_deadline = None
             return [self._fire(LifecycleEvent.ADOPTED, "adopted as it runs at a take-over")]
         self._arm_boot_timeout(now)
-        self.resumable = resumable
+        self.resumable, self._recheck_at = resumable, None
         return [self._fire(LifecycleEvent.TAKEN_OVER, "taken over: found and configured as usual")]
 
     def on_lost(self, now: float) -> list[Change]:
         if self.state in (LifecycleState.WAITING, LifecycleState.LISTENING):
             return self._ignore("lost")
         self.resumable = self.state is LifecycleState.OPERATIONAL
+        self._recheck_at = None  # a pair's wait before a probe counts starts again
         self.losses += 1
         self._preop_pending = False
         self._reset_progress()

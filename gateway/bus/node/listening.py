@@ -254,9 +254,28 @@ def commanded(node: Node, command: str) -> None:
 
 
 def resumes_in(node: Node, state: NmtState) -> bool:
-    """A pair's node lost while running, heard again with no boot-up, resumes in ``state``:
-    OPERATIONAL, or the state the operator held it in (its command was ours)."""
-    return state == NmtState.OPERATIONAL or (node.heard.life is Life.HELD and state in ADOPTABLE)
+    """A pair's node waiting (lost, or not found yet), heard with no boot-up seen, resumes in
+    ``state``: OPERATIONAL (the pair started it: a healed split, a member that took the bus at
+    a first start while the other ran it), or, lost while it ran, the state the operator held
+    it in."""
+    if state == NmtState.OPERATIONAL:
+        return True
+    return node.lifecycle.resumable and node.heard.life is Life.HELD and state in ADOPTABLE
+
+
+def wait_before_probe(node: Node, now: float) -> None:
+    """A pair's node heard alive, no boot-up seen, not resumed: probed a second later."""
+    if node.resumes:
+        node.lifecycle.wait_before_probe(now)
+
+
+def another_master(node: Node) -> None:
+    """This gateway, active, met another master (a healed split, a lost claim): a node of
+    ours waiting (lost, or not found yet) may be that master's, running: it waits to be heard
+    (OPERATIONAL: it resumes) instead of being found and configured."""
+    lc = node.lifecycle
+    if not node.listening and lc.state is LifecycleState.WAITING and lc.may_probe(float("inf")):
+        lc.resumable = True
 
 
 def heard_invalid(node: Node, byte: int, now: float) -> list[Output]:

@@ -245,10 +245,10 @@ class Node:
     def _found_alive(self, state: NmtState, now: float) -> list[Output]:
         """Alive, no boot-up seen (gateway restarted, node replugged): probe soon (not a refused
         device before its recheck); a pair's node lost running and heard so again resumes."""
-        if self.resumes and self.lifecycle.resumable and listening.resumes_in(self, state):
+        if self.resumes and listening.resumes_in(self, state):
             self.health.fresh_since = now  # a split healed: no NMT, no SDO; fresh from now on
             return self._lifecycle_changes(self.lifecycle.on_resumed(now), now) + listening.adopted(self, state, now)
-        self.lifecycle.heard_not_running(now)  # lost running, back fallen: probed a little later
+        listening.wait_before_probe(self, now)  # a pair's: a split healing may resolve first
         if self.lifecycle.may_probe(now) and self.sdo.find("probe") is None and (
             (last := self._last_probe_end_s) is None or now - last >= min(1.0, self.s.probe_period_s)
         ):

@@ -39,6 +39,9 @@ class DoneContext(Protocol):
     @property
     def lifecycle(self) -> NodeLifecycle: ...
 
+    @property
+    def resumes(self) -> bool: ...  # a pair's member: a running node found is taken as it runs
+
 
 @dataclass(frozen=True)
 class SdoOutcome:
@@ -69,6 +72,8 @@ def probe_done(node: DoneContext, job: SdoJob, tr: SdoTransfer, now: float) -> S
     lifecycle = node.lifecycle
     if tr.result is None or lifecycle.state is not LifecycleState.WAITING:
         return SdoOutcome(probe_ended=True)
+    if node.resumes and lifecycle.hold_found(now):
+        return SdoOutcome(probe_ended=True)  # a pair's: its state heard first (running: resumed)
     note = Note(logging.INFO, f"node {node.name} (id {node.node_id}) found running")
     changes = lifecycle.on_found(now, _u32(tr.result))
     found = lifecycle.state is LifecycleState.BOOTING  # not a wrong device type

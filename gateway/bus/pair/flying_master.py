@@ -17,9 +17,8 @@ sending)``), calls ``poll(now)`` at ``next_deadline_s()``, and does what the ret
 (``Send`` a frame; ``RoleChanged`` tells it to start or stop mastering; ``Notice`` is a line for
 the log). Every time is the monotonic bus clock; what was heard when is ``hearing.Hearing``.
 Rule 3: decisions from what is heard now. A gateway back from an outage of its own listens as a
-fresh joiner (``RoleChanged.fresh``); who wins is decided by comparing (priority, node id),
-never by which slot ends first; an active gateway that meets another master makes sure its own
-frames reach the bus (a 75h must draw a 74h) and stands down when they do not.
+fresh joiner (``RoleChanged.fresh``) and as standby whatever its priority; who wins is decided by
+(priority, node id), never by which slot ends first.
 
 The frames (CiA 302-2, NMT flying master; the emotas stack's behaviour is the reference): 71h
 active master response ``[priority, id]``, sent at a claim (the end of a time slot), per 73h
@@ -66,17 +65,10 @@ gateway, after the active master's next heartbeat was due: the last frame's time
                  logical heartbeat, 74h, its timers                (answers, its own timers)
     l/n/s/a      75h                                  (same)       answers 74h
 
-The 75h of an active gateway that met another master (at most once per take-over time) must
-draw a 74h within ``answer_s``: every capable device answers it, so silence means this
-gateway's frames do not reach the bus (a mute transmitter, a full transmit queue the driver did
-not report): it stands down. Two actives (a healed split, a lost claim) resolve within one
-heartbeat: each hears the other's logical heartbeat, answers with its claim, and the worse one
-stands by on the better claim.
-
-A gateway that comes back (restarted, or from an outage: isolated) listens first and joins as
-standby whatever its priority. An active gateway that heard nothing for ``takeover_s`` is marked
-*cut* (``was_cut``): it may have missed a take-over, so when it meets another master it stands
-by instead of contesting the bus.
+An active gateway's 75h unanswered (``active.py``): its frames do not reach the bus, it stands
+down. Two actives resolve within a heartbeat (each answers the other with its claim). An active
+one that heard nothing for ``takeover_s`` is *cut* (``was_cut``): meeting another master, it
+stands by; ``meetings`` counts every master met while active (its nodes then wait to be heard).
 
 The time slot is CiA 302-2's: ``priority * priority_slot_s + node_id * device_slot_s``
 (1F90h:04, 1F90h:05); the defaults here are shorter than 1F90h's (1500 ms, 10 ms) so that a
@@ -249,6 +241,7 @@ class FlyingMaster:
         self.stalls = 0  # active -> standby because this gateway stalled
         self.isolations = 0  # -> isolated (bus down, cannot send, or nothing heard)
         self.duplicates = 0  # frames of another device with our own pair id
+        self.meetings = 0  # another master met while active
         #: the active role's answers and timers
         self.duties = ActiveDuties(priority, node_id, timing, self._who)
         self._deadline_s: float | None = None  # the role's timer (not the active one's)
@@ -470,8 +463,9 @@ class FlyingMaster:
         return Heard.WORSE_CLAIM
 
     def _fire(self, heard: Heard, now: float) -> list[Action]:
-        if self.role is Role.ACTIVE and self.was_cut and heard in _MEETINGS:
-            heard = Heard.MET_AFTER_CUT
+        if self.role is Role.ACTIVE and heard in _MEETINGS:
+            self.meetings += 1  # another master met while active (``RoleChanged`` aside)
+            heard = Heard.MET_AFTER_CUT if self.was_cut else heard
         elif self.role is Role.LISTENING and self.back and heard is Heard.NEGOTIATION:
             heard = Heard.NEGOTIATION_WHILE_BACK  # no fail-back onto a member that was out
         if heard in _ALIVE:

@@ -7,7 +7,7 @@ the role changes. ``mastering`` is the one role gate of the master's send path
 calls); ``role``, ``pair`` and the ``pair_*`` properties are read-only views (the app's health
 and metrics, the command service's ``role``).
 
-Imports: bus.pair.member, bus.pair.flying_master, bus.node (types), bus.sdo.waiters (types),
+Imports: bus.pair.member, bus.pair.flying_master, bus.node (types; listening), bus.sdo.waiters (types),
 bus.driver / bus.bus_peers (types), canopen.cia301, config (types), errors, python-can, logging.
 """
 
@@ -21,6 +21,7 @@ import can
 
 from gateway.bus.bus_peers import BusPeers
 from gateway.bus.driver import BusDriver
+from gateway.bus.node import listening
 from gateway.bus.node.parts import NodeParts
 from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
 from gateway.bus.pair.member import PairMember
@@ -158,7 +159,11 @@ class PairSide:
     def _on_pair_frame(self, cob_id: int, data: bytes, wall: float, now: float) -> None:
         member = self.member
         assert isinstance(member, PairMember)
+        met = member.machine.meetings
         learned = member.on_frame(cob_id, data, now)
+        if member.machine.meetings != met and self.mastering:
+            for p in self.nodes.values():  # another master: its nodes may run, none is probed
+                listening.another_master(p.node)
         handlers = self.driver.handlers
         if learned is not None and self.peers.admit(learned):
             # the other gateway named its id in its claim: its own heartbeat is the peer's
