@@ -16,8 +16,8 @@ command and a PLC write (through the member the operator or PLC picks).
 
 What the rule of docs/redundancy.md forbids is recorded as it happens (``violations``): an NMT
 command that is not the operator's, or an SDO download, reaching a device that is OPERATIONAL;
-an NMT start of a node the operator put pre-operational or stopped by a member that knew it
-(heard the command and was not out since); two members' logical
+an NMT start of a node the operator put pre-operational or stopped (the command reached it) by
+a member that knew it (heard the command and was not out since); two members' logical
 heartbeats reaching one device more than ``ALLOW_S`` after the last fault; a write
 acknowledged by a member whose frames have not reached the bus for longer than ``ALLOW_S``
 while the other masters it.
@@ -90,6 +90,7 @@ class Dev:
     consumer_s: float | None = None
     last_logical_s: float = 0.0
     operator: str | None = None  # the operator's last NMT command to it
+    operator_arrived: bool = False  # ...and it reached the device (else it took no effect)
     #: the members that heard that command and have not been out since (they know it)
     knowers: set[str] = field(default_factory=set)
 
@@ -377,10 +378,11 @@ class Sim:
 
     def _check_nmt(self, dev: Dev, sender: str, command: int, before: NmtState, operator: bool) -> None:
         if operator:
-            return  # its intent is recorded when sent (``operator_nmt``)
+            dev.operator_arrived = True  # its intent is recorded when sent (``operator_nmt``)
+            return
         if before == NmtState.OPERATIONAL:
             self.violations.append(f"{self.now:.3f}: {sender} sent NMT {command:02X}h to operational node {dev.node_id}")
-        elif command == 0x01 and dev.operator is not None and sender in dev.knowers:
+        elif command == 0x01 and dev.operator is not None and dev.operator_arrived and sender in dev.knowers:
             self.violations.append(
                 f"{self.now:.3f}: {sender} started node {dev.node_id} the operator put {dev.operator}"
             )
@@ -399,6 +401,7 @@ class Sim:
         dev = self.devices[node_id]
         dev.knowers = knowers
         dev.operator = {"start": None, "preop": "preop", "stop": "stop"}.get(command, dev.operator)
+        dev.operator_arrived = False  # a command that reaches no device takes no effect (as with one gateway)
         return True
 
     def plc_write(self, name: str) -> bool:

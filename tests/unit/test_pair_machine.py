@@ -627,13 +627,13 @@ def test_a_standby_whose_active_dies_on_a_silent_bus_cannot_tell_and_stays_isola
     assert b.fm.role is Role.ACTIVE
 
 
-def test_a_lone_gateway_starting_on_a_silent_bus_claims_after_a_detect_cycle_and_keeps_it_while_heard() -> None:
+def test_a_lone_gateway_starting_on_a_silent_bus_claims_after_the_silent_time_and_keeps_it_while_heard() -> None:
     pair = Pair(devices=False)
     a = pair.add("A", node_id=101, priority=0)
-    pair.run_until(TIMING.detect_cycle_s - 0.01)
+    pair.run_until(TIMING.silent_s - 0.01)
     assert a.fm.role is Role.LISTENING  # its bus delivered nothing: it may be stalled
-    pair.run_until(TIMING.detect_cycle_s + TIMING.slot_s(0, 101) + 0.01)
-    assert a.fm.role is Role.ACTIVE  # nothing for a detect cycle: a silent bus, it claims
+    pair.run_until(TIMING.silent_s + TIMING.slot_s(0, 101) + 0.01)
+    assert a.fm.role is Role.ACTIVE  # nothing for silent_s: a silent bus, it claims
     pair.devices = True  # its devices answer the master: it keeps the bus
     pair.run_until(10.0)
     assert a.fm.role is Role.ACTIVE and a.fm.isolations == 0

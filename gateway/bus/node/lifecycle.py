@@ -96,8 +96,6 @@ class Backoff:
 #: boot-up, or when a probe finds it running after this delay: 1 min, 2 min, 4 min ... 16 min
 #: (not at each of its heartbeats: every check sends it NMT pre-operational and reads 1018h).
 RECHECK_BACKOFF = Backoff(initial_s=60.0, factor=2.0, max_s=960.0)
-#: a pair's node heard or found with no boot-up seen waits this long to be heard running
-RESUME_WAIT_S = 1.0
 
 
 class LifecycleEvent(StrEnum):
@@ -216,6 +214,7 @@ class NodeLifecycle:
         expected_device_type: int | None = None,
         expected_identity: Sequence[tuple[ObjRef, int]] = (),
         recheck: Backoff = RECHECK_BACKOFF,
+        resume_wait_s: float = 1.0,
     ):
         self.steps: tuple[ConfigStep, ...] = tuple(steps)
         self.expected_identity = tuple(expected_identity)
@@ -232,6 +231,8 @@ class NodeLifecycle:
         self.expected_device_type = expected_device_type
         self.state: LifecycleState = LifecycleState.WAITING
         self.resumable = False  # lost while OPERATIONAL, no boot-up since: its configuration intact
+        self.hold_until_s: float | None = None  # a pair's node found waits to be heard until then
+        self.resume_wait_s = resume_wait_s
         self.last_error: str | None = None
         self.step_index = 0
         self.attempt = 0  # failures of the current step
@@ -356,18 +357,13 @@ class NodeLifecycle:
         self._boot_deadline = None
         return [self._fire(LifecycleEvent.LISTEN, "another master manages it: listening")]
 
-    def wait_before_probe(self, now: float) -> None:
-        """A pair's node heard alive, no boot-up seen, not running: probed ``RESUME_WAIT_S``
-        later (the member of a healed split that runs it may start it: it resumes)."""
-        if self.state is LifecycleState.WAITING and self._recheck_at is None:
-            self._recheck_at = now + RESUME_WAIT_S
-
     def hold_found(self, now: float) -> bool:
-        """A pair's probe answered: True while it waits ``RESUME_WAIT_S`` (since the loss) to
-        hear the node's state before it counts as found (running: resumed)."""
-        if self._recheck_at is None:
-            self._recheck_at = now + RESUME_WAIT_S
-        return now < self._recheck_at
+        """A pair's probe answered: True while it waits ``resume_wait_s`` (from the first answer
+        since it was lost) to hear the node's state before it counts as found (running:
+        resumed; a healed split resolves meanwhile)."""
+        if self.hold_until_s is None:
+            self.hold_until_s = now + self.resume_wait_s
+        return now < self.hold_until_s
 
     def on_resumed(self, now: float) -> list[Change]:
         """A pair's node waiting is heard OPERATIONAL with no boot-up seen: the pair started it,
@@ -375,7 +371,7 @@ class NodeLifecycle:
         if self.state is not LifecycleState.WAITING or self.refusals:
             return self._ignore("resumed")
         self.resumable = False
-        self._boot_deadline = self._recheck_at = None
+        self._boot_deadline = self.hold_until_s = None
         return [self._fire(LifecycleEvent.RESUMED, "heard operational again, no boot-up: taken as it runs")]
 
     def on_take_over(self, now: float, adopt: bool, resumable: bool = False) -> list[Change]:
@@ -390,14 +386,13 @@ class NodeLifecycle:
             self._boot_deadline = None
             return [self._fire(LifecycleEvent.ADOPTED, "adopted as it runs at a take-over")]
         self._arm_boot_timeout(now)
-        self.resumable, self._recheck_at = resumable, None
+        self.resumable, self.hold_until_s = resumable, None
         return [self._fire(LifecycleEvent.TAKEN_OVER, "taken over: found and configured as usual")]
 
     def on_lost(self, now: float) -> list[Change]:
         if self.state in (LifecycleState.WAITING, LifecycleState.LISTENING):
             return self._ignore("lost")
-        self.resumable = self.state is LifecycleState.OPERATIONAL
-        self._recheck_at = None  # a pair's wait before a probe counts starts again
+        self.resumable, self.hold_until_s = self.state is LifecycleState.OPERATIONAL, None
         self.losses += 1
         self._preop_pending = False
         self._reset_progress()

@@ -44,8 +44,8 @@ ours is started the same way (its device-side timeout expired during the take-ov
 A gateway that stands down keeps what it knew of each node (``stood_down``), unless it comes
 back from its own outage (cut off, unable to send): then it listens as a fresh joiner.
 
-Imports: bus.node.lifecycle_actions (its states), bus.events, bus.node.node (the type
-only), canopen.cia301, canopen.states. No I/O, no clock.
+Imports: bus.node.lifecycle_actions (its states), bus.events, bus.node.node and
+device.settings (the types only), canopen.cia301, canopen.states. No I/O, no clock.
 """
 
 from __future__ import annotations
@@ -61,6 +61,7 @@ from gateway.canopen.states import NmtState
 
 if TYPE_CHECKING:
     from gateway.bus.node.node import Node
+    from gateway.device.settings import NodeSettings
 
 #: the NMT states a node may be adopted in (CiA 301 7.3.2.2: the NMT slave states reached by a
 #: command without a reset)
@@ -219,6 +220,12 @@ def take_over(node: Node, now: float, master_heard: bool) -> tuple[NmtState | No
     return adopt, [], False
 
 
+def resume_wait_s(s: NodeSettings) -> float:
+    """How long a pair's node found by a probe waits to be heard before it is configured: two of
+    its heartbeat periods, at least 0.3 s (a healed split resolves within one logical heartbeat)."""
+    return max(0.3, 2 * s.heartbeat_ms / 1000.0) if s.supervision == "heartbeat" else 1.0
+
+
 def fall_watch_s(node: Node) -> float:
     """How long after an adoption the node's next report may still tell a fall of the take-over:
     its supervision time (heartbeat consumer or life time), at least one second."""
@@ -261,12 +268,6 @@ def resumes_in(node: Node, state: NmtState) -> bool:
     if state == NmtState.OPERATIONAL:
         return True
     return node.lifecycle.resumable and node.heard.life is Life.HELD and state in ADOPTABLE
-
-
-def wait_before_probe(node: Node, now: float) -> None:
-    """A pair's node heard alive, no boot-up seen, not resumed: probed a second later."""
-    if node.resumes:
-        node.lifecycle.wait_before_probe(now)
 
 
 def another_master(node: Node) -> None:

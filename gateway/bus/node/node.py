@@ -59,7 +59,7 @@ from gateway.bus.node.lifecycle import (
     WriteStep,
 )
 from gateway.bus.node.lifecycle_report import lifecycle_reports
-from gateway.bus.node.listening import HeardLife
+from gateway.bus.node.listening import HeardLife, resume_wait_s
 from gateway.bus.node.outputs import OutputImage
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
@@ -109,7 +109,7 @@ class Node:
             self.boot_steps if configure else [],
             boot_timeout_s=settings.boot_timeout_s,
             expected_device_type=expected_device_type,
-            expected_identity=expected_identity,
+            expected_identity=expected_identity, resume_wait_s=resume_wait_s(settings),
         )
         self.supervision = NodeSupervision(settings, configure)
         self.heard, self.resumes = HeardLife(), listening  # a pair's: what it heard; resumes
@@ -248,7 +248,6 @@ class Node:
         if self.resumes and listening.resumes_in(self, state):
             self.health.fresh_since = now  # a split healed: no NMT, no SDO; fresh from now on
             return self._lifecycle_changes(self.lifecycle.on_resumed(now), now) + listening.adopted(self, state, now)
-        listening.wait_before_probe(self, now)  # a pair's: a split healing may resolve first
         if self.lifecycle.may_probe(now) and self.sdo.find("probe") is None and (
             (last := self._last_probe_end_s) is None or now - last >= min(1.0, self.s.probe_period_s)
         ):
@@ -488,11 +487,11 @@ class Node:
 
     def _probe_due_s(self) -> float | None:
         """When the next probe is due: in WAITING at ``next_probe_s``, not before the recheck
-        of a refused device, or the wait of a resumable one (``NodeLifecycle.recheck_at_s``)."""
+        of a refused device (``NodeLifecycle.recheck_at_s``)."""
         if self.lifecycle.state is not LifecycleState.WAITING or self.next_probe_s is None:
             return None
         recheck = self.lifecycle.recheck_at_s
-        if self.resumes and self.lifecycle.resumable and recheck is None and self.s.supervision != "none":
+        if self.resumes and self.lifecycle.resumable and self.s.supervision != "none":
             return None  # lost running: it says itself when it is back (no probe to reconfigure)
         return self.next_probe_s if recheck is None else max(self.next_probe_s, recheck)
 
@@ -510,7 +509,7 @@ class Node:
     def _take_sdo_outcome(self, r: SdoOutcome, job: SdoJob, now: float) -> list[Output]:
         """What a transfer of the node's own purposes meant (``sdo_done``), applied."""
         if r.probe_ended:
-            self._last_probe_end_s = now
+            self._last_probe_end_s, self.next_probe_s = now, r.probe_again_s or self.next_probe_s
         out = [*r.outputs, *self._lifecycle_changes(r.changes, now)]
         if r.found:
             self.supervision.on_found(now)

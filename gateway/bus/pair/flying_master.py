@@ -40,7 +40,7 @@ gateway, after the active master's next heartbeat was due: the last frame's time
                                                                    and the last claim's slot
     listening    detection time over (counted from    negotiating  sends 72h, waits its slot
                  its bus's first frame; a silent bus:
-                 a detect cycle)
+                 ``silent_s``)
     negotiating  logical heartbeat, 71h *             standby      (someone is active)
     negotiating  time slot over                       active       sends 71h
     standby      72h                                  negotiating  waits its time slot

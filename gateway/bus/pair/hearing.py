@@ -11,7 +11,7 @@ is plausible (``heard``: a frame time older than the last one heard changes noth
   (its logical heartbeat, a claim, its 76h);
 * the detection window of a gateway that listens starts with the first frame its bus delivers
   after it began listening (a process that starts while its bus stalls does not negotiate
-  against a running pair); nothing at all heard for one detect cycle is a silent bus;
+  against a running pair); nothing at all heard for ``silent_s`` is a silent bus;
 * the standby's doubt: the master silent and no frame heard since its next two heartbeats were
   due (a dead master on a quiet bus, or this gateway's cable cut): it waits for a frame until the
   bus must have talked (``PairTiming.doubt_s``), then counts itself cut off.
@@ -63,18 +63,18 @@ class Hearing:
 
     def detection_over(self, now: float) -> bool | None:
         """Listening: True when the detection time has run since its bus delivered a frame (or
-        nothing was heard for a detect cycle: a silent bus); None while it must look again."""
+        nothing was heard for ``silent_s``: a silent bus); None while it must look again."""
         t = self.timing
         if self.first_s is not None:
             return True if now >= self.first_s + t.detect_s else None
-        return True if now >= self.listened_s + t.detect_cycle_s else None
+        return True if now >= self.listened_s + t.silent_s else None
 
     def detection_due_s(self, now: float) -> float:
         """When to look again while listening."""
         t = self.timing
         if self.first_s is not None:
             return self.first_s + t.detect_s
-        return min(self.listened_s + t.detect_cycle_s, now + t.heartbeat / 4)
+        return min(self.listened_s + t.silent_s, now + t.heartbeat / 4)
 
     def master_gone(self) -> bool:
         """A frame was heard after the active master's next two heartbeats were due: the bus is

@@ -126,6 +126,9 @@ class PairTiming:
     #: the longest the devices may be silent while the master is alive: the shortest period of
     #: a device that talks unasked (a heartbeat producer); None: none does
     talk_s: float | None = None
+    #: nothing at all heard this long after a gateway began listening: the bus is silent (no
+    #: active master: it negotiates); longer than a starting process stalls (1.9 s measured)
+    silent_s: float = 2.0
 
     @property
     def heartbeat(self) -> float:
