@@ -6,9 +6,11 @@
 # by deploy/container-test.sh where python is /usr/bin/python3. Both stages use the same base, so
 # the venv's interpreter link points at the same python3 in both.
 #
-# Configuration: /etc/canopen-gateway/config.yaml (the demo config by default; mount your own
-# over it). Any key can be overridden by an environment variable CANOPEN_GATEWAY__SECTION__KEY.
-# The image turns on the health/metrics endpoint on 0.0.0.0:8080.
+# Configuration: mount yours at /etc/canopen-gateway/config.yaml; without it the gateway exits 2
+# with one line saying so (it never serves simulated values in its place). The demo (simulated
+# devices, /etc/canopen-gateway/demo.yaml) runs only when asked for: `docker run IMAGE demo`, or
+# CANOPEN_GATEWAY_DEMO=1. Any key can be overridden by an environment variable
+# CANOPEN_GATEWAY__SECTION__KEY. The image turns on the health/metrics endpoint on 0.0.0.0:8080.
 ARG BASE_IMAGE=python:3.11-slim
 
 FROM ${BASE_IMAGE} AS build
@@ -48,9 +50,10 @@ RUN useradd --uid 10001 --user-group --no-create-home --home-dir /nonexistent \
     && mkdir -p /var/lib/canopen-gateway/journal \
     && chown -R 10001:10001 /var/lib/canopen-gateway
 COPY --from=build /opt/venv /opt/venv
-COPY config/demo.yaml /etc/canopen-gateway/config.yaml
+COPY config/demo.yaml /etc/canopen-gateway/demo.yaml
 COPY deploy/config/ /etc/canopen-gateway/
 ENV PATH=/opt/venv/bin:$PATH \
+    CANOPEN_GATEWAY_DEMO_CONFIG=/etc/canopen-gateway/demo.yaml \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \
     CANOPEN_GATEWAY__HEALTH__HOST=0.0.0.0 \

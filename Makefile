@@ -10,7 +10,7 @@ STAMP_TEST := $(VENV)/.installed-test
 PYTHON_ID    := $(shell $(PYTHON) -c 'import sys; print(sys.executable, sys.version.split()[0])' 2>/dev/null)
 STAMP_PYTHON := $(VENV)/.python
 
-.PHONY: demo test tools lint bench container-test deploy-lint clean screenshots
+.PHONY: demo test test-quick tools lint bench container-test deploy-lint clean screenshots
 
 ifneq ($(file < $(STAMP_PYTHON)),$(PYTHON_ID))
 .PHONY: $(STAMP_PYTHON)
@@ -58,6 +58,10 @@ test: $(STAMP_TEST) tools
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 	$(BIN)/python -m pytest -q
+
+# Day to day: the lint and the unit tests (under 2 minutes); `make test` stays the whole suite.
+test-quick: lint
+	$(BIN)/python -m pytest -q tests/unit
 
 lint: $(STAMP_TEST)
 	$(BIN)/ruff check gateway tests deploy $(wildcard bench)

@@ -1,7 +1,7 @@
 """``python -m bench [name ...]``: run the benchmarks (all by default) and write RESULTS.md.
 
 Names: ingest, latency, modbus, scale, startup, hotpath, outage, linerate, costs, floors, pair,
-plc-first, journal. Running a subset prints its sections
+plc-first, journal, networks. Running a subset prints its sections
 and leaves RESULTS.md as it is.
 
 Imports: bench.*.
@@ -26,6 +26,7 @@ from bench import (
     latency,
     linerate,
     modbus_rps,
+    networks,
     pair,
     plc_first,
     scale,
@@ -50,6 +51,7 @@ BENCHES: dict[str, Callable[[], Awaitable[Section]]] = {
     "pair": pair.run,
     "plc-first": plc_first.run,
     "journal": journal.run,
+    "networks": networks.run,
 }
 HERE = pathlib.Path(__file__).resolve().parent
 

@@ -10,15 +10,19 @@
    coalesces: how many samples it publishes (and so its CPU) follows the machine's load, so
    the CPU per value sample is given too.
 2. **Events per second the journal sustains**: ``Journal.append`` of EMCY-sized entries (a
-   payload as the gateway publishes, 170 bytes) with a callback each, from one thread, as fast
-   as it can: entries per second committed and called back, ``sync: normal`` and ``full``.
+   payload as the gateway publishes, 170 bytes), each with a ``when_done`` callback, from one
+   thread, as fast as it can: entries per second committed and called back, ``sync: normal``
+   and ``full``.
 3. **Backfill**: a gateway process (``canopen-gateway run``) whose journal holds 10,000 EMCY
    events of one key; a Zenoh client in this process asks ``<key>?_time=[..]`` and the time
    from the get to its last reply is measured (all 10,000 in seq order is checked).
 
+Then ``bench/journal_loads.py``: 4. a 100k-row history answer beside a plain get, 5. the PLC
+during a 100k-row export, 6. a stalled disk, 7. opening a full 256 MB journal (see there).
+
 Imports: bench.*, gateway.journal (the store, for 2 and to fill 3), zenoh, tests.zenoh_client (the
-session's config), the standard library;
-the gateway only as a process.
+session's config), the standard library; the gateway as a process (3) and in this process
+(``journal_loads``).
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from typing import Any
 import yaml
 import zenoh
 
-from bench import linerate
+from bench import journal_loads, linerate
 from bench.report import Row, Section
 from bench.rig import free_port
 from bench.stats import Summary
@@ -107,8 +111,8 @@ def sustained(sync: str, n: int = APPEND_N) -> float:
 
     t0 = time.perf_counter()
     for i in range(n):
-        j.append(Entry(i + (1 << 62), "emcy", f"{PREFIX}/wire/emcy", "wire", i, EMCY_PAYLOAD),
-                 called)  # fmt: skip
+        ticket = j.append(Entry(i + (1 << 62), "emcy", f"{PREFIX}/wire/emcy", "wire", i, EMCY_PAYLOAD))
+        j.when_done(ticket, called)  # on the writer once committed
     done.wait(300)
     rate = n / (time.perf_counter() - t0)
     j.stop()
@@ -176,7 +180,7 @@ def backfill(n: int = BACKFILL_N) -> dict[str, float]:
 async def run() -> Section:
     sec = Section(
         key="journal",
-        title="14. Store and forward: the journal's cost at line rate, its rate, a backfill",
+        title="14. Store and forward: the journal's cost at line rate, its rate, a backfill, under load and faults",
         method=__doc__.split("\n\n", 1)[1].split("Imports:")[0].strip(),
     )
     s = Summary.of
@@ -221,12 +225,61 @@ async def run() -> Section:
         Row("... replies received, in seq order (1 = yes)", s([b["replies"]]), "in order",
             s([b["in_order"]])),
     ]  # fmt: skip
+    await loads(sec)
     sec.notes.append(
         "Line rate runs alternate off/on "
         f"({PAIRS} pairs of {PHASE_S:g} s): CPU off {', '.join(f'{c:.1f}' for c in cpu_off)}, "
         f"on {', '.join(f'{c:.1f}' for c in cpu_on)} (% of one core)."
     )
     return sec
+
+
+async def loads(sec: Section) -> None:
+    """Rows 4 to 7 (``journal_loads``)."""
+    s = Summary.of
+    a = await journal_loads.answer_and_export()
+    alone, beside, long = a["plain_alone"], a["plain_beside"], a["long"]
+    idle, during = a["plc_idle"], a["plc_export"]
+    rss0, rss1 = a["rss"]
+    sec.rows += [
+        Row(f"s to the last reply of a {journal_loads.ROWS:,}-row `_time` answer",
+            s([long["s"]]), digits=2),
+        Row("... its replies", s([long["replies"]]), target=f"{journal_loads.ROWS:,}",
+            met=long["replies"] == journal_loads.ROWS),
+        Row("plain `get <node>/state` beside it, max ms", s([beside["max"]]), "alone",
+            s([alone["max"]]), target="<= 1000", met=beside["max"] <= 1000.0, digits=1),
+        Row("... p50 ms", s([beside["p50"]]), "alone", s([alone["p50"]]), digits=2),
+        Row(f"PLC answer p99 ms during a {journal_loads.ROWS:,}-row CSV export", s([during["p99"]]),
+            "idle", s([idle["p99"]]), target="<= 10", met=during["p99"] <= 10.0, digits=2),
+        Row("... max ms", s([during["max"]]), "idle", s([idle["max"]]), digits=2),
+        Row("export s / MB", s([a["export"]["s"]]), "MB", s([a["export"]["bytes"] / 2**20]),
+            digits=2),
+        Row("gateway RSS MiB after the export", s([rss1]), "before", s([rss0]),
+            target="+ <= 8 MiB", met=rss1 - rss0 <= 8.0, digits=1),
+    ]  # fmt: skip
+    if long["err"]:
+        sec.notes.append(f"the long answer ended with: {long['err']}")
+    stall = await journal_loads.stalled_disk()
+    if isinstance(stall, str):
+        sec.notes.append(f"stalled disk not measured: {stall}")
+    else:
+        fr, ok = stall["frozen"], stall["answering"]
+        sec.rows += [
+            Row("EMCY frame -> subscriber ms, p50, journal's filesystem frozen", s([fr["p50"]]),
+                "answering", s([ok["p50"]]), target="200 (the bound) + the path",
+                met=fr["p50"] <= 200.0 + 2 * ok["p50"] + 10.0, digits=1),
+            Row("... max ms", s([fr["max"]]), "answering", s([ok["max"]]), digits=1),
+        ]  # fmt: skip
+        st = stall["status"]
+        sec.notes.append(
+            f"while frozen /healthz journal said: journaling {st.get('journaling')}, "
+            f"published_unjournaled {st.get('published_unjournaled')}, error `{st.get('error')}`."
+        )
+    op = await asyncio.to_thread(journal_loads.full_open)
+    sec.rows.append(
+        Row(f"ms to open a full journal ({op['mb']:.0f} MB, {op['rows']:,.0f} rows)", s([op["full"]]),
+            "empty", s([op["empty"]]), target="<< 1000", met=op["full"] < 100.0, digits=1)
+    )  # fmt: skip
 
 
 def main() -> None:

@@ -9,15 +9,19 @@
 #    is reachable here, so a Debian bookworm rootfs is made with debootstrap and cached as a
 #    tarball in $BASE_CACHE (outside the repository) for the next run.
 # 3. Builds the gateway image from the Dockerfile on that base.
-# 4. Runs it with host networking, the demo config, a read-only root file system and a named
+# 4. Runs the image's own command without a config mounted and expects exit code 2 with one
+#    line naming /etc/canopen-gateway/config.yaml and saying to mount one (it never serves the
+#    demo in its place). Then runs the demo, asked for (`demo` command), with host networking,
+#    a read-only root file system and a named
 #    volume at /var/lib/canopen-gateway (as compose does); waits (bounded) for /healthz to answer
 #    200; runs the image's own HEALTHCHECK; scrapes /metrics and expects received CAN frames
 #    counted; reads a position input register twice over Modbus TCP and expects a change;
 #    subscribes with a Zenoh peer and expects samples; expects /healthz to show the journal
 #    (journal.path, set by the image) writing into the volume; stops the container with SIGTERM
 #    and expects it gone within 2 s.
-# 5. Starts a new container on the same volume and expects the journal kept: /healthz shows it
-#    again and a Zenoh `_time` query answers the state events journaled before the first stop.
+# 5. Starts a new container on the same volume, the demo asked for by CANOPEN_GATEWAY_DEMO=1 this
+#    time, and expects the journal kept: /healthz shows it again and a Zenoh `_time` query
+#    answers the state events journaled before the first stop.
 #    The containers and the volume are removed whatever happens.
 #
 # Idempotent: every step skips what is already there. Needs root (apt, rootful podman). Exits
@@ -34,7 +38,8 @@ BASE_IMAGE=${BASE_IMAGE:-localhost/bookworm-py:latest}
 BASE_CACHE=${BASE_CACHE:-/var/tmp/canopen-gateway-base}
 PY=${PY:-$ROOT/.venv/bin/python}
 CLI=${CLI:-$ROOT/.venv/bin/canopen-gateway}
-CONFIG=config/demo.yaml  # the image copies it to /etc/canopen-gateway/config.yaml
+CONFIG=config/demo.yaml  # the image's demo (/etc/canopen-gateway/demo.yaml), run when asked for
+IMAGE_CONFIG=/etc/canopen-gateway/config.yaml  # where a plant's config is mounted
 CONTAINER=canopen-gateway-test-$$
 VOLUME=canopen-gateway-test-journal-$$  # the journal's volume, kept across both containers
 STATE_DIR=/var/lib/canopen-gateway       # the image's VOLUME
@@ -175,7 +180,13 @@ quiet_podman() {
 LOGDIR=$(mktemp -d)
 
 # The named volume is created by the first run from the image's content there (owned by 10001).
+# start_container [ENV=VALUE...] [-- COMMAND...]: the demo asked for by the command or the env.
 start_container() {
+  local envs=() cmd=()
+  while (($#)); do
+    if [[ $1 == -- ]]; then shift; cmd=("$@"); break; fi
+    envs+=(-e "$1"); shift
+  done
   quiet_podman run -d --name "$CONTAINER" --network host --read-only \
     -v "$VOLUME:$STATE_DIR" \
     --ulimit nofile=20000:20000 --ulimit nproc=4096:4096 \
@@ -183,7 +194,7 @@ start_container() {
     -e CANOPEN_GATEWAY__HEALTH__PORT="$HEALTH_PORT" \
     -e CANOPEN_GATEWAY__MODBUS__PORT="$MODBUS_PORT" \
     -e CANOPEN_GATEWAY__ZENOH__LISTEN="[\"$ZENOH_ENDPOINT\"]" \
-    "$IMAGE" >/dev/null || fail "podman run failed"
+    "${envs[@]}" "$IMAGE" "${cmd[@]}" >/dev/null || fail "podman run failed"
 }
 
 wait_ready() {
@@ -204,8 +215,20 @@ check_journal() {
     || show_logs_and_fail "no journal writing in $JOURNAL_DIR"
 }
 
-step "starting $CONTAINER (the image's own config: $CONFIG; read-only, volume $VOLUME)"
-start_container
+step "the image's own command without a config mounted: exit 2, one line saying to mount one"
+rc=0
+"${PODMAN[@]}" run --rm --network host --read-only --ulimit nofile=20000:20000 \
+  --ulimit nproc=4096:4096 "$IMAGE" >"$LOGDIR/noconfig.out" 2>"$LOGDIR/noconfig.err" || rc=$?
+grep -v 'systemd connection' "$LOGDIR/noconfig.err" >"$LOGDIR/noconfig.lines" || true
+cat "$LOGDIR/noconfig.lines"
+[[ $rc -eq 2 ]] || fail "the image without a config exited $rc (expected 2)"
+[[ $(wc -l <"$LOGDIR/noconfig.lines") -eq 1 && ! -s $LOGDIR/noconfig.out ]] \
+  || fail "the image without a config did not say it in one line"
+grep -q "$IMAGE_CONFIG.*mount" "$LOGDIR/noconfig.lines" \
+  || fail "the line does not name $IMAGE_CONFIG and say to mount one"
+
+step "starting $CONTAINER (the demo asked for: command demo; read-only, volume $VOLUME)"
+start_container -- demo
 wait_ready
 
 step "running the image's HEALTHCHECK"
@@ -248,9 +271,9 @@ mountpoint=$("${PODMAN[@]}" volume inspect --format '{{.Mountpoint}}' "$VOLUME")
 stat -c '%u:%g %a %n' "$mountpoint" "$mountpoint/journal" "$mountpoint/journal/journal.sqlite3" \
   || fail "no journal.sqlite3 in the volume $VOLUME ($mountpoint)"
 
-step "a new container on the same volume"
+step "a new container on the same volume (the demo asked for: CANOPEN_GATEWAY_DEMO=1)"
 quiet_podman rm "$CONTAINER" >/dev/null || fail "podman rm failed"
-start_container
+start_container CANOPEN_GATEWAY_DEMO=1
 wait_ready
 check_journal
 

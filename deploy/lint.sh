@@ -35,7 +35,7 @@ echo "== kubernetes schemas: deploy/k8s/pair"
   deploy/k8s/pair/gateway-b.yaml deploy/k8s/pair/journal-pvc.yaml
 echo "ok -- kubernetes manifests"
 if command -v shellcheck >/dev/null; then
-  echo "== shellcheck deploy/*.sh"
-  shellcheck deploy/*.sh
+  echo "== shellcheck deploy/*.sh deploy/zenoh/*.sh"
+  shellcheck deploy/*.sh deploy/zenoh/*.sh
 fi
 echo "deploy lint: all clean"

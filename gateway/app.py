@@ -1,103 +1,57 @@
-"""Builds the running gateway from a config: bus driver, master, process image, command service,
-Modbus server, Zenoh bridge, health endpoint, and (for demos/tests) simulated devices.
+"""Builds the running gateway from a config: one ``bus.network.Network`` per CAN network (its
+bus driver and master), the process image, the command service (which routes by node name to
+each node's network), Modbus server, Zenoh bridge, health endpoint, the command socket, and (for demos/tests)
+simulated devices (``sim.buses.SimulatedBus``), each network's on its own bus.
 
 ``Gateway(cfg, nodes)`` then ``await start()`` / ``await stop()``: ``nodes`` are the config's
 nodes resolved once when it was loaded (``gateway.checks.load_checked``), handed to the master,
 Modbus, Zenoh, the web console and the simulator. The only module that knows every part; the
 parts do not know each other except through the image and the command service.
 
-Imports: every part: ascii.server, bus.can_backend, bus.driver, bus.master, checks, commands, config, device.resolved,
-http.server, http.metrics, image, modbus.server, northbound (frames, regmap, summary), profiles.derived,
-sim (faults, motion, node, runner), runtime (startup, threads, turns), journal, web (console, views), zenoh_bridge.bridge.
+Imports: every part: ascii.server, bus.driver, bus.master, bus.network, checks, command_socket,
+commands, config, device.resolved, http (health, server, metrics), image, modbus.server,
+northbound (audit_values, catalog, frames, gateway_block, keys, regmap, summary), sim (buses,
+faults), runtime (startup, threads, turns), journal (store, auditlog), web (console, monitor,
+views), zenoh_bridge.bridge.
 """
 
 from __future__ import annotations
 
 import asyncio
 import gc
-import json
 import logging
 import time
 from typing import Any
 
-import can
-
 from gateway import __version__
-from gateway.bus.can_backend import open_can_bus
-from gateway.bus.driver import BusDriver, BusOpenFailed
+from gateway.bus.driver import BusDriver
 from gateway.bus.master import Master
+from gateway.bus.network import Network, NetworkOpenFailed, Networks
 from gateway.checks import check_config, journal_path
+from gateway.command_socket import CommandSocket
 from gateway.commands import CommandService
-from gateway.config import Config, ConfigError, blame
+from gateway.config import Config, blame
 from gateway.device.resolved import ResolvedNode
+from gateway.http.health import bus_reasons, network_overview, network_status, pair_of
 from gateway.http.metrics import modbus_function_label
-from gateway.http.server import pair_status
 from gateway.image import ProcessImage
-from gateway.journal import Entry, Journal, ntp64_of_time
+from gateway.journal import Journal, JournalInUse
+from gateway.journal.auditlog import AuditLog
 from gateway.modbus.server import ModbusGateway
+from gateway.northbound.audit_values import engineering_record
+from gateway.northbound.catalog import build_catalog
 from gateway.northbound.frames import FrameDecoder
+from gateway.northbound.gateway_block import BUS_STATE_CODES, PAIR_ROLE_CODES
 from gateway.northbound.keys import audit_key, prefix_of
-from gateway.northbound.regmap import PAIR_ROLE_CODES, build_register_map
-from gateway.northbound.summary import summarize
-from gateway.profiles.derived import text_rows_as_signals
+from gateway.northbound.regmap import build_register_map
+from gateway.northbound.summary import health_doc
 from gateway.runtime.startup import StartupError, listeners_of, ports_in_use, startup_step
 from gateway.runtime.threads import ThreadRegistry
 from gateway.runtime.turns import LoopTurns
+from gateway.sim.buses import SimulatedBus
 from gateway.zenoh_bridge.bridge import ZenohBridge
 
 log = logging.getLogger("gateway")
-
-
-class SimulatedBus:
-    """Simulated nodes of a config on their own connection to the configured bus."""
-
-    def __init__(
-        self,
-        cfg: Config,
-        nodes: dict[str, ResolvedNode],
-        names: list[str] | None = None,
-    ):
-        from gateway.sim.motion import MotionConfig
-        from gateway.sim.node import SimNode
-
-        self.cfg = cfg
-        wanted = names if names is not None else [n.name for n in cfg.simulated_nodes()]
-        self.nodes: dict[str, Any] = {}
-        for n in cfg.nodes:
-            if n.name not in wanted:
-                continue
-            # a motion or an option the simulator refuses is a config error naming its key
-            key = f"simulate.motion.{n.name}"
-            try:
-                MotionConfig.from_dict(cfg.simulate.motion.get(n.name))
-                key = f"simulate.options.{n.name}"
-                self.nodes[n.name] = SimNode(
-                    nodes[n.name].lp,
-                    n.node_id,
-                    motion=cfg.simulate.motion.get(n.name),
-                    options=cfg.simulate.options.get(n.name),
-                )
-            except (ValueError, TypeError) as exc:
-                raise ConfigError([f"{blame(key, cfg.source, cfg.env_keys)}: {key}: {exc}"]) from exc
-        self.bus: can.BusABC | None = None
-        self.runner: Any = None
-
-    def start(self) -> None:
-        from gateway.sim.runner import SimRunner
-
-        if not self.nodes:
-            return
-        self.bus = open_can_bus(self.cfg.can.bus_kwargs())  # socketcand: ours, see can_backend
-        self.runner = SimRunner(self.bus, list(self.nodes.values()))
-        self.runner.start()
-
-    def stop(self) -> None:
-        if self.runner is not None:
-            self.runner.stop()
-            self.runner = None
-        if self.bus is not None:
-            self.bus.shutdown()
-            self.bus = None
 
 
 class Gateway:
@@ -125,11 +79,17 @@ class Gateway:
         self.cfg = cfg
         self.image = ProcessImage()
         self.threads = ThreadRegistry()
-        self.driver = BusDriver(
-            cfg.can.bus_kwargs(), self.image, cfg.can.reopen_backoff_s, threads=self.threads
-        )
-        self.master = Master(cfg, self.image, self.driver, passive=passive, nodes=self.nodes)
-        self.commands = CommandService(self.master)
+        views = cfg.network_views()
+        #: one per CAN network (its driver, master, bus state), in configured order
+        self.networks = Networks([
+            Network(k, view, self.image, self.nodes, threads=self.threads, passive=passive,
+                    named=cfg.networks is not None)
+            for k, view in enumerate(views)
+        ])  # fmt: skip
+        #: the first network's driver and master (the only ones of a single-network gateway)
+        self.driver: BusDriver = self.networks.first.driver
+        self.master: Master = self.networks.first.master
+        self.commands = CommandService(self.networks)
         self.modbus = (
             ModbusGateway(cfg, self.image, self.commands, self.nodes) if cfg.modbus.enabled else None
         )
@@ -152,67 +112,43 @@ class Gateway:
             )
         )
         self.ascii: Any = None  # the CiA 309-3 ASCII gateway, when ``ascii:`` is configured
+        #: the command line's way in when the bus is in-process (``command_socket``)
+        self.command_socket = CommandSocket(cfg, self.commands, self.turns)
         self.health: Any = None
         self.web: Any = None
         self.started = False
         # a hot-standby pair: the adapters follow the role (the standby serves reads only)
-        self.master.role_listeners.append(self._role_changed)
+        for net in self.networks:
+            net.master.role_listeners.append(self._role_changed)
         self._role_changed(self.master.role or "", "start")
 
     def _role_changed(self, role: str, reason: str) -> None:
-        """The pair's role changed (and once at construction): tell the adapters whether
-        this gateway masters the bus."""
-        mastering = self.master.mastering
+        """The pair's role changed (and once at construction): tell the adapters whether this
+        gateway masters the bus (a pair per network: Zenoh publishes the networks it masters)."""
+        mastering = any(net.master.mastering for net in self.networks)
         if self.modbus is not None:
             self.modbus.set_mastering(mastering)
         if self.zenoh is not None:
-            self.zenoh.set_mastering(mastering)
+            silent = [n for net in self.networks if not net.master.mastering for n in net.master.nodes]
+            self.zenoh.set_mastering(mastering, frozenset(silent))
 
     def catalog(self) -> dict[str, Any]:
-        """Every node and signal: type, unit, scaling, Modbus address (for cloud discovery)."""
+        """Every network, node and signal: type, unit, scaling, Modbus address (for cloud
+        discovery; ``northbound.catalog``)."""
         rm = self.modbus.regmap if self.modbus else build_register_map(self.cfg, self.nodes)
-        addr: dict[tuple[str, str], list[dict[str, Any]]] = {}
-        for p in rm.points:
-            if p.node and p.kind in ("signal", "bit"):
-                addr.setdefault((p.node, p.name), []).append(
-                    {"unit_id": p.unit, "table": p.table, "address": p.address, "count": p.count}
-                    | ({"bit": p.bit} if p.bit is not None else {})
-                )
-        nodes = {}
-        for name in self.commands.names():
-            rt = self.commands.node(name)
-            sigs = {}
-            profile = rt.lp.profile
-            for s in [*profile.signals, *text_rows_as_signals(profile)]:  # with the AP05 text rows
-                sigs[s.name] = {
-                    "object": str(s.object),
-                    "type": s.type,
-                    "access": s.access,
-                    "transport": s.transport,
-                    "unit": s.unit,
-                    "scale": s.scale,
-                    "offset": s.offset,
-                    "description": s.description,
-                    "bits": {b.name: b.bit for b in s.bits},
-                    "modbus": addr.get((name, s.name), []),
-                }
-            nodes[name] = {
-                "node_id": rt.node_id,
-                "profile": rt.lp.family,
-                "title": rt.lp.profile.title,
-                "signals": sigs,
-            }
-        return {"gateway": self.cfg.gateway.name, "version": __version__, "nodes": nodes}
+        return build_catalog(self.cfg, self.commands, rm)
 
     def summary(self) -> str:
         parts = [f"canopen-gateway {__version__} '{self.cfg.gateway.name}'"]
-        can_kw = self.cfg.can.bus_kwargs()
-        parts.append(f"CAN {can_kw.get('interface')}:{can_kw.get('channel')}")
+        for net in self.networks:
+            can_kw = net.cfg.can.bus_kwargs()
+            named = f" network {net.name}" if self.cfg.networks is not None else ""
+            parts.append(f"CAN{named} {can_kw.get('interface')}:{can_kw.get('channel')}")
         if self.modbus:
             if self.cfg.modbus.plain:
                 parts.append(f"Modbus TCP {self.cfg.modbus.host}:{self.modbus.port}")
             if self.modbus.tls_server is not None:
-                parts.append(f"Modbus/TLS {self.modbus.tls_server.sockets[0].getsockname()[0]}:{self.modbus.tls_port}")
+                parts.append(f"Modbus/TLS {self.modbus.tls_server.socks[0].getsockname()[0]}:{self.modbus.tls_port}")
         if self.zenoh:
             z = self.cfg.zenoh
             endpoints = z.connect if z.mode == "client" else z.listen + z.connect  # a client listens nowhere
@@ -222,107 +158,82 @@ class Gateway:
         if self.health is not None and self.health.port:
             url = f"http://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
+        if self.journal is not None:
+            parts.append(f"journal {self.journal.path}")
+        if self.command_socket.path is not None:
+            parts.append(f"command socket {self.command_socket.path}")
         nodes = ", ".join(
             f"{n.name}={n.device}@{n.node_id}" + ("(sim)" if self.sim and n.name in self.sim.nodes else "")
+            + (f" on {self.cfg.network_of(n.name)}" if self.cfg.networks is not None else "")
             for n in self.cfg.nodes
         )
         parts.append(f"nodes: {nodes or 'none'}")
         return " | ".join(parts)
 
     def status(self) -> dict[str, Any]:
-        """Readiness and per-node details for /healthz."""
-        nodes = {}
-        for name, node in self.image.nodes.items():
-            s = summarize(node)
-            age = s.data_age_s
-            nodes[name] = {
-                "node_id": s.node_id,
-                "alive": s.alive,
-                "operational": s.operational,
-                "nmt_state": s.nmt_state.name.lower(),
-                "lifecycle": s.lifecycle,
-                "link": s.link.name.lower(),
-                "data_age_s": None if age is None else round(age, 3),
-                "last_error": s.last_error,
-                "outputs": s.outputs,
-            }
-        bus_ok = self.driver.state == "ok"
+        """Readiness and per-node details for /healthz. Ready while every network's bus is up,
+        the PLC side serves and no thread died; ``reasons`` says why not (a network whose bus
+        is down by its name); ``networks`` each network (``http.health``)."""
         modbus_up = self.modbus is None or self.modbus.server is not None
         zenoh_up = self.zenoh is None or self.zenoh.up
         dead = self.threads.failures()
-        # ready: the bus and the PLC side serve; the cloud side (Zenoh) counts only for a gateway
-        # without Modbus (docs/deploy.md, Readiness): a probe must not take a PLC's gateway out
-        # of service because the router is away. /healthz says "zenoh": false meanwhile.
+        # ready: every bus and the PLC side serve; the cloud side (Zenoh) counts only for a
+        # gateway without Modbus, or when our prefix is announced by another (docs/deploy.md,
+        # Readiness): a probe must not take a PLC's gateway out of service because the router
+        # is away. /healthz says "zenoh": false.
         northbound_up = modbus_up if self.modbus is not None else zenoh_up
-        out_of_pair = self.master.role == "duplicate"  # another device has our pair id
-        ready = self.started and bus_ok and northbound_up and not dead and not out_of_pair
+        zenoh_error = self.zenoh.link.problem if self.zenoh is not None else None
+        buses = bus_reasons(self.networks)
+        reasons = ([] if self.started else ["starting"]) + buses
+        reasons += [f"network {net.name}: another device has this gateway's pair id"
+                    for net in self.networks if net.master.role == "duplicate"]  # fmt: skip
+        if not northbound_up and not (self.modbus is None and zenoh_error is not None):
+            reasons.append("Modbus is not serving" if self.modbus is not None else "Zenoh is down")
+        if zenoh_error is not None:
+            reasons.append(f"zenoh: {zenoh_error}")
+        reasons += [f"thread {name} died: {why}" for name, why in dead.items()]
+        first = self.networks.first
+        several = {"state": self.image.bus_state, "detail": "; ".join(buses)}
         return {
-            "status": "ready" if ready else "not-ready",
-            "ready": ready,
+            "status": "ready" if not reasons else "not-ready",
+            "ready": not reasons,
+            "reasons": reasons,
             "threads": {"failed": dead},
-            "bus": {"state": self.driver.state, "detail": self.driver.last_error},
-            "bus_peers": self.master.peers.doc(),
+            # several networks: the worst state, and which network is not ok
+            "bus": first.bus_doc() if len(self.networks) == 1 else several,
+            "bus_peers": first.master.peers.doc(),
+            "networks": {net.name: network_status(net) for net in self.networks},
             "modbus": modbus_up,
             "zenoh": zenoh_up,
             "uptime_s": round(time.monotonic() - self.image.started_monotonic, 1),
-            "nodes": nodes,
-        } | self._pair_status() | self._watchdog_status() | self._journal_status()
-
-    def _pair_status(self) -> dict[str, Any]:
-        """``role`` and ``peer`` of a hot-standby pair (None outside one)."""
-        pair = self.master.pair
-        if pair is None:
-            return pair_status(None, now_s=0.0, recent_s=0.0)
-        redundancy = self.cfg.master.redundancy
-        claim = pair.peer
-        return pair_status(
-            str(pair.role),
-            now_s=self.master.clock(),
-            recent_s=pair.timing.takeover_s,
-            claim=None if claim is None else (claim.priority, claim.node_id, claim.at_s),
-            peer_heartbeat_s=self.master.peer_heartbeat_s,
-            peer_node_id=redundancy.peer_node_id if redundancy is not None else None,
-            master_id=self.master.pair_master_id,
-            conflict=self.master.pair_conflict,
-            peer_role=pair.peer_role(self.master.clock()),
-        )
+            "nodes": {name: health_doc(node) for name, node in self.image.nodes.items()},
+        } | pair_of(first.master) | (self.modbus.watchdog_status() if self.modbus else {}) | self._journal_status()
 
     def _journal_status(self) -> dict[str, Any]:
         """The journal's figures and last error (a full or slow disk shows here; the gateway
         stays ready: it keeps serving without it)."""
         return {} if self.journal is None else {"journal": self.journal.status()}
 
-    def audit(self, record: dict[str, Any]) -> None:
-        """A write or command done or refused (the command service's audit hook): journaled
-        under ``<prefix>/audit``."""
-        if self.journal is None:
-            return
-        self.journal.append(
-            Entry(ntp64_of_time(record["ts"]), "audit", audit_key(prefix_of(self.cfg)),
-                  record.get("node"), None, json.dumps(record).encode())
-        )
-
-    def _watchdog_status(self) -> dict[str, Any]:
-        if self.modbus is None or not self.modbus.watchdog.enabled:
-            return {}
-        wd = self.modbus.watchdog
-        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}}
+    def audit_record(self, record: dict[str, Any]) -> dict[str, Any]:
+        """An audit record as journaled under ``<prefix>/audit`` (the command service's audit
+        sink shapes it so): with the node's network and the engineering values of a write."""
+        node = record.get("node")
+        network = record.get("network") or (
+            self.cfg.network_of(node) if node in self.image.nodes else None
+        )  # a command to "all" of one network names it itself
+        return engineering_record(record | {"network": network}, self.commands)
 
     def overview(self) -> dict[str, Any]:
-        """Gateway-wide figures for the web console's overview (counters become rates there)."""
-        can_kw = self.cfg.can.bus_kwargs()
+        """Gateway-wide figures for the web console's overview (counters become rates there);
+        ``networks``: each network's bus, its frames, other masters, pair and nodes."""
+        networks = {net.name: network_overview(net) for net in self.networks}
+        first = self.networks.first
         doc: dict[str, Any] = {
-            "can": {
-                "interface": can_kw.get("interface"),
-                "channel": str(can_kw.get("channel")),
-                "bitrate": self.cfg.can.bitrate,
-                "state": self.driver.state,
-                "detail": self.driver.last_error,
-                "reopens": self.driver.reopens,
-            },
+            "can": networks[first.name],
+            "networks": networks,
             "threads_failed": self.threads.failures(),
-            "peers": self.master.peers.doc(),
-            "pair": self._pair_status(),
+            "peers": first.master.peers.doc(),
+            "pair": pair_of(first.master),
             "counters": {},
         }
         if self.modbus is not None:
@@ -380,13 +291,21 @@ class Gateway:
         if busy is not None:
             raise busy
         if self.journal is not None:
-            # first: the events of this run are committed before they are published
+            # first: what the gateway hears is journaled whatever the cloud does
             with startup_step("journal.path", cfg.journal.path):
-                await asyncio.to_thread(self.journal.open)
+                try:
+                    await asyncio.to_thread(self.journal.open)
+                except JournalInUse as exc:  # a second gateway on one journal.path
+                    raise StartupError("journal.path", self.journal.directory, exc.reason) from None
+            j = cfg.journal
+            values = f"values every {j.values_ms} ms" if j.values_ms else "events only"
+            log.info("journal on: %s (%s, kept %g days, at most %g MB)", self.journal.path, values, j.keep_days, j.max_mb)  # fmt: skip
             self.journal.start(self.threads)
             if self.zenoh is not None:
                 self.zenoh.use_journal(self.journal)
-            self.commands.audit = self.audit
+            self.commands.audit = AuditLog(
+                self.journal, audit_key(prefix_of(cfg)), self.audit_record
+            )
         if self.zenoh is not None:
             z = cfg.zenoh
             key, where = ("zenoh.listen", z.listen) if z.mode == "peer" else ("zenoh.connect", z.connect)
@@ -396,14 +315,16 @@ class Gateway:
                 for k, v in (getattr(z, section).model_dump() if getattr(z, section) else {}).items()
                 if isinstance(v, str) and k.endswith(("_file", "certificate", "key"))
             }
-            # before the bus: a second gateway under the same prefix stops here (PrefixInUse)
+            # before the bus; a prefix another announces leaves Zenoh closed (ZenohSession.problem)
             with startup_step(key, ", ".join(where), files):
                 await self.zenoh.open()
         if self.sim is not None:
-            with startup_step("can.channel", cfg.can.channel):
-                self._start_simulated_devices()
-        with startup_step("can.interface", cfg.can.interface):
-            await asyncio.to_thread(self.driver.open, must_open=self.bus_must_open)
+            for view, _ in self.sim.networks:
+                with startup_step(view.qualify("can.channel"), view.can.channel):
+                    self._start_simulated_devices(view)
+        for net in self.networks:  # each network's bus, its reader and sender
+            with startup_step(net.cfg.qualify("can.interface"), net.cfg.can.interface):
+                await asyncio.to_thread(net.open, must_open=self.bus_must_open)
         # every listener before the master sends its first frame: a start that fails on a port
         # in use must leave the devices as they were (no NMT command, no SDO, no heartbeat)
         if self.modbus is not None:
@@ -420,21 +341,24 @@ class Gateway:
         if cfg.health.port:
             with startup_step("health.port", f"{cfg.health.port} on {cfg.health.host}"):
                 await self._start_health()
-        await self.master.start()
+            self.command_socket.facts["health_port"] = self.health.port  # `fault` finds it
+        await self.command_socket.start()  # never stops a start: a warning when it cannot open
+        for net in self.networks:
+            await net.master.start()
         self.started = True
         if self.freeze_gc:
             gc.collect()
             gc.freeze()
 
-    def _start_simulated_devices(self) -> None:
-        """The simulated devices' own connection to the configured bus: with ``bus_must_open``
+    def _start_simulated_devices(self, view: Config) -> None:
+        """The simulated devices' own connection to a network's bus: with ``bus_must_open``
         a bus that cannot open stops the start as the gateway's own would (``BusOpenFailed``)."""
         assert self.sim is not None
         try:
-            self.sim.start()
+            self.sim.start_network(view)
         except Exception as exc:
             if self.bus_must_open:
-                raise BusOpenFailed(exc) from exc
+                raise NetworkOpenFailed(exc, view) from exc
             raise
 
     async def _start_health(self) -> None:
@@ -449,7 +373,7 @@ class Gateway:
             if abort is not None:
                 self.metrics.sdo_abort(node, abort)
 
-        self.master.on_sdo = on_sdo
+        self.networks.on_sdo(on_sdo)
         self.metrics.set_node_source(
             lambda: [
                 NodeSample(n.name, int(n.health.nmt_state), n.health.alive, n.data_age_s())
@@ -460,20 +384,20 @@ class Gateway:
         if self.cfg.web.enabled:
             from gateway.sim.faults import FaultInjector
             from gateway.web.console import WebConsole
+            from gateway.web.monitor import FrameMonitor, NetworkMonitors
             from gateway.web.views import ConsoleModel
 
-            regmap = (
-                self.modbus.regmap
-                if self.modbus is not None
-                else build_register_map(self.cfg, self.nodes)
-            )
+            regmap = self.modbus.regmap if self.modbus else build_register_map(self.cfg, self.nodes)
+            monitors = {  # a bus monitor per network: node ids are a network's own
+                net.name: FrameMonitor(net.cfg, FrameDecoder(net.cfg, self.nodes), net.driver)
+                for net in self.networks
+            }
             self.web = WebConsole(
                 ConsoleModel(self.cfg, self.image, self.commands, self.overview, regmap=regmap),
-                decoder=FrameDecoder(self.cfg, self.nodes),
                 faults=FaultInjector(self.sim) if self.sim is not None else None,
-                frames=self.driver,
                 turns=self.turns,
                 journal=self.journal,
+                monitors=NetworkMonitors(monitors),
             )
             self.web.start(asyncio.get_running_loop())
         self.health = HealthServer(
@@ -501,6 +425,7 @@ class Gateway:
             c.pair_takeovers, c.pair_negotiations = pair.takeovers, pair.negotiations
             c.pair_duplicate_id_frames, c.pair_isolations = pair.duplicates, pair.isolations
         c.pair_role = PAIR_ROLE_CODES.get(self.master.role, 0)
+        self._copy_network_counters(c)
         for name, node in self.image.nodes.items():
             for reason, n in (
                 ("short", node.rx.pdo_too_short),
@@ -513,7 +438,8 @@ class Gateway:
                 c.emcy[name] = node.health.emcy_count
         if self.journal is not None:
             jc = self.journal.counts
-            c.journal = {"written": jc.written, "dropped": jc.dropped, "removed": jc.removed}
+            c.journal = {"written": jc.written, "dropped": jc.dropped, "removed": jc.removed,
+                         "refused": jc.refused, "published_unjournaled": jc.unjournaled}
         if self.zenoh is not None:
             c.zenoh_publications = self.zenoh.publications
             c.zenoh_refused = dict(self.zenoh.refused)
@@ -526,9 +452,24 @@ class Gateway:
             c.modbus_exceptions = {f"0x{k:02X}": v for k, v in store.exceptions.items()}
             c.modbus_requests = {modbus_function_label(fc): n for fc, n in store.by_function.items()}
             c.modbus_watchdog_trips = dict(self.modbus.watchdog.trips)
+            c.modbus_connections, c.modbus_connections_closed = self.modbus.admission.counts()
+
+    def _copy_network_counters(self, c: Any) -> None:
+        """The metrics of each network (label ``network``): frames, errors, reopens, bus state,
+        pair role, other masters."""
+        for net in self.networks:
+            rx, tx, name = net.driver.rx_counters, net.driver.tx_counters, net.name
+            c.can_frames_in[name], c.can_frames_out[name] = rx["frames_in"], tx["frames_out"]
+            c.can_bus_errors[name] = rx["bus_errors"] + tx["bus_errors"]
+            c.can_bus_reopens[name] = net.driver.reopens
+            c.can_bus_state[name] = BUS_STATE_CODES.get(net.state, 0)
+            c.network_pair_role[name] = PAIR_ROLE_CODES.get(net.master.role, 0)
+            for kind, seen in net.master.peers.other_master.items():
+                c.network_other_master[(name, kind)] = seen.count
 
     async def stop(self) -> None:
         self.started = False
+        await self.command_socket.stop()
         if self.ascii is not None:
             await self.ascii.stop()
         if self.health is not None:
@@ -542,7 +483,9 @@ class Gateway:
             await self.zenoh.stop()
         if self.modbus is not None:
             await self.modbus.stop()
-        await self.master.stop()
-        await asyncio.to_thread(self.driver.close)
+        for net in self.networks:
+            await net.master.stop()
+        for net in self.networks:
+            await asyncio.to_thread(net.driver.close)
         if self.sim is not None:
             self.sim.stop()

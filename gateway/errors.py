@@ -57,6 +57,16 @@ class NodeUnknown(GatewayError):
         super().__init__(f"no node named {node!r}{hint}")
 
 
+class NetworkUnknown(NodeUnknown):
+    """A CAN network the gateway does not have (answered as an unknown node is)."""
+
+    kind = "network_unknown"
+
+    def __init__(self, network: str, known: list[str]):
+        self.node = network
+        GatewayError.__init__(self, f"no network named {network!r}; networks: {', '.join(known)}")
+
+
 class BusDown(GatewayError):
     kind = "bus_down"
 

@@ -207,7 +207,7 @@ class NodeImage:
 
     __slots__ = (
         "name", "node_id", "family", "records", "where", "signals", "health", "rx",
-        "stale_after_s", "serve_stale", "outputs", "output_slots",
+        "stale_after_s", "serve_stale", "outputs", "output_slots", "network",
     )  # fmt: skip
 
     def __init__(
@@ -232,6 +232,8 @@ class NodeImage:
         self.outputs = SentOutputs({})
         #: signal -> (RPDO number, index in its values) of every RPDO carrying it, in order
         self.output_slots: dict[str, tuple[tuple[int, int], ...]] = {}
+        #: the CAN network the node is on (set once, when its network is built)
+        self.network = "default"
 
     def bind(self, names: tuple[str, ...]) -> None:
         """Make the record keyed ``names`` a source of those signals. Called while the node
@@ -362,9 +364,24 @@ class ProcessImage:
         #: work to another thread wakes it here, once per batch instead of once per value
         self.batch_listeners: list[Callable[[], None]] = []
         self.started_monotonic = time.monotonic()
-        self.bus_state = "down"
+        #: each CAN network's bus state (``ok``, ``error``, ``down``), written by its driver's
+        #: threads (one key each, one assignment)
+        self.bus_states: dict[str, str] = {}
         self.counters = Counters()
         self._loop_counters = self.counters.counter_set()  # counted on the event loop
+
+    @property
+    def bus_state(self) -> str:
+        """The worst bus state of the networks: ``down`` if one is down (or none opened yet),
+        else ``error`` if one is in error, else ``ok``."""
+        states = list(self.bus_states.values())
+        if not states or "down" in states:
+            return "down"
+        return "error" if "error" in states else "ok"
+
+    def set_bus_state(self, network: str, state: str) -> None:
+        """Network ``network``'s bus is now ``state`` (its driver, on the thread that saw it)."""
+        self.bus_states[network] = state
 
     def count(self, name: str, n: int = 1) -> None:
         """Count on the event loop (other threads use their own ``counters.counter_set()``)."""

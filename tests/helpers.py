@@ -124,7 +124,7 @@ def gateway_of(cfg: Any, *args: Any, **kw: Any) -> Any:
 
 def simulated_bus(cfg: Any, names: list[str] | None = None) -> Any:
     """``SimulatedBus(cfg, nodes, names)`` with the nodes of ``cfg`` resolved (``resolved``)."""
-    from gateway.app import SimulatedBus
+    from gateway.sim.buses import SimulatedBus
 
     return SimulatedBus(cfg, resolved(cfg), names)
 

@@ -23,6 +23,11 @@ CANopenNode and Lely): a line without it is answered ``ERROR:101``, without a se
 Lines end CR LF (LF alone is accepted); ``#`` starts a comment where a token may start; an
 empty or comment-only line gets no answer. Numbers are decimal or ``0x`` hexadecimal.
 
+Networks: the gateway's CAN networks are numbered 1.. in configured order (``networks:``; a
+single-network config is net 1). Without a net a request addresses the connection's default
+net (the first, or the one ``set network`` chose); a net past the last is answered
+``ERROR:106``, a node that is not on the net ``ERROR:107``.
+
 Events (not answers, no sequence): ``<net> <node> BOOT_UP``,
 ``<net> <node> EMCY <code> <register> <b0> .. <b4>`` (code and register in hex, manufacturer
 bytes in decimal) and ``<net> <node> ERROR <code> (<text>)`` for the error control codes
@@ -37,7 +42,7 @@ transport.
 from __future__ import annotations
 
 import re
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 
 from gateway.ascii.grammar import Iec, Overlong, RequestError, peek_seq, tokenize
@@ -59,7 +64,7 @@ from gateway.errors import (
     ValueOutOfRange,
 )
 
-#: the one CAN network of this gateway, as CiA 309-3 numbers networks (1..65535)
+#: the first CAN network of this gateway, as CiA 309-3 numbers networks (1..65535)
 NET = 1
 
 
@@ -105,17 +110,17 @@ def answer_for_error(seq: int | None, exc: BaseException) -> str:
 
 
 # --------------------------------------------------------------------------- events
-def event_boot_up(node_id: int) -> str:
-    return f"{NET} {node_id} BOOT_UP"
+def event_boot_up(node_id: int, net: int = NET) -> str:
+    return f"{net} {node_id} BOOT_UP"
 
 
-def event_emcy(node_id: int, code: int, register: int, manufacturer: bytes) -> str:
+def event_emcy(node_id: int, code: int, register: int, manufacturer: bytes, net: int = NET) -> str:
     msef = " ".join(str(b) for b in bytes(manufacturer[:5]).ljust(5, b"\0"))
-    return f"{NET} {node_id} EMCY {code:04X} {register:02X} {msef}"
+    return f"{net} {node_id} EMCY {code:04X} {register:02X} {msef}"
 
 
-def event_error(node_id: int, code: Iec) -> str:
-    return f"{NET} {node_id} ERROR {int(code)} ({code.text})"
+def event_error(node_id: int, code: Iec, net: int = NET) -> str:
+    return f"{net} {node_id} ERROR {int(code)} ({code.text})"
 
 
 @dataclass(frozen=True)
@@ -139,30 +144,34 @@ class EventTracker:
     change still give both lines."""
 
     def __init__(self) -> None:
-        self._last: dict[int, HealthSample] = {}
+        self._last: dict[tuple[int, int], HealthSample] = {}
 
     def update(
-        self, node_id: int, now: HealthSample, emcy: tuple[int, int, bytes] | None = None
+        self,
+        node_id: int,
+        now: HealthSample,
+        emcy: tuple[int, int, bytes] | None = None,
+        net: int = NET,
     ) -> list[str]:
-        before = self._last.get(node_id)
-        self._last[node_id] = now
+        before = self._last.get((net, node_id))
+        self._last[net, node_id] = now
         if before is None:
             return []
         out: list[str] = []
         booted = now.boot_count != before.boot_count
         if booted:
-            out.append(event_boot_up(node_id))
+            out.append(event_boot_up(node_id, net))
         if now.emcy_count != before.emcy_count and emcy is not None:
-            out.append(event_emcy(node_id, *emcy))
+            out.append(event_emcy(node_id, *emcy, net=net))
         lost = now.loss_count != before.loss_count or (before.alive and not now.alive)
         if lost:
             if now.supervision == "heartbeat":
-                out.append(event_error(node_id, Iec.HEARTBEAT_LOST))
+                out.append(event_error(node_id, Iec.HEARTBEAT_LOST, net))
             elif now.supervision == "guarding":
-                out.append(event_error(node_id, Iec.LOST_GUARDING))
+                out.append(event_error(node_id, Iec.LOST_GUARDING, net))
         if now.alive and (lost or not before.alive) and not booted:
             if now.supervision == "heartbeat":
-                out.append(event_error(node_id, Iec.HEARTBEAT_STARTED))
+                out.append(event_error(node_id, Iec.HEARTBEAT_STARTED, net))
         return out
 
 
@@ -366,6 +375,7 @@ class SdoUpload:
     sub: int
     dtype: DataType | None
     timeout_ms: int | None
+    net: int = NET  # the CAN network (1..)
 
 
 @dataclass(frozen=True)
@@ -376,15 +386,17 @@ class SdoDownload:
     sub: int
     data: bytes
     timeout_ms: int | None
+    net: int = NET
 
 
 @dataclass(frozen=True)
 class NmtCommand:
-    """An NMT command to a node (``node_id`` 0: every configured node)."""
+    """An NMT command to a node (``node_id`` 0: every configured node of network ``net``)."""
 
     seq: int | None
     node_id: int
     command: str
+    net: int = NET
 
 
 Call = SdoUpload | SdoDownload | NmtCommand
@@ -395,7 +407,7 @@ HELP_TEXT = """\
 [seq] [[net] node] start | stop | preop[erational]     NMT (ascii.writes; node 0 = all)
 [seq] [[net] node] reset node | reset comm[unication]  NMT (ascii.writes; node 0 = all)
 [seq] [net] set node <1..127>                          default node
-[seq] set network 1                                    default net (this gateway: net 1)
+[seq] set network <net>                                default net (1..: the configured networks)
 [seq] [net] set sdo_timeout <ms>                       longest wait for an SDO answer
 [seq] help [datatype]
 [seq] info version
@@ -417,8 +429,17 @@ class Session:
     ``handle(line)`` returns the answer lines to send at once, or a ``Call`` for the caller to
     perform (then ``answer_*`` formats what it got), or nothing for an empty line."""
 
-    def __init__(self, node_ids: Collection[int], *, writes: bool, version: str) -> None:
-        self.node_ids = frozenset(node_ids)
+    def __init__(
+        self,
+        node_ids: Collection[int],
+        *,
+        writes: bool,
+        version: str,
+        networks: Mapping[int, Collection[int]] | None = None,
+    ) -> None:
+        #: net number -> the node ids configured on that network (``node_ids``: of net 1)
+        self.networks = {k: frozenset(v) for k, v in (networks or {NET: node_ids}).items()}
+        self.node_ids = self.networks.get(NET, frozenset())
         self.writes = writes
         self.version = version
         self.default_net: int | None = NET  # one network: the default is set from the start
@@ -437,56 +458,59 @@ class Session:
         except RequestError as exc:
             return [answer_error(exc.seq, exc.code)]
 
-    def _net(self, seq: int | None, net: int | None) -> None:
+    def _net(self, seq: int | None, net: int | None) -> int:
+        """The net a request addresses: its own, else the default; ERROR:106 past the last."""
         if net is None:
             if self.default_net is None:
                 raise RequestError(seq, Iec.NO_DEFAULT_NET)
             net = self.default_net
-        if net != NET:
+        if net not in self.networks:
             raise RequestError(seq, Iec.UNSUPPORTED_NET)
+        return net
 
-    def _node(self, req: _NodeRequest, *, all_ok: bool) -> int:
-        """The node id ``req`` addresses (its own or the default; 0, all nodes, if ``all_ok``)."""
+    def _node(self, req: _NodeRequest, *, all_ok: bool) -> tuple[int, int]:
+        """The net and node id ``req`` addresses (its own or the defaults; node 0, all nodes
+        of the net, if ``all_ok``); ERROR:107 for a node not on that net."""
         seq, node = req.seq, req.node
-        self._net(seq, req.net)
+        net = self._net(seq, req.net)
         if node is None:
             if self.default_node is None:
                 raise RequestError(seq, Iec.NO_DEFAULT_NODE)
             node = self.default_node
         if node == 0 and all_ok:
-            return 0
-        if node not in self.node_ids:
+            return net, 0
+        if node not in self.networks[net]:
             raise RequestError(seq, Iec.UNSUPPORTED_NODE)
-        return node
+        return net, node
 
-    def _node_to_change(self, req: _NodeRequest, *, all_ok: bool) -> int:
+    def _node_to_change(self, req: _NodeRequest, *, all_ok: bool) -> tuple[int, int]:
         """The node a write or an NMT command addresses (``_node``); while writes are off the
         request is refused (ERROR:100) and counted."""
-        node = self._node(req, all_ok=all_ok)
+        net_node = self._node(req, all_ok=all_ok)
         if not self.writes:
             self.refused += 1
             raise RequestError(req.seq, Iec.REQUEST_NOT_SUPPORTED, "writes are off")
-        return node
+        return net_node
 
     def _resolve(self, req: Request) -> list[str] | Call:
         seq = req.seq
         if isinstance(req, Read):
-            node = self._node(req, all_ok=False)
-            return SdoUpload(seq, node, req.index, req.sub, req.dtype, self.sdo_timeout_ms)
+            net, node = self._node(req, all_ok=False)
+            return SdoUpload(seq, node, req.index, req.sub, req.dtype, self.sdo_timeout_ms, net)
         if isinstance(req, Write):
-            node = self._node_to_change(req, all_ok=False)
-            return SdoDownload(seq, node, req.index, req.sub, req.data, self.sdo_timeout_ms)
+            net, node = self._node_to_change(req, all_ok=False)
+            return SdoDownload(seq, node, req.index, req.sub, req.data, self.sdo_timeout_ms, net)
         if isinstance(req, Nmt):
-            node = self._node_to_change(req, all_ok=True)
-            return NmtCommand(seq, node, req.command)
+            net, node = self._node_to_change(req, all_ok=True)
+            return NmtCommand(seq, node, req.command, net)
         if isinstance(req, Set):
             if req.what == "network":
-                if req.value != NET:
+                if req.value not in self.networks:
                     raise RequestError(seq, Iec.UNSUPPORTED_NET)
                 self.default_net = req.value
             elif req.what == "node":
-                self._net(seq, req.net)
-                if req.value not in self.node_ids:
+                net = self._net(seq, req.net)
+                if req.value not in self.networks[net]:
                     raise RequestError(seq, Iec.UNSUPPORTED_NODE)
                 self.default_node = req.value
             else:

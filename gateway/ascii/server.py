@@ -4,8 +4,9 @@ Each connection splits its bytes into lines (``grammar.LineSplitter``: a line ov
 answered ERROR:101 and skipped, the connection kept) and answers them in order, one at a time,
 in a task of its own; several clients are served at once. SDO and NMT requests go through the
 command service, the one way south, by node name (the CANopen node id of a configured node
-names it): the same checks and the same typed errors as Modbus and Zenoh, mapped to 309-3
-answers by ``protocol.answer_for_error``. The write gate (``ascii.writes``) is the session's.
+names it on its network, CiA 309-3's net: the gateway's networks numbered 1.. in configured
+order): the same checks and the same typed errors as Modbus and Zenoh, mapped to 309-3 answers by
+``protocol.answer_for_error``. The write gate (``ascii.writes``) is the session's.
 
 With ``ascii.events: true`` every connection also gets event lines (boot-up, EMCY, heartbeat
 lost / started, guarding lost) derived from the process image's health listener, on the event
@@ -15,13 +16,18 @@ and answers are still written.
 A client that disconnects mid-request harms nothing: the request completes on the bus, its
 answer is dropped, and the connection's task ends.
 
+Only clients in ``ascii.allowed_networks`` (default: this machine) are served: a connection
+from any other address is closed at once, counted (``refused_clients``) and logged with the
+address (rate-limited). A write or NMT command refused by ``ascii.writes`` is logged and
+audited (``commands.audit``).
+
 The PLC comes first: each line takes a turn on the event loop (``turns.LoopTurns``, shared
 with the web console) before it is handled, so many ASCII clients never hold a Modbus answer
 up for more than one line's work; when too many clients wait for a turn, the line is answered
 ``ERROR:102`` (request not processed due to internal state) and the client may send it again.
 
 Imports: asyncio, commands, config, errors, image, canopen.objref, ascii.protocol, ascii.grammar,
-ascii.values, runtime.ratelimit, runtime.turns. Never modbus/,
+ascii.values, northbound.networks, runtime.ratelimit, runtime.turns. Never modbus/,
 zenoh_bridge/, web/ or bus/.
 """
 
@@ -52,6 +58,7 @@ from gateway.commands.audit import acting_as
 from gateway.config import Config
 from gateway.errors import GatewayError
 from gateway.image import NodeImage, ProcessImage
+from gateway.northbound.networks import Networks
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.turns import ACCEPT_BACKLOG, LoopTurns
 
@@ -76,8 +83,12 @@ class AsciiGateway:
         self.section = cfg.ascii
         self.image = image
         self.commands: CommandService = commands
-        self.by_id: dict[int, str] = {
-            commands.node(name).node_id: name for name in commands.names()
+        #: CiA 309-3 net number -> the network's name, and (net, node id) -> node name
+        self.nets: dict[int, str] = {k: name for k, name in enumerate(cfg.network_names(), start=1)}
+        numbers = {name: k for k, name in self.nets.items()}
+        self.by_id: dict[tuple[int, int], str] = {
+            (numbers[cfg.network_of(name)], commands.node(name).node_id): name
+            for name in commands.names()
         }
         self.server: asyncio.base_events.Server | None = None
         self.port = self.section.port
@@ -88,6 +99,8 @@ class AsciiGateway:
         self.requests = 0  # SDO and NMT requests performed
         self.errors = 0  # of those, answered with an error
         self.refused = 0  # writes and NMT commands refused by ``ascii.writes``
+        self.allowed = Networks(self.section.allowed_networks)
+        self.refused_clients = 0  # connections closed: not in ``ascii.allowed_networks``
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -97,7 +110,7 @@ class AsciiGateway:
         self.port = self.server.sockets[0].getsockname()[1]
         if self.section.events:
             for node in self.image.nodes.values():
-                self.tracker.update(node.node_id, _sample(node))
+                self.tracker.update(node.node_id, _sample(node), net=self._net_of(node))
             self.image.health_listeners.append(self._on_health)
         log.info("CiA 309-3 ASCII gateway on %s:%d", self.section.host, self.port)
 
@@ -122,9 +135,20 @@ class AsciiGateway:
         """On the event loop: a node's health changed or an EMCY arrived."""
         rec = node.health.last_emcy
         emcy = (rec.code, rec.register, bytes(rec.manufacturer)) if rec is not None else None
-        for line in self.tracker.update(node.node_id, _sample(node), emcy):
+        for line in self.tracker.update(node.node_id, _sample(node), emcy, self._net_of(node)):
             for conn in list(self.connections):
                 conn.send_event(line)
+
+    def _net_of(self, node: NodeImage) -> int:
+        """The CiA 309-3 net number of the node's network."""
+        return next(k for k, name in self.nets.items() if name == node.network)
+
+    def networks(self) -> dict[int, list[int]]:
+        """Net number -> the node ids on that network (a session's addresses)."""
+        out: dict[int, list[int]] = {k: [] for k in self.nets}
+        for net, node_id in self.by_id:
+            out[net].append(node_id)
+        return out
 
     # ------------------------------------------------------------------ requests
     async def perform(self, call: SdoUpload | SdoDownload | NmtCommand) -> str:
@@ -132,9 +156,12 @@ class AsciiGateway:
         self.requests += 1
         try:
             if isinstance(call, NmtCommand):
-                self.commands.nmt("all" if call.node_id == 0 else self.by_id[call.node_id], call.command)
+                if call.node_id == 0:  # every node of that network
+                    await self.commands.nmt("all", call.command, self.nets[call.net])
+                else:
+                    await self.commands.nmt(self.by_id[call.net, call.node_id], call.command)
                 return answer_ok(call.seq)
-            name = self.by_id[call.node_id]
+            name = self.by_id[call.net, call.node_id]
             obj = ObjRef(call.index, call.sub)
             timeout = None if call.timeout_ms is None else call.timeout_ms / 1000.0
             if isinstance(call, SdoDownload):
@@ -164,7 +191,9 @@ class _Connection(asyncio.Protocol):
 
     def __init__(self, gw: AsciiGateway) -> None:
         self.gw = gw
-        self.session = Session(gw.by_id, writes=gw.section.writes, version=__version__)
+        self.session = Session(
+            [], writes=gw.section.writes, version=__version__, networks=gw.networks()
+        )
         self.splitter = LineSplitter()
         self.lines: asyncio.Queue[str | Overlong | None] = asyncio.Queue()
         self.transport: asyncio.Transport | None = None
@@ -180,6 +209,16 @@ class _Connection(asyncio.Protocol):
         self.transport = transport
         peer = transport.get_extra_info("peername")
         self.peer = f"{peer[0]}:{peer[1]}" if peer else "?"
+        if not peer or str(peer[0]) not in self.gw.allowed:
+            self.gw.refused_clients += 1
+            self.gw.warn.warning(
+                "ascii_client_refused",
+                "ASCII client %s refused: not in ascii.allowed_networks (%s); %d refused so far",
+                peer[0] if peer else "?", self.gw.allowed, self.gw.refused_clients,
+            )  # fmt: skip
+            self.transport = None
+            transport.close()
+            return
         self.gw.connections.add(self)
         self.task = asyncio.get_running_loop().create_task(self._serve())
         self.gw.tasks.add(self.task)
@@ -241,6 +280,9 @@ class _Connection(asyncio.Protocol):
         if self.session.refused != refused:
             self.gw.refused += 1
             self.gw.warn.warning("ascii_refused", "ASCII client %s: write or NMT refused (ascii.writes is false)", self.peer)  # fmt: skip
+            with acting_as(f"ascii {self.peer}"):
+                line = item if isinstance(item, str) else "(line too long)"
+                self.gw.commands.refusals.refused("ascii_write", "", line, None, "ascii.writes is false")
         if isinstance(result, list):
             return result
         with acting_as(f"ascii {self.peer}"):  # the audit of a write names the client

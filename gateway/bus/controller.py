@@ -17,6 +17,12 @@ sending    a frame refused by the interface: its transmit queue full  a frame se
            after the retries (ENOBUFS), or any other refusal
 =========  =========================================================  ==========================
 
+The one home of what the controller says: ``controller_report`` reads an error frame by the
+SocketCAN layout (linux/can/error.h, which python-can's other backends follow too: the error
+class bits in the CAN-ID, the controller's status in data byte 1), pure; ``ControllerState``
+keeps the causes; the bus driver (``bus.driver``) keeps the bus state and logs it, naming its
+network.
+
 Threads: the reader thread owns the object; the sender thread only writes ``sending`` (one
 assignment) and the reader takes it at its next look (``look``).
 
@@ -25,6 +31,7 @@ Imports: python-can and the standard library.
 
 from __future__ import annotations
 
+import errno
 from collections.abc import Callable
 
 import can
@@ -37,9 +44,43 @@ CAN_ERR_CRTL_RX_PASSIVE = 0x10  # reached error passive status on receive
 CAN_ERR_CRTL_TX_PASSIVE = 0x20  # reached error passive status on transmit
 CAN_ERR_CRTL_ACTIVE = 0x40  # recovered to error active state
 
+#: the report of a controller error active again (restarted, or recovered)
+ERROR_ACTIVE = "error active"
+
 #: python-can's bus state is read this often (a vendor driver call)
 POLL_S = 0.25
 _BUS_STATE = {can.BusState.ERROR: "bus off", can.BusState.PASSIVE: "error passive"}
+
+
+def controller_report(msg: can.Message) -> str | None:
+    """``bus off``, ``error passive (transmit)`` / ``(receive)``, ``ERROR_ACTIVE``, or None
+    for an error frame that says none of these."""
+    cls = msg.arbitration_id
+    data = bytes(msg.data).ljust(8, b"\0")
+    ctrl = data[1] if cls & CAN_ERR_CRTL else 0
+    if cls & CAN_ERR_BUSOFF:
+        return "bus off"
+    if ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
+        return f"error passive ({'transmit' if ctrl & CAN_ERR_CRTL_TX_PASSIVE else 'receive'})"
+    if cls & CAN_ERR_RESTARTED or ctrl & CAN_ERR_CRTL_ACTIVE:
+        return ERROR_ACTIVE
+    return None
+
+def send_errno(exc: BaseException) -> int | None:
+    """The errno of a refused send: python-can's backends raise ``CanError`` with it as
+    ``error_code`` (socketcan), others the ``OSError`` itself (python-can-remote)."""
+    if isinstance(exc, can.CanError) and exc.error_code is not None:
+        return exc.error_code
+    code = getattr(exc, "errno", None)
+    if code is None and exc.__cause__ is not None:
+        code = getattr(exc.__cause__, "errno", None)
+    return code if isinstance(code, int) else None
+
+
+def tx_queue_full(exc: Exception) -> bool:
+    """The interface refused a frame because its transmit queue is full (ENOBUFS: python-can's
+    socketcan backend raises ``CanOperationError`` with that ``error_code``)."""
+    return send_errno(exc) == errno.ENOBUFS
 
 
 class ControllerState:
@@ -68,18 +109,13 @@ class ControllerState:
     def on_error_frame(self, msg: can.Message) -> bool:
         """An error frame; False when it says nothing of the controller's state."""
         self.last_error_frame_s = self.mono()
-        cls = msg.arbitration_id
-        data = bytes(msg.data).ljust(8, b"\0")
-        ctrl = data[1] if cls & CAN_ERR_CRTL else 0
-        if cls & CAN_ERR_BUSOFF:
-            self.causes["frames"] = "bus off"
-        elif ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
-            side = "transmit" if ctrl & CAN_ERR_CRTL_TX_PASSIVE else "receive"
-            self.causes["frames"] = f"error passive ({side})"
-        elif cls & CAN_ERR_RESTARTED or ctrl & CAN_ERR_CRTL_ACTIVE:
+        said = controller_report(msg)
+        if said is None:
+            return False
+        if said == ERROR_ACTIVE:
             self.causes.pop("frames", None)
         else:
-            return False
+            self.causes["frames"] = said
         return True
 
     def on_frame(self) -> None:

@@ -25,7 +25,8 @@ waits for the next attempt the reader sleeps (woken at once by ``close``). The b
 with every attempt that brings no frame: it starts again from ``reopen_backoff_s`` once the
 reopened bus delivers one (a link that opens and fails at once is not retried every second).
 
-Bus state (``state``, mirrored in ``image.bus_state``, with the reason in ``last_error``):
+Bus state (``state``, mirrored in ``image.bus_states[network]``, with the reason in
+``last_error``; one driver per CAN network, ``bus.network``):
 
 =======  ===================================================================================
 ok       frames flow; the controller is error active (or nothing says otherwise)
@@ -45,7 +46,9 @@ counts in its own counter set.
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), bus.controller, image (for counters), runtime.ratelimit, runtime.threads. Nothing northbound.
+Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), bus.controller (its state, a
+refused send's errno), config (DEFAULT_NETWORK),
+image, runtime.ratelimit, runtime.threads. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -62,7 +65,8 @@ from typing import Any
 import can
 
 from gateway.bus.can_backend import open_can_bus, quiet_imports
-from gateway.bus.controller import ControllerState
+from gateway.bus.controller import ControllerState, send_errno, tx_queue_full
+from gateway.config import DEFAULT_NETWORK
 from gateway.image import ProcessImage
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadRegistry
@@ -107,23 +111,6 @@ SEND_FAILURES_DOWN = 5
 FrameHandler = Callable[[can.Message], None]
 
 
-def _errno(exc: BaseException) -> int | None:
-    """The errno of a refused send: python-can's backends raise ``CanError`` with it as
-    ``error_code`` (socketcan), others the ``OSError`` itself (python-can-remote)."""
-    if isinstance(exc, can.CanError) and exc.error_code is not None:
-        return exc.error_code
-    code = getattr(exc, "errno", None)
-    if code is None and exc.__cause__ is not None:
-        code = getattr(exc.__cause__, "errno", None)
-    return code if isinstance(code, int) else None
-
-
-def _tx_queue_full(exc: Exception) -> bool:
-    """The interface refused a frame because its transmit queue is full (ENOBUFS: python-can's
-    socketcan backend raises ``CanOperationError`` with that ``error_code``)."""
-    return _errno(exc) == errno.ENOBUFS
-
-
 class BusDriver:
     """The bus, its reader thread and sending; see the module docstring for the states."""
 
@@ -140,7 +127,12 @@ class BusDriver:
         threads: ThreadRegistry | None = None,
         mono: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
+        network: str = DEFAULT_NETWORK,
+        named: bool = False,
     ):
+        #: its CAN network (state in ``image.bus_states``); ``named``: threads and logs name it
+        self.network, self.where = network, f" (network {network})" if named else ""
+        self._suffix = f"-{network}" if named else ""
         self.bus_kwargs = bus_kwargs
         self.image = image
         self.reopen_backoff_s = reopen_backoff_s
@@ -188,6 +180,9 @@ class BusDriver:
         #: frame's wall-clock timestamp into the bus clock without reading a clock)
         self._burst = (mono(), wall())  # one assignment: the loop reads it too (``stamp``)
         self.rx_counters = image.counters.counter_set()  # reader thread only
+        #: the reader's rounds (a wait that found nothing, a burst's start, a wait to reopen;
+        #: reader thread only): standing still, the reader is stuck (``runtime.sd_notify``)
+        self.reader_turns = 0
         self.tx_counters = image.counters.counter_set()  # sender thread only
         self._tx: queue.SimpleQueue[can.Message | None] = queue.SimpleQueue()
         self._sender: threading.Thread | None = None
@@ -211,15 +206,15 @@ class BusDriver:
                 raise BusOpenFailed(exc) from exc
             if isinstance(exc, FATAL_OPEN_ERRORS):
                 raise
-            log.error("CAN bus cannot be opened: %s; retrying with backoff", exc)
+            log.error("CAN bus%s cannot be opened: %s; retrying with backoff", self.where, exc)
             self.bus = None
             self._set_state("down", str(exc), tell=True)  # down from the start: said all the same
         else:
             self._set_state("ok", "")
         self._running.set()
         self._closing.clear()
-        self._thread = self.threads.start("can-reader", self._run)
-        self._sender = self.threads.start("can-sender", self._send_loop)
+        self._thread = self.threads.start("can-reader" + self._suffix, self._run)
+        self._sender = self.threads.start("can-sender" + self._suffix, self._send_loop)
 
     def close(self) -> None:
         self._running.clear()
@@ -245,7 +240,7 @@ class BusDriver:
     def _set_state(self, state: str, detail: str, tell: bool = False) -> None:
         changed = tell or state != self.state
         self.state = state
-        self.image.bus_state = state
+        self.image.set_bus_state(self.network, state)
         if detail:
             self.last_error = detail
         if changed and self.on_state is not None:
@@ -344,7 +339,7 @@ class BusDriver:
     def _send_refused(self, bus: can.BusABC, exc: Exception) -> None:
         """Count a refused send: its frames cannot go out (state ``error``, taken by the reader
         at its next look); tell the reader when it says the link is gone."""
-        code = _errno(exc)
+        code = send_errno(exc)
         if code == errno.ENOBUFS:
             self.controller.sending = f"transmit queue full: {exc}"
             return  # a full transmit queue (bus off, no ack), not a lost link
@@ -365,7 +360,7 @@ class BusDriver:
                 with self._send_lock:
                     bus.send(msg)
             except (can.CanOperationError, OSError) as exc:
-                full = _tx_queue_full(exc)
+                full = tx_queue_full(exc)
                 if not full or retries == 0 or not self._running.is_set():
                     self._tx_full = full
                     raise
@@ -406,6 +401,7 @@ class BusDriver:
                 continue
             if msg is None:
                 # nothing left buffered: caught up with the bus
+                self.reader_turns += 1
                 self.clock_state = (True, self.clock_state[1])
                 if in_burst:
                     in_burst = False
@@ -454,7 +450,7 @@ class BusDriver:
     def _bus_lost(self, detail: str) -> None:
         """The link is gone (receive raised, or the sender found it gone): close the bus, say
         ``down`` (``on_state``); the reader reopens it after the backoff."""
-        log.error("CAN bus %s; reopening", detail)
+        log.error("CAN bus%s %s; reopening", self.where, detail)
         self._shutdown_bus()
         # nothing is buffered any more: the bus clock follows the monotonic clock again
         # (left "busy", it would stand still while the bus is down and no node could
@@ -463,6 +459,7 @@ class BusDriver:
         self._set_state("down", detail)
 
     def _sync_clocks(self) -> None:
+        self.reader_turns += 1
         self._burst = (self.mono(), self.wall())
 
     def add_tap(self, tap: FrameHandler) -> None:
@@ -492,8 +489,8 @@ class BusDriver:
     def _error_frame(self, msg: can.Message) -> None:
         """Controller state from an error frame (``ControllerState.on_error_frame``)."""
         if not self.controller.on_error_frame(msg):
-            data = bytes(msg.data).ljust(8, b"\0")
-            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", msg.arbitration_id, data.hex(" "))
+            data = bytes(msg.data).ljust(8, b"\0").hex(" ")
+            self.warn.warning("error_frame", "CAN error frame 0x%X data %s", msg.arbitration_id, data)
         self._apply_controller()
 
     def _look(self, bus: can.BusABC) -> None:
@@ -508,10 +505,10 @@ class BusDriver:
         what = self.controller.error
         if what is not None:
             if self.state != "error" or self.last_error != what:
-                log.warning("CAN controller reports %s: this gateway's frames cannot go out", what)
+                log.warning("CAN controller%s reports %s: this gateway's frames cannot go out", self.where, what)
             self._set_state("error", what)
         elif self.state == "error":
-            log.info("CAN bus ok again: frames go out, no error reported")
+            log.info("CAN bus%s ok again: frames go out, no error reported", self.where)
             self._set_state("ok", "")
 
     def _reopen(self) -> bool:
@@ -521,6 +518,7 @@ class BusDriver:
         while self._running.is_set() and self.mono() < deadline:
             # woken at once by close(); the deadline is judged on the injectable clock
             self._closing.wait(min(0.05, max(0.0, deadline - self.mono())))
+            self.reader_turns += 1
         if not self._running.is_set():
             return False
         self.reopen_attempts += 1
@@ -529,14 +527,13 @@ class BusDriver:
         except Exception as exc:  # noqa: BLE001
             self.warn.warning(
                 "reopen",
-                "CAN bus reopen failed: %s; next attempt in %.1f s",
-                exc,
+                "CAN bus%s reopen failed: %s; next attempt in %.1f s", self.where, exc,
                 self.backoff_s(self.reopen_attempts + 1),
             )
             self._set_state("down", f"reopen failed: {exc}")
             return False
         self.reopens += 1
         self.controller.reset()
-        log.info("CAN bus reopened")
+        log.info("CAN bus%s reopened", self.where)
         self._set_state("ok", "")
         return True

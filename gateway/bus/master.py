@@ -42,6 +42,7 @@ from gateway.bus.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.lss.service import LssService
 from gateway.bus.node import listening
 from gateway.bus.node.parts import NodeParts, build_node_into
+from gateway.bus.pair.heard_sdo import HeardSdo
 from gateway.bus.pair.member import PairMember, talk_period_s
 from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide
 from gateway.bus.producers import Periodic
@@ -132,6 +133,7 @@ class Master(PairSide):
         #: role listeners: called (role, reason) on the event loop when the pair's role changes
         self.role_listeners = self.member.role_listeners
         self.standby_dropped = 0  # frames the nodes asked for while this gateway stood by
+        self.heard_sdo = HeardSdo()  # the other gateway's SDO transfers, heard standing by
         #: other masters, other SDO clients, unconfigured node ids (event loop only)
         self.peers = BusPeers(
             cfg.master.node_id,
@@ -245,7 +247,7 @@ class Master(PairSide):
 
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
         if not self.mastering:
-            self.member.on_sdo_request(p.node_id, data)  # the active gateway's transfer
+            self.heard_sdo.on_request(p.node_id, data)  # the active gateway's transfer
             self._execute(p, listening.on_sdo_heard(p.node, now))  # a node being configured?
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
@@ -280,7 +282,7 @@ class Master(PairSide):
             outs = node.on_emcy(data, wall, now)
         else:
             if not self.mastering:
-                self.member.on_sdo_response(p.node_id, data)
+                self.heard_sdo.on_response(p.node_id, data)
             outs = node.on_sdo_response(data, now)
         self._execute(p, outs)
 

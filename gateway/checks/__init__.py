@@ -1,7 +1,9 @@
 """Checks across the config, the profiles / EDS files and the register map
 (``canopen-gateway check``, and every start of the gateway).
 
-``config_problems(cfg)`` returns one ``(key path, what is allowed)`` per problem:
+``config_problems(cfg)`` returns one ``(key path, what is allowed)`` per problem (the checks of
+one bus run on each network's config, ``Config.network_view``, their keys under its
+``networks[k].``):
 
 * the register map compiles (no address used twice, blocks fit);
 * protocol feasibility, e.g. an AP05 external heartbeat (AP05 manual 5.5.4, 5F09h) that the
@@ -21,31 +23,28 @@
   node, the master's NMT, SYNC, heartbeat and LSS), named in one line with where each got it;
   one SYNC producer (``master.sync_period_ms`` and ``master.sync_external`` not both);
 * ``journal.path`` can be created and written (the one check here that touches the disk: it
-  creates the directory when missing).
+  creates the directory when missing);
+* the secrets named by file are usable (``checks.secrets``: ``web.token_file``, a
+  ``zenoh.auth.password_file`` that is not the examples' placeholder).
 
-``config_warnings(cfg)`` returns what runs but may not do what is meant, one ``(key path,
-text naming the node)`` each (``check`` prints them after its summary): a device's own TPDO
-and RPDO on one COB-ID; an enabled SYNC-driven TPDO (transmission type 0..240) without a
-SYNC producer (``master.sync_period_ms`` 0 and no ``master.sync_external``); a COB-ID the
-node's EDS/DCF writes absolute that is another node's pre-defined one; a DCF whose
-``[DeviceComissioning] NodeID`` is not the node id it is used at; in a hot-standby pair, a
-node that cannot survive the gateway's worst take-over (``checks.pair.takeover_warnings``).
+``config_warnings(cfg)`` (what runs but may not do what is meant) and ``config_notes(cfg)``
+(what the gateway will not check) are ``checks.warnings``'s, re-exported here.
 
 ``pair_problems(a, b, nodes_a, nodes_b)`` (``checks.pair``) compares the two configs of a
-hot-standby pair (``check -c A -c B``, docs/redundancy.md).
+hot-standby pair (``check -c A -c B``, docs/redundancy.md); ``pair_of_networks`` does it
+network by network.
 
 Every function takes the nodes as resolved once (``gateway.device.resolved``). ``load_checked`` /
 ``parse_checked`` read and validate a config, resolve its nodes in the same pass and run these
 checks, raising ConfigError with every line; they return the config and its nodes.
 
-Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, profiles,
+Pure: imports config, device.resolved (the resolution and its loaders), checks.pair, checks.warnings, checks.secrets, profiles,
 eds, the boot step builder, the external heartbeat keep-alive rule (device/settings.py), the codecs and the
-register map, the COB-IDs of the nodes (bus/cob_id_uses.py), a device file's COB-IDs and NodeID
-(eds/file_cob_ids.py), journal (the path check) (no I/O but reading the files they name and the
+register map, the COB-IDs of the nodes (bus/cob_id_uses.py), journal (the path check) (no I/O but reading the files they name and the
 journal's directory).
 
-Imports: config, checks.pair, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
-settings), eds (parse, pdos, file_cob_ids), profiles (layout, schema), modbus.safe_outputs (its
+Imports: config, checks.pair, checks.warnings, checks.secrets, canopen.cia301, canopen.objref, bus.cob_id_uses, device (boot_steps, resolved,
+settings), eds (parse, pdos), profiles (layout, schema), modbus.safe_outputs (its
 rule only), northbound.regmap, journal.
 """
 
@@ -59,13 +58,13 @@ from typing import Any
 from gateway.bus.cob_id_uses import clashes, gateway_uses, loops_back
 from gateway.canopen.cia301 import TYPE_BITS, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
-from gateway.checks.pair import pair_problems, takeover_warnings
+from gateway.checks.pair import pair_problems
+from gateway.checks.secrets import secret_problems
+from gateway.checks.warnings import config_notes, config_warnings
 from gateway.config import Config, ConfigError, NodeConfig, blame
 from gateway.device.boot_steps import ConfigStep
 from gateway.device.resolved import Resolved, ResolvedNode, load_resolved, parse_resolved
 from gateway.device.settings import external_heartbeat_problem
-from gateway.eds import EdsError, load_eds
-from gateway.eds.file_cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
 from gateway.eds.parse import DATA_TYPES
 from gateway.eds.pdos import eds_pdos, od_var, readable
 from gateway.journal import path_problem
@@ -345,70 +344,6 @@ def cob_id_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
     return out
 
 
-#: socketcand's ASCII protocol (rawmode ``< send ID LEN DATA >``) has no remote frame: a guarding
-#: RTR arrives as a data frame of no data, which no device answers
-GUARDING_OVER_SOCKETCAND = (
-    "node guarding needs remote frames (RTR), which socketcand's protocol cannot carry: the node "
-    "would be counted lost; supervise it by heartbeat (supervision: heartbeat) or use another "
-    "CAN interface"
-)
-
-
-def config_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem]:
-    """What runs but may not do what is meant (see the module docstring)."""
-    out: list[Problem] = []
-    resolved = nodes
-    for first, later in clashes(gateway_uses(cfg, resolved)):
-        if loops_back(first, later):
-            out.append(
-                (
-                    later.key,
-                    f"node {later.node}: COB-ID 0x{later.cob_id:03X} of {later} is also "
-                    f"{first}: the device sends and receives on one COB-ID; a write of its "
-                    "RPDO would be a second sender on it",
-                )
-            )
-    sync = cfg.master.sync_period_ms or cfg.master.sync_external
-    for i, n in enumerate(cfg.nodes):
-        rn = resolved.get(n.name)
-        if rn is None:
-            continue
-        key = f"nodes[{i}]"
-        if rn.sync_tpdos and not sync:
-            out.append((key, f"node {n.name}: {sync_wait_text(rn)}"))
-        if rn.settings.supervision == "guarding" and cfg.can.interface == "socketcand":
-            out.append((f"{key}.supervision", f"node {n.name}: {GUARDING_OVER_SOCKETCAND}"))
-        try:
-            eds = load_eds(rn.lp.eds_path)
-        except EdsError:
-            continue
-        file = rn.lp.eds_path.name
-        own = dcf_node_id(eds)
-        if own is not None and own[0] != n.node_id:
-            out.append(
-                (
-                    f"{key}.node_id",
-                    f"node {n.name}: node id {n.node_id}, but {file} [{own[1].section}] line "
-                    f"{own[1].line} says NodeID {own[0]}: the file was written for node "
-                    f"{own[0]}; COB-IDs it writes absolute are that node's",
-                )
-            )
-        for c, function, owner in foreign_cob_ids(eds, n.node_id):
-            out.append((key, f"node {n.name}: {c.where(file)}: {foreign_text(c, function, owner)}"))
-    return out + takeover_warnings(cfg, resolved)
-
-
-def sync_wait_text(rn: ResolvedNode) -> str:
-    """``TPDO2 is SYNC-driven (transmission type 1) but nothing produces SYNC ...``"""
-    pdos = ", ".join(f"TPDO{n}" for n in rn.sync_tpdos)
-    verb, them = ("is", "it") if len(rn.sync_tpdos) == 1 else ("are", "them")
-    return (
-        f"{pdos} {verb} SYNC-driven (transmission type 0..240) but no SYNC producer is "
-        f"configured: the device never sends {them}; set master.sync_period_ms, or "
-        "master.sync_external: true when another master sends SYNC"
-    )
-
-
 def journal_path(cfg: Config) -> Path | None:
     """The journal's directory (``journal.path`` relative to the config file), or None."""
     if cfg.journal.path is None:
@@ -428,14 +363,15 @@ def config_problems(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Problem
     out: list[Problem] = []
     resolved = nodes
     try:
-        build_register_map(cfg, resolved)
+        build_register_map(cfg, resolved)  # one map for every network's nodes
     except RegisterMapError as exc:
-        out.append((exc.key, str(exc)))
-    out += protocol_problems(cfg, resolved)
-    out += eds_problems(cfg, resolved)
-    out += safe_output_problems(cfg, resolved)
-    out += cob_id_problems(cfg, resolved)
+        out.append((cfg.qualify(exc.key), str(exc)))
+    for view in cfg.network_views():  # what one bus holds: each network's alone
+        found = protocol_problems(view, resolved) + eds_problems(view, resolved)
+        found += safe_output_problems(view, resolved) + cob_id_problems(view, resolved)
+        out += [(view.qualify(k), m) for k, m in found]
     out += journal_problems(cfg)
+    out += secret_problems(cfg)
     seen: set[Problem] = set()
     unique = []
     for p in out:
@@ -451,6 +387,26 @@ def check_config(cfg: Config, nodes: dict[str, ResolvedNode]) -> Config:
     if problems:
         raise ConfigError([f"{blame(k, cfg.source, cfg.env_keys)}: {k}: {m}" for k, m in problems])
     return cfg
+
+
+def pair_of_networks(
+    a: Config, b: Config, nodes_a: dict[str, ResolvedNode], nodes_b: dict[str, ResolvedNode]
+) -> list[str]:
+    """The two configs of a pair compared network by network (``pair_problems`` of each
+    network's config, its keys under ``networks[k].``): they must have the same networks."""
+    both = f"{a.source}, {b.source}"
+    if a.network_names() != b.network_names():
+        return [f"{both}: networks: {', '.join(a.network_names())} in {a.source}, "
+                f"{', '.join(b.network_names())} in {b.source}: a pair has the same networks"]  # fmt: skip
+    out: list[str] = []
+    for name in a.network_names():
+        va, vb = a.network_view(name), b.network_view(name)
+        for line in pair_problems(va, vb, nodes_a, nodes_b):
+            key, _, rest = line.removeprefix(f"{both}: ").partition(": ")
+            qualified = f"{both}: {va.qualify(key)}: {rest}"
+            if qualified not in out:
+                out.append(qualified)
+    return out
 
 
 def parse_checked(raw: Any, source: str = "<memory>", environ: Mapping[str, str] | None = None) -> Resolved:
@@ -472,10 +428,12 @@ __all__ = [
     "boot_problems",
     "check_config",
     "cob_id_problems",
+    "config_notes",
     "config_problems",
     "config_warnings",
     "eds_problems",
     "load_checked",
+    "pair_of_networks",
     "pair_problems",
     "parse_checked",
     "protocol_problems",

@@ -8,14 +8,11 @@ It also refuses time slots (CiA 302-2: priority x 1F90h:04 + node id x 1F90h:05)
 follow the priority order.
 
 ``takeover_worst_ms(cfg, nodes)``: this gateway's worst take-over, as the role machine runs it
-(the device-timeout warnings compare against it). ``takeover_warnings(cfg, nodes)`` (every
-``check``, through ``config_warnings``): what cannot survive it: a guarded node whose life time
-is shorter, a boot step writing the node's consumer of the logical master's heartbeat (1016h)
-with a shorter consumer time; and a pair whose devices never talk unasked (no take-over can be
-promised).
+(counting how rarely the devices talk), which the device timeouts are held against
+(``checks.takeover``).
 
-Imports: bus.pair.member (the pair's times), canopen.cia301, config (types), device.resolved
-(types). No I/O but reading the device files to compare.
+Imports: bus.pair.member (the pair's times), config (types), device.resolved (types). No I/O
+but reading the device files to compare.
 """
 
 from __future__ import annotations
@@ -24,7 +21,6 @@ import hashlib
 from typing import Any
 
 from gateway.bus.pair.member import pair_timing, talk_period_s
-from gateway.canopen.cia301 import OBJ_HEARTBEAT_CONSUMER
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -53,7 +49,7 @@ def takeover_worst_ms(cfg: Config, nodes: dict[str, ResolvedNode] | None = None)
     time slot (priority x ``priority_slot_ms`` + node id x ``device_slot_ms``); plus the
     heartbeat the old active one may have been about to send (one ``heartbeat_ms``). Without
     ``nodes`` the devices are taken to talk every ``heartbeat_ms``. None: not in a pair, or no
-    node talks unasked (no take-over can be promised: ``takeover_warnings`` says so)."""
+    node talks unasked (no take-over can be promised: ``checks.takeover`` says so)."""
     pair = cfg.master.redundancy
     if pair is None:
         return None
@@ -63,56 +59,6 @@ def takeover_worst_ms(cfg: Config, nodes: dict[str, ResolvedNode] | None = None)
         talk_s = talk_period_s(rn.settings for n in cfg.nodes if (rn := nodes.get(n.name)))
     worst = pair_timing(cfg, talk_s).worst_takeover_s(pair.priority, pair.node_id)
     return None if worst is None else round(1000 * worst)
-
-
-def takeover_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[tuple[str, str]]:
-    """``(key path, text)`` per node that cannot survive this gateway's worst take-over, and
-    one when no node talks unasked (no take-over can be promised)."""
-    pair = cfg.master.redundancy
-    if pair is None:
-        return []
-    worst = takeover_worst_ms(cfg, nodes)
-    if worst is None:
-        return [(
-            "nodes",
-            "no node talks unasked (supervision: heartbeat with heartbeat_ms): a standby cannot "
-            "tell the active gateway's death from its own cut cable and takes the bus over only "
-            "once it hears a frame again; give at least one node a heartbeat producer "
-            "(heartbeat_ms), the faster the sooner the take-over",
-        )]  # fmt: skip
-    how = (
-        f"the worst take-over by this gateway (redundancy.node_id {pair.node_id}) is {worst} ms: "
-        f"takeover_ms (or two heartbeat_ms + the devices' shortest heartbeat) + its slot + one "
-        f"heartbeat_ms"
-    )
-    out: list[tuple[str, str]] = []
-    for i, n in enumerate(cfg.nodes):
-        rn = nodes.get(n.name)
-        if rn is None:
-            continue
-        s = rn.settings
-        if s.supervision == "guarding" and s.life_time_ms < worst:
-            out.append((
-                f"nodes[{i}].guard_time_ms",
-                f"node {n.name}: node guarding life time {s.guard_time_ms} ms x "
-                f"{s.life_time_factor} = {s.life_time_ms} ms is shorter than {how}: its life "
-                f"guarding expires at a take-over; make guard_time_ms x life_time_factor at "
-                f"least {worst} ms, or supervise it by heartbeat",
-            ))  # fmt: skip
-        for step in rn.boot_steps:
-            v = step.value
-            if step.object.index != OBJ_HEARTBEAT_CONSUMER or not isinstance(v, int):
-                continue
-            consumer_ms, producer = v & 0xFFFF, (v >> 16) & 0x7F
-            if producer == cfg.master.node_id and 0 < consumer_ms < worst:
-                out.append((
-                    f"nodes[{i}].sdo",
-                    f"node {n.name}: boot step {step.object} sets its consumer of the logical "
-                    f"master's heartbeat (node {producer}) to {consumer_ms} ms, shorter than "
-                    f"{how}: it reports a heartbeat loss at a take-over; write a consumer time "
-                    f"of at least {worst} ms",
-                ))  # fmt: skip
-    return out
 
 
 def _differences(key: str, a: Any, b: Any) -> list[tuple[str, Any, Any]]:

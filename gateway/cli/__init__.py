@@ -1,28 +1,31 @@
-"""Command line: ``canopen-gateway run|check|registers|keys|simulate|sdo|nmt|scan|monitor|lss|eds|profile|fault``.
+"""Command line: ``canopen-gateway run|demo|check|registers|keys|simulate|sdo|nmt|get|sub|scan|monitor|decode|lss|eds|profile|fault|schema|dcf``.
 
 Configuration problems are printed one per line (file, key path, what is allowed) and exit 2,
 without a traceback; so are a CAN bus that cannot be opened and a start that fails. Imports everything it drives; nothing imports this package.
 
 This module holds the parser and ``main``; the commands are in its modules: ``serve`` (run,
-simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``eds`` (eds,
-profile), ``bus_tools`` (scan, monitor, lss, fault); ``load`` loads a command's configuration.
+demo, simulate), ``summary`` (check, registers, keys), ``commission`` (sdo, nmt), ``cloud``
+(get, sub), ``eds`` (eds, profile), ``bus_tools`` (scan, monitor, decode, lss, fault),
+``plant`` (schema, dcf: what the plant's own tools read); ``load`` loads a command's
+configuration.
 
 Imports: gateway (version), gateway.config (ConfigError), gateway.runtime.startup (StartupError),
-gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, eds, bus_tools.
+gateway.tools.bus_open (BusOpenError), load, serve, summary, commission, cloud, eds, bus_tools, plant.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Callable, Sequence
 
 from gateway import __version__
-from gateway.cli.bus_tools import cmd_fault, cmd_lss, cmd_monitor, cmd_scan
+from gateway.cli.bus_tools import cmd_decode, cmd_fault, cmd_lss, cmd_monitor, cmd_scan
+from gateway.cli.cloud import cmd_get, cmd_sub
 from gateway.cli.commission import cmd_nmt, cmd_sdo, format_sdo_int
 from gateway.cli.eds import cmd_eds_lint, cmd_eds_show, cmd_profile_init
-from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED
-from gateway.cli.serve import cmd_run, cmd_simulate
+from gateway.cli.load import CONFIG_ENV, DEFAULT_CONFIG, EXIT_CONFIG, EXIT_FAILED, default_config
+from gateway.cli.plant import cmd_dcf, cmd_schema
+from gateway.cli.serve import cmd_demo, cmd_run, cmd_simulate, demo_requested, error_line
 from gateway.cli.summary import _count, cmd_check, cmd_keys, cmd_registers
 from gateway.config import ConfigError
 from gateway.runtime.startup import StartupError
@@ -42,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_commissioning_commands(add)
     _add_file_commands(add)
     _add_bus_commands(add)
+    _add_plant_commands(add)
     return p
 
 
@@ -49,55 +53,85 @@ def build_parser() -> argparse.ArgumentParser:
 AddParser = Callable[..., argparse.ArgumentParser]
 
 
-def _with_config(sp: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    sp.add_argument("-c", "--config", required=True, metavar="FILE", help="configuration YAML")
+CONFIG_HELP = f"configuration YAML (default: ${CONFIG_ENV}, else {DEFAULT_CONFIG})"
+
+
+def _with_config(sp: argparse.ArgumentParser, *, network: str | None = None) -> argparse.ArgumentParser:
+    """``-c FILE``; ``network``: the command opens one network's bus, ``--network NAME``
+    (needed when the config has several; ``network`` says what it does with it)."""
+    sp.add_argument("-c", "--config", metavar="FILE", help=CONFIG_HELP)
+    if network is not None:
+        sp.add_argument("--network", metavar="NAME", help=network)
     return sp
 
 
+#: ``--network``'s help of the commands that open one network's bus
+ONE_NETWORK = "the CAN network (networks[].name) to work on; needed when the config has several"
+
+
+def _with_log_format(sp: argparse.ArgumentParser) -> None:
+    sp.add_argument("--log-format", choices=["text", "json"],
+                    help="log lines as text or one JSON object per line (default: "
+                    "CANOPEN_GATEWAY_LOG_FORMAT, else text)")  # fmt: skip
+
+
 def _add_gateway_commands(add: AddParser) -> None:
-    """run, check, registers, keys, simulate, fault."""
+    """run, demo, check, registers, keys, simulate, fault."""
     sp = _with_config(add("run", help="run the gateway"))
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    _with_log_format(sp)
     sp.add_argument("--no-simulate", action="store_true", help="ignore the simulate: section")
     sp.set_defaults(fn=cmd_run)
+
+    sp = add("demo", help="run the gateway on the demo configuration (simulated devices)")
+    sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    sp.set_defaults(fn=cmd_demo)
 
     sp = add(
         "check", help="validate a configuration (or the two of a pair) and summarise it"
     )
-    sp.add_argument("-c", "--config", required=True, action="append", metavar="FILE",
-                    help="configuration YAML; twice: the two configs of a hot-standby pair, compared")  # fmt: skip
+    sp.add_argument("-c", "--config", action="append", metavar="FILE",
+                    help=f"{CONFIG_HELP}; twice: the two configs of a hot-standby pair, compared")  # fmt: skip
     sp.set_defaults(fn=cmd_check)
 
     sp = _with_config(add("registers", help="print the Modbus register map"))
-    sp.add_argument("--csv", action="store_true", help="CSV instead of a Markdown table")
+    sp.add_argument("--format", choices=["markdown", "csv", "modicon", "kepware"],
+                    help="markdown (default); csv; modicon: 6-digit Modicon addresses and IEC "
+                    "types; kepware: a KEPServerEX tag import of one unit (--unit)")  # fmt: skip
+    sp.add_argument("--csv", action="store_true", help="the same as --format csv")
+    sp.add_argument("--unit", type=int, metavar="N", help="only the registers of this unit id")
     sp.set_defaults(fn=cmd_registers)
 
     sp = _with_config(add("keys", help="print the Zenoh key expressions"))
     sp.set_defaults(fn=cmd_keys)
 
-    sp = _with_config(add("simulate", help="run only the simulated devices of a config"))
+    sp = _with_config(
+        add("simulate", help="run only the simulated devices of a config"),
+        network="only this network's devices (default: every network's, each on its own bus)",
+    )
     sp.add_argument(
         "--nodes", help="comma-separated node names (default: simulate: section, else all)"
     )
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    _with_log_format(sp)
     sp.set_defaults(fn=cmd_simulate)
 
     sp = _with_config(
-        add("fault", help="inject a fault into a running gateway's simulated node")
+        add("fault", help="inject a fault into a running gateway's simulated node"), network=ONE_NETWORK
     )
     sp.add_argument("node", nargs="?", help="simulated node name (none: list nodes and actions)")
     sp.add_argument(
         "action", nargs="?", help="unplug, plug, heartbeat-off, heartbeat-on, emcy, emcy-clear"
     )
     sp.add_argument(
-        "--url", help="the running gateway's web address (default: from health: of the config)"
+        "--url", help="the running gateway's web address (default: the port it says through its command socket, else health: of the config)"
     )
     sp.set_defaults(fn=cmd_fault)
 
 
 def _add_commissioning_commands(add: AddParser) -> None:
-    """sdo, nmt."""
-    sp = _with_config(add("sdo", help="read or write an object by SDO (commissioning)"))
+    """sdo, nmt; get, sub (Zenoh)."""
+    sp = _with_config(add("sdo", help="read or write an object by SDO (commissioning)"), network=ONE_NETWORK)
     sp.add_argument("op", choices=["read", "write"])
     sp.add_argument("node", help="node name or id")
     sp.add_argument("object", help="object, e.g. 0x6004:00")
@@ -108,10 +142,21 @@ def _add_commissioning_commands(add: AddParser) -> None:
     sp.add_argument("--timeout", type=float, default=1.0, help="SDO timeout in seconds")
     sp.set_defaults(fn=cmd_sdo)
 
-    sp = _with_config(add("nmt", help="send an NMT command"))
+    sp = _with_config(add("nmt", help="send an NMT command"), network=ONE_NETWORK)
     sp.add_argument("command", choices=["start", "stop", "preop", "reset", "reset-comm"])
     sp.add_argument("node", help="node name, id, or 'all'")
     sp.set_defaults(fn=cmd_nmt)
+
+    key_help = "key expression under the config's prefix (wire/value/position, */state); /KEY as written"
+    sp = _with_config(add("get", help="ask the gateway's Zenoh keys as the cloud does (one line per reply)"))
+    sp.add_argument("key", metavar="KEY", help=key_help + "; ?_time=... for history")
+    sp.add_argument("--timeout", type=float, default=5.0, metavar="S", help="wait for replies")
+    sp.set_defaults(fn=cmd_get)
+    sp = _with_config(add("sub", help="print the samples of the gateway's Zenoh keys (one line each)"))
+    sp.add_argument("key", metavar="KEY", help=key_help)
+    sp.add_argument("--count", type=int, help="stop after this many samples")
+    sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    sp.set_defaults(fn=cmd_sub)
 
 
 def _add_file_commands(add: AddParser) -> None:
@@ -143,8 +188,8 @@ def _add_file_commands(add: AddParser) -> None:
 
 
 def _add_bus_commands(add: AddParser) -> None:
-    """lss, scan, monitor."""
-    sp = _with_config(add("lss", help="LSS commissioning (CiA 305)"))
+    """lss, scan, monitor, decode."""
+    sp = _with_config(add("lss", help="LSS commissioning (CiA 305)"), network=ONE_NETWORK)
     sp.add_argument(
         "action",
         choices=[
@@ -155,13 +200,14 @@ def _add_bus_commands(add: AddParser) -> None:
             "switch-global",
             "switch-selective",
             "auto-id",
+            "fast-scan",
         ],
     )
     sp.add_argument("args", nargs="*", help="action arguments (see docs/canopen.md)")
     sp.set_defaults(fn=cmd_lss)
 
     sp = _with_config(
-        add("scan", help="which node ids are on the bus, and what they are")
+        add("scan", help="which node ids are on the bus, and what they are"), network=ONE_NETWORK
     )
     sp.add_argument(
         "--active", action="store_true", help="also read 1000h, 1008h, 1018h of ids 1..127"
@@ -172,7 +218,7 @@ def _add_bus_commands(add: AddParser) -> None:
     )
     sp.set_defaults(fn=cmd_scan)
 
-    sp = _with_config(add("monitor", help="print the bus traffic in CANopen words"))
+    sp = _with_config(add("monitor", help="print the bus traffic in CANopen words"), network=ONE_NETWORK)
     sp.add_argument(
         "--node", action="append", metavar="NAME|ID", help="only these nodes (repeat or comma)"
     )
@@ -180,24 +226,55 @@ def _add_bus_commands(add: AddParser) -> None:
                     help="only these kinds: nmt, sync, time, emcy, pdo, sdo, heartbeat, lss, other")  # fmt: skip
     sp.add_argument("--count", type=int, help="stop after this many lines")
     sp.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    sp.add_argument("--record", metavar="FILE",
+                    help="also write every frame to FILE (.asc, .blf, .trc, .log, .csv: python-can's writers)")  # fmt: skip
     sp.set_defaults(fn=cmd_monitor)
+
+    sp = _with_config(
+        add("decode", help="print a recorded trace in CANopen words, one line per frame"),
+        network="the CAN network the trace was recorded on; needed when the config has several",
+    )
+    sp.add_argument("file", metavar="FILE", help="a trace python-can reads (.asc, .blf, .trc, .log, .csv, ...)")
+    sp.set_defaults(fn=cmd_decode)
+
+
+def _add_plant_commands(add: AddParser) -> None:
+    """schema, dcf."""
+    sp = add("schema", help="print the JSON Schema of the configuration (or of a device profile)")
+    sp.add_argument(
+        "--profile", action="store_true", help="the schema of a device profile YAML instead"
+    )
+    sp.set_defaults(fn=cmd_schema)
+
+    sp = _with_config(add("dcf", help="write a node's CiA 306 DCF as the gateway configures it"))
+    sp.add_argument("--node", metavar="NAME", help="the node (config name)")
+    sp.add_argument("--all", action="store_true", help="every node: <name>.dcf in -o DIR")
+    sp.add_argument("-o", "--output", metavar="FILE|DIR", help="file (default: stdout); a directory with --all")
+    sp.add_argument("--bitrate", type=int, metavar="KBIT",
+                    help="the bus's bit rate in kbit/s (default: can.bitrate of the node's network)")  # fmt: skip
+    sp.add_argument("--network", metavar="NAME", help="with --all: only this network's nodes")
+    sp.set_defaults(fn=cmd_dcf)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        if "config" in args and not args.config and not (args.command == "run" and demo_requested()):
+            # -c left out: the environment, /etc (``run`` of the demo needs none)
+            path = default_config()
+            args.config = [path] if args.command == "check" else path
         return int(args.fn(args))
     except ConfigError as exc:
         for line in exc.problems:
-            print(line, file=sys.stderr)
+            error_line(args, line)
         return EXIT_CONFIG
     except BusOpenError as exc:  # every command that opens the bus (gateway.tools.bus_open)
-        print(exc.line, file=sys.stderr)
+        error_line(args, exc.line)
         return EXIT_CONFIG
     except StartupError as exc:  # a part of a gateway or a commissioning master did not start
         for line in exc.lines(args.config):
-            print(line, file=sys.stderr)
+            error_line(args, line)
         return EXIT_CONFIG
     except KeyboardInterrupt:
         return 130

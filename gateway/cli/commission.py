@@ -1,6 +1,7 @@
 """The commissioning commands ``sdo`` (read / write an object) and ``nmt``: through a running
-gateway when the bus lives inside it (``gateway.tools.beside``), else with a passive master of
-their own on the bus (no server, no heartbeat, no SYNC, no configuration of the nodes).
+gateway when the bus lives inside it (``gateway.tools.beside``: its command socket, else its
+Zenoh API), else with a passive master of their own on the bus (no server, no heartbeat, no
+SYNC, no configuration of the nodes).
 
 Imports: gateway.app, gateway.errors, gateway.tools.beside, gateway.tools.bus_open, gateway.device.resolved,
 gateway.canopen.cia301, gateway.canopen.objref, gateway.config, cli.load.
@@ -13,7 +14,7 @@ import asyncio
 import sys
 from typing import Any
 
-from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus
+from gateway.cli.load import EXIT_CONFIG, EXIT_FAILED, load_for_bus, on_network
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -26,6 +27,7 @@ async def _with_master(cfg: Config, nodes: dict[str, ResolvedNode], fn: Any) -> 
     cfg.modbus.enabled = False
     cfg.zenoh.enabled = False
     cfg.ascii = None
+    cfg.command_socket.enabled = False  # the command is the one that would use it
     cfg.health.port = 0
     cfg.master.probe_at_start = False
     # no heartbeat and no SYNC of its own: beside a gateway they would be a second master's
@@ -62,7 +64,7 @@ def _beside(cfg: Config, command: str) -> Any:
 
     if not beside.in_process_bus(cfg):
         return None
-    running = beside.find_running_gateway(cfg)
+    running = beside.find_local_gateway(cfg) or beside.find_running_gateway(cfg)
     if running is not None:
         return running
     line = beside.refusal(cfg, command) if cfg.simulated_nodes() else None
@@ -74,14 +76,16 @@ def _beside(cfg: Config, command: str) -> Any:
     return None
 
 
-def _through(running: Any, fn: Any) -> tuple[int, Any]:
-    """Run ``fn(running)`` against a running gateway; errors as one line (exit 1)."""
-    from gateway.tools.beside import RemoteError
+def _through(cfg: Config, running: Any, fn: Any) -> tuple[int, Any]:
+    """Run ``fn(running)`` against a running gateway; errors as one line (exit 1), a write
+    the gateway's Zenoh API refuses with what to do instead."""
+    from gateway.tools.beside import RemoteError, ZenohGateway, no_socket_hint
 
     try:
         return 0, fn(running)
     except RemoteError as exc:
-        print(f"error: {exc} (through the running gateway at {running.endpoint})", file=sys.stderr)
+        hint = no_socket_hint(cfg) if exc.kind == "forbidden" and isinstance(running, ZenohGateway) else ""
+        print(f"error: {exc} (through the running gateway at {running.endpoint}){hint}", file=sys.stderr)
         return EXIT_FAILED, None
     finally:
         running.close()
@@ -90,7 +94,7 @@ def _through(running: Any, fn: Any) -> tuple[int, Any]:
 def cmd_sdo(args: argparse.Namespace) -> int:
     from gateway.errors import GatewayError
 
-    cfg, nodes = load_for_bus(args.config)
+    cfg, nodes = on_network(load_for_bus(args.config), args.network, f"sdo {args.op}", args.node)
     name = node_name(cfg, args.node)
     cfg.master.sdo_timeout_s = args.timeout
     if args.op == "write" and args.value is None:
@@ -99,10 +103,10 @@ def cmd_sdo(args: argparse.Namespace) -> int:
     running = _beside(cfg, f"sdo {args.op}")
     if running is not None:
         if args.op == "read":
-            code, result = _through(running, lambda r: r.sdo_read(name, args.object, args.type))
+            code, result = _through(cfg, running, lambda r: r.sdo_read(name, args.object, args.type))
         else:
             code, result = _through(
-                running, lambda r: r.sdo_write(name, args.object, args.value, args.type) or "OK"
+                cfg, running, lambda r: r.sdo_write(name, args.object, args.value, args.type) or "OK"
             )
         if code:
             return code
@@ -168,19 +172,19 @@ def _sdo_type(cfg: Config, nodes: dict[str, ResolvedNode], name: str, obj: str) 
 
 
 def cmd_nmt(args: argparse.Namespace) -> int:
-    cfg, nodes = load_for_bus(args.config)
+    cfg, nodes = on_network(load_for_bus(args.config), args.network, "nmt", args.node)
     name = "all" if args.node == "all" else node_name(cfg, args.node)
     running = _beside(cfg, "nmt")
     if running is not None:
         names = [n.name for n in cfg.nodes] if name == "all" else [name]
-        code, _ = _through(running, lambda r: [r.nmt(n, args.command) for n in names])
+        code, _ = _through(cfg, running, lambda r: [r.nmt(n, args.command) for n in names])
         if code:
             return code
         print(f"NMT {args.command} sent to {name} through the running gateway at {running.endpoint}")
         return 0
 
     async def op(gw: Any) -> None:
-        gw.commands.nmt(name, args.command)
+        await gw.commands.nmt(name, args.command)
 
     asyncio.run(_with_master(cfg, nodes, op))
     print(f"NMT {args.command} sent to {name}")

@@ -1,11 +1,11 @@
 """The commands that say what a configuration compiles to: ``check`` (validated, each node
-summarised, what may not do what is meant, the warnings of each EDS; given two configs, also
+summarised, what may not do what is meant, what it will not check, the warnings of each EDS; given two configs, also
 compared as a hot-standby pair), ``registers`` (the Modbus register map) and ``keys`` (the
 Zenoh key expressions).
 
-Imports: gateway.device.resolved, gateway.checks (config_warnings, pair_problems), gateway.config
+Imports: gateway.device.resolved, gateway.checks (config_warnings, config_notes, pair_of_networks), gateway.config
 (ConfigError), gateway.eds,
-gateway.northbound.regmap, gateway.northbound.keys, cli.load.
+gateway.northbound.regmap, gateway.northbound.plc_tags, gateway.northbound.keys, cli.load.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from gateway.config import ConfigError
 def cmd_check(args: argparse.Namespace) -> int:
     """One config as at every start; two (``-c A -c B``): each so, then compared as the two
     configs of a hot-standby pair (``gateway.checks.pair_problems``)."""
-    from gateway.checks import pair_problems
+    from gateway.checks import pair_of_networks
 
     paths = [args.config] if isinstance(args.config, str) else list(args.config)
     if len(paths) == 1:
@@ -41,7 +41,7 @@ def cmd_check(args: argparse.Namespace) -> int:
         loaded.append((path, cfg, nodes))
     if len(loaded) == 2:
         (_, a, nodes_a), (_, b, nodes_b) = loaded
-        problems += pair_problems(a, b, nodes_a, nodes_b)
+        problems += pair_of_networks(a, b, nodes_a, nodes_b)  # a pair per network
     if problems:
         raise ConfigError(problems)
     for path, cfg, nodes in loaded:
@@ -51,13 +51,26 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
-    from gateway.checks import config_warnings
+    from gateway.checks import config_notes, config_warnings
 
     print(f"{path}: OK")
     if cfg.ascii is not None and cfg.ascii.enabled:
         gate = "reads, writes and NMT" if cfg.ascii.writes else "reads only"
         print(f"  CiA 309-3 ASCII gateway: {cfg.ascii.host}:{cfg.ascii.port}, {gate}")
-    for n in cfg.nodes:
+    for number, view in enumerate(cfg.network_views(), start=1):
+        if cfg.networks is not None:
+            _print_network(view, number)
+        _print_nodes(cfg, view, nodes)
+    for _key, text in config_warnings(cfg, nodes):
+        print(f"  warning: {text}")
+    for _key, text in config_notes(cfg, nodes):
+        print(f"  note: {text}")
+    _print_eds_warnings(cfg, nodes)
+
+
+def _print_nodes(cfg: Any, view: Any, nodes: Any) -> None:
+    """One line per node of a network (``view``), and its profile's notes."""
+    for n in view.nodes:
         lp = nodes[n.name].lp
         pdo_sigs = [s.name for s in lp.profile.signals if s.transport == "pdo"]
         sdo_sigs = [s.name for s in lp.profile.signals if s.transport == "sdo"]
@@ -69,9 +82,15 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
         )
         for note in lp.notes:
             print(f"  warning: node {n.name}: {note}")
-    for _key, text in config_warnings(cfg, nodes):
-        print(f"  warning: {text}")
-    _print_eds_warnings(cfg, nodes)
+
+
+def _print_network(view: Any, number: int) -> None:
+    """``network line1 (net 1): socketcan can0, 500000 bit/s, master node id 127``."""
+    (net,) = view.network_sections()
+    can = view.can.words()
+    rate = f", {can['bitrate']} bit/s" if can["bitrate"] else ""
+    print(f"  network {net.name} (net {number}): {can['interface']} {can['channel']}{rate}, "
+          f"master node id {view.master.node_id}" + ("" if view.nodes else ", no nodes"))  # fmt: skip
 
 
 def _print_eds_warnings(cfg: Any, nodes: Any) -> None:
@@ -110,12 +129,42 @@ def _count(n: int, noun: str) -> str:
 
 
 def cmd_registers(args: argparse.Namespace) -> int:
+    """The register map as Markdown, CSV, Modicon CSV or a KEPServerEX tag import
+    (``gateway.northbound.plc_tags``); ``--unit`` keeps one unit id's registers."""
+    from gateway.northbound import plc_tags
     from gateway.northbound.regmap import build_register_map
 
     cfg, nodes = load(args.config)
     rm = build_register_map(cfg, nodes)
-    sys.stdout.write(rm.to_csv() if args.csv else rm.to_markdown())
+    fmt = args.format or ("csv" if args.csv else "markdown")
+    if args.csv and fmt != "csv":
+        raise ConfigError([f"registers: --csv and --format {fmt}: give one"])
+    units = sorted(rm.units)
+    unit = args.unit
+    if unit is not None and unit not in rm.units:
+        raise ConfigError([f"registers: --unit {unit}: no such unit id; units: {_units(rm)}"])
+    if fmt == "kepware" and unit is None:
+        if len(units) != 1:
+            raise ConfigError(
+                [f"registers --format kepware: one device (unit id) per file: give --unit N; "
+                 f"units: {_units(rm)}"]
+            )  # fmt: skip
+        unit = units[0]
+    if fmt == "kepware":
+        assert unit is not None
+        text = plc_tags.to_kepware(rm, unit)
+    elif fmt == "modicon":
+        text = plc_tags.to_modicon(rm, unit)
+    else:
+        shown = rm if unit is None else rm.only_unit(unit)
+        text = shown.to_csv() if fmt == "csv" else shown.to_markdown()
+    sys.stdout.write(text)
     return 0
+
+
+def _units(rm: Any) -> str:
+    """``1 (wire), 2 (magnet), 247 (gateway)``."""
+    return ", ".join(f"{u} ({rm.units[u] or 'gateway'})" for u in sorted(rm.units))
 
 
 def cmd_keys(args: argparse.Namespace) -> int:

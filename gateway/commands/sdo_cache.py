@@ -3,7 +3,7 @@ while younger than ``master.sdo_cache_ms`` (default 1000 ms) and read in the nod
 boot epoch; concurrent reads of one value share one upload; a write through the gateway
 updates it; a boot-up or loss of the node (a new epoch) empties it for that node.
 
-Imports: bus.master (the SDO transfers), bus.node.parts (the nodes), device.values (value
+Imports: bus.network (the SDO transfers, routed to the node's network), bus.node.parts (the nodes), device.values (value
 codecs), profiles.schema.
 """
 
@@ -13,7 +13,7 @@ import asyncio
 import time
 from typing import Any
 
-from gateway.bus.master import Master
+from gateway.bus.network import Networks
 from gateway.bus.node.parts import NodeParts
 from gateway.device.values import decode_value, encode_value
 from gateway.profiles.schema import Signal
@@ -28,9 +28,11 @@ def _epoch(p: NodeParts) -> tuple[int, int]:
 class SdoValueCache:
     """Values of SDO-backed signals by (node, signal), with the time and epoch of their read."""
 
-    def __init__(self, master: Master, max_age_s: float):
-        self.master = master
+    def __init__(self, networks: Networks, max_age_s: float):
+        self.master = networks
         self.max_age_s = max_age_s
+        #: node -> its network's ``master.sdo_cache_ms`` in seconds (else ``max_age_s``)
+        self.ages: dict[str, float] = {}
         self._values: dict[tuple[str, str], tuple[Any, float, tuple[int, int]]] = {}
         self._reading: dict[tuple[str, str], asyncio.Future[Any]] = {}
 
@@ -41,7 +43,8 @@ class SdoValueCache:
         now = time.monotonic()
         if cached:
             hit = self._values.get(key)
-            if hit is not None and now - hit[1] <= self.max_age_s and hit[2] == _epoch(p):
+            age_s = self.ages.get(p.name, self.max_age_s)
+            if hit is not None and now - hit[1] <= age_s and hit[2] == _epoch(p):
                 return hit[0]
             pending = self._reading.get(key)
             if pending is not None:

@@ -28,7 +28,7 @@ The checks of a value are ``validation``'s; LSS inquire and the bus scan are ``b
 Every write and command is audited (``commands.audit``: who, what, outcome) when the app gives
 the service an ``audit`` sink.
 
-Imports: bus.master (the operations), bus.node.parts (the nodes), device.values (value
+Imports: bus.network (the operations, routed to each node's network), bus.node.parts (the nodes), device.values (value
 codecs), commands.audit, commands.bus_inquiry, commands.sdo_cache, commands.validation, errors, image, canopen.objref,
 profiles, canopen.cia301. Never modbus/ or zenoh_bridge/.
 """
@@ -40,12 +40,12 @@ import logging
 from dataclasses import dataclass
 from typing import Any
 
-from gateway.bus.master import Master
+from gateway.bus.network import Network, Networks
 from gateway.bus.node.parts import NodeParts
 from gateway.canopen.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
 from gateway.commands import bus_inquiry
-from gateway.commands.audit import WHO, AuditSink, acting_as, audited
+from gateway.commands.audit import WHO, AuditSink, RefusalAudit, acting_as, audited
 from gateway.commands.sdo_cache import SdoValueCache
 from gateway.commands.validation import (
     bit_names,
@@ -107,38 +107,58 @@ def _mapped_bits(p: NodeParts, name: str) -> int | None:
 
 
 class CommandService:
-    def __init__(self, master: Master):
-        self.master = master
-        cache_ms = getattr(master.cfg.master, "sdo_cache_ms", 1000)
+    def __init__(self, networks: Networks):
+        #: the gateway's networks: an operation on a node goes to its network's master
+        self.networks = networks
+        cache_ms = networks.first.cfg.master.sdo_cache_ms
         self.sdo_cache_s = cache_ms / 1000.0
-        self._sdo_cache = SdoValueCache(master, self.sdo_cache_s)
+        self._sdo_cache = SdoValueCache(networks, self.sdo_cache_s)
+        self._sdo_cache.ages = {
+            name: net.cfg.master.sdo_cache_ms / 1000.0 for net in networks for name in net.master.nodes
+        }
         self._word_locks: dict[tuple[str, str], asyncio.Lock] = {}
         self._infos: dict[str, NodeInfo] = {}
         #: every write and command (``audited``) is handed here with who, what and the
         #: outcome (``commands.audit``); None: not audited
         self.audit: AuditSink | None = None
+        #: writes the adapters' gates refused, and failed logins: audited too (rate-limited)
+        self.refusals = RefusalAudit(lambda: self.audit)
 
     # ------------------------------------------------------------------ the role (read only)
     @property
     def role(self) -> str | None:
         """This gateway's role in a hot-standby pair (``active``, ``standby``...; None
-        outside a pair): what adapters show, never what they decide by."""
-        return self.master.role
+        outside a pair): what adapters show, never what they decide by. Several networks:
+        the first's (``role_of`` a network's)."""
+        return self.networks.first.master.role
+
+    def role_of(self, network: str) -> str | None:
+        """The role of this gateway in network ``network``'s pair (None: no pair there)."""
+        return self.networks.named(network).master.role
 
     @property
     def pair_master_id(self) -> int | None:
-        return self.master.pair_master_id
+        return self.networks.first.master.pair_master_id
 
-    def require_active(self) -> None:
+    def require_active(self, node: str | None = None) -> None:
         """Refuse (``NotActive``) unless this gateway masters the bus: the one role gate of
-        every command (the master's own), for an adapter that refuses before it reads a value."""
-        self.master.require_active()
+        every command (the master's own), for an adapter that refuses before it reads a value;
+        of the node's network, or without a node, of at least one network."""
+        self.networks.require_active(node)
+
+    def network(self, name: str | None = None) -> Network:
+        """CAN network ``name`` (None: the first); ``NetworkUnknown`` otherwise."""
+        return self.networks.named(name)
+
+    def network_of(self, node: str) -> str:
+        """The name of the CAN network node ``node`` is on."""
+        return self.networks.of(node).name
 
     # ------------------------------------------------------------------ lookups
     def _part(self, name: str) -> NodeParts:
-        p = self.master.nodes.get(name)
+        p = self.networks.nodes.get(name)
         if p is None:
-            raise NodeUnknown(name, sorted(self.master.nodes))
+            raise NodeUnknown(name, sorted(self.networks.nodes))
         return p
 
     def node(self, name: str) -> NodeInfo:
@@ -159,7 +179,7 @@ class CommandService:
         return info
 
     def names(self) -> list[str]:
-        return list(self.master.nodes)
+        return list(self.networks.nodes)
 
     def supervision(self, node: str) -> dict[str, Any]:
         """Read-only: the node's error control as resolved from config and profile (the web
@@ -204,7 +224,7 @@ class CommandService:
         """Write a writable signal: an RPDO for process data, an SDO download otherwise."""
         await self.write_signals(node, {name: value})
 
-    @audited("write", lambda node, values, **_: (node, ",".join(values), values))
+    @audited("write", lambda _svc, node, values, **_: (node, ",".join(values), values))
     async def write_signals(self, node: str, values: dict[str, Any], *, safe: bool = False) -> None:
         """Several signals; those of RPDOs go out together (e.g. set point + control word).
         ``safe``: the safe values of the output watchdog (see ``write_safe_outputs``)."""
@@ -238,7 +258,7 @@ class CommandService:
                         per_pdo.setdefault(c.number, {})[ts.control] = ctrl & ~(
                             1 << ts.identifier_bit
                         )
-            self.master.write_outputs(node, per_pdo, safe=safe)
+            self.networks.write_outputs(node, per_pdo, safe=safe)
         for n, v in sdo.items():
             sig = self.signal(node, n)
             if sig.bits:
@@ -283,7 +303,7 @@ class CommandService:
                 f" on those bits; writable: {bit_names(sig, writable_mask(sig)) or 'none'}",
             )
 
-    @audited("write_bits", lambda node, name, bits: (node, name, {"bits": bits}))
+    @audited("write_bits", lambda _svc, node, name, bits: (node, name, {"bits": bits}))
     async def write_bits(self, node: str, name: str, bits: dict[int, bool]) -> None:
         """Set or clear bits of a word signal (read-modify-write of the current value). A bit
         the profile does not mark writable may only be "written" with the value it has."""
@@ -310,7 +330,7 @@ class CommandService:
                     f"writable: {bit_names(sig, allowed) or 'none'}"
                 )
             if p.node.is_output(name):
-                self.master.write_outputs(node, {None: {name: word}})
+                self.networks.write_outputs(node, {None: {name: word}})
             else:
                 self._check_config_write(p, sig.object, word, sig.name)
                 await self._sdo_cache.write(p, sig, check_value(sig, word))
@@ -325,7 +345,7 @@ class CommandService:
         why = config_range_problem(p.lp, obj, value)
         if why is not None:
             raise ValueOutOfRange(shown, value, why)
-        master_id = self.master.cfg.master.node_id
+        master_id = self.networks.master_node_id(p.name)
         why = supervision_problem(p.name, p.settings, p.boot_steps, master_id, obj, value)
         if why is not None:
             log.warning("%s: write %s = %s refused: %s", WHO.get(), shown, value, why)
@@ -355,7 +375,7 @@ class CommandService:
             raise Unmapped(f"{ts.name}: {ts.head} and {ts.tail} are not in one RPDO")
         n = codecs[0].number
         ctrl = int(p.image.output(ts.control, n)) | (1 << ts.identifier_bit)
-        self.master.write_outputs(
+        self.networks.write_outputs(
             p.name,
             {
                 n: {
@@ -423,11 +443,11 @@ class CommandService:
         check_sdo_type(type_)
         p = self._part(node)
         o = ObjRef.parse(obj)
-        data = await self.master.sdo(node, o, None)
+        data = await self.networks.sdo(node, o, None)
         t = type_ or self._od_type(p, o)
         return bytes(data) if t is None else decode_value(bytes(data), t)
 
-    @audited("sdo_write", lambda node, obj, value, type_=None: (node, str(obj), value))
+    @audited("sdo_write", lambda svc, node, obj, value, type_=None: svc.sdo_audit(node, obj, value, type_))
     async def sdo_write(
         self, node: str, obj: str | ObjRef, value: Any, type_: str | None = None
     ) -> None:
@@ -451,11 +471,31 @@ class CommandService:
                 raise ValueOutOfRange(str(o), value, str(exc)) from None
         number = self._as_integer(p, o, data, type_)
         self._check_config_write(p, o, number)
-        await self.master.sdo(node, o, data)
+        await self.networks.sdo(node, o, data)
         self._log_config_write(p, o, number)
         sig = p.lp.profile.signal_for(o)
         if sig is not None:
             self._sdo_cache.forget(node, sig.name)
+
+    def sdo_audit(self, node: str, obj: str | ObjRef, value: Any, type_: str | None) -> tuple[Any, ...]:
+        """An SDO download as audited: the object, the value as its type reads it (a number
+        for a number, whether it came as bytes or as a value) and the bytes beside it."""
+        what = str(obj)
+        try:
+            o = ObjRef.parse(obj)
+            what = str(o)
+            t = type_ or self._od_type(self._part(node), o)
+            data = bytes(value) if isinstance(value, (bytes, bytearray)) else None
+            if t is None:
+                return node, what, value, data
+            if data is None:
+                v = value
+                if isinstance(v, str) and t not in ("string", "bytes"):
+                    v = float(v) if t.startswith("float") else int(v, 0)
+                data = encode_value(v, t)
+            return node, what, decode_value(data, t), data
+        except (GatewayError, ValueError, TypeError, OverflowError, KeyError):
+            return node, what, value, value if isinstance(value, (bytes, bytearray)) else None
 
     def _as_integer(self, p: NodeParts, o: ObjRef, data: bytes, type_: str | None) -> int | None:
         """The integer an SDO download's bytes carry, by ``type_`` or the dictionary's type
@@ -466,24 +506,36 @@ class CommandService:
             return None
         return int.from_bytes(data, "little", signed=t.startswith("int"))
 
-    def lss_busy(self) -> bool:
-        """An LSS session is running."""
-        return self.master.lss.busy()
+    def lss_busy(self, network: str | None = None) -> bool:
+        """An LSS session is running (on network ``network``; None: the first)."""
+        return self.networks.named(network).master.lss.busy()
 
-    async def lss_inquire(self, address: tuple[int, int, int, int] | None = None) -> dict[str, Any]:
-        """LSS inquire of the slave at ``address``, else of every slave (``bus_inquiry``)."""
-        return await bus_inquiry.lss_inquire(self.master, address)
+    async def lss_inquire(
+        self, address: tuple[int, int, int, int] | None = None, network: str | None = None
+    ) -> dict[str, Any]:
+        """LSS inquire of the slave at ``address``, else of every slave (``bus_inquiry``), on
+        network ``network`` (None: the first)."""
+        return await bus_inquiry.lss_inquire(self.networks.named(network).master, address)
 
-    async def scan_bus(self, *, listen_s: float = 1.0, sdo_timeout_s: float = 0.1) -> dict[str, Any]:
-        """Which node ids are on the bus and what they are (``bus_inquiry.scan_bus``)."""
-        return await bus_inquiry.scan_bus(self.master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
+    async def scan_bus(
+        self, *, listen_s: float = 1.0, sdo_timeout_s: float = 0.1, network: str | None = None
+    ) -> dict[str, Any]:
+        """Which node ids are on the bus of network ``network`` (None: the first) and what
+        they are (``bus_inquiry.scan_bus``)."""
+        master = self.networks.named(network).master
+        return await bus_inquiry.scan_bus(master, listen_s=listen_s, sdo_timeout_s=sdo_timeout_s)
 
-    @audited("nmt", lambda node, command: (node, "nmt", command))
-    def nmt(self, node: str, command: str) -> None:
-        """NMT command to one node by name, or to all nodes with ``all``."""
+    @audited(
+        "nmt",
+        lambda _svc, node, command, network=None: (node, "nmt", command)
+        + (({"network": network},) if network is not None else ()),
+    )
+    async def nmt(self, node: str, command: str, network: str | None = None) -> None:
+        """NMT command to one node by name, or with ``all`` to every node of ``network``
+        (None: of every network)."""
         if command not in NMT_COMMANDS:
             raise ValueOutOfRange("nmt", command, "one of " + ", ".join(NMT_COMMANDS))
         if node != "all":
             self._part(node)
-        self.master.nmt(node, command)
-        log.info("NMT %s sent to %s", command, node)
+        self.networks.nmt(node, command, network)
+        log.info("NMT %s sent to %s", command, node if network is None else f"{node} of network {network}")

@@ -19,10 +19,12 @@ The package, one module per part, re-exported here (``from gateway.config import
 - ``env``: the ``CANOPEN_GATEWAY__`` environment overrides and whom a problem blames;
 - ``errors``: ``ConfigError`` and how a problem is worded;
 - ``journal``: the ``journal:`` section;
+- ``zenoh``: the ``zenoh:`` section;
 - ``node``: the ``nodes:`` entries and ``NodeConfig.setup``, the record the device knowledge
-  reads.
+  reads;
+- ``keyexpr``: a Zenoh key expression of the file checked (without zenoh).
 
-Imports: model, node, load, env, errors, journal (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
+Imports: model, node, load, env, errors, journal, zenoh (its own modules). Nothing of bus/, modbus/, zenoh_bridge/,
 checks.
 """
 
@@ -31,25 +33,25 @@ from __future__ import annotations
 from gateway.config.env import ENV_PREFIX, ENV_TEXT_KEYS, apply_env_overrides, blame, env_keys
 from gateway.config.errors import ConfigError, nearest_key
 from gateway.config.journal import JournalSection
-from gateway.config.load import load_config, parse_config, raw_section
+from gateway.config.load import load_config, parse_config, raw_list, raw_section
 from gateway.config.model import (
     CAN_INTERFACE_MISSING,
+    DEFAULT_NETWORK,
+    LOOPBACK_NETWORKS,
     WEB_TOKEN_MIN_LENGTH,
     AsciiSection,
     CanSection,
+    CommandSocketSection,
     Config,
     GatewaySection,
     HealthSection,
     MasterSection,
     ModbusSection,
     ModbusTls,
+    NetworkSection,
     SimulateSection,
     WebSection,
-    ZenohAuth,
-    ZenohHistory,
-    ZenohSection,
-    ZenohTls,
-    ZenohWriteRule,
+    read_secret,
 )
 from gateway.config.node import (
     ExternalHeartbeat,
@@ -61,11 +63,22 @@ from gateway.config.node import (
     SdoWrite,
     SignalOverride,
 )
+from gateway.config.zenoh import (
+    ZenohAuth,
+    ZenohHistory,
+    ZenohSection,
+    ZenohTls,
+    ZenohWriteRule,
+    placeholder_problem,
+)
 
 __all__ = [
     "AsciiSection",
+    "CommandSocketSection",
     "CAN_INTERFACE_MISSING",
     "CanSection",
+    "DEFAULT_NETWORK",
+    "NetworkSection",
     "Config",
     "ConfigError",
     "ENV_PREFIX",
@@ -85,6 +98,7 @@ __all__ = [
     "SdoWrite",
     "SignalOverride",
     "SimulateSection",
+    "LOOPBACK_NETWORKS",
     "WEB_TOKEN_MIN_LENGTH",
     "WebSection",
     "ZenohAuth",
@@ -92,10 +106,13 @@ __all__ = [
     "ZenohSection",
     "ZenohTls",
     "ZenohWriteRule",
+    "placeholder_problem",
+    "read_secret",
     "apply_env_overrides",
     "blame",
     "env_keys",
     "load_config",
+    "raw_list",
     "raw_section",
     "nearest_key",
     "parse_config",

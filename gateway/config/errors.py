@@ -37,6 +37,15 @@ def key_path(loc: tuple[Any, ...]) -> str:
     return out or "(top level)"
 
 
+#: pydantic's type errors, as what the key takes
+_TYPE_WORDS = {
+    "int_parsing": "a whole number", "int_type": "a whole number", "int_from_float": "a whole number",
+    "float_parsing": "a number", "float_type": "a number",
+    "bool_parsing": "true or false", "bool_type": "true or false",
+    "string_type": "text",
+}  # fmt: skip
+
+
 def describe(err: Mapping[str, Any]) -> str:
     """What a pydantic error says, in the words of the file."""
     t = err.get("type", "")
@@ -58,6 +67,8 @@ def describe(err: Mapping[str, Any]) -> str:
         return f"got {err.get('input')!r}, must be {bounds[t]} {limit}"
     if t == "string_pattern_mismatch":
         return f"got {err.get('input')!r}, must match {ctx.get('pattern')}"
+    if t in _TYPE_WORDS:  # the value as written, and what the key takes
+        return f"got {err.get('input')!r}, must be {_TYPE_WORDS[t]}"
     msg = str(err.get("msg", "invalid"))
     return msg.removeprefix("Value error, ")
 

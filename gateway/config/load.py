@@ -10,7 +10,7 @@ The checks across the config, the profiles/EDS and the compiled register map
 (``canopen-gateway check``) live in ``gateway.checks``, which imports this package.
 
 Imports: pydantic, yaml, config.model, config.errors,
-config.env.
+config.env, config.networks (the networks: form's problems, every node entry).
 """
 
 from __future__ import annotations
@@ -26,42 +26,48 @@ from pydantic import ValidationError
 from gateway.config.env import apply_env_overrides, blame, env_keys
 from gateway.config.errors import ConfigError, describe, key_path, nearest_key
 from gateway.config.model import Config
+from gateway.config.networks import network_problems, node_entries
 
 #: what a config's nodes add to its problems once its sections validate: (key path, why) each
 Resolve = Callable[[Config], list[tuple[str, str]]]
 
 
 def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, str]]:
-    """Checks across entries that pydantic cannot see, run on the raw data."""
-    out: list[tuple[str, str]] = []
-    nodes = raw.get("nodes") or []
-    if not isinstance(nodes, list):
-        return out
-    seen: dict[str, dict[Any, int]] = {"node_id": {}, "name": {}, "unit_id": {}}
-    for i, n in enumerate(nodes):
+    """Checks across entries that pydantic cannot see, run on the raw data: a node id twice on
+    one network, a node name twice in the gateway, two nodes on one Modbus unit (and the
+    ``networks:`` form's own, ``config.networks``)."""
+    out: list[tuple[str, str]] = network_problems(raw)
+    several = raw.get("networks") is not None
+    seen: dict[str, dict[Any, int]] = {"name": {}, "unit_id": {}}
+    ids: dict[tuple[str, Any], int] = {}
+    entries = node_entries(raw)
+    for i, (key, n, net) in enumerate(entries):
         if not isinstance(n, dict):
             continue
-        for key in ("node_id", "name"):
-            v = n.get(key)
-            if v is None:
-                continue
-            if v in seen[key]:
-                out.append(
-                    (f"nodes[{i}].{key}", f"duplicate {key} {v!r} (also nodes[{seen[key][v]}])")
-                )
+        v = n.get("node_id")
+        if v is not None:
+            if (net, v) in ids:
+                out.append((f"{key}.node_id",
+                            f"duplicate node_id {v!r} (also {entries[ids[net, v]][0]})"))  # fmt: skip
             else:
-                seen[key][v] = i
+                ids[net, v] = i
+        v = n.get("name")
+        if v is not None:
+            if v in seen["name"]:
+                also = entries[seen["name"][v]][0]
+                out.append((f"{key}.name", f"duplicate name {v!r} (also {also})"
+                            + ("; node names are unique in the gateway" if several else "")))  # fmt: skip
+            else:
+                seen["name"][v] = i
         mb_raw = n.get("modbus")
         mb = mb_raw if isinstance(mb_raw, dict) else {}
         unit = mb.get("unit_id", n.get("node_id"))
         if unit is not None:
             if unit in seen["unit_id"]:
-                out.append(
-                    (
-                        f"nodes[{i}].modbus.unit_id",
-                        f"duplicate Modbus unit id {unit} (also nodes[{seen['unit_id'][unit]}])",
-                    )
-                )
+                other_key, other, _ = entries[seen["unit_id"][unit]]
+                out.append((f"{key}.modbus.unit_id",
+                            _unit_twice(unit, other_key, other, key, n) if several
+                            else f"duplicate Modbus unit id {unit} (also {other_key})"))  # fmt: skip
             else:
                 seen["unit_id"][unit] = i
     gw_unit = (raw.get("modbus") or {}).get("gateway_unit_id", 247)
@@ -69,7 +75,7 @@ def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, s
         out.append(
             (
                 "modbus.gateway_unit_id",
-                f"unit id {gw_unit} is also used by nodes[{seen['unit_id'][gw_unit]}]",
+                f"unit id {gw_unit} is also used by {entries[seen['unit_id'][gw_unit]][0]}",
             )
         )
     zen_raw = raw.get("zenoh")
@@ -95,6 +101,15 @@ def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, s
                     (f"simulate.nodes[{j}]", f"no node named {name!r} in nodes")
                 )
     return out
+
+
+def _unit_twice(unit: Any, first_key: str, first: Any, key: str, node: dict[str, Any]) -> str:
+    """Two nodes (of two networks) on one Modbus unit, in one line naming both."""
+    return (
+        f"nodes {first.get('name')!r} ({first_key}) and {node.get('name')!r} ({key}) are both on "
+        f"Modbus unit {unit} (modbus.unit_id defaults to the node id): give one of them its own "
+        "modbus.unit_id"
+    )
 
 
 def parse_config(
@@ -129,7 +144,8 @@ def parse_config(
     errors += _semantic_problems(raw, base_dir)
     if cfg is not None:
         errors += resolve(cfg) if resolve is not None else []
-        errors += _pair_problems(cfg)
+        for view in cfg.network_views():  # a pair per network
+            errors += [(view.qualify(k), m) for k, m in _pair_problems(view)]
     seen: set[tuple[str, str]] = set()
     for loc, msg in errors:
         if (loc, msg) in seen:
@@ -198,6 +214,21 @@ def raw_section(
     apply_env_overrides(raw, os.environ if environ is None else environ)
     section = raw.get(name)
     return section if isinstance(section, dict) else None
+
+
+def raw_list(
+    path: str | os.PathLike[str], name: str, environ: Mapping[str, str] | None = None
+) -> list[Any] | None:
+    """The list ``name`` of a config file as written (``networks``), as ``raw_section``."""
+    try:
+        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None
+    if not isinstance(raw, dict):
+        return None
+    apply_env_overrides(raw, os.environ if environ is None else environ)
+    section = raw.get(name)
+    return section if isinstance(section, list) else None
 
 
 def yaml_error_line(source: str, text: str, exc: yaml.YAMLError) -> str:

@@ -1,13 +1,23 @@
 """The gateway's configuration as data: the pydantic models of every section of the YAML file
-(``gateway:``, ``can:``, ``master:``, ``nodes:``, ``modbus:``, ``zenoh:``, ``health:``,
-``web:``, ``ascii:``, ``simulate:``, ``journal:`` from ``config.journal``, ``nodes:`` from
-``config.node``) with the rules one field or one section can check itself
+(``gateway:``, ``can:``, ``master:``, ``nodes:``, ``networks:``, ``modbus:``, ``zenoh:``,
+``health:``, ``web:``, ``ascii:``, ``simulate:``, ``journal:`` from ``config.journal``,
+``nodes:`` from ``config.node``, ``zenoh:`` from ``config.zenoh``) with the rules one field or one section can check itself
 (ranges, patterns, key expressions, networks, TLS roles, token length).
+
+Several CAN networks: ``networks:`` lists them, each with its own ``can:``, ``master:`` and
+``nodes:``; the single-network form (top-level ``can:``, ``master:``, ``nodes:``) is one network
+named ``default``. ``Config.network_sections()`` gives the networks of either form;
+``Config.network_view(name)`` a config of one network (its ``can``, ``master`` and ``nodes``,
+the shared sections as they are), which the parts of one network (its driver and master, the
+commissioning tools, the checks of one bus) read as they read a single-network config. In the
+``networks:`` form ``Config.nodes`` is every network's nodes (names are unique in the gateway)
+and ``can`` / ``master`` are the first network's.
 
 What a section cannot see (duplicates across nodes, names that refer to nodes, profiles and
 EDS files) is checked when the file is loaded (``config.load``).
 
-Imports: pydantic, gateway.keyexpr, config.journal, config.node (the ``nodes:`` entries). Nothing of bus/,
+Imports: pydantic, config.journal, config.node (the ``nodes:`` entries), config.zenoh.
+Nothing of bus/,
 modbus/, zenoh_bridge/, checks.
 """
 
@@ -21,13 +31,15 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    SerializerFunctionWrapHandler,
     field_validator,
+    model_serializer,
     model_validator,
 )
 
-from gateway import keyexpr
 from gateway.config.journal import JournalSection
 from gateway.config.node import NodeConfig
+from gateway.config.zenoh import ZenohSection
 
 
 class _Model(BaseModel):
@@ -51,6 +63,10 @@ class CanSection(BaseModel):
     def bus_kwargs(self) -> dict[str, Any]:
         kw = self.model_dump(exclude={"reopen_backoff_s"}, exclude_none=True)
         return kw
+
+    def words(self) -> dict[str, Any]:
+        """The bus as the console and the catalogue show it: interface, channel, bitrate."""
+        return {"interface": self.interface, "channel": str(self.channel), "bitrate": self.bitrate}
 
 
 class PairSection(_Model):
@@ -107,6 +123,18 @@ class MasterSection(_Model):
     redundancy: PairSection | None = None
 
 
+#: the default of ``allowed_networks``: this machine only
+LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
+
+
+def _check_networks(networks: list[str]) -> None:
+    for n in networks:
+        try:
+            ipaddress.ip_network(n, strict=False)
+        except ValueError as exc:
+            raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+
+
 class ModbusTls(_Model):
     """Modbus/TCP Security (TLS, mutual X.509 authentication, roles): a second listener."""
 
@@ -125,9 +153,15 @@ class ModbusTls(_Model):
     default_role: str | None = Field(
         default=None, description="role of a client whose certificate has none; none: refused"
     )
+    crl: str | None = Field(
+        default=None,
+        description="certificate revocation list(s) of the CA (PEM): a revoked client is refused",
+    )
 
     @model_validator(mode="after")
     def _roles(self) -> ModbusTls:
+        if self.crl and not self.ca:
+            raise ValueError("crl needs ca (the CA file whose revocations it lists)")
         if self.require_client_cert and not self.ca:
             raise ValueError("require_client_cert: true needs ca (the CA file that signs clients)")
         if self.default_role is not None and self.default_role not in self.roles:
@@ -149,7 +183,22 @@ class ModbusSection(_Model):
     flat_stride: int = Field(default=200, ge=50, le=10000)
     word_order: Literal["big", "little"] = "big"
     read_only: bool = False
-    allowed_networks: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
+    allowed_networks: list[str] = Field(default_factory=lambda: list(LOOPBACK_NETWORKS))
+    max_connections: int = Field(
+        default=64,
+        ge=1,
+        le=10_000,
+        description="Modbus connections at once (plain and TLS together); past it a new one is closed",
+    )
+    max_connections_per_client: int = Field(
+        default=8, ge=1, le=10_000, description="connections at once from one client address"
+    )
+    idle_timeout_s: float = Field(
+        default=300.0,
+        ge=0,
+        le=86_400,
+        description="a connection that sends nothing this long is closed; 0 = never",
+    )
     write_timeout_s: float = Field(default=2.0, gt=0, le=60)
     watchdog_ms: int = Field(
         default=0,
@@ -167,132 +216,13 @@ class ModbusSection(_Model):
     def _nets(self) -> ModbusSection:
         if not self.plain and self.tls is None:
             raise ValueError("plain: false needs tls (nothing would serve Modbus)")
-        for n in self.allowed_networks:
-            try:
-                ipaddress.ip_network(n, strict=False)
-            except ValueError as exc:
-                raise ValueError(f"allowed_networks: {n!r} is not a network ({exc})") from None
+        if self.max_connections_per_client > self.max_connections:
+            raise ValueError(
+                f"max_connections_per_client ({self.max_connections_per_client}) is above "
+                f"max_connections ({self.max_connections})"
+            )
+        _check_networks(self.allowed_networks)
         return self
-
-
-class ZenohTls(_Model):
-    """TLS of the Zenoh links (``tls/`` endpoints), passed to zenoh's ``transport/link/tls``."""
-
-    root_ca_certificate: str | None = Field(default=None, description="CA file to trust (PEM)")
-    listen_certificate: str | None = Field(default=None, description="our certificate (PEM)")
-    listen_private_key: str | None = Field(default=None, description="its private key (PEM)")
-    connect_certificate: str | None = Field(default=None, description="client cert for mTLS")
-    connect_private_key: str | None = Field(default=None, description="its private key (PEM)")
-    enable_mtls: bool | None = None
-    verify_name_on_connect: bool | None = None
-
-
-#: what a Zenoh client may be allowed to do south (``zenoh.write_allow[].operations``)
-ZenohWriteOperation = Literal["set", "sdo_write", "nmt"]
-ZENOH_WRITE_OPERATIONS: tuple[ZenohWriteOperation, ...] = ("set", "sdo_write", "nmt")
-
-
-class ZenohWriteRule(_Model):
-    """One allow rule of ``zenoh.write_allow``: a write is allowed when it matches every list
-    given (an empty list matches everything)."""
-
-    operations: list[ZenohWriteOperation] = Field(
-        default_factory=lambda: list(ZENOH_WRITE_OPERATIONS),
-        description="set (set/<signal>, set), sdo_write (SDO download), nmt",
-    )
-    nodes: list[str] = Field(default_factory=list, description="node names; empty = every node")
-    keys: list[str] = Field(
-        default_factory=list, description="key expressions the query key must be in; empty = any"
-    )
-
-    @model_validator(mode="after")
-    def _keys(self) -> ZenohWriteRule:
-        for k in self.keys:
-            why = keyexpr.problem(k)
-            if why:
-                raise ValueError(f"keys: {why}")
-        return self
-
-
-class ZenohAuth(_Model):
-    """Zenoh user/password authentication (zenoh's ``transport/auth/usrpwd``)."""
-
-    user: str | None = Field(default=None, description="the name this gateway logs in with")
-    password: str | None = Field(default=None, description="its password (or password_file)")
-    password_file: str | None = Field(default=None, description="file holding the password")
-    dictionary_file: str | None = Field(
-        default=None, description="user:password lines: who may connect to this gateway (peer)"
-    )
-
-    @model_validator(mode="after")
-    def _pairs(self) -> ZenohAuth:
-        if self.password is not None and self.password_file is not None:
-            raise ValueError("password and password_file: give one, not both")
-        has_pw = self.password is not None or self.password_file is not None
-        if self.user is None and has_pw:
-            raise ValueError("user is missing (a password needs a user)")
-        if self.user is not None and not has_pw:
-            raise ValueError(f"user {self.user!r} has no password (password or password_file)")
-        if self.user is None and self.dictionary_file is None:
-            raise ValueError("empty: give user and password, or dictionary_file, or remove auth")
-        return self
-
-
-class ZenohHistory(_Model):
-    """What the advanced publishers keep for subscribers that missed samples (router down, WAN
-    link lost, late joiners): samples per key, and the heartbeat that lets them see a miss."""
-
-    events: int = Field(default=1000, ge=0, le=1_000_000, description="per state/EMCY key; 0 = none")
-    values: int = Field(default=1, ge=0, le=10_000, description="per value key; 0 = none")
-    heartbeat_ms: int = Field(default=500, ge=0, le=60_000, description="0 = no miss detection")
-
-
-class ZenohSection(_Model):
-    enabled: bool = True
-    mode: Literal["peer", "client"] = "peer"
-    listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    connect: list[str] = Field(default_factory=list)
-    prefix: str | None = None
-    multicast_scouting: bool = False
-    #: change / every: a sample per signal on its value key; pdo: a sample per received PDO
-    #: with all its signals on ``<node>/tpdo/<n>`` (a signal's own publish still applies)
-    publish: Literal["change", "every", "pdo"] = "change"
-    batch_ms: float = Field(
-        default=1.0,
-        ge=0,
-        le=100,
-        description="values of frames received within this window go out together (0 = per burst)",
-    )
-    raw_pdo: bool = False
-    tls: ZenohTls | None = None
-    writes: bool = Field(default=False, description="off: every set, SDO download, NMT refused")
-    write_allow: list[ZenohWriteRule] = Field(
-        default_factory=list, description="with writes on: only what a rule allows; empty = all"
-    )
-    auth: ZenohAuth | None = None
-    access_control: dict[str, Any] | None = Field(
-        default=None, description="zenoh's access_control section (rules, subjects, policies)"
-    )
-    history: ZenohHistory = Field(default_factory=ZenohHistory)
-    refuse_duplicate_prefix: bool = Field(
-        default=True, description="refuse to start when a gateway already runs under our prefix"
-    )
-    json5: dict[str, Any] = Field(
-        default_factory=dict, description="raw zenoh config keys, e.g. {'transport/link/tls/..': ..}"
-    )
-
-    @model_validator(mode="after")
-    def _writes(self) -> ZenohSection:
-        if self.write_allow and not self.writes:
-            raise ValueError("write_allow has no effect while writes is off: set writes: on")
-        if self.prefix is not None:
-            why = keyexpr.problem(self.prefix.rstrip("/"))
-            if why or "*" in self.prefix or "$" in self.prefix:
-                raise ValueError(f"prefix: {why or 'no wildcards in a prefix'}")
-        return self
-
-    def key_prefix(self, gateway_name: str) -> str:
-        return self.prefix if self.prefix else f"canopen/{gateway_name}"
 
 
 class AsciiSection(_Model):
@@ -306,6 +236,25 @@ class AsciiSection(_Model):
     events: bool = Field(
         default=False, description="event lines (BOOT_UP, EMCY, heartbeat) to every client"
     )
+    allowed_networks: list[str] = Field(
+        default_factory=lambda: list(LOOPBACK_NETWORKS),
+        description="client addresses served; any other connection is closed at once",
+    )
+
+    @model_validator(mode="after")
+    def _nets(self) -> AsciiSection:
+        _check_networks(self.allowed_networks)
+        return self
+
+
+class CommandSocketSection(_Model):
+    """The command line's local way into the running gateway when its bus is in-process
+    (``can.interface: virtual``): a Unix socket only this user can open (``gateway/command_socket``)."""
+
+    enabled: bool = Field(default=True, description="listen on it (with an in-process bus)")
+    path: str | None = Field(
+        default=None, description="default: the user's runtime directory, named by the config file"
+    )
 
 
 class HealthSection(_Model):
@@ -315,6 +264,12 @@ class HealthSection(_Model):
 
 #: the smallest web token accepted: guessing one must not be a matter of minutes
 WEB_TOKEN_MIN_LENGTH = 12
+#: the one rule for a token of digits only, whether the file or CANOPEN_GATEWAY__WEB__TOKEN
+#: gives it (quoted or not): refused, it is a number anyone may guess
+WEB_TOKEN_DIGITS = (
+    "a token of digits only is refused, in the file (quoted or not) as in "
+    "CANOPEN_GATEWAY__WEB__TOKEN: mix in letters (token: \"a long random text\")"
+)
 
 
 class WebSection(_Model):
@@ -326,28 +281,44 @@ class WebSection(_Model):
     )
     token: str | None = Field(
         default=None,
-        description="password of the commissioning page; or CANOPEN_GATEWAY__WEB__TOKEN",
+        description="the operators' password (journal, bus monitor, SDO reads, faults, "
+        "commissioning); or CANOPEN_GATEWAY__WEB__TOKEN",
+    )
+    token_file: str | None = Field(
+        default=None, description="a file holding the token (first line), instead of token"
+    )
+    allowed_hosts: list[str] | None = Field(
+        default=None,
+        description="Host header names the console answers (DNS rebinding); default: the bind "
+        "address, the address a request arrived at, localhost and this machine's names; '*' = any",
     )
 
     @field_validator("token", mode="before")
     @classmethod
     def _token_text(cls, v: Any) -> Any:
         if isinstance(v, (int, float)) and not isinstance(v, bool):
-            raise ValueError(
-                "YAML read a number here; a token is text: put it in quotes "
-                "(token: \"0123456789012\")"
-            )
+            raise ValueError(f"YAML read a number here; {WEB_TOKEN_DIGITS}")
+        return v
+
+    @field_validator("token")
+    @classmethod
+    def _token_not_digits(cls, v: str | None) -> str | None:
+        if v is not None and v.isdigit():  # one rule, from the file or the environment
+            raise ValueError(WEB_TOKEN_DIGITS)
         return v
 
     @model_validator(mode="after")
     def _token(self) -> WebSection:
-        if self.writes and not self.token:
+        if self.token is not None and self.token_file is not None:
+            raise ValueError("token and token_file: give one, not both")
+        if self.writes and not self.token and not self.token_file:
             raise ValueError(
-                "writes: true needs a token (web.token, or the environment variable "
-                "CANOPEN_GATEWAY__WEB__TOKEN)"
+                "writes: true needs a token (web.token, web.token_file, or the environment "
+                "variable CANOPEN_GATEWAY__WEB__TOKEN)"
             )
         if self.token is not None and len(self.token) < WEB_TOKEN_MIN_LENGTH:
             raise ValueError(f"token: at least {WEB_TOKEN_MIN_LENGTH} characters")
+
         return self
 
 
@@ -364,16 +335,36 @@ class SimulateSection(_Model):
     )
 
 
+#: the one network of the single-network form (top-level ``can``, ``master``, ``nodes``)
+DEFAULT_NETWORK = "default"
+#: the sections a network has of its own (``networks[].can`` ...; top-level in the other form)
+NETWORK_KEYS = ("can", "master", "nodes")
+
+
+class NetworkSection(_Model):
+    """One CAN network of the gateway (``networks[]``): its bus, its master and its nodes, as
+    the top-level ``can:``, ``master:`` and ``nodes:`` of the single-network form."""
+
+    name: str = Field(pattern=r"^[a-z0-9_\-]+$", description="in logs, /healthz, metrics, the console")
+    can: CanSection = Field(default_factory=CanSection)
+    master: MasterSection = Field(default_factory=MasterSection)
+    nodes: list[NodeConfig] = Field(default_factory=list)
+
+
 class Config(_Model):
     gateway: GatewaySection = Field(default_factory=GatewaySection)
     can: CanSection = Field(default_factory=CanSection)
     master: MasterSection = Field(default_factory=MasterSection)
     nodes: list[NodeConfig] = Field(default_factory=list)
+    #: several CAN networks, each with its own can, master and nodes (None: the single form);
+    #: at most 8 (the gateway block of unit 247 has a register per network, docs/modbus.md)
+    networks: list[NetworkSection] | None = Field(default=None, max_length=8)
     modbus: ModbusSection = Field(default_factory=ModbusSection)
     zenoh: ZenohSection = Field(default_factory=ZenohSection)
     health: HealthSection = Field(default_factory=HealthSection)
     web: WebSection = Field(default_factory=WebSection)
     ascii: AsciiSection | None = None  # CiA 309-3 ASCII gateway: off unless given
+    command_socket: CommandSocketSection = Field(default_factory=CommandSocketSection)
     simulate: SimulateSection = Field(default_factory=SimulateSection)
     journal: JournalSection = Field(default_factory=JournalSection)  # store and forward
 
@@ -382,6 +373,92 @@ class Config(_Model):
     #: key path -> the environment variable that set it (``config.env.env_keys``): a problem
     #: found after loading is blamed on the variable, as one found while loading is
     env_keys: dict[str, str] = Field(default_factory=dict, exclude=True)
+    #: a view of one network of the ``networks:`` form (``network_view``): its key paths start
+    #: ``networks[k].``; empty for a whole config
+    key_prefix: str = Field(default="", exclude=True)
+
+    @model_validator(mode="after")
+    def _flatten(self) -> Config:
+        """``networks:``: ``nodes`` are every network's, ``can`` and ``master`` the first's
+        (given together with the top-level keys, the loader refuses the file)."""
+        nets = self.networks
+        if nets and not (NETWORK_KEYS_SET & self.model_fields_set):
+            self.nodes = [n for net in nets for n in net.nodes]
+            self.can = nets[0].can
+            self.master = nets[0].master
+        return self
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """Written back as it was read: the ``networks:`` form without the top-level copies."""
+        out = handler(self)
+        if isinstance(out, dict):
+            for key in NETWORK_KEYS if self.networks is not None else ("networks",):
+                out.pop(key, None)
+        return out
+
+    # ------------------------------------------------------------------ networks
+    def network_sections(self) -> list[NetworkSection]:
+        """The networks of either form (the single form: one named ``default``, whose sections
+        are the top-level ones, the same objects)."""
+        if self.networks is not None:
+            return list(self.networks)
+        return [
+            NetworkSection.model_construct(
+                name=DEFAULT_NETWORK, can=self.can, master=self.master, nodes=self.nodes
+            )
+        ]
+
+    def network_names(self) -> list[str]:
+        return [net.name for net in self.network_sections()]
+
+    def network_view(self, name: str) -> Config:
+        """The config of network ``name`` alone: its ``can``, ``master`` and ``nodes``; the
+        shared sections are this config's (the same objects). The config itself in the
+        single-network form, or when it is a network's view already. KeyError for an unknown
+        name."""
+        for k, net in enumerate(self.network_sections()):
+            if net.name == name:
+                return self if self.networks is None or self.key_prefix else self._view(k, net)
+        raise KeyError(name)
+
+    def _view(self, k: int, net: NetworkSection) -> Config:
+        return self.model_copy(update={
+            "can": net.can, "master": net.master, "nodes": net.nodes, "networks": [net],
+            "key_prefix": f"networks[{k}].",
+        })  # fmt: skip
+
+    def network_views(self) -> list[Config]:
+        """``network_view`` of every network, in configured order."""
+        return [self.network_view(name) for name in self.network_names()]
+
+    def network_of(self, node: str) -> str:
+        """The name of the network node ``node`` is on (KeyError: no such node)."""
+        for net in self.network_sections():
+            if any(n.name == node for n in net.nodes):
+                return net.name
+        raise KeyError(node)
+
+    def qualify(self, key: str) -> str:
+        """A key path of this config as the file spells it: a network view's ``nodes[0]``,
+        ``can.x``, ``master.x`` under its ``networks[k].``; a whole ``networks:`` config's
+        ``nodes[i]`` (every network's nodes in order) as ``networks[k].nodes[j]``."""
+        head = key.split(".", 1)[0].split("[", 1)[0]
+        if head not in NETWORK_KEYS:
+            return key
+        if self.key_prefix:
+            return self.key_prefix + key
+        if self.networks is None or head != "nodes" or not key.startswith("nodes["):
+            return key
+        index, _, rest = key[len("nodes["):].partition("]")
+        if not index.isdigit():
+            return key
+        i = int(index)
+        for k, net in enumerate(self.networks):
+            if i < len(net.nodes):
+                return f"networks[{k}].nodes[{i}]{rest}"
+            i -= len(net.nodes)
+        return key
 
     def node(self, name: str) -> NodeConfig:
         for n in self.nodes:
@@ -398,6 +475,27 @@ class Config(_Model):
     @property
     def base_dir(self) -> Path:
         return Path(self.source).parent if self.source != "<memory>" else Path.cwd()
+
+    def path_of(self, value: str) -> Path:
+        """A file setting's path: relative to the config file unless absolute."""
+        p = Path(value).expanduser()
+        return p if p.is_absolute() else self.base_dir / p
+
+    def web_token(self) -> str | None:
+        """The console's token: ``web.token``, or the first line of ``web.token_file`` (OSError
+        when it cannot be read; ``canopen-gateway check`` and every start check it first)."""
+        if self.web.token_file is None:
+            return self.web.token
+        return read_secret(self.path_of(self.web.token_file))
+
+
+def read_secret(path: Path) -> str:
+    """The secret a file holds: its first line, without surrounding blanks."""
+    text = path.read_text(encoding="utf-8")
+    return text.splitlines()[0].strip() if text.strip() else ""
+
+
+NETWORK_KEYS_SET = frozenset(NETWORK_KEYS)
 
 
 #: A config that opens the bus must say which one: the in-process ``virtual`` bus is not a

@@ -180,21 +180,22 @@ def resolve_nodes(cfg: Config) -> tuple[dict[str, ResolvedNode], list[Problem]]:
     its problem said."""
     out: dict[str, ResolvedNode] = {}
     problems: list[Problem] = []
-    for i, ncfg in enumerate(cfg.nodes):
-        key = f"nodes[{i}]"
-        try:
-            lp = load_node_profile(ncfg.setup, cfg.base_dir)
-        except ProfileError as exc:
-            if exc.key is not None:
-                problems.append((f"{key}.{exc.key}" if exc.key else key, str(exc)))
-            else:
-                where = f"{key}.{'eds' if ncfg.eds else 'profile'}"
-                problems += [(where, line) for line in str(exc).splitlines()]
-            continue
-        asked = _profile_problems(key, ncfg, lp)
-        problems += asked
-        if not asked:
-            out[ncfg.name] = resolve_node(cfg, ncfg, lp)
+    for view in cfg.network_views():  # each node with its network's master settings
+        for i, ncfg in enumerate(view.nodes):
+            key = view.qualify(f"nodes[{i}]")
+            try:
+                lp = load_node_profile(ncfg.setup, cfg.base_dir)
+            except ProfileError as exc:
+                if exc.key is not None:
+                    problems.append((f"{key}.{exc.key}" if exc.key else key, str(exc)))
+                else:
+                    where = f"{key}.{'eds' if ncfg.eds else 'profile'}"
+                    problems += [(where, line) for line in str(exc).splitlines()]
+                continue
+            asked = _profile_problems(key, ncfg, lp)
+            problems += asked
+            if not asked:
+                out[ncfg.name] = resolve_node(view, ncfg, lp)
     return out, problems
 
 

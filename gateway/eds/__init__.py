@@ -12,12 +12,13 @@ mapping objects 1400h-1BFFh, ``$NODEID`` resolved), ``pdos.unique_names`` names 
 objects (ParameterName slugs, unique per node), ``show.render`` prints a dictionary and its PDOs.
 
 Imports: its own modules (parse, build, pdos, file_cob_ids), canopen, gateway.canopen.objref and the standard
-library. Nothing else of the gateway (the profile loader imports this package, not the other
+library (difflib: the near names of a missing file). Nothing else of the gateway (the profile loader imports this package, not the other
 way round).
 """
 
 from __future__ import annotations
 
+import difflib
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +31,7 @@ from gateway.eds.file_cob_ids import dcf_node_id, foreign_cob_id_problems
 from gateway.eds.parse import EdsError, EdsProblem, EdsText, read_sections, read_text
 from gateway.eds.pdos import PdoFinding, eds_pdo_findings
 
-__all__ = ["EdsError", "EdsFile", "EdsProblem", "Lint", "dictionary_for_node", "lint", "load_eds"]
+__all__ = ["EdsError", "EdsFile", "EdsProblem", "Lint", "dictionary_for_node", "lint", "load_eds", "near_names"]
 
 
 @dataclass(frozen=True)
@@ -101,10 +102,28 @@ def load_eds(path: str | Path) -> EdsFile:
     try:
         st = p.stat()
     except OSError:
-        raise EdsError([f"{p}: file does not exist"]) from None
+        raise EdsError([f"{p}: file does not exist{near_names(p, ('.eds', '.dcf'))}"]) from None
     if not p.is_file():
         raise EdsError([f"{p}: not a file"])
     return _load(p, st.st_mtime, st.st_size)
+
+
+def near_names(path: Path, suffixes: tuple[str, ...]) -> str:
+    """What a missing file's folder holds: ``; did you mean io401.eds?`` for near names (any
+    case), else the files of ``suffixes`` there (at most 8), or that the folder is missing."""
+    folder = path.parent
+    try:
+        names = sorted(f.name for f in folder.iterdir() if f.suffix.lower() in suffixes and f.is_file())
+    except OSError:
+        return f" (nor does its folder {folder})"
+    if not names:
+        return f" (no {' or '.join(suffixes)} file in {folder})"
+    lowered = {n.lower(): n for n in names}
+    near = [lowered[n] for n in difflib.get_close_matches(path.name.lower(), list(lowered), n=3, cutoff=0.6)]
+    if near:
+        return "; did you mean " + " or ".join(near) + "?"
+    listed = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+    return f" (in {folder}: {listed})"
 
 
 def dictionary_for_node(path: str | Path, node_id: int | None) -> canopen.ObjectDictionary:

@@ -42,7 +42,10 @@ from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 from gateway.eds.parse import (
     ACCESS_TYPES,
     DATA_TYPES,
+    MAX_OBJECTS,
+    MAX_SUB_OBJECTS,
     OBJECT_TYPES,
+    EdsError,
     EdsProblem,
     Section,
     parse_int,
@@ -355,6 +358,28 @@ def _dummy_usage(ctx: _Ctx, od: canopen.ObjectDictionary, sections: dict[str, Se
             od.add_object(var)
 
 
+def _bounded(ctx: _Ctx, objects: dict[int, Section], subs: dict[int, list[tuple[int, Section]]]) -> None:
+    """EdsError before anything is built when the file makes more objects or sub-objects than
+    a device has (``parse.MAX_OBJECTS``, ``MAX_SUB_OBJECTS``; CompactSubObj counts as written)."""
+    if len(objects) > MAX_OBJECTS:
+        raise EdsError([f"{ctx.path}: {len(objects)} objects, more than {MAX_OBJECTS}: not a device "
+                        "description the gateway loads"])  # fmt: skip
+    total = 0
+    for index, sec in objects.items():
+        compact = sec.get("CompactSubObj")
+        if compact and not subs.get(index):
+            try:
+                n = parse_int(compact)[0]
+            except ValueError:
+                n = 0  # the build warns about it
+            total += 1 + max(0, min(n, 0xFE))
+        else:
+            total += 1 + len(subs.get(index, ()))
+    if total > MAX_SUB_OBJECTS:
+        raise EdsError([f"{ctx.path}: {total} objects and sub-objects, more than {MAX_SUB_OBJECTS}: "
+                        "not a device description the gateway loads"])  # fmt: skip
+
+
 def build_dictionary(
     sections: dict[str, Section], path: str, node_id: int | None = None
 ) -> tuple[canopen.ObjectDictionary, list[EdsProblem]]:
@@ -375,6 +400,7 @@ def build_dictionary(
             continue
         else:
             ctx.warn(sec, None, "unknown section: neither an object ([6401], [6401sub2]) nor a CiA 306 section; ignored")  # fmt: skip
+    _bounded(ctx, objects, subs)
     _device_info(ctx, od, sections)
     _commissioning(ctx, od, sections, node_id)
     _dummy_usage(ctx, od, sections)

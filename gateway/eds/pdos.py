@@ -249,6 +249,25 @@ def readable(var: ODVariable | None) -> bool:
     return var is not None and var.access_type in ("ro", "rw", "rwr", "rww", "const")
 
 
+def mappable_objects(od: canopen.ObjectDictionary, kind: Kind) -> list[ObjRef]:
+    """The objects of the dictionary the file marks PDO-mappable (``PDOMapping=1``) of a type
+    the gateway serves, readable for a TPDO or writable for an RPDO, in index order (the
+    objects ``tpdo:`` / ``rpdo:`` of a node entry may map)."""
+    out = []
+    for index in sorted(od.indices):
+        entry = od[index]
+        if isinstance(entry, ODVariable):
+            subs = [(0, entry)]
+        else:
+            subs = [(sub, entry[sub]) for sub in sorted(entry.subindices) if sub]
+        for sub, var in subs:
+            if not var.pdo_mappable or TYPE_NAMES.get(var.data_type) is None:
+                continue
+            if readable(var) if kind == "tpdo" else _writable(var):
+                out.append(ObjRef(index, sub))
+    return out
+
+
 # ------------------------------------------------------------------------ what a PDO can carry
 
 

@@ -111,7 +111,8 @@ def overlay_profile(eds: EdsFile, eds_ref: str) -> str:
         sort_keys=False,
         allow_unicode=True,
     )
-    text = top + "signals:\n"
+    # no mapped object: an empty list, which the profile loader takes (a bare key is null)
+    text = top + ("signals:\n" if objs else "signals: []  # no PDO-mapped object in the file\n")
     for o in objs:
         var = od_var(od, o)
         kind = "RPDO, written by the gateway" if o in r_objs else "TPDO, read"

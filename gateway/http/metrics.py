@@ -26,6 +26,7 @@ Metric names carry the prefix ``canopen_gateway_``:
     sdo_requests_total{node,op}, sdo_aborts_total{node,code}, sdo_latency_seconds{node}
     modbus_requests_total{function}, modbus_exceptions_total{code}
     zenoh_refused_total{operation}, modbus_watchdog_trips_total{reason}
+    modbus_connections, modbus_connections_closed_total{reason}
     zenoh_queries_answered_total, zenoh_queries_busy_total, zenoh_query_queue_depth
     northbound_turns_refused_total (console and ASCII requests refused: too many waiting)
     journal_entries_total{outcome} (written, dropped, removed: the store and forward journal)
@@ -33,15 +34,24 @@ Metric names carry the prefix ``canopen_gateway_``:
     pair_takeovers_total, pair_negotiations_total, pair_duplicate_id_frames_total,
     pair_isolations_total, pair_role (a hot-standby pair)
     node_nmt_state{node}, node_alive{node}, node_data_age_seconds{node}, uptime_seconds
+    per CAN network (``network``: its name, ``default`` in the single-network form):
+    can_frames_in_total{network}, can_frames_out_total{network}, can_bus_errors_total{network},
+    can_bus_reopens_total{network}, can_bus_state{network} (0 down, 1 ok, 2 error),
+    network_pair_role{network}, network_other_master_frames_total{network,kind}
+    (the unlabelled frames_*, bus_errors_total and pair_* above are the gateway's totals, the
+    first network's pair)
+    build_info{version,python} (always 1: the package version and the Python that runs it)
     plus process_* (CPU, memory, open files) of this process.
 
-Imports: prometheus_client and the standard library only; nothing of bus/, modbus/, zenoh_bridge/.
+Imports: prometheus_client, gateway (__version__) and the standard library; nothing of bus/,
+modbus/, zenoh_bridge/.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import platform
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -56,6 +66,8 @@ from prometheus_client import (
     generate_latest,
 )
 from prometheus_client.metrics_core import CounterMetricFamily, GaugeMetricFamily, Metric
+
+from gateway import __version__
 
 log = logging.getLogger("gateway.metrics")  # the name users see in log lines
 
@@ -160,9 +172,19 @@ class Counters:
     modbus_exceptions: dict[str, int] = field(default_factory=dict)
     zenoh_refused: dict[str, int] = field(default_factory=dict)
     modbus_watchdog_trips: dict[str, int] = field(default_factory=dict)
+    modbus_connections_closed: dict[str, int] = field(default_factory=dict)
+    modbus_connections: int = 0  # a gauge, read at scrape time
     other_master: dict[str, int] = field(default_factory=dict)
     other_sdo_client: dict[str, int] = field(default_factory=dict)
     journal: dict[str, int] = field(default_factory=dict)
+    # per CAN network, keyed by its name (other masters: by (network, kind))
+    can_frames_in: dict[str, int] = field(default_factory=dict)
+    can_frames_out: dict[str, int] = field(default_factory=dict)
+    can_bus_errors: dict[str, int] = field(default_factory=dict)
+    can_bus_reopens: dict[str, int] = field(default_factory=dict)
+    can_bus_state: dict[str, int] = field(default_factory=dict)  # a gauge, read at scrape time
+    network_pair_role: dict[str, int] = field(default_factory=dict)  # a gauge
+    network_other_master: dict[tuple[str, str], int] = field(default_factory=dict)
 
     def copy(self) -> Counters:
         """A copy with label dicts of its own (the caller holds the lock that guards them)."""
@@ -309,12 +331,16 @@ class _GatewayCollector:
     def _families(c: Counters, nodes: list[NodeSample], *, uptime_s: float) -> Iterator[Metric]:
         for kind, name, doc, attr, labels in _COUNTER_FAMILIES:
             value = getattr(c, attr)
-            if kind == "gauge":
+            if kind == "gauge" and not labels:
                 yield GaugeMetricFamily(f"{NAMESPACE}_{name}", doc, value=value)
             elif not labels:
                 yield CounterMetricFamily(f"{NAMESPACE}_{name}", doc, value=value)
             else:
-                family = CounterMetricFamily(f"{NAMESPACE}_{name}", doc, labels=list(labels))
+                family: GaugeMetricFamily | CounterMetricFamily = (
+                    GaugeMetricFamily(f"{NAMESPACE}_{name}", doc, labels=list(labels))
+                    if kind == "gauge"
+                    else CounterMetricFamily(f"{NAMESPACE}_{name}", doc, labels=list(labels))
+                )
                 for key, count in sorted(value.items()):
                     family.add_metric(list(key) if isinstance(key, tuple) else [key], count)
                 yield family
@@ -322,6 +348,19 @@ class _GatewayCollector:
         yield GaugeMetricFamily(
             f"{NAMESPACE}_uptime_seconds", "Seconds since the gateway started.", value=uptime_s
         )
+        yield _build_info()
+
+
+def _build_info() -> Metric:
+    """``canopen_gateway_build_info{version="0.1.0", python="3.11.7"} 1``: what runs, as the
+    Prometheus convention writes it (a gauge of 1 whose labels carry the facts)."""
+    family = GaugeMetricFamily(
+        f"{NAMESPACE}_build_info",
+        "The gateway's package version and the Python version running it (always 1).",
+        labels=["version", "python"],
+    )
+    family.add_metric([__version__, platform.python_version()], 1)
+    return family
 
 
 #: The families read from ``Counters``, in exposition order: (kind, name, help, the Counters
@@ -351,6 +390,13 @@ _COUNTER_FAMILIES: tuple[tuple[str, str, str, str, tuple[str, ...]], ...] = (
     ("counter", "journal_entries_total",
      "Journal entries by outcome: written, dropped (slow or full disk), removed "
      "(journal.max_mb, journal.keep_days).", "journal", ("outcome",)),
+    ("gauge", "modbus_connections", "Modbus TCP connections open (plain and TLS).",
+     "modbus_connections", ()),
+    ("counter", "modbus_connections_closed_total",
+     "Modbus connections the gateway closed, by reason: per_client (modbus."
+     "max_connections_per_client), total (modbus.max_connections), evicted (its place given to a "
+     "client in modbus.allowed_networks), idle (modbus.idle_timeout_s).",
+     "modbus_connections_closed", ("reason",)),
     ("counter", "modbus_watchdog_trips_total",
      "Modbus output watchdog trips (safe outputs written), by reason (timeout, disconnect).",
      "modbus_watchdog_trips", ("reason",)),
@@ -387,6 +433,23 @@ _COUNTER_FAMILIES: tuple[tuple[str, str, str, str, tuple[str, ...]], ...] = (
     ("gauge", "pair_role",
      "Role in a hot-standby pair: 0 no pair, 1 active, 2 standby, "
      "3 listening / negotiating, 4 isolated, 5 out (duplicate pair id).", "pair_role", ()),
+    ("counter", "can_frames_in_total", "CAN frames received, by network.", "can_frames_in",
+     ("network",)),
+    ("counter", "can_frames_out_total", "CAN frames sent, by network.", "can_frames_out",
+     ("network",)),
+    ("counter", "can_bus_errors_total", "CAN error frames and failed sends, by network.",
+     "can_bus_errors", ("network",)),
+    ("counter", "can_bus_reopens_total",
+     "Times the CAN bus was opened again after it was lost, by network.", "can_bus_reopens",
+     ("network",)),
+    ("gauge", "can_bus_state", "CAN bus state by network: 0 down, 1 ok, 2 error passive / "
+     "bus off.", "can_bus_state", ("network",)),
+    ("gauge", "network_pair_role",
+     "Role in the network's hot-standby pair (as pair_role), by network.", "network_pair_role",
+     ("network",)),
+    ("counter", "network_other_master_frames_total",
+     "Frames of another master (as other_master_frames_total), by network and kind.",
+     "network_other_master", ("network", "kind")),
 )  # fmt: skip
 
 

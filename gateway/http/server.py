@@ -22,11 +22,17 @@ not one). Requests are bounded: 8 KiB of head, ``read_timeout_s`` to send it.
 
 Other paths go to an optional ``app`` (the web console, ``gateway.web``): it gets a parsed
 ``Request`` (method, path, query, lower-case headers, a body of at most 64 KiB given by
-Content-Length) and returns a ``Response``, a ``Stream`` (written until the stream ends or the
-client goes away: server-sent events) or None (404). With ``turns`` (``turns.LoopTurns``: the
+Content-Length, the client's address and the local address the request arrived at) and returns
+a ``Response``, a ``Stream`` (written until the stream ends or the client goes away: server-sent
+events), a ``Chunked`` answer (HTTP/1.1 chunked encoding: each chunk written and drained before
+the next is asked for, so an export of any length takes constant memory; the iterator closed
+when the client goes away) or None (404). With ``turns`` (``turns.LoopTurns``: the
 PLC first), each app request waits for its turn on the event loop before the app renders it;
 when too many wait, it is answered 503 ``busy`` with ``Retry-After``. Without an app, or for the three paths
-above, methods other than GET/HEAD are answered 405.
+above, methods other than GET/HEAD are answered 405. The three paths above answer whatever the
+``Host`` header (probes and scrapes name the address they reach); the app checks it. A
+``Content-Length`` that is not ASCII digits, or given twice, and a ``Host`` given twice are
+answered 400 (RFC 9112 6.3, 3.2), never an exception.
 
 Config (section ``health:`` of the gateway config): ``host`` (127.0.0.1), ``port`` (0 = off).
 Port 0 passed to ``HealthServer`` itself binds an ephemeral port (see ``.port``): the caller
@@ -43,7 +49,7 @@ import inspect
 import json
 import logging
 import urllib.parse
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
 from dataclasses import KW_ONLY, dataclass, field
 from http import HTTPStatus
 from typing import Any
@@ -63,6 +69,8 @@ MAX_REQUEST_BODY_BYTES = 65536
 JSON_TYPE = "application/json"
 TEXT_TYPE = "text/plain; charset=utf-8"
 HEALTH_PATHS = ("/healthz", "/livez", "/metrics")
+#: headers a request may carry once (RFC 9112 6.3: a repeated Content-Length is an error)
+SINGLE_HEADERS = frozenset({"content-length", "host"})
 
 
 @dataclass(frozen=True)
@@ -76,6 +84,7 @@ class Request:
     headers: Mapping[str, str] = field(default_factory=dict)
     body: bytes = b""
     client: str = ""  # the peer's address (per-client limits of the app)
+    local: str = ""  # the address the request arrived at (the app's Host check)
 
 
 @dataclass(frozen=True)
@@ -108,7 +117,18 @@ class Stream:
     headers: Mapping[str, str] = field(default_factory=dict)
 
 
-App = Callable[[Request], Awaitable[Response | Stream | None]]
+@dataclass(frozen=True)
+class Chunked:
+    """An answer of unknown length in HTTP/1.1 chunked encoding: the headers, then each bytes
+    ``chunks`` yields as one chunk (written and drained before the next is asked for), then the
+    last chunk. The iterator is closed when the client goes away."""
+
+    content_type: str
+    chunks: AsyncIterator[bytes]
+    headers: Mapping[str, str] = field(default_factory=dict)
+
+
+App = Callable[[Request], Awaitable[Response | Stream | Chunked | None]]
 
 
 def build_status(
@@ -342,29 +362,24 @@ class HealthServer:
         header_lines: list[str],
     ) -> None:
         assert self.app is not None
-        headers: dict[str, str] = {}
-        for line in header_lines:
-            name, sep, value = line.partition(":")
-            if sep:
-                headers[name.strip().lower()] = value.strip()
+        headers, twice = _headers(header_lines)
+        if twice is not None:
+            return await self._refuse(
+                writer, path, HTTPStatus.BAD_REQUEST, "bad_request", f"{twice} given twice"
+            )
         if "transfer-encoding" in headers:
             return await self._refuse(
                 writer, path, HTTPStatus.LENGTH_REQUIRED, "length_required", "send a Content-Length body"
             )
         length_text = headers.get("content-length", "0")
-        if not length_text.isdigit():
+        if not (length_text.isascii() and length_text.isdigit()):
             return await self._refuse(
                 writer, path, HTTPStatus.BAD_REQUEST, "bad_request", "bad Content-Length"
             )
         length = int(length_text)
         if length > MAX_REQUEST_BODY_BYTES:
-            return await self._refuse(
-                writer,
-                path,
-                HTTPStatus.REQUEST_ENTITY_TOO_LARGE,
-                "too_large",
-                f"body larger than {MAX_REQUEST_BODY_BYTES} bytes",
-            )
+            too_large = f"body larger than {MAX_REQUEST_BODY_BYTES} bytes"
+            return await self._refuse(writer, path, HTTPStatus.REQUEST_ENTITY_TOO_LARGE, "too_large", too_large)
         try:
             body = await asyncio.wait_for(reader.readexactly(length), self.read_timeout_s)
         except TimeoutError:
@@ -378,6 +393,7 @@ class HealthServer:
             headers=headers,
             body=body,
             client=_peer(writer),
+            local=_peer(writer, "sockname"),
         )
         try:
             if self.turns is None or await self.turns.turn():
@@ -392,15 +408,10 @@ class HealthServer:
             answer = _error(path, HTTPStatus.INTERNAL_SERVER_ERROR, "internal", "internal error (see the log)")
         if answer is None:
             answer = _error(path, HTTPStatus.NOT_FOUND, "not_found", "not found")
+        if isinstance(answer, Chunked):
+            return await self._send_chunked(writer, answer, head_only=method == "HEAD")
         if isinstance(answer, Stream):
-            head = (
-                "HTTP/1.1 200 OK\r\n"
-                f"Content-Type: {answer.content_type}\r\n"
-                "Cache-Control: no-store\r\nConnection: close\r\n"
-                + "".join(f"{k}: {v}\r\n" for k, v in answer.headers.items())
-                + "\r\n"
-            )
-            writer.write(head.encode("latin-1"))
+            writer.write(_stream_head(answer.content_type, answer.headers))
             await writer.drain()
             await answer.body(reader, writer)
             return
@@ -412,6 +423,26 @@ class HealthServer:
             head_only=method == "HEAD",
             extra_headers=answer.headers,
         )
+
+    @staticmethod
+    async def _send_chunked(writer: asyncio.StreamWriter, answer: Chunked, *, head_only: bool) -> None:
+        chunks = answer.chunks
+        try:
+            headers = {"Transfer-Encoding": "chunked", **answer.headers}
+            writer.write(_stream_head(answer.content_type, headers))
+            await writer.drain()
+            if head_only:
+                return
+            async for data in chunks:
+                if data:
+                    writer.write(b"%x\r\n%s\r\n" % (len(data), data))
+                    await writer.drain()  # the client reads it: memory stays constant
+            writer.write(b"0\r\n\r\n")
+            await writer.drain()
+        finally:
+            aclose = getattr(chunks, "aclose", None)
+            if aclose is not None:
+                await aclose()
 
     async def _health(self) -> tuple[HTTPStatus, bytes]:
         try:
@@ -455,8 +486,33 @@ class HealthServer:
         await writer.drain()
 
 
-def _peer(writer: asyncio.StreamWriter) -> str:
-    peer = writer.get_extra_info("peername")
+def _stream_head(content_type: str, headers: Mapping[str, str]) -> bytes:
+    """The head of an answer without a length (the connection is closed after it)."""
+    return (
+        "HTTP/1.1 200 OK\r\n"
+        f"Content-Type: {content_type}\r\n"
+        "Cache-Control: no-store\r\nConnection: close\r\n"
+        + "".join(f"{k}: {v}\r\n" for k, v in headers.items())
+        + "\r\n"
+    ).encode("latin-1")
+
+
+def _headers(lines: list[str]) -> tuple[dict[str, str], str | None]:
+    """The header fields by lower-case name, and the name of a field that may be given once
+    but came twice (``SINGLE_HEADERS``), else None."""
+    headers: dict[str, str] = {}
+    for line in lines:
+        name, sep, value = line.partition(":")
+        if sep:
+            name = name.strip().lower()
+            if name in SINGLE_HEADERS and name in headers:
+                return headers, name
+            headers[name] = value.strip()
+    return headers, None
+
+
+def _peer(writer: asyncio.StreamWriter, which: str = "peername") -> str:
+    peer = writer.get_extra_info(which)
     return str(peer[0]) if isinstance(peer, tuple) and peer else ""
 
 

@@ -1,43 +1,50 @@
-"""The journal's storage: one SQLite database (standard library, WAL mode) in ``journal.path``,
-written by one thread (``journal-writer``), read by any thread through connections of its own.
+"""The journal: one SQLite database (standard library, WAL mode) in ``journal.path``, written by
+one thread (``journal-writer``), read by any thread through connections of its own.
 
-What goes in (``Entry``): every state and EMCY sample as published (``append``, write ahead:
-the entry's ``on_commit`` runs after its commit, and the bridge publishes it there), the latest
-value sample of each signal per ``values_ms`` window (``value``: a dict assignment, the writer
-takes the window's latest; or ``values_from``: the writer asks a source once per window), and
-the audit of every write (``append`` without a callback).
+What goes in (``Entry``): every state and EMCY event (``append``), the latest value sample of
+each signal per ``values_ms`` window (``value``: a dict assignment, the writer takes the
+window's latest; or ``values_from``: the writer asks a source once per window), and the audit
+of every write (``append``).
 
 Rules held here, once:
 
+* **Never blocks a caller, never stops the live path**: ``append`` checks the entry and queues
+  it (under a lock, no I/O) and returns a ticket; whoever must know it is on disk waits for its
+  ticket, bounded (``wait``: the events' thread waits at most 200 ms, then publishes without
+  it; ``when_done``: the audit). The queue is bounded in entries and in bytes
+  (``max_pending``, ``MAX_PENDING_BYTES``): past it a new entry is dropped (counted), nothing
+  of it kept.
+* **Intake refuses what cannot be stored** (a ``seq`` or a time outside SQLite's integers, a
+  kind it does not know, an oversized payload): counted in ``refused``, logged at most once a
+  minute, never handed to the writer. The writer survives any entry and any error: a failing
+  commit drops its rows (counted), a full disk trims the oldest entries and retries
+  (``_recover_full``), a file found damaged while running is set aside and a fresh one
+  started; a step that raises anyway is logged and the thread goes on.
 * **Group commit**: the writer takes everything queued (at most ``BATCH_ROWS``), inserts it in
-  one transaction, commits, then runs the callbacks in the order the entries came. While it
-  commits, new entries queue: under load a commit carries many, idle ones carry one.
-* **Never blocks a caller**: ``append`` and ``value`` only queue (under a lock, no I/O). When
-  ``MAX_PENDING`` entries wait (a slow disk), a new entry is not journaled (``dropped``) but its
-  callback keeps its place in the order; a failing commit (disk full, I/O error) drops its rows
-  and the callbacks run all the same: the gateway goes on serving and publishing. Drops are
-  counted, logged at most once a minute and shown in ``status()`` (``/healthz``).
-* **Bounded**: in each commit, before its rows go in, when the live pages and the new rows
-  would pass ``max_mb`` the oldest entries go until they fit in 90 % of it; every minute
-  entries older than ``keep_days`` go (in the next commit). Both counted in
-  ``removed`` and logged at most once a minute. Freed pages are reused: the file stops growing.
-* **Schema versioned** (``PRAGMA user_version``); a file that is not a journal of this version,
-  or fails SQLite's quick check, is renamed aside (``<name>.damaged-<UTC time>``, never deleted)
-  and a fresh journal starts, with one log line naming the file (``open``).
+  one transaction (``db.commit``), marks the tickets done.
+* **Bounded**: room is made in the commit that needs it (``db.make_room``: the oldest first,
+  in bounded chunks) within ``max_mb`` and within what the disk has (its free space, or what a
+  full disk allowed); expired entries (``keep_days``) go a chunk per step from the start on;
+  the WAL is checkpointed (truncated) when it passes its bound (an eighth of the budget, 16 MB
+  at most); damaged files set aside are pruned (``files.prune_aside``).
+* **``seq`` is never used twice** (``files.SeqMarks``): the highest ``seq`` per key of every
+  entry handed in (journaled or not) is kept in the database and beside it; ``last_seqs`` gives
+  them at start. ``hlc`` is the clock of the gateway's stamps (``clock.HybridClock``), seeded
+  with the newest time the journal holds: stamps never go back across restarts.
+* **One writer per file** (``files.FileLock``) and damage told apart from trouble
+  (``files.damage``); ``status()`` says whether it journals and, if not, why.
 
-Times are Zenoh's (NTP64: seconds since 1970 << 32 | fraction), stored with ``T_BIAS``
-subtracted so that they fit SQLite's signed 64-bit integers in order.
-
-Imports: the standard library, runtime.ratelimit, runtime.threads. Never zenoh (timestamps are taken by duck
-type: ``get_time_as_ntp64``, ``get_id``), nor any adapter.
+Imports: the standard library, journal.clock, journal.db, journal.files, journal.writer,
+runtime.ratelimit, runtime.threads. Never zenoh (timestamps are taken by duck type: ``get_time_as_ntp64``,
+``get_id``), nor any adapter.
 """
 
 from __future__ import annotations
 
 import collections
+import heapq
+import itertools
 import logging
-import os
-import sqlite3
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -45,45 +52,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from gateway.journal import db, files
+from gateway.journal.clock import NANOS, NTP64_MAX, HybridClock, ns_of_ntp64
+from gateway.journal.db import Row
+from gateway.journal.files import FILE_NAME, SeqMarks
+from gateway.journal.writer import DiskWriter, JournalCounts
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadRegistry
 
 log = logging.getLogger("gateway.journal")
 
-SCHEMA_VERSION = 1
-FILE_NAME = "journal.sqlite3"
-T_BIAS = 1 << 63  # NTP64 is unsigned; SQLite integers are signed
+KINDS = frozenset({"state", "emcy", "value", "audit"})
 BATCH_ROWS = 2000  # entries per commit at most
 MAX_PENDING = 50_000  # entries waiting for the writer before new ones are dropped
-LOG_PERIOD_S = 60.0  # drops and removals are logged at most once per period
-KEEP_CHECK_S = 60.0  # how often entries older than keep_days are looked for
-READ_CHUNK = 500  # rows per read of a history
-ROW_OVERHEAD = 80  # bytes of a row and its index entries besides payload and key (estimate)
-
-SCHEMA = """
-CREATE TABLE entries(
-  id INTEGER PRIMARY KEY,
-  t INTEGER NOT NULL,
-  kind TEXT NOT NULL,
-  key TEXT NOT NULL,
-  node TEXT,
-  seq INTEGER,
-  payload BLOB NOT NULL,
-  tid BLOB
-);
-CREATE INDEX entries_key_t ON entries(key, t);
-CREATE INDEX entries_t ON entries(t);
-"""
-
-
-def ntp64_of_time(t: float) -> int:
-    """Seconds since 1970 as Zenoh's NTP64."""
-    secs = int(t // 1)
-    return (secs << 32) | int((t - secs) * (1 << 32))
-
-
-def time_of_ntp64(n: int) -> float:
-    return (n >> 32) + (n & 0xFFFFFFFF) / (1 << 32)
+MAX_PENDING_BYTES = 32 << 20  # bytes of the entries waiting, likewise
+MAX_ENTRY_BYTES = 1 << 20  # one entry's payload and key
+MAX_WATCHERS = 10_000  # ``when_done`` callbacks waiting
+LOG_PERIOD_S = 60.0  # drops and refusals are logged at most once per period
+STALL_S = 1.0  # a commit waiting longer than this: the disk does not answer
+FULL_SHOWN_S = 60.0  # /healthz names the full disk this long after it last was
+INT64 = 1 << 63
 
 
 class Entry(NamedTuple):
@@ -97,82 +85,29 @@ class Entry(NamedTuple):
     payload: bytes | str  # as published (text is stored as its UTF-8 bytes)
 
 
-class Row(NamedTuple):
-    """An entry read back: ``t`` the NTP64 time, ``tid`` the timestamp's id (None: ours)."""
-
-    id: int
-    t: int
-    kind: str
-    key: str
-    node: str | None
-    seq: int | None
-    payload: bytes
-    tid: bytes | None
-
-
-def _stamp(e: Entry) -> tuple[int, bytes | None]:
-    s = e.stamp
-    if isinstance(s, int):
-        return s, None
-    return int(str(s.get_time_as_ntp64())), bytes(s.get_id())
-
-
-def path_problem(directory: str | os.PathLike[str]) -> str | None:
-    """Why the journal cannot live in ``directory`` (created if missing), or None."""
-    d = Path(directory)
+def intake(e: Entry) -> db.DbRow | str:
+    """The row an entry is stored as, or why it cannot be (any thread, no I/O)."""
     try:
-        d.mkdir(parents=True, exist_ok=True)
-        probe = d / f".journal-probe-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        return f"{directory} cannot be created or written: {exc.strerror or exc}"
-    return None
-
-
-def _damage(path: Path) -> str | None:
-    """Why an existing journal file cannot be used (None: it can)."""
-    try:
-        con = sqlite3.connect(path)
-        try:
-            ok = con.execute("PRAGMA quick_check").fetchone()[0]
-            if ok != "ok":
-                return f"quick check: {ok}"
-            version = con.execute("PRAGMA user_version").fetchone()[0]
-            if version != SCHEMA_VERSION:
-                return f"schema version {version}, this gateway writes {SCHEMA_VERSION}"
-            con.execute("SELECT id, t, kind, key, node, seq, payload, tid FROM entries LIMIT 1")
-        finally:
-            con.close()
-    except sqlite3.Error as exc:
-        return str(exc)
-    return None
-
-
-def set_aside(path: Path, why: str, now: float) -> Path:
-    """Rename a damaged journal (and its WAL files) aside; one log line naming the file."""
-    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(now))
-    aside = path.with_name(f"{path.name}.damaged-{stamp}")
-    n = 1
-    while aside.exists():
-        n += 1
-        aside = path.with_name(f"{path.name}.damaged-{stamp}-{n}")
-    for suffix in ("-wal", "-shm"):
-        extra = path.with_name(path.name + suffix)
-        if extra.exists():
-            extra.rename(aside.with_name(aside.name + suffix))
-    path.rename(aside)
-    log.warning("journal %s is damaged (%s): kept as %s; a fresh journal starts", path, why, aside)
-    return aside
-
-
-@dataclass
-class JournalCounts:
-    written: int = 0  # entries committed
-    dropped: int = 0  # entries not journaled (queue full, failed commit)
-    removed: int = 0  # entries removed by max_mb or keep_days
-    commits: int = 0
-    last_error: str | None = None
+        s = e.stamp
+        if isinstance(s, int):
+            t, tid = s, None
+        else:
+            t, tid = int(str(s.get_time_as_ntp64())), bytes(s.get_id())
+        data = e.payload.encode() if isinstance(e.payload, str) else bytes(e.payload)
+    except (AttributeError, TypeError, ValueError, UnicodeError) as exc:
+        return f"not an entry ({exc})"
+    if isinstance(t, bool) or not 0 <= t <= NTP64_MAX:
+        return f"time {t!r} is not an NTP64 time"
+    if e.kind not in KINDS or not isinstance(e.key, str) or not e.key:
+        return f"kind {e.kind!r} / key {e.key!r} is not one the journal keeps"
+    if e.node is not None and not isinstance(e.node, str):
+        return f"node {e.node!r} is not a name"
+    seq = e.seq
+    if seq is not None and (not isinstance(seq, int) or isinstance(seq, bool) or not 0 <= seq < INT64):
+        return f"seq {seq!r} of {e.key} is not an integer from 0 to 2**63 - 1"
+    if len(data) + len(e.key) > MAX_ENTRY_BYTES:
+        return f"{len(data)} bytes on {e.key}: more than {MAX_ENTRY_BYTES} in one entry"
+    return (t - db.T_BIAS, e.kind, e.key, e.node, seq, data, tid)
 
 
 @dataclass(eq=False)
@@ -187,57 +122,69 @@ class Journal:
     sync: str = "normal"
     clock: Callable[[], float] = time.time
     max_pending: int = MAX_PENDING
+    max_pending_bytes: int = MAX_PENDING_BYTES
     counts: JournalCounts = field(default_factory=JournalCounts)
 
     def __post_init__(self) -> None:
         self.directory = Path(self.directory)
         self.path = self.directory / FILE_NAME
+        #: the stamps of the gateway (events, audit, values): never back, across restarts
+        self.hlc = HybridClock(lambda: round(self.clock() * NANOS))
         self._cond = threading.Condition()
-        self._queue: collections.deque[tuple[Entry | None, Callable[[], None] | None]] = (
-            collections.deque()
-        )
+        self._queue: collections.deque[tuple[int, db.DbRow]] = collections.deque()
+        self._pending_bytes = 0
+        self._tickets = 0
+        self._done = 0
+        self._done_cond = threading.Condition()
+        self._watchers: list[tuple[int, int, Callable[[], None]]] = []
+        self._order = itertools.count()
         self._values: dict[str, Entry] = {}
         self._value_sources: list[Callable[[], Iterable[Entry]]] = []
         self._values_lock = threading.Lock()
         self._stopping = False
-        self._con: sqlite3.Connection | None = None
+        self._running = False
+        self._lock = files.FileLock(self.directory)
+        #: the database as the writer uses it (``writer.py``)
+        self.disk = DiskWriter(
+            self.path, self.sync, self.max_mb, self.keep_days, self.clock, self.hlc, self.counts, self
+        )
         self._thread: threading.Thread | None = None
-        self._droplog = RateLimitedLog(log, LOG_PERIOD_S)
-        self._removelog = RateLimitedLog(log, LOG_PERIOD_S)
-        self._next_keep_check = 0.0
-        self._next_values = 0.0
-        #: the damaged file set aside at open (None: none)
-        self.set_aside: Path | None = None
-        #: highest seq per key found at open (``last_seqs``)
-        self._last_seqs: dict[str, int] = {}
+        self._logs = {k: RateLimitedLog(log, LOG_PERIOD_S) for k in ("drop", "refuse", "remove", "fail")}
+        #: every seq handed in (journaled or not) and those not in the database yet
+        self._seen = SeqMarks()
+        self._unsaved: dict[str, int] = {}
+        self._marks_dirty = False
 
     # ------------------------------------------------------------------ open, start, stop
     def open(self) -> None:
-        """Create or open the database (a damaged one is set aside); raises OSError or
-        sqlite3.Error when the directory cannot hold one."""
+        """Lock the directory, open (or create) the database, a damaged one set aside. Raises
+        ``files.JournalInUse`` when another gateway has it, OSError or sqlite3.Error when the
+        directory cannot hold one."""
         self.directory.mkdir(parents=True, exist_ok=True)
-        if self.path.exists():
-            why = _damage(self.path)
-            if why is not None:
-                self.set_aside = set_aside(self.path, why, self.clock())
-        con = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
-        con.execute("PRAGMA journal_mode=WAL")
-        con.execute(f"PRAGMA synchronous={'FULL' if self.sync == 'full' else 'NORMAL'}")
-        con.execute("PRAGMA journal_size_limit=16777216")
-        if con.execute("PRAGMA user_version").fetchone()[0] == 0:
-            con.executescript(SCHEMA + f"PRAGMA user_version={SCHEMA_VERSION};")
-        self._last_seqs = {
-            k: s
-            for k, s in con.execute(
-                "SELECT key, MAX(seq) FROM entries WHERE seq IS NOT NULL GROUP BY key"
-            )
-        }
-        self._con = con
+        self._lock.acquire()
+        try:
+            with self._cond:
+                known = SeqMarks(dict(self._seen.seqs), self.hlc.last_ns)
+            marks = self.disk.open(known)
+            with self._cond:
+                self._seen.merge(marks)
+            self.hlc.observe(marks.hlc_ns)
+        except BaseException:
+            self._lock.release()
+            raise
+        files.prune_aside(self.path, self.keep_days * 86400.0, self.clock())
+        ahead = self.hlc.ahead_s()
+        if ahead > 1.0:
+            log.warning(
+                "journal %s holds times %.1f s ahead of this clock (it was set back): stamps "
+                "go on from them, 1 ns apart, until the clock catches up", self.path, ahead,
+            )  # fmt: skip
 
     def start(self, threads: ThreadRegistry | None = None) -> None:
-        if self._con is None:
+        if self.disk.con is None:
             self.open()
         self._stopping = False
+        self._running = True
         reg = threads if threads is not None else ThreadRegistry()
         self._thread = reg.start("journal-writer", self._run)
 
@@ -247,29 +194,106 @@ class Journal:
             self._cond.notify()
         if self._thread is not None:
             self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                log.warning("journal %s: the writer did not finish in %g s (the disk?)", self.path, timeout_s)
+                return  # its connection is still in use: the process ends with it
             self._thread = None
-        if self._con is not None:
-            self._con.close()
-            self._con = None
+        self._running = False
+        if self.disk.con is not None:  # opened (never the copy beside another's database)
+            self.disk.write_marks(force=True)
+        self.disk.close()
+        self._lock.release()
 
     def last_seqs(self) -> dict[str, int]:
-        """The highest ``seq`` journaled per key when the journal was opened."""
-        return dict(self._last_seqs)
+        """The highest ``seq`` per key ever handed to this journal (kept across trims, drops,
+        damage and restarts)."""
+        with self._cond:
+            return dict(self._seen.seqs)
+
+    @property
+    def set_aside(self) -> Path | None:
+        """The damaged file set aside at open (None: none)."""
+        return self.disk.set_aside
+
+    def marks_to_copy(self) -> SeqMarks | None:
+        """The marks as they are now, when they changed since the last copy (the writer)."""
+        with self._cond:
+            if not self._marks_dirty:
+                return None
+            self._marks_dirty = False
+            return SeqMarks(dict(self._seen.seqs), self.hlc.last_ns)
+
+    def keep_unsaved(self, marks: dict[str, int]) -> None:
+        """Marks of rows the writer could not commit: saved with the next commit (and copied)."""
+        with self._cond:
+            for k, seq in marks.items():
+                self._unsaved[k] = max(self._unsaved.get(k, 0), seq)
+            self._marks_dirty = True
 
     # ------------------------------------------------------------------ writing (any thread)
-    def append(self, entry: Entry, on_commit: Callable[[], None] | None = None) -> None:
-        """Queue an entry; ``on_commit`` runs on the writer once it is committed (or dropped),
-        in the order of the appends."""
+    def append(self, entry: Entry) -> int:
+        """Queue an entry; its ticket (for ``wait`` / ``when_done``), or 0 when it is not
+        queued (refused, or dropped: the queue is full)."""
+        row = intake(entry)
+        if isinstance(row, str):
+            self._refuse(row)
+            return 0
+        self.hlc.observe(ns_of_ntp64(row[0] + db.T_BIAS))
+        size = len(row[5]) + len(row[2]) + db.ROW_OVERHEAD
         with self._cond:
-            if len(self._queue) >= self.max_pending:
+            self._note_seq(row)
+            if len(self._queue) >= self.max_pending or self._pending_bytes + size > self.max_pending_bytes:
                 self.counts.dropped += 1
-                self._droplog.warning(
-                    "queue", "journal behind: entries dropped (%d so far)", self.counts.dropped
-                )
-                self._queue.append((None, on_commit))
+                self._unsaved[row[2]] = max(self._unsaved.get(row[2], 0), row[4] or 0)
+                dropped = self.counts.dropped
+                ticket = 0
             else:
-                self._queue.append((entry, on_commit))
+                self._tickets += 1
+                ticket = self._tickets
+                self._queue.append((ticket, row))
+                self._pending_bytes += size
+                self._cond.notify()
+        if not ticket:
+            self._logs["drop"].warning("queue", "journal behind: entries dropped (%d so far)", dropped)
+        return ticket
+
+    def _note_seq(self, row: db.DbRow) -> None:
+        key, seq = row[2], row[4]
+        if seq is not None and seq > self._seen.seqs.get(key, -1):
+            self._seen.seqs[key] = seq
+            self._marks_dirty = True
+
+    def _refuse(self, why: str) -> None:
+        self.counts.refused += 1
+        self._logs["refuse"].warning(
+            "refused", "journal: entry refused: %s (%d refused so far)", why, self.counts.refused
+        )
+
+    def wait(self, ticket: int, timeout_s: float) -> bool:
+        """Block until the entry of ``ticket`` is committed or dropped (True), at most
+        ``timeout_s`` (False)."""
+        with self._done_cond:
+            return self._done_cond.wait_for(lambda: self._done >= ticket, timeout_s)
+
+    def when_done(self, ticket: int, fn: Callable[[], None]) -> None:
+        """``fn()`` once the entry of ``ticket`` is committed or dropped (on the writer, or
+        here when it already is or too many wait)."""
+        with self._done_cond:
+            now = self._done >= ticket or len(self._watchers) >= MAX_WATCHERS
+            if not now:
+                heapq.heappush(self._watchers, (ticket, next(self._order), fn))
+        if now:
+            fn()
+
+    def upkeep_now(self) -> None:
+        """The writer looks for expired entries at its next step (after the clock changed)."""
+        self.disk.next_keep = 0.0
+        with self._cond:
             self._cond.notify()
+
+    def note_unjournaled(self) -> None:
+        """An event was published before its commit (the bound on waiting for it passed)."""
+        self.counts.unjournaled += 1
 
     def value(self, entry: Entry) -> None:
         """The latest value sample of its key for the current window (``values_ms``)."""
@@ -278,127 +302,91 @@ class Journal:
                 self._values[entry.key] = entry
 
     def values_from(self, source: Callable[[], Iterable[Entry]]) -> None:
-        """``source`` gives, once per window on the writer's thread, the latest value samples
-        published since the last window (the publisher only keeps its latest: no call per
-        sample)."""
+        """``source`` gives, once per window on the writer's thread, the value samples to keep
+        of that window."""
         self._value_sources.append(source)
 
-    def _window(self) -> list[Entry]:
+    def _window(self) -> list[db.DbRow]:
         with self._values_lock:
             window, self._values = self._values, {}
-        rows = list(window.values())
+        entries = list(window.values())
         for source in self._value_sources:
             try:
-                rows.extend(source())
-            except Exception:  # noqa: BLE001 - a failing source must not stop the journal
-                log.exception("journal: reading the values of a window failed")
+                entries.extend(source())
+            except Exception as exc:  # noqa: BLE001 - a failing source must not stop the journal
+                self._logs["fail"].warning("source", "journal: reading the values of a window failed: %r", exc)
+        rows = []
+        for e in entries:
+            row = intake(e)
+            if isinstance(row, str):
+                self._refuse(row)
+                continue
+            rows.append(row)
+            with self._cond:
+                self._note_seq(row)
         return rows
 
     # ------------------------------------------------------------------ the writer thread
     def _run(self) -> None:
         values_s = self.values_ms / 1000.0
-        self._next_values = time.monotonic() + values_s
+        next_values = time.monotonic() + values_s
         while True:
-            with self._cond:
-                while not self._queue and not self._stopping:
-                    if not values_s:
-                        self._cond.wait()
-                        continue
-                    left = self._next_values - time.monotonic()
-                    if left <= 0:
-                        break
-                    self._cond.wait(left)
-                n = min(len(self._queue), BATCH_ROWS)
-                batch = [self._queue.popleft() for _ in range(n)]
-                stopping = self._stopping and not self._queue
-            rows = [e for e, _ in batch if e is not None]
-            if values_s and (stopping or time.monotonic() >= self._next_values):
-                self._next_values = time.monotonic() + values_s
-                rows.extend(self._window())
-            if rows:
-                self._commit(rows)
-            for _, callback in batch:
-                if callback is not None:
-                    try:
-                        callback()
-                    except Exception:  # noqa: BLE001 - one failed publication must not stop us
-                        log.exception("journal: a callback after commit failed")
-            if stopping:
-                return
+            try:
+                with self._cond:
+                    while not self._queue and not self._stopping:
+                        now = time.monotonic()
+                        wake = min(self.disk.next_keep, next_values if values_s else float("inf"))
+                        if wake <= now:
+                            break
+                        self._cond.wait(wake - now)
+                    batch = self._take()
+                    stopping = self._stopping and not self._queue
+                rows = [r for _, r in batch]
+                if values_s and (stopping or time.monotonic() >= next_values):
+                    next_values = time.monotonic() + values_s
+                    rows.extend(self._window())
+                try:
+                    if rows:
+                        with self._cond:
+                            marks, self._unsaved = self._unsaved, {}
+                        self.disk.write(rows, marks)
+                finally:
+                    if batch:
+                        self._finish(batch[-1][0])
+                self.disk.upkeep()
+                if stopping:
+                    return
+            except Exception as exc:  # noqa: BLE001 - the writer never dies of a step
+                self.counts.last_error = f"{type(exc).__name__}: {exc}"
+                self._logs["fail"].warning("step", "journal %s: a step of the writer failed: %r", self.path, exc)
+                time.sleep(0.05)
 
-    def _commit(self, rows: list[Entry]) -> None:
-        con = self._con
-        assert con is not None
-        try:
-            params = []
-            for e in rows:
-                t, tid = _stamp(e)
-                data = e.payload.encode() if isinstance(e.payload, str) else e.payload
-                params.append((t - T_BIAS, e.kind, e.key, e.node, e.seq, data, tid))
-            con.execute("BEGIN")
-            removed = self._bound(con, sum(len(p[5]) + len(p[2]) + ROW_OVERHEAD for p in params))
-            con.executemany(
-                "INSERT INTO entries(t, kind, key, node, seq, payload, tid)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?)",
-                params,
-            )
-            con.execute("COMMIT")
-        except (sqlite3.Error, ValueError, TypeError, AttributeError) as exc:
-            if con.in_transaction:
-                con.execute("ROLLBACK")
-            self.counts.dropped += len(rows)
-            self.counts.last_error = str(exc)
-            self._droplog.warning(
-                "commit",
-                "journal %s: %s; %d entries not journaled so far",
-                self.path,
-                exc,
-                self.counts.dropped,
-            )
-            return
-        self.counts.written += len(rows)
-        self.counts.commits += 1
-        self.counts.last_error = None
-        if removed:
-            self.counts.removed += removed
-            self._removelog.info(
-                "removed",
-                "journal %s bounded (max_mb %s, keep_days %s): %d oldest entries removed so far",
-                self.path,
-                self.max_mb,
-                self.keep_days,
-                self.counts.removed,
-            )
+    def _take(self) -> list[tuple[int, db.DbRow]]:
+        """Under the lock: the next commit's entries, at most ``BATCH_ROWS`` and about
+        ``disk.batch_bytes`` (one at least)."""
+        batch: list[tuple[int, db.DbRow]] = []
+        size = 0
+        q = self._queue
+        while q and len(batch) < BATCH_ROWS and (not batch or size < self.disk.batch_bytes):
+            item = q.popleft()
+            n = len(item[1][5]) + len(item[1][2]) + db.ROW_OVERHEAD
+            size += n
+            self._pending_bytes -= n
+            batch.append(item)
+        return batch
 
-    def _bound(self, con: sqlite3.Connection, incoming: int) -> int:
-        """Oldest entries first, in the transaction of the rows about to come (``incoming``
-        bytes, estimated): room for them within ``max_mb`` (down to 90 % of it when trimming);
-        past ``keep_days``."""
-        now = self.clock()
-        removed = 0
-        if now >= self._next_keep_check:
-            self._next_keep_check = now + KEEP_CHECK_S
-            oldest = ntp64_of_time(now - self.keep_days * 86400.0) - T_BIAS
-            removed += con.execute("DELETE FROM entries WHERE t < ?", (oldest,)).rowcount
-        limit = self.max_mb * 1024 * 1024
-        if self.live_bytes(con) + incoming > limit:
-            while self.live_bytes(con) + incoming > 0.9 * limit:
-                total = con.execute("SELECT COUNT(*) FROM entries").fetchone()[0]
-                if not total:
-                    break
-                chunk = max(100, total // 20)
-                removed += con.execute(
-                    "DELETE FROM entries WHERE id IN (SELECT id FROM entries ORDER BY id LIMIT ?)",
-                    (chunk,),
-                ).rowcount
-        return removed
-
-    @staticmethod
-    def live_bytes(con: sqlite3.Connection) -> int:
-        page = con.execute("PRAGMA page_size").fetchone()[0]
-        count = con.execute("PRAGMA page_count").fetchone()[0]
-        free = con.execute("PRAGMA freelist_count").fetchone()[0]
-        return int((count - free) * page)
+    def _finish(self, ticket: int) -> None:
+        with self._done_cond:
+            self._done = max(self._done, ticket)
+            self._done_cond.notify_all()
+            ready = []
+            while self._watchers and self._watchers[0][0] <= self._done:
+                ready.append(heapq.heappop(self._watchers)[2])
+        for fn in ready:
+            try:
+                fn()
+            except Exception as exc:  # noqa: BLE001
+                self._logs["fail"].warning("watcher", "journal: a callback after commit failed: %r", exc)
 
     # ------------------------------------------------------------------ reading (any thread)
     def read(
@@ -409,64 +397,44 @@ class Journal:
         node: str | None = None,
         t_from: int | None = None,
         t_to: int | None = None,
-        from_open: bool = False,
-        to_open: bool = False,
-        chunk: int = READ_CHUNK,
+        chunk: int = db.READ_CHUNK,
     ) -> Iterator[Row]:
-        """Entries in time order (NTP64 bounds, inclusive unless ``*_open``), read ``chunk``
-        rows at a time on a connection of the reader's own: never all in memory."""
-        where: list[str] = []
-        args: list[Any] = []
-        if keys is not None:
-            ks = list(keys)
-            where.append(f"key IN ({','.join('?' * len(ks))})")
-            args += ks
-        if kinds is not None:
-            kl = list(kinds)
-            where.append(f"kind IN ({','.join('?' * len(kl))})")
-            args += kl
-        if node is not None:
-            where.append("node = ?")
-            args.append(node)
-        if t_from is not None:
-            where.append("t > ?" if from_open else "t >= ?")
-            args.append(t_from - T_BIAS)
-        if t_to is not None:
-            where.append("t < ?" if to_open else "t <= ?")
-            args.append(t_to - T_BIAS)
-        base = "SELECT id, t, kind, key, node, seq, payload, tid FROM entries WHERE " + (
-            " AND ".join(where) or "1"
-        )
-        uri = f"{self.path.resolve().as_uri()}?mode=ro"  # percent-encoded: any file name
-        con = sqlite3.connect(uri, uri=True, check_same_thread=False)
-        try:
-            last: tuple[int, int] | None = None
-            while True:
-                if last is None:
-                    q, a = base, args
-                else:
-                    q = base + " AND (t > ? OR (t = ? AND id > ?))"
-                    a = [*args, last[0], last[0], last[1]]
-                rows = con.execute(q + " ORDER BY t, id LIMIT ?", (*a, chunk)).fetchall()
-                for r in rows:
-                    yield Row(r[0], r[1] + T_BIAS, *r[2:])
-                if len(rows) < chunk:
-                    return
-                last = (rows[-1][1], rows[-1][0])
-        finally:
-            con.close()
+        """Entries in (time, id) order between the inclusive NTP64 bounds (None: open), read a
+        page at a time on a connection of the reader's own: never all in memory."""
+        return db.read(self.path, keys, kinds, node, t_from, t_to, chunk)
 
     # ------------------------------------------------------------------ status
     def status(self) -> dict[str, Any]:
-        """For /healthz: the figures and the last error (None when the last commit worked)."""
+        """For /healthz: the figures, whether it journals and, if not, why."""
         c = self.counts
         with self._cond:
-            pending = len(self._queue)
+            pending, pending_bytes = len(self._queue), self._pending_bytes
+        now = time.monotonic()
+        busy = self.disk.busy_since
+        full = now - self.disk.full_at < FULL_SHOWN_S
+        error = c.last_error
+        stalled = busy is not None and now - busy > STALL_S
+        journaling = self._running and error is None and not stalled
+        if busy is not None and stalled:
+            error = (
+                f"the journal's disk does not answer: a commit has waited {now - busy:.1f} s "
+                "(events are published without waiting for it)"
+            )
+        elif full and error is None:  # trimming to fit: still journaling
+            error = (
+                f"disk full at {self.directory}: the oldest entries go to make room "
+                f"(journal.max_mb {self.max_mb:g} does not fit)"
+            )
         return {
             "path": str(self.path),
+            "journaling": journaling,
             "written": c.written,
             "dropped": c.dropped,
+            "refused": c.refused,
             "removed": c.removed,
+            "published_unjournaled": c.unjournaled,
             "pending": pending,
-            "error": c.last_error,
+            "pending_bytes": pending_bytes,
+            "disk_full": full,
+            "error": error,
         }

@@ -108,6 +108,21 @@ def exception_code(exc: BaseException) -> ExceptionCode:
     return ExceptionCode.SERVER_DEVICE_FAILURE
 
 
+#: the table of each read function in words (the log line of a refused read)
+READ_WORDS = {READ_COILS: "coils", READ_DISCRETE_INPUTS: "discrete inputs",
+              READ_HOLDING: "holding registers", READ_INPUT: "input registers"}  # fmt: skip
+
+
+def read_range(fc: int, pdu: bytes) -> str:
+    """What a read request asks for, in words: ``input registers 100-109`` (addresses from 0,
+    as the PDU carries them); the function code alone for a request it cannot tell."""
+    if fc in READ_WORDS and len(pdu) >= 5:
+        address, qty = struct.unpack_from(">HH", pdu, 1)
+        last = address + max(qty, 1) - 1
+        return f"{READ_WORDS[fc]} {address}" + (f"-{last}" if last != address else "")
+    return f"function 0x{fc:02X}"
+
+
 # ---------------------------------------------------------------------- request checks (pure)
 def check_request(fc: int, body: bytes) -> ExceptionCode | None:
     """None if the PDU (function code + ``body``) is well formed, else the exception to answer."""

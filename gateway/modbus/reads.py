@@ -6,7 +6,7 @@ own values. A register read served wholly from the image is compiled once per re
 (``read_now``: a PLC repeats the same few reads); outputs are read through the command service.
 
 Imports: commands, errors, image, modbus.protocol, modbus.watchdog, northbound.regmap,
-northbound.summary.
+northbound.gateway_block (the codes of the gateway block), northbound.summary.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ from gateway.modbus.protocol import (
     to_registers,
 )
 from gateway.modbus.watchdog import OutputWatchdog
-from gateway.northbound.regmap import PAIR_ROLE_CODES, TABLE_NAMES, Point, RegisterMap, Table
+from gateway.northbound.gateway_block import BUS_STATE_CODES, PAIR_ROLE_CODES, worst_bus_state
+from gateway.northbound.regmap import TABLE_NAMES, Point, RegisterMap, Table
 from gateway.northbound.summary import NodeSummary, summarize
 
 
@@ -182,7 +183,8 @@ class ImageReads:
         encode = register_encoder(p)
         name = p.name
         if p.kind == "gateway":
-            return lambda snaps, sums: encode(self._gateway_value(name))
+            network = p.network
+            return lambda snaps, sums: encode(self._gateway_value(name, network))
         node = self._node(p)
         if p.kind == "diag":
             diag = DIAG_REGISTERS.get(name)
@@ -201,8 +203,8 @@ class ImageReads:
         self, node: NodeImage, name: str, snaps: dict[str, Mapping[str, SignalValue]] | None = None
     ) -> Any:
         """A process value if its quality allows serving it (stale only with serve_stale)."""
-        if self.image.bus_state == "down":
-            raise BusDown("CAN bus is down")
+        if self.image.bus_states.get(node.network, "down") == "down":  # the node's own bus
+            raise BusDown(f"CAN bus of network {node.network} is down")
         snap: Mapping[str, SignalValue] | None = None if snaps is None else snaps.get(node.name)
         if snap is None:
             snap = node.snapshot()
@@ -272,10 +274,16 @@ class ImageReads:
                 sums[node.name] = s
         return s
 
-    def _gateway_value(self, name: str) -> int:
+    def _gateway_value(self, name: str, network: str | None = None) -> int:
+        """Register ``name`` of the gateway block; of CAN network ``network`` when it is one
+        network's (its bus state, its pair role)."""
         c = self.image.counters
+        states = self.image.bus_states
         if name == "bus_state":
-            return {"down": 0, "ok": 1, "error": 2}.get(self.image.bus_state, 0)
+            state = worst_bus_state(list(states.values())) if network is None else states.get(network, "down")
+            return BUS_STATE_CODES.get(state, 0)
+        if name == "networks":
+            return len(self.commands.networks)
         if name in c:
             return c[name] & 0xFFFFFFFF
         if name == "uptime_s":
@@ -287,7 +295,8 @@ class ImageReads:
             )
             return int(digits or 0)
         if name == "pair_role":
-            return PAIR_ROLE_CODES.get(self.commands.role, 0)
+            role = self.commands.role if network is None else self.commands.role_of(network)
+            return PAIR_ROLE_CODES.get(role, 0)
         if name == "pair_master_id":
             return self.commands.pair_master_id or 0
         if name == "watchdog_trips":

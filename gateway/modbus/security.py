@@ -5,6 +5,10 @@ the authorisation of a client from its certificate.
   certificates verified against ``modbus.tls.ca`` (required unless ``require_client_cert:
   false``). An expired certificate or one signed by another CA fails the handshake: the
   client is never served.
+* ``modbus.tls.crl``: the CA's certificate revocation list(s) (PEM); with it, a client whose
+  certificate is revoked fails the handshake (OpenSSL's CRL check of the client's certificate).
+* The identity the audit records: the role and the certificate's subject
+  (``certificate_subject``, RFC 4514: ``CN=plc-line1,O=Plant``).
 * The role: the certificate extension with OID 1.3.6.1.4.1.50316.802.1, an ASN.1 UTF8String
   (R-21 of the standard). ``modbus.tls.roles`` maps a role to ``read`` (reads and device
   identification) or ``write`` (everything, subject to ``read_only`` and
@@ -61,6 +65,14 @@ def tls_context(cfg: Config) -> ssl.SSLContext:
             raise ConfigError(
                 [f"{cfg.source}: modbus.tls.ca: not PEM CA certificates ({exc})"]
             ) from None
+    if tls.crl:
+        try:
+            ctx.load_verify_locations(cafile=path("crl", tls.crl))
+        except ssl.SSLError as exc:
+            raise ConfigError(
+                [f"{cfg.source}: modbus.tls.crl: not a PEM certificate revocation list ({exc})"]
+            ) from None
+        ctx.verify_flags |= ssl.VERIFY_CRL_CHECK_LEAF
     ctx.verify_mode = ssl.CERT_REQUIRED if tls.require_client_cert else ssl.CERT_OPTIONAL
     return ctx
 
@@ -93,6 +105,17 @@ def certificate_role(der: bytes | None) -> str | None:
     value = ext.value
     raw = value.value if isinstance(value, x509.UnrecognizedExtension) else b""
     return _utf8string(raw)
+
+
+def certificate_subject(der: bytes | None) -> str | None:
+    """The subject of a DER certificate as RFC 4514 text (None: no certificate, or one that
+    cannot be read)."""
+    if not der:
+        return None
+    try:
+        return x509.load_der_x509_certificate(der).subject.rfc4514_string()
+    except ValueError:
+        return None
 
 
 def access_of(tls: ModbusTls, der: bytes | None) -> tuple[str | None, Access]:

@@ -36,7 +36,7 @@ clients allowed to write only (decided once per connection: ``ImageWrites.write_
 for ``read_only`` and ``allowed_networks``, and on TLS a role with ``write`` access): their
 requests, their connections and disconnections. Its machine is
 ``modbus.watchdog.OutputWatchdog``, driven beside the server by ``OutputWatchdogDriver``
-(here): its timer a ``loop.call_at`` at the machine's next deadline, and a trip writes the nodes' safe outputs (``modbus.safe_outputs``) through the
+(``modbus.watchdog_driver``): its timer a ``loop.call_at`` at the machine's next deadline, and a trip writes the nodes' safe outputs (``modbus.safe_outputs``) through the
 command service. On the standby of a hot-standby pair it stands by (``set_mastering``): no
 timer, no trip, nothing logged per period.
 
@@ -44,8 +44,14 @@ Modbus/TCP Security (``modbus.tls``): a second listener with TLS; each of its co
 the rights of its certificate's role (``modbus.security``), checked here before a request is
 served: a refused request is answered 0x01 and logged once per period.
 
-Imports: commands, config, errors, image, northbound.regmap, modbus.datastore, modbus.protocol,
-modbus.security, modbus.watchdog,
+Connections (``modbus.admission``, ``modbus.listener``): the listening sockets are served by
+the gateway's own accept loop; each accepted socket is admitted or closed at once by the caps
+(``max_connections``, ``max_connections_per_client``; plain and TLS together), before any
+protocol exists; a connection that sends nothing for ``idle_timeout_s`` is closed. Closed
+connections are counted by reason and logged (rate-limited, with the client's address).
+
+Imports: commands, config, errors, image, northbound.regmap, northbound.networks, modbus.admission,
+modbus.datastore, modbus.listener, modbus.protocol, modbus.security, modbus.watchdog_driver,
 device.resolved (the resolved nodes' profiles), safe_outputs. Never zenoh_bridge/, and of bus/
 only the resolved nodes (the bus is reached through the command service only); no pymodbus (its server loses pipelined
 requests: it clears its receive buffer on every send).
@@ -55,6 +61,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
+from collections.abc import Callable
 from typing import Any
 
 from gateway.commands import CommandService
@@ -63,7 +71,9 @@ from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 from gateway.errors import GatewayError
 from gateway.image import ProcessImage
+from gateway.modbus.admission import Admission
 from gateway.modbus.datastore import ImageDatastore, execute, execute_now
+from gateway.modbus.listener import AcceptLoop, bind
 from gateway.modbus.protocol import (
     MAX_IN_FLIGHT,
     MBAP,
@@ -73,10 +83,11 @@ from gateway.modbus.protocol import (
     ExceptionCode,
     ModbusError,
     exception_code,
+    read_range,
 )
-from gateway.modbus.safe_outputs import safe_outputs
-from gateway.modbus.security import Access, access_of, tls_context
-from gateway.modbus.watchdog import TIMEOUT, OutputWatchdog, WatchdogState
+from gateway.modbus.security import Access, access_of, certificate_subject, tls_context
+from gateway.modbus.watchdog_driver import OutputWatchdogDriver
+from gateway.northbound.networks import Networks
 from gateway.northbound.regmap import build_register_map
 
 log = logging.getLogger("gateway.modbus")
@@ -86,15 +97,22 @@ log = logging.getLogger("gateway.modbus")
 class _Connection(asyncio.Protocol):
     """One client: MBAP framing, requests served concurrently, answers by transaction id."""
 
-    def __init__(self, owner: ModbusGateway, tls: bool = False):
+    def __init__(self, owner: ModbusGateway, tls: bool = False, address: str | None = None):
         self.owner = owner
         self.store = owner.store
         self.tls = tls
         self.role: str | None = None
         self.access: Access | None = None  # a TLS client's rights; None: plain TCP
+        self.who = ""  # the audit's identity of this client
         self.writer = False  # may write: feeds the output watchdog
         self.transport: asyncio.Transport | None = None
-        self.peer: str | None = None
+        self.peer: str | None = address
+        #: counted by the owner's admission (the accept loop's connections) until it is closed
+        self.admitted = address is not None
+        self.made = False
+        self.last_rx = 0.0  # the loop's time of the last bytes received
+        self._clock: Callable[[], float] = float  # the loop's clock, once connected
+        self._idle: asyncio.TimerHandle | None = None
         self.buf = bytearray()
         self.in_flight = 0
         self.paused = False
@@ -103,17 +121,23 @@ class _Connection(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        self.made = True
+        self._clock = asyncio.get_running_loop().time
         info = transport.get_extra_info("peername")
-        self.peer = str(info[0]) if info else None
+        self.peer = str(info[0]) if info else self.peer
         self.owner.connections.add(self)
+        self.who = f"modbus {self.peer}"
         if self.tls and self.owner.cfg.modbus.tls is not None:
             ssl_object = transport.get_extra_info("ssl_object")
             der = ssl_object.getpeercert(binary_form=True) if ssl_object is not None else None
             self.role, self.access = access_of(self.owner.cfg.modbus.tls, der)
+            subject = certificate_subject(der)
+            self.who += f" tls role {self.role or 'none'}" + (f" subject {subject}" if subject else "")
             log.info(
-                "Modbus/TLS client %s connected, role %s: %s",
-                self.peer, self.role or "none", self.access,
+                "Modbus/TLS client %s connected (%s), role %s: %s",
+                self.peer, subject or "no certificate", self.role or "none", self.access,
             )  # fmt: skip
+        self._arm_idle(asyncio.get_running_loop().time())
         self.writer = (
             self.access in (None, "write") and self.store.writes.write_refusal(self.peer) is None
         )
@@ -138,10 +162,37 @@ class _Connection(asyncio.Protocol):
             self.peer,
             why,
         )
+        if fc in WRITES:
+            self.store.writes.commands.refusals.refused("modbus_write", "", f"function {fc}", None, why)
         raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
+
+    def _arm_idle(self, now: float) -> None:
+        """``modbus.idle_timeout_s``: a timer at the idle deadline, re-armed lazily (one per
+        timeout, never one per request)."""
+        idle_s = self.owner.idle_timeout_s
+        if idle_s > 0 and self.transport is not None:
+            self.last_rx = now
+            loop = asyncio.get_running_loop()
+            self._idle = loop.call_at(now + idle_s, self._idle_check)
+
+    def _idle_check(self) -> None:
+        self._idle = None
+        if self.transport is None:
+            return
+        loop = asyncio.get_running_loop()
+        now = loop.time()
+        due = self.last_rx + self.owner.idle_timeout_s
+        if self.in_flight or now < due:  # a request running, or bytes came since
+            self._idle = loop.call_at(max(due, now + 1.0) if self.in_flight else due, self._idle_check)
+            return
+        self.owner.closed_by_gateway(self, "idle")
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.owner.connections.discard(self)
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        self.owner.release(self)
         self.transport = None
         self.buf.clear()
         log.debug("Modbus client %s disconnected", self.peer)
@@ -149,6 +200,8 @@ class _Connection(asyncio.Protocol):
             self.owner.output_watchdog.writer_gone()
 
     def data_received(self, data: bytes) -> None:
+        if self._idle is not None:  # the idle timer looks at it when it fires
+            self.last_rx = self._clock()
         self.buf += data
         self._parse()
 
@@ -198,6 +251,8 @@ class _Connection(asyncio.Protocol):
         """Answer a register read served from the image right here (with nothing else in
         flight, so answers keep the order of the requests); False: ``_serve`` it in a task."""
         store = self.store
+        if pdu[0] in WRITES:
+            return False  # a write is served (and refused, audited) by its task
         try:
             self._authorise(pdu[0])
             response = execute_now(store, unit, pdu)
@@ -225,9 +280,8 @@ class _Connection(asyncio.Protocol):
         fc = pdu[0]
         store.by_function[fc] = store.by_function.get(fc, 0) + 1
         try:
-            self._authorise(fc)
-            role = f" tls role {self.role or 'none'}" if self.access is not None else ""
-            with acting_as(f"modbus {self.peer}{role}"):  # the audit of a write names the client
+            with acting_as(self.who):  # the audit names the client (and its certificate)
+                self._authorise(fc)
                 response = await execute(store, unit, pdu, self.peer)
         except Exception as exc:  # noqa: BLE001 - every failure becomes an exception response
             code = exception_code(exc)
@@ -241,6 +295,13 @@ class _Connection(asyncio.Protocol):
                     )  # fmt: skip
             elif not isinstance(exc, (ModbusError, GatewayError, ValueError)):
                 store.warn.warning(("error", type(exc).__name__), "error serving Modbus: %r", exc)
+            else:  # a refused read: in words once a period per client, unit, function and code
+                words = code.name.lower().replace("_", " ")
+                store.warn.warning(
+                    ("read", self.peer, unit, fc, int(code)),
+                    "Modbus read from %s refused: unit %d, function %d, %s: 0x%02X (%s): %s",
+                    self.peer, unit, fc, read_range(fc, pdu), int(code), words, exc,
+                )  # fmt: skip
             response = bytes(((fc | 0x80) & 0xFF, int(code)))
         self._feed_watchdog()  # again when answered: a slow write is no silence
         if self.transport is not None and not self.transport.is_closing():
@@ -261,15 +322,24 @@ class ModbusGateway:
         self.commands = commands
         self.regmap = build_register_map(cfg, nodes)
         self.store = ImageDatastore(self.regmap, image, commands, cfg)
-        self.server: asyncio.Server | None = None  # the plain one, else the TLS one
+        self.server: AcceptLoop | None = None  # the plain one, else the TLS one
         self.port = cfg.modbus.port
         # Modbus/TCP Security: a second listener (its context built now: a bad file stops here)
         self.tls_context = tls_context(cfg) if cfg.modbus.tls is not None else None
-        self.tls_server: asyncio.Server | None = None
+        self.tls_server: AcceptLoop | None = None
         self.tls_port = cfg.modbus.tls.port if cfg.modbus.tls is not None else 0
         self.connections: set[_Connection] = set()
+        #: the caps on connections (``modbus.admission``); trusted: may write (the PLC)
+        trusted = Networks(cfg.modbus.allowed_networks)
+        self.admission = Admission(
+            cfg.modbus.max_connections,
+            cfg.modbus.max_connections_per_client,
+            lambda address: address in trusted,
+        )
+        self.idle_timeout_s = cfg.modbus.idle_timeout_s
+        self._opening: set[asyncio.Task[None]] = set()  # TLS handshakes, connections being made
         # the output watchdog: its machine (its trips are a gateway register) and its driver
-        self.output_watchdog = OutputWatchdogDriver(cfg, nodes, commands)
+        self.output_watchdog = OutputWatchdogDriver(cfg, nodes, commands, image)
         self.watchdog = self.output_watchdog.machine
         self.store.reads.watchdog = self.watchdog
 
@@ -277,159 +347,132 @@ class ModbusGateway:
         """The gateway started or stopped mastering the bus (``OutputWatchdogDriver``)."""
         self.output_watchdog.set_mastering(mastering)
 
+    def watchdog_status(self) -> dict[str, Any]:
+        """``modbus_watchdog`` of /healthz while the output watchdog is on."""
+        wd = self.watchdog
+        return {"modbus_watchdog": {"state": wd.state.value, "trips": dict(wd.trips)}} if wd.enabled else {}
+
     async def start(self) -> None:
-        loop = asyncio.get_running_loop()
         if self.watchdog.enabled and self.cfg.modbus.read_only:
             log.warning(
                 "the Modbus output watchdog never trips: with modbus.read_only no client may "
                 "write, and only clients that may write feed it"
             )
-        if self.cfg.modbus.plain:
-            self.server = await loop.create_server(
-                lambda: _Connection(self),
-                self.cfg.modbus.host,
-                self.cfg.modbus.port,
-                reuse_address=True,
+        mb = self.cfg.modbus
+        if mb.plain:
+            plain = AcceptLoop(
+                await bind(mb.host, mb.port), lambda s, a: self._accepted(s, a, False), "Modbus TCP"
             )
+            self.server = plain
+            plain.start()
             self.output_watchdog.serving = True
-            if self.port == 0:
-                self.port = self.server.sockets[0].getsockname()[1]
-            log.info("Modbus TCP listening on %s:%d", self.cfg.modbus.host, self.port)
-        tls = self.cfg.modbus.tls
+            self.port = plain.port
+            log.info("Modbus TCP listening on %s:%d", mb.host, self.port)
+        tls = mb.tls
         if tls is not None:
-            host = tls.host or self.cfg.modbus.host
-            self.tls_server = await loop.create_server(
-                lambda: _Connection(self, tls=True),
-                host,
-                tls.port,
-                ssl=self.tls_context,
-                reuse_address=True,
-            )
-            self.tls_port = self.tls_server.sockets[0].getsockname()[1]
+            host = tls.host or mb.host
+            try:
+                socks = await bind(host, tls.port)
+            except BaseException:
+                await self.stop()
+                raise
+            self.tls_server = AcceptLoop(socks, lambda s, a: self._accepted(s, a, True), "Modbus/TLS")
+            self.tls_server.start()
+            self.tls_port = self.tls_server.port
             if self.server is None:
                 self.server = self.tls_server
                 self.output_watchdog.serving = True
             log.info("Modbus/TCP Security (TLS) listening on %s:%d", host, self.tls_port)
 
+    # ------------------------------------------------------------------ connections
+    def _accepted(self, sock: socket.socket, address: str, tls: bool) -> None:
+        """A socket the accept loop took: admitted (a protocol is made for it) or closed."""
+        decision = self.admission.decide(address)
+        if decision in ("per_client", "total"):
+            sock.close()
+            self._refused(address, decision)
+            return
+        if decision == "evict":
+            victims = [c for c in self.connections if c.admitted and c.peer is not None
+                       and not self.admission.trusted(c.peer)]  # fmt: skip
+            if victims:
+                self.closed_by_gateway(min(victims, key=lambda c: c.last_rx), "evicted")
+        self.admission.opened(address)
+        conn = _Connection(self, tls=tls, address=address)
+        task = asyncio.get_running_loop().create_task(self._connect(conn, sock))
+        self._opening.add(task)
+        task.add_done_callback(self._opening.discard)
+
+    async def _connect(self, conn: _Connection, sock: socket.socket) -> None:
+        """The transport of an admitted socket (the TLS handshake first on the TLS port)."""
+        loop = asyncio.get_running_loop()
+        try:
+            await loop.connect_accepted_socket(
+                lambda: conn, sock, ssl=self.tls_context if conn.tls else None
+            )
+        except (OSError, asyncio.CancelledError, Exception) as exc:  # noqa: BLE001 - a failed handshake
+            if not conn.made:
+                self.release(conn)
+                sock.close()
+            if conn.tls and not isinstance(exc, asyncio.CancelledError):
+                self.store.warn.warning(
+                    ("tls_handshake", conn.peer),
+                    "Modbus/TLS client %s refused: %s", conn.peer, exc,
+                )  # fmt: skip
+            if isinstance(exc, asyncio.CancelledError):
+                raise
+
+    def _refused(self, address: str, reason: str) -> None:
+        n = self.admission.count(reason)
+        if reason == "per_client":
+            why = (f"{self.admission.max_per_client} connections from that address are open "
+                   "(modbus.max_connections_per_client)")  # fmt: skip
+        else:
+            why = f"{self.admission.max_total} connections are open (modbus.max_connections)"
+        self.store.warn.warning(
+            ("connection_refused", reason),
+            "Modbus connection from %s closed at once: %s; %d refused so far",
+            address, why, n,
+        )  # fmt: skip
+
+    def closed_by_gateway(self, conn: _Connection, reason: str) -> None:
+        """Close a connection for ``reason`` (idle, evicted): counted, logged (rate-limited)."""
+        n = self.admission.count(reason)
+        self.release(conn)  # its place is free now, not when the loop reports it closed
+        words = {
+            "idle": f"it sent nothing for {self.idle_timeout_s:g} s (modbus.idle_timeout_s)",
+            "evicted": "a client in modbus.allowed_networks needed its place (modbus.max_connections)",
+        }[reason]
+        self.store.warn.warning(
+            ("connection_closed", reason),
+            "Modbus connection from %s closed: %s; %d so far", conn.peer, words, n,
+        )  # fmt: skip
+        if conn.transport is not None:
+            conn.transport.close()
+
+    def release(self, conn: _Connection) -> None:
+        """The connection no longer counts against the caps (once)."""
+        if conn.admitted and conn.peer is not None:
+            conn.admitted = False
+            self.admission.closed(conn.peer)
+
     async def stop(self) -> None:
-        if self.server is None:
+        if self.server is None and self.tls_server is None:
             return
         self.output_watchdog.stop()
-        self.server.close()
-        if self.tls_server is not None and self.tls_server is not self.server:
-            self.tls_server.close()
+        for listener in (self.server, self.tls_server):
+            if listener is not None:
+                listener.close()
+        for t in list(self._opening):
+            t.cancel()
         tasks = [t for c in self.connections for t in c.tasks]
         for c in list(self.connections):
             if c.transport is not None:
                 c.transport.close()
         for t in tasks:
             t.cancel()
-        if tasks:
-            await asyncio.gather(*tasks, return_exceptions=True)
-        await self.server.wait_closed()
-        if self.tls_server is not None and self.tls_server is not self.server:
-            await self.tls_server.wait_closed()
+        if tasks or self._opening:
+            await asyncio.gather(*tasks, *self._opening, return_exceptions=True)
+        await asyncio.sleep(0)  # the transports' connection_lost callbacks run
         self.server = None
         self.tls_server = None
-
-
-# ---------------------------------------------------------------------- the output watchdog
-class OutputWatchdogDriver:
-    """Drives the output watchdog's machine (``modbus.watchdog.OutputWatchdog``) on the event
-    loop, beside the server: the connections of clients that may write report their requests,
-    connections and disconnections here; its timer is a ``loop.call_at`` at the machine's next
-    deadline (armed only while the server serves); a trip writes the nodes' safe outputs
-    (``modbus.safe_outputs``) through the command service."""
-
-    def __init__(
-        self, cfg: Config, nodes: dict[str, ResolvedNode], commands: CommandService
-    ) -> None:
-        self.commands = commands
-        self.watchdog_ms = cfg.modbus.watchdog_ms
-        self.machine = OutputWatchdog(
-            cfg.modbus.watchdog_ms / 1000.0, cfg.modbus.watchdog_on_disconnect
-        )
-        self.safe_plan: dict[str, dict[str, Any]] = {}
-        if self.machine.enabled:
-            for n in cfg.nodes:
-                values = safe_outputs(nodes[n.name].lp, n)
-                if values:
-                    self.safe_plan[n.name] = values
-        self.last_safe: dict[str, str] = {}  # per node: "safe" or why not, at the last trip
-        #: the server listens: the timer may be armed, a client's disconnection counts
-        self.serving = False
-        self._timer: asyncio.TimerHandle | None = None
-        self._tasks: set[asyncio.Task[None]] = set()
-
-    def writer_connected(self) -> None:
-        self.machine.on_writer_connect(asyncio.get_running_loop().time())
-
-    def request_seen(self) -> None:
-        """Every request of a client that may write (any unit, any function, any outcome)
-        feeds the watchdog."""
-        wd = self.machine
-        if not wd.enabled:
-            return
-        wd.on_request(asyncio.get_running_loop().time())
-        if self._timer is None:
-            self._schedule()
-
-    def set_mastering(self, mastering: bool) -> None:
-        """The gateway started or stopped mastering the bus (a hot-standby pair's role; the
-        app calls it at start and at every role change). On the standby the watchdog is
-        STANDBY (commands refuse: no safe outputs to write, no timer); when the gateway becomes
-        active it starts fresh, armed by the first request of a client that may write."""
-        if mastering == (self.machine.state is not WatchdogState.STANDBY):
-            return
-        self.machine.on_mastering(mastering)
-        self._cancel_timer()
-
-    def writer_gone(self) -> None:
-        if not self.serving:
-            return  # the server stops: its clients did not go away
-        reason = self.machine.on_writer_disconnect(asyncio.get_running_loop().time())
-        if reason is not None:
-            self._trip(reason)
-
-    def stop(self) -> None:
-        """The server stops: no timer, and its clients' disconnections are no trip."""
-        self.serving = False
-        self._cancel_timer()
-
-    def _cancel_timer(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
-
-    def _schedule(self) -> None:
-        deadline = self.machine.next_deadline()
-        if deadline is not None and self.serving:
-            self._timer = asyncio.get_running_loop().call_at(deadline, self._tick)
-
-    def _tick(self) -> None:
-        self._timer = None
-        reason = self.machine.tick(asyncio.get_running_loop().time())
-        if reason is not None:
-            self._trip(reason)
-        else:
-            self._schedule()  # a request came since: the deadline moved
-
-    def _trip(self, reason: str) -> None:
-        ms = self.watchdog_ms
-        if reason == TIMEOUT:
-            why = f"no request of a client allowed to write for {ms} ms"
-        elif ms:
-            why = f"the last client allowed to write disconnected; no request of one for {ms} ms"
-        else:
-            why = "the last client allowed to write disconnected"
-        log.warning(
-            "Modbus output watchdog tripped (%s): writing the safe outputs of %s",
-            why,
-            ", ".join(self.safe_plan) or "no node (none has a safe value)",
-        )
-        task = asyncio.get_running_loop().create_task(self._write_safe())
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
-
-    async def _write_safe(self) -> None:
-        self.last_safe = await self.commands.write_safe_outputs(self.safe_plan)

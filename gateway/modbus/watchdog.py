@@ -25,14 +25,19 @@ States::
     TRIPPED       the safe outputs were written once; the next writer's request arms it again
                   (the outputs stay safe until a client writes them)
     STANDBY       the gateway is not the active one of a hot-standby pair (``master.redundancy``):
-                  its commands refuse, so it has no outputs to make safe; nothing arms it. When
-                  the gateway becomes active the watchdog starts fresh, WAITING as at start
-                  (what a PLC did before does not count)
+                  its commands refuse, so it has no outputs to make safe; nothing arms it, but a
+                  writer's request (refused, yet a sign of the PLC) is remembered. When the
+                  gateway becomes active it counts from the PLC's last sign it has, a request to
+                  it or a write to an output heard on the bus (the other member's RPDOs): ARMED
+                  from then (so the outputs go safe ``timeout_s`` after the PLC's last write to
+                  either member, at once when that is past; DISCONNECTED from then when it
+                  trips on a disconnection and no writer is connected to it); with no sign at
+                  all, WAITING as at start
 
 Events: ``request`` (a writer's request, when it arrives and again when it is answered),
 ``last_writer_gone`` (the number of connected writers fell to 0), ``deadline`` (``tick`` at or
-after ``next_deadline()``), ``stand_by`` / ``take_over`` (the gateway stops / starts mastering
-the bus: ``on_mastering``).
+after ``next_deadline()``), ``stand_by`` / ``take_over`` / ``take_over_written`` (the gateway
+stops / starts mastering the bus, without or with a sign of the PLC: ``on_mastering``).
 
 Imports: the standard library only.
 """
@@ -57,6 +62,7 @@ class WatchdogEvent(StrEnum):
     DEADLINE = "deadline"
     STAND_BY = "stand_by"
     TAKE_OVER = "take_over"
+    TAKE_OVER_WRITTEN = "take_over_written"
 
 
 TIMEOUT, DISCONNECT = "timeout", "disconnect"
@@ -84,7 +90,8 @@ TRANSITIONS: dict[tuple[WatchdogState, WatchdogEvent], tuple[WatchdogState, str 
     (_S.STANDBY,      _E.STAND_BY):         (_S.STANDBY,       None),
     (_S.STANDBY,      _E.REQUEST):          (_S.STANDBY,       None),  # writes refuse (0x06)
     (_S.STANDBY,      _E.LAST_WRITER_GONE): (_S.STANDBY,       None),
-    (_S.STANDBY,      _E.TAKE_OVER):        (_S.WAITING,       None),  # fresh, as at start
+    (_S.STANDBY,      _E.TAKE_OVER):        (_S.WAITING,       None),  # no PLC known: as at start
+    (_S.STANDBY,      _E.TAKE_OVER_WRITTEN): (_S.ARMED,        None),  # from the PLC's last sign
     (_S.WAITING,      _E.TAKE_OVER):        (_S.WAITING,       None),
 }  # fmt: skip
 
@@ -119,10 +126,25 @@ class OutputWatchdog:
             self.last_request_s = now
             self._fire(WatchdogEvent.REQUEST)
 
-    def on_mastering(self, mastering: bool) -> None:
-        """The gateway started (True) or stopped (False) mastering the bus (a pair's role)."""
-        if self.enabled:
-            self._fire(WatchdogEvent.TAKE_OVER if mastering else WatchdogEvent.STAND_BY)
+    def on_mastering(self, mastering: bool, written_s: float | None = None) -> None:
+        """The gateway started (True) or stopped (False) mastering the bus (a pair's role).
+        ``written_s``: when a write to an output was last heard on the bus or made here (None:
+        never); with a writer's request since this gateway started, the later of the two is
+        the PLC's last sign, from which a take-over counts."""
+        if not self.enabled:
+            return
+        if not mastering:
+            self._fire(WatchdogEvent.STAND_BY)
+            return
+        signs = [t for t in (self.last_request_s, written_s) if t is not None]
+        if not signs or self.state is not WatchdogState.STANDBY:
+            self._fire(WatchdogEvent.TAKE_OVER)
+            return
+        self.last_request_s = max(signs)
+        self._fire(WatchdogEvent.TAKE_OVER_WRITTEN)
+        if self.trip_on_disconnect and not self.writers:  # the PLC's connection went with the other
+            self.gone_s = self.last_request_s
+            self._fire(WatchdogEvent.LAST_WRITER_GONE)
 
     def on_writer_connect(self, now: float) -> None:
         self.writers += 1

@@ -4,14 +4,13 @@ while the gateway does not master the bus of its hot-standby pair (``NotActive``
 the write timeout (``modbus.write_timeout_s``). A write is answered when the RPDO was queued
 or the device confirmed the SDO.
 
-Imports: config, errors, modbus.protocol, modbus.reads, northbound.regmap, runtime.ratelimit,
-canopen.states.
+Imports: config, errors, modbus.protocol, modbus.reads, northbound.regmap, northbound.networks,
+runtime.ratelimit, canopen.states.
 """
 
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import logging
 from collections.abc import Awaitable
 from typing import Any
@@ -21,6 +20,7 @@ from gateway.config import Config
 from gateway.errors import ValueOutOfRange
 from gateway.modbus.protocol import ExceptionCode, ModbusError, T, from_registers
 from gateway.modbus.reads import ImageReads
+from gateway.northbound.networks import Networks
 from gateway.northbound.regmap import TABLE_NAMES, Point, Table
 from gateway.runtime.ratelimit import RateLimitedLog
 
@@ -35,7 +35,7 @@ class ImageWrites:
         self.regmap = reads.regmap
         self.commands = reads.commands
         self.read_only = cfg.modbus.read_only
-        self.allowed = [ipaddress.ip_network(n, strict=False) for n in cfg.modbus.allowed_networks]
+        self.allowed = Networks(cfg.modbus.allowed_networks)
         self.write_timeout_s = cfg.modbus.write_timeout_s
         self.warn = warn
 
@@ -47,23 +47,20 @@ class ImageWrites:
             return "the gateway is read-only (modbus.read_only)"
         if peer is None:
             return None
-        try:
-            ip = ipaddress.ip_address(peer.split("%", 1)[0])
-        except ValueError:
-            return f"client address {peer!r} not understood"
-        if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
-            ip = ip.ipv4_mapped
-        if not any(ip in net for net in self.allowed):
+        if peer not in self.allowed:
             return f"client {peer} is not in modbus.allowed_networks"
         return None
 
-    def check_access(self, peer: str | None) -> None:
-        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged); then the
-        standby of a hot-standby pair refuses every write before it reads or checks a value
-        (``NotActive``: 0x06 server device busy, the PLC retries on the active one)."""
+    def check_access(self, peer: str | None, unit: int, table: str, address: int, values: Any) -> None:
+        """Write protection: ``read_only`` and ``allowed_networks`` (0x01, logged and audited);
+        then the standby of a hot-standby pair refuses every write before it reads or checks
+        a value (``NotActive``: 0x06 server device busy, the PLC retries on the active one)."""
         why = self.write_refusal(peer)
         if why is not None:
             self.warn.warning(("refused", peer, why), "Modbus write from %s refused: %s", peer, why)
+            self.commands.refusals.refused(
+                "modbus_write", f"unit {unit}", f"{TABLE_NAMES[table]} {address}", values, why
+            )
             raise ModbusError(ExceptionCode.ILLEGAL_FUNCTION, why)
         self.commands.require_active()
 
@@ -104,7 +101,7 @@ class ImageWrites:
     async def write_registers(
         self, unit: int, address: int, values: list[int], peer: str | None
     ) -> None:
-        self.check_access(peer)
+        self.check_access(peer, unit, "hr", address, values)
         points = self._points_for(unit, "hr", address, len(values))
         nmt: list[tuple[str, str]] = []
         by_node: dict[str, dict[str, Any]] = {}
@@ -127,7 +124,7 @@ class ImageWrites:
                     raise ValueOutOfRange(p.name, value, "ASCII text") from None
             by_node.setdefault(p.node, {})[p.name] = value
         for node, cmd in nmt:
-            self.commands.nmt(node, cmd)
+            await self.commands.nmt(node, cmd)
         if by_node:
             await self._bounded(self._write_signals(by_node))
 
@@ -142,7 +139,7 @@ class ImageWrites:
     async def write_coils(
         self, unit: int, address: int, values: list[bool], peer: str | None
     ) -> None:
-        self.check_access(peer)
+        self.check_access(peer, unit, "co", address, values)
         points = self._points_for(unit, "co", address, len(values))
         grouped: dict[tuple[str, str], dict[int, bool]] = {}
         transport: dict[tuple[str, str], str] = {}
@@ -163,7 +160,7 @@ class ImageWrites:
         self, unit: int, address: int, and_mask: int, or_mask: int, peer: str | None
     ) -> None:
         """FC 22: result = (current AND and_mask) OR (or_mask AND NOT and_mask), 6.16."""
-        self.check_access(peer)
+        self.check_access(peer, unit, "hr", address, {"and_mask": and_mask, "or_mask": or_mask})
         self._points_for(unit, "hr", address, 1)
         current = (await self.reads.read(unit, "hr", address, 1))[0]
         value = (current & and_mask) | (or_mask & ~and_mask & 0xFFFF)

@@ -268,6 +268,7 @@ def render_keys(cfg: Config, nodes: dict[str, ResolvedNode]) -> str:
             n = configured.get(k.node)
             if n is not None:
                 lines.append("")
-                lines.append(f"# node {n.name}: {n.device}, node id {n.node_id}")
+                on = f", network {cfg.network_of(n.name)}" if cfg.networks is not None else ""
+                lines.append(f"# node {n.name}: {n.device}, node id {n.node_id}{on}")
         lines.append(f"{k.key:<{width}}  {k.kind:<10}  {k.description}")
     return "\n".join(lines) + "\n"

@@ -25,7 +25,10 @@ the word order of one point.
 ``layout: flat`` puts everything in one unit (``flat_unit_id``): the gateway block at 0 and node
 *k* (1-based, config order) at ``k * flat_stride``, with the same offsets inside each block.
 
-Imports: config, profiles, device.resolved, northbound.scaling. Never pymodbus, zenoh_bridge/.
+The gateway's own registers (unit 247) are ``northbound.gateway_block``'s.
+
+Imports: config, profiles, device.resolved, northbound.scaling, northbound.gateway_block.
+Never pymodbus, zenoh_bridge/.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from typing import Literal
 
 from gateway.config import Config, NodeConfig
 from gateway.device.resolved import ResolvedNode
+from gateway.northbound.gateway_block import gateway_registers
 from gateway.northbound.scaling import scaled, unscaled_step
 from gateway.profiles import LoadedProfile
 from gateway.profiles.derived import text_signals
@@ -57,7 +61,7 @@ NMT_REGISTER = 0
 
 #: node diagnostics in input registers: (offset, name, type, description)
 NODE_DIAG = [
-    (0, "quality", "uint16", "worst quality of the node's process data: 0 good, 1 stale (node lost, not operational, link fault or data older than stale_after_ms), 2 bad (never received or flagged invalid by the device)"),
+    (0, "quality", "uint16", "worst quality of the node's process data: 0 good, 1 stale (node lost, not operational, link fault or data older than stale_after_ms), 2 bad (never received, flagged invalid by the device, or nothing to serve: the node's PDOs map nothing)"),
     (1, "nmt_state", "uint16", "NMT state: 0 boot-up, 4 stopped, 5 operational, 127 pre-operational, 65535 unknown"),
     (2, "alive", "uint16", "1 while heartbeat / node guarding is OK"),
     (3, "lifecycle", "uint16", "0 waiting (never seen, or lost: waiting for boot-up), 1 booting, 2 configuring, 3 operational, 4 unknown (a pair's standby: the node not heard started)"),
@@ -78,44 +82,6 @@ NODE_DIAG_BITS = [
     (2, "link_ok", "guarding-bit link OK (or not used)"),
     (3, "error_active", "an EMCY error is active"),
     (4, "outputs_safe", "the node's outputs hold the safe values of the output watchdog"),
-]
-#: the gateway's role in a hot-standby pair (``master.redundancy``), as the register says it
-PAIR_ROLE_CODES: dict[str | None, int] = {
-    None: 0,  # no pair
-    "active": 1,
-    "standby": 2,
-    "listening": 3,
-    "negotiating": 3,
-    "isolated": 4,
-    "duplicate": 5,
-}
-PAIR_ROLE_DESCRIPTION = (
-    "hot-standby pair: 0 no pair, 1 active, 2 standby, 3 listening / negotiating, "
-    "4 isolated (its bus down or silent), 5 out (another device has its pair id)"
-)
-GATEWAY_REGS = [
-    (0, "bus_state", "uint16", "CAN bus: 0 down, 1 ok, 2 error passive / bus off"),
-    (1, "frames_in", "uint32", "CAN frames received"),
-    (3, "frames_out", "uint32", "CAN frames sent"),
-    (5, "decode_errors", "uint32", "frames that could not be decoded"),
-    (7, "unknown_cob_id", "uint32", "frames with an unexpected COB-ID"),
-    (9, "bus_errors", "uint32", "CAN bus errors"),
-    (11, "uptime_s", "uint32", "seconds since start"),
-    (13, "version_major", "uint16", "gateway version"),
-    (14, "version_minor", "uint16", ""),
-    (15, "version_patch", "uint16", ""),
-    (16, "nodes_configured", "uint16", "nodes in the configuration"),
-    (17, "nodes_alive", "uint16", "nodes alive"),
-    (18, "nodes_operational", "uint16", "nodes operational"),
-    (19, "watchdog_trips", "uint32", "output watchdog trips (safe outputs written)"),
-    (21, "pair_role", "uint16", PAIR_ROLE_DESCRIPTION),
-    (
-        22,
-        "pair_master_id",
-        "uint16",
-        "hot-standby pair: the pair id of the master heard active (this gateway's own when it is "
-        "active; a third-party master's), 0 unknown",
-    ),
 ]
 NMT_DESCRIPTION = (
     "write 1 start, 2 stop, 128 pre-operational, 129 reset node, 130 reset communication; "
@@ -174,6 +140,7 @@ class Point:
     unit_text: str = ""
     transport: Literal["pdo", "sdo", "diag"] = "diag"
     description: str = ""
+    network: str | None = None  # the CAN network of a gateway point that is one network's
 
     @property
     def end(self) -> int:
@@ -205,6 +172,10 @@ class RegisterMap:
     #: (unit, table) -> {address: point} for every address a point covers
     index: dict[tuple[int, Table], dict[int, Point]] = field(default_factory=dict)
     units: dict[int, str | None] = field(default_factory=dict)  # unit -> node name (None: gateway)
+    networks: dict[str, str] = field(default_factory=dict)  # node name -> its CAN network
+    several_networks: bool = False  # the Markdown table shows the network column
+    #: the config key that placed each point (a clash names both keys)
+    keys: dict[Point, str] = field(default_factory=dict, repr=False)
 
     def add(self, p: Point, key: str) -> None:
         idx = self.index.setdefault((p.unit, p.table), {})
@@ -212,18 +183,27 @@ class RegisterMap:
             other = idx.get(a)
             if other is not None:
                 where = f"{other.node}.{other.name}" if other.node else other.name
+                placed = self.keys.get(other)
                 raise RegisterMapError(
                     key,
                     f"{TABLE_NAMES[p.table]} {a} of unit {p.unit} is used twice: "
-                    f"{p.node}.{p.name} and {where}",
+                    f"{p.node}.{p.name} ({key}) and {where}" + (f" ({placed})" if placed else ""),
                 )
             if a > 0xFFFF:
                 raise RegisterMapError(key, f"address {a} of {p.node}.{p.name} is beyond 65535")
             idx[a] = p
         self.points.append(p)
+        self.keys[p] = key
 
     def lookup(self, unit: int, table: Table, address: int) -> Point | None:
         return self.index.get((unit, table), {}).get(address)
+
+    def only_unit(self, unit: int) -> RegisterMap:
+        """The points of one unit id (a listing of one device)."""
+        return RegisterMap(
+            [p for p in self.points if p.unit == unit], {}, {unit: self.units.get(unit)},
+            networks=self.networks, several_networks=self.several_networks,
+        )  # fmt: skip
 
     def node_points(self, node: str) -> list[Point]:
         return [p for p in self.points if p.node == node]
@@ -231,11 +211,13 @@ class RegisterMap:
     # ------------------------------------------------------------------ rendering
     HEADER = ["unit_id", "table", "address", "type", "access", "node", "signal", "unit", "scaling", "description"]  # fmt: skip
 
-    def _sorted(self) -> list[Point]:
+    def sorted_points(self) -> list[Point]:
+        """Every point by unit, table (input, holding, discrete input, coil) and address."""
         return sorted(self.points, key=lambda p: (p.unit, TABLE_ORDER[p.table], p.address))
 
     @staticmethod
     def _row(p: Point, address: str, name: str, description: str) -> list[str]:
+        """A row of the Markdown table (the CSV adds the point's network, ``network_of``)."""
         return [
             str(p.unit),
             TABLE_NAMES[p.table],
@@ -252,7 +234,7 @@ class RegisterMap:
     def rows(self) -> list[list[str]]:
         """One row per point: every register value and every single bit (the CSV)."""
         out = []
-        for p in self._sorted():
+        for p in self.sorted_points():
             name = p.name if p.kind != "bit" else f"{p.name}.bit{p.bit}"
             address = str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}"
             out.append(self._row(p, address, name, p.description))
@@ -260,13 +242,17 @@ class RegisterMap:
 
     def grouped_rows(self) -> list[list[str]]:
         """Like ``rows`` but the bits of one word in one row (the Markdown table)."""
-        out: list[list[str]] = []
-        pts = self._sorted()
+        return [row for _, row in self._grouped()]
+
+    def _grouped(self) -> list[tuple[Point, list[str]]]:
+        """``grouped_rows`` with the (first) point of each row."""
+        out: list[tuple[Point, list[str]]] = []
+        pts = self.sorted_points()
         i = 0
         while i < len(pts):
             p = pts[i]
             if p.kind != "bit":
-                out.append(self.rows_of(p))
+                out.append((p, self.rows_of(p)))
                 i += 1
                 continue
             j = i
@@ -284,7 +270,7 @@ class RegisterMap:
             ]
             desc = f"address = {p.address} + bit; " + "; ".join(named)
             out.append(
-                [
+                (p, [
                     str(p.unit),
                     TABLE_NAMES[p.table],
                     f"{p.address}-{group[-1].address}",
@@ -295,8 +281,8 @@ class RegisterMap:
                     "",
                     "",
                     desc,
-                ]
-            )
+                ])
+            )  # fmt: skip
             i = j + 1
         return out
 
@@ -304,16 +290,28 @@ class RegisterMap:
         address = str(p.address) if p.count == 1 else f"{p.address}-{p.end - 1}"
         return self._row(p, address, p.name, p.description)
 
+    def network_of(self, p: Point) -> str:
+        """The CAN network a point is of: its node's, a network's gateway register's, or none
+        (the gateway's own registers)."""
+        return p.network or (self.networks.get(p.node, "") if p.node else "")
+
     def to_csv(self) -> str:
+        """Every point, with the ``network`` column last (after ``HEADER``)."""
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(self.HEADER)
-        w.writerows(self.rows())
+        w.writerow([*self.HEADER, "network"])
+        w.writerows(
+            [*row, self.network_of(p)] for p, row in zip(self.sorted_points(), self.rows(), strict=True)
+        )
         return buf.getvalue()
 
     def to_markdown(self) -> str:
-        lines = ["| " + " | ".join(self.HEADER) + " |", "|" + "---|" * len(self.HEADER)]
-        for r in self.grouped_rows():
+        """The grouped rows; with several networks, the ``network`` column last."""
+        header = [*self.HEADER, "network"] if self.several_networks else self.HEADER
+        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        for p, r in self._grouped():
+            if self.several_networks:
+                r = [*r, self.network_of(p)]
             lines.append("| " + " | ".join(c.replace("|", "\\|") for c in r) + " |")
         return "\n".join(lines) + "\n"
 
@@ -372,14 +370,18 @@ def build_register_map(cfg: Config, nodes: dict[str, ResolvedNode]) -> RegisterM
     flat = cfg.modbus.layout == "flat"
     gw_unit = cfg.modbus.flat_unit_id if flat else cfg.modbus.gateway_unit_id
     rm.units[gw_unit] = None
-    for off, name, typ, desc in GATEWAY_REGS:
+    names = cfg.network_names()
+    rm.several_networks = len(names) > 1
+    for off, name, typ, desc, network in gateway_registers(names):
         rm.add(
             Point(
-                gw_unit, "ir", off, _REG_COUNT[typ], "gateway", name, typ, "ro", description=desc
+                gw_unit, "ir", off, _REG_COUNT[typ], "gateway", name, typ, "ro", description=desc,
+                network=network,
             ),
-            "modbus",
-        )
+            "modbus" if network is None else "networks",
+        )  # fmt: skip
     for k, ncfg in enumerate(cfg.nodes, start=1):
+        rm.networks[ncfg.name] = cfg.network_of(ncfg.name)
         _add_node(rm, cfg, ncfg, nodes[ncfg.name].lp, k)
     return rm
 

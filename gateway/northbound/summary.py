@@ -14,6 +14,7 @@ from __future__ import annotations
 import time
 from collections.abc import Collection
 from dataclasses import dataclass, fields
+from typing import Any
 
 from gateway.canopen.states import LinkState, NmtState
 from gateway.image import EmcyRecord, NodeHealth, NodeImage, Quality
@@ -74,10 +75,19 @@ _HEALTH_TYPES = {h.name: h.type for h in fields(NodeHealth)}
 HEALTH_FIELDS = tuple(f.name for f in fields(NodeSummary) if f.type == _HEALTH_TYPES.get(f.name))
 
 
+def serves_values(node: NodeImage, process: Collection[str]) -> bool:
+    """Whether the node serves any process data: signals its TPDOs carry (``process``) or
+    outputs its RPDOs carry. A node whose PDOs map nothing serves no value."""
+    return bool(process) or bool(node.output_slots)
+
+
 def worst_quality(node: NodeImage, process: Collection[str], now: float) -> Quality:
     """The worst quality of ``process`` (the signals the node's TPDOs carry) from one snapshot;
-    a node without process signals is good while operational, else stale."""
+    a node with outputs only is good while operational, else stale; a node whose PDOs map
+    nothing is bad: it has no value to serve, so no reader may take it as good."""
     if not process:
+        if not serves_values(node, process):
+            return Quality.BAD
         return Quality.GOOD if node.operational() else Quality.STALE
     snap = node.snapshot()
     return max(node.quality(snap[n], now) for n in process)
@@ -102,3 +112,21 @@ def summarize(
         pdo_errors=rx.pdo_too_short + rx.pdo_too_long,
         quality=None if process is None else worst_quality(node, process, now),
     )
+
+
+def health_doc(node: NodeImage) -> dict[str, Any]:
+    """A node as ``/healthz`` says it: its network, health and data age."""
+    s = summarize(node)
+    age = s.data_age_s
+    return {
+        "node_id": s.node_id,
+        "network": node.network,
+        "alive": s.alive,
+        "operational": s.operational,
+        "nmt_state": s.nmt_state.name.lower(),
+        "lifecycle": s.lifecycle,
+        "link": s.link.name.lower(),
+        "data_age_s": None if age is None else round(age, 3),
+        "last_error": s.last_error,
+        "outputs": s.outputs,
+    }

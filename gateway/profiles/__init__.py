@@ -25,8 +25,10 @@ zenoh_bridge/, config.
 
 from gateway.profiles.device import (
     STALE_EVENT_TIMER_MULTIPLE,
+    IdentityCheck,
     device_supervision,
     expected_identity,
+    identity_check,
     node_verifies_mapping,
     stale_after_from_event_timers,
 )
@@ -47,6 +49,7 @@ __all__ = [
     "STALE_EVENT_TIMER_MULTIPLE",
     "LoadedProfile",
     "ExternalHeartbeatSetup",
+    "IdentityCheck",
     "NodeSetup",
     "PdoSetup",
     "SdoSetup",
@@ -54,6 +57,7 @@ __all__ = [
     "builtin_profiles",
     "device_supervision",
     "expected_identity",
+    "identity_check",
     "import_eds",
     "load_node_profile",
     "load_profile",

@@ -1,6 +1,6 @@
 """What a device's file says about the device itself: how an EDS-only node is supervised
 (``device_supervision``, ``stale_after_from_event_timers``), the identity 1018h it must hold
-(``expected_identity``) and whether the gateway verifies its PDO mapping
+(``identity_check``: what is compared, and in words what cannot be) and whether the gateway verifies its PDO mapping
 (``node_verifies_mapping``).
 
 Imports: profiles.schema, gateway.eds.pdos (od_var), cia301 (the error-control objects), objref, canopen; profiles.loader and
@@ -10,6 +10,7 @@ profiles.node_setup for types only. Nothing of bus/, modbus/, zenoh_bridge/, con
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import canopen
@@ -63,35 +64,70 @@ def device_supervision(od: canopen.ObjectDictionary) -> Boot:
 _NOT_GIVEN = (0, 0xFFFFFFFF)
 
 
-def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
+#: the identity objects the file's [DeviceInfo] gives, by 1018h sub-index (CiA 306 4.6.2)
+_IDENTITY_KEYS = {1: ("VendorNumber", "vendor"), 2: ("ProductNumber", "product")}
+
+
+@dataclass(frozen=True)
+class IdentityCheck:
+    """What the gateway compares in 1018h at every boot (``expected``: object, value) and, in
+    words, each part of the identity it cannot compare (``not_checked``: ``check`` prints them
+    as notes, the node logs them at start)."""
+
+    expected: tuple[tuple[ObjRef, int], ...]
+    not_checked: tuple[str, ...]
+
+
+def identity_check(lp: LoadedProfile) -> IdentityCheck:
     """What the device at this node must hold in 1018h (CiA 301 7.5.2.20), as its EDS/DCF
-    says: sub 01h = VendorNumber and 02h = ProductNumber of [DeviceInfo] when the file gives
-    both, and for a DCF sub 04h = the ParameterValue of 1018h:04 (the serial number of the
-    commissioned device). Empty when the file gives no identity. Only the sub-indices the file
-    defines are compared (CiA 301 makes only 1018h:01 mandatory: a file with 1018h:01 alone
-    says its devices have no product code to read). A number the file contradicts
-    itself on ([DeviceInfo] and the value of 1018h differ; ``eds lint`` warns) is not compared:
-    the file does not say which device it describes, and a right device must not be refused."""
+    says: sub 01h = VendorNumber and sub 02h = ProductNumber of [DeviceInfo], each when the
+    file gives it (a file with VendorNumber alone: a device of another vendor is refused), and
+    for a DCF sub 04h = the ParameterValue of 1018h:04 (the serial number of the commissioned
+    device). Only the sub-indices the file defines are compared (CiA 301 makes only 1018h:01
+    mandatory: a file with 1018h:01 alone says its devices have no product code to read). A
+    number the file contradicts itself on ([DeviceInfo] and the value of 1018h differ; ``eds
+    lint`` warns) is not compared: the file does not say which device it describes, and a right
+    device must not be refused. Each part not compared is said in ``not_checked``."""
     info = lp.od.device_information
-    vendor, product = info.vendor_number, info.product_number
-    if vendor in (None, *_NOT_GIVEN) or product in (None, *_NOT_GIVEN):
-        return ()
-    out = []
-    for sub, given in ((1, int(vendor)), (2, int(product))):
-        var = od_var(lp.od, ObjRef(0x1018, sub))
-        if var is None:
-            continue
-        held = getattr(var, "value", None)
-        if held is None:
+    file = lp.eds_path.name
+    out: list[tuple[ObjRef, int]] = []
+    why_not: dict[ObjRef, str] = {}  # a part the file gives no comparable number for
+    for sub, number in ((1, info.vendor_number), (2, info.product_number)):
+        key = _IDENTITY_KEYS[sub][0]
+        obj = ObjRef(0x1018, sub)
+        var = od_var(lp.od, obj)
+        held = None if var is None else getattr(var, "value", None)
+        if var is not None and held is None:
             held = getattr(var, "default", None)
-        if isinstance(held, int) and held not in _NOT_GIVEN and held != given:
-            continue
-        out.append((ObjRef(0x1018, sub), given))
+        if number is None:
+            why_not[obj] = f"{file} gives no {key} in [DeviceInfo]"
+        elif number in _NOT_GIVEN:
+            why_not[obj] = f"{file} gives no {key} ({key}=0x{int(number):X} in [DeviceInfo] stands for none)"
+        elif var is None:
+            why_not[obj] = f"{file} does not define {obj}"
+        elif isinstance(held, int) and held not in _NOT_GIVEN and held != int(number):
+            why_not[obj] = f"{file} says {key} 0x{int(number):X} but 0x{held:X} for {obj}"
+        else:
+            out.append((obj, int(number)))
     serial = od_var(lp.od, ObjRef(0x1018, 4))
     held = getattr(serial, "value", None)
     if lp.eds_path.suffix.lower() == ".dcf" and isinstance(held, int) and held not in _NOT_GIVEN:
         out.append((ObjRef(0x1018, 4), held))
-    return tuple(out)
+    if not out:
+        absent = f"{file} gives no VendorNumber or ProductNumber in [DeviceInfo]"
+        reasons = absent if all(" gives no " in w for w in why_not.values()) else "; ".join(why_not.values())
+        return IdentityCheck((), (f"identity (1018h) not checked: {reasons}: any device at this node id is configured",))  # fmt: skip
+    compared = ", ".join(f"{o} ({_IDENTITY_KEYS.get(o.sub, ('', 'serial number'))[1]})" for o, _ in out)
+    gaps = tuple(
+        f"{o} ({_IDENTITY_KEYS[o.sub][1]}) not checked: {why}; only {compared} is compared"
+        for o, why in why_not.items()
+    )
+    return IdentityCheck(tuple(out), gaps)
+
+
+def expected_identity(lp: LoadedProfile) -> tuple[tuple[ObjRef, int], ...]:
+    """The 1018h objects and values a device at this node must hold (``identity_check``)."""
+    return identity_check(lp).expected
 
 
 def node_verifies_mapping(lp: LoadedProfile, node: NodeSetup) -> bool:

@@ -22,7 +22,7 @@ from pydantic import ValidationError
 
 from gateway.canopen.cia301 import COB_ID_INVALID
 from gateway.canopen.objref import ObjRef
-from gateway.eds import EdsError, EdsFile, dictionary_for_node, load_eds
+from gateway.eds import EdsError, EdsFile, dictionary_for_node, load_eds, near_names
 from gateway.eds.pdos import access_of, eds_pdos, mapping_findings, od_var, signal_type
 from gateway.profiles.layout import pdo_from_eds
 from gateway.profiles.schema import Pdo, Profile, Signal
@@ -72,7 +72,7 @@ def resolve_profile_path(name_or_path: str, base_dir: Path | None = None) -> Pat
         if not p.is_absolute() and base_dir is not None:
             p = base_dir / p
         if not p.exists():
-            raise ProfileError(f"profile file {p} does not exist")
+            raise ProfileError(f"profile file {p} does not exist{near_names(p, ('.yaml', '.yml'))}")
         return p
     p = PROFILE_DIR / f"{name_or_path}.yaml"
     if not p.exists():
@@ -193,7 +193,7 @@ def _load(path: Path) -> LoadedProfile:
         return LoadedProfile(profile, path, path, canopen.ObjectDictionary())
     eds_path = (path.parent / profile.eds).resolve()
     if not eds_path.exists():
-        raise ProfileError(f"{path}: eds: file {eds_path} does not exist")
+        raise ProfileError(f"{path}: eds: file {eds_path} does not exist{near_names(eds_path, ('.eds', '.dcf'))}")
     eds = read_eds(eds_path)
     return with_eds(profile, path, eds_path, eds.od)
 

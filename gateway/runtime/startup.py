@@ -14,7 +14,7 @@ every port to change. A value an environment variable set is blamed on the varia
 (``StartupError.where``, filled in by the gateway, which knows the config).
 
 Imports: the standard library only (Zenoh's errors are recognised by their text, so this module
-does not import zenoh); config for its types.
+does not import zenoh); config for its types and its variables' prefix (config.env).
 """
 
 from __future__ import annotations
@@ -26,6 +26,8 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
+
+from gateway.config.env import ENV_PREFIX
 
 if TYPE_CHECKING:
     from gateway.config import Config
@@ -68,8 +70,17 @@ class StartupError(Exception):
 
     def line(self, source: str) -> str:
         """The line the command line prints for this part, naming the config file (or the
-        environment variable that set the key)."""
-        return f"error: {self.where or source}: {self}"
+        environment variable that set the key); a port in use says how to choose another."""
+        return f"error: {self.where or source}: {self}{self._port_hint(source)}"
+
+    def _port_hint(self, source: str) -> str:
+        if self.reason != _ERRNO_TEXT[errno.EADDRINUSE]:
+            return ""
+        var = ENV_PREFIX + "__".join(part.upper() for part in self.key.split("."))
+        if self.where:  # the variable set it: change it there
+            return f"; choose another port in {var}"
+        value = "'[\"tcp/127.0.0.1:<port>\"]'" if self.key == "zenoh.listen" else "<port>"
+        return f"; choose another port: {self.key} in {source}, or {var}={value} for one run"
 
     def lines(self, source: str) -> list[str]:
         """One line for each part that could not start."""

@@ -45,7 +45,7 @@ class UnknownFault(ValueError):
 
 class FaultInjector:
     """The ``ACTIONS`` on the nodes of a running simulator (``SimulatedBus``: ``.nodes`` name ->
-    ``SimNode``, ``.runner`` the ``SimRunner``)."""
+    ``SimNode``, ``.runner_of(name)`` the ``SimRunner`` of the node's network)."""
 
     def __init__(self, sim: Any):
         self.sim = sim
@@ -67,7 +67,7 @@ class FaultInjector:
         node = self._node(name)
         if action not in ACTIONS:
             raise UnknownFault(f"no fault {action!r}; one of {', '.join(ACTIONS)}")
-        runner = self.sim.runner
+        runner = self.sim.runner_of(name)
         if runner is None:
             raise UnknownFault("the simulator is not running")
         if action == "unplug":

@@ -68,7 +68,10 @@ def run_fault(cfg: Config, node: str | None, action: str | None, url: str | None
                 print(f"error: {base} has no fault injection (an older gateway?)", file=sys.stderr)
                 return 1
             print(doc.get("rule_text", ""))
+            mine = {n.name for n in cfg.nodes}  # the network's (--network), or every node
             for name, state in (doc.get("nodes") or {}).items():
+                if name not in mine:
+                    continue
                 words = [
                     "unplugged" if state["unplugged"] else "plugged",
                     "heartbeat on" if state["heartbeat"] else "heartbeat off",
@@ -80,7 +83,7 @@ def run_fault(cfg: Config, node: str | None, action: str | None, url: str | None
         if action not in ACTIONS:
             print(f"error: no fault {action!r}; one of {', '.join(ACTIONS)}", file=sys.stderr)
             return 2
-        code, doc = _call(f"{base}/api/sim/{node}/{action}", cfg.web.token, post=True)
+        code, doc = _call(f"{base}/api/sim/{node}/{action}", cfg.web_token(), post=True)
     except (urllib.error.URLError, OSError) as exc:
         reason = getattr(exc, "reason", exc)
         print(

@@ -18,6 +18,7 @@ object changes). It implements (SGH10 manual 000/003 section numbers):
   from what it last sent; no two frames of a TPDO closer than its inhibit time 180xh:03
   (100 us units, CiA 301 7.5.2.35), a change inside that window goes out when it ends.
 
+A TPDO whose mapping has no entry is not sent (CiA 301 7.5.2.36: 00h disables the mapping).
 TPDOs go out in OPERATIONAL only: the node calls ``enter_operational`` / ``leave_operational``
 on its NMT changes. Sans-I/O as its node: it sends through ``host.send`` and reads no clock.
 
@@ -113,6 +114,8 @@ class TpdoProducer:
             t.pending = True
             return False
         data = self.data(number, now)
+        if not params.plan and not data:
+            return False  # CiA 301 7.5.2.36: 00h entries, the mapping is disabled: no PDO sent
         self.node.send(cob & COB_ID_MASK_29BIT, data)
         t.last_data = data
         t.last_sent_s = now

@@ -5,20 +5,24 @@ opens "the same" bus opens a private, empty copy, and with ``simulate:`` it woul
 its own copy of the devices, so an SDO write would "succeed" on devices nobody else sees. So
 before such a command opens the bus:
 
-1. If the config's Zenoh endpoint answers as a gateway (its catalogue under the config's
+1. If the gateway running this config listens on its command socket (``gateway.command_socket``:
+   a Unix socket only its user can open, found by the config file), the command goes through
+   it: local, nothing opened to the cloud (Zenoh writes may stay off).
+2. Else, if the config's Zenoh endpoint answers as a gateway (its catalogue under the config's
    prefix), the command goes through that gateway's Zenoh API (``<prefix>/<node>/sdo/..``,
-   ``<prefix>/<node>/nmt``): it reaches the real (simulated) devices of the running gateway.
-2. Else, if the command would simulate devices (``simulate:``) while the gateway's health port
-   is in use (a gateway runs without Zenoh), it refuses, in one line that says how to reach the
-   running gateway instead: its console's page for the command, and how to turn the
-   commissioning page on when that gateway does not serve it (web.writes and a token).
-3. Else nothing runs on this config: the command opens the bus itself (and simulates the devices
+   ``<prefix>/<node>/nmt``), which takes writes only with ``zenoh.writes`` on.
+3. Else, if the command would simulate devices (``simulate:``) while the gateway's health port
+   is in use (a gateway runs without either way in), it refuses, in one line that says how to
+   reach the running gateway instead: its command socket, its console's page for the command,
+   and how to turn the commissioning page on (web.writes and a token).
+4. Else nothing runs on this config: the command opens the bus itself (and simulates the devices
    of ``simulate:``), and says on stderr that it acts on its own simulated devices.
 
 Other interfaces (socketcan, pcan, remote, ...) are shared by every process: the command opens
 the bus beside the gateway, as before.
 
-Imports: zenoh, config, canopen.objref, northbound.keys. Nothing of bus/ or modbus/.
+Imports: zenoh, config, canopen.objref, northbound.keys, command_socket.protocol (where the
+socket is, its language). Nothing of bus/ or modbus/.
 """
 
 from __future__ import annotations
@@ -27,11 +31,23 @@ import json
 import socket
 import urllib.error
 import urllib.request
+from pathlib import Path
 from typing import Any
 
 import zenoh
 
 from gateway.canopen.objref import ObjRef
+from gateway.command_socket.protocol import (
+    MAX_LINE_BYTES,
+    line,
+    peer_credentials,
+    socket_paths,
+    trusted,
+    value_from_json,
+)
+from gateway.command_socket.protocol import (
+    in_process_bus as in_process_bus,  # the tools ask it here too
+)
 from gateway.config import Config
 from gateway.northbound.keys import catalog_key, nmt_key, sdo_key
 
@@ -46,10 +62,6 @@ class RemoteError(Exception):
     def __init__(self, kind: str, message: str):
         self.kind = kind
         super().__init__(message)
-
-
-def in_process_bus(cfg: Config) -> bool:
-    return cfg.can.interface == "virtual"
 
 
 def _port_in_use(host: str, port: int) -> bool:
@@ -101,6 +113,71 @@ class ZenohGateway:
 
     def nmt(self, node: str, command: str) -> None:
         self._get(nmt_key(self.prefix, node), json.dumps({"command": command}).encode())
+
+
+class LocalGateway:
+    """A running gateway reached through its command socket (``gateway.command_socket``)."""
+
+    def __init__(self, sock: socket.socket, path: Path):
+        self.sock = sock
+        self.reader = sock.makefile("rb")
+        self.endpoint = f"its command socket {path}"
+        #: what the gateway said of itself (name, config, pid, ``health_port``)
+        self.hello: dict[str, Any] = {}
+
+    def close(self) -> None:
+        self.reader.close()
+        self.sock.close()
+
+    def ask(self, request: dict[str, Any]) -> dict[str, Any]:
+        """One request, its answer; an error answer raises ``RemoteError``."""
+        try:
+            self.sock.sendall(line(request))
+            raw = self.reader.readline(MAX_LINE_BYTES)
+        except OSError as exc:
+            raise RemoteError("error", f"the command socket failed: {exc}") from None
+        if not raw:
+            raise RemoteError("error", "the gateway closed its command socket")
+        doc = json.loads(raw)
+        if not doc.get("ok"):
+            raise RemoteError(str(doc.get("error", "error")), str(doc.get("message", doc)))
+        return dict(doc)
+
+    def sdo_read(self, node: str, obj: str, type_: str | None) -> Any:
+        doc = self.ask({"op": "sdo_read", "node": node, "object": obj, "type": type_})
+        return value_from_json(doc.get("value"))
+
+    def sdo_write(self, node: str, obj: str, value: str, type_: str | None) -> None:
+        self.ask({"op": "sdo_write", "node": node, "object": obj, "value": value, "type": type_})
+
+    def nmt(self, node: str, command: str) -> None:
+        self.ask({"op": "nmt", "node": node, "command": command})
+
+
+def find_local_gateway(cfg: Config, timeout_s: float = QUERY_TIMEOUT_S) -> LocalGateway | None:
+    """The gateway running this config, through its command socket; None when none listens
+    (or the one that answers runs another gateway's config under this path)."""
+    for path in socket_paths(cfg):
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.settimeout(timeout_s)
+        try:
+            sock.connect(str(path))
+        except OSError:
+            sock.close()
+            continue
+        if not trusted(peer_credentials(sock)[1]):  # a socket another user put there: not ours
+            sock.close()
+            continue
+        gw = LocalGateway(sock, path)
+        try:
+            gw.hello = gw.ask({"op": "hello"})
+        except (RemoteError, ValueError):
+            gw.close()
+            continue
+        if gw.hello.get("gateway") == cfg.gateway.name:
+            return gw
+        gw.close()
+    return None
 
 
 def _json_scalar(text: str) -> Any:
@@ -160,12 +237,30 @@ def refusal(cfg: Config, command: str) -> str | None:
             "serves when started with web.writes and a token: CANOPEN_GATEWAY__WEB__WRITES=true "
             f"CANOPEN_GATEWAY__WEB__TOKEN='a long random text' canopen-gateway run -c {cfg.source}"
         )
-    # sdo and nmt go through the gateway's Zenoh API when it has one; scan and monitor never do
-    via_zenoh = "; enable zenoh (this command then goes through it)" if command.split()[0] in ("sdo", "nmt") else ""
+    # sdo and nmt go through the gateway's command socket or Zenoh API; scan and monitor never do
+    via_zenoh = (
+        "; or start it with its command socket (command_socket.enabled, the default; this "
+        "command then goes through it, as the same user with the same config file)"
+        if command.split()[0] in ("sdo", "nmt")
+        else ""
+    )
     return (
-        f"error: {cfg.source}: can.interface: virtual: the bus lives inside the gateway running "
+        f"error: {cfg.source}: {cfg.qualify('can.interface')}: virtual: the bus lives inside the gateway running "
         f"at {url}, so `{command}` would act on a private copy of the devices; use {page}"
         f"{via_zenoh}; or give both a bus they share (can.interface: remote, docs/canopen.md)"
+    )
+
+
+def no_socket_hint(cfg: Config) -> str:
+    """What to do when the gateway's Zenoh API refuses a write and no command socket of it
+    was found: ``; ...`` to append to the error."""
+    paths = socket_paths(cfg)
+    where = f"at {paths[0]}" if paths else "(command_socket.enabled is false in this config)"
+    return (
+        f"; no command socket of this gateway {where}: run this command as the gateway's user "
+        "with the config file it runs, on a gateway with its command socket on (the default "
+        "with an in-process bus; docs/web.md), or open Zenoh writes (zenoh.writes: on), "
+        "which opens them to every Zenoh client"
     )
 
 
@@ -181,6 +276,6 @@ def _page_served(url: str) -> bool:
 def private_note(cfg: Config) -> str:
     names = ", ".join(n.name for n in cfg.simulated_nodes()) or "none"
     return (
-        f"note: {cfg.source}: can.interface: virtual and no gateway runs on this config: acting "
+        f"note: {cfg.source}: {cfg.qualify('can.interface')}: virtual and no gateway runs on this config: acting "
         f"on this command's own simulated devices ({names})"
     )

@@ -16,7 +16,8 @@ bus (``Gateway(..., bus_must_open=True)``: it opens the bus once and stops when 
 lost later is reopened by its driver, ``gateway.bus.driver``).
 
 Imports: python-can, gateway.config (blame), gateway.bus.can_backend (quiet_imports,
-driver_problem, open_can_bus), gateway.bus.driver (BusOpenFailed).
+driver_problem, open_can_bus), gateway.bus.driver (BusOpenFailed), gateway.bus.network
+(NetworkOpenFailed: which network's bus).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from typing import Any
 
 from gateway.bus.can_backend import driver_problem, open_can_bus, quiet_imports
 from gateway.bus.driver import BusOpenFailed
+from gateway.bus.network import NetworkOpenFailed
 from gateway.config import Config, blame
 
 #: What usually causes an errno of opening a CAN interface, in words (``{channel}`` and
@@ -62,12 +64,14 @@ class BusOpenError(Exception):
 
 
 def _settings(cfg: Config) -> str:
-    """``can.interface: socketcan, can.channel: can9`` (plus ``can.host``/``can.port`` when set)."""
+    """``can.interface: socketcan, can.channel: can9`` (plus ``can.host``/``can.port`` when set;
+    a network's keys under its ``networks[k].``)."""
     kwargs = cfg.can.bus_kwargs()
-    parts = [f"can.interface: {kwargs.get('interface')}"]
+    can = cfg.qualify("can")
+    parts = [f"{can}.interface: {kwargs.get('interface')}"]
     if kwargs.get("channel") is not None:
-        parts.append(f"can.channel: {kwargs['channel']}")
-    parts += [f"can.{k}: {kwargs[k]}" for k in _ADDRESS_KEYS if kwargs.get(k) is not None]
+        parts.append(f"{can}.channel: {kwargs['channel']}")
+    parts += [f"{can}.{k}: {kwargs[k]}" for k in _ADDRESS_KEYS if kwargs.get(k) is not None]
     return ", ".join(parts)
 
 
@@ -93,7 +97,7 @@ def _reason_and_hint(cfg: Config, exc: BaseException) -> tuple[str, str | None]:
 
 def bus_open_line(cfg: Config, exc: BaseException) -> str:
     """The one line for a bus of ``cfg`` that raised ``exc`` when it was opened."""
-    where = blame("can.interface", cfg.source, cfg.env_keys)
+    where = blame(cfg.qualify("can.interface"), cfg.source, cfg.env_keys)
     reason, hint = _reason_and_hint(cfg, exc)
     return (
         f"error: {where}: {_settings(cfg)}: the CAN bus cannot be opened: {reason}"
@@ -128,5 +132,6 @@ def gateway_bus(cfg: Config) -> Iterator[None]:
     simulated devices') leaves as ``BusOpenError``. The gateway opens its bus once, itself."""
     try:
         yield
-    except BusOpenFailed as exc:
-        raise BusOpenError(bus_open_line(cfg, exc.cause)) from None
+    except BusOpenFailed as exc:  # a network's bus: its own can: keys are named
+        failed = exc.cfg if isinstance(exc, NetworkOpenFailed) else cfg
+        raise BusOpenError(bus_open_line(failed, exc.cause)) from None

@@ -11,6 +11,12 @@ set-node-id        ``NODE_ID [store] [activate]`` (11h; 17h; NMT 82h to the old 
 set-bitrate        ``KBPS [store] [activate] [delay=MS]`` (13h; 17h; 15h)
 store              (17h)
 auto-id            ``NODE_ID [node=ID] [profile=NAME] [timeout=S]`` (SDO to 5F0Ah:02)
+fast-scan          ``[NODE_ID] [count=N] [store] [vendor=V] [product=P] [revision=R]
+                   [wait=S]``: CiA 305 Fast Scan (51h, answer 4Fh) finds the unconfigured
+                   slave with the lowest LSS address, serial number unknown; with NODE_ID it
+                   is given that id (11h, ``store`` 17h) and switched to waiting, then the
+                   next slave gets the next id, ``count`` times; parts given are not scanned;
+                   ``wait`` per step (default 0.05 s)
 =================  ========================================================================
 
 Every configuration action first puts the slave in the LSS configuration state: with
@@ -30,7 +36,7 @@ The LSS frames and their matching come from ``gateway.bus.lss.master``; this mod
 I/O, parses the arguments and prints. When the config simulates nodes (``simulate:``), they
 run in this process on the same bus, so the commands can be tried without hardware.
 
-Imports: python-can, gateway.bus.lss.master, gateway.tools.lss_session, gateway.tools.bus_open, gateway.device.resolved,
+Imports: python-can, gateway.bus.lss.master, gateway.bus.lss.fastscan, gateway.tools.lss_session, gateway.tools.bus_open, gateway.device.resolved,
 gateway.bus.sdo.client, gateway.config, gateway.profiles, gateway.canopen.objref,
 gateway.canopen.cia301; gateway.sim only when the config simulates nodes. Nothing northbound.
 """
@@ -47,6 +53,7 @@ from typing import Any, TextIO
 import can
 
 from gateway.bus.lss import master as lss
+from gateway.bus.lss.fastscan import FastScan
 from gateway.bus.sdo.client import SdoTransfer
 from gateway.canopen.cia301 import (
     COB_NMT,
@@ -377,6 +384,43 @@ def do_auto_id(
         print(f"no device answers as node {old_id} any more", file=out)
 
 
+def do_fast_scan(s: LssSession, a: LssArgs, out: TextIO) -> None:
+    """CiA 305 Fast Scan: the LSS address of the unconfigured slave with the lowest one; with
+    NODE_ID, it is given that node id (and ``store``d), then the next one ``count`` times."""
+    store = a.flag("store")
+    a.at_most(1)
+    first = parse_int(a.words[0], "node id") if a.words else None
+    count = int(a.number("count", 1))
+    wait_s = a.number("wait", FAST_SCAN_WAIT_S)
+    if first is None and count != 1:
+        raise UsageError("count needs a first NODE_ID (each device found is given the next id)")
+    if first is not None and not (1 <= first and first + count - 1 <= 127 and count >= 1):
+        raise UsageError(f"node ids {first}..{first + count - 1} are not within 1..127")
+    known = tuple(parse_int(a.options[k], k) if k in a.options else None
+                  for k in ("vendor", "product", "revision")) + (None,)  # fmt: skip
+    for k in range(count):
+        scan = s.fast_scan(FastScan(known), wait_s)  # type: ignore[arg-type]
+        if scan.found is None:
+            if k == 0:
+                raise LssFailed(f"LSS fast scan: {scan.failed}")
+            print(f"fast scan: {scan.failed}; {k} of {count} given node ids", file=out)
+            break
+        print(f"found {format_address(scan.found)} ({scan.frames} frames)", file=out)
+        if first is not None:
+            s.configure(lss.configure_node_id(first + k))
+            text = f"  node id {first + k} configured"
+            if store:
+                s.configure(lss.store_configuration())
+                text += ", stored"
+            print(text, file=out)
+        s.request(lss.switch_state_global(False))  # waiting; one with a node id stays silent
+    if first is not None:
+        print("the node ids apply at the next NMT reset communication or power-on", file=out)
+
+
+#: Fast Scan: how long each step waits for 4Fh answers (a few ms on a real bus)
+FAST_SCAN_WAIT_S = 0.05
+
 ACTIONS: dict[str, Callable[[LssSession, LssArgs, TextIO], None]] = {
     "switch-global": do_switch_global,
     "switch-selective": do_switch_selective,
@@ -384,6 +428,7 @@ ACTIONS: dict[str, Callable[[LssSession, LssArgs, TextIO], None]] = {
     "set-node-id": do_set_node_id,
     "set-bitrate": do_set_bitrate,
     "store": do_store,
+    "fast-scan": do_fast_scan,
 }
 
 

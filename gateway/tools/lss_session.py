@@ -7,7 +7,8 @@ The frames and their matching are ``gateway.bus.lss.master``'s; this module does
 for the offline command line only: while the gateway runs, LSS goes through the master
 (``gateway.bus.lss.service``).
 
-Imports: python-can, gateway.bus.lss.master. Nothing northbound.
+Imports: python-can, gateway.bus.lss.master, gateway.bus.lss.fastscan (the Fast Scan steps),
+gateway.canopen.cia305. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from typing import Any
 import can
 
 from gateway.bus.lss import master as lss
+from gateway.bus.lss.fastscan import FastScan
+from gateway.canopen.cia305 import CS_IDENTIFY_SLAVE
 
 #: After the first answer, how long to listen for more slaves answering the same request.
 ANSWER_SETTLE_S = 0.05
@@ -247,6 +250,34 @@ class LssSession:
         finally:
             if not keep or not ok:
                 self.request(lss.switch_state_global(False))
+
+    def fast_scan(self, scan: FastScan, wait_s: float) -> FastScan:
+        """Run a CiA 305 Fast Scan (``gateway.bus.lss.fastscan``): each frame, then the whole
+        ``wait_s`` for 4Fh answers (several slaves answer one step together; a late one must
+        not count for the next). The slave found is left in configuration."""
+        while (frame := scan.next_frame()) is not None:
+            self.send_frame(lss.COB_ID_MASTER_TO_SLAVE, frame)
+            scan.answered(self._identified(wait_s))
+        if scan.found is not None:
+            self.master.resume(lss.LssMode.CONFIGURATION)
+            self.left = LeftState(lss.LssMode.CONFIGURATION, scan.found)
+        return scan
+
+    def _identified(self, wait_s: float) -> bool:
+        """Whether any slave answered 4Fh (identify slave) within ``wait_s``."""
+        deadline = self.clock() + wait_s
+        got = False
+        while (left := deadline - self.clock()) > 0:
+            msg = self.bus.recv(timeout=left)
+            if (
+                msg is not None
+                and msg.arbitration_id == lss.COB_ID_SLAVE_TO_MASTER
+                and not msg.is_remote_frame
+                and len(msg.data) > 0
+                and msg.data[0] == CS_IDENTIFY_SLAVE
+            ):
+                got = True
+        return got
 
     def select(self, address: tuple[int, int, int, int]) -> None:
         """Only the slave with ``address`` in configuration (04h 00h, then 40h..43h)."""

@@ -34,6 +34,7 @@ from gateway.errors import (
     GatewayError,
     LssConflict,
     LssFailed,
+    NetworkUnknown,
     NodeNotOperational,
     NodeUnknown,
     NotActive,
@@ -48,6 +49,7 @@ log = logging.getLogger("gateway.web")
 #: typed errors of the command service -> HTTP status
 STATUS_OF: dict[type[GatewayError], HTTPStatus] = {
     NodeUnknown: HTTPStatus.NOT_FOUND,
+    NetworkUnknown: HTTPStatus.NOT_FOUND,
     NodeNotOperational: HTTPStatus.CONFLICT,
     BusDown: HTTPStatus.SERVICE_UNAVAILABLE,
     NotActive: HTTPStatus.SERVICE_UNAVAILABLE,  # a pair's standby: the active one does it
@@ -138,7 +140,7 @@ class Commissioning:
         if op == "sdo-write":
             return await self.sdo_write(doc)
         if op == "nmt":
-            return self.nmt(doc)
+            return await self.nmt(doc)
         if op == "set":
             return await self.set(doc)
         if op == "lss-inquire":
@@ -172,12 +174,12 @@ class Commissioning:
         await self.commands.sdo_write(node, obj, value, typ)
         return {"ok": True, "node": node, "object": str(obj), "value": shown(value)}
 
-    def nmt(self, doc: dict[str, Any]) -> dict[str, Any]:
+    async def nmt(self, doc: dict[str, Any]) -> dict[str, Any]:
         node = _text(doc, "node", "a node name or all")
         if node != "all":
             self.commands.node(node)
         command = _text(doc, "command", "one of " + ", ".join(NMT_COMMANDS))
-        self.commands.nmt(node, command)
+        await self.commands.nmt(node, command)
         return {"ok": True, "node": node, "command": command}
 
     async def set(self, doc: dict[str, Any]) -> dict[str, Any]:
@@ -224,9 +226,10 @@ class Commissioning:
                     f"address: {text!r} is not VENDOR:PRODUCT:REVISION:SERIAL "
                     "(four numbers, e.g. 0x1A2:0x3:0x1:12345)"
                 )
-        if self.commands.lss_busy() or self._scan_lock.locked():
+        network = self._network(doc)
+        if self.commands.lss_busy(network) or self._scan_lock.locked():
             raise LssConflict("another LSS inquiry or a scan is running")
-        result = await self.commands.lss_inquire(address)
+        result = await self.commands.lss_inquire(address, network)
         return {
             "ok": True,
             **{
@@ -238,10 +241,20 @@ class Commissioning:
     async def scan(self, doc: dict[str, Any]) -> dict[str, Any]:
         """Which node ids are on the bus (``canopen-gateway scan --active``): through the
         command service, on the gateway's own connection, one scan at a time and not while an
-        LSS inquiry runs (nor an inquiry while a scan runs)."""
-        if self._scan_lock.locked() or self.commands.lss_busy():
+        LSS inquiry runs (nor an inquiry while a scan runs); of the bus of ``network`` (the
+        first by default)."""
+        network = self._network(doc)
+        if self._scan_lock.locked() or self.commands.lss_busy(network):
             raise LssConflict("a scan or an LSS inquiry is running")
         async with self._scan_lock:
-            result = await self.commands.scan_bus()
-        return {"ok": True, **result}
+            result = await self.commands.scan_bus(network=network)
+        return {"ok": True, "network": self.commands.network(network).name, **result}
+
+    def _network(self, doc: dict[str, Any]) -> str | None:
+        """The CAN network an LSS inquiry or a scan works on (``network``; None: the first);
+        an unknown name is answered 404 naming the networks."""
+        name = doc.get("network") or None
+        if name is not None:
+            self.commands.network(str(name))  # NetworkUnknown names the networks
+        return None if name is None else str(name)
 

@@ -15,6 +15,10 @@ host and port: pages and static files, a small JSON API, server-sent events, and
                                        ``lss-inquire`` (JSON body); 404 unless writes are on;
                                        401 without ``Authorization: Bearer <token>``, 403 with a
                                        wrong one; 400 with a message for a bad body
+``POST /api/login``                    the token as ``Authorization: Bearer``: the session cookie
+                                       of the operators' endpoints (``web.access``)
+``GET /api/session``                   whether the operators' endpoints need the token and
+                                       whether this client may use them
 ``GET /events``                        event log page (``static/events.html``)
 ``GET /api/registers.csv``             the register map as ``canopen-gateway registers --csv``
 ``GET /api/trend/<name>``              the node's trend samples (``gateway.web.trends``);
@@ -22,39 +26,50 @@ host and port: pages and static files, a small JSON API, server-sent events, and
 ``GET /api/events``                    recent events (``gateway.web.events``); filters
                                        ``?node=``, ``?kind=emcy,state,...``, ``?after=<seq>``
 ``POST /api/read/<name>/<signal>``     SDO upload of one configuration object of the node's
-                                       profile (a read, so no ``web.writes`` needed); needs
+                                       profile (a read, so no ``web.writes`` needed; an
+                                       operators' endpoint); needs
                                        ``Content-Type: application/json``; ``READS_PER_S`` per
                                        client (burst ``READ_BURST``), else 429 + ``Retry-After``
 ``GET /monitor``                       bus monitor page (``static/monitor.html``)
+``GET /api/monitor/record``            a trace file of a network's bus (``?network=``, default
+                                       the first; ``gateway.web.recording``)
 ``GET /api/monitor/stream``            server-sent events of the bus monitor
                                        (``gateway.web.monitor``): ``hello``, ``frames``,
-                                       ``status``; filters ``?node=wire,5``, ``?kind=pdo,emcy``;
-                                       400 for an unknown node or kind, 503 past 8 pages
-``GET /api/journal[.csv]``             the journal's entries of a range (``web.journal_log``)
+                                       ``status``; ``?network=line2`` (default the first),
+                                       filters ``?node=wire,5``, ``?kind=pdo,emcy``; 400 for an
+                                       unknown network, node or kind, 503 past 8 pages of a
+                                       network or ``MONITOR_PER_CLIENT`` of one client
+``GET /api/journal[.csv|.json]``       the journal's entries of a range (``web.journal_log``);
+                                       the exports streamed (chunked); an operators' endpoint
 ``GET /api/sim``                       simulated nodes, their faults and who may inject them
 ``POST /api/sim/<name>/<action>``      fault injection into a node simulated in this process
-                                       (``gateway.sim.faults``); see ``fault_rule``
+                                       (``gateway.sim.faults``); see ``web.fault_routes``
 =====================================  ==========================================================
 
-Fault injection rule (``fault_rule``): only nodes simulated inside this process; on the
-``virtual`` bus (in-process: nothing leaves the process, as in the demo) without a token; on any
-other bus (a simulated node there sends real frames) only with ``web.writes: true`` and the token.
+Who may use what (``web.access``): every path checks the ``Host`` header first (421 for a
+name the console does not answer for: DNS rebinding); the operators' endpoints (the journal,
+the bus monitor's stream and recording of every network, SDO reads, fault injection: ``web.fault_routes``) need the token when
+one is set and are served to this machine only when none is; wrong tokens are throttled per
+client address (429). Live pages and monitor pages are capped per client address
+(``LIVE_PER_CLIENT``; ``MONITOR_PER_CLIENT``, every network's pages together) as well as in
+total.
 
 The node page's stream also carries ``trend`` events (new samples, once a second) and the
 overview stream ``events`` events (new entries of the event log).
 
 Runs on the event loop only (the image's value listener hands off in ``gateway.web.live``).
 
-Imports: http.server (request/response types), web.live, web.views, web.commissioning, web.trends,
-web.events, web.journal_log, web.limits, web.monitor, web.pages, northbound.scaling, northbound.frames (the decoder's type), runtime.ratelimit, runtime.turns, sim.faults,
-commands.audit (who asked, for the audit) (names and errors; the injector itself is given by the application; the bus driver, for the
-monitor's tap, too). Never bus/ internals, modbus/ or zenoh_bridge/ modules with I/O.
+Imports: http.server (request/response types), web.access, web.fault_routes, web.live, web.views,
+web.commissioning, web.trends, web.events, web.journal_log, web.limits, web.monitor,
+web.recording, web.pages, northbound.scaling, northbound.frames (the decoder's type),
+runtime.ratelimit, runtime.turns, commands.audit (who asked, for the audit) (the fault injector
+is given by the application; the bus driver, for the monitor's tap, too). Never bus/
+internals, modbus/ or zenoh_bridge/ modules with I/O.
 """
 
 from __future__ import annotations
 
 import asyncio
-import hmac
 import json
 import logging
 import math
@@ -65,30 +80,29 @@ from typing import Any
 
 from gateway import __version__
 from gateway.commands.audit import acting_as
-from gateway.http.server import JSON_TYPE, Request, Response, Stream
+from gateway.http.server import JSON_TYPE, Chunked, Request, Response, Stream
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.turns import LoopTurns
+from gateway.web.access import ClientSlots, HostCheck, Operators
 from gateway.web.commissioning import Commissioning, error_doc, shown
 from gateway.web.events import KINDS, EventLog, EventLogHandler
+from gateway.web.fault_routes import FaultRoutes
 from gateway.web.journal_log import JournalLog
 from gateway.web.limits import ClientBudget
 from gateway.web.live import LiveHub, Subscriber, TooManyClients
-from gateway.web.monitor import FrameMonitor, FrameSource, TooManyPages
+from gateway.web.monitor import FrameMonitor, FrameSource, NetworkMonitors
 from gateway.web.pages import fill_pages
+from gateway.web.recording import BusRecorder
 from gateway.web.trends import TREND_PERIOD_S, TrendStore
 from gateway.web.views import ConsoleModel
 
 log = logging.getLogger("gateway.web")
 
-#: The header our own clients send with a simulated fault (the console's page, ``canopen-gateway
-#: fault``), so the event log says where a fault came from; anything else is the HTTP API.
-CLIENT_HEADER = "x-canopen-client"
-FAULT_SOURCES = {
-    "console": "from the web console",
-    "cli": "from the command line, canopen-gateway fault",
-}
+#: live pages (``/api/stream``) and monitor pages of one client address at a time
+LIVE_PER_CLIENT = 8
+MONITOR_PER_CLIENT = 2
 
 CONTENT_TYPES = {
     ".html": "text/html; charset=utf-8",
@@ -141,11 +155,12 @@ class WebConsole:
         self,
         model: ConsoleModel,
         *,
-        decoder: FrameDecoder,
+        decoder: FrameDecoder | None = None,
         faults: Any = None,
         frames: FrameSource | None = None,
         turns: LoopTurns | None = None,
         journal: Any = None,
+        monitors: NetworkMonitors | None = None,
     ):
         #: what the pages and the API show, built from the console's config, image and commands
         self.model = model
@@ -153,7 +168,12 @@ class WebConsole:
         self.image = model.image
         self.commands = model.commands
         self.writes = self.cfg.web.writes
-        self._token = (self.cfg.web.token or "").encode()
+        #: who may use what: the Host check, the operators' token (``web.token`` or
+        #: ``web.token_file``, checked at start), the streams per client
+        self.hosts = HostCheck(self.cfg.web.allowed_hosts, self.cfg.health.host)
+        self.operators = Operators(self.cfg.web_token(), self.commands.refusals)
+        self.live_slots = ClientSlots(LIVE_PER_CLIENT)
+        self.monitor_slots = ClientSlots(MONITOR_PER_CLIENT)
         self.hub = LiveHub(self.image)
         self.commissioning = Commissioning(self.cfg, self.commands) if self.writes else None
         self.static = _load_static()
@@ -162,16 +182,26 @@ class WebConsole:
         self.events = EventLog(self.commands.names())
         self._log_handler = EventLogHandler(self.events)
         self.read_budget = ClientBudget(READS_PER_S, READ_BURST)
-        self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS)
-        self.faults = faults  # sim.faults.FaultInjector when nodes are simulated in this process
+        self.journal_log = JournalLog(journal, self.commands.names(), headers=SECURITY_HEADERS, turns=turns)
+        #: fault injection (``web.fault_routes``): ``faults`` is sim.faults.FaultInjector
+        #: when nodes are simulated in this process; "virtual" only when every network's bus is
+        #: (a simulated node on any real bus sends real frames)
+        virtual = all(n.can.bus_kwargs().get("interface") == "virtual" for n in self.cfg.network_sections())
+        self.fault_routes = FaultRoutes(faults, virtual, self.writes, self.operators)
         self._sampler: Any = None
-        #: the bus monitor; ``frames`` is the bus driver (its ``add_tap`` / ``remove_tap``)
-        self.monitor = FrameMonitor(self.cfg, decoder, frames)
+        #: the bus monitor of each network (``frames``: the one bus driver of a single network)
+        if monitors is None:
+            assert decoder is not None, "a decoder for the bus monitor, or the monitors"
+            monitors = NetworkMonitors({"": FrameMonitor(self.cfg, decoder, frames)})
+        self.monitors = monitors
+        self.monitor = self.monitors.first
+        #: the recordings of each network's bus (``GET /api/monitor/record?network=``)
+        self.recorder = BusRecorder(self.monitors.sources(), self.cfg.gateway.name, SECURITY_HEADERS)
         self.turns = turns  # live updates take turns on the loop (API requests: in health)
 
     def start(self, loop: Any) -> None:
         self.hub.attach(loop)
-        self.monitor.attach(loop)
+        self.monitors.attach(loop)
         for node in self.image.nodes.values():
             self.events.watch(node)
         self.image.health_listeners.append(self.events.on_health)
@@ -180,7 +210,7 @@ class WebConsole:
 
     def stop(self) -> None:
         self.hub.detach()
-        self.monitor.detach()
+        self.monitors.detach()
         if self.events.on_health in self.image.health_listeners:
             self.image.health_listeners.remove(self.events.on_health)
         logging.getLogger("gateway").removeHandler(self._log_handler)
@@ -201,14 +231,19 @@ class WebConsole:
             await asyncio.sleep(max(0.0, next_at - loop.time()))
 
     # ------------------------------------------------------------------ routing
-    async def __call__(self, request: Request) -> Response | Stream | None:
+    async def __call__(self, request: Request) -> Response | Stream | Chunked | None:
         path = request.path
+        refused = self.hosts.refusal(request)  # DNS rebinding: 421 for another name
+        if refused is not None:
+            return refused
         if path.startswith("/api/commission/"):
             return await self._commission(request, path.removeprefix("/api/commission/"))
         if path.startswith("/api/read/"):
             return await self._read(request, path.removeprefix("/api/read/"))
         if path.startswith("/api/sim/"):
-            return self._sim(request, path.removeprefix("/api/sim/"))
+            return self.fault_routes.apply(request, path.removeprefix("/api/sim/"))
+        if path == "/api/login":
+            return self.operators.login(request)
         if request.method not in ("GET", "HEAD"):
             return Response(
                 HTTPStatus.METHOD_NOT_ALLOWED, b"GET or HEAD only\n", headers={"Allow": "GET, HEAD"}
@@ -217,8 +252,8 @@ class WebConsole:
             return self._file("index.html")
         if path.startswith("/node/"):
             name = path.removeprefix("/node/")
-            if name not in self.model.meta:
-                return self._not_found(f"no node named {name!r}")
+            if name not in self.model.meta:  # a browser gets a page (404), not JSON
+                return self._file("notfound.html", HTTPStatus.NOT_FOUND)
             return self._file("node.html")
         if path == "/commissioning":
             return self._file("commission.html") if self.writes else None
@@ -245,25 +280,30 @@ class WebConsole:
             return self._trend(request, path.removeprefix("/api/trend/"))
         if path == "/api/events":
             return self._events(request)
+        if path == "/api/session":
+            return _json(HTTPStatus.OK, self.operators.session_doc(request))
         if path.startswith("/api/journal"):
-            return await self.journal_log.answer(request, path)
+            return self.operators.check(request) or await self.journal_log.answer(request, path)
         if path == "/api/sim":
-            return _json(HTTPStatus.OK, self._sim_doc())
+            return _json(HTTPStatus.OK, self.fault_routes.doc())
         if path == "/monitor":
             return self._file("monitor.html")
         if path == "/api/monitor/stream":
-            return self._monitor_stream(request)
+            # every frame of a network's bus: an operators' endpoint, pages capped per client
+            return self.monitors.stream(request, self.turns, self.operators.check, self.monitor_slots)
+        if path == "/api/monitor/record":  # every frame of the bus: an operators' endpoint
+            return self.operators.check(request) or await self.recorder.answer(request)
         return None
 
     def _not_found(self, message: str) -> Response:
         return _json(HTTPStatus.NOT_FOUND, {"error": "not_found", "message": message})
 
-    def _file(self, name: str) -> Response | None:
+    def _file(self, name: str, status: HTTPStatus = HTTPStatus.OK) -> Response | None:
         body = self.static.get(name)
         if body is None:
             return None
         ext = name[name.rfind(".") :]
-        return Response(HTTPStatus.OK, body, CONTENT_TYPES[ext], headers=SECURITY_HEADERS)
+        return Response(status, body, CONTENT_TYPES[ext], headers=SECURITY_HEADERS)
 
     def _overview_doc(self) -> dict[str, Any]:
         return {
@@ -279,13 +319,23 @@ class WebConsole:
         node = request.query.get("node")
         if node is not None and node not in self.model.meta:
             return self._not_found(f"no node named {node!r}")
+        client = request.client
+        if self.live_slots.full(client):
+            return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message":
+                         f"at most {LIVE_PER_CLIENT} live pages per client address"})  # fmt: skip
         try:
             sub = self.hub.subscribe(node)
         except TooManyClients as exc:
             return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": str(exc)})
 
         async def body(reader: Any, writer: Any) -> None:
-            await self.hub.pump(sub, self.render, reader, writer, turns=self.turns)
+            if not self.live_slots.take(client):  # another page of it came first
+                self.hub.unsubscribe(sub)
+                return
+            try:
+                await self.hub.pump(sub, self.render, reader, writer, turns=self.turns)
+            finally:
+                self.live_slots.give(client)
 
         return Stream("text/event-stream", body)
 
@@ -311,22 +361,6 @@ class WebConsole:
         return events
 
     # ------------------------------------------------------------------ commissioning
-    def _authorised(self, request: Request) -> Response | None:
-        """None when the request carries the token; else the 401 / 403 answer."""
-        auth = request.headers.get("authorization", "")
-        scheme, _, given = auth.partition(" ")
-        if scheme.lower() != "bearer" or not given:
-            return Response(
-                HTTPStatus.UNAUTHORIZED,
-                b'{"error":"unauthorized","message":"send Authorization: Bearer <web token>"}\n',
-                JSON_TYPE,
-                headers={"WWW-Authenticate": 'Bearer realm="canopen-gateway"'},
-            )
-        if not hmac.compare_digest(given.strip().encode(), self._token):
-            self.warn.warning("token", "web console: a commissioning request with a wrong token")
-            return _json(HTTPStatus.FORBIDDEN, {"error": "forbidden", "message": "wrong token"})
-        return None
-
     async def _commission(self, request: Request, op: str) -> Response | None:
         if self.commissioning is None:
             return None  # absent: 404, as if it did not exist
@@ -334,7 +368,7 @@ class WebConsole:
             return Response(
                 HTTPStatus.METHOD_NOT_ALLOWED, b"POST only\n", headers={"Allow": "POST"}
             )
-        refused = self._authorised(request)
+        refused = self.operators.check(request, cookie_ok=False)  # the bearer header only
         if refused is not None:
             return refused
         if op == "login":
@@ -344,7 +378,7 @@ class WebConsole:
                 f"no operation {op!r}; one of login, {', '.join(Commissioning.OPS)}"
             )
         try:
-            with acting_as(f"web {request.client or '?'}"):  # the audit names the client
+            with acting_as(self.operators.who(request)):  # the audit: the client, its token
                 result = await self.commissioning.run(op, request.body)
         except Exception as exc:  # every failure becomes an answer with words
             status, doc = error_doc(exc)
@@ -375,12 +409,8 @@ class WebConsole:
     def _registers_csv(self) -> Response:
         body = self.model.regmap.to_csv().encode()
         name = f"{self.cfg.gateway.name}-registers.csv".replace('"', "")
-        return Response(
-            HTTPStatus.OK,
-            body,
-            "text/csv; charset=utf-8",
-            headers={**SECURITY_HEADERS, "Content-Disposition": f'attachment; filename="{name}"'},
-        )
+        headers = {**SECURITY_HEADERS, "Content-Disposition": f'attachment; filename="{name}"'}
+        return Response(HTTPStatus.OK, body, "text/csv; charset=utf-8", headers=headers)
 
     @staticmethod
     def _after(request: Request) -> int | Response:
@@ -417,14 +447,12 @@ class WebConsole:
                     {"error": "bad_request", "message": f"kind: {', '.join(wrong)} is not one of {', '.join(KINDS)}"},
                 )
         found = self.events.since(after, node, kinds)
-        return _json(
-            HTTPStatus.OK,
-            {"seq": self.events.seq, "kinds": list(KINDS), "events": [e.doc() for e in found]},
-        )
+        doc = {"seq": self.events.seq, "kinds": list(KINDS), "events": [e.doc() for e in found]}
+        return _json(HTTPStatus.OK, doc)
 
     async def _read(self, request: Request, rest: str) -> Response:
         """SDO upload of one configuration object (see the module docstring)."""
-        refused = _refuse_unless_json_post(request)
+        refused = _refuse_unless_json_post(request) or self.operators.check(request)
         if refused is not None:
             return refused
         node, _, signal = rest.partition("/")
@@ -472,79 +500,3 @@ class WebConsole:
             doc["text"] = text
         return _json(HTTPStatus.OK, doc)
 
-    # ------------------------------------------------------------------ bus monitor
-    def _monitor_stream(self, request: Request) -> Response | Stream:
-        try:
-            nodes, kinds = self.monitor.parse_filters(
-                request.query.get("node", "").split(","), request.query.get("kind", "").split(",")
-            )
-        except ValueError as exc:
-            message = str(exc).replace("--node ", "node: ").replace("--kind ", "kind: ")
-            return _json(HTTPStatus.BAD_REQUEST, {"error": "bad_request", "message": message})
-        if request.method == "HEAD":
-            return Response(HTTPStatus.OK, b"", "text/event-stream")
-        refused = self.monitor.refusal()
-        if refused is not None:
-            return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": refused})
-
-        async def body(reader: Any, writer: Any) -> None:
-            # opened here, not before the headers are written: a page is closed by its pump
-            try:
-                page = self.monitor.open(nodes, kinds)
-            except TooManyPages as exc:  # another page came first since refusal()
-                writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
-                return
-            await self.monitor.pump(page, reader, writer, turns=self.turns)
-
-        return Stream("text/event-stream", body)
-
-    # ------------------------------------------------------------------ fault injection
-    def fault_rule(self) -> str:
-        """Who may inject faults: "none" (no simulated node), "open" or "token"."""
-        if self.faults is None or not self.faults.names():
-            return "none"
-        if self.cfg.can.bus_kwargs().get("interface") == "virtual":
-            return "open"
-        return "token" if self.writes else "none"
-
-    def _sim_doc(self) -> dict[str, Any]:
-        from gateway.sim.faults import ACTIONS
-
-        rule = self.fault_rule()
-        names = self.faults.names() if self.faults is not None else []
-        return {
-            "rule": rule,
-            "rule_text": {
-                "open": "the bus is the in-process virtual bus: faults need no token",
-                "token": "a simulated node on a real bus: faults need the commissioning token",
-                "none": "no node is simulated in this gateway"
-                if not names
-                else "simulated nodes on a real bus: faults need web.writes: true and the token",
-            }[rule],
-            "actions": ACTIONS if rule != "none" else {},
-            "nodes": {n: self.faults.state(n) for n in names} if rule != "none" else {},
-        }
-
-    def _sim(self, request: Request, rest: str) -> Response | None:
-        from gateway.sim.faults import UnknownFault
-
-        rule = self.fault_rule()
-        if rule == "none":
-            return None  # absent: 404, as if it did not exist
-        refused = _refuse_unless_json_post(request)
-        if refused is not None:
-            return refused
-        if rule == "token":
-            refused = self._authorised(request)
-            if refused is not None:
-                return refused
-        node, _, action = rest.partition("/")
-        try:
-            result = self.faults.apply(node, action)
-        except UnknownFault as exc:
-            return self._not_found(str(exc))
-        source = FAULT_SOURCES.get(
-            request.headers.get(CLIENT_HEADER, ""), f"from the HTTP API, client {request.client or '?'}"
-        )
-        log.warning("simulated fault: %s %s (%s)", node, action, source)
-        return _json(HTTPStatus.OK, result)

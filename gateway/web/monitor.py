@@ -24,7 +24,11 @@ the oldest lines and counts them) and disconnected after ``SLOW_CLIENT_LIMIT_S``
 Frames the gateway sends are not tapped (they leave through the sender thread): the page shows
 what the gateway receives, as ``canopen-gateway monitor`` on a second connection shows both.
 
-Imports: config, northbound.frames (the decoder, node and kind filters), web.live
+Several CAN networks: one ``FrameMonitor`` per network (``NetworkMonitors``), the page's
+``?network=`` chooses.
+
+Imports: config, http.server (the request and its answers), northbound.frames (the decoder,
+node and kind filters), web.access (the per-client slots of the pages), web.live
 (the SSE framing, its limits and its pump, ``stream_sse``), runtime.turns (each write in its turn on the
 event loop: the PLC first). Never bus/ (the driver is given as an object with a
 ``add_tap`` / ``remove_tap``), modbus/ or zenoh_bridge/.
@@ -33,14 +37,18 @@ event loop: the PLC first). Never bus/ (the driver is given as an object with a
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 from collections import deque
 from collections.abc import Callable, Iterable
+from http import HTTPStatus
 from typing import Any, Protocol
 
 from gateway.config import Config
+from gateway.http.server import Request, Response, Stream
 from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
 from gateway.runtime.turns import LoopTurns
+from gateway.web.access import ClientSlots
 from gateway.web.live import Handoff, sse, stream_sse
 
 log = logging.getLogger("gateway.web")
@@ -354,3 +362,86 @@ class FrameMonitor:
             )
         finally:
             self.close(page)
+
+
+class NetworkMonitors:
+    """One ``FrameMonitor`` per CAN network (each on its network's driver, with its network's
+    decoder: node ids are a network's own); a page watches one network, ``?network=NAME``,
+    the first by default."""
+
+    def __init__(self, monitors: dict[str, FrameMonitor]):
+        assert monitors, "a gateway has at least one network"
+        self.by_network = monitors
+        #: the first network's (the only one of a single-network gateway)
+        self.first = next(iter(monitors.values()))
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.by_network)
+
+    def sources(self) -> dict[str, FrameSource | None]:
+        """Each network's tap source (its bus driver), by network name."""
+        return {name: m.source for name, m in self.by_network.items()}
+
+    def attach(self, loop: asyncio.AbstractEventLoop) -> None:
+        for m in self.by_network.values():
+            m.attach(loop)
+
+    def detach(self) -> None:
+        for m in self.by_network.values():
+            m.detach()
+
+    def stream(
+        self,
+        request: Request,
+        turns: LoopTurns | None,
+        gate: Callable[[Request], Response | None],
+        slots: ClientSlots,
+    ) -> Response | Stream:
+        """``GET /api/monitor/stream[?network=&node=&kind=]``: the network's frames as
+        server-sent events; 400 for an unknown network, node or kind, the ``gate``'s answer
+        (the operators' token), 503 past the pages or past the client's own (``slots``:
+        per client address, every network's pages together)."""
+        name = request.query.get("network") or None
+        monitor = self.first if name is None else self.by_network.get(name)
+        try:
+            if monitor is None:
+                raise ValueError(f"network: no network named {name!r}; networks: {', '.join(self.names)}")
+            nodes, kinds = monitor.parse_filters(
+                request.query.get("node", "").split(","), request.query.get("kind", "").split(",")
+            )
+        except ValueError as exc:
+            message = str(exc).replace("--node ", "node: ").replace("--kind ", "kind: ")
+            return _json(HTTPStatus.BAD_REQUEST, {"error": "bad_request", "message": message})
+        refused = gate(request)
+        if refused is not None:
+            return refused
+        if request.method == "HEAD":
+            return Response(HTTPStatus.OK, b"", "text/event-stream")
+        busy = monitor.refusal()
+        client = request.client
+        if busy is None and slots.full(client):
+            busy = f"at most {slots.per_client} monitor pages per client address"
+        if busy is not None:
+            return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": busy})
+
+        async def body(reader: Any, writer: Any) -> None:
+            # opened here, not before the headers are written: a page is closed by its pump
+            if not slots.take(client):  # another page of this client came first
+                return
+            try:
+                try:
+                    page = monitor.open(nodes, kinds)
+                except TooManyPages as exc:  # another page came first since refusal()
+                    writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
+                    return
+                await monitor.pump(page, reader, writer, turns=turns)
+            finally:
+                slots.give(client)
+
+        return Stream("text/event-stream", body)
+
+
+def _json(status: HTTPStatus, doc: Any) -> Response:
+    body = (json.dumps(doc, default=str, separators=(",", ":")) + "\n").encode()
+    return Response(status, body, "application/json")

@@ -56,6 +56,7 @@ PAGES = (
     Page("commission.html", "commission", "commissioning", live=False),
     Page("events.html", "events", "events"),
     Page("monitor.html", "monitor", "bus monitor"),
+    Page("notfound.html", "notfound", "not found", live=False),  # a node page of no node: 404
 )
 
 NAV = (

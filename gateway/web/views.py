@@ -27,7 +27,7 @@ from gateway.image import NodeImage, ProcessImage, Quality
 from gateway.northbound.keys import is_published, is_writable, prefix_of, set_key, value_key
 from gateway.northbound.regmap import RegisterMap
 from gateway.northbound.scaling import Scaling, bits_of, engineering
-from gateway.northbound.summary import QUALITY_TEXT, summarize, worst_quality
+from gateway.northbound.summary import QUALITY_TEXT, serves_values, summarize, worst_quality
 from gateway.profiles.layout import tpdo_objects
 from gateway.profiles.schema import Signal
 
@@ -50,6 +50,8 @@ LINK_WORDS = {
     LinkState.UNKNOWN: "unknown",
 }
 
+#: beside the status of a node whose PDOs map nothing (``canopen-gateway check`` warns of it)
+NO_PROCESS_DATA = "no process data: its PDOs map nothing"
 #: Modbus tables as the node page abbreviates them (its caption spells them out)
 TABLE_SHORT = {"ir": "IR", "hr": "HR", "di": "DI", "co": "coil"}
 
@@ -175,6 +177,9 @@ class ConsoleModel:
         now = self.clock()
         sample = {"frames_in": counters["frames_in"], "frames_out": counters["frames_out"]}
         sample |= {k: int(v) for k, v in (doc.get("counters") or {}).items()}
+        nets: dict[str, Any] = doc.get("networks") or {}
+        for name, net in nets.items():  # each network's frames: its rates and bus load
+            sample |= {f"{name}/frames_in": net["frames_in"], f"{name}/frames_out": net["frames_out"]}
         if self._rate_sample is None:
             self._rate_sample = (now, sample)
         else:
@@ -182,7 +187,11 @@ class ConsoleModel:
             if now - t0 >= 1.0:
                 self._rates = {k: (v - old.get(k, v)) / (now - t0) for k, v in sample.items()}
                 self._rate_sample = (now, sample)
-        rates = {k: round(v, 1) for k, v in self._rates.items()}
+        rates = {k: round(v, 1) for k, v in self._rates.items() if "/" not in k}
+        for name, net in nets.items():
+            net_rates = {k: round(self._rates.get(f"{name}/{k}", 0.0), 1) for k in ("frames_in", "frames_out")}
+            net["rates"] = net_rates
+            net["bus_load_percent"] = _load(net_rates, net.get("bitrate"))
         bitrate = self.cfg.can.bitrate
         frames_s = rates.get("frames_in", 0.0) + rates.get("frames_out", 0.0)
         doc.update(
@@ -199,7 +208,12 @@ class ConsoleModel:
                     round(100.0 * frames_s * BITS_PER_FRAME / bitrate, 1) if bitrate else None
                 ),
                 "nodes": len(self.image.nodes),
-                "nodes_usable": sum(1 for n in self.image.nodes.values() if n.usable()),
+                # usable values: a node whose PDOs map nothing has none to use
+                "nodes_usable": sum(
+                    1
+                    for n in self.image.nodes.values()
+                    if n.usable() and serves_values(n, self.process.get(n.name, ()))
+                ),
             }
         )
         return doc
@@ -235,9 +249,12 @@ class ConsoleModel:
         return {
             "name": name,
             "node_id": info.node_id,
+            "network": node.network,
             "profile": info.lp.family,
             "title": info.lp.profile.title,
             "quality": QUALITY_TEXT[q],
+            # why a node that answers is bad all the same: nothing to serve
+            "quality_note": "" if serves_values(node, self.process.get(name, ())) else NO_PROCESS_DATA,
             "alive": s.alive,
             "presence": s.presence,
             "usable": s.usable,
@@ -336,3 +353,9 @@ class ConsoleModel:
                 (p.unit for p in self.regmap.node_points(name)), info.node_id
             ),
         }
+
+
+def _load(rates: dict[str, float], bitrate: int | None) -> float | None:
+    """A bus's load in percent, estimated from its frames a second (None: no bit rate)."""
+    frames_s = rates.get("frames_in", 0.0) + rates.get("frames_out", 0.0)
+    return round(100.0 * frames_s * BITS_PER_FRAME / bitrate, 1) if bitrate else None

@@ -18,10 +18,11 @@ turns /healthz not-ready, never silently):
   never follows a newer one;
   publications are counted per signal under that lock (raw PDOs per thread,
   ``threads.ThreadCount``) and summed when read;
-* events (state, EMCY) are computed on the event loop when the master reports them and put by
-  the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
+* events (state, EMCY) are computed on the event loop when the master reports them
+  (``events.py``: their ``seq`` and stamp, the journal, whether a session is open or not) and
+  put by the ``zenoh-events`` thread in order, with congestion control BLOCK and priority
   INTERACTIVE_HIGH: never dropped, and a congested network never blocks the event loop nor
-  holds the values back;
+  holds the values back; with a journal each is published once committed, 200 ms at most;
 * a housekeeping task on the event loop publishes held-back samples (max rate) and quality
   changes that no frame announces (stale by age);
 * query callbacks run on zenoh threads and only queue the query for the ``zenoh-queries``
@@ -41,14 +42,15 @@ Writes (``set``, SDO download, ``nmt``) pass ``zenoh.writes`` / ``zenoh.write_al
 logged (rate-limited), and nothing goes on the bus.
 
 The session is opened before the bus (``open``): when a gateway with the same prefix is
-already announced on the Zenoh network (its ``<prefix>/alive/_gateway`` token), ``open``
-raises ``PrefixInUse`` and the gateway does not start. In client mode, with no router
-reachable, the gateway starts anyway and the bridge retries in the background (attempts start
-0.5 s, 1 s, 2 s, then every 5 s apart). After a router restart zenoh reconnects by itself and
+already announced on the Zenoh network (its ``<prefix>/alive/_gateway`` token), the session
+stays closed (``ZenohSession.problem`` says why, /healthz names it) and is retried in the
+background while Modbus and the bus run. In client mode, with no router reachable, the gateway
+starts anyway and the bridge retries in the background (0.5 s, 1 s, 2 s, then every 5 s). After a router restart zenoh reconnects by itself and
 re-declares publishers, queryable and liveliness tokens.
 
 The bridge is composed of: ``plan.py`` (what to publish, planned once: ``SignalPub``,
-``PdoPub``, the reader's routes), ``session.py`` (``ZenohSession``, the session's lifecycle:
+``PdoPub``, the reader's routes), ``events.py`` (``EventLog``), ``journaling.py`` (the value
+history the journal keeps), ``session.py`` (``ZenohSession``, the session's lifecycle:
 open, duplicate check, re-open, declarations, stop; it holds the session, publishers, tokens
 and tasks, and the bridge calls it through its public methods), ``housekeeping.py`` (the
 periodic refresh) and ``sender.py`` (the ``zenoh-publish`` and ``zenoh-events`` threads). The
@@ -63,8 +65,8 @@ service).
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -75,26 +77,22 @@ import zenoh
 from gateway.commands import CommandService
 from gateway.config import Config
 from gateway.image import NodeImage, ProcessImage, SignalValue
-from gateway.journal import Entry, Journal
+from gateway.journal import HybridClock, Journal
+from gateway.journal.clock import NANOS
 from gateway.northbound.keys import emcy_key, prefix_of, state_key
 from gateway.northbound.scaling import Scaling
 from gateway.profiles.schema import Signal
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadCount, ThreadRegistry
+from gateway.zenoh_bridge.events import EventLog
 from gateway.zenoh_bridge.history import HistoryService
 from gateway.zenoh_bridge.housekeeping import housekeeping_loop, refresh
-from gateway.zenoh_bridge.journaling import heard_entry, published_values, restore_seqs
+from gateway.zenoh_bridge.journaling import ValueHistory, heard_entry, restore_seqs, value_keys_of
 from gateway.zenoh_bridge.pair import HeardSeq, seq_offset
-from gateway.zenoh_bridge.payloads import (
-    emcy_payload,
-    pdo_json,
-    state_fingerprint,
-    state_payload,
-    value_json,
-)
+from gateway.zenoh_bridge.payloads import pdo_json, value_json
 from gateway.zenoh_bridge.plan import PdoPub, SignalPub, plan_publications, value_keys
 from gateway.zenoh_bridge.queries import QueryService
-from gateway.zenoh_bridge.sender import ZenohSender
+from gateway.zenoh_bridge.sender import WITHHELD, ZenohSender
 from gateway.zenoh_bridge.session import ZenohSession
 
 log = logging.getLogger("gateway.zenoh")
@@ -196,28 +194,40 @@ class ZenohBridge:
         #: most, and while marks keep coming at least, every ``zenoh.batch_ms``),
         #: ``zenoh-events`` the events (BLOCK: a congested link must not hold values back)
         self._sender = ZenohSender(
-            self.threads,
-            "zenoh-publish",
-            self._values.flush,
-            batch_s=cfg.zenoh.batch_ms / 1000.0,
+            self.threads, "zenoh-publish", self._values.flush, batch_s=cfg.zenoh.batch_ms / 1000.0
         )
-        self._events = ZenohSender(self.threads, "zenoh-events")
-        self._last_state: dict[str, tuple[Any, ...]] = {}
-        self._event_seq: dict[str, int] = {}
-        #: the store and forward journal (``use_journal``): events are committed there before
-        #: they are published; None: published at once
+        #: the id of this gateway's timestamps, and their clock (``journal.HybridClock``: the
+        #: journal's once there is one): events and the journal are stamped without a session
+        #: (the session's too, ``zid``: ``zenoh.json5`` ``id``, else a random one of 16 bytes)
+        self.zid = str(cfg.zenoh.json5.get("id") or "1" + os.urandom(16).hex()[1:]).lower()
+        self.stamp_id = bytes.fromhex(self.zid.rjust(len(self.zid) + len(self.zid) % 2, "0"))[::-1]
+        self.hlc = HybridClock()
+        self._events = ZenohSender(
+            self.threads, "zenoh-events", pub_of=self._event_pub, timestamp=self.timestamp
+        )
+        #: the store and forward journal (``use_journal``): events and values are journaled
+        #: whether a session is open or not, events published once committed (200 ms at most)
         self.journal: Journal | None = None
         #: a hot-standby pair (``pair.py``): this gateway's (master node id, pair node id),
         #: whether it publishes (it masters the bus), the seq heard of the other one
-        red = cfg.master.redundancy
-        self.member: tuple[int, int] | None = (
-            (cfg.master.node_id, red.node_id) if red is not None else None
-        )
+        self.member: tuple[int, int] | None = next(  # a pair per network: the first one's
+            ((v.master.node_id, red.node_id) for v in cfg.network_views()
+             if (red := v.master.redundancy) is not None), None,
+        )  # fmt: skip
         self.publishing = True
+        #: a pair per network: the nodes of the networks it stands by on while it masters another
+        self.silent: frozenset[str] = frozenset()
+        self.event_keys = {
+            k(self.prefix, n): (k, n) for n in image.nodes for k in (state_key, emcy_key)
+        }
         self.heard = HeardSeq(
             [*(sp.key for sp in self.pubs.values()), *(pp.key for pp in self.pdo_pubs.values())]
-            + [k(self.prefix, n) for n in image.nodes for k in (state_key, emcy_key)]
+            + list(self.event_keys)
         )
+        #: state and EMCY events: seq, stamp, journal, publication (``events.py``)
+        self.events = EventLog(self.prefix, self._events, self.heard, self.hlc)
+        #: the value keys the journal keeps a history of (``journaling.py``)
+        self.value_history = value_keys_of(self.prefix, self.by_node, self.pdo_pubs)
         self.queries = QueryService(
             cfg,
             image,
@@ -279,28 +289,43 @@ class ZenohBridge:
         """The periodic refresh (``housekeeping.py``), until cancelled."""
         await housekeeping_loop(self)
 
+    def publishes(self, node: str) -> bool:
+        """Whether this gateway publishes (and journals from its image) the node's samples: it
+        masters the node's network (in a pair, the other member's are heard and journaled)."""
+        return self.publishing and node not in self.silent
+
     def node_alive(self, node: NodeImage) -> bool:
         """Whether the node's token is wanted: its values usable and this gateway publishing."""
-        return node.usable() and self.publishing
+        return node.usable() and self.publishes(node.name)
 
     # ------------------------------------------------------------------ the journal
     def use_journal(self, journal: Journal) -> None:
-        """Journal what is published (before the session starts): events are committed
-        before they go out (write ahead), the writer takes the values each ``values_ms``
-        (``journaling.py``); every key's ``seq`` goes on above the highest it holds."""
+        """Journal what the gateway hears and publishes (before the session starts): events
+        are journaled as they happen and published once committed (``events.py``), the writer
+        takes the values each ``values_ms`` from the image (``journaling.py``); every key's
+        ``seq`` goes on above the highest the journal ever handed out."""
         self.journal = journal
+        self.hlc = journal.hlc
+        self.events.use_journal(journal, self.event_keys)
+        self._events.journal_wait = journal.wait
+        self._events.on_unjournaled = journal.note_unjournaled
+        restore_seqs(journal.last_seqs(), self.value_history)
+        history = ValueHistory(self.image, self.value_history, self.publishes, lambda: self.hlc)
+        journal.values_from(history.window)
         self.queries.history = HistoryService(
-            journal, self.prefix, self.heard.keys, lambda: self.session
+            journal,
+            self.prefix,
+            [*self.event_keys, *(vk.key for vk in self.value_history)],
+            self.stamp_id,
         )
-        events = [k(self.prefix, n) for n in self.image.nodes for k in (state_key, emcy_key)]
-        restore_seqs(journal.last_seqs(), self._event_seq, events, self.pubs.values())
-        journal.values_from(lambda: published_values(self.pubs))
 
     def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None:
         """A sample of our prefix heard while standing by (a zenoh thread): its seq is kept
-        (``HeardSeq``) and, with a journal, the sample is journaled as the other member
-        published it, so this member's history covers the time before a take-over."""
-        before = max(self.heard.get(key), self._event_seq.get(key, 0))
+        (``HeardSeq``) and, with a journal, journaled as the other member published it, so
+        this member's history covers the time before a take-over."""
+        if self.silent and key.removeprefix(self.prefix + "/").split("/", 1)[0] not in self.silent:
+            return  # its own sample: it masters this node's network (a pair per network)
+        before = self.events.before_heard(key)
         self.heard.on_sample(key, payload)
         j = self.journal
         if j is None:
@@ -311,16 +336,37 @@ class ZenohBridge:
         elif e is not None:
             j.append(e)
 
+    def timestamp(self, ns: int) -> zenoh.Timestamp:
+        """The Zenoh timestamp of a stamp (``hlc``) with this gateway's id."""
+        return zenoh.Timestamp(zenoh.NTP64(ns // NANOS, ns % NANOS), self.stamp_id)
+
+    def _event_pub(self, key: str) -> Any:
+        """The publisher of an event key (``zenoh-events``): None while no session is open,
+        ``WITHHELD`` while this gateway does not publish its node (a pair's other member does)."""
+        if self.link.session is None:
+            return None
+        kind, node = self.event_keys[key]
+        if not self.publishes(node):
+            return WITHHELD
+        pubs = self.link.state_pubs if kind is state_key else self.link.emcy_pubs
+        return pubs.get(node)
+
+    def events_ready(self) -> None:
+        """The session's publishers are declared: events kept meanwhile go out."""
+        self._events.resend()
+
     # ------------------------------------------------------------------ a hot-standby pair
-    def set_mastering(self, mastering: bool) -> None:
+    def set_mastering(self, mastering: bool, silent: frozenset[str] = frozenset()) -> None:
         """This gateway started or stopped mastering the bus (event loop; the app calls it at
         construction and at every role change of a pair). Standing by, it stops publishing
         and hears what the other one publishes; taking over, each key goes on above the
-        highest seq heard (``pair.py``), then it publishes again."""
-        if mastering == self.publishing:
+        highest seq heard (``pair.py``), then it publishes again, but the ``silent`` nodes."""
+        silent = silent if mastering else frozenset()  # standing by on all: none publishes
+        if mastering == self.publishing and silent == self.silent:
             return
+        taken = self.silent - silent if self.publishing else frozenset(self.image.nodes) - silent
         if mastering:
-            for node in self.image.nodes.values():
+            for node in (self.image.nodes[name] for name in taken):
                 for sp in self.by_node.get(node.name, ()):
                     with sp.lock:
                         own = node.signals[sp.sig.name].seq
@@ -330,7 +376,7 @@ class ZenohBridge:
                         r = node.records.get(pp.names)
                         own = r[3] if r is not None else 0
                         pp.seq_offset = seq_offset(pp.seq_offset, self.heard.get(pp.key), own)
-        self.publishing = mastering
+        self.publishing, self.silent = mastering, silent
         s = self.session
         if s is not None:
             self.link.declare_pair(s)
@@ -344,7 +390,7 @@ class ZenohBridge:
         sp = self.pubs.get((node, name))
         if sp is None:
             return own
-        if self.publishing:
+        if self.publishes(node):
             return own + sp.seq_offset
         return max(own + sp.seq_offset, self.heard.get(sp.key))
 
@@ -359,7 +405,7 @@ class ZenohBridge:
         """A PDO's raw bytes (the image's PDO listener, with ``zenoh.raw_pdo``)."""
         s = self.link.session  # per frame: no property call
         pub = self.link.raw_pubs.get((node.name, cob_id))
-        if s is None or pub is None or not self.publishing:
+        if s is None or pub is None or not self.publishing or node.name in self.silent:
             return
         try:
             pub.put(data, timestamp=s.new_timestamp())
@@ -376,7 +422,7 @@ class ZenohBridge:
         if type(sp) is PdoPub:  # a PDO marked in the batch (``publish: pdo``)
             return self.offer_pdo(node, sp, now)
         s = self.link.session
-        if s is None or sp.pub is None or not self.publishing:
+        if s is None or sp.pub is None or not self.publishing or node.name in self.silent:
             return
         with sp.lock:
             sv = node.signals[sp.sig.name]
@@ -393,7 +439,7 @@ class ZenohBridge:
                 sp.pub.put(payload, timestamp=stamp)
             except zenoh.ZError:
                 return
-            sp.last_pub = (stamp, out.seq, payload)  # the journal's writer takes it
+            sp.last_pub = (out.seq, payload)  # the journal's value history may keep it
             sp.policy.published(value, quality, now)  # counts it, under the lock
             sp.last_seq = sv.seq
 
@@ -402,7 +448,7 @@ class ZenohBridge:
         one published, or (``again``) its qualities changed since. Any thread, under the PDO's
         lock: one record read once, so the signals of a sample are of one frame."""
         s = self.link.session
-        if s is None or pp.pub is None or not self.publishing:
+        if s is None or pp.pub is None or not self.publishing or node.name in self.silent:
             return
         with pp.lock:
             r = node.records.get(pp.names)
@@ -427,7 +473,7 @@ class ZenohBridge:
 
     def _on_values(self, node: NodeImage, names: tuple[str, ...], ts: float) -> None:
         """Called on the bus reader thread for every decoded PDO."""
-        if self.link.session is None or not self.publishing:
+        if self.link.session is None or not self.publishing or node.name in self.silent:
             return
         route = self._routes.get((node.name, names))
         if route is not None:  # a TPDO's record: what to mark and publish, planned
@@ -455,61 +501,13 @@ class ZenohBridge:
 
     # ------------------------------------------------------------------ events
     def _on_health(self, node: NodeImage, what: str) -> None:
-        """Called on the event loop when a node's health changes or an EMCY arrives."""
-        s = self.session
-        if s is None or not self.publishing:
+        """Called on the event loop when a node's health changes or an EMCY arrives: the
+        event is journaled and published (``events.py``) whether a session is open or not."""
+        if not self.publishes(node.name):
             return
-        if what == "emcy":
-            rec = node.health.last_emcy
-            if rec is not None:
-                payload = emcy_payload(node, rec, node.health.emcy_count)
-                self._put_event(
-                    s,
-                    self.link.emcy_pubs[node.name],
-                    emcy_key(self.prefix, node.name),
-                    payload,
-                    (node.name, "emcy"),
-                )
-        else:
-            d = state_payload(node)
-            fp = state_fingerprint(d)
-            if self._last_state.get(node.name) != fp:
-                self._last_state[node.name] = fp
-                self._put_event(
-                    s,
-                    self.link.state_pubs[node.name],
-                    state_key(self.prefix, node.name),
-                    d,
-                    (node.name, "state"),
-                )
+        self.events.on_health(node, what)
         self._sync_token(node)
         refresh(self, node, self.clock())
-
-    def _put_event(
-        self,
-        s: zenoh.Session,
-        pub: Any,
-        key: str,
-        payload: dict[str, Any],
-        what: tuple[str, str],
-    ) -> None:
-        """Queue an event with the next ``seq`` of its key (1, 2, 3...: a subscriber that
-        sees a gap missed an event; with a journal, after the highest it holds; in a pair,
-        after the highest the other gateway published). With a journal it is published once
-        committed (write ahead: the journal's writer queues it for ``zenoh-events``)."""
-        seq = max(self._event_seq.get(key, 0), self.heard.get(key)) + 1
-        self._event_seq[key] = seq
-        payload["seq"] = seq
-        data = json.dumps(payload).encode()
-        stamp = s.new_timestamp()
-        if self.journal is None:
-            self._events.put_event(pub, data, stamp)
-            return
-        node, kind = what
-        self.journal.append(
-            Entry(stamp, kind, key, node, seq, data),
-            lambda: self._events.put_event(pub, data, stamp),
-        )
 
     def _sync_token(self, node: NodeImage) -> None:
         """A token while the node's values are usable: operational, guarding-bit link OK."""

@@ -1,53 +1,117 @@
-"""What the Zenoh bridge hands the journal (``gateway.journal``), decided here and pure of I/O:
+"""What the Zenoh bridge hands the journal (``gateway.journal``) besides its events
+(``events.py``), decided here:
 
-* ``restore_seqs``: at start, every key's ``seq`` goes on above the highest the journal holds
-  (events: the bridge's next ``seq`` per key; values: ``SignalPub.seq_offset``);
-* ``published_values``: the journal's writer asks, once per ``journal.values_ms`` window, for
-  the latest sample each value key published since the last window. Publishing costs one tuple
-  assignment (``SignalPub.last_pub``, under the signal's lock, by whichever thread publishes);
-  the writer reads it (one attribute read: a whole tuple) and marks what it took in
-  ``SignalPub.journaled``, which only it writes;
+* ``ValueHistory``: the journal's writer asks it, once per ``journal.values_ms`` window, for
+  the value of every signal whose value or quality changed since the last window, read from
+  the process image (whatever the Zenoh session does: the journal is fed from the bus side):
+  every signal published on its value key and every signal of a ``publish: pdo`` record (its
+  history is kept per signal, on ``<node>/value/<signal>``). The payload is the one published
+  when the last sample published is of this frame, else the same JSON built from the image;
+  its ``seq`` is the one the key shows (the image's plus the key's offset); its stamp is the
+  journal's clock at the window. A gateway that stands by in a pair journals what it hears
+  instead (``heard_entry``), not its own image (with a pair per network, of the nodes of the
+  networks it stands by on);
+* ``restore_seqs``: at start, every value key's ``seq`` goes on above the highest the journal
+  ever handed out on it (``SignalPub.seq_offset``, ``PdoPub.seq_offset``);
 * ``heard_entry``: a sample a pair's standby hears of the other member, as a journal entry
   (state and EMCY events it has not journaled yet, values), or None.
 
-Imports: journal, zenoh_bridge.plan (the publications). Never zenoh, modbus/ nor bus/.
+Imports: journal, image, northbound.keys, northbound.scaling, profiles.schema,
+zenoh_bridge.plan, zenoh_bridge.payloads. Never zenoh, modbus/ nor bus/.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Collection, Iterable, Mapping
+import time
+from collections.abc import Callable, Collection, Iterable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
-from gateway.journal import Entry
-from gateway.zenoh_bridge.plan import SignalPub
+from gateway.image import ProcessImage
+from gateway.journal import Entry, HybridClock, ntp64_of_ns
+from gateway.northbound.keys import value_key
+from gateway.northbound.scaling import Scaling
+from gateway.profiles.schema import Signal
+from gateway.zenoh_bridge.payloads import value_json
+from gateway.zenoh_bridge.plan import PdoPub, SignalPub
 
 
-def restore_seqs(
-    last: Mapping[str, int],
-    event_seq: dict[str, int],
-    event_keys: Iterable[str],
-    pubs: Iterable[SignalPub],
-) -> None:
-    for key in event_keys:
-        if key in last:
-            event_seq[key] = max(event_seq.get(key, 0), last[key])
-    for sp in pubs:
-        if sp.key in last:
-            with sp.lock:
-                sp.seq_offset = max(sp.seq_offset, last[sp.key])
+@dataclass(eq=False)
+class ValueKey:
+    """One signal whose values are journaled on its value key."""
+
+    node: str
+    sig: Signal
+    scaling: Scaling
+    key: str
+    #: the publication its ``seq`` offset (and last published sample) comes from
+    pub: SignalPub | PdoPub
+    #: (image seq, quality) last journaled: only the writer reads and writes it
+    journaled: tuple[int, Any] = field(default=(0, None))
 
 
-def published_values(pubs: Mapping[tuple[str, str], SignalPub]) -> list[Entry]:
-    """The journal writer's window (its thread): each value key's latest sample, once."""
-    out = []
-    for (node, _name), sp in list(pubs.items()):
-        lp = sp.last_pub
-        if lp is not None and lp is not sp.journaled:
-            sp.journaled = lp
-            stamp, seq, payload = lp
-            out.append(Entry(stamp, "value", sp.key, node, seq, payload))
+def value_keys_of(
+    prefix: str,
+    by_node: Mapping[str, Iterable[SignalPub]],
+    pdo_pubs: Mapping[tuple[str, tuple[str, ...]], PdoPub],
+) -> list[ValueKey]:
+    """Every journaled value key: the published signals', and each ``publish: pdo`` signal's."""
+    out = [ValueKey(node, sp.sig, sp.scaling, sp.key, sp) for node, sps in by_node.items() for sp in sps]
+    for (node, _names), pp in pdo_pubs.items():
+        out += [ValueKey(node, sig, sc, value_key(prefix, node, sig.name), pp) for sig, _i, sc in pp.entries]
     return out
+
+
+class ValueHistory:
+    """The writer's source of value samples (see the module docstring)."""
+
+    def __init__(
+        self,
+        image: ProcessImage,
+        keys: list[ValueKey],
+        publishes: Callable[[str], bool],
+        hlc: Callable[[], HybridClock],
+    ) -> None:
+        self.image = image
+        self.keys = keys
+        #: whether this gateway publishes a node (else it journals what it hears of it)
+        self.publishes = publishes
+        self.hlc = hlc
+
+    def window(self) -> list[Entry]:
+        """The journal writer's window (its thread): each changed value once."""
+        now = time.monotonic()
+        hlc = self.hlc()
+        out = []
+        for vk in self.keys:
+            if not self.publishes(vk.node):
+                continue
+            node = self.image.nodes[vk.node]
+            sv = node.signals[vk.sig.name]
+            if not sv.seq:
+                continue
+            quality = node.quality(sv, now)
+            if vk.journaled == (sv.seq, quality):
+                continue
+            vk.journaled = (sv.seq, quality)
+            seq = sv.seq + vk.pub.seq_offset
+            last = vk.pub.last_pub if isinstance(vk.pub, SignalPub) else None
+            if last is not None and last[0] == seq:
+                payload: bytes | str = last[1]
+            else:
+                payload = value_json(vk.sig, sv._replace(seq=seq), quality, vk.scaling)
+            out.append(Entry(ntp64_of_ns(hlc.stamp()), "value", vk.key, vk.node, seq, payload))
+        return out
+
+
+def restore_seqs(last: Mapping[str, int], keys: Iterable[ValueKey]) -> None:
+    """Each value key's publication goes on above the highest ``seq`` journaled for it (a
+    ``publish: pdo`` record above the highest of its signals)."""
+    for vk in keys:
+        if vk.key in last:
+            with vk.pub.lock:
+                vk.pub.seq_offset = max(vk.pub.seq_offset, last[vk.key])
 
 
 def heard_entry(

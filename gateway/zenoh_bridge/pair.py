@@ -75,7 +75,7 @@ class HeardSeq:
 
     ``on_sample`` runs on a zenoh thread (a subscriber on ``<prefix>/**``): it parses the
     JSON payload of the keys it was given and keeps the maximum, under a lock; anything else
-    (raw PDO bytes, a payload without ``seq``) is ignored.
+    (raw PDO bytes, a payload without ``seq``, a ``seq`` outside 0 to 2**63 - 1) is ignored.
     """
 
     def __init__(self, keys: Collection[str]):
@@ -91,8 +91,8 @@ class HeardSeq:
             seq = json.loads(payload)["seq"]
         except (ValueError, KeyError, TypeError):
             return
-        if not isinstance(seq, int):
-            return
+        if not isinstance(seq, int) or isinstance(seq, bool) or not 0 <= seq < 1 << 63:
+            return  # not a number this gateway could go on from (nor journal)
         with self.lock:
             self.samples += 1
             if seq > self.highest.get(key, 0):

@@ -127,6 +127,7 @@ def state_payload(node: NodeImage, now_s: float | None = None) -> dict[str, Any]
     return {
         "node": s.name,
         "node_id": s.node_id,
+        "network": node.network,
         "nmt_state": s.nmt_state.name.lower(),
         "alive": s.alive,
         "operational": s.operational,
@@ -157,6 +158,7 @@ def emcy_payload(node: NodeImage, rec: EmcyRecord, count: int) -> dict[str, Any]
     return {
         "node": node.name,
         "node_id": node.node_id,
+        "network": node.network,
         "code": f"0x{rec.code:04X}",
         "register": rec.register,
         "manufacturer": rec.manufacturer.hex(),

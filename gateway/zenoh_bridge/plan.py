@@ -30,7 +30,6 @@ class SignalPub:
 
     __slots__ = (
         "sig", "key", "scaling", "policy", "lock", "pub", "last_seq", "seq_offset", "last_pub",
-        "journaled",
     )  # fmt: skip
 
     def __init__(self, sig: Signal, key: str, scaling: Scaling, policy: ReportPolicy):
@@ -43,10 +42,9 @@ class SignalPub:
         self.last_seq = 0  # seq of the last sample published
         #: added to the image's seq in the payload: a hot-standby pair's take-over (pair.py)
         self.seq_offset = 0
-        #: (timestamp, seq, payload) of the last sample published, set under the lock; what
-        #: the journal's writer last took of it (only it writes ``journaled``: journaling.py)
-        self.last_pub: tuple[Any, int, str] | None = None
-        self.journaled: tuple[Any, int, str] | None = None
+        #: (seq, payload) of the last sample published, set under the lock: the journal's
+        #: value history keeps this payload when it is of the frame it journals (journaling.py)
+        self.last_pub: tuple[int, str] | None = None
 
 
 class PdoPub:

@@ -64,7 +64,7 @@ from gateway.profiles.schema import Signal
 from gateway.runtime.ratelimit import RateLimitedLog
 from gateway.runtime.threads import ThreadCount, ThreadRegistry
 from gateway.zenoh_bridge.access import WriteGate
-from gateway.zenoh_bridge.history import HistoryService, Stamped, has_time_range
+from gateway.zenoh_bridge.history import AnswerCut, HistoryService, Stamped, has_time_range
 from gateway.zenoh_bridge.payloads import (
     add_names,
     error_payload,
@@ -77,6 +77,10 @@ from gateway.zenoh_bridge.payloads import (
     value_payload,
 )
 from gateway.zenoh_bridge.worker import ANONYMOUS, QueryWorker
+
+#: a history answer's lane (beside its session's short queries) and its replies per turn
+HISTORY_LANE = "history"
+HISTORY_PER_TURN = 16
 
 log = logging.getLogger("gateway.zenoh")
 
@@ -114,11 +118,11 @@ def lane_of(query: zenoh.Query) -> str:
     return ANONYMOUS if si is None else str(si.source_id.zid)
 
 
-def zenoh_who(query: zenoh.Query) -> str:
-    """Who a query's write is audited as: ``zenoh`` and the querier's id when it sent one
-    (the id its lane is named by)."""
+def zenoh_hint(query: zenoh.Query) -> str | None:
+    """What a query says of its sender: the session id it chose to send (``source_info``),
+    recorded by the audit as a hint, never as the identity (a query does not authenticate)."""
     lane = lane_of(query)
-    return "zenoh" if lane == ANONYMOUS else f"zenoh {lane}"
+    return None if lane == ANONYMOUS else f"zenoh session {lane}"
 
 
 def write_operation(req: Request, payload: bytes | None) -> str | None:
@@ -209,7 +213,12 @@ class QueryService:
         if loop is None or loop.is_closed() or self.session() is None:
             query.drop()
             return
-        if not self.worker.submit(lane_of(query), query):
+        lane: Any = lane_of(query)
+        if has_time_range(query):  # a long answer: its own lane, never ahead of short ones
+            ok = self.worker.submit((lane, HISTORY_LANE), query, HISTORY_PER_TURN)
+        else:
+            ok = self.worker.submit(lane, query)
+        if not ok:
             retry = self.worker.retry_after_s()
             why = f"{self.worker.depth} queries are waiting; ask again in {retry:.2f} s"
             self._refuse(query, Busy(why, retry))
@@ -239,6 +248,8 @@ class QueryService:
         if isinstance(exc, Busy):
             self._busy.add()
             body = busy_payload(key, exc)
+        elif isinstance(exc, AnswerCut):
+            body = exc.body(key)
         else:
             if not isinstance(exc, (GatewayError, ValueError, KeyError, TypeError)):
                 log.error("zenoh query %s failed", key, exc_info=exc)
@@ -313,7 +324,7 @@ class QueryService:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else None
             type_param = query.parameters.get("type")
-            with acting_as(zenoh_who(query)):  # the audit of a write names the asker
+            with acting_as("zenoh", zenoh_hint(query)):  # the audit: the querier's id a hint
                 result = await self.dispatch(key, payload, type_param)
             self._reply(query, key, result)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may crash the gateway
@@ -375,10 +386,10 @@ class QueryService:
         node = rt.image
         if req.kind == "nmt":
             cmd = nmt_command(payload)
-            self.commands.nmt(req.node, cmd)
+            await self.commands.nmt(req.node, cmd)
             return {"ok": True, "node": req.node, "nmt": cmd}
         if req.kind == "sdo":
-            return await self._sdo(req, payload, type_param)
+            return await self._sdo(req, payload, type_param, key)
         if req.kind == "value":
             sig = self.commands.signal(rt, req.signal)
             if sig.transport == "sdo":
@@ -410,9 +421,13 @@ class QueryService:
         """Raise ``Forbidden`` (counted, logged at most once per period per operation) unless
         the configuration allows this write."""
         why = self.gate.refusal(operation, node, key)
-        if why is None:
-            return
+        if why is not None:
+            self._refuse_op(operation, node, key, why)
+
+    def _refuse_op(self, operation: str, node: str, key: str, why: str) -> None:
+        """Raise ``Forbidden``: counted by operation, logged at most once per period, audited."""
         self.refused[operation] = self.refused.get(operation, 0) + 1
+        self.commands.refusals.refused(operation, node, key, None, why)
         self._refusal_log.warning(
             ("zenoh_refused", operation),
             "Zenoh %s refused on %s: %s (refused so far: %d)",
@@ -423,13 +438,17 @@ class QueryService:
         )
         raise Forbidden(why)
 
-    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None) -> Any:
+    async def _sdo(self, req: Request, payload: bytes | None, type_param: str | None, key: str) -> Any:
         assert req.obj is not None
         obj = str(req.obj)
         if payload:
             value, typ = sdo_write_body(payload)
             await self.commands.sdo_write(req.node, req.obj, value, typ or type_param)
             return {"ok": True, "node": req.node, "object": obj, "value": reply_value(value)}
+        listed = {sig.object for sig in self.commands.node(req.node).lp.profile.signals}
+        why = self.gate.read_refusal(req.node, req.obj, listed)  # zenoh.reads
+        if why is not None:
+            self._refuse_op("sdo_read", req.node, key, why)
         value = await self.commands.sdo_read(req.node, req.obj, type_param)
         return {"node": req.node, "object": obj, "value": reply_value(value)}
 

@@ -24,7 +24,17 @@ subscriber's values back. Events are rare; their thread sleeps in between.
   marks of the window go out together. While marks keep coming a flush goes out every
   ``batch_s`` (or as fast as flushes run), whether or not the bus ever pauses. The window is
   the publisher's alone: the reader, and with it the process image (Modbus), is never held.
-* events: computed on the event loop and queued with ``put_event`` in order.
+* events: computed on the event loop (``events.py``) and queued with ``put_event`` in order,
+  with their journal ticket. Each waits for its commit at most ``EVENT_WAIT_S`` from when it
+  was made (``journal_wait``), then goes out: a stalled, slow or full disk delays an event by
+  200 ms at most, and the events published before their commit are counted
+  (``on_unjournaled``). The publisher of its key is looked up when it is put (``pub_of``):
+  while no session is open (client mode without a router) events wait in a backlog (at most
+  ``BACKLOG_MAX``, the oldest dropped first and counted) and go out in order, before any newer
+  one, once the session's publishers are declared (``resend``). An event whose key this
+  gateway no longer publishes when its turn comes (``pub_of`` answers ``WITHHELD``: a pair's
+  other member masters its node's network now) is not published, only counted (``withheld``):
+  it is journaled, and it never holds back the events of the keys this gateway publishes.
 
 Not here: ``publish: every`` samples (one per frame, put by the reader as the frame is handled)
 and the housekeeping's rare puts on the event loop (quality changes no frame announces,
@@ -36,12 +46,13 @@ Started through the gateway's ``ThreadRegistry``: a thread that dies is reported
 Clocks: ``clock`` and ``wait`` are injectable (tests use a fake clock); ``stop`` ends a window
 being waited for at once.
 
-Imports: runtime.threads. Never zenoh (it calls ``put`` on the publishers it is given), modbus/ nor
-bus/.
+Imports: runtime.threads. Never zenoh (it calls ``put`` on the publishers it is given and
+makes timestamps with the function it is given), modbus/ nor bus/.
 """
 
 from __future__ import annotations
 
+import collections
 import logging
 import queue
 import threading
@@ -54,7 +65,14 @@ from gateway.runtime.threads import ThreadRegistry
 log = logging.getLogger("gateway.zenoh")
 
 _FLUSH = object()  # queue item: publish the marked values
+_RESEND = object()  # queue item: the session's publishers are there, publish the backlog
 _STOP = None  # queue item: end the thread
+#: an event waits for its commit at most this long (seconds) before it is published anyway
+EVENT_WAIT_S = 0.2
+#: events kept while no session is open, at most
+BACKLOG_MAX = 10_000
+#: ``pub_of``'s answer for a key this gateway does not publish (a pair's other member does)
+WITHHELD = object()
 
 
 class ZenohSender:
@@ -70,6 +88,8 @@ class ZenohSender:
         batch_s: float = 0.0,
         clock: Callable[[], float] = time.monotonic,
         wait: Callable[[float], Any] | None = None,
+        pub_of: Callable[[str], Any] | None = None,
+        timestamp: Callable[[int], Any] | None = None,
     ) -> None:
         self.threads = threads
         self.name = name
@@ -86,7 +106,18 @@ class ZenohSender:
         self._last_flush_s = float("-inf")  # ``clock`` time the last flush started
         self.sent = 0  # events put
         self.failed = 0  # events whose put failed
+        self.withheld = 0  # events of keys this gateway no longer publishes (``WITHHELD``)
         self.flushes = 0  # value flushes run
+        #: events: the publisher of a key (None: no session; ``WITHHELD``), the timestamp of
+        #: a stamp (ns)
+        self.pub_of: Callable[[str], Any] = pub_of or (lambda key: None)
+        self.timestamp: Callable[[int], Any] = timestamp or (lambda ns: None)
+        #: events: wait for a journal ticket (ticket, timeout) -> committed in time; and the
+        #: count of those published before it
+        self.journal_wait: Callable[[int, float], bool] | None = None
+        self.on_unjournaled: Callable[[], None] = lambda: None
+        self.backlog: collections.deque[tuple[str, bytes, int]] = collections.deque()
+        self.backlog_dropped = 0
 
     def start(self) -> None:
         self._stopping.clear()
@@ -99,8 +130,14 @@ class ZenohSender:
             self._flush_queued = True
             self.queue.put(_FLUSH)
 
-    def put_event(self, pub: Any, payload: bytes, timestamp: Any) -> None:
-        self.queue.put((pub, payload, timestamp))
+    def put_event(self, key: str, payload: bytes, stamp_ns: int, ticket: int = 0) -> None:
+        """An event (any thread, in order): published once its journal ``ticket`` is committed
+        (0: none) or ``EVENT_WAIT_S`` after now, whichever comes first."""
+        self.queue.put((key, payload, stamp_ns, ticket, self.clock() + EVENT_WAIT_S))
+
+    def resend(self) -> None:
+        """The session's publishers are declared: the events kept meanwhile go out."""
+        self.queue.put(_RESEND)
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Publish what is queued (and marked), then end the thread."""
@@ -128,10 +165,42 @@ class ZenohSender:
                 if self.flush is not None:
                     self.flush()  # catches and logs what a value's publication raises
                 continue
-            pub, payload, ts = item
-            try:
-                pub.put(payload, timestamp=ts)
-                self.sent += 1
-            except Exception as exc:  # noqa: BLE001 - one failed put must not stop the events
-                self.failed += 1
-                log.warning("zenoh event publication failed: %r", exc)
+            if item is _RESEND:
+                self._publish_backlog()
+                continue
+            key, payload, ns, ticket, deadline = item
+            wait = self.journal_wait
+            if ticket and wait is not None and not wait(ticket, max(0.0, deadline - self.clock())):
+                self.on_unjournaled()  # the disk is slow: published before its commit
+            self._publish_backlog()
+            if not self._put(key, payload, ns):
+                self._keep(key, payload, ns)
+
+    def _put(self, key: str, payload: bytes, ns: int) -> bool:
+        """Put one event; False when its key has no publisher (no session)."""
+        try:
+            pub = self.pub_of(key)
+            if pub is None:
+                return False
+            if pub is WITHHELD:
+                self.withheld += 1
+                return True
+            pub.put(payload, timestamp=self.timestamp(ns))
+            self.sent += 1
+        except Exception as exc:  # noqa: BLE001 - one failed put must not stop the events
+            self.failed += 1
+            log.warning("zenoh event publication failed: %r", exc)
+        return True
+
+    def _keep(self, key: str, payload: bytes, ns: int) -> None:
+        if len(self.backlog) >= BACKLOG_MAX:
+            self.backlog.popleft()
+            self.backlog_dropped += 1
+        self.backlog.append((key, payload, ns))
+
+    def _publish_backlog(self) -> None:
+        while self.backlog:
+            key, payload, ns = self.backlog[0]
+            if not self._put(key, payload, ns):
+                return
+            self.backlog.popleft()

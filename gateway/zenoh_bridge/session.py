@@ -1,11 +1,12 @@
 """The Zenoh session's lifecycle, an object of its own (``ZenohSession``) that ``ZenohBridge``
 (``bridge.py``) composes: the session configuration from ours, opening with the
-duplicate-prefix check (``PrefixInUse``), the background re-open in client mode, the
+duplicate-prefix check (``PrefixInUse``: an error for Zenoh only, the gateway starts without
+its session, says why in ``problem`` and retries), the background re-open, the
 declarations of publishers, tokens and queryable once a session is open, and the stop. It
 holds the session, the event and raw-PDO publishers, the liveliness tokens and its tasks (the
 re-open, the housekeeping); it knows its host by ``SessionHost``, a Protocol of what it reads
 (what to publish, the pair's state) and of the hooks it calls (``attach``, ``detach``,
-``on_pdo``, ``on_heard``, ``housekeeping``, ``node_alive``). None of it runs per frame.
+``on_pdo``, ``on_heard``, ``housekeeping``, ``node_alive``, ``events_ready``). None of it runs per frame.
 
 Imports: zenoh, config, northbound.keys, zenoh_bridge.pair; commands, image, zenoh_bridge.plan
 and zenoh_bridge.queries for types only (its host is the ``SessionHost`` Protocol, not the bridge).
@@ -91,6 +92,10 @@ class SessionHost(Protocol):
     def member(self) -> tuple[int, int] | None: ...
     @property
     def publishing(self) -> bool: ...
+    @property
+    def zid(self) -> str: ...
+    @property
+    def silent(self) -> frozenset[str]: ...
 
     def attach(self) -> None: ...
     async def detach(self) -> None: ...
@@ -98,16 +103,21 @@ class SessionHost(Protocol):
     def node_alive(self, node: NodeImage) -> bool: ...
     def on_heard(self, key: str, payload: bytes, timestamp: Any) -> None: ...
     def on_pdo(self, node: NodeImage, cob_id: int, data: bytes) -> None: ...
+    def events_ready(self) -> None: ...
 
 
 class PrefixInUse(RuntimeError):
-    """Another gateway is announced under our prefix: two gateways must not share one."""
+    """Another participant announces a gateway under our prefix: two gateways must not share
+    one. The session stays closed while it does (``ZenohSession.problem``)."""
 
 
-def zenoh_config(cfg: Config) -> zenoh.Config:
-    """The session configuration: our keys first, then ``zenoh.json5`` (raw keys) on top."""
+def zenoh_config(cfg: Config, zid: str | None = None) -> zenoh.Config:
+    """The session configuration: our keys first (``zid``: the session's id, the one the
+    gateway's own timestamps carry), then ``zenoh.json5`` (raw keys) on top."""
     z = cfg.zenoh
     conf = zenoh.Config()
+    if zid is not None:
+        conf.insert_json5("id", json.dumps(zid))
     conf.insert_json5("mode", json.dumps(z.mode))
     if z.mode == "peer":  # a client does not listen
         conf.insert_json5("listen/endpoints", json.dumps(z.listen))
@@ -174,18 +184,26 @@ class ZenohSession:
         self.pair_tokens: dict[str, Any] = {}
         self.heard_sub: Any = None
         self._opened: zenoh.Session | None = None  # open, checked, not declared yet
-        self._open_failed: zenoh.ZError | None = None
+        self._open_failed: zenoh.ZError | PrefixInUse | None = None
+        #: why the session is not open when that needs a person (another participant
+        #: announces our prefix), None otherwise; /healthz names it
+        self.problem: str | None = None
         self._tasks: list[asyncio.Task[Any]] = []
 
     async def open(self) -> None:
         """Open the session and make sure no other gateway runs under our prefix; called by
-        the app before the bus starts. Raises ``PrefixInUse`` (the session is closed then) or,
-        in peer mode, zenoh.ZError when the session cannot be opened at all."""
+        the app before the bus starts. Another participant announcing our prefix
+        (``PrefixInUse``) is an error for Zenoh only: the session stays closed, ``problem``
+        says why and ``start`` retries in the background. Raises zenoh.ZError in peer mode
+        when the session cannot be opened at all."""
         self.loop = self.bridge.queries.loop = asyncio.get_running_loop()
-        conf = zenoh_config(self.cfg)  # a bad config raises here, before anything runs
+        conf = zenoh_config(self.cfg, self.bridge.zid)  # a bad config raises here, before anything runs
         self.last_attempt_s = self.clock()
         try:
             self._opened = await self.open_checked(conf)
+        except PrefixInUse as exc:
+            self.problem = str(exc)
+            self._open_failed = exc
         except zenoh.ZError as exc:
             if self.cfg.zenoh.mode != "client":
                 raise
@@ -210,6 +228,10 @@ class ZenohSession:
                 self.cfg.zenoh.mode,
                 self.prefix,
             )
+        elif isinstance(self._open_failed, PrefixInUse):
+            log.error("%s; Zenoh stays closed meanwhile and the gateway retries (Modbus and "
+                      "the bus run)", self._open_failed)  # fmt: skip
+            self._tasks.append(asyncio.create_task(self.reopen(), name="zenoh-open"))
         else:
             log.warning("%s", self.no_router(self._open_failed))
             log.debug("Zenoh: %s", self._open_failed)
@@ -229,9 +251,10 @@ class ZenohSession:
                 other = await asyncio.to_thread(self.other_gateway, session)
                 if other:
                     raise PrefixInUse(
-                        f"another gateway already runs under Zenoh prefix {self.prefix} "
-                        f"(token {other} is present): give this gateway its own gateway.name "
-                        "or zenoh.prefix, or stop the other one"
+                        f"another participant announces a gateway under Zenoh prefix "
+                        f"{self.prefix} (token {other} is present): give this gateway its own "
+                        "gateway.name or zenoh.prefix, or stop the other one (on a router "
+                        "with the shipped access control only this gateway's user may)"
                     )
         except BaseException:
             await asyncio.to_thread(session.close)
@@ -266,8 +289,9 @@ class ZenohSession:
         return refusal(tokens, self.prefix, self.bridge.member)
 
     async def reopen(self) -> None:
-        """Client mode: open the session in the background; attempts *start* on the schedule
-        (an attempt itself takes up to the connect timeout)."""
+        """Open the session in the background (client mode without a router, or our prefix
+        announced by another participant); attempts *start* on the schedule (an attempt
+        itself takes up to the connect timeout)."""
         attempt = 0
         while self.session is None:
             period = REOPEN_SCHEDULE_S[min(attempt, len(REOPEN_SCHEDULE_S) - 1)]
@@ -282,6 +306,7 @@ class ZenohSession:
                 log.debug("Zenoh: %s", exc)
                 continue
             except PrefixInUse as exc:
+                self.problem = str(exc)
                 if attempt in (1, 10) or attempt % 60 == 0:
                     log.error("%s; retrying", exc)
                 continue
@@ -291,7 +316,8 @@ class ZenohSession:
                 log.warning("Zenoh declarations failed: %s", exc)
                 await asyncio.to_thread(session.close)
                 continue
-            log.info("Zenoh session %s open (client), prefix %s", session.zid(), self.prefix)
+            self.problem = None
+            log.info("Zenoh session %s open (%s), prefix %s", session.zid(), self.cfg.zenoh.mode, self.prefix)
 
     def no_router(self, exc: BaseException | None, attempts: int = 1) -> str:
         """One plain line for a client session that could not open: where it looked, how many
@@ -311,7 +337,7 @@ class ZenohSession:
         )
 
     async def try_open(self) -> zenoh.Session:
-        return await self.open_checked(zenoh_config(self.cfg))
+        return await self.open_checked(zenoh_config(self.cfg, self.bridge.zid))
 
     def publisher(self, s: zenoh.Session, key: str, cache: int, **qos: Any) -> Any:
         """An advanced publisher (cache, miss detection, publisher detection), or a plain one
@@ -356,15 +382,17 @@ class ZenohSession:
                 )
         if self.cfg.zenoh.raw_pdo:
             self.declare_raw_pdo(s)
+        # the queryable first: a client that sees the gateway's token may ask at once
+        self.queryable = s.declare_queryable(f"{self.prefix}/**", bridge.queries.on_query)
         self.tokens[GATEWAY_TOKEN] = s.liveliness().declare_token(
             alive_key(self.prefix, GATEWAY_TOKEN)
         )
-        self.queryable = s.declare_queryable(f"{self.prefix}/**", bridge.queries.on_query)
         self.declare_pair(s)
         self.session = s
         self.up = True
         for node in bridge.image.nodes.values():
             self.sync_token(node.name, bridge.node_alive(node))
+        bridge.events_ready()  # events made while no session was open go out now
 
     def declare_pair(self, s: zenoh.Session) -> None:
         """A hot-standby pair (``pair.py``): the member token always, the active token while
@@ -386,10 +414,11 @@ class ZenohSession:
             elif not on and token is not None:
                 del self.pair_tokens[key]
                 token.undeclare()
-        if publishing and self.heard_sub is not None:
+        hears = not publishing or bool(bridge.silent)  # a pair per network: part stands by
+        if not hears and self.heard_sub is not None:
             sub, self.heard_sub = self.heard_sub, None
             sub.undeclare()
-        elif not publishing and self.heard_sub is None:
+        elif hears and self.heard_sub is None:
             # with history: what the other one published before this gateway started (its
             # advanced publishers' caches, e.g. the last state events) counts as heard too
             self.heard_sub = zenoh.ext.declare_advanced_subscriber(

@@ -9,7 +9,9 @@ over a second (docs/modbus.md, "What a burst costs"). Here no query runs on the 
   the caller answers ``busy`` at once (never silence, never an unbounded queue). A lane is the
   querying session when the query says who it is (``query.source_info``, filled in by a client
   that passes ``source_info=`` to ``get``), else one lane for every anonymous query: zenoh
-  1.10 tells a queryable nothing else of the querier.
+  1.10 tells a queryable nothing else of the querier. The caller may give long answers (the
+  history of a time range) a lane of their own, beside the short ones of the same session,
+  and more units per turn (``submit``'s ``per_turn``).
 * ``step`` (the worker thread, or a test: a controlled executor) takes one *turn*: the next
   lane in round robin advances its current answer by up to ``per_turn`` units (a unit is one
   reply), then the lane goes to the back of the round. A long answer (a wildcard over every
@@ -77,6 +79,7 @@ class _Lane(Generic[T]):
     waiting: deque[T] = field(default_factory=deque)
     current: Iterator[Any] | None = None
     started: float = 0.0
+    per_turn: int = PER_TURN
 
 
 class QueryWorker(Generic[T]):
@@ -121,8 +124,9 @@ class QueryWorker(Generic[T]):
         """When a refused client should ask again: the queue's depth times the mean job."""
         return min(RETRY_MAX_S, max(RETRY_MIN_S, self._depth * self._job_s))
 
-    def submit(self, lane: Hashable, item: T) -> bool:
-        """Queue ``item`` in ``lane``; False (counted in ``busy``): full, answer ``busy``."""
+    def submit(self, lane: Hashable, item: T, per_turn: int | None = None) -> bool:
+        """Queue ``item`` in ``lane`` (``per_turn``: its units per turn, when the lane is new;
+        default ``per_turn``); False (counted in ``busy``): full, answer ``busy``."""
         with self._lock:
             ln = self._lanes.get(lane)
             in_lane = 0 if ln is None else len(ln.waiting) + (ln.current is not None)
@@ -130,7 +134,7 @@ class QueryWorker(Generic[T]):
                 self.busy += 1
                 return False
             if ln is None:
-                ln = self._lanes[lane] = _Lane()
+                ln = self._lanes[lane] = _Lane(per_turn=per_turn or self.per_turn)
                 self._round.append(lane)
             ln.waiting.append(item)
             self._depth += 1
@@ -154,7 +158,7 @@ class QueryWorker(Generic[T]):
                 ln.started = self.clock()
                 job = ln.current = self._start(item)
             # (job is never None here: a lane in the round has a job or a waiting item)
-            ended = job is None or self._advance(job)
+            ended = job is None or self._advance(job, ln.per_turn)
             ok = job is not None
         except Exception as exc:  # noqa: BLE001 - logged, the job dropped, the thread goes on
             self.failed += 1
@@ -173,11 +177,11 @@ class QueryWorker(Generic[T]):
                 del self._lanes[lane]
         return True
 
-    def _advance(self, job: Iterator[Any]) -> bool:
+    def _advance(self, job: Iterator[Any], per_turn: int) -> bool:
         """Up to ``per_turn`` units of the job; True when it ended (an exception it raises
         goes to ``step``)."""
         try:
-            for _ in range(self.per_turn):
+            for _ in range(per_turn):
                 next(job)
         except StopIteration:
             return True

@@ -105,6 +105,13 @@ async def test_the_page_loads_with_the_overview_and_every_node(browser: Any) -> 
             assert cell(browser, "wire", "supervision") == "heartbeat 100 ms, lost after 300 ms"
             assert not browser.find_element(By.ID, "ov-pair-card").is_displayed()  # no pair
             wait_for(browser, lambda d: d.find_element(By.ID, "conn").text == "live", "live")
+            # a node page of no node: a page that says so and links the nodes there are
+            browser.get(base + "/node/nosuch")
+            assert browser.title == "canopen-gateway: not found"
+            wait_for(browser, lambda d: "nosuch" in d.find_element(By.ID, "nf-what").text, "what")
+            assert browser.find_element(By.ID, "nf-what").text == "No node named “nosuch” is configured on this gateway."  # fmt: skip
+            links = [a.text for a in browser.find_elements(By.CSS_SELECTOR, "#nf-nodes a")]
+            assert links == ["wire", "display"]
 
         await run(check)
 

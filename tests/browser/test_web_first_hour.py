@@ -92,7 +92,7 @@ async def test_trends_turn_stale_when_the_fault_buttons_unplug_the_node_and_good
             assert "unplugged" in browser.find_element(By.ID, "fault-state").text
             with urllib.request.urlopen(base + "/api/events?kind=warning&node=wire", timeout=5) as r:
                 texts = [e["text"] for e in json.loads(r.read())["events"]]
-            assert "simulated fault: wire unplug (from the web console)" in texts
+            assert "simulated fault: wire unplug (from web 127.0.0.1, the web console as its client says)" in texts
             click("plug")
             wait_for(browser, lambda d: state_fact(d, "Presence").endswith("alive"), "alive")
             wait_for(browser, lambda d: trend_caption(d, "position").endswith("(good)"), "good again")

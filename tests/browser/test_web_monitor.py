@@ -126,3 +126,28 @@ async def test_pause_closes_the_stream_and_resume_says_what_was_not_recorded(bro
 
         await run(resume)
         assert len(gw.driver.frame_taps) == 1
+
+
+async def test_with_a_token_the_monitor_asks_for_it_once_and_then_shows_frames(browser: Any) -> None:
+    """The operators' token (web.token): the page asks for it, logs in (the session cookie the
+    event stream then carries) and shows the bus; a wrong token is asked again."""
+    from tests.browser.test_web_console import TOKEN
+
+    async with gateway(writes=True) as (gw, base):
+        from selenium.webdriver.common.by import By
+        from selenium.webdriver.support import expected_conditions as ec
+
+        def unlock() -> None:
+            browser.delete_all_cookies()  # no session yet (the tab's storage holds no token either)
+            browser.get(base + "/monitor")
+            wait_for(browser, ec.alert_is_present(), "the token prompt")
+            browser.switch_to.alert.send_keys("wrong-token-0000")
+            browser.switch_to.alert.accept()
+            wait_for(browser, ec.alert_is_present(), "the prompt again after a wrong token")
+            browser.switch_to.alert.send_keys(TOKEN)
+            browser.switch_to.alert.accept()
+            wait_for(browser, lambda d: d.find_element(By.ID, "conn").text == "live", "live")
+            wait_for(browser, lambda d: any(r[0] == "heartbeat" for r in rows(d)), "heartbeats")
+
+        await run(unlock)
+        assert gw.web.monitor.pages  # the stream is open: the cookie was accepted

@@ -6,6 +6,7 @@ SDO; the test sends its boot-up, heartbeat and EMCY). A sniffer on the bus sees 
 from __future__ import annotations
 
 import asyncio
+import logging
 import random
 import re
 import socket
@@ -17,6 +18,7 @@ from typing import Any
 
 import can
 import canopen
+import pytest
 import yaml
 
 from gateway.app import Gateway
@@ -144,6 +146,8 @@ async def test_a_write_with_writes_on_reaches_the_device_and_reads_back() -> Non
 
 async def test_writes_and_nmt_are_refused_with_100_when_writes_are_off_and_nothing_goes_south() -> None:
     async with sim_gateway(writes=False) as (gw, sniffer, _b):
+        audit: list[dict[str, Any]] = []
+        gw.commands.audit = audit.append
         c = await Client.connect(gw.ascii.port)
         assert await c.ask("[1] 1 w 0x6200 0 u16 25") == "[1] ERROR:100"
         assert await c.ask("[2] 1 stop") == "[2] ERROR:100"
@@ -154,6 +158,25 @@ async def test_writes_and_nmt_are_refused_with_100_when_writes_are_off_and_nothi
         assert (0x000, bytes([0x02, 0x01])) not in sniffer.frames
         assert (0x000, bytes([0x81, 0x00])) not in sniffer.frames
         assert gw.image.nodes["wire"].health.nmt_state == NmtState.OPERATIONAL
+        assert audit[0]["who"].startswith("ascii 127.0.0.1:") and audit[0]["what"] == "[1] 1 w 0x6200 0 u16 25"
+        assert audit[0]["outcome"] == "refused: ascii.writes is false"
+        await c.close()
+
+
+async def test_a_client_outside_allowed_networks_is_closed_at_once_and_logged_with_its_address(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    async with sim_gateway(allowed_networks=["127.0.0.1/32"]) as (gw, _s, _b):
+        with caplog.at_level(logging.WARNING, "gateway.ascii"):
+            reader, writer = await asyncio.open_connection("127.0.0.1", gw.ascii.port, local_addr=("127.0.0.2", 0))
+            writer.write(b"[1] 1 r 0x1018 1 u32\r\n")
+            assert await asyncio.wait_for(reader.read(), 5) == b""  # closed, nothing answered
+            writer.close()
+        assert gw.ascii.refused_clients == 1 and gw.ascii.requests == 0
+        assert any("127.0.0.2" in r.getMessage() and "ascii.allowed_networks" in r.getMessage()
+                   for r in caplog.records)  # fmt: skip
+        c = await Client.connect(gw.ascii.port)  # this machine's own address is served
+        assert await c.ask("[1] 1 r 0x1018 1 u32") == "[1] 405"
         await c.close()
 
 

@@ -97,7 +97,7 @@ async def test_another_master_is_one_warning_each_a_metric_healthz_and_console(
 async def test_our_own_nmt_and_heartbeat_are_not_another_master() -> None:
     async with master_running([WIRE]) as gw:
         await wait_until(lambda: node_operational(gw, "wire"), what="wire operational")
-        gw.commands.nmt("wire", "start")  # an NMT command of our own
+        await gw.commands.nmt("wire", "start")  # an NMT command of our own
         watcher = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
         try:
             # our heartbeat went out at least once more: the bus saw what we send

@@ -20,7 +20,7 @@ from gateway.config import ConfigError, NodeConfig
 from gateway.device.settings import resolve_node_settings
 from gateway.image import Quality
 from gateway.profiles import load_node_profile
-from tests.helpers import gateway_of, make_config, wait_until
+from tests.helpers import gateway_of, make_config, modbus_gateway, operational, wait_until
 from tests.integration.test_eds_devices import boot, gateway_with, local_node
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
@@ -235,3 +235,96 @@ async def test_identity_check_false_configures_any_device() -> None:
     finally:
         await gw.stop()
         net.disconnect()
+
+
+async def test_a_file_with_the_vendor_alone_refuses_a_device_of_another_vendor_and_says_what_it_cannot_check(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    import logging
+
+    from tests.helpers import edited_copy
+
+    eds = edited_copy(tmp_path, IO, "ProductNumber=0x00000401", "ProductNumber=", "vendor.eds")
+    path = tmp_path / "c.yaml"
+    path.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: io, node_id: 5, eds: '{eds}'}}\n")  # fmt: skip
+    assert main(["check", "-c", str(path)]) == 0
+    note = "node io: 0x1018:02 (product) not checked: vendor.eds gives no ProductNumber in [DeviceInfo]; only 0x1018:01 (vendor) is compared"  # fmt: skip
+    assert f"  note: {note}" in capsys.readouterr().out.splitlines()
+    caplog.set_level(logging.INFO, logger="gateway")
+    cfg = make_config([{"name": "io", "node_id": 5, "eds": str(eds)}], simulate={"nodes": []},
+                      master={"probe_at_start": False})  # fmt: skip
+    net, node = local_node(IO, 5, cfg.can.channel)
+    node.set_data(0x1018, 1, struct.pack("<I", 0xDEF))  # a device of another vendor
+    gw = gateway_of(cfg)
+    await gw.start()
+    try:
+        boot(node)
+        io = gw.image.nodes["io"]
+        await wait_until(lambda: io.health.last_error.startswith("wrong device"), 8, "identity refused")
+        assert io.health.last_error == "wrong device: vendor 0xDEF, expected vendor 0xABC (1018h against the EDS): not configured"  # fmt: skip
+        rt = gw.master.nodes["io"]
+        assert rt.lifecycle.state == "waiting" and rt.lifecycle.configurations == 0
+        assert not io.operational()  # never started
+    finally:
+        await gw.stop()
+        net.disconnect()
+    said = [r.getMessage() for r in caplog.records if "not checked" in r.getMessage()]
+    assert said == [f"node io (id 5): {note.removeprefix('node io: ')}"]
+
+
+def test_a_node_whose_pdos_map_nothing_is_warned_of_with_the_objects_it_may_map(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cfg = tmp_path / "c.yaml"
+    off = "{1: {enabled: false}, 2: {enabled: false}}"
+    cfg.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: io, node_id: 5, eds: '{IO}', tpdo: {off}, rpdo: {off}}}\n")  # fmt: skip
+    assert main(["check", "-c", str(cfg)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert any(line.startswith("  node io: id 5,") and "0 process signals ()" in line for line in out), out
+    warning = next(line for line in out if "serves no process data" in line)
+    assert warning.startswith("  warning: node io: serves no process data: map one with `tpdo:`")
+    assert 'e.g. `tpdo: {1: {mapping: ["0x6000:01"]}}`' in warning
+    assert "PDO-mappable in io401.eds: 0x6000:01 (" in warning and "0x6401:01" in warning
+
+
+@pytest.mark.skipif(not CORPUS.is_dir(), reason="no EDS corpus")
+async def test_an_encoder_file_that_maps_nothing_is_warned_of_and_never_served_as_good(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A CiA 406 sample file of another project: TPDO mappings of 0 entries, PDOMapping=0
+    everywhere. ``check`` warns; run with the node simulated, the node answers and is
+    operational, but Modbus quality says bad, the console says why and counts it out of the
+    usable nodes, and the simulated device sends no TPDO (none the gateway would call
+    unexpected)."""
+    eds = CORPUS / "KITmedical__kacanopen__406.eds"
+    path = tmp_path / "c.yaml"
+    path.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: enc, node_id: 11, eds: '{eds}'}}\n")  # fmt: skip
+    assert main(["check", "-c", str(path)]) == 0
+    warning = next(line for line in capsys.readouterr().out.splitlines() if "serves no process data" in line)
+    assert "serves no process data: map one with `tpdo:`" in warning
+    assert "KITmedical__kacanopen__406.eds marks no object PDO-mappable (PDOMapping=1)" in warning
+    cfg = make_config([{"name": "enc", "node_id": 11, "eds": str(eds)}], health={"port": 0})
+    sniffer = can.Bus(interface="virtual", channel=cfg.can.channel)
+    frames: list[can.Message] = []
+    notifier = can.Notifier(sniffer, [frames.append])
+
+    def operational_heartbeats() -> int:  # the simulator sends in its own time order
+        return sum(1 for m in list(frames) if m.arbitration_id == 0x70B and bytes(m.data) == b"\x05")
+
+    async with modbus_gateway(cfg, [(operational("enc"), "enc operational")]) as (gw, client):
+        # two heartbeats after entering OPERATIONAL: its input sample (10 ms) came before
+        await wait_until(lambda: operational_heartbeats() >= 2, 5, "two operational heartbeats")
+        assert not [m for m in frames if m.arbitration_id in (0x18B, 0x28B)]
+        rr = await client.read_input_registers(0, count=1, device_id=11)
+        assert rr.registers == [2]  # bad: no value to serve
+        from gateway.web.views import ConsoleModel
+
+        model = ConsoleModel(gw.cfg, gw.image, gw.commands, gw.overview, regmap=gw.modbus.regmap)
+        row = model.node_row("enc")
+        assert (row["quality"], row["quality_note"], row["presence"]) == (
+            "bad", "no process data: its PDOs map nothing", "alive"
+        )
+        assert model.overview()["nodes_usable"] == 0
+        assert gw.image.counters["unknown_cob_id"] == 0
+    notifier.stop()
+    sniffer.shutdown()

@@ -3,7 +3,7 @@ a real Modbus client (pymodbus over TCP), a real Zenoh session on loopback and t
 HTTP API. Unplugged, the node's values answer Modbus exception 0x0B and Zenoh quality "stale",
 and the console says "lost"; plugged back (the device restarts), everything is good again once
 the gateway has started it. A stopped heartbeat makes the node lost while its PDOs still arrive;
-a raised EMCY reaches the console's current errors and the event log."""
+its last_error says why at once; a raised EMCY reaches the console's current errors and the event log."""
 
 from __future__ import annotations
 
@@ -103,7 +103,15 @@ async def test_a_stopped_heartbeat_makes_the_node_lost_although_its_pdos_continu
         seq = node.signals["position"].seq
         await wait_until(lambda: node.signals["position"].seq > seq, 5, "a PDO after the loss")
         assert await modbus_position(client) == NO_RESPONSE
-        assert (await console_row(base, "wire"))["presence"] == "lost"
+        row = await console_row(base, "wire")
+        assert row["presence"] == "lost"
+        # why, from the loss on (not after a boot timeout): /healthz, the Zenoh state, the console
+        why = row["last_error"]
+        assert why.startswith("lost (no heartbeat for more than ") and why.endswith(" ms)"), why
+        _, _, body = await http(f"{base}/healthz")
+        assert json.loads(body)["nodes"]["wire"]["last_error"] == why
+        reply = await z.get_one(f"{gw.zenoh.prefix}/wire/state")
+        assert reply.ok and reply.body["last_error"] == why
         doc = await fault(base, "wire", "heartbeat-on")
         assert doc["state"]["heartbeat"] is True
         await wait_until(lambda: node_operational(gw, "wire"), 5, "operational again")
@@ -145,6 +153,6 @@ async def test_the_event_log_says_where_a_fault_came_from() -> None:
         await fault(base, "wire", "emcy")
         _, _, body = await http(base + "/api/events?kind=warning&node=wire")
         texts = [e["text"] for e in json.loads(body)["events"]]
-    assert "simulated fault: wire heartbeat-off (from the command line, canopen-gateway fault)" in texts
-    assert "simulated fault: wire heartbeat-on (from the web console)" in texts
-    assert "simulated fault: wire emcy (from the HTTP API, client 127.0.0.1)" in texts
+    assert "simulated fault: wire heartbeat-off (from web 127.0.0.1, canopen-gateway fault as its client says)" in texts
+    assert "simulated fault: wire heartbeat-on (from web 127.0.0.1, the web console as its client says)" in texts
+    assert "simulated fault: wire emcy (from web 127.0.0.1, the HTTP API)" in texts

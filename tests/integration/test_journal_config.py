@@ -70,9 +70,7 @@ def test_check_creates_a_missing_journal_directory(tmp_path: Path) -> None:
 def test_the_docs_example_is_the_tested_one() -> None:
     doc = (ROOT / "docs/zenoh.md").read_text(encoding="utf-8")
     example = (ROOT / "docs/examples/backfill.py").read_text(encoding="utf-8")
-    body = example[
-        example.index("    sub = session.declare_subscriber") : example.index("\n\nif __name__")
-    ]
+    body = example[example.index("def rfc3339") : example.index("\n\nif __name__")]
     assert body in doc
 
 

@@ -168,11 +168,36 @@ async def test_bad_selectors_get_reply_err_naming_what_is_wrong(tmp_path) -> Non
             (f"{P}/wire/emcy?_time=yesterday", "_time"),
             (f"{P}/wire/emcy?_time=[now(-5 parsecs)..]", "not a duration"),
             (f"{P}/wire/emcy?_time=[now()..now(-1h)]", "start is after the end"),
-            (f"{P}/wire/snapshot?_time=[..]", "no history"),
         ):
             replies = await asyncio.to_thread(history, z.session, selector)
             assert len(replies) == 1 and replies[0][0] == "error", selector
             assert words in replies[0][1]["message"], (selector, replies)
+            assert "<duration>" not in replies[0][1]["message"]  # a selector cannot carry it
+        # as a Zenoh storage: a key without history answers nothing, and Zenoh's durations work
+        for selector in (f"{P}/wire/snapshot?_time=[..]", f"{P}/ghost/emcy?_time=[now(-30)..]"):
+            assert await asyncio.to_thread(history, z.session, selector) == []
+    finally:
+        z.close()
+        await gw.stop()
+
+
+async def test_publish_pdo_keeps_a_value_history_per_signal(tmp_path) -> None:
+    """``publish: pdo`` puts one sample per TPDO on ``<node>/tpdo/<n>``; the journal keeps each
+    signal's values on its value key all the same (the tpdo key has no history: empty)."""
+    cfg = make_config(
+        [WIRE],
+        simulate={"nodes": "all", "motion": {"wire": {"kind": "ramp"}}},
+        zenoh={"publish": "pdo"},
+        journal={"path": str(tmp_path / "journal"), "values_ms": 100},
+    )
+    gw = await started(cfg)
+    z = ZClient(cfg.zenoh.listen)
+    try:
+        values = await history_of(z.session, f"{P}/wire/value/position?_time=[now(-1m)..]", 2)
+        assert all(k == f"{P}/wire/value/position" and "value" in b for k, b, _ in values)
+        seqs = [b["seq"] for _, b, _ in values]
+        assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+        assert await asyncio.to_thread(history, z.session, f"{P}/wire/tpdo/1?_time=[..]") == []
     finally:
         z.close()
         await gw.stop()

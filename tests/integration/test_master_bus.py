@@ -37,7 +37,7 @@ async def test_bus_shut_under_the_driver_is_reopened_and_decoding_resumes() -> N
         assert "receive failed" in gw.driver.last_error
         # while it is down, commands fail fast with a typed error
         with pytest.raises(BusDown):
-            gw.commands.nmt("wire", "start")
+            await gw.commands.nmt("wire", "start")
         with pytest.raises(BusDown):
             await gw.commands.sdo_read("wire", "0x1000:00")
         with pytest.raises(BusDown):

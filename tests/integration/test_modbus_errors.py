@@ -262,3 +262,32 @@ async def test_a_client_outside_allowed_networks_may_read_but_not_write_and_is_l
             "127.0.0.1" in r.getMessage() and "allowed_networks" in r.getMessage()
             for r in caplog.records
         )
+
+
+async def test_a_refused_read_is_logged_in_words_once_a_period_per_client_and_shown_in_the_event_log(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """An off-by-one read (input registers 102-103 of an SGH10, whose process data end at
+    102) answers 0x02, and says so: the client, the unit, the function, the range and the
+    code, in the log and in the console's event log; the PLC repeating it every cycle gives
+    no second line within the period (it is counted)."""
+    import json
+
+    from tests.helpers import free_port
+    from tests.integration.test_web_http import http
+
+    caplog.set_level(logging.WARNING, logger="gateway.modbus")
+    async with running([WIRE], health={"port": free_port()}) as (gw, client):
+        for _ in range(3):
+            assert code(await client.read_input_registers(102, count=2, device_id=1)) == ILLEGAL_ADDRESS
+        assert code(await client.read_holding_registers(0, count=2, device_id=9)) == PATH_UNAVAILABLE
+        lines = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+        assert lines == [
+            "Modbus read from 127.0.0.1 refused: unit 1, function 4, input registers 102-103: "
+            "0x02 (illegal data address): input register 103 of unit 1 is not mapped",
+            "Modbus read from 127.0.0.1 refused: unit 9, function 3, holding registers 0-1: "
+            "0x0A (gateway path unavailable): unit id 9 is not configured",
+        ]
+        _, _, body = await http(f"http://127.0.0.1:{gw.health.port}/api/events?kind=warning")
+        texts = [e["text"] for e in json.loads(body)["events"]]
+        assert any("Modbus read from 127.0.0.1 refused: unit 1, function 4, input registers 102-103" in t for t in texts), texts  # fmt: skip

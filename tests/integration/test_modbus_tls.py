@@ -2,8 +2,9 @@
 made here with the ``cryptography`` package: a CA, the gateway's certificate, client
 certificates carrying the role extension 1.3.6.1.4.1.50316.802.1 (UTF8String). An operator
 writes (the RPDO reaches the simulated AP05), a viewer reads but its write is answered 0x01
-(logged once per period), a certificate of another CA and an expired one are refused at the
-handshake and never served, and plain Modbus TCP can be turned off."""
+(logged once per period, audited), a certificate of another CA, an expired one and one the CA
+revoked (``modbus.tls.crl``) are refused at the handshake and never served, the audit names
+the role and the certificate's subject, and plain Modbus TCP can be turned off."""
 
 from __future__ import annotations
 
@@ -128,6 +129,7 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
         "norole": ca.issue("norole"),
         "expired": ca.issue("old-plc", role="Operator", expired=True),
         "foreign": other.issue("intruder", role="Operator"),
+        "revoked": ca.issue("stolen-plc", role="Operator"),
     }
 
 
@@ -167,12 +169,15 @@ async def test_operator_writes_and_viewer_reads_but_may_not_write(
     pki: dict[str, Any], caplog: pytest.LogCaptureFixture
 ) -> None:
     async with secure_gateway(pki) as gw:
+        audit: list[dict[str, Any]] = []
+        gw.commands.audit = audit.append
         operator = client_for(gw, pki, "operator")
         viewer = client_for(gw, pki, "viewer")
         assert await operator.connect() and await viewer.connect()
         try:
             rr = await operator.write_registers(SET_POINT1, [0, 4321], device_id=125)
             assert not rr.isError(), rr
+            assert audit[0]["who"] == "modbus 127.0.0.1 tls role Operator subject CN=plc1"
             await wait_until(lambda: sim_set_point(gw) == 4321, 3, "operator's set point on the device")
             seen = await viewer.read_holding_registers(SET_POINT1, count=2, device_id=125)
             assert seen.registers == [0, 4321]
@@ -186,6 +191,9 @@ async def test_operator_writes_and_viewer_reads_but_may_not_write(
             assert len(refused) == 1, "logged once per period"
             assert "role Viewer has read" in refused[0].getMessage()
             assert sim_set_point(gw) == 4321, "the viewer's writes never reached the device"
+            (refusal,) = [r for r in audit if r["outcome"].startswith("refused")]  # once per period
+            assert refusal["who"] == "modbus 127.0.0.1 tls role Viewer subject CN=scada1"
+            assert "role Viewer has read" in refusal["outcome"]
         finally:
             operator.close()
             viewer.close()
@@ -230,6 +238,33 @@ async def refused(gw: Gateway, client: AsyncModbusTlsClient) -> None:
 async def test_certificate_of_another_ca_is_refused_at_the_handshake(pki: dict[str, Any]) -> None:
     async with secure_gateway(pki) as gw:
         await refused(gw, client_for(gw, pki, "foreign"))
+
+
+def crl_revoking(pki: dict[str, Any], who: str) -> str:
+    """A PEM revocation list of the plant CA that revokes ``who``'s certificate."""
+    ca = pki["ca"]
+    cert = x509.load_pem_x509_certificate(Path(pki[who][0]).read_bytes())
+    revoked = (
+        x509.RevokedCertificateBuilder().serial_number(cert.serial_number)
+        .revocation_date(NOW - dt.timedelta(hours=1)).build()
+    )  # fmt: skip
+    crl = (
+        x509.CertificateRevocationListBuilder().issuer_name(ca.cert.subject)
+        .last_update(NOW - dt.timedelta(days=1)).next_update(NOW + dt.timedelta(days=30))
+        .add_revoked_certificate(revoked).sign(ca.key, hashes.SHA256())
+    )  # fmt: skip
+    return ca._write("plant.crl.pem", crl.public_bytes(serialization.Encoding.PEM))
+
+
+async def test_a_revoked_certificate_is_refused_at_the_handshake(pki: dict[str, Any]) -> None:
+    async with secure_gateway(pki, tls=tls_section(pki, crl=crl_revoking(pki, "revoked"))) as gw:
+        await refused(gw, client_for(gw, pki, "revoked"))
+        operator = client_for(gw, pki, "operator")
+        assert await operator.connect()
+        try:
+            assert not (await operator.read_holding_registers(SET_POINT1, count=2, device_id=125)).isError()
+        finally:
+            operator.close()
 
 
 async def test_expired_certificate_is_refused_at_the_handshake(pki: dict[str, Any]) -> None:

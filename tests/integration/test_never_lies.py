@@ -176,11 +176,11 @@ async def test_the_liveliness_token_means_values_usable() -> None:
         await started(gw, dev)
         await sample_where(tokens, lambda s: s.kind == "PUT", what="token when operational")
         # pre-operational: the node is alive (heartbeats) but its values are not usable
-        gw.commands.nmt("wire", "preop")
+        await gw.commands.nmt("wire", "preop")
         await sample_where(tokens, lambda s: s.kind == "DELETE", what="token withdrawn")
         await wait_until(lambda: node.health.nmt_state == NmtState.PRE_OPERATIONAL, 3, "pre-op")
         assert node.health.alive
-        gw.commands.nmt("wire", "start")
+        await gw.commands.nmt("wire", "start")
         await sample_where(tokens, lambda s: s.kind == "PUT", what="token again")
         assert node.operational()
 

@@ -103,6 +103,8 @@ def test_the_recipe_of_a_pair_on_one_machine_runs_as_written_and_b_takes_over(tm
         checked = subprocess.run(argv, env=env, cwd=tmp_path, capture_output=True, text=True)
         assert checked.returncode == 0, checked.stderr
         assert "pair-a.yaml, pair-b.yaml: a pair" in checked.stdout
+        # the recipe as written is clean: no warning line (each EDS file: "0 warnings")
+        assert not [line for line in checked.stdout.splitlines() if line.lstrip().startswith("warning:")], checked.stdout
 
         env, argv = command(simulate, ports)
         sim = stack.enter_context(process(argv, env, tmp_path, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL))

@@ -1,7 +1,7 @@
 """The small things a new user meets in the first hour: a closed pipe (``check | head -1``) and
 Ctrl-C during start-up end the program without a traceback; an unknown node is an argument
-error (exit 2); a token of digits gets our words; log lines read as sentences; the console
-has a favicon."""
+error (exit 2); a token of digits is refused by one rule; log lines read as sentences; the
+console has a favicon; the start-up line names the journal."""
 
 from __future__ import annotations
 
@@ -79,20 +79,26 @@ def test_sdo_read_of_an_unknown_node_is_an_argument_error(
     )
 
 
-def test_a_token_of_digits_gets_our_words() -> None:
+def test_a_token_of_digits_is_refused_by_one_rule_from_the_file_and_from_the_environment() -> None:
+    rule = (
+        "a token of digits only is refused, in the file (quoted or not) as in "
+        'CANOPEN_GATEWAY__WEB__TOKEN: mix in letters (token: "a long random text")'
+    )
     with pytest.raises(ConfigError) as exc:
         parse_config({"web": {"writes": True, "token": 123456789012345}}, "cfg.yaml", environ={})
-    assert exc.value.problems == [
-        "cfg.yaml: web.token: YAML read a number here; a token is text: put it in quotes "
-        '(token: "0123456789012")'
-    ]
-    # from the environment it is taken as written, leading zero included
+    assert exc.value.problems == [f"cfg.yaml: web.token: YAML read a number here; {rule}"]
+    with pytest.raises(ConfigError) as exc:
+        parse_config({"web": {"writes": True, "token": "0123456789012"}}, "cfg.yaml", environ={})
+    assert exc.value.problems == [f"cfg.yaml: web.token: {rule}"]
+    # the same value from the environment: the same rule, blamed on the variable
+    with pytest.raises(ConfigError) as exc:
+        parse_config({"web": {"writes": True}}, "cfg.yaml", environ={"CANOPEN_GATEWAY__WEB__TOKEN": "0123456789012"})
+    assert exc.value.problems == [f"CANOPEN_GATEWAY__WEB__TOKEN: web.token: {rule}"]
+    # taken as written, leading zero included, when it has letters
     cfg = parse_config(
-        {"web": {"writes": True}},
-        "cfg.yaml",
-        environ={"CANOPEN_GATEWAY__WEB__TOKEN": "0123456789012"},
+        {"web": {"writes": True}}, "cfg.yaml", environ={"CANOPEN_GATEWAY__WEB__TOKEN": "0123456789012x"}
     )
-    assert cfg.web.token == "0123456789012"
+    assert cfg.web.token == "0123456789012x"
 
 
 def test_counts_and_supervision_findings_read_as_words() -> None:
@@ -127,3 +133,23 @@ async def test_console_serves_a_favicon() -> None:
             assert (status, ctype) == (200, "image/svg+xml") and body.startswith(b"<svg")
         _, _, page = await asyncio.to_thread(fetch, "/")
         assert b'<link rel="icon" href="/static/favicon.svg"' in page
+
+
+async def test_the_start_up_line_and_the_log_say_the_journal_is_on_and_where(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    import logging
+
+    from tests.helpers import gateway_of, make_config
+
+    caplog.set_level(logging.INFO, logger="gateway")
+    cfg = make_config([{"name": "wire", "node_id": 1, "profile": "sgh10"}], zenoh={"enabled": False},
+                      journal={"path": str(tmp_path / "journal"), "values_ms": 0})  # fmt: skip
+    gw = gateway_of(cfg)
+    await gw.start()
+    try:
+        where = tmp_path / "journal" / "journal.sqlite3"
+        assert f" | journal {where} | " in gw.summary()
+    finally:
+        await gw.stop()
+    assert f"journal on: {where} (events only, kept 30 days, at most 256 MB)" in caplog.messages

@@ -131,7 +131,7 @@ async def test_heartbeat_time_0_on_a_heartbeat_supervised_node_is_refused_by_eve
         assert gw.image.nodes["wire"].health.alive
         refused = [m for m in warnings_of(caplog) if "refused" in m and "0x1017:00" in m]
         # modbus, the zenoh set and SDO, ascii (address:port), the web console
-        for who, n in (("modbus 127.0.0.1:", 1), ("zenoh", 2), ("ascii 127.0.0.1:", 2), ("web 127.0.0.1:", 1)):  # fmt: skip
+        for who, n in (("modbus 127.0.0.1:", 1), ("zenoh", 2), ("ascii 127.0.0.1:", 2), ("web 127.0.0.1 token:", 1)):  # fmt: skip
             assert len([m for m in refused if m.startswith(who)]) == n, (who, refused)
         events = [e.text for e in gw.web.events.since(0)]
         assert any(t.startswith("modbus 127.0.0.1:") and "refused" in t for t in events), events

@@ -1,13 +1,17 @@
 """``sdo`` and ``nmt`` on a config whose bus is the in-process ``virtual`` bus, as a new user
-runs them beside ``make demo``: they go through the running gateway's Zenoh API and reach its
-devices (the write is seen by the gateway, the NMT stop in its /healthz); without a Zenoh API
-they refuse in one line that says how to reach the gateway; with no gateway running they say
-that they act on their own simulated devices."""
+runs them beside a running gateway: they go through the gateway's command socket (a Unix
+socket only its user can open) and reach its devices, with Zenoh writes off as they are by
+default (the write is seen by the gateway, the NMT stop in its /healthz); a gateway without
+its command socket is reached through its Zenoh API, whose refusal of a write says what to do;
+without either way in they refuse in one line that says how to reach the gateway; with no
+gateway running they say that they act on their own simulated devices."""
 
 from __future__ import annotations
 
 import json
+import os
 import socket
+import stat
 import subprocess
 import sys
 import urllib.request
@@ -59,15 +63,19 @@ def healthz(cfg: Path) -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    cfg = demo_like(tmp_path_factory.mktemp("demo") / "demo.yaml")
+    """A user's own config: the demo's devices, Zenoh on, its writes off (the default)."""
+    cfg = demo_like(
+        tmp_path_factory.mktemp("demo") / "demo.yaml",
+        zenoh={"listen": [f"tcp/127.0.0.1:{free_port()}"]},
+    )
     with gateway_running(cfg):
         yield cfg
 
 
-def test_sdo_goes_through_the_running_gateway(running: Path) -> None:
+def test_sdo_goes_through_the_running_gateways_command_socket(running: Path) -> None:
     r = cli("sdo", "read", "-c", str(running), "wire", "0x1008:00")
     assert (r.returncode, r.stdout.strip()) == (0, "SGH10"), r.stderr
-    assert r.stderr.startswith("sdo read of wire through the running gateway at tcp/127.0.0.1:")
+    assert r.stderr.startswith("sdo read of wire through the running gateway at its command socket /")
     # a write reaches the gateway's devices: read back by another process, through it again
     r = cli("sdo", "write", "-c", str(running), "wire", "0x6000:00", "4")
     assert (r.returncode, r.stdout.strip()) == (0, "OK"), r.stderr
@@ -76,21 +84,63 @@ def test_sdo_goes_through_the_running_gateway(running: Path) -> None:
     r = cli("sdo", "write", "-c", str(running), "wire", "0x1000:00", "1")
     assert r.returncode == 1
     assert r.stderr.startswith("error: SDO abort 0x06010002 (Attempt to write a read only object)")
-    assert "through the running gateway at tcp/127.0.0.1:" in r.stderr
+    assert "through the running gateway at its command socket /" in r.stderr
 
 
-def test_nmt_goes_through_the_running_gateway(running: Path) -> None:
+def test_nmt_without_zenoh_writes_goes_through_the_command_socket(running: Path) -> None:
     r = cli("nmt", "-c", str(running), "stop", "wire")
     assert r.returncode == 0, r.stderr
-    assert r.stdout.startswith(
-        "NMT stop sent to wire through the running gateway at tcp/127.0.0.1:"
-    )
+    assert r.stdout.startswith("NMT stop sent to wire through the running gateway at its command socket /")
     # the device's next heartbeat reports it stopped (bounded wait on /healthz)
     wait_until_sync(
         lambda: healthz(running)["nodes"]["wire"]["nmt_state"] == "stopped", 10, "wire stopped"
     )
     r = cli("nmt", "-c", str(running), "start", "all")
     assert r.returncode == 0, r.stderr
+
+
+def test_the_command_socket_is_the_gateway_users_alone(running: Path) -> None:
+    from gateway.checks import load_checked
+    from gateway.command_socket import socket_paths
+
+    cfg, _ = load_checked(running)
+    path = next(p for p in socket_paths(cfg) if p.exists())
+    st, dst = path.lstat(), path.parent.lstat()
+    assert stat.S_ISSOCK(st.st_mode) and stat.S_IMODE(st.st_mode) == 0o600
+    assert stat.S_IMODE(dst.st_mode) == 0o700 and st.st_uid == dst.st_uid == os.getuid()
+    assert path.name.startswith("demo-") and path.name.endswith(".sock")
+
+
+async def test_a_gateway_without_its_command_socket_is_reached_by_zenoh_and_a_refused_write_says_what_to_do(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import asyncio
+
+    from gateway.app import Gateway
+    from gateway.checks import load_checked
+    from gateway.cli import main
+
+    cfg_file = demo_like(tmp_path / "z.yaml", zenoh={"listen": [f"tcp/127.0.0.1:{free_port()}"]},
+                         command_socket={"enabled": False})  # fmt: skip
+    gw = Gateway(*load_checked(cfg_file))
+    await gw.start()
+    try:
+        assert gw.command_socket.path is None
+        assert await asyncio.to_thread(main, ["sdo", "read", "-c", str(cfg_file), "wire", "0x1008:00"]) == 0
+        out = capsys.readouterr()
+        assert out.out.strip() == "SGH10" and "through the running gateway at tcp/127.0.0.1:" in out.err
+        assert await asyncio.to_thread(main, ["nmt", "-c", str(cfg_file), "stop", "wire"]) == 1
+    finally:
+        await gw.stop()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("error: Zenoh writes are off on this gateway")
+    assert err[0].endswith(
+        "; no command socket of this gateway (command_socket.enabled is false in this config): run "
+        "this command as the gateway's user with the config file it runs, on a gateway with its "
+        "command socket on (the default with an in-process bus; docs/web.md), or open Zenoh "
+        "writes (zenoh.writes: on), which opens them to every Zenoh client"
+    )
 
 
 def test_without_zenoh_beside_a_running_gateway_the_command_refuses_in_one_line(
@@ -113,7 +163,7 @@ def test_without_zenoh_beside_a_running_gateway_the_command_refuses_in_one_line(
         f"http://127.0.0.1:{port}, so `sdo write` would act on a private copy of the devices"
     )
     assert "can.interface: remote, docs/canopen.md" in lines[0]
-    assert "enable zenoh (this command then goes through it)" in lines[0]
+    assert "or start it with its command socket (command_socket.enabled, the default;" in lines[0]
 
 
 def test_with_no_gateway_running_the_command_says_it_acts_on_its_own_devices(
@@ -211,3 +261,26 @@ async def test_scan_beside_a_gateway_that_serves_its_commissioning_page_points_a
     assert len(lines) == 1, lines
     assert f"use its web console's commissioning page (http://127.0.0.1:{gw.cfg.health.port}/commissioning);" in lines[0]
     assert "CANOPEN_GATEWAY__WEB__WRITES" not in lines[0]
+
+
+async def test_fault_finds_the_web_port_a_variable_moved_through_the_command_socket(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The gateway runs with its health port moved by a variable of its own shell; `fault` in
+    another shell, with the file alone, reaches it without --url."""
+    import asyncio
+
+    from gateway.app import Gateway
+    from gateway.checks import load_checked
+    from gateway.cli import main
+
+    cfg_file = demo_like(tmp_path / "f.yaml", zenoh={"enabled": False})
+    moved = free_port()
+    gw = Gateway(*load_checked(cfg_file, environ={"CANOPEN_GATEWAY__HEALTH__PORT": str(moved)}))
+    await gw.start()
+    try:
+        assert gw.health.port == moved
+        assert await asyncio.to_thread(main, ["fault", "-c", str(cfg_file), "wire", "heartbeat-off"]) == 0
+        assert capsys.readouterr().out.startswith("wire: heartbeat-off done")
+    finally:
+        await gw.stop()

@@ -211,7 +211,7 @@ async def test_faults_on_the_virtual_bus_need_no_token_and_act_on_the_simulated_
         await wait_until(lambda: node_operational(gw, "wire"), 5, "wire operational again")
         code, events = await get_json(base + "/api/events?kind=warning&node=wire")
         texts = [e["text"] for e in events["events"]]
-        assert "simulated fault: wire unplug (from the HTTP API, client 127.0.0.1)" in texts
+        assert "simulated fault: wire unplug (from web 127.0.0.1, the HTTP API)" in texts
         code, _, doc = await post_json(base + "/api/sim/wire/fly")
         assert code == 404 and "unplug" in doc["message"]
         code, _, doc = await post_json(base + "/api/sim/nope/unplug")
@@ -221,8 +221,7 @@ async def test_faults_on_the_virtual_bus_need_no_token_and_act_on_the_simulated_
 async def test_faults_on_a_real_bus_need_writes_and_the_token() -> None:
     # the simulator on another interface stands for a simulated node on a real bus
     async with console(web={"writes": True, "token": TOKEN}) as (gw, base):
-        gw.web.cfg = gw.web.cfg.model_copy(deep=True)
-        gw.web.cfg.can.interface = "remote"
+        gw.web.fault_routes.virtual_bus = False
         code, doc = await get_json(base + "/api/sim")
         assert doc["rule"] == "token"
         code, _, _ = await post_json(base + "/api/sim/wire/heartbeat-off")
@@ -231,7 +230,7 @@ async def test_faults_on_a_real_bus_need_writes_and_the_token() -> None:
         assert code == 403
         code, _, doc = await post_json(base + "/api/sim/wire/heartbeat-off", token=TOKEN)
         assert code == 200 and doc["state"]["heartbeat"] is False
-        gw.web.writes = False
+        gw.web.fault_routes.writes = False
         code, doc = await get_json(base + "/api/sim")
         assert doc["rule"] == "none" and doc["nodes"] == {}
         code, _, _ = await http(base + "/api/sim/wire/heartbeat-on", {}, method="POST", token=TOKEN)
@@ -240,7 +239,7 @@ async def test_faults_on_a_real_bus_need_writes_and_the_token() -> None:
 
 async def test_without_simulated_nodes_there_is_no_fault_api() -> None:
     async with console() as (gw, base):
-        gw.web.faults = None
+        gw.web.fault_routes.faults = None
         code, doc = await get_json(base + "/api/sim")
         assert code == 200 and doc["rule"] == "none"
         assert (await http(base + "/api/sim/wire/unplug", {}, method="POST"))[0] == 404
@@ -262,7 +261,7 @@ async def test_the_fault_command_goes_through_the_running_gateway(
         assert await asyncio.to_thread(cli, "wire", "emcy") == 0
         assert "wire: emcy done" in capsys.readouterr().out
         await wait_until(lambda: gw.image.nodes["wire"].health.emcy_count, 5, "EMCY received")
-        assert gw.web.faults.state("wire")["emcy"] is not None
+        assert gw.web.fault_routes.faults.state("wire")["emcy"] is not None
         assert await asyncio.to_thread(cli, "wire", "fly") == 2
         assert "one of unplug, plug" in capsys.readouterr().err
         assert await asyncio.to_thread(cli, "other", "unplug") == 1

@@ -113,7 +113,10 @@ async def test_unknown_nodes_and_paths_answer_404() -> None:
     async with console(writes=False) as (_, base):
         code, _, body = await http(base + "/api/node/nope")
         assert code == 404 and "nope" in json.loads(body)["message"]
-        assert (await http(base + "/node/nope"))[0] == 404
+        # a browser at a node page of no node gets a page (404), not the API's JSON
+        code, headers, body = await http(base + "/node/nope")
+        assert code == 404 and headers["Content-Type"].startswith("text/html")
+        assert b"<h1>Not found</h1>" in body and b'data-page="notfound"' in body
         assert (await http(base + "/static/../config.py"))[0] == 404
         assert (await http(base + "/static/missing.js"))[0] == 404
         assert (await http(base + "/api/stream?node=nope"))[0] == 404
@@ -123,7 +126,7 @@ async def test_unknown_nodes_and_paths_answer_404() -> None:
 async def test_the_stream_sends_the_nodes_table_and_then_live_values_of_a_node() -> None:
     async with console(writes=False) as (_, base):
         reader, writer = await asyncio.open_connection("127.0.0.1", int(base.rsplit(":", 1)[1]))
-        writer.write(b"GET /api/stream?node=wire HTTP/1.1\r\nHost: x\r\n\r\n")
+        writer.write(b"GET /api/stream?node=wire HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         await writer.drain()
         head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), TIMEOUT_S)
         assert b"200 OK" in head and b"text/event-stream" in head

@@ -39,7 +39,7 @@ async def started(cfg: Any) -> tuple[Gateway, str]:
 
 
 async def entries(base: str, query: str) -> list[dict[str, Any]]:
-    code, _, body = await http(f"{base}/api/journal?{query}")
+    code, _, body = await http(f"{base}/api/journal?{query}", token=TOKEN)
     assert code == 200, body
     return json.loads(body)["entries"]
 
@@ -64,19 +64,24 @@ async def test_the_journal_survives_a_restart_is_filtered_and_exports_csv(tmp_pa
         ] * 2
         assert [e["seq"] for e in emcy] == [1, 2, 3, 4]
         audit = await entries(base, "kind=audit")
-        assert len(audit) == 1 and audit[0]["text"].startswith("web 127.0.0.1: nmt wire nmt")
+        assert len(audit) == 1 and audit[0]["text"].startswith("web 127.0.0.1 token: nmt wire nmt")
         assert audit[0]["text"].endswith(": done")
         everything = await entries(base, "")
         assert {e["kind"] for e in everything} == {"state", "emcy", "audit"}
         stamps = [e["ts"] for e in everything]
         assert stamps == sorted(stamps)
 
-        code, headers, body = await http(f"{base}/api/journal.csv?kind=emcy&from=now(-1h)&to=now()")
+        code, headers, body = await http(f"{base}/api/journal.csv?kind=emcy&from=now(-1h)&to=now()", token=TOKEN)
         assert code == 200 and headers["Content-Type"].startswith("text/csv")
         assert "attachment" in headers["Content-Disposition"]
+        assert headers["Transfer-Encoding"] == "chunked"  # streamed, whatever its length
         rows = list(csv.DictReader(io.StringIO(body.decode())))
         assert [int(r["seq"]) for r in rows] == [1, 2, 3, 4]
         assert json.loads(rows[0]["payload"])["code"] == "0xFF05"
+        code, headers, body = await http(f"{base}/api/journal.json?kind=emcy&from=now(-30m)", token=TOKEN)
+        assert code == 200 and headers["Transfer-Encoding"] == "chunked"
+        exported = json.loads(body)
+        assert [e["seq"] for e in exported] == [1, 2, 3, 4] and exported[0]["payload"]["code"] == "0xFF05"
 
         code, _, body = await http(f"{base}/healthz")
         status = json.loads(body)["journal"]
@@ -88,9 +93,12 @@ async def test_the_journal_survives_a_restart_is_filtered_and_exports_csv(tmp_pa
             ("kind=warning", "kind: warning is not one of state, emcy, audit"),
             ("node=ghost", "no node named 'ghost'"),
             ("from=yesterday", "is not a time"),
+            ("to=[now(-1h)..]", "is not a time"),
         ):
-            code, _, body = await http(f"{base}/api/journal?{query}")
-            assert code == 400 and words in json.loads(body)["message"], body
+            code, _, body = await http(f"{base}/api/journal?{query}", token=TOKEN)
+            message = json.loads(body)["message"]
+            assert code == 400 and words in message, body
+            assert "[" not in message.split("allowed", 1)[-1]  # from=/to= take one instant
     finally:
         await gw.stop()
 
@@ -98,7 +106,7 @@ async def test_the_journal_survives_a_restart_is_filtered_and_exports_csv(tmp_pa
 async def test_without_a_journal_the_console_says_so(tmp_path) -> None:
     gw, base = await started(config(None))
     try:
-        code, _, body = await http(f"{base}/api/journal")
+        code, _, body = await http(f"{base}/api/journal", token=TOKEN)
         assert code == 409 and "journal.path" in json.loads(body)["message"]
         code, _, page = await http(f"{base}/events")
         assert code == 200 and b'id="journal"' in page

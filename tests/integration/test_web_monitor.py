@@ -89,7 +89,7 @@ class EventStream:
 async def open_stream(addr: str, query: str = "") -> tuple[EventStream, dict[str, Any]]:
     host, port = addr.split(":")
     reader, writer = await asyncio.open_connection(host, int(port))
-    writer.write(f"GET /api/monitor/stream{query} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
+    writer.write(f"GET /api/monitor/stream{query} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
     await writer.drain()
     head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), TIMEOUT_S)
     assert b"200 OK" in head and b"text/event-stream" in head

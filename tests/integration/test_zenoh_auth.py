@@ -1,8 +1,9 @@
 """Who may connect and query, with Zenoh's own mechanisms, through a router: the router (a
-router-mode eclipse-zenoh session with ``transport/auth/usrpwd`` and ``access_control``, as
-deploy/zenoh/router-secure.json5 configures zenohd) knows three users; the gateway logs in
-with ``zenoh.auth`` from its config. A wrong password cannot connect, the viewer may read but
-its writes never reach the gateway (nothing on the bus), the operator writes."""
+router-mode eclipse-zenoh session with the shipped deploy/zenoh/router.json5: logins and
+access control) knows three users; the gateway logs in with ``zenoh.auth`` from its config as
+its prefix's own login. A wrong password cannot connect, the viewer may read but its writes
+never reach the gateway (nothing on the bus), the operator writes; the gateway publishes,
+answers and announces itself under its prefix."""
 
 from __future__ import annotations
 
@@ -17,26 +18,9 @@ import zenoh
 from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient
 
-P = "canopen/test"
-USERS = {"gateway": "gw-secret", "operator": "op-secret", "viewer": "view-secret"}
-
-#: the access_control section of the router (deploy/zenoh/router-secure.json5 has the same)
-ACCESS_CONTROL = {
-    "enabled": True,
-    "default_permission": "allow",
-    "rules": [
-        {
-            "id": "no-writes",
-            "messages": ["query"],
-            "flows": ["ingress"],
-            "permission": "deny",
-            "key_exprs": ["canopen/*/*/set", "canopen/*/*/set/**", "canopen/*/*/nmt",
-                          "canopen/*/*/sdo/**"],
-        }
-    ],
-    "subjects": [{"id": "viewers", "usernames": ["viewer"]}],
-    "policies": [{"rules": ["no-writes"], "subjects": ["viewers"]}],
-}  # fmt: skip
+P = "canopen/line1"
+USERS = {"gateway-line1": "gw-secret", "operator": "op-secret", "viewer": "view-secret"}
+ROUTER = Path(__file__).resolve().parents[2] / "deploy" / "zenoh" / "router.json5"
 
 
 def session_conf(mode: str, endpoint: str, user: str | None = None, password: str | None = None) -> zenoh.Config:
@@ -54,11 +38,12 @@ def session_conf(mode: str, endpoint: str, user: str | None = None, password: st
 
 
 def secure_router(endpoint: str, tmp: Path) -> zenoh.Session:
+    """The shipped router configuration, on a test port with the test's users file."""
     users = tmp / "users.txt"
     users.write_text("".join(f"{u}:{p}\n" for u, p in USERS.items()))
-    conf = session_conf("router", endpoint)
+    conf = zenoh.Config.from_file(str(ROUTER))
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
     conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(users)))
-    conf.insert_json5("access_control", json.dumps(ACCESS_CONTROL))
     return zenoh.open(conf)
 
 
@@ -74,12 +59,13 @@ async def test_users_passwords_and_access_control_through_a_router(tmp_path: Pat
     (tmp_path / "gateway.password").write_text("gw-secret\n")
     cfg = make_config(
         [{"name": "display", "node_id": 125, "profile": "ap05"}],
+        gateway={"name": "line1"},
         zenoh={
             "mode": "client",
             "listen": [],
             "connect": [endpoint],
             "writes": True,
-            "auth": {"user": "gateway", "password_file": str(tmp_path / "gateway.password")},
+            "auth": {"user": "gateway-line1", "password_file": str(tmp_path / "gateway.password")},
         },
     )
     gw = gateway_of(cfg)
@@ -101,6 +87,8 @@ async def test_users_passwords_and_access_control_through_a_router(tmp_path: Pat
         bus = can.Bus(interface="virtual", channel=cfg.can.channel)
 
         state = await viewer.get_one(f"{P}/display/state")  # reads stay open to the viewer
+        # the gateway's login announces it under its prefix through the closed router
+        assert {f"{P}/alive/_gateway", f"{P}/alive/display"} <= await viewer.alive_tokens(f"{P}/alive/**")
         assert state.ok and state.body["node"] == "display"
         denied = await viewer.get(f"{P}/display/set/set_point2", payload="1111", timeout_s=1.0)
         assert denied == []  # the router dropped the query: no reply at all
@@ -138,7 +126,7 @@ async def test_the_gateway_cannot_join_a_router_with_a_wrong_password(tmp_path: 
             "mode": "client",
             "listen": [],
             "connect": [endpoint],
-            "auth": {"user": "gateway", "password": "not-the-password"},
+            "auth": {"user": "gateway-line1", "password": "not-the-password"},
         },
     )
     gw = gateway_of(cfg)

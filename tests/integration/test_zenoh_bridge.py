@@ -204,7 +204,7 @@ async def test_ap05_token_goes_away_while_its_guarding_bit_link_is_in_fault() ->
 
 
 async def test_sdo_upload_download_and_abort_through_queries() -> None:
-    async with running([WIRE]) as (gw, z):
+    async with running([WIRE], zenoh={"reads": "all"}) as (gw, z):  # any object: 7777h too
         await operational(gw, "wire")
         name = await z.get_one(f"{P}/wire/sdo/1008/00")
         assert name.ok and name.body == {"node": "wire", "object": "0x1008:00", "value": "SGH10"}

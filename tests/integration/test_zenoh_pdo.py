@@ -60,6 +60,7 @@ async def test_scripted_frames_each_new_frame_a_sample_and_a_lost_node_goes_stal
     its own ``publish: every`` goes out on its value key, not in the PDO's sample; a node that stops its heartbeat gets
     its last PDO republished as stale, same seq (quality travels with each value)."""
     node = {"name": "wire", "node_id": 1, "profile": "sgh10", "configure": False,
+            "identity_check": False,  # scripted frames: no SDO server to read 1018h from
             "supervision": "heartbeat", "heartbeat_ms": 100,
             "signals": {"velocity": {"publish": "every"}}}  # fmt: skip
     cfg = make_config([node], simulate={"nodes": []}, master={"sync_period_ms": 0},

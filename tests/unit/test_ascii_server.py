@@ -9,6 +9,7 @@ from types import SimpleNamespace
 from typing import Any
 
 from gateway.ascii.server import MAX_PENDING_LINES, AsciiGateway, _Connection
+from gateway.commands.audit import RefusalAudit
 from gateway.config import parse_config
 from gateway.errors import SdoAbort
 from gateway.image import ProcessImage
@@ -53,6 +54,7 @@ class FakeCommands:
     def __init__(self) -> None:
         self.reads: list[tuple[str, Any, Any]] = []
         self.fail: BaseException | None = None
+        self.refusals = RefusalAudit(lambda: None)  # refused writes: not audited here
 
     def names(self) -> list[str]:
         return ["wire"]

@@ -195,3 +195,36 @@ def test_check_of_the_demo_finds_no_warning_in_our_own_device_files(
         "ap05.eds: 0 warnings; 6 RPDO entries ro by SDO and written by RPDO only, as profile "
         "ap05 says (rpdo_only_writable)"
     )
+
+
+def test_a_value_of_the_wrong_kind_is_named_with_the_value(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = write(tmp_path, yaml.safe_dump({"can": {"interface": "virtual"}, "modbus": {"port": "5030x"}, "nodes": [WIRE]}))  # fmt: skip
+    code, err, _ = check(path, capsys)
+    assert (code, err) == (2, [f"{path}: modbus.port: got '5030x', must be a whole number"])
+
+
+def test_a_misspelt_device_file_names_the_near_ones_in_its_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "devices").mkdir()
+    (tmp_path / "devices" / "io401.eds").write_bytes((REPO / "tests/data/eds/io401.eds").read_bytes())
+    for wrong, said in (
+        ("devices/io410.eds", "; did you mean io401.eds?"),
+        ("devices/drive.eds", f" (in {tmp_path / 'devices'}: io401.eds)"),
+        ("device/io401.eds", f" (nor does its folder {tmp_path / 'device'})"),
+    ):
+        path = write(tmp_path, yaml.safe_dump({"can": {"interface": "virtual"}, "nodes": [{"name": "io", "node_id": 5, "eds": wrong}]}))  # fmt: skip
+        code, err, _ = check(path, capsys)
+        assert (code, err) == (2, [f"{path}: nodes[0].eds: {tmp_path / wrong}: file does not exist{said}"])
+
+
+def test_a_register_clash_names_the_keys_of_both(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    wire = {**WIRE, "signals": {"velocity": {"address": 100}}}
+    path = write(tmp_path, yaml.safe_dump({"can": {"interface": "virtual"}, "nodes": [wire]}))
+    code, err, _ = check(path, capsys)
+    assert (code, err) == (2, [
+        f"{path}: nodes[0].signals.velocity: input register 100 of unit 1 is used twice: "
+        "wire.velocity (nodes[0].signals.velocity) and wire.position (nodes[0])"
+    ])  # fmt: skip

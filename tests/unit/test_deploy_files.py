@@ -6,6 +6,7 @@ config loader); the image itself is built and run by deploy/container-test.sh.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -181,9 +182,12 @@ def unit_settings(path: Path) -> dict[str, list[str]]:
 
 def test_systemd_unit_runs_the_gateway_hardened():
     unit = unit_settings(DEPLOY / "systemd/canopen-gateway.service")
+    # the config stays root's (0600): the service reads the copy systemd hands it
+    assert unit["LoadCredential"] == ["config.yaml:/etc/canopen-gateway/config.yaml"]
     assert unit["ExecStart"] == [
-        "/opt/canopen-gateway/bin/canopen-gateway run -c /etc/canopen-gateway/config.yaml"
+        "/opt/canopen-gateway/bin/canopen-gateway run -c ${CREDENTIALS_DIRECTORY}/config.yaml"
     ]
+    assert int(unit["LimitNOFILE"][0]) >= 8192  # room above the connection caps
     for key, value in {
         "NoNewPrivileges": "yes",
         "ProtectSystem": "strict",
@@ -194,6 +198,8 @@ def test_systemd_unit_runs_the_gateway_hardened():
     }.items():
         assert unit[key] == [value], key
     assert "AF_CAN" in unit["RestrictAddressFamilies"][0].split()
+    # the gateway says READY=1 and pings the watchdog (gateway.runtime.sd_notify)
+    assert unit["Type"] == ["notify"] and int(unit["WatchdogSec"][0]) > 0
 
 
 def test_can0_network_file_sets_the_bit_rate():
@@ -210,11 +216,62 @@ def test_router_config_is_accepted_by_zenoh():
     assert "7447" in conf.get_json("listen/endpoints")
 
 
-def test_secure_router_config_is_accepted_by_zenoh():
+def router_acl() -> dict:
     zenoh = pytest.importorskip("zenoh")
-    conf = zenoh.Config.from_file(str(DEPLOY / "zenoh/router-secure.json5"))
-    assert '"dictionary_file"' in conf.get_json("transport/auth/usrpwd")
-    assert conf.get_json("access_control/enabled") == "true"
+    conf = zenoh.Config.from_file(str(DEPLOY / "zenoh/router.json5"))
+    assert json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file")) == "/run/secrets/zenoh-users"
+    return json.loads(conf.get_json("access_control"))
+
+
+def test_the_router_is_closed_by_default_and_ships_no_password():
+    acl = router_acl()
+    assert acl["enabled"] is True and acl["default_permission"] == "deny"
+    text = (DEPLOY / "zenoh/router.json5").read_text()
+    assert "change-me" not in text and not re.search(r"^\s*password\s*:", text, re.M)
+    for path in [*DEPLOY.rglob("*.yml"), *DEPLOY.rglob("*.yaml"), *(ROOT / "config").glob("*.yaml")]:
+        assert "change-me" not in path.read_text(), path
+
+
+def gateway_logins() -> dict[str, list[str]]:
+    """router.json5: a gateway's login -> the key expressions its rule lets it publish on."""
+    acl = router_acl()
+    rules = {r["id"]: r for r in acl["rules"]}
+    subjects = {s["id"]: s.get("usernames") or [] for s in acl["subjects"]}
+    out: dict[str, list[str]] = {}
+    for policy in acl["policies"]:
+        for subject in policy["subjects"]:
+            for user in subjects[subject]:
+                for rule in policy["rules"]:
+                    if "put" in rules[rule]["messages"] and rules[rule]["permission"] == "allow":
+                        out.setdefault(user, []).extend(rules[rule]["key_exprs"])
+    return out
+
+
+@pytest.mark.parametrize("name", ["docker-compose.yml", "docker-compose.fleet.yml", "docker-compose.pair.yml"])
+def test_compose_gateways_log_in_to_the_closed_router_as_their_prefixs_gateway(name):
+    compose = load_yaml(DEPLOY / name)
+    router = compose["services"]["zenoh-router"]
+    assert router["secrets"] == [{"source": "zenoh-users", "target": "zenoh-users"}]
+    secrets = compose["secrets"]
+    assert secrets["zenoh-users"]["file"] == "./zenoh/secrets/users.txt"
+    logins = gateway_logins()
+    made = re.search(r"^DEFAULT_LOGINS=\((.*)\)$", (DEPLOY / "zenoh/make-secrets.sh").read_text(), re.M)
+    assert made is not None and set(logins) <= set(made.group(1).split())
+    for svc_name, svc in compose["services"].items():
+        if svc.get("command", [None])[0] == "simulate" or not svc_name.startswith("gateway"):
+            continue
+        env = {k: str(v) for k, v in svc["environment"].items()}
+        user = re.sub(r"\$\{GATEWAY_LOGIN:-(.+)\}", r"\1", env["CANOPEN_GATEWAY__ZENOH__AUTH__USER"])
+        assert env["CANOPEN_GATEWAY__ZENOH__AUTH__PASSWORD_FILE"] == "/run/secrets/zenoh-password"
+        (secret,) = [x for x in svc["secrets"] if x["target"] == "zenoh-password"]
+        file = re.sub(r"\$\{GATEWAY_LOGIN:-(.+)\}", r"\1", secrets[secret["source"]]["file"])
+        assert file == f"./zenoh/secrets/{user}.password", svc_name
+        mount = next(v for v in svc["volumes"] if v.rsplit(":", 2)[1] == CONFIG_PATH)
+        source = re.sub(r"\$\{GATEWAY_CONFIG:-(.+)\}", r"\1", mount.rsplit(":", 2)[0])
+        cfg = load_config(DEPLOY / source, environ=env)
+        prefix = cfg.zenoh.key_prefix(cfg.gateway.name)
+        assert f"{prefix}/**" in logins[user], (svc_name, user, prefix)
+        assert svc["ulimits"]["nofile"]["soft"] >= 8192  # room above the connection caps
 
 
 # --- fleet --------------------------------------------------------------------------------------
@@ -241,7 +298,10 @@ def test_dockerfile_contract():
     assert "ARG BASE_IMAGE=python:3.11-slim" in text
     assert "python3 -m venv" in text
     assert re.search(r"^USER \d+:\d+$", text, re.M), "runs as a numeric non-root user"
-    assert f"COPY config/demo.yaml {CONFIG_PATH}" in text
+    # no config of its own: the demo beside it, run only when asked for (CLI: demo_config)
+    assert CONFIG_PATH not in re.findall(r"^COPY \S+ (\S+)$", text, re.M)
+    assert "COPY config/demo.yaml /etc/canopen-gateway/demo.yaml" in text
+    assert "CANOPEN_GATEWAY_DEMO_CONFIG=/etc/canopen-gateway/demo.yaml" in text
     assert 'ENTRYPOINT ["canopen-gateway"]' in text
     assert f'CMD ["run", "-c", "{CONFIG_PATH}"]' in text
     assert "CANOPEN_GATEWAY__HEALTH__PORT=8080" in text
@@ -275,6 +335,16 @@ PAIR_ENV = "CANOPEN_GATEWAY__MASTER__REDUNDANCY__"
 def pair_configs(envs: list[dict[str, str]]) -> list:
     """deploy/config/pair.yaml as each gateway of the pair loads it (its environment applied)."""
     return [load_config(DEPLOY / "config/pair.yaml", environ=env) for env in envs]
+
+
+def test_the_pair_config_gives_each_gateway_no_warning():
+    """deploy/config/pair.yaml as gateway A and as gateway B load it: `check` warns of nothing
+    (a SYNC producer for the SYNC-driven TPDOs, a take-over every node survives)."""
+    from gateway.checks import config_warnings
+
+    b = {f"{PAIR_ENV}NODE_ID": "121", f"{PAIR_ENV}PRIORITY": "1", f"{PAIR_ENV}PEER_NODE_ID": "120"}
+    for cfg in pair_configs([{}, b]):
+        assert config_warnings(cfg, resolved(cfg)) == []
 
 
 def test_pair_compose_runs_two_gateways_of_one_image_and_config_with_own_ids():

@@ -396,8 +396,8 @@ def test_simulator_answers_a_utf8_device_name_by_sdo() -> None:
     assert sim.sdo_read_local("0x1008:00") == "Durchflussmesser Größe 3 – µ"
 
 
-def test_expected_identity_is_vendor_and_product_and_a_dcf_serial(tmp_path: Path) -> None:
-    from gateway.profiles import expected_identity
+def test_expected_identity_is_what_the_file_gives_and_a_dcf_serial(tmp_path: Path) -> None:
+    from gateway.profiles import expected_identity, identity_check
 
     lp = load_node_profile(Node(eds=str(IO)).cfg.setup)
     assert expected_identity(lp) == ((ObjRef(0x1018, 1), 0xABC), (ObjRef(0x1018, 2), 0x401))
@@ -408,8 +408,21 @@ def test_expected_identity_is_vendor_and_product_and_a_dcf_serial(tmp_path: Path
     dcf.write_text(head + "[1018sub4]" + section + "\nParameterValue=0x00C0FFEE\n\n" + tail, encoding="utf-8")
     lp = load_node_profile(Node(eds=str(dcf)).cfg.setup)
     assert expected_identity(lp)[-1] == (ObjRef(0x1018, 4), 0xC0FFEE)
+    assert identity_check(lp).not_checked == ()
+    # a file with the product alone: the product is compared, and the vendor said not to be
     anonymous = edited_copy(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=", "anon.eds")
-    assert expected_identity(load_node_profile(Node(eds=str(anonymous)).cfg.setup)) == ()
+    check = identity_check(load_node_profile(Node(eds=str(anonymous)).cfg.setup))
+    assert check.expected == ((ObjRef(0x1018, 2), 0x401),)
+    assert check.not_checked == ("0x1018:01 (vendor) not checked: anon.eds gives no VendorNumber in [DeviceInfo]; only 0x1018:02 (product) is compared",)  # fmt: skip
+    # the vendor alone (VendorNumber, but ProductNumber 0: none): a device of another vendor is refused
+    vendor_only = edited_copy(tmp_path, IO, "ProductNumber=0x00000401", "ProductNumber=0", "vendor.eds")
+    check = identity_check(load_node_profile(Node(eds=str(vendor_only)).cfg.setup))
+    assert check.expected == ((ObjRef(0x1018, 1), 0xABC),)
+    assert check.not_checked == ("0x1018:02 (product) not checked: vendor.eds gives no ProductNumber (ProductNumber=0x0 in [DeviceInfo] stands for none); only 0x1018:01 (vendor) is compared",)  # fmt: skip
+    neither = edited_copy(tmp_path, anonymous, "ProductNumber=0x00000401", "ProductNumber=", "neither.eds")
+    check = identity_check(load_node_profile(Node(eds=str(neither)).cfg.setup))
+    assert check.expected == ()
+    assert check.not_checked == ("identity (1018h) not checked: neither.eds gives no VendorNumber or ProductNumber in [DeviceInfo]: any device at this node id is configured",)  # fmt: skip
 
 
 def test_device_info_other_than_1018h_is_a_warning_and_that_number_is_not_compared(tmp_path: Path) -> None:

@@ -40,7 +40,8 @@ def test_execute_calls_the_roles_directly() -> None:
 
 
 def test_the_output_watchdog_is_driven_beside_the_server() -> None:
-    from gateway.modbus.server import ModbusGateway, OutputWatchdogDriver
+    from gateway.modbus.server import ModbusGateway
+    from gateway.modbus.watchdog_driver import OutputWatchdogDriver
 
     gateway_methods = set(vars(ModbusGateway))
     assert not {"request_seen", "writer_gone", "_trip", "_write_safe"} & gateway_methods

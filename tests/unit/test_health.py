@@ -242,3 +242,12 @@ def test_pair_metrics_count_takeovers_and_negotiations_and_gauge_the_role():
     assert samples[("canopen_gateway_pair_negotiations_total", ())] == 2
     assert samples[("canopen_gateway_pair_role", ())] == 2
 
+
+
+def test_build_info_names_the_package_version_and_python_with_value_1():
+    import platform
+    from importlib.metadata import version
+
+    samples = scrape(Metrics(process_metrics=False))
+    labels = (("python", platform.python_version()), ("version", version("canopen-gateway")))
+    assert samples[("canopen_gateway_build_info", labels)] == 1

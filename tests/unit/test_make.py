@@ -86,3 +86,12 @@ def test_skipped_tests_say_why(tmp_path: Path) -> None:
         timeout=120,
     )
     assert "SKIPPED [1]" in r.stdout and "no EDS corpus here" in r.stdout, r.stdout
+
+
+def test_test_quick_is_the_lint_and_the_unit_tests_and_test_the_whole_suite(tmp_path: Path) -> None:
+    where = project(tmp_path, this_python())
+    quick = [line for line in dry_run(where, "test-quick").splitlines() if not line.startswith("make")]  # fmt: skip
+    assert [line.split()[0].rsplit("/", 1)[-1] for line in quick] == ["ruff", "lint-imports", "mypy", "python"]
+    assert quick[-1].endswith("-m pytest -q tests/unit")
+    whole = [line for line in dry_run(where, "test").splitlines() if not line.startswith("make")]
+    assert whole[-1].endswith("-m pytest -q")  # every test directory

@@ -223,6 +223,25 @@ def test_a_loss_invalidates_values_and_the_nmt_state_is_unknown() -> None:
     assert hl.lifecycle == "waiting"
 
 
+def test_a_loss_says_why_in_last_error_at_once_and_the_return_clears_it() -> None:
+    """Only the heartbeat stops (the device answers SDO and sends its TPDOs all along): the
+    node is lost, and ``last_error`` (``/healthz``, the Zenoh state, the console) says why
+    from that instant, not after a boot timeout."""
+    h = sgh10()
+    h.start()
+    h.bootup(1.0)
+    h.heartbeats(1.01, 2.0)
+    h.run_until(2.0)
+    assert h.image.health.last_error == ""
+    h.run_until(2.5)  # last heartbeat at 1.91 + 150 ms
+    hl = h.image.health
+    assert not hl.alive
+    assert hl.last_error == "lost (no heartbeat for more than 150 ms)"
+    h.heartbeats(2.6, 3.0)  # the heartbeat again
+    h.run_until(2.65)
+    assert hl.alive and hl.last_error == ""
+
+
 # --------------------------------------------------------------------------- probes (13.5)
 
 
@@ -256,8 +275,13 @@ def test_a_boot_up_cancels_a_probe_in_flight_and_configuration_starts_at_once() 
     h.bootup(0.05)  # the device comes up while the probe waits for its answer
     h.run_until(0.05)
     first_step = h.frames(0x601, after=0.0)
-    assert first_step and first_step[0][0] == 0.05  # 1017h written at once, not after 0.5 s
-    assert first_step[0][1].data[0] == 0x2B and first_step[0][1].data[1:3] == b"\x17\x10"
+    # the configuration starts at once, not after 0.5 s: with the identity read (1018h:01,
+    # the vendor its EDS gives), then 1017h
+    assert first_step and first_step[0][0] == 0.05
+    assert first_step[0][1].data[:4] == bytes([0x40, 0x18, 0x10, 0x01])
+    h.run_until(0.06)
+    writes = [s for _, s in h.frames(0x601, after=0.0) if s.data[0] == 0x2B]
+    assert writes and writes[0].data[1:3] == b"\x17\x10"
 
 
 def test_a_refused_device_sending_heartbeats_is_checked_again_only_after_minutes() -> None:

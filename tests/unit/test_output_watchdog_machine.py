@@ -16,6 +16,7 @@ from gateway.modbus.watchdog import (
     WatchdogEvent,
     WatchdogState,
 )
+from tests.pair_invariants import safe_in_time
 
 T0 = 1000.0
 
@@ -164,8 +165,7 @@ def _reach(state: WatchdogState, wd: OutputWatchdog) -> None:
     if state is WatchdogState.WAITING:
         return
     if state is WatchdogState.STANDBY:
-        wd.on_request(T0)
-        wd.on_mastering(False)
+        wd.on_mastering(False)  # a pair's member from its start: no PLC request known yet
         assert wd.state is state
         return
     wd.on_request(T0)
@@ -192,6 +192,9 @@ def test_the_machine_does_what_its_table_says(
         reason = wd.on_writer_disconnect(T0 + 0.3)
     elif event in (WatchdogEvent.STAND_BY, WatchdogEvent.TAKE_OVER):
         wd.on_mastering(event is WatchdogEvent.TAKE_OVER)
+        reason = None
+    elif event is WatchdogEvent.TAKE_OVER_WRITTEN:  # a write heard on the bus
+        wd.on_mastering(True, written_s=T0 + 0.2)
         reason = None
     else:
         deadline = wd.next_deadline()
@@ -224,16 +227,63 @@ def test_the_standby_of_a_pair_never_trips_and_runs_no_timer() -> None:
     assert wd.trips == {TIMEOUT: 0, DISCONNECT: 0}
 
 
-def test_a_gateway_that_becomes_active_starts_its_watchdog_fresh() -> None:
+def test_a_gateway_that_becomes_active_with_no_sign_of_a_plc_waits_as_at_start() -> None:
     wd = OutputWatchdog(0.5, on_disconnect=False)
     wd.on_mastering(False)  # a pair's gateway starts as the standby
-    wd.on_request(T0)
-    wd.on_mastering(True)  # it takes over: waiting, as at start
+    wd.on_mastering(True, written_s=None)  # it takes over: no request, no write heard
     assert wd.state is WatchdogState.WAITING and wd.next_deadline() is None
     assert wd.tick(T0 + 10) is None
     wd.on_request(T0 + 10)  # the first PLC request arms it
     assert wd.tick(math.nextafter(T0 + 10.5, 0)) is None
     assert wd.tick(T0 + 10.5) == TIMEOUT
+
+
+def test_a_take_over_counts_from_the_plcs_last_write_heard_on_the_bus() -> None:
+    """The PLC wrote through the other member (its RPDOs heard at T0), then died with it: the
+    outputs go safe 0.5 s after that write, not after a first write that never comes."""
+    wd = OutputWatchdog(0.5, on_disconnect=False)
+    wd.on_mastering(False)
+    wd.on_mastering(True, written_s=T0)  # the take-over, 0.3 s after the write
+    assert wd.state is WatchdogState.ARMED and wd.next_deadline() == T0 + 0.5
+    assert wd.tick(math.nextafter(T0 + 0.5, 0)) is None
+    assert wd.tick(T0 + 0.5) == TIMEOUT
+    assert safe_in_time(T0, T0 + 0.5, T0 + 0.5, watchdog_s=0.5, takeover_s=0.3) == []
+    # a take-over later than the watchdog: safe at its first tick, within watchdog + take-over
+    late = OutputWatchdog(0.5, on_disconnect=False)
+    late.on_mastering(False)
+    late.on_mastering(True, written_s=T0)
+    assert late.tick(T0 + 0.8) == TIMEOUT
+    assert safe_in_time(T0, T0 + 0.8, T0 + 0.8, watchdog_s=0.5, takeover_s=0.3) == []
+
+
+def test_a_take_over_counts_from_the_later_of_a_request_to_it_and_a_write_heard() -> None:
+    wd = OutputWatchdog(0.5, on_disconnect=False)
+    wd.on_mastering(False)
+    wd.on_request(T0 + 2)  # the PLC polls the standby (its write there refused 0x06)
+    wd.on_mastering(True, written_s=T0 + 1)
+    assert wd.next_deadline() == T0 + 2.5
+    late = OutputWatchdog(0.5, on_disconnect=False)
+    late.on_mastering(False)
+    late.on_request(T0 + 1)
+    late.on_mastering(True, written_s=T0 + 2)
+    assert late.next_deadline() == T0 + 2.5
+    # the take-over came after the deadline: it trips at its first tick
+    assert late.tick(T0 + 3) == TIMEOUT
+
+
+def test_a_take_over_without_a_writer_connected_trips_on_disconnect_at_once() -> None:
+    """``watchdog_ms: 0`` with ``watchdog_on_disconnect``: the PLC's connection went with the
+    other member; none is connected to this one."""
+    wd = OutputWatchdog(0.0, on_disconnect=True)
+    wd.on_mastering(False)
+    wd.on_mastering(True, written_s=T0)
+    assert wd.state is WatchdogState.DISCONNECTED
+    assert wd.tick(T0 + 0.3) == DISCONNECT
+    connected = OutputWatchdog(0.0, on_disconnect=True)
+    connected.on_mastering(False)
+    connected.on_writer_connect(T0)  # the PLC is connected to this member too
+    connected.on_mastering(True, written_s=T0)
+    assert connected.state is WatchdogState.ARMED and connected.tick(T0 + 10) is None
 
 
 def test_a_disabled_watchdog_ignores_the_role() -> None:

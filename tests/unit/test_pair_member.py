@@ -12,7 +12,6 @@ from gateway.bus.pair.flying_master import (
     RoleChanged,
 )
 from gateway.bus.pair.member import PairMember
-from gateway.canopen.cia301 import COB_SDO_RX
 from tests.helpers import make_config
 
 OWN = 0x700 + 101
@@ -147,28 +146,6 @@ def test_a_standby_rearms_its_timer_once_per_take_over_time_not_per_heartbeat_he
     # it fires when the deadline it was armed for comes, then arms the one due by then: at
     # most once per (take-over time - heartbeat period), not once per heartbeat heard (100)
     assert m.rearms <= 10.0 / (0.3 - 0.1) + 3
-
-
-def test_the_take_over_abort_names_the_object_of_the_initiate_request_heard() -> None:
-    m, _loop, sent, _roles = member()
-    # the active gateway's segmented download of 2000h:01 to node 5: initiate, then segments
-    m.on_sdo_request(5, bytes((0x21, 0x00, 0x20, 0x01, 10, 0, 0, 0)))
-    m.on_sdo_response(5, bytes((0x60, 0x00, 0x20, 0x01, 0, 0, 0, 0)))
-    m.on_sdo_request(5, bytes((0x00, 0x41, 0x42, 0x43, 0x44, 0x45, 0x46, 0x47)))  # a segment
-    # node 6: an expedited upload answered: nothing left open
-    m.on_sdo_request(6, bytes((0x40, 0x17, 0x10, 0x00, 0, 0, 0, 0)))
-    m.on_sdo_response(6, bytes((0x4B, 0x17, 0x10, 0x00, 0x64, 0, 0, 0)))
-    sent.clear()
-    m.abort_left_open()
-    assert sent == [(COB_SDO_RX + 5, bytes((0x80, 0x00, 0x20, 0x01, 0x00, 0x00, 0x04, 0x05)))]
-
-
-def test_a_transfer_joined_mid_way_is_aborted_without_naming_a_wrong_object() -> None:
-    m, _loop, sent, _roles = member()
-    m.on_sdo_request(5, bytes((0x10, 0x41, 0x42, 0x43, 0x44, 0x45, 0x46, 0x47)))  # a segment
-    sent.clear()
-    m.abort_left_open()
-    assert sent == [(COB_SDO_RX + 5, bytes((0x80, 0, 0, 0, 0x00, 0x00, 0x04, 0x05)))]
 
 
 def test_nothing_heard_of_the_peer_for_long_is_one_warning(caplog: Any) -> None:

@@ -150,3 +150,16 @@ def test_the_thread_answers_what_is_submitted_and_stops() -> None:
     finally:
         w.stop()
     assert threads.failures() == {}
+
+
+def test_a_history_answer_in_a_lane_of_its_own_lets_the_same_clients_short_get_through() -> None:
+    """The anonymous clients share one lane; their long answers (history) have another, with
+    more replies per turn: a plain get waits for one turn of it, not for the answer."""
+    log = Log()
+    w = worker(log, per_turn=4)
+    assert w.submit(("anonymous", "history"), ("history", 100_000), 16)
+    assert w.step()  # the long answer has begun
+    assert w.submit("anonymous", ("state", 1))
+    assert w.step() and w.step()  # one more turn of the long answer, then the short get's
+    assert log.finalised == ["state"]
+    assert [u for u in log.units if u[0] == "history"] == [("history", i) for i in range(32)]

@@ -192,6 +192,7 @@ def test_csv_has_one_row_per_value_and_per_bit_with_the_documented_columns() -> 
         "unit",
         "scaling",
         "description",
+        "network",
     ]
     position = next(r for r in rows if r["signal"] == "position")
     assert (position["unit_id"], position["table"], position["address"]) == (

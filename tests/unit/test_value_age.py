@@ -100,10 +100,11 @@ class Bench:
         last: its answer is left to the test)."""
         self.master._execute(self.p, self.p.node.start(self.mono, probe=False))
         self.control("nmt_ec", self.frame(0x701, b"\x00"))
-        steps = len(self.p.boot_steps)
+        identity = dict(((o.index, o.sub), v) for o, v in self.p.node.lifecycle.expected_identity)
+        steps = len(identity) + len(self.p.boot_steps)  # 1018h read first, as its EDS gives it
         while self.answered < steps - (1 if all_but_last else 0):
             self.advance(0.001)
-            self.control("sdo", self.answer({}))
+            self.control("sdo", self.answer(identity))
 
     def nmt_start_time(self) -> float:
         return next(t for t, cob, d in self.sent if cob == 0x000 and d[0] == 0x01)

@@ -125,3 +125,43 @@ def test_a_take_over_numbers_value_keys_and_pdo_records_above_what_was_heard() -
     assert [p["seq"] for p in sp.pub.payloads] == [96]
     assert [p["seq"] for p in pp.pub.payloads] == [91]
     assert bridge.seq_of("wire", "position", 31) == 96  # a get answers the same number
+
+
+def test_a_pair_per_network_publishes_only_the_nodes_of_the_networks_it_masters() -> None:
+    """A gateway active on line1 and standby on line2 (``set_mastering(True, silent)``): line2's
+    node is neither published nor given a liveliness token; taking line2 over later, its keys
+    go on above what was heard of the other member."""
+    from tests.helpers import parse_checked_config, unique_channel
+
+    def net(name: str, node: dict[str, object]) -> dict[str, object]:
+        return {"name": name, "can": {"interface": "virtual", "channel": unique_channel()},
+                "nodes": [node]}  # fmt: skip
+
+    cfg = parse_checked_config({"networks": [
+        net("line1", {"name": "wire", "node_id": 1, "profile": "sgh10"}),
+        net("line2", {"name": "rotary", "node_id": 1, "profile": "sgh10", "modbus": {"unit_id": 101}}),
+    ], "modbus": {"enabled": False}}, environ={})  # fmt: skip
+    gw = gateway_of(cfg, False)
+    bridge = gw.zenoh
+    assert bridge is not None
+    wire, rotary = gw.image.nodes["wire"], gw.image.nodes["rotary"]
+    pubs = {n: bridge.pubs[(n, "position")] for n in ("wire", "rotary")}
+    for sp in pubs.values():
+        sp.pub = _Capture()  # type: ignore[assignment]
+    bridge.link.session = _Capture()  # type: ignore[assignment]
+    gw.image.value_listeners.append(bridge._on_values)
+    bridge.set_mastering(True, frozenset({"rotary"}))
+    names = ("position", "velocity")
+    for k in range(3):
+        gw.image.update(wire, names, (k, 0), 1.0)
+        gw.image.update(rotary, names, (k, 0), 1.0)
+    bridge._values.flush()
+    assert len(pubs["wire"].pub.payloads) >= 1 and pubs["rotary"].pub.payloads == []
+    assert not bridge.node_alive(rotary)
+    bridge.on_heard(pubs["rotary"].key, b'{"seq": 40}', None)  # the other member's sample
+    bridge.on_heard(pubs["wire"].key, b'{"seq": 99}', None)  # its own: not taken as heard
+    assert bridge.heard.get(pubs["wire"].key) == 0
+    bridge.set_mastering(True)  # line2 taken over
+    gw.image.update(rotary, names, (9, 0), 1.0)
+    bridge._values.flush()
+    assert [p["seq"] for p in pubs["rotary"].pub.payloads] == [41]

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from gateway.runtime.threads import ThreadRegistry
-from gateway.zenoh_bridge.sender import ZenohSender
+from gateway.zenoh_bridge.sender import EVENT_WAIT_S, WITHHELD, ZenohSender
 from tests.helpers import gateway_of, make_config, wait_until, wait_until_sync
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -143,13 +143,18 @@ def test_stopping_ends_a_window_being_waited_for_and_publishes_the_marks() -> No
     assert sender.thread is None and flushes[-1] == "flush" and len(flushes) >= 2
 
 
+def publishers(log: list[str], *names: str) -> dict[str, Any]:
+    return {n: Pub(n, log) for n in names}
+
+
 def test_events_and_flushes_go_out_in_the_order_they_were_queued() -> None:
     log: list[str] = []
-    sender = ZenohSender(ThreadRegistry(), "zenoh-publish", lambda: log.append("flush"))
-    sender.put_event(Pub("state 1", log), b"{}", None)
+    pubs = publishers(log, "state 1", "emcy 1", "state 2")
+    sender = ZenohSender(ThreadRegistry(), "zenoh-publish", lambda: log.append("flush"), pub_of=pubs.get)
+    sender.put_event("state 1", b"{}", 1)
     sender.wake_values()
-    sender.put_event(Pub("emcy 1", log), b"{}", None)
-    sender.put_event(Pub("state 2", log), b"{}", None)
+    sender.put_event("emcy 1", b"{}", 2)
+    sender.put_event("state 2", b"{}", 3)
     sender.start()
     sender.stop()
     assert log == ["state 1", "flush", "emcy 1", "state 2", "flush"]
@@ -164,14 +169,83 @@ def test_a_failing_event_put_is_counted_and_the_thread_goes_on() -> None:
             raise RuntimeError("network gone")
 
     threads = ThreadRegistry()
-    sender = ZenohSender(threads, "zenoh-events", lambda: log.append("flush"))
-    sender.put_event(Failing(), b"{}", None)
-    sender.put_event(Pub("state", log), b"{}", None)
+    pubs = {"failing": Failing(), "state": Pub("state", log)}
+    sender = ZenohSender(threads, "zenoh-events", lambda: log.append("flush"), pub_of=pubs.get)
+    sender.put_event("failing", b"{}", 1)
+    sender.put_event("state", b"{}", 2)
     sender.start()
     sender.stop()
     assert sender.failed == 1 and sender.sent == 1
     assert log == ["state", "flush"]
     assert threads.failures() == {}
+
+
+def test_an_event_waits_for_its_commit_at_most_the_bound_then_goes_out_counted() -> None:
+    """The live path never waits for the disk: an event waits for its journal ticket until
+    EVENT_WAIT_S after it was made (a fake clock), then is published and counted."""
+    log: list[str] = []
+    now = [100.0]
+    waits: list[tuple[int, float]] = []
+    sender = ZenohSender(
+        ThreadRegistry(), "zenoh-events", clock=lambda: now[0], pub_of=publishers(log, "emcy").get
+    )
+
+    def wait(ticket: int, timeout_s: float) -> bool:
+        waits.append((ticket, timeout_s))
+        if ticket == 1:
+            return True  # committed in time
+        now[0] += timeout_s  # the disk stalls from ticket 2 on
+        return False
+
+    unjournaled: list[int] = []
+    sender.journal_wait = wait
+    sender.on_unjournaled = lambda: unjournaled.append(1)
+    for ticket in (1, 2, 3, 0):  # 0: no journal entry, not waited for
+        sender.put_event("emcy", b"{}", ticket, ticket=ticket)
+    sender.start()
+    sender.stop()
+    assert log == ["emcy"] * 4 and len(unjournaled) == 2
+    # made at once: behind a stalled disk a burst waits the bound once, not once each
+    assert waits == [(1, pytest.approx(EVENT_WAIT_S)), (2, pytest.approx(EVENT_WAIT_S)), (3, 0.0)]
+
+
+def test_events_made_without_a_session_go_out_in_order_once_it_is_open() -> None:
+    log: list[str] = []
+    pubs: dict[str, Any] = {}
+    sender = ZenohSender(ThreadRegistry(), "zenoh-events", pub_of=pubs.get)
+    sender.start()
+    try:
+        for i in range(3):
+            sender.put_event("emcy", f"{i}".encode(), i)
+        wait_until_sync(lambda: len(sender.backlog) == 3, 5, "3 events kept")
+        pubs["emcy"] = Pub("emcy", log)  # the session's publishers are declared
+        sender.put_event("emcy", b"3", 3)  # a newer one may come first: it goes out after
+        sender.resend()
+        wait_until_sync(lambda: len(log) == 4, 5, "4 events out")
+    finally:
+        sender.stop()
+    assert sender.sent == 4 and not sender.backlog
+
+
+def test_an_event_of_a_key_this_gateway_no_longer_publishes_never_holds_the_others_back() -> None:
+    """Kept while no session was open, an event of a node whose network the pair's other member
+    masters by the time the session opens (``WITHHELD``) is counted, not published, and the
+    events behind it go out."""
+    log: list[str] = []
+    pubs: dict[str, Any] = {}
+    sender = ZenohSender(ThreadRegistry(), "zenoh-events", pub_of=pubs.get)
+    sender.start()
+    try:
+        for key in ("rotary", "wire", "rotary", "wire"):
+            sender.put_event(key, b"{}", 1)
+        wait_until_sync(lambda: len(sender.backlog) == 4, 5, "4 events kept")
+        pubs["wire"], pubs["rotary"] = Pub("wire", log), WITHHELD  # line2 stood by meanwhile
+        sender.resend()
+        sender.put_event("wire", b"{}", 2)
+        wait_until_sync(lambda: len(log) == 3, 5, "wire's 3 events out")
+    finally:
+        sender.stop()
+    assert log == ["wire"] * 3 and sender.withheld == 2 and not sender.backlog
 
 
 async def test_values_are_put_on_the_publish_thread_never_on_the_can_reader() -> None:
@@ -220,7 +294,10 @@ async def test_an_event_put_that_blocks_does_not_hold_the_values_back() -> None:
                 blocked.set()
                 release.wait(30)
 
-        gw.zenoh._events.put_event(Congested(), b"{}", None)
+        events = gw.zenoh._events
+        known = events.pub_of
+        events.pub_of = lambda key: Congested() if key == "congested" else known(key)
+        events.put_event("congested", b"{}", 1)
         await wait_until(blocked.is_set, 8, "the event put blocked")
         puts: list[str] = []
         enough = threading.Event()

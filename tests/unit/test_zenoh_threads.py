@@ -129,7 +129,9 @@ async def test_a_dead_zenoh_thread_turns_the_gateway_not_ready() -> None:
             def put(self, payload: bytes, timestamp: Any = None) -> None:
                 raise SystemExit("simulated death")  # not an Exception: escapes the loop
 
-        gw.zenoh._events.put_event(Dying(), b"{}", None)
+        events = gw.zenoh._events
+        events.pub_of = lambda key: Dying()
+        events.put_event("dying", b"{}", 1)
         await wait_until(lambda: not gw.status()["ready"], 8, "not ready")
         st = gw.status()
         assert "zenoh-events" in st["threads"]["failed"]

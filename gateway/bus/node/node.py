@@ -25,9 +25,9 @@ The decisions are tables: ``GUARD_EXPECTS`` (lifecycle_actions), ``NMT_EXPECTS``
 ``SDO_DONE``; a node another master manages (a pair's standby) is in lifecycle LISTENING:
 ``bus.node.listening``.
 
-Truthfulness (docs/architecture.md, "Two flows", quality): a boot-up and a loss invalidate every value
-(``health.fresh_since = None``); values are good again only when received after the gateway's NMT
-start (``fresh_since`` = that instant). Change-only TPDOs are read right after NMT start.
+Truthfulness (docs/architecture.md, "Two flows"): a boot-up and a loss invalidate every value of
+the node (``fresh_since = None``; a loss says why in ``last_error`` at once); values are good
+again only when received after the gateway's NMT start; change-only TPDOs are read right after.
 
 Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, features, sdo_done), bus.events,
 device.* (boot_steps, settings), bus.sdo.*, bus.error_control.*, bus.emcy (the history), pdo.codec,
@@ -126,8 +126,8 @@ class Node:
         self.emcy = EmcyHistory()
         gb = settings.guarding_bit
         control = (self.control_signal, gb.control_bit) if gb and self.control_signal else None
-        self.outputs = OutputImage(
-            name, self.rpdos, settings.keepalive_ms / 1e3, self.gbit, control
+        self.outputs = OutputImage(  # a pair's member (listening at first): ``pair``
+            name, self.rpdos, settings.keepalive_ms / 1e3, self.gbit, control, pair=listening
         )
         self.image = image  # its ``outputs`` section is written here only
         self._publish_outputs()
@@ -212,9 +212,10 @@ class Node:
             out += f.tick(self, now)
         if self._wait_until is not None and now >= self._wait_until:
             self._wait_until = None
-        due = self._keepalive_due()
-        if due is not None and now >= due:
-            out += self._keepalive(now)
+        if (due := self._keepalive_due()) is not None and now >= due:
+            self.health.rpdo_sent += 1
+            out.append(self.outputs.keepalive(now))
+            self._publish_outputs()  # the guarding bit of the control word as sent
         due = self._probe_due_s()
         if due is not None and now >= due:
             out += self._probe(now)
@@ -307,9 +308,11 @@ class Node:
 
     # ================================================================== a pair's roles
     def on_rpdo_heard(self, cob_id: int, data: bytes, wall: float, now: float) -> list[Output]:
-        """An RPDO the other gateway sent: its values become the output image."""
-        if self.listening and self.outputs.heard(cob_id, data, now):
-            self._publish_outputs((wall, now))
+        """An RPDO the other gateway sent: its values become the output image (a write heard
+        counts as one: the output watchdog of a take-over counts from it)."""
+        wrote = self.outputs.heard(cob_id, data, now) if self.listening else None
+        if wrote is not None:
+            self._publish_outputs((wall, now) if wrote else None)
         return []
 
     def stand_by(self, now: float, fresh: bool = False) -> list[Output]:
@@ -327,6 +330,8 @@ class Node:
         out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None, resumes), now)
         if adopt is None:
             self.next_probe_s = now  # found and configured as usual
+        else:
+            self.outputs.resume(now)  # keep-alives go on at once
         return out + listening.adopted(self, adopt, now) + sent + self.tick(now)
 
     def write_outputs(
@@ -405,14 +410,15 @@ class Node:
             out += self._set_nmt(NmtState.UNKNOWN)
             for f in self.features:
                 out += f.on_lost(self)
-            text = f"node {self.name} (id {self.node_id}) lost ({reason or self.s.supervision})"
-            out.append(Note(logging.WARNING, text))
+            h.last_error = f"lost ({reason or self.s.supervision})"
+            out.append(Note(logging.WARNING, f"node {self.name} (id {self.node_id}) {h.last_error}"))
             if self.listening:
                 out += listening.on_lost(self)  # gone, or this gateway deaf: not a restart
             else:
                 out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
                 self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss
         else:
+            h.last_error = "" if h.last_error.startswith("lost (") else h.last_error  # loss over
             out.append(Note(logging.INFO, f"node {self.name} (id {self.node_id}) alive"))
         out.append(HealthChanged("state"))
         return out
@@ -442,6 +448,7 @@ class Node:
                 self._wait_until = r.wait_until_s
             if r.configured:
                 h.fresh_since = now  # values are good again when received from now on
+                self.outputs.own()  # configured here: every RPDO's content is ours
                 if self.supervision.hb is None and self.supervision.guard is None:
                     out += self._set_nmt(NmtState.OPERATIONAL)  # no heartbeat will confirm it
                 for f in self.features:
@@ -541,9 +548,3 @@ class Node:
         if self.listening or not h.alive or h.nmt_state != NmtState.OPERATIONAL:
             return None
         return self.outputs.keepalive_due(h.fresh_since)
-
-    def _keepalive(self, now: float) -> list[Output]:
-        self.health.rpdo_sent += 1
-        out: list[Output] = [self.outputs.keepalive(now)]
-        self._publish_outputs()  # the guarding bit of the control word as sent
-        return out

@@ -9,6 +9,21 @@ changes nothing); ``frame`` encodes an RPDO, with the guarding bit the link chec
 keep-alive re-sends the last RPDO when none went out for ``keepalive_s`` (AP05 manual 5.5.4
 external heartbeat fed by RPDOs; the guarding bit exercised when the PLC writes nothing).
 
+In a hot-standby pair (``pair``) the bus carries every RPDO's content, so that the standby,
+which learns the outputs from the frames it hears (``heard``, field for field), knows each
+RPDO as the active gateway would send it, whenever it was started:
+
+* a write that changes an RPDO it does not send (a signal mapped in several RPDOs, the AP05
+  control word of RPDO1 and RPDO2) sends that RPDO too, right after the one it sends;
+* the keep-alive goes round the RPDOs, each in turn, instead of repeating the last;
+* an RPDO this gateway neither sent nor heard is ``unknown``: the keep-alive never sends it
+  (the device holds the old active gateway's values, not our defaults); a signal it shares
+  with an RPDO heard is kept from that one, so that a write of its other signals sends what
+  the device was last told;
+* ``heard`` says whether the frame shows a write (content changed but the guarding bit, or
+  sooner than a keep-alive comes): the output watchdog of a member that takes over counts
+  from the last one (``published``' times).
+
 It also keeps the record of the writes (``published``: the values of each RPDO, the time of
 the last write, the number of writes) that the node puts in the process image.
 
@@ -27,6 +42,10 @@ from gateway.errors import Unmapped, ValueOutOfRange
 from gateway.image import SentOutputs
 from gateway.pdo.codec import FieldValueError, RpdoCodec, TpdoCodec
 
+#: an RPDO heard sooner than this share of the keep-alive period after the node's previous
+#: one is no keep-alive (those come a full period apart): a write
+KEEPALIVE_EARLY = 0.9
+
 
 class OutputImage:
     def __init__(
@@ -36,6 +55,8 @@ class OutputImage:
         keepalive_s: float = 0.0,
         gbit: GuardingBitCheck | None = None,
         control: tuple[str, int] | None = None,  # (control word signal, guarding bit number)
+        *,
+        pair: bool = False,
     ):
         self.node = node
         self.rpdos = list(rpdos)
@@ -49,6 +70,11 @@ class OutputImage:
         self.control = control
         self.last_sent_s: dict[int, float] = {}
         self.sent = 0
+        self.pair = pair
+        #: RPDO numbers whose content this gateway neither sent nor heard (a pair's member
+        #: until it hears them, or configures the node itself: ``own``)
+        self.unknown: set[int] = {r.number for r in self.rpdos} if pair else set()
+        self._resume_s: float | None = None  # a keep-alive due at once (``resume``)
         self._record = SentOutputs({})
         #: the RPDOs by COB-ID, each with a decoder of its frames (a pair's standby learns the
         #: outputs from the frames the active gateway sends)
@@ -58,26 +84,59 @@ class OutputImage:
     def cob_ids(self) -> tuple[int, ...]:
         return tuple(self._heard)
 
-    def heard(self, cob_id: int, data: bytes, now: float) -> bool:
+    def heard(self, cob_id: int, data: bytes, now: float) -> bool | None:
         """An RPDO frame another master sent at ``now``: its values become the output image's,
-        as if sent here (False: not one of ours, or shorter than its mapping)."""
+        as if sent here. Returns whether it shows a write (see the module docstring); None:
+        not one of ours, or shorter than its mapping."""
         entry = self._heard.get(cob_id)
         if entry is None:
-            return False
+            return None
         codec, decoder = entry
         try:
             named = iter(decoder.decode(data))
         except ValueError:
-            return False
-        old = self.values[codec.number]
+            return None
+        number = codec.number
+        old = self.values[number]
         values = [next(named) if f.signal else old[i] for i, f in enumerate(codec.fields)]
-        self.values[codec.number] = values
-        self.last_sent_s[codec.number] = now
+        previous = max(self.last_sent_s.values(), default=None)
+        wrote = (
+            not self.keepalive_s
+            or (number not in self.unknown and self.masked(codec, old) != self.masked(codec, values))
+            or (previous is not None and now - previous < KEEPALIVE_EARLY * self.keepalive_s)
+        )
+        self.values[number] = values
+        self.unknown.discard(number)
+        self.last_sent_s[number] = now
+        self._share(codec, values)
         if self.gbit is not None and self.control is not None:
             i = codec.index_of(self.control[0])
             if i is not None:  # the link check follows the bit the other master sent
                 self.gbit.heard((int(values[i]) >> self.control[1]) & 1, now)
-        return True
+        return wrote
+
+    def content(self, number: int) -> list[Any]:
+        """RPDO ``number``'s values as a write sets them (the guarding bit, the gateway's, 0)."""
+        return self.masked(self._codec(number), self.values[number])
+
+    def masked(self, codec: RpdoCodec, values: list[Any]) -> list[Any]:
+        """``values`` of ``codec``'s RPDO with the guarding bit (the gateway's) masked out."""
+        i = codec.index_of(self.control[0]) if self.control is not None else None
+        if i is None or self.control is None:
+            return values
+        masked = list(values)
+        masked[i] = int(masked[i]) & ~(1 << self.control[1])
+        return masked
+
+    def _share(self, codec: RpdoCodec, values: list[Any]) -> None:
+        """The signals of an RPDO heard, into the unknown RPDOs that map them too."""
+        for other in self.rpdos:
+            if other.number in self.unknown:
+                mine = self.values[other.number]
+                for name in other.names:
+                    i = codec.index_of(name)
+                    if i is not None:
+                        mine[other.index_of(name)] = values[i]  # type: ignore[index]
 
     def is_output(self, name: str) -> bool:
         return name in self.by_signal
@@ -98,7 +157,8 @@ class OutputImage:
 
         ``per_pdo[None]`` applies to every RPDO mapping the signal, ``per_pdo[n]`` to RPDO n
         only. The RPDOs to send: those carrying a signal mapped only there (or named by n); a
-        signal mapped in several RPDOs (a shared control word) alone goes out in the last."""
+        signal mapped in several RPDOs (a shared control word) alone goes out in the last. In a
+        pair, every other RPDO whose content the change alters goes out after them."""
         names = [n for vals in per_pdo.values() for n in vals]
         for n in names:
             if n not in self.by_signal:
@@ -124,8 +184,15 @@ class OutputImage:
                 self._codec(number).encode(values)
             except FieldValueError as exc:
                 raise ValueOutOfRange(exc.field.signal or str(exc.field.obj), exc.value, exc.allowed) from None
+        changed = sorted(
+            n for n, v in new.items()
+            if n not in numbers and self.masked(self._codec(n), v) != self.masked(self._codec(n), self.values[n])
+        )  # fmt: skip
         self.values.update(new)
-        return sorted(set(numbers))
+        self.unknown -= set(new)
+        # in a pair, an RPDO the write changed but does not send goes out too (the standby
+        # hears every RPDO's content)
+        return sorted(set(numbers)) + (changed if self.pair else [])
 
     def _codec(self, number: int) -> RpdoCodec:
         return next(c for c in self.rpdos if c.number == number)
@@ -154,17 +221,36 @@ class OutputImage:
                 bit = self.control[1]
                 values[i] = (int(values[i]) & ~(1 << bit)) | (self.gbit.next_bit(now) << bit)
         self.last_sent_s[number] = now
+        self.unknown.discard(number)
+        self._resume_s = None
         self.sent += 1
         return Send(codec.cob_id, codec.encode(values), rpdo=True)
 
+    def own(self) -> None:
+        """This gateway configured the node: every RPDO's content is its own."""
+        self.unknown.clear()
+
+    def resume(self, now: float) -> None:
+        """A take-over adopted the node: the keep-alive goes out at once (the device's RPDO
+        watchdog has been waiting since the old active gateway's last)."""
+        self._resume_s = now
+
     def keepalive_due(self, since: float | None) -> float | None:
-        """When the keep-alive RPDO is due (``since``: when sending became possible)."""
-        if not self.keepalive_s or not self.rpdos:
+        """When the keep-alive RPDO is due (``since``: when sending became possible); None:
+        no keep-alive, or no RPDO this gateway knows."""
+        if not self.keepalive_s or len(self.unknown) == len(self.rpdos):
             return None
+        if self._resume_s is not None:
+            return self._resume_s
         last = max(self.last_sent_s.values(), default=None)
         return last + self.keepalive_s if last is not None else (since or 0.0)
 
     def keepalive(self, now: float) -> Send:
+        """The keep-alive RPDO: the last one sent again, in a pair the next known one in turn."""
         last = self.last_sent_s
-        number = max(last, key=last.__getitem__) if last else self.rpdos[-1].number
-        return self.frame(number, now)
+        if not self.pair:
+            return self.frame(max(last, key=last.__getitem__) if last else self.rpdos[-1].number, now)
+        known = [r.number for r in self.rpdos if r.number not in self.unknown]
+        latest = max((n for n in known if n in last), key=last.__getitem__, default=None)
+        turn = 0 if latest is None else (known.index(latest) + 1) % len(known)
+        return self.frame(known[turn], now)

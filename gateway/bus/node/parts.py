@@ -2,15 +2,17 @@
 the node's resolution (settings, boot steps, codecs built once) with the device features its
 profile and settings ask for (``node_features``), the image's record keys bound before any
 thread writes a record, and the ``NodeParts`` that hold it all for the master's handlers, inbox
-and services (``bus/master.py``).
+and services (``bus/master.py``). A part of the device's identity (1018h) its file gives nothing
+to compare with is logged once, as the node is built.
 
-Imports: bus.node.* (node, features), device.* (boot_steps, settings), bus.error_control.guarding_bit,
+Imports: logging, bus.node.* (node, features), device.* (boot_steps, settings), bus.error_control.guarding_bit,
 device.resolved, image, canopen.objref, pdo.codec, pdo.verify, profiles, config.
 Nothing northbound, no python-can (the frames are the master's).
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,7 +33,9 @@ from gateway.device.settings import NodeSettings
 from gateway.image import NodeImage, ProcessImage, RxCell
 from gateway.pdo.codec import RpdoCodec, TpdoCodec
 from gateway.pdo.verify import MappingMismatch
-from gateway.profiles import LoadedProfile, expected_identity
+from gateway.profiles import LoadedProfile, identity_check
+
+log = logging.getLogger("gateway.master")
 
 
 @dataclass
@@ -137,6 +141,9 @@ def build_node(rn: ResolvedNode, image: NodeImage, listening: bool = False) -> N
             image.bind((name,))
     for rc in rpdos:
         image.bind_output(rc.number, tuple(rc.names))
+    identity = identity_check(lp) if ncfg.identity_check else None
+    for gap in identity.not_checked if identity is not None else ():
+        log.info("node %s (id %d): %s", ncfg.name, ncfg.node_id, gap)  # once, when it is built
     node = Node(
         ncfg.name,
         ncfg.node_id,
@@ -149,7 +156,7 @@ def build_node(rn: ResolvedNode, image: NodeImage, listening: bool = False) -> N
         rpdos=rpdos,
         features=node_features(rn, ref, ref_signal),
         expected_device_type=lp.profile.device_type,
-        expected_identity=expected_identity(lp) if ncfg.identity_check else (),
+        expected_identity=identity.expected if identity is not None else (),
         emcy_texts=dict(lp.profile.emcy),
         guard_names=(control, status),
         listening=listening,

@@ -7,17 +7,16 @@ the frames heard, the link and the time; its own heartbeat (700h + its pair id, 
 per frame) and checks
 that this process ran on time; the role's timer on the event loop, re-armed only when the
 deadline comes earlier (a later deadline is found when the timer fires, so a standby that hears
-the logical heartbeat every period does not re-arm per frame); and what a standby learns that a
-take-over needs: an SDO transfer the other gateway left open (a request heard without its answer,
-and the object of the initiate request that opened it) and the peer's own heartbeat. A role
-change goes to the master (``on_role``), which owns the nodes and starts or stops mastering them.
+the logical heartbeat every period does not re-arm per frame); and the peer's own heartbeat. A
+role change goes to the master (``on_role``), which owns the nodes and starts or stops mastering
+them (and aborts the SDO transfers the other gateway left open: ``heard_sdo.py``).
 
 Rule: everything runs on the event loop (the master hands it frames from its one inbox); it
 does no blocking I/O; the master's ``send`` and ``clock`` are its only ways out and in.
 
-Imports: bus.pair.flying_master, bus.producers (its heartbeat's schedule), bus.sdo.client (the
-abort frame), canopen.cia301, config (types), device.settings (types: how often the devices
-talk), asyncio (its timers), logging and the standard library.
+Imports: bus.pair.flying_master, bus.producers (its heartbeat's schedule), canopen.cia301, config
+(types), device.settings (types: how often the devices talk), asyncio (its timers), logging and
+the standard library.
 Never a northbound module.
 """
 
@@ -37,8 +36,7 @@ from gateway.bus.pair.flying_master import (
     Send,
 )
 from gateway.bus.producers import Periodic
-from gateway.bus.sdo.client import abort_frame
-from gateway.canopen.cia301 import COB_NMT_EC, COB_SDO_RX, SDO_ABORT_TIMEOUT
+from gateway.canopen.cia301 import COB_NMT_EC
 from gateway.config import Config
 from gateway.device.settings import NodeSettings
 
@@ -73,13 +71,6 @@ def pair_timing(cfg: Config, talk_s: float | None = None) -> PairTiming:
         device_slot_s=pair.device_slot_ms / 1000.0,
         talk_s=talk_s,
     )
-
-
-def _initiates(data: bytes) -> bool:
-    """An SDO client request that opens a transfer (CiA 301 7.2.4.3): initiate download (ccs 1)
-    or upload (ccs 2), block download (ccs 6, cs 0) or block upload (ccs 5, cs 0)."""
-    ccs = data[0] >> 5
-    return ccs in (1, 2) or (ccs == 6 and not data[0] & 0x01) or (ccs == 5 and not data[0] & 0x03)
 
 
 class PairMember:
@@ -122,10 +113,6 @@ class PairMember:
         #: called (role, reason) on the event loop after the master took a role change
         self.role_listeners: list[Callable[[str, str], None]] = []
         self._before_poll = before_poll  # the master drains what was heard before a timeout
-        #: node id -> (index, sub) of the last initiate request the other gateway sent
-        self._sdo_object: dict[int, tuple[int, int]] = {}
-        self._sdo_open: set[int] = set()  # node ids with a request heard and no answer yet
-        self._sdo_block: set[int] = set()  # node ids within a block download (raw segments)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at = 0.0
@@ -231,43 +218,6 @@ class PairMember:
             return False
         self._send(self.own_heartbeat, bytes((self.machine.own_state,)))
         return True
-
-    def on_sdo_request(self, node_id: int, data: bytes) -> None:
-        """The other gateway's SDO request to a node (heard while standing by)."""
-        if not data:
-            return
-        if node_id in self._sdo_block:
-            pass  # a block download's segments carry a sequence number, not a command
-        elif data[0] >> 5 == 4:  # the client aborted: the transfer is over
-            self._sdo_object.pop(node_id, None)
-            self._sdo_open.discard(node_id)
-            return
-        elif _initiates(data):
-            if len(data) >= 4:
-                self._sdo_object[node_id] = (int.from_bytes(data[1:3], "little"), data[3])
-            if data[0] >> 5 == 6:
-                self._sdo_block.add(node_id)
-        self._sdo_open.add(node_id)
-
-    def on_sdo_response(self, node_id: int, data: bytes) -> None:
-        """The node answered: no request is left unanswered (the object stays: segments may
-        follow); a block download's end answer (A1h) or an abort (80h) ends the transfer."""
-        self._sdo_open.discard(node_id)
-        if data[:1] in (b"\xa1", b"\x80"):
-            self._sdo_block.discard(node_id)
-
-    def abort_left_open(self) -> None:
-        """At a take-over: each SDO transfer the other gateway left open is aborted once,
-        naming the object of the initiate request heard (0000h/0 when none was heard)."""
-        open_ids, self._sdo_open = self._sdo_open, set()
-        for node_id in sorted(open_ids):
-            index, sub = self._sdo_object.get(node_id, (0, 0))
-            # SDO protocol timed out (CiA 301 7.2.4.3.17): the transfer's client is gone
-            self._send(COB_SDO_RX + node_id, abort_frame(index, sub, SDO_ABORT_TIMEOUT))
-            log.info("pair: SDO transfer of %04Xh:%d left open on node id %d aborted",
-                     index, sub, node_id)  # fmt: skip
-        self._sdo_object.clear()
-        self._sdo_block.clear()
 
     # ------------------------------------------------------------------ inside
     def _on_beat(self) -> None:

@@ -7,8 +7,9 @@ the role changes. ``mastering`` is the one role gate of the master's send path
 calls); ``role``, ``pair`` and the ``pair_*`` properties are read-only views (the app's health
 and metrics, the command service's ``role``).
 
-Imports: bus.pair.member, bus.pair.flying_master, bus.node (types; listening), bus.sdo.waiters (types),
-bus.driver / bus.bus_peers (types), canopen.cia301, config (types), errors, python-can, logging.
+Imports: bus.pair.member, bus.pair.flying_master, bus.pair.heard_sdo (types), bus.node (types;
+listening), bus.sdo.waiters (types), bus.driver / bus.bus_peers (types), canopen.cia301, config
+(types), errors, python-can, logging.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from gateway.bus.driver import BusDriver
 from gateway.bus.node import listening
 from gateway.bus.node.parts import NodeParts
 from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
+from gateway.bus.pair.heard_sdo import HeardSdo
 from gateway.bus.pair.member import PairMember
 from gateway.bus.sdo.waiters import SdoWaiters
 from gateway.canopen.cia301 import COB_NMT_EC
@@ -66,12 +68,6 @@ class NoPair:
     def hand_over(self) -> bool:
         return False
 
-    def on_sdo_request(self, node_id: int, data: bytes) -> None:
-        pass
-
-    def on_sdo_response(self, node_id: int, data: bytes) -> None:
-        pass
-
 
 class PairSide:
     """The pair-only part of ``Master`` (the attributes below are the master's)."""
@@ -83,6 +79,7 @@ class PairSide:
     nodes: dict[str, NodeParts]
     peers: BusPeers
     clock: Callable[[], float]
+    heard_sdo: HeardSdo
     _waiting: SdoWaiters
 
     def _execute(self, p: NodeParts, outs: list[Any]) -> None:
@@ -191,14 +188,18 @@ class PairSide:
             self.mastering = True
             # the logical master's heartbeat at once: the devices' consumers go on
             self._send_quiet(COB_NMT_EC + self.cfg.master.node_id, MASTER_HEARTBEAT)
+            for cob_id, frame, text in self.heard_sdo.abort_left_open():  # before any request
+                self._send_quiet(cob_id, frame)
+                log.info("%s", text)
             assert isinstance(self.member, PairMember)
-            self.member.abort_left_open()
             heard = self.member.machine.master_heard
             for p in self.nodes.values():
                 self._execute(p, p.node.take_over(now, heard))
         elif change.previous is Role.ACTIVE or change.fresh:
             # back from its own outage (cut off, unable to send, stalled): a fresh joiner
             self.mastering = False
+            if change.fresh:  # what it heard before the outage may have ended unheard
+                self.heard_sdo.open.clear()
             for p in self.nodes.values():
                 self._execute(p, p.node.stand_by(now, change.fresh))
             if change.previous is Role.ACTIVE:

@@ -20,6 +20,15 @@ unused bytes 00h (manual 4.6). The slave is in one of two LSS states:
                                                                stored (PersistentStore)
   configuration  5Ah/5Bh/5Ch/5Dh inquire identity           -> same cs, 1018h:01..04 LE
   configuration  5Eh inquire node id                        -> 5Eh NID (the active node id)
+  waiting,       51h IDNumber BitChecked LSSSub LSSNext     -> 4Fh when BitChecked is 80h
+  unconfigured   (CiA 305 Fast Scan)                           (reset: part 0) or part LSSSub
+                                                               of 1018h equals IDNumber in
+                                                               bits 31..BitChecked; then part
+                                                               LSSNext; a full match (bit 0,
+                                                               LSSNext < LSSSub): configuration
+
+"Unconfigured" (the simulator option ``features: {lss_slave: {unconfigured: true}}``): a device
+shipped without a node id, which answers Fast Scan until LSS configures one.
 
 Anything else on 7E5h is ignored, as are services not allowed in the current state
 (manual Table 10). Bit timing table (4.6.2.2): 0 1000, 1 800, 2 500, 3 250, 4 125, 6 50,
@@ -64,6 +73,8 @@ class LssSlave(SimFeature):
         self.configured_bitrate_index: int | None = None
         self.active_bitrate_index: int | None = None
         self._boot_at_s: float | None = None
+        self.unconfigured = bool(params.get("unconfigured", False))
+        self._scan_part = 0  # CiA 305 Fast Scan: the part of the address compared next
 
     @property
     def bitrate_kbps(self) -> int | None:
@@ -106,6 +117,8 @@ class LssSlave(SimFeature):
             self._switch_global(data[1])
         elif cia305.CS_SWITCH_SELECTIVE_VENDOR <= cs <= cia305.CS_SWITCH_SELECTIVE_SERIAL:
             self._selective_step(cs, struct.unpack_from("<I", data, 1)[0])
+        elif cs == cia305.CS_FAST_SCAN:
+            self._fast_scan(data)
         elif self.state == CONFIGURATION:
             self._configuration_service(cs, data, now)
         return True
@@ -137,6 +150,25 @@ class LssSlave(SimFeature):
             self._selective = 0
             self.state = CONFIGURATION
             self._answer(cia305.CS_SWITCH_SELECTIVE_ANSWER)
+
+    def _fast_scan(self, data: bytes) -> None:
+        """CiA 305 Fast Scan: only an unconfigured slave in LSS waiting takes part."""
+        if self.state != WAITING or not self.unconfigured or self.configured_node_id is not None:
+            return
+        id_number = struct.unpack_from("<I", data, 1)[0]
+        bit, part, next_part = data[5], data[6], data[7]
+        if bit == cia305.FAST_SCAN_RESET:
+            self._scan_part = 0
+        elif bit > 31 or part > 3 or next_part > 3 or part != self._scan_part:
+            return
+        else:
+            mask = (0xFFFFFFFF << bit) & 0xFFFFFFFF
+            if (self.identity(part + 1) & mask) != (id_number & mask):
+                return
+            self._scan_part = next_part
+            if bit == 0 and next_part < part:  # the whole address matched
+                self.state = CONFIGURATION
+        self._answer(cia305.CS_IDENTIFY_SLAVE)
 
     def _configuration_service(self, cs: int, data: bytes, now: float) -> None:
         if cs == cia305.CS_CONFIGURE_NODE_ID:

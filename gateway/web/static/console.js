@@ -66,6 +66,31 @@ async function getJSON(path) {
   return r.json();
 }
 
+// Operators' endpoints (journal, bus monitor, SDO reads, faults): with a token set on the
+// gateway they need it. unlockOperator() asks for it once, logs in (POST /api/login sets a
+// session cookie, which EventSource and links send too) and keeps it for the commissioning page.
+const TOKEN_KEY = "canopen-gateway-token";
+
+async function unlockOperator() {
+  const s = await getJSON("/api/session");
+  if (s.allowed) return true;
+  if (!s.token_required) return false; // not from this machine without a token: the answer says why
+  for (;;) {
+    const token = sessionStorage.getItem(TOKEN_KEY) || window.prompt("The operators' token of this gateway (web.token):");
+    if (!token) return false;
+    const r = await fetch("/api/login", { method: "POST", headers: { "Authorization": "Bearer " + token } });
+    if (r.ok) { sessionStorage.setItem(TOKEN_KEY, token); return true; }
+    sessionStorage.removeItem(TOKEN_KEY);
+    if (r.status !== 403) return false; // 429: too many wrong tokens; the next answer says so
+  }
+}
+
+async function operatorFetch(url, opts) {
+  let r = await fetch(url, opts);
+  if ((r.status === 401 || r.status === 403) && await unlockOperator()) r = await fetch(url, opts);
+  return r;
+}
+
 function setConn(text) {
   const c = document.getElementById("conn");
   if (c) c.textContent = text;
@@ -98,23 +123,62 @@ function peerFacts(seen, kind) {
     el("span", {}, badge(k, kind), ` ${v.detail} (${v.count}×) `)));
 }
 
+function busState(can) {
+  return can.state === "ok" ? badge("ok", "good") : can.state === "error" ? badge("error", "stale") : badge(can.state || "down", "bad");
+}
+
+function busLoad(percent, bitrate) {
+  return percent === null || percent === undefined
+    ? "bit rate not configured" : `about ${percent} % of ${bitrate / 1000} kbit/s`;
+}
+
+// Several CAN networks (networks:): one card per network, its bus, load, peers and nodes.
+function renderNetworks(o) {
+  const nets = Object.entries(o.networks || {});
+  const first = document.getElementById("ov-bus").closest("section");
+  if (nets.length < 2) return false;
+  let after = first;
+  for (const [name, n] of nets) {
+    let card = document.querySelector(`section[data-network="${CSS.escape(name)}"]`);
+    if (!card) {
+      card = el("section", { class: "card", "data-network": name, "aria-label": "CAN network " + name },
+        el("h2", {}, `CAN network ${name} (net ${n.number})`), el("dl", { class: "facts" }));
+      after.after(card);
+    }
+    after = card;
+    const r = n.rates || {};
+    setFacts(card.querySelector("dl"), [
+      ["Interface", `${n.interface} ${n.channel}`],
+      ["State", el("span", {}, busState(n), n.detail ? " " + n.detail : "")],
+      ["Frames in", `${fmtNumber(r.frames_in || 0)} /s (${n.frames_in} total)`],
+      ["Frames out", `${fmtNumber(r.frames_out || 0)} /s (${n.frames_out} total)`],
+      ["Bus load", busLoad(n.bus_load_percent, n.bitrate)],
+      ["Reopens", String(n.reopens || 0)],
+      ["Other masters", peerFacts((n.peers || {}).other_master, "bad")],
+      ["Pair", (n.pair || {}).role ? pairRole(n.pair.role) : "none"],
+      ["Nodes", (n.nodes || []).join(", ") || "none"],
+      ["Monitor", el("a", { href: "/monitor?network=" + encodeURIComponent(name) }, "bus monitor of " + name)],
+    ]);
+  }
+  first.hidden = true;
+  return true;
+}
+
 function renderOverview(o) {
   const can = o.can || {};
   const rates = o.rates || {};
-  const state = can.state === "ok" ? badge("ok", "good") : can.state === "error" ? badge("error", "stale") : badge(can.state || "down", "bad");
+  const state = busState(can);
   setFacts(document.getElementById("ov-gateway"), [
     ["Uptime", fmtUptime(o.uptime_s || 0)],
     ["Nodes", `${o.nodes_usable} of ${o.nodes} usable`],
     ["Threads", Object.keys(o.threads_failed || {}).length ? "failed: " + Object.keys(o.threads_failed).join(", ") : "all running"],
   ]);
-  const load = o.bus_load_percent === null || o.bus_load_percent === undefined
-    ? "bit rate not configured" : `about ${o.bus_load_percent} % of ${o.bitrate / 1000} kbit/s`;
-  setFacts(document.getElementById("ov-bus"), [
+  if (!renderNetworks(o)) setFacts(document.getElementById("ov-bus"), [
     ["Interface", `${can.interface} ${can.channel}`],
     ["State", el("span", {}, state, can.detail ? " " + can.detail : "")],
     ["Frames in", `${fmtNumber(rates.frames_in || 0)} /s (${o.frames_in} total)`],
     ["Frames out", `${fmtNumber(rates.frames_out || 0)} /s (${o.frames_out} total)`],
-    ["Bus load", load],
+    ["Bus load", busLoad(o.bus_load_percent, o.bitrate)],
     ["Error frames", String(o.bus_errors)],
     ["Reopens", String(can.reopens || 0)],
     ["Undecodable", `${o.decode_errors} frames, ${o.unknown_cob_id} unknown COB-IDs`],
@@ -168,6 +232,11 @@ function presenceBadge(r) {
   return r.presence === "alive" ? badge("alive", "good") : badge(r.presence, r.presence === "lost" ? "bad" : "stale");
 }
 
+// The node's status (its worst process quality); a node whose PDOs map nothing says why it is bad.
+function statusCell(r) {
+  return r.quality_note ? el("span", {}, badge(r.quality), " " + r.quality_note) : badge(r.quality);
+}
+
 function linkBadge(word) {
   if (word === "ok") return badge("ok", "good");
   if (word === "fault") return badge("fault", "bad");
@@ -186,11 +255,12 @@ function renderNodes(rows) {
       tbody.append(tr);
     }
     const emcy = r.last_emcy ? el("span", {}, el("span", { class: "code" }, r.last_emcy.code), " " + r.last_emcy.text) : el("span", { class: "muted" }, "none");
+    const on = document.querySelector("section[data-network]") ? el("span", { class: "muted" }, " on " + r.network) : "";
     const cells = [
-      ["name", el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name)],
+      ["name", el("span", {}, el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name), on)],
       ["node_id", String(r.node_id), "num"],
       ["profile", el("span", { title: r.title }, r.profile)],
-      ["quality", badge(r.quality)],
+      ["quality", statusCell(r)],
       ["presence", presenceBadge(r)],
       ["nmt_state", r.nmt_state],
       ["lifecycle", r.outputs === "safe" ? el("span", {}, r.lifecycle + " ", badge("outputs: safe", "stale")) : r.lifecycle],
@@ -223,7 +293,7 @@ function renderNodeRow(r) {
   document.getElementById("node-title").textContent = `Node ${r.name} (id ${r.node_id}, ${r.profile})`;
   document.title = `canopen-gateway: ${r.name}`;
   setFacts(document.getElementById("node-state"), [
-    ["Status", badge(r.quality)],
+    ["Status", statusCell(r)],
     ["Presence", presenceBadge(r)],
     ["NMT state", r.nmt_state],
     ["Lifecycle", r.lifecycle],
@@ -338,7 +408,6 @@ async function initNode() {
 }
 
 // ------------------------------------------------------------------ commissioning
-const TOKEN_KEY = "canopen-gateway-token";
 const SDO_TYPES = ["", "bool", "int8", "uint8", "int16", "uint16", "int24", "uint24", "int32", "uint32", "int64", "uint64", "float32", "string", "bytes"];
 
 async function commission(op, body) {
@@ -399,6 +468,11 @@ async function initCommission() {
   }
   for (const sel of document.querySelectorAll(".type-select")) {
     sel.replaceChildren(...SDO_TYPES.map((t) => el("option", { value: t }, t || "from the EDS")));
+  }
+  const networks = Object.keys(ov.overview.networks || {}); // LSS and the scan: one bus each
+  for (const sel of document.querySelectorAll(".network-select")) {
+    sel.replaceChildren(...networks.map((n) => el("option", { value: n }, n)));
+    sel.closest("label").hidden = networks.length < 2;
   }
   const details = {};
   async function loadSignals() {
@@ -566,7 +640,7 @@ function addReadButtons(node) {
 async function readObject(node, name, button) {
   button.disabled = true;
   try {
-    const r = await fetch(`/api/read/${encodeURIComponent(node)}/${encodeURIComponent(name)}`, {
+    const r = await operatorFetch(`/api/read/${encodeURIComponent(node)}/${encodeURIComponent(name)}`, {
       method: "POST", headers: { "Content-Type": "application/json" }, body: "{}",
     });
     let d;
@@ -608,12 +682,11 @@ async function initFaults(node) {
     const b = el("button", { type: "button", class: "secondary", "data-fault": action, title: text }, action);
     b.addEventListener("click", async () => {
       const headers = { "Content-Type": "application/json", "X-Canopen-Client": "console" };
-      if (sim.rule === "token") headers["Authorization"] = "Bearer " + (sessionStorage.getItem(TOKEN_KEY) || "");
-      const r = await fetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
+      const r = await operatorFetch(`/api/sim/${encodeURIComponent(node)}/${action}`, { method: "POST", headers, body: "{}" });
       let d;
       try { d = await r.json(); } catch (e) { d = { message: "HTTP " + r.status }; }
       result.className = "result " + (r.ok ? "ok" : "err");
-      result.textContent = r.ok ? `${action}: done: ${text}` : `refused (HTTP ${r.status}): ${d.message || ""}` + (r.status === 401 ? " (unlock on the Commissioning page first)" : "");
+      result.textContent = r.ok ? `${action}: done: ${text}` : `refused (HTTP ${r.status}): ${d.message || ""}`;
       if (r.ok) show(d.state);
     });
     box.append(b);
@@ -696,13 +769,21 @@ function journalQuery() {
   return q.toString();
 }
 
+// Answers may come back out of order (the page's first load, then a submit): only the answer
+// of the latest request is shown, and the table says which query it shows (data-query).
+let journalRequests = 0;
+
 async function loadJournal() {
   const q = journalQuery();
+  const mine = ++journalRequests;
   document.getElementById("jr-csv").href = "/api/journal.csv?" + q;
   const status = document.getElementById("jr-status");
-  const r = await fetch("/api/journal?" + q, { cache: "no-store" });
+  const r = await operatorFetch("/api/journal?" + q, { cache: "no-store" });
   const doc = await r.json();
-  const tbody = document.querySelector("#journal tbody");
+  if (mine !== journalRequests) return; // a later request's answer is the one shown
+  const table = document.getElementById("journal");
+  const tbody = table.querySelector("tbody");
+  table.dataset.query = q;
   if (!r.ok) {
     status.textContent = doc.message || r.statusText;
     tbody.replaceChildren();
@@ -734,6 +815,8 @@ function monitorQuery() {
   const all = [...document.querySelectorAll('input[name="mkind"]')];
   const kinds = all.filter((i) => i.checked).map((i) => i.value);
   const q = new URLSearchParams();
+  const net = document.getElementById("mon-network");
+  if (net && net.value && !net.closest("label").hidden) q.set("network", net.value);
   if (node) q.set("node", node);
   if (kinds.length < all.length) q.set("kind", kinds.join(","));
   return { q, node, kinds: new Set(kinds) };
@@ -831,17 +914,50 @@ async function initMonitor() {
   const ov = await getJSON("/api/overview");
   header(ov);
   const sel = document.getElementById("mon-node");
-  const wanted = new URLSearchParams(location.search).get("node");
-  for (const r of ov.nodes) sel.append(el("option", { value: r.name, selected: r.name === wanted }, `${r.name} (id ${r.node_id})`));
+  const params = new URLSearchParams(location.search);
+  const wanted = params.get("node");
+  const networks = Object.keys(ov.overview.networks || {});
+  const netSel = document.getElementById("mon-network");
+  const byName = Object.fromEntries(ov.nodes.map((r) => [r.name, r]));
+  const net0 = params.get("network") || (wanted && byName[wanted] ? byName[wanted].network : networks[0]);
+  for (const n of networks) netSel.append(el("option", { value: n, selected: n === net0 }, n));
+  netSel.closest("label").hidden = networks.length < 2; // a page watches one network's bus
+  const fillNodes = () => {
+    sel.replaceChildren(el("option", { value: "" }, "all nodes"));
+    for (const r of ov.nodes.filter((r) => networks.length < 2 || r.network === netSel.value)) {
+      sel.append(el("option", { value: r.name, selected: r.name === wanted }, `${r.name} (id ${r.node_id})`));
+    }
+  };
+  const recNet = document.getElementById("rec-network"); // the recording is of the network shown
+  fillNodes();
+  recNet.value = netSel.value;
+  netSel.addEventListener("change", () => { fillNodes(); recNet.value = netSel.value; document.querySelector("#frames tbody").replaceChildren(); monitorRefilter(); });
   sel.addEventListener("change", monitorRefilter);
   for (const i of document.querySelectorAll('input[name="mkind"]')) i.addEventListener("change", monitorRefilter);
   document.getElementById("mon-pause").addEventListener("click", monitorPause);
   document.getElementById("mon-clear").addEventListener("click", () => document.querySelector("#frames tbody").replaceChildren());
+  if (!await unlockOperator()) {
+    const r = await fetch("/api/monitor/stream", { method: "HEAD" });
+    document.getElementById("mon-status").textContent = r.ok ? "" : "The bus monitor is for operators: " +
+      (r.status === 403 ? "without web.token it is served to the gateway's own machine only." : "the token was not given.");
+    setConn("locked");
+    return;
+  }
   monitorOpen();
 }
 
+// ------------------------------------------------------------------ not found (a node page of no node)
+async function initNotFound() {
+  const ov = await getJSON("/api/overview");
+  header(ov);
+  const asked = decodeURIComponent(location.pathname.replace(/^\/node\//, ""));
+  if (location.pathname.startsWith("/node/")) document.getElementById("nf-what").textContent = `No node named “${asked}” is configured on this gateway.`;
+  document.getElementById("nf-nodes").replaceChildren(...ov.nodes.map((r) =>
+    el("li", {}, el("a", { href: "/node/" + encodeURIComponent(r.name) }, r.name), ` (id ${r.node_id}, ${r.profile})`)));
+}
+
 // ------------------------------------------------------------------ start
-const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor };
+const INIT = { index: initIndex, node: initNode, commission: initCommission, events: initEvents, monitor: initMonitor, notfound: initNotFound };
 INIT[page]().catch((err) => {
   setConn("error");
   const main = document.querySelector("main");

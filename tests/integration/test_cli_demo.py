@@ -1,0 +1,62 @@
+"""A gateway never pretends: ``run`` without its configuration file exits 2 with one line
+naming the path and saying to mount one (the image's command without a mounted config); the
+demo runs only when asked for, by ``demo`` or ``CANOPEN_GATEWAY_DEMO=1``, on the file
+``CANOPEN_GATEWAY_DEMO_CONFIG`` names (the image's) or a checkout's ``config/demo.yaml``."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gateway.cli import build_parser, main, serve
+from tests.helpers import free_port, stop_process
+
+ROOT = Path(__file__).resolve().parents[2]
+IMAGE_CONFIG = "/etc/canopen-gateway/config.yaml"
+
+
+def test_run_without_its_config_file_exits_2_in_one_line_saying_to_mount_one(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.delenv("CANOPEN_GATEWAY_DEMO", raising=False)
+    missing = str(tmp_path / "config.yaml")
+    assert main(["run", "-c", missing]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"error: {missing}: no configuration file there: mount yours at this path")
+    assert "canopen-gateway demo" in line and "CANOPEN_GATEWAY_DEMO=1" in line
+
+
+def test_the_demo_command_runs_the_demo_configuration(monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: list[str] = []
+    monkeypatch.setattr(serve, "cmd_run", lambda args: seen.append(args.config) or 0)
+    args = build_parser().parse_args(["demo"])
+    monkeypatch.delenv("CANOPEN_GATEWAY_DEMO_CONFIG", raising=False)
+    assert serve.cmd_demo(args) == 0
+    monkeypatch.setenv("CANOPEN_GATEWAY_DEMO_CONFIG", "/etc/canopen-gateway/demo.yaml")
+    assert serve.cmd_demo(argparse.Namespace(log_level=None)) == 0
+    assert seen == ["config/demo.yaml", "/etc/canopen-gateway/demo.yaml"]
+    assert (ROOT / "config/demo.yaml").is_file()
+
+
+def test_canopen_gateway_demo_1_makes_the_images_command_run_the_demo(tmp_path: Path) -> None:
+    demo = yaml.safe_load((ROOT / "config/demo.yaml").read_text())
+    demo["modbus"]["port"] = free_port()
+    demo["zenoh"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+    demo["health"]["port"] = free_port()
+    demo["can"]["channel"] = f"demo-{demo['modbus']['port']}"
+    (tmp_path / "demo.yaml").write_text(yaml.safe_dump(demo))
+    env = {"CANOPEN_GATEWAY_DEMO": "1", "CANOPEN_GATEWAY_DEMO_CONFIG": str(tmp_path / "demo.yaml"),
+           "PATH": "/usr/bin:/bin"}  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-m", "gateway", "run", "-c", IMAGE_CONFIG], cwd=ROOT,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert "canopen-gateway" in line and "'demo'" in line and "(sim)" in line, line
+    finally:
+        stop_process(proc)
