@@ -9,10 +9,11 @@ consumes the logical master's heartbeat and falls pre-operational when it misses
 Faults, each of one member unless said: ``cut`` (it hears nothing, nothing it sends arrives),
 ``mute`` (it hears, nothing it sends arrives, its driver unaware), ``unplug`` (its bus down:
 the driver says so), ``kill`` / ``restart``, ``freeze`` / ``thaw`` (it does not run, then runs
-on with its old state), ``split`` (the bus in two halves: A with device 1, B with device 3),
+on with its old state), ``split`` (the bus in two halves: A with device 1, B with device 3, the AP05 with either),
 ``lose`` (its next frames reach no one), ``stop`` (SIGTERM: a planned hand-over), ``step`` (its wall clock steps: frame times are what
 the driver makes of a socketcand server's stamps, ``BusDriver.stamp``), the operator's NMT
-command and a PLC write (through the member the operator or PLC picks).
+command and a PLC write (through the member the operator or PLC picks: a set point or the
+control word of the AP05 at node 5, whose RPDO1 and RPDO2 both carry the control word).
 
 What the rule of docs/redundancy.md forbids is recorded as it happens (``violations``): an NMT
 command that is not the operator's, or an SDO download, reaching a device that is OPERATIONAL;
@@ -20,7 +21,11 @@ an NMT start of a node the operator put pre-operational or stopped (the command 
 a member that knew it (heard the command and was not out since); two members' logical
 heartbeats reaching one device more than ``ALLOW_S`` after the last fault; a write
 acknowledged by a member whose frames have not reached the bus for longer than ``ALLOW_S``
-while the other masters it.
+while the other masters it; an output of the AP05 changed but by a new write (an RPDO's content
+reaching the operational device, the guarding bit aside, that no write since its current
+content made: an older write's or a member's defaults); after a take-over, an RPDO the new
+active member sends before its first write that is not what was last sent in it, when the new
+member sent or heard that frame (the model sees what it knew).
 
 Imports: gateway.bus.pair, gateway.bus.node, gateway.bus.driver (``stamp``), gateway.canopen,
 tests.helpers, tests.unit.test_node (the scripted device's SDO and NMT).
@@ -40,6 +45,7 @@ from gateway.bus.driver import BusDriver
 from gateway.bus.events import Send as NodeSend
 from gateway.bus.node import listening
 from gateway.bus.node.node import Node
+from gateway.bus.node.outputs import OutputImage
 from gateway.bus.node.parts import build_node
 from gateway.bus.pair.flying_master import (
     FLYING_MASTER_COB_IDS,
@@ -52,6 +58,7 @@ from gateway.bus.pair.flying_master import (
 )
 from gateway.canopen.cia301 import NMT_COMMANDS
 from gateway.canopen.states import NmtState
+from gateway.errors import NodeNotOperational
 from gateway.image import NodeImage
 from gateway.profiles import expected_identity
 from tests.helpers import make_config, resolved
@@ -65,7 +72,9 @@ TIMING = PairTiming(takeover_s=0.3, detect_s=0.3, heartbeat_s=HB_S, talk_s=DEVIC
 #: take-over (max(300, 200 + 200) + 404 + 100 ms) and the slower of a stand-down
 ALLOW_S = 1.2
 MEMBERS = {"A": (101, 0, 102, "a"), "B": (102, 1, 101, "b")}  # id, priority, peer, half
-DEVICES = {1: "a", 3: "b"}  # node id -> the half of a split bus it is on
+DEVICES = {1: "a", 3: "b", 5: "b"}  # node id -> the half of a split bus it is on
+#: the AP05 (manual 5.3.1.2): its RPDOs are the outputs a PLC writes
+OUTPUTS = 5
 #: device 3's consumer of the logical heartbeat (1016h): it falls pre-operational without it
 CONSUMER_S = 1.5
 WALL0 = 1.7e9  # the relay's wall clock at time 0
@@ -74,10 +83,22 @@ _CFG = make_config(
     [
         {"name": "wire", "node_id": 1, "profile": "sgh10", "heartbeat_ms": 200},
         {"name": "enc", "node_id": 3, "profile": "posi_plus", "heartbeat_ms": 200},
+        {"name": "display", "node_id": OUTPUTS, "profile": "ap05", "heartbeat_ms": 200},
     ],
     master={"node_id": LOGICAL, "heartbeat_ms": 100, "heartbeat_timeout_multiple": 3},
 )
 _RESOLVED = resolved(_CFG)
+_NAMES = {n.node_id: n.name for n in _CFG.nodes}
+
+
+def _decoder() -> OutputImage:
+    """The AP05's RPDOs read as a device does (``content``: the guarding bit masked)."""
+    rn = _RESOLVED["display"]
+    image = NodeImage("display", OUTPUTS, rn.lp.family, [s.name for s in rn.lp.profile.signals])
+    node = build_node(rn, image).node
+    gb = rn.settings.guarding_bit
+    assert gb is not None and node.control_signal is not None
+    return OutputImage("display", node.rpdos, control=(node.control_signal, gb.control_bit))
 
 
 @dataclass
@@ -93,6 +114,9 @@ class Dev:
     operator_arrived: bool = False  # ...and it reached the device (else it took no effect)
     #: the members that heard that command and have not been out since (they know it)
     knowers: set[str] = field(default_factory=set)
+    #: the AP05's outputs: RPDO number -> its content as received (the guarding bit masked) and
+    #: the write whose content it is (0: none)
+    rpdo: dict[int, tuple[list[Any], int]] = field(default_factory=dict)
 
     @property
     def state(self) -> NmtState:
@@ -136,6 +160,16 @@ class Sim:
     #: (time, sender, device) of each logical heartbeat that reached a device
     logical: list[tuple[float, str, int]] = field(default_factory=list)
     log: list[tuple[float, str, int, bytes, bool]] = field(default_factory=list)
+    #: the PLC's writes acknowledged: RPDO number -> (write, the RPDO's content after it)
+    written: dict[int, list[tuple[int, list[Any]]]] = field(default_factory=dict)
+    writes: int = 0
+    #: RPDO number -> the content last sent in it (the guarding bit masked), its sender and the
+    #: members it reached
+    last_rpdo: dict[int, tuple[list[Any], str, set[str]]] = field(default_factory=dict)
+    #: after a take-over: member -> RPDO number -> what was last sent in it (that member sent or
+    #: heard it), until the member's first write
+    expect: dict[str, dict[int, list[Any]]] = field(default_factory=dict)
+    decoder: OutputImage = field(default_factory=_decoder)
     _queue: list[tuple[float, int, Callable[[], None]]] = field(default_factory=list)
     _seq: itertools.count = field(default_factory=itertools.count)  # type: ignore[type-arg]
 
@@ -164,7 +198,7 @@ class Sim:
 
     def add_devices(self) -> None:
         for node_id, half in DEVICES.items():
-            rn = _RESOLVED["wire" if node_id == 1 else "enc"]
+            rn = _RESOLVED[_NAMES[node_id]]
             ident = {(o.index, o.sub): v for o, v in expected_identity(rn.lp)}
             script = Device(node_id, rn.lp.profile.device_type or 0, identity=ident)
             dev = Dev(node_id, half, script, CONSUMER_S if node_id == 3 else None, self.now)
@@ -270,10 +304,15 @@ class Sim:
     def _role(self, m: Member, change: RoleChanged) -> None:
         if change.role is Role.ACTIVE:
             m.mastering = True
+            self.expect[m.name] = {
+                n: content for n, (content, sender, reached) in self.last_rpdo.items()
+                if m.name == sender or m.name in reached
+            }  # fmt: skip
             self._send(m, 0x700 + LOGICAL, b"\x05")
             for node in m.nodes.values():
                 self._node(m, node, node.take_over(self.now, m.fm.master_heard))
         elif change.previous is Role.ACTIVE or change.fresh:
+            self.expect.pop(m.name, None)
             if change.fresh:  # out: what it heard of the operator is forgotten
                 for dev in self.devices.values():
                     dev.knowers.discard(m.name)
@@ -295,13 +334,16 @@ class Sim:
             self.lose[m.name] -= 1
             lost = True
         self.log.append((self.now, m.name, cob_id, data, not lost))
+        reached = set() if lost else {o.name for o in self.members.values() if o is not m and self._reaches(m.half, o)}
+        if cob_id in self.decoder.cob_ids:
+            self._rpdo_sent(m, cob_id, data, reached)
         if lost:
             self.silent_since.setdefault(m.name, self.now)
             return
         self.silent_since.pop(m.name, None)
         sent = self.now
         for other in self.members.values():
-            if other is not m and self._reaches(m.half, other):
+            if other.name in reached:
                 self.at(sent + 0.0005, lambda o=other: self._receive(o, m.name, cob_id, data, sent))
         for dev in self.devices.values():
             if not self.split or dev.half == m.half:
@@ -331,9 +373,12 @@ class Sim:
             self._act(m, m.fm.on_frame(cob_id, data, t))
             if m.fm.meetings != met and m.mastering:  # ``PairSide._on_pair_frame``
                 for node in m.nodes.values():
-                    listening.another_master(node)
+                    listening.another_master(node, t)
         elif cob_id == 0x700 + m.peer_id:
             self._act(m, m.fm.on_peer_heartbeat(data, t))
+        elif cob_id in self.decoder.cob_ids:  # ``PairSide._on_rpdo_heard``: the other's outputs
+            node = m.nodes[OUTPUTS]
+            self._node(m, node, node.on_rpdo_heard(cob_id, data, WALL0 + self.now, t))
         elif cob_id - 0x700 in m.nodes and data:
             node = m.nodes[cob_id - 0x700]
             self._node(m, node, node.on_nmt_ec(data[0], t))
@@ -350,8 +395,40 @@ class Sim:
             self._node(m, node, listening.on_sdo_heard(node, t))
 
     # ------------------------------------------------------------------ the devices
+    def _rpdo_content(self, cob_id: int, data: bytes) -> tuple[int, list[Any]]:
+        codec = next(c for c in self.decoder.rpdos if c.cob_id == cob_id)
+        self.decoder.heard(cob_id, data, self.now)
+        return codec.number, self.decoder.content(codec.number)
+
+    def _output_frame(self, dev: Dev, sender: str, cob_id: int, data: bytes) -> None:
+        """An RPDO the operational AP05 processes: its output changes only by a new write."""
+        n, content = self._rpdo_content(cob_id, data)
+        current = dev.rpdo.get(n)
+        if current is not None and current[0] == content:
+            return
+        made = [w for w, c in self.written.get(n, []) if c == content and (current is None or w > current[1])]
+        if current is not None and not made:
+            self.violations.append(
+                f"{self.now:.3f}: {sender} changed RPDO{n} of node {dev.node_id} from {current[0]} to "
+                f"{content}: no write since made it"
+            )
+        dev.rpdo[n] = (content, max(made, default=0 if current is None else current[1]))
+
+    def _rpdo_sent(self, m: Member, cob_id: int, data: bytes, reached: set[str]) -> None:
+        """An RPDO a member sends: after a take-over, before its first write, it carries what
+        was last sent in it (that the member sent or heard)."""
+        n, content = self._rpdo_content(cob_id, data)
+        expect = self.expect.get(m.name)
+        was = expect.pop(n, None) if expect is not None else None
+        if was is not None and was != content:
+            self.violations.append(
+                f"{self.now:.3f}: {m.name} took over and sent RPDO{n} {content}; {was} was last sent in it"
+            )
+        self.last_rpdo[n] = (content, m.name, reached)
+
     def _boot(self, dev: Dev) -> None:
         dev.script.boot()
+        dev.rpdo.clear()
         dev.last_logical_s = self.now
         self._device_send(dev, 0x700 + dev.node_id, b"\x00")
         self.at(self.now + DEVICE_HB_S, lambda: self._device_beat(dev))
@@ -373,6 +450,8 @@ class Sim:
             self._check_nmt(dev, sender, data[0], before, operator)
         elif cob_id == 0x600 + dev.node_id and data and data[0] >> 5 == 1 and before == NmtState.OPERATIONAL:
             self.violations.append(f"{self.now:.3f}: {sender} sent an SDO download to operational node {dev.node_id}")
+        elif dev.node_id == OUTPUTS and cob_id in self.decoder.cob_ids and before == NmtState.OPERATIONAL:
+            self._output_frame(dev, sender, cob_id, data)
         for delay, cob, answer in dev.script.on_frame(NodeSend(cob_id, data)):
             self.at(self.now + delay, lambda c=cob, a=answer: self._device_send(dev, c, a))
 
@@ -404,14 +483,26 @@ class Sim:
         dev.operator_arrived = False  # a command that reaches no device takes no effect (as with one gateway)
         return True
 
-    def plc_write(self, name: str) -> bool:
-        """A PLC write through member ``name``: acknowledged only while it masters the bus."""
+    def plc_write(self, name: str, signal: str = "set_point1") -> bool:
+        """A PLC write of ``signal`` of the AP05 through member ``name`` (a value no write
+        made before): acknowledged only while it masters the bus and the node is operational."""
         m = self.members[name]
         if not m.up or m.frozen_at is not None:
             return False
         if not m.mastering:
             m.refused += 1
             return False
+        node = m.nodes[OUTPUTS]
+        k = self.writes + 1
+        value = ((k % 127) + 1) << 9 if signal == "control_word" else 1000 + k  # bit 8 the gateway's
+        try:
+            outs = node.write_outputs({None: {signal: value}}, self.now)
+        except NodeNotOperational:
+            return False
+        self.writes = k
+        for codec in node.rpdos:
+            self.written.setdefault(codec.number, []).append((k, node.outputs.content(codec.number)))
+        self.expect.pop(name, None)
         since = self.silent_since.get(name)
         # another master it hears (its half of a split bus): it could have known
         near = {d for d, dev in self.devices.items() if not self.split or dev.half == m.half}
@@ -421,6 +512,7 @@ class Sim:
                 f"{self.now:.3f}: {name} acknowledged a write while its frames reached no one since "
                 f"{since:.3f} and {sorted(others)} mastered the bus"
             )
+        self._node(m, node, outs)
         return True
 
     def stop(self, name: str) -> None:

@@ -10,8 +10,9 @@ PLC write, and time passing. The invariants are the rule of docs/redundancy.md: 
 does to a device what one healthy gateway would not do (no NMT command other than the
 operator's and no SDO download to a node that is operational; no NMT start of a node the
 operator stopped; a write acknowledged only by a member whose frames reach the bus, but for
-the time it takes to notice), and at most one member sends as master but for ``ALLOW_S``
-after a fault. At the end every fault is repaired and the pair must settle: one active member,
+the time it takes to notice; no change of an output of the AP05 but by a new write, and after
+a take-over each RPDO as it was last sent, where the new active member sent or heard it), and
+at most one member sends as master but for ``ALLOW_S`` after a fault. At the end every fault is repaired and the pair must settle: one active member,
 the other standby, both saying the state each device is in.
 
 A sequence hypothesis finds is kept below as a regression test (``test_found_*``).
@@ -26,7 +27,7 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
 from gateway.bus.pair.flying_master import Role
-from tests.pair_sim import ALLOW_S, Sim
+from tests.pair_sim import ALLOW_S, OUTPUTS, Sim
 
 NAMES = st.sampled_from(["A", "B"])
 
@@ -136,8 +137,12 @@ class PairUnderFaults(RuleBasedStateMachine):
         self.sim.members[name].wall_step_s = offset_s
 
     # ------------------------------------------------------------------ the bus
-    @rule()
-    def split_bus(self) -> None:
+    @rule(outputs_with=st.sampled_from(["b", "a"]))
+    def split_bus(self, outputs_with: str = "b") -> None:
+        """The bus in two halves: A with device 1, B with device 3; the AP05 (node 5) with
+        ``outputs_with``'s half."""
+        if not self.sim.split:
+            self.sim.devices[OUTPUTS].half = outputs_with
         self.sim.split = True
         self.sim.fault()
 
@@ -152,9 +157,9 @@ class PairUnderFaults(RuleBasedStateMachine):
     def operator_nmt(self, name: str, command: str, node_id: int) -> None:
         self.sim.operator_nmt(name, command, node_id)
 
-    @rule(name=NAMES)
-    def plc_write(self, name: str) -> None:
-        self.sim.plc_write(name)
+    @rule(name=NAMES, signal=st.sampled_from(["set_point1", "set_point2", "control_word"]))
+    def plc_write(self, name: str, signal: str) -> None:
+        self.sim.plc_write(name, signal)
 
     # ------------------------------------------------------------------ the rule
     @invariant()
@@ -300,3 +305,21 @@ def test_found_a_probe_answered_at_the_heal_of_a_split_waits_to_hear_the_node_fi
     resumed) instead of sending it NMT pre-operational."""
     replay(("split_bus", {}), ("stop", {"name": "A"}), ("restart", {"name": "A"}),
            ("time_passes", {"seconds": 0.5}), ("time_passes", {"seconds": 0.5}))  # fmt: skip
+
+
+def test_found_a_write_through_the_member_that_took_a_half_is_not_undone_at_the_heal() -> None:
+    """B took its half of a split bus over (the AP05 there) and a write through it reached the
+    AP05; at the heal A, the better priority, heard the AP05 running again before it met B and
+    resumed it: it held the keep-alive until the split resolved, then forgot what it had sent
+    (another master had the node meanwhile) instead of sending its old set point again."""
+    replay(("split_bus", {}), ("time_passes", {"seconds": 2.5}), ("plc_write", {"name": "B", "signal": "set_point1"}),
+           ("time_passes", {"seconds": 0.5}), ("heal_bus", {}), ("time_passes", {"seconds": 2.5}))  # fmt: skip
+
+
+def test_found_a_member_back_from_its_own_outage_sends_none_of_its_old_outputs_at_a_takeover() -> None:
+    """A's cable cut, B took over and the PLC wrote through it; mended, A listened as a fresh
+    joiner, and B died before A heard B's keep-alive round: A knew no RPDO (a fresh joiner
+    forgets what it sent before its outage) and sent the AP05 none of its old set points."""
+    replay(("cut_cable", {"name": "A"}), ("time_passes", {"seconds": 2.5}),
+           ("plc_write", {"name": "B", "signal": "set_point1"}), ("mend_cable", {"name": "A"}),
+           ("time_passes", {"seconds": 0.2}), ("kill", {"name": "B"}), ("time_passes", {"seconds": 2.5}))  # fmt: skip

@@ -270,12 +270,18 @@ def resumes_in(node: Node, state: NmtState) -> bool:
     return node.lifecycle.resumable and node.heard.life is Life.HELD and state in ADOPTABLE
 
 
-def another_master(node: Node) -> None:
+def another_master(node: Node, now: float) -> None:
     """This gateway, active, met another master (a healed split, a lost claim): a node of
     ours waiting (lost, or not found yet) may be that master's, running: it waits to be heard
-    (OPERATIONAL: it resumes) instead of being found and configured."""
+    (OPERATIONAL: it resumes) instead of being found and configured. What that master sent it
+    is not known (the node waiting, or resumed a moment ago: ``OutputImage.hold``): its RPDOs
+    are unknown until heard or written."""
     lc = node.lifecycle
-    if not node.listening and lc.state is LifecycleState.WAITING and lc.may_probe(float("inf")):
+    if node.listening:
+        return
+    if lc.state is LifecycleState.WAITING or node.outputs.holding(now):
+        node.outputs.forget()
+    if lc.state is LifecycleState.WAITING and lc.may_probe(float("inf")):
         lc.resumable = True
 
 

@@ -29,7 +29,7 @@ Truthfulness (docs/architecture.md, "Two flows"): a boot-up and a loss invalidat
 the node (``fresh_since = None``; a loss says why in ``last_error`` at once); values are good
 again only when received after the gateway's NMT start; change-only TPDOs are read right after.
 
-Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, features, sdo_done), bus.events,
+Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, probes, features, sdo_done), bus.events,
 device.* (boot_steps, settings), bus.sdo.*, bus.error_control.*, bus.emcy (the history), pdo.codec,
 pdo.verify, canopen.* (cia301, emcy, states, objref), errors, image, logging (log levels). Never python-can, asyncio or a northbound module.
 """
@@ -61,6 +61,7 @@ from gateway.bus.node.lifecycle import (
 from gateway.bus.node.lifecycle_report import lifecycle_reports
 from gateway.bus.node.listening import HeardLife, resume_wait_s
 from gateway.bus.node.outputs import OutputImage
+from gateway.bus.node.probes import Probes
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
 from gateway.bus.sdo.client import SdoTransfer
@@ -132,8 +133,7 @@ class Node:
         self.image = image  # its ``outputs`` section is written here only
         self._publish_outputs()
         self.sdo = SdoChannel(node_id, settings.sdo_timeout_s, settings.sdo_retries)
-        self.next_probe_s: float | None = None
-        self._last_probe_end_s: float | None = None
+        self.probes = Probes(settings.probe_period_s)  # when a node waited for is probed
         self._wait_until: float | None = None
         self._by_purpose = {p: f for f in self.features for p in f.purposes}
 
@@ -193,7 +193,7 @@ class Node:
             return listening.report_heard(self)  # listening only: no boot timeout of ours to report
         self.health.lifecycle = str(self.lifecycle.state)
         self.lifecycle.start(now)
-        self.next_probe_s = now if probe else now + self.s.probe_period_s
+        self.probes.at(now if probe else now + self.s.probe_period_s)
         return self.tick(now)
 
     def tick(self, now: float) -> list[Output]:
@@ -248,10 +248,9 @@ class Node:
         device before its recheck); a pair's node lost running and heard so again resumes."""
         if self.resumes and listening.resumes_in(self, state):
             self.health.fresh_since = now  # a split healed: no NMT, no SDO; fresh from now on
+            self.outputs.hold(now + self.lifecycle.resume_wait_s)  # another master met meanwhile?
             return self._lifecycle_changes(self.lifecycle.on_resumed(now), now) + listening.adopted(self, state, now)
-        if self.lifecycle.may_probe(now) and self.sdo.find("probe") is None and (
-            (last := self._last_probe_end_s) is None or now - last >= min(1.0, self.s.probe_period_s)
-        ):
+        if self.lifecycle.may_probe(now) and self.sdo.find("probe") is None and self.probes.rested(now):
             return self._probe(now) + self._drive(now)
         return []
 
@@ -308,9 +307,11 @@ class Node:
 
     # ================================================================== a pair's roles
     def on_rpdo_heard(self, cob_id: int, data: bytes, wall: float, now: float) -> list[Output]:
-        """An RPDO the other gateway sent: its values become the output image (a write heard
-        counts as one: the output watchdog of a take-over counts from it)."""
-        wrote = self.outputs.heard(cob_id, data, now) if self.listening else None
+        """An RPDO another master sent: its values become the output image (a write heard
+        counts as one: the output watchdog of a take-over counts from it); while mastering,
+        only into an RPDO not known here (``OutputImage.forget``)."""
+        known = not self.listening and self.outputs.knows(cob_id)
+        wrote = None if known else self.outputs.heard(cob_id, data, now)
         if wrote is not None:
             self._publish_outputs((wall, now) if wrote else None)
         return []
@@ -319,6 +320,8 @@ class Node:
         """A pair's standby: the node only listens, queued SDO work dropped (``fresh``: back
         from its own outage, it listens as a fresh joiner)."""
         self.heard.stood_down(self.lifecycle.state, self.health.nmt_state, fresh)
+        if fresh or self.lifecycle.state is LifecycleState.WAITING:
+            self.outputs.forget()  # what another master sent it meanwhile is not known here
         out = self._end_sdo_work(now, lambda j: False)
         return out + self._lifecycle_changes(self.lifecycle.on_listen(now), now) + listening.report_heard(self)
 
@@ -329,7 +332,7 @@ class Node:
         adopt, sent, resumes = listening.take_over(self, now, master_heard)
         out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None, resumes), now)
         if adopt is None:
-            self.next_probe_s = now  # found and configured as usual
+            self.probes.at(now)  # found and configured as usual
         else:
             self.outputs.resume(now)  # keep-alives go on at once
         return out + listening.adopted(self, adopt, now) + sent + self.tick(now)
@@ -416,7 +419,7 @@ class Node:
                 out += listening.on_lost(self)  # gone, or this gateway deaf: not a restart
             else:
                 out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
-                self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss
+                self.probes.later(now)  # cadence counted from the loss
         else:
             h.last_error = "" if h.last_error.startswith("lost (") else h.last_error  # loss over
             out.append(Note(logging.INFO, f"node {self.name} (id {self.node_id}) alive"))
@@ -493,14 +496,10 @@ class Node:
         return []
 
     def _probe_due_s(self) -> float | None:
-        """When the next probe is due: in WAITING at ``next_probe_s``, not before the recheck
-        of a refused device (``NodeLifecycle.recheck_at_s``)."""
-        if self.lifecycle.state is not LifecycleState.WAITING or self.next_probe_s is None:
-            return None
-        recheck = self.lifecycle.recheck_at_s
-        if self.resumes and self.lifecycle.resumable and self.s.supervision != "none":
-            return None  # lost running: it says itself when it is back (no probe to reconfigure)
-        return self.next_probe_s if recheck is None else max(self.next_probe_s, recheck)
+        """When the next probe is due (``Probes``); a pair's node lost running says itself
+        when it is back (no probe to reconfigure it)."""
+        heard_back = self.resumes and self.lifecycle.resumable and self.s.supervision != "none"
+        return self.probes.due_s(self.lifecycle, heard_back)
 
     def _sdo_finished(self, finished: tuple[SdoJob, SdoTransfer], now: float) -> list[Output]:
         job, tr = finished
@@ -516,7 +515,7 @@ class Node:
     def _take_sdo_outcome(self, r: SdoOutcome, job: SdoJob, now: float) -> list[Output]:
         """What a transfer of the node's own purposes meant (``sdo_done``), applied."""
         if r.probe_ended:
-            self._last_probe_end_s, self.next_probe_s = now, r.probe_again_s or self.next_probe_s
+            self.probes.ended(now, r.probe_again_s)
         out = [*r.outputs, *self._lifecycle_changes(r.changes, now)]
         if r.found:
             self.supervision.on_found(now)
@@ -529,10 +528,9 @@ class Node:
 
     def _probe(self, now: float) -> list[Output]:
         """Find a node that is already running (no boot-up will come) by reading 1000h."""
-        self.next_probe_s = now + self.s.probe_period_s
-        if self.sdo.find("probe") is not None:
-            return []
-        self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe", now)
+        self.probes.later(now)
+        if self.sdo.find("probe") is None:
+            self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe", now)
         return []
 
     def _set_nmt(self, state: NmtState) -> list[Output]:

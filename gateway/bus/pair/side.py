@@ -160,7 +160,7 @@ class PairSide:
         learned = member.on_frame(cob_id, data, now)
         if member.machine.meetings != met and self.mastering:
             for p in self.nodes.values():  # another master: its nodes may run, none is probed
-                listening.another_master(p.node)
+                listening.another_master(p.node, now)
         handlers = self.driver.handlers
         if learned is not None and self.peers.admit(learned):
             # the other gateway named its id in its claim: its own heartbeat is the peer's
@@ -177,8 +177,8 @@ class PairSide:
     def _on_rpdo_heard(
         self, p: NodeParts, cob_id: int, data: bytes, wall: float, now: float
     ) -> None:
-        if not self.mastering:
-            self._execute(p, p.node.on_rpdo_heard(cob_id, data, wall, now))
+        # another master's RPDO: the standby's outputs (mastering: an RPDO not known here)
+        self._execute(p, p.node.on_rpdo_heard(cob_id, data, wall, now))
 
     def _role_changed(self, change: RoleChanged) -> None:
         now = self.clock()
