@@ -100,12 +100,12 @@ async def test_a_pair_per_network_hands_every_network_over_at_a_stop_and_stands_
     cfg_a = member_config(101, 0, 102, channels)
     cfg_b = member_config(102, 1, 101, channels)
     sim = simulated_bus(cfg_a, ["wire", "rotary"])
-    sim.start()
     a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
     spy_b = Spy(b)
     a2: Gateway | None = None
     try:
         await a.start()
+        sim.start()  # the devices power on once A listens: their boot-ups the first frames it hears
         await wait_until(lambda: roles(a) == ("active", "active"), 10, "A active on both")
         await wait_until(lambda: a.image.nodes["rotary"].usable() and a.image.nodes["wire"].usable(), 10, "A's nodes")
         await b.start()

@@ -14,7 +14,12 @@ the pair settled (the devices never restart here: nothing ever needs configuring
 most one gateway's logical heartbeat reaching a device but within ``ALLOW_S`` of a fault or a
 repair (a stall a member logs widens it, as docs/redundancy.md says); a member whose frames
 reach no one while the other masters the bus refuses writes once ``ALLOW_S`` has passed; at
-the end one member active, one standby, one sender of the logical heartbeat.
+the end one member active, one standby, one sender of the logical heartbeat. And what the
+display is told (``output_violations``, on the RPDOs that reached it): no output changes but by
+a new write (set point 1 only to the value of a write made since its last one; the control
+word, guarding bit aside, and RPDO2 never); after each take-over (its RPDOs from the other
+gateway) every RPDO the new sender sends up to its first write is the frame last delivered on
+that COB-ID (``tests/pair_invariants.rpdos_resume_as_sent``).
 
 The seed is printed on failure; ``PAIR_FAULTS_SEED=N`` replays it, ``PAIR_FAULTS_ROUNDS``
 runs more rounds (``python -m bench pair`` runs a longer schedule).
@@ -50,7 +55,8 @@ from tests.integration.test_pair_faults import (
     wait_role,
     write_config,
 )
-from tests.pair_bus import PairBus
+from tests.pair_bus import Frame, PairBus
+from tests.pair_invariants import rpdos_resume_as_sent
 
 #: after a fault or a repair two masters may overlap this long: a take-over (804 ms worst) and a
 #: member starting beside the others on a loaded 2-core machine (stalls of up to 1.9 s measured)
@@ -59,6 +65,8 @@ HOLD_S = 1.3  # a fault lasts this long
 SETTLE_S = 1.8  # after its repair, before the next
 FAULTS = ("kill", "freeze", "cut", "mute", "unplug", "split", "stop")
 DEVICES = {"devA": "wire", "devB": "display"}
+RPDO1, RPDO2 = 0x202, 0x302  # the display's (AP05 node 2, manual 5.3.1.2 table 26)
+GUARDING_BIT = {RPDO1: bytes(7) + b"\x01", RPDO2: bytes(7) + b"\x01"}  # control word bit 8 (5.3.2)
 
 
 @dataclass
@@ -72,6 +80,7 @@ class Run:
     gateways: dict[str, Member] = field(default_factory=dict)
     events: list[tuple[float, str]] = field(default_factory=list)  # faults and repairs
     writes: list[tuple[float, str, bool, str]] = field(default_factory=list)  # (t, member, ok, why)
+    values: list[int] = field(default_factory=list)  # the set point of each write, in order
     settled: int = 0
 
     def event(self, what: str) -> None:
@@ -88,6 +97,7 @@ class Run:
         m = self.gateways[name]
         rm = build_register_map(*with_nodes(load_config(self.cfg, environ={})))
         p = next(p for p in rm.node_points("display") if p.name == "set_point1")
+        self.values.append(value)  # made, whatever the answer (a frozen member acts once thawed)
         try:
             with ModbusTcpClient("127.0.0.1", port=m.modbus_port, timeout=2) as client:
                 r = client.write_register(p.address, value, device_id=p.unit)
@@ -121,10 +131,10 @@ def start_run(stack: ExitStack, tmp: Path, seed: int) -> Run:
     raw = yaml.safe_load(cfg.read_text())
     raw["master"]["sync_period_ms"] = 100  # SYNC too: one producer of it at a time
     cfg.write_text(yaml.safe_dump(raw))
-    start_devices(stack, cfg)
     run = Run(seed, bus, cfg, tmp)
     run.gateways["A"] = start_member(tmp, cfg, "A", A_ID, 0, B_ID)
     stack.callback(lambda: run.gateways["A"].stop())
+    start_devices(stack, cfg)  # once A listens: their boot-ups are the first frames it hears
     wait_role(run.gateways["A"], "active", 15)
     run.gateways["B"] = start_member(tmp, cfg, "B", B_ID, 1, A_ID)
     stack.callback(lambda: run.gateways["B"].stop())
@@ -188,6 +198,39 @@ def violations(run: Run) -> list[str]:
     return out
 
 
+def _masked(f: Frame) -> bytes:
+    return bytes(b & ~m for b, m in zip(f.data, GUARDING_BIT[f.cob_id], strict=False))
+
+
+def output_violations(run: Run) -> list[str]:
+    """What the display was told (the RPDOs that reached it) against the PLC's writes."""
+    shown = [f for f in run.bus.frames if f.cob_id in (RPDO1, RPDO2) and "devB" in f.to and f.sender in ("A", "B")]
+    out: list[str] = []
+    writes = [t for t, *_ in run.writes]
+    current: dict[int, tuple[bytes, int]] = {}  # COB-ID -> (masked content, the write it shows)
+    for f in shown:
+        content, was = _masked(f), current.get(f.cob_id)
+        if was is None or content == was[0]:
+            current.setdefault(f.cob_id, (content, -1))
+            continue
+        value = int.from_bytes(f.data[:4], "little", signed=True)
+        made = [k for k, v in enumerate(run.values) if v == value and k > was[1] and writes[k] < f.t]
+        if f.cob_id != RPDO1 or content[4:] != was[0][4:] or not made:
+            out.append(f"{f.t:.3f}: {f.sender} changed 0x{f.cob_id:03X} {was[0].hex()} -> {content.hex()}: no write made it")
+        current[f.cob_id] = (content, made[0] if made else was[1])
+    for i in range(1, len(shown)):
+        old, new = shown[i - 1].sender, shown[i].sender
+        if old == new:
+            continue
+        t = shown[i].t  # a take-over: from here the new sender's frames, up to its first write
+        until = min([w for w, n, *_ in run.writes if n == new and w >= t] + [at for at, _ in run.events if at > t]
+                    + [float("inf")])  # fmt: skip
+        before = [(f.cob_id, f.data) for f in shown[:i]]
+        after = [(f.cob_id, f.data) for f in shown[i:] if f.sender == new and f.t < until]
+        out += [f"{t:.3f} {old} -> {new}: {v}" for v in rpdos_resume_as_sent(before, after, GUARDING_BIT)]
+    return out
+
+
 def test_a_seeded_random_sequence_of_faults_never_does_what_one_gateway_would_not(tmp_path: Path) -> None:
     seed = int(os.environ.get("PAIR_FAULTS_SEED") or random.SystemRandom().randrange(2**32))
     rounds = int(os.environ.get("PAIR_FAULTS_ROUNDS", "4"))
@@ -205,12 +248,14 @@ def test_a_seeded_random_sequence_of_faults_never_does_what_one_gateway_would_no
             time.sleep(SETTLE_S)
         roles = sorted(m.role() for m in run.gateways.values())
         found = violations(run)
+        told = output_violations(run)
         last = [f for f in run.bus.frames if f.cob_id == COB_HB + LOGICAL and f.t >= time.monotonic() - 1.0]
         masters = {f.sender for f in last if f.delivered}
         stalled = run.stalled()
         assert roles == ["active", "standby"], (roles, why)
         assert len(masters) == 1, (masters, why)
         assert found == [] or stalled and all("both master" in v for v in found), (found, why)
+        assert told == [], (told, why)
         for t, name, ok, text in run.writes:
             # a write to a member whose frames reached no one while the other mastered the bus
             kind = next((k for at, k in reversed(run.events) if at <= t), "")
