@@ -97,10 +97,15 @@ def plain(value: Any) -> Any:
     return str(value)
 
 
+class Fields(dict[str, Any]):
+    """Fields of an audit record that are not the node's (the network of an NMT command to
+    ``all`` of one network), given last by a describe; a value or raw that is a dict stays one."""
+
+
 def record(op: str, what: tuple[Any, ...], exc: BaseException | None) -> dict[str, Any]:
     """``what``: (node, what, value) or (node, what, value, raw), and last, where a field of
-    the record is not the node's (an NMT command to ``all`` of one network), a dict of it."""
-    extra: dict[str, Any] = what[-1] if what and isinstance(what[-1], dict) else {}
+    the record is not the node's, a :class:`Fields`."""
+    extra: dict[str, Any] = what[-1] if what and isinstance(what[-1], Fields) else {}
     if extra:
         what = what[:-1]
     node, name, value = what[:3]

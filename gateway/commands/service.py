@@ -45,7 +45,7 @@ from gateway.bus.node.parts import NodeParts
 from gateway.canopen.cia301 import NMT_COMMANDS, TYPE_NAMES
 from gateway.canopen.objref import ObjRef
 from gateway.commands import bus_inquiry
-from gateway.commands.audit import WHO, AuditSink, RefusalAudit, acting_as, audited
+from gateway.commands.audit import WHO, AuditSink, Fields, RefusalAudit, acting_as, audited
 from gateway.commands.sdo_cache import SdoValueCache
 from gateway.commands.validation import (
     bit_names,
@@ -528,7 +528,7 @@ class CommandService:
     @audited(
         "nmt",
         lambda _svc, node, command, network=None: (node, "nmt", command)
-        + (({"network": network},) if network is not None else ()),
+        + ((Fields(network=network),) if network is not None else ()),
     )
     async def nmt(self, node: str, command: str, network: str | None = None) -> None:
         """NMT command to one node by name, or with ``all`` to every node of ``network``
