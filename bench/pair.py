@@ -158,7 +158,7 @@ def pair_config(workdir: pathlib.Path, can: dict[str, Any]) -> pathlib.Path:
 
 
 async def run(
-    kills: int = 20, cpu_window_s: float = 3.0, settle_s: float = 2.0, fault_rounds: int = 6
+    kills: int = 20, cpu_window_s: float = 3.0, settle_s: float = 2.0, fault_rounds: int = 8
 ) -> Section:
     sec = Section(
         key="pair",
@@ -175,11 +175,13 @@ async def run(
             f"{settle_s:.0f} s after the standby joined. Then {fault_rounds} rounds on a "
             "socketcand bus that attributes every frame to its sender (`tests/pair_bus.py`; "
             "each gateway and the simulated devices a member of it): the active member's cable "
-            "cut (its connection open, nothing it sends arrives, it hears nothing) or its adapter "
-            "lost (the connection closed, reconnects refused), alternately, for 3 s, then "
-            "repaired and watched for 6 s; take-over = relay time from its last logical "
-            "heartbeat that reached the bus to the other member's first; CPU of both gateways "
-            "over the same 3 s window before each fault."
+            "cut (its connection open, nothing it sends arrives, it hears nothing), its adapter "
+            "lost (the connection closed, reconnects refused), its transmitter muted (it hears, "
+            "nothing it sends arrives, its driver unaware) or SIGTERM (a planned hand-over, then "
+            "started again), in turn, for 3 s, then repaired and watched for 6 s; take-over = "
+            "relay time from its last logical heartbeat that reached the bus to the other "
+            "member's first; at the SIGTERM the longest pause of the logical heartbeat, SYNC and "
+            "the RPDOs across it; CPU of both gateways over the same 3 s window before each fault."
         ),
     )
     port = free_port()

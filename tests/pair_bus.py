@@ -22,6 +22,10 @@ Faults, one member at a time:
 - ``unplug(NAME)`` / ``plug(NAME)``: the adapter lost. Its connection is closed (EOF, as a
   socketcand daemon that restarts) and a reconnect of that name is closed at once, as soon as
   it names its channel (``< open NAME >``), until ``plug(NAME)``.
+- ``mute(NAME)`` / ``unmute(NAME)``: its transmitter fails silently: it hears everything,
+  nothing it sends reaches anyone (``delivered=False``), its driver cannot notice.
+- ``split(GROUP, GROUP, ...)`` / ``heal()``: the bus in parts: a frame reaches only the members
+  of its sender's group (a member named in no group hears and reaches no one).
 
 A member may hold several connections (a gateway process whose simulated devices open the same
 ``can:`` section): they hear each other, as sockets on one SocketCAN interface do (its local
@@ -63,6 +67,8 @@ class Frame:
     data: bytes
     delivered: bool
     dlc: int = -1
+    #: the members it reached
+    to: frozenset[str] = frozenset()
 
 
 class _Member:
@@ -121,6 +127,8 @@ class PairBus:
         self._lock = threading.Condition()
         self._conns: list[_Member] = []  # every connection past its handshake
         self._cut: set[str] = set()
+        self._muted: set[str] = set()
+        self._groups: dict[str, int] | None = None  # a split bus: member -> its part
         self._unplugged: set[str] = set()
         self._closing = False
         self._pending: set[socket.socket] = set()  # connections in their handshake
@@ -156,6 +164,24 @@ class PairBus:
     def mend(self, name: str) -> None:
         with self._lock:
             self._cut.discard(name)
+
+    def mute(self, name: str) -> None:
+        """Its transmitter fails silently: what ``name`` sends reaches no one; it hears."""
+        with self._lock:
+            self._muted.add(name)
+
+    def unmute(self, name: str) -> None:
+        with self._lock:
+            self._muted.discard(name)
+
+    def split(self, *groups: set[str]) -> None:
+        """The bus in parts: a frame reaches only the members of its sender's group."""
+        with self._lock:
+            self._groups = {name: i for i, g in enumerate(groups) for name in g}
+
+    def heal(self) -> None:
+        with self._lock:
+            self._groups = None
 
     def unplug(self, name: str) -> None:
         """Adapter lost: close ``name``'s connection (the client reads EOF) and refuse its
@@ -311,13 +337,17 @@ class PairBus:
             if member not in self._conns:
                 return  # unplugged meanwhile: its frames reach no one
             name = member.name
-            cut = name in self._cut
+            out = name in self._cut or name in self._muted
+            groups = self._groups
+            part = groups.get(name, -1) if groups is not None else 0
             to = [
                 c for c in self._conns
-                if c is not member and (c.name == name or not (cut or c.name in self._cut))
-            ]
-            delivered = any(c.name != name for c in to)
-            self.frames.append(Frame(time.monotonic(), name, cob_id, data, delivered, dlc))
+                if c is not member and (c.name == name or not (
+                    out or c.name in self._cut or (groups is not None and groups.get(c.name, -2) != part)
+                ))
+            ]  # fmt: skip
+            reached = frozenset(c.name for c in to if c.name != name)
+            self.frames.append(Frame(time.monotonic(), name, cob_id, data, bool(reached), dlc, reached))
             if to:
                 width = 8 if len(parts[1]) > 3 else 3
                 line = (

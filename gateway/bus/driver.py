@@ -30,13 +30,12 @@ Bus state (``state``, mirrored in ``image.bus_states[network]``, with the reason
 
 =======  ===================================================================================
 ok       frames flow; the controller is error active (or nothing says otherwise)
-error    the controller reported error passive or bus off in an error frame; back to ok on an
-         "error active" / "restarted" error frame, or when frames are received and no error
-         frame came for ``error_hold_s``
+error    this gateway's frames cannot go out (``bus/controller.py``, its causes): the
+         controller reported bus off or error passive (an error frame, or python-can's
+         ``bus.state``), or the interface refused a frame (its transmit queue full after the
+         retries, or another refusal); back to ok when every cause has cleared
 down     the backend raised or is closed; the reader reopens it with backoff
 =======  ===================================================================================
-
-Error frames are decoded by ``bus.error_frames`` (the SocketCAN layout, linux/can/error.h).
 
 Threads: the reader thread (receives and dispatches) and the sender thread (every frame the
 event loop sends is queued to it, so a blocking backend never blocks the loop; a frame refused
@@ -47,7 +46,8 @@ counts in its own counter set.
 Clocks: ``mono`` and ``wall`` are injectable (tests use a fake clock); the bus clock and the
 reopen backoff read only those.
 
-Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), bus.error_frames, config (DEFAULT_NETWORK),
+Imports: python-can, bus.can_backend (open_can_bus, quiet_imports), bus.controller (its state, a
+refused send's errno), config (DEFAULT_NETWORK),
 image, runtime.ratelimit, runtime.threads. Nothing northbound.
 """
 
@@ -65,7 +65,7 @@ from typing import Any
 import can
 
 from gateway.bus.can_backend import open_can_bus, quiet_imports
-from gateway.bus.error_frames import ERROR_ACTIVE, controller_report
+from gateway.bus.controller import ControllerState, send_errno, tx_queue_full
 from gateway.config import DEFAULT_NETWORK
 from gateway.image import ProcessImage
 from gateway.runtime.ratelimit import RateLimitedLog
@@ -94,6 +94,8 @@ BURST_MAX_FRAMES = 16
 #: a frame stamped this far after the reader last looked at the clocks is not of this machine's
 #: clock (a few frames' processing at most separate the two)
 FRAME_TIME_AHEAD_S = 0.5
+#: nor one stamped this long before (the reader's backlog after a stall is shorter)
+FRAME_AGE_MAX_S = 5.0
 
 #: the reader's wait for a frame between bursts: a link lost while the bus is quiet is noticed
 #: within it (and the reader wakes this often when nothing comes, no more)
@@ -107,23 +109,6 @@ LINK_LOST_ERRNOS = frozenset({errno.EPIPE, errno.ECONNRESET, errno.ECONNABORTED,
 SEND_FAILURES_DOWN = 5
 
 FrameHandler = Callable[[can.Message], None]
-
-
-def _errno(exc: BaseException) -> int | None:
-    """The errno of a refused send: python-can's backends raise ``CanError`` with it as
-    ``error_code`` (socketcan), others the ``OSError`` itself (python-can-remote)."""
-    if isinstance(exc, can.CanError) and exc.error_code is not None:
-        return exc.error_code
-    code = getattr(exc, "errno", None)
-    if code is None and exc.__cause__ is not None:
-        code = getattr(exc.__cause__, "errno", None)
-    return code if isinstance(code, int) else None
-
-
-def _tx_queue_full(exc: Exception) -> bool:
-    """The interface refused a frame because its transmit queue is full (ENOBUFS: python-can's
-    socketcan backend raises ``CanOperationError`` with that ``error_code``)."""
-    return _errno(exc) == errno.ENOBUFS
 
 
 class BusDriver:
@@ -152,7 +137,8 @@ class BusDriver:
         self.image = image
         self.reopen_backoff_s = reopen_backoff_s
         self.reopen_backoff_max_s = max(reopen_backoff_max_s, reopen_backoff_s)
-        self.error_hold_s = error_hold_s
+        #: whether its frames can go out (the causes of state ``error``; reader thread)
+        self.controller = ControllerState(mono, error_hold_s)
         #: (state, detail) at every change, on the reader thread (on the caller's for the
         #: outcome of ``open``: a bus down from the start is said too)
         self.on_state = on_state
@@ -182,7 +168,6 @@ class BusDriver:
         self._send_lost: tuple[can.BusABC, str] | None = None
         self._send_failures = 0  # refused in a row, not for a full queue (sender thread)
         self.reopens = 0  # successful reopens since start
-        self.last_error_frame_s: float | None = None
         self.warn = RateLimitedLog(log)
         #: (idle, wall-clock timestamp of the frame being processed): the bus clock's state,
         #: written by the reader thread only, always as one tuple (``bus_clock`` reads it on
@@ -193,12 +178,10 @@ class BusDriver:
         self.wall = wall
         #: both clocks as the reader read them at the start of a burst (``frame_time`` turns a
         #: frame's wall-clock timestamp into the bus clock without reading a clock)
-        self._burst_mono = mono()
-        self._burst_wall = wall()
+        self._burst = (mono(), wall())  # one assignment: the loop reads it too (``stamp``)
         self.rx_counters = image.counters.counter_set()  # reader thread only
-        #: the reader's rounds: one per wait that found nothing (every RECV_WAIT_S on a quiet
-        #: bus), per burst start and per wait to reopen; reader thread only. A count that
-        #: stands still is a reader stuck (systemd's watchdog, ``runtime.sd_notify``)
+        #: the reader's rounds (a wait that found nothing, a burst's start, a wait to reopen;
+        #: reader thread only): standing still, the reader is stuck (``runtime.sd_notify``)
         self.reader_turns = 0
         self.tx_counters = image.counters.counter_set()  # sender thread only
         self._tx: queue.SimpleQueue[can.Message | None] = queue.SimpleQueue()
@@ -279,7 +262,7 @@ class BusDriver:
         if idle or not last_frame_wall:
             return now
         lag = self.wall() - last_frame_wall
-        return now - lag if 0 < lag < 3600 else now
+        return now - lag if 0 < lag < FRAME_AGE_MAX_S else now  # a wall clock stepped: now
 
     @property
     def idle(self) -> bool:
@@ -292,16 +275,20 @@ class BusDriver:
         return self.clock_state[1]
 
     def frame_time(self, msg: can.Message) -> float:
-        """A frame's receive time on the monotonic clock. Its timestamp is this machine's wall
-        clock (python-can's backends stamp frames on receipt), turned with both clocks as the
-        reader read them at the start of the burst (per frame: no clock read); a frame
-        without a timestamp, one from the future, or one more than an hour old is stamped now."""
-        ts = msg.timestamp
+        """A frame's receive time on the monotonic clock (``stamp`` of its timestamp)."""
+        return self.stamp(msg.timestamp)
+
+    def stamp(self, ts: float) -> float:
+        """A frame timestamp on the monotonic clock. It is a wall clock (python-can's backends
+        stamp frames on receipt; a socketcand server with its own), turned with both clocks as
+        the reader read them at the start of the burst (per frame: no clock read); none, one
+        from the future or older than ``FRAME_AGE_MAX_S`` (a wall clock stepped) is now."""
         if ts:
-            t = self._burst_mono - (self._burst_wall - ts)
+            mono, wall = self._burst
+            t = mono - (wall - ts)
             # received before the reader's last look at the clocks (it looks at every burst and
-            # every burst_max_frames), at most an hour before: else not of this clock
-            if -3600.0 < t - self._burst_mono < FRAME_TIME_AHEAD_S:
+            # every burst_max_frames), not long before: else not of this clock
+            if -FRAME_AGE_MAX_S < t - mono < FRAME_TIME_AHEAD_S:
                 return t
         return self.mono()
 
@@ -345,14 +332,20 @@ class BusDriver:
                 self._send_refused(bus, exc)
                 continue
             self._send_failures = 0
+            if self.controller.sending is not None:
+                self.controller.sending = None  # it goes out again
             counters["frames_out"] += 1
 
     def _send_refused(self, bus: can.BusABC, exc: Exception) -> None:
-        """Count a refused send; tell the reader when it says the link is gone."""
-        code = _errno(exc)
+        """Count a refused send: its frames cannot go out (state ``error``, taken by the reader
+        at its next look); tell the reader when it says the link is gone."""
+        code = send_errno(exc)
         if code == errno.ENOBUFS:
-            return  # a full transmit queue (bus off: its error frames say so), not a lost link
+            self.controller.sending = f"transmit queue full: {exc}"
+            return  # a full transmit queue (bus off, no ack), not a lost link
         self._send_failures += 1
+        if code not in LINK_LOST_ERRNOS:
+            self.controller.sending = f"send refused: {exc}"
         if code in LINK_LOST_ERRNOS or self._send_failures >= SEND_FAILURES_DOWN:
             self._send_failures = 0
             self._send_lost = (bus, f"send failed: {exc}")
@@ -367,7 +360,7 @@ class BusDriver:
                 with self._send_lock:
                     bus.send(msg)
             except (can.CanOperationError, OSError) as exc:
-                full = _tx_queue_full(exc)
+                full = tx_queue_full(exc)
                 if not full or retries == 0 or not self._running.is_set():
                     self._tx_full = full
                     raise
@@ -416,6 +409,7 @@ class BusDriver:
                 if pending:
                     pending = 0
                     self._end_burst()
+                self._look(bus)
                 continue
             if not in_burst:
                 self._sync_clocks()  # at a burst's start (and every burst_max_frames in one)
@@ -429,7 +423,8 @@ class BusDriver:
                 self._error_frame(msg)
                 continue
             if self.state == "error":
-                self._maybe_recovered()
+                self.controller.on_frame()  # no error frame for the hold time: that cause ends
+                self._apply_controller()
             counters["frames_in"] += 1
             taps = self.frame_taps  # one read: another thread may replace it meanwhile
             if taps:
@@ -450,6 +445,7 @@ class BusDriver:
                 pending = 0
                 self._end_burst()
                 self._sync_clocks()
+                self._look(bus)
 
     def _bus_lost(self, detail: str) -> None:
         """The link is gone (receive raised, or the sender found it gone): close the bus, say
@@ -464,8 +460,7 @@ class BusDriver:
 
     def _sync_clocks(self) -> None:
         self.reader_turns += 1
-        self._burst_mono = self.mono()
-        self._burst_wall = self.wall()
+        self._burst = (self.mono(), self.wall())
 
     def add_tap(self, tap: FrameHandler) -> None:
         """Call ``tap`` on the reader thread with every frame received from now on."""
@@ -492,28 +487,28 @@ class BusDriver:
                 self.warn.warning("burst", "burst listener %r failed: %s", listener, exc)
 
     def _error_frame(self, msg: can.Message) -> None:
-        """Controller state from an error frame (``bus.error_frames``)."""
-        self.last_error_frame_s = self.mono()
-        said = controller_report(msg)
-        if said is None:
+        """Controller state from an error frame (``ControllerState.on_error_frame``)."""
+        if not self.controller.on_error_frame(msg):
             data = bytes(msg.data).ljust(8, b"\0").hex(" ")
             self.warn.warning("error_frame", "CAN error frame 0x%X data %s", msg.arbitration_id, data)
-        elif said == ERROR_ACTIVE:
-            if self.state == "error":
-                log.info("CAN controller%s error active again", self.where)
-                self._set_state("ok", "")
-        else:
-            self._enter_error(said)
+        self._apply_controller()
 
-    def _enter_error(self, what: str) -> None:
-        if self.state != "error" or self.last_error != what:
-            log.warning("CAN controller%s reports %s", self.where, what)
-        self._set_state("error", what)
+    def _look(self, bus: can.BusABC) -> None:
+        """Between bursts: the sender's refusals and python-can's bus state."""
+        self.controller.look(bus)
+        self._apply_controller()
 
-    def _maybe_recovered(self) -> None:
-        last = self.last_error_frame_s
-        if last is None or self.mono() - last >= self.error_hold_s:
-            log.info("CAN frames flow without error frames for %.1f s: bus ok", self.error_hold_s)
+    def _apply_controller(self) -> None:
+        """State ``error`` while a cause holds, ``ok`` when none does (never over ``down``)."""
+        if self.state == "down":
+            return
+        what = self.controller.error
+        if what is not None:
+            if self.state != "error" or self.last_error != what:
+                log.warning("CAN controller%s reports %s: this gateway's frames cannot go out", self.where, what)
+            self._set_state("error", what)
+        elif self.state == "error":
+            log.info("CAN bus%s ok again: frames go out, no error reported", self.where)
             self._set_state("ok", "")
 
     def _reopen(self) -> bool:
@@ -538,7 +533,7 @@ class BusDriver:
             self._set_state("down", f"reopen failed: {exc}")
             return False
         self.reopens += 1
-        self.last_error_frame_s = None
+        self.controller.reset()
         log.info("CAN bus%s reopened", self.where)
         self._set_state("ok", "")
         return True

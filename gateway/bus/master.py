@@ -40,9 +40,10 @@ from gateway.bus.bus_peers import (
 from gateway.bus.driver import BusDriver
 from gateway.bus.events import HealthChanged, Note, SdoDone, Send, ValuesRead
 from gateway.bus.lss.service import LssService
+from gateway.bus.node import listening
 from gateway.bus.node.parts import NodeParts, build_node_into
 from gateway.bus.pair.heard_sdo import HeardSdo
-from gateway.bus.pair.member import PairMember
+from gateway.bus.pair.member import PairMember, talk_period_s
 from gateway.bus.pair.side import MASTER_HEARTBEAT, NoPair, PairSide
 from gateway.bus.producers import Periodic
 from gateway.bus.reader import (
@@ -116,7 +117,7 @@ class Master(PairSide):
         #: this gateway in a hot-standby pair; outside one the null member (``NoPair``): the
         #: master consults it the same way, and it always masters
         self.member: PairMember | NoPair = NoPair()
-        self._last_frame: tuple[float, float | None] = (0.0, None)  # (wall, bus clock)
+        self._last_frame: tuple[float, float | None] = (0.0, None)  # (its timestamp, bus clock)
         known = {n.node_id for n in cfg.nodes}
         if cfg.master.redundancy is not None and not passive:
             self.member = PairMember(
@@ -124,6 +125,7 @@ class Master(PairSide):
                 last_frame_s=self._last_frame_s,
                 nodes_alive=lambda: any(p.node.alive for p in self.nodes.values()),
                 reader_busy=lambda: not driver.idle,
+                talk_s=talk_period_s(nodes[n.name].settings for n in cfg.nodes),
             )  # fmt: skip
             known |= self.member.known_ids()
         #: True while this gateway masters the bus (always, outside a pair)
@@ -246,23 +248,26 @@ class Master(PairSide):
     def _on_sdo_request(self, p: NodeParts, data: bytes, wall: float, now: float) -> None:
         if not self.mastering:
             self.heard_sdo.on_request(p.node_id, data)  # the active gateway's transfer
+            self._execute(p, listening.on_sdo_heard(p.node, now))  # a node being configured?
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
         self.peer_log.info(("sdo_client", p.name), "%s", text)
 
     def _last_frame_s(self) -> float | None:
-        """When the reader took its last frame, on the bus clock (None: none yet); turned once
-        per frame timestamp, so that the same frame always gives the same time."""
+        """When the reader took its last frame, on the monotonic clock (None: none yet): its
+        timestamp turned as the reader turns every frame's (``BusDriver.stamp``: a wall clock
+        that stepped is not believed), once per timestamp, so that the same frame always gives
+        the same time."""
         wall = self.driver.last_frame_wall
         if wall != self._last_frame[0]:
-            self._last_frame = (wall, self.driver.mono() - (self.driver.wall() - wall) if wall else None)
+            self._last_frame = (wall, self.driver.stamp(wall) if wall else None)
         return self._last_frame[1]
 
     def _bus_state(self, state: str, detail: str) -> None:
         if state == "down":
             self._post(self._on_bus_down)
-        if self.in_pair and state in ("down", "ok"):
-            self._post(self.member.on_link, state == "ok")
+        if self.in_pair:  # down, or its frames cannot go out (error): the pair's role
+            self._post(self.member.on_link, state)
 
     # ------------------------------------------------------------------ event loop
     def _on_control(self, p: NodeParts, kind: str, data: bytes, wall: float, now: float) -> None:
@@ -382,6 +387,7 @@ class Master(PairSide):
             self._execute(p, p.node.start(now, probe=self.cfg.master.probe_at_start))
 
     async def stop(self) -> None:
+        self.member.hand_over()  # an active member of a pair hands the bus to the standby first
         self.lss.stop()
         self.member.stop()
         for t in [*self._timers.values(), *self._producers.values()]:

@@ -4,8 +4,12 @@ key path: the same CAN bus, logical master, nodes (their device description and 
 content) and Modbus layout; both with ``master.redundancy``, distinct own ids, ``peer_node_id``
 naming the other; a bus two processes can share (not ``interface: virtual``).
 
-``takeover_worst_ms(cfg)``: this gateway's worst take-over, which the device timeouts are
-held against (``checks.takeover``).
+It also refuses time slots (CiA 302-2: priority x 1F90h:04 + node id x 1F90h:05) that do not
+follow the priority order.
+
+``takeover_worst_ms(cfg, nodes)``: this gateway's worst take-over, as the role machine runs it
+(counting how rarely the devices talk), which the device timeouts are held against
+(``checks.takeover``).
 
 Imports: bus.pair.member (the pair's times), config (types), device.resolved (types). No I/O
 but reading the device files to compare.
@@ -16,7 +20,7 @@ from __future__ import annotations
 import hashlib
 from typing import Any
 
-from gateway.bus.pair.member import pair_timing
+from gateway.bus.pair.member import pair_timing, talk_period_s
 from gateway.config import Config
 from gateway.device.resolved import ResolvedNode
 
@@ -36,16 +40,25 @@ SHARED_BUS_HINT = (
 )
 
 
-def takeover_worst_ms(cfg: Config) -> int | None:
-    """The longest the logical master may be silent when this gateway takes over (None: not in
-    a pair): its ``takeover_ms`` (default 3 x ``heartbeat_ms``), then its CiA 302-2 time slot
-    (priority x ``priority_slot_ms`` + node id x ``device_slot_ms``), and the heartbeat the old
-    active one may have been about to send (one ``heartbeat_ms``)."""
+def takeover_worst_ms(cfg: Config, nodes: dict[str, ResolvedNode] | None = None) -> int | None:
+    """The longest the logical master may be silent when this gateway takes over from a dead
+    active one (``PairTiming.worst_takeover_s``, the times the role machine runs on): the
+    standby negotiates once the master was silent for ``takeover_ms`` and it heard a frame of a
+    device after two heartbeats (the devices that talk unasked talk again within their
+    shortest heartbeat, ``nodes``' ``heartbeat_ms``), then claims at the end of its CiA 302-2
+    time slot (priority x ``priority_slot_ms`` + node id x ``device_slot_ms``); plus the
+    heartbeat the old active one may have been about to send (one ``heartbeat_ms``). Without
+    ``nodes`` the devices are taken to talk every ``heartbeat_ms``. None: not in a pair, or no
+    node talks unasked (no take-over can be promised: ``checks.takeover`` says so)."""
     pair = cfg.master.redundancy
     if pair is None:
         return None
-    t = pair_timing(cfg)  # the times the role machine runs on
-    return round(1000 * (t.takeover_s + t.slot_s(pair.priority, pair.node_id) + t.heartbeat))
+    if nodes is None:
+        talk_s: float | None = cfg.master.heartbeat_ms / 1000.0
+    else:
+        talk_s = talk_period_s(rn.settings for n in cfg.nodes if (rn := nodes.get(n.name)))
+    worst = pair_timing(cfg, talk_s).worst_takeover_s(pair.priority, pair.node_id)
+    return None if worst is None else round(1000 * worst)
 
 
 def _differences(key: str, a: Any, b: Any) -> list[tuple[str, Any, Any]]:
@@ -105,6 +118,8 @@ def pair_problems(
                 differ(f"master.redundancy.{k}", va, vb)
         if pa.node_id == pb.node_id:
             out.append(f"{both}: master.redundancy.node_id: {pa.node_id} in both: each gateway needs its own id")
+        else:
+            out += _slot_order(a, b)
         for cfg, pair, other in ((a, pa, pb), (b, pb, pa)):
             if pair.peer_node_id is not None and pair.peer_node_id != other.node_id:
                 out.append(
@@ -118,6 +133,28 @@ def pair_problems(
                 differ(f"modbus.{k}", va, vb)
     out += _pair_node_problems(a, b, nodes_a, nodes_b)
     return out
+
+
+def _slot_order(a: Config, b: Config) -> list[str]:
+    """The CiA 302-2 time slots (priority x 1F90h:04 + node id x 1F90h:05) must follow the
+    priority order (lower priority first, then lower node id): a third-party master, and a
+    negotiation between the two, decide by which slot ends first."""
+    pa, pb = a.master.redundancy, b.master.redundancy
+    assert pa is not None and pb is not None
+    ranked = sorted(((a.source, pa), (b.source, pb)), key=lambda x: (x[1].priority, x[1].node_id))
+    (bf, better), (wf, worse) = ranked
+    slot_better = better.priority * better.priority_slot_ms + better.node_id * better.device_slot_ms
+    slot_worse = worse.priority * worse.priority_slot_ms + worse.node_id * worse.device_slot_ms
+    if slot_better < slot_worse:
+        return []
+    return [
+        f"{a.source}, {b.source}: master.redundancy: the CiA 302-2 time slots do not follow the "
+        f"priority order: {bf} (priority {better.priority}, node_id {better.node_id}) waits "
+        f"{slot_better:g} ms, {wf} (priority {worse.priority}, node_id {worse.node_id}) "
+        f"{slot_worse:g} ms (priority x priority_slot_ms + node_id x device_slot_ms): the worse "
+        f"one would claim first; give the better one the lower node_id, or a priority_slot_ms "
+        f"over {(worse.node_id - better.node_id) * better.device_slot_ms:g} ms"
+    ]
 
 
 def _pair_node_problems(

@@ -1,7 +1,9 @@
 """The device-side timeouts a take-over of a hot-standby pair can outlast (``takeover_warnings``,
 every ``check`` through ``config_warnings``): one warning per timeout shorter than what this
 gateway's worst take-over (``checks.pair.takeover_worst_ms``) leaves the device without the
-frame it watches, naming the node, the object, both times and the fix.
+frame it watches, naming the node, the object, both times and the fix; and one when no node
+talks unasked (a standby then cannot tell the active's death from its own cut cable: no
+take-over can be promised). The worst take-over counts how rarely the devices talk.
 
 What a take-over leaves a device without, counted from the old active gateway's last frame of
 the kind to the new one's first (``worst`` the worst take-over, which already counts the one
@@ -51,14 +53,24 @@ SYNC_TYPES = range(0, 241)
 
 
 def takeover_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Warning]:
-    """``(key path, text)`` per device timeout a take-over by this gateway can outlast."""
-    worst = takeover_worst_ms(cfg)
+    """``(key path, text)`` per device timeout a take-over by this gateway can outlast, and one
+    when no node talks unasked (no take-over can be promised)."""
     pair = cfg.master.redundancy
-    if worst is None or pair is None:
+    if pair is None:
         return []
+    worst = takeover_worst_ms(cfg, nodes)  # counts how rarely the devices talk
+    if worst is None:
+        return [(
+            "nodes",
+            "no node talks unasked (supervision: heartbeat with heartbeat_ms): a standby cannot "
+            "tell the active gateway's death from its own cut cable and takes the bus over only "
+            "once it hears a frame again; give at least one node a heartbeat producer "
+            "(heartbeat_ms), the faster the sooner the take-over",
+        )]  # fmt: skip
     how = (
         f"the worst take-over by this gateway (redundancy.node_id {pair.node_id}) is {worst} ms: "
-        f"takeover_ms + its slot + one heartbeat_ms"
+        f"takeover_ms (or two heartbeat_ms + the devices' shortest heartbeat) + its slot + one "
+        f"heartbeat_ms"
     )
     out: list[Warning] = []
     for i, n in enumerate(cfg.nodes):

@@ -178,8 +178,10 @@ def _pair_problems(cfg: Config) -> list[tuple[str, str]]:
             (
                 "master.redundancy.takeover_ms",
                 f"{pair.takeover_ms} ms is under two logical heartbeats (2 x master.heartbeat_ms "
-                f"= {2 * hb} ms): one late heartbeat would look like a dead master and a lone "
-                f"gateway would flap between active and standby; allowed: at least {2 * hb} ms "
+                f"= {2 * hb} ms): one late heartbeat would look like a dead master, a lone "
+                f"gateway would flap between active and standby, and two actives after a lost "
+                f"claim (resolved within two heartbeats) would outlast the take-over time; "
+                f"allowed: at least {2 * hb} ms "
                 f"(default 3 x master.heartbeat_ms)",
             )
         )

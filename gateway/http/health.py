@@ -32,6 +32,7 @@ def pair_of(master: Master) -> dict[str, Any]:
         peer_node_id=redundancy.peer_node_id if redundancy is not None else None,
         master_id=master.pair_master_id,
         conflict=master.pair_conflict,
+        peer_role=pair.peer_role(master.clock()),  # its own heartbeat says it
     )
 
 

@@ -168,6 +168,7 @@ def pair_status(
     peer_node_id: int | None = None,
     master_id: int | None = None,
     conflict: str | None = None,
+    peer_role: str = "unknown",
 ) -> dict[str, Any]:
     """The ``role`` and ``peer`` entries of /healthz: this gateway's role in a hot-standby pair
     and what it knows of the other gateway (both None outside a pair).
@@ -175,12 +176,14 @@ def pair_status(
     ``role`` is this gateway's (active, standby, listening, negotiating, isolated, duplicate),
     ``master_id`` the pair id of the master heard active (a third-party CiA 302-2 master's
     too; None: unknown), ``conflict`` what a device with this gateway's own pair id was heard
-    sending (None: nothing). The peer is known by
-    what was heard of it, on the bus clock (``now_s``): ``claim`` its last active master
-    response (priority, pair node id, time heard), ``peer_heartbeat_s`` when its own heartbeat
-    (``master.redundancy.peer_node_id``) was last heard. A peer whose claim is younger than
-    ``recent_s`` (the take-over time) is ``active``; else one whose heartbeat is that young is
-    ``standby``; else ``unknown`` (``heard`` false: nothing of it in that time).
+    sending (None: nothing). The peer is known by what was heard of it, on the bus clock
+    (``now_s``): ``peer_role`` its role as its own heartbeat says it (``active``, ``standby``,
+    ``isolated``; ``unknown`` when not heard within ``recent_s``, the take-over time),
+    ``claim`` its last active master response (priority, pair node id, time heard),
+    ``peer_heartbeat_s`` when its own heartbeat (``master.redundancy.peer_node_id``) was last
+    heard. A peer whose role is not heard but whose claim is younger than ``recent_s`` is
+    ``active``; one whose heartbeat alone is that young ``standby``; else ``unknown``
+    (``heard`` false: nothing of it in that time).
     """
     if role is None:
         return {"role": None, "peer": None}
@@ -191,13 +194,14 @@ def pair_status(
     def shown(age_s: float | None) -> float | None:
         return None if age_s is None else round(age_s, 3)
 
+    if claim is not None and peer_node_id is not None and claim[1] != peer_node_id:
+        claim = None  # a third-party master's claim, not the peer's
     claim_age, hb_age = age(claim[2] if claim else None), age(peer_heartbeat_s)
-    if claim_age is not None and claim_age <= recent_s:
-        peer_role = "active"
-    elif hb_age is not None and hb_age <= recent_s:
-        peer_role = "standby"
-    else:
-        peer_role = "unknown"
+    if peer_role == "unknown":
+        if claim_age is not None and claim_age <= recent_s:
+            peer_role = "active"
+        elif hb_age is not None and hb_age <= recent_s:
+            peer_role = "standby"
     return {
         "role": role,
         "master_id": master_id,

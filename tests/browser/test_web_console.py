@@ -146,6 +146,7 @@ async def test_the_overview_shows_the_role_of_a_gateway_of_a_pair_and_its_peer(
             assert "This gateway\nactive" in text, text
             assert "not heard node id 102" in text, text
             assert "Its heartbeat\nnever heard" in text, text
+            assert "Master id\n101" in text, text  # the master heard active: itself
 
         await run(check)
     finally:

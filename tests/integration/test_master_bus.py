@@ -78,7 +78,7 @@ async def test_error_passive_and_bus_off_surface_in_health_until_the_controller_
 async def test_error_state_clears_when_frames_flow_without_error_frames_for_the_hold_time() -> None:
     async with running([WIRE]) as gw:
         await wait_until(lambda: operational(gw, "wire"), 5, "wire operational")
-        gw.driver.error_hold_s = 0.2
+        gw.driver.controller.error_hold_s = 0.2
         bus = can.Bus(interface="virtual", channel=gw.cfg.can.channel)
         try:
             bus.send(error_frame(0x04, 0x10))  # RX passive; no "active" frame will follow

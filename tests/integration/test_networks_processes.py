@@ -230,8 +230,9 @@ def test_a_pair_per_network_a_gateway_is_active_on_one_and_stands_by_on_the_othe
         nets = healthz(port)["networks"]
         return nets["line1"]["role"], nets["line2"]["role"]
 
-    with devices(a, b), ExitStack() as stack:
+    with ExitStack() as stack:
         stack.enter_context(gateway(tmp_path, raw_a, "A"))
+        stack.enter_context(devices(a, b))  # once A listens: their boot-ups the first frames it hears
         wait_until_sync(lambda: roles(ha) == ("active", "active"), 20, "A active on both")
         stack.enter_context(gateway(tmp_path, raw_b, "B"))
         wait_until_sync(lambda: roles(hb) == ("standby", "standby"), 20, "B standby on both")

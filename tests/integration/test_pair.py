@@ -81,11 +81,13 @@ async def pair_running(
     by); ``cfgs``: the pair's two configs (default ``pair_configs()``)."""
     cfg_a, cfg_b = cfgs if cfgs is not None else pair_configs()
     sim = simulated_bus(cfg_a, names=["wire", "display"])
-    sim.start()
     a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
     sent_a, sent_b = Sent(a), Sent(b)
     try:
         await a.start()
+        # the devices power on once A listens: their boot-ups are the first frames it hears (on a
+        # bus silent from its start a first master waits 2 s before it claims the bus)
+        sim.start()
         for name in ("wire", "display"):
             await wait_until(lambda n=name: node_operational(a, n), 10, f"A configures {name}")
         await b.start()

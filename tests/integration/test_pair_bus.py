@@ -155,3 +155,34 @@ def test_wait_for_looks_from_an_index_and_times_out(bus: PairBus) -> None:
     assert bus.wait_for(lambda f: f.cob_id == 0x181, after=mark).data == b"\x02"
     with pytest.raises(TimeoutError):
         bus.wait_for(lambda f: f.cob_id == 0x7FF, timeout_s=0.05)
+
+
+def test_a_muted_member_hears_everything_and_reaches_no_one(bus: PairBus) -> None:
+    a, b = bus.open_bus("a"), bus.open_bus("b")
+    bus.mute("a")
+    send(a, 0x181, b"\x01")  # lost
+    send(b, 0x182, b"\x02")
+    assert next_frame(a).arbitration_id == 0x182  # a still hears
+    bus.unmute("a")
+    send(a, 0x183, b"\x03")
+    assert next_frame(b).arbitration_id == 0x183  # b never got 181h
+    bus.wait_for(lambda f: f.cob_id == 0x183)
+    assert [(f.sender, f.cob_id, f.delivered, f.to) for f in bus.frames] == [
+        ("a", 0x181, False, frozenset()),
+        ("b", 0x182, True, frozenset({"a"})),
+        ("a", 0x183, True, frozenset({"b"})),
+    ]
+
+
+def test_a_split_bus_carries_frames_only_within_each_part(bus: PairBus) -> None:
+    a, b, c, d = (bus.open_bus(n) for n in "abcd")
+    bus.split({"a", "c"}, {"b", "d"})
+    send(a, 0x181)
+    send(b, 0x182)
+    assert next_frame(c).arbitration_id == 0x181 and next_frame(d).arbitration_id == 0x182
+    bus.wait_for(lambda f: f.cob_id == 0x182)
+    assert {f.cob_id: f.to for f in bus.frames} == {0x181: frozenset({"c"}), 0x182: frozenset({"d"})}
+    bus.heal()
+    send(a, 0x183)
+    for rx in (b, c, d):
+        assert next_frame(rx).arbitration_id == 0x183

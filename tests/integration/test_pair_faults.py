@@ -207,6 +207,10 @@ def start_plant(stack: ExitStack, tmp: Path, guarded: bool = False) -> Plant:
     """The devices, A active with the devices configured, B standby, settled."""
     bus = stack.enter_context(PairBus())
     cfg = write_config(tmp, bus, guarded)
+    a = start_member(tmp, cfg, "A", A_ID, 0, B_ID, rtr=guarded)
+    stack.callback(a.stop)
+    # the devices power on once A listens: their boot-ups are the first frames it hears (on a
+    # bus silent from its start a first master waits 2 s before it claims the bus)
     sim = subprocess.Popen(
         [*gateway_argv(guarded), "simulate", "-c", str(cfg)],
         cwd=ROOT, env={**os.environ, "CANOPEN_GATEWAY__CAN__CHANNEL": "devices"},
@@ -214,8 +218,6 @@ def start_plant(stack: ExitStack, tmp: Path, guarded: bool = False) -> Plant:
     )  # fmt: skip
     stack.callback(lambda: Member("devices", sim, 0, tmp / "x").stop())
     assert sim.stdout is not None and "simulating" in sim.stdout.readline()
-    a = start_member(tmp, cfg, "A", A_ID, 0, B_ID, rtr=guarded)
-    stack.callback(a.stop)
     wait_role(a, "active", 15)
     wait_until_sync(lambda: nodes_alive(a), 20, "A's nodes alive")
     b = start_member(tmp, cfg, "B", B_ID, 1, A_ID, rtr=guarded)

@@ -90,12 +90,14 @@ async def pair_running(a_ahead_frames: int = 0) -> AsyncIterator[Pair]:
     router = open_router(router_endpoint)
     cfg_a, cfg_b = pair_configs(router_endpoint)
     sim = simulated_bus(cfg_a, names=["wire", "display"])
-    sim.start()
     a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
     sent_a = Sent(a)
     z = ZClient([router_endpoint], mode="client")
     try:
         await a.start()
+        # the devices power on once A listens: their boot-ups are the first frames it hears (on a
+        # bus silent from its start a first master waits 2 s before it claims the bus)
+        sim.start()
         for name in ("wire", "display"):
             await wait_until(lambda n=name: node_operational(a, n), 10, f"A configures {name}")
         position = a.image.nodes["wire"].signals

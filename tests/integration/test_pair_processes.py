@@ -247,16 +247,16 @@ def test_a_pair_of_processes_survives_kill_restart_and_freeze(tmp_path: Path) ->
         stack.callback(bus.shutdown)
         seen = Observer()
         stack.callback(can.Notifier(bus, [seen]).stop)
+        # A alone configures the devices, which power on once it listens (their boot-ups the
+        # first frames it hears: on a bus silent from its start it waits 2 s before a claim)
+        a = Gw(tmp_path, "a", cfg, A_ID, 0)
+        stack.callback(lambda: a.stop())
+        a.ready()
         sim = stack.enter_context(
             started([sys.executable, "-m", "gateway", "simulate", "-c", str(cfg)],
                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)  # fmt: skip
         )
         assert sim.stdout is not None and "simulating" in sim.stdout.readline()
-
-        # A alone configures the devices
-        a = Gw(tmp_path, "a", cfg, A_ID, 0)
-        stack.callback(lambda: a.stop())
-        a.ready()
         wait_until_sync(lambda: a.said("pair: negotiating -> active"), 15, "A active")
         for name, node_id in NODES.items():
             q = point(cfg, name, "quality")

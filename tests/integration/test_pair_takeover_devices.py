@@ -78,11 +78,13 @@ async def active_a(cfgs: tuple[Any, Any]) -> AsyncIterator[tuple[Gateway, Gatewa
     """A started and the devices configured; B built, not started (the test starts it)."""
     cfg_a, cfg_b = cfgs
     sim = simulated_bus(cfg_a, names=["wire", "display"])
-    sim.start()
     a, b = gateway_of(cfg_a, simulate=False), gateway_of(cfg_b, simulate=False)
     sent_a, sent_b = Sent(a), Sent(b)
     try:
         await a.start()
+        # the devices power on once A listens: their boot-ups are the first frames it hears (on a
+        # bus silent from its start a first master waits 2 s before it claims the bus)
+        sim.start()
         for name in ("wire", "display"):
             await wait_until(lambda n=name: node_operational(a, n), 10, f"A configures {name}")
         yield a, b, sent_a, sent_b, sim

@@ -72,9 +72,9 @@ def test_a_standby_started_after_the_plcs_writes_serves_them_and_sends_them_on_a
         bus = stack.enter_context(PairBus())
         cfg = write_config(tmp_path, bus)
         p = points(cfg)
-        stack.enter_context(devices(cfg))
         a = start_member(tmp_path, cfg, "A", A_ID, 0, B_ID)
         stack.callback(a.stop)
+        stack.enter_context(devices(cfg))  # once A listens: their boot-ups are the first frames it hears
         wait_role(a, "active", 15)
         wait_until_sync(lambda: nodes_alive(a), 20, "A's nodes alive")
         wait_until_sync(lambda: node_detail(a, "display").get("nmt_state") == "operational", 20, "A started the AP05")

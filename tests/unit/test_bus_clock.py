@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import can
 
-from gateway.bus.driver import BusDriver
+from gateway.bus.driver import FRAME_AGE_MAX_S, BusDriver
 from gateway.image import ProcessImage
 
 
@@ -63,18 +63,39 @@ def test_an_absurd_timestamp_falls_back_to_the_monotonic_clock() -> None:
     assert d.frame_time(msg) == 1000.0
 
 
+def test_a_wall_clock_stepped_either_way_makes_frames_received_now_not_from_the_past_or_future() -> None:
+    """A socketcand server stamps frames with its own clock; this machine's wall clock steps
+    back (frames from the future) or forward by more than ``FRAME_AGE_MAX_S`` (frames from the
+    past): neither is believed, the frame is taken as received now (``stamp``, the bus clock,
+    the pair's last-frame time all read it so)."""
+    c = Clocks()
+    d = driver(c)
+    server_wall = c.wall
+    c.wall -= 10.0  # stepped back
+    d._sync_clocks()
+    assert d.stamp(server_wall) == 1000.0
+    c.wall += 20.0  # stepped forward: the server's stamps look 10 s old
+    d._sync_clocks()
+    assert d.stamp(server_wall) == 1000.0
+    d.clock_state = (False, server_wall)  # busy with such a frame: the bus clock is now too
+    assert d.bus_clock() == 1000.0
+    assert d.stamp(c.wall - FRAME_AGE_MAX_S + 0.5) == 1000.0 - FRAME_AGE_MAX_S + 0.5  # a backlog
+
+
 def test_error_passive_clears_only_after_the_hold_time_without_error_frames() -> None:
     c = Clocks()
     d = driver(c)
-    d.error_hold_s = 0.2
+    d.controller.error_hold_s = 0.2
     d.state = "ok"
     d._error_frame(can.Message(arbitration_id=0x04, data=bytes([0, 0x10]), is_error_frame=True))
     assert d.state == "error"
     c.mono += 0.19
-    d._maybe_recovered()  # frames flow, but within the hold time
+    d.controller.on_frame()  # frames flow, but within the hold time
+    d._apply_controller()
     assert d.state == "error"
     c.mono += 0.01
-    d._maybe_recovered()
+    d.controller.on_frame()
+    d._apply_controller()
     assert d.state == "ok"
 
 

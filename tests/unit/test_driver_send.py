@@ -105,24 +105,45 @@ def test_refusals_without_errno_take_the_bus_down_after_several_in_a_row() -> No
         for data in range(SEND_FAILURES_DOWN + 1):  # one sent between: the count starts over
             d.send(0x77F, bytes([data]))
         wait_until_sync(lambda: len(attempts) == SEND_FAILURES_DOWN + 1, what="every frame tried")
-        assert states == [] and d.state == "ok"
+        wait_until_sync(lambda: d.state == "ok", what="ok: a frame went out")
+        assert "down" not in [s for s, _ in states]  # refused: error, then ok; never down
         d.close()
         d, attempts, states = watched([other] * SEND_FAILURES_DOWN)
         for data in range(SEND_FAILURES_DOWN):
             d.send(0x77F, bytes([data]))
-        wait_until_sync(lambda: states[:1] == [("down", "send failed: adapter not found")],
+        wait_until_sync(lambda: ("down", "send failed: adapter not found") in states,
                         what="the bus down")  # fmt: skip
     finally:
         d.close()
 
 
-def test_a_full_transmit_queue_never_takes_the_bus_down() -> None:
-    d, attempts, states = watched([ENOBUFS] * (3 * SEND_FAILURES_DOWN * (TX_RETRIES + 1)))
+def test_a_full_transmit_queue_never_takes_the_bus_down_but_says_its_frames_cannot_go_out() -> None:
+    refusals: list[Exception | None] = [ENOBUFS] * (3 * SEND_FAILURES_DOWN * (TX_RETRIES + 1))
+    d, attempts, states = watched(refusals)
     try:
         for data in range(3 * SEND_FAILURES_DOWN):
             d.send(0x77F, bytes([data]))
         wait_until_sync(lambda: d.image.counters["bus_errors"] == 3 * SEND_FAILURES_DOWN,
                         what="every frame refused")  # fmt: skip
-        assert states == [] and d.state == "ok"
+        wait_until_sync(lambda: d.state == "error", what="the state error")
+        assert [s for s, _ in states] == ["error"] and "transmit queue full" in states[0][1]
+        refusals.clear()
+        d.send(0x77F, b"\x01")  # the queue drains: the frame goes out, the bus is ok again
+        wait_until_sync(lambda: d.state == "ok", what="ok again")
+        assert [s for s, _ in states] == ["error", "ok"]
     finally:
+        d.close()
+
+
+def test_a_controller_that_says_bus_off_through_python_can_bus_state_is_an_error() -> None:
+    d, _attempts, states = watched([])
+    try:
+        assert d.bus is not None
+        type(d.bus).state = property(lambda self: can.BusState.ERROR)  # type: ignore[method-assign,assignment]
+        wait_until_sync(lambda: d.state == "error", what="bus off from bus.state")
+        assert states[0] == ("error", "bus off")
+        type(d.bus).state = property(lambda self: can.BusState.ACTIVE)  # type: ignore[method-assign,assignment]
+        wait_until_sync(lambda: d.state == "ok", what="error active again")
+    finally:
+        del type(d.bus).state  # type: ignore[union-attr]
         d.close()

@@ -222,6 +222,18 @@ def test_the_active_one_sees_a_standby_peer_by_its_own_heartbeat():
     assert doc["peer"]["node_id"] == 102 and doc["peer"]["priority"] is None
 
 
+def test_the_peer_is_shown_in_the_role_its_own_heartbeat_says_whatever_its_claims_age():
+    """A standby whose active peer claimed long ago (there is no periodic 71h) shows it active
+    by its heartbeat; an isolated peer shows isolated; a third party's claim is not the peer's."""
+    doc = pair_status("standby", now_s=10.0, recent_s=0.3, claim=(0, 101, 2.0),
+                      peer_heartbeat_s=9.95, peer_node_id=101, master_id=101, peer_role="active")  # fmt: skip
+    assert doc["peer"]["role"] == "active" and doc["master_id"] == 101
+    doc = pair_status("active", now_s=10.0, recent_s=0.3, peer_heartbeat_s=9.95, peer_role="isolated")
+    assert doc["peer"]["role"] == "isolated" and doc["peer"]["heard"] is True
+    doc = pair_status("standby", now_s=10.0, recent_s=0.3, claim=(0, 5, 9.9), peer_node_id=102)
+    assert doc["peer"]["node_id"] == 102 and doc["peer"]["role"] == "unknown"
+
+
 def test_pair_metrics_count_takeovers_and_negotiations_and_gauge_the_role():
     m = Metrics()
     m.counters.pair_takeovers, m.counters.pair_negotiations, m.counters.pair_role = 1, 2, 2

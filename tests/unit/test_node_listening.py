@@ -11,6 +11,8 @@ gone (it sends nothing more), the new one drives the device from then on.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -24,7 +26,7 @@ from gateway.bus.node.lifecycle import (
     NodeLifecycle,
     StateChanged,
 )
-from gateway.bus.node.listening import HeardLife
+from gateway.bus.node.listening import LIFE, SETTLE_S, HeardLife, Life
 from gateway.bus.node.parts import build_node
 from gateway.canopen.cia301 import NMT_COMMANDS
 from gateway.canopen.states import LinkState, NmtState
@@ -145,26 +147,77 @@ def test_a_takeover_adopts_a_listening_node_or_waits_to_configure_it() -> None:
 
 def test_heard_life_follows_the_table_of_the_module_docstring() -> None:
     joined = HeardLife()
-    joined.on_state(NmtState.OPERATIONAL)  # joined a running bus: heard operational
+    joined.on_state(NmtState.OPERATIONAL, 0.0)  # joined a running bus: heard operational
     assert joined.started and joined.lifecycle(alive=True) == "operational"
     joined.on_nmt_command("preop")  # the operator's state of a started node
-    assert joined.adopt_in(True, NmtState.PRE_OPERATIONAL) is NmtState.PRE_OPERATIONAL
+    assert joined.life is Life.HELD
+    assert joined.adopt_in(True, NmtState.PRE_OPERATIONAL, True) is NmtState.PRE_OPERATIONAL
     joined.on_nmt_command("stop")
-    assert joined.adopt_in(True, NmtState.STOPPED) is NmtState.STOPPED
-    assert joined.adopt_in(False, NmtState.STOPPED) is None  # not alive: configured as usual
+    assert joined.adopt_in(True, NmtState.STOPPED, False) is NmtState.STOPPED
+    assert joined.adopt_in(False, NmtState.STOPPED, True) is None  # not alive: configured as usual
     assert joined.lifecycle(alive=False) == "waiting"
 
     rebooted = HeardLife()
-    rebooted.on_state(NmtState.OPERATIONAL)
-    rebooted.on_restart()  # boot-up or loss: the other master configures it again
-    rebooted.on_state(NmtState.OPERATIONAL)  # its state alone says nothing now...
+    rebooted.on_state(NmtState.OPERATIONAL, 0.0)
+    rebooted.on_restart()  # a boot-up: the other master configures it again
+    rebooted.on_state(NmtState.OPERATIONAL, 0.1)  # its state alone says nothing yet...
     assert not rebooted.started and rebooted.lifecycle(alive=True) == "unknown"
     rebooted.on_nmt_command("preop")  # ...the configuration's NMT pre-operational neither
-    assert rebooted.adopt_in(True, NmtState.PRE_OPERATIONAL) is None
-    rebooted.on_nmt_command("start")  # only the heard start
-    assert rebooted.adopt_in(True, NmtState.OPERATIONAL) is NmtState.OPERATIONAL
+    assert rebooted.adopt_in(True, NmtState.PRE_OPERATIONAL, True) is None
+    rebooted.on_nmt_command("start")  # the heard start
+    assert rebooted.adopt_in(True, NmtState.OPERATIONAL, True) is NmtState.OPERATIONAL
     rebooted.on_nmt_command("reset-comm")
-    assert not rebooted.started
+    assert not rebooted.started and rebooted.life is Life.BOOTING
+
+
+@pytest.mark.parametrize("what", sorted(LIFE))
+def test_every_row_of_the_life_table_is_what_each_thing_heard_does(what: str) -> None:
+    heard: dict[str, Callable[[HeardLife], None]] = {
+        "start": lambda h: h.on_nmt_command("start"),
+        "hold": lambda h: h.on_nmt_command("preop"),
+        "restart": lambda h: h.on_restart(),
+        "operational": lambda h: h.on_state(NmtState.OPERATIONAL, 0.0),
+        "fallen": lambda h: h.on_state(NmtState.PRE_OPERATIONAL, 0.0),
+        "lost": lambda h: h.on_lost(),
+        "sdo": lambda h: h.on_sdo_request(0.0),
+    }
+    for before, after in LIFE[what].items():
+        h = HeardLife()
+        h.life = before
+        heard[what](h)
+        assert h.life is after, (what, before)
+    assert set(heard) == set(LIFE) and all(set(row) == set(Life) for row in LIFE.values())
+
+
+def test_a_loss_is_not_a_restart_a_node_heard_operational_again_is_started() -> None:
+    h = HeardLife()
+    h.on_state(NmtState.OPERATIONAL, 0.0)
+    h.on_lost()  # the node silent: gone, or this gateway deaf (its cable cut)
+    assert not h.started and h.life is Life.UNKNOWN
+    h.on_state(NmtState.OPERATIONAL, 3.0)  # heard again, no boot-up: running as before
+    assert h.started and h.adopt_in(True, NmtState.OPERATIONAL, True) is NmtState.OPERATIONAL
+
+
+def test_a_node_first_heard_pre_operational_is_kept_so_only_when_a_master_kept_it_so() -> None:
+    h = HeardLife()
+    h.on_state(NmtState.PRE_OPERATIONAL, 0.0)  # joined (or back): its cause not heard
+    assert h.life is Life.QUIET and h.lifecycle(alive=True) == "unknown"
+    assert h.adopt_in(True, NmtState.PRE_OPERATIONAL, master_heard=True) is NmtState.PRE_OPERATIONAL
+    assert h.adopt_in(True, NmtState.PRE_OPERATIONAL, master_heard=False) is None  # a first start
+    h.on_sdo_request(1.0)  # the active master configures it
+    assert h.life is Life.BOOTING and h.adopt_in(True, NmtState.PRE_OPERATIONAL, True) is None
+
+
+def test_a_booting_node_heard_operational_without_sdo_for_the_settle_time_is_started() -> None:
+    """Its NMT start was not heard (a frame lost): operational, and nobody configures it."""
+    h = HeardLife()
+    h.on_restart()
+    h.on_state(NmtState.OPERATIONAL, 10.0)
+    h.on_sdo_request(10.5)  # still configured: the settle time runs from here
+    h.on_state(NmtState.OPERATIONAL, math.nextafter(10.5 + SETTLE_S, 0))
+    assert h.life is Life.BOOTING
+    h.on_state(NmtState.OPERATIONAL, 10.5 + SETTLE_S)
+    assert h.started
 
 
 # --------------------------------------------------------------------------- the node
@@ -285,3 +338,107 @@ def test_a_gateway_that_stands_down_keeps_its_nodes_started_and_takes_them_back_
     h.run_until(t2 + 2.0)
     assert not [s for tt, s in h.sent if tt >= t2 and (s.cob_id == 0x000 or s.cob_id == 0x603)]
     assert node.lifecycle.state is LifecycleState.OPERATIONAL and len(h.guard_rtrs(after=t2)) >= 15
+
+
+# --------------------------------------------------------------------------- a standby's own outage
+
+
+def lose_on_the_standby(h: PairHarness) -> None:
+    """The standby counts the node lost (more RTRs than the life time factor heard without an
+    answer heard): the node gone, or this gateway deaf for a while."""
+    assert h.standby is not None
+    for _ in range(6):
+        h._standby(h.standby.on_guard_rtr(h.now))
+    assert not h.standby_image.health.alive
+
+
+def nmt_and_sdo_after(h: PairHarness, t: float) -> list[Send]:
+    return [s for tt, s in h.sent if tt >= t and (s.cob_id == 0x000 or s.cob_id == 0x603)]
+
+
+def test_a_loss_on_the_standby_is_not_a_restart_the_node_heard_running_again_is_adopted() -> None:
+    h = running()
+    lose_on_the_standby(h)
+    h.run_until(h.now + 1.0)  # heard again (no boot-up): running as it was
+    assert h.standby_image.health.alive and h.standby_image.health.lifecycle == "operational"
+    t = h.now
+    h.take_over()
+    h.run_until(t + 3.0)
+    assert nmt_and_sdo_after(h, t) == []  # adopted: nothing sent to it
+    assert h.image.health.lifecycle == "operational" and h.device.state == NmtState.OPERATIONAL
+
+
+def test_the_operators_pre_operational_state_is_kept_through_a_loss_on_the_standby() -> None:
+    h = running()
+    h.node.on_nmt_command("preop")
+    h._take([Send(0x000, bytes([NMT_COMMANDS["preop"], 3]))])  # the operator, through the active one
+    h.run_until(h.now + 0.5)
+    lose_on_the_standby(h)
+    h.run_until(h.now + 1.0)  # heard again, pre-operational: its cause not heard since the loss
+    t = h.now
+    h.take_over()  # an active master was heard keeping it so
+    h.run_until(t + 3.0)
+    assert nmt_and_sdo_after(h, t) == []
+    assert h.device.state == NmtState.PRE_OPERATIONAL and h.image.health.lifecycle == "operational"
+
+
+def test_a_node_fallen_pre_operational_by_itself_is_started_again_with_nmt_start_only() -> None:
+    h = running()
+    h.device.state = NmtState.PRE_OPERATIONAL  # a device-side timeout: no command heard
+    h.run_until(h.now + 0.25)  # two answers (guarding errors: not the state expected)
+    assert h.standby is not None and h.standby.heard.life is Life.FELL
+    t = h.now
+    h.take_over()
+    h.run_until(t + 3.0)
+    assert nmt_and_sdo_after(h, t) == [Send(0x000, bytes([0x01, 3]))]  # no SDO: configuration kept
+    assert h.device.state == NmtState.OPERATIONAL and h.image.health.nmt_state == NmtState.OPERATIONAL
+    assert any("fallen by itself" in n.text for _, n in h.notes)
+
+
+def test_a_node_that_falls_right_after_its_adoption_is_started_again_later_ones_are_left_alone() -> None:
+    h = running()
+    t = h.now
+    h.take_over()
+    h.run_until(t + 0.15)
+    h.device.state = NmtState.PRE_OPERATIONAL  # its timeout of the take-over expires now
+    h.run_until(t + 0.9)
+    assert nmt_and_sdo_after(h, t) == [Send(0x000, bytes([0x01, 3]))]
+    assert h.device.state == NmtState.OPERATIONAL
+    h.run_until(t + 5.0)
+    h.device.state = NmtState.PRE_OPERATIONAL  # long after: as with one gateway, a guarding
+    h.run_until(t + 8.0)  # error, the node lost, found by a probe and configured as usual
+    later = nmt_and_sdo_after(h, t + 5.0)
+    assert later and later[0].cob_id == 0x603 and len(nmt_and_sdo_after(h, t)) == 1 + len(later)
+
+
+# --------------------------------------------------------------------------- a split of the bus healed
+
+
+def test_a_pair_members_node_lost_while_running_and_heard_running_again_resumes_without_nmt_or_sdo() -> None:
+    """The bus split between the member and the node (the other member mastered it meanwhile),
+    then healed: no boot-up was heard, the node reports OPERATIONAL: its configuration is
+    intact, it is taken as it runs. Not probed while lost (a probe answered would reconfigure)."""
+    h = running()
+    h.take_over()  # the member that was standby masters the node (as after any take-over)
+    t = h.now
+    h.run_until(t + 1.0)
+    h.device.powered = False  # the split: the node hears nothing of this member, nor it of it
+    h.run_until(t + 3.0)
+    assert not h.image.health.alive and h.node.lifecycle.resumable
+    h.device.powered = True  # healed
+    h.run_until(t + 5.0)
+    assert nmt_and_sdo_after(h, t) == []
+    assert h.node.lifecycle.state is LifecycleState.OPERATIONAL and h.image.health.alive
+    assert h.image.health.loss_count == 1 and h.device.state == NmtState.OPERATIONAL
+
+
+def test_a_resumable_node_that_booted_meanwhile_is_configured_as_usual() -> None:
+    h = running()
+    h.take_over()
+    t = h.now
+    h.device.powered = False
+    h.run_until(t + 2.0)
+    h.device.powered = True
+    h.bootup(t + 2.1)  # it restarted: its configuration is gone
+    h.run_until(t + 6.0)
+    assert h.nmt_start_time(after=t) > t and [s for _, s in h.sent if s.cob_id == 0x603]

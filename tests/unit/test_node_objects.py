@@ -106,7 +106,7 @@ def test_lifecycle_changes_become_reports_the_node_applies() -> None:
 def _probe(device_type: int) -> tuple[SimpleNamespace, SdoOutcome]:
     """A probe of node 5 (1000h read) answered with ``device_type``; its context and outcome."""
     lifecycle = NodeLifecycle([], expected_device_type=0x00020192)
-    ctx = SimpleNamespace(name="io", node_id=5, lifecycle=lifecycle)
+    ctx = SimpleNamespace(name="io", node_id=5, lifecycle=lifecycle, resumes=False)
     job = SdoJob(1, ObjRef(0x1000, 0x00), None, "probe")
     transfer = SimpleNamespace(
         result=device_type.to_bytes(4, "little"),
@@ -123,7 +123,7 @@ def test_a_probe_that_finds_the_node_says_so_and_writes_nothing_of_the_node() ->
     assert outcome.probe_ended and outcome.found and not outcome.user
     assert outcome.outputs == [Note(logging.INFO, "node io (id 5) found running")]
     assert ctx.lifecycle.state is LifecycleState.BOOTING
-    assert set(vars(ctx)) == {"name", "node_id", "lifecycle"}, "the node applies the outcome"
+    assert set(vars(ctx)) == {"name", "node_id", "lifecycle", "resumes"}, "the node applies the outcome"
 
 
 def test_a_probe_of_a_wrong_device_ends_the_probe_and_finds_nothing() -> None:

@@ -248,3 +248,42 @@ def test_cli_check_of_a_pair_prints_the_takeover_warning_of_the_slower_member(tm
     assert ok.returncode == 0, ok.stderr
     lines = [line for line in ok.stdout.splitlines() if "life time" in line]
     assert len(lines) == 1 and "804 ms" in lines[0] and lines[0].startswith("  warning: node wire:")
+
+
+# --------------------------------------------------------------------------- slots and devices that talk rarely
+
+
+def test_time_slots_that_invert_the_priority_order_are_refused_in_one_line_naming_both(tmp_path: Path) -> None:
+    """A id 120 priority 0 waits 240 ms, B id 3 priority 1 waits 206 ms: B would claim first."""
+    a, b = raw_pair()
+    for raw, own, prio, peer in ((a, 120, 0, 3), (b, 3, 1, 120)):
+        raw["master"]["redundancy"] = {"node_id": own, "priority": prio, "peer_node_id": peer}
+    (line,) = problems(a, b)
+    assert line.startswith("A.yaml, B.yaml: master.redundancy: the CiA 302-2 time slots do not follow")
+    assert "A.yaml (priority 0, node_id 120) waits 240 ms, B.yaml (priority 1, node_id 3) 206 ms" in line
+    fa, fb = tmp_path / "A.yaml", tmp_path / "B.yaml"
+    fa.write_text(yaml.safe_dump(a))
+    fb.write_text(yaml.safe_dump(b))
+    bad = _run_check(fa, fb)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+    assert str(fa) in bad.stderr and str(fb) in bad.stderr
+    b["master"]["redundancy"]["node_id"], a["master"]["redundancy"]["peer_node_id"] = 121, 121
+    assert problems(a, b) == []  # 240 < 200 + 242
+
+
+def test_the_worst_takeover_counts_how_rarely_the_devices_talk() -> None:
+    """1 s heartbeats: the standby hears a device at most 1 s after the master's next two
+    heartbeats were due: 200 + 1000 ms, B's slot 404 ms, one heartbeat: 1,704 ms."""
+    from gateway.checks.pair import takeover_worst_ms
+
+    _, b = raw_pair()
+    cfg = parse_config(b, "B.yaml", {})
+    assert takeover_worst_ms(cfg) == 804  # the devices taken to talk every heartbeat
+    for n in b["nodes"]:
+        n.update(supervision="heartbeat", heartbeat_ms=1000)
+    cfg = parse_config(b, "B.yaml", {})
+    assert takeover_worst_ms(cfg, resolved(cfg)) == 1704
+    for n in b["nodes"]:
+        n.update(supervision="guarding", guard_time_ms=500, life_time_factor=4)
+    ((key, text),) = [w for w in warnings(b, "B.yaml") if "talks unasked" in w[1]]
+    assert key == "nodes" and "cannot tell the active gateway's death from its own cut cable" in text

@@ -354,7 +354,7 @@ def test_a_frozen_active_one_is_replaced_and_when_thawed_one_sender_remains_at_o
     assert pair.heartbeat_senders(since=thawed_at + 0.5) == {"A"}
 
 
-def test_two_actives_that_hear_each_other_resolve_by_priority_within_the_winners_slot() -> None:
+def test_two_actives_that_hear_each_other_resolve_by_priority_within_a_heartbeat() -> None:
     pair = Pair()
     a = pair.add("A", node_id=101, priority=0)
     pair.run_until(1.0)
@@ -363,12 +363,15 @@ def test_two_actives_that_hear_each_other_resolve_by_priority_within_the_winners
     # a partition ends: both believed themselves active (neither heard nothing meanwhile)
     b.fm.role = Role.ACTIVE
     b.next_heartbeat_s = pair.now
-    pair.run_until(2.0 + TIMING.slot_s(0, 101) + HEARTBEAT_S)
+    pair.run_until(2.0 + HEARTBEAT_S + 0.01)
     assert (a.fm.role, b.fm.role) == (Role.ACTIVE, Role.STANDBY)
-    # CiA 302-2: A heard another sender of the logical heartbeat and forced a negotiation
-    assert a.fm.forced == 1 and pair.sent("A", COB_FORCE_NEGOTIATION, since=2.0) == 1
-    assert pair.pair_frames(since=2.0) <= 5  # 76h, 72h (A), 72h (B), 71h (A)
-    assert any("negotiation forced" in n for n in a.notices)
+    # A heard another sender of the logical heartbeat and answered with its claim: B, worse,
+    # stood by on it (no slot to wait); A made sure its frames arrive (75h, B's 74h)
+    assert a.fm.duties.outclaims == 1 and pair.sent("A", COB_ACTIVE_MASTER_RESPONSE, since=2.0) == 1
+    pair.run_until(5.0)
+    assert pair.heartbeat_senders(since=2.2) == {"A"} and a.fm.role is Role.ACTIVE
+    assert pair.pair_frames(since=2.0) <= 5
+    assert any("answered with our claim" in n for n in a.notices)
 
 
 def test_a_standby_that_keeps_hearing_the_logical_heartbeat_never_negotiates() -> None:
@@ -401,6 +404,7 @@ def test_the_takeover_edge_is_exactly_the_takeover_time() -> None:
 def active_machine(node_id: int = 101, priority: int = 0, **kw: object) -> FlyingMaster:
     fm = machine(node_id, priority, **kw)
     fm.start(0.0)
+    fm.on_hearing(0.05, last_frame_s=0.05)  # its bus delivers: the detection time runs
     fm.poll(1.0)
     fm.poll(2.0)
     assert fm.role is Role.ACTIVE
@@ -408,6 +412,7 @@ def active_machine(node_id: int = 101, priority: int = 0, **kw: object) -> Flyin
 
 
 CLAIM = Send("send", COB_ACTIVE_MASTER_RESPONSE, bytes((0, 101)))
+PROBE = Send("send", COB_DETECT_CAPABLE, b"")
 
 
 def test_the_active_one_answers_73h_with_one_claim() -> None:
@@ -418,7 +423,9 @@ def test_the_active_one_answers_73h_with_one_claim() -> None:
 
 def test_the_active_one_answers_72h_with_one_claim_at_the_end_of_its_slot_and_stays() -> None:
     fm = active_machine()
-    assert fm.on_frame(COB_NEGOTIATION_REQUEST, b"", 2.5) == []
+    # a master-capable device negotiates: the active one makes sure its frames arrive (75h)
+    assert fm.on_frame(COB_NEGOTIATION_REQUEST, b"", 2.5) == [PROBE]
+    assert fm.on_frame(COB_CAPABLE_RESPONSE, bytes((1, 102)), 2.51) == []  # they do
     assert fm.on_frame(COB_NEGOTIATION_REQUEST, b"", 2.6) == []  # within the slot: nothing new
     slot_end = 2.5 + TIMING.slot_s(0, 101)
     assert fm.next_deadline_s() == pytest.approx(slot_end)
@@ -429,10 +436,22 @@ def test_the_active_one_answers_72h_with_one_claim_at_the_end_of_its_slot_and_st
 def test_76h_makes_the_active_one_negotiate_again_with_one_72h_then_its_claim() -> None:
     fm = active_machine()
     assert fm.on_frame(COB_FORCE_NEGOTIATION, b"", 2.5) == [
-        Send("send", COB_NEGOTIATION_REQUEST, b"")
+        Send("send", COB_NEGOTIATION_REQUEST, b""), PROBE
     ]
+    fm.on_frame(COB_CAPABLE_RESPONSE, bytes((1, 102)), 2.51)
     assert fm.on_frame(COB_FORCE_NEGOTIATION, b"", 2.55) == []
     assert fm.poll(2.5 + TIMING.slot_s(0, 101)) == [CLAIM]
+
+
+def test_an_active_one_whose_75h_draws_no_74h_stands_down_its_frames_do_not_arrive() -> None:
+    """A mute transmitter (frames dropped, the driver unaware): another member negotiates,
+    the active one's 75h draws no answer within two heartbeats: it stands down, a fresh joiner."""
+    fm = active_machine()
+    assert fm.on_frame(COB_NEGOTIATION_REQUEST, b"", 2.5) == [PROBE]
+    assert fm.poll(math.nextafter(2.5 + TIMING.answer_s, 0)) == []
+    (change,) = fm.poll(2.5 + TIMING.answer_s)
+    assert isinstance(change, RoleChanged) and change.role is Role.ISOLATED and change.fresh
+    assert "drew no answer" in change.reason and fm.next_deadline_s() is None
 
 
 def test_the_active_one_sends_76h_every_detect_cycle_and_no_periodic_claim() -> None:
@@ -608,11 +627,13 @@ def test_a_standby_whose_active_dies_on_a_silent_bus_cannot_tell_and_stays_isola
     assert b.fm.role is Role.ACTIVE
 
 
-def test_a_lone_gateway_starting_on_a_silent_bus_still_claims_and_keeps_it_while_heard() -> None:
+def test_a_lone_gateway_starting_on_a_silent_bus_claims_after_the_silent_time_and_keeps_it_while_heard() -> None:
     pair = Pair(devices=False)
     a = pair.add("A", node_id=101, priority=0)
-    pair.run_until(0.6)
-    assert a.fm.role is Role.ACTIVE  # at start it claims (as CiA 302-2), even unheard
+    pair.run_until(TIMING.silent_s - 0.01)
+    assert a.fm.role is Role.LISTENING  # its bus delivered nothing: it may be stalled
+    pair.run_until(TIMING.silent_s + TIMING.slot_s(0, 101) + 0.01)
+    assert a.fm.role is Role.ACTIVE  # nothing for silent_s: a silent bus, it claims
     pair.devices = True  # its devices answer the master: it keeps the bus
     pair.run_until(10.0)
     assert a.fm.role is Role.ACTIVE and a.fm.isolations == 0
@@ -663,7 +684,7 @@ def test_an_active_member_that_hears_its_own_pair_id_keeps_the_bus_and_says_so_o
     assert fm.role is Role.ACTIVE and fm.duplicates == 2
 
 
-def test_a_foreign_logical_heartbeat_forces_at_most_one_negotiation_per_detect_cycle() -> None:
+def test_a_foreign_logical_heartbeat_is_answered_with_at_most_three_claims_per_detect_cycle() -> None:
     fm = active_machine()
     sent: list[Send] = []
     t = 2.0
@@ -671,9 +692,9 @@ def test_a_foreign_logical_heartbeat_forces_at_most_one_negotiation_per_detect_c
         t += HEARTBEAT_S
         sent += [a for a in fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", t) if isinstance(a, Send)]
         sent += [a for a in fm.poll(t) if isinstance(a, Send)]
-    forces = [a for a in sent if a.cob_id == COB_FORCE_NEGOTIATION]
-    assert fm.forced == 3 and fm.role is Role.ACTIVE  # at 2.1, 6.1, 10.1 s
-    assert len(forces) <= 3 + 3  # and the detect cycle's own 76h
+    claims = [a for a in sent if a.cob_id == COB_ACTIVE_MASTER_RESPONSE]
+    assert fm.role is Role.ACTIVE and len(claims) == fm.duties.outclaims == 9  # 3 per 4 s
+    assert [a for a in sent if a.cob_id == COB_DETECT_CAPABLE] == []  # no 75h: no master met
 
 
 # ------------------------------------------------------------------ a third-party master
@@ -716,4 +737,130 @@ def test_a_worse_third_party_master_changes_nothing() -> None:
 def test_every_role_change_and_every_answer_is_a_row_of_the_tables() -> None:
     assert set(DOES).isdisjoint(TRANSITIONS)
     assert {r for r, _ in TRANSITIONS} == set(Role) - {Role.DUPLICATE}
-    assert all(hasattr(FlyingMaster, name) for name in DOES.values())
+    fm = machine(101, 0)
+    for name in DOES.values():
+        on, attr = (fm.duties, name[7:]) if name.startswith("duties.") else (fm, name)
+        assert callable(getattr(on, attr)), name
+
+
+# ------------------------------------------------------------------ sequences of issue scale
+
+
+def test_a_joining_standby_whose_bus_stalls_listens_until_it_delivers_and_never_negotiates() -> None:
+    """Its process starts while the bus delivers nothing yet (a relay or a machine starved):
+    the detection time counts from the first frame its bus delivers."""
+    fm = machine(102, 1)
+    sent = [a for a in fm.start(0.0) if isinstance(a, Send)]
+    for t in (0.3, 0.5, 0.7, 0.87):
+        fm.on_hearing(t, last_frame_s=None)
+        sent += [a for a in fm.poll(t) if isinstance(a, Send)]
+    assert fm.role is Role.LISTENING and sent == [Send("send", COB_ACTIVE_MASTER_REQUEST, b"")]
+    fm.on_hearing(0.9, last_frame_s=0.9)  # the burst arrives: the active one's heartbeat in it
+    fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", 0.9)
+    assert fm.role is Role.STANDBY and fm.negotiations == 0
+
+
+def test_a_standby_takes_over_at_once_when_the_active_member_says_it_stopped_mastering() -> None:
+    """A planned hand-over: the active member stops (SIGTERM) and its own heartbeat says it
+    no longer masters the bus: no take-over time, no slot."""
+    a = active_machine(peer_id=102)
+    b = machine(102, 1, peer_id=101)
+    b.start(0.0)
+    b.on_frame(COB_ACTIVE_MASTER_RESPONSE, bytes((0, 101)), 0.5)  # A's claim
+    b.on_frame(COB_HEARTBEAT + MASTER, b"\x05", 2.0)
+    assert b.on_peer_heartbeat(bytes((a.own_state,)), 2.05) == []  # A says: active
+    assert b.role is Role.STANDBY and b.peer_role(2.05) == "active"
+    a.on_peer_heartbeat(bytes((b.own_state,)), 2.06)
+    assert a.peer_role(2.06) == "standby"
+    (change,) = a.hand_over(2.08)
+    assert isinstance(change, RoleChanged) and change.role is Role.STANDBY and not change.fresh
+    actions = b.on_peer_heartbeat(bytes((a.own_state,)), 2.081)  # A says: not active
+    assert b.role is Role.ACTIVE and Send("send", COB_ACTIVE_MASTER_RESPONSE, bytes((1, 102))) in actions
+    changes = [x for x in actions if isinstance(x, RoleChanged)]
+    assert b.takeovers == 1 and "handed the bus over" in changes[0].reason
+    # A, standing by, hears B's claim and logical heartbeat: it stays standby
+    a.on_frame(COB_ACTIVE_MASTER_RESPONSE, bytes((1, 102)), 2.082)
+    a.on_frame(COB_HEARTBEAT + MASTER, b"\x05", 2.09)
+    assert a.role is Role.STANDBY
+
+
+def test_a_member_whose_driver_says_it_cannot_send_stands_down_and_comes_back_a_fresh_joiner() -> None:
+    fm = active_machine()
+    (change,) = fm.on_link(True, 3.0, sending=False)  # bus off, error passive, queue full
+    assert isinstance(change, RoleChanged) and change.role is Role.ISOLATED and change.fresh
+    assert "cannot send" in change.reason and fm.own_state == 0x04
+    assert fm.on_hearing(3.5, last_frame_s=3.5) == []  # it hears, but still cannot send
+    assert fm.on_link(True, 4.0, sending=True) == []
+    actions = fm.on_hearing(4.1, last_frame_s=4.1)
+    assert fm.role is Role.LISTENING and Send("send", COB_ACTIVE_MASTER_REQUEST, b"") in actions
+    fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", 4.2)  # the other took over meanwhile
+    assert fm.role is Role.STANDBY  # no fail-back onto it
+
+
+def test_an_active_one_stands_by_at_once_on_a_better_claim_the_slots_decide_nothing() -> None:
+    """Slots that do not follow the priority order (which check refuses) decide nothing: the
+    machine compares (priority, node id)."""
+    a = active_machine(node_id=120, priority=0)
+    b = active_machine(node_id=3, priority=1)  # its slot (206 ms) ends before A's (240 ms)
+    for x, y in ((a, b), (b, a)):
+        for act in x.duties.answer(3.0):
+            assert isinstance(act, Send)
+            y.on_frame(act.cob_id, act.data, 3.0)
+    assert (a.role, b.role) == (Role.ACTIVE, Role.STANDBY)
+
+
+def test_a_lost_claim_of_a_negotiation_leaves_two_actives_for_one_frame_only() -> None:
+    """The winner's claim and its first logical heartbeat lost (a glitch at its claim): the
+    loser claims at the end of its slot, the winner answers the worse claim with its own, the
+    loser stands by on it."""
+    pair = Pair()
+    a = pair.add("A", node_id=101, priority=0)
+    b = pair.add("B", node_id=102, priority=1)
+    lost = {"done": False}
+    send = pair._send
+
+    def losing(sender: Gateway, cob_id: int, data: bytes) -> None:
+        if sender is a and cob_id == COB_ACTIVE_MASTER_RESPONSE and not lost["done"]:
+            lost["done"] = True
+            lost["at"] = pair.now  # type: ignore[assignment]
+        if sender is a and lost["done"] and pair.now == lost.get("at"):
+            pair.log.append((pair.now, "A", cob_id, data))
+            return  # no one hears it
+        send(sender, cob_id, data)
+
+    pair._send = losing  # type: ignore[method-assign]
+    pair.run_until(5.0)
+    assert lost["done"] and (a.fm.role, b.fm.role) == (Role.ACTIVE, Role.STANDBY)
+    b_active = [t for t, r, _ in b.roles if r is Role.ACTIVE]
+    b_out = [t for t, r, _ in b.roles if r is Role.STANDBY and b_active and t >= b_active[0]]
+    # B stood by on A's next logical heartbeat, within its slot; had it claimed, A's answer
+    # would have made it stand by within a frame, not a detect cycle
+    assert not b_active or (b_out and b_out[0] - b_active[0] <= HEARTBEAT_S)
+    assert pair.heartbeat_senders(since=0.7) == {"A"}
+
+
+def test_a_standby_on_a_bus_of_rarely_talking_devices_waits_for_them_instead_of_isolating() -> None:
+    """Devices with 1 s heartbeats: after the active one dies the standby waits for a frame
+    until a device must have talked, then takes over; check's worst take-over holds."""
+    slow = PairTiming(takeover_s=0.3, detect_s=0.3, heartbeat_s=HEARTBEAT_S, talk_s=1.0)
+    fm = machine(102, 1, timing=slow)
+    fm.start(0.0)
+    fm.on_hearing(0.05, last_frame_s=0.05)
+    t, last_master = 0.1, 0.0
+    while t < 3.0:
+        fm.on_frame(COB_HEARTBEAT + MASTER, b"\x05", t)
+        last_master = t
+        t = round(t + HEARTBEAT_S, 3)
+        fm.poll(t)
+    assert fm.role is Role.STANDBY
+    device_at = last_master + 0.95  # the device's next heartbeat: the bus is alive
+    t = last_master
+    while t < device_at:
+        t = round(t + 0.025, 3)
+        fm.on_hearing(t, last_frame_s=None if t < device_at else device_at)
+        fm.poll(t)
+    assert fm.role is Role.NEGOTIATING and fm.isolations == 0
+    fm.poll(t + slow.slot_s(1, 102))
+    worst = slow.worst_takeover_s(1, 102)
+    assert fm.role is Role.ACTIVE and worst is not None
+    assert t + slow.slot_s(1, 102) - last_master <= worst - slow.heartbeat + 0.03

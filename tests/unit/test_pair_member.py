@@ -92,7 +92,10 @@ def test_alone_it_asks_once_then_claims_after_its_time_slot() -> None:
 def test_its_own_heartbeat_goes_out_every_period_and_never_with_a_duplicate_id() -> None:
     m, loop, sent, _roles = member()
     loop.run_until(0.95)
-    assert sent.count((OWN, b"\x05")) == 8  # at 0.2, 0.3 .. 0.9: it listens first
+    # at 0.2, 0.3 .. 0.9, its role in the state byte: pre-operational while it listens and
+    # negotiates, operational once active
+    own = [d for c, d in sent if c == OWN]
+    assert len(own) == 8 and set(own) == {b"\x7f", b"\x05"} and own[-1] == b"\x05"
     m.on_frame(COB_ACTIVE_MASTER_RESPONSE, bytes((0, 101)), loop.now)  # ours, from another
     assert m.machine.role is Role.ACTIVE  # it was mastering: it keeps the bus
     m2, loop2, sent2, _ = member()
@@ -124,9 +127,10 @@ def test_an_active_member_that_runs_on_time_never_stalls() -> None:
 def test_a_member_whose_bus_goes_down_is_isolated_and_back_it_listens_first() -> None:
     m, loop, sent, roles = member()
     loop.run_until(1.0)
-    m.on_link(False)
+    m.on_link("down")
     assert m.role == "isolated" and roles[-1].reason == "this gateway's CAN bus is down"
-    m.on_link(True)
+    assert roles[-1].fresh  # back, it listens as a fresh joiner
+    m.on_link("ok")
     loop.run_until(1.2)  # frames are heard again
     assert m.role == "listening" and sent[-1] != (COB_ACTIVE_MASTER_RESPONSE, bytes((0, 101)))
 
@@ -156,6 +160,6 @@ def test_nothing_heard_of_the_peer_for_long_is_one_warning(caplog: Any) -> None:
         "pair: nothing heard of the peer (pair id 102) for 10 s: both members must be on one "
         "bus (interface virtual is private to each process)"
     ]
-    m.on_peer_heartbeat(loop.now)
+    m.on_peer_heartbeat(b"\x7f", loop.now)
     loop.run_until(30.2)
     assert not m.peer_silent

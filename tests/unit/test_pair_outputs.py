@@ -152,3 +152,29 @@ def test_a_standby_started_at_any_point_knows_every_rpdo_it_heard_as_the_active_
             cob, data = as_frames([a.keepalive(t)])[0]
             b.heard(cob, data, t)
         assert b.unknown == set() and outputs_known_alike(a, b) == []
+
+
+def test_a_member_that_forgot_what_it_sent_sends_none_of_it_until_it_hears_or_writes_it_again() -> None:
+    """Back from its own outage, or another master met while the node was out of its hands:
+    the old content may be stale; it learns each RPDO again from another master's frame."""
+    a, other = active(), active()
+    a.set({None: {"set_point1": 1000, "set_point2": 2000}})
+    a.frame(1, 0.0)
+    a.forget()
+    assert a.unknown == {1, 2} and a.keepalive_due(since=0.0) is None
+    assert not a.knows(0x202)
+    other.set({None: {"set_point1": 1111}})
+    a.heard(0x202, other.frame(1, 1.0).data, 1.0)
+    assert a.knows(0x202) and not a.knows(0x302) and a.get("set_point1") == 1111
+    assert [a.keepalive(t).cob_id for t in (1.5, 2.0)] == [0x202, 0x202]  # RPDO2 never
+
+
+def test_a_resumed_node_holds_its_keepalive_until_a_healed_split_would_have_resolved() -> None:
+    a = active()
+    a.frame(1, 0.0)
+    a.frame(2, 0.1)
+    a.hold(5.0)
+    assert a.holding(4.9) and not a.holding(5.0)
+    assert a.keepalive_due(since=0.0) == 5.0  # not at 0.6 s: held
+    a.keepalive(5.0)
+    assert a.hold_until_s is None and a.keepalive_due(since=0.0) == 5.5

@@ -110,6 +110,7 @@ class LifecycleEvent(StrEnum):
     LISTEN = "listen"  # another master manages the node (a pair's standby): only heard
     ADOPTED = "adopted"  # a pair's take-over: heard started, taken as it is
     TAKEN_OVER = "taken over"  # a pair's take-over: not heard started, found and configured
+    RESUMED = "resumed"  # a pair's, heard operational with no boot-up seen: taken as it runs
 
 
 _W, _B, _C, _O, _L = (
@@ -131,6 +132,7 @@ TRANSITIONS: dict[tuple[LifecycleState, LifecycleEvent], LifecycleState] = trans
     ((_C,), (_E.WRONG_IDENTITY,), _W),
     ((_W, _B, _C, _O), (_E.LISTEN,), _L),
     ((_L,), (_E.ADOPTED,), _O),
+    ((_W,), (_E.RESUMED,), _O),
     ((_L,), (_E.TAKEN_OVER,), _W),
 )
 
@@ -174,6 +176,7 @@ class NodeLifecycle:
     LISTENING    boot-up, found, lost, poll, results           LISTENING    ignored (counted)
     LISTENING    adopted (take-over, heard started)            OPERATIONAL  (nothing sent)
     LISTENING    taken over (take-over, not heard started)     WAITING      boot timeout armed
+    WAITING      resumed (a pair's: OPERATIONAL, no boot-up)    OPERATIONAL  (nothing sent)
     ===========  ============================================  ===========  =========================
 
     LISTENING is the state of a node another master manages: a pair's standby listens to the
@@ -211,6 +214,7 @@ class NodeLifecycle:
         expected_device_type: int | None = None,
         expected_identity: Sequence[tuple[ObjRef, int]] = (),
         recheck: Backoff = RECHECK_BACKOFF,
+        resume_wait_s: float = 1.0,
     ):
         self.steps: tuple[ConfigStep, ...] = tuple(steps)
         self.expected_identity = tuple(expected_identity)
@@ -226,6 +230,9 @@ class NodeLifecycle:
         self.backoff = backoff or Backoff()
         self.expected_device_type = expected_device_type
         self.state: LifecycleState = LifecycleState.WAITING
+        self.resumable = False  # lost while OPERATIONAL, no boot-up since: its configuration intact
+        self.hold_until_s: float | None = None  # a pair's node found waits to be heard until then
+        self.resume_wait_s = resume_wait_s
         self.last_error: str | None = None
         self.step_index = 0
         self.attempt = 0  # failures of the current step
@@ -310,6 +317,7 @@ class NodeLifecycle:
 
     def on_bootup(self, now: float) -> list[Change]:
         self.boots += 1
+        self.resumable = False
         if self.state is LifecycleState.LISTENING:
             return self._ignore("boot-up")  # the other master configures it
         self._recheck_at = None  # a boot-up is always checked (a device replaced, reflashed)
@@ -336,7 +344,7 @@ class NodeLifecycle:
             delay = self._refuse(now)
             return [WrongDevice(self.expected_device_type, device_type, delay)]
         self._boot_deadline = None
-        self._preop_pending = True
+        self._preop_pending, self.resumable = True, False
         self._reset_progress()
         return [self._fire(LifecycleEvent.FOUND, "found running")]
 
@@ -344,14 +352,32 @@ class NodeLifecycle:
         """Another master manages the node (a pair's standby): from now on only heard."""
         if self.state is LifecycleState.LISTENING:
             return []
-        self._preop_pending = False
+        self._preop_pending = self.resumable = False
         self._reset_progress()
         self._boot_deadline = None
         return [self._fire(LifecycleEvent.LISTEN, "another master manages it: listening")]
 
-    def on_take_over(self, now: float, adopt: bool) -> list[Change]:
+    def hold_found(self, now: float) -> bool:
+        """A pair's probe answered: True while it waits ``resume_wait_s`` (from the first answer
+        since it was lost) to hear the node's state before it counts as found (running:
+        resumed; a healed split resolves meanwhile)."""
+        if self.hold_until_s is None:
+            self.hold_until_s = now + self.resume_wait_s
+        return now < self.hold_until_s
+
+    def on_resumed(self, now: float) -> list[Change]:
+        """A pair's node waiting is heard OPERATIONAL with no boot-up seen: the pair started it,
+        its configuration is intact: taken as it runs, nothing sent. Not a refused device."""
+        if self.state is not LifecycleState.WAITING or self.refusals:
+            return self._ignore("resumed")
+        self.resumable = False
+        self._boot_deadline = self.hold_until_s = None
+        return [self._fire(LifecycleEvent.RESUMED, "heard operational again, no boot-up: taken as it runs")]
+
+    def on_take_over(self, now: float, adopt: bool, resumable: bool = False) -> list[Change]:
         """A pair's take-over: ``adopt`` (the node was heard started by the other master) takes
-        it as it runs, nothing sent; otherwise it is found and configured as usual."""
+        it as it runs, nothing sent; otherwise it is found and configured as usual, unless it
+        is ``resumable`` (nothing heard of it yet: heard OPERATIONAL, it resumes as it runs)."""
         if self.state is not LifecycleState.LISTENING:
             return self._ignore("take-over")
         self.last_error = None
@@ -360,11 +386,13 @@ class NodeLifecycle:
             self._boot_deadline = None
             return [self._fire(LifecycleEvent.ADOPTED, "adopted as it runs at a take-over")]
         self._arm_boot_timeout(now)
+        self.resumable, self.hold_until_s = resumable, None
         return [self._fire(LifecycleEvent.TAKEN_OVER, "taken over: found and configured as usual")]
 
     def on_lost(self, now: float) -> list[Change]:
         if self.state in (LifecycleState.WAITING, LifecycleState.LISTENING):
             return self._ignore("lost")
+        self.resumable, self.hold_until_s = self.state is LifecycleState.OPERATIONAL, None
         self.losses += 1
         self._preop_pending = False
         self._reset_progress()

@@ -19,18 +19,17 @@ Rule 2: no I/O and no clock. The driver (``bus.master``) feeds events with the t
 ``ValuesRead``, ``HealthChanged`` and ``Note`` (log lines). ``next_deadline()`` says when
 ``tick`` is next due; the driver sleeps until the earliest deadline of all nodes.
 Rule 3: queued work never waits for an unrelated timer. A handler that queues SDO work starts it
-when the channel is free (``_drive``), and while work is queued with no transfer running the
-channel's deadline is the moment it was queued (``SdoChannel.next_deadline``), so the driver
-ticks the node at once even on a path that forgot to drive.
-
-The decisions are tables: ``GUARD_EXPECTS`` (lifecycle_actions), ``NMT_EXPECTS`` (node_supervision), ``SDO_DONE``.
-A node another master manages (a pair's standby) is in lifecycle LISTENING: ``bus.node.listening``.
+when the channel is free (``_drive``); while work is queued and no transfer runs, the channel's
+deadline is when it was queued (``SdoChannel.next_deadline``): the node is ticked at once.
+The decisions are tables: ``GUARD_EXPECTS`` (lifecycle_actions), ``NMT_EXPECTS`` (node_supervision),
+``SDO_DONE``; a node another master manages (a pair's standby) is in lifecycle LISTENING:
+``bus.node.listening``.
 
 Truthfulness (docs/architecture.md, "Two flows"): a boot-up and a loss invalidate every value of
 the node (``fresh_since = None``; a loss says why in ``last_error`` at once); values are good
 again only when received after the gateway's NMT start; change-only TPDOs are read right after.
 
-Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, features, sdo_done), bus.events,
+Imports: bus.node.* (lifecycle, lifecycle_report, listening, outputs, probes, features, sdo_done), bus.events,
 device.* (boot_steps, settings), bus.sdo.*, bus.error_control.*, bus.emcy (the history), pdo.codec,
 pdo.verify, canopen.* (cia301, emcy, states, objref), errors, image, logging (log levels). Never python-can, asyncio or a northbound module.
 """
@@ -60,8 +59,9 @@ from gateway.bus.node.lifecycle import (
     WriteStep,
 )
 from gateway.bus.node.lifecycle_report import lifecycle_reports
-from gateway.bus.node.listening import HeardLife
+from gateway.bus.node.listening import HeardLife, resume_wait_s
 from gateway.bus.node.outputs import OutputImage
+from gateway.bus.node.probes import Probes
 from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
 from gateway.bus.sdo.channel import SdoChannel, SdoJob
 from gateway.bus.sdo.client import SdoTransfer
@@ -83,12 +83,7 @@ class Node:
     """The state of one node (see the module docstring)."""
 
     def __init__(
-        self,
-        name: str,
-        node_id: int,
-        settings: NodeSettings,
-        health: NodeHealth,
-        *,
+        self, name: str, node_id: int, settings: NodeSettings, health: NodeHealth, *,
         boot_steps: Sequence[ConfigStep] = (),
         configure: bool = True,
         tpdos: Sequence[TpdoCodec] = (),
@@ -115,10 +110,10 @@ class Node:
             self.boot_steps if configure else [],
             boot_timeout_s=settings.boot_timeout_s,
             expected_device_type=expected_device_type,
-            expected_identity=expected_identity,
+            expected_identity=expected_identity, resume_wait_s=resume_wait_s(settings),
         )
         self.supervision = NodeSupervision(settings, configure)
-        self.heard = HeardLife()  # what it heard of its life while listening
+        self.heard, self.resumes = HeardLife(), listening  # a pair's: what it heard; resumes
         if listening:  # no RTR, no life time of ours (``NodeSupervision.on_lifecycle``)
             self.lifecycle.on_listen(0.0)
             self.supervision.on_lifecycle(LifecycleState.LISTENING.guard_expects, listening=True)
@@ -138,8 +133,7 @@ class Node:
         self.image = image  # its ``outputs`` section is written here only
         self._publish_outputs()
         self.sdo = SdoChannel(node_id, settings.sdo_timeout_s, settings.sdo_retries)
-        self.next_probe_s: float | None = None
-        self._last_probe_end_s: float | None = None
+        self.probes = Probes(settings.probe_period_s)  # when a node waited for is probed
         self._wait_until: float | None = None
         self._by_purpose = {p: f for f in self.features for p in f.purposes}
 
@@ -199,7 +193,7 @@ class Node:
             return listening.report_heard(self)  # listening only: no boot timeout of ours to report
         self.health.lifecycle = str(self.lifecycle.state)
         self.lifecycle.start(now)
-        self.next_probe_s = now if probe else now + self.s.probe_period_s
+        self.probes.at(now if probe else now + self.s.probe_period_s)
         return self.tick(now)
 
     def tick(self, now: float) -> list[Output]:
@@ -237,25 +231,28 @@ class Node:
             Note(logging.WARNING, f"node {self.name}: {p}", ("guard", self.name, p.split(":")[0]))
             for p in problems
         ]
-        if state is None:
-            return out
+        if state is None:  # not valid (a toggle or state error): the state it reports still tells
+            return out + listening.heard_invalid(self, byte, now)
         out += self._set_nmt(state)
         if self.supervision.alive:
             out += self._set_alive(True, now)
         if self.listening:
             return out + listening.on_state(self, state, now)
-        if (
-            self.lifecycle.state is LifecycleState.WAITING
-            and self.lifecycle.may_probe(now)  # a refused device waits for its recheck
-        ):
-            # alive but no boot-up seen (gateway restarted, node replugged): probe soon
-            if self.sdo.find("probe") is None and (
-                self._last_probe_end_s is None
-                or now - self._last_probe_end_s >= min(1.0, self.s.probe_period_s)
-            ):
-                out += self._probe(now)
-                out += self._drive(now)
+        out += listening.watch_fall(self, state, now)  # adopted at a take-over: fallen?
+        if self.lifecycle.state is LifecycleState.WAITING:
+            out += self._found_alive(state, now)
         return out
+
+    def _found_alive(self, state: NmtState, now: float) -> list[Output]:
+        """Alive, no boot-up seen (gateway restarted, node replugged): probe soon (not a refused
+        device before its recheck); a pair's node lost running and heard so again resumes."""
+        if self.resumes and listening.resumes_in(self, state):
+            self.health.fresh_since = now  # a split healed: no NMT, no SDO; fresh from now on
+            self.outputs.hold(now + self.lifecycle.resume_wait_s)  # another master met meanwhile?
+            return self._lifecycle_changes(self.lifecycle.on_resumed(now), now) + listening.adopted(self, state, now)
+        if self.lifecycle.may_probe(now) and self.sdo.find("probe") is None and self.probes.rested(now):
+            return self._probe(now) + self._drive(now)
+        return []
 
     def on_emcy(self, data: bytes, wall_ts: float, now: float) -> list[Output]:
         h = self.health
@@ -301,8 +298,7 @@ class Node:
     def on_nmt_command(self, command: str) -> None:
         """An NMT command to this node (a client's, or heard while listening)."""
         self.supervision.on_nmt_command(command)
-        if self.listening:
-            self.heard.on_nmt_command(command)
+        listening.commanded(self, command)
 
     def on_guard_rtr(self, now: float) -> list[Output]:
         """Another master's guarding RTR heard while listening (``on_rtr_heard``: lost?)."""
@@ -311,30 +307,35 @@ class Node:
 
     # ================================================================== a pair's roles
     def on_rpdo_heard(self, cob_id: int, data: bytes, wall: float, now: float) -> list[Output]:
-        """An RPDO the other gateway sent: its values become the output image (a write heard
-        counts as one: the output watchdog of a take-over counts from it)."""
-        wrote = self.outputs.heard(cob_id, data, now) if self.listening else None
+        """An RPDO another master sent: its values become the output image (a write heard
+        counts as one: the output watchdog of a take-over counts from it); while mastering,
+        only into an RPDO not known here (``OutputImage.forget``)."""
+        known = not self.listening and self.outputs.knows(cob_id)
+        wrote = None if known else self.outputs.heard(cob_id, data, now)
         if wrote is not None:
             self._publish_outputs((wall, now) if wrote else None)
         return []
 
-    def stand_by(self, now: float) -> list[Output]:
-        """This gateway became a pair's standby: the node only listens, queued SDO work dropped."""
-        self.heard.stood_down(self.lifecycle.state)
+    def stand_by(self, now: float, fresh: bool = False) -> list[Output]:
+        """A pair's standby: the node only listens, queued SDO work dropped (``fresh``: back
+        from its own outage, it listens as a fresh joiner)."""
+        self.heard.stood_down(self.lifecycle.state, self.health.nmt_state, fresh)
+        if fresh or self.lifecycle.state is LifecycleState.WAITING:
+            self.outputs.forget()  # what another master sent it meanwhile is not known here
         out = self._end_sdo_work(now, lambda j: False)
-        return out + self._lifecycle_changes(self.lifecycle.on_listen(now), now)
+        return out + self._lifecycle_changes(self.lifecycle.on_listen(now), now) + listening.report_heard(self)
 
-    def take_over(self, now: float) -> list[Output]:
-        """The pair's take-over: a node heard started is adopted as it runs (``HeardLife``)."""
+    def take_over(self, now: float, master_heard: bool = True) -> list[Output]:
+        """The pair's take-over: a node heard started is adopted as it runs (``listening``)."""
         if not self.listening:
             return self.tick(now)  # ours already: nothing to take over
-        adopt = self.heard.adopt_in(self.health.alive, self.health.nmt_state)
-        out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None), now)
+        adopt, sent, resumes = listening.take_over(self, now, master_heard)
+        out = self._lifecycle_changes(self.lifecycle.on_take_over(now, adopt is not None, resumes), now)
         if adopt is None:
-            self.next_probe_s = now  # found and configured as usual
+            self.probes.at(now)  # found and configured as usual
         else:
             self.outputs.resume(now)  # keep-alives go on at once
-        return out + listening.adopted(self, adopt, now) + self.tick(now)
+        return out + listening.adopted(self, adopt, now) + sent + self.tick(now)
 
     def write_outputs(
         self,
@@ -415,10 +416,10 @@ class Node:
             h.last_error = f"lost ({reason or self.s.supervision})"
             out.append(Note(logging.WARNING, f"node {self.name} (id {self.node_id}) {h.last_error}"))
             if self.listening:
-                out += listening.on_restart(self)
+                out += listening.on_lost(self)  # gone, or this gateway deaf: not a restart
             else:
                 out += self._lifecycle_changes(self.lifecycle.on_lost(now), now)
-                self.next_probe_s = now + self.s.probe_period_s  # cadence counted from the loss
+                self.probes.later(now)  # cadence counted from the loss
         else:
             h.last_error = "" if h.last_error.startswith("lost (") else h.last_error  # loss over
             out.append(Note(logging.INFO, f"node {self.name} (id {self.node_id}) alive"))
@@ -495,12 +496,10 @@ class Node:
         return []
 
     def _probe_due_s(self) -> float | None:
-        """When the next probe is due: in WAITING at ``next_probe_s``, not before the recheck
-        of a refused device (``NodeLifecycle.recheck_at_s``)."""
-        if self.lifecycle.state is not LifecycleState.WAITING or self.next_probe_s is None:
-            return None
-        recheck = self.lifecycle.recheck_at_s
-        return self.next_probe_s if recheck is None else max(self.next_probe_s, recheck)
+        """When the next probe is due (``Probes``); a pair's node lost running says itself
+        when it is back (no probe to reconfigure it)."""
+        heard_back = self.resumes and self.lifecycle.resumable and self.s.supervision != "none"
+        return self.probes.due_s(self.lifecycle, heard_back)
 
     def _sdo_finished(self, finished: tuple[SdoJob, SdoTransfer], now: float) -> list[Output]:
         job, tr = finished
@@ -516,7 +515,7 @@ class Node:
     def _take_sdo_outcome(self, r: SdoOutcome, job: SdoJob, now: float) -> list[Output]:
         """What a transfer of the node's own purposes meant (``sdo_done``), applied."""
         if r.probe_ended:
-            self._last_probe_end_s = now
+            self.probes.ended(now, r.probe_again_s)
         out = [*r.outputs, *self._lifecycle_changes(r.changes, now)]
         if r.found:
             self.supervision.on_found(now)
@@ -529,10 +528,9 @@ class Node:
 
     def _probe(self, now: float) -> list[Output]:
         """Find a node that is already running (no boot-up will come) by reading 1000h."""
-        self.next_probe_s = now + self.s.probe_period_s
-        if self.sdo.find("probe") is not None:
-            return []
-        self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe", now)
+        self.probes.later(now)
+        if self.sdo.find("probe") is None:
+            self.sdo.queue(OBJ_DEVICE_TYPE, None, "probe", now)
         return []
 
     def _set_nmt(self, state: NmtState) -> list[Output]:

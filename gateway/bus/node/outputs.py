@@ -22,7 +22,11 @@ RPDO as the active gateway would send it, whenever it was started:
   the device was last told;
 * ``heard`` says whether the frame shows a write (content changed but the guarding bit, or
   sooner than a keep-alive comes): the output watchdog of a member that takes over counts
-  from the last one (``published``' times).
+  from the last one (``published``' times);
+* what another master may have sent since is not known (``forget``: a member back from its own
+  outage, or one that met another master while the node was out of its hands): every RPDO is
+  unknown again until heard or written; a node a member resumes (lost while it ran, heard
+  running again) holds its keep-alive a moment (``hold``), in which a healed split resolves.
 
 It also keeps the record of the writes (``published``: the values of each RPDO, the time of
 the last write, the number of writes) that the node puts in the process image.
@@ -75,6 +79,7 @@ class OutputImage:
         #: until it hears them, or configures the node itself: ``own``)
         self.unknown: set[int] = {r.number for r in self.rpdos} if pair else set()
         self._resume_s: float | None = None  # a keep-alive due at once (``resume``)
+        self.hold_until_s: float | None = None  # no keep-alive before (``hold``)
         self._record = SentOutputs({})
         #: the RPDOs by COB-ID, each with a decoder of its frames (a pair's standby learns the
         #: outputs from the frames the active gateway sends)
@@ -83,6 +88,12 @@ class OutputImage:
     @property
     def cob_ids(self) -> tuple[int, ...]:
         return tuple(self._heard)
+
+    def knows(self, cob_id: int) -> bool:
+        """The content of the RPDO on ``cob_id`` is known here (sent or heard); False for an
+        unknown one, or not an RPDO of this node."""
+        entry = self._heard.get(cob_id)
+        return entry is not None and entry[0].number not in self.unknown
 
     def heard(self, cob_id: int, data: bytes, now: float) -> bool | None:
         """An RPDO frame another master sent at ``now``: its values become the output image's,
@@ -222,13 +233,26 @@ class OutputImage:
                 values[i] = (int(values[i]) & ~(1 << bit)) | (self.gbit.next_bit(now) << bit)
         self.last_sent_s[number] = now
         self.unknown.discard(number)
-        self._resume_s = None
+        self._resume_s = self.hold_until_s = None
         self.sent += 1
         return Send(codec.cob_id, codec.encode(values), rpdo=True)
 
     def own(self) -> None:
         """This gateway configured the node: every RPDO's content is its own."""
         self.unknown.clear()
+
+    def forget(self) -> None:
+        """Another master may have sent anything since: every RPDO is unknown until heard or
+        written (the keep-alive sends none of them meanwhile)."""
+        self.unknown = {r.number for r in self.rpdos}
+        self._resume_s = self.hold_until_s = None
+
+    def hold(self, until_s: float) -> None:
+        """No keep-alive before ``until_s`` (a resumed node: a healed split resolves first)."""
+        self.hold_until_s = until_s
+
+    def holding(self, now: float) -> bool:
+        return self.hold_until_s is not None and now < self.hold_until_s
 
     def resume(self, now: float) -> None:
         """A take-over adopted the node: the keep-alive goes out at once (the device's RPDO
@@ -243,7 +267,8 @@ class OutputImage:
         if self._resume_s is not None:
             return self._resume_s
         last = max(self.last_sent_s.values(), default=None)
-        return last + self.keepalive_s if last is not None else (since or 0.0)
+        due = last + self.keepalive_s if last is not None else (since or 0.0)
+        return due if self.hold_until_s is None else max(due, self.hold_until_s)
 
     def keepalive(self, now: float) -> Send:
         """The keep-alive RPDO: the last one sent again, in a pair the next known one in turn."""

@@ -39,6 +39,14 @@ class DoneContext(Protocol):
     @property
     def lifecycle(self) -> NodeLifecycle: ...
 
+    @property
+    def resumes(self) -> bool: ...  # a pair's member: a running node found is taken as it runs
+
+
+#: while a pair's node found by a probe waits to be heard, it is probed again this often (the
+#: answers tell the member its bus works: a silent bus at a first start is not a cut cable)
+HOLD_PROBE_S = 0.1
+
 
 @dataclass(frozen=True)
 class SdoOutcome:
@@ -49,6 +57,8 @@ class SdoOutcome:
     changes: list[Change] = field(default_factory=list)
     #: a probe ended now (an unprompted probe waits a while after it)
     probe_ended: bool = False
+    #: when to probe again (a pair's node found: once its wait to be heard is over)
+    probe_again_s: float | None = None
     #: a probe found the expected device running: supervision restarts, the node is alive
     found: bool = False
     #: a client's transfer: the features that watch clients' writes see it
@@ -69,6 +79,9 @@ def probe_done(node: DoneContext, job: SdoJob, tr: SdoTransfer, now: float) -> S
     lifecycle = node.lifecycle
     if tr.result is None or lifecycle.state is not LifecycleState.WAITING:
         return SdoOutcome(probe_ended=True)
+    if node.resumes and lifecycle.hold_found(now):  # a pair's: its state heard first (running: resumed)
+        again = min(lifecycle.hold_until_s or now, now + HOLD_PROBE_S)  # its answers: the bus heard
+        return SdoOutcome(probe_ended=True, probe_again_s=again)
     note = Note(logging.INFO, f"node {node.name} (id {node.node_id}) found running")
     changes = lifecycle.on_found(now, _u32(tr.result))
     found = lifecycle.state is LifecycleState.BOOTING  # not a wrong device type

@@ -10,19 +10,23 @@ Rule 1: every role change is a row of ``TRANSITIONS``; what a role does without 
 row of ``DOES``. A timer event the tables do not define raises ``PairError`` (our own misuse); a
 frame that means nothing in the current role is counted in ``ignored``.
 Rule 2: nothing here does I/O or reads a clock. The caller reports what it heard
-(``on_frame(cob_id, data, now)``), whether it hears the bus at all (``on_hearing(now,
-last_frame_s, nodes_alive)``: when the driver last received any frame) and whether its bus is
-open (``on_link(up, now)``), calls ``poll(now)`` at ``next_deadline_s()``, and does what the
-returned actions say (``Send`` a frame; ``RoleChanged`` tells it to start or stop mastering;
-``Notice`` is a line for the log).
+(``on_frame(cob_id, data, now)``, the peer's own heartbeat ``on_peer_heartbeat``), whether it
+hears the bus at all (``on_hearing(now, last_frame_s, nodes_alive)``: when the driver last
+received any frame) and whether its bus is open and it can send (``on_link(up, now,
+sending)``), calls ``poll(now)`` at ``next_deadline_s()``, and does what the returned actions say
+(``Send`` a frame; ``RoleChanged`` tells it to start or stop mastering; ``Notice`` is a line for
+the log). Every time is the monotonic bus clock; what was heard when is ``hearing.Hearing``.
+Rule 3: decisions from what is heard now. A gateway back from an outage of its own listens as a
+fresh joiner (``RoleChanged.fresh``) and as standby whatever its priority; who wins is decided by
+(priority, node id), never by which slot ends first.
 
 The frames (CiA 302-2, NMT flying master; the emotas stack's behaviour is the reference): 71h
-active master response ``[priority, id]``, sent once at a claim (the end of a time slot) and per
-73h heard while active; 72h negotiation request (starts every capable device's time slot); 73h
-active master request, sent when a gateway starts listening; 75h detect master-capable devices,
-answered by one 74h ``[priority, id]``; 76h force negotiation, sent by the active one every
-``detect_cycle_s`` (1F90h:06) and when it meets another master (an active one hearing it
-negotiates again).
+active master response ``[priority, id]``, sent at a claim (the end of a time slot), per 73h
+heard while active, and to a worse master met while active; 72h negotiation request (starts
+every capable device's time slot); 73h active master request, sent when a gateway starts
+listening; 75h detect master-capable devices, answered by one 74h ``[priority, id]``; 76h force
+negotiation, sent by the active one every ``detect_cycle_s`` (1F90h:06). Each member's own
+heartbeat (700h + its pair id) says its role in its state byte (``protocol.ROLE_STATE``).
 
 The roles (``*`` any claim, ``<`` a claim that wins against ours by (priority, node id): lower
 priority first, then lower node id; ``>`` one that loses; *traffic*: a frame of anyone but this
@@ -31,49 +35,56 @@ gateway, after the active master's next heartbeat was due: the last frame's time
     role         heard / timer                        next         does
     listening    logical heartbeat, 71h *, 76h        standby      (an active master is there)
     listening    72h                                  negotiating  waits its time slot
-    listening    detection time over                  negotiating  sends 72h, waits its slot
+    listening    72h, back from an outage             listening    lets them claim: listens
+                                                                   its detection time again
+                                                                   and the last claim's slot
+    listening    detection time over (counted from    negotiating  sends 72h, waits its slot
+                 its bus's first frame; a silent bus:
+                 ``silent_s``)
     negotiating  logical heartbeat, 71h *             standby      (someone is active)
     negotiating  time slot over                       active       sends 71h
     standby      72h                                  negotiating  waits its time slot
     standby      master silent, traffic heard         negotiating  sends 72h, waits its slot
-    standby      master silent, no traffic twice      isolated     sends nothing (cut off)
-    standby      master silent, no traffic yet        standby      waits takeover_s more, looks
+    standby      the active member's own heartbeat    active       sends 71h (a hand-over: no
+                 says it no longer masters                         slot to wait)
+    standby      master silent, no traffic in doubt   isolated     sends nothing (cut off)
+    standby      master silent, no traffic yet        standby      waits for a frame until the
+                                                                   bus must have talked, looks
                                                                    every heartbeat / 4
-    active       71h < in its own slot                standby      goes silent at once
+    active       71h <                                standby      goes silent at once
     active       stalled (no event for takeover_s)    standby      goes silent at once
     active       another master, after a deaf spell   standby      (never a fail-back onto it)
+    active       this gateway stops (SIGTERM)         standby      (a planned hand-over)
+    active       its 75h drew no 74h                  isolated     its frames do not arrive
     active       no traffic and no node alive         isolated     goes silent at once
-    l/n/s/a      bus down                             isolated     goes silent at once
-    isolated     traffic heard, bus open              listening    sends 73h (joins as standby)
+    l/n/s/a      bus down, or it cannot send          isolated     goes silent at once
+    isolated     traffic heard, bus open, sending     listening    sends 73h (a fresh joiner)
     l/n/s/i      71h or heartbeat of our own pair id  duplicate    sends nothing, ever
 
-    active       73h                                  active       answers one 71h
-    active       72h                                  active       waits its slot, then 71h
-    active       76h                                  active       sends 72h, its slot, 71h
-    active       71h > or < outside a slot, the       active       forces a negotiation: 76h,
-                 logical heartbeat of another sender               72h, its slot, 71h
-                                                                   (once per detect cycle)
-    active       detect cycle over                    active       sends 76h
-    active       our own pair id heard                active       keeps the bus, reports it
+    active       73h, 72h, 76h, 71h >, another        active       ``active.ActiveDuties``
+                 logical heartbeat, 74h, its timers                (answers, its own timers)
     l/n/s/a      75h                                  (same)       answers 74h
 
-A gateway that comes back (restarted, or from an outage: isolated) listens first and joins as
-standby whatever its priority. An active gateway that heard nothing for ``takeover_s`` is marked
-*cut* (``was_cut``): it may have missed a take-over, so when it meets another master it stands
-by instead of contesting the bus. A 76h or 72h is never answered with more than one 71h, a 73h
-by the active one alone: a negotiation costs a handful of frames.
+An active gateway's 75h unanswered (``active.py``): its frames do not reach the bus, it stands
+down. Two actives resolve within a heartbeat (each answers the other with its claim). An active
+one that heard nothing for ``takeover_s`` is *cut* (``was_cut``): meeting another master, it
+stands by; ``meetings`` counts every master met while active (its nodes then wait to be heard).
 
 The time slot is CiA 302-2's: ``priority * priority_slot_s + node_id * device_slot_s``
 (1F90h:04, 1F90h:05); the defaults here are shorter than 1F90h's (1500 ms, 10 ms) so that a
-take-over fits in a second.
+take-over fits in a second. ``check`` refuses a pair whose slots do not follow the priority
+order (a third-party master decides by them).
 
-Imports: bus.pair.protocol (its vocabulary), bus.transitions (the table's rows), canopen.cia301 (the heartbeat's COB-ID) and
-the standard library.
+Imports: bus.pair.protocol (its vocabulary), bus.pair.hearing (what was heard when),
+bus.pair.active (what the active role does), bus.pair.reasons (the log's words), bus.transitions (the table's rows), canopen.cia301 (the
+heartbeat's COB-ID) and the standard library.
 Must not import python-can, asyncio, logging, config or any northbound module.
 """
 
 from __future__ import annotations
 
+from gateway.bus.pair.active import ActiveDuties
+from gateway.bus.pair.hearing import Hearing
 from gateway.bus.pair.protocol import (
     COB_ACTIVE_MASTER_REQUEST,
     COB_ACTIVE_MASTER_RESPONSE,
@@ -82,6 +93,9 @@ from gateway.bus.pair.protocol import (
     COB_FORCE_NEGOTIATION,
     COB_NEGOTIATION_REQUEST,
     FLYING_MASTER_COB_IDS,
+    NOT_ACTIVE_STATE,
+    PEER_ROLE,
+    ROLE_STATE,
     Action,
     Claim,
     Heard,
@@ -93,6 +107,7 @@ from gateway.bus.pair.protocol import (
     Send,
     wins,
 )
+from gateway.bus.pair.reasons import reason
 from gateway.bus.transitions import transition_table
 from gateway.canopen.cia301 import COB_NMT_EC as COB_HEARTBEAT  # heartbeat, + node id
 
@@ -131,9 +146,11 @@ TRANSITIONS: dict[tuple[Role, Heard], Role] = transition_table(
     ((_L,), (_H.DETECTION_OVER,), _N),
     ((_N,), (_H.SLOT_OVER,), _A),
     ((_S,), (_H.ACTIVE_SILENT,), _N),
-    ((_A,), (_H.OUTBID, _H.STALLED, _H.MET_AFTER_CUT), _S),
+    ((_S,), (_H.STEPPED_DOWN,), _A),
+    ((_A,), (_H.BETTER_CLAIM, _H.OUTBID, _H.STALLED, _H.MET_AFTER_CUT, _H.LEAVING), _S),
     ((_S, _A), (_H.DEAF,), _I),
-    ((_L, _N, _S, _A), (_H.LINK_LOST,), _I),
+    ((_A,), (_H.UNANSWERED,), _I),
+    ((_L, _N, _S, _A), (_H.LINK_LOST, _H.CANNOT_SEND), _I),
     ((_I,), (_H.BUS_HEARD,), _L),
     ((_L, _N, _S, _I), (_H.OWN_ID,), _D),
 )
@@ -143,14 +160,15 @@ DOES: dict[tuple[Role, Heard], str] = {
         (_S, h): "_alive" for h in (_H.LOGICAL_HEARTBEAT, _H.BETTER_CLAIM, _H.WORSE_CLAIM, _H.FORCE)
     },
     (_S, _H.UNHEARD): "_wait_for_the_bus",
-    (_A, _H.REQUEST): "_answer",
-    (_A, _H.NEGOTIATION): "_join_slot",
-    (_A, _H.FORCE): "_negotiate_again",
-    (_A, _H.BETTER_CLAIM): "_force",
-    (_A, _H.WORSE_CLAIM): "_force",
-    (_A, _H.FOREIGN_LOGICAL): "_force",
-    (_A, _H.CLAIM_DUE): "_claim",
-    (_A, _H.DETECT_DUE): "_detect",
+    (_L, _H.NEGOTIATION_WHILE_BACK): "_let_them_claim",
+    (_A, _H.REQUEST): "duties.answer",
+    (_A, _H.NEGOTIATION): "duties.join_slot",
+    (_A, _H.FORCE): "duties.negotiate_again",
+    (_A, _H.WORSE_CLAIM): "duties.outclaim",
+    (_A, _H.FOREIGN_LOGICAL): "duties.outclaim",
+    (_A, _H.CAPABLE): "duties.answered",
+    (_A, _H.CLAIM_DUE): "duties.claim",
+    (_A, _H.DETECT_DUE): "duties.detect",
     (_A, _H.OWN_ID): "_conflict",
     **{(r, _H.DETECT_CAPABLE): "_capable" for r in (_L, _N, _S, _A)},
 }
@@ -158,11 +176,20 @@ DOES: dict[tuple[Role, Heard], str] = {
 _MEETINGS = frozenset(
     {_H.BETTER_CLAIM, _H.WORSE_CLAIM, _H.FORCE, _H.NEGOTIATION, _H.FOREIGN_LOGICAL}
 )
+#: heard while active: another master-capable device is there; its 75h makes sure our frames
+#: arrive (not for the logical heartbeat alone: a device stuck on its COB-ID answers no 75h)
+_OTHERS = frozenset({_H.WORSE_CLAIM, _H.FORCE, _H.NEGOTIATION})
 #: what tells the standby the active master is alive
 _ALIVE = frozenset({_H.LOGICAL_HEARTBEAT, _H.BETTER_CLAIM, _H.WORSE_CLAIM, _H.FORCE})
+#: what says this gateway was out (its own outage): it comes back as a fresh joiner
+_OUTAGES = frozenset(
+    {_H.LINK_LOST, _H.CANNOT_SEND, _H.DEAF, _H.UNANSWERED, _H.BUS_HEARD, _H.STALLED,
+     _H.MET_AFTER_CUT, _H.OWN_ID}
+)  # fmt: skip
 _TIMERS = frozenset(
-    {_H.DETECTION_OVER, _H.SLOT_OVER, _H.ACTIVE_SILENT, _H.DEAF, _H.CLAIM_DUE, _H.DETECT_DUE, _H.UNHEARD}
-)
+    {_H.DETECTION_OVER, _H.SLOT_OVER, _H.ACTIVE_SILENT, _H.DEAF, _H.CLAIM_DUE, _H.DETECT_DUE,
+     _H.UNHEARD, _H.UNANSWERED}
+)  # fmt: skip
 
 
 class FlyingMaster:
@@ -198,51 +225,80 @@ class FlyingMaster:
         self.peer: Claim | None = None
         #: the last claim of a master that is not the peer (a third-party CiA 302-2 master)
         self.third_party: Claim | None = None
-        #: the last time the active master was heard (its heartbeat, its 71h or 76h)
-        self.active_heard_s: float | None = None
-        #: the last time anyone but this gateway was heard (a frame, the frame counter moving)
-        self.heard_s: float | None = None
+        #: the other member's own heartbeat: (its state byte, when), if heard
+        self.peer_state: tuple[int, float] | None = None
+        self.hearing = Hearing(timing)
         self.link_up = True
+        self.sending = True  # its driver says its frames can go out (not bus off, queue free)
+        self.back = False  # listening back from an outage of its own (not at its start)
         #: heard nothing for takeover_s while active: it may have missed a take-over
         self.was_cut = False
         #: what a device with our own pair id was heard sending (None: nothing)
         self.conflict: str | None = None
         self.ignored = 0  # frames that meant nothing in the role (our own echo among them)
-        self.takeovers = 0  # standby -> active through a negotiation
+        self.takeovers = 0  # standby -> active through a negotiation or a hand-over
         self.negotiations = 0
         self.stalls = 0  # active -> standby because this gateway stalled
-        self.isolations = 0  # -> isolated (bus down, or nothing heard)
+        self.isolations = 0  # -> isolated (bus down, cannot send, or nothing heard)
         self.duplicates = 0  # frames of another device with our own pair id
-        self.forced = 0  # negotiations this gateway forced (76h) on meeting another master
+        self.meetings = 0  # another master met while active
+        #: the active role's answers and timers
+        self.duties = ActiveDuties(priority, node_id, timing, self._who)
         self._deadline_s: float | None = None  # the role's timer (not the active one's)
-        self._claim_s: float | None = None  # while active: the end of its slot, then 71h
-        self._detect_s: float | None = None  # while active: the next 76h
-        self._forced_s: float | None = None  # when it last forced a negotiation
         #: standby: the master silent, the bus not heard since: until when it waits for a frame
         self._doubt_until_s: float | None = None
 
+    # ------------------------------------------------------------------ queries
     @property
     def active(self) -> bool:
         return self.role is Role.ACTIVE
+
+    @property
+    def heard_s(self) -> float | None:
+        return self.hearing.heard_s
+
+    @property
+    def active_heard_s(self) -> float | None:
+        return self.hearing.active_heard_s
+
+    @property
+    def master_heard(self) -> bool:
+        """An active master was heard since this gateway last began listening (its start, or
+        back from an outage): a take-over replaces it (not a first start of the bus)."""
+        return self.hearing.master_heard
+
+    @property
+    def own_state(self) -> int:
+        """The state byte of this member's own heartbeat: its role (``ROLE_STATE``)."""
+        return ROLE_STATE.get(self.role, NOT_ACTIVE_STATE)
+
+    def peer_role(self, now: float) -> str:
+        """The other member's role as heard within the take-over time: ``active``,
+        ``standby``, ``isolated`` (its own heartbeat says so) or ``unknown``."""
+        state = self.peer_state
+        if state is None or now - state[1] > self.timing.takeover_s:
+            return "unknown"
+        return PEER_ROLE.get(state[0] & 0x7F, "unknown")
 
     def next_deadline_s(self) -> float | None:
         """When ``poll`` must run next (``None``: no timer in this role)."""
         if not self.started:
             return None
         if self.role is Role.ACTIVE:
-            times = [t for t in (self._claim_s, self._detect_s) if t is not None]
-            return min(times) if times else None
+            return self.duties.next_deadline_s()
         return self._deadline_s
 
-    def claim_frame(self) -> Send:
-        return Send("send", COB_ACTIVE_MASTER_RESPONSE, bytes((self.priority, self.node_id)))
+    def _who(self) -> str:
+        return f"priority {self.peer.priority}, node {self.peer.node_id}" if self.peer else "unknown"
 
+    # ------------------------------------------------------------------ events
     def start(self, now: float) -> list[Action]:
-        """Start listening: one active master request (73h), then wait ``detect_s``."""
+        """Start listening: one active master request (73h), then wait for the bus."""
         if self.started:
             raise PairError("the pair machine is started once")
         self.started = True
-        self._deadline_s = now + self.timing.detect_s
+        self.hearing.listen(now, delivered=False)
+        self._deadline_s = self.hearing.detection_due_s(now)
         return [Send("send", COB_ACTIVE_MASTER_REQUEST, b"")]
 
     def on_frame(self, cob_id: int, data: bytes, now: float) -> list[Action]:
@@ -252,11 +308,33 @@ class FlyingMaster:
         if heard is None:
             self.ignored += 1
             return []
-        self.heard_s = now
+        self.hearing.heard(now)
         actions: list[Action] = []
-        if self.role is Role.ISOLATED and self.link_up:
+        if self.role is Role.ISOLATED and self.link_up and self.sending:
             actions = self._fire(Heard.BUS_HEARD, now)
         return actions + self._fire(heard, now)
+
+    def on_peer_heartbeat(self, data: bytes, now: float) -> list[Action]:
+        """The other member's own heartbeat (its role in its state byte). A standby whose
+        active member says it no longer masters the bus (it stops, it stood down) takes over
+        at once."""
+        if not data:
+            return []
+        self.hearing.heard(now)
+        self.peer_state = (data[0], now)
+        if self.role is Role.ISOLATED and self.link_up and self.sending:
+            return self._fire(Heard.BUS_HEARD, now)
+        claim = self.peer
+        if (
+            self.role is Role.STANDBY
+            and data[0] & 0x7F != ROLE_STATE[Role.ACTIVE]
+            and claim is not None
+            and claim.node_id == self.peer_id
+            and self.hearing.active_heard_s is not None
+            and now - self.hearing.active_heard_s <= self.timing.takeover_s
+        ):
+            return self._fire(Heard.STEPPED_DOWN, now)
+        return []
 
     def on_hearing(
         self, now: float, last_frame_s: float | None, nodes_alive: bool = False
@@ -268,14 +346,17 @@ class FlyingMaster:
         heard nothing for ``takeover_s`` is *cut*, and stands down unless a node is alive."""
         if not self.started:
             return []
-        if last_frame_s is not None and (self.heard_s is None or last_frame_s > self.heard_s):
-            self.heard_s = last_frame_s
-            if self.role is Role.ISOLATED and self.link_up:
+        if last_frame_s is not None and self.hearing.heard(min(last_frame_s, now)):
+            if self.role is Role.ISOLATED and self.link_up and self.sending:
                 return self._fire(Heard.BUS_HEARD, now)
-            if self.role is Role.STANDBY and self._doubt_until_s is not None and self._master_gone():
+            if (
+                self.role is Role.STANDBY
+                and self._doubt_until_s is not None
+                and self.hearing.master_gone()
+            ):
                 return self._fire(Heard.ACTIVE_SILENT, now)
             return []
-        if self.role is not Role.ACTIVE or self._heard_within(now):
+        if self.role is not Role.ACTIVE or self.hearing.within(now, self.timing.takeover_s):
             return []
         out: list[Action] = []
         if not self.was_cut:
@@ -286,12 +367,16 @@ class FlyingMaster:
             out += self._fire(Heard.DEAF, now)
         return out
 
-    def on_link(self, up: bool, now: float) -> list[Action]:
-        """The bus went down (open failed, connection lost, sends failing) or is open again."""
-        self.link_up = up
-        if up or not self.started or self.role in (Role.ISOLATED, Role.DUPLICATE):
+    def on_link(self, up: bool, now: float, sending: bool = True) -> list[Action]:
+        """The bus went down (open failed, connection lost) or is open again; ``sending``
+        False: open, but its frames cannot go out (bus off, error passive, sends refused)."""
+        was = self.link_up and self.sending
+        self.link_up, self.sending = up, sending
+        if (up and sending) or not was or not self.started:
             return []
-        return self._fire(Heard.LINK_LOST, now)
+        if self.role in (Role.ISOLATED, Role.DUPLICATE):
+            return []
+        return self._fire(Heard.LINK_LOST if not up else Heard.CANNOT_SEND, now)
 
     def on_stall(self, now: float) -> list[Action]:
         """The caller found that this gateway did not run for longer than the take-over time
@@ -301,42 +386,40 @@ class FlyingMaster:
         self.stalls += 1
         return self._fire(Heard.STALLED, now)
 
+    def hand_over(self, now: float) -> list[Action]:
+        """This gateway stops (SIGTERM): an active one stands by; its own heartbeat then says
+        so and the standby takes the bus at once (``on_peer_heartbeat``)."""
+        if self.role is not Role.ACTIVE:
+            return []
+        return self._fire(Heard.LEAVING, now)
+
     def poll(self, now: float) -> list[Action]:
         """The deadline of the role has come (or not yet: then nothing happens)."""
         if not self.started:
             return []
         if self.role is Role.ACTIVE:
-            if self._claim_s is not None and now >= self._claim_s:
-                return self._fire(Heard.CLAIM_DUE, now)
-            if self._detect_s is not None and now >= self._detect_s:
-                return self._fire(Heard.DETECT_DUE, now)
-            return []
+            due = self.duties.due(now)
+            return self._fire(due, now) if due is not None else []
         if self._deadline_s is None or now < self._deadline_s:
             return []
         if self.role is Role.STANDBY:
-            heard = Heard.ACTIVE_SILENT if self._master_gone() else Heard.UNHEARD
+            heard = Heard.ACTIVE_SILENT if self.hearing.master_gone() else Heard.UNHEARD
             if heard is Heard.UNHEARD and self._doubt_until_s is not None:
                 heard = Heard.DEAF if now >= self._doubt_until_s else Heard.UNHEARD
+        elif self.role is Role.LISTENING:
+            if self.hearing.detection_over(now) is None:
+                self._deadline_s = self.hearing.detection_due_s(now)  # looks again
+                return []
+            heard = Heard.DETECTION_OVER
         else:
-            heard = {Role.LISTENING: Heard.DETECTION_OVER, Role.NEGOTIATING: Heard.SLOT_OVER}[
-                self.role
-            ]
+            heard = Heard.SLOT_OVER  # negotiating (isolated, duplicate: no timer)
         return self._fire(heard, now)
-
-    def _master_gone(self) -> bool:
-        """A frame was heard after the active master's next two heartbeats were due: the bus
-        is alive and the master silent (a frame before that may precede a cut cable, and one
-        late heartbeat must not make a cut look like a dead master)."""
-        ref = self.active_heard_s if self.active_heard_s is not None else float("-inf")
-        return self.heard_s is not None and self.heard_s > ref + 2 * self.timing.heartbeat
-
-    def _heard_within(self, now: float) -> bool:
-        return self.heard_s is not None and now - self.heard_s < self.timing.takeover_s
 
     @staticmethod
     def _ms(seconds: float) -> str:
         return f"{seconds * 1000:.0f} ms"
 
+    # ------------------------------------------------------------------ what a frame is
     def _classify(self, cob_id: int, data: bytes, now: float) -> Heard | None:
         if cob_id == COB_HEARTBEAT + self.master_node_id:
             if self.role is Role.ACTIVE:  # ours echoed, or another sender of our logical id
@@ -349,6 +432,8 @@ class FlyingMaster:
             return Heard.LOGICAL_HEARTBEAT  # the third-party master's own heartbeat
         if cob_id == COB_ACTIVE_MASTER_RESPONSE:
             return self._claim_heard(data, now)
+        if cob_id == COB_CAPABLE_RESPONSE:
+            return Heard.CAPABLE if len(data) >= 2 and data[1] != self.node_id else None
         return {
             COB_NEGOTIATION_REQUEST: Heard.NEGOTIATION,
             COB_ACTIVE_MASTER_REQUEST: Heard.REQUEST,
@@ -374,18 +459,24 @@ class FlyingMaster:
         if self.peer_id is not None and claim.node_id != self.peer_id:
             self.third_party = claim
         if wins((data[0], data[1]), (self.priority, self.node_id)):
-            return Heard.OUTBID if self._claim_s is not None else Heard.BETTER_CLAIM
+            return Heard.OUTBID if self.duties.claim_s is not None else Heard.BETTER_CLAIM
         return Heard.WORSE_CLAIM
 
     def _fire(self, heard: Heard, now: float) -> list[Action]:
-        if self.role is Role.ACTIVE and self.was_cut and heard in _MEETINGS:
-            heard = Heard.MET_AFTER_CUT
+        if self.role is Role.ACTIVE and heard in _MEETINGS:
+            self.meetings += 1  # another master met while active (``RoleChanged`` aside)
+            heard = Heard.MET_AFTER_CUT if self.was_cut else heard
+        elif self.role is Role.LISTENING and self.back and heard is Heard.NEGOTIATION:
+            heard = Heard.NEGOTIATION_WHILE_BACK  # no fail-back onto a member that was out
         if heard in _ALIVE:
-            self.active_heard_s = now
+            self.hearing.master(now)
         key = (self.role, heard)
         does = DOES.get(key)
         if does is not None:
-            actions: list[Action] = getattr(self, does)(now)
+            on, name = (self.duties, does[7:]) if does.startswith("duties.") else (self, does)
+            actions: list[Action] = getattr(on, name)(now)
+            if self.role is Role.ACTIVE and heard in _OTHERS:
+                actions += self.duties.probe(now)
             return actions
         nxt = TRANSITIONS.get(key)
         if nxt is None:
@@ -395,130 +486,65 @@ class FlyingMaster:
             return []
         return self._enter(nxt, heard, now)
 
-    # what a role does without changing (``DOES``)
-
+    # ------------------------------------------------------------------ what a role does (``DOES``)
     def _alive(self, now: float) -> list[Action]:
         self._deadline_s = now + self.timing.takeover_s
         self._doubt_until_s = None
         return []
 
-    def _wait_for_the_bus(self, now: float) -> list[Action]:
-        """The master silent, nothing heard since: a dead master on a quiet bus or a cut
-        cable. Wait one more take-over time for any frame (then negotiate), else cut off;
-        looking every quarter heartbeat meanwhile (the caller reports at each poll)."""
-        if self._doubt_until_s is None:
-            self._doubt_until_s = now + self.timing.takeover_s
-        self._deadline_s = min(self._doubt_until_s, now + self.timing.heartbeat / 4)
+    def _let_them_claim(self, now: float) -> list[Action]:
+        """Back from an outage, it hears another gateway negotiate: that one has been on the
+        bus and knows it; it claims first (the detection time runs again, and the slot of the
+        last claim heard), and this one joins it as standby."""
+        last = self.peer
+        slot = self.timing.slot_s(last.priority, last.node_id) if last is not None else 0.0
+        self.hearing.first_s = now
+        self._deadline_s = now + self.timing.detect_s + slot
         return []
 
-    def _answer(self, now: float) -> list[Action]:
-        return [self.claim_frame()]
+    def _wait_for_the_bus(self, now: float) -> list[Action]:
+        """The master silent, nothing heard since: a dead master on a quiet bus or a cut
+        cable. Wait for any frame until the devices must have talked (then negotiate), else cut
+        off; looking every quarter heartbeat meanwhile (the caller reports at each poll)."""
+        if self._doubt_until_s is None:
+            self._doubt_until_s = self.hearing.doubt_until_s(now)
+        self._deadline_s = min(self._doubt_until_s, now + self.timing.heartbeat / 4)
+        return []
 
     def _capable(self, now: float) -> list[Action]:
         return [Send("send", COB_CAPABLE_RESPONSE, bytes((self.priority, self.node_id)))]
 
-    def _join_slot(self, now: float) -> list[Action]:
-        if self._claim_s is None:  # a 72h heard within our slot starts nothing new
-            self._claim_s = now + self.timing.slot_s(self.priority, self.node_id)
-        return []
-
-    def _negotiate_again(self, now: float) -> list[Action]:
-        if self._claim_s is not None:
-            return []
-        self._join_slot(now)
-        return [Send("send", COB_NEGOTIATION_REQUEST, b"")]
-
-    def _force(self, now: float) -> list[Action]:
-        """Another master met while active: CiA 302-2's answer, a forced negotiation (76h +
-        72h) that the slot decides; at most once per detect cycle, never within its slot."""
-        if self._claim_s is not None:
-            return []
-        if self._forced_s is not None and now - self._forced_s < self.timing.detect_cycle_s:
-            self.ignored += 1
-            return []
-        self._forced_s = now
-        self.forced += 1
-        self._join_slot(now)
-        who = f"priority {self.peer.priority}, node {self.peer.node_id}" if self.peer else "unknown"
-        return [
-            Notice(
-                "notice",
-                "forced",
-                f"pair: another master is on the bus (last claim: {who}): "
-                "negotiation forced (76h, 72h); the time slot decides",
-            ),  # fmt: skip
-            Send("send", COB_FORCE_NEGOTIATION, b""),
-            Send("send", COB_NEGOTIATION_REQUEST, b""),
-        ]
-
-    def _claim(self, now: float) -> list[Action]:
-        self._claim_s = None
-        return [self.claim_frame()]
-
-    def _detect(self, now: float) -> list[Action]:
-        self._detect_s = now + self.timing.detect_cycle_s
-        return [Send("send", COB_FORCE_NEGOTIATION, b"")]
-
     def _conflict(self, now: float) -> list[Action]:
         return [Notice("notice", "duplicate", f"pair: {self.conflict}; this gateway keeps the bus")]
 
-    # role changes (``TRANSITIONS``)
-
+    # ------------------------------------------------------------------ role changes (``TRANSITIONS``)
     def _enter(self, role: Role, heard: Heard, now: float) -> list[Action]:
         previous, self.role = self.role, role
-        self._claim_s = self._detect_s = self._deadline_s = self._doubt_until_s = None
+        self._deadline_s = self._doubt_until_s = None
+        self.duties.end()
         actions: list[Action] = []
-        reason = _REASONS.get(heard, heard.value)
+        why = reason(heard, self.timing, self.peer, self.conflict)
         if role is Role.STANDBY:
             self._deadline_s = now + self.timing.takeover_s
-            reason = _standby_reason(heard, self.peer)
         elif role is Role.NEGOTIATING:
             self.negotiations += 1
             self._deadline_s = now + self.timing.slot_s(self.priority, self.node_id)
             if heard is not Heard.NEGOTIATION:
                 actions.append(Send("send", COB_NEGOTIATION_REQUEST, b""))
-            if heard is Heard.ACTIVE_SILENT:
-                reason = f"the active master was silent for {self._ms(self.timing.takeover_s)}"
         elif role is Role.ACTIVE:
-            if previous is Role.NEGOTIATING and self.active_heard_s is not None:
-                self.takeovers += 1
+            if previous is Role.STANDBY or (
+                previous is Role.NEGOTIATING and self.hearing.active_heard_s is not None
+            ):
+                self.takeovers += 1  # through a negotiation, or a hand-over
             self.was_cut = False
-            self.heard_s = now  # its deaf window starts at its claim
-            self._detect_s = now + self.timing.detect_cycle_s
-            actions.append(self.claim_frame())
+            self.hearing.heard(now)  # its deaf window starts at its claim
+            self.duties.begin(now)
+            actions.append(self.duties.claim_frame())
         elif role is Role.LISTENING:
-            self._deadline_s = now + self.timing.detect_s
+            self.back = heard is Heard.BUS_HEARD
+            self.hearing.listen(now, delivered=self.back)
+            self._deadline_s = self.hearing.detection_due_s(now)
             actions.append(Send("send", COB_ACTIVE_MASTER_REQUEST, b""))
         elif role is Role.ISOLATED:
             self.isolations += 1
-            if heard is Heard.DEAF:
-                reason = f"nothing heard on the bus for {self._ms(self.timing.takeover_s)}: cut off"
-        else:  # DUPLICATE
-            reason = f"{self.conflict}: this gateway stays out"
-        return [RoleChanged("role", role, previous, reason), *actions]
-
-
-_REASONS: dict[Heard, str] = {
-    Heard.NEGOTIATION: "another gateway negotiates (72h)",
-    Heard.DETECTION_OVER: "no active master heard",
-    Heard.SLOT_OVER: "no other claim within the time slot",
-    Heard.LINK_LOST: "this gateway's CAN bus is down",
-    Heard.BUS_HEARD: "the bus is heard again: listen before joining",
-}
-
-
-def _standby_reason(heard: Heard, peer: Claim | None) -> str:
-    if heard is Heard.STALLED:
-        return (
-            "this gateway did not run for longer than the take-over time: the other may be active"
-        )
-    if heard is Heard.MET_AFTER_CUT:
-        return (
-            "another master met after this gateway heard nothing for a while: no fail-back onto it"
-        )
-    if heard in (Heard.LOGICAL_HEARTBEAT, Heard.FORCE):
-        return "the active master is heard"
-    who = f"priority {peer.priority}, node {peer.node_id}" if peer else "another gateway"
-    if heard in (Heard.BETTER_CLAIM, Heard.OUTBID):
-        return f"an active master that wins ({who}) is heard"
-    return f"an active master ({who}) is heard: no fail-back"
+        return [RoleChanged("role", role, previous, why, heard in _OUTAGES), *actions]

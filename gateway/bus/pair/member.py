@@ -15,7 +15,8 @@ Rule: everything runs on the event loop (the master hands it frames from its one
 does no blocking I/O; the master's ``send`` and ``clock`` are its only ways out and in.
 
 Imports: bus.pair.flying_master, bus.producers (its heartbeat's schedule), canopen.cia301, config
-(types), asyncio (its timers), logging and the standard library.
+(types), device.settings (types: how often the devices talk), asyncio (its timers), logging and
+the standard library.
 Never a northbound module.
 """
 
@@ -23,7 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 from gateway.bus.pair.flying_master import (
     FLYING_MASTER_COB_IDS,
@@ -37,19 +38,26 @@ from gateway.bus.pair.flying_master import (
 from gateway.bus.producers import Periodic
 from gateway.canopen.cia301 import COB_NMT_EC
 from gateway.config import Config
+from gateway.device.settings import NodeSettings
 
 log = logging.getLogger("gateway.master")
 
-#: the member's own heartbeat: operational (CiA 301 7.2.8.3.2.2)
-OWN_HEARTBEAT = b"\x05"
 #: a role deadline that comes while the reader is within a burst waits this long, this often
 DEFER_S, DEFER_MAX = 0.005, 4
 #: nothing heard of the peer this long (at least; 10 take-over times when longer): one warning
 PEER_SILENT_S = 10.0
 
 
-def pair_timing(cfg: Config) -> PairTiming:
-    """The times of the pair from ``master`` (``heartbeat_ms``) and ``master.redundancy``."""
+def talk_period_s(settings: Iterable[NodeSettings]) -> float | None:
+    """The shortest period of a device that talks unasked (a heartbeat producer, 1017h): the
+    longest the bus may be quiet while the master is alive (None: no device talks unasked)."""
+    periods = [s.heartbeat_ms for s in settings if s.supervision == "heartbeat" and s.heartbeat_ms > 0]
+    return min(periods) / 1000.0 if periods else None
+
+
+def pair_timing(cfg: Config, talk_s: float | None = None) -> PairTiming:
+    """The times of the pair from ``master`` (``heartbeat_ms``) and ``master.redundancy``;
+    ``talk_s``: ``talk_period_s`` of the nodes."""
     pair = cfg.master.redundancy
     assert pair is not None
     hb_s = cfg.master.heartbeat_ms / 1000.0
@@ -61,6 +69,7 @@ def pair_timing(cfg: Config) -> PairTiming:
         heartbeat_s=hb_s,
         priority_slot_s=pair.priority_slot_ms / 1000.0,
         device_slot_s=pair.device_slot_ms / 1000.0,
+        talk_s=talk_s,
     )
 
 
@@ -78,6 +87,7 @@ class PairMember:
         last_frame_s: Callable[[], float | None] = lambda: None,
         nodes_alive: Callable[[], bool] = lambda: False,
         reader_busy: Callable[[], bool] = lambda: False,
+        talk_s: float | None = None,
     ):
         pair = cfg.master.redundancy
         assert pair is not None
@@ -85,7 +95,7 @@ class PairMember:
             node_id=pair.node_id,
             priority=pair.priority,
             master_node_id=cfg.master.node_id,
-            timing=pair_timing(cfg),
+            timing=pair_timing(cfg, talk_s),
             echo=bool(cfg.can.bus_kwargs().get("receive_own_messages")),
             peer_id=pair.peer_node_id,
         )
@@ -184,15 +194,30 @@ class PairMember:
             return peer.node_id
         return None
 
-    def on_link(self, up: bool) -> None:
-        """This gateway's bus went down (the driver's ``on_state``) or is open again (not
-        after ``stop``: a gateway that stops closes its bus)."""
+    def on_link(self, state: str) -> None:
+        """The driver's bus state (its ``on_state``): ``down`` (closed, lost), ``error`` (its
+        frames cannot go out: bus off, error passive, sends refused) or ``ok`` (not after
+        ``stop``: a gateway that stops closes its bus)."""
         if self._loop is None:
             return
-        self._do(self.machine.on_link(up, self._clock()))
+        self._do(self.machine.on_link(state != "down", self._clock(), sending=state == "ok"))
 
-    def on_peer_heartbeat(self, now: float) -> None:
+    def on_peer_heartbeat(self, data: bytes, now: float) -> None:
+        """The other member's own heartbeat: its role (a hand-over when it stopped mastering)."""
         self.peer_heartbeat_s = now
+        self._do(self.machine.on_peer_heartbeat(data, now))
+
+    def hand_over(self) -> bool:
+        """This gateway stops (SIGTERM): an active member whose peer stands by stops mastering
+        and says so in its own heartbeat, sent at once: the standby takes the bus without a
+        take-over time. True when it handed over."""
+        if self._loop is None or self.machine.peer_role(self._clock()) != "standby":
+            return False
+        self._do(self.machine.hand_over(self._clock()))
+        if self.machine.active:
+            return False
+        self._send(self.own_heartbeat, bytes((self.machine.own_state,)))
+        return True
 
     # ------------------------------------------------------------------ inside
     def _on_beat(self) -> None:
@@ -203,7 +228,8 @@ class PairMember:
         self.check()
         self._report_hearing()
         if beat.due(loop.time()) and self.machine.role is not Role.DUPLICATE:
-            self._send(self.own_heartbeat, OWN_HEARTBEAT)  # isolated too: the peer finds it
+            # its role in the state byte; isolated too: the peer finds it
+            self._send(self.own_heartbeat, bytes((self.machine.own_state,)))
         self._watch_peer(loop.time())
         self._beat_timer = loop.call_at(beat.next_deadline(), self._on_beat)
 

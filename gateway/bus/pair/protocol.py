@@ -49,6 +49,7 @@ class Heard(StrEnum):
     MET_AFTER_CUT = "another master, met after a deaf spell"
     OWN_ID = "our own pair id from another device"
     NEGOTIATION = "72h"
+    NEGOTIATION_WHILE_BACK = "72h, this gateway back from an outage"  # it lets them claim
     REQUEST = "73h"
     DETECT_CAPABLE = "75h"
     FORCE = "76h"
@@ -60,8 +61,13 @@ class Heard(StrEnum):
     UNHEARD = "active master silent, nothing heard since"
     DEAF = "nothing heard"
     LINK_LOST = "bus down"
+    CANNOT_SEND = "this gateway cannot send"  # bus off, error passive, sends refused
     BUS_HEARD = "traffic heard"
     STALLED = "this gateway stalled"  # no event for longer than the take-over time
+    CAPABLE = "74h"  # a master-capable device answered a 75h
+    UNANSWERED = "its 75h drew no answer"  # timer: its frames do not reach the bus
+    STEPPED_DOWN = "the active member says it no longer masters"  # its own heartbeat
+    LEAVING = "this gateway stops"  # a planned hand-over (SIGTERM)
 
 
 class PairError(RuntimeError):
@@ -77,12 +83,15 @@ class Send(NamedTuple):
 
 
 class RoleChanged(NamedTuple):
-    """The role changed: start (``active``) or stop mastering the bus; ``reason`` for the log."""
+    """The role changed: start (``active``) or stop mastering the bus; ``reason`` for the log.
+    ``fresh``: this gateway comes back from (or enters) an outage of its own (cut off, unable
+    to send, stalled): what it knew of the nodes is forgotten, it listens as a fresh joiner."""
 
     kind: Literal["role"]
     role: Role
     previous: Role
     reason: str
+    fresh: bool = False
 
 
 class Notice(NamedTuple):
@@ -96,6 +105,14 @@ class Notice(NamedTuple):
 Action = Send | RoleChanged | Notice
 
 
+#: the NMT state byte of a member's own heartbeat says its role (CiA 301 7.2.8.3.2.2 states):
+#: operational while it masters the bus, stopped while cut off, pre-operational otherwise
+ROLE_STATE = {Role.ACTIVE: 0x05, Role.ISOLATED: 0x04}
+NOT_ACTIVE_STATE = 0x7F
+#: what the other member's own heartbeat says of its role
+PEER_ROLE = {0x05: "active", 0x7F: "standby", 0x04: "isolated"}
+
+
 @dataclass(frozen=True)
 class PairTiming:
     """The times of the pair, in seconds (config ``master.redundancy``)."""
@@ -106,14 +123,44 @@ class PairTiming:
     priority_slot_s: float = 0.2  # CiA 302-2 1F90h:04, per priority level
     device_slot_s: float = 0.002  # CiA 302-2 1F90h:05, per node id
     heartbeat_s: float | None = None  # the logical heartbeat's period (None: takeover_s / 3)
+    #: the longest the devices may be silent while the master is alive: the shortest period of
+    #: a device that talks unasked (a heartbeat producer); None: none does
+    talk_s: float | None = None
+    #: nothing at all heard this long after a gateway began listening: the bus is silent (no
+    #: active master: it negotiates); longer than a starting process stalls (1.9 s measured)
+    silent_s: float = 2.0
 
     @property
     def heartbeat(self) -> float:
         return self.heartbeat_s if self.heartbeat_s is not None else self.takeover_s / 3
 
+    @property
+    def answer_s(self) -> float:
+        """How long a 75h may wait for a 74h before this gateway's frames count as lost."""
+        return 2 * self.heartbeat
+
+    @property
+    def doubt_s(self) -> float:
+        """From the master's last sign: how long a standby that heard nothing since waits for a
+        frame before it counts itself cut off (a device talking unasked must have talked)."""
+        talk = self.talk_s if self.talk_s is not None else 0.0
+        return max(2 * self.takeover_s, 3 * self.heartbeat + talk)
+
     def slot_s(self, priority: int, node_id: int) -> float:
         """CiA 302-2 time slot: how long a candidate waits before it claims."""
         return priority * self.priority_slot_s + node_id * self.device_slot_s
+
+    def worst_takeover_s(self, priority: int, node_id: int) -> float | None:
+        """The longest the logical master is silent when the gateway (``priority``,
+        ``node_id``) takes over from a dead active one, counted from the heartbeat the old one
+        may have been about to send: the standby negotiates once the master was silent for
+        ``takeover_s`` and a frame was heard after two heartbeats (the devices' next
+        ``talk_s``), then claims at the end of its slot. None: no device talks unasked, so a
+        standby cannot tell a dead master from its own cut cable, and does not take over."""
+        if self.talk_s is None:
+            return None
+        negotiates = max(self.takeover_s, 2 * self.heartbeat + self.talk_s)
+        return negotiates + self.slot_s(priority, node_id) + self.heartbeat
 
 
 @dataclass(frozen=True)

@@ -7,9 +7,9 @@ the role changes. ``mastering`` is the one role gate of the master's send path
 calls); ``role``, ``pair`` and the ``pair_*`` properties are read-only views (the app's health
 and metrics, the command service's ``role``).
 
-Imports: bus.pair.member, bus.pair.flying_master, bus.pair.heard_sdo (types), bus.node (types),
-bus.sdo.waiters (types), bus.driver / bus.bus_peers (types), canopen.cia301, config (types),
-errors, python-can, logging.
+Imports: bus.pair.member, bus.pair.flying_master, bus.pair.heard_sdo (types), bus.node (types;
+listening), bus.sdo.waiters (types), bus.driver / bus.bus_peers (types), canopen.cia301, config
+(types), errors, python-can, logging.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ import can
 
 from gateway.bus.bus_peers import BusPeers
 from gateway.bus.driver import BusDriver
+from gateway.bus.node import listening
 from gateway.bus.node.parts import NodeParts
 from gateway.bus.pair.flying_master import FlyingMaster, Role, RoleChanged
 from gateway.bus.pair.heard_sdo import HeardSdo
@@ -61,8 +62,11 @@ class NoPair:
     def stop(self) -> None:
         pass
 
-    def on_link(self, up: bool) -> None:
+    def on_link(self, state: str) -> None:
         pass
+
+    def hand_over(self) -> bool:
+        return False
 
 
 class PairSide:
@@ -152,7 +156,11 @@ class PairSide:
     def _on_pair_frame(self, cob_id: int, data: bytes, wall: float, now: float) -> None:
         member = self.member
         assert isinstance(member, PairMember)
+        met = member.machine.meetings
         learned = member.on_frame(cob_id, data, now)
+        if member.machine.meetings != met and self.mastering:
+            for p in self.nodes.values():  # another master: its nodes may run, none is probed
+                listening.another_master(p.node, now)
         handlers = self.driver.handlers
         if learned is not None and self.peers.admit(learned):
             # the other gateway named its id in its claim: its own heartbeat is the peer's
@@ -164,13 +172,13 @@ class PairSide:
 
     def _on_peer_heartbeat(self, data: bytes, wall: float, now: float) -> None:
         if isinstance(self.member, PairMember):
-            self.member.on_peer_heartbeat(now)
+            self.member.on_peer_heartbeat(data, now)  # its role: a hand-over?
 
     def _on_rpdo_heard(
         self, p: NodeParts, cob_id: int, data: bytes, wall: float, now: float
     ) -> None:
-        if not self.mastering:
-            self._execute(p, p.node.on_rpdo_heard(cob_id, data, wall, now))
+        # another master's RPDO: the standby's outputs (mastering: an RPDO not known here)
+        self._execute(p, p.node.on_rpdo_heard(cob_id, data, wall, now))
 
     def _role_changed(self, change: RoleChanged) -> None:
         now = self.clock()
@@ -183,10 +191,16 @@ class PairSide:
             for cob_id, frame, text in self.heard_sdo.abort_left_open():  # before any request
                 self._send_quiet(cob_id, frame)
                 log.info("%s", text)
+            assert isinstance(self.member, PairMember)
+            heard = self.member.machine.master_heard
             for p in self.nodes.values():
-                self._execute(p, p.node.take_over(now))
-        elif change.previous is Role.ACTIVE:
+                self._execute(p, p.node.take_over(now, heard))
+        elif change.previous is Role.ACTIVE or change.fresh:
+            # back from its own outage (cut off, unable to send, stalled): a fresh joiner
             self.mastering = False
+            if change.fresh:  # what it heard before the outage may have ended unheard
+                self.heard_sdo.open.clear()
             for p in self.nodes.values():
-                self._execute(p, p.node.stand_by(now))
-            self._waiting.fail_all(NotActive("this gateway stood down to standby"))
+                self._execute(p, p.node.stand_by(now, change.fresh))
+            if change.previous is Role.ACTIVE:
+                self._waiting.fail_all(NotActive(f"this gateway stood down ({change.role})"))

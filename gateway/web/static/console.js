@@ -222,6 +222,7 @@ function renderPair(pair) {
   setFacts(document.getElementById("ov-pair"), [
     ["This gateway", pairRole(pair.role)],
     ["Other gateway", p.heard ? el("span", {}, pairRole(p.role), who) : el("span", {}, badge("not heard", "stale"), who)],
+    ["Master id", pair.master_id == null ? "none heard" : String(pair.master_id)],
     ["Its claim", p.claim_age_s == null ? "never heard" : fmtAge(p.claim_age_s) + " ago"],
     ["Its heartbeat", p.heartbeat_age_s == null ? "never heard" : fmtAge(p.heartbeat_age_s) + " ago"],
   ]);
