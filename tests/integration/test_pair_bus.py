@@ -161,6 +161,7 @@ def test_a_muted_member_hears_everything_and_reaches_no_one(bus: PairBus) -> Non
     a, b = bus.open_bus("a"), bus.open_bus("b")
     bus.mute("a")
     send(a, 0x181, b"\x01")  # lost
+    bus.wait_for(lambda f: f.cob_id == 0x181)  # the relay took it before b's (two connections)
     send(b, 0x182, b"\x02")
     assert next_frame(a).arbitration_id == 0x182  # a still hears
     bus.unmute("a")
