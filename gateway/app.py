@@ -9,7 +9,7 @@ Modbus, Zenoh, the web console and the simulator. The only module that knows eve
 parts do not know each other except through the image and the command service.
 
 Imports: every part: ascii.server, bus.driver, bus.master, bus.network, checks, command_socket,
-commands, config, device.resolved, http (health, server, metrics), image, modbus.server,
+commands, config, device.resolved, http (health, server, metrics, tls), image, modbus.server,
 northbound (audit_values, catalog, frames, gateway_block, keys, regmap, summary), sim (buses,
 faults), runtime (startup, threads, turns), journal (store, auditlog), web (console, monitor,
 views), zenoh_bridge.bridge.
@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import logging
+import ssl
 import time
 from typing import Any
 
@@ -30,7 +31,7 @@ from gateway.bus.network import Network, NetworkOpenFailed, Networks
 from gateway.checks import check_config, journal_path
 from gateway.command_socket import CommandSocket
 from gateway.commands import CommandService
-from gateway.config import Config, blame
+from gateway.config import Config, ConfigError, blame
 from gateway.device.resolved import ResolvedNode
 from gateway.http.health import bus_reasons, network_overview, network_status, pair_of
 from gateway.http.metrics import modbus_function_label
@@ -156,7 +157,7 @@ class Gateway:
         if self.ascii is not None:
             parts.append(f"CiA 309-3 ASCII {self.ascii.section.host}:{self.ascii.port}")
         if self.health is not None and self.health.port:
-            url = f"http://{self.cfg.health.host}:{self.health.port}"
+            url = f"{'https' if self.health.tls else 'http'}://{self.cfg.health.host}:{self.health.port}"
             parts.append(f"health {url}/healthz" + (f", web console {url}/" if self.web else ""))
         if self.journal is not None:
             parts.append(f"journal {self.journal.path}")
@@ -407,9 +408,23 @@ class Gateway:
             self.metrics.registry,
             app=self.web,
             turns=self.turns,
+            tls=self._health_tls(),
         )
         await self.health.start()
         self.metrics.set_refresh(self._copy_counters)
+
+    def _health_tls(self) -> ssl.SSLContext | None:
+        """``health.tls``'s context (its files were checked with the config; a file changed
+        since is a ConfigError naming its key)."""
+        tls = self.cfg.health.tls
+        if tls is None:
+            return None
+        from gateway.http.tls import TlsFilesError, server_context
+
+        try:
+            return server_context(self.cfg.path_of(tls.cert), self.cfg.path_of(tls.key))
+        except TlsFilesError as exc:
+            raise ConfigError([f"{self.cfg.source}: health.tls.{k}: {m}" for k, m in exc.problems]) from None
 
     def _copy_counters(self) -> None:
         """Copy the gateway's plain counters into the metrics (at every scrape)."""

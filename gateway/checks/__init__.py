@@ -25,7 +25,8 @@ one bus run on each network's config, ``Config.network_view``, their keys under 
 * ``journal.path`` can be created and written (the one check here that touches the disk: it
   creates the directory when missing);
 * the secrets named by file are usable (``checks.secrets``: ``web.token_file``, a
-  ``zenoh.auth.password_file`` that is not the examples' placeholder).
+  ``zenoh.auth.password_file`` that is not the examples' placeholder, the certificate and key
+  of ``health.tls``).
 
 ``config_warnings(cfg)`` (what runs but may not do what is meant) and ``config_notes(cfg)``
 (what the gateway will not check) are ``checks.warnings``'s, re-exported here.

@@ -1,18 +1,20 @@
 """Checks of the secrets a configuration names by file (``canopen-gateway check`` and every
 start): the web console's token (``web.token_file``: readable, at least
-``WEB_TOKEN_MIN_LENGTH`` characters) and the Zenoh password (``zenoh.auth.password_file``:
-not the placeholder of the examples). A secret given in the file itself or by an environment
+``WEB_TOKEN_MIN_LENGTH`` characters), the Zenoh password (``zenoh.auth.password_file``:
+not the placeholder of the examples) and the health port's TLS certificate and key
+(``health.tls.cert`` / ``key``: readable, a PEM certificate and its key, ``http.tls``). A secret given in the file itself or by an environment
 variable is checked by the config's own model.
 
 A missing ``zenoh.auth.password_file`` is reported when the gateway starts (its Zenoh step
 names the key); a missing ``web.token_file`` here, since the console cannot run without it.
 
-Imports: config. Reads the files it checks, nothing else.
+Imports: config, http.tls (what makes the TLS context). Reads the files it checks, nothing else.
 """
 
 from __future__ import annotations
 
 from gateway.config import WEB_TOKEN_MIN_LENGTH, Config, placeholder_problem, read_secret
+from gateway.http.tls import file_problems
 
 Problem = tuple[str, str]
 
@@ -40,4 +42,7 @@ def secret_problems(cfg: Config) -> list[Problem]:
             why = None  # the start names an unreadable file, with the key
         if why:
             out.append(("zenoh.auth.password_file", f"{path}: {why}"))
+    tls = cfg.health.tls
+    if tls is not None:
+        out += [(f"health.tls.{key}", why) for key, why in file_problems(cfg.path_of(tls.cert), cfg.path_of(tls.key))]
     return out

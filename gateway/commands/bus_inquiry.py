@@ -1,7 +1,7 @@
 """The bus tools of the command service, on the gateway's own connection to the bus: LSS
-inquire (CiA 305) and the scan of which node ids are on the bus and what they are.
+inquire and Fast Scan (CiA 305) and the scan of which node ids are on the bus and what they are.
 
-Imports: bus.lss.master (its errors), bus.master (the master), bus.scan (the scan beside the
+Imports: bus.lss.master (its errors), bus.lss.service (the Fast Scan's known parts), bus.master (the master), bus.scan (the scan beside the
 master), device.values (value codecs), errors, canopen.objref, python-can (its error type).
 """
 
@@ -13,6 +13,7 @@ from typing import Any
 import can
 
 from gateway.bus.lss.master import LssBusy, LssStateError
+from gateway.bus.lss.service import Known
 from gateway.bus.master import Master
 from gateway.bus.scan import Found, scan_beside
 from gateway.bus.scan import report as scan_report
@@ -30,6 +31,19 @@ async def lss_inquire(
     master.require_bus()
     try:
         return await master.lss.inquire_all(address)
+    except (LssBusy, LssStateError) as exc:
+        raise LssConflict(str(exc)) from None
+    except can.CanError as exc:
+        raise BusDown(str(exc)) from None
+
+
+async def lss_fast_scan(master: Master, known: Known, wait_s: float, first_node_id: int | None = None,
+                        count: int = 1, store: bool = False) -> dict[str, Any]:  # fmt: skip
+    """CiA 305 Fast Scan on the gateway's own connection to the bus (``LssService.fast_scan``):
+    the unconfigured slaves' LSS addresses, lowest first, each given the next node id."""
+    master.require_bus()
+    try:
+        return await master.lss.fast_scan(known, wait_s, first_node_id, count, store)
     except (LssBusy, LssStateError) as exc:
         raise LssConflict(str(exc)) from None
     except can.CanError as exc:

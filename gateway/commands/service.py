@@ -517,6 +517,12 @@ class CommandService:
         network ``network`` (None: the first)."""
         return await bus_inquiry.lss_inquire(self.networks.named(network).master, address)
 
+    async def lss_fast_scan(self, known: bus_inquiry.Known, wait_s: float, first_node_id: int | None = None, count: int = 1,
+                            store: bool = False, network: str | None = None) -> dict[str, Any]:  # fmt: skip
+        """CiA 305 Fast Scan on network ``network`` (None: the first; ``bus_inquiry``)."""
+        master = self.networks.named(network).master
+        return await bus_inquiry.lss_fast_scan(master, known, wait_s, first_node_id, count, store)
+
     async def scan_bus(
         self, *, listen_s: float = 1.0, sdo_timeout_s: float = 0.1, network: str | None = None
     ) -> dict[str, Any]:

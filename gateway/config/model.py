@@ -257,9 +257,19 @@ class CommandSocketSection(_Model):
     )
 
 
+class HealthTls(_Model):
+    """HTTPS on the health port: /healthz, /livez, /metrics and the web console over TLS."""
+
+    cert: str = Field(min_length=1, description="the server's certificate (PEM, chain allowed), relative to this file")
+    key: str = Field(min_length=1, description="its private key (PEM, without a passphrase), relative to this file")
+
+
 class HealthSection(_Model):
     host: str = "127.0.0.1"
     port: int = Field(default=0, ge=0, le=65535, description="0 = off")
+    tls: HealthTls | None = Field(
+        default=None, description="serve HTTPS instead of HTTP on this port (plain HTTP gets no answer)"
+    )
 
 
 #: the smallest web token accepted: guessing one must not be a matter of minutes

@@ -1,44 +1,64 @@
-"""Health and metrics over HTTP: ``GET /healthz``, ``GET /livez``, ``GET /metrics``.
+"""Health and metrics over HTTP: ``GET /healthz``, ``GET /livez``, ``GET /metrics``, and the web
+console's requests, on the gateway's event loop; over TLS with ``health.tls``.
 
-Responsible for: a minimal HTTP/1.1 server for probes and Prometheus scrapes, and the shape of
-the health document (``build_status``; ``pair_status`` for the role and peer of a hot-standby
-pair). It knows nothing of CAN, Modbus or Zenoh: the gateway
-hands it a ``status_fn`` returning a dict and, optionally, a metrics registry.
+Responsible for: the HTTP/1.1 server of probes, Prometheus scrapes and the web console (its
+routing, its bounds, its turns on the event loop), and the shape of the health document
+(``build_status``; ``pair_status`` for the role and peer of a hot-standby pair). It knows
+nothing of CAN, Modbus or Zenoh: the gateway hands it a ``status_fn`` returning a dict and,
+optionally, a metrics registry and an ``app``.
 
 - ``/healthz``: ``status_fn()`` as JSON; 200 when its ``"status"`` is ``"ready"``, else 503 (500
   if ``status_fn`` raises). For readiness probes, load balancers and HEALTHCHECK.
 - ``/livez``: 200 as long as the event loop answers. For liveness probes: restarting the gateway
   does not fix a missing router or an unplugged bus, so liveness must not depend on them.
 - ``/metrics``: ``prometheus_client.generate_latest(registry)`` in the text format.
-- anything else 404; methods other than GET/HEAD 405. One request per connection
-  (``Connection: close``).
+- anything else goes to the ``app`` (the web console, ``gateway.web``), else 404; methods other
+  than GET/HEAD on the three paths above 405. These three answer whatever the ``Host`` header
+  (probes and scrapes name the address they reach); the app checks it.
 
-Why ``asyncio.start_server`` and not ``http.server`` in a thread: the server runs on the
-gateway's own event loop, so ``status_fn`` and the metrics collectors read the process image
-on the thread that writes it, without locks; it starts and stops with the gateway and costs no
-thread. The protocol needed is tiny (a request line, GET on three paths, a closed connection
-after each answer), so a bounded hand-written parser is simpler than a dependency (aiohttp is
-not one). Requests are bounded: 8 KiB of head, ``read_timeout_s`` to send it.
+**What h11 does** (``connection.py``; h11 is a sans-I/O HTTP/1.1 library: bytes in, events out):
+the syntax of the request line and the header fields (RFC 9112: field names and values, no
+blank before the colon, obsolete line folding), exactly one ``Host`` in an HTTP/1.1 request
+(none, or two, is 400), ``Content-Length`` of ASCII digits only (a ``²``, a ``-1`` or two
+different lengths is 400), the body's framing (``Content-Length`` or chunked; another transfer
+coding is 501), ``Expect: 100-continue``, keep-alive (an HTTP/1.1 connection carries request
+after request; HTTP/1.0 or ``Connection: close`` ends it after the answer), and the answers'
+framing (``Content-Length``; chunked for an answer without a length to an HTTP/1.1 client,
+close-delimited to an HTTP/1.0 one; a HEAD answer's headers without its body).
 
-Other paths go to an optional ``app`` (the web console, ``gateway.web``): it gets a parsed
-``Request`` (method, path, query, lower-case headers, a body of at most 64 KiB given by
-Content-Length, the client's address and the local address the request arrived at) and returns
-a ``Response``, a ``Stream`` (written until the stream ends or the client goes away: server-sent
-events), a ``Chunked`` answer (HTTP/1.1 chunked encoding: each chunk written and drained before
-the next is asked for, so an export of any length takes constant memory; the iterator closed
-when the client goes away) or None (404). With ``turns`` (``turns.LoopTurns``: the
-PLC first), each app request waits for its turn on the event loop before the app renders it;
-when too many wait, it is answered 503 ``busy`` with ``Retry-After``. Without an app, or for the three paths
-above, methods other than GET/HEAD are answered 405. The three paths above answer whatever the
-``Host`` header (probes and scrapes name the address they reach); the app checks it. A
-``Content-Length`` that is not ASCII digits, or given twice, and a ``Host`` given twice are
-answered 400 (RFC 9112 6.3, 3.2), never an exception.
+**What we do** (``connection.py``, here): the socket, the clock and the bounds h11 leaves to
+its user: a request head of at most 8 KiB and 100 fields (431), a body of at most 64 KiB
+(413), ``read_timeout_s`` for a head once begun and for its body (408), ``keep_alive_s`` for a
+kept-alive connection to send its next request (then closed without a word), an answer the
+client does not take for 30 s ends the connection; ``Content-Length`` given twice with equal
+values, which h11 takes as one, is 400 (RFC 9112 6.3); at most ``max_connections``
+connections at once: past it a connection idle between requests is closed to make room, else
+the new one is answered 503 with ``Retry-After``; at most ``ACCEPT_BACKLOG`` connections
+accepted per loop iteration. The routing, the answers (``messages``: a ``Response``, a
+``Chunked`` answer, each chunk drained before the next is asked for, so the journal's export
+of any length takes constant memory; a ``Stream`` of server-sent events, whose body writes
+until the client goes away, the connection closed after), and the turns: with ``turns``
+(``turns.LoopTurns``: the PLC first) each app request waits for its turn on the event loop
+before the app renders it; when too many wait, it is answered 503 ``busy`` with
+``Retry-After``. The app's own limits (streams per client, the Host check, the token) are the
+app's (``gateway.web.access``).
 
-Config (section ``health:`` of the gateway config): ``host`` (127.0.0.1), ``port`` (0 = off).
-Port 0 passed to ``HealthServer`` itself binds an ephemeral port (see ``.port``): the caller
-decides that 0 in the config means "do not start one".
+**TLS** (``tls``, an ``ssl.SSLContext`` from ``http.tls``, config ``health.tls``): the same
+server behind a TLS handshake of at most ``read_timeout_s``; a client that speaks plain HTTP to
+it fails the handshake and gets no HTTP answer (not even a 400 page); the server goes on.
 
-Imports: the standard library, prometheus_client and runtime.turns only.
+Why a server on the gateway's own event loop and not ``http.server`` in a thread: ``status_fn``,
+the metrics collectors and the console read the process image on the thread that writes it,
+without locks; it starts and stops with the gateway and costs no thread. Why h11 and not
+aiohttp: h11 parses and frames and nothing else, so the routing, the turns and the bounds stay
+ours, on our loop, as they were; aiohttp would bring its own server, router and limits.
+
+Config (section ``health:`` of the gateway config): ``host`` (127.0.0.1), ``port`` (0 = off),
+``tls: {cert, key}``. Port 0 passed to ``HealthServer`` itself binds an ephemeral port (see
+``.port``): the caller decides that 0 in the config means "do not start one".
+
+Imports: the standard library, prometheus_client, runtime.turns, http.messages (the request
+and its answers, re-exported here) and http.connection (one connection, by h11).
 """
 
 from __future__ import annotations
@@ -48,14 +68,32 @@ import contextlib
 import inspect
 import json
 import logging
-import urllib.parse
-from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
+import ssl
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import KW_ONLY, dataclass, field
 from http import HTTPStatus
 from typing import Any
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
+from gateway.http.connection import (
+    KEEP_ALIVE_S,
+    MAX_REQUEST_BODY_BYTES,
+    MAX_REQUEST_HEAD_BYTES,
+    HttpConnection,
+)
+from gateway.http.messages import (
+    JSON_TYPE,
+    TEXT_TYPE,
+    Answer,
+    App,
+    Chunked,
+    Request,
+    Response,
+    Stream,
+    StreamOut,
+    error_answer,
+)
 from gateway.runtime.turns import ACCEPT_BACKLOG, RETRY_AFTER_S, LoopTurns
 
 log = logging.getLogger("gateway.health")  # the name users see in log lines
@@ -64,71 +102,27 @@ StatusFn = Callable[[], Mapping[str, Any] | Awaitable[Mapping[str, Any]]]
 
 READY = "ready"
 NOT_READY = "not-ready"
-MAX_REQUEST_HEAD_BYTES = 8192
-MAX_REQUEST_BODY_BYTES = 65536
-JSON_TYPE = "application/json"
-TEXT_TYPE = "text/plain; charset=utf-8"
 HEALTH_PATHS = ("/healthz", "/livez", "/metrics")
-#: headers a request may carry once (RFC 9112 6.3: a repeated Content-Length is an error)
-SINGLE_HEADERS = frozenset({"content-length", "host"})
+#: connections at once (the console's pages keep theirs open between requests)
+MAX_CONNECTIONS = 256
 
-
-@dataclass(frozen=True)
-class Request:
-    """One parsed request for an ``app``: header names lower-case, the first value of each
-    query parameter."""
-
-    method: str
-    path: str
-    query: Mapping[str, str] = field(default_factory=dict)
-    headers: Mapping[str, str] = field(default_factory=dict)
-    body: bytes = b""
-    client: str = ""  # the peer's address (per-client limits of the app)
-    local: str = ""  # the address the request arrived at (the app's Host check)
-
-
-@dataclass(frozen=True)
-class Response:
-    status: HTTPStatus
-    body: bytes = b""
-    content_type: str = TEXT_TYPE
-    headers: Mapping[str, str] = field(default_factory=dict)
-
-
-def _error(path: str, status: HTTPStatus, kind: str, message: str) -> Response:
-    """An error the server answers itself: under ``/api/`` a JSON document with ``error`` and
-    ``message``, as the API's own errors; elsewhere one line of text."""
-    if path.startswith("/api/"):
-        body = json.dumps({"error": kind, "message": message}).encode() + b"\n"
-        return Response(status, body, JSON_TYPE)
-    return Response(status, message.encode() + b"\n", TEXT_TYPE)
-
-
-StreamBody = Callable[[asyncio.StreamReader, asyncio.StreamWriter], Awaitable[None]]
-
-
-@dataclass(frozen=True)
-class Stream:
-    """An answer without a length: the headers, then ``body(reader, writer)`` writes until it
-    returns (e.g. the client went away); the connection is closed after."""
-
-    content_type: str
-    body: StreamBody
-    headers: Mapping[str, str] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class Chunked:
-    """An answer of unknown length in HTTP/1.1 chunked encoding: the headers, then each bytes
-    ``chunks`` yields as one chunk (written and drained before the next is asked for), then the
-    last chunk. The iterator is closed when the client goes away."""
-
-    content_type: str
-    chunks: AsyncIterator[bytes]
-    headers: Mapping[str, str] = field(default_factory=dict)
-
-
-App = Callable[[Request], Awaitable[Response | Stream | Chunked | None]]
+__all__ = [
+    "JSON_TYPE",
+    "MAX_REQUEST_BODY_BYTES",
+    "MAX_REQUEST_HEAD_BYTES",
+    "NOT_READY",
+    "READY",
+    "TEXT_TYPE",
+    "App",
+    "Chunked",
+    "HealthServer",
+    "Request",
+    "Response",
+    "Stream",
+    "StreamOut",
+    "build_status",
+    "pair_status",
+]
 
 
 def build_status(
@@ -225,7 +219,7 @@ def pair_status(
 
 @dataclass(eq=False, repr=False)
 class HealthServer:
-    """HTTP endpoint for probes and scrapes on the running event loop.
+    """HTTP endpoint for probes, scrapes and the console on the running event loop.
 
     Usage::
 
@@ -242,11 +236,17 @@ class HealthServer:
     registry: CollectorRegistry | None = None
     _: KW_ONLY
     read_timeout_s: float = 5.0
+    keep_alive_s: float = KEEP_ALIVE_S
+    max_connections: int = MAX_CONNECTIONS
     app: App | None = None
     #: the app's requests take turns on the event loop (the PLC first); None: they do not
     turns: LoopTurns | None = None
+    #: HTTPS: the server's TLS context (``http.tls.server_context``); None: plain HTTP
+    tls: ssl.SSLContext | None = None
     _server: asyncio.Server | None = field(default=None, init=False)
-    _connections: set[asyncio.Task[None]] = field(default_factory=set, init=False)
+    _connections: dict[asyncio.Task[None], HttpConnection] = field(default_factory=dict, init=False)
+    #: connections answered 503 because ``max_connections`` were open and none was idle
+    refused_connections: int = field(default=0, init=False)
 
     @property
     def port(self) -> int:
@@ -256,9 +256,14 @@ class HealthServer:
         return self._server.sockets[0].getsockname()[1]
 
     @property
+    def connections(self) -> int:
+        """Connections open now."""
+        return len(self._connections)
+
+    @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"http://{host}:{self.port}"
+        return f"{'https' if self.tls is not None else 'http'}://{host}:{self.port}"
 
     async def start(self) -> None:
         if self._server is not None:
@@ -267,8 +272,9 @@ class HealthServer:
             self._on_connection,
             self.host,
             self.requested_port,
-            limit=MAX_REQUEST_HEAD_BYTES,
             backlog=ACCEPT_BACKLOG,
+            ssl=self.tls,
+            ssl_handshake_timeout=self.read_timeout_s if self.tls is not None else None,
         )
         log.info(
             "health endpoint on %s (/healthz, /livez, /metrics%s)",
@@ -293,10 +299,19 @@ class HealthServer:
     ) -> None:
         task = asyncio.current_task()
         assert task is not None
-        self._connections.add(task)
+        conn = HttpConnection(reader, writer, self._dispatch, read_timeout_s=self.read_timeout_s,
+                              keep_alive_s=self.keep_alive_s)  # fmt: skip
+        full = len(self._connections) >= self.max_connections and not self._make_room()
+        self._connections[task] = conn
         try:
-            await self._serve_one(reader, writer)
-        except (ConnectionError, asyncio.IncompleteReadError):
+            if full:
+                self.refused_connections += 1
+                await conn.refuse(error_answer("", HTTPStatus.SERVICE_UNAVAILABLE, "busy",
+                                               "too many connections; try again shortly",
+                                               {"Retry-After": str(RETRY_AFTER_S)}))  # fmt: skip
+            else:
+                await conn.serve()
+        except (ConnectionError, asyncio.IncompleteReadError, ssl.SSLError):
             pass  # the client went away; nothing to answer
         except asyncio.CancelledError:
             # ``stop()`` ends open connections (e.g. event streams): end quietly, asyncio's
@@ -304,145 +319,49 @@ class HealthServer:
             if self._server is not None:
                 raise
         finally:
-            self._connections.discard(task)
+            self._connections.pop(task, None)
             writer.close()
             with contextlib.suppress(Exception):
                 await writer.wait_closed()
 
-    async def _serve_one(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        try:
-            head = await asyncio.wait_for(
-                reader.readuntil(b"\r\n\r\n"), timeout=self.read_timeout_s
-            )
-        except TimeoutError:
-            return await self._respond(writer, HTTPStatus.REQUEST_TIMEOUT, b"", TEXT_TYPE)
-        except asyncio.LimitOverrunError:
-            return await self._respond(
-                writer, HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE, b"", TEXT_TYPE
-            )
-        lines = head.decode("latin-1").split("\r\n")
-        parts = lines[0].split()
-        if len(parts) != 3 or not parts[2].startswith("HTTP/1."):
-            return await self._respond(writer, HTTPStatus.BAD_REQUEST, b"bad request\n", TEXT_TYPE)
-        method, target, _version = parts
-        path, _, query = target.partition("?")
-        head_only = method == "HEAD"
-        if self.app is not None and path not in HEALTH_PATHS:
-            return await self._serve_app(reader, writer, method, path, query, lines[1:])
-        if method not in ("GET", "HEAD"):
-            return await self._respond(
-                writer,
-                HTTPStatus.METHOD_NOT_ALLOWED,
-                b"GET or HEAD only\n",
-                TEXT_TYPE,
-                extra_headers={"Allow": "GET, HEAD"},
-            )
-        if path == "/healthz":
-            status, body = await self._health()
-            return await self._respond(writer, status, body, JSON_TYPE, head_only=head_only)
-        if path == "/livez":
-            body = b'{"status": "alive"}\n'
-            return await self._respond(writer, HTTPStatus.OK, body, JSON_TYPE, head_only=head_only)
-        if path == "/metrics" and self.registry is not None:
-            body = generate_latest(self.registry)
-            return await self._respond(
-                writer, HTTPStatus.OK, body, CONTENT_TYPE_LATEST, head_only=head_only
-            )
-        return await self._respond(
-            writer, HTTPStatus.NOT_FOUND, b"not found\n", TEXT_TYPE, head_only=head_only
-        )
+    def _make_room(self) -> bool:
+        """Close one connection that waits idle for its next request; False: none does."""
+        for conn in self._connections.values():
+            if conn.idle:
+                conn.idle = False
+                conn.close()
+                return True
+        return False
 
-    async def _serve_app(
-        self,
-        reader: asyncio.StreamReader,
-        writer: asyncio.StreamWriter,
-        method: str,
-        path: str,
-        query: str,
-        header_lines: list[str],
-    ) -> None:
+    async def _dispatch(self, request: Request) -> Answer:
+        """The answer to one request: the probes' paths here, the rest the app's."""
+        if self.app is not None and request.path not in HEALTH_PATHS:
+            return await self._app_answer(request)
+        if request.method not in ("GET", "HEAD"):
+            return Response(HTTPStatus.METHOD_NOT_ALLOWED, b"GET or HEAD only\n", TEXT_TYPE, {"Allow": "GET, HEAD"})
+        if request.path == "/healthz":
+            status, body = await self._health()
+            return Response(status, body, JSON_TYPE)
+        if request.path == "/livez":
+            return Response(HTTPStatus.OK, b'{"status": "alive"}\n', JSON_TYPE)
+        if request.path == "/metrics" and self.registry is not None:
+            return Response(HTTPStatus.OK, generate_latest(self.registry), CONTENT_TYPE_LATEST)
+        return Response(HTTPStatus.NOT_FOUND, b"not found\n", TEXT_TYPE)
+
+    async def _app_answer(self, request: Request) -> Answer:
         assert self.app is not None
-        headers, twice = _headers(header_lines)
-        if twice is not None:
-            return await self._refuse(
-                writer, path, HTTPStatus.BAD_REQUEST, "bad_request", f"{twice} given twice"
-            )
-        if "transfer-encoding" in headers:
-            return await self._refuse(
-                writer, path, HTTPStatus.LENGTH_REQUIRED, "length_required", "send a Content-Length body"
-            )
-        length_text = headers.get("content-length", "0")
-        if not (length_text.isascii() and length_text.isdigit()):
-            return await self._refuse(
-                writer, path, HTTPStatus.BAD_REQUEST, "bad_request", "bad Content-Length"
-            )
-        length = int(length_text)
-        if length > MAX_REQUEST_BODY_BYTES:
-            too_large = f"body larger than {MAX_REQUEST_BODY_BYTES} bytes"
-            return await self._refuse(writer, path, HTTPStatus.REQUEST_ENTITY_TOO_LARGE, "too_large", too_large)
-        try:
-            body = await asyncio.wait_for(reader.readexactly(length), self.read_timeout_s)
-        except TimeoutError:
-            return await self._refuse(
-                writer, path, HTTPStatus.REQUEST_TIMEOUT, "timeout", "the body did not arrive in time"
-            )
-        request = Request(
-            method=method,
-            path=urllib.parse.unquote(path),
-            query={k: v[0] for k, v in urllib.parse.parse_qs(query).items()},
-            headers=headers,
-            body=body,
-            client=_peer(writer),
-            local=_peer(writer, "sockname"),
-        )
+        path = request.path
         try:
             if self.turns is None or await self.turns.turn():
                 answer = await self.app(request)
             else:
-                busy = _error(path, HTTPStatus.SERVICE_UNAVAILABLE, "busy",
-                              "too many requests wait; ask again shortly")  # fmt: skip
-                answer = Response(busy.status, busy.body, busy.content_type,
-                                  {"Retry-After": str(RETRY_AFTER_S)})  # fmt: skip
+                answer = error_answer(path, HTTPStatus.SERVICE_UNAVAILABLE, "busy",
+                                      "too many requests wait; ask again shortly",
+                                      {"Retry-After": str(RETRY_AFTER_S)})  # fmt: skip
         except Exception:
-            log.exception("web request %s %s failed", method, path)
-            answer = _error(path, HTTPStatus.INTERNAL_SERVER_ERROR, "internal", "internal error (see the log)")
-        if answer is None:
-            answer = _error(path, HTTPStatus.NOT_FOUND, "not_found", "not found")
-        if isinstance(answer, Chunked):
-            return await self._send_chunked(writer, answer, head_only=method == "HEAD")
-        if isinstance(answer, Stream):
-            writer.write(_stream_head(answer.content_type, answer.headers))
-            await writer.drain()
-            await answer.body(reader, writer)
-            return
-        await self._respond(
-            writer,
-            answer.status,
-            answer.body,
-            answer.content_type,
-            head_only=method == "HEAD",
-            extra_headers=answer.headers,
-        )
-
-    @staticmethod
-    async def _send_chunked(writer: asyncio.StreamWriter, answer: Chunked, *, head_only: bool) -> None:
-        chunks = answer.chunks
-        try:
-            headers = {"Transfer-Encoding": "chunked", **answer.headers}
-            writer.write(_stream_head(answer.content_type, headers))
-            await writer.drain()
-            if head_only:
-                return
-            async for data in chunks:
-                if data:
-                    writer.write(b"%x\r\n%s\r\n" % (len(data), data))
-                    await writer.drain()  # the client reads it: memory stays constant
-            writer.write(b"0\r\n\r\n")
-            await writer.drain()
-        finally:
-            aclose = getattr(chunks, "aclose", None)
-            if aclose is not None:
-                await aclose()
+            log.exception("web request %s %s failed", request.method, path)
+            answer = error_answer(path, HTTPStatus.INTERNAL_SERVER_ERROR, "internal", "internal error (see the log)")
+        return answer if answer is not None else error_answer(path, HTTPStatus.NOT_FOUND, "not_found", "not found")
 
     async def _health(self) -> tuple[HTTPStatus, bytes]:
         try:
@@ -455,65 +374,6 @@ class HealthServer:
             return HTTPStatus.INTERNAL_SERVER_ERROR, _json(doc)
         code = HTTPStatus.OK if status.get("status") == READY else HTTPStatus.SERVICE_UNAVAILABLE
         return code, _json(status)
-
-    async def _refuse(
-        self, writer: asyncio.StreamWriter, path: str, status: HTTPStatus, kind: str, message: str
-    ) -> None:
-        answer = _error(path, status, kind, message)
-        await self._respond(writer, answer.status, answer.body, answer.content_type)
-
-    @staticmethod
-    async def _respond(
-        writer: asyncio.StreamWriter,
-        status: HTTPStatus,
-        body: bytes,
-        content_type: str,
-        *,
-        head_only: bool = False,
-        extra_headers: Mapping[str, str] | None = None,
-    ) -> None:
-        headers = {
-            "Content-Type": content_type,
-            "Content-Length": str(len(body)),
-            "Cache-Control": "no-store",
-            "Connection": "close",
-            **(extra_headers or {}),
-        }
-        head = f"HTTP/1.1 {status.value} {status.phrase}\r\n" + "".join(
-            f"{name}: {value}\r\n" for name, value in headers.items()
-        )
-        writer.write(head.encode("latin-1") + b"\r\n" + (b"" if head_only else body))
-        await writer.drain()
-
-
-def _stream_head(content_type: str, headers: Mapping[str, str]) -> bytes:
-    """The head of an answer without a length (the connection is closed after it)."""
-    return (
-        "HTTP/1.1 200 OK\r\n"
-        f"Content-Type: {content_type}\r\n"
-        "Cache-Control: no-store\r\nConnection: close\r\n"
-        + "".join(f"{k}: {v}\r\n" for k, v in headers.items())
-        + "\r\n"
-    ).encode("latin-1")
-
-
-def _headers(lines: list[str]) -> tuple[dict[str, str], str | None]:
-    """The header fields by lower-case name, and the name of a field that may be given once
-    but came twice (``SINGLE_HEADERS``), else None."""
-    headers: dict[str, str] = {}
-    for line in lines:
-        name, sep, value = line.partition(":")
-        if sep:
-            name = name.strip().lower()
-            if name in SINGLE_HEADERS and name in headers:
-                return headers, name
-            headers[name] = value.strip()
-    return headers, None
-
-
-def _peer(writer: asyncio.StreamWriter, which: str = "peername") -> str:
-    peer = writer.get_extra_info(which)
-    return str(peer[0]) if isinstance(peer, tuple) and peer else ""
 
 
 def _json(doc: Mapping[str, Any]) -> bytes:

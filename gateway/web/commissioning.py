@@ -1,5 +1,5 @@
 """The commissioning operations of the web console: SDO read and write of any object, NMT
-commands, set-point writes, LSS inquiry, a scan of the bus. Present only with ``web.writes: true``; the console
+commands, set-point writes, LSS inquiry and Fast Scan, a scan of the bus. Present only with ``web.writes: true``; the console
 checks the token before calling anything here.
 
 Every device operation goes through the command service, so a write from a browser gets the
@@ -11,7 +11,9 @@ LSS (CiA 305) goes through the command service to the master's LSS service, on t
 own connection to the bus (no second connection, so it works on every interface), one inquiry
 at a time. LSS inquiry switches every LSS slave
 (or the one at ``address``) to the LSS configuration state and back to waiting; it does not
-change NMT states or node ids.
+change NMT states or node ids. LSS Fast Scan (CiA 305) finds identical unconfigured devices
+whose serial numbers are not known, lowest LSS address first, and gives each the next node id;
+the same session rules (one at a time, never beside a scan).
 
 Imports: commands, errors, canopen.objref, config, canopen.cia301, profiles.schema, northbound.scaling. Never
 bus/, tools/ or python-can.
@@ -44,6 +46,10 @@ from gateway.errors import (
 from gateway.northbound.scaling import Scaling, to_raw
 
 log = logging.getLogger("gateway.web")
+
+#: Fast Scan: how long each step waits for 4Fh answers (the CLI waits 50 ms on its own
+#: connection; the answers reach the running gateway's event loop through its reader)
+FAST_SCAN_WAIT_MS = 100
 
 
 #: typed errors of the command service -> HTTP status
@@ -115,6 +121,21 @@ def _type(doc: dict[str, Any]) -> str | None:
     return str(t)
 
 
+def _number(doc: dict[str, Any], key: str, low: int, high: int) -> int | None:
+    """An optional whole number (JSON number, or text in decimal or 0x hex) within low..high."""
+    v = doc.get(key)
+    if v in (None, ""):
+        return None
+    try:
+        n = int(v, 0) if isinstance(v, str) else v
+    except ValueError:
+        n = None
+    if isinstance(n, bool) or not isinstance(n, int) or not low <= n <= high:
+        raise BadInput(f"{key}: expected a whole number {low}..{high:#x}" if high > 0xFFFF else
+                       f"{key}: expected a whole number {low}..{high}")  # fmt: skip
+    return n
+
+
 def shown(value: Any) -> Any:
     """A value as JSON: bytes as hex."""
     if isinstance(value, (bytes, bytearray)):
@@ -125,7 +146,7 @@ def shown(value: Any) -> Any:
 class Commissioning:
     """The write operations, by name: ``await run(op, body)`` -> JSON-able result."""
 
-    OPS = ("sdo-read", "sdo-write", "nmt", "set", "lss-inquire", "scan")
+    OPS = ("sdo-read", "sdo-write", "nmt", "set", "lss-inquire", "lss-fast-scan", "scan")
 
     def __init__(self, cfg: Config, commands: CommandService, *, lss_timeout_s: float = 0.5):
         self.cfg = cfg
@@ -145,6 +166,8 @@ class Commissioning:
             return await self.set(doc)
         if op == "lss-inquire":
             return await self.lss_inquire(doc)
+        if op == "lss-fast-scan":
+            return await self.lss_fast_scan(doc)
         if op == "scan":
             return await self.scan(doc)
         raise BadInput(f"unknown operation {op!r}; one of {', '.join(self.OPS)}")
@@ -237,6 +260,36 @@ class Commissioning:
                 for item, value in result.items()
             },
         }
+
+    async def lss_fast_scan(self, doc: dict[str, Any]) -> dict[str, Any]:
+        """CiA 305 Fast Scan of identical unconfigured devices whose serial numbers are not
+        known (``canopen-gateway lss fast-scan``): the LSS address of the one with the lowest;
+        with ``node_id`` it is given that node id (``store``: kept over power-off), then the
+        next device the next id, ``count`` times. ``vendor``, ``product``, ``revision``: parts
+        known in advance (a profile's 1018h), confirmed instead of scanned; ``wait_ms`` per
+        step (default ``FAST_SCAN_WAIT_MS``)."""
+        vendor, product, revision = (_number(doc, k, 0, 0xFFFFFFFF) for k in ("vendor", "product", "revision"))
+        first = _number(doc, "node_id", 1, 127)
+        count = _number(doc, "count", 1, 127)
+        count = 1 if count is None else count
+        wait_ms = _number(doc, "wait_ms", 10, 1000)
+        store = doc.get("store", False)
+        if not isinstance(store, bool):
+            raise BadInput("store: expected true or false")
+        if count > 1 and first is None:
+            raise BadInput("count: needs node_id, the id the first device found is given")
+        if first is not None and first + count - 1 > 127:
+            raise BadInput(f"node_id, count: node ids {first}..{first + count - 1} are not within 1..127")
+        network = self._network(doc)
+        if self.commands.lss_busy(network) or self._scan_lock.locked():
+            raise LssConflict("another LSS inquiry, fast scan or a scan is running")
+        wait_s = (FAST_SCAN_WAIT_MS if wait_ms is None else wait_ms) / 1000
+        result = await self.commands.lss_fast_scan((vendor, product, revision, None), wait_s, first, count, store, network=network)
+        found = [{**f, "address": ":".join(f"0x{v:08X}" for v in f["address"])} for f in result["found"]]
+        note = "the node ids apply at the next NMT reset communication or power-on" if first is not None else (
+            "no node id given: the address can be used in the LSS inquiry")  # fmt: skip
+        return {"ok": True, "network": self.commands.network(network).name, "found": found,
+                "frames": result["frames"], "failed": result["failed"], "note": note}  # fmt: skip
 
     async def scan(self, doc: dict[str, Any]) -> dict[str, Any]:
         """Which node ids are on the bus (``canopen-gateway scan --active``): through the

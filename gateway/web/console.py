@@ -12,7 +12,8 @@ host and port: pages and static files, a small JSON API, server-sent events, and
 ``GET /api/stream[?node=<name>]``      server-sent events: ``overview`` + ``nodes``, or
                                        ``node`` + ``values`` of one node (``gateway.web.live``)
 ``POST /api/commission/<operation>``   ``login``, ``sdo-read``, ``sdo-write``, ``nmt``, ``set``,
-                                       ``lss-inquire`` (JSON body); 404 unless writes are on;
+                                       ``lss-inquire``, ``lss-fast-scan``, ``scan`` (JSON
+                                       body); 404 unless writes are on;
                                        401 without ``Authorization: Bearer <token>``, 403 with a
                                        wrong one; 400 with a message for a bad body
 ``POST /api/login``                    the token as ``Authorization: Bearer``: the session cookie
@@ -80,7 +81,7 @@ from typing import Any
 
 from gateway import __version__
 from gateway.commands.audit import acting_as
-from gateway.http.server import JSON_TYPE, Chunked, Request, Response, Stream
+from gateway.http.server import JSON_TYPE, Chunked, Request, Response, Stream, StreamOut
 from gateway.northbound.frames import FrameDecoder
 from gateway.northbound.scaling import engineering
 from gateway.runtime.ratelimit import RateLimitedLog
@@ -328,12 +329,12 @@ class WebConsole:
         except TooManyClients as exc:
             return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": str(exc)})
 
-        async def body(reader: Any, writer: Any) -> None:
+        async def body(out: StreamOut) -> None:
             if not self.live_slots.take(client):  # another page of it came first
                 self.hub.unsubscribe(sub)
                 return
             try:
-                await self.hub.pump(sub, self.render, reader, writer, turns=self.turns)
+                await self.hub.pump(sub, self.render, out, turns=self.turns)
             finally:
                 self.live_slots.give(client)
 

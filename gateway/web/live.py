@@ -21,7 +21,7 @@ Health listeners are called on the event loop by the image's writer.
 The PLC comes first: with ``turns`` (``turns.LoopTurns``), each update is rendered in its turn
 on the event loop, one piece of northbound work per loop iteration.
 
-Imports: image, runtime.turns (the rendering is given as a function by the console).
+Imports: image, http.messages (what a stream writes to), runtime.turns (the rendering is given as a function by the console).
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+from gateway.http.messages import StreamOut
 from gateway.image import NodeImage, ProcessImage
 from gateway.runtime.turns import LoopTurns
 
@@ -226,14 +227,13 @@ class LiveHub:
         self,
         sub: Subscriber,
         render: Render,
-        reader: asyncio.StreamReader,
-        writer: asyncio.StreamWriter,
+        out: StreamOut,
         *,
         slow_limit_s: float = SLOW_CLIENT_LIMIT_S,
         max_buffered: int = MAX_BUFFERED_BYTES,
         turns: LoopTurns | None = None,
     ) -> None:
-        """Write ``sub``'s updates to ``writer`` until the client goes away (or is too slow):
+        """Write ``sub``'s updates to ``out`` until the client goes away (or is too slow):
         what changed, at most ``MAX_UPDATES_PER_S`` times a second, everything every
         ``FULL_REFRESH_S``."""
         last_full = -FULL_REFRESH_S
@@ -254,8 +254,7 @@ class LiveHub:
 
         try:
             await stream_sse(
-                reader,
-                writer,
+                out,
                 sub.wake,
                 turn,
                 lambda: last_full + FULL_REFRESH_S,
@@ -271,8 +270,7 @@ class LiveHub:
 
 
 async def stream_sse(
-    reader: asyncio.StreamReader,
-    writer: asyncio.StreamWriter,
+    out: StreamOut,
     wake: asyncio.Event,
     turn: Callable[[float], bytes],
     due: Callable[[], float],
@@ -287,51 +285,47 @@ async def stream_sse(
 ) -> None:
     """The one server-sent-event pump of the console (the live pages and the bus monitor, Rule 2).
 
-    Writes the ``retry:`` line and ``first``, then, until the browser goes away (EOF: it sends
-    nothing) or its transport closes, one ``turn(now)`` (loop time; the bytes to write, ``b""``
-    for nothing) when ``wake`` is set or the loop time ``due()`` has come, at most one write
-    every ``interval_s``: what comes meanwhile joins the next write. A turn whose socket holds
-    more than ``max_buffered`` bytes is skipped (``on_skip``), ``wake`` left set; after
+    Writes the ``retry:`` line and ``first``, then, until the browser goes away (``out.gone``:
+    it sends nothing) or its connection closes, one ``turn(now)`` (loop time; the bytes to write,
+    ``b""`` for nothing) when ``wake`` is set or the loop time ``due()`` has come, at most one
+    write every ``interval_s``: what comes meanwhile joins the next write. A turn whose socket
+    holds more than ``max_buffered`` bytes is skipped (``on_skip``), ``wake`` left set; after
     ``slow_limit_s`` of skipped turns the client (``who``, in the log) is dropped. With
     ``turns``, each ``turn`` waits for its turn on the event loop (the PLC first)."""
     loop = asyncio.get_running_loop()
-    transport = writer.transport
-    gone = asyncio.ensure_future(reader.read(1))  # the browser sends nothing: EOF = gone
+    gone = out.gone
     last_send = float("-inf")
     slow_since: float | None = None
-    try:
-        writer.write(f"retry: {RETRY_MS}\n\n".encode() + first)
-        while not gone.done() and not transport.is_closing():
-            wait_s = max(0.0, due() - loop.time())
-            if not wake.is_set() and wait_s > 0:
-                woken = asyncio.ensure_future(wake.wait())
-                await asyncio.wait({woken, gone}, timeout=wait_s, return_when="FIRST_COMPLETED")
-                woken.cancel()
-                if gone.done():
-                    break
-            gap = last_send + interval_s - loop.time()
-            if gap > 0:
-                await asyncio.sleep(gap)
-            now = loop.time()
-            if transport.get_write_buffer_size() > max_buffered:
-                if on_skip is not None:
-                    on_skip()
-                if slow_since is None:
-                    slow_since = now
-                elif now - slow_since > slow_limit_s:
-                    log.info("%s dropped: it has not read for %.0f s", who, slow_limit_s)
-                    break
-                last_send = now  # try again one interval later
-                continue
-            slow_since = None
-            if turns is not None:
-                await turns.turn(bounded=False)
-                if gone.done() or transport.is_closing():
-                    break
-            wake.clear()
-            data = turn(now)
-            if data:
-                writer.write(data)
-                last_send = now
-    finally:
-        gone.cancel()
+    out.write(f"retry: {RETRY_MS}\n\n".encode() + first)
+    while not gone.done() and not out.closing():
+        wait_s = max(0.0, due() - loop.time())
+        if not wake.is_set() and wait_s > 0:
+            woken = asyncio.ensure_future(wake.wait())
+            await asyncio.wait({woken, gone}, timeout=wait_s, return_when="FIRST_COMPLETED")
+            woken.cancel()
+            if gone.done():
+                break
+        gap = last_send + interval_s - loop.time()
+        if gap > 0:
+            await asyncio.sleep(gap)
+        now = loop.time()
+        if out.buffered() > max_buffered:
+            if on_skip is not None:
+                on_skip()
+            if slow_since is None:
+                slow_since = now
+            elif now - slow_since > slow_limit_s:
+                log.info("%s dropped: it has not read for %.0f s", who, slow_limit_s)
+                break
+            last_send = now  # try again one interval later
+            continue
+        slow_since = None
+        if turns is not None:
+            await turns.turn(bounded=False)
+            if gone.done() or out.closing():
+                break
+        wake.clear()
+        data = turn(now)
+        if data:
+            out.write(data)
+            last_send = now

@@ -45,7 +45,7 @@ from http import HTTPStatus
 from typing import Any, Protocol
 
 from gateway.config import Config
-from gateway.http.server import Request, Response, Stream
+from gateway.http.server import Request, Response, Stream, StreamOut
 from gateway.northbound.frames import KINDS, Decoded, FrameDecoder, kind_filter, node_filter
 from gateway.runtime.turns import LoopTurns
 from gateway.web.access import ClientSlots
@@ -327,8 +327,7 @@ class FrameMonitor:
     async def pump(
         self,
         page: MonitorPage,
-        reader: asyncio.StreamReader,
-        writer: asyncio.StreamWriter,
+        out: StreamOut,
         turns: LoopTurns | None = None,
     ) -> None:
         """Write the page's lines until the browser goes away (or does not read for
@@ -350,8 +349,7 @@ class FrameMonitor:
 
         try:
             await stream_sse(
-                reader,
-                writer,
+                out,
                 page.wake,
                 turn,
                 lambda: last_status + STATUS_PERIOD_S,
@@ -425,7 +423,7 @@ class NetworkMonitors:
         if busy is not None:
             return _json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": "busy", "message": busy})
 
-        async def body(reader: Any, writer: Any) -> None:
+        async def body(out: StreamOut) -> None:
             # opened here, not before the headers are written: a page is closed by its pump
             if not slots.take(client):  # another page of this client came first
                 return
@@ -433,9 +431,9 @@ class NetworkMonitors:
                 try:
                     page = monitor.open(nodes, kinds)
                 except TooManyPages as exc:  # another page came first since refusal()
-                    writer.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
+                    out.write(b"event: error\ndata: " + json.dumps(str(exc)).encode() + b"\n\n")
                     return
-                await monitor.pump(page, reader, writer, turns=turns)
+                await monitor.pump(page, out, turns=turns)
             finally:
                 slots.give(client)
 

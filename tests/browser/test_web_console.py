@@ -35,7 +35,9 @@ def browser() -> Iterator[Any]:
 
 
 @asynccontextmanager
-async def gateway(writes: bool = False) -> AsyncIterator[tuple[Gateway, str]]:
+async def gateway(writes: bool = False, unconfigured: bool = False) -> AsyncIterator[tuple[Gateway, str]]:
+    """``unconfigured``: the simulated wire also takes part in LSS Fast Scan (serial 0x2300)."""
+    lss = {"wire": {"features": {"lss_slave": {"unconfigured": True, "serial_number": 0x2300}}}}
     cfg = make_config(
         [
             {"name": "wire", "node_id": 1, "profile": "sgh10"},
@@ -43,6 +45,7 @@ async def gateway(writes: bool = False) -> AsyncIterator[tuple[Gateway, str]]:
         ],
         health={"port": free_port()},
         web={"writes": True, "token": TOKEN} if writes else {},
+        simulate={"options": lss if unconfigured else {}},
     )
     gw = gateway_of(cfg)
     await gw.start()
@@ -381,8 +384,8 @@ async def test_the_overview_shows_another_master_on_the_bus(browser: Any) -> Non
         await run(wait_for, browser, shown, "the other master on the overview")
 
 
-async def test_the_commissioning_page_scans_the_bus(browser: Any) -> None:
-    async with gateway(writes=True) as (_, base):
+async def test_the_commissioning_page_scans_the_bus_and_fast_scans_an_unconfigured_device(browser: Any) -> None:
+    async with gateway(writes=True, unconfigured=True) as (_, base):
         from selenium.webdriver.common.by import By
 
         def check() -> None:
@@ -403,5 +406,12 @@ async def test_the_commissioning_page_scans_the_bus(browser: Any) -> None:
             )
             assert "profile sgh10; config node wire (sgh10)" in result
             assert "profile ap05; config node display (ap05)" in result
+            for field, value in (("fs-vendor", "0x195"), ("fs-product", "0xFFFFFFFF"), ("fs-revision", "0xFFFFFFFF")):
+                browser.find_element(By.ID, field).send_keys(value)
+            browser.find_element(By.CSS_SELECTOR, "#form-lss-fast-scan button").click()
+            found = wait_for(browser, lambda d: "frames" in d.find_element(By.ID, "result-lss-fast-scan").text
+                             and d.find_element(By.ID, "result-lss-fast-scan").text, "the fast scan")  # fmt: skip
+            assert found.startswith("found 0x00000195:0xFFFFFFFF:0xFFFFFFFF:0x00002300\n"), found
+            assert "the address can be used in the LSS inquiry" in found
 
         await run(check)

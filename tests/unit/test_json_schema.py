@@ -135,6 +135,10 @@ def changed(path: str, value: Any, delete: str | None = None) -> dict[str, Any]:
         ("a key the CAN interface does not take", changed("can.chanel", "vcan0")),
         ("a CAN interface python-can does not know", changed("can.interface", "virtul")),
         ("a node with neither profile nor eds", changed("nodes.0.profile", None, delete="profile")),
+        ("health.tls without its key", changed("health.tls", {"cert": "server.pem"})),
+        ("a misspelt key of health.tls", changed("health.tls", {"cert": "s.pem", "key": "k.pem", "ca": "c"})),
+        ("an empty health.tls.cert", changed("health.tls", {"cert": "", "key": "k.pem"})),
+        ("health.tls.key as a number", changed("health.tls", {"cert": "s.pem", "key": 5})),
     ],
 )
 def test_schema_refuses_what_check_refuses(
@@ -198,6 +202,7 @@ def test_schema_refuses_what_check_refuses_of_networks(
 def test_schema_takes_both_forms_and_the_command_socket(config_validator: Draft202012Validator) -> None:
     assert problems(config_validator, TWO) == []
     assert problems(config_validator, DEMO) == []
+    assert problems(config_validator, changed("health.tls", {"cert": "server.pem", "key": "server.key"})) == []
     sock = changed("command_socket", {"enabled": False, "path": "run/gw.sock"})
     assert problems(config_validator, sock) == [] and not check_refuses(sock)
     assert problems(config_validator, networks_changed(lambda d: d.pop("networks")))  # no bus at all

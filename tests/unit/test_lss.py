@@ -309,3 +309,90 @@ class TestLssServiceOfTheMaster:
             await svc.request(inquire("node_id"))
         assert svc.machine.pending is None, "the next request is not refused as busy"
 
+
+
+class FastScanSlaves:
+    """Unconfigured LSS slaves answering Fast Scan (CiA 305) and configure node id / store as
+    each frame is sent, through the service's reader hand-off (the next loop iteration): the
+    bus of a Fast Scan without a clock."""
+
+    def __init__(self, serials: list[int], refuse_node_id: bool = False) -> None:
+        self.addresses = [(SGH10_VENDOR_ID, SGH10_PRODUCT_CODE, SGH10_REVISION, s) for s in serials]
+        self.part = [0] * len(serials)
+        self.configuring: int | None = None  # the slave in LSS configuration
+        self.node_ids: dict[int, int] = {}
+        self.refuse_node_id = refuse_node_id
+        self.svc: Any = None
+
+    def answer(self, data: bytes) -> None:
+        import can
+
+        self.svc.reader_handler()(can.Message(arbitration_id=0x7E4, data=data.ljust(8, b"\0")))
+
+    def send(self, cob: int, data: bytes) -> None:
+        import struct
+
+        if data[0] == 0x51:  # Fast Scan: IDNumber, BitChecked, LSSSub, LSSNext
+            id_number, bit, sub, nxt = struct.unpack_from("<IBBB", data, 1)
+            answered = False
+            for i, address in enumerate(self.addresses):
+                if i in self.node_ids or self.configuring is not None:
+                    continue
+                if bit == 0x80:
+                    self.part[i] = 0
+                elif sub != self.part[i] or (address[sub] >> bit) != (id_number >> bit):
+                    continue
+                else:
+                    self.part[i] = nxt
+                    if bit == 0 and nxt < sub:
+                        self.configuring = i
+                answered = True
+            if answered:
+                self.answer(bytes([0x4F]))
+        elif data[0] == 0x11 and self.configuring is not None:  # configure node id
+            if self.refuse_node_id:
+                return self.answer(bytes([0x11, 0x01, 0x00]))
+            self.node_ids[self.configuring] = data[1]
+            self.answer(bytes([0x11, 0x00, 0x00]))
+        elif data[0] == 0x17 and self.configuring is not None:  # store configuration
+            self.answer(bytes([0x17, 0x00, 0x00]))
+        elif data[0] == 0x04 and data[1] == 0x00:  # switch state global: waiting
+            self.configuring = None
+
+
+def fast_scan_service(slaves: FastScanSlaves) -> Any:
+    import asyncio
+
+    from gateway.bus.lss.service import LssService
+
+    def post(fn: Any, *args: Any) -> None:  # the reader's hand-off: on the loop, after the send
+        asyncio.get_running_loop().call_soon(fn, *args)
+
+    slaves.svc = LssService(slaves.send, post, lambda: 0.0, lambda m: 0.0)
+    return slaves.svc
+
+
+KNOWN = (SGH10_VENDOR_ID, SGH10_PRODUCT_CODE, SGH10_REVISION, None)
+
+
+async def test_fast_scan_of_the_service_gives_node_ids_lowest_address_first_and_says_why_it_stopped() -> None:
+    slaves = FastScanSlaves([0x2300, 0x0F01])
+    result = await fast_scan_service(slaves).fast_scan(KNOWN, 0.0, first_node_id=5, count=3, store=True)
+    assert [(f["address"][3], f["node_id"], f["stored"]) for f in result["found"]] == [(0x0F01, 5, True), (0x2300, 6, True)]
+    assert slaves.node_ids == {1: 5, 0: 6}
+    assert result["failed"].startswith("no unconfigured LSS slave answered")
+    assert result["frames"] == 37 + 37 + 1  # reset, 3 parts confirmed, 32 bits and a confirm each
+    assert slaves.configuring is None  # every slave back in waiting
+
+
+async def test_fast_scan_of_the_service_finds_nobody_or_a_refused_node_id_in_words() -> None:
+    from gateway.errors import LssFailed
+
+    with pytest.raises(LssFailed, match="no unconfigured LSS slave answered"):
+        await fast_scan_service(FastScanSlaves([])).fast_scan(KNOWN, 0.0)
+    slaves = FastScanSlaves([0x0F01], refuse_node_id=True)
+    with pytest.raises(LssFailed, match="configure node id: no valid node id"):
+        await fast_scan_service(slaves).fast_scan(KNOWN, 0.0, first_node_id=5)
+    assert slaves.configuring is None  # switched back to waiting all the same
+    with pytest.raises(ValueError, match="count needs a first node id"):
+        await fast_scan_service(FastScanSlaves([1])).fast_scan(KNOWN, 0.0, count=2)

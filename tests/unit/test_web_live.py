@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import threading
 
+from gateway.http.messages import StreamOut
 from gateway.image import NodeImage, ProcessImage
 from gateway.web.live import MIN_SEND_INTERVAL_S, RETRY_MS, LiveHub, Subscriber, sse, stream_sse
 
@@ -104,8 +105,8 @@ async def test_a_client_gets_at_most_ten_updates_a_second_with_the_latest_values
     hub.attach(asyncio.get_running_loop())
     sub = hub.subscribe("wire")
     writer = FakeWriter(FakeTransport())
-    reader = asyncio.StreamReader()  # never fed: the client stays
-    pump = asyncio.create_task(hub.pump(sub, _render, reader, writer))
+    gone = asyncio.get_running_loop().create_future()  # not done: the client stays
+    pump = asyncio.create_task(hub.pump(sub, _render, StreamOut(writer, gone)))
 
     async def producer() -> None:
         i = 0
@@ -121,7 +122,7 @@ async def test_a_client_gets_at_most_ten_updates_a_second_with_the_latest_values
             await asyncio.wait_for(writer.written.wait(), 5)
     finally:
         feeding.cancel()
-        reader.feed_eof()  # the browser goes away
+        gone.set_result(None)  # the browser goes away
         await asyncio.wait_for(pump, 5)
     updates = [t for t, data in writer.writes if data.startswith(b"event:")]
     gaps = [b - a for a, b in zip(updates, updates[1:], strict=False)]
@@ -138,7 +139,7 @@ async def test_a_client_that_does_not_read_is_skipped_then_dropped_and_stays_bou
     transport = FakeTransport(buffered=10**9)  # the socket never drains
     writer = FakeWriter(transport)
     pump = asyncio.create_task(
-        hub.pump(sub, _render, asyncio.StreamReader(), writer, slow_limit_s=0.3)
+        hub.pump(sub, _render, StreamOut(writer, asyncio.get_running_loop().create_future()), slow_limit_s=0.3)
     )
     for i in range(10_000):
         image.update(node, ("position", "velocity"), (i, i), 0.0)
@@ -158,7 +159,7 @@ def test_server_sent_event_format() -> None:
 
 async def test_the_one_sse_pump_writes_retry_and_first_then_a_turn_per_wake_until_the_browser_goes() -> None:
     writer = FakeWriter(FakeTransport())
-    reader = asyncio.StreamReader()
+    gone = asyncio.get_running_loop().create_future()
     wake = asyncio.Event()
     turns: list[float] = []
 
@@ -167,7 +168,7 @@ async def test_the_one_sse_pump_writes_retry_and_first_then_a_turn_per_wake_unti
         return b"event: x\ndata: 1\n\n"
 
     pump = asyncio.create_task(
-        stream_sse(reader, writer, wake, turn, lambda: float("inf"), interval_s=0.0,
+        stream_sse(StreamOut(writer, gone), wake, turn, lambda: float("inf"), interval_s=0.0,
                    who="test page", first=b"event: hello\ndata: {}\n\n")  # fmt: skip
     )
     await asyncio.wait_for(writer.written.wait(), 5)
@@ -178,7 +179,7 @@ async def test_the_one_sse_pump_writes_retry_and_first_then_a_turn_per_wake_unti
     await asyncio.wait_for(writer.written.wait(), 5)
     assert len(turns) == 1 and writer.writes[1][1] == b"event: x\ndata: 1\n\n"
     assert not wake.is_set()  # the turn took what woke it
-    reader.feed_eof()  # the browser goes away
+    gone.set_result(None)  # the browser goes away
     await asyncio.wait_for(pump, 5)
     assert len(turns) == 1
 
@@ -193,7 +194,7 @@ async def test_the_one_sse_pump_skips_a_client_that_does_not_read_then_drops_it(
         raise AssertionError("a turn while the socket does not drain")
 
     await asyncio.wait_for(
-        stream_sse(asyncio.StreamReader(), writer, wake, turn, lambda: float("inf"),
+        stream_sse(StreamOut(writer, asyncio.get_running_loop().create_future()), wake, turn, lambda: float("inf"),
                    interval_s=0.01, who="test page", on_skip=lambda: skipped.append(1),
                    slow_limit_s=0.05),  # fmt: skip
         5,

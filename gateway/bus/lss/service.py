@@ -6,10 +6,12 @@ Rule 1: the frames and their matching are ``bus.lss.master.LssMaster``'s (no I/O
 only sends its frames through the driver, feeds it the 7E4h frames the reader hands to the
 event loop (``Master._post``, the one hand-off) and wakes it at its deadline.
 Rule 2: one LSS session at a time (a lock): an inquiry switches the slave(s) to configuration,
-asks, and switches them back to waiting, whatever happens in between.
+asks, and switches them back to waiting, whatever happens in between; so does a Fast Scan
+(``fast_scan``: the steps of ``bus.lss.fastscan.FastScan``, each followed by a wait for the 4Fh
+answers, then the node id given to the slave found, and the next).
 
-Imports: bus.lss.master, canopen.cia301, errors, python-can (the message type), asyncio. Nothing
-northbound.
+Imports: bus.lss.master, bus.lss.fastscan, canopen.cia301, canopen.cia305, errors, python-can
+(the message type), asyncio. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -20,19 +22,28 @@ from typing import Any
 
 import can
 
+from gateway.bus.lss.fastscan import FastScan
 from gateway.bus.lss.master import (
     INQUIRE_ORDER,
+    ConfigAnswer,
     LssAnswered,
     LssMaster,
+    LssMode,
     LssRequest,
     LssTimedOut,
     LssValue,
+    configure_node_id,
     inquire,
+    store_configuration,
     switch_state_global,
     switch_state_selective,
 )
 from gateway.canopen.cia301 import COB_LSS_MASTER, COB_LSS_SLAVE
+from gateway.canopen.cia305 import CS_IDENTIFY_SLAVE
 from gateway.errors import LssFailed
+
+#: a Fast Scan's address parts given in advance (vendor id, product code, revision; None: scanned)
+Known = tuple[int | None, int | None, int | None, int | None]
 
 
 class LssService:
@@ -61,6 +72,8 @@ class LssService:
         self._lock: asyncio.Lock | None = None
         #: 7E4h frames that answered nothing pending (a late answer, another master's)
         self.ignored = 0
+        #: a Fast Scan step heard a 4Fh (identify slave) since it was sent
+        self._identified = False
 
     # ------------------------------------------------------------------ reader thread
     def reader_handler(self) -> Callable[[can.Message], None]:
@@ -76,6 +89,9 @@ class LssService:
 
     # ------------------------------------------------------------------ event loop
     def _on_frame(self, data: bytes, now: float) -> None:
+        if data[:1] == bytes([CS_IDENTIFY_SLAVE]):  # a Fast Scan step's answer: whoever sent it
+            self._identified = True
+            return
         for ev in self.machine.on_frame(data, now):
             if isinstance(ev, LssAnswered):
                 self._resolve(ev.value, None)
@@ -154,6 +170,64 @@ class LssService:
                 self._waiting = None
                 self.machine.cancel()  # an unanswered inquiry does not block the switch back
                 await self.request(switch_state_global(False))
+
+    async def fast_scan(
+        self, known: Known, wait_s: float, first_node_id: int | None = None, count: int = 1,
+        store: bool = False,
+    ) -> dict[str, Any]:  # fmt: skip
+        """CiA 305 Fast Scan: the LSS address of the unconfigured slave with the lowest one
+        (the parts in ``known`` confirmed, not scanned); with ``first_node_id`` that slave is
+        given the node id (11h; ``store``: 17h) and switched to waiting, where it no longer
+        takes part, and the next is scanned, ``count`` times. Each step waits ``wait_s`` for
+        4Fh answers (several slaves answering together are one answer). The slaves are back
+        in waiting afterwards; a node id given applies at their next NMT reset communication.
+        ``{"found": [{"address", "node_id", "stored"}], "frames", "failed"}`` (``failed``: why
+        a later scan found none); LssFailed when the first finds none."""
+        if count > 1 and first_node_id is None:
+            raise ValueError("count needs a first node id (each device found is given the next)")
+        if self._lock is None:
+            self._lock = asyncio.Lock()
+        found: list[dict[str, Any]] = []
+        frames, failed = 0, None
+        async with self._lock:
+            try:
+                for k in range(count):
+                    scan = await self._scan(FastScan(known), wait_s)
+                    frames += scan.frames
+                    if scan.found is None:
+                        if not found:
+                            raise LssFailed(f"LSS fast scan: {scan.failed}")
+                        failed = scan.failed
+                        break
+                    self.machine.resume(LssMode.CONFIGURATION)  # the slave found is in it
+                    entry: dict[str, Any] = {"address": scan.found, "node_id": None, "stored": False}
+                    if first_node_id is not None:
+                        await self._configure(configure_node_id(first_node_id + k))
+                        entry["node_id"] = first_node_id + k
+                        if store:
+                            await self._configure(store_configuration())
+                            entry["stored"] = True
+                    found.append(entry)
+                    await self.request(switch_state_global(False))  # the next takes part alone
+            finally:
+                self._waiting = None
+                self.machine.cancel()
+                await self.request(switch_state_global(False))
+        return {"found": found, "frames": frames, "failed": failed}
+
+    async def _scan(self, scan: FastScan, wait_s: float) -> FastScan:
+        """Each frame of ``scan``, then the whole ``wait_s`` for 4Fh answers."""
+        while (frame := scan.next_frame()) is not None:
+            self._identified = False
+            self._send(COB_LSS_MASTER, frame)
+            await asyncio.sleep(wait_s)
+            scan.answered(self._identified)
+        return scan
+
+    async def _configure(self, req: LssRequest) -> None:
+        answer = await self.request(req)
+        if isinstance(answer, ConfigAnswer) and not answer.ok:
+            raise LssFailed(f"LSS {req.service}: {answer.text}")
 
     def stop(self) -> None:
         """The gateway stops: a waiting request fails."""

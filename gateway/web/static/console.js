@@ -429,6 +429,8 @@ function showResult(id, res) {
     if (id === "sdo-read") box.textContent = `${d.node} ${d.object} = ${d.value}`;
     else if (id === "scan") box.textContent = d.report.join("\n");
     else if (id === "lss-inquire") box.textContent = ["vendor_id", "product_code", "revision", "serial", "node_id"].map((k) => `${k}: ${d[k]}`).join("\n");
+    else if (id === "lss-fast-scan") box.textContent = d.found.map((f) => `found ${f.address}` + (f.node_id ? `: node id ${f.node_id}${f.stored ? ", stored" : ""}` : ""))
+      .concat(d.failed ? [`then: ${d.failed}`] : [], [`${d.frames} frames on ${d.network}; ${d.note}`]).join("\n");
     else box.textContent = "done: " + JSON.stringify(d);
   } else {
     let t = `refused (HTTP ${res.status}): ${res.doc.message || ""}`;
@@ -511,7 +513,8 @@ async function initCommission() {
   document.getElementById("lock").addEventListener("click", () => { sessionStorage.removeItem(TOKEN_KEY); showLocked(""); });
 
   const ops = { "sdo-read": (v) => v, "sdo-write": (v) => ({ ...v, value: v.type === "string" || v.type === "bytes" ? v.value : numberOrText(v.value || "") }),
-    "nmt": (v) => v, "set": (v) => ({ ...v, value: numberOrText(v.value || "") }), "lss-inquire": (v) => v, "scan": (v) => v };
+    "nmt": (v) => v, "set": (v) => ({ ...v, value: numberOrText(v.value || "") }), "lss-inquire": (v) => v,
+    "lss-fast-scan": (v) => ({ ...v, store: v.store === "true" }), "scan": (v) => v };
   for (const [op, shape] of Object.entries(ops)) {
     document.getElementById("form-" + op).addEventListener("submit", async (ev) => {
       ev.preventDefault();
