@@ -31,7 +31,7 @@ extras = [e.strip() for e in os.environ['EXTRAS'].split(',') if e.strip()]; \
 print('\n'.join(p['dependencies'] + [r for e in extras for r in p['optional-dependencies'][e]]))" \
         > /tmp/requirements.txt \
     && /opt/venv/bin/pip install --requirement /tmp/requirements.txt
-COPY gateway/ gateway/
+COPY canopen_gateway/ canopen_gateway/
 RUN /opt/venv/bin/pip install --no-deps . \
     && /opt/venv/bin/pip uninstall --yes pip setuptools
 

@@ -54,7 +54,7 @@ tools:
 	  echo "note: netcat-openbsd (nc -N, the ASCII gateway examples) not installed"
 
 test: $(STAMP_TEST) tools
-	$(BIN)/ruff check gateway tests deploy $(wildcard bench)
+	$(BIN)/ruff check canopen_gateway tests deploy $(wildcard bench)
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 	$(BIN)/python -m pytest -q
@@ -64,7 +64,7 @@ test-quick: lint
 	$(BIN)/python -m pytest -q tests/unit
 
 lint: $(STAMP_TEST)
-	$(BIN)/ruff check gateway tests deploy $(wildcard bench)
+	$(BIN)/ruff check canopen_gateway tests deploy $(wildcard bench)
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 

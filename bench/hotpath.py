@@ -28,7 +28,7 @@ import can
 from bench.report import Row, Section
 from bench.rig import SGH10_TPDO, Injector, bench_config, bench_node, start_gateway, tpdo_frames
 from bench.stats import Summary, paired_ratios
-from gateway.zenoh_bridge.payloads import value_json, value_payload
+from canopen_gateway.zenoh_bridge.payloads import value_json, value_payload
 
 N_CALLS = 20_000
 

@@ -43,7 +43,7 @@ from bench.rig import (
 )
 from bench.stats import Summary, paired_ratios
 from bench.workers import start_subscriber
-from gateway.northbound.keys import pdo_key
+from canopen_gateway.northbound.keys import pdo_key
 
 SATURATED_BUS_FPS = 8_900  # 1 Mbit/s CAN, 8-byte data frames incl. stuffing (issue text)
 POSITION_SCALE = 0.1  # SGH10 profile: position in 0.1 mm steps

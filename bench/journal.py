@@ -20,7 +20,7 @@
 Then ``bench/journal_loads.py``: 4. a 100k-row history answer beside a plain get, 5. the PLC
 during a 100k-row export, 6. a stalled disk, 7. opening a full 256 MB journal (see there).
 
-Imports: bench.*, gateway.journal (the store, for 2 and to fill 3), zenoh, tests.zenoh_client (the
+Imports: bench.*, canopen_gateway.journal (the store, for 2 and to fill 3), zenoh, tests.zenoh_client (the
 session's config), the standard library; the gateway as a process (3) and in this process
 (``journal_loads``).
 """
@@ -45,7 +45,7 @@ from bench import journal_loads, linerate
 from bench.report import Row, Section
 from bench.rig import free_port
 from bench.stats import Summary
-from gateway.journal import Entry, Journal, ntp64_of_time
+from canopen_gateway.journal import Entry, Journal, ntp64_of_time
 from tests.zenoh_client import session_config
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -147,7 +147,7 @@ def backfill(n: int = BACKFILL_N) -> dict[str, float]:
     (tmp / "gw.yaml").write_text(yaml.safe_dump(cfg), encoding="utf-8")
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "run", "-c", str(tmp / "gw.yaml")],
+        [sys.executable, "-m", "canopen_gateway", "run", "-c", str(tmp / "gw.yaml")],
         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
     )  # fmt: skip
     conf = session_config("peer", connect=[listen])

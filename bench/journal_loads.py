@@ -20,7 +20,7 @@ it in its section):
    directly with SQLite), opened by ``Journal.open`` (the lock, the damage check, the marks):
    the time against an empty journal's (no full scan: milliseconds).
 
-Imports: bench.*, gateway.config, gateway.journal, zenoh (in the client processes), the standard
+Imports: bench.*, canopen_gateway.config, canopen_gateway.journal, zenoh (in the client processes), the standard
 library.
 """
 
@@ -45,8 +45,8 @@ from bench.plc_first import PlcPoller
 from bench.rig import free_port, gateway_of, unique_channel, wait_until
 from bench.stats import percentile
 from bench.workers import Worker
-from gateway.config import parse_config
-from gateway.journal import Entry, Journal, ntp64_of_time
+from canopen_gateway.config import parse_config
+from canopen_gateway.journal import Entry, Journal, ntp64_of_time
 
 PREFIX = "canopen/jload"
 KEY = f"{PREFIX}/wire/emcy"

@@ -602,7 +602,7 @@ async def _gateway_phase(
     cfg = _gateway_config(tmp / "gateway.yaml", server.port, publish, zenoh, batch_ms, journal)
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     log = open(tmp / "gateway.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
-    argv = [sys.executable, "-m", "gateway", "run", "-c", str(tmp / "gateway.yaml")]
+    argv = [sys.executable, "-m", "canopen_gateway", "run", "-c", str(tmp / "gateway.yaml")]
     if pipeline:  # the bare pipeline (bench/pipeline.py) on the same ports, in its place
         argv = [sys.executable, "-m", "bench.pipeline", "--can-port", str(server.port),
                 "--channel", CHANNEL, "--modbus-port", str(cfg["modbus"]["port"]),

@@ -148,7 +148,7 @@ async def _phase(networks: int) -> dict[str, Any]:
     cfg = _config(tmp / "gateway.yaml", [s.port for s in servers])
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     log = open(tmp / "gateway.log", "w", encoding="utf-8")  # noqa: SIM115 - closed below
-    proc = subprocess.Popen([sys.executable, "-m", "gateway", "run", "-c", str(tmp / "gateway.yaml")],
+    proc = subprocess.Popen([sys.executable, "-m", "canopen_gateway", "run", "-c", str(tmp / "gateway.yaml")],
                             cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
     feeders: list[Feeder] = []
     workers: list[Worker] = []

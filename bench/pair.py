@@ -95,7 +95,7 @@ class PairGateway:
         }
         self._log: IO[bytes] = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "gateway", "run", "-c", str(cfg), "--no-simulate", "--log-level", "info"],
+            [sys.executable, "-m", "canopen_gateway", "run", "-c", str(cfg), "--no-simulate", "--log-level", "info"],
             cwd=REPO, env=env, stdout=self._log, stderr=subprocess.STDOUT,
         )  # fmt: skip
 
@@ -202,7 +202,7 @@ async def run(
             heard = _Heard()
             notifier = can.Notifier(bus, [heard])
             sim = subprocess.Popen(
-                [sys.executable, "-m", "gateway", "simulate", "-c", str(cfg)],
+                [sys.executable, "-m", "canopen_gateway", "simulate", "-c", str(cfg)],
                 cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             )  # fmt: skip
             priority = {IDS[0]: 0, IDS[1]: 1}

@@ -164,7 +164,7 @@ def measure(
         workdir = pathlib.Path(tmp)
         cfg = pair_config(workdir, bus.can_section("devices"))
         sim = subprocess.Popen(
-            [sys.executable, "-m", "gateway", "simulate", "-c", str(cfg)],
+            [sys.executable, "-m", "canopen_gateway", "simulate", "-c", str(cfg)],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )  # fmt: skip
         gws: dict[str, PairGateway] = {}

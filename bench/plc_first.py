@@ -14,7 +14,7 @@ the first load and after the last.
 
 ``python -m bench plc-first`` (or ``python -m bench.plc_first``) prints the section.
 
-Imports: bench.*, gateway.config, the standard library (zenoh and tests.zenoh_client in the load
+Imports: bench.*, canopen_gateway.config, the standard library (zenoh and tests.zenoh_client in the load
 process only).
 """
 
@@ -37,7 +37,7 @@ from bench.report import Row, Section, render_section
 from bench.rig import free_port, gateway_of, unique_channel, wait_until
 from bench.stats import Summary, percentile
 from bench.workers import Worker
-from gateway.config import parse_config
+from canopen_gateway.config import parse_config
 
 PREFIX = "canopen/bench"
 PLC_PERIOD_S = 0.010

@@ -7,7 +7,7 @@ deep-copies every message for every receiver, a cost of the virtual bus only) or
 the receivers' queues (``send_direct``: the same message objects, no copy), so that the
 injector is not the bottleneck of what is measured.
 
-Imports: python-can, gateway.config, gateway.app. Never a test module.
+Imports: python-can, canopen_gateway.config, canopen_gateway.app. Never a test module.
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ from typing import Any
 
 import can
 
-from gateway.app import Gateway
-from gateway.config import Config, ConfigError, parse_config
-from gateway.device.resolved import resolve_nodes
+from canopen_gateway.app import Gateway
+from canopen_gateway.config import Config, ConfigError, parse_config
+from canopen_gateway.device.resolved import resolve_nodes
 
 #: SGH10 TPDO1 and TPDO2 (SGH10 manual 4.3.1.1 Table 5): position int32, velocity int16
 SGH10_TPDO = struct.Struct("<ih")

@@ -15,7 +15,7 @@ and the latency of node 1's positions to a polling Modbus client and to the Zeno
 per 2 s window. A second, shorter run tries the project's own simulator (``SimRunner`` with 127
 ``SimNode``) and reports the frame rate it reaches.
 
-Imports: bench.*, gateway (through bench.rig; gateway.sim for the simulator run).
+Imports: bench.*, gateway (through bench.rig; canopen_gateway.sim for the simulator run).
 """
 
 from __future__ import annotations
@@ -286,10 +286,10 @@ class SimRate:
     info = None
 
     def measure(self, n_nodes: int, duration_s: float) -> dict[str, float]:
-        from gateway.profiles import load_profile
-        from gateway.sim.node import SimNode
-        from gateway.sim.objects import PersistentStore
-        from gateway.sim.runner import SimRunner
+        from canopen_gateway.profiles import load_profile
+        from canopen_gateway.sim.node import SimNode
+        from canopen_gateway.sim.objects import PersistentStore
+        from canopen_gateway.sim.runner import SimRunner
 
         channel = unique_channel("simrate")
         lp = load_profile("sgh10")

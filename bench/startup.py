@@ -5,7 +5,7 @@ private virtual channel and free loopback ports. The clock runs from process sta
 (``subprocess.Popen``) to the first Modbus answer (the gateway's own unit 247, register 0: bus
 state), and on to the first process value of a simulated node (SGH10 ``wire``, input registers
 100-101: booted, configured by SDO, started, first TPDO decoded). Baselines in the same run:
-``python -c pass``, ``python -c "import gateway.app"`` and a bare pymodbus server process to its
+``python -c pass``, ``python -c "import canopen_gateway.app"`` and a bare pymodbus server process to its
 first answer. Requests are raw Modbus TCP frames on a plain socket (no client library to load).
 
 Imports: bench.*, yaml, the standard library (the gateway runs in a subprocess).
@@ -123,7 +123,7 @@ async def run(reps: int = 5, timeout_s: float = 20.0) -> Section:
         key="startup",
         title="5. Start-up: process start to first Modbus answer (demo config)",
         method=(
-            f'{reps} repetitions, each: `python -c pass`, `python -c "import gateway.app"`, a '
+            f'{reps} repetitions, each: `python -c pass`, `python -c "import canopen_gateway.app"`, a '
             "bare pymodbus server process to its first answer, and `canopen-gateway run -c "
             "demo.yaml` (five simulated devices; private channel and ports) to its first "
             "Modbus answer and to the first process value of a simulated node. Raw Modbus TCP "
@@ -138,7 +138,7 @@ async def run(reps: int = 5, timeout_s: float = 20.0) -> Section:
         cfg_path, port = demo_config(pathlib.Path(tmp))
         for _rep in range(reps):
             res["pass"].append(_wall([py, "-c", "pass"]))
-            res["import"].append(_wall([py, "-c", "import gateway.app"]))
+            res["import"].append(_wall([py, "-c", "import canopen_gateway.app"]))
             bare_port = free_port()
             t0 = time.perf_counter()
             proc = subprocess.Popen([py, "-c", BARE_SERVER, str(bare_port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
@@ -167,7 +167,7 @@ async def run(reps: int = 5, timeout_s: float = 20.0) -> Section:
             s(res["gw"]).median <= 1.5, digits=3),
         Row("process start -> first node value on Modbus (s)", s(res["gw_value"]), "bare pymodbus server",
             s(res["bare"]), s(paired_ratios(res["gw_value"], res["bare"])), digits=3),
-        Row("`python -c \"import gateway.app\"` (s)", s(res["import"]), "`python -c pass`",
+        Row("`python -c \"import canopen_gateway.app\"` (s)", s(res["import"]), "`python -c pass`",
             s(res["pass"]), s(paired_ratios(res["import"], res["pass"])), digits=3),
     ]  # fmt: skip
     return sec

@@ -32,7 +32,7 @@ import zenoh.ext
 from bench.report import Row, Section, render_section
 from bench.rig import free_port, gateway_of, unique_channel
 from bench.stats import Summary
-from gateway.config import parse_config
+from canopen_gateway.config import parse_config
 
 REPS = 3
 OUTAGE_S = 10.0

@@ -18,7 +18,7 @@ from typing import Any
 
 import can
 
-from gateway.checks import load_checked, parse_checked
+from canopen_gateway.checks import load_checked, parse_checked
 
 _port_counter = itertools.count()
 
@@ -92,20 +92,20 @@ def make_config(nodes: list[dict[str, Any]], **sections: Any) -> Any:
 
 
 def parse_checked_config(raw: Any, source: str = "<memory>", environ: Any = None) -> Any:
-    """``gateway.checks.parse_checked``'s config alone (a test resolves its nodes when it needs
+    """``canopen_gateway.checks.parse_checked``'s config alone (a test resolves its nodes when it needs
     them: ``resolved``)."""
     return parse_checked(raw, source, environ).cfg
 
 
 def load_checked_config(path: Any, environ: Any = None) -> Any:
-    """``gateway.checks.load_checked``'s config alone."""
+    """``canopen_gateway.checks.load_checked``'s config alone."""
     return load_checked(path, environ).cfg
 
 
 def resolved(cfg: Any) -> Any:
-    """The nodes of a bare Config, resolved (``gateway.device.resolved``), for a test that builds
+    """The nodes of a bare Config, resolved (``canopen_gateway.device.resolved``), for a test that builds
     a consumer (Master, ModbusGateway, the register map...) from it."""
-    from gateway.device.resolved import resolve_nodes
+    from canopen_gateway.device.resolved import resolve_nodes
 
     return resolve_nodes(cfg)[0]
 
@@ -117,14 +117,14 @@ def with_nodes(cfg: Any) -> tuple[Any, Any]:
 
 def gateway_of(cfg: Any, *args: Any, **kw: Any) -> Any:
     """``Gateway(cfg, nodes, ...)`` with the nodes of ``cfg`` resolved (``resolved``)."""
-    from gateway.app import Gateway
+    from canopen_gateway.app import Gateway
 
     return Gateway(cfg, resolved(cfg), *args, **kw)
 
 
 def simulated_bus(cfg: Any, names: list[str] | None = None) -> Any:
     """``SimulatedBus(cfg, nodes, names)`` with the nodes of ``cfg`` resolved (``resolved``)."""
-    from gateway.sim.buses import SimulatedBus
+    from canopen_gateway.sim.buses import SimulatedBus
 
     return SimulatedBus(cfg, resolved(cfg), names)
 
@@ -181,8 +181,8 @@ def with_position(name: str) -> Callable[[Any], bool]:
 
 def node_operational(gw: Any, name: str) -> bool:
     """Configured, NMT operational and alive."""
-    from gateway.bus.node.lifecycle import LifecycleState
-    from gateway.image import NmtState
+    from canopen_gateway.bus.node.lifecycle import LifecycleState
+    from canopen_gateway.image import NmtState
 
     rt = gw.master.nodes[name]
     return (
@@ -235,7 +235,7 @@ def gateway_process(config: Any, *args: str) -> Any:
     from pathlib import Path
 
     return subprocess.Popen(
-        [sys.executable, "-m", "gateway", "run", "-c", str(config), "--log-level", "warning", *args],
+        [sys.executable, "-m", "canopen_gateway", "run", "-c", str(config), "--log-level", "warning", *args],
         cwd=Path(__file__).resolve().parents[1],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -34,7 +34,7 @@ loopback), also while the member is cut, and they are one member for ``cut`` and
 order is the record order) and a writer (its own queue, so a member that stops reading, e.g. a
 frozen process, holds up no one). It never pauses.
 
-Imports: python-can, gateway.bus.socketcand_bus (the client of every member) and the standard library.
+Imports: python-can, canopen_gateway.bus.socketcand_bus (the client of every member) and the standard library.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from typing import Any
 
 import can
 
-from gateway.bus.socketcand_bus import SocketcandBus
+from canopen_gateway.bus.socketcand_bus import SocketcandBus
 
 
 @dataclass(frozen=True)
@@ -143,7 +143,7 @@ class PairBus:
 
     def open_bus(self, name: str) -> can.BusABC:
         """A python-can bus in this process as member ``name`` (the socketcand client a gateway
-        opens, ``gateway.bus.socketcand_bus``), shut down by ``close()``. Returns once the relay
+        opens, ``canopen_gateway.bus.socketcand_bus``), shut down by ``close()``. Returns once the relay
         counts it connected."""
         with self._lock:
             joins = self.joins.get(name, 0)

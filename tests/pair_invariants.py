@@ -15,7 +15,7 @@ and print what broke.
   watchdog on, the safe outputs went out no sooner than ``watchdog_s`` after the PLC's last
   write and no later than ``watchdog_s`` + one take-over after it (times on one clock).
 
-Imports: gateway.bus.node.outputs (the image's type), gateway.canopen.cia301, the standard
+Imports: canopen_gateway.bus.node.outputs (the image's type), canopen_gateway.canopen.cia301, the standard
 library.
 """
 
@@ -24,8 +24,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from gateway.bus.node.outputs import OutputImage
-from gateway.canopen.cia301 import COB_SDO_RX
+from canopen_gateway.bus.node.outputs import OutputImage
+from canopen_gateway.canopen.cia301 import COB_SDO_RX
 
 #: (COB-ID, data) of one frame
 Frame = tuple[int, bytes]

@@ -27,7 +27,7 @@ content made: an older write's or a member's defaults); after a take-over, an RP
 active member sends before its first write that is not what was last sent in it, when the new
 member sent or heard that frame (the model sees what it knew).
 
-Imports: gateway.bus.pair, gateway.bus.node, gateway.bus.driver (``stamp``), gateway.canopen,
+Imports: canopen_gateway.bus.pair, canopen_gateway.bus.node, canopen_gateway.bus.driver (``stamp``), canopen_gateway.canopen,
 tests.helpers, tests.unit.test_node (the scripted device's SDO and NMT).
 """
 
@@ -41,13 +41,13 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any
 
-from gateway.bus.driver import BusDriver
-from gateway.bus.events import Send as NodeSend
-from gateway.bus.node import listening
-from gateway.bus.node.node import Node
-from gateway.bus.node.outputs import OutputImage
-from gateway.bus.node.parts import build_node
-from gateway.bus.pair.flying_master import (
+from canopen_gateway.bus.driver import BusDriver
+from canopen_gateway.bus.events import Send as NodeSend
+from canopen_gateway.bus.node import listening
+from canopen_gateway.bus.node.node import Node
+from canopen_gateway.bus.node.outputs import OutputImage
+from canopen_gateway.bus.node.parts import build_node
+from canopen_gateway.bus.pair.flying_master import (
     FLYING_MASTER_COB_IDS,
     FlyingMaster,
     Notice,
@@ -56,11 +56,11 @@ from gateway.bus.pair.flying_master import (
     RoleChanged,
     Send,
 )
-from gateway.canopen.cia301 import NMT_COMMANDS
-from gateway.canopen.states import NmtState
-from gateway.errors import NodeNotOperational
-from gateway.image import NodeImage
-from gateway.profiles import expected_identity
+from canopen_gateway.canopen.cia301 import NMT_COMMANDS
+from canopen_gateway.canopen.states import NmtState
+from canopen_gateway.errors import NodeNotOperational
+from canopen_gateway.image import NodeImage
+from canopen_gateway.profiles import expected_identity
 from tests.helpers import make_config, resolved
 from tests.unit.test_node import Device
 

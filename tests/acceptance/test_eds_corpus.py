@@ -25,16 +25,16 @@ import canopen
 import pytest
 from canopen.objectdictionary import datatypes as dt
 
-from gateway.canopen.cia301 import TYPE_NAMES
-from gateway.canopen.objref import ObjRef
-from gateway.cli import main
-from gateway.config import ConfigError
-from gateway.eds import lint, load_eds
-from gateway.eds.parse import read_text
-from gateway.modbus.protocol import from_registers, to_registers
-from gateway.northbound.regmap import build_register_map
-from gateway.pdo.codec import compile_node
-from gateway.profiles import ProfileError, load_node_profile
+from canopen_gateway.canopen.cia301 import TYPE_NAMES
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.cli import main
+from canopen_gateway.config import ConfigError
+from canopen_gateway.eds import lint, load_eds
+from canopen_gateway.eds.parse import read_text
+from canopen_gateway.modbus.protocol import from_registers, to_registers
+from canopen_gateway.northbound.regmap import build_register_map
+from canopen_gateway.pdo.codec import compile_node
+from canopen_gateway.profiles import ProfileError, load_node_profile
 from tests.helpers import parse_checked_config, with_nodes
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eds-corpus"

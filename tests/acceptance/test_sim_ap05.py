@@ -8,9 +8,9 @@ from __future__ import annotations
 import can
 import pytest
 
-from gateway.profiles import load_profile
-from gateway.sim.node import NmtState, SimNode
-from gateway.sim.objects import PersistentStore
+from canopen_gateway.profiles import load_profile
+from canopen_gateway.sim.node import NmtState, SimNode
+from canopen_gateway.sim.objects import PersistentStore
 from tests.helpers import frame
 
 

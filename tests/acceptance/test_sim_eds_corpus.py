@@ -16,10 +16,10 @@ from typing import Any
 
 import pytest
 
-from gateway.checks import check_config
-from gateway.config import ConfigError
-from gateway.image import Quality
-from gateway.profiles import ProfileError
+from canopen_gateway.checks import check_config
+from canopen_gateway.config import ConfigError
+from canopen_gateway.image import Quality
+from canopen_gateway.profiles import ProfileError
 from tests.helpers import gateway_of, make_config, resolved, wait_until
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eds-corpus"

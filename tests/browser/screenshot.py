@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from gateway.config import load_config
+from canopen_gateway.config import load_config
 from tests.browser.chromium import chromium
 from tests.helpers import free_port, gateway_of, node_operational, wait_until
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.browser.chromium import BrowserUnavailable, chromium
 from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 

@@ -198,7 +198,7 @@ async def test_the_new_sections_fit_1280_px(browser: Any) -> None:
 def test_the_chart_library_is_vendored_with_its_licence() -> None:
     from importlib import resources
 
-    static = resources.files("gateway.web").joinpath("static")
+    static = resources.files("canopen_gateway.web").joinpath("static")
     js = static.joinpath("uPlot.iife.min.js").read_text()
     assert js.startswith("/*! https://github.com/leeoniya/uPlot (v1.6.32) */")
     licence = static.joinpath("uPlot.LICENSE.txt").read_text()

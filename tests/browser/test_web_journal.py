@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.browser.test_web_console import browser, run, wait_for  # noqa: F401 - the fixture
 from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_zenoh_history import raise_and_clear

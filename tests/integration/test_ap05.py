@@ -17,8 +17,8 @@ import zenoh
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
-from gateway.app import Gateway
-from gateway.image import LinkState, NmtState
+from canopen_gateway.app import Gateway
+from canopen_gateway.image import LinkState, NmtState
 from tests.helpers import free_port, gateway_of, make_config, operational, simulated_bus, wait_until
 from tests.zenoh_client import ZClient
 

@@ -21,9 +21,9 @@ import canopen
 import pytest
 import yaml
 
-from gateway.app import Gateway
-from gateway.canopen.states import NmtState
-from gateway.cli import main
+from canopen_gateway.app import Gateway
+from canopen_gateway.canopen.states import NmtState
+from canopen_gateway.cli import main
 from tests.helpers import free_port, gateway_of, make_config, unique_channel, wait_until
 
 EDS = Path(__file__).resolve().parents[1] / "data" / "eds" / "io401.eds"

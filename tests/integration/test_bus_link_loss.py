@@ -1,5 +1,5 @@
 """A gateway whose CAN connection is lost notices it, idles, and reopens with its backoff
-(``gateway/bus/driver.py``, ``gateway/bus/socketcand_bus.py``), whatever the interface:
+(``canopen_gateway/bus/driver.py``, ``canopen_gateway/bus/socketcand_bus.py``), whatever the interface:
 
 - ``socketcand`` on the pair's test bus (``tests/pair_bus.py``): the adapter unplugged (the
   server closes the connection and refuses it until plugged again: python-can's own socketcand
@@ -25,7 +25,7 @@ from typing import Any
 import can
 import pytest
 
-from gateway.bus.socketcand_bus import SocketcandBus
+from canopen_gateway.bus.socketcand_bus import SocketcandBus
 from tests.helpers import (
     free_port,
     master_running,
@@ -182,8 +182,8 @@ async def test_a_remote_can_server_killed_takes_the_bus_down_and_it_reopens_when
 def test_a_bus_that_cannot_open_at_start_is_said_down_and_opens_when_its_server_comes() -> None:
     """``on_state`` hears "down" from the start (the pair's role machine must know), and the
     reader retries a socketcand server nobody runs once per backoff, refused at once."""
-    from gateway.bus.driver import BusDriver
-    from gateway.image import ProcessImage
+    from canopen_gateway.bus.driver import BusDriver
+    from canopen_gateway.image import ProcessImage
 
     with PairBus() as pair:
         pair.unplug("gw")  # the server refuses member gw, as a daemon without that channel

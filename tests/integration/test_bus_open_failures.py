@@ -1,6 +1,6 @@
 """A CAN bus that cannot be opened, for every command that opens it: one line on stderr naming
 ``can.interface`` / ``can.channel``, the reason the OS or the backend gave and a hint, exit 2,
-no traceback (``gateway.tools.bus_open``).
+no traceback (``canopen_gateway.tools.bus_open``).
 
 Two buses that cannot open on this machine: SocketCAN ``can9`` (this kernel has no AF_CAN,
 errno 97; a kernel with SocketCAN and no such interface says errno 19) and a ``remote`` CAN
@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.entry import main as entry_main
+from canopen_gateway.entry import main as entry_main
 from tests.helpers import free_port
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
@@ -97,7 +97,7 @@ def test_the_socketcan_line_says_why_and_what_to_check(
 def test_scan_as_its_own_process_prints_no_traceback(tmp_path: Path) -> None:
     cfg = write_config(tmp_path / "plant.yaml", BUSES["remote"][0])
     proc = subprocess.run(
-        [sys.executable, "-m", "gateway", "scan", "-c", str(cfg), "--active"],
+        [sys.executable, "-m", "canopen_gateway", "scan", "-c", str(cfg), "--active"],
         capture_output=True,
         text=True,
         timeout=60,
@@ -127,7 +127,7 @@ def test_run_opens_its_bus_once(
     client, as a socketcand stub may, is not used up by a trial open before the start)."""
     import can
 
-    import gateway.cli.serve as serve
+    import canopen_gateway.cli.serve as serve
     from tests.helpers import unique_channel
 
     opened: list[dict[str, Any]] = []

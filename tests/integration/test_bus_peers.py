@@ -15,8 +15,8 @@ import can
 import canopen
 import pytest
 
-from gateway.bus.bus_peers import BusPeers
-from gateway.canopen.connection_set import describe_cob_id
+from canopen_gateway.bus.bus_peers import BusPeers
+from canopen_gateway.canopen.connection_set import describe_cob_id
 from tests.helpers import free_port, master_running, node_operational, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.cli import build_parser, main, serve
+from canopen_gateway.cli import build_parser, main, serve
 from tests.helpers import free_port, stop_process
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -52,7 +52,7 @@ def test_canopen_gateway_demo_1_makes_the_images_command_run_the_demo(tmp_path: 
     (tmp_path / "demo.yaml").write_text(yaml.safe_dump(demo))
     env = {"CANOPEN_GATEWAY_DEMO": "1", "CANOPEN_GATEWAY_DEMO_CONFIG": str(tmp_path / "demo.yaml"),
            "PATH": "/usr/bin:/bin"}  # fmt: skip
-    proc = subprocess.Popen([sys.executable, "-m", "gateway", "run", "-c", IMAGE_CONFIG], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "canopen_gateway", "run", "-c", IMAGE_CONFIG], cwd=ROOT,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:
         assert proc.stdout is not None

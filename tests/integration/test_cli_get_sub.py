@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.app import Gateway
-from gateway.checks import load_checked
-from gateway.cli import main
+from canopen_gateway.app import Gateway
+from canopen_gateway.checks import load_checked
+from canopen_gateway.cli import main
 from tests.helpers import free_port, node_operational, unique_channel, wait_until
 
 

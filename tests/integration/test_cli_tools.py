@@ -19,9 +19,9 @@ import canopen
 import pytest
 import yaml
 
-from gateway.bus.can_backend import installed_interfaces, interface_problem
-from gateway.cli import format_sdo_int, main
-from gateway.profiles import load_profile
+from canopen_gateway.bus.can_backend import installed_interfaces, interface_problem
+from canopen_gateway.cli import format_sdo_int, main
+from canopen_gateway.profiles import load_profile
 from tests.helpers import free_port, unique_channel
 
 REPO = Path(__file__).resolve().parents[2]
@@ -45,7 +45,7 @@ def write_config(tmp_path: Path, **sections: Any) -> Path:
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "gateway", *args],
+        [sys.executable, "-m", "canopen_gateway", *args],
         cwd=REPO,
         capture_output=True,
         text=True,

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.config import load_config
+from canopen_gateway.config import load_config
 from tests.helpers import free_port, gateway_of, start_can_remote, wait_can_remote, wait_until
 
 pytest.importorskip("can_remote")
@@ -37,7 +37,7 @@ async def test_gateway_serves_devices_simulated_in_another_process(tmp_path: Pat
     try:
         wait_can_remote(server, port)
         sim = subprocess.Popen(
-            [sys.executable, "-m", "gateway", "simulate", "-c", str(cfg_file)],
+            [sys.executable, "-m", "canopen_gateway", "simulate", "-c", str(cfg_file)],
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,

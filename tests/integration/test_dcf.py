@@ -14,9 +14,9 @@ import canopen
 import pytest
 import yaml
 
-from gateway.canopen.objref import ObjRef
-from gateway.cli import main
-from gateway.device.dcf import final_values
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.cli import main
+from canopen_gateway.device.dcf import final_values
 from tests.helpers import load_checked_config, with_nodes
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -13,7 +13,7 @@ import can
 from prometheus_client.parser import text_string_to_metric_families
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import frame, free_port, gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_health_http import http_get
 

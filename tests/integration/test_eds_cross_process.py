@@ -22,7 +22,7 @@ import pytest
 import yaml
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.image import Quality
+from canopen_gateway.image import Quality
 from tests.helpers import free_port, start_can_remote, wait_can_remote, wait_until
 from tests.integration.test_eds_devices import IO, Heartbeat, boot
 from tests.zenoh_client import ZClient, sample_where
@@ -65,7 +65,7 @@ async def test_eds_only_node_served_by_a_gateway_process_over_python_can_remote(
     try:
         wait_can_remote(server, can_port)
         gw = subprocess.Popen(
-            [sys.executable, "-m", "gateway", "run", "-c", str(cfg)],
+            [sys.executable, "-m", "canopen_gateway", "run", "-c", str(cfg)],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,

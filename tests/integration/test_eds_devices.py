@@ -20,8 +20,8 @@ import can
 import canopen
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
-from gateway.image import Quality
+from canopen_gateway.app import Gateway
+from canopen_gateway.image import Quality
 from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient
 

@@ -15,11 +15,11 @@ import can
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.cli import main
-from gateway.config import ConfigError, NodeConfig
-from gateway.device.settings import resolve_node_settings
-from gateway.image import Quality
-from gateway.profiles import load_node_profile
+from canopen_gateway.cli import main
+from canopen_gateway.config import ConfigError, NodeConfig
+from canopen_gateway.device.settings import resolve_node_settings
+from canopen_gateway.image import Quality
+from canopen_gateway.profiles import load_node_profile
 from tests.helpers import gateway_of, make_config, modbus_gateway, operational, wait_until
 from tests.integration.test_eds_devices import boot, gateway_with, local_node
 
@@ -317,7 +317,7 @@ async def test_an_encoder_file_that_maps_nothing_is_warned_of_and_never_served_a
         assert not [m for m in frames if m.arbitration_id in (0x18B, 0x28B)]
         rr = await client.read_input_registers(0, count=1, device_id=11)
         assert rr.registers == [2]  # bad: no value to serve
-        from gateway.web.views import ConsoleModel
+        from canopen_gateway.web.views import ConsoleModel
 
         model = ConsoleModel(gw.cfg, gw.image, gw.commands, gw.overview, regmap=gw.modbus.regmap)
         row = model.node_row("enc")

@@ -14,7 +14,7 @@ from typing import Any
 
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_web_http import http
 from tests.zenoh_client import ZClient
@@ -139,7 +139,7 @@ async def test_the_event_log_says_where_a_fault_came_from() -> None:
     import asyncio
     import urllib.request
 
-    from gateway.sim.faults_client import run_fault
+    from canopen_gateway.sim.faults_client import run_fault
 
     async with demo() as (gw, base, _, _):
         assert await asyncio.to_thread(run_fault, gw.cfg, "wire", "heartbeat-off", base) == 0

@@ -41,7 +41,7 @@ def fleet_config(tmp: Path, name: str, endpoint: str, mode: str = "client") -> P
 def start_gateway(cfg: Path) -> subprocess.Popen[str]:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.Popen(
-        [sys.executable, "-m", "gateway", "run", "-c", str(cfg)],
+        [sys.executable, "-m", "canopen_gateway", "run", "-c", str(cfg)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -10,8 +10,8 @@ import urllib.request
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from gateway.http.metrics import Metrics, NodeSample
-from gateway.http.server import HealthServer, build_status
+from canopen_gateway.http.metrics import Metrics, NodeSample
+from canopen_gateway.http.server import HealthServer, build_status
 
 TIMEOUT_S = 5.0
 

@@ -29,12 +29,12 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
-from gateway.app import Gateway
-from gateway.cli import main
-from gateway.config import ConfigError, parse_config
-from gateway.http.server import HealthServer
-from gateway.http.tls import server_context
-from gateway.sim.faults_client import run_fault
+from canopen_gateway.app import Gateway
+from canopen_gateway.cli import main
+from canopen_gateway.config import ConfigError, parse_config
+from canopen_gateway.http.server import HealthServer
+from canopen_gateway.http.tls import server_context
+from canopen_gateway.sim.faults_client import run_fault
 from tests.helpers import free_port, gateway_of, make_config
 
 TIMEOUT_S = 5.0

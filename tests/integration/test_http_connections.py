@@ -11,8 +11,8 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from http import HTTPStatus
 
-from gateway.http.connection import MAX_REQUEST_BODY_BYTES
-from gateway.http.server import HealthServer, Request, Response
+from canopen_gateway.http.connection import MAX_REQUEST_BODY_BYTES
+from canopen_gateway.http.server import HealthServer, Request, Response
 from tests.helpers import wait_until
 
 TIMEOUT_S = 5.0

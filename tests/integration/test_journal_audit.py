@@ -12,7 +12,7 @@ from typing import Any
 
 import zenoh
 
-from gateway.journal import Row
+from canopen_gateway.journal import Row
 from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.integration.test_ascii_gateway import WIRE, Client
 from tests.integration.test_zenoh_auth import USERS, UserClient, session_conf

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import yaml
 
-from gateway.journal import Journal
+from canopen_gateway.journal import Journal
 from tests.helpers import free_port, gateway_process, unique_channel, wait_ready
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -41,7 +41,7 @@ def test_check_and_run_refuse_a_journal_path_that_cannot_be_created(tmp_path: Pa
             proc = gateway_process(cfg)
         else:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "gateway", *args],
+                [sys.executable, "-m", "canopen_gateway", *args],
                 cwd=ROOT,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
@@ -57,7 +57,7 @@ def test_check_and_run_refuse_a_journal_path_that_cannot_be_created(tmp_path: Pa
 def test_check_creates_a_missing_journal_directory(tmp_path: Path) -> None:
     cfg = write_config(tmp_path, "state/journal")  # relative to the config file
     proc = subprocess.run(
-        [sys.executable, "-m", "gateway", "check", "-c", str(cfg)],
+        [sys.executable, "-m", "canopen_gateway", "check", "-c", str(cfg)],
         cwd=ROOT,
         capture_output=True,
         text=True,

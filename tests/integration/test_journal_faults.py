@@ -33,7 +33,7 @@ import yaml
 import zenoh
 import zenoh.ext
 
-from gateway.journal import Journal
+from canopen_gateway.journal import Journal
 from tests.helpers import free_port, stop_process, wait_ready, wait_until_sync
 from tests.integration.test_journal_processes import Bus, kill
 from tests.zenoh_client import open_router, session_config
@@ -66,7 +66,7 @@ def start(config: Path, env: dict[str, str] | None = None) -> subprocess.Popen[s
     log = open(config.with_suffix(".log"), "a", encoding="utf-8")
     try:
         return subprocess.Popen(
-            [sys.executable, "-m", "gateway", "run", "-c", str(config), "--log-level", "warning"],
+            [sys.executable, "-m", "canopen_gateway", "run", "-c", str(config), "--log-level", "warning"],
             cwd=ROOT, stdout=subprocess.PIPE, stderr=log, text=True,
             env={**os.environ, **(env or {})},
         )  # fmt: skip

@@ -25,7 +25,7 @@ import pytest
 import yaml
 import zenoh
 
-from gateway.journal import Journal
+from canopen_gateway.journal import Journal
 from tests.helpers import (
     free_port,
     gateway_process,

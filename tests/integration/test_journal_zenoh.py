@@ -13,7 +13,7 @@ from typing import Any
 
 import zenoh
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import gateway_of, make_config, wait_until, wait_until_sync
 from tests.integration.test_zenoh_history import raise_and_clear
 from tests.zenoh_client import ZClient

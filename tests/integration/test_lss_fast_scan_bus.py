@@ -12,7 +12,7 @@ import canopen
 import pytest
 import yaml
 
-from gateway.cli import main
+from canopen_gateway.cli import main
 from tests.helpers import load_checked_config, unique_channel, with_nodes
 
 SGH10 = (0x195, 0xFFFFFFFF, 0xFFFFFFFF)  # SGH10 manual 4.6: vendor, product, revision
@@ -62,7 +62,7 @@ def test_fast_scan_without_unconfigured_devices_fails_in_words(
 
 
 def test_python_canopens_master_finds_the_unconfigured_device_on_our_simulator(tmp_path: Path) -> None:
-    from gateway.sim.buses import SimulatedBus
+    from canopen_gateway.sim.buses import SimulatedBus
 
     raw = yaml.safe_load(config(tmp_path).read_text(encoding="utf-8"))
     del raw["simulate"]["options"]["enc_b"]  # one unconfigured device: python canopen's master

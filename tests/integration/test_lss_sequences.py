@@ -18,7 +18,7 @@ import can
 import pytest
 import yaml
 
-from gateway.cli import main
+from canopen_gateway.cli import main
 from tests.helpers import unique_channel
 
 VENDOR, PRODUCT, REVISION = 0x195, 0xFFFFFFFF, 0xFFFFFFFF  # SGH10 manual 4.6

@@ -6,9 +6,9 @@ from __future__ import annotations
 import can
 import pytest
 
-from gateway.bus.driver import BusDriver
-from gateway.errors import BusDown
-from gateway.image import ProcessImage
+from canopen_gateway.bus.driver import BusDriver
+from canopen_gateway.errors import BusDown
+from canopen_gateway.image import ProcessImage
 from tests.helpers import master_running as running
 from tests.helpers import node_operational as operational
 from tests.helpers import unique_channel, wait_until

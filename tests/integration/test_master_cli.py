@@ -14,7 +14,7 @@ import can
 import pytest
 import yaml
 
-from gateway.cli import main
+from canopen_gateway.cli import main
 from tests.helpers import unique_channel
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

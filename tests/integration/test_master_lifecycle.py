@@ -9,11 +9,11 @@ from typing import Any
 
 import can
 
-from gateway.bus.node.lifecycle import LifecycleState
-from gateway.canopen.objref import ObjRef
-from gateway.config import load_config
-from gateway.device.boot_steps import build_boot_steps
-from gateway.profiles import load_profile
+from canopen_gateway.bus.node.lifecycle import LifecycleState
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.config import load_config
+from canopen_gateway.device.boot_steps import build_boot_steps
+from canopen_gateway.profiles import load_profile
 from tests.helpers import gateway_of, make_config, simulated_bus, wait_until
 from tests.helpers import master_running as running
 from tests.helpers import node_operational as operational

@@ -16,8 +16,8 @@ import can
 import pytest
 import yaml
 
-from gateway.app import Gateway
-from gateway.errors import NodeNotOperational, SdoAbort, SdoTimeout
+from canopen_gateway.app import Gateway
+from canopen_gateway.errors import NodeNotOperational, SdoAbort, SdoTimeout
 from tests.helpers import gateway_of, make_config, unique_channel, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
@@ -148,7 +148,7 @@ def _config_file(tmp_path: Path) -> Path:
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "gateway", *args],
+        [sys.executable, "-m", "canopen_gateway", *args],
         cwd=REPO,
         capture_output=True,
         text=True,

@@ -10,9 +10,9 @@ from typing import Any
 
 import can
 
-from gateway.app import Gateway
-from gateway.canopen.states import NmtState
-from gateway.image import Quality
+from canopen_gateway.app import Gateway
+from canopen_gateway.canopen.states import NmtState
+from canopen_gateway.image import Quality
 from tests.helpers import master_running as running
 from tests.helpers import node_operational as operational
 from tests.helpers import wait_until

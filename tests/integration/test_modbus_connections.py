@@ -204,7 +204,7 @@ def test_a_flood_of_idle_connections_under_the_default_file_limit_leaves_the_plc
         "simulate": {"nodes": "all"},
     }))  # fmt: skip
     proc = subprocess.Popen(
-        ["prlimit", "--nofile=1024", sys.executable, "-m", "gateway", "run", "-c", str(config)],
+        ["prlimit", "--nofile=1024", sys.executable, "-m", "canopen_gateway", "run", "-c", str(config)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     flood: list[socket.socket] = []

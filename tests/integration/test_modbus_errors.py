@@ -13,8 +13,8 @@ import pytest
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
-from gateway.app import Gateway
-from gateway.image import NmtState, Quality
+from canopen_gateway.app import Gateway
+from canopen_gateway.image import NmtState, Quality
 from tests.helpers import make_config, modbus_gateway, wait_until, with_position
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

@@ -12,7 +12,7 @@ from collections.abc import AsyncIterator
 
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import gateway_of, make_config, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

@@ -10,8 +10,8 @@ import struct
 
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway import __version__
-from gateway.modbus.identity import respond
+from canopen_gateway import __version__
+from canopen_gateway.modbus.identity import respond
 from tests.integration.test_eds_devices import IO, gateway_with
 from tests.integration.test_modbus_frames import ask, running
 

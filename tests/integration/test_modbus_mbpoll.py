@@ -12,7 +12,7 @@ from collections.abc import AsyncIterator
 
 import pytest
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import gateway_of, make_config, wait_until
 
 pytestmark = pytest.mark.skipif(

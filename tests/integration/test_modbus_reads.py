@@ -13,8 +13,8 @@ from typing import Any
 import can
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
-from gateway.image import LinkState
+from canopen_gateway.app import Gateway
+from canopen_gateway.image import LinkState
 from tests.helpers import make_config, modbus_gateway, wait_until, with_position
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}  # SGH10: position int32, velocity int16

@@ -28,9 +28,9 @@ from cryptography.x509.oid import NameOID
 from pymodbus.client import AsyncModbusTlsClient
 from pymodbus.exceptions import ModbusException
 
-from gateway.app import Gateway
-from gateway.config import ConfigError
-from gateway.modbus.security import ROLE_OID, access_of, certificate_role
+from canopen_gateway.app import Gateway
+from canopen_gateway.config import ConfigError
+from canopen_gateway.modbus.security import ROLE_OID, access_of, certificate_role
 from tests.helpers import gateway_of, make_config, wait_until
 
 DISPLAY = {"name": "display", "node_id": 125, "profile": "ap05"}
@@ -332,7 +332,7 @@ async def test_a_busy_tls_port_is_named_by_its_own_key_with_the_plain_port(
     pki: dict[str, Any],
 ) -> None:
     """Both Modbus ports taken: one start names both, the TLS one by ``modbus.tls.port``."""
-    from gateway.runtime.startup import StartupError
+    from canopen_gateway.runtime.startup import StartupError
 
     holders = []
     for _ in range(2):

@@ -10,8 +10,8 @@ from typing import Any
 
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
-from gateway.northbound.regmap import Point
+from canopen_gateway.app import Gateway
+from canopen_gateway.northbound.regmap import Point
 from tests.helpers import make_config, modbus_gateway, operational, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

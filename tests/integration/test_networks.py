@@ -12,9 +12,13 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from gateway.journal import Journal
-from gateway.northbound.gateway_block import NETWORK_BUS_STATE, NETWORK_PAIR_ROLE, NETWORKS_REGISTER
-from gateway.zenoh_bridge.payloads import state_payload
+from canopen_gateway.journal import Journal
+from canopen_gateway.northbound.gateway_block import (
+    NETWORK_BUS_STATE,
+    NETWORK_PAIR_ROLE,
+    NETWORKS_REGISTER,
+)
+from canopen_gateway.zenoh_bridge.payloads import state_payload
 from tests.helpers import (
     free_port,
     modbus_gateway,

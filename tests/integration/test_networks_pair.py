@@ -23,9 +23,9 @@ from typing import Any
 import can
 import pytest
 
-from gateway.app import Gateway
-from gateway.config import parse_config
-from gateway.errors import NotActive
+from canopen_gateway.app import Gateway
+from canopen_gateway.config import parse_config
+from canopen_gateway.errors import NotActive
 from tests.helpers import free_port, gateway_of, simulated_bus, unique_channel, wait_until
 
 LOGICAL = 100

@@ -101,7 +101,7 @@ def gateway(tmp: Path, raw: dict[str, Any], tag: str = "gw") -> Iterator[subproc
     path = tmp / f"{tag}.yaml"
     path.write_text(yaml.safe_dump(raw))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "run", "-c", str(path), "--log-level", "warning"],
+        [sys.executable, "-m", "canopen_gateway", "run", "-c", str(path), "--log-level", "warning"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
     )  # fmt: skip
     try:

@@ -14,9 +14,9 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.app import Gateway
-from gateway.checks import load_checked
-from gateway.cli import main
+from canopen_gateway.app import Gateway
+from canopen_gateway.checks import load_checked
+from canopen_gateway.cli import main
 from tests.helpers import free_port, unique_channel, wait_until
 from tests.integration.test_web_http import http
 

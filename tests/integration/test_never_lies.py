@@ -19,10 +19,10 @@ import canopen
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
-from gateway.canopen.states import NmtState
-from gateway.image import Quality
-from gateway.profiles import load_profile
+from canopen_gateway.app import Gateway
+from canopen_gateway.canopen.states import NmtState
+from canopen_gateway.image import Quality
+from canopen_gateway.profiles import load_profile
 from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient, sample_where
 

@@ -20,9 +20,9 @@ from typing import Any
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
-from gateway.checks import check_config
-from gateway.config import ConfigError
+from canopen_gateway.app import Gateway
+from canopen_gateway.checks import check_config
+from canopen_gateway.config import ConfigError
 from tests.helpers import free_port, gateway_of, make_config, wait_until, with_nodes
 from tests.integration.test_eds_devices import IO, SdoLog, gateway_with
 from tests.integration.test_modbus_tls import SET_POINT1, Pki, client_for, secure_gateway

@@ -16,11 +16,11 @@ from typing import Any
 import can
 import pytest
 
-from gateway.app import Gateway
-from gateway.config import parse_config
-from gateway.errors import NotActive
-from gateway.image import Quality
-from gateway.sim.buses import SimulatedBus
+from canopen_gateway.app import Gateway
+from canopen_gateway.config import parse_config
+from canopen_gateway.errors import NotActive
+from canopen_gateway.image import Quality
+from canopen_gateway.sim.buses import SimulatedBus
 from tests.helpers import gateway_of, make_config, node_operational, simulated_bus, wait_until
 
 LOGICAL = 100

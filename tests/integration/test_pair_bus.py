@@ -105,7 +105,7 @@ def test_an_unplugged_member_reads_eof_and_is_refused_until_plugged(bus: PairBus
 
 def test_unplug_closes_the_connection_the_client_sees_eof(bus: PairBus) -> None:
     """What a socketcand client makes of the EOF is the client's business
-    (``gateway.bus.socketcand_bus``); here: the relay closed its side (a raw read gets 0 bytes)."""
+    (``canopen_gateway.bus.socketcand_bus``); here: the relay closed its side (a raw read gets 0 bytes)."""
     import socket
 
     with socket.create_connection(("127.0.0.1", bus.port), timeout=10) as s:

@@ -37,8 +37,8 @@ import pytest
 import yaml
 from pymodbus.client import ModbusTcpClient
 
-from gateway.config import load_config
-from gateway.northbound.regmap import build_register_map
+from canopen_gateway.config import load_config
+from canopen_gateway.northbound.regmap import build_register_map
 from tests.flying_master_302 import FlyingMaster302
 from tests.helpers import free_port, stop_process, wait_ready, wait_until_sync, with_nodes
 from tests.pair_bus import PairBus
@@ -92,8 +92,8 @@ GUARDED = {"supervision": "guarding", "guard_time_ms": 200, "life_time_factor": 
 RTR_BUS = """
 import sys
 import can
-from gateway.bus import socketcand_bus
-from gateway.entry import main
+from canopen_gateway.bus import socketcand_bus
+from canopen_gateway.entry import main
 plain = socketcand_bus._message
 def message(line, channel):
     msg = plain(line, channel)
@@ -109,7 +109,7 @@ sys.exit(main(sys.argv[1:]))
 
 def gateway_argv(rtr: bool) -> list[str]:
     """The command that runs ``canopen-gateway``: plain, or on a bus that carries RTRs."""
-    return [sys.executable, "-c", RTR_BUS] if rtr else [sys.executable, "-m", "gateway"]
+    return [sys.executable, "-c", RTR_BUS] if rtr else [sys.executable, "-m", "canopen_gateway"]
 
 
 def write_config(tmp: Path, bus: PairBus, guarded: bool = False) -> Path:

@@ -23,13 +23,13 @@ from typing import Any
 import can
 import canopen
 
-from gateway.app import Gateway
-from gateway.image import Quality
+from canopen_gateway.app import Gateway
+from canopen_gateway.image import Quality
 from tests.helpers import gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_eds_devices import Heartbeat, boot, local_node
 from tests.integration.test_pair import Sent, member_configs
 
-EDS = Path(__file__).resolve().parents[2] / "gateway" / "profiles" / "posi_plus.eds"
+EDS = Path(__file__).resolve().parents[2] / "canopen_gateway" / "profiles" / "posi_plus.eds"
 NODE_ID = 3
 LOGICAL = 100
 HB_MS = 100

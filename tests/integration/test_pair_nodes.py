@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from gateway.app import Gateway
-from gateway.canopen.states import LinkState, NmtState
-from gateway.northbound.summary import summarize
+from canopen_gateway.app import Gateway
+from canopen_gateway.canopen.states import LinkState, NmtState
+from canopen_gateway.northbound.summary import summarize
 from tests.helpers import wait_until
 from tests.integration.test_pair import LOGICAL, Sent, pair_configs, pair_running
 

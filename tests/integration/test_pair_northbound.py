@@ -19,9 +19,9 @@ from typing import Any
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
-from gateway.config import parse_config
-from gateway.modbus.watchdog import WatchdogState
+from canopen_gateway.app import Gateway
+from canopen_gateway.config import parse_config
+from canopen_gateway.modbus.watchdog import WatchdogState
 from tests.helpers import (
     free_port,
     gateway_of,

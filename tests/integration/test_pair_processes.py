@@ -38,8 +38,8 @@ import pytest
 import yaml
 from pymodbus.client import ModbusTcpClient
 
-from gateway.config import load_config
-from gateway.northbound.regmap import Point, build_register_map
+from canopen_gateway.config import load_config
+from canopen_gateway.northbound.regmap import Point, build_register_map
 from tests.helpers import (
     can_remote_server,
     free_port,
@@ -64,8 +64,8 @@ NODES = {"wire": 1, "display": 2, "enc": 3}
 #: queues appended to FILE as ``<time.time()> <COB-ID hex> <data hex>``
 SPY = """
 import os, sys, time
-from gateway.bus.driver import BusDriver
-from gateway.cli import main
+from canopen_gateway.bus.driver import BusDriver
+from canopen_gateway.cli import main
 fd = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
 real = BusDriver.send
 def send(self, cob_id, data=b"", rtr=False, dlc=None):
@@ -253,7 +253,7 @@ def test_a_pair_of_processes_survives_kill_restart_and_freeze(tmp_path: Path) ->
         stack.callback(lambda: a.stop())
         a.ready()
         sim = stack.enter_context(
-            started([sys.executable, "-m", "gateway", "simulate", "-c", str(cfg)],
+            started([sys.executable, "-m", "canopen_gateway", "simulate", "-c", str(cfg)],
                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)  # fmt: skip
         )
         assert sim.stdout is not None and "simulating" in sim.stdout.readline()

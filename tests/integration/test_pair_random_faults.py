@@ -41,8 +41,8 @@ from pathlib import Path
 import yaml
 from pymodbus.client import ModbusTcpClient
 
-from gateway.config import load_config
-from gateway.northbound.regmap import build_register_map
+from canopen_gateway.config import load_config
+from canopen_gateway.northbound.regmap import build_register_map
 from tests.helpers import wait_until_sync, with_nodes
 from tests.integration.test_pair_faults import (
     A_ID,
@@ -116,7 +116,7 @@ def start_devices(stack: ExitStack, cfg: Path) -> None:
         env = {**os.environ, "CANOPEN_GATEWAY__CAN__CHANNEL": member,
                "CANOPEN_GATEWAY__SIMULATE__NODES": f"[{node}]"}  # fmt: skip
         proc = subprocess.Popen(
-            [sys.executable, "-m", "gateway", "simulate", "-c", str(cfg)],
+            [sys.executable, "-m", "canopen_gateway", "simulate", "-c", str(cfg)],
             cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
         )  # fmt: skip
         stack.callback(lambda p=proc: Member("dev", p, 0, Path("x")).stop())

@@ -25,11 +25,11 @@ from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary.datatypes import VISIBLE_STRING
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
-from gateway.canopen.objref import ObjRef
-from gateway.config import parse_config
-from gateway.modbus.watchdog import TIMEOUT, WatchdogState
-from gateway.sim.buses import SimulatedBus
+from canopen_gateway.app import Gateway
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.config import parse_config
+from canopen_gateway.modbus.watchdog import TIMEOUT, WatchdogState
+from canopen_gateway.sim.buses import SimulatedBus
 from tests.helpers import (
     free_port,
     gateway_of,

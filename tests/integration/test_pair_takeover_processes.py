@@ -20,8 +20,8 @@ from pathlib import Path
 
 from pymodbus.client import ModbusTcpClient
 
-from gateway.config import load_config
-from gateway.northbound.regmap import Point, build_register_map
+from canopen_gateway.config import load_config
+from canopen_gateway.northbound.regmap import Point, build_register_map
 from tests.helpers import stop_process, wait_until_sync, with_nodes
 from tests.integration.test_pair_faults import (
     A_ID,

@@ -19,7 +19,7 @@ from typing import Any
 import zenoh
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient
 

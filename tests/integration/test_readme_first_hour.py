@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.cli import build_parser
+from canopen_gateway.cli import build_parser
 from tests.helpers import free_port, gateway_running, unique_channel
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -61,7 +61,7 @@ def test_the_first_hour_commands_on_the_demo_run_against_the_running_demo(demo: 
     for command in on_demo:
         argv = shlex.split(command.replace("config/demo.yaml", str(demo)))[1:]
         r = subprocess.run(
-            [sys.executable, "-m", "gateway", *argv],
+            [sys.executable, "-m", "canopen_gateway", *argv],
             cwd=ROOT,
             capture_output=True,
             text=True,

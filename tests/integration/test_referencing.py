@@ -6,7 +6,7 @@ from __future__ import annotations
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
-from gateway.image import Quality
+from canopen_gateway.image import Quality
 from tests.helpers import gateway_of, make_config, wait_until
 
 

@@ -19,7 +19,7 @@ from pymodbus.pdu import ExceptionResponse
 from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient
 
-EDS = Path(__file__).resolve().parents[2] / "gateway" / "profiles" / "msk5000.eds"
+EDS = Path(__file__).resolve().parents[2] / "canopen_gateway" / "profiles" / "msk5000.eds"
 TAPE = 37
 _STATE = {"INITIALISING": 0x00, "PRE-OPERATIONAL": 0x7F, "OPERATIONAL": 0x05, "STOPPED": 0x04}
 

@@ -11,10 +11,10 @@ import can
 import canopen
 import pytest
 
-from gateway.bus.scan import report, scan
-from gateway.northbound.frames import FrameDecoder
-from gateway.profiles import load_profile
-from gateway.tools.monitor import monitor
+from canopen_gateway.bus.scan import report, scan
+from canopen_gateway.northbound.frames import FrameDecoder
+from canopen_gateway.profiles import load_profile
+from canopen_gateway.tools.monitor import monitor
 from tests.helpers import gateway_of, make_config, simulated_bus, with_nodes
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

@@ -63,7 +63,7 @@ def service_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, 
     env = {**os.environ, "NOTIFY_SOCKET": str(tmp / "notify.sock"), "WATCHDOG_USEC": "200000",
            "CANOPEN_GATEWAY_LOG_FORMAT": "json"}  # fmt: skip
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "run", "-c", str(path), "--log-level", "info"],
+        [sys.executable, "-m", "canopen_gateway", "run", "-c", str(path), "--log-level", "info"],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     run: dict[str, Any] = {}

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from gateway.image import Quality
+from canopen_gateway.image import Quality
 from tests.helpers import make_config, modbus_gateway, operational, wait_until
 
 DCF = Path(__file__).resolve().parents[1] / "data" / "eds" / "compact.dcf"

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from gateway.bus.error_control.supervision import InvalidStateByte, ToggleError, WrongState
-from gateway.canopen.states import NmtState
-from gateway.cli import _count
-from gateway.config import ConfigError, parse_config
-from gateway.entry import main as entry_main
+from canopen_gateway.bus.error_control.supervision import InvalidStateByte, ToggleError, WrongState
+from canopen_gateway.canopen.states import NmtState
+from canopen_gateway.cli import _count
+from canopen_gateway.config import ConfigError, parse_config
+from canopen_gateway.entry import main as entry_main
 from tests.helpers import free_port, master_running
 
 REPO = Path(__file__).resolve().parents[2]
@@ -26,7 +26,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_a_closed_pipe_ends_check_quietly() -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "check", "-c", "config/demo.yaml"],
+        [sys.executable, "-m", "canopen_gateway", "check", "-c", "config/demo.yaml"],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -44,15 +44,15 @@ def test_ctrl_c_while_importing_is_exit_130_without_traceback(
 ) -> None:
     class Interrupted(types.ModuleType):
         def __getattr__(self, name: str) -> object:
-            raise KeyboardInterrupt  # Ctrl-C while `from gateway.cli import main` runs
+            raise KeyboardInterrupt  # Ctrl-C while `from canopen_gateway.cli import main` runs
 
-    monkeypatch.setitem(sys.modules, "gateway.cli", Interrupted("gateway.cli"))
+    monkeypatch.setitem(sys.modules, "canopen_gateway.cli", Interrupted("canopen_gateway.cli"))
     assert entry_main(["check", "-c", "config/demo.yaml"]) == 130
 
 
 def test_ctrl_c_right_after_start_leaves_no_traceback() -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "run", "-c", "config/demo.yaml"],
+        [sys.executable, "-m", "canopen_gateway", "run", "-c", "config/demo.yaml"],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -68,7 +68,7 @@ def test_ctrl_c_right_after_start_leaves_no_traceback() -> None:
 def test_sdo_read_of_an_unknown_node_is_an_argument_error(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    from gateway.cli import main
+    from canopen_gateway.cli import main
 
     with pytest.raises(SystemExit) as exc:
         main(["sdo", "read", "-c", str(REPO / "config/demo.yaml"), "nosuch", "0x1000:00"])

@@ -1,4 +1,4 @@
-"""The gateway's socketcand client (``gateway/bus/socketcand_bus.py``) against a scripted server
+"""The gateway's socketcand client (``canopen_gateway/bus/socketcand_bus.py``) against a scripted server
 on loopback: one connect per open, frames that come with the handshake's last ``< ok >``, the
 frame formats both ways, EOF and a broken pipe raised as ``can.CanOperationError``."""
 
@@ -12,8 +12,8 @@ from collections.abc import Iterator
 import can
 import pytest
 
-from gateway.bus.can_backend import open_can_bus
-from gateway.bus.socketcand_bus import SocketcandBus
+from canopen_gateway.bus.can_backend import open_can_bus
+from canopen_gateway.bus.socketcand_bus import SocketcandBus
 from tests.helpers import free_port
 
 

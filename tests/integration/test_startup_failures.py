@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.runtime.startup import StartupError
+from canopen_gateway.runtime.startup import StartupError
 from tests.helpers import (
     free_port,
     gateway_of,
@@ -198,7 +198,7 @@ def test_every_port_in_use_is_named_in_one_start(
 ) -> None:
     """Modbus, Zenoh and health ports all taken: one start says all three, one line each, in
     the order of the config's sections, and exits 2 (not three failed starts for three facts)."""
-    from gateway.cli import main
+    from canopen_gateway.cli import main
 
     holders = _holders(3)
     try:
@@ -238,7 +238,7 @@ def test_a_busy_port_set_by_a_variable_blames_the_variable(
 ) -> None:
     """The file says a free port, the variable a busy one: the line names the variable (as
     ``check`` does), not the file whose value is not the one in use."""
-    from gateway.cli import main
+    from canopen_gateway.cli import main
 
     cfg = write_config(tmp_path / "plant.yaml", modbus=free_port(), zenoh=free_port(), health=free_port())
     (holder,) = _holders(1)

@@ -20,8 +20,8 @@ import pytest
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.pdu import ExceptionResponse
 
-from gateway.app import Gateway
-from gateway.errors import SupervisionWrite, ValueOutOfRange
+from canopen_gateway.app import Gateway
+from canopen_gateway.errors import SupervisionWrite, ValueOutOfRange
 from tests.helpers import edited_copy, free_port, gateway_of, make_config, wait_until
 from tests.integration.test_eds_devices import gateway_with
 from tests.integration.test_web_http import post
@@ -189,7 +189,7 @@ async def test_a_consumer_of_the_masters_heartbeat_set_at_boot_is_kept(tmp_path:
     """A POSI+ (python canopen's LocalNode from its EDS) whose config makes it watch the
     master's heartbeat (1016h:01 = master id 127, 1500 ms): a write that would stop that is
     refused and the device keeps the entry; the configured value may be written again."""
-    from gateway.profiles import load_profile
+    from canopen_gateway.profiles import load_profile
 
     watching = (127 << 16) | 1500
     node = {"profile": "posi_plus", "sdo": [{"object": "0x1016:01", "value": watching}]}

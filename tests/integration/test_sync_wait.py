@@ -5,8 +5,8 @@ its values are bad; with the SYNC producer on, the same node serves them."""
 
 from __future__ import annotations
 
-from gateway.bus.node.features.sync_wait import WAITING
-from gateway.image import Quality
+from canopen_gateway.bus.node.features.sync_wait import WAITING
+from canopen_gateway.image import Quality
 from tests.helpers import master_running as running
 from tests.helpers import node_operational as operational
 from tests.helpers import wait_until

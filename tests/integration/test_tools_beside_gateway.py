@@ -47,7 +47,7 @@ def demo_like(path: Path, **sections: Any) -> Path:
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "gateway", *args],
+        [sys.executable, "-m", "canopen_gateway", *args],
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -100,8 +100,8 @@ def test_nmt_without_zenoh_writes_goes_through_the_command_socket(running: Path)
 
 
 def test_the_command_socket_is_the_gateway_users_alone(running: Path) -> None:
-    from gateway.checks import load_checked
-    from gateway.command_socket import socket_paths
+    from canopen_gateway.checks import load_checked
+    from canopen_gateway.command_socket import socket_paths
 
     cfg, _ = load_checked(running)
     path = next(p for p in socket_paths(cfg) if p.exists())
@@ -116,9 +116,9 @@ async def test_a_gateway_without_its_command_socket_is_reached_by_zenoh_and_a_re
 ) -> None:
     import asyncio
 
-    from gateway.app import Gateway
-    from gateway.checks import load_checked
-    from gateway.cli import main
+    from canopen_gateway.app import Gateway
+    from canopen_gateway.checks import load_checked
+    from canopen_gateway.cli import main
 
     cfg_file = demo_like(tmp_path / "z.yaml", zenoh={"listen": [f"tcp/127.0.0.1:{free_port()}"]},
                          command_socket={"enabled": False})  # fmt: skip
@@ -146,7 +146,7 @@ async def test_a_gateway_without_its_command_socket_is_reached_by_zenoh_and_a_re
 def test_without_zenoh_beside_a_running_gateway_the_command_refuses_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from gateway.cli import main
+    from canopen_gateway.cli import main
 
     with socket.socket() as held:  # the running gateway's health port
         held.bind(("127.0.0.1", 0))
@@ -187,8 +187,8 @@ def test_a_tool_on_a_shared_bus_sends_no_heartbeat_and_no_sync(
     import can
     import canopen
 
-    from gateway.cli import main
-    from gateway.profiles import load_profile
+    from canopen_gateway.cli import main
+    from canopen_gateway.profiles import load_profile
 
     cfg = demo_like(
         tmp_path / "shared.yaml",
@@ -244,9 +244,9 @@ async def test_scan_beside_a_gateway_that_serves_its_commissioning_page_points_a
 ) -> None:
     import asyncio
 
-    from gateway.app import Gateway
-    from gateway.checks import load_checked
-    from gateway.cli import main
+    from canopen_gateway.app import Gateway
+    from canopen_gateway.checks import load_checked
+    from canopen_gateway.cli import main
 
     cfg_file = demo_like(tmp_path / "w.yaml", web={"writes": True, "token": "a long random text"})
     gw = Gateway(*load_checked(cfg_file))
@@ -270,9 +270,9 @@ async def test_fault_finds_the_web_port_a_variable_moved_through_the_command_soc
     another shell, with the file alone, reaches it without --url."""
     import asyncio
 
-    from gateway.app import Gateway
-    from gateway.checks import load_checked
-    from gateway.cli import main
+    from canopen_gateway.app import Gateway
+    from canopen_gateway.checks import load_checked
+    from canopen_gateway.cli import main
 
     cfg_file = demo_like(tmp_path / "f.yaml", zenoh={"enabled": False})
     moved = free_port()

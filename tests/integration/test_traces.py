@@ -14,7 +14,7 @@ import can
 import pytest
 import yaml
 
-from gateway.cli import main
+from canopen_gateway.cli import main
 from tests.helpers import frame, unique_channel
 
 #: a heartbeat, an NMT start, a TPDO1 (position 12345 = 1234.5 mm, velocity 7 mm/s, SGH10
@@ -75,9 +75,9 @@ def run_monitor_while_sending(channel: str, run: object) -> None:
 def test_a_recording_in_each_format_decodes_back_to_the_frames(
     config: Path, tmp_path: Path, suffix: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from gateway.bus.trace import trace_writer
-    from gateway.northbound.frames import FrameDecoder
-    from gateway.tools.monitor import monitor
+    from canopen_gateway.bus.trace import trace_writer
+    from canopen_gateway.northbound.frames import FrameDecoder
+    from canopen_gateway.tools.monitor import monitor
     from tests.helpers import load_checked_config, with_nodes
 
     cfg, nodes = with_nodes(load_checked_config(config))

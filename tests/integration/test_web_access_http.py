@@ -17,8 +17,8 @@ from typing import Any
 
 import pytest
 
-from gateway.web.access import FAILURES_LIMIT
-from gateway.web.console import LIVE_PER_CLIENT, MONITOR_PER_CLIENT
+from canopen_gateway.web.access import FAILURES_LIMIT
+from canopen_gateway.web.console import LIVE_PER_CLIENT, MONITOR_PER_CLIENT
 from tests.helpers import (
     free_port,
     gateway_of,

@@ -17,9 +17,9 @@ from typing import Any
 import canopen
 import pytest
 
-from gateway.app import Gateway
-from gateway.cli import main
-from gateway.image import Quality
+from canopen_gateway.app import Gateway
+from canopen_gateway.cli import main
+from canopen_gateway.image import Quality
 from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_never_lies import RawSgh10, started
 from tests.integration.test_web_http import http

@@ -15,8 +15,8 @@ from typing import Any
 import can
 import pytest
 
-from gateway.app import Gateway
-from gateway.config import ConfigError, parse_config
+from canopen_gateway.app import Gateway
+from canopen_gateway.config import ConfigError, parse_config
 from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 
 TOKEN = "plant-floor-token-42"

@@ -1,4 +1,4 @@
-"""The web console's journal (``gateway.web.journal_log``) over real HTTP on a running gateway:
+"""The web console's journal (``canopen_gateway.web.journal_log``) over real HTTP on a running gateway:
 its entries survive a restart, are filtered by node and kind, the console's own writes are in
 the audit with the client's address, a range exports as CSV, bad parameters get a 400 with
 words, and a gateway without a journal says so (409)."""
@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import free_port, gateway_of, make_config, node_operational, wait_until
 from tests.integration.test_web_http import TOKEN, http, post
 from tests.integration.test_zenoh_history import raise_and_clear

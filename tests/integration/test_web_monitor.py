@@ -15,8 +15,8 @@ from typing import Any
 import can
 import pytest
 
-from gateway.app import Gateway
-from gateway.web.monitor import MAX_LINES_PER_S
+from canopen_gateway.app import Gateway
+from canopen_gateway.web.monitor import MAX_LINES_PER_S
 from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.integration.test_web_first_hour import get_json
 

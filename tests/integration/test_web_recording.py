@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.cli import main
+from canopen_gateway.cli import main
 from tests.helpers import wait_until
 from tests.integration.test_traces import SCRIPT
 from tests.integration.test_web_http import http

@@ -13,7 +13,7 @@ from typing import Any
 
 import can
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient, drain, next_sample, sample_where
 

@@ -14,7 +14,7 @@ from typing import Any
 import zenoh
 import zenoh.ext
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.zenoh_client import open_router, session_config
 

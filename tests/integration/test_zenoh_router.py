@@ -8,7 +8,7 @@ import queue
 import time
 from typing import Any
 
-from gateway.zenoh_bridge.session import CONNECT_WAIT_S
+from canopen_gateway.zenoh_bridge.session import CONNECT_WAIT_S
 from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.zenoh_client import ZClient, drain, open_router, sample_where
 

@@ -13,7 +13,7 @@ import urllib.request
 import pytest
 import zenoh
 
-from gateway.zenoh_bridge import session as zenoh_session
+from canopen_gateway.zenoh_bridge import session as zenoh_session
 from tests.helpers import (
     free_port,
     make_config,

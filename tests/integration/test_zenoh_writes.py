@@ -12,7 +12,7 @@ from typing import Any
 
 import can
 
-from gateway.app import Gateway
+from canopen_gateway.app import Gateway
 from tests.helpers import free_port, gateway_of, make_config, wait_until
 from tests.integration.test_diagnostics import metric, scrape
 from tests.zenoh_client import ZClient

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.config import ConfigError, parse_config
+from canopen_gateway.config import ConfigError, parse_config
 
 NODES = [{"name": "wire", "node_id": 1, "profile": "sgh10"}]
 

@@ -5,7 +5,13 @@ is ERROR:106, a node that is not on that net ERROR:107; event lines carry the no
 
 from __future__ import annotations
 
-from gateway.ascii.protocol import EventTracker, HealthSample, NmtCommand, SdoUpload, Session
+from canopen_gateway.ascii.protocol import (
+    EventTracker,
+    HealthSample,
+    NmtCommand,
+    SdoUpload,
+    Session,
+)
 
 #: net 1 (line1): node ids 1 and 125; net 2 (line2): node ids 1 and 2
 NETWORKS = {1: [1, 125], 2: [1, 2]}

@@ -8,8 +8,8 @@ import struct
 
 import pytest
 
-from gateway.ascii.grammar import Iec, LineSplitter, Overlong, RequestError, tokenize
-from gateway.ascii.protocol import (
+from canopen_gateway.ascii.grammar import Iec, LineSplitter, Overlong, RequestError, tokenize
+from canopen_gateway.ascii.protocol import (
     EventTracker,
     HealthSample,
     NmtCommand,
@@ -19,14 +19,14 @@ from gateway.ascii.protocol import (
     answer_for_error,
     parse_request,
 )
-from gateway.ascii.values import (
+from canopen_gateway.ascii.values import (
     DATA_TYPES,
     LengthMismatch,
     encode_value,
     format_plain,
     format_value,
 )
-from gateway.errors import (
+from canopen_gateway.errors import (
     BusDown,
     Forbidden,
     NodeNotOperational,

@@ -8,11 +8,11 @@ import asyncio
 from types import SimpleNamespace
 from typing import Any
 
-from gateway.ascii.server import MAX_PENDING_LINES, AsciiGateway, _Connection
-from gateway.commands.audit import RefusalAudit
-from gateway.config import parse_config
-from gateway.errors import SdoAbort
-from gateway.image import ProcessImage
+from canopen_gateway.ascii.server import MAX_PENDING_LINES, AsciiGateway, _Connection
+from canopen_gateway.commands.audit import RefusalAudit
+from canopen_gateway.config import parse_config
+from canopen_gateway.errors import SdoAbort
+from canopen_gateway.image import ProcessImage
 
 
 class FakeTransport(asyncio.Transport):

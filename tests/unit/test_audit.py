@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
-from gateway.commands.audit import RefusalAudit, acting_as, audited
-from gateway.errors import SdoAbort
+from canopen_gateway.commands.audit import RefusalAudit, acting_as, audited
+from canopen_gateway.errors import SdoAbort
 
 
 class Disk:

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import can
 
-from gateway.bus.driver import FRAME_AGE_MAX_S, BusDriver
-from gateway.image import ProcessImage
+from canopen_gateway.bus.driver import FRAME_AGE_MAX_S, BusDriver
+from canopen_gateway.image import ProcessImage
 
 
 class Clocks:

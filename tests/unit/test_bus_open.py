@@ -1,4 +1,4 @@
-"""The one line for a CAN bus that cannot be opened (``gateway.tools.bus_open``): the settings,
+"""The one line for a CAN bus that cannot be opened (``canopen_gateway.tools.bus_open``): the settings,
 the reason as the OS or the backend gave it, and what usually causes it, for the failures this
 machine cannot produce for real (no such device, interface down, a vendor library missing)."""
 
@@ -9,8 +9,8 @@ import os
 
 import pytest
 
-from gateway.config import Config
-from gateway.tools.bus_open import BusOpenError, bus_open_line, opening
+from canopen_gateway.config import Config
+from canopen_gateway.tools.bus_open import BusOpenError, bus_open_line, opening
 from tests.helpers import parse_checked_config
 
 NODES = [{"name": "wire", "node_id": 1, "profile": "sgh10"}]

@@ -8,7 +8,7 @@ import logging
 
 import pytest
 
-from gateway.cli.serve import SOCKETCAND_PARTIAL_READ, setup_logging
+from canopen_gateway.cli.serve import SOCKETCAND_PARTIAL_READ, setup_logging
 
 
 def test_the_partial_read_warning_is_dropped_and_other_socketcand_warnings_are_kept(

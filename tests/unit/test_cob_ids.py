@@ -13,14 +13,14 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.driver import BusDriver
-from gateway.bus.master import Master
-from gateway.bus.node.features.sync_wait import WAITING
-from gateway.checks import config_warnings
-from gateway.config import ConfigError
-from gateway.config import parse_config as parse_unchecked
-from gateway.eds import lint, load_eds
-from gateway.image import ProcessImage
+from canopen_gateway.bus.driver import BusDriver
+from canopen_gateway.bus.master import Master
+from canopen_gateway.bus.node.features.sync_wait import WAITING
+from canopen_gateway.checks import config_warnings
+from canopen_gateway.config import ConfigError
+from canopen_gateway.config import parse_config as parse_unchecked
+from canopen_gateway.eds import lint, load_eds
+from canopen_gateway.image import ProcessImage
 from tests.helpers import gateway_of, master_running, resolved, wait_until, with_nodes
 from tests.helpers import parse_checked_config as parse_config
 from tests.unit.test_node import sgh10
@@ -168,7 +168,7 @@ def test_eds_lint_warns_of_an_absolute_cob_id_of_another_node(tmp_path: Path) ->
         (line, "1800sub1", "TPDO1 COB-ID 0x181 is absolute: the pre-defined TPDO1 COB-ID of "
                            "node 1; at any other node id it is still node 1's (relative: $NODEID+0x180)")
     ]  # fmt: skip
-    r = subprocess.run([sys.executable, "-m", "gateway", "eds", "lint", str(eds)], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "canopen_gateway", "eds", "lint", str(eds)], capture_output=True, text=True)
     assert r.returncode == 1
     assert f"{eds}:{line}: [1800sub1]: warning: TPDO1 COB-ID 0x181 is absolute" in r.stdout
     # a DCF written for node 1 holds node 1's COB-IDs: right for its own node
@@ -210,7 +210,7 @@ def test_check_warns_of_sync_driven_tpdos_without_a_sync_producer(tmp_path: Path
         assert config_warnings(*with_nodes(parse_config(config(node, **master), "c.yaml", environ={}))) == []
     f = tmp_path / "drive.yaml"
     f.write_text(f"can: {{interface: virtual}}\nnodes:\n  - {{name: drive, node_id: 2, eds: {CIA402_SLAVE}, tpdo: {{1: {{}}}}}}\n")
-    r = subprocess.run([sys.executable, "-m", "gateway", "check", "-c", str(f)], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "canopen_gateway", "check", "-c", str(f)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "  warning: node drive: TPDO1 is SYNC-driven (transmission type 0..240) but no SYNC producer" in r.stdout
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.canopen.objref import ObjRef
-from gateway.pdo.codec import PdoMappingError, apply_pdo_writes, compile_node, pdo_objects
-from gateway.profiles import load_profile
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.pdo.codec import PdoMappingError, apply_pdo_writes, compile_node, pdo_objects
+from canopen_gateway.profiles import load_profile
 
 # AP05 manual 5.3.1.3, examples of communication (node 01h):
 AP05_TPDO2_NODE1 = bytes.fromhex("FA00000000000104")  # 281: position 250, status word 0401h
@@ -157,7 +157,7 @@ def test_remappable_tpdo_feature_names_the_pdo_objects() -> None:
 
 
 def test_config_with_a_remap_the_decoder_cannot_follow_is_refused_at_load() -> None:
-    from gateway.config import ConfigError
+    from canopen_gateway.config import ConfigError
     from tests.helpers import make_config
 
     node = {

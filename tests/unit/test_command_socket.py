@@ -1,4 +1,4 @@
-"""The command socket (gateway.command_socket) against a stand-in command service: where it
+"""The command socket (canopen_gateway.command_socket) against a stand-in command service: where it
 lives and who may open it (mode 0600 in a directory of mode 0700 that must be this user's
 alone), what it does with a file left by a gateway that died, with one another gateway still
 answers on, with a file that is not a socket; its answers (values, bytes, the command
@@ -17,10 +17,10 @@ from typing import Any
 
 import pytest
 
-from gateway.command_socket import CommandSocket, socket_paths
-from gateway.config import parse_config
-from gateway.errors import NodeNotOperational
-from gateway.runtime.turns import LoopTurns
+from canopen_gateway.command_socket import CommandSocket, socket_paths
+from canopen_gateway.config import parse_config
+from canopen_gateway.errors import NodeNotOperational
+from canopen_gateway.runtime.turns import LoopTurns
 
 
 class Commands:
@@ -118,7 +118,7 @@ def test_with_several_networks_a_bus_of_any_network_in_process_opens_the_socket(
     assert CommandSocket(mixed, Commands(), LoopTurns()).path is not None  # type: ignore[arg-type]
     assert CommandSocket(networks("remote", "remote"), Commands(), LoopTurns()).path is None  # type: ignore[arg-type]
     # a command given --network asks of its network's bus; the socket is the gateway's one
-    from gateway.tools.beside import in_process_bus
+    from canopen_gateway.tools.beside import in_process_bus
 
     first, second = (mixed.network_view(n) for n in ("n0", "n1"))
     assert (in_process_bus(first), in_process_bus(second)) == (False, True)
@@ -148,7 +148,7 @@ async def test_answers_carry_values_bytes_and_the_command_services_words(tmp_pat
 
 
 async def test_the_command_lines_client_finds_the_gateway_of_its_config(tmp_path: Path) -> None:
-    from gateway.tools.beside import RemoteError, find_local_gateway
+    from canopen_gateway.tools.beside import RemoteError, find_local_gateway
 
     cfg = config(tmp_path, path="cmd.sock")
     cs = CommandSocket(cfg, Commands(), LoopTurns())  # type: ignore[arg-type]

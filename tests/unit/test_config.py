@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.config import ConfigError
+from canopen_gateway.config import ConfigError
 from tests.helpers import load_checked_config as load_config
 from tests.helpers import parse_checked_config as parse_config
 
@@ -254,7 +254,7 @@ def test_check_prints_every_problem_of_the_readme_example_in_one_run(tmp_path: P
     )
     env = {**os.environ, "CANOPEN_GATEWAY__MODBUS__PROT": "5020"}
     r = subprocess.run(
-        [sys.executable, "-m", "gateway", "check", "-c", str(f)],
+        [sys.executable, "-m", "canopen_gateway", "check", "-c", str(f)],
         capture_output=True, text=True, env=env,
     )  # fmt: skip
     assert r.returncode == 2 and "Traceback" not in r.stderr
@@ -301,7 +301,7 @@ def test_cli_check_prints_problems_and_exits_2(tmp_path: Path) -> None:
         "  - {name: b, node_id: 1, profile: sgh10, modbus: {unit_id: 4}}\n"
     )
     r = subprocess.run(
-        [sys.executable, "-m", "gateway", "check", "-c", str(f)], capture_output=True, text=True
+        [sys.executable, "-m", "canopen_gateway", "check", "-c", str(f)], capture_output=True, text=True
     )
     assert r.returncode == 2
     assert "Traceback" not in r.stderr

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.bus.can_backend import can_section_problems, driver_problem, interface_keys
-from gateway.cli import main
+from canopen_gateway.bus.can_backend import can_section_problems, driver_problem, interface_keys
+from canopen_gateway.cli import main
 from tests.helpers import unique_channel
 
 REPO = Path(__file__).resolve().parents[2]

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.cli import main
+from canopen_gateway.cli import main
 
 BASE = {
     "gateway": {"name": "line1"},

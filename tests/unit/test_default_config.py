@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from gateway.cli import main
-from gateway.cli.load import DEFAULT_CONFIG, default_config
-from gateway.config import ConfigError
+from canopen_gateway.cli import main
+from canopen_gateway.cli.load import DEFAULT_CONFIG, default_config
+from canopen_gateway.config import ConfigError
 
 DEMO = str(Path(__file__).resolve().parents[2] / "config" / "demo.yaml")
 

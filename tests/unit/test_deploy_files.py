@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.config import load_config
+from canopen_gateway.config import load_config
 from tests.helpers import resolved
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -198,7 +198,7 @@ def test_systemd_unit_runs_the_gateway_hardened():
     }.items():
         assert unit[key] == [value], key
     assert "AF_CAN" in unit["RestrictAddressFamilies"][0].split()
-    # the gateway says READY=1 and pings the watchdog (gateway.runtime.sd_notify)
+    # the gateway says READY=1 and pings the watchdog (canopen_gateway.runtime.sd_notify)
     assert unit["Type"] == ["notify"] and int(unit["WatchdogSec"][0]) > 0
 
 
@@ -321,7 +321,7 @@ def test_dockerignore_admits_only_what_the_build_copies():
     for needed in (
         "!pyproject.toml",
         "!README.md",
-        "!gateway/",
+        "!canopen_gateway/",
         "!config/demo.yaml",
         "!deploy/config/",
     ):
@@ -340,7 +340,7 @@ def pair_configs(envs: list[dict[str, str]]) -> list:
 def test_the_pair_config_gives_each_gateway_no_warning():
     """deploy/config/pair.yaml as gateway A and as gateway B load it: `check` warns of nothing
     (a SYNC producer for the SYNC-driven TPDOs, a take-over every node survives)."""
-    from gateway.checks import config_warnings
+    from canopen_gateway.checks import config_warnings
 
     b = {f"{PAIR_ENV}NODE_ID": "121", f"{PAIR_ENV}PRIORITY": "1", f"{PAIR_ENV}PEER_NODE_ID": "120"}
     for cfg in pair_configs([{}, b]):
@@ -348,7 +348,7 @@ def test_the_pair_config_gives_each_gateway_no_warning():
 
 
 def test_pair_compose_runs_two_gateways_of_one_image_and_config_with_own_ids():
-    from gateway.checks import pair_problems
+    from canopen_gateway.checks import pair_problems
 
     compose = load_yaml(DEPLOY / "docker-compose.pair.yml")
     services = compose["services"]
@@ -378,7 +378,7 @@ def k8s_pair() -> dict[str, dict]:
 
 
 def test_k8s_pair_is_two_deployments_on_two_machines_with_the_pairs_config(k8s_pair):
-    from gateway.checks import pair_problems
+    from canopen_gateway.checks import pair_problems
 
     cm = k8s_pair["canopen-gateway-pair-config"]
     assert cm["data"]["config.yaml"] == (DEPLOY / "config/pair.yaml").read_text(encoding="utf-8")

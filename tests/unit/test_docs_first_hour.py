@@ -11,7 +11,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
-from gateway.cli import build_parser
+from canopen_gateway.cli import build_parser
 from tests.helpers import gateway_of
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -9,10 +9,10 @@ import uuid
 
 import can
 
-from gateway.bus.driver import BusDriver
-from gateway.image import ProcessImage
-from gateway.runtime.threads import ThreadRegistry
-from gateway.zenoh_bridge.sender import ZenohSender
+from canopen_gateway.bus.driver import BusDriver
+from canopen_gateway.image import ProcessImage
+from canopen_gateway.runtime.threads import ThreadRegistry
+from canopen_gateway.zenoh_bridge.sender import ZenohSender
 
 WAIT_S = 5.0
 

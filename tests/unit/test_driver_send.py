@@ -12,8 +12,8 @@ import uuid
 
 import can
 
-from gateway.bus.driver import SEND_FAILURES_DOWN, TX_RETRIES, BusDriver
-from gateway.image import ProcessImage
+from canopen_gateway.bus.driver import SEND_FAILURES_DOWN, TX_RETRIES, BusDriver
+from canopen_gateway.image import ProcessImage
 from tests.helpers import wait_until_sync
 
 ENOBUFS = can.CanOperationError("Failed to transmit: No buffer space available", errno.ENOBUFS)

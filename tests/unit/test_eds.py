@@ -8,14 +8,14 @@ from typing import Any
 
 import pytest
 
-from gateway.canopen.objref import ObjRef
-from gateway.cli import main
-from gateway.config import ConfigError
-from gateway.device.boot_steps import build_boot_steps
-from gateway.eds import lint, load_eds
-from gateway.northbound.regmap import build_register_map
-from gateway.pdo.verify import MappingRead, compare_mapping, mapping_reads
-from gateway.profiles import ProfileError, load_node_profile
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.cli import main
+from canopen_gateway.config import ConfigError
+from canopen_gateway.device.boot_steps import build_boot_steps
+from canopen_gateway.eds import lint, load_eds
+from canopen_gateway.northbound.regmap import build_register_map
+from canopen_gateway.pdo.verify import MappingRead, compare_mapping, mapping_reads
+from canopen_gateway.profiles import ProfileError, load_node_profile
 from tests.helpers import edited_copy, line_of, parse_checked_config, with_nodes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"
@@ -134,7 +134,7 @@ def test_eds_lint_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str])
 
 
 def test_the_builtin_and_test_eds_files_pass_the_checker() -> None:
-    for f in [*Path("gateway/profiles").glob("*.eds"), IO, FLOW]:
+    for f in [*Path("canopen_gateway/profiles").glob("*.eds"), IO, FLOW]:
         assert load_eds(f).od is not None
 
 
@@ -149,7 +149,7 @@ def test_non_ascii_names_load_and_slug_to_ascii() -> None:
 
 class Node:
     def __init__(self, **kw: Any) -> None:
-        from gateway.config import NodeConfig
+        from canopen_gateway.config import NodeConfig
 
         self.cfg = NodeConfig.model_validate({"name": "n", "node_id": 5, **kw})
 
@@ -196,7 +196,7 @@ def test_a_disabled_pdo_enabled_by_the_config_is_served() -> None:
 
 
 def test_shared_slugs_fall_back_to_index_and_sub() -> None:
-    from gateway.eds.pdos import unique_names
+    from canopen_gateway.eds.pdos import unique_names
 
     od = load_eds(IO).od
     names = unique_names(od, [ObjRef(0x6401, 1), ObjRef(0x6401, 2)], {"analogue_input_1"})
@@ -204,7 +204,7 @@ def test_shared_slugs_fall_back_to_index_and_sub() -> None:
 
 
 def test_config_remap_is_one_cia301_sequence_and_the_codec_follows_it() -> None:
-    from gateway.pdo.codec import compile_node
+    from canopen_gateway.pdo.codec import compile_node
 
     n = Node(eds=str(IO), tpdo={1: {"mapping": ["0x6401:01", "0x0005:00", "0x6000:01"], "inhibit_ms": 1.5}}).cfg  # fmt: skip
     lp = load_node_profile(n.setup)
@@ -370,7 +370,7 @@ def _nmt(cs: int, node_id: int) -> Any:
 def test_simulator_serves_an_eds_it_has_never_seen() -> None:
     import can
 
-    from gateway.sim.node import SimNode
+    from canopen_gateway.sim.node import SimNode
 
     lp = load_node_profile(Node(eds=str(IO)).cfg.setup)
     sim = SimNode(lp, 5)
@@ -389,7 +389,7 @@ def test_simulator_serves_an_eds_it_has_never_seen() -> None:
 
 
 def test_simulator_answers_a_utf8_device_name_by_sdo() -> None:
-    from gateway.sim.node import SimNode
+    from canopen_gateway.sim.node import SimNode
 
     sim = SimNode(load_node_profile(Node(eds=str(FLOW)).cfg.setup), 6)
     sim.power_on(0.0)
@@ -397,7 +397,7 @@ def test_simulator_answers_a_utf8_device_name_by_sdo() -> None:
 
 
 def test_expected_identity_is_what_the_file_gives_and_a_dcf_serial(tmp_path: Path) -> None:
-    from gateway.profiles import expected_identity, identity_check
+    from canopen_gateway.profiles import expected_identity, identity_check
 
     lp = load_node_profile(Node(eds=str(IO)).cfg.setup)
     assert expected_identity(lp) == ((ObjRef(0x1018, 1), 0xABC), (ObjRef(0x1018, 2), 0x401))
@@ -426,7 +426,7 @@ def test_expected_identity_is_what_the_file_gives_and_a_dcf_serial(tmp_path: Pat
 
 
 def test_device_info_other_than_1018h_is_a_warning_and_that_number_is_not_compared(tmp_path: Path) -> None:
-    from gateway.profiles import expected_identity
+    from canopen_gateway.profiles import expected_identity
 
     p = edited_copy(tmp_path, IO, "VendorNumber=0x00000ABC", "VendorNumber=0x00000ABD")
     # the file contradicts itself on the vendor: only the product is checked at boot

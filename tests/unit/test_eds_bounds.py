@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from gateway.eds import EdsError, load_eds
-from gateway.eds.parse import MAX_EDS_BYTES, MAX_SUB_OBJECTS
+from canopen_gateway.eds import EdsError, load_eds
+from canopen_gateway.eds.parse import MAX_EDS_BYTES, MAX_SUB_OBJECTS
 
 ROOT = Path(__file__).resolve().parents[2]
 HEAD = (
@@ -34,7 +34,7 @@ def test_an_18_mb_eds_of_60000_compact_arrays_is_refused_at_once_in_one_line(tmp
         for i in range(60_000):
             f.write(array(0x1000 + i) + "; padding to the size of the file of the report" * 4 + "\n")
     assert path.stat().st_size > 18_000_000
-    proc = subprocess.Popen([sys.executable, "-m", "gateway", "eds", "lint", str(path)], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "canopen_gateway", "eds", "lint", str(path)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 2, (out, err)

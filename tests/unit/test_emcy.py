@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.bus.emcy import EmcyHistory, ErrorRaised, ErrorsCleared
-from gateway.canopen.emcy import (
+from canopen_gateway.bus.emcy import EmcyHistory, ErrorRaised, ErrorsCleared
+from canopen_gateway.canopen.emcy import (
     Emcy,
     decode_emcy,
     emcy_text,

@@ -8,7 +8,7 @@ import ast
 import inspect
 from pathlib import Path
 
-GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
+GATEWAY = Path(__file__).resolve().parents[2] / "canopen_gateway"
 
 
 def _imported_modules(path: Path) -> set[str]:
@@ -23,14 +23,14 @@ def _imported_modules(path: Path) -> set[str]:
 
 
 def test_the_datastore_holds_the_roles_and_forwards_nothing() -> None:
-    from gateway.modbus.datastore import ImageDatastore
+    from canopen_gateway.modbus.datastore import ImageDatastore
 
     methods = {n for n, v in vars(ImageDatastore).items() if callable(v) or isinstance(v, property)}
     assert methods == {"__init__", "count_exception"}
 
 
 def test_execute_calls_the_roles_directly() -> None:
-    from gateway.modbus import datastore
+    from canopen_gateway.modbus import datastore
 
     src = inspect.getsource(datastore.execute) + inspect.getsource(datastore.execute_now)
     for call in ("store.reads.read(", "store.reads.read_now(", "store.writes.write_registers(",
@@ -40,8 +40,8 @@ def test_execute_calls_the_roles_directly() -> None:
 
 
 def test_the_output_watchdog_is_driven_beside_the_server() -> None:
-    from gateway.modbus.server import ModbusGateway
-    from gateway.modbus.watchdog_driver import OutputWatchdogDriver
+    from canopen_gateway.modbus.server import ModbusGateway
+    from canopen_gateway.modbus.watchdog_driver import OutputWatchdogDriver
 
     gateway_methods = set(vars(ModbusGateway))
     assert not {"request_seen", "writer_gone", "_trip", "_write_safe"} & gateway_methods
@@ -51,12 +51,12 @@ def test_the_output_watchdog_is_driven_beside_the_server() -> None:
 
 
 def test_the_session_and_the_housekeeping_see_their_host_as_a_protocol() -> None:
-    from gateway.zenoh_bridge.housekeeping import HousekeepingHost
-    from gateway.zenoh_bridge.session import SessionHost
+    from canopen_gateway.zenoh_bridge.housekeeping import HousekeepingHost
+    from canopen_gateway.zenoh_bridge.session import SessionHost
 
     for name in ("session.py", "housekeeping.py"):
         path = GATEWAY / "zenoh_bridge" / name
-        assert "gateway.zenoh_bridge.bridge" not in _imported_modules(path)
+        assert "canopen_gateway.zenoh_bridge.bridge" not in _imported_modules(path)
         names = {
             n.id
             for n in ast.walk(ast.parse(path.read_text(encoding="utf-8")))

@@ -3,7 +3,7 @@ remote frame) a guarded node is a warning of ``check`` naming the node and the w
 
 from __future__ import annotations
 
-from gateway.checks import config_warnings
+from canopen_gateway.checks import config_warnings
 from tests.helpers import make_config, resolved
 
 GUARDED = {"name": "wire", "node_id": 1, "profile": "sgh10", "supervision": "guarding"}

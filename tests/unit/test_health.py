@@ -6,8 +6,8 @@ import math
 
 from prometheus_client.parser import text_string_to_metric_families
 
-from gateway.http.metrics import Metrics, NodeSample, nmt_state_code
-from gateway.http.server import NOT_READY, READY, build_status, pair_status
+from canopen_gateway.http.metrics import Metrics, NodeSample, nmt_state_code
+from canopen_gateway.http.server import NOT_READY, READY, build_status, pair_status
 
 
 class FakeClock:

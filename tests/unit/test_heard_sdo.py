@@ -1,4 +1,4 @@
-"""The SDO transfers a pair's standby hears (gateway.bus.pair.heard_sdo): a transfer is open
+"""The SDO transfers a pair's standby hears (canopen_gateway.bus.pair.heard_sdo): a transfer is open
 from its first frame to its last, whatever its kind, and a take-over aborts each one left open
 once, naming its object.
 
@@ -20,8 +20,8 @@ import pytest
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.objectdictionary.datatypes import VISIBLE_STRING
 
-from gateway.bus.pair.heard_sdo import HeardSdo
-from gateway.canopen.cia301 import COB_SDO_RX, COB_SDO_TX
+from canopen_gateway.bus.pair.heard_sdo import HeardSdo
+from canopen_gateway.canopen.cia301 import COB_SDO_RX, COB_SDO_TX
 
 NODE_ID = 5
 TEXT_OBJ = (0x2000, 0x00)  # a VISIBLE_STRING the test's LocalNode holds (rw)

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import threading
 
-from gateway.canopen.states import LinkState, NmtState
-from gateway.image import NodeImage, ProcessImage, Quality, SignalValue
+from canopen_gateway.canopen.states import LinkState, NmtState
+from canopen_gateway.image import NodeImage, ProcessImage, Quality, SignalValue
 
 
 def node() -> NodeImage:

@@ -1,4 +1,4 @@
-"""No runtime import cycle in ``gateway/``: the imports a module runs when it is loaded (those at
+"""No runtime import cycle in ``canopen_gateway/``: the imports a module runs when it is loaded (those at
 its top level, not under ``if TYPE_CHECKING:`` and not inside functions) form no cycle, so every
 module can be imported first and each reads top-down as what it builds on."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
+GATEWAY = Path(__file__).resolve().parents[2] / "canopen_gateway"
 
 
 def _module_name(path: Path) -> str:

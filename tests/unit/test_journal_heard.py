@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import time
 
-from gateway.journal import Entry, Journal, ntp64_of_time, parse_time_range
+from canopen_gateway.journal import Entry, Journal, ntp64_of_time, parse_time_range
 from tests.helpers import gateway_of, make_config
 
 P = "canopen/test"
@@ -82,8 +82,8 @@ def test_seq_of_every_key_goes_on_from_the_journal(tmp_path):
 
 def test_the_value_history_takes_each_changed_value_once_from_the_image(tmp_path):
     """Whether a session is open or not: the writer's window reads the image."""
-    from gateway.journal import HybridClock
-    from gateway.zenoh_bridge.journaling import ValueHistory
+    from canopen_gateway.journal import HybridClock
+    from canopen_gateway.zenoh_bridge.journaling import ValueHistory
 
     bridge, j = bridge_with_journal(tmp_path)
     try:
@@ -106,8 +106,8 @@ def test_the_value_history_takes_each_changed_value_once_from_the_image(tmp_path
 def test_a_history_answer_stops_at_its_time_limit_and_says_where_to_resume(tmp_path):
     """Zenoh does not tell a queryable that its getter gave up: the answer stops after the
     limit (a fake clock) with where the rest starts, exclusive of what was sent."""
-    from gateway.journal import TimeRange
-    from gateway.zenoh_bridge.history import AnswerCut, HistoryService
+    from canopen_gateway.journal import TimeRange
+    from canopen_gateway.zenoh_bridge.history import AnswerCut, HistoryService
 
     bridge, j = bridge_with_journal(tmp_path)
     try:
@@ -145,7 +145,7 @@ def test_a_pair_per_network_journals_its_own_network_from_the_bus_and_the_other_
     """Active on line1 and standby on line2, with no session open: line1's node's events and
     values are journaled from the bus side (its state names its network), line2's node only as
     heard of the other member; a heard sample of line1's node is its own, not journaled again."""
-    from gateway.zenoh_bridge.journaling import ValueHistory
+    from canopen_gateway.zenoh_bridge.journaling import ValueHistory
     from tests.helpers import parse_checked_config, unique_channel
 
     def net(name: str, node: dict[str, object]) -> dict[str, object]:

@@ -18,8 +18,8 @@ from hypothesis import settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
-from gateway.journal import Entry, Journal, ntp64_of_ns, parse_time_range
-from gateway.zenoh_bridge.history import HistoryService
+from canopen_gateway.journal import Entry, Journal, ntp64_of_ns, parse_time_range
+from canopen_gateway.zenoh_bridge.history import HistoryService
 
 NANOS = 10**9
 P = "p"

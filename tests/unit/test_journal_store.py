@@ -1,4 +1,4 @@
-"""The journal's storage (gateway.journal.store) on a real SQLite file in a temporary
+"""The journal's storage (canopen_gateway.journal.store) on a real SQLite file in a temporary
 directory: write ahead, group commit, seq across reopen, value windows, bounds, drops on a full
 disk, damaged files set aside, and the path check."""
 
@@ -10,9 +10,9 @@ import sqlite3
 import threading
 import time
 
-from gateway.journal import Entry, Journal, ntp64_of_time, path_problem
-from gateway.journal.db import SCHEMA_VERSION
-from gateway.journal.files import FILE_NAME
+from canopen_gateway.journal import Entry, Journal, ntp64_of_time, path_problem
+from canopen_gateway.journal.db import SCHEMA_VERSION
+from canopen_gateway.journal.files import FILE_NAME
 from tests.helpers import wait_until_sync
 
 T0 = time.time() - 86400.0  # a day ago: within keep_days, not ahead of the clock

@@ -1,4 +1,4 @@
-"""The ``_time`` grammar of Zenoh storages (gateway.journal.timerange): every bound form Zenoh
+"""The ``_time`` grammar of Zenoh storages (canopen_gateway.journal.timerange): every bound form Zenoh
 accepts (``now(-30)``, ``now(+5m)``, ``1e3s``...), instants to the nanosecond (``[t..t]`` finds
 t), open ends, exclusive delimiters, and errors that name what is wrong and suggest only forms
 that can travel in a Zenoh selector; with hypothesis over instants and spans."""
@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gateway.journal import TimeRangeError, ns_of_ntp64, ntp64_of_ns, parse_time_range
-from gateway.journal.timerange import UNITS_S, parse_instant_ns, parse_span
+from canopen_gateway.journal import TimeRangeError, ns_of_ntp64, ntp64_of_ns, parse_time_range
+from canopen_gateway.journal.timerange import UNITS_S, parse_instant_ns, parse_span
 
 NOW = 1_800_000_000 * 10**9 + 123_456_789
 

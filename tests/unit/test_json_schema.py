@@ -15,15 +15,15 @@ import pytest
 import yaml
 from jsonschema import Draft202012Validator
 
-from gateway.checks.json_schema import config_schema, profile_schema
-from gateway.cli import main
-from gateway.config import ConfigError, parse_config
-from gateway.eds import load_eds
-from gateway.eds.show import overlay_profile
-from gateway.profiles import builtin_profiles
+from canopen_gateway.checks.json_schema import config_schema, profile_schema
+from canopen_gateway.cli import main
+from canopen_gateway.config import ConfigError, parse_config
+from canopen_gateway.eds import load_eds
+from canopen_gateway.eds.show import overlay_profile
+from canopen_gateway.profiles import builtin_profiles
 
 ROOT = Path(__file__).resolve().parents[2]
-PROFILES = ROOT / "gateway" / "profiles"
+PROFILES = ROOT / "canopen_gateway" / "profiles"
 CORPUS = ROOT / ".." / "shared" / "eds-corpus"
 
 
@@ -151,7 +151,7 @@ def test_schema_refuses_what_check_refuses(
 def check_refuses(doc: dict[str, Any]) -> bool:
     """What ``check`` holds a file's shape to: the models, then the ``can:`` section against
     the interface (``cli.load.load_for_bus``)."""
-    from gateway.bus.can_backend import can_section_problems, interface_problem
+    from canopen_gateway.bus.can_backend import can_section_problems, interface_problem
 
     try:
         parse_config(doc, "demo.yaml", environ={})

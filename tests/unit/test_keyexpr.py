@@ -1,4 +1,4 @@
-"""The config's key-expression check (``gateway.config.keyexpr``, without zenoh: the layers
+"""The config's key-expression check (``canopen_gateway.config.keyexpr``, without zenoh: the layers
 that read the config may not import it) accepts exactly what zenoh's ``KeyExpr`` accepts and
 names what is wrong; the write allow-lists match keys with zenoh's own ``KeyExpr.includes``."""
 
@@ -9,8 +9,8 @@ import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.config import ZenohSection, keyexpr
-from gateway.zenoh_bridge.access import WriteGate
+from canopen_gateway.config import ZenohSection, keyexpr
+from canopen_gateway.zenoh_bridge.access import WriteGate
 
 CASES = [
     ("canopen/line1/display/set/set_point$*", "canopen/line1/display/set/set_point2", True),

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.canopen.objref import ObjRef
-from gateway.cli import main
-from gateway.config import parse_config
-from gateway.northbound.keys import (
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.cli import main
+from canopen_gateway.config import parse_config
+from canopen_gateway.northbound.keys import (
     BadKey,
     Request,
     all_keys,

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.node.lifecycle import (
+from canopen_gateway.bus.node.lifecycle import (
     RECHECK_BACKOFF,
     Backoff,
     BootTimeout,
@@ -28,19 +28,19 @@ from gateway.bus.node.lifecycle import (
     WriteStep,
     WrongDevice,
 )
-from gateway.canopen.cia301 import SDO_ABORT_TEXTS, abort_text
-from gateway.canopen.objref import ObjRef
-from gateway.device.boot_steps import ConfigStep, build_boot_steps
-from gateway.device.values import encode_value
-from gateway.errors import SdoAbort
-from gateway.profiles import (
+from canopen_gateway.canopen.cia301 import SDO_ABORT_TEXTS, abort_text
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.device.boot_steps import ConfigStep, build_boot_steps
+from canopen_gateway.device.values import encode_value
+from canopen_gateway.errors import SdoAbort
+from canopen_gateway.profiles import (
     ExternalHeartbeatSetup,
     LoadedProfile,
     NodeSetup,
     SdoSetup,
     load_profile,
 )
-from gateway.profiles.schema import BootWrite, Pdo
+from canopen_gateway.profiles.schema import BootWrite, Pdo
 
 W = LifecycleState.WAITING
 B = LifecycleState.BOOTING
@@ -606,7 +606,7 @@ IDENTITY = ((ObjRef(0x1018, 1), 0x195), (ObjRef(0x1018, 2), 0x401))
 
 
 def _read(lc: NodeLifecycle, now: float) -> Any:
-    from gateway.bus.node.lifecycle import ReadIdentity
+    from canopen_gateway.bus.node.lifecycle import ReadIdentity
 
     a = lc.next_action(now)
     assert isinstance(a, ReadIdentity), a
@@ -736,7 +736,7 @@ class TestTransitionTable:
     reads it; our own misuse raises, a peer's event that means nothing is counted."""
 
     def test_every_state_change_of_a_boot_and_a_loss_is_a_row_of_the_table(self) -> None:
-        from gateway.bus.node.lifecycle import TRANSITIONS
+        from canopen_gateway.bus.node.lifecycle import TRANSITIONS
 
         lc = NodeLifecycle([ConfigStep(ObjRef(0x1017, 0), 100, "uint16")])
         changes = [*lc.on_bootup(0.0)]
@@ -752,7 +752,7 @@ class TestTransitionTable:
         assert set(moves) <= table
 
     def test_a_change_the_table_does_not_define_raises_for_our_own_misuse(self) -> None:
-        from gateway.bus.node.lifecycle import LifecycleError, LifecycleEvent
+        from canopen_gateway.bus.node.lifecycle import LifecycleError, LifecycleEvent
 
         lc = NodeLifecycle([])
         with pytest.raises(LifecycleError, match="no transition from waiting on NMT start sent"):

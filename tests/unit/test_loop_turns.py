@@ -1,4 +1,4 @@
-"""Turns on the event loop (``gateway.runtime.turns.LoopTurns``): one piece of northbound work per loop
+"""Turns on the event loop (``canopen_gateway.runtime.turns.LoopTurns``): one piece of northbound work per loop
 iteration, so the loop polls its sockets (a PLC's request) between two pieces; bounded."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import asyncio
 import socket
 import time
 
-from gateway.runtime.turns import LoopTurns
+from canopen_gateway.runtime.turns import LoopTurns
 
 
 class Iterations:

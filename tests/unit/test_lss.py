@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.lss.master import (
+from canopen_gateway.bus.lss.master import (
     COB_ID_MASTER_TO_SLAVE,
     COB_ID_SLAVE_TO_MASTER,
     ConfigAnswer,
@@ -248,7 +248,7 @@ class TestLssServiceOfTheMaster:
 
     @staticmethod
     def _service(now: list[float], sent: list[tuple[int, bytes]]) -> Any:
-        from gateway.bus.lss.service import LssService
+        from canopen_gateway.bus.lss.service import LssService
 
         svc = LssService(
             lambda cob, data: sent.append((cob, data)),
@@ -277,7 +277,7 @@ class TestLssServiceOfTheMaster:
     async def test_an_unanswered_request_fails_just_after_its_deadline(self) -> None:
         import asyncio
 
-        from gateway.errors import LssFailed
+        from canopen_gateway.errors import LssFailed
 
         now, sent = [0.0], []
         svc = self._service(now, sent)
@@ -301,7 +301,7 @@ class TestLssServiceOfTheMaster:
         def refused(cob: int, data: bytes) -> None:
             raise can.CanOperationError("CAN bus is down")
 
-        from gateway.bus.lss.service import LssService
+        from canopen_gateway.bus.lss.service import LssService
 
         svc = LssService(refused, lambda fn, *args: fn(*args), lambda: now[0], lambda m: now[0])
         svc.machine.resume(LssMode.CONFIGURATION)
@@ -363,7 +363,7 @@ class FastScanSlaves:
 def fast_scan_service(slaves: FastScanSlaves) -> Any:
     import asyncio
 
-    from gateway.bus.lss.service import LssService
+    from canopen_gateway.bus.lss.service import LssService
 
     def post(fn: Any, *args: Any) -> None:  # the reader's hand-off: on the loop, after the send
         asyncio.get_running_loop().call_soon(fn, *args)
@@ -386,7 +386,7 @@ async def test_fast_scan_of_the_service_gives_node_ids_lowest_address_first_and_
 
 
 async def test_fast_scan_of_the_service_finds_nobody_or_a_refused_node_id_in_words() -> None:
-    from gateway.errors import LssFailed
+    from canopen_gateway.errors import LssFailed
 
     with pytest.raises(LssFailed, match="no unconfigured LSS slave answered"):
         await fast_scan_service(FastScanSlaves([])).fast_scan(KNOWN, 0.0)

@@ -1,4 +1,4 @@
-"""CiA 305 LSS Fast Scan: our master's steps (``gateway.bus.lss.fastscan``) find the
+"""CiA 305 LSS Fast Scan: our master's steps (``canopen_gateway.bus.lss.fastscan``) find the
 unconfigured slave with the lowest LSS address among identical devices whose serial numbers
 are unknown, against slaves scripted here from CiA 305 (as CANopenNode's CO_LSSslave answers)
 and against our simulator's LSS slave (``sim.features.lss_slave``), which leaves the one found
@@ -12,8 +12,8 @@ from typing import Any
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.bus.lss.fastscan import FastScan
-from gateway.sim.features.lss_slave import CONFIGURATION, WAITING, LssSlave
+from canopen_gateway.bus.lss.fastscan import FastScan
+from canopen_gateway.sim.features.lss_slave import CONFIGURATION, WAITING, LssSlave
 
 Address = tuple[int, int, int, int]
 

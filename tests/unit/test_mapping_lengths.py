@@ -13,13 +13,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.bus.node.outputs import OutputImage
-from gateway.canopen.objref import ObjRef
-from gateway.commands import check_value
-from gateway.config import NodeConfig
-from gateway.eds import lint, load_eds
-from gateway.errors import ValueOutOfRange
-from gateway.pdo.codec import (
+from canopen_gateway.bus.node.outputs import OutputImage
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.commands import check_value
+from canopen_gateway.config import NodeConfig
+from canopen_gateway.eds import lint, load_eds
+from canopen_gateway.errors import ValueOutOfRange
+from canopen_gateway.pdo.codec import (
     Field,
     FieldValueError,
     RpdoCodec,
@@ -27,8 +27,8 @@ from gateway.pdo.codec import (
     compile_fields,
     compile_node,
 )
-from gateway.profiles import load_node_profile
-from gateway.profiles.schema import Pdo
+from canopen_gateway.profiles import load_node_profile
+from canopen_gateway.profiles.schema import Pdo
 from tests.helpers import edited_copy, line_of
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"

@@ -3,7 +3,7 @@ which connection gives way to a client in ``allowed_networks`` when the total is
 
 from __future__ import annotations
 
-from gateway.modbus.admission import Admission
+from canopen_gateway.modbus.admission import Admission
 
 PLC = "10.0.0.5"
 

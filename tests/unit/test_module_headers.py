@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
+GATEWAY = Path(__file__).resolve().parents[2] / "canopen_gateway"
 
 
 def _modules() -> list[Path]:
@@ -61,7 +61,7 @@ def _gateway_imports(tree: ast.Module, path: Path) -> set[str]:
                     for a in node.names
                     if (base / f"{a.name}.py").exists() or (base / a.name).is_dir()
                 ]
-                # ``from gateway.bus.lss import master``: the module imported is bus.lss.master
+                # ``from canopen_gateway.bus.lss import master``: the module imported is bus.lss.master
                 out.update(f"{below}.{m}" for m in submodules)
                 if len(submodules) < len(node.names):
                     out.add(below)

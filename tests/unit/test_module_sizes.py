@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
+GATEWAY = Path(__file__).resolve().parents[2] / "canopen_gateway"
 MAX_LINES = 550
 PACKAGES = ("profiles", "sim", "commands", "modbus")
 
@@ -34,7 +34,7 @@ def test_no_module_of_the_gateway_is_over_550_lines() -> None:
 
 
 def test_the_profiles_package_still_offers_its_public_names() -> None:
-    import gateway.profiles as profiles
+    import canopen_gateway.profiles as profiles
 
     for name in profiles.__all__:
         assert getattr(profiles, name) is not None
@@ -43,7 +43,7 @@ def test_the_profiles_package_still_offers_its_public_names() -> None:
 
 
 def test_the_commands_package_still_offers_its_public_names() -> None:
-    import gateway.commands as commands
+    import canopen_gateway.commands as commands
 
     for name in commands.__all__:
         assert getattr(commands, name) is not None

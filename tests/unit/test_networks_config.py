@@ -12,9 +12,9 @@ from typing import Any
 
 import pytest
 
-from gateway.cli import main
-from gateway.config import ConfigError
-from gateway.northbound.regmap import build_register_map
+from canopen_gateway.cli import main
+from canopen_gateway.config import ConfigError
+from canopen_gateway.northbound.regmap import build_register_map
 from tests.helpers import parse_checked, parse_checked_config, resolved
 
 
@@ -206,7 +206,7 @@ def test_checks_warnings_and_notes_are_each_networks_under_its_key() -> None:
     """A SYNC-driven TPDO without SYNC on its own network is warned of there only (line1 makes
     SYNC, line2 does not); a part of the identity a file cannot give is noted under the node's
     networks[k].nodes[j]."""
-    from gateway.checks import config_notes, config_warnings
+    from canopen_gateway.checks import config_notes, config_warnings
 
     raw = {"networks": [
         net("line1", node("wire", 1), master={"sync_period_ms": 100}),

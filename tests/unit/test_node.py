@@ -1,4 +1,4 @@
-"""The per-node machine (gateway.bus.node.node.Node) on a fake clock, against a device scripted in
+"""The per-node machine (canopen_gateway.bus.node.node.Node) on a fake clock, against a device scripted in
 the test from the manuals' frames: boot-up, configuration, supervision, probes, freshness of
 values, refresh of change-only TPDOs, keep-alive, NMT expectations."""
 
@@ -16,11 +16,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.bus.events import Note, Send, ValuesRead
-from gateway.bus.node.parts import NodeParts, build_node
-from gateway.canopen.states import LinkState, NmtState
-from gateway.image import NodeImage, Quality, SignalValue
-from gateway.profiles import expected_identity
+from canopen_gateway.bus.events import Note, Send, ValuesRead
+from canopen_gateway.bus.node.parts import NodeParts, build_node
+from canopen_gateway.canopen.states import LinkState, NmtState
+from canopen_gateway.image import NodeImage, Quality, SignalValue
+from canopen_gateway.profiles import expected_identity
 from tests.helpers import make_config, resolved
 
 
@@ -416,7 +416,7 @@ def test_the_guarding_bit_toggles_once_per_echo_and_the_keepalive_feeds_the_devi
 def test_outputs_are_refused_and_unchanged_when_the_node_is_not_operational() -> None:
     import pytest
 
-    from gateway.errors import NodeNotOperational
+    from canopen_gateway.errors import NodeNotOperational
 
     h = Harness("ap05", node_id=1, guarding_bit={"enabled": False})
     h.start()
@@ -464,7 +464,7 @@ def test_the_image_outputs_are_what_the_rpdos_carry_set_by_the_node_in_one_recor
 
 
 def test_sync_and_heartbeat_producers_are_due_every_period_and_catch_up_once() -> None:
-    from gateway.bus.producers import Periodic
+    from canopen_gateway.bus.producers import Periodic
 
     p = Periodic(0.02, 100.0)
     assert p.due(100.0) and p.next_deadline() == 100.02
@@ -479,7 +479,7 @@ def test_sync_and_heartbeat_producers_are_due_every_period_and_catch_up_once() -
 def test_every_rpdo_sent_pushes_the_keepalive_back() -> None:
     """AP05 manual 5.5.4: any RPDO feeds the external heartbeat; the keep-alive re-sends the
     last RPDO only when none went out for keepalive_s."""
-    from gateway.bus.node.outputs import OutputImage
+    from canopen_gateway.bus.node.outputs import OutputImage
 
     h = Harness("ap05", node_id=1, guarding_bit={"enabled": False}, external_heartbeat={"interval_ms": 100})
     out = OutputImage("n", h.parts.rpdos, keepalive_s=0.05)
@@ -597,7 +597,7 @@ def test_queued_sdo_work_is_never_left_waiting_for_an_unrelated_deadline(events:
                 raw = bytes([cmd]) + job.obj.index.to_bytes(2, "little") + bytes([job.obj.sub])
                 h.node.on_sdo_response(raw + bytes([arg, 0, 0, 0]), now)
             elif kind == "sdo_req":
-                from gateway.canopen.objref import ObjRef
+                from canopen_gateway.canopen.objref import ObjRef
 
                 h.node.request_sdo(ObjRef(0x1018, 1), None if arg else b"\x01", now)
             elif kind == "tick":

@@ -1,4 +1,4 @@
-"""A node another master manages (lifecycle LISTENING, gateway.bus.node.listening) on a fake
+"""A node another master manages (lifecycle LISTENING, canopen_gateway.bus.node.listening) on a fake
 clock: the lifecycle rows of listening, what the standby follows of a node's life (HeardLife),
 node guarding while listening and at a take-over, and the guarding bit of heard RPDOs.
 
@@ -17,20 +17,20 @@ from typing import Any
 
 import pytest
 
-from gateway.bus.error_control.guarding_bit import GuardingBitCheck
-from gateway.bus.events import Send
-from gateway.bus.node.lifecycle import (
+from canopen_gateway.bus.error_control.guarding_bit import GuardingBitCheck
+from canopen_gateway.bus.events import Send
+from canopen_gateway.bus.node.lifecycle import (
     TRANSITIONS,
     LifecycleEvent,
     LifecycleState,
     NodeLifecycle,
     StateChanged,
 )
-from gateway.bus.node.listening import LIFE, SETTLE_S, HeardLife, Life
-from gateway.bus.node.parts import build_node
-from gateway.canopen.cia301 import NMT_COMMANDS
-from gateway.canopen.states import LinkState, NmtState
-from gateway.image import NodeImage
+from canopen_gateway.bus.node.listening import LIFE, SETTLE_S, HeardLife, Life
+from canopen_gateway.bus.node.parts import build_node
+from canopen_gateway.canopen.cia301 import NMT_COMMANDS
+from canopen_gateway.canopen.states import LinkState, NmtState
+from canopen_gateway.image import NodeImage
 from tests.helpers import make_config, resolved
 from tests.unit.test_node import Harness
 

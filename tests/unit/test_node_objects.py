@@ -10,18 +10,18 @@ import logging
 from pathlib import Path
 from types import SimpleNamespace
 
-from gateway.bus.events import Note
-from gateway.bus.node.features.verify_mapping import VerifyMapping
-from gateway.bus.node.lifecycle import Configured, LifecycleState, NodeLifecycle, StepFailed
-from gateway.bus.node.lifecycle_report import Report, lifecycle_reports
-from gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
-from gateway.bus.sdo.channel import SdoChannel, SdoJob
-from gateway.canopen.objref import ObjRef
-from gateway.device.boot_steps import ConfigStep
-from gateway.image import NodeHealth
-from gateway.pdo.verify import MappingRead
+from canopen_gateway.bus.events import Note
+from canopen_gateway.bus.node.features.verify_mapping import VerifyMapping
+from canopen_gateway.bus.node.lifecycle import Configured, LifecycleState, NodeLifecycle, StepFailed
+from canopen_gateway.bus.node.lifecycle_report import Report, lifecycle_reports
+from canopen_gateway.bus.node.sdo_done import SDO_DONE, SdoOutcome
+from canopen_gateway.bus.sdo.channel import SdoChannel, SdoJob
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.device.boot_steps import ConfigStep
+from canopen_gateway.image import NodeHealth
+from canopen_gateway.pdo.verify import MappingRead
 
-GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
+GATEWAY = Path(__file__).resolve().parents[2] / "canopen_gateway"
 #: NamedTuple's public API is spelled with an underscore
 NAMEDTUPLE_API = {"_replace", "_asdict", "_fields", "_make", "_field_defaults"}
 

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from gateway.canopen.objref import ObjRef
-from gateway.config import NodeConfig, PdoSetting
-from gateway.device.boot_steps import build_boot_steps
-from gateway.profiles import (
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.config import NodeConfig, PdoSetting
+from canopen_gateway.device.boot_steps import build_boot_steps
+from canopen_gateway.profiles import (
     ExternalHeartbeatSetup,
     NodeSetup,
     PdoSetup,
@@ -22,7 +22,7 @@ from gateway.profiles import (
     load_node_profile,
 )
 
-GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
+GATEWAY = Path(__file__).resolve().parents[2] / "canopen_gateway"
 #: the packages that read a node's configuration only through ``NodeSetup``
 DEVICE_KNOWLEDGE = ("profiles", "device", "pdo", "eds")
 

@@ -1,6 +1,6 @@
 """Each object owns its state: no class of the gateway binds a function of another module as
 its method (``open = session.open`` in a class body), and code reaches into another object's
-private attributes (``other._x``) at most a handful of times in all of ``gateway/``.
+private attributes (``other._x``) at most a handful of times in all of ``canopen_gateway/``.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import re
 import types
 from pathlib import Path
 
-GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
+GATEWAY = Path(__file__).resolve().parents[2] / "canopen_gateway"
 
-#: the most reaches into another object's private attributes allowed in all of ``gateway/``
+#: the most reaches into another object's private attributes allowed in all of ``canopen_gateway/``
 MAX_PRIVATE_REACHES = 4
 #: ``x._y`` where ``x`` is not ``self``/``cls``; namedtuple's public API starts with "_"
 REACH = re.compile(r"\b([a-z_][a-zA-Z0-9_]*)\._[a-z][a-zA-Z0-9_]*")

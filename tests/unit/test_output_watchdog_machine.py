@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from gateway.modbus.watchdog import (
+from canopen_gateway.modbus.watchdog import (
     DISCONNECT,
     TIMEOUT,
     TRANSITIONS,

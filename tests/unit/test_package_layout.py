@@ -1,6 +1,6 @@
-"""The package's rooms: the root of ``gateway/`` keeps the entry points and the few basics every
-layer uses (at most 8 modules); the CANopen facts live in ``gateway/canopen/``, the HTTP server
-in ``gateway/http/``, the running basics in ``gateway/runtime/``; what the adapters share
+"""The package's rooms: the root of ``canopen_gateway/`` keeps the entry points and the few basics every
+layer uses (at most 8 modules); the CANopen facts live in ``canopen_gateway/canopen/``, the HTTP server
+in ``canopen_gateway/http/``, the running basics in ``canopen_gateway/runtime/``; what the adapters share
 (``northbound/``) imports nothing of the bus (also held by an import-linter contract)."""
 
 from __future__ import annotations
@@ -8,12 +8,12 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-GATEWAY = Path(__file__).resolve().parents[2] / "gateway"
+GATEWAY = Path(__file__).resolve().parents[2] / "canopen_gateway"
 
 
 def test_the_package_root_keeps_at_most_8_modules() -> None:
     root = sorted(p.name for p in GATEWAY.glob("*.py"))
-    assert len(root) <= 8, f"gateway/ holds {len(root)} modules: {', '.join(root)}"
+    assert len(root) <= 8, f"canopen_gateway/ holds {len(root)} modules: {', '.join(root)}"
 
 
 def test_the_cia_facts_the_http_server_and_the_running_basics_have_their_packages() -> None:
@@ -23,8 +23,8 @@ def test_the_cia_facts_the_http_server_and_the_running_basics_have_their_package
         "runtime": ("threads", "ratelimit", "turns", "startup"),
     }.items():
         for m in modules:
-            assert (GATEWAY / package / f"{m}.py").is_file(), f"gateway/{package}/{m}.py"
-            assert not (GATEWAY / f"{m}.py").exists(), f"gateway/{m}.py is still in the root"
+            assert (GATEWAY / package / f"{m}.py").is_file(), f"canopen_gateway/{package}/{m}.py"
+            assert not (GATEWAY / f"{m}.py").exists(), f"canopen_gateway/{m}.py is still in the root"
 
 
 def _imported(path: Path) -> set[str]:
@@ -43,6 +43,6 @@ def test_northbound_imports_nothing_of_the_bus() -> None:
         f"{path.relative_to(GATEWAY.parent)}: {name}"
         for path in (GATEWAY / "northbound").rglob("*.py")
         for name in _imported(path)
-        if name == "gateway.bus" or name.startswith("gateway.bus.")
+        if name == "canopen_gateway.bus" or name.startswith("canopen_gateway.bus.")
     }
     assert not found, sorted(found)

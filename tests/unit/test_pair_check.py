@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 import yaml
 
-from gateway.checks import config_warnings, pair_problems
-from gateway.config import ConfigError
+from canopen_gateway.checks import config_warnings, pair_problems
+from canopen_gateway.config import ConfigError
 from tests.helpers import parse_checked_config as parse_config
 from tests.helpers import resolved
 
@@ -138,7 +138,7 @@ def test_own_settings_may_differ() -> None:
 def _run_check(*paths: Path) -> subprocess.CompletedProcess[str]:
     args = [a for p in paths for a in ("-c", str(p))]
     return subprocess.run(
-        [sys.executable, "-m", "gateway", "check", *args], capture_output=True, text=True, cwd=ROOT
+        [sys.executable, "-m", "canopen_gateway", "check", *args], capture_output=True, text=True, cwd=ROOT
     )
 
 
@@ -274,7 +274,7 @@ def test_time_slots_that_invert_the_priority_order_are_refused_in_one_line_namin
 def test_the_worst_takeover_counts_how_rarely_the_devices_talk() -> None:
     """1 s heartbeats: the standby hears a device at most 1 s after the master's next two
     heartbeats were due: 200 + 1000 ms, B's slot 404 ms, one heartbeat: 1,704 ms."""
-    from gateway.checks.pair import takeover_worst_ms
+    from canopen_gateway.checks.pair import takeover_worst_ms
 
     _, b = raw_pair()
     cfg = parse_config(b, "B.yaml", {})

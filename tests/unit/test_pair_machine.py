@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from gateway.bus.pair.flying_master import (
+from canopen_gateway.bus.pair.flying_master import (
     COB_ACTIVE_MASTER_REQUEST,
     COB_ACTIVE_MASTER_RESPONSE,
     COB_CAPABLE_RESPONSE,

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from gateway.bus.pair.flying_master import (
+from canopen_gateway.bus.pair.flying_master import (
     COB_ACTIVE_MASTER_REQUEST,
     COB_ACTIVE_MASTER_RESPONSE,
     Role,
     RoleChanged,
 )
-from gateway.bus.pair.member import PairMember
+from canopen_gateway.bus.pair.member import PairMember
 from tests.helpers import make_config
 
 OWN = 0x700 + 101

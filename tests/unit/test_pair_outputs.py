@@ -1,4 +1,4 @@
-"""The output image of a hot-standby pair's members (gateway.bus.node.outputs, ``pair``) on a
+"""The output image of a hot-standby pair's members (canopen_gateway.bus.node.outputs, ``pair``) on a
 fake clock, with the AP05's RPDOs (manual 5.3.1.2 table 26: set point1 + characters 5-6 +
 control word 5F0Ch in RPDO1, set point2 + characters + the same control word in RPDO2; 5.3.2:
 control bit 8 the guarding bit): the active member's frames carry every RPDO's content, and a
@@ -11,7 +11,7 @@ from typing import Any
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.bus.node.outputs import OutputImage
+from canopen_gateway.bus.node.outputs import OutputImage
 from tests.helpers import make_config, resolved
 from tests.pair_invariants import as_frames, outputs_known_alike
 

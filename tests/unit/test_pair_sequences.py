@@ -26,7 +26,7 @@ from hypothesis import settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
-from gateway.bus.pair.flying_master import Role
+from canopen_gateway.bus.pair.flying_master import Role
 from tests.pair_sim import ALLOW_S, OUTPUTS, Sim
 
 NAMES = st.sampled_from(["A", "B"])

@@ -5,7 +5,7 @@ payload) is seen after an hour as in the first second. A fake clock: an hour is 
 
 from __future__ import annotations
 
-from gateway.bus.bus_peers import ECHO_PENDING_MAX, BusPeers
+from canopen_gateway.bus.bus_peers import ECHO_PENDING_MAX, BusPeers
 
 OWN_ID = 127
 OWN_HB_COB = 0x700 + OWN_ID

@@ -13,15 +13,15 @@ from pathlib import Path
 
 import pytest
 
-from gateway.cli import main
-from gateway.northbound.plc_tags import (
+from canopen_gateway.cli import main
+from canopen_gateway.northbound.plc_tags import (
     IEC_TYPE,
     KEPWARE_TYPE,
     modicon_address,
     to_kepware,
     to_modicon,
 )
-from gateway.northbound.regmap import RegisterMap, build_register_map
+from canopen_gateway.northbound.regmap import RegisterMap, build_register_map
 from tests.helpers import load_checked_config, with_nodes
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -96,7 +96,7 @@ def test_kepware_file_is_one_device_with_the_driver_columns_and_unique_tag_names
 
 
 def test_every_register_type_has_an_iec_and_a_kepware_type() -> None:
-    from gateway.northbound.regmap import _REG_TYPE
+    from canopen_gateway.northbound.regmap import _REG_TYPE
 
     assert set(_REG_TYPE.values()) | {"bool"} <= set(IEC_TYPE) & set(KEPWARE_TYPE)
 

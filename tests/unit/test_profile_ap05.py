@@ -4,7 +4,7 @@ The facts below are copied from the manual's object tables (5.7.1 table 33 and 5
 tables (5.3.1 tables 25/26), the control/status word tables (5.3.2 table 27, 5.3.3 table 28) and
 the EMCY table (5.5.1 table 31), so that the test runs without the manual.
 
-Imports: gateway.profiles, canopen, struct. No I/O beyond reading the profile files.
+Imports: canopen_gateway.profiles, canopen, struct. No I/O beyond reading the profile files.
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ import struct
 import canopen
 import pytest
 
-from gateway.canopen.objref import ObjRef
-from gateway.profiles import import_eds, load_profile
-from gateway.profiles.schema import Pdo, Signal, default_cob_id
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.profiles import import_eds, load_profile
+from canopen_gateway.profiles.schema import Pdo, Signal, default_cob_id
 
 U8, U16, U32 = 0x0005, 0x0006, 0x0007
 I16, I32, VIS = 0x0003, 0x0004, 0x0009

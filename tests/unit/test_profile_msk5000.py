@@ -1,7 +1,7 @@
-"""The SIKO MSK5000CAN profile (gateway/profiles/msk5000.*) against its manual (seed 001).
+"""The SIKO MSK5000CAN profile (canopen_gateway/profiles/msk5000.*) against its manual (seed 001).
 
 The facts below are copied from the manual (section numbers in comments) so that the test runs
-without the manual. Imports: gateway.profiles, canopen (data type constants) and pytest only.
+without the manual. Imports: canopen_gateway.profiles, canopen (data type constants) and pytest only.
 """
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from __future__ import annotations
 import canopen.objectdictionary.datatypes as dt
 import pytest
 
-from gateway.canopen.objref import ObjRef
-from gateway.profiles import PROFILE_DIR, import_eds, load_profile
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.profiles import PROFILE_DIR, import_eds, load_profile
 
 U8, U16, U32 = dt.UNSIGNED8, dt.UNSIGNED16, dt.UNSIGNED32
 I16, I32, VS = dt.INTEGER16, dt.INTEGER32, dt.VISIBLE_STRING

@@ -9,8 +9,8 @@ from __future__ import annotations
 import pytest
 from canopen.objectdictionary import datatypes as dt
 
-from gateway.canopen.objref import ObjRef
-from gateway.profiles import PROFILE_DIR, import_eds, load_profile
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.profiles import PROFILE_DIR, import_eds, load_profile
 
 U8, U16, U32, I16, I32, STR = (
     dt.UNSIGNED8,

@@ -1,7 +1,7 @@
 """The SGH10 / SGH10L profile and EDS match the SIKO SGH10 user manual.
 
 Facts from the manual (chapter 4.7 object tables, 4.3.1.1 Table 5, 4.5.1 Table 9) are copied here
-as data; the test never reads the manual. Imports: gateway.profiles, canopen data types only.
+as data; the test never reads the manual. Imports: canopen_gateway.profiles, canopen data types only.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import struct
 import pytest
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
-from gateway.canopen.objref import ObjRef
-from gateway.profiles import PROFILE_DIR, LoadedProfile, import_eds, load_profile
-from gateway.profiles.schema import KNOWN_FEATURES
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.profiles import PROFILE_DIR, LoadedProfile, import_eds, load_profile
+from canopen_gateway.profiles.schema import KNOWN_FEATURES
 
 U8, U16, U32 = datatypes.UNSIGNED8, datatypes.UNSIGNED16, datatypes.UNSIGNED32
 I16, I32, VS = datatypes.INTEGER16, datatypes.INTEGER32, datatypes.VISIBLE_STRING

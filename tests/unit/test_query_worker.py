@@ -1,4 +1,4 @@
-"""The Zenoh queries' worker (``gateway.zenoh_bridge.worker``) driven step by step: a
+"""The Zenoh queries' worker (``canopen_gateway.zenoh_bridge.worker``) driven step by step: a
 controlled executor (``step`` is one turn, no thread) and a fake clock. Bounds, round robin
 between querying sessions, lazy answers that give way, failures that stop nothing."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import threading
 from collections.abc import Iterator
 
-from gateway.runtime.threads import ThreadRegistry
-from gateway.zenoh_bridge.worker import RETRY_MAX_S, RETRY_MIN_S, QueryWorker
+from canopen_gateway.runtime.threads import ThreadRegistry
+from canopen_gateway.zenoh_bridge.worker import RETRY_MAX_S, RETRY_MIN_S, QueryWorker
 from tests.helpers import wait_until_sync
 
 

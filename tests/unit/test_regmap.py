@@ -10,9 +10,9 @@ from typing import Any
 
 import pytest
 
-from gateway.config import ConfigError
-from gateway.modbus.protocol import from_registers, register_encoder, to_registers
-from gateway.northbound.regmap import NODE_DIAG, Point, RegisterMap, build_register_map
+from canopen_gateway.config import ConfigError
+from canopen_gateway.modbus.protocol import from_registers, register_encoder, to_registers
+from canopen_gateway.northbound.regmap import NODE_DIAG, Point, RegisterMap, build_register_map
 from tests.helpers import load_checked_config as load_config
 from tests.helpers import parse_checked_config as parse_config
 from tests.helpers import with_nodes

@@ -1,4 +1,4 @@
-"""Each configured node is resolved once, when the config is loaded (``gateway.device.resolved``):
+"""Each configured node is resolved once, when the config is loaded (``canopen_gateway.device.resolved``):
 the commands load, check and serve from that one resolution, and no module but the resolver
 loads a node's profile."""
 
@@ -10,17 +10,17 @@ from typing import Any
 
 import pytest
 
-from gateway.cli import main
-from gateway.profiles import node_profile
+from canopen_gateway.cli import main
+from canopen_gateway.profiles import node_profile
 
 ROOT = Path(__file__).resolve().parents[2]
 DEMO = ROOT / "config" / "demo.yaml"
 
 
 def _calls_of(name: str) -> set[str]:
-    """The modules of gateway/ that call ``name`` (by that name or as an attribute)."""
+    """The modules of canopen_gateway/ that call ``name`` (by that name or as an attribute)."""
     out = set()
-    for path in sorted((ROOT / "gateway").rglob("*.py")):
+    for path in sorted((ROOT / "canopen_gateway").rglob("*.py")):
         tree = ast.parse(path.read_text(encoding="utf-8"))
         for node in ast.walk(tree):
             if isinstance(node, ast.Call):
@@ -32,11 +32,11 @@ def _calls_of(name: str) -> set[str]:
 
 
 def test_only_the_resolver_loads_a_node_profile() -> None:
-    assert _calls_of("load_node_profile") == {"gateway/device/resolved.py"}
+    assert _calls_of("load_node_profile") == {"canopen_gateway/device/resolved.py"}
 
 
 def test_only_the_resolver_builds_boot_steps() -> None:
-    assert _calls_of("build_boot_steps") == {"gateway/device/resolved.py"}
+    assert _calls_of("build_boot_steps") == {"canopen_gateway/device/resolved.py"}
 
 
 @pytest.mark.parametrize("command", ["check", "registers", "keys"])

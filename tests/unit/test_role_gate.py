@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2] / "gateway"
+ROOT = Path(__file__).resolve().parents[2] / "canopen_gateway"
 ADAPTERS = ("modbus", "zenoh_bridge", "web", "ascii")
 #: the master's role state read past the command service
 FORBIDDEN = re.compile(r"\.mastering\b|\bmaster\.role\b|\bmaster\.member\b|\bmaster\.pair\b")

@@ -8,9 +8,9 @@ from typing import Any
 
 import pytest
 
-from gateway.config import ConfigError
-from gateway.modbus.safe_outputs import safe_outputs
-from gateway.profiles import load_node_profile
+from canopen_gateway.config import ConfigError
+from canopen_gateway.modbus.safe_outputs import safe_outputs
+from canopen_gateway.profiles import load_node_profile
 from tests.helpers import parse_checked_config
 
 IO = Path(__file__).resolve().parents[1] / "data" / "eds" / "io401.eds"

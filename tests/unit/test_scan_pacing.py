@@ -10,7 +10,7 @@ import errno
 import can
 import pytest
 
-from gateway.bus.scan import (
+from canopen_gateway.bus.scan import (
     ASSUMED_BITRATE_BPS,
     FRAME_BITS_MAX,
     SEND_ATTEMPTS,

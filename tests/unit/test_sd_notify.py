@@ -1,8 +1,8 @@
-"""systemd notification without a library (``gateway.runtime.sd_notify``) on a real AF_UNIX
+"""systemd notification without a library (``canopen_gateway.runtime.sd_notify``) on a real AF_UNIX
 datagram socket: the watchdog is ours only when WATCHDOG_PID is unset or our pid, its period
 half of WATCHDOG_USEC; no ping while the CAN reader (any network's) stands still; an abstract socket name
 (``@name``); nothing at all without NOTIFY_SOCKET. And the JSON log lines
-(``gateway.runtime.logformat``): the fields, the node a line concerns, a bad
+(``canopen_gateway.runtime.logformat``): the fields, the node a line concerns, a bad
 CANOPEN_GATEWAY_LOG_FORMAT named."""
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from gateway.cli import main
-from gateway.runtime.logformat import JsonFormatter
-from gateway.runtime.sd_notify import SystemdNotifier
+from canopen_gateway.cli import main
+from canopen_gateway.runtime.logformat import JsonFormatter
+from canopen_gateway.runtime.sd_notify import SystemdNotifier
 
 
 def test_watchdog_period_is_half_of_watchdog_usec_when_the_pid_is_ours_or_unset() -> None:
@@ -61,7 +61,7 @@ def test_the_watchdog_needs_every_networks_reader_to_go_round() -> None:
     restarts: the others going round do not hide it."""
     from types import SimpleNamespace
 
-    from gateway.cli.serve import readers_go_round
+    from canopen_gateway.cli.serve import readers_go_round
 
     line1, line2 = (SimpleNamespace(name=n, driver=SimpleNamespace(reader_turns=0)) for n in ("line1", "line2"))
     failures: dict[str, str] = {}

@@ -1,4 +1,4 @@
-"""The SDO client machine (gateway.bus.sdo.client) byte for byte against the manuals' worked
+"""The SDO client machine (canopen_gateway.bus.sdo.client) byte for byte against the manuals' worked
 examples (SGH10 manual 4.4.1.4), with a fake clock for timeouts and retries."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from gateway.bus.sdo.client import ABORT_TIMEOUT, ABORT_TOGGLE, SdoTransfer
+from canopen_gateway.bus.sdo.client import ABORT_TIMEOUT, ABORT_TOGGLE, SdoTransfer
 
 
 def h(text: str) -> bytes:
@@ -93,7 +93,7 @@ class TestTheTableIsData:
     style): a server's wrong answer is aborted and counted, our own wrong move raises."""
 
     def test_an_answer_with_another_command_specifier_is_aborted_and_counted(self) -> None:
-        from gateway.bus.sdo.client import SdoPhase, SdoTransfer
+        from canopen_gateway.bus.sdo.client import SdoPhase, SdoTransfer
 
         t = SdoTransfer(0x1017, 0x00)
         t.start(0.0)
@@ -104,7 +104,12 @@ class TestTheTableIsData:
         assert t.protocol_errors == 1
 
     def test_a_phase_change_the_table_does_not_define_raises(self) -> None:
-        from gateway.bus.sdo.client import PHASE_CHANGES, SdoPhase, SdoStateError, SdoTransfer
+        from canopen_gateway.bus.sdo.client import (
+            PHASE_CHANGES,
+            SdoPhase,
+            SdoStateError,
+            SdoTransfer,
+        )
 
         t = SdoTransfer(0x1017, 0x00)
         assert (SdoPhase.IDLE, SdoPhase.UP_SEG) not in PHASE_CHANGES

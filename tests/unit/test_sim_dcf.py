@@ -7,8 +7,8 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from gateway.profiles import load_node_profile
-from gateway.sim.node import SimNode
+from canopen_gateway.profiles import load_node_profile
+from canopen_gateway.sim.node import SimNode
 from tests.helpers import frame, make_config, resolved
 
 DCF = Path(__file__).resolve().parents[1] / "data" / "eds" / "compact.dcf"

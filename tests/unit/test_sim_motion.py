@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.sim.hints import SimHints
-from gateway.sim.motion import Motion, MotionConfig
+from canopen_gateway.sim.hints import SimHints
+from canopen_gateway.sim.motion import Motion, MotionConfig
 
 
 def samples(cfg: MotionConfig, times: list[float]) -> list[tuple[float, float]]:

@@ -2,7 +2,7 @@
 
 Frames are copied from the MSK5000CAN manual (seed 001): the TPDO remapping procedure 4.3.1.2,
 the SDO examples 4.4.1.4, referencing 5115h (4.6.1.22) and the speed alarm 5FFAh (4.6.1.26).
-Imports: python-can (Message), gateway.profiles, gateway.sim and pytest.
+Imports: python-can (Message), canopen_gateway.profiles, canopen_gateway.sim and pytest.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import struct
 import can
 import pytest
 
-from gateway.profiles import load_profile
-from gateway.sim.features import feature_class
-from gateway.sim.node import SimNode
+from canopen_gateway.profiles import load_profile
+from canopen_gateway.sim.features import feature_class
+from canopen_gateway.sim.node import SimNode
 from tests.helpers import frame
 
 NODE = 1

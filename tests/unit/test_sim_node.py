@@ -6,9 +6,9 @@ from __future__ import annotations
 import can
 import pytest
 
-from gateway.profiles import load_profile
-from gateway.sim.node import NmtState, SimNode
-from gateway.sim.objects import PersistentStore
+from canopen_gateway.profiles import load_profile
+from canopen_gateway.sim.node import NmtState, SimNode
+from canopen_gateway.sim.objects import PersistentStore
 from tests.helpers import frame
 
 NODE = 1
@@ -301,8 +301,8 @@ def test_a_node_silenced_before_power_on_boots_without_a_word() -> None:
 
 
 def test_every_profile_feature_has_a_sim_feature() -> None:
-    from gateway.profiles.schema import KNOWN_FEATURES
-    from gateway.sim.features import registered
+    from canopen_gateway.profiles.schema import KNOWN_FEATURES
+    from canopen_gateway.sim.features import registered
 
     assert set(registered()) == KNOWN_FEATURES
 

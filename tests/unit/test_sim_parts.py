@@ -6,13 +6,13 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-import gateway.sim.nmt as nmt
-from gateway.canopen.cia301 import NmtCommand
-from gateway.canopen.states import NmtState
-from gateway.sim.device_faults import DeviceFaults
-from gateway.sim.error_control import ErrorControl
-from gateway.sim.hints import SimHints
-from gateway.sim.objects import PersistentStore
+import canopen_gateway.sim.nmt as nmt
+from canopen_gateway.canopen.cia301 import NmtCommand
+from canopen_gateway.canopen.states import NmtState
+from canopen_gateway.sim.device_faults import DeviceFaults
+from canopen_gateway.sim.error_control import ErrorControl
+from canopen_gateway.sim.hints import SimHints
+from canopen_gateway.sim.objects import PersistentStore
 
 
 class FakeValues:

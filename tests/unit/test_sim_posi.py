@@ -13,9 +13,9 @@ import struct
 import can
 import pytest
 
-from gateway.profiles import load_profile
-from gateway.sim.node import SimNode
-from gateway.sim.objects import PersistentStore
+from canopen_gateway.profiles import load_profile
+from canopen_gateway.sim.node import SimNode
+from canopen_gateway.sim.objects import PersistentStore
 from tests.helpers import frame as can_frame
 
 POSITION = 0x0012D687  # an arbitrary held position, bytes 87 D6 12 00

@@ -9,8 +9,8 @@ import can
 import canopen
 import pytest
 
-from gateway.profiles import load_profile
-from gateway.sim.runner import SimRunner, build_sim_nodes
+from canopen_gateway.profiles import load_profile
+from canopen_gateway.sim.runner import SimRunner, build_sim_nodes
 
 
 def _recv_until(bus: can.BusABC, cob_id: int, timeout_s: float = 2.0) -> can.Message:

@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
-from gateway.profiles import load_node_profile
-from gateway.sim.node import SimNode
+from canopen_gateway.profiles import load_node_profile
+from canopen_gateway.sim.node import SimNode
 from tests.helpers import frame, make_config, simulated_bus
 
 DCF = Path(__file__).resolve().parents[1] / "data" / "eds" / "compact.dcf"
@@ -87,7 +87,7 @@ def test_a_change_driven_tpdo_goes_out_only_in_operational() -> None:
 def test_a_simulator_option_it_refuses_is_a_config_error_naming_its_key(
     section: str, value: dict[str, Any], message: str
 ) -> None:
-    from gateway.config import ConfigError
+    from canopen_gateway.config import ConfigError
 
     cfg = make_config([{"name": "io", "node_id": NODE, "eds": str(DCF)}], simulate={section: {"io": value}})
     with pytest.raises(ConfigError) as err:

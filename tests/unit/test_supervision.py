@@ -9,8 +9,8 @@ import math
 
 import pytest
 
-from gateway.bus.error_control.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
-from gateway.bus.error_control.supervision import (
+from canopen_gateway.bus.error_control.guarding_bit import GuardingBitCheck, LinkFault, LinkOk
+from canopen_gateway.bus.error_control.supervision import (
     BootUpSeen,
     HeartbeatConsumer,
     InvalidStateByte,
@@ -24,7 +24,7 @@ from gateway.bus.error_control.supervision import (
     ToggleError,
     WrongState,
 )
-from gateway.canopen.states import LinkState, NmtState
+from canopen_gateway.canopen.states import LinkState, NmtState
 
 PRE_OP = 0x7F  # SGH10 manual 4.5.3: 127 = PRE-OPERATIONAL
 OPERATIONAL = 0x05

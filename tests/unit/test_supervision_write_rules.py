@@ -4,10 +4,10 @@ value the gateway configured may always be written again."""
 
 from __future__ import annotations
 
-from gateway.canopen.objref import ObjRef
-from gateway.commands.validation import is_supervision_object, supervision_problem
-from gateway.device.boot_steps import ConfigStep
-from gateway.device.settings import NodeSettings
+from canopen_gateway.canopen.objref import ObjRef
+from canopen_gateway.commands.validation import is_supervision_object, supervision_problem
+from canopen_gateway.device.boot_steps import ConfigStep
+from canopen_gateway.device.settings import NodeSettings
 
 HB, GT, LTF = ObjRef(0x1017, 0), ObjRef(0x100C, 0), ObjRef(0x100D, 0)
 CONSUMER1 = ObjRef(0x1016, 1)

@@ -1,5 +1,5 @@
 """``check``'s warnings for the device timeouts a take-over of a hot-standby pair can outlast
-(gateway.checks.takeover): each names the node, the object, the time and the fix, for the
+(canopen_gateway.checks.takeover): each names the node, the object, the time and the fix, for the
 timeouts the devices' manuals and CiA 301 define: a heartbeat consumer of the logical master
 (1016h) set in the device's own file, the AP05's external heartbeat (manual 5.5.4, 5F09h),
 an RPDO's deadline (its event timer, CiA 301: RPDO timeout, EMCY 8250h) and SYNC-driven
@@ -20,12 +20,12 @@ from typing import Any
 
 import yaml
 
-from gateway.checks import config_warnings
-from gateway.config import parse_config
+from canopen_gateway.checks import config_warnings
+from canopen_gateway.config import parse_config
 from tests.helpers import resolved
 
 ROOT = Path(__file__).resolve().parents[2]
-PROFILES = ROOT / "gateway" / "profiles"
+PROFILES = ROOT / "canopen_gateway" / "profiles"
 
 
 def member_b(nodes: list[dict[str, Any]], **master: Any) -> dict[str, Any]:
@@ -151,7 +151,7 @@ def test_cli_check_prints_each_device_timeout_as_a_warning_line(tmp_path: Path) 
     path = tmp_path / "B.yaml"
     path.write_text(yaml.safe_dump(raw))
     done = subprocess.run(
-        [sys.executable, "-m", "gateway", "check", "-c", str(path)], capture_output=True, text=True, cwd=ROOT
+        [sys.executable, "-m", "canopen_gateway", "check", "-c", str(path)], capture_output=True, text=True, cwd=ROOT
     )
     assert done.returncode == 0, done.stderr
     lines = [line for line in done.stdout.splitlines() if line.startswith("  warning: node ")]

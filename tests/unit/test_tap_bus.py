@@ -7,9 +7,9 @@ from __future__ import annotations
 import can
 import pytest
 
-from gateway.bus.driver import BusDriver
-from gateway.bus.tap_bus import TapBus
-from gateway.image import ProcessImage
+from canopen_gateway.bus.driver import BusDriver
+from canopen_gateway.bus.tap_bus import TapBus
+from canopen_gateway.image import ProcessImage
 
 
 def msg(cob_id: int, data: bytes = b"") -> can.Message:

@@ -20,9 +20,9 @@ from typing import Any
 import can
 import pytest
 
-from gateway.bus.driver import BusDriver
-from gateway.bus.master import Master
-from gateway.image import NodeImage, ProcessImage, SignalView
+from canopen_gateway.bus.driver import BusDriver
+from canopen_gateway.bus.master import Master
+from canopen_gateway.image import NodeImage, ProcessImage, SignalView
 from tests.helpers import make_config, resolved
 
 WAIT_S = 5.0
@@ -287,7 +287,7 @@ def switch_interval(seconds: float) -> Iterator[None]:
 
 
 def test_a_count_made_on_several_threads_is_exact() -> None:
-    from gateway.runtime.threads import ThreadCount
+    from canopen_gateway.runtime.threads import ThreadCount
 
     count = ThreadCount()
     start = threading.Barrier(3)

@@ -8,7 +8,7 @@ from pathlib import Path
 import can
 import pytest
 
-from gateway.bus.trace import RECORD_FORMATS, trace_writer
+from canopen_gateway.bus.trace import RECORD_FORMATS, trace_writer
 
 
 @pytest.mark.parametrize("suffix", RECORD_FORMATS)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.bus.transitions import transition_table
+from canopen_gateway.bus.transitions import transition_table
 
 
 def test_each_state_of_a_row_on_each_of_its_events_goes_to_the_rows_next_state() -> None:

@@ -13,21 +13,27 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.ascii.values import format_plain
-from gateway.canopen.cia301 import MS_PER_DAY, TIME_EPOCH_UNIX_MS, time_fields, time_ms, time_word
-from gateway.config import ConfigError
-from gateway.device.values import decode_value, encode_value
-from gateway.image import Quality, SignalValue
-from gateway.modbus.protocol import from_registers, to_registers
-from gateway.northbound.keys import all_keys
-from gateway.northbound.regmap import Point, build_register_map
-from gateway.northbound.scaling import Scaling, engineering, time_of_text, time_text, to_raw
-from gateway.pdo.codec import compile_node
-from gateway.profiles import load_node_profile
-from gateway.profiles.schema import Signal
-from gateway.web.trends import is_trend_signal
-from gateway.web.views import SignalMeta
-from gateway.zenoh_bridge.payloads import pdo_json, value_json
+from canopen_gateway.ascii.values import format_plain
+from canopen_gateway.canopen.cia301 import (
+    MS_PER_DAY,
+    TIME_EPOCH_UNIX_MS,
+    time_fields,
+    time_ms,
+    time_word,
+)
+from canopen_gateway.config import ConfigError
+from canopen_gateway.device.values import decode_value, encode_value
+from canopen_gateway.image import Quality, SignalValue
+from canopen_gateway.modbus.protocol import from_registers, to_registers
+from canopen_gateway.northbound.keys import all_keys
+from canopen_gateway.northbound.regmap import Point, build_register_map
+from canopen_gateway.northbound.scaling import Scaling, engineering, time_of_text, time_text, to_raw
+from canopen_gateway.pdo.codec import compile_node
+from canopen_gateway.profiles import load_node_profile
+from canopen_gateway.profiles.schema import Signal
+from canopen_gateway.web.trends import is_trend_signal
+from canopen_gateway.web.views import SignalMeta
+from canopen_gateway.zenoh_bridge.payloads import pdo_json, value_json
 from tests.helpers import parse_checked_config, with_nodes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "eds"

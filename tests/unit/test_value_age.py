@@ -17,11 +17,11 @@ from typing import Any
 import can
 import pytest
 
-import gateway.image
-from gateway.bus.driver import BusDriver
-from gateway.bus.master import Master
-from gateway.bus.node.parts import NodeParts
-from gateway.image import ProcessImage, Quality
+import canopen_gateway.image
+from canopen_gateway.bus.driver import BusDriver
+from canopen_gateway.bus.master import Master
+from canopen_gateway.bus.node.parts import NodeParts
+from canopen_gateway.image import ProcessImage, Quality
 from tests.helpers import make_config, resolved
 
 #: SGH10 whose TPDO1 sends on change only and allows no RTR (DS-301 1800h:01 bit 30)
@@ -49,7 +49,7 @@ class Bench:
         monkeypatch.setattr(self.driver, "send", self._send)
         # the image's own clock (a write without a time of its own) is the same fake clock
         fake_time = types.SimpleNamespace(monotonic=lambda: self.mono, time=self.wall)
-        monkeypatch.setattr(gateway.image, "time", fake_time)
+        monkeypatch.setattr(canopen_gateway.image, "time", fake_time)
         self.master = Master(cfg, self.image, self.driver, nodes=resolved(cfg))
         self.p: NodeParts = self.master.nodes["wire"]
         self.node = self.p.image

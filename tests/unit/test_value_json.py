@@ -7,10 +7,10 @@ import json
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gateway.image import Quality, SignalValue
-from gateway.northbound.scaling import Scaling
-from gateway.profiles import load_profile
-from gateway.zenoh_bridge.payloads import value_json, value_payload
+from canopen_gateway.image import Quality, SignalValue
+from canopen_gateway.northbound.scaling import Scaling
+from canopen_gateway.profiles import load_profile
+from canopen_gateway.zenoh_bridge.payloads import value_json, value_payload
 
 SIG = load_profile("sgh10").profile.signal("position")
 

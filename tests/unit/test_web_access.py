@@ -9,9 +9,9 @@ from http import HTTPStatus
 
 import pytest
 
-from gateway.commands.audit import RefusalAudit
-from gateway.http.server import Request
-from gateway.web.access import (
+from canopen_gateway.commands.audit import RefusalAudit
+from canopen_gateway.http.server import Request
+from canopen_gateway.web.access import (
     BLOCK_S,
     FAILURES_LIMIT,
     MAX_BLOCK_S,

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from http import HTTPStatus
 
-from gateway.errors import BusDown, NotActive
-from gateway.web.commissioning import error_doc
+from canopen_gateway.errors import BusDown, NotActive
+from canopen_gateway.web.commissioning import error_doc
 
 
 def test_a_command_on_the_standby_of_a_pair_is_answered_503_not_active() -> None:

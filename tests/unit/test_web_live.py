@@ -6,9 +6,16 @@ from __future__ import annotations
 import asyncio
 import threading
 
-from gateway.http.messages import StreamOut
-from gateway.image import NodeImage, ProcessImage
-from gateway.web.live import MIN_SEND_INTERVAL_S, RETRY_MS, LiveHub, Subscriber, sse, stream_sse
+from canopen_gateway.http.messages import StreamOut
+from canopen_gateway.image import NodeImage, ProcessImage
+from canopen_gateway.web.live import (
+    MIN_SEND_INTERVAL_S,
+    RETRY_MS,
+    LiveHub,
+    Subscriber,
+    sse,
+    stream_sse,
+)
 
 
 def _image() -> tuple[ProcessImage, NodeImage]:

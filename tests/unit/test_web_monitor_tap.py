@@ -1,4 +1,4 @@
-"""The bus monitor's tap, hand-off and budget (``gateway.web.monitor``), driven by direct calls
+"""The bus monitor's tap, hand-off and budget (``canopen_gateway.web.monitor``), driven by direct calls
 on a fake loop and a fake clock: the tap is installed only while a page is open; the reader
 thread only appends raw tuples and wakes the loop once per armed period, never decodes; the
 loop applies the filters before the budget of lines a second, decodes only what is shown, says
@@ -12,9 +12,9 @@ from typing import Any
 import can
 import pytest
 
-from gateway.northbound.frames import FrameDecoder
-from gateway.web import monitor as mon
-from gateway.web.monitor import MAX_LINES_PER_S, FrameMonitor, TooManyPages
+from canopen_gateway.northbound.frames import FrameDecoder
+from canopen_gateway.web import monitor as mon
+from canopen_gateway.web.monitor import MAX_LINES_PER_S, FrameMonitor, TooManyPages
 from tests.helpers import make_config, with_nodes
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

@@ -1,16 +1,16 @@
-"""The console's pages as served: the shell filled per page (``gateway.web.pages``), pure."""
+"""The console's pages as served: the shell filled per page (``canopen_gateway.web.pages``), pure."""
 
 from __future__ import annotations
 
 import re
 from importlib import resources
 
-from gateway.web.console import _load_static
-from gateway.web.pages import NAV, PAGES, SHELL
+from canopen_gateway.web.console import _load_static
+from canopen_gateway.web.pages import NAV, PAGES, SHELL
 
 
 def test_every_page_file_is_served_whole_and_the_shell_is_not_served() -> None:
-    static = resources.files("gateway.web").joinpath("static")
+    static = resources.files("canopen_gateway.web").joinpath("static")
     html = {e.name for e in static.iterdir() if e.name.endswith(".html")}
     assert html - {SHELL} == {p.file for p in PAGES}
     files = _load_static()

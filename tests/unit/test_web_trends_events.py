@@ -8,14 +8,14 @@ from __future__ import annotations
 import logging
 import threading
 
-from gateway.canopen.states import NmtState
-from gateway.image import EmcyRecord, NodeImage, ProcessImage, Quality
-from gateway.northbound.scaling import Scaling
-from gateway.profiles import load_profile
-from gateway.web.events import EventLog, EventLogHandler
-from gateway.web.limits import ClientBudget
-from gateway.web.trends import TrendStore, is_trend_signal
-from gateway.web.views import SignalMeta
+from canopen_gateway.canopen.states import NmtState
+from canopen_gateway.image import EmcyRecord, NodeImage, ProcessImage, Quality
+from canopen_gateway.northbound.scaling import Scaling
+from canopen_gateway.profiles import load_profile
+from canopen_gateway.web.events import EventLog, EventLogHandler
+from canopen_gateway.web.limits import ClientBudget
+from canopen_gateway.web.trends import TrendStore, is_trend_signal
+from canopen_gateway.web.views import SignalMeta
 
 
 def _meta(name: str, source: str = "TPDO") -> SignalMeta:

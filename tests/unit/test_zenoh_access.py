@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from gateway.config import ConfigError, ZenohSection
-from gateway.zenoh_bridge.access import WriteGate
+from canopen_gateway.config import ConfigError, ZenohSection
+from canopen_gateway.zenoh_bridge.access import WriteGate
 from tests.helpers import make_config
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

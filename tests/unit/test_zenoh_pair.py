@@ -1,12 +1,12 @@
 """The Zenoh side of a hot-standby pair, pure: who may start under a prefix already in use, the
 highest seq heard of the other gateway, and the offset that keeps a key's seq from going back
-at a take-over (``gateway/zenoh_bridge/pair.py``)."""
+at a take-over (``canopen_gateway/zenoh_bridge/pair.py``)."""
 
 from __future__ import annotations
 
 import json
 
-from gateway.zenoh_bridge.pair import HeardSeq, active_key, member_key, refusal, seq_offset
+from canopen_gateway.zenoh_bridge.pair import HeardSeq, active_key, member_key, refusal, seq_offset
 from tests.helpers import gateway_of
 
 P = "canopen/line1"

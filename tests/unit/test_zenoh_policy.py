@@ -7,11 +7,11 @@ import json
 
 import pytest
 
-from gateway.errors import NodeNotOperational, SdoAbort
-from gateway.image import EmcyRecord, NmtState, NodeImage, Quality, SignalValue
-from gateway.northbound.scaling import Scaling, engineering, to_raw
-from gateway.profiles.schema import Signal
-from gateway.zenoh_bridge.payloads import (
+from canopen_gateway.errors import NodeNotOperational, SdoAbort
+from canopen_gateway.image import EmcyRecord, NmtState, NodeImage, Quality, SignalValue
+from canopen_gateway.northbound.scaling import Scaling, engineering, to_raw
+from canopen_gateway.profiles.schema import Signal
+from canopen_gateway.zenoh_bridge.payloads import (
     emcy_payload,
     error_payload,
     nmt_command,
@@ -22,7 +22,7 @@ from gateway.zenoh_bridge.payloads import (
     state_payload,
     value_payload,
 )
-from gateway.zenoh_bridge.policy import ReportPolicy
+from canopen_gateway.zenoh_bridge.policy import ReportPolicy
 
 GOOD, STALE = Quality.GOOD, Quality.STALE
 

@@ -12,8 +12,8 @@ from typing import Any
 
 import pytest
 
-from gateway.runtime.threads import ThreadRegistry
-from gateway.zenoh_bridge.sender import EVENT_WAIT_S, WITHHELD, ZenohSender
+from canopen_gateway.runtime.threads import ThreadRegistry
+from canopen_gateway.zenoh_bridge.sender import EVENT_WAIT_S, WITHHELD, ZenohSender
 from tests.helpers import gateway_of, make_config, wait_until, wait_until_sync
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}

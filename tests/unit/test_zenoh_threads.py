@@ -14,10 +14,10 @@ from typing import Any
 import pytest
 import zenoh
 
-from gateway.image import SignalView
-from gateway.runtime import threads
-from gateway.zenoh_bridge.bridge import _ValueBatch
-from gateway.zenoh_bridge.session import REOPEN_SCHEDULE_S
+from canopen_gateway.image import SignalView
+from canopen_gateway.runtime import threads
+from canopen_gateway.zenoh_bridge.bridge import _ValueBatch
+from canopen_gateway.zenoh_bridge.session import REOPEN_SCHEDULE_S
 from tests.helpers import gateway_of, make_config, wait_until
 
 WIRE = {"name": "wire", "node_id": 1, "profile": "sgh10"}
