@@ -91,6 +91,7 @@ def _add_gateway_commands(add: AddParser) -> None:
 
     sp = add("demo", help="run the gateway on the demo configuration (simulated devices)")
     sp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    _with_log_format(sp)
     sp.set_defaults(fn=cmd_demo)
 
     sp = add(

@@ -6,6 +6,7 @@ demo runs only when asked for, by ``demo`` or ``CANOPEN_GATEWAY_DEMO=1``, on the
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -43,14 +44,38 @@ def test_the_demo_command_runs_the_demo_configuration(monkeypatch: pytest.Monkey
     assert (ROOT / "config/demo.yaml").is_file()
 
 
-def test_canopen_gateway_demo_1_makes_the_images_command_run_the_demo(tmp_path: Path) -> None:
+def demo_on_free_ports(tmp_path: Path) -> Path:
+    """The demo config on free ports and its own virtual channel, written under ``tmp_path``."""
     demo = yaml.safe_load((ROOT / "config/demo.yaml").read_text())
     demo["modbus"]["port"] = free_port()
     demo["zenoh"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
     demo["health"]["port"] = free_port()
     demo["can"]["channel"] = f"demo-{demo['modbus']['port']}"
     (tmp_path / "demo.yaml").write_text(yaml.safe_dump(demo))
-    env = {"CANOPEN_GATEWAY_DEMO": "1", "CANOPEN_GATEWAY_DEMO_CONFIG": str(tmp_path / "demo.yaml"),
+    return tmp_path / "demo.yaml"
+
+
+def test_the_demo_command_starts_the_gateway_in_either_log_format(tmp_path: Path) -> None:
+    """``canopen-gateway demo`` (the image's documented command), text and JSON lines: the
+    banner of a gateway that started (the whole path of ``run``, not a stand-in)."""
+    env = {"CANOPEN_GATEWAY_DEMO_CONFIG": str(demo_on_free_ports(tmp_path)), "PATH": "/usr/bin:/bin"}
+    for extra in ([], ["--log-format", "json"]):
+        proc = subprocess.Popen([sys.executable, "-m", "canopen_gateway", "demo", *extra], cwd=ROOT,
+                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        try:
+            assert proc.stdout is not None
+            line = proc.stdout.readline()
+            if extra:
+                doc = json.loads(line)
+                assert "canopen-gateway" in doc["message"] and "'demo'" in doc["message"], line
+            else:
+                assert "canopen-gateway" in line and "'demo'" in line and "(sim)" in line, line
+        finally:
+            stop_process(proc)
+
+
+def test_canopen_gateway_demo_1_makes_the_images_command_run_the_demo(tmp_path: Path) -> None:
+    env = {"CANOPEN_GATEWAY_DEMO": "1", "CANOPEN_GATEWAY_DEMO_CONFIG": str(demo_on_free_ports(tmp_path)),
            "PATH": "/usr/bin:/bin"}  # fmt: skip
     proc = subprocess.Popen([sys.executable, "-m", "canopen_gateway", "run", "-c", IMAGE_CONFIG], cwd=ROOT,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
