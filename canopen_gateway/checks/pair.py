@@ -147,13 +147,17 @@ def _slot_order(a: Config, b: Config) -> list[str]:
     slot_worse = worse.priority * worse.priority_slot_ms + worse.node_id * worse.device_slot_ms
     if slot_better < slot_worse:
         return []
+    steps = worse.priority - better.priority  # the priority slots between them (0: same priority)
+    fix = (
+        f"a priority_slot_ms over {(better.node_id - worse.node_id) * better.device_slot_ms / steps:g} ms"
+        if steps else "a device_slot_ms over 0 ms"
+    )
     return [
         f"{a.source}, {b.source}: master.redundancy: the CiA 302-2 time slots do not follow the "
         f"priority order: {bf} (priority {better.priority}, node_id {better.node_id}) waits "
         f"{slot_better:g} ms, {wf} (priority {worse.priority}, node_id {worse.node_id}) "
         f"{slot_worse:g} ms (priority x priority_slot_ms + node_id x device_slot_ms): the worse "
-        f"one would claim first; give the better one the lower node_id, or a priority_slot_ms "
-        f"over {(worse.node_id - better.node_id) * better.device_slot_ms:g} ms"
+        f"one would claim first; give the better one the lower node_id, or {fix}"
     ]
 
 

@@ -261,6 +261,12 @@ def test_time_slots_that_invert_the_priority_order_are_refused_in_one_line_namin
     (line,) = problems(a, b)
     assert line.startswith("A.yaml, B.yaml: master.redundancy: the CiA 302-2 time slots do not follow")
     assert "A.yaml (priority 0, node_id 120) waits 240 ms, B.yaml (priority 1, node_id 3) 206 ms" in line
+    assert line.endswith("or a priority_slot_ms over 234 ms")  # 240 - 3 x 2: the fix it names holds
+    for raw in (a, b):
+        raw["master"]["redundancy"]["priority_slot_ms"] = 235
+    assert problems(a, b) == []  # 240 < 235 + 6
+    for raw in (a, b):
+        del raw["master"]["redundancy"]["priority_slot_ms"]
     fa, fb = tmp_path / "A.yaml", tmp_path / "B.yaml"
     fa.write_text(yaml.safe_dump(a))
     fb.write_text(yaml.safe_dump(b))
