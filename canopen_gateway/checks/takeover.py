@@ -68,7 +68,7 @@ def takeover_warnings(cfg: Config, nodes: dict[str, ResolvedNode]) -> list[Warni
             "(heartbeat_ms), the faster the sooner the take-over",
         )]  # fmt: skip
     how = (
-        f"the worst take-over by this gateway (redundancy.node_id {pair.node_id}) is {worst} ms: "
+        f"the worst take-over by this gateway (redundancy.node_id {pair.node_id}), {worst} ms = "
         f"takeover_ms (or two heartbeat_ms + the devices' shortest heartbeat) + its slot + one "
         f"heartbeat_ms"
     )

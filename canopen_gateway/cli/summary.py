@@ -61,6 +61,7 @@ def _print_summary(path: str, cfg: Any, nodes: Any) -> None:
         if cfg.networks is not None:
             _print_network(view, number)
         _print_nodes(cfg, view, nodes)
+        _print_pair(view, nodes)
     for _key, text in config_warnings(cfg, nodes):
         print(f"  warning: {text}")
     for _key, text in config_notes(cfg, nodes):
@@ -82,6 +83,20 @@ def _print_nodes(cfg: Any, view: Any, nodes: Any) -> None:
         )
         for note in lp.notes:
             print(f"  warning: node {n.name}: {note}")
+
+
+def _print_pair(view: Any, nodes: Any) -> None:
+    """``hot-standby pair: ...; worst take-over by this gateway 804 ms`` of a network in a pair
+    (the figure the device-timeout warnings compare against)."""
+    from canopen_gateway.checks.pair import takeover_worst_ms
+
+    pair = view.master.redundancy
+    if pair is None:
+        return
+    worst = takeover_worst_ms(view, {n.name: nodes[n.name] for n in view.nodes if n.name in nodes})
+    figure = f"{worst} ms" if worst is not None else "none can be promised (see the warning)"
+    print(f"  hot-standby pair: redundancy.node_id {pair.node_id}, priority {pair.priority}, peer "
+          f"{pair.peer_node_id}; worst take-over by this gateway {figure}")  # fmt: skip
 
 
 def _print_network(view: Any, number: int) -> None:

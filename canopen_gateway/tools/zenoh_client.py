@@ -123,12 +123,22 @@ def run_get(cfg: Config, key: str, timeout_s: float, out: TextIO | None = None, 
                 errors += 1
                 assert reply.err is not None  # a reply is ok or err
                 print(f"error: {selector}: {_text(reply.err.payload.to_bytes())}", file=err)
+        if not ok and not errors and "_time=" in selector.partition("?")[2] and _gateway_alive(cfg, session, timeout_s):
+            # history as Zenoh storages answer it: nothing in the range is an empty answer
+            print(f"{selector}: no history in that range (the gateway answered nothing)", file=err)
+            return 0
     finally:
         session.close()
     if not ok and not errors:
         print(f"error: no reply to {selector} within {timeout_s:g} s (no such key, or the gateway is not there)", file=err)  # fmt: skip
         return 1
     return 1 if errors else 0
+
+
+def _gateway_alive(cfg: Config, session: Any, timeout_s: float) -> bool:
+    """The gateway of ``cfg`` declares its liveliness token (``<prefix>/alive/_gateway``)."""
+    token = key_of(cfg, "alive/_gateway")
+    return any(r.ok is not None for r in session.liveliness().get(token, timeout=timeout_s))
 
 
 def run_sub(

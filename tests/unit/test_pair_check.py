@@ -218,7 +218,7 @@ def test_a_guarded_node_whose_life_time_a_takeover_outlasts_is_a_warning_naming_
     ((key, text),) = [w for w in warnings(b, "B.yaml") if "life time" in w[1]]
     assert key == "nodes[0].guard_time_ms"
     assert text.startswith("node wire: node guarding life time 100 ms x 7 = 700 ms is shorter than")
-    assert "the worst take-over by this gateway (redundancy.node_id 102) is 804 ms" in text
+    assert "the worst take-over by this gateway (redundancy.node_id 102), 804 ms" in text
     assert "at least 804 ms, or supervise it by heartbeat" in text
 
 
@@ -248,6 +248,9 @@ def test_cli_check_of_a_pair_prints_the_takeover_warning_of_the_slower_member(tm
     assert ok.returncode == 0, ok.stderr
     lines = [line for line in ok.stdout.splitlines() if "life time" in line]
     assert len(lines) == 1 and "804 ms" in lines[0] and lines[0].startswith("  warning: node wire:")
+    assert "shorter than the worst take-over by this gateway (redundancy.node_id 102), 804 ms = " in lines[0]
+    figures = [line for line in ok.stdout.splitlines() if line.startswith("  hot-standby pair:")]
+    assert [f.rsplit(" ", 2)[1:] for f in figures] == [["602", "ms"], ["804", "ms"]]  # each member's own
 
 
 # --------------------------------------------------------------------------- slots and devices that talk rarely
