@@ -36,7 +36,7 @@ from canopen_gateway.device.resolved import ResolvedNode
 from canopen_gateway.http.health import bus_reasons, network_overview, network_status, pair_of
 from canopen_gateway.http.metrics import modbus_function_label
 from canopen_gateway.image import ProcessImage
-from canopen_gateway.journal import Journal, JournalInUse
+from canopen_gateway.journal import FileLock, Journal, JournalInUse
 from canopen_gateway.journal.auditlog import AuditLog
 from canopen_gateway.modbus.server import ModbusGateway
 from canopen_gateway.northbound.audit_values import engineering_record
@@ -290,6 +290,9 @@ class Gateway:
         # every port before anything opens: one failed start names every port in use
         busy = ports_in_use(listeners_of(cfg, modbus=self.modbus is not None, zenoh=self.zenoh is not None))
         if busy is not None:
+            held = FileLock.holder(self.journal.directory) if self.journal is not None else None
+            if held is not None:  # the same config started twice: its journal too
+                busy.also.append(StartupError("journal.path", held.directory, held.reason))
             raise busy
         if self.journal is not None:
             # first: what the gateway hears is journaled whatever the cloud does

@@ -20,7 +20,7 @@ from canopen_gateway.journal.clock import (
     time_of_ntp64,
 )
 from canopen_gateway.journal.db import Row
-from canopen_gateway.journal.files import FILE_NAME, JournalInUse, path_problem
+from canopen_gateway.journal.files import FILE_NAME, FileLock, JournalInUse, path_problem
 from canopen_gateway.journal.store import Entry, Journal
 from canopen_gateway.journal.timerange import (
     TimeRange,
@@ -32,6 +32,7 @@ from canopen_gateway.journal.timerange import (
 __all__ = [
     "FILE_NAME",
     "Entry",
+    "FileLock",
     "HybridClock",
     "Journal",
     "JournalInUse",

@@ -253,3 +253,28 @@ def test_a_second_gateway_on_the_same_journal_exits_2_naming_the_path_and_the_ho
     finally:
         stop_process(first)
         bus.close()
+
+
+def test_the_same_config_started_twice_names_its_ports_and_its_journal_at_once(tmp_path):
+    """A second start of one config: every port in use and the journal's holder in one refusal
+    (fixing the ports alone would only meet the journal at the next start)."""
+    bus = Bus()
+    journal = tmp_path / "journal"
+    config = write_config(tmp_path, bus, journal, {"listen": [f"tcp/127.0.0.1:{free_port()}"]})
+    first = start(config)
+    try:
+        wait_ready(first)
+        log = config.with_suffix(".log")
+        seen = len(log.read_text(encoding="utf-8"))
+        second = start(config)
+        second.communicate(timeout=30)
+        err = log.read_text(encoding="utf-8")[seen:]
+        assert second.returncode == 2, err
+        keys = [line.split(": ")[2] for line in err.splitlines() if line.startswith("error: ")]
+        assert keys == ["modbus.port", "zenoh.listen", "health.port", "journal.path"], err
+        (held,) = [line for line in err.splitlines() if "journal.path" in line]
+        assert str(journal) in held and f"pid {first.pid}" in held
+        assert first.poll() is None
+    finally:
+        stop_process(first)
+        bus.close()
