@@ -23,7 +23,10 @@ async def _with_master(cfg: Config, nodes: dict[str, ResolvedNode], fn: Any) -> 
     """Open the bus with a master for one commissioning operation. Opens no server (no Modbus,
     Zenoh or health endpoint), so it runs beside a gateway that serves the same config."""
     from canopen_gateway.app import Gateway
+    from canopen_gateway.tools.beside import in_process_bus
     from canopen_gateway.tools.bus_open import gateway_bus
+    simulate = in_process_bus(cfg)  # on a shared bus the devices are there already, never doubled
+    cfg.journal.path = None  # the gateway running this config holds its journal (and audits)
     cfg.modbus.enabled = False
     cfg.zenoh.enabled = False
     cfg.ascii = None
@@ -39,7 +42,7 @@ async def _with_master(cfg: Config, nodes: dict[str, ResolvedNode], fn: Any) -> 
     cfg.health.port = 0  # a commissioning command opens no server
     # passive: no NMT start or configuration of its own; SDO to nodes regardless of supervision
     # a bus that cannot open: one line, exit 2 (its driver would retry it otherwise)
-    gw = Gateway(cfg, nodes, simulate=True, passive=True, bus_must_open=True)
+    gw = Gateway(cfg, nodes, simulate=simulate, passive=True, bus_must_open=True)
     with gateway_bus(cfg):
         await gw.start()
     try:

@@ -38,7 +38,8 @@ run in this process on the same bus, so the commands can be tried without hardwa
 
 Imports: python-can, canopen_gateway.bus.lss.master, canopen_gateway.bus.lss.fastscan, canopen_gateway.tools.lss_session, canopen_gateway.tools.bus_open, canopen_gateway.device.resolved,
 canopen_gateway.bus.sdo.client, canopen_gateway.config, canopen_gateway.profiles, canopen_gateway.canopen.objref,
-canopen_gateway.canopen.cia301; canopen_gateway.sim only when the config simulates nodes. Nothing northbound.
+canopen_gateway.canopen.cia301, canopen_gateway.tools.beside (whether the bus is in-process); canopen_gateway.sim only
+when the config simulates nodes on an in-process bus. Nothing northbound.
 """
 
 from __future__ import annotations
@@ -437,9 +438,13 @@ ACTIONS: dict[str, Callable[[LssSession, LssArgs, TextIO], None]] = {
 
 @contextmanager
 def _simulation(cfg: Config, nodes: dict[str, ResolvedNode]) -> Iterator[None]:
-    """The config's simulated nodes on their own connection to the bus (commissioning drills)."""
+    """The config's simulated nodes on their own connection to the bus (commissioning drills),
+    when the bus is in-process: on a shared bus (remote, socketcand, SocketCAN) the devices are
+    the ones there (a ``canopen-gateway simulate`` of the config, or real ones), never doubled."""
+    from canopen_gateway.tools.beside import in_process_bus
+
     wanted = cfg.simulated_nodes()
-    if not wanted:
+    if not wanted or not in_process_bus(cfg):
         yield
         return
     from canopen_gateway.sim.runner import SimRunner, build_sim_nodes

@@ -278,3 +278,37 @@ def test_the_same_config_started_twice_names_its_ports_and_its_journal_at_once(t
     finally:
         stop_process(first)
         bus.close()
+
+
+def test_commissioning_commands_beside_the_gateway_of_their_config_on_a_shared_bus(tmp_path):
+    """``sdo`` and ``nmt`` with the running gateway's own config (a shared bus, a journal, a
+    ``simulate:`` section): they open their own connection, never the journal the gateway holds,
+    and run no simulated devices of their own (the gateway's are on the bus: no second boot-up)."""
+    bus = Bus()
+    config = write_config(tmp_path, bus, tmp_path / "journal", {"listen": [f"tcp/127.0.0.1:{free_port()}"]})
+    raw = yaml.safe_load(config.read_text(encoding="utf-8"))
+    raw["simulate"] = {"nodes": "all"}
+    config.write_text(yaml.safe_dump(raw), encoding="utf-8")
+    gw = start(config)
+    try:
+        wait_ready(gw)
+        while bus.bus.recv(timeout=0) is not None:
+            pass  # what the gateway and its devices said so far
+        for argv in (["sdo", "read", "-c", str(config), "wire", "0x1008:00"],
+                     ["nmt", "-c", str(config), "start", "wire"]):  # fmt: skip
+            r = subprocess.run([sys.executable, "-m", "canopen_gateway", *argv], cwd=ROOT,
+                               capture_output=True, text=True, timeout=60)  # fmt: skip
+            assert r.returncode == 0, r.stderr
+        assert "SGH10" in subprocess.run(
+            [sys.executable, "-m", "canopen_gateway", "sdo", "read", "-c", str(config), "wire", "0x1008:00"],
+            cwd=ROOT, capture_output=True, text=True, timeout=60,
+        ).stdout  # fmt: skip
+        boot_ups = []
+        while (msg := bus.bus.recv(timeout=0)) is not None:
+            if msg.arbitration_id == 0x701 and bytes(msg.data) == b"\x00":
+                boot_ups.append(msg)
+        assert boot_ups == []  # no device of the commands' own
+        assert gw.poll() is None
+    finally:
+        stop_process(gw)
+        bus.close()
