@@ -97,21 +97,42 @@ class SystemdNotifier:
         pings."""
         if self.address is None:
             return
-        period = min(STATUS_PERIOD_S, self.watchdog_s or STATUS_PERIOD_S)
         loop = asyncio.get_running_loop()
-        next_ping = loop.time()
+        cadence = Cadence(self.watchdog_s, loop.time())
         silent = False
         while True:
-            if self.watchdog_s is not None and loop.time() >= next_ping:
-                next_ping = loop.time() + self.watchdog_s
+            ping, look, wait_s = cadence.turn(loop.time())
+            if ping:
                 if alive():
                     self.send("WATCHDOG=1")
                     silent = False
                 elif not silent:
                     silent = True
                     log.error("the CAN reader does not go round: no systemd watchdog ping")
-            self.status(status())
-            await asyncio.sleep(period)
+            if look:
+                self.status(status())
+            await asyncio.sleep(wait_s)
+
+
+class Cadence:
+    """When ``supervise`` pings (every ``watchdog_s``, on time: not rounded to the status
+    period) and looks at the status (every ``STATUS_PERIOD_S``); a plain clock-driven class."""
+
+    def __init__(self, watchdog_s: float | None, now: float):
+        self.watchdog_s = watchdog_s
+        self.next_ping = now if watchdog_s is not None else None
+        self.next_status = now
+
+    def turn(self, now: float) -> tuple[bool, bool, float]:
+        """(ping now, look at the status now, seconds until the next of either)."""
+        ping = self.next_ping is not None and now >= self.next_ping
+        if ping and self.watchdog_s is not None:
+            self.next_ping = now + self.watchdog_s
+        look = now >= self.next_status
+        if look:
+            self.next_status = now + STATUS_PERIOD_S
+        wake = self.next_status if self.next_ping is None else min(self.next_status, self.next_ping)
+        return ping, look, max(0.0, wake - now)
 
 
 def _one_line(text: str) -> str:

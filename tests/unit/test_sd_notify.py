@@ -31,6 +31,23 @@ def test_watchdog_period_is_half_of_watchdog_usec_when_the_pid_is_ours_or_unset(
     assert not none and none.watchdog_s is None and none.send("READY=1") is False
 
 
+def test_pings_come_every_half_of_watchdog_usec_on_time_beside_the_status_period() -> None:
+    """WatchdogSec=3: a ping every 1.5 s, not every 2 s (the status period rounding it up)."""
+    from canopen_gateway.runtime.sd_notify import Cadence
+
+    cadence, now, pings, looks = Cadence(1.5, 100.0), 100.0, [], []
+    while now < 106.0:
+        ping, look, wait_s = cadence.turn(now)
+        pings += [round(now - 100.0, 3)] if ping else []
+        looks += [round(now - 100.0, 3)] if look else []
+        assert 0.0 < wait_s <= 1.0
+        now += wait_s
+    assert pings == [0.0, 1.5, 3.0, 4.5]
+    assert looks == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    no_watchdog = Cadence(None, 0.0)
+    assert no_watchdog.turn(0.0) == (False, True, 1.0)
+
+
 async def test_pings_only_while_alive_and_status_only_when_it_changes(tmp_path: Path) -> None:
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(str(tmp_path / "n.sock"))
