@@ -26,7 +26,7 @@ CS_INQUIRE_PRODUCT_CODE = 0x5B  # 4.6.3.2
 CS_INQUIRE_REVISION = 0x5C  # 4.6.3.3
 CS_INQUIRE_SERIAL = 0x5D  # 4.6.3.4
 CS_INQUIRE_NODE_ID = 0x5E  # 4.6.3.5
-CS_IDENTIFY_SLAVE = 0x4F  # CiA 305: the answer to Fast Scan (and identify non-configured)
+CS_IDENTIFY_SLAVE = 0x4F  # CiA 305: the answer to Fast Scan and to identify remote slave (46h..4Bh)
 CS_FAST_SCAN = 0x51  # CiA 305 Fast Scan: IDNumber, BitChecked, LSSSub, LSSNext
 FAST_SCAN_RESET = 0x80  # BitChecked 80h: every unconfigured slave answers, back to part 0
 

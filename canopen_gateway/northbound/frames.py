@@ -36,12 +36,17 @@ _CLIENT_CS = {0: "download segment", 1: "download", 2: "upload", 3: "upload segm
               4: "abort", 5: "block upload", 6: "block download"}  # fmt: skip
 _SERVER_CS = {0: "upload segment", 1: "download segment answer", 2: "upload answer",
               3: "download answer", 4: "abort", 5: "block download", 6: "block upload"}  # fmt: skip
-# CiA 305 LSS command specifiers (byte 0), the ones the gateway uses
+# CiA 305 LSS command specifiers (byte 0): the gateway's, identify (46h..4Ch, answers 4Fh and 50h)
+# and Fast Scan (51h, answered by 4Fh)
 _LSS_CS = {0x04: "switch state global", 0x11: "configure node id", 0x13: "configure bit timing",
            0x15: "activate bit timing", 0x17: "store configuration", 0x40: "switch selective vendor",
            0x41: "switch selective product", 0x42: "switch selective revision",
            0x43: "switch selective serial", 0x44: "switch selective answer",
-           0x4F: "identify non-configured", 0x50: "identify non-configured answer",
+           0x46: "identify remote slave vendor", 0x47: "identify remote slave product",
+           0x48: "identify remote slave revision low", 0x49: "identify remote slave revision high",
+           0x4A: "identify remote slave serial low", 0x4B: "identify remote slave serial high",
+           0x4C: "identify non-configured", 0x4F: "identify slave answer",
+           0x50: "identify non-configured answer", 0x51: "fast scan",
            0x5A: "inquire vendor", 0x5B: "inquire product", 0x5C: "inquire revision",
            0x5D: "inquire serial", 0x5E: "inquire node id"}  # fmt: skip
 

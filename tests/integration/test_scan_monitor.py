@@ -63,6 +63,13 @@ def test_frames_are_decoded_with_what_the_config_knows() -> None:
     assert answer.text == "upload answer 0x1000:00 (Device type) = 655766 (0x000A0196)"
     other = d.decode(0x18A, bytes(2))
     assert (other.kind, other.node, other.node_id, other.service) == ("pdo", None, 10, "TPDO1")
+    # CiA 305: Fast Scan (51h) is answered by identify slave (4Fh); identify non-configured
+    # remote slave (4Ch) by 50h
+    scan = d.decode(0x7E5, bytes([0x51, 0, 0, 0, 0, 0x80, 0, 0]))
+    assert (scan.kind, scan.service, scan.text) == ("lss", "LSS request", "fast scan 00 00 00 00 80 00 00")
+    assert d.decode(0x7E4, bytes([0x4F]) + bytes(7)).text.startswith("identify slave answer")
+    assert d.decode(0x7E5, bytes([0x4C]) + bytes(7)).text.startswith("identify non-configured ")
+    assert d.decode(0x7E4, bytes([0x50]) + bytes(7)).text.startswith("identify non-configured answer")
 
 
 # --------------------------------------------------------------------------- monitor
