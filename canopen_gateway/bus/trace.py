@@ -6,7 +6,8 @@ python-can's writers read a frame's ``channel`` as a number (``can.util.channel2
 digits at the end of a channel's name (``can1`` -> 1, a virtual bus named ``line-70000`` ->
 70000). BLF stores it in 16 bits and fails on a larger one; ``trace_writer`` hands such a frame
 on without its channel, so the writer numbers it with its own default, and leaves every other
-frame as heard.
+frame as heard. A ``.trc`` file cannot hold remote frames (python-can's TRC writer): they are
+counted and said (``TraceWriter.note``), not written.
 
 Imports: python-can and the standard library only.
 """
@@ -44,14 +45,33 @@ def _writable(msg: can.Message) -> can.Message:
     )
 
 
+#: formats whose python-can writer cannot hold a remote frame (RTR: node guarding's request):
+#: such a frame is counted (``TraceWriter.left_out``), never handed on (the writer would log a
+#: warning line per frame and write nothing)
+NO_REMOTE_FRAMES = (".trc",)
+
+
 class TraceWriter(can.Listener):
     """python-can's writer of ``path``'s format (its suffix), fed any frame the gateway has."""
 
     def __init__(self, path: str) -> None:
         self._writer = can.Logger(path)
+        self._remote = not path.lower().endswith(NO_REMOTE_FRAMES)
+        #: remote frames the format cannot hold, left out of the file
+        self.left_out = 0
 
     def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_remote_frame and not self._remote:
+            self.left_out += 1
+            return
         self._writer.on_message_received(_writable(msg))
+
+    def note(self) -> str | None:
+        """What the file lacks, in a line (None: every frame is in it)."""
+        if not self.left_out:
+            return None
+        return (f"{self.left_out} remote frame(s) (RTR, e.g. node guarding) not recorded: a .trc "
+                "file of python-can's writer cannot hold them; .asc, .blf, .log and .csv do")  # fmt: skip
 
     def stop(self) -> None:
         self._writer.stop()

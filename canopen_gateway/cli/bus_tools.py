@@ -144,6 +144,8 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         if record is not None:
             record.stop()
             print(f"recorded {args.record}", file=sys.stderr)
+            if record.note() is not None:
+                print(f"note: {record.note()}", file=sys.stderr)
     return 0
 
 
@@ -155,6 +157,8 @@ def cmd_decode(args: argparse.Namespace) -> int:
     cfg, resolved = on_network(load(args.config), args.network, "decode")  # node ids: a network's
     try:
         decode_file(args.file, FrameDecoder(cfg, resolved), sys.stdout)
+    except BrokenPipeError:
+        raise  # the reader went away (`| head`): the program ends quietly (entry.main)
     except (OSError, ValueError, NotImplementedError) as exc:
         print(f"error: {args.file}: {exc}", file=sys.stderr)
         return EXIT_CONFIG

@@ -63,15 +63,16 @@ class Recording:
             return list(self.frames)
 
 
-def write_trace(frames: list[can.Message], fmt: str) -> bytes:
-    """The frames as a file of python-can's writer for ``fmt`` (its suffix)."""
+def write_trace(frames: list[can.Message], fmt: str) -> tuple[bytes, int]:
+    """The frames as a file of python-can's writer for ``fmt`` (its suffix), and how many of
+    them the format cannot hold (remote frames in a .trc)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"trace.{fmt}"
         writer = trace_writer(str(path))
         for msg in frames:
             writer.on_message_received(msg)
         writer.stop()
-        return path.read_bytes()
+        return path.read_bytes(), writer.left_out
 
 
 class BusRecorder:
@@ -113,12 +114,13 @@ class BusRecorder:
         finally:
             source.remove_tap(recording.on_frame)
             self.running -= 1
-        body = await asyncio.to_thread(write_trace, recording.take(), fmt)
+        body, left_out = await asyncio.to_thread(write_trace, recording.take(), fmt)
         stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(started))
         which = f"{network}-" if len(self.sources) > 1 else ""
         name = f"{self.name}-{which}bus-{stamp}.{fmt}".replace('"', "")
         headers = {**self.headers, "Content-Disposition": f'attachment; filename="{name}"',
-                   "X-Frames-Dropped": str(recording.dropped)}  # fmt: skip
+                   "X-Frames-Dropped": str(recording.dropped),
+                   "X-Frames-Left-Out": str(left_out)}  # fmt: skip
         return Response(HTTPStatus.OK, body, "application/octet-stream", headers=headers)
 
 

@@ -134,3 +134,26 @@ def test_decode_reads_a_trace_python_can_wrote_one_line_per_frame(
 def test_record_refuses_a_format_python_can_does_not_write(config: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["monitor", "-c", str(config), "--count", "1", "--record", "trace.pcap"]) == 2
     assert ".asc, .blf, .trc, .log, .csv" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".trc"])
+def test_a_remote_frame_is_recorded_where_the_format_holds_it_and_counted_where_not(
+    tmp_path: Path, suffix: str
+) -> None:
+    """Node guarding's request (an RTR on 701h): kept in .asc; a .trc cannot hold it
+    (python-can's TRC writer), so it is left out, counted and said, never logged per frame."""
+    from canopen_gateway.bus.trace import trace_writer
+
+    trace = tmp_path / f"rtr{suffix}"
+    writer = trace_writer(str(trace))
+    for i, msg in enumerate([can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1, is_extended_id=False),
+                             can.Message(arbitration_id=0x701, data=b"\x05", is_extended_id=False)]):  # fmt: skip
+        msg.timestamp = 100.0 + i * 0.01
+        writer.on_message_received(msg)
+    writer.stop()
+    read = list(can.LogReader(str(trace)))
+    if suffix == ".asc":
+        assert [m.is_remote_frame for m in read] == [True, False] and writer.note() is None
+    else:
+        assert [m.is_remote_frame for m in read] == [False] and writer.left_out == 1
+        assert (writer.note() or "").startswith("1 remote frame(s) (RTR, e.g. node guarding) not recorded")
