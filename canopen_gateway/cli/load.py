@@ -31,6 +31,8 @@ def default_config(environ: Mapping[str, str] | None = None, default: str = DEFA
     env = os.environ if environ is None else environ
     given = env.get(CONFIG_ENV, "").strip()
     if given:
+        if not os.path.exists(given):  # say where the path came from: no -c was given
+            raise ConfigError([f"error: {given}: file does not exist (named by {CONFIG_ENV}; or give -c FILE)"])
         return given
     if os.path.isfile(default):
         return default

@@ -32,7 +32,10 @@ def test_the_etc_file_is_next_and_without_either_the_error_says_both(tmp_path: P
     assert "CANOPEN_GATEWAY_CONFIG" in line and str(etc) in line and "-c FILE" in line
     etc.write_text("can: {interface: virtual}\n")
     assert default_config({}, default=str(etc)) == str(etc)
-    assert default_config({"CANOPEN_GATEWAY_CONFIG": "/x.yaml"}, default=str(etc)) == "/x.yaml"
+    assert default_config({"CANOPEN_GATEWAY_CONFIG": DEMO}, default=str(etc)) == DEMO
+    with pytest.raises(ConfigError) as exc:  # a missing file says the variable named it
+        default_config({"CANOPEN_GATEWAY_CONFIG": "/x.yaml"}, default=str(etc))
+    assert exc.value.problems == ["error: /x.yaml: file does not exist (named by CANOPEN_GATEWAY_CONFIG; or give -c FILE)"]
     assert DEFAULT_CONFIG == "/etc/canopen-gateway/config.yaml"
 
 
