@@ -117,6 +117,8 @@ class Dev:
     #: the AP05's outputs: RPDO number -> its content as received (the guarding bit masked) and
     #: the write whose content it is (0: none)
     rpdo: dict[int, tuple[list[Any], int]] = field(default_factory=dict)
+    #: RPDO number -> when its content last changed
+    rpdo_since: dict[int, float] = field(default_factory=dict)
 
     @property
     def state(self) -> NmtState:
@@ -169,6 +171,14 @@ class Sim:
     #: after a take-over: member -> RPDO number -> what was last sent in it (that member sent or
     #: heard it), until the member's first write
     expect: dict[str, dict[int, list[Any]]] = field(default_factory=dict)
+    #: RPDO number -> the members that sent or heard the content the AP05 holds now (its sender
+    #: and whom that frame, or a later one of the same content, reached)
+    knew: dict[int, set[str]] = field(default_factory=dict)
+    #: (time, member, previous role, role, fresh) of every role change
+    roles_log: list[tuple[float, str, Role, Role, bool]] = field(default_factory=list)
+    #: outputs a member changed back to content it last heard, having missed the frame of the
+    #: newer one without any sign of it (see ``_output_frame``): the documented limit
+    unnoticed: list[str] = field(default_factory=list)
     decoder: OutputImage = field(default_factory=_decoder)
     _queue: list[tuple[float, int, Callable[[], None]]] = field(default_factory=list)
     _seq: itertools.count = field(default_factory=itertools.count)  # type: ignore[type-arg]
@@ -302,6 +312,7 @@ class Sim:
                 assert isinstance(a, Notice)
 
     def _role(self, m: Member, change: RoleChanged) -> None:
+        self.roles_log.append((self.now, m.name, change.previous, change.role, change.fresh))
         if change.role is Role.ACTIVE:
             m.mastering = True
             self.expect[m.name] = {
@@ -401,18 +412,30 @@ class Sim:
         return codec.number, self.decoder.content(codec.number)
 
     def _output_frame(self, dev: Dev, sender: str, cob_id: int, data: bytes) -> None:
-        """An RPDO the operational AP05 processes: its output changes only by a new write."""
+        """An RPDO the operational AP05 processes: its output changes only by a new write.
+
+        One case is the documented limit, not a violation: a standby that missed the frame of
+        the content the device holds (its own stub cut for an instant, no time to notice) and
+        had no role change since but the take-over from which it sends: nothing told it that
+        its image is behind (docs/redundancy.md)."""
         n, content = self._rpdo_content(cob_id, data)
+        last = self.last_rpdo.get(n)
+        told = {sender} | (last[2] if last is not None and last[0] == content and last[1] == sender else set())
         current = dev.rpdo.get(n)
         if current is not None and current[0] == content:
+            self.knew.setdefault(n, set()).update(told)  # a repeat: more members know it now
             return
         made = [w for w, c in self.written.get(n, []) if c == content and (current is None or w > current[1])]
         if current is not None and not made:
-            self.violations.append(
-                f"{self.now:.3f}: {sender} changed RPDO{n} of node {dev.node_id} from {current[0]} to "
-                f"{content}: no write since made it"
-            )
+            text = (f"{self.now:.3f}: {sender} changed RPDO{n} of node {dev.node_id} from {current[0]} to "
+                    f"{content}: no write since made it")  # fmt: skip
+            since = dev.rpdo_since.get(n, 0.0)
+            changes = [(prev, role, fresh) for t, who, prev, role, fresh in self.roles_log if who == sender and t >= since]
+            unnoticed = sender not in self.knew.get(n, set()) and changes == [(Role.STANDBY, Role.ACTIVE, False)]
+            (self.unnoticed if unnoticed else self.violations).append(text)
         dev.rpdo[n] = (content, max(made, default=0 if current is None else current[1]))
+        dev.rpdo_since[n] = self.now
+        self.knew[n] = set(told)
 
     def _rpdo_sent(self, m: Member, cob_id: int, data: bytes, reached: set[str]) -> None:
         """An RPDO a member sends: after a take-over, before its first write, it carries what

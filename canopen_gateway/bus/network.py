@@ -88,8 +88,9 @@ class Network:
 
     @property
     def detail(self) -> str:
-        """Why the bus is down or in error (the last reason it gave)."""
-        return self.driver.last_error
+        """Why the bus is down or in error (the last reason it gave); empty once it is ok
+        again (an old reason is history, not the bus's state)."""
+        return "" if self.state == "ok" else self.driver.last_error
 
     def open(self, *, must_open: bool = False) -> None:
         """Open the bus and start its reader and sender (``BusDriver.open``); a bus that must

@@ -41,9 +41,10 @@ def _semantic_problems(raw: dict[str, Any], base_dir: Path) -> list[tuple[str, s
     seen: dict[str, dict[Any, int]] = {"name": {}, "unit_id": {}}
     ids: dict[tuple[str, Any], int] = {}
     entries = node_entries(raw)
-    for i, (key, n, net) in enumerate(entries):
+    for i, (key, n, _net) in enumerate(entries):
         if not isinstance(n, dict):
             continue
+        net = key.partition("nodes[")[0]  # its network by position ("networks[1]."): two named alike stay two
         v = n.get("node_id")
         if v is not None:
             if (net, v) in ids:

@@ -115,6 +115,7 @@ async def test_an_unplugged_socketcand_adapter_takes_the_bus_down_idle_and_it_re
         await wait_until(lambda: gw.image.bus_state == "ok", 10, "the bus reopened")
         assert pair.joins["gw"] == 2 and gw.driver.reopens == 1
         assert states[-1] == ("ok", "")
+        assert gw.status()["bus"] == {"state": "ok", "detail": ""}  # the old reason is not the state
         mark = gw.image.counters["frames_in"]
         dev.send(can.Message(arbitration_id=0x701, data=b"\x05", is_extended_id=False))
         await wait_until(lambda: gw.image.counters["frames_in"] > mark, 10, "frames again")

@@ -79,6 +79,9 @@ def test_networks_with_a_top_level_key_of_the_single_form_is_refused_naming_both
 def test_two_networks_of_one_name_are_refused_naming_it() -> None:
     raw = {"networks": [net("line1", node("a", 1)), {**net("line1", node("b", 2)), "can": {"channel": "other"}}]}
     assert problems(raw) == ["cfg.yaml: networks[1].name: duplicate network name 'line1' (also networks[0])"]
+    # node 1 on each of the two buses is no clash: only the name is (one line)
+    raw["networks"][1]["nodes"] = [{**node("b", 1), "modbus": {"unit_id": 101}}]
+    assert problems(raw) == ["cfg.yaml: networks[1].name: duplicate network name 'line1' (also networks[0])"]
 
 
 def test_a_node_name_twice_in_the_gateway_is_refused_naming_it() -> None:

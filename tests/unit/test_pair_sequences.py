@@ -323,3 +323,19 @@ def test_found_a_member_back_from_its_own_outage_sends_none_of_its_old_outputs_a
     replay(("cut_cable", {"name": "A"}), ("time_passes", {"seconds": 2.5}),
            ("plc_write", {"name": "B", "signal": "set_point1"}), ("mend_cable", {"name": "A"}),
            ("time_passes", {"seconds": 0.2}), ("kill", {"name": "B"}), ("time_passes", {"seconds": 2.5}))  # fmt: skip
+
+
+def test_found_a_standby_that_missed_a_write_unnoticed_resumes_what_it_last_heard() -> None:
+    """The documented limit: B's stub cut for an instant exactly as A sent the PLC's write (B
+    lost that frame with no sign of it), then A's adapter lost before its next repeat of the
+    RPDO: B took over and sent the set point it last heard. Held apart from the violations
+    (``Sim.unnoticed``); a member that did notice an outage forgets instead (the sequences
+    above)."""
+    state = PairUnderFaults()
+    state.cut_cable("B")
+    state.plc_write("A", "set_point1")
+    state.unplug("A")
+    state.never_what_one_gateway_would_not_do()
+    state.teardown()
+    (limit,) = state.sim.unnoticed
+    assert "B changed RPDO1 of node 5" in limit and "[1001," in limit
