@@ -52,7 +52,31 @@ def cmd_lss(args: argparse.Namespace) -> int:
     from canopen_gateway.tools.lss import run_lss
 
     cfg, nodes = on_network(load(args.config), args.network, "lss")
+    _refuse_beside(cfg, "lss")
     return run_lss(cfg, nodes, args)
+
+
+def _refuse_beside(cfg: Config, command: str) -> None:
+    """On an in-process bus: exit 2 in one line when a gateway runs on it (a second process
+    cannot join it), else say that the command acts on its own simulated devices."""
+    from canopen_gateway.tools import beside
+
+    if not beside.in_process_bus(cfg):
+        return
+    running = beside.find_local_gateway(cfg) or beside.find_running_gateway(cfg)
+    line = beside.refusal(cfg, command)
+    if running is not None:
+        running.close()
+        line = line or (
+            f"error: {cfg.source}: {cfg.qualify('can.interface')}: virtual: the bus lives inside the gateway "
+            f"running at {running.endpoint}, so `{command}` cannot join it; give both a bus "
+            "they share (can.interface: remote, docs/canopen.md)"
+        )
+    if line is not None:
+        print(line, file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+    if cfg.simulated_nodes():
+        print(beside.private_note(cfg), file=sys.stderr)
 
 
 def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tuple[Any, Any]:
@@ -64,22 +88,9 @@ def _tool_bus(cfg: Config, nodes: dict[str, ResolvedNode], command: str) -> tupl
     from canopen_gateway.tools.bus_open import BusOpenError, open_bus, opening
 
     sim = None
-    if beside.in_process_bus(cfg):
-        running = beside.find_local_gateway(cfg) or beside.find_running_gateway(cfg)
-        line = beside.refusal(cfg, command)
-        if running is not None:
-            running.close()
-            line = line or (
-                f"error: {cfg.source}: {cfg.qualify('can.interface')}: virtual: the bus lives inside the gateway "
-                f"running at {running.endpoint}, so `{command}` cannot join it; give both a bus "
-                "they share (can.interface: remote, docs/canopen.md)"
-            )
-        if line is not None:
-            print(line, file=sys.stderr)
-            raise SystemExit(EXIT_CONFIG)
+    _refuse_beside(cfg, command)
     bus = open_bus(cfg)
     if beside.in_process_bus(cfg) and cfg.simulated_nodes():
-        print(beside.private_note(cfg), file=sys.stderr)
         sim = SimulatedBus(cfg, nodes)
         try:
             with opening(cfg):

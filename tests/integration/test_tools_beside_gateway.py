@@ -214,7 +214,7 @@ def test_a_tool_on_a_shared_bus_sends_no_heartbeat_and_no_sync(
     assert 0x77F not in seen and 0x080 not in seen
 
 
-@pytest.mark.parametrize("command", [["scan"], ["monitor", "--count", "1"]])
+@pytest.mark.parametrize("command", [["scan"], ["monitor", "--count", "1"], ["lss", "inquire"]])
 def test_listening_tools_beside_a_gateway_on_an_in_process_bus_refuse_in_one_line(
     running: Path, command: list[str]
 ) -> None:
