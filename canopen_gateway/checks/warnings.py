@@ -26,7 +26,7 @@ from canopen_gateway.config import Config
 from canopen_gateway.device.resolved import ResolvedNode
 from canopen_gateway.eds import EdsError, load_eds
 from canopen_gateway.eds.file_cob_ids import dcf_node_id, foreign_cob_ids, foreign_text
-from canopen_gateway.eds.pdos import mappable_objects, object_name
+from canopen_gateway.eds.pdos import mappable_objects, object_name, od_var
 from canopen_gateway.profiles import identity_check
 
 Problem = tuple[str, str]
@@ -129,7 +129,10 @@ def no_process_data_text(rn: ResolvedNode) -> str:
         )
     named = ", ".join(f"{o} ({object_name(lp.od, o)})" for o in objs[:MAPPABLE_NAMED])
     more = f" and {len(objs) - MAPPABLE_NAMED} more (canopen-gateway eds show {file})" if len(objs) > MAPPABLE_NAMED else ""  # fmt: skip
-    example = f'tpdo: {{1: {{mapping: ["{objs[0]}"]}}}}'
+    # the example maps what the device sends (ro, rwr: an input), not an output it receives
+    # (rww: 6040h controlword), and sends it on change (255: no SYNC needed)
+    sent = [o for o in objs if getattr(od_var(lp.od, o), "access_type", "") in ("ro", "rwr")] or objs
+    example = f'tpdo: {{1: {{mapping: ["{sent[0]}"], transmission: 255}}}}'
     return f"{head}, e.g. `{example}`; PDO-mappable in {file}: {named}{more}"
 
 

@@ -313,7 +313,10 @@ class WebSection(_Model):
     @field_validator("token")
     @classmethod
     def _token_not_digits(cls, v: str | None) -> str | None:
-        if v is not None and v.isdigit():  # one rule, from the file or the environment
+        # one rule, from the file or the environment (whose text keys are taken as given: a
+        # value quoted in the shell's way, '123...', is the same digits)
+        core = v[1:-1] if v is not None and len(v) >= 2 and v[0] == v[-1] and v[0] in "'\"" else v
+        if core is not None and core.isdigit():
             raise ValueError(WEB_TOKEN_DIGITS)
         return v
 

@@ -283,7 +283,7 @@ def test_a_node_whose_pdos_map_nothing_is_warned_of_with_the_objects_it_may_map(
     assert any(line.startswith("  node io: id 5,") and "0 process signals ()" in line for line in out), out
     warning = next(line for line in out if "serves no process data" in line)
     assert warning.startswith("  warning: node io: serves no process data: map one with `tpdo:`")
-    assert 'e.g. `tpdo: {1: {mapping: ["0x6000:01"]}}`' in warning
+    assert 'e.g. `tpdo: {1: {mapping: ["0x6000:01"], transmission: 255}}`' in warning
     assert "PDO-mappable in io401.eds: 0x6000:01 (" in warning and "0x6401:01" in warning
 
 
@@ -328,3 +328,21 @@ async def test_an_encoder_file_that_maps_nothing_is_warned_of_and_never_served_a
         assert gw.image.counters["unknown_cob_id"] == 0
     notifier.stop()
     sniffer.shutdown()
+
+
+@pytest.mark.skipif(not CORPUS.is_dir(), reason="no EDS corpus")
+def test_the_example_of_a_node_without_process_data_maps_an_input_and_pasted_warns_no_more(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A CiA 402 drive file whose PDOs map nothing: the example is its statusword (6041h, ro),
+    not its controlword (6040h, rww: an output); pasted as given, check warns of nothing."""
+    eds = CORPUS / "ros-industrial__ros2_canopen__cia402_slave.eds"
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: drive, node_id: 13, eds: '{eds}'}}\n")
+    assert main(["check", "-c", str(cfg)]) == 0
+    warning = next(line for line in capsys.readouterr().out.splitlines() if "serves no process data" in line)
+    example = warning.split("e.g. `")[1].split("`")[0]
+    assert example == 'tpdo: {1: {mapping: ["0x6041:00"], transmission: 255}}'
+    cfg.write_text(f"can: {{interface: virtual, channel: x}}\nnodes:\n  - {{name: drive, node_id: 13, eds: '{eds}', {example}}}\n")
+    assert main(["check", "-c", str(cfg)]) == 0
+    assert not [line for line in capsys.readouterr().out.splitlines() if line.startswith("  warning")]

@@ -94,6 +94,10 @@ def test_a_token_of_digits_is_refused_by_one_rule_from_the_file_and_from_the_env
     with pytest.raises(ConfigError) as exc:
         parse_config({"web": {"writes": True}}, "cfg.yaml", environ={"CANOPEN_GATEWAY__WEB__TOKEN": "0123456789012"})
     assert exc.value.problems == [f"CANOPEN_GATEWAY__WEB__TOKEN: web.token: {rule}"]
+    for quoted in ("'123456789012345'", '"123456789012345"'):  # quoted as in a file: the same digits
+        with pytest.raises(ConfigError) as exc:
+            parse_config({"web": {"writes": True}}, "cfg.yaml", environ={"CANOPEN_GATEWAY__WEB__TOKEN": quoted})
+        assert exc.value.problems == [f"CANOPEN_GATEWAY__WEB__TOKEN: web.token: {rule}"]
     # taken as written, leading zero included, when it has letters
     cfg = parse_config(
         {"web": {"writes": True}}, "cfg.yaml", environ={"CANOPEN_GATEWAY__WEB__TOKEN": "0123456789012x"}
