@@ -352,7 +352,8 @@ def _command(
         need(1)
         if what == "network" and net is not None:
             raise RequestError(seq, Iec.SYNTAX, "set network takes no net before it")
-        return Set(seq, net, what, _number(args[0], 1, _SET_MAX[what], seq, what))
+        low = 0 if what == "network" else 1  # net 0 is a number of no network: ERROR:106, as [seq] 0 ...
+        return Set(seq, net, what, _number(args[0], low, _SET_MAX[what], seq, what))
     if cmd == "help":
         if numbers or len(args) > 1:
             raise RequestError(seq, Iec.SYNTAX, "help [datatype]")

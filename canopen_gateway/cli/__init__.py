@@ -265,7 +265,11 @@ def _add_plant_commands(add: AddParser) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra and getattr(args, "command", None) == "lss" and not any(e.startswith("-") for e in extra):
+        args.args += extra  # `lss switch-global -c FILE configuration`: the action's words after -c
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         if "config" in args and not args.config and not (args.command == "run" and demo_requested()):
             # -c left out: the environment, /etc (``run`` of the demo needs none)

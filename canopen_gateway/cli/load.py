@@ -130,4 +130,8 @@ def on_network(loaded: Resolved, network: str | None, command: str, node: str | 
         print(f"error: {cfg.source}: {command}: {why}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
     view = cfg.network_view(network)
+    if node is not None and node in nodes and node not in {n.name for n in view.nodes}:
+        print(f"error: {cfg.source}: {command}: node {node} is on network {cfg.network_of(node)}, not "
+              f"{network}: give --network {cfg.network_of(node)}", file=sys.stderr)  # fmt: skip
+        raise SystemExit(EXIT_CONFIG)
     return Resolved(view, {n.name: nodes[n.name] for n in view.nodes})

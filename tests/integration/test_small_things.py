@@ -5,6 +5,7 @@ console has a favicon; the start-up line names the journal."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -157,3 +158,22 @@ async def test_the_start_up_line_and_the_log_say_the_journal_is_on_and_where(
     finally:
         await gw.stop()
     assert f"journal on: {where} (events only, kept 30 days, at most 256 MB)" in caplog.messages
+
+
+def test_lss_takes_its_action_words_after_c_as_the_readme_writes_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``canopen-gateway lss switch-global -c FILE waiting``: the word after ``-c`` is the
+    action's (argparse took it for an unknown argument); an unknown option is still refused."""
+    from canopen_gateway.cli import main
+
+    cfg = tmp_path / "lss.yaml"
+    cfg.write_text(
+        f"can: {{interface: virtual, channel: lss-order-{os.getpid()}}}\n"
+        "nodes: [{name: wire, node_id: 1, profile: sgh10}]\nzenoh: {enabled: false}\nhealth: {port: 0}\n"
+    )
+    assert main(["lss", "switch-global", "-c", str(cfg), "waiting"]) == 0
+    assert "all slaves to waiting" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exc:
+        main(["lss", "inquire", "-c", str(cfg), "--bogus"])
+    assert exc.value.code == 2 and "unrecognized arguments: --bogus" in capsys.readouterr().err

@@ -44,6 +44,8 @@ def test_a_net_past_the_last_is_unsupported_net() -> None:
     s = session()
     assert s.handle("[7] 3 1 r 0x1000 0") == ["[7] ERROR:106"]
     assert s.handle("[8] set network 3") == ["[8] ERROR:106"]
+    assert s.handle("[9] 0 1 r 0x1000 0") == ["[9] ERROR:106"]  # net 0: no network, either way
+    assert s.handle("[10] set network 0") == ["[10] ERROR:106"]
 
 
 def test_a_node_not_on_that_net_is_unsupported_node() -> None:

@@ -199,6 +199,17 @@ def test_a_command_that_opens_a_bus_needs_network_with_several_and_names_them(
     assert "the config has 2 networks: give --network NAME (one of: line1, line2)" in line
 
 
+@pytest.mark.parametrize("argv", [["sdo", "read", "wire", "0x1008:00"], ["nmt", "start", "wire"]])
+def test_a_node_asked_for_on_another_network_names_its_own(
+    argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "-c", TWO_NETWORKS, "--network", "line2"])
+    assert exc.value.code == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.endswith("node wire is on network line1, not line2: give --network line1"), line
+
+
 def test_an_unknown_network_is_refused_with_the_names(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
         main(["scan", "-c", TWO_NETWORKS, "--network", "line3"])
