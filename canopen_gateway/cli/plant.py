@@ -2,7 +2,7 @@
 the configuration, or of a device profile, for an editor's YAML language server) and ``dcf``
 (a node's CiA 306 DCF as the gateway configures it, ``canopen_gateway.device.dcf``).
 
-Imports: canopen_gateway.checks.json_schema, canopen_gateway.device.dcf, canopen_gateway.eds (read_text),
+Imports: canopen_gateway.canopen.cia305 (the bit rates), canopen_gateway.checks.json_schema, canopen_gateway.device.dcf, canopen_gateway.eds (read_text),
 canopen_gateway.config (ConfigError), cli.load.
 """
 
@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from canopen_gateway.canopen.cia305 import BIT_TIMING_KBPS
 from canopen_gateway.cli.load import load, on_network
 from canopen_gateway.config import ConfigError
 
@@ -38,6 +39,10 @@ def cmd_dcf(args: argparse.Namespace) -> int:
         raise ConfigError(["dcf --all: give -o DIR (a <node>.dcf per node is written there)"])
     if args.node is not None and args.node not in nodes:
         raise ConfigError([f"dcf: --node {args.node}: no such node; nodes: " + ", ".join(names)])
+    rates = sorted(set(BIT_TIMING_KBPS.values()))  # CiA 301's table, as LSS sets them
+    if args.bitrate is not None and args.bitrate not in rates:
+        raise ConfigError([f"dcf --bitrate {args.bitrate}: not a CiA 301 bit rate; kbit/s, one of: "
+                           + ", ".join(map(str, rates))])  # fmt: skip
     if args.all and args.bitrate is not None and len(cfg.network_names()) > 1:
         raise ConfigError([f"dcf --all --bitrate: {cfg.source} has {len(cfg.network_names())} networks, "
                            "each a bus of its own: give --network NAME with --bitrate (one of: "

@@ -85,6 +85,8 @@ def test_a_bus_without_can_bitrate_needs_bitrate_given(tmp_path: Path, capsys: p
     assert "can.bitrate" in err and "--bitrate" in err
     assert main(["dcf", "-c", str(path), "--node", "wire", "--bitrate", "250"]) == 0
     assert "\nBaudrate=250\n" in capsys.readouterr().out
+    assert main(["dcf", "-c", str(path), "--node", "wire", "--bitrate", "300"]) == 2  # no CiA 301 rate
+    assert "not a CiA 301 bit rate; kbit/s, one of: 10, 20, 50, 125, 250, 500, 800, 1000" in capsys.readouterr().err
 
 
 def corpus_files() -> list[Path]:

@@ -157,8 +157,8 @@ def test_nothing_heard_of_the_peer_for_long_is_one_warning(caplog: Any) -> None:
     assert m.peer_silent
     lines = [r.getMessage() for r in caplog.records if "nothing heard of the peer" in r.getMessage()]
     assert lines == [
-        "pair: nothing heard of the peer (pair id 102) for 10 s: both members must be on one "
-        "bus (interface virtual is private to each process)"
+        "pair: nothing heard of the peer (pair id 102) for 10 s: it is stopped or cut off, or "
+        "the two members are not on one bus (interface virtual is private to each process)"
     ]
     m.on_peer_heartbeat(b"\x7f", loop.now)
     loop.run_until(30.2)

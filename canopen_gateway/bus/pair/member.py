@@ -247,8 +247,9 @@ class PairMember:
         if silent and not self.peer_silent:
             who = f"pair id {self.peer_node_id}" if self.peer_node_id else "another member"
             log.warning(
-                "pair: nothing heard of the peer (%s) for %.0f s: both members must be on one "
-                "bus (interface virtual is private to each process)", who, limit,
+                "pair: nothing heard of the peer (%s) for %.0f s: it is stopped or cut off, or "
+                "the two members are not on one bus (interface virtual is private to each "
+                "process)", who, limit,
             )  # fmt: skip
         self.peer_silent = silent
 
