@@ -251,7 +251,7 @@ class Master(PairSide):
             self._execute(p, listening.on_sdo_heard(p.node, now))  # a node being configured?
             return
         text = self.peers.on_sdo_request(p.name, p.node_id, data, wall)
-        self.peer_log.info(("sdo_client", p.name), "%s", text)
+        self.peer_log.info(("sdo_client", p.name), "%s", text, extra={"node": p.name})
 
     def _last_frame_s(self) -> float | None:
         """When the reader took its last frame, on the monotonic clock (None: none yet): its

@@ -37,16 +37,19 @@ class RateLimitedLog:
         self._lock = threading.Lock()  # called from the reader thread and the event loop
         self.lines = 0  # lines written (for tests and metrics)
 
-    def warning(self, kind: Any, msg: str, *args: Any) -> None:
-        self._log(logging.WARNING, kind, msg, args)
+    def warning(self, kind: Any, msg: str, *args: Any, extra: dict[str, Any] | None = None) -> None:
+        self._log(logging.WARNING, kind, msg, args, extra)
 
-    def info(self, kind: Any, msg: str, *args: Any) -> None:
-        self._log(logging.INFO, kind, msg, args)
+    def info(self, kind: Any, msg: str, *args: Any, extra: dict[str, Any] | None = None) -> None:
+        self._log(logging.INFO, kind, msg, args, extra)
 
     def log(self, level: int, kind: Any, msg: str, *args: Any) -> None:
         self._log(level, kind, msg, args)
 
-    def _log(self, level: int, kind: Any, msg: str, args: tuple[Any, ...]) -> None:
+    def _log(
+        self, level: int, kind: Any, msg: str, args: tuple[Any, ...], extra: dict[str, Any] | None = None
+    ) -> None:
+        """``extra``: fields of the record (``{"node": name}``: the JSON log line's node)."""
         now = self.clock()
         with self._lock:
             last = self._last.get(kind)
@@ -59,10 +62,11 @@ class RateLimitedLog:
             self.lines += 1
         if n:
             self.logger.log(
-                level, msg + " (and %d more like it in the last %.0f s)", *args, n, self.period_s
+                level, msg + " (and %d more like it in the last %.0f s)", *args, n, self.period_s,
+                extra=extra,
             )
         else:
-            self.logger.log(level, msg, *args)
+            self.logger.log(level, msg, *args, extra=extra)
 
     def flush(self) -> None:
         """Write the summary line of every kind whose period has ended with suppressed lines."""

@@ -112,6 +112,18 @@ def test_json_lines_carry_time_level_logger_message_and_the_node() -> None:
     assert "node" not in json.loads(fmt.format(record("CAN bus reopened")))
 
 
+def test_a_rate_limited_line_about_a_node_carries_the_node_in_json(caplog: pytest.LogCaptureFixture) -> None:
+    """The bus-peer lines ("another SDO client talks to node wire ...") go through the rate
+    limit; the node is given with them, so a JSON line names it."""
+    from canopen_gateway.runtime.ratelimit import RateLimitedLog
+
+    limited = RateLimitedLog(logging.getLogger("gateway.master"), period_s=10.0, clock=lambda: 0.0)
+    with caplog.at_level(logging.INFO, logger="gateway.master"):
+        limited.info(("sdo_client", "wire"), "%s", "another SDO client talks to node wire (id 1): upload", extra={"node": "wire"})  # fmt: skip
+    (rec,) = caplog.records
+    assert json.loads(JsonFormatter().format(rec))["node"] == "wire"
+
+
 def test_an_unknown_log_format_in_the_environment_is_named(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
