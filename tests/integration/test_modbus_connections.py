@@ -218,7 +218,10 @@ def test_a_flood_of_idle_connections_under_the_default_file_limit_leaves_the_plc
                     for _ in range(5)]  # fmt: skip
         livez = urllib.request.urlopen(f"http://127.0.0.1:{health_port}/livez", timeout=3)
         assert livez.status == 200
-        assert still_open(flood, until_s=15.0) <= 8
+        # connects past the listen backlog complete only at the kernel's SYN retries (1, 3, 7,
+        # 15, 31 s): on a loaded machine the last ones arrive late; the wait ends as soon as
+        # the gateway has closed all but the 8 it keeps (the bound only stops a hung run)
+        assert still_open(flood, until_s=60.0) <= 8
         assert all(answered)
         assert not plc.read_input_registers(0, count=2, device_id=1).isError()
         plc.close()
