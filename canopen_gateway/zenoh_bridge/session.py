@@ -57,6 +57,10 @@ REOPEN_SCHEDULE_S = (0.5, 1.0, 2.0, 5.0)
 #: how long ``open`` waits for a connection to a configured router before asking it whether
 #: our prefix is taken (peer mode connects in the background)
 CONNECT_WAIT_S = 2.0
+#: peer mode with ``zenoh.connect``: how often the session's routers and peers are looked at,
+#: and how long after it opened "none of zenoh.connect answers" is said (``watch_connect``)
+CONNECT_CHECK_S = 1.0
+CONNECT_GRACE_S = 3.0
 #: how long the liveliness get of the duplicate check may take
 DUPLICATE_CHECK_TIMEOUT_S = 2.0
 #: gets of the duplicate-prefix check that find no token before this gateway counts itself
@@ -237,6 +241,7 @@ class ZenohSession:
             log.debug("Zenoh: %s", self._open_failed)
             self._tasks.append(asyncio.create_task(self.reopen(), name="zenoh-open"))
         self._tasks.append(asyncio.create_task(bridge.housekeeping(), name="zenoh-housekeeping"))
+        self._tasks.append(asyncio.create_task(self.watch_connect(), name="zenoh-connect"))
 
     async def open_checked(self, conf: zenoh.Config) -> zenoh.Session:
         """A new session, once no other gateway is announced under our prefix."""
@@ -318,6 +323,39 @@ class ZenohSession:
                 continue
             self.problem = None
             log.info("Zenoh session %s open (%s), prefix %s", session.zid(), self.cfg.zenoh.mode, self.prefix)
+
+    async def watch_connect(self) -> None:
+        """Peer mode with ``zenoh.connect``: the session opens whether an endpoint answers or
+        not (Zenoh retries in the background), so a router that is not there, a refused login
+        or TLS handshake would go unsaid. While no router and no peer is connected (after
+        ``CONNECT_GRACE_S``) ``up`` is False (``/healthz`` ``zenoh: false``, as a client without
+        its router), with one line each time that changes."""
+        z = self.cfg.zenoh
+        if z.mode != "peer" or not z.connect:
+            return
+        since, reached = self.clock(), None
+        while True:
+            await self.sleep(CONNECT_CHECK_S)
+            session = self.session
+            if session is None:
+                since, reached = self.clock(), None
+                continue
+            try:
+                connected = bool(list(session.info.routers_zid()) or list(session.info.peers_zid()))
+            except zenoh.ZError:
+                continue
+            if connected == reached or not (connected or self.clock() - since >= CONNECT_GRACE_S):
+                continue
+            if connected and reached is False:
+                log.info("Zenoh (peer mode): connected again (zenoh.connect: %s)", ", ".join(z.connect))
+            elif not connected:
+                log.warning(
+                    "Zenoh (peer mode): none of zenoh.connect answers (%s): the session reaches no "
+                    "router and no peer; a refused login (zenoh.auth) or TLS handshake (zenoh.tls) "
+                    "looks the same; /healthz says zenoh: false until one does", ", ".join(z.connect),
+                )  # fmt: skip
+            reached = connected
+            self.up = connected
 
     def no_router(self, exc: BaseException | None, attempts: int = 1) -> str:
         """One plain line for a client session that could not open: where it looked, how many

@@ -65,3 +65,33 @@ async def test_a_gateway_whose_only_northbound_side_is_zenoh_is_not_ready_withou
         assert (code, doc["status"], doc["zenoh"]) == (503, "not-ready", False)
     finally:
         await gw.stop()
+
+
+async def test_a_peer_whose_connect_endpoint_does_not_answer_says_so_until_it_does(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Peer mode with ``zenoh.connect`` and nothing there (or a refused login: Zenoh does not
+    tell them apart): the session opens anyway, so the gateway says it reaches nobody, one
+    line, and /healthz says ``zenoh: false``; once the router is there, ``zenoh: true`` again."""
+    from tests.zenoh_client import open_router
+
+    caplog.set_level(logging.INFO, logger="gateway.zenoh")
+    router_at = f"tcp/127.0.0.1:{free_port()}"  # nothing listens there yet
+    cfg = make_config([DISPLAY], zenoh={"mode": "peer", "listen": [], "connect": [router_at]},
+                      health={"port": free_port()})  # fmt: skip
+    gw = gateway_of(cfg)
+    await gw.start()
+    router = None
+    try:
+        await wait_until(lambda: gw.zenoh is not None and gw.zenoh.session is not None, 10, "the session open")
+        await wait_until(lambda: gw.status()["zenoh"] is False, 15, "zenoh: false while nobody answers")
+        (line,) = [r.getMessage() for r in caplog.records if "none of zenoh.connect answers" in r.getMessage()]
+        assert line.startswith(f"Zenoh (peer mode): none of zenoh.connect answers ({router_at})")
+        assert "zenoh.auth" in line and gw.status()["ready"]  # Modbus serves: ready, as a client
+        router = open_router(router_at)
+        await wait_until(lambda: gw.status()["zenoh"] is True, 15, "zenoh: true once the router answers")
+        assert any("connected again" in r.getMessage() for r in caplog.records)
+    finally:
+        await gw.stop()
+        if router is not None:
+            router.close()
