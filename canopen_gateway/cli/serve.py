@@ -135,11 +135,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     if demo_requested():
         args.config = demo_config()
     if not os.path.isfile(args.config):
+        from canopen_gateway.cli.load import DEFAULT_CONFIG
+
+        # the image's path: mount one there; any other path: a file name to check
+        how = (f"mount yours at this path (docker run -v \"$PWD/gateway.yaml:{args.config}:ro\" ..., "
+               "docs/deploy.md) or write one" if args.config == DEFAULT_CONFIG
+               else "check the path, or write one (README: Configuration)")  # fmt: skip
         error_line(
             args,
-            f"error: {args.config}: no configuration file there: mount yours at this path "
-            f"(docker run -v \"$PWD/gateway.yaml:{args.config}:ro\" ..., docs/deploy.md) or "
-            f"write one; the demo runs only when asked for (canopen-gateway demo, or {DEMO_ENV}=1)",
+            f"error: {args.config}: no configuration file there: {how}; the demo runs only when "
+            f"asked for (canopen-gateway demo, or {DEMO_ENV}=1)",
         )
         return EXIT_CONFIG
     cfg, nodes = load_for_bus(args.config)

@@ -163,7 +163,8 @@ class RefusalAudit:
         doc = record(op, (node, what, value), None)
         doc["outcome"] = f"refused: {why}"
         if skipped:
-            doc["outcome"] += f" ({skipped} more like it not recorded in the {self.period_s:g} s before)"
+            # the skipped came within period_s of the previous record, whenever this one comes
+            doc["outcome"] += f" ({skipped} more like it not recorded since the previous record)"
         sink(doc)
 
 

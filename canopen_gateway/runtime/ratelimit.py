@@ -62,7 +62,7 @@ class RateLimitedLog:
             self.lines += 1
         if n:
             self.logger.log(
-                level, msg + " (and %d more like it in the last %.0f s)", *args, n, self.period_s,
+                level, msg + " (and %d more like it since the previous line)", *args, n,
                 extra=extra,
             )
         else:

@@ -25,11 +25,16 @@ def test_run_without_its_config_file_exits_2_in_one_line_saying_to_mount_one(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
     monkeypatch.delenv("CANOPEN_GATEWAY_DEMO", raising=False)
-    missing = str(tmp_path / "config.yaml")
+    if Path(IMAGE_CONFIG).exists():
+        pytest.skip(f"{IMAGE_CONFIG} exists on this machine")
+    assert main(["run", "-c", IMAGE_CONFIG]) == 2  # the image's path (not on this machine)
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"error: {IMAGE_CONFIG}: no configuration file there: mount yours at this path")
+    assert "canopen-gateway demo" in line and "CANOPEN_GATEWAY_DEMO=1" in line
+    missing = str(tmp_path / "config.yaml")  # any other path: no container advice
     assert main(["run", "-c", missing]) == 2
     (line,) = capsys.readouterr().err.splitlines()
-    assert line.startswith(f"error: {missing}: no configuration file there: mount yours at this path")
-    assert "canopen-gateway demo" in line and "CANOPEN_GATEWAY_DEMO=1" in line
+    assert line.startswith(f"error: {missing}: no configuration file there: check the path") and "docker" not in line
 
 
 def test_the_demo_command_runs_the_demo_configuration(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -99,6 +99,6 @@ async def test_refusals_are_handed_over_without_waiting_and_rate_limited() -> No
         refusals.refused("modbus_write", "", "function 6", None, "not in allowed_networks")
     assert [r["outcome"] for r in disk.records] == [
         "refused: not in allowed_networks",
-        "refused: not in allowed_networks (2 more like it not recorded in the 10 s before)",
+        "refused: not in allowed_networks (2 more like it not recorded since the previous record)",
     ]
     assert all(r["who"] == "modbus 10.0.0.9" and r["value"] is None for r in disk.records)
