@@ -72,11 +72,10 @@ def text_of(row: Row) -> str:
         if "alive" in doc:
             words.insert(0, "alive" if doc["alive"] else "lost")
         return f"{node}: " + ", ".join(words)
-    if row.kind == "audit":
-        return (
-            f"{doc.get('who')}: {doc.get('op')} {node} {doc.get('what')} = "
-            f"{json.dumps(doc.get('value'))}: {doc.get('outcome')}"
-        )
+    if row.kind == "audit":  # the parts it has: a login names no node, a refusal no value
+        parts = [str(p) for p in (doc.get("op"), node, doc.get("what")) if p]
+        value = f" = {json.dumps(doc['value'])}" if doc.get("value") is not None else ""
+        return f"{doc.get('who')}: {' '.join(parts)}{value}: {doc.get('outcome')}"
     return json.dumps(doc)
 
 
