@@ -334,6 +334,7 @@ class Master(PairSide):
                 if "did not appear" in text:  # a wrong node id? say which ids talk instead
                     heard = [q.name for q in self.nodes.values() if q.image.health.alive]
                     text += self.peers.talking_hint(heard)
+                text += self.driver.where  # several networks: " (network line2)", as bus lines
                 if o.kind is not None:
                     self.warn.log(o.level, o.kind, "%s", text)
                 else:

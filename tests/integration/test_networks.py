@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import threading
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 from canopen_gateway.journal import Journal
 from canopen_gateway.northbound.gateway_block import (
@@ -50,9 +53,16 @@ def good(name: str) -> Any:
     return lambda gw: gw.image.nodes[name].usable()
 
 
-async def test_each_network_has_its_own_bus_threads_and_master_and_is_named_north() -> None:
+async def test_each_network_has_its_own_bus_threads_and_master_and_is_named_north(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     cfg = two_networks()
+    caplog.set_level(logging.INFO, logger="gateway.master")
     async with modbus_gateway(cfg, [(good("wire"), "wire"), (good("rotary"), "rotary")]) as (gw, client):
+        # a node's log lines name its network, as the bus's do (node 1 is on both)
+        said = [r.getMessage() for r in caplog.records]
+        assert any(m.startswith("node rotary (id 1)") and m.endswith("(network line2)") for m in said), said
+        assert not any(m.startswith("node wire") and "line2" in m for m in said)
         line1, line2 = gw.networks.all
         assert (line1.name, line2.name, line1.number, line2.number) == ("line1", "line2", 1, 2)
         assert line1.driver is not line2.driver and line1.master is not line2.master
