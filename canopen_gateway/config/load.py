@@ -200,12 +200,9 @@ def _pair_problems(cfg: Config) -> list[tuple[str, str]]:
     return out
 
 
-def raw_section(
-    path: str | os.PathLike[str], name: str, environ: Mapping[str, str] | None = None
-) -> dict[str, Any] | None:
-    """Section ``name`` of a config file as written (environment overrides applied), without
-    validation; None when the file or the section cannot be read as a mapping. For checks that
-    still have something to say about a file that failed validation elsewhere."""
+def _raw_file(path: str | os.PathLike[str], environ: Mapping[str, str] | None) -> dict[str, Any] | None:
+    """A config file as written (environment overrides applied), without validation; None
+    when it cannot be read as a mapping."""
     try:
         raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError):
@@ -213,7 +210,16 @@ def raw_section(
     if not isinstance(raw, dict):
         return None
     apply_env_overrides(raw, os.environ if environ is None else environ)
-    section = raw.get(name)
+    return raw
+
+
+def raw_section(
+    path: str | os.PathLike[str], name: str, environ: Mapping[str, str] | None = None
+) -> dict[str, Any] | None:
+    """Section ``name`` of a config file as written (environment overrides applied), without
+    validation; None when the file or the section cannot be read as a mapping. For checks that
+    still have something to say about a file that failed validation elsewhere."""
+    section = (_raw_file(path, environ) or {}).get(name)
     return section if isinstance(section, dict) else None
 
 
@@ -221,14 +227,7 @@ def raw_list(
     path: str | os.PathLike[str], name: str, environ: Mapping[str, str] | None = None
 ) -> list[Any] | None:
     """The list ``name`` of a config file as written (``networks``), as ``raw_section``."""
-    try:
-        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        return None
-    if not isinstance(raw, dict):
-        return None
-    apply_env_overrides(raw, os.environ if environ is None else environ)
-    section = raw.get(name)
+    section = (_raw_file(path, environ) or {}).get(name)
     return section if isinstance(section, list) else None
 
 

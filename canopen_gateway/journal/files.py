@@ -152,7 +152,7 @@ def damage(path: Path, tables: tuple[str, ...], version: int, known: tuple[int, 
         raise
     try:
         v = con.execute("PRAGMA user_version").fetchone()[0]
-        if v == 0 and not con.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall():
+        if v == 0 and con.execute("PRAGMA schema_version").fetchone()[0] == 0:
             return None  # created, never written
         if v not in known:
             return f"schema version {v}, this gateway writes {version}"

@@ -58,20 +58,15 @@ def tls_context(cfg: Config) -> ssl.SSLContext:
         raise ConfigError(
             [f"{cfg.source}: modbus.tls.cert/key: not a matching PEM certificate and key ({exc})"]
         ) from None
-    if tls.ca:
+    for name, value, what in (("ca", tls.ca, "PEM CA certificates"),
+                              ("crl", tls.crl, "a PEM certificate revocation list")):  # fmt: skip
+        if not value:
+            continue
         try:
-            ctx.load_verify_locations(cafile=path("ca", tls.ca))
+            ctx.load_verify_locations(cafile=path(name, value))
         except ssl.SSLError as exc:
-            raise ConfigError(
-                [f"{cfg.source}: modbus.tls.ca: not PEM CA certificates ({exc})"]
-            ) from None
+            raise ConfigError([f"{cfg.source}: modbus.tls.{name}: not {what} ({exc})"]) from None
     if tls.crl:
-        try:
-            ctx.load_verify_locations(cafile=path("crl", tls.crl))
-        except ssl.SSLError as exc:
-            raise ConfigError(
-                [f"{cfg.source}: modbus.tls.crl: not a PEM certificate revocation list ({exc})"]
-            ) from None
         ctx.verify_flags |= ssl.VERIFY_CRL_CHECK_LEAF
     ctx.verify_mode = ssl.CERT_REQUIRED if tls.require_client_cert else ssl.CERT_OPTIONAL
     return ctx

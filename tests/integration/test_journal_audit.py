@@ -1,6 +1,6 @@
 """The audit records every write that may have reached a device, on disk before the client's
-answer: a CiA 309-3 ASCII write is audited with the value as a number (the object's type read
-from its bytes) and the bytes beside it; a write cut by its client's timeout is audited
+answer: a CiA 309-3 ASCII write is audited with the value as a number (the object's type
+read from its bytes) and the bytes beside it; a write cut by its client's timeout is audited
 ``unknown``. And a router's access rule denying queries on ``<prefix>/audit`` holds against a
 wildcard history get (``<prefix>/**?_time=[..]`` answers the state, never the audit)."""
 

@@ -86,6 +86,14 @@ class Run:
     def event(self, what: str) -> None:
         self.events.append((time.monotonic(), what))
 
+    def bus_passes(self, seconds: float) -> None:
+        """Until the devices' heartbeats have gone on ``seconds`` on the relay's clock (they
+        talk whatever the members do): a fault's length and the settling after it, measured in
+        the bus's own frames."""
+        start, mark = time.monotonic(), len(self.bus.frames)
+        self.bus.wait_for(lambda f: f.sender in DEVICES and f.t >= start + seconds,
+                          timeout_s=seconds + 10.0, after=mark)  # fmt: skip
+
     def restart(self, name: str) -> None:
         node_id, prio, peer = (A_ID, 0, B_ID) if name == "A" else (B_ID, 1, A_ID)
         old = self.gateways[name]
@@ -241,11 +249,11 @@ def test_a_seeded_random_sequence_of_faults_never_does_what_one_gateway_would_no
         why = f"seed {seed} (replay: PAIR_FAULTS_SEED={seed}), schedule {schedule}"
         for kind, name in schedule:
             repair = fault(run, kind, name)
-            time.sleep(HOLD_S)
+            run.bus_passes(HOLD_S)
             run.write(name, rng.randrange(1, 9999))  # the member under the fault
             repair()
             run.event(f"repaired {kind} {name}")
-            time.sleep(SETTLE_S)
+            run.bus_passes(SETTLE_S)
         roles = sorted(m.role() for m in run.gateways.values())
         found = violations(run)
         told = output_violations(run)

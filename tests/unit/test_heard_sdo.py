@@ -1,5 +1,5 @@
-"""The SDO transfers a pair's standby hears (canopen_gateway.bus.pair.heard_sdo): a transfer is open
-from its first frame to its last, whatever its kind, and a take-over aborts each one left open
+"""The SDO transfers a pair's standby hears (canopen_gateway.bus.pair.heard_sdo): a transfer is
+open from its first frame to its last, whatever its kind, and a take-over aborts each one left open
 once, naming its object.
 
 The expedited and segmented transfers are the wire of an independent stack: python canopen's

@@ -317,8 +317,8 @@ class Node:
         return []
 
     def stand_by(self, now: float, fresh: bool = False) -> list[Output]:
-        """A pair's standby: the node only listens, queued SDO work dropped (``fresh``: back
-        from its own outage, it listens as a fresh joiner)."""
+        """A pair's standby: the node only listens, queued SDO work dropped (``fresh``: the
+        member is back from its own outage, and the node listens as a fresh joiner)."""
         self.heard.stood_down(self.lifecycle.state, self.health.nmt_state, fresh)
         if fresh or self.lifecycle.state is LifecycleState.WAITING:
             self.outputs.forget()  # what another master sent it meanwhile is not known here
